@@ -1,0 +1,150 @@
+/* Timed I/O on the serial line's fd (opened and configured by libmodbus).  ppoll gives
+ * microsecond timeouts where epoll and poll round to milliseconds: at 115200 baud the
+ * inter-frame silence is 1.75 ms, so a millisecond lost per transaction would cost ~10 %. */
+#define _GNU_SOURCE
+#include <errno.h>
+#include <poll.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <sys/file.h>
+#include <sys/ioctl.h>
+#include <termios.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "mbgw.h"
+
+static int64_t now_ns(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
+}
+
+/* Wait for input until `until_ns`.  1 readable, 0 timed out, -errno on error or hang-up. */
+static int wait_input(int fd, int64_t until_ns)
+{
+    for (;;) {
+        int64_t left = until_ns - now_ns();
+        if (left <= 0)
+            return 0;
+        struct timespec ts = { left / 1000000000, left % 1000000000 };
+        struct pollfd p = { fd, POLLIN, 0 };
+        int rc = ppoll(&p, 1, &ts, NULL);
+        if (rc < 0) {
+            if (errno == EINTR)
+                continue;
+            return -errno;
+        }
+        if (rc == 0)
+            return 0;
+        if (p.revents & POLLIN)
+            return 1;
+        return -EIO;                            /* POLLHUP/POLLERR: the device went away */
+    }
+}
+
+static long read_some(int fd, uint8_t *buf, size_t cap)
+{
+    for (;;) {
+        ssize_t n = read(fd, buf, cap);
+        if (n > 0)
+            return n;
+        if (n == 0)
+            return -EIO;                        /* end of file on a tty: hung up */
+        if (errno == EINTR)
+            continue;
+        if (errno == EAGAIN)
+            return 0;
+        return -errno;
+    }
+}
+
+long mbgw_wait_quiet(int fd, int64_t last_ns, int32_t quiet_us)
+{
+    uint8_t junk[256];
+    long discarded = 0;
+    for (;;) {
+        int rc = wait_input(fd, last_ns + (int64_t)quiet_us * 1000);
+        if (rc < 0)
+            return rc;
+        if (rc == 0)
+            break;
+        long n = read_some(fd, junk, sizeof junk);
+        if (n < 0)
+            return n;
+        discarded += n;
+        last_ns = now_ns();
+    }
+    if (tcflush(fd, TCIFLUSH) < 0 && errno != ENOTTY)
+        return -errno;
+    return discarded;
+}
+
+int mbgw_idle_wait(int fd, int wake_fd, int timeout_ms)
+{
+    struct pollfd p[2] = { { wake_fd, POLLIN, 0 }, { fd, POLLIN, 0 } };
+    for (;;) {
+        int rc = poll(p, 2, timeout_ms);
+        if (rc < 0) {
+            if (errno == EINTR)
+                continue;
+            return -errno;
+        }
+        if (rc == 0)
+            return 2;
+        if (p[0].revents & POLLIN) {
+            uint64_t count;
+            if (read(wake_fd, &count, sizeof count) < 0 && errno != EAGAIN)
+                return -errno;
+            return 0;
+        }
+        if (p[1].revents & POLLIN)
+            return 1;
+        return -EIO;
+    }
+}
+
+long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, size_t req_len,
+                     int64_t deadline_ns, int32_t gap_us, int by_silence, int64_t *end_ns)
+{
+    size_t have = 0;
+    int expected = 0;
+    *end_ns = 0;
+    for (;;) {
+        /* Until the length is known the frame ends by silence; a known length is awaited
+         * until the deadline (libmodbus's rule for the codes it frames). */
+        int64_t until = deadline_ns;
+        if (have > 0 && (by_silence || expected == MBGW_LEN_UNKNOWN))
+            until = *end_ns + (int64_t)gap_us * 1000;
+        int rc = wait_input(fd, until);
+        if (rc < 0)
+            return rc;
+        if (rc == 0)
+            return have > 0 ? (long)have : -ETIMEDOUT;
+        long n = read_some(fd, buf + have, cap - have);
+        if (n < 0)
+            return n;
+        have += (size_t)n;
+        *end_ns = now_ns();
+        if (have >= cap)
+            return (long)have;
+        if (!by_silence && expected <= 0) {
+            int len = mbgw_rtu_reply_length(req_len, buf, have);
+            if (len > 0 && (size_t)len > cap)
+                len = (int)cap;
+            expected = len;
+        }
+        if (expected > 0 && have >= (size_t)expected)
+            return (long)have;
+    }
+}
+
+int mbgw_tty_claim(int fd)
+{
+    if (flock(fd, LOCK_EX | LOCK_NB) < 0)
+        return errno == EWOULDBLOCK ? -EBUSY : -errno;
+    if (ioctl(fd, TIOCEXCL) < 0 && errno != ENOTTY)
+        return -errno;
+    return 0;
+}

@@ -1,0 +1,37 @@
+/* mbgw's own C: what Debian's libmodbus 3.1.6 lacks.  This header is also the cffi cdef,
+ * so it holds only prototypes and plain #defines (no #include, no #if).
+ * Every function returns a negative errno value on failure. */
+
+#define MBGW_RTU_MAX_ADU 256   /* Modbus over Serial Line V1.02 section 2.5.1 */
+#define MBGW_LEN_UNKNOWN -1    /* the frame's end can only be found by silence */
+
+/* CRC-16/MODBUS (reflected poly 0xA001, init 0xFFFF); sent low byte first. */
+uint16_t mbgw_crc16(const uint8_t *buf, size_t len);
+
+/* Total RTU ADU length (address and CRC included) of the reply to a request of req_len bytes
+ * (an ADU without CRC),
+ * judged from the first `have` bytes of the reply: > 0 the length, 0 more bytes are needed
+ * to tell, MBGW_LEN_UNKNOWN for function codes whose length only silence can tell. */
+int mbgw_rtu_reply_length(size_t req_len, const uint8_t *rsp, size_t have);
+
+/* The same for a request (master mode receives requests for several addresses). */
+int mbgw_rtu_request_length(const uint8_t *req, size_t have);
+
+/* Discard input until the line has been quiet for quiet_us since last_ns (CLOCK_MONOTONIC),
+ * then flush the input queue.  Returns the number of bytes discarded. */
+long mbgw_wait_quiet(int fd, int64_t last_ns, int32_t quiet_us);
+
+/* Sleep until wake_fd (an eventfd) is signalled, input arrives on fd, or timeout_ms passes
+ * (-1: no timeout).  Returns 0 woken, 1 input waiting, 2 timed out. */
+int mbgw_idle_wait(int fd, int wake_fd, int timeout_ms);
+
+/* Read the reply to a request of req_len bytes (CRC excluded) into buf.  The first byte and a length-known frame's last byte must
+ * arrive before deadline_ns; a frame of unknown length (or any frame with by_silence set)
+ * ends after gap_us of silence.  *end_ns receives the time the last byte arrived.
+ * Returns the bytes read (possibly an incomplete frame) or -ETIMEDOUT when nothing came. */
+long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, size_t req_len,
+                     int64_t deadline_ns, int32_t gap_us, int by_silence, int64_t *end_ns);
+
+/* Take the tty for this process alone: TIOCEXCL plus an advisory flock, which also stops
+ * root and other programs that honour locks.  -EBUSY when someone else holds it. */
+int mbgw_tty_claim(int fd);

@@ -1,0 +1,3 @@
+from mbgw.cli import main
+
+main()

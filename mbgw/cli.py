@@ -1,0 +1,87 @@
+"""The mbgw command line.  Options carry the ACKSYS command names and defaults."""
+import sys
+
+import click
+
+from mbgw import __version__, config
+from mbgw.errors import ConfigError, SerialError
+
+LOG_LEVELS = click.Choice(["debug", "info", "warning", "error"], case_sensitive=False)
+
+
+def _convert(param_name: str, build):
+    """Run a config constructor, turning ConfigError into a usage error (exit 2)."""
+    try:
+        return build()
+    except ConfigError as err:
+        raise click.BadParameter(str(err), param_hint=param_name) from None
+
+
+def _parse_format(ctx, param, value: str) -> config.LineFormat:
+    return _convert(f"'{param.opts[0]}'", lambda: config.LineFormat.parse(value))
+
+
+def _parse_authip(ctx, param, values) -> tuple:
+    return _convert("'--authip'", lambda: tuple(
+        str(config.parse_ip("authip", v)) for v in values))
+
+
+@click.group()
+@click.version_option(__version__, prog_name="mbgw")
+def main() -> None:
+    """mbgw: a Modbus gateway between Modbus TCP and a Modbus RTU serial line."""
+
+
+@main.command()
+@click.option("--device", required=True, metavar="PATH",
+              help="Serial device, e.g. /dev/ttyUSB0.")
+@click.option("--baudrate", type=int, default=9600, show_default=True,
+              help="Line speed (a rate libmodbus supports: 110..4000000).")
+@click.option("--format", "line_format", default="8n1", show_default=True,
+              callback=_parse_format, metavar="NPS",
+              help="Data bits (7|8), parity (n|e|o), stop bits (1|2).")
+@click.option("--stout", type=click.IntRange(*config.STOUT_RANGE), default=config.DEFAULT_STOUT_MS,
+              show_default=True, metavar="MS",
+              help="Time from the end of a request to the end of its answer, 1..65535 ms.")
+@click.option("--slaveid", type=click.IntRange(0, 247), default=0, show_default=True,
+              help="0: the TCP unit id is the serial address; 1..247: force this address.")
+@click.option("--exception/--no-exception", default=False, show_default=True,
+              help="Answer exception 0x0B when a slave does not reply, 0x0A when the line "
+                   "cannot be reached, instead of staying silent.")
+@click.option("--authip", multiple=True, metavar="IP", callback=_parse_authip,
+              help="Client address allowed to connect (repeat, at most 8; none: anyone).")
+@click.option("--mdbport", type=click.IntRange(1, 65535), default=502, show_default=True,
+              help="Modbus TCP port to listen on.")
+@click.option("--bind", metavar="ADDR", default=None,
+              help="Listen on this address only [default: all, IPv4 and IPv6].")
+@click.option("--max-connections", type=click.IntRange(1, 1000), default=5, show_default=True,
+              help="Simultaneous TCP clients; a newcomer closes the least recently active "
+                   "idle one.")
+@click.option("--retries", type=click.IntRange(0, 10), default=0, show_default=True,
+              help="Times a request is repeated after no valid reply.")
+@click.option("--turnaround", type=click.IntRange(0, 65535), default=config.DEFAULT_TURNAROUND_MS,
+              show_default=True, metavar="MS",
+              help="Pause on the line after a broadcast (unit 0), before the next request.")
+@click.option("--log-level", type=LOG_LEVELS, default="info", show_default=True)
+def slave(device, baudrate, line_format, stout, slaveid, exception, authip, mdbport, bind,
+          max_connections, retries, turnaround, log_level) -> None:
+    """Slave mode: Modbus TCP clients reach the slaves on a serial line."""
+    from mbgw import daemon, log
+
+    serial = _convert("'--baudrate'", lambda: config.SerialConfig(
+        device=device, baudrate=baudrate, format=line_format, stout_ms=stout))
+    cfg = _convert("'--authip'", lambda: config.SlaveConfig(
+        serial=serial, slaveid=slaveid, exception=exception, authip=authip, mdbport=mdbport,
+        bind=bind, max_connections=max_connections, retries=retries, turnaround_ms=turnaround))
+    log.setup(log_level)
+    try:
+        daemon.run_slave(cfg)
+    except SerialError as err:
+        _fatal(err.strerror)
+    except OSError as err:
+        _fatal(f"cannot listen on port {mdbport}: {err.strerror}")
+
+
+def _fatal(message: str) -> None:
+    click.echo(f"mbgw: {message}", err=True)
+    sys.exit(1)

@@ -1,0 +1,96 @@
+"""Validated settings.  Options keep the ACKSYS names and units (ms); every default and
+bound is stated here once."""
+import ipaddress
+import math
+import re
+from dataclasses import dataclass, field
+
+from mbgw.errors import ConfigError
+
+# Rates libmodbus 3.1.6 sets itself; it silently turns any other rate into 9600.
+LIBMODBUS_BAUDRATES = (110, 300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200,
+                       230400, 460800, 500000, 576000, 921600, 1000000, 1152000, 1500000,
+                       2500000, 3000000, 3500000, 4000000)
+FORMAT_PATTERN = re.compile(r"^([78])([neo])([12])$")
+MAX_AUTHIP = 8
+STOUT_RANGE = (1, 65535)
+DEFAULT_STOUT_MS = 600
+DEFAULT_TURNAROUND_MS = 100    # Serial Line V1.02 2.4.1: "typically 100 to 200 ms"
+FAST_LINE_BAUD = 19200         # above it, t3.5 is the fixed 1.75 ms (Serial Line V1.02 2.5.1.1)
+FAST_LINE_T35_US = 1750
+
+
+@dataclass(frozen=True)
+class LineFormat:
+    data_bits: int = 8
+    parity: str = "n"
+    stop_bits: int = 1
+
+    @classmethod
+    def parse(cls, text: str) -> "LineFormat":
+        match = FORMAT_PATTERN.match(text.lower())
+        if not match:
+            raise ConfigError(f"format {text!r}: expected data bits (7 or 8), parity "
+                              f"(n, e or o) and stop bits (1 or 2), e.g. 8n1")
+        return cls(int(match[1]), match[2], int(match[3]))
+
+    @property
+    def char_bits(self) -> int:
+        """Bits on the wire per character: start + data + parity + stop."""
+        return 1 + self.data_bits + (0 if self.parity == "n" else 1) + self.stop_bits
+
+    def __str__(self) -> str:
+        return f"{self.data_bits}{self.parity}{self.stop_bits}"
+
+
+@dataclass(frozen=True)
+class SerialConfig:
+    device: str
+    baudrate: int = 9600
+    format: LineFormat = field(default_factory=LineFormat)
+    stout_ms: int = DEFAULT_STOUT_MS
+
+    def __post_init__(self) -> None:
+        if self.baudrate not in LIBMODBUS_BAUDRATES:
+            raise ConfigError(f"baudrate {self.baudrate}: not a supported rate "
+                              f"({', '.join(map(str, LIBMODBUS_BAUDRATES))})")
+
+    @property
+    def char_ns(self) -> int:
+        return self.format.char_bits * 1_000_000_000 // self.baudrate
+
+    @property
+    def t35_us(self) -> int:
+        """Inter-frame silence (t3.5)."""
+        if self.baudrate > FAST_LINE_BAUD:
+            return FAST_LINE_T35_US
+        return math.ceil(3.5 * self.format.char_bits * 1_000_000 / self.baudrate)
+
+
+@dataclass(frozen=True)
+class SlaveConfig:
+    """Slave mode: slaves on the serial line, Modbus TCP clients on the network."""
+    serial: SerialConfig
+    slaveid: int = 0
+    exception: bool = False
+    authip: tuple = ()
+    mdbport: int = 502
+    bind: str | None = None
+    max_connections: int = 5
+    retries: int = 0
+    turnaround_ms: int = DEFAULT_TURNAROUND_MS
+
+    def __post_init__(self) -> None:
+        if len(self.authip) > MAX_AUTHIP:
+            raise ConfigError(f"authip: at most {MAX_AUTHIP} addresses, got {len(self.authip)}")
+        object.__setattr__(self, "authip", tuple(parse_ip("authip", a) for a in self.authip))
+
+
+def parse_ip(option: str, text: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address:
+    try:
+        address = ipaddress.ip_address(text)
+    except ValueError:
+        raise ConfigError(f"{option} {text!r}: not an IP address") from None
+    if isinstance(address, ipaddress.IPv6Address) and address.ipv4_mapped:
+        return address.ipv4_mapped
+    return address

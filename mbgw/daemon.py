@@ -1,0 +1,64 @@
+"""Runs slave mode: opens the line, listens, tells systemd it is ready, stops on a signal."""
+import asyncio
+import logging
+import os
+import signal
+import socket
+
+from mbgw.config import SlaveConfig
+from mbgw.counters import Counters
+from mbgw.line_worker import LineWorker, open_port
+from mbgw.scheduler import Scheduler
+from mbgw.tcp_server import TcpServer
+
+log = logging.getLogger("mbgw")
+
+
+def sd_notify(state: str) -> None:
+    """Tell systemd (or a test) about our state, when NOTIFY_SOCKET asks for it."""
+    path = os.environ.get("NOTIFY_SOCKET")
+    if not path:
+        return
+    if path.startswith("@"):
+        path = "\0" + path[1:]
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC) as sock:
+        sock.sendto(state.encode(), path)
+
+
+def run_slave(cfg: SlaveConfig) -> None:
+    """Raises SerialError when the device cannot be opened, OSError when mdbport cannot be
+    bound; otherwise returns after SIGTERM or SIGINT."""
+    port = open_port(cfg)
+    try:
+        asyncio.run(_serve(cfg, port))
+    finally:
+        port.close()
+
+
+async def _serve(cfg: SlaveConfig, port) -> None:
+    loop = asyncio.get_running_loop()
+    counters = Counters()
+    scheduler = Scheduler()
+
+    def deliver(job, reply) -> None:
+        loop.call_soon_threadsafe(job.client.deliver, job, reply)
+
+    worker = LineWorker(cfg, port, scheduler, counters, deliver)
+    server = TcpServer(cfg, scheduler, counters, lambda: worker.up)
+    addresses = await server.start()
+    worker.start()
+    s = cfg.serial
+    log.info("slave mode: listening on %s; serial %s %d %s rtu, stout %d ms",
+             ", ".join(addresses), s.device, s.baudrate, s.format, s.stout_ms)
+    sd_notify("READY=1")
+
+    stop = asyncio.Event()
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(signum, stop.set)
+    await stop.wait()
+    sd_notify("STOPPING=1")
+    log.info("stopping")
+    server.close()
+    worker.stop()
+    await asyncio.to_thread(worker.join)
+    scheduler.close()

@@ -1,0 +1,122 @@
+"""The serial line's one owner: a thread that takes jobs from the scheduler, runs them on the
+line and hands each outcome back to the asyncio loop.  It also keeps the port alive: a device
+that fails is closed, reopened with backoff, and reported once per change of state."""
+import logging
+import os
+import select
+import threading
+import time
+
+from mbgw import pdu
+from mbgw.config import SlaveConfig
+from mbgw.counters import Counters
+from mbgw.errors import LineTimeout, SerialError
+from mbgw.native import Port
+from mbgw.rtu_master import RtuMaster
+from mbgw.scheduler import Job, Scheduler
+
+log = logging.getLogger("mbgw.line")
+
+REOPEN_FIRST_S = 0.5
+REOPEN_MAX_S = 5.0
+
+
+def open_port(cfg: SlaveConfig) -> Port:
+    s = cfg.serial
+    return Port(s.device, s.baudrate, s.format.parity, s.format.data_bits, s.format.stop_bits)
+
+
+class LineWorker(threading.Thread):
+    def __init__(self, cfg: SlaveConfig, port: Port, scheduler: Scheduler, counters: Counters,
+                 deliver) -> None:
+        super().__init__(name="mbgw-line", daemon=True)
+        self._cfg = cfg
+        self._scheduler = scheduler
+        self._counters = counters
+        self._deliver = deliver        # deliver(job, reply_pdu_or_None), thread-safe
+        self._stopping = False
+        self._master: RtuMaster | None = self._master_on(port)
+        self.up = True                 # read by the asyncio thread to fail fast while down
+
+    def _master_on(self, port: Port) -> RtuMaster:
+        return RtuMaster(port, self._cfg.serial, self._counters, self._cfg.retries,
+                         self._cfg.turnaround_ms)
+
+    def stop(self) -> None:
+        self._stopping = True
+        self._scheduler.wake()
+
+    def run(self) -> None:
+        while not self._stopping:
+            if self._master is None:
+                self._reopen()
+                continue
+            job = self._scheduler.take()
+            if job is None:
+                self._idle()
+            else:
+                self._serve(job)
+        if self._master is not None:
+            self._master.port.close()
+
+    def _serve(self, job: Job) -> None:
+        try:
+            reply = self._master.transact(job.adu)
+        except LineTimeout:
+            reply = self._failure(job, pdu.GATEWAY_TARGET_FAILED)
+        except SerialError as err:
+            self._lost(err)
+            reply = self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE)
+        except Exception:   # a bug must cost one transaction, never the line
+            log.exception("internal error serving %s", job.adu.hex(" "))
+            reply = self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE)
+        self._deliver(job, reply)
+
+    def _failure(self, job: Job, code: int) -> bytes | None:
+        if not self._cfg.exception or job.adu[0] == pdu.BROADCAST:
+            return None
+        self._counters.gateway_exceptions += 1
+        return pdu.exception_pdu(job.adu[1], code)
+
+    def _idle(self) -> None:
+        port = self._master.port
+        try:
+            if port.idle_wait(self._scheduler.wake_fd, -1) == 1:
+                self._counters.unsolicited_bytes += port.wait_quiet(
+                    time.monotonic_ns(), self._cfg.serial.t35_us)
+        except SerialError as err:
+            self._lost(err)
+
+    def _lost(self, err: SerialError) -> None:
+        log.error("serial device %s lost: %s; reopening", self._cfg.serial.device, err.strerror)
+        self.up = False
+        self._master.port.close()
+        self._master = None
+
+    def _reopen(self) -> None:
+        delay = REOPEN_FIRST_S
+        next_try = time.monotonic() + delay
+        while not self._stopping:
+            self._reject_waiting()
+            left = next_try - time.monotonic()
+            if left > 0:
+                if select.select([self._scheduler.wake_fd], [], [], left)[0]:
+                    os.eventfd_read(self._scheduler.wake_fd)
+                continue
+            try:
+                port = open_port(self._cfg)
+            except SerialError as err:
+                log.debug("reopen failed: %s", err)
+                delay = min(delay * 2, REOPEN_MAX_S)
+                next_try = time.monotonic() + delay
+                continue
+            self._master = self._master_on(port)
+            self.up = True
+            log.info("serial device %s is back", self._cfg.serial.device)
+            return
+
+    def _reject_waiting(self) -> None:
+        """While the port is down, nothing waits: every queued request is refused at once."""
+        while (job := self._scheduler.take()) is not None:
+            self._counters.line_down_rejects += 1
+            self._deliver(job, self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE))

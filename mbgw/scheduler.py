@@ -1,0 +1,74 @@
+"""The queue in front of the serial line: fair between clients, in order within a client.
+
+Each client (a TCP connection) has its own FIFO; the line takes one request from each client
+in turn, so a client that pipelines many requests cannot starve the others.  The asyncio
+thread submits, the line thread takes; an eventfd wakes the line thread only when it sleeps.
+"""
+import os
+import threading
+from collections import deque
+
+
+class Job:
+    __slots__ = ("client", "tid", "unit", "adu")
+
+    def __init__(self, client, tid: int, unit: int, adu: bytes) -> None:
+        self.client = client
+        self.tid = tid
+        self.unit = unit
+        self.adu = adu
+
+
+class Queue:
+    """One client's pending jobs.  Owned by the scheduler's lock."""
+    __slots__ = ("jobs", "scheduled")
+
+    def __init__(self) -> None:
+        self.jobs: deque[Job] = deque()
+        self.scheduled = False
+
+
+class Scheduler:
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._ring: deque[Queue] = deque()
+        self._sleeping = False
+        self.wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+
+    def submit(self, queue: Queue, job: Job) -> None:
+        with self._lock:
+            queue.jobs.append(job)
+            if not queue.scheduled:
+                queue.scheduled = True
+                self._ring.append(queue)
+            wake, self._sleeping = self._sleeping, False
+        if wake:
+            os.eventfd_write(self.wake_fd, 1)
+
+    def take(self) -> Job | None:
+        """The next job, round-robin over clients; None (and the line may sleep) if none."""
+        with self._lock:
+            if not self._ring:
+                self._sleeping = True
+                return None
+            queue = self._ring.popleft()
+            job = queue.jobs.popleft()
+            if queue.jobs:
+                self._ring.append(queue)
+            else:
+                queue.scheduled = False
+            return job
+
+    def discard(self, queue: Queue) -> None:
+        """Forget a client's pending jobs (it disconnected)."""
+        with self._lock:
+            queue.jobs.clear()
+            if queue.scheduled:
+                queue.scheduled = False
+                self._ring.remove(queue)
+
+    def wake(self) -> None:
+        os.eventfd_write(self.wake_fd, 1)
+
+    def close(self) -> None:
+        os.close(self.wake_fd)

@@ -1,0 +1,175 @@
+"""Slave mode's network side: the Modbus TCP server on mdbport.
+
+authip is checked as soon as a connection is accepted, before any byte is read.  Beyond
+max_connections the least recently active idle connection is closed for the newcomer; if
+every connection has a request in flight, the newcomer is refused.
+"""
+import asyncio
+import logging
+import socket
+import time
+
+from mbgw import mbap, pdu
+from mbgw.acl import AccessList
+from mbgw.config import SlaveConfig
+from mbgw.counters import Counters
+from mbgw.scheduler import Job, Queue, Scheduler
+
+log = logging.getLogger("mbgw.tcp")
+
+MAX_IN_FLIGHT = 16          # TCP guide 4.4.2: a server holds 1..16 transactions per client
+REFUSAL_LOG_INTERVAL_S = 60.0
+
+
+class Client(asyncio.Protocol):
+    """One Modbus TCP connection."""
+
+    def __init__(self, server: "TcpServer") -> None:
+        self._server = server
+        self.transport: asyncio.Transport | None = None
+        self.peer = "?"
+        self.queue = Queue()
+        self.in_flight = 0
+        self.requests = 0
+        self.connected_at = time.time()
+        self.last_active = time.monotonic()
+        self._buf = bytearray()
+        self._paused = False
+
+    def connection_made(self, transport) -> None:
+        host, port = transport.get_extra_info("peername")[:2]
+        self.peer = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+        if not self._server.admit(self, host):
+            transport.abort()
+            return
+        self.transport = transport
+        sock = transport.get_extra_info("socket")
+        if sock is not None:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
+
+    def connection_lost(self, exc) -> None:
+        if self.transport is not None:
+            self.transport = None
+            self._server.forget(self)
+
+    def data_received(self, data: bytes) -> None:
+        if self.transport is None:
+            return
+        self._buf += data
+        self.last_active = time.monotonic()
+        try:
+            for tid, unit, request in mbap.split_frames(self._buf):
+                self.requests += 1
+                self._server.request(self, tid, unit, request)
+        except mbap.BadHeader as err:
+            self._server.counters.connections_bad_header += 1
+            log.warning("client %s: bad MBAP header (%s); closing the connection", self.peer, err)
+            self.transport.abort()
+            return
+        if self.in_flight >= MAX_IN_FLIGHT and not self._paused:
+            self._paused = True
+            self.transport.pause_reading()
+
+    def submitted(self) -> None:
+        self.in_flight += 1
+
+    def deliver(self, job: Job, reply: bytes | None) -> None:
+        """The line's outcome for job (runs in the loop thread)."""
+        self.in_flight -= 1
+        self.send(job.tid, job.unit, reply)
+        if self._paused and self.in_flight < MAX_IN_FLIGHT and self.transport is not None:
+            self._paused = False
+            self.transport.resume_reading()
+
+    def send(self, tid: int, unit: int, reply: bytes | None) -> None:
+        if reply is not None and self.transport is not None:
+            self.transport.write(mbap.frame(tid, unit, reply))
+            self._server.counters.replies += 1
+            self.last_active = time.monotonic()
+
+
+class TcpServer:
+    def __init__(self, cfg: SlaveConfig, scheduler: Scheduler, counters: Counters,
+                 line_up) -> None:
+        self._cfg = cfg
+        self._scheduler = scheduler
+        self.counters = counters
+        self._line_up = line_up          # callable: is the serial line usable?
+        self._acl = AccessList(cfg.authip)
+        self.clients: list[Client] = []
+        self._refusals: dict[str, float] = {}
+        self._server: asyncio.base_events.Server | None = None
+
+    async def start(self) -> list[str]:
+        """Listen; returns the listening addresses."""
+        loop = asyncio.get_running_loop()
+        self._server = await loop.create_server(lambda: Client(self), host=self._cfg.bind,
+                                                port=self._cfg.mdbport, reuse_address=True)
+        return [_format_sockname(s.getsockname()) for s in self._server.sockets]
+
+    def close(self) -> None:
+        if self._server is not None:
+            self._server.close()
+        for client in list(self.clients):
+            client.transport.abort()
+
+    def admit(self, client: Client, host: str) -> bool:
+        if not self._acl.allows(host):
+            self.counters.connections_refused_authip += 1
+            self._log_refusal(host)
+            return False
+        if len(self.clients) >= self._cfg.max_connections:
+            idle = [c for c in self.clients if c.in_flight == 0]
+            if not idle:
+                self.counters.connections_refused_limit += 1
+                log.warning("client %s refused: all %d connections are busy",
+                            client.peer, len(self.clients))
+                return False
+            victim = min(idle, key=lambda c: c.last_active)
+            log.info("client %s closed to make room for %s", victim.peer, client.peer)
+            self.counters.connections_evicted += 1
+            victim.transport.abort()
+            self.forget(victim)
+            victim.transport = None
+        self.counters.connections_accepted += 1
+        self.clients.append(client)
+        log.info("client %s connected", client.peer)
+        return True
+
+    def forget(self, client: Client) -> None:
+        if client in self.clients:
+            self.clients.remove(client)
+            self._scheduler.discard(client.queue)
+            log.info("client %s disconnected", client.peer)
+
+    def _log_refusal(self, host: str) -> None:
+        now = time.monotonic()
+        if now - self._refusals.get(host, -REFUSAL_LOG_INTERVAL_S) >= REFUSAL_LOG_INTERVAL_S:
+            self._refusals[host] = now
+            log.warning("connection from %s refused: not in authip (further refusals of this "
+                        "address are logged at most once a minute)", host)
+
+    def request(self, client: Client, tid: int, unit: int, request: bytes) -> None:
+        self.counters.requests += 1
+        address = self._cfg.slaveid or unit
+        if address > pdu.MAX_SERIAL_ADDRESS:
+            self.counters.unroutable += 1
+            client.send(tid, unit, self._path_unavailable(request[0]))
+            return
+        if not self._line_up():
+            self.counters.line_down_rejects += 1
+            client.send(tid, unit, self._path_unavailable(request[0]))
+            return
+        client.submitted()
+        self._scheduler.submit(client.queue, Job(client, tid, unit, bytes((address,)) + request))
+
+    def _path_unavailable(self, function: int) -> bytes | None:
+        if not self._cfg.exception:
+            return None
+        self.counters.gateway_exceptions += 1
+        return pdu.exception_pdu(function, pdu.GATEWAY_PATH_UNAVAILABLE)
+
+
+def _format_sockname(name) -> str:
+    host, port = name[:2]
+    return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
