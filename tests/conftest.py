@@ -1,0 +1,40 @@
+import pytest
+
+from tests.harness import Gateway, Peer, PtyPair
+
+
+@pytest.fixture
+def pty_pair(tmp_path):
+    pair = PtyPair(tmp_path)
+    yield pair
+    pair.stop()
+
+
+@pytest.fixture
+def start_gateway(tmp_path):
+    """start_gateway(device, *options) -> a ready Gateway; stopped after the test."""
+    started = []
+
+    def start(device, *args, **kwargs):
+        gw = Gateway(tmp_path, device, *args, **kwargs)
+        started.append(gw)
+        return gw
+
+    yield start
+    for gw in started:
+        gw.stop()
+
+
+@pytest.fixture
+def start_peer():
+    """start_peer(script, *args) -> a ready Peer from tests/peers; stopped after the test."""
+    started = []
+
+    def start(script, *args):
+        peer = Peer(script, *args)
+        started.append(peer)
+        return peer
+
+    yield start
+    for peer in started:
+        peer.stop()

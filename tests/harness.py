@@ -1,0 +1,121 @@
+"""Test harness: socat pty pairs, the gateway as a real subprocess, peers as subprocesses.
+Readiness is always an event (a line printed, a datagram received), never a sleep."""
+import os
+import selectors
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+PEERS = Path(__file__).parent / "peers"
+READY_TIMEOUT_S = 15.0
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _read_lines_until(proc: subprocess.Popen, stream, want, timeout: float) -> list[str]:
+    """Read lines from stream until want(lines) is true; fail on exit or timeout."""
+    lines: list[str] = []
+    sel = selectors.DefaultSelector()
+    sel.register(stream, selectors.EVENT_READ)
+    deadline = time.monotonic() + timeout
+    try:
+        while not want(lines):
+            left = deadline - time.monotonic()
+            if left <= 0 or not sel.select(left):
+                raise TimeoutError(f"{proc.args[0]} not ready; said: {lines}")
+            line = stream.readline()
+            if not line:
+                raise RuntimeError(f"{proc.args} exited ({proc.wait()}); said: {lines}")
+            lines.append(line.rstrip("\n"))
+    finally:
+        sel.close()
+    return lines
+
+
+def stop(proc: subprocess.Popen, sig=signal.SIGTERM) -> None:
+    if proc.poll() is None:
+        proc.send_signal(sig)
+        try:
+            proc.wait(5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+class PtyPair:
+    """Two linked pseudo-terminals from socat: `gateway` for mbgw, `device` for the peer."""
+
+    def __init__(self, directory: Path) -> None:
+        self.gateway = str(directory / "ttyGW")
+        self.device = str(directory / "ttyDEV")
+        self.proc = None
+        self.start()
+
+    def start(self) -> None:
+        self.proc = subprocess.Popen(
+            ["socat", "-d", "-d", f"pty,raw,echo=0,link={self.gateway}",
+             f"pty,raw,echo=0,link={self.device}"],
+            stderr=subprocess.PIPE, text=True)
+        # socat logs "starting data transfer loop" once both ptys and links exist
+        _read_lines_until(self.proc, self.proc.stderr,
+                          lambda ls: any("starting data transfer loop" in l for l in ls),
+                          READY_TIMEOUT_S)
+
+    def stop(self) -> None:
+        stop(self.proc)
+
+
+class Gateway:
+    """`python -m mbgw slave ...` on 127.0.0.1:port, ready when it sends READY=1."""
+
+    def __init__(self, directory: Path, device: str, *args: str, port: int | None = None,
+                 mode: str = "slave") -> None:
+        self.port = port or free_port()
+        self.log_path = directory / f"mbgw-{self.port}.log"
+        notify_path = str(directory / f"notify-{self.port}")
+        notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        notify.bind(notify_path)
+        env = dict(os.environ, NOTIFY_SOCKET=notify_path)
+        self.args = [sys.executable, "-m", "mbgw", mode, "--device", device,
+                     "--bind", "127.0.0.1", "--mdbport", str(self.port), *args]
+        self._log = open(self.log_path, "w")
+        self.proc = subprocess.Popen(self.args, env=env, stdout=self._log, stderr=self._log)
+        try:
+            notify.settimeout(READY_TIMEOUT_S)
+            while True:
+                try:
+                    message = notify.recv(4096).decode()
+                except socket.timeout:
+                    raise TimeoutError(f"gateway not ready: {self.log()}") from None
+                if "READY=1" in message:
+                    break
+        finally:
+            notify.close()
+
+    def log(self) -> str:
+        self._log.flush()
+        return self.log_path.read_text()
+
+    def stop(self) -> int:
+        stop(self.proc)
+        self._log.close()
+        return self.proc.returncode
+
+
+class Peer:
+    """A Python peer script from tests/peers, ready when it prints READY."""
+
+    def __init__(self, script: str, *args: str) -> None:
+        self.proc = subprocess.Popen([sys.executable, "-u", str(PEERS / script), *args],
+                                     stdout=subprocess.PIPE, text=True)
+        _read_lines_until(self.proc, self.proc.stdout, lambda ls: "READY" in ls, READY_TIMEOUT_S)
+
+    def stop(self) -> None:
+        stop(self.proc)
