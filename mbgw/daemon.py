@@ -62,3 +62,5 @@ async def _serve(cfg: SlaveConfig, port) -> None:
     worker.stop()
     await asyncio.to_thread(worker.join)
     scheduler.close()
+    log.info("stopped; counters: %s",
+             " ".join(f"{k}={v}" for k, v in counters.snapshot().items()))
