@@ -148,3 +148,39 @@ int mbgw_tty_claim(int fd)
         return -errno;
     return 0;
 }
+
+long mbgw_ascii_read_frame(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns,
+                           int32_t interchar_us, int64_t *end_ns)
+{
+    uint8_t chunk[64];
+    size_t have = 0;
+    if (cap > MBGW_ASCII_MAX_FRAME)
+        cap = MBGW_ASCII_MAX_FRAME;
+    *end_ns = 0;
+    for (;;) {
+        int64_t until = deadline_ns;
+        if (have > 0 && *end_ns + (int64_t)interchar_us * 1000 < until)
+            until = *end_ns + (int64_t)interchar_us * 1000;
+        int rc = wait_input(fd, until);
+        if (rc < 0)
+            return rc;
+        if (rc == 0)
+            return have > 0 ? -EBADMSG : -ETIMEDOUT;
+        long n = read_some(fd, chunk, sizeof chunk);
+        if (n < 0)
+            return n;
+        *end_ns = now_ns();
+        for (long i = 0; i < n; i++) {
+            uint8_t c = chunk[i];
+            if (c == ':')
+                have = 0;                       /* a colon always starts a new frame */
+            else if (have == 0)
+                continue;                       /* noise between frames */
+            if (have == cap)
+                return -EMSGSIZE;
+            buf[have++] = c;
+            if (c == '\n' && have >= 2 && buf[have - 2] == '\r')
+                return (long)have;
+        }
+    }
+}

@@ -4,9 +4,20 @@
 
 #define MBGW_RTU_MAX_ADU 256   /* Modbus over Serial Line V1.02 section 2.5.1 */
 #define MBGW_LEN_UNKNOWN -1    /* the frame's end can only be found by silence */
+#define MBGW_ASCII_MAX_FRAME 513  /* characters, ':' to LF included (V1.02 2.5.2.1) */
 
 /* CRC-16/MODBUS (reflected poly 0xA001, init 0xFFFF); sent low byte first. */
 uint16_t mbgw_crc16(const uint8_t *buf, size_t len);
+
+/* LRC of an ASCII frame: the two's complement of the 8-bit sum of its bytes. */
+uint8_t mbgw_lrc(const uint8_t *buf, size_t len);
+
+/* adu (address to data, no LRC) as ':' HEX LRC CR LF, upper case.  Returns the length. */
+int mbgw_ascii_encode(const uint8_t *adu, size_t len, uint8_t *out, size_t cap);
+
+/* A whole ASCII frame (':' to LF) back to address..data; hex of either case accepted.
+ * -EBADMSG malformed, -EILSEQ wrong LRC, -EMSGSIZE too long. */
+int mbgw_ascii_decode(const uint8_t *frame, size_t len, uint8_t *adu, size_t cap);
 
 /* Total RTU ADU length (address and CRC included) of the reply to a request of req_len bytes
  * (an ADU without CRC),
@@ -25,12 +36,19 @@ long mbgw_wait_quiet(int fd, int64_t last_ns, int32_t quiet_us);
  * (-1: no timeout).  Returns 0 woken, 1 input waiting, 2 timed out. */
 int mbgw_idle_wait(int fd, int wake_fd, int timeout_ms);
 
-/* Read the reply to a request of req_len bytes (CRC excluded) into buf.  The first byte and a length-known frame's last byte must
- * arrive before deadline_ns; a frame of unknown length (or any frame with by_silence set)
+/* Read the reply to a request of req_len bytes (CRC excluded) into buf.  The first byte and
+ * a length-known frame's last byte must arrive before deadline_ns; a frame of unknown length (or any frame with by_silence set)
  * ends after gap_us of silence.  *end_ns receives the time the last byte arrived.
  * Returns the bytes read (possibly an incomplete frame) or -ETIMEDOUT when nothing came. */
 long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, size_t req_len,
                      int64_t deadline_ns, int32_t gap_us, int by_silence, int64_t *end_ns);
+
+/* Read one ASCII frame (':' to CR LF) into buf.  The ':' must come before deadline_ns, each
+ * following character within interchar_us of the previous one, the whole frame before
+ * deadline_ns; a ':' restarts the frame.  -ETIMEDOUT nothing came, -EBADMSG incomplete,
+ * -EMSGSIZE longer than MBGW_ASCII_MAX_FRAME. */
+long mbgw_ascii_read_frame(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns,
+                           int32_t interchar_us, int64_t *end_ns);
 
 /* Take the tty for this process alone: TIOCEXCL plus an advisory flock, which also stops
  * root and other programs that honour locks.  -EBUSY when someone else holds it. */

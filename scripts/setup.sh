@@ -1,0 +1,21 @@
+#!/bin/sh
+# One-time set-up on Debian 12 (run as root or through sudo): system packages, the
+# development venv with the test peers, and the C core built in place.
+set -eu
+cd "$(dirname "$0")/.."
+
+SUDO=""
+[ "$(id -u)" -eq 0 ] || SUDO="sudo"
+export DEBIAN_FRONTEND=noninteractive
+
+$SUDO apt-get update -qq
+# Build-Depends of debian/control (compiler, libmodbus-dev, python3-dev, debhelper, ...)
+$SUDO apt-get build-dep -y -qq ./
+# What the tests use besides: socat (pty pairs), mbpoll (a real Modbus client), lintian
+$SUDO apt-get install -y -qq --no-install-recommends python3-venv socat mbpoll lintian
+
+# Debian's own python3, the interpreter the .deb runs on (never a pyenv shim).
+/usr/bin/python3 -m venv .venv
+.venv/bin/pip install -q --upgrade pip
+.venv/bin/pip install -q -e '.[test]'
+echo "set-up done: run the tests with  .venv/bin/python -m pytest"
