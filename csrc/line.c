@@ -184,3 +184,76 @@ long mbgw_ascii_read_frame(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns
         }
     }
 }
+
+static int set_rts(int fd, int on)
+{
+    int bit = TIOCM_RTS;
+    return ioctl(fd, on ? TIOCMBIS : TIOCMBIC, &bit) < 0 ? -errno : 0;
+}
+
+static void sleep_us(int32_t us)
+{
+    if (us <= 0)
+        return;
+    struct timespec ts = { us / 1000000, (long)(us % 1000000) * 1000 };
+    while (clock_nanosleep(CLOCK_MONOTONIC, 0, &ts, &ts) == EINTR)
+        ;
+}
+
+int mbgw_write_frame(int fd, const uint8_t *buf, size_t len, int rts_control,
+                     int32_t before_us, int32_t after_us)
+{
+    int rc;
+    if (rts_control) {
+        if ((rc = set_rts(fd, 1)) < 0)
+            return rc;
+        sleep_us(before_us);
+    }
+    size_t done = 0;
+    while (done < len) {
+        ssize_t n = write(fd, buf + done, len - done);
+        if (n > 0) {
+            done += (size_t)n;
+            continue;
+        }
+        if (n < 0 && errno == EINTR)
+            continue;
+        if (n < 0 && errno == EAGAIN) {
+            struct pollfd p = { fd, POLLOUT, 0 };
+            if (poll(&p, 1, 1000) <= 0 || !(p.revents & POLLOUT))
+                return -EIO;
+            continue;
+        }
+        return n < 0 ? -errno : -EIO;
+    }
+    if (rts_control) {
+        if (tcdrain(fd) < 0)
+            return -errno;
+        sleep_us(after_us);
+        if ((rc = set_rts(fd, 0)) < 0)
+            return rc;
+    }
+    return 0;
+}
+
+int mbgw_discard_echo(int fd, const uint8_t *sent, size_t len, int64_t deadline_ns)
+{
+    uint8_t echo[MBGW_ASCII_MAX_FRAME];
+    size_t have = 0;
+    while (have < len) {
+        int rc = wait_input(fd, deadline_ns);
+        if (rc < 0)
+            return rc;
+        if (rc == 0)
+            return -ETIMEDOUT;
+        size_t want = len - have;
+        long n = read_some(fd, echo + have, want < sizeof echo - have ? want : sizeof echo - have);
+        if (n < 0)
+            return (int)n;
+        have += (size_t)n;
+    }
+    for (size_t i = 0; i < len; i++)
+        if (echo[i] != sent[i])
+            return -EPROTO;
+    return 0;
+}

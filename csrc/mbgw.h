@@ -53,3 +53,34 @@ long mbgw_ascii_read_frame(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns
 /* Take the tty for this process alone: TIOCEXCL plus an advisory flock, which also stops
  * root and other programs that honour locks.  -EBUSY when someone else holds it. */
 int mbgw_tty_claim(int fd);
+
+/* --- tty.c: settings libmodbus cannot make --- */
+
+/* cflag with the size, parity (n e o m s) and stop bits of a line format set. */
+uint32_t mbgw_tty_cflag(uint32_t cflag, int data_bits, char parity, int stop_bits);
+int mbgw_tty_set_format(int fd, int data_bits, char parity, int stop_bits);
+
+/* Any rate, through termios2 and BOTHER. */
+int mbgw_tty_set_baud(int fd, uint32_t baud);
+
+/* The cflag and output rate the kernel holds for fd. */
+int mbgw_tty_get(int fd, uint32_t *cflag, uint32_t *baud);
+
+/* ASYNC_LOW_LATENCY: USB adapters then hand over bytes at once instead of every 16 ms. */
+int mbgw_tty_low_latency(int fd);
+
+/* Kernel RS-485: RTS drives the transmitter during each frame, with delays around it.
+ * -ENOTTY (or -EINVAL) when the driver has no RS-485 support. */
+int mbgw_tty_rs485(int fd, int before_ms, int after_ms, int rx_during_tx);
+
+/* --- line.c: writing --- */
+
+/* Write the whole frame.  With rts_control, raise RTS before_us before the first byte and
+ * drop it after_us after the last one has left the UART (tcdrain), for RS-485 transceivers
+ * whose driver has no kernel RS-485 mode. */
+int mbgw_write_frame(int fd, const uint8_t *buf, size_t len, int rts_control,
+                     int32_t before_us, int32_t after_us);
+
+/* Read back and drop the echo of the frame just sent (2-wire RS-485 with the receiver on).
+ * -EPROTO when the echo differs (a collision), -ETIMEDOUT when it does not come. */
+int mbgw_discard_echo(int fd, const uint8_t *sent, size_t len, int64_t deadline_ns);

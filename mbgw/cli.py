@@ -17,38 +17,82 @@ def _convert(param_name: str, build):
         raise click.BadParameter(str(err), param_hint=param_name) from None
 
 
-def _parse_format(ctx, param, value: str) -> config.LineFormat:
-    return _convert(f"'{param.opts[0]}'", lambda: config.LineFormat.parse(value))
+def _parser(parse):
+    def callback(ctx, param, value):
+        return _convert(f"'{param.opts[0]}'", lambda: parse(value))
+    return callback
 
 
-def _parse_authip(ctx, param, values) -> tuple:
-    return _convert("'--authip'", lambda: tuple(
-        str(config.parse_ip("authip", v)) for v in values))
+def _parse_authip(values) -> tuple:
+    return tuple(str(config.parse_ip("authip", v)) for v in values)
+
+
+def _stack(*decorators):
+    def apply(function):
+        for decorator in reversed(decorators):
+            function = decorator(function)
+        return function
+    return apply
+
+
+serial_options = _stack(
+    click.option("--device", required=True, metavar="PATH",
+                 help="Serial device, e.g. /dev/ttyUSB0."),
+    click.option("--protocol", type=click.Choice(config.PROTOCOLS), default="rtu",
+                 show_default=True, help="Modbus framing on the serial line."),
+    click.option("--baudrate", type=click.IntRange(*config.BAUDRATE_RANGE), default=9600,
+                 show_default=True, help="Line speed in bit/s, any rate from 50 to 4000000."),
+    click.option("--format", "line_format", default="8n1", show_default=True,
+                 callback=_parser(config.LineFormat.parse), metavar="NPS",
+                 help="Data bits (7|8), parity (n|e|o|m|s: none, even, odd, mark, space), "
+                      "stop bits (1|2)."),
+    click.option("--interface", default="rs232", show_default=True,
+                 callback=_parser(config.Interface.parse), metavar="KIND",
+                 help="rs232, rs422, 'rs485 noecho' or 'rs485 echo' (the transceiver "
+                      "hears its own frames; they are dropped)."),
+    click.option("--rtsdelays", type=(click.IntRange(0, 255), click.IntRange(0, 255)),
+                 default=(0, 0), show_default=True, metavar="BEFORE AFTER",
+                 help="RS-485: ms between raising RTS and the first byte, and between the "
+                      "last byte and dropping RTS, 0..255."),
+    click.option("--stout", type=click.IntRange(*config.STOUT_RANGE),
+                 default=config.DEFAULT_STOUT_MS, show_default=True, metavar="MS",
+                 help="Time from the end of a request to the end of its answer, 1..65535 ms."),
+    click.option("--silence", type=click.IntRange(0, 65535), default=0, show_default=True,
+                 metavar="MS",
+                 help="RTU end-of-frame silence in ms, 0..65535 (0: the standard 3.5 "
+                      "characters, 1.75 ms above 19200 bit/s); shorter gaps stay inside "
+                      "a frame."),
+    click.option("--ascii-timeout", type=click.IntRange(1, 65535),
+                 default=config.DEFAULT_ASCII_TIMEOUT_MS, show_default=True, metavar="MS",
+                 help="ASCII: longest pause between two characters of a frame, 1..65535 ms."),
+    click.option("--nocheck", is_flag=True, default=False,
+                 help="Debugging only: forward serial replies unchecked (no CRC/LRC, "
+                      "address or length control), as received until end of frame."),
+)
+
+
+def _serial_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout,
+                   silence, ascii_timeout, nocheck) -> config.SerialConfig:
+    return _convert("'--baudrate'", lambda: config.SerialConfig(
+        device=device, protocol=protocol, baudrate=baudrate, format=line_format,
+        interface=interface, rtsdelays=tuple(rtsdelays), stout_ms=stout, silence_ms=silence,
+        ascii_timeout_ms=ascii_timeout, nocheck=nocheck))
 
 
 @click.group()
 @click.version_option(__version__, prog_name="mbgw")
 def main() -> None:
-    """mbgw: a Modbus gateway between Modbus TCP and a Modbus RTU serial line."""
+    """mbgw: a Modbus gateway between Modbus TCP and a Modbus RTU/ASCII serial line."""
 
 
 @main.command()
-@click.option("--device", required=True, metavar="PATH",
-              help="Serial device, e.g. /dev/ttyUSB0.")
-@click.option("--baudrate", type=int, default=9600, show_default=True,
-              help="Line speed (a rate libmodbus supports: 110..4000000).")
-@click.option("--format", "line_format", default="8n1", show_default=True,
-              callback=_parse_format, metavar="NPS",
-              help="Data bits (7|8), parity (n|e|o), stop bits (1|2).")
-@click.option("--stout", type=click.IntRange(*config.STOUT_RANGE), default=config.DEFAULT_STOUT_MS,
-              show_default=True, metavar="MS",
-              help="Time from the end of a request to the end of its answer, 1..65535 ms.")
+@serial_options
 @click.option("--slaveid", type=click.IntRange(0, 247), default=0, show_default=True,
               help="0: the TCP unit id is the serial address; 1..247: force this address.")
 @click.option("--exception/--no-exception", default=False, show_default=True,
               help="Answer exception 0x0B when a slave does not reply, 0x0A when the line "
                    "cannot be reached, instead of staying silent.")
-@click.option("--authip", multiple=True, metavar="IP", callback=_parse_authip,
+@click.option("--authip", multiple=True, metavar="IP", callback=_parser(_parse_authip),
               help="Client address allowed to connect (repeat, at most 8; none: anyone).")
 @click.option("--mdbport", type=click.IntRange(1, 65535), default=502, show_default=True,
               help="Modbus TCP port to listen on.")
@@ -63,13 +107,14 @@ def main() -> None:
               show_default=True, metavar="MS",
               help="Pause on the line after a broadcast (unit 0), before the next request.")
 @click.option("--log-level", type=LOG_LEVELS, default="info", show_default=True)
-def slave(device, baudrate, line_format, stout, slaveid, exception, authip, mdbport, bind,
-          max_connections, retries, turnaround, log_level) -> None:
+def slave(device, protocol, baudrate, line_format, interface, rtsdelays, stout, silence,
+          ascii_timeout, nocheck, slaveid, exception, authip, mdbport, bind, max_connections,
+          retries, turnaround, log_level) -> None:
     """Slave mode: Modbus TCP clients reach the slaves on a serial line."""
     from mbgw import daemon, log
 
-    serial = _convert("'--baudrate'", lambda: config.SerialConfig(
-        device=device, baudrate=baudrate, format=line_format, stout_ms=stout))
+    serial = _serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
+                            stout, silence, ascii_timeout, nocheck)
     cfg = _convert("'--authip'", lambda: config.SlaveConfig(
         serial=serial, slaveid=slaveid, exception=exception, authip=authip, mdbport=mdbport,
         bind=bind, max_connections=max_connections, retries=retries, turnaround_ms=turnaround))
@@ -77,11 +122,11 @@ def slave(device, baudrate, line_format, stout, slaveid, exception, authip, mdbp
     try:
         daemon.run_slave(cfg)
     except SerialError as err:
-        _fatal(err.strerror)
+        fatal(err.strerror)
     except OSError as err:
-        _fatal(f"cannot listen on port {mdbport}: {err.strerror}")
+        fatal(f"cannot listen on port {mdbport}: {err.strerror}")
 
 
-def _fatal(message: str) -> None:
+def fatal(message: str) -> None:
     click.echo(f"mbgw: {message}", err=True)
     sys.exit(1)

@@ -11,7 +11,11 @@ from mbgw.errors import ConfigError
 LIBMODBUS_BAUDRATES = (110, 300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200,
                        230400, 460800, 500000, 576000, 921600, 1000000, 1152000, 1500000,
                        2500000, 3000000, 3500000, 4000000)
-FORMAT_PATTERN = re.compile(r"^([78])([neo])([12])$")
+BAUDRATE_RANGE = (50, 4000000)   # others than libmodbus's are set through termios2/BOTHER
+FORMAT_PATTERN = re.compile(r"^([78])([neoms])([12])$")
+PROTOCOLS = ("rtu", "ascii")
+INTERFACES = ("rs232", "rs485", "rs422")
+DEFAULT_ASCII_TIMEOUT_MS = 1000   # Serial Line V1.02 2.5.2.1: inter-character time-out
 MAX_AUTHIP = 8
 STOUT_RANGE = (1, 65535)
 DEFAULT_STOUT_MS = 600
@@ -31,7 +35,7 @@ class LineFormat:
         match = FORMAT_PATTERN.match(text.lower())
         if not match:
             raise ConfigError(f"format {text!r}: expected data bits (7 or 8), parity "
-                              f"(n, e or o) and stop bits (1 or 2), e.g. 8n1")
+                              f"(n, e, o, m or s) and stop bits (1 or 2), e.g. 8n1")
         return cls(int(match[1]), match[2], int(match[3]))
 
     @property
@@ -44,20 +48,57 @@ class LineFormat:
 
 
 @dataclass(frozen=True)
+class Interface:
+    """The electrical interface: rs232, rs422, or rs485 with or without its own echo."""
+    kind: str = "rs232"
+    echo: bool = False
+
+    @classmethod
+    def parse(cls, text: str) -> "Interface":
+        words = text.lower().split()
+        if not words or words[0] not in INTERFACES or len(words) > 2 or (
+                len(words) == 2 and (words[0] != "rs485" or words[1] not in ("echo", "noecho"))):
+            raise ConfigError(f"interface {text!r}: expected rs232, rs422, rs485, "
+                              f"'rs485 echo' or 'rs485 noecho'")
+        return cls(words[0], len(words) == 2 and words[1] == "echo")
+
+    def __str__(self) -> str:
+        return f"{self.kind} echo" if self.echo else self.kind
+
+
+@dataclass(frozen=True)
 class SerialConfig:
     device: str
     baudrate: int = 9600
     format: LineFormat = field(default_factory=LineFormat)
     stout_ms: int = DEFAULT_STOUT_MS
+    protocol: str = "rtu"
+    silence_ms: int = 0            # 0: the standard t3.5
+    nocheck: bool = False
+    interface: Interface = field(default_factory=Interface)
+    rtsdelays: tuple[int, int] = (0, 0)
+    ascii_timeout_ms: int = DEFAULT_ASCII_TIMEOUT_MS
 
     def __post_init__(self) -> None:
-        if self.baudrate not in LIBMODBUS_BAUDRATES:
-            raise ConfigError(f"baudrate {self.baudrate}: not a supported rate "
-                              f"({', '.join(map(str, LIBMODBUS_BAUDRATES))})")
+        low, high = BAUDRATE_RANGE
+        if not low <= self.baudrate <= high:
+            raise ConfigError(f"baudrate {self.baudrate}: out of range {low}..{high}")
+        if self.protocol not in PROTOCOLS:
+            raise ConfigError(f"protocol {self.protocol!r}: expected rtu or ascii")
+
+    @property
+    def libmodbus_baudrate(self) -> bool:
+        """libmodbus can set this rate itself (others go through termios2)."""
+        return self.baudrate in LIBMODBUS_BAUDRATES
 
     @property
     def char_ns(self) -> int:
         return self.format.char_bits * 1_000_000_000 // self.baudrate
+
+    @property
+    def end_of_frame_us(self) -> int:
+        """The silence that ends an RTU frame: --silence, else t3.5."""
+        return self.silence_ms * 1000 or self.t35_us
 
     @property
     def t35_us(self) -> int:

@@ -2,7 +2,8 @@
 
 NAMES = (
     "requests", "replies", "device_exceptions", "gateway_exceptions", "timeouts", "retries",
-    "crc_errors", "invalid_frames", "wrong_unit", "wrong_function", "late_bytes",
+    "crc_errors", "invalid_frames", "wrong_unit", "wrong_function", "late_replies",
+    "late_bytes",
     "unsolicited_bytes", "broadcasts", "unroutable", "line_down_rejects",
     "connections_accepted", "connections_refused_authip", "connections_refused_limit",
     "connections_evicted", "connections_bad_header",

@@ -7,7 +7,8 @@ import socket
 
 from mbgw.config import SlaveConfig
 from mbgw.counters import Counters
-from mbgw.line_worker import LineWorker, open_port
+from mbgw.line_worker import LineWorker
+from mbgw.serial_port import SerialLine
 from mbgw.scheduler import Scheduler
 from mbgw.tcp_server import TcpServer
 
@@ -28,14 +29,14 @@ def sd_notify(state: str) -> None:
 def run_slave(cfg: SlaveConfig) -> None:
     """Raises SerialError when the device cannot be opened, OSError when mdbport cannot be
     bound; otherwise returns after SIGTERM or SIGINT."""
-    port = open_port(cfg)
+    line = SerialLine(cfg.serial)
     try:
-        asyncio.run(_serve(cfg, port))
+        asyncio.run(_serve(cfg, line))
     finally:
-        port.close()
+        line.close()
 
 
-async def _serve(cfg: SlaveConfig, port) -> None:
+async def _serve(cfg: SlaveConfig, line: SerialLine) -> None:
     loop = asyncio.get_running_loop()
     counters = Counters()
     scheduler = Scheduler()
@@ -43,13 +44,16 @@ async def _serve(cfg: SlaveConfig, port) -> None:
     def deliver(job, reply) -> None:
         loop.call_soon_threadsafe(job.client.deliver, job, reply)
 
-    worker = LineWorker(cfg, port, scheduler, counters, deliver)
+    worker = LineWorker(cfg, line, scheduler, counters, deliver)
     server = TcpServer(cfg, scheduler, counters, lambda: worker.up)
     addresses = await server.start()
     worker.start()
     s = cfg.serial
-    log.info("slave mode: listening on %s; serial %s %d %s rtu, stout %d ms",
-             ", ".join(addresses), s.device, s.baudrate, s.format, s.stout_ms)
+    log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s",
+             ", ".join(addresses), s.device, s.baudrate, s.format, s.protocol, s.interface,
+             s.stout_ms, ", nocheck" if s.nocheck else "")
+    if s.nocheck:
+        log.warning("nocheck is on: serial replies are forwarded unchecked (a debugging mode)")
     sd_notify("READY=1")
 
     stop = asyncio.Event()

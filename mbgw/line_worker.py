@@ -11,9 +11,10 @@ from mbgw import pdu
 from mbgw.config import SlaveConfig
 from mbgw.counters import Counters
 from mbgw.errors import LineTimeout, SerialError
-from mbgw.native import Port
-from mbgw.rtu_master import RtuMaster
+from mbgw.framing import framing_for
 from mbgw.scheduler import Job, Scheduler
+from mbgw.serial_master import SerialMaster
+from mbgw.serial_port import SerialLine
 
 log = logging.getLogger("mbgw.line")
 
@@ -21,13 +22,8 @@ REOPEN_FIRST_S = 0.5
 REOPEN_MAX_S = 5.0
 
 
-def open_port(cfg: SlaveConfig) -> Port:
-    s = cfg.serial
-    return Port(s.device, s.baudrate, s.format.parity, s.format.data_bits, s.format.stop_bits)
-
-
 class LineWorker(threading.Thread):
-    def __init__(self, cfg: SlaveConfig, port: Port, scheduler: Scheduler, counters: Counters,
+    def __init__(self, cfg: SlaveConfig, line: SerialLine, scheduler: Scheduler, counters: Counters,
                  deliver) -> None:
         super().__init__(name="mbgw-line", daemon=True)
         self._cfg = cfg
@@ -35,12 +31,12 @@ class LineWorker(threading.Thread):
         self._counters = counters
         self._deliver = deliver        # deliver(job, reply_pdu_or_None), thread-safe
         self._stopping = False
-        self._master: RtuMaster | None = self._master_on(port)
+        self._master: SerialMaster | None = self._master_on(line)
         self.up = True                 # read by the asyncio thread to fail fast while down
 
-    def _master_on(self, port: Port) -> RtuMaster:
-        return RtuMaster(port, self._cfg.serial, self._counters, self._cfg.retries,
-                         self._cfg.turnaround_ms)
+    def _master_on(self, line: SerialLine) -> SerialMaster:
+        return SerialMaster(framing_for(line), self._cfg.serial, self._counters,
+                            self._cfg.retries, self._cfg.turnaround_ms)
 
     def stop(self) -> None:
         self._stopping = True
@@ -57,7 +53,7 @@ class LineWorker(threading.Thread):
             else:
                 self._serve(job)
         if self._master is not None:
-            self._master.port.close()
+            self._master.framing.line.close()
 
     def _serve(self, job: Job) -> None:
         try:
@@ -79,7 +75,7 @@ class LineWorker(threading.Thread):
         return pdu.exception_pdu(job.adu[1], code)
 
     def _idle(self) -> None:
-        port = self._master.port
+        port = self._master.framing.port
         try:
             if port.idle_wait(self._scheduler.wake_fd, -1) == 1:
                 self._counters.unsolicited_bytes += port.wait_quiet(
@@ -90,7 +86,7 @@ class LineWorker(threading.Thread):
     def _lost(self, err: SerialError) -> None:
         log.error("serial device %s lost: %s; reopening", self._cfg.serial.device, err.strerror)
         self.up = False
-        self._master.port.close()
+        self._master.framing.line.close()
         self._master = None
 
     def _reopen(self) -> None:
@@ -104,13 +100,13 @@ class LineWorker(threading.Thread):
                     os.eventfd_read(self._scheduler.wake_fd)
                 continue
             try:
-                port = open_port(self._cfg)
+                line = SerialLine(self._cfg.serial)
             except SerialError as err:
                 log.debug("reopen failed: %s", err)
                 delay = min(delay * 2, REOPEN_MAX_S)
                 next_try = time.monotonic() + delay
                 continue
-            self._master = self._master_on(port)
+            self._master = self._master_on(line)
             self.up = True
             log.info("serial device %s is back", self._cfg.serial.device)
             return

@@ -11,6 +11,7 @@ from mbgw.errors import ChecksumError, FrameError, LineTimeout, SerialError
 
 LEN_UNKNOWN = lib.MBGW_LEN_UNKNOWN
 RTU_MAX_ADU = lib.MBGW_RTU_MAX_ADU
+ASCII_MAX_FRAME = lib.MBGW_ASCII_MAX_FRAME
 
 _LIBMODBUS_ERRORS = {
     lib.EMBBADCRC: "invalid CRC",
@@ -22,12 +23,42 @@ def crc16(data: bytes) -> int:
     return lib.mbgw_crc16(data, len(data))
 
 
+def lrc(data: bytes) -> int:
+    return lib.mbgw_lrc(data, len(data))
+
+
 def rtu_reply_length(request_len: int, reply: bytes) -> int:
     return lib.mbgw_rtu_reply_length(request_len, reply, len(reply))
 
 
 def rtu_request_length(request: bytes) -> int:
     return lib.mbgw_rtu_request_length(request, len(request))
+
+
+_ascii_out = ffi.new("uint8_t[]", ASCII_MAX_FRAME)
+_ascii_in = ffi.new("uint8_t[]", RTU_MAX_ADU)
+
+
+def ascii_encode(adu: bytes) -> bytes:
+    """address..data as an ASCII frame ':' HEX LRC CR LF (not thread-safe: one line thread)."""
+    n = lib.mbgw_ascii_encode(adu, len(adu), _ascii_out, ASCII_MAX_FRAME)
+    if n < 0:
+        raise FrameError(os.strerror(-n))
+    return ffi.buffer(_ascii_out, n)[:]
+
+
+def ascii_decode(frame: bytes) -> bytes:
+    """An ASCII frame back to address..data.  ChecksumError on a wrong LRC."""
+    n = lib.mbgw_ascii_decode(frame, len(frame), _ascii_in, RTU_MAX_ADU)
+    if n == -errno.EILSEQ:
+        raise ChecksumError()
+    if n < 0:
+        raise FrameError(os.strerror(-n))
+    return ffi.buffer(_ascii_in, n)[:]
+
+
+def tty_cflag(cflag: int, data_bits: int, parity: str, stop_bits: int) -> int:
+    return lib.mbgw_tty_cflag(cflag, data_bits, parity.encode(), stop_bits)
 
 
 def _strerror(code: int) -> str:
@@ -39,6 +70,7 @@ class Port:
 
     def __init__(self, device: str, baudrate: int, parity: str, data_bits: int, stop_bits: int):
         self.device = device
+        self._ctx = None
         ctx = lib.modbus_new_rtu(device.encode(), baudrate, parity.upper().encode(),
                                  data_bits, stop_bits)
         if ctx == ffi.NULL:
@@ -54,10 +86,9 @@ class Port:
             self.close()
             reason = "in use by another program" if rc == -errno.EBUSY else os.strerror(-rc)
             raise SerialError(-rc, f"cannot open {device}: {reason}")
-        # The response timeout then bounds the whole reply, not just its first byte.
-        lib.modbus_set_byte_timeout(ctx, 0, 0)
-        self._buf = ffi.new("uint8_t[]", RTU_MAX_ADU + 4)
+        self._buf = ffi.new("uint8_t[]", ASCII_MAX_FRAME + 4)
         self._end_ns = ffi.new("int64_t *")
+        self.set_byte_timeout(0)
 
     def close(self) -> None:
         if self._ctx is not None:
@@ -69,16 +100,57 @@ class Port:
     def _fail(self, code: int, action: str):
         if code == errno.ETIMEDOUT:
             return LineTimeout()
-        if code == lib.EMBBADCRC:
+        if code in (lib.EMBBADCRC, errno.EILSEQ):
             return ChecksumError()
-        if code == lib.EMBBADDATA:
+        if code in (lib.EMBBADDATA, errno.EBADMSG, errno.EMSGSIZE, errno.EPROTO):
             return FrameError(_strerror(code))
         return SerialError(code, f"{self.device}: {action}: {_strerror(code)}")
 
-    def send(self, adu: bytes) -> None:
+    def _check(self, rc: int, action: str) -> int:
+        if rc < 0:
+            raise self._fail(-rc, action)
+        return rc
+
+    # --- settings libmodbus cannot make ---
+
+    def set_baudrate(self, baudrate: int) -> None:
+        self._check(lib.mbgw_tty_set_baud(self.fd, baudrate), "set baud rate")
+
+    def set_format(self, data_bits: int, parity: str, stop_bits: int) -> None:
+        self._check(lib.mbgw_tty_set_format(self.fd, data_bits, parity.encode(), stop_bits),
+                    "set format")
+
+    def settings(self) -> tuple[int, int]:
+        """(cflag, baud rate) as the kernel holds them."""
+        cflag, baud = ffi.new("uint32_t *"), ffi.new("uint32_t *")
+        self._check(lib.mbgw_tty_get(self.fd, cflag, baud), "read settings")
+        return cflag[0], baud[0]
+
+    def set_low_latency(self) -> bool:
+        return lib.mbgw_tty_low_latency(self.fd) == 0
+
+    def set_rs485(self, before_ms: int, after_ms: int, rx_during_tx: bool) -> bool:
+        """Kernel RS-485 direction control; False when the driver lacks it."""
+        return lib.mbgw_tty_rs485(self.fd, before_ms, after_ms, rx_during_tx) == 0
+
+    def set_byte_timeout(self, timeout_us: int) -> None:
+        """libmodbus's limit on the silence between two bytes of a reply (0: none)."""
+        lib.modbus_set_byte_timeout(self._ctx, timeout_us // 1_000_000, timeout_us % 1_000_000)
+
+    # --- transfers ---
+
+    def send_rtu(self, adu: bytes) -> None:
         """Send address + PDU; libmodbus appends the CRC."""
         if lib.modbus_send_raw_request(self._ctx, adu, len(adu)) < 0:
             raise self._fail(ffi.errno, "write")
+
+    def write(self, frame: bytes, rts_control: bool = False, before_us: int = 0,
+              after_us: int = 0) -> None:
+        self._check(lib.mbgw_write_frame(self.fd, frame, len(frame), rts_control,
+                                         before_us, after_us), "write")
+
+    def discard_echo(self, sent: bytes, deadline_ns: int) -> None:
+        self._check(lib.mbgw_discard_echo(self.fd, sent, len(sent), deadline_ns), "read echo")
 
     def receive_confirmation(self, address: int, timeout_us: int) -> bytes | None:
         """libmodbus's receive for the codes it frames right.  None: a frame from another
@@ -94,28 +166,25 @@ class Port:
 
     def read_reply(self, request_len: int, deadline_ns: int, gap_us: int,
                    by_silence: bool) -> bytes:
-        """Our own receive: framed by length where known, else by gap_us of silence."""
+        """Our own RTU receive: framed by length where known, else by gap_us of silence."""
         n = lib.mbgw_read_reply(self.fd, self._buf, RTU_MAX_ADU + 4, request_len,
                                 deadline_ns, gap_us, by_silence, self._end_ns)
-        if n < 0:
-            raise self._fail(-n, "read")
-        return ffi.buffer(self._buf, n)[:]
+        return ffi.buffer(self._buf, self._check(n, "read"))[:]
+
+    def read_ascii(self, deadline_ns: int, interchar_us: int) -> bytes:
+        n = lib.mbgw_ascii_read_frame(self.fd, self._buf, ASCII_MAX_FRAME, deadline_ns,
+                                      interchar_us, self._end_ns)
+        return ffi.buffer(self._buf, self._check(n, "read"))[:]
 
     @property
     def last_byte_ns(self) -> int:
-        """When the last byte of the latest read_reply arrived (CLOCK_MONOTONIC)."""
+        """When the last byte of the latest read_reply/read_ascii arrived (CLOCK_MONOTONIC)."""
         return self._end_ns[0]
 
     def wait_quiet(self, since_ns: int, quiet_us: int) -> int:
         """Wait until the line has been quiet for quiet_us; returns the bytes discarded."""
-        n = lib.mbgw_wait_quiet(self.fd, since_ns, quiet_us)
-        if n < 0:
-            raise self._fail(-n, "read")
-        return n
+        return self._check(lib.mbgw_wait_quiet(self.fd, since_ns, quiet_us), "read")
 
     def idle_wait(self, wake_fd: int, timeout_ms: int) -> int:
         """0 woken through wake_fd, 1 unsolicited input, 2 timed out."""
-        rc = lib.mbgw_idle_wait(self.fd, wake_fd, timeout_ms)
-        if rc < 0:
-            raise self._fail(-rc, "poll")
-        return rc
+        return self._check(lib.mbgw_idle_wait(self.fd, wake_fd, timeout_ms), "poll")

@@ -1,16 +1,37 @@
 """A real serial slave that is not our code: pymodbus's RTU server on a pty.
 
-usage: pymodbus_slave.py DEVICE [ADDRESS...]   (default address 17)
+usage: pymodbus_slave.py DEVICE [ADDRESS...] [--identity] [--silent-unknown]
+                                                                 (default address 17)
 Holding registers 0..99 hold 100..199, input registers 0..99 hold 1000..1099,
-coils and discrete inputs alternate 1, 0 from address 0.  Prints READY when listening.
+coils and discrete inputs alternate 1, 0 from address 0.  Broadcasts (address 0) are
+executed on every address.  Prints READY when listening.
+
+--identity        serve IDENTITY below for FC 0x2B/0x0E (read device identification) and FC 0x11
+                  (report server id); without it pymodbus has no objects.
+--silent-unknown  stay silent for a request to an address this server does not have, as a real
+                  line does (pymodbus 3.16.1 otherwise answers such a request with exception 0x04).
 """
+import argparse
 import asyncio
-import sys
 
 from pymodbus.datastore import (ModbusDeviceContext, ModbusSequentialDataBlock,
                                 ModbusServerContext)
 from pymodbus.framer import FramerType
+from pymodbus.pdu.device import ModbusDeviceIdentification
 from pymodbus.server import ModbusSerialServer
+
+# Object id -> value for read device identification (application protocol 6.21): 0..2 basic,
+# 3..6 regular, 0x80.. private (extended).
+IDENTITY = {
+    0x00: "mbgw test vendor",
+    0x01: "PEER-17",
+    0x02: "3.16.1",
+    0x03: "https://example.invalid/peer",
+    0x04: "pymodbus RTU peer",
+    0x05: "model 17",
+    0x06: "mbgw integration tests",
+    0x80: "private object 0x80: " + "0123456789" * 6,
+}
 
 
 def device() -> ModbusDeviceContext:
@@ -22,12 +43,31 @@ def device() -> ModbusDeviceContext:
         di=ModbusSequentialDataBlock(1, [1, 0] * 50))
 
 
+def parse_args() -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("device")
+    parser.add_argument("addresses", nargs="*", type=int)
+    parser.add_argument("--identity", action="store_true")
+    parser.add_argument("--silent-unknown", action="store_true")
+    return parser.parse_args()
+
+
 async def main() -> None:
-    path = sys.argv[1]
-    addresses = [int(a) for a in sys.argv[2:]] or [17]
+    args = parse_args()
+    addresses = args.addresses or [17]
     context = ModbusServerContext(devices={a: device() for a in addresses}, single=False)
-    server = ModbusSerialServer(context, framer=FramerType.RTU, port=path, baudrate=19200,
-                                broadcast_enable=True)
+
+    def drop_unknown(sending: bool, pdu):
+        # A request dropped here is never executed nor answered (pymodbus's trace_pdu hook).
+        if sending or pdu.dev_id == 0 or pdu.dev_id in addresses:
+            return pdu
+        return None
+
+    server = ModbusSerialServer(
+        context, framer=FramerType.RTU, port=args.device, baudrate=19200,
+        broadcast_enable=True,
+        identity=ModbusDeviceIdentification(info=IDENTITY) if args.identity else None,
+        trace_pdu=drop_unknown if args.silent_unknown else None)
     await server.serve_forever(background=True)
     print("READY", flush=True)
     await asyncio.Event().wait()

@@ -1,0 +1,98 @@
+"""How a frame looks on the serial line: RTU (binary, CRC, ended by silence) or ASCII
+(':' hex LRC CR LF).  Each framing sends an ADU (address + PDU) and receives one, checked."""
+import struct
+import time
+
+from mbgw import native, pdu
+from mbgw.errors import ChecksumError, FrameError, LineTimeout
+from mbgw.serial_port import SerialLine
+
+CRC = struct.Struct("<H")     # the CRC goes low byte first
+
+
+class RtuFraming:
+    def __init__(self, line: SerialLine) -> None:
+        self.line = line
+        self.port = line.port
+        self.inter_frame_us = line.cfg.t35_us
+        self._end_us = line.cfg.end_of_frame_us
+        # libmodbus's byte timeout is the end-of-frame silence: a longer gap breaks the frame
+        self.port.set_byte_timeout(self._end_us)
+        self.last_rx_ns = 0
+
+    def send(self, adu: bytes) -> int:
+        return self.line.transmit(adu + CRC.pack(native.crc16(adu)), rtu_adu=adu)
+
+    def receive(self, adu: bytes, deadline: int) -> bytes | None:
+        """address + PDU of a frame with a valid CRC from adu's address; None: another
+        address.  Raises LineTimeout, ChecksumError, FrameError."""
+        if adu[1] in pdu.LIBMODBUS_FRAMED:
+            timeout_us = (deadline - time.monotonic_ns()) // 1000
+            if timeout_us <= 0:
+                raise LineTimeout()
+            frame = self.port.receive_confirmation(adu[0], timeout_us)
+            self.last_rx_ns = time.monotonic_ns()
+            return frame[:-2] if frame is not None else None
+        frame = self.port.read_reply(len(adu), deadline, self._end_us, False)
+        self.last_rx_ns = self.port.last_byte_ns
+        if len(frame) < 4:
+            raise FrameError("incomplete frame")
+        if native.crc16(frame) != 0:
+            raise ChecksumError()
+        if frame[0] != adu[0]:
+            return None
+        return frame[:-2]
+
+    def receive_unchecked(self, adu: bytes, deadline: int) -> bytes:
+        """nocheck: whatever came until the end-of-frame silence, CRC removed unchecked."""
+        frame = self.port.read_reply(len(adu), deadline, self._end_us, True)
+        self.last_rx_ns = self.port.last_byte_ns
+        return frame[:-2]
+
+    def resync(self) -> int:
+        """Skip the rest of a broken frame; returns the bytes skipped."""
+        skipped = self.port.wait_quiet(time.monotonic_ns(), self._end_us)
+        self.last_rx_ns = time.monotonic_ns()
+        return skipped
+
+
+class AsciiFraming:
+    inter_frame_us = 0     # ASCII frames are delimited by ':' and CR LF, not by silence
+
+    def __init__(self, line: SerialLine) -> None:
+        self.line = line
+        self.port = line.port
+        self._interchar_us = line.cfg.ascii_timeout_ms * 1000
+        self.last_rx_ns = 0
+
+    def send(self, adu: bytes) -> int:
+        return self.line.transmit(native.ascii_encode(adu))
+
+    def _read(self, deadline: int) -> bytes:
+        frame = self.port.read_ascii(deadline, self._interchar_us)
+        self.last_rx_ns = self.port.last_byte_ns
+        return frame
+
+    def receive(self, adu: bytes, deadline: int) -> bytes | None:
+        decoded = native.ascii_decode(self._read(deadline))
+        if len(decoded) < 2:
+            raise FrameError("frame too short")
+        return decoded if decoded[0] == adu[0] else None
+
+    def receive_unchecked(self, adu: bytes, deadline: int) -> bytes:
+        """nocheck: the frame's bytes, LRC removed unchecked."""
+        frame = self._read(deadline)
+        body = frame[1:-2]
+        try:
+            raw = bytes.fromhex(body.decode("ascii"))
+        except ValueError:
+            raise FrameError("not hexadecimal") from None
+        return raw[:-1]
+
+    def resync(self) -> int:
+        self.last_rx_ns = time.monotonic_ns()
+        return 0
+
+
+def framing_for(line: SerialLine):
+    return AsciiFraming(line) if line.cfg.protocol == "ascii" else RtuFraming(line)

@@ -1,0 +1,93 @@
+"""One transaction on the serial line, as its master (slave mode).
+
+A request goes out only after the line has been quiet for t3.5 (or the turnaround delay after
+a broadcast).  Every frame that is not the reply -- bad CRC or LRC, another address, another
+function, a size the request did not ask for -- is counted and dropped, and we keep listening
+until stout has passed, as the spec's master does (Serial Line V1.02, 2.4.1).
+"""
+import logging
+
+from mbgw import pdu
+from mbgw.config import SerialConfig
+from mbgw.counters import Counters
+from mbgw.errors import ChecksumError, FrameError, LineTimeout
+
+wire = logging.getLogger("mbgw.wire")
+
+
+class SerialMaster:
+    def __init__(self, framing, cfg: SerialConfig, counters: Counters,
+                 retries: int = 0, turnaround_ms: int = 100) -> None:
+        self.framing = framing
+        self._counters = counters
+        self._retries = retries
+        self._nocheck = cfg.nocheck
+        self._stout_ns = cfg.stout_ms * 1_000_000
+        self._turnaround_us = turnaround_ms * 1000
+        self._quiet_from_ns = 0
+        self._quiet_us = 0
+
+    def transact(self, adu: bytes) -> bytes | None:
+        """Send adu (address + PDU) and return the reply PDU; None for a broadcast.
+        Raises LineTimeout when no valid reply came, SerialError when the port failed."""
+        deadline = self._send(adu)
+        if adu[0] == pdu.BROADCAST:
+            self._counters.broadcasts += 1
+            self._quiet_us = self._turnaround_us
+            return None
+        for attempt in range(self._retries + 1):
+            if attempt:
+                self._counters.retries += 1
+                deadline = self._send(adu)
+            reply = self._receive(adu, deadline)
+            if reply is not None:
+                return reply
+        self._counters.timeouts += 1
+        raise LineTimeout()
+
+    def _send(self, adu: bytes) -> int:
+        """Returns the reply's deadline."""
+        stale = self.framing.port.wait_quiet(self._quiet_from_ns, self._quiet_us)
+        if stale:
+            self._counters.late_bytes += stale
+        if wire.isEnabledFor(logging.DEBUG):
+            wire.debug("tx %s", adu.hex(" "))
+        self._quiet_from_ns = self.framing.send(adu)
+        self._quiet_us = self.framing.inter_frame_us
+        return self._quiet_from_ns + self._stout_ns
+
+    def _receive(self, adu: bytes, deadline: int) -> bytes | None:
+        """The reply PDU, or None once stout has passed without one."""
+        framing = self.framing
+        while True:
+            try:
+                if self._nocheck:
+                    return framing.receive_unchecked(adu, deadline)[1:]
+                frame = framing.receive(adu, deadline)
+            except LineTimeout:
+                return None
+            except ChecksumError:
+                self._counters.crc_errors += 1
+                self._counters.late_bytes += framing.resync()
+                continue
+            except FrameError:
+                self._counters.invalid_frames += 1
+                self._counters.late_bytes += framing.resync()
+                continue
+            finally:
+                self._quiet_from_ns = max(self._quiet_from_ns, framing.last_rx_ns)
+            if frame is None:
+                self._counters.wrong_unit += 1
+                continue
+            if wire.isEnabledFor(logging.DEBUG):
+                wire.debug("rx %s", frame.hex(" "))
+            if framing.last_rx_ns > deadline:
+                self._counters.late_replies += 1
+                continue
+            reply = frame[1:]
+            if not reply or not pdu.reply_matches(adu[1:], reply):
+                self._counters.wrong_function += 1
+                continue
+            if reply[0] & pdu.EXCEPTION_FLAG:
+                self._counters.device_exceptions += 1
+            return reply

@@ -1,0 +1,57 @@
+"""Opening the serial line with every setting, and putting frames on it (direction control,
+echo).  Both gateway modes use it."""
+import logging
+import time
+
+from mbgw import native
+from mbgw.config import SerialConfig
+
+log = logging.getLogger("mbgw.line")
+
+ECHO_MARGIN_NS = 50_000_000     # the echo of a frame is back well within this after it ends
+
+
+class SerialLine:
+    def __init__(self, cfg: SerialConfig) -> None:
+        self.cfg = cfg
+        fmt = cfg.format
+        # libmodbus opens and configures the tty; what it cannot do is fixed after.
+        libmodbus_parity = fmt.parity if fmt.parity in "neo" else "n"
+        libmodbus_rate = cfg.baudrate if cfg.libmodbus_baudrate else 9600
+        port = native.Port(cfg.device, libmodbus_rate, libmodbus_parity, fmt.data_bits,
+                           fmt.stop_bits)
+        try:
+            if not cfg.libmodbus_baudrate:
+                port.set_baudrate(cfg.baudrate)
+            if fmt.parity in "ms":
+                port.set_format(fmt.data_bits, fmt.parity, fmt.stop_bits)
+            port.set_low_latency()
+            self.rts_control = False
+            if cfg.interface.kind == "rs485":
+                before, after = cfg.rtsdelays
+                if not port.set_rs485(before, after, cfg.interface.echo):
+                    self.rts_control = True
+                    log.info("%s has no kernel RS-485 mode: mbgw drives RTS itself",
+                             cfg.device)
+        except BaseException:
+            port.close()
+            raise
+        self.port = port
+        self._char_ns = cfg.char_ns
+        self._before_us = cfg.rtsdelays[0] * 1000
+        self._after_us = cfg.rtsdelays[1] * 1000
+
+    def close(self) -> None:
+        self.port.close()
+
+    def transmit(self, wire: bytes, rtu_adu: bytes | None = None) -> int:
+        """Put one whole frame on the line; returns when its last byte will have left
+        (CLOCK_MONOTONIC ns).  rtu_adu: the frame without CRC, which libmodbus then sends."""
+        if rtu_adu is not None and not self.rts_control:
+            self.port.send_rtu(rtu_adu)
+        else:
+            self.port.write(wire, self.rts_control, self._before_us, self._after_us)
+        done_ns = time.monotonic_ns() + len(wire) * self._char_ns
+        if self.cfg.interface.echo:
+            self.port.discard_echo(wire, done_ns + ECHO_MARGIN_NS)
+        return done_ns

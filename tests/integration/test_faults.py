@@ -1,0 +1,429 @@
+"""Slave mode against a scripted serial slave that misbehaves on purpose (peers/fault_slave.py).
+
+The clients here are raw sockets with hand-built MBAP frames, so every assertion is on the
+exact bytes.  Where a test needs "no reply", it pipelines a request to the well-behaved unit 1
+behind the faulty one whenever it can: the line serves a client's requests in order, so the
+first reply to arrive must be unit 1's.  Each test ends by stopping the gateway and checking
+the counters it logs at stop.
+"""
+import importlib.util
+import socket
+import struct
+import time
+
+import pytest
+
+from tests.harness import PEERS
+
+pytestmark = pytest.mark.integration
+
+_spec = importlib.util.spec_from_file_location("fault_slave", PEERS / "fault_slave.py")
+fault_slave = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(fault_slave)
+
+STOUT_MS = 200
+STOUT_S = STOUT_MS / 1000
+NO_REPLY_S = STOUT_S + 0.15         # long enough for a reply that would come at stout
+REPLY_S = 3.0                       # a reply that is due never takes this long
+VENDOR_FC = fault_slave.VENDOR_FC   # ICP DAS FC 108, sub-function 07: read range code
+VENDOR_REQUEST = bytes((VENDOR_FC, 0x07, 0x01, 0x00))
+
+# Counters every test checks; any not named in the expectation must stay at 0.
+CHECKED = ("requests", "replies", "device_exceptions", "gateway_exceptions", "timeouts",
+           "retries", "crc_errors", "invalid_frames", "wrong_unit", "wrong_function",
+           "late_bytes", "broadcasts", "unroutable", "line_down_rejects")
+
+
+def mbap(tid: int, unit: int, pdu: bytes) -> bytes:
+    return struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu
+
+
+def read_holding(start: int, count: int) -> bytes:
+    return struct.pack(">BHH", 0x03, start, count)
+
+
+def holding_reply(start: int, count: int) -> bytes:
+    return bytes((0x03, 2 * count)) + b"".join(struct.pack(">H", 1000 + start + i)
+                                                for i in range(count))
+
+
+def rtu(address: int, pdu: bytes) -> bytes:
+    return fault_slave.adu(address, pdu)
+
+
+class Client:
+    def __init__(self, port: int) -> None:
+        self.sock = socket.create_connection(("127.0.0.1", port), timeout=REPLY_S)
+
+    def send(self, *frames: bytes) -> None:
+        self.sock.sendall(b"".join(frames))
+
+    def _exactly(self, n: int) -> bytes:
+        data = b""
+        while len(data) < n:
+            chunk = self.sock.recv(n - len(data))
+            if not chunk:
+                raise ConnectionError(f"connection closed after {data.hex(' ')!r}")
+            data += chunk
+        return data
+
+    def recv_raw(self, timeout: float = REPLY_S) -> bytes | None:
+        """One whole MBAP frame, or None when nothing starts arriving within timeout."""
+        self.sock.settimeout(timeout)
+        try:
+            header = self._exactly(6)
+        except socket.timeout:
+            return None
+        self.sock.settimeout(REPLY_S)
+        return header + self._exactly(struct.unpack(">H", header[4:6])[0])
+
+    def recv(self, timeout: float = REPLY_S) -> tuple[int, int, bytes] | None:
+        """(tid, unit, pdu), or None when no reply came within timeout."""
+        frame = self.recv_raw(timeout)
+        if frame is None:
+            return None
+        tid, protocol, length, unit = struct.unpack(">HHHB", frame[:7])
+        assert protocol == 0 and length == len(frame) - 6, frame.hex(" ")
+        return tid, unit, frame[7:]
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+@pytest.fixture
+def line(pty_pair, start_peer, tmp_path):
+    """line(*peer_options) -> the path of the peer's record; the peer is ready."""
+    def start(*options: str):
+        record = tmp_path / "record.txt"
+        start_peer("fault_slave.py", pty_pair.device, "--record", str(record), *options)
+        return record
+    return start
+
+
+@pytest.fixture
+def gateway(pty_pair, start_gateway, tmp_path):
+    """gateway(*options) -> a ready gateway with stout STOUT_MS on the pty pair.
+
+    The harness closes its NOTIFY_SOCKET once READY=1 has come; the gateway's STOPPING=1
+    then fails and it dies without logging its counters (see
+    test_gateway_stops_cleanly_when_the_notify_socket_is_gone).  Listen again on that path
+    so that the counters can be checked.
+    """
+    started = []
+
+    def start(*options: str):
+        gw = start_gateway(pty_pair.gateway, "--stout", str(STOUT_MS), *options)
+        path = tmp_path / f"notify-{gw.port}"
+        path.unlink()
+        listener = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        listener.bind(str(path))
+        started.append((gw, listener))
+        return gw
+
+    yield start
+    for gw, listener in started:
+        gw.stop()
+        listener.close()
+
+
+@pytest.fixture
+def client():
+    clients = []
+
+    def connect(gw) -> Client:
+        c = Client(gw.port)
+        clients.append(c)
+        return c
+
+    yield connect
+    for c in clients:
+        c.close()
+
+
+def received(record) -> list[tuple[float, bytes]]:
+    """(arrival time, frame) for every frame the slave received, in order."""
+    frames = []
+    for line in record.read_text().splitlines():
+        when, kind, data = line.split(" ", 2)
+        if kind.startswith("rx"):
+            assert kind == "rx", f"the slave got a broken frame: {line}"
+            frames.append((float(when), bytes.fromhex(data)))
+    return frames
+
+
+def stop_counters(gw) -> dict[str, int]:
+    """Stop the gateway and return the counters of its 'stopped' log line."""
+    assert gw.stop() == 0
+    lines = [l for l in gw.log_path.read_text().splitlines() if "stopped; counters:" in l]
+    assert len(lines) == 1, gw.log_path.read_text()
+    pairs = lines[0].split("stopped; counters:", 1)[1].split()
+    return {k: int(v) for k, v in (p.split("=") for p in pairs)}
+
+
+def assert_counters(gw, **expected: int) -> dict[str, int]:
+    counters = stop_counters(gw)
+    want = {name: expected.pop(name, 0) for name in CHECKED}
+    got = {name: counters[name] for name in CHECKED}
+    for name, value in expected.items():     # unchecked ones named explicitly
+        want[name], got[name] = value, counters[name]
+    assert got == want
+    return counters
+
+
+# --- well-behaved slave ---------------------------------------------------------------------
+
+def test_normal_reply_is_byte_exact_with_the_clients_tid_and_unit(line, gateway, client):
+    record = line()
+    gw = gateway()
+    c = client(gw)
+    c.send(mbap(0xBEEF, 1, read_holding(0x10, 5)))
+    reply = c.recv_raw()
+    assert reply == (b"\xbe\xef\x00\x00\x00\x0d\x01\x03\x0a"
+                     b"\x03\xf8\x03\xf9\x03\xfa\x03\xfb\x03\xfc")
+    assert [f for _, f in received(record)] == [bytes.fromhex("01 03 00 10 00 05 84 0c")]
+    assert_counters(gw, requests=1, replies=1)
+
+
+def test_peer_crc_matches_the_published_vector():
+    assert fault_slave.crc16(bytes.fromhex("11 03 00 6b 00 03")) == b"\x76\x87"
+    assert rtu(1, read_holding(0x10, 5)) == bytes.fromhex("01 03 00 10 00 05 84 0c")
+
+
+# --- no reply at all ------------------------------------------------------------------------
+
+def test_silent_slave_gets_no_reply_and_the_connection_keeps_working(line, gateway, client):
+    record = line()
+    gw = gateway()
+    c = client(gw)
+    c.send(mbap(1, 2, read_holding(0, 1)))
+    assert c.recv(NO_REPLY_S) is None
+    c.send(mbap(2, 1, read_holding(0, 1)))
+    assert c.recv() == (2, 1, holding_reply(0, 1))
+    assert [f[0] for _, f in received(record)] == [2, 1]
+    assert_counters(gw, requests=2, replies=1, timeouts=1)
+
+
+def test_silent_slave_with_exception_gets_0x0b_after_stout(line, gateway, client):
+    line()
+    gw = gateway("--exception")
+    c = client(gw)
+    sent = time.monotonic()
+    c.send(mbap(7, 2, read_holding(0, 1)))
+    assert c.recv() == (7, 2, b"\x83\x0b")
+    assert time.monotonic() - sent >= STOUT_S
+    c.send(mbap(8, 1, read_holding(0, 1)))
+    assert c.recv() == (8, 1, holding_reply(0, 1))
+    assert_counters(gw, requests=2, replies=2, timeouts=1, gateway_exceptions=1)
+
+
+# --- late replies ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("exception", [False, True])
+def test_late_reply_is_never_taken_for_the_next_requests_answer(line, gateway, client,
+                                                                 exception):
+    """A (unit 3, 3 registers at 0) times out; B (unit 3, 5 registers at 10) goes out at once;
+    A's late reply lands while B waits (late 300 ms > stout 200 ms).  B must not get it."""
+    record = line("--late-ms", "300")
+    gw = gateway(*(["--exception"] if exception else []))
+    c = client(gw)
+    c.send(mbap(1, 3, read_holding(0, 3)), mbap(2, 3, read_holding(10, 5)),
+           mbap(3, 1, read_holding(0, 2)))
+    if exception:
+        assert c.recv() == (1, 3, b"\x83\x0b")
+        assert c.recv() == (2, 3, b"\x83\x0b")
+    assert c.recv() == (3, 1, holding_reply(0, 2))
+    # B's own late reply comes ~100 ms after C's answer, into an idle line: still nothing
+    assert c.recv(0.3) is None
+    frames = received(record)
+    assert [f for _, f in frames] == [rtu(3, read_holding(0, 3)), rtu(3, read_holding(10, 5)),
+                                      rtu(1, read_holding(0, 2))]
+    # A's late reply really arrived while B was pending (the peer logged when it sent it)
+    sent = [float(l.split()[0]) for l in record.read_text().splitlines()
+            if l.split()[1] == "tx" and l.endswith(rtu(3, holding_reply(0, 3)).hex(" "))]
+    assert len(sent) == 1 and frames[1][0] < sent[0] < frames[2][0]
+    assert_counters(gw, requests=3, replies=3 if exception else 1, timeouts=2,
+                    gateway_exceptions=2 if exception else 0, wrong_function=1,
+                    unsolicited_bytes=len(rtu(3, holding_reply(10, 5))))
+
+
+def test_late_reply_during_the_turnaround_counts_as_late_bytes(line, gateway, client):
+    """A (unit 3) times out, a broadcast goes out, and A's late reply arrives during the
+    turnaround that holds the next request back: it is discarded as late bytes."""
+    record = line("--late-ms", "300")
+    gw = gateway("--turnaround", "300")
+    c = client(gw)
+    c.send(mbap(1, 3, read_holding(0, 3)), mbap(2, 0, b"\x06\x00\x01\x00\x2a"),
+           mbap(3, 1, read_holding(0, 1)))
+    assert c.recv() == (3, 1, holding_reply(0, 1))
+    assert [f[0] for _, f in received(record)] == [3, 0, 1]
+    assert_counters(gw, requests=3, replies=1, timeouts=1, broadcasts=1,
+                    late_bytes=len(rtu(3, holding_reply(0, 3))), unsolicited_bytes=0)
+
+
+# --- frames that are not the reply ----------------------------------------------------------
+
+@pytest.mark.parametrize("exception", [False, True])
+def test_bad_crc_reply_is_dropped(line, gateway, client, exception):
+    line()
+    gw = gateway(*(["--exception"] if exception else []))
+    c = client(gw)
+    c.send(mbap(1, 4, read_holding(0, 2)), mbap(2, 1, read_holding(0, 1)))
+    if exception:
+        assert c.recv() == (1, 4, b"\x83\x0b")
+    assert c.recv() == (2, 1, holding_reply(0, 1))
+    assert_counters(gw, requests=2, replies=2 if exception else 1, timeouts=1, crc_errors=1,
+                    gateway_exceptions=1 if exception else 0)
+
+
+@pytest.mark.parametrize("unit, counter", [(5, "wrong_unit"), (7, "wrong_function")])
+def test_reply_from_another_unit_or_with_another_function_is_dropped(line, gateway, client,
+                                                                    unit, counter):
+    line()
+    gw = gateway()
+    c = client(gw)
+    c.send(mbap(1, unit, read_holding(0, 2)), mbap(2, 1, read_holding(0, 1)))
+    assert c.recv() == (2, 1, holding_reply(0, 1))
+    assert_counters(gw, requests=2, replies=1, timeouts=1, **{counter: 1})
+
+
+def test_reply_after_a_foreign_frame_is_delivered(line, gateway, client):
+    line()
+    gw = gateway()
+    c = client(gw)
+    sent = time.monotonic()
+    c.send(mbap(0x0808, 8, read_holding(4, 2)))
+    assert c.recv() == (0x0808, 8, holding_reply(4, 2))
+    assert time.monotonic() - sent < STOUT_S
+    assert_counters(gw, requests=1, replies=1, wrong_unit=1)
+
+
+GARBAGE_FC03_XFAIL = (
+    "FC03 replies are framed by libmodbus (framing.RtuFraming.receive -> "
+    "Port.receive_confirmation), by length only: the noise is taken as the start of a frame "
+    "and the t3.5 silence after it does not end that frame")
+GARBAGE_OWN_XFAIL = (
+    "csrc/line.c mbgw_read_reply awaits a known length until the deadline, across any "
+    "silence: noise whose 2nd byte has bit 7 set reads as an exception header (5 bytes), the "
+    "first 2 bytes of the real reply complete it, CRC error, resync discards the rest")
+
+
+@pytest.mark.parametrize("function, garbage", [
+    pytest.param(0x03, "55 aa 55", marks=pytest.mark.xfail(strict=True, reason=GARBAGE_FC03_XFAIL)),
+    pytest.param(0x03, "00 00 00", marks=pytest.mark.xfail(strict=True, reason=GARBAGE_FC03_XFAIL)),
+    pytest.param(VENDOR_FC, "55 aa 55", marks=pytest.mark.xfail(strict=True, reason=GARBAGE_OWN_XFAIL)),
+    (VENDOR_FC, "00 00 00"),
+])
+def test_reply_after_garbage_and_silence_is_delivered(line, gateway, client, function, garbage):
+    """Noise, 20 ms of silence (> t3.5), then the real reply, all within stout: the silence
+    ends the noise's frame (Serial Line V1.02 2.5.1.1), and the reply that follows is good."""
+    line("--garbage", garbage)
+    gw = gateway()
+    c = client(gw)
+    request, reply = ((read_holding(0, 3), holding_reply(0, 3)) if function == 0x03
+                      else (VENDOR_REQUEST, fault_slave.VENDOR_REPLY))
+    c.send(mbap(13, 13, request))
+    assert c.recv() == (13, 13, reply)
+    assert_counters(gw, requests=1, replies=1, invalid_frames=1)
+
+
+# --- pass-through ---------------------------------------------------------------------------
+
+def test_vendor_function_108_passes_through_byte_exact(line, gateway, client):
+    record = line()
+    gw = gateway()
+    c = client(gw)
+    c.send(mbap(0x6C6C, 10, VENDOR_REQUEST))
+    reply = c.recv_raw()
+    assert reply == struct.pack(">HHHB", 0x6C6C, 0, 1 + len(fault_slave.VENDOR_REPLY), 10) \
+        + fault_slave.VENDOR_REPLY
+    assert [f for _, f in received(record)] == [rtu(10, VENDOR_REQUEST)]
+    assert_counters(gw, requests=1, replies=1)
+
+
+def test_device_exception_passes_through_unchanged(line, gateway, client):
+    line()
+    gw = gateway("--exception")
+    c = client(gw)
+    c.send(mbap(0x1111, 11, read_holding(0, 1)))
+    assert c.recv_raw() == b"\x11\x11\x00\x00\x00\x03\x0b\x83\x02"
+    assert_counters(gw, requests=1, replies=1, device_exceptions=1)
+
+
+# --- retries --------------------------------------------------------------------------------
+
+def test_retry_gets_the_answer_of_a_slave_that_missed_the_first_request(line, gateway, client):
+    record = line()
+    gw = gateway("--retries", "1")
+    c = client(gw)
+    c.send(mbap(12, 12, read_holding(0, 2)))
+    assert c.recv() == (12, 12, holding_reply(0, 2))
+    frames = received(record)
+    assert [f for _, f in frames] == [rtu(12, read_holding(0, 2))] * 2
+    assert frames[1][0] - frames[0][0] >= STOUT_S       # the retry waited for stout
+    assert_counters(gw, requests=1, replies=1, retries=1)
+
+
+def test_without_retries_the_missed_request_gets_no_answer(line, gateway, client):
+    record = line()
+    gw = gateway()
+    c = client(gw)
+    c.send(mbap(12, 12, read_holding(0, 2)), mbap(1, 1, read_holding(0, 1)))
+    assert c.recv() == (1, 1, holding_reply(0, 1))
+    assert [f[0] for _, f in received(record)] == [12, 1]
+    assert_counters(gw, requests=2, replies=1, timeouts=1)
+
+
+# --- addressing -----------------------------------------------------------------------------
+
+def test_broadcast_reaches_the_line_unanswered_and_holds_the_line_for_turnaround(
+        line, gateway, client):
+    record = line()
+    gw = gateway("--turnaround", "250", "--exception")
+    c = client(gw)
+    c.send(mbap(1, 0, b"\x06\x00\x01\x00\x2a"), mbap(2, 1, read_holding(0, 1)))
+    assert c.recv() == (2, 1, holding_reply(0, 1))
+    frames = received(record)
+    assert [f for _, f in frames] == [rtu(0, b"\x06\x00\x01\x00\x2a"),
+                                      rtu(1, read_holding(0, 1))]
+    gap = frames[1][0] - frames[0][0]
+    assert 0.245 <= gap < 0.245 + 0.2, gap
+    assert_counters(gw, requests=2, replies=1, broadcasts=1)
+
+
+def test_slaveid_forces_the_serial_address_and_keeps_the_clients_unit(line, gateway, client):
+    record = line()
+    gw = gateway("--slaveid", "1")
+    c = client(gw)
+    c.send(mbap(0x4D4D, 77, read_holding(2, 2)))
+    assert c.recv() == (0x4D4D, 77, holding_reply(2, 2))
+    assert [f for _, f in received(record)] == [rtu(1, read_holding(2, 2))]
+    assert_counters(gw, requests=1, replies=1)
+
+
+@pytest.mark.parametrize("exception", [False, True])
+def test_reserved_units_never_reach_the_line(line, gateway, client, exception):
+    record = line()
+    gw = gateway(*(["--exception"] if exception else []))
+    c = client(gw)
+    c.send(*(mbap(unit, unit, read_holding(0, 1)) for unit in range(248, 256)),
+           mbap(1, 1, read_holding(0, 1)))
+    if exception:
+        for unit in range(248, 256):
+            assert c.recv() == (unit, unit, b"\x83\x0a")
+    assert c.recv() == (1, 1, holding_reply(0, 1))
+    assert [f for _, f in received(record)] == [rtu(1, read_holding(0, 1))]
+    assert_counters(gw, requests=9, replies=9 if exception else 1, unroutable=8,
+                    gateway_exceptions=8 if exception else 0)
+
+
+# --- stopping -------------------------------------------------------------------------------
+
+@pytest.mark.xfail(strict=True, reason=(
+    "daemon.sd_notify lets OSError escape: with NOTIFY_SOCKET's listener gone, "
+    "sd_notify('STOPPING=1') raises ConnectionRefusedError, the counters are never logged, "
+    "and cli reports 'cannot listen on port N: Connection refused' with exit status 1"))
+def test_gateway_stops_cleanly_when_the_notify_socket_is_gone(line, pty_pair, start_gateway):
+    line()
+    gw = start_gateway(pty_pair.gateway, "--stout", str(STOUT_MS))   # harness closed it
+    assert gw.stop() == 0, gw.log_path.read_text()
+    assert "stopped; counters:" in gw.log_path.read_text()

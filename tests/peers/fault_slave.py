@@ -1,0 +1,219 @@
+"""A scripted Modbus RTU slave for fault injection, answering by serial address.
+
+usage: fault_slave.py DEVICE [--record PATH] [--late-ms MS] [--garbage HEX]
+
+Prints READY once the pty is open, and nothing else on stdout.  Holding (and input) register i
+holds 1000 + i.  Behaviour by the request's address:
+
+   1  normal reply                      8  frame from address 9, 5 ms pause, then the reply
+   2  silent                           10  vendor FC 108 (0x6C): 0x6C + 37 bytes back
+   3  reply after --late-ms (800)      11  exception 02 (illegal data address)
+   4  reply with a bad CRC             12  answers only every second request it gets
+   5  reply carrying address 6         13  --garbage (55 aa 55), 20 ms silence, reply
+   7  reply with FC 0x04 for 0x03       0  broadcast: recorded, never answered
+any other address: normal reply.  Vendor FC 108 is answered by every address (unit 10 is the
+one the tests use for it); other function codes get exception 01.
+
+Requests are framed by length for the function codes whose request length is fixed by the
+spec (01..06, 0F, 10, and 0x6C sub-functions 07/08), otherwise by 3 ms of silence.  Every frame
+received is written to --record as "<time.monotonic()> rx <hex>" (bad ones as "rx-bad"), and
+every frame sent as "<time> tx <hex>", one line each, flushed at once.  The CRC here is our own
+table-driven CRC-16/MODBUS, independent of mbgw's.
+"""
+import argparse
+import heapq
+import os
+import select
+import sys
+import termios
+import time
+import tty
+
+
+def _crc_table() -> list[int]:
+    table = []
+    for byte in range(256):
+        crc = byte
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+        table.append(crc)
+    return table
+
+
+_TABLE = _crc_table()
+
+
+def crc16(data: bytes) -> bytes:
+    """CRC-16/MODBUS of data, as the two bytes sent on the wire (low byte first)."""
+    crc = 0xFFFF
+    for b in data:
+        crc = (crc >> 8) ^ _TABLE[(crc ^ b) & 0xFF]
+    return bytes((crc & 0xFF, crc >> 8))
+
+
+# Published vector (Modbus over Serial Line V1.02 and countless examples): 11 03 00 6B 00 03
+assert crc16(bytes.fromhex("11 03 00 6B 00 03")) == bytes.fromhex("76 87")
+assert crc16(bytes.fromhex("01 03 00 00 00 01")) == bytes.fromhex("84 0A")
+
+
+def adu(address: int, pdu: bytes) -> bytes:
+    return bytes((address,)) + pdu + crc16(bytes((address,)) + pdu)
+
+
+VENDOR_FC = 0x6C
+VENDOR_REPLY = bytes((VENDOR_FC,)) + bytes.fromhex("07 01 00 05") + bytes(range(0xA0, 0xA0 + 33))
+assert len(VENDOR_REPLY) == 38
+SILENCE_S = 0.003
+PARTIAL_S = 0.050       # a length-known frame not completed within this is dropped
+
+
+def request_length(buf: bytes) -> int | None:
+    """Total ADU length (CRC included), 0 when more bytes are needed, None if unknown."""
+    if len(buf) < 2:
+        return 0
+    fc = buf[1]
+    if fc in (0x01, 0x02, 0x03, 0x04, 0x05, 0x06):
+        return 8
+    if fc in (0x0F, 0x10):
+        return 0 if len(buf) < 7 else 9 + buf[6]
+    if fc == VENDOR_FC:
+        if len(buf) < 3:
+            return 0
+        return {0x07: 7, 0x08: 8}.get(buf[2])
+    return None
+
+
+def normal_reply(address: int, pdu: bytes) -> bytes:
+    """The reply PDU of a well-behaved slave."""
+    fc = pdu[0]
+    if fc in (0x03, 0x04) and len(pdu) == 5:
+        start = int.from_bytes(pdu[1:3], "big")
+        count = int.from_bytes(pdu[3:5], "big")
+        data = b"".join((1000 + start + i).to_bytes(2, "big") for i in range(count))
+        return bytes((fc, len(data))) + data
+    if fc == 0x06 and len(pdu) == 5:
+        return pdu
+    if fc == VENDOR_FC:
+        return VENDOR_REPLY
+    return bytes((fc | 0x80, 0x01))
+
+
+class Slave:
+    def __init__(self, fd: int, record, late_s: float, garbage: bytes) -> None:
+        self.fd = fd
+        self.garbage = garbage
+        self.record = record
+        self.late_s = late_s
+        self.pending: list[tuple[float, int, bytes]] = []     # (when, seq, bytes) to write
+        self.seq = 0
+        self.counts: dict[int, int] = {}
+
+    def log(self, kind: str, when: float, data: bytes) -> None:
+        if self.record:
+            self.record.write(f"{when:.6f} {kind} {data.hex(' ')}\n")
+
+    def later(self, delay_s: float, data: bytes) -> None:
+        self.seq += 1
+        heapq.heappush(self.pending, (time.monotonic() + delay_s, self.seq, data))
+
+    def write_due(self) -> None:
+        while self.pending and self.pending[0][0] <= time.monotonic():
+            data = heapq.heappop(self.pending)[2]
+            self.log("tx", time.monotonic(), data)
+            os.write(self.fd, data)
+
+    def handle(self, frame: bytes) -> None:
+        address, pdu = frame[0], frame[1:-2]
+        self.counts[address] = n = self.counts.get(address, 0) + 1
+        reply = adu(address, normal_reply(address, pdu))
+        if address == 0 or address == 2:
+            return
+        if address == 3:
+            self.later(self.late_s, reply)
+        elif address == 4:
+            self.later(0, reply[:-2] + bytes((reply[-2] ^ 0xFF, reply[-1])))
+        elif address == 5:
+            self.later(0, adu(6, reply[1:-2]))
+        elif address == 7:
+            wrong = bytes((0x04,)) + reply[2:-2] if reply[1] == 0x03 else bytes((0x03,)) + reply[2:-2]
+            self.later(0, adu(7, wrong))
+        elif address == 8:
+            self.later(0, adu(9, reply[1:-2]))
+            self.later(0.005, reply)
+        elif address == 11:
+            self.later(0, adu(11, bytes((pdu[0] | 0x80, 0x02))))
+        elif address == 12:
+            if n % 2 == 0:
+                self.later(0, reply)
+        elif address == 13:
+            self.later(0, self.garbage)
+            self.later(0.020, reply)
+        else:
+            self.later(0, reply)
+
+    def run(self) -> None:
+        buf = b""
+        first = last = 0.0          # arrival of the frame's first and latest bytes
+        while True:
+            now = time.monotonic()
+            timeouts = [self.pending[0][0] - now] if self.pending else []
+            if buf:
+                want = request_length(buf)
+                timeouts.append(last + (SILENCE_S if want is None else PARTIAL_S) - now)
+            timeout = max(0.0, min(timeouts)) if timeouts else None
+            readable, _, _ = select.select([self.fd], [], [], timeout)
+            now = time.monotonic()
+            if readable:
+                data = os.read(self.fd, 512)
+                if not data:
+                    return
+                if not buf:
+                    first = now
+                buf += data
+                last = now
+            # take every complete frame at the start of buf
+            while buf:
+                want = request_length(buf)
+                if want is None:
+                    if now - last < SILENCE_S:
+                        break
+                    want = len(buf)
+                elif want == 0 or len(buf) < want:
+                    if now - last >= PARTIAL_S:
+                        self.log("rx-bad", first, buf)
+                        buf = b""
+                    break
+                frame, buf = buf[:want], buf[want:]
+                if len(frame) < 4 or crc16(frame[:-2]) != frame[-2:]:
+                    self.log("rx-bad", first, frame + buf)   # resync: drop what follows too
+                    buf = b""
+                    break
+                self.log("rx", first, frame)
+                self.handle(frame)
+                first = now
+            self.write_due()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("device")
+    parser.add_argument("--record", default=None)
+    parser.add_argument("--late-ms", type=int, default=800)
+    parser.add_argument("--garbage", type=bytes.fromhex, default=bytes.fromhex("55 aa 55"))
+    args = parser.parse_args()
+    fd = os.open(args.device, os.O_RDWR | os.O_NOCTTY)
+    tty.setraw(fd, termios.TCSANOW)
+    os.set_blocking(fd, False)
+    record = open(args.record, "w", buffering=1) if args.record else None
+    print("READY", flush=True)
+    try:
+        Slave(fd, record, args.late_ms / 1000, args.garbage).run()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        if record:
+            record.close()
+
+
+if __name__ == "__main__":
+    sys.exit(main())
