@@ -62,7 +62,7 @@ class SerialMaster:
         while True:
             try:
                 if self._nocheck:
-                    return framing.receive_unchecked(adu, deadline)[1:]
+                    return framing.receive_unchecked(adu, deadline)[1:] or None
                 frame = framing.receive(adu, deadline)
             except LineTimeout:
                 return None
