@@ -32,7 +32,7 @@ class LineFormat:
 
     @classmethod
     def parse(cls, text: str) -> "LineFormat":
-        match = FORMAT_PATTERN.match(text.lower())
+        match = FORMAT_PATTERN.fullmatch(text.lower())
         if not match:
             raise ConfigError(f"format {text!r}: expected data bits (7 or 8), parity "
                               f"(n, e, o, m or s) and stop bits (1 or 2), e.g. 8n1")
@@ -129,7 +129,8 @@ class SlaveConfig:
 
 def parse_ip(option: str, text: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address:
     try:
-        address = ipaddress.ip_address(text)
+        # Peers are compared without their scope id (see acl.AccessList.allows)
+        address = ipaddress.ip_address(text.split("%", 1)[0])
     except ValueError:
         raise ConfigError(f"{option} {text!r}: not an IP address") from None
     if isinstance(address, ipaddress.IPv6Address) and address.ipv4_mapped:

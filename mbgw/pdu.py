@@ -38,6 +38,8 @@ def reply_matches(req: bytes, rsp: bytes) -> bool:
         return rsp[1] == 2 * quantity and len(rsp) == 2 + rsp[1]
     if function in (0x05, 0x06, 0x0F, 0x10):
         return len(rsp) == 5 and rsp[1:5] == req[1:5]
+    if function == 0x16:
+        return rsp == req
     if function == 0x17 and len(req) >= 5:
         quantity = int.from_bytes(req[3:5], "big")
         return rsp[1] == 2 * quantity and len(rsp) == 2 + rsp[1]

@@ -19,7 +19,7 @@ PAIR_IDS = [p.label for p in PDU_PAIRS]
 REQUEST_KNOWN_AT = {
     0x01: 2, 0x02: 2, 0x03: 2, 0x04: 2, 0x05: 2, 0x06: 2,   # fixed: address .. quantity/value
     0x07: 2, 0x0B: 2, 0x0C: 2, 0x11: 2,                     # function code only
-    0x08: 4,                                                # sub-function decides (00: echo any data)
+    0x08: 4,                                                # the sub-function decides
     0x0F: 7, 0x10: 7,                                       # byte count after address, quantity
     0x14: 3, 0x15: 3,                                       # byte count right after the code
     0x16: 2,

@@ -1,0 +1,150 @@
+"""The command line (mbgw.cli.main) through click's CliRunner.  Only result.output and
+result.exit_code are used: the rest of the runner's API differs between click 8.1 and 8.2+."""
+import logging
+import re
+
+import pytest
+from click.testing import CliRunner
+
+from mbgw import __version__
+from mbgw.cli import main
+
+DEVICE = ["--device", "/nonexistent/tty"]
+
+
+@pytest.fixture(autouse=True)
+def _keep_logging():
+    """The slave command installs a handler on the "mbgw" logger writing to the runner's
+    (then closed) stderr; put the logger back as it was."""
+    logger = logging.getLogger("mbgw")
+    saved = (logger.handlers[:], logger.level, logger.propagate)
+    yield
+    logger.handlers[:], logger.level, logger.propagate = saved
+
+
+def _slave(*args: str):
+    return CliRunner().invoke(main, ["slave", *args])
+
+
+def _usage_error(result, option: str, value: str) -> None:
+    assert result.exit_code == 2, result.output
+    assert option in result.output
+    assert value in result.output
+
+
+@pytest.mark.parametrize("option, value", [
+    ("--stout", "0"),
+    ("--stout", "70000"),
+    ("--stout", "-1"),
+    ("--format", "9x1"),
+    ("--format", "8n3"),
+    ("--format", "8x1"),
+    ("--protocol", "tcp"),
+    ("--interface", "rs999"),
+    ("--interface", "rs232 echo"),
+    ("--silence", "65536"),
+    ("--ascii-timeout", "0"),
+    ("--baudrate", "0"),
+    ("--baudrate", "49"),
+    ("--baudrate", "4000001"),
+    ("--baudrate", "fast"),
+    ("--slaveid", "248"),
+    ("--slaveid", "-1"),
+    ("--authip", "notanip"),
+    ("--authip", "192.0.2.0/24"),
+    ("--mdbport", "0"),
+    ("--mdbport", "65536"),
+    ("--max-connections", "0"),
+    ("--retries", "11"),
+    ("--turnaround", "65536"),
+    ("--log-level", "loud"),
+])
+def test_bad_value_is_a_usage_error_naming_option_and_value(option, value):
+    _usage_error(_slave(*DEVICE, option, value), option, value)
+
+
+def test_rtsdelays_out_of_range():
+    _usage_error(_slave(*DEVICE, "--rtsdelays", "0", "256"), "--rtsdelays", "256")
+
+
+def test_nine_authip_values_are_one_too_many():
+    args = []
+    for i in range(1, 10):
+        args += ["--authip", f"192.0.2.{i}"]
+    result = _slave(*DEVICE, *args)
+    _usage_error(result, "--authip", "9")
+    assert "8" in result.output
+
+
+def test_device_is_required():
+    result = _slave()
+    assert result.exit_code == 2
+    assert "--device" in result.output
+
+
+def test_version():
+    result = CliRunner().invoke(main, ["--version"])
+    assert result.exit_code == 0
+    assert "mbgw" in result.output
+    assert __version__ in result.output
+
+
+def _help_entries(output: str) -> dict[str, str]:
+    """Option -> its help text (continuation lines joined, words re-joined where click wrapped
+    them at a hyphen), from click's two-column option list."""
+    entries: dict[str, list[str]] = {}
+    current = None
+    for line in output.splitlines():
+        if re.match(r"^  -", line):
+            current = line.split()[0]
+            entries[current] = [line]
+        elif current is not None and line.startswith("   "):
+            entries[current].append(line)
+        else:
+            current = None
+    return {option: re.sub(r"\s+", " ", re.sub(r"-\n\s+", "-", "\n".join(lines)))
+            for option, lines in entries.items()}
+
+
+# The ACKSYS commands' defaults (seeds/000, "set serial stout 600", "set net mdbport 502",
+# exception off) and the rest as documented in README.md.
+HELP_DEFAULTS = {
+    "--protocol": "default: rtu",
+    "--baudrate": "default: 9600",
+    "--format": "default: 8n1",
+    "--interface": "default: rs232",
+    "--rtsdelays": "default: 0, 0",
+    "--stout": "default: 600",
+    "--silence": "default: 0",
+    "--ascii-timeout": "default: 1000",
+    "--slaveid": "default: 0",
+    "--exception": "default: no-exception",
+    "--mdbport": "default: 502",
+    "--bind": "default: all",
+    "--max-connections": "default: 5",
+    "--retries": "default: 0",
+    "--turnaround": "default: 100",
+    "--log-level": "default: info",
+}
+
+
+def test_slave_help_lists_every_option_with_its_default():
+    result = _slave("--help")
+    assert result.exit_code == 0
+    entries = _help_entries(result.output)
+    for option, default in HELP_DEFAULTS.items():
+        assert option in entries, f"{option} missing from --help"
+        assert default in entries[option], f"{option}: {entries[option]!r}"
+    assert "required" in entries["--device"]
+    assert "--authip" in entries
+    assert "--nocheck" in entries
+    assert "8" in entries["--authip"]
+
+
+def test_device_that_cannot_be_opened_exits_1_with_one_line_naming_it():
+    result = _slave("--device", "/nonexistent/tty")
+    assert result.exit_code == 1, result.output
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1, result.output
+    assert "/nonexistent/tty" in lines[0]
+    assert "Traceback" not in result.output
