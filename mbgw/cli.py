@@ -123,10 +123,12 @@ def slave(device, protocol, baudrate, line_format, interface, rtsdelays, stout, 
         daemon.run_slave(cfg)
     except SerialError as err:
         fatal(err.strerror)
-    except OSError as err:
-        fatal(f"cannot listen on port {mdbport}: {err.strerror}")
+    except daemon.ListenError as err:
+        fatal(str(err))
 
 
 def fatal(message: str) -> None:
     click.echo(f"mbgw: {message}", err=True)
     sys.exit(1)
+from mbgw import cli_master  # noqa: E402,F401  (registers `mbgw master`)
+from mbgw.cli_config import register; register(main)  # run, check-config, config; --config

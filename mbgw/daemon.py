@@ -22,13 +22,21 @@ def sd_notify(state: str) -> None:
         return
     if path.startswith("@"):
         path = "\0" + path[1:]
-    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC) as sock:
-        sock.sendto(state.encode(), path)
+    try:
+        with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC) as sock:
+            sock.sendto(state.encode(), path)
+    except OSError as err:    # nobody listening any more: not our problem to die of
+        log.debug("sd_notify %s: %s", state, err)
+
+
+class ListenError(Exception):
+    def __init__(self, port: int, err: OSError) -> None:
+        super().__init__(f"cannot listen on port {port}: {err.strerror}")
 
 
 def run_slave(cfg: SlaveConfig) -> None:
-    """Raises SerialError when the device cannot be opened, OSError when mdbport cannot be
-    bound; otherwise returns after SIGTERM or SIGINT."""
+    """Raises SerialError when the device cannot be opened, ListenError when mdbport cannot
+    be bound; otherwise returns after SIGTERM or SIGINT."""
     line = SerialLine(cfg.serial)
     try:
         asyncio.run(_serve(cfg, line))
@@ -46,7 +54,13 @@ async def _serve(cfg: SlaveConfig, line: SerialLine) -> None:
 
     worker = LineWorker(cfg, line, scheduler, counters, deliver)
     server = TcpServer(cfg, scheduler, counters, lambda: worker.up)
-    addresses = await server.start()
+    stop = asyncio.Event()
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(signum, stop.set)
+    try:
+        addresses = await server.start()
+    except OSError as err:
+        raise ListenError(cfg.mdbport, err) from None
     worker.start()
     s = cfg.serial
     log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s",
@@ -55,10 +69,6 @@ async def _serve(cfg: SlaveConfig, line: SerialLine) -> None:
     if s.nocheck:
         log.warning("nocheck is on: serial replies are forwarded unchecked (a debugging mode)")
     sd_notify("READY=1")
-
-    stop = asyncio.Event()
-    for signum in (signal.SIGTERM, signal.SIGINT):
-        loop.add_signal_handler(signum, stop.set)
     await stop.wait()
     sd_notify("STOPPING=1")
     log.info("stopping")

@@ -20,20 +20,24 @@ def free_port() -> int:
 
 
 def _read_lines_until(proc: subprocess.Popen, stream, want, timeout: float) -> list[str]:
-    """Read lines from stream until want(lines) is true; fail on exit or timeout."""
+    """Read lines from stream until want(lines) is true; fail on exit or timeout.
+    Reads the descriptor itself: a buffered reader would hide lines from select."""
     lines: list[str] = []
+    pending = b""
+    fd = stream.fileno()
     sel = selectors.DefaultSelector()
-    sel.register(stream, selectors.EVENT_READ)
+    sel.register(fd, selectors.EVENT_READ)
     deadline = time.monotonic() + timeout
     try:
         while not want(lines):
             left = deadline - time.monotonic()
             if left <= 0 or not sel.select(left):
                 raise TimeoutError(f"{proc.args[0]} not ready; said: {lines}")
-            line = stream.readline()
-            if not line:
+            chunk = os.read(fd, 4096)
+            if not chunk:
                 raise RuntimeError(f"{proc.args} exited ({proc.wait()}); said: {lines}")
-            lines.append(line.rstrip("\n"))
+            *complete, pending = (pending + chunk).split(b"\n")
+            lines.extend(line.decode(errors="replace") for line in complete)
     finally:
         sel.close()
     return lines

@@ -1,0 +1,237 @@
+"""Slave mode's TCP side: connection limit, authip, bad MBAP headers, readiness, the command line.
+
+The serial side is pymodbus 3.16.1's RTU server on a socat pty (tests/peers/pymodbus_slave.py,
+slave 17: holding register n holds 100 + n).
+"""
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import time
+
+import pytest
+
+from tests import harness
+
+pytestmark = pytest.mark.integration
+
+REPLY_TIMEOUT_S = 3.0
+CLOSED_WITHIN_S = 0.5     # a refused or evicted connection must see EOF/reset within this
+
+
+def adu(tid: int, unit: int, pdu: bytes) -> bytes:
+    return struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu
+
+
+def recv_exact(sock: socket.socket, n: int, timeout: float = REPLY_TIMEOUT_S) -> bytes:
+    deadline = time.monotonic() + timeout
+    data = b""
+    while len(data) < n:
+        sock.settimeout(max(deadline - time.monotonic(), 0.001))
+        chunk = sock.recv(n - len(data))
+        if not chunk:
+            raise ConnectionError(f"EOF after {data.hex(' ')!r}")
+        data += chunk
+    return data
+
+
+def recv_adu(sock: socket.socket, timeout: float = REPLY_TIMEOUT_S) -> bytes:
+    header = recv_exact(sock, 6, timeout)
+    return header + recv_exact(sock, struct.unpack(">H", header[4:6])[0], timeout)
+
+
+READ_3 = bytes.fromhex("03 0000 0003")
+REPLY_3 = bytes.fromhex("03 06 0064 0065 0066")     # 100, 101, 102
+
+
+def assert_served(sock: socket.socket, tid: int = 0x0101, unit: int = 17) -> None:
+    sock.sendall(adu(tid, unit, READ_3))
+    assert recv_adu(sock) == adu(tid, unit, REPLY_3)
+
+
+def assert_closed(sock: socket.socket, within: float = CLOSED_WITHIN_S) -> None:
+    """The gateway closed sock without sending anything: EOF or reset, and soon."""
+    sock.settimeout(within)
+    try:
+        data = sock.recv(1024)
+    except ConnectionResetError:
+        return
+    except socket.timeout:
+        pytest.fail(f"connection still open after {within} s")
+    assert data == b"", f"the gateway answered: {data.hex(' ')}"
+
+
+def connect(port: int, source: str | None = None) -> socket.socket:
+    sock = socket.socket()
+    sock.settimeout(REPLY_TIMEOUT_S)
+    if source:
+        sock.bind((source, 0))
+    sock.connect(("127.0.0.1", port))
+    return sock
+
+
+@pytest.fixture
+def sockets():
+    """Sockets to close after the test."""
+    opened: list[socket.socket] = []
+    yield opened
+    for sock in opened:
+        sock.close()
+
+
+@pytest.fixture
+def rtu(pty_pair, start_peer):
+    """pymodbus slave 17 on the line; requests to any other address get no reply."""
+    start_peer("pymodbus_slave.py", pty_pair.device, "17", "--silent-unknown")
+    return pty_pair
+
+
+# ---- --max-connections ----
+
+def test_newcomer_closes_the_least_recently_active_idle_connection(rtu, start_gateway, sockets):
+    gw = start_gateway(rtu.gateway, "--baudrate", "19200", "--max-connections", "2")
+    first, second = connect(gw.port), connect(gw.port)
+    sockets += [first, second]
+    assert_served(second)
+    assert_served(first)          # the older connection is now the more recently active one
+    third = connect(gw.port)
+    sockets.append(third)
+    assert_served(third)
+    assert_closed(second)
+    assert_served(first)
+    assert "closed to make room" in gw.log()
+
+
+def test_newcomer_refused_while_every_connection_has_a_request_in_flight(rtu, start_gateway,
+                                                                         sockets):
+    stout_s = 1.0
+    gw = start_gateway(rtu.gateway, "--baudrate", "19200", "--max-connections", "2",
+                       "--exception", "--stout", str(int(stout_s * 1000)))
+    first, second = connect(gw.port), connect(gw.port)
+    sockets += [first, second]
+    # Each connection sends, in one segment, a quick request then requests to absent unit 30
+    # that each hold the line for stout.  Once the quick reply is back, the rest is queued.
+    slow = bytes.fromhex("03 0000 0001")
+    first.sendall(adu(1, 17, READ_3) + adu(2, 30, slow) + adu(3, 30, slow))
+    second.sendall(adu(1, 17, READ_3) + adu(2, 30, slow))
+    assert recv_adu(first) == adu(1, 17, REPLY_3)
+    assert recv_adu(second) == adu(1, 17, REPLY_3)
+    # Both have requests in flight for at least another stout: the newcomer is refused.
+    third = connect(gw.port)
+    sockets.append(third)
+    assert_closed(third)
+    # ... and the busy connections were left alone: each gets its 0x0B (no reply) answers.
+    timeout = 3 * stout_s + REPLY_TIMEOUT_S
+    assert recv_adu(first, timeout) == adu(2, 30, bytes.fromhex("83 0b"))
+    assert recv_adu(second, timeout) == adu(2, 30, bytes.fromhex("83 0b"))
+    assert recv_adu(first, timeout) == adu(3, 30, bytes.fromhex("83 0b"))
+    assert "connections are busy" in gw.log()
+
+
+# ---- --authip ----
+
+def test_authip_refuses_other_addresses_and_logs_it_once(rtu, start_gateway, sockets):
+    gw = start_gateway(rtu.gateway, "--baudrate", "19200", "--authip", "127.0.0.2")
+    stranger = connect(gw.port)           # from 127.0.0.1
+    sockets.append(stranger)
+    try:
+        stranger.sendall(adu(1, 17, READ_3))
+    except (BrokenPipeError, ConnectionResetError):
+        pass                              # already closed: fine
+    assert_closed(stranger)
+
+    friend = connect(gw.port, source="127.0.0.2")
+    sockets.append(friend)
+    assert_served(friend)
+
+    for _ in range(20):
+        again = connect(gw.port)
+        sockets.append(again)
+        assert_closed(again)              # once closed, the gateway has logged (or not) already
+    assert_served(friend, tid=2)
+    refusals = [line for line in gw.log().splitlines() if "refused" in line]
+    assert len(refusals) == 1, refusals
+    assert "127.0.0.1" in refusals[0] and "authip" in refusals[0]
+
+
+# ---- bad MBAP headers ----
+
+BAD_HEADERS = {
+    "protocol-1": struct.pack(">HHHB", 7, 1, 6, 17) + READ_3,
+    "length-0": struct.pack(">HHHB", 7, 0, 0, 17) + READ_3,
+    "length-300": struct.pack(">HHHB", 7, 0, 300, 17) + READ_3,
+}
+
+
+@pytest.mark.parametrize("frame", BAD_HEADERS.values(), ids=BAD_HEADERS.keys())
+def test_bad_mbap_header_closes_that_connection_only(rtu, start_gateway, sockets, frame):
+    gw = start_gateway(rtu.gateway, "--baudrate", "19200")
+    good, bad = connect(gw.port), connect(gw.port)
+    sockets += [good, bad]
+    assert_served(good)
+    assert_served(bad)
+    bad.sendall(frame)
+    assert_closed(bad)
+    assert_served(good, tid=2)
+    assert "bad MBAP header" in gw.log()
+
+
+# ---- readiness and the command line ----
+
+def test_ready_means_one_info_line_naming_address_and_device(rtu, start_gateway):
+    gw = start_gateway(rtu.gateway, "--baudrate", "19200")
+    lines = gw.log().splitlines()       # as it stands when READY=1 arrived
+    address = f"127.0.0.1:{gw.port}"
+    naming = [line for line in lines if address in line]
+    assert len(naming) == 1, lines
+    assert " INFO " in naming[0] and rtu.gateway in naming[0], naming[0]
+    assert not [line for line in lines if " WARNING " in line or " ERROR " in line], lines
+    with connect(gw.port) as sock:
+        assert_served(sock)
+
+
+def run_cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "mbgw", "slave", *args],
+                          capture_output=True, text=True, timeout=10)
+
+
+BAD_OPTIONS = {
+    "baudrate": ("--baudrate", "49"),
+    "protocol": ("--protocol", "tcp"),
+    "interface": ("--interface", "rs485 loud"),
+    "format": ("--format", "9x1"),
+    "stout": ("--stout", "0"),
+    "slaveid": ("--slaveid", "248"),
+    "authip": ("--authip", "1.2.3"),
+    "mdbport": ("--mdbport", "70000"),
+    "max-connections": ("--max-connections", "0"),
+    "retries": ("--retries", "11"),
+    "log-level": ("--log-level", "chatty"),
+}
+
+
+@pytest.mark.parametrize("option, value", BAD_OPTIONS.values(), ids=BAD_OPTIONS.keys())
+def test_bad_option_exits_2_naming_it(option, value):
+    # /dev/null is no tty: were the option accepted, the gateway would exit 1, not hang
+    out = run_cli("--device", "/dev/null", "--mdbport", "1502", option, value)
+    assert out.returncode == 2, out.stderr
+    assert f"'{option}'" in out.stderr, out.stderr
+    assert out.stdout == ""
+
+
+def test_missing_device_exits_1_with_one_line(tmp_path):
+    device = str(tmp_path / "ttyNONE")
+    out = run_cli("--device", device, "--mdbport", str(harness.free_port()))
+    assert out.returncode == 1, out.stderr
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and device in lines[0], out.stderr
+
+
+def test_sigterm_stops_cleanly_when_the_notify_socket_is_gone(rtu, start_gateway):
+    gw = start_gateway(rtu.gateway, "--baudrate", "19200")   # the harness closed its socket
+    with connect(gw.port) as sock:
+        assert_served(sock)   # the loop is past READY=1 and its signal handlers are in place
+    gw.proc.send_signal(signal.SIGTERM)
+    assert gw.proc.wait(10) == 0, gw.log()
+    assert "stopped; counters:" in gw.log()
