@@ -112,11 +112,9 @@ long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, size_t req_len,
     int expected = 0;
     *end_ns = 0;
     for (;;) {
-        /* Until the length is known the frame ends by silence; a known length is awaited
-         * until the deadline (libmodbus's rule for the codes it frames). */
-        int64_t until = deadline_ns;
-        if (have > 0 && (by_silence || expected == MBGW_LEN_UNKNOWN))
-            until = *end_ns + (int64_t)gap_us * 1000;
+        /* The first byte is awaited until the deadline; after it, a silence of gap_us ends
+         * the frame, complete or not (Serial Line V1.02 2.5.1.1). */
+        int64_t until = have > 0 ? *end_ns + (int64_t)gap_us * 1000 : deadline_ns;
         int rc = wait_input(fd, until);
         if (rc < 0)
             return rc;

@@ -36,10 +36,11 @@ long mbgw_wait_quiet(int fd, int64_t last_ns, int32_t quiet_us);
  * (-1: no timeout).  Returns 0 woken, 1 input waiting, 2 timed out. */
 int mbgw_idle_wait(int fd, int wake_fd, int timeout_ms);
 
-/* Read the reply to a request of req_len bytes (CRC excluded) into buf.  The first byte and
- * a length-known frame's last byte must arrive before deadline_ns; a frame of unknown length (or any frame with by_silence set)
- * ends after gap_us of silence.  *end_ns receives the time the last byte arrived.
- * Returns the bytes read (possibly an incomplete frame) or -ETIMEDOUT when nothing came. */
+/* Read the reply to a request of req_len bytes (CRC excluded) into buf.  The first byte must
+ * arrive before deadline_ns; the frame ends when its length (known from the function code)
+ * is reached or, failing that, after gap_us of silence: what came is returned, complete or
+ * not (or with by_silence set, the length is not looked at).  *end_ns receives the time the
+ * last byte arrived.  Returns the bytes read or -ETIMEDOUT when nothing came. */
 long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, size_t req_len,
                      int64_t deadline_ns, int32_t gap_us, int by_silence, int64_t *end_ns);
 
@@ -84,3 +85,14 @@ int mbgw_write_frame(int fd, const uint8_t *buf, size_t len, int rts_control,
 /* Read back and drop the echo of the frame just sent (2-wire RS-485 with the receiver on).
  * -EPROTO when the echo differs (a collision), -ETIMEDOUT when it does not come. */
 int mbgw_discard_echo(int fd, const uint8_t *sent, size_t len, int64_t deadline_ns);
+
+/* --- request.c: master mode, the serial master's requests for any address --- */
+
+/* Wait (no deadline) for a frame on fd, then read it into buf: framed by the request length
+ * of its function code, or by the reply length when it comes from reply_to's address (the
+ * last frame for a slave mbgw does not answer for; reply_to_len 0: none), the first length
+ * whose CRC checks; else by gap_us of silence.  Never reads past the frame.  Returns its
+ * length with the CRC (valid).  -ECANCELED wake_fd was signalled first, -EILSEQ bad CRC,
+ * -EBADMSG too short, -EMSGSIZE longer than cap. */
+long mbgw_rtu_read_request(int fd, int wake_fd, uint8_t *buf, size_t cap,
+                           const uint8_t *reply_to, size_t reply_to_len, int32_t gap_us);

@@ -136,3 +136,35 @@ def parse_ip(option: str, text: str) -> ipaddress.IPv4Address | ipaddress.IPv6Ad
     if isinstance(address, ipaddress.IPv6Address) and address.ipv4_mapped:
         return address.ipv4_mapped
     return address
+
+
+import typing  # noqa: E402  (master mode's settings were added below slave mode's)
+
+if typing.TYPE_CHECKING:
+    from mbgw.slaveid_table import SlaveIdTable
+
+TCPTO_RANGE = (1, 65535)
+DEFAULT_TCPTO_MS = 800          # ACKSYS "set net tcpto" default
+
+
+@dataclass(frozen=True)
+class MasterConfig:
+    """Master mode: a Modbus master on the serial line, Modbus TCP servers on the network."""
+    serial: SerialConfig
+    slaveid: "SlaveIdTable"
+    tcpto_ms: int = DEFAULT_TCPTO_MS
+    mdbport: int = 502              # the remote servers' port
+    exception: bool = False
+    max_connections: int = 5
+
+    def __post_init__(self) -> None:
+        low, high = TCPTO_RANGE
+        if not low <= self.tcpto_ms <= high:
+            raise ConfigError(f"tcpto {self.tcpto_ms}: out of range {low}..{high}")
+        if self.max_connections < 1:
+            raise ConfigError(f"max-connections {self.max_connections}: at least 1")
+
+    @property
+    def tcpto_ns(self) -> int:
+        return self.tcpto_ms * 1_000_000
+

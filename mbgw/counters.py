@@ -19,3 +19,23 @@ class Counters:
 
     def snapshot(self) -> dict[str, int]:
         return {name: getattr(self, name) for name in NAMES}
+
+# Master mode's own events; the counters line at stop lists these.
+MASTER_NAMES = (
+    "requests", "replies", "device_exceptions", "gateway_exceptions", "timeouts",
+    "unreachable", "broadcasts", "crc_errors", "invalid_frames", "other_addresses",
+    "late_replies", "abandoned", "connections_opened", "connections_evicted",
+    "connections_lost",
+)
+
+
+class MasterCounters(Counters):
+    __slots__ = tuple(name for name in MASTER_NAMES if name not in NAMES)
+
+    def __init__(self) -> None:
+        super().__init__()
+        for name in self.__slots__:
+            setattr(self, name, 0)
+
+    def snapshot(self) -> dict[str, int]:
+        return {name: getattr(self, name) for name in MASTER_NAMES}

@@ -23,3 +23,21 @@ class ChecksumError(MbgwError):
 
 class FrameError(MbgwError):
     """A frame is malformed (too long, truncated)."""
+
+
+class ConfigFileError(ConfigError):
+    """The configuration file cannot be read or holds unknown keys or bad values.  Each entry of
+    `problems` names the key (`net.authip[2]`) and the reason; str() prefixes them with the file."""
+
+    def __init__(self, path, problems) -> None:
+        self.path = str(path)
+        self.problems = list(problems)
+        super().__init__("\n".join(f"{self.path}: {p}" for p in self.problems))
+
+
+class GatewayTimeout(MbgwError):
+    """Master mode: no reply from the remote server within tcpto (connecting included)."""
+
+
+class NoRoute(MbgwError):
+    """Master mode: the remote server cannot be reached (connection refused, no route)."""

@@ -30,7 +30,13 @@ class RtuFraming:
             timeout_us = (deadline - time.monotonic_ns()) // 1000
             if timeout_us <= 0:
                 raise LineTimeout()
-            frame = self.port.receive_confirmation(adu[0], timeout_us)
+            try:
+                frame = self.port.receive_confirmation(adu[0], timeout_us)
+            except LineTimeout:
+                self.last_rx_ns = time.monotonic_ns()
+                if self.last_rx_ns < deadline:   # the byte timeout: a gap broke a frame
+                    raise FrameError("incomplete frame") from None
+                raise
             self.last_rx_ns = time.monotonic_ns()
             return frame[:-2] if frame is not None else None
         frame = self.port.read_reply(len(adu), deadline, self._end_us, False)

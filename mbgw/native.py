@@ -188,3 +188,14 @@ class Port:
     def idle_wait(self, wake_fd: int, timeout_ms: int) -> int:
         """0 woken through wake_fd, 1 unsolicited input, 2 timed out."""
         return self._check(lib.mbgw_idle_wait(self.fd, wake_fd, timeout_ms), "poll")
+
+    def read_request(self, wake_fd: int, reply_to: bytes, gap_us: int) -> bytes | None:
+        """Master mode: the next RTU frame for any address, without its (valid) CRC; None
+        when woken through wake_fd first.  reply_to: the last frame for an address we do not
+        answer for (its slave's reply may come next), or b"".  Raises ChecksumError,
+        FrameError, SerialError."""
+        n = lib.mbgw_rtu_read_request(self.fd, wake_fd, self._buf, RTU_MAX_ADU, reply_to,
+                                      len(reply_to), gap_us)
+        if n == -errno.ECANCELED:
+            return None
+        return ffi.buffer(self._buf, self._check(n, "read") - 2)[:]

@@ -1,0 +1,374 @@
+"""The configuration-file commands: `mbgw run`, `mbgw check-config`, `mbgw config show|set|
+unset|default`, and the --config option of the mode commands.  register(main) adds them."""
+import shlex
+import tomllib
+from pathlib import Path
+
+import click
+
+from mbgw import config_file as cf
+from mbgw.errors import ConfigError, ConfigFileError
+from mbgw.toml_edit import dump_value, set_line, write_atomic
+
+SHOW_WIDTH = 16                    # the key column of `mbgw config show`
+
+
+class Failure(click.ClickException):
+    """Printed as "mbgw: ..." lines on stderr; exit status 1."""
+
+    def show(self, file=None) -> None:
+        for line in self.format_message().splitlines():
+            click.echo(f"mbgw: {line}", file=file, err=file is None)
+
+
+def register(root: click.Group) -> None:
+    """Add the commands to `root`, and a --config FILE option to its mode commands."""
+    for mode in cf.MODES:
+        command = root.commands.get(mode)
+        if command is not None and not any(p.name == "config" for p in command.params):
+            command.params.append(_mode_config_option())
+    for command in (run, check_config, config):
+        root.add_command(command)
+
+
+def _schema(ctx: click.Context) -> cf.Schema:
+    root = ctx.find_root().command
+    if not isinstance(root, click.Group) or not any(m in root.commands for m in cf.MODES):
+        root = click.Group(commands={ctx.command.name: ctx.command})
+    return cf.Schema(root)
+
+
+def _command_line(ctx: click.Context, *words) -> str:
+    return shlex.join([*ctx.command_path.split(), *map(str, words)])
+
+
+def _permission_failure(ctx, path, doing: str, words) -> Failure:
+    return Failure(f"cannot {doing} {path}: permission denied; run it as root: "
+                   f"sudo {_command_line(ctx, *words)}")
+
+
+def _load(ctx: click.Context, schema: cf.Schema, path: Path, words=()) -> cf.Settings:
+    try:
+        return cf.load(schema, path)
+    except PermissionError:
+        raise _permission_failure(ctx, path, "read", words) from None
+    except ConfigFileError as err:
+        raise Failure(str(err)) from None
+
+
+# --- the --config option of `mbgw slave` / `mbgw master` -----------------------------------------
+
+def _mode_config_option() -> click.Option:
+    return click.Option(
+        ["--config"], metavar="FILE", type=click.Path(dir_okay=False), envvar="MBGW_CONFIG",
+        is_eager=True, expose_value=False, callback=_apply_file,
+        help=f"Take the options not given here from FILE [default: {cf.DEFAULT_PATH}, when "
+             f"it exists; also $MBGW_CONFIG].")
+
+
+def _apply_file(ctx: click.Context, param: click.Parameter, value) -> None:
+    """Eager: runs before the other options take their values, and gives them the file's
+    values as defaults (click's default_map), so the command line wins over the file."""
+    if value is None:
+        if ctx.default_map is not None:       # `mbgw run` or load_options already gave them
+            return
+        if not cf.DEFAULT_PATH.exists():
+            return
+        value = cf.DEFAULT_PATH
+    schema = _schema(ctx)
+    settings = _load(ctx, schema, Path(value))
+    ctx.default_map = {**settings.default_map(schema, ctx.command.name),
+                       **(ctx.default_map or {})}
+
+
+# --- the file options of the other commands -------------------------------------------------
+
+def _file_options(function):
+    function = click.option(
+        "-i", "--instance", metavar="NAME",
+        help=f"The file of the service instance mbgw@NAME: {cf.CONFIG_DIR}/NAME.toml.")(function)
+    return click.option(
+        "--config", "config_path", metavar="FILE", envvar="MBGW_CONFIG",
+        type=click.Path(dir_okay=False, path_type=Path), default=cf.DEFAULT_PATH,
+        show_default=True, help="The configuration file (also $MBGW_CONFIG).")(function)
+
+
+def _path(ctx: click.Context, config_path: Path, instance: str | None) -> Path:
+    if instance is None:
+        return Path(config_path)
+    if ctx.get_parameter_source("config_path") not in (None, click.core.ParameterSource.DEFAULT):
+        raise click.UsageError("give --config or --instance, not both")
+    if not instance or "/" in instance or instance.startswith("."):
+        raise click.BadParameter(f"{instance!r}: a name such as ttyUSB1",
+                                 param_hint="'--instance'")
+    return cf.CONFIG_DIR / f"{instance}.toml"
+
+
+def _file_words(ctx: click.Context, path: Path) -> list[str]:
+    """The file options to repeat in a suggested command."""
+    return [] if path == cf.DEFAULT_PATH else ["--config", str(path)]
+
+
+def _reload_hint(path: Path) -> str | None:
+    if path == cf.DEFAULT_PATH:
+        return "systemctl reload mbgw"
+    if path.parent == cf.CONFIG_DIR and path.suffix == ".toml":
+        return f"systemctl reload mbgw@{path.stem}"
+    return None
+
+
+# --- mbgw run, mbgw check-config ----------------------------------------------------------------
+
+@click.command("run", context_settings={"ignore_unknown_options": True,
+                                        "allow_interspersed_args": False})
+@_file_options
+@click.argument("args", nargs=-1, type=click.UNPROCESSED, metavar="[MODE OPTIONS]...")
+@click.pass_context
+def run(ctx: click.Context, config_path: Path, instance: str | None, args) -> None:
+    """Start the mode the configuration file selects (serial.mode): what the mbgw service
+    runs.  Options after the file options are the mode command's and win over the file,
+    e.g. `mbgw run --log-level debug`."""
+    path = _path(ctx, config_path, instance)
+    schema = _schema(ctx)
+    settings = _load(ctx, schema, path)
+    command = schema.commands[settings.mode]
+    try:
+        sub = command.make_context(settings.mode, list(args), parent=ctx,
+                                   default_map=settings.default_map(schema, settings.mode))
+    except click.MissingParameter as err:
+        raise Failure(f"{path}: {cf._click_problem(schema, settings, err)}") from None
+    with sub:
+        command.invoke(sub)
+
+
+@click.command("check-config")
+@click.argument("file", required=False, type=click.Path(dir_okay=False, path_type=Path))
+@click.pass_context
+def check_config(ctx: click.Context, file: Path | None) -> None:
+    """Check a configuration file without starting anything: every key known, every value
+    accepted as on the command line, what its mode requires present.  FILE defaults to
+    $MBGW_CONFIG, else /etc/mbgw/mbgw.toml."""
+    import os
+    path = file or Path(os.environ.get("MBGW_CONFIG") or cf.DEFAULT_PATH)
+    schema = _schema(ctx)
+    settings = _load(ctx, schema, path, [path])
+    try:
+        cf.resolve(schema, settings)
+    except ConfigFileError as err:
+        raise Failure(str(err)) from None
+    click.echo(f"{path}: ok ({settings.mode} mode)")
+
+
+# --- mbgw config ... -----------------------------------------------------------------------------
+
+@click.group("config")
+def config() -> None:
+    """Show and change the configuration file with the ACKSYS commands: `mbgw config set
+    serial stout 700` is the guide's `set serial stout 700`.  Each change is checked like the
+    command line and written atomically; the running service takes it on `systemctl reload
+    mbgw`."""
+
+
+def _show_lines(schema: cf.Schema, settings: cf.Settings, name: str) -> list[str]:
+    value = settings.get(schema, name)
+    if name == "authip" and isinstance(value, list):
+        return [f"{i} {a}" for i, a in enumerate(value, 1) if a != cf.NO_ADDRESS] \
+            or ["(empty: any client may connect)"]
+    key = schema.keys.get(name)
+    param = key.params[key.mode_for(settings.mode)] if key else None
+    if param is not None and param.multiple:
+        return [" ".join(map(str, v)) if isinstance(v, list) else str(v) for v in value] \
+            or ["(empty)"]
+    if isinstance(value, bool):
+        return ["on" if value else "off"]
+    if isinstance(value, list):
+        return [" ".join(map(str, value))]
+    return ["(not set)" if value is None else str(value)]
+
+
+@config.command("show")
+@_file_options
+@click.argument("group", required=False, type=click.Choice(cf.GROUPS))
+@click.argument("param", required=False)
+@click.pass_context
+def show(ctx, config_path: Path, instance: str | None, group: str | None,
+         param: str | None) -> None:
+    """Show the settings in effect (the file's, else the built-in defaults): all, one GROUP
+    (serial, net, general), or one PARAM, like the guide's `show serial stout`."""
+    path = _path(ctx, config_path, instance)
+    schema = _schema(ctx)
+    if path.exists():
+        settings = _load(ctx, schema, path, ["show", *filter(None, (group, param))])
+    else:
+        click.echo(f"mbgw: {path} does not exist: built-in defaults", err=True)
+        settings = cf.Settings(path, schema.default_mode, {})
+    if param is not None:
+        name = param.lower()
+        if name not in schema.group_keys(group):
+            raise click.BadParameter(f"{group}.{param}: unknown{schema.hint(name)}",
+                                     param_hint="PARAM")
+        for line in _show_lines(schema, settings, name):
+            click.echo(line)
+        return
+    for shown in [group] if group else cf.GROUPS:
+        names = schema.group_keys(shown)
+        if not names:
+            continue
+        click.echo(f"[{shown}]")
+        for name in names:
+            for line in _show_lines(schema, settings, name):
+                click.echo(f"{name:<{SHOW_WIDTH}} {line}")
+
+
+def _change(ctx, path: Path, words, change) -> None:
+    """Read the file (or start from the factory file), make `change(schema, settings, data)`
+    -> {key: value}, check the whole result, write it atomically, say what changed."""
+    schema = _schema(ctx)
+    try:
+        text = cf.read_text(path)
+    except FileNotFoundError:
+        text = cf.factory_text(schema)
+    except PermissionError:
+        raise _permission_failure(ctx, path, "read", words) from None
+    try:
+        data = cf.parse(path, text)
+        settings = cf.check(schema, path, data)
+    except ConfigFileError as err:
+        raise Failure(f"{err}\nmbgw: fix the file first (or start again: "
+                      f"{_command_line(ctx.parent, 'default', *_file_words(ctx, path))})") \
+            from None
+    try:
+        changes = change(schema, settings, data)
+        new_data = cf.apply_changes(data, schema, changes)
+        cf.check(schema, path, new_data)
+    except ConfigError as err:
+        message = str(err)
+        raise Failure(message if message.startswith(str(path)) else f"{path}: {message}") \
+            from None
+    new_mode = changes.get(cf.MODE_KEY, settings.mode)
+    new_text = cf.edit(text, schema, new_mode, changes)
+    if tomllib.loads(new_text) != new_data:          # the editor's own check
+        raise Failure(f"{path}: could not edit the file in place; nothing written")
+    try:
+        write_atomic(path, new_text)
+    except PermissionError:
+        raise _permission_failure(ctx, path, "write", words) from None
+    except OSError as err:
+        raise Failure(f"cannot write {path}: {err.strerror or err}") from None
+    for name, value in changes.items():
+        label = schema.label(name) if name == cf.MODE_KEY or name in schema.keys else name
+        if value is cf._REMOVE:
+            click.echo(f"{path}: {label} back to its default")
+        else:
+            click.echo(f"{path}: {label} = {dump_value(value)}")
+    hint = _reload_hint(path)
+    if hint and text != new_text:
+        click.echo(f"apply it with: {hint}")
+
+
+@config.command("set")
+@_file_options
+@click.argument("group", type=click.Choice(cf.GROUPS))
+@click.argument("param")
+@click.argument("values", nargs=-1, required=True)
+@click.pass_context
+def set_(ctx, config_path: Path, instance: str | None, group: str, param: str,
+         values: tuple) -> None:
+    """Set PARAM of GROUP with the guide's syntax, e.g.
+
+    \b
+      mbgw config set serial stout 700
+      mbgw config set serial format 8e1
+      mbgw config set serial mode master       (clears net.authip and net.slaveid)
+      mbgw config set serial mode rtu          (the protocol)
+      mbgw config set net authip 1 192.168.1.5 (entry 1..8; 0.0.0.0 clears it)
+      mbgw config set net slaveid 1 8 1 0 192.168.0.30   (master: FS LS FR M IP; FS 0 clears)
+      mbgw config set net exception on
+    """
+    path = _path(ctx, config_path, instance)
+    words = ["set", group, param, *values, *_file_words(ctx, path)]
+    _change(ctx, path, words,
+            lambda schema, settings, data: cf.changes_for_set(schema, settings, group, param,
+                                                              list(values)))
+
+
+@config.command("unset")
+@_file_options
+@click.argument("group", type=click.Choice(cf.GROUPS))
+@click.argument("param")
+@click.pass_context
+def unset(ctx, config_path: Path, instance: str | None, group: str, param: str) -> None:
+    """Take PARAM out of the file: it goes back to its built-in default.  Works on a
+    misspelt key too."""
+    path = _path(ctx, config_path, instance)
+    words = ["unset", group, param, *_file_words(ctx, path)]
+    if group == "serial" and param == cf.MODE_KEY:
+        _change(ctx, path, words, lambda schema, settings, data: cf.changes_for_set(
+            schema, settings, group, param, [schema.default_mode]))
+    else:
+        _unset(ctx, path, words, group, param)
+
+
+def _unset(ctx, path: Path, words, group: str, param: str) -> None:
+    """Works on the text, even when the key is unknown (a typo) or its value is bad."""
+    schema = _schema(ctx)
+    try:
+        text = cf.read_text(path)
+    except FileNotFoundError:
+        click.echo(f"{path}: no such file: {group}.{param} is at its default")
+        return
+    except PermissionError:
+        raise _permission_failure(ctx, path, "read", words) from None
+    data = _parse(path, text)
+    content = data.get(group) if isinstance(data.get(group), dict) else {}
+    if param not in content:
+        click.echo(f"{path}: {group}.{param} is not set: it is at its default")
+        return
+    serial = data.get("serial") if isinstance(data.get("serial"), dict) else {}
+    known = param in schema.keys and schema.keys[param].group == group
+    commented = cf.default_line(schema, param, str(serial.get(cf.MODE_KEY, ""))) if known \
+        else None
+    new_text = set_line(text, group, param, None, commented)
+    new_data = _parse(path, new_text)
+    if param in new_data.get(group, {}):
+        raise Failure(f"{path}: could not edit the file in place; nothing written")
+    try:
+        write_atomic(path, new_text)
+    except PermissionError:
+        raise _permission_failure(ctx, path, "write", words) from None
+    click.echo(f"{path}: {group}.{param} back to its default")
+    try:
+        cf.check(schema, path, new_data)
+    except ConfigFileError as err:
+        raise Failure(f"{err}\n(the file still has these problems)") from None
+    hint = _reload_hint(path)
+    if hint:
+        click.echo(f"apply it with: {hint}")
+
+
+def _parse(path: Path, text: str) -> dict:
+    try:
+        return cf.parse(path, text)
+    except ConfigFileError as err:
+        raise Failure(str(err)) from None
+
+
+@config.command("default")
+@_file_options
+@click.pass_context
+def default(ctx, config_path: Path, instance: str | None) -> None:
+    """Write the factory defaults: the guide's `set default`.  Every key is listed with its
+    help, commented out at its built-in default; the device is /dev/ttyUSB0."""
+    path = _path(ctx, config_path, instance)
+    try:
+        write_atomic(path, cf.factory_text(_schema(ctx)))
+    except PermissionError:
+        raise _permission_failure(ctx, path, "write", ["default", *_file_words(ctx, path)]) \
+            from None
+    except OSError as err:
+        raise Failure(f"cannot write {path}: {err.strerror or err}") from None
+    click.echo(f"{path}: factory defaults written")
+    hint = _reload_hint(path)
+    if hint:
+        click.echo(f"apply it with: {hint}")
+

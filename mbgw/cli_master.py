@@ -1,0 +1,55 @@
+"""The `mbgw master` command: a Modbus master on the serial line reaches Modbus TCP servers.
+Registered by mbgw.cli; it shares the serial options with slave mode."""
+import click
+from click.core import ParameterSource
+
+from mbgw import config
+from mbgw.cli import LOG_LEVELS, _convert, _parser, _serial_config, fatal, main, serial_options
+from mbgw.errors import SerialError
+from mbgw.slaveid_table import MAX_RANGES, SlaveIdTable
+
+SLAVE_MODE_ONLY = ("stout", "nocheck")
+
+
+@main.command()
+@serial_options
+@click.option("--slaveid", "slaveid", multiple=True, metavar='"FS LS FR M IP"',
+              callback=_parser(SlaveIdTable.parse),
+              help="Serial addresses FS..LS go to the server at IP, as unit id FR + (address "
+                   "- FS), or 0xFF when FR is 0; M=1 adds (address - FS) to the IP's last "
+                   f"byte too.  Repeat for up to {MAX_RANGES} ranges; a line whose FS lies in "
+                   "a range already defined replaces the oldest; FS=0 clears the table.")
+@click.option("--tcpto", type=click.IntRange(*config.TCPTO_RANGE),
+              default=config.DEFAULT_TCPTO_MS, show_default=True, metavar="MS",
+              help="Time for a transaction with a server, connecting included, 1..65535 ms.")
+@click.option("--mdbport", type=click.IntRange(1, 65535), default=502, show_default=True,
+              help="Modbus TCP port of the remote servers.")
+@click.option("--exception/--no-exception", default=False, show_default=True,
+              help="Answer exception 0x0B when a server does not reply within tcpto, 0x0A "
+                   "when it cannot be reached, instead of staying silent.")
+@click.option("--max-connections", type=click.IntRange(1, 1000), default=5, show_default=True,
+              help="Connections kept open to servers; one more closes the least recently "
+                   "used.")
+@click.option("--log-level", type=LOG_LEVELS, default="info", show_default=True)
+@click.pass_context
+def master(ctx, device, protocol, baudrate, line_format, interface, rtsdelays, stout, silence,
+           ascii_timeout, nocheck, slaveid, tcpto, mdbport, exception, max_connections,
+           log_level) -> None:
+    """Master mode: a Modbus master on the serial line reaches Modbus TCP servers."""
+    from mbgw import log
+    from mbgw.master_daemon import run_master
+
+    for name in SLAVE_MODE_ONLY:
+        if ctx.get_parameter_source(name) in (ParameterSource.COMMANDLINE,
+                                              ParameterSource.ENVIRONMENT):
+            raise click.BadParameter("applies to slave mode only", param_hint=f"'--{name}'")
+    serial = _serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
+                            stout, silence, ascii_timeout, nocheck)
+    cfg = _convert("'--tcpto'", lambda: config.MasterConfig(
+        serial=serial, slaveid=slaveid, tcpto_ms=tcpto, mdbport=mdbport, exception=exception,
+        max_connections=max_connections))
+    log.setup(log_level)
+    try:
+        run_master(cfg)
+    except SerialError as err:
+        fatal(err.strerror)
