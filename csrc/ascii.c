@@ -47,6 +47,8 @@ static int nibble(uint8_t c)
 
 int mbgw_ascii_decode(const uint8_t *frame, size_t len, uint8_t *adu, size_t cap)
 {
+    if (len > MBGW_ASCII_MAX_FRAME)
+        return -EMSGSIZE;
     if (len < 1 + 2 * 3 + 2 || frame[0] != ':' || frame[len - 2] != '\r' || frame[len - 1] != '\n')
         return -EBADMSG;
     size_t hex_len = len - 3;

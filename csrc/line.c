@@ -3,6 +3,7 @@
  * inter-frame silence is 1.75 ms, so a millisecond lost per transaction would cost ~10 %. */
 #define _GNU_SOURCE
 #include <errno.h>
+#include <fcntl.h>
 #include <poll.h>
 #include <stddef.h>
 #include <stdint.h>
@@ -138,19 +139,38 @@ long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, size_t req_len,
     }
 }
 
+int mbgw_tty_lock(const char *path)
+{
+    int fd = open(path, O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
+    if (fd < 0)
+        return -errno;
+    if (flock(fd, LOCK_EX | LOCK_NB) < 0) {
+        int err = errno == EWOULDBLOCK ? EBUSY : errno;
+        close(fd);
+        return -err;
+    }
+    return fd;
+}
+
 int mbgw_tty_claim(int fd)
 {
-    if (flock(fd, LOCK_EX | LOCK_NB) < 0)
-        return errno == EWOULDBLOCK ? -EBUSY : -errno;
     if (ioctl(fd, TIOCEXCL) < 0 && errno != ENOTTY)
         return -errno;
     return 0;
 }
 
+int mbgw_rts_available(int fd)
+{
+    int bits;
+    return ioctl(fd, TIOCMGET, &bits) < 0 ? -errno : 0;
+}
+
 long mbgw_ascii_read_frame(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns,
                            int32_t interchar_us, int64_t *end_ns)
 {
-    uint8_t chunk[64];
+    /* One character per read: ASCII frames need no silence between them, so the next
+     * frame may already be queued behind this one and must stay there. */
+    uint8_t chunk[1];
     size_t have = 0;
     if (cap > MBGW_ASCII_MAX_FRAME)
         cap = MBGW_ASCII_MAX_FRAME;

@@ -51,9 +51,16 @@ long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, size_t req_len,
 long mbgw_ascii_read_frame(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns,
                            int32_t interchar_us, int64_t *end_ns);
 
-/* Take the tty for this process alone: TIOCEXCL plus an advisory flock, which also stops
- * root and other programs that honour locks.  -EBUSY when someone else holds it. */
+/* Open path and take an advisory flock on it, before anything touches the line's settings:
+ * a second gateway is refused without disturbing the first.  Returns the fd (kept open as
+ * long as the line is used) or -EBUSY when another program holds the lock. */
+int mbgw_tty_lock(const char *path);
+
+/* TIOCEXCL: no further opens of the tty (except by root, whom the flock stops). */
 int mbgw_tty_claim(int fd);
+
+/* 0 when the modem lines (RTS) can be driven on fd, else -errno. */
+int mbgw_rts_available(int fd);
 
 /* --- tty.c: settings libmodbus cannot make --- */
 
@@ -96,3 +103,10 @@ int mbgw_discard_echo(int fd, const uint8_t *sent, size_t len, int64_t deadline_
  * -EBADMSG too short, -EMSGSIZE longer than cap. */
 long mbgw_rtu_read_request(int fd, int wake_fd, uint8_t *buf, size_t cap,
                            const uint8_t *reply_to, size_t reply_to_len, int32_t gap_us);
+
+/* The same for an ASCII frame, ':' to CR LF (characters before a ':' are dropped, a ':'
+ * restarts, each character within interchar_us of the previous one).  Never reads past the
+ * LF.  Returns its length.  -ECANCELED woken first, -EBADMSG broken by a pause, -EMSGSIZE
+ * longer than cap. */
+long mbgw_ascii_read_request(int fd, int wake_fd, uint8_t *buf, size_t cap,
+                             int32_t interchar_us);

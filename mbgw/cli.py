@@ -65,9 +65,10 @@ serial_options = _stack(
     click.option("--ascii-timeout", type=click.IntRange(1, 65535),
                  default=config.DEFAULT_ASCII_TIMEOUT_MS, show_default=True, metavar="MS",
                  help="ASCII: longest pause between two characters of a frame, 1..65535 ms."),
-    click.option("--nocheck", is_flag=True, default=False,
+    click.option("--nocheck", is_flag=True, default=False, show_default=True,
                  help="Debugging only: forward serial replies unchecked (no CRC/LRC, "
-                      "address or length control), as received until end of frame."),
+                      "address or length control), as received until end of frame.  "
+                      "[default: off]"),
 )
 
 

@@ -71,6 +71,22 @@ class Port:
     def __init__(self, device: str, baudrate: int, parity: str, data_bits: int, stop_bits: int):
         self.device = device
         self._ctx = None
+        self._lock_fd = lib.mbgw_tty_lock(device.encode())
+        if self._lock_fd < 0:
+            code = -self._lock_fd
+            reason = "in use by another program" if code == errno.EBUSY else os.strerror(code)
+            raise SerialError(code, f"cannot open {device}: {reason}")
+        try:
+            self._open(device, baudrate, parity, data_bits, stop_bits)
+        except BaseException:
+            self.close()
+            raise
+        self._buf = ffi.new("uint8_t[]", ASCII_MAX_FRAME + 4)
+        self._end_ns = ffi.new("int64_t *")
+        self.set_byte_timeout(0)
+
+    def _open(self, device: str, baudrate: int, parity: str, data_bits: int,
+              stop_bits: int) -> None:
         ctx = lib.modbus_new_rtu(device.encode(), baudrate, parity.upper().encode(),
                                  data_bits, stop_bits)
         if ctx == ffi.NULL:
@@ -83,12 +99,7 @@ class Port:
         self.fd = lib.modbus_get_socket(ctx)
         rc = lib.mbgw_tty_claim(self.fd)
         if rc < 0:
-            self.close()
-            reason = "in use by another program" if rc == -errno.EBUSY else os.strerror(-rc)
-            raise SerialError(-rc, f"cannot open {device}: {reason}")
-        self._buf = ffi.new("uint8_t[]", ASCII_MAX_FRAME + 4)
-        self._end_ns = ffi.new("int64_t *")
-        self.set_byte_timeout(0)
+            raise SerialError(-rc, f"cannot open {device}: {os.strerror(-rc)}")
 
     def close(self) -> None:
         if self._ctx is not None:
@@ -96,6 +107,9 @@ class Port:
             lib.modbus_free(self._ctx)
             self._ctx = None
             self.fd = -1
+        if self._lock_fd >= 0:
+            os.close(self._lock_fd)
+            self._lock_fd = -1
 
     def _fail(self, code: int, action: str):
         if code == errno.ETIMEDOUT:
@@ -132,6 +146,9 @@ class Port:
     def set_rs485(self, before_ms: int, after_ms: int, rx_during_tx: bool) -> bool:
         """Kernel RS-485 direction control; False when the driver lacks it."""
         return lib.mbgw_tty_rs485(self.fd, before_ms, after_ms, rx_during_tx) == 0
+
+    def rts_available(self) -> bool:
+        return lib.mbgw_rts_available(self.fd) == 0
 
     def set_byte_timeout(self, timeout_us: int) -> None:
         """libmodbus's limit on the silence between two bytes of a reply (0: none)."""
@@ -199,3 +216,12 @@ class Port:
         if n == -errno.ECANCELED:
             return None
         return ffi.buffer(self._buf, self._check(n, "read") - 2)[:]
+
+    def read_ascii_request(self, wake_fd: int, interchar_us: int) -> bytes | None:
+        """Master mode: the next ASCII frame (':' to CR LF, undecoded); None when woken
+        through wake_fd first.  Raises FrameError, SerialError."""
+        n = lib.mbgw_ascii_read_request(self.fd, wake_fd, self._buf, ASCII_MAX_FRAME,
+                                        interchar_us)
+        if n == -errno.ECANCELED:
+            return None
+        return ffi.buffer(self._buf, self._check(n, "read"))[:]

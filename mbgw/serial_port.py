@@ -5,6 +5,7 @@ import time
 
 from mbgw import native
 from mbgw.config import SerialConfig
+from mbgw.errors import FrameError, LineTimeout
 
 log = logging.getLogger("mbgw.line")
 
@@ -29,14 +30,20 @@ class SerialLine:
             self.rts_control = False
             if cfg.interface.kind == "rs485":
                 before, after = cfg.rtsdelays
-                if not port.set_rs485(before, after, cfg.interface.echo):
+                if port.set_rs485(before, after, cfg.interface.echo):
+                    pass
+                elif port.rts_available():
                     self.rts_control = True
                     log.info("%s has no kernel RS-485 mode: mbgw drives RTS itself",
                              cfg.device)
+                else:
+                    log.warning("%s has neither kernel RS-485 mode nor an RTS line: the "
+                                "transceiver must switch direction by itself", cfg.device)
         except BaseException:
             port.close()
             raise
         self.port = port
+        self.echo_errors = 0
         self._char_ns = cfg.char_ns
         self._before_us = cfg.rtsdelays[0] * 1000
         self._after_us = cfg.rtsdelays[1] * 1000
@@ -53,5 +60,9 @@ class SerialLine:
             self.port.write(wire, self.rts_control, self._before_us, self._after_us)
         done_ns = time.monotonic_ns() + len(wire) * self._char_ns
         if self.cfg.interface.echo:
-            self.port.discard_echo(wire, done_ns + ECHO_MARGIN_NS)
+            try:
+                self.port.discard_echo(wire, done_ns + ECHO_MARGIN_NS)
+            except (FrameError, LineTimeout):
+                self.echo_errors += 1     # a collision or a deaf receiver; the reply may still come
+                self.port.wait_quiet(time.monotonic_ns(), self.cfg.end_of_frame_us)
         return done_ns
