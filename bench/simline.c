@@ -7,8 +7,13 @@
  *       the wire (10 bits a character, 8N1) from the request's arrival, then write the
  *       reply in one piece -- the write is the end of the reply on the line.  BAUD 0: answer
  *       at once.  For every request after the first it records the gap between the end of
- *       the previous reply and the request's arrival.  Commands on stdin: "r" resets the
- *       records, "d" dumps them, "q" quits.
+ *       the previous reply and the request's arrival, how long writing that reply took, and
+ *       the time since the previous request.  It runs SCHED_FIFO when allowed (a real slave
+ *       is hardware of its own).  Commands on stdin: "r" resets the records, "d" dumps
+ *       them, "q" quits.
+ *   simline tcp
+ *       A Modbus TCP server on 127.0.0.1 (port printed) that answers FC03 at once: the floor
+ *       of a TCP round trip for the benchmark's client, with no gateway in the way.
  *   simline master DEVICE T35_US SECONDS
  *       A direct master: send FC03 (unit 1, 10 registers), read the 25-byte reply, wait
  *       T35_US from the reply's last byte, send the next one; for SECONDS.  Prints the
@@ -28,9 +33,12 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/ioctl.h>
+#include <netinet/in.h>
+#include <netinet/tcp.h>
 #include <sched.h>
+#include <sys/ioctl.h>
 #include <sys/prctl.h>
+#include <sys/socket.h>
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
@@ -94,18 +102,21 @@ static void die(const char *what)
 
 /* ---------------------------------------------------------------- slave */
 
-static int64_t *gaps;
+/* For each request after the first: the gap from the end of the previous reply's write()
+ * to the request's arrival, and how long that write() took -- if the slave was held up in
+ * it, the reply reached the line up to that much earlier and the real gap was that much
+ * longer. */
+static int64_t *gaps, *writes, *cycles;    /* cycles: from the previous request's arrival */
 static size_t n_gaps;
 static long n_tx, n_collisions, n_bad;
-static int64_t max_write_ns;    /* the longest write() of a reply: if the slave was held up
-                                 * there, the gap after that reply reads short */
+static int64_t reply_end;       /* when the previous reply was written; 0: none (or reset) */
 
 static void dump(void)
 {
-    printf("STATS %ld %zu %ld %ld %lld\nGAPS", n_tx, n_gaps, n_collisions, n_bad,
-           (long long)max_write_ns);
+    printf("STATS %ld %zu %ld %ld\nGAPS", n_tx, n_gaps, n_collisions, n_bad);
     for (size_t i = 0; i < n_gaps; i++)
-        printf(" %lld", (long long)gaps[i]);
+        printf(" %lld,%lld,%lld", (long long)gaps[i], (long long)writes[i],
+               (long long)cycles[i]);
     printf("\n");
     fflush(stdout);
 }
@@ -122,7 +133,7 @@ static int command(void)
         case 'r':
             n_gaps = 0;
             n_tx = n_collisions = n_bad = 0;
-            max_write_ns = 0;
+            reply_end = 0;
             printf("OK\n");
             fflush(stdout);
             break;
@@ -157,6 +168,8 @@ static int run_slave(const char *device, long baud)
         make_raw(fd);
     }
     gaps = malloc(sizeof *gaps * MAX_RECORDS);
+    writes = malloc(sizeof *writes * MAX_RECORDS);
+    cycles = malloc(sizeof *cycles * MAX_RECORDS);
     int64_t char_ns = baud > 0 ? (int64_t)CHAR_BITS * 1000000000 / baud : 0;
     /* A real slave is hardware of its own: run ahead of the gateway when we may, so it
      * never waits for a CPU (and the timestamps are not held up by a preemption). */
@@ -168,7 +181,8 @@ static int run_slave(const char *device, long baud)
     uint8_t req[300], rsp[300];
     size_t have = 0;
     int64_t first_ns = 0;       /* arrival of the current request's first byte */
-    int64_t reply_end = 0;      /* when the previous reply was written; 0: none */
+    int64_t prev_first_ns = 0;
+    int64_t write_ns = 0;       /* how long writing it took */
     for (;;) {
         struct pollfd p[2] = { { fd, POLLIN, 0 }, { 0, POLLIN, 0 } };
         int rc = ppoll(p, 2, NULL, NULL);
@@ -213,8 +227,12 @@ static int run_slave(const char *device, long baud)
         }
         have = 0;
         n_tx++;
-        if (reply_end && n_gaps < MAX_RECORDS)
-            gaps[n_gaps++] = first_ns - reply_end;
+        if (reply_end && n_gaps < MAX_RECORDS) {
+            gaps[n_gaps] = first_ns - reply_end;
+            writes[n_gaps] = write_ns;
+            cycles[n_gaps++] = first_ns - prev_first_ns;
+        }
+        prev_first_ns = first_ns;
         unsigned qty = (req[4] << 8) | req[5];
         if (qty < 1 || qty > 125)
             qty = 1;
@@ -237,8 +255,7 @@ static int run_slave(const char *device, long baud)
         if (write(fd, rsp, len) != (ssize_t)len)
             die("write");
         reply_end = now_ns();
-        if (reply_end - before > max_write_ns)
-            max_write_ns = reply_end - before;
+        write_ns = reply_end - before;
     }
 }
 
@@ -303,14 +320,63 @@ static int run_master(const char *device, int64_t t35_ns, double seconds)
     return 0;
 }
 
+/* ---------------------------------------------------------------- TCP floor */
+
+static int run_tcp(void)
+{
+    int ls = socket(AF_INET, SOCK_STREAM, 0), one = 1;
+    struct sockaddr_in a = { .sin_family = AF_INET, .sin_addr.s_addr = htonl(INADDR_LOOPBACK) };
+    socklen_t alen = sizeof a;
+    setsockopt(ls, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+    if (bind(ls, (struct sockaddr *)&a, sizeof a) < 0 || listen(ls, 8) < 0 ||
+        getsockname(ls, (struct sockaddr *)&a, &alen) < 0)
+        die("listen");
+    printf("READY %d\n", ntohs(a.sin_port));
+    fflush(stdout);
+    for (;;) {
+        int s = accept(ls, NULL, NULL);
+        if (s < 0)
+            die("accept");
+        setsockopt(s, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+        uint8_t req[12], rsp[29];
+        size_t have = 0;
+        for (;;) {
+            ssize_t n = read(s, req + have, sizeof req - have);
+            if (n <= 0)
+                break;
+            have += (size_t)n;
+            if (have < sizeof req)
+                continue;
+            have = 0;
+            unsigned count = 2 * (((unsigned)req[10] << 8) | req[11]);
+            if (count > sizeof rsp - 9)
+                count = sizeof rsp - 9;
+            memcpy(rsp, req, 4);                    /* transaction and protocol ids */
+            rsp[4] = 0;
+            rsp[5] = (uint8_t)(3 + count);
+            rsp[6] = req[6];
+            rsp[7] = req[7];
+            rsp[8] = (uint8_t)count;
+            memset(rsp + 9, 0, count);
+            if (write(s, rsp, 9 + count) < 0)
+                break;
+        }
+        close(s);
+    }
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     prctl(PR_SET_TIMERSLACK, 1UL, 0, 0, 0);
     if (argc == 4 && strcmp(argv[1], "slave") == 0)
         return run_slave(argv[2], atol(argv[3]));
+    if (argc == 2 && strcmp(argv[1], "tcp") == 0)
+        return run_tcp();
     if (argc == 5 && strcmp(argv[1], "master") == 0)
         return run_master(argv[2], atoll(argv[3]) * 1000, atof(argv[4]));
     fprintf(stderr, "usage: simline slave DEVICE|- BAUD\n"
+                    "       simline tcp\n"
                     "       simline master DEVICE T35_US SECONDS\n");
     return 2;
 }

@@ -140,3 +140,60 @@ long mbgw_rtu_read_request(int fd, int wake_fd, uint8_t *buf, size_t cap,
         }
     }
 }
+
+#define ASCII_MIN_FRAME 9   /* ':', address, function code and LRC in hex, CR LF */
+
+/*
+ * long mbgw_ascii_read_request(fd, wake_fd, buf, cap, interchar_us)
+ *
+ * Description: waits, without a deadline, for an ASCII frame on fd (Serial Line V1.02,
+ * 2.5.2.1), then reads it, ':' to CR LF, into buf.  Characters before a ':' are dropped; a
+ * ':' restarts the frame; each character must follow the previous one within interchar_us.
+ * It reads no further than the frame can end (a frame is at least 9 characters, and needs
+ * CR LF after its last hex digit), so a frame that follows at once is left for the next call.
+ *
+ * Returns: the frame's length.
+ *
+ * Errors: -ECANCELED wake_fd was signalled before a frame began; -EBADMSG a pause longer than
+ * interchar_us broke the frame; -EMSGSIZE it was longer than cap (at most
+ * MBGW_ASCII_MAX_FRAME); -EIO the device hung up; other -errno.
+ */
+long mbgw_ascii_read_request(int fd, int wake_fd, uint8_t *buf, size_t cap,
+                             int32_t interchar_us)
+{
+    size_t have = 0;                            /* characters from the ':' on */
+    if (cap > MBGW_ASCII_MAX_FRAME)
+        cap = MBGW_ASCII_MAX_FRAME;
+    for (;;) {
+        int rc = have == 0 ? mbgw_idle_wait(fd, wake_fd, -1) : wait_gap(fd, interchar_us);
+        if (rc < 0)
+            return rc;
+        if (rc == 0)
+            return have == 0 ? -ECANCELED : -EBADMSG;
+        size_t want = 1;
+        if (have > 0 && have < ASCII_MIN_FRAME)
+            want = ASCII_MIN_FRAME - have;
+        else if (have > 0 && buf[have - 1] != '\r')
+            want = 2;
+        uint8_t chunk[ASCII_MIN_FRAME];
+        ssize_t n = read(fd, chunk, want);
+        if (n < 0 && (errno == EINTR || errno == EAGAIN))
+            continue;
+        if (n < 0)
+            return -errno;
+        if (n == 0)
+            return -EIO;
+        for (ssize_t i = 0; i < n; i++) {
+            uint8_t c = chunk[i];
+            if (c == ':')
+                have = 0;                       /* a colon always starts a new frame */
+            else if (have == 0)
+                continue;                       /* noise between frames */
+            if (have == cap)
+                return -EMSGSIZE;
+            buf[have++] = c;
+            if (c == '\n' && have >= 2 && buf[have - 2] == '\r')
+                return (long)have;              /* i == n - 1: never read past the LF */
+        }
+    }
+}

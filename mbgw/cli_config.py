@@ -96,7 +96,7 @@ def _file_options(function):
 def _path(ctx: click.Context, config_path: Path, instance: str | None) -> Path:
     if instance is None:
         return Path(config_path)
-    if ctx.get_parameter_source("config_path") not in (None, click.core.ParameterSource.DEFAULT):
+    if ctx.get_parameter_source("config_path") == click.core.ParameterSource.COMMANDLINE:
         raise click.UsageError("give --config or --instance, not both")
     if not instance or "/" in instance or instance.startswith("."):
         raise click.BadParameter(f"{instance!r}: a name such as ttyUSB1",
@@ -198,7 +198,8 @@ def show(ctx, config_path: Path, instance: str | None, group: str | None,
     path = _path(ctx, config_path, instance)
     schema = _schema(ctx)
     if path.exists():
-        settings = _load(ctx, schema, path, ["show", *filter(None, (group, param))])
+        settings = _load(ctx, schema, path, [*filter(None, (group, param)),
+                                             *_file_words(ctx, path)])
     else:
         click.echo(f"mbgw: {path} does not exist: built-in defaults", err=True)
         settings = cf.Settings(path, schema.default_mode, {})
@@ -286,7 +287,7 @@ def set_(ctx, config_path: Path, instance: str | None, group: str, param: str,
       mbgw config set net exception on
     """
     path = _path(ctx, config_path, instance)
-    words = ["set", group, param, *values, *_file_words(ctx, path)]
+    words = [group, param, *values, *_file_words(ctx, path)]
     _change(ctx, path, words,
             lambda schema, settings, data: cf.changes_for_set(schema, settings, group, param,
                                                               list(values)))
@@ -301,7 +302,7 @@ def unset(ctx, config_path: Path, instance: str | None, group: str, param: str) 
     """Take PARAM out of the file: it goes back to its built-in default.  Works on a
     misspelt key too."""
     path = _path(ctx, config_path, instance)
-    words = ["unset", group, param, *_file_words(ctx, path)]
+    words = [group, param, *_file_words(ctx, path)]
     if group == "serial" and param == cf.MODE_KEY:
         _change(ctx, path, words, lambda schema, settings, data: cf.changes_for_set(
             schema, settings, group, param, [schema.default_mode]))
@@ -363,7 +364,7 @@ def default(ctx, config_path: Path, instance: str | None) -> None:
     try:
         write_atomic(path, cf.factory_text(_schema(ctx)))
     except PermissionError:
-        raise _permission_failure(ctx, path, "write", ["default", *_file_words(ctx, path)]) \
+        raise _permission_failure(ctx, path, "write", _file_words(ctx, path)) \
             from None
     except OSError as err:
         raise Failure(f"cannot write {path}: {err.strerror or err}") from None

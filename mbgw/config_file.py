@@ -18,6 +18,7 @@ from pathlib import Path
 import click
 
 from mbgw.errors import ConfigError, ConfigFileError
+from mbgw.slaveid_table import SlaveIdTable, SlaveRange
 from mbgw.toml_edit import dump_value, dumpable, set_line
 
 DEFAULT_PATH = Path("/etc/mbgw/mbgw.toml")
@@ -35,7 +36,6 @@ GENERAL_KEYS = frozenset({"log-level"})
 MODE_TABLES = ("authip", "slaveid")        # cleared when the mode changes (the guide says so)
 AUTHIP_ENTRIES = 8                         # "n: table entry index, from 1 to 8"
 NO_ADDRESS = "0.0.0.0"                     # "IP address 0.0.0.0 clears the entry"
-SLAVEID_RANGES = 8                         # "Up to eight ranges can be defined"
 FACTORY_MODE = "slave"
 FACTORY_DEVICE = "/dev/ttyUSB0"
 JOIN_WORDS = {"format": ""}                # "set serial format 8 e 1" is 8e1
@@ -223,51 +223,6 @@ def _process(command: click.Command, param: click.Parameter, value):
         raise _Problem(f"invalid value {value!r}") from None
 
 
-@dataclasses.dataclass(frozen=True)
-class SlaveRange:
-    """One master-mode slaveid entry: serial addresses first..last go to ip (mode 0), or to
-    ip + (address - first) (mode 1, "variable"), with TCP unit ids from remote (0: 0xFF)."""
-    first: int
-    last: int
-    remote: int
-    variable: bool
-    ip: ipaddress.IPv4Address
-
-    USAGE = "FS LS FR M IP, e.g. 1 8 1 0 192.168.0.30"
-
-    @classmethod
-    def parse(cls, words: list[str]) -> "SlaveRange":
-        if len(words) != 5:
-            raise ConfigError(f"expected 5 fields {cls.USAGE}, got {' '.join(words)!r}")
-        try:
-            first, last, remote, mode = (int(w) for w in words[:4])
-        except ValueError:
-            raise ConfigError(f"FS LS FR M must be integers ({cls.USAGE})") from None
-        try:
-            ip = ipaddress.IPv4Address(words[4])
-        except ValueError:
-            raise ConfigError(f"IP {words[4]!r}: not an IPv4 address") from None
-        span = last - first
-        if not 1 <= first <= 247:
-            raise ConfigError(f"FS {first}: first serial address must be 1..247")
-        if not first <= last <= 247:
-            raise ConfigError(f"LS {last}: last serial address must be {first}..247")
-        if not 0 <= remote <= 255 or (remote and remote + span > 255):
-            raise ConfigError(f"FR {remote}: first unit id must be 0..{255 - span} for "
-                              f"{span + 1} addresses")
-        if mode not in (0, 1):
-            raise ConfigError(f"M {mode}: mode must be 0 (fixed IP) or 1 (variable IP)")
-        if mode == 1 and int(ip) % 256 + span > 255:
-            raise ConfigError(f"IP {ip}: the last byte + {span} goes past 255")
-        return cls(first, last, remote, bool(mode), ip)
-
-    def overlaps(self, other: "SlaveRange") -> bool:
-        return self.first <= other.last and other.first <= self.last
-
-    def __str__(self) -> str:
-        return f"{self.first} {self.last} {self.remote} {int(self.variable)} {self.ip}"
-
-
 # --- reading and checking a file ---------------------------------------------------------------
 
 @dataclasses.dataclass(frozen=True)
@@ -412,26 +367,32 @@ def _check_authip(command, param, value, label) -> list[str]:
 
 
 def _check_slaveid_table(command, param, value, label) -> list[str]:
+    """Master mode's table: each entry a range "FS LS FR M IP", no two ranges overlapping
+    (in a file, a range whose FS lies in another would silently replace it)."""
     if not isinstance(value, list):
-        return [f"{label}: in master mode, a list of ranges \"{SlaveRange.USAGE}\""]
-    if len(value) > SLAVEID_RANGES:
-        return [f"{label}: {len(value)} ranges, the table holds {SLAVEID_RANGES}"]
+        return [f"{label}: in master mode, a list of ranges \"FS LS FR M IP\""]
     problems, ranges = [], []
     for index, entry in enumerate(value, 1):
         try:
             if not isinstance(entry, str):
-                raise ConfigError(f"expected a string \"{SlaveRange.USAGE}\", got {entry!r}")
-            entry_range = SlaveRange.parse(entry.split())
-            _process(command, param, _to_click("slaveid", param, [entry]))
-        except (ConfigError, _Problem) as problem:
+                raise ConfigError(f"expected a string \"FS LS FR M IP\", got {entry!r}")
+            entry_range = SlaveRange.parse(entry)
+            if entry_range is None:
+                raise ConfigError("FS 0 clears the table: leave the list empty instead")
+        except ConfigError as problem:
             problems.append(f"{label}[{index}]: {problem}")
             continue
         for other_index, other in ranges:
-            if entry_range.overlaps(other):
+            if entry_range.first <= other.last and other.first <= entry_range.last:
                 problems.append(f"{label}[{index}]: addresses {entry_range.first}.."
                                 f"{entry_range.last} overlap {label}[{other_index}] "
                                 f"({other.first}..{other.last})")
         ranges.append((index, entry_range))
+    if not problems:
+        try:
+            _process(command, param, value)
+        except _Problem as problem:
+            problems.append(f"{label}: {problem}")
     return problems
 
 
@@ -572,27 +533,12 @@ def _set_authip(table: list, words: list[str]) -> list:
 
 def _set_slaveid_table(table: list, words: list[str]) -> list:
     """The guide: "any slaveid command line with an fs parameter included in a range already
-    defined will invalidate and replace the oldest. fs = 0 clears the whole table.\""""
-    if words[0] == "0":
-        return []
+    defined will invalidate and replace the oldest. fs = 0 clears the whole table." """
     try:
-        new = SlaveRange.parse(words)
+        ranges = SlaveIdTable.parse([*table, " ".join(words)]).ranges
     except ConfigError as err:
-        raise ConfigError(f"net.slaveid: {err} (0 clears the table)") from None
-    ranges = [SlaveRange.parse(str(e).split()) for e in table]
-    replaced = next((i for i, r in enumerate(ranges) if r.first <= new.first <= r.last), None)
-    if replaced is None:
-        if len(ranges) >= SLAVEID_RANGES:
-            raise ConfigError(f"net.slaveid: the table holds {SLAVEID_RANGES} ranges; clear it "
-                              f"with: mbgw config set net slaveid 0")
-        ranges.append(new)
-    else:
-        ranges[replaced] = new
-    for other in ranges:
-        if other is not new and other.overlaps(new):
-            raise ConfigError(f"net.slaveid: addresses {new.first}..{new.last} overlap the "
-                              f"range {other}")
-    return [str(r) for r in ranges]
+        raise ConfigError(f"net.slaveid: {err}") from None
+    return [f"{r.first} {r.last} {r.remote_first} {int(r.variable_ip)} {r.ip}" for r in ranges]
 
 
 def _word_value(kind: str, word: str, label: str):
@@ -653,28 +599,31 @@ _NOTES = {
                "net.authip and net.slaveid tables."],
     "authip": [f"Set with: mbgw config set net authip N IP (entry N 1..{AUTHIP_ENTRIES}; "
                f"{NO_ADDRESS} clears it). The entries are the list items in order."],
-    "slaveid": [f"Master mode: set with: mbgw config set net slaveid FS LS FR M IP (up to "
-                f"{SLAVEID_RANGES} ranges; FS inside a range replaces it; FS 0 clears the "
-                f"table)."],
+    "slaveid": ["Set with: mbgw config set net slaveid SA (slave mode), or ... slaveid FS LS "
+                "FR M IP once per range (master mode; FS 0 clears the table)."],
 }
 
 
 def _describe(schema: Schema, name: str) -> list[str]:
+    """The help of a key's option(s), as comment lines; "(slave mode) ..." where the modes'
+    options differ or only one mode has it."""
     lines = []
     if name != MODE_KEY:
         key = schema.keys[name]
+        texts = {}
         for mode, param in key.params.items():
             text = param.help or ""
             if isinstance(param.type, click.Choice):
                 text += f" One of: {', '.join(map(str, param.type.choices))}."
-            if len(schema.modes) > 1 and len(key.params) < len(schema.modes):
-                text = f"({mode} mode) {text}"
-            if text.strip() and text not in lines:
-                lines.append(text.strip())
+            texts[mode] = text.strip()
+        if len(key.params) == len(schema.modes) and len(set(texts.values())) == 1:
+            lines.append(texts[schema.modes[0]])
+        else:
+            lines += [f"({mode} mode) {text}" for mode, text in texts.items()]
     if name != "slaveid" or "master" in schema.modes:
         lines += _NOTES.get(name, [])
-    return [c for text in lines for c in textwrap.wrap(text, 92, initial_indent="# ",
-                                                          subsequent_indent="# ")]
+    return [c for text in lines if text for c in textwrap.wrap(
+        text, 92, initial_indent="# ", subsequent_indent="# ")]
 
 
 def factory_text(schema: Schema) -> str:

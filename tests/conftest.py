@@ -1,6 +1,12 @@
+import os
+
 import pytest
 
 from tests.harness import Gateway, Peer, PtyPair
+
+# `mbgw slave` takes the values it is not given from /etc/mbgw/mbgw.toml when that exists (an
+# installed mbgw.deb): the tests, and the gateways they start, read an empty file instead.
+os.environ["MBGW_CONFIG"] = os.devnull
 
 
 @pytest.fixture

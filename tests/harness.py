@@ -80,15 +80,17 @@ class Gateway:
     """`python -m mbgw slave ...` on 127.0.0.1:port, ready when it sends READY=1."""
 
     def __init__(self, directory: Path, device: str, *args: str, port: int | None = None,
-                 mode: str = "slave") -> None:
+                 mode: str = "slave", listen: bool = True) -> None:
+        """listen=False: no --bind/--mdbport (master mode, where --mdbport is the remote
+        servers' port and is among args); port then only names the log and notify files."""
         self.port = port or free_port()
         self.log_path = directory / f"mbgw-{self.port}.log"
         notify_path = str(directory / f"notify-{self.port}")
         notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         notify.bind(notify_path)
         env = dict(os.environ, NOTIFY_SOCKET=notify_path)
-        self.args = [sys.executable, "-m", "mbgw", mode, "--device", device,
-                     "--bind", "127.0.0.1", "--mdbport", str(self.port), *args]
+        network = ["--bind", "127.0.0.1", "--mdbport", str(self.port)] if listen else []
+        self.args = [sys.executable, "-m", "mbgw", mode, "--device", device, *network, *args]
         self._log = open(self.log_path, "w")
         self.proc = subprocess.Popen(self.args, env=env, stdout=self._log, stderr=self._log)
         try:

@@ -8,15 +8,17 @@ the counters it logs at stop.
 """
 import importlib.util
 import os
-import selectors
+import signal
 import socket
 import struct
 import subprocess
+import sys
 import time
+from pathlib import Path
 
 import pytest
 
-from tests.harness import PEERS, READY_TIMEOUT_S, PtyPair
+from tests.harness import PEERS, READY_TIMEOUT_S, free_port, stop
 
 pytestmark = pytest.mark.integration
 
@@ -93,43 +95,6 @@ class Client:
         self.sock.close()
 
 
-class _PtyPair(PtyPair):
-    """harness.PtyPair whose start cannot miss socat's "starting data transfer loop".
-
-    harness._read_lines_until selects on the pipe but reads it through a buffered text
-    stream: when socat's last two lines come in one chunk, readline() returns the first and
-    keeps the second in Python's buffer, select() never fires again, and the set-up times out
-    after 15 s (and leaks the socat).  Remove this once the harness reads the raw fd."""
-
-    def start(self) -> None:
-        self.proc = subprocess.Popen(
-            ["socat", "-d", "-d", f"pty,raw,echo=0,link={self.gateway}",
-             f"pty,raw,echo=0,link={self.device}"], stderr=subprocess.PIPE)
-        fd, said = self.proc.stderr.fileno(), b""
-        deadline = time.monotonic() + READY_TIMEOUT_S
-        try:
-            with selectors.DefaultSelector() as sel:
-                sel.register(fd, selectors.EVENT_READ)
-                while b"starting data transfer loop" not in said:
-                    left = deadline - time.monotonic()
-                    if left <= 0 or not sel.select(left):
-                        raise TimeoutError(f"socat not ready; said: {said!r}")
-                    chunk = os.read(fd, 4096)
-                    if not chunk:
-                        raise RuntimeError(f"socat exited ({self.proc.wait()}): {said!r}")
-                    said += chunk
-        except BaseException:
-            self.stop()
-            raise
-
-
-@pytest.fixture
-def pty_pair(tmp_path):
-    pair = _PtyPair(tmp_path)
-    yield pair
-    pair.stop()
-
-
 @pytest.fixture
 def line(pty_pair, start_peer, tmp_path):
     """line(*peer_options) -> the path of the peer's record; the peer is ready."""
@@ -141,29 +106,13 @@ def line(pty_pair, start_peer, tmp_path):
 
 
 @pytest.fixture
-def gateway(pty_pair, start_gateway, tmp_path):
-    """gateway(*options) -> a ready gateway with stout STOUT_MS on the pty pair.
-
-    The harness closes its NOTIFY_SOCKET once READY=1 has come; the gateway's STOPPING=1
-    then fails and it dies without logging its counters (see
-    test_gateway_stops_cleanly_when_the_notify_socket_is_gone).  Listen again on that path
-    so that the counters can be checked.
-    """
-    started = []
-
-    def start(*options: str):
-        gw = start_gateway(pty_pair.gateway, "--stout", str(STOUT_MS), *options)
-        path = tmp_path / f"notify-{gw.port}"
-        path.unlink()
-        listener = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-        listener.bind(str(path))
-        started.append((gw, listener))
-        return gw
-
-    yield start
-    for gw, listener in started:
-        gw.stop()
-        listener.close()
+def gateway(pty_pair, start_gateway):
+    """gateway(*options) -> a ready gateway on the pty pair with stout STOUT_MS, at 38400
+    bit/s unless told (t3.5 = 1.75 ms, well under the peer's pauses)."""
+    def start(*options: str, baudrate: int = 38400):
+        return start_gateway(pty_pair.gateway, "--baudrate", str(baudrate),
+                             "--stout", str(STOUT_MS), *options)
+    return start
 
 
 @pytest.fixture
@@ -301,66 +250,96 @@ def test_late_reply_during_the_turnaround_counts_as_late_bytes(line, gateway, cl
 
 
 # --- frames that are not the reply ----------------------------------------------------------
+# Two receive paths: FC03 is framed by libmodbus, FC 108 by mbgw's own reader (by silence).
 
-@pytest.mark.parametrize("exception", [False, True])
-def test_bad_crc_reply_is_dropped(line, gateway, client, exception):
+READS = {0x03: (read_holding(0, 2), holding_reply(0, 2)),
+         VENDOR_FC: (VENDOR_REQUEST, fault_slave.VENDOR_REPLY)}
+BOTH_PATHS = pytest.mark.parametrize("function", sorted(READS), ids=["fc03", "fc108"])
+
+
+@BOTH_PATHS
+@pytest.mark.parametrize("exception", [False, True], ids=["silent", "exception"])
+def test_bad_crc_reply_is_dropped(line, gateway, client, function, exception):
     line()
     gw = gateway(*(["--exception"] if exception else []))
     c = client(gw)
-    c.send(mbap(1, 4, read_holding(0, 2)), mbap(2, 1, read_holding(0, 1)))
+    c.send(mbap(1, 4, READS[function][0]), mbap(2, 1, read_holding(0, 1)))
     if exception:
-        assert c.recv() == (1, 4, b"\x83\x0b")
+        assert c.recv() == (1, 4, bytes((function | 0x80, 0x0B)))
     assert c.recv() == (2, 1, holding_reply(0, 1))
     assert_counters(gw, requests=2, replies=2 if exception else 1, timeouts=1, crc_errors=1,
                     gateway_exceptions=1 if exception else 0)
 
 
-@pytest.mark.parametrize("unit, counter", [(5, "wrong_unit"), (7, "wrong_function")])
-def test_reply_from_another_unit_or_with_another_function_is_dropped(line, gateway, client,
-                                                                    unit, counter):
+@BOTH_PATHS
+def test_reply_from_another_unit_is_dropped(line, gateway, client, function):
     line()
     gw = gateway()
     c = client(gw)
-    c.send(mbap(1, unit, read_holding(0, 2)), mbap(2, 1, read_holding(0, 1)))
+    c.send(mbap(1, 5, READS[function][0]), mbap(2, 1, read_holding(0, 1)))
     assert c.recv() == (2, 1, holding_reply(0, 1))
-    assert_counters(gw, requests=2, replies=1, timeouts=1, **{counter: 1})
+    assert_counters(gw, requests=2, replies=1, timeouts=1, wrong_unit=1)
 
 
-def test_reply_after_a_foreign_frame_is_delivered(line, gateway, client):
+def test_reply_with_another_function_is_dropped(line, gateway, client):
     line()
     gw = gateway()
     c = client(gw)
+    c.send(mbap(1, 7, read_holding(0, 2)), mbap(2, 1, read_holding(0, 1)))
+    assert c.recv() == (2, 1, holding_reply(0, 1))
+    assert_counters(gw, requests=2, replies=1, timeouts=1, wrong_function=1)
+
+
+@BOTH_PATHS
+def test_reply_after_a_foreign_frame_is_delivered(line, gateway, client, function):
+    # FC 108 replies are framed by silence: a gateway thread that sleeps through a 5 ms gap
+    # (a loaded machine) finds both frames in the buffer as one, so give it more room there.
+    line(*(["--foreign-pause-ms", "30"] if function == VENDOR_FC else []))
+    gw = gateway()
+    c = client(gw)
+    request, reply = READS[function]
     sent = time.monotonic()
-    c.send(mbap(0x0808, 8, read_holding(4, 2)))
-    assert c.recv() == (0x0808, 8, holding_reply(4, 2))
+    c.send(mbap(0x0808, 8, request))
+    assert c.recv() == (0x0808, 8, reply)
     assert time.monotonic() - sent < STOUT_S
     assert_counters(gw, requests=1, replies=1, wrong_unit=1)
 
 
-GARBAGE_FC03_XFAIL = (
-    "FC03 replies are framed by libmodbus (framing.RtuFraming.receive -> "
-    "Port.receive_confirmation), by length only: the noise is taken as the start of a frame "
-    "and the t3.5 silence after it does not end that frame")
-GARBAGE_OWN_XFAIL = (
-    "csrc/line.c mbgw_read_reply awaits a known length until the deadline, across any "
-    "silence: noise whose 2nd byte has bit 7 set reads as an exception header (5 bytes), the "
-    "first 2 bytes of the real reply complete it, CRC error, resync discards the rest")
-
-
 @pytest.mark.parametrize("function, garbage", [
-    pytest.param(0x03, "55 aa 55", marks=pytest.mark.xfail(strict=True, reason=GARBAGE_FC03_XFAIL)),
-    pytest.param(0x03, "00 00 00", marks=pytest.mark.xfail(strict=True, reason=GARBAGE_FC03_XFAIL)),
-    pytest.param(VENDOR_FC, "55 aa 55", marks=pytest.mark.xfail(strict=True, reason=GARBAGE_OWN_XFAIL)),
-    (VENDOR_FC, "00 00 00"),
-])
+    (0x03, "55 aa 55"),        # reads as the header of an exception reply (5 bytes)
+    (0x03, "00 00 00"),        # reads as a read reply with byte count 0 (5 bytes)
+    (VENDOR_FC, "55 aa 55"),
+    (VENDOR_FC, "00 00 00"),   # function 0: length unknown, framed by silence anyway
+], ids=["fc03-exception-like", "fc03-zeros", "fc108-exception-like", "fc108-zeros"])
 def test_reply_after_garbage_and_silence_is_delivered(line, gateway, client, function, garbage):
     """Noise, 20 ms of silence (> t3.5), then the real reply, all within stout: the silence
-    ends the noise's frame (Serial Line V1.02 2.5.1.1), and the reply that follows is good."""
-    line("--garbage", garbage)
+    ends the noise's frame (Serial Line V1.02 2.5.1.1), and the reply that follows is good.
+    (Both receive paths once lost it: libmodbus's byte timeout ended the transaction, and our
+    own reader awaited a known length across the silence.)"""
+    line("--garbage", garbage, "--garbage-pause-ms", "60")
     gw = gateway()
     c = client(gw)
-    request, reply = ((read_holding(0, 3), holding_reply(0, 3)) if function == 0x03
-                      else (VENDOR_REQUEST, fault_slave.VENDOR_REPLY))
+    request, reply = READS[function]
+    c.send(mbap(13, 13, request))
+    assert c.recv() == (13, 13, reply)
+    assert_counters(gw, requests=1, replies=1, invalid_frames=1)
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "gateway bug: serial_master.SerialMaster._receive calls framing.resync() after a "
+    "FrameError, also when the broken frame was already ended by end_of_frame silence "
+    "(libmodbus's byte timeout, or mbgw_read_reply's gap); resync = wait_quiet(now, t3.5) "
+    "then discards whatever starts within the next t3.5: a reply that follows the noise "
+    "after a legal gap of t3.5..2*t3.5 is thrown away (late_bytes=its length, timeouts=1)"))
+@BOTH_PATHS
+def test_reply_after_garbage_and_the_least_silence_is_delivered(line, gateway, client,
+                                                                 function):
+    """The same, with the reply 1.5 x t3.5 after the noise: at 600 bit/s t3.5 is 58.3 ms, so
+    the pause is 87.5 ms, with wide margins on both sides of t3.5 and 2 x t3.5."""
+    line("--garbage-pause-ms", "87.5")
+    gw = gateway(baudrate=600)
+    c = client(gw)
+    request, reply = READS[function]
     c.send(mbap(13, 13, request))
     assert c.recv() == (13, 13, reply)
     assert_counters(gw, requests=1, replies=1, invalid_frames=1)
@@ -399,7 +378,8 @@ def test_retry_gets_the_answer_of_a_slave_that_missed_the_first_request(line, ga
     assert c.recv() == (12, 12, holding_reply(0, 2))
     frames = received(record)
     assert [f for _, f in frames] == [rtu(12, read_holding(0, 2))] * 2
-    assert frames[1][0] - frames[0][0] >= STOUT_S       # the retry waited for stout
+    # the retry waited for stout (less the jitter of the peer's arrival times)
+    assert frames[1][0] - frames[0][0] >= STOUT_S - 0.03
     assert_counters(gw, requests=1, replies=1, retries=1)
 
 
@@ -418,15 +398,15 @@ def test_without_retries_the_missed_request_gets_no_answer(line, gateway, client
 def test_broadcast_reaches_the_line_unanswered_and_holds_the_line_for_turnaround(
         line, gateway, client):
     record = line()
-    gw = gateway("--turnaround", "250", "--exception")
+    gw = gateway("--turnaround", "300", "--exception")
     c = client(gw)
     c.send(mbap(1, 0, b"\x06\x00\x01\x00\x2a"), mbap(2, 1, read_holding(0, 1)))
     assert c.recv() == (2, 1, holding_reply(0, 1))
     frames = received(record)
     assert [f for _, f in frames] == [rtu(0, b"\x06\x00\x01\x00\x2a"),
                                       rtu(1, read_holding(0, 1))]
-    gap = frames[1][0] - frames[0][0]
-    assert 0.245 <= gap < 0.245 + 0.2, gap
+    gap = frames[1][0] - frames[0][0]      # 300 ms, less the jitter of the arrival times
+    assert 0.27 <= gap < 0.6, gap
     assert_counters(gw, requests=2, replies=1, broadcasts=1)
 
 
@@ -458,12 +438,43 @@ def test_reserved_units_never_reach_the_line(line, gateway, client, exception):
 
 # --- stopping -------------------------------------------------------------------------------
 
-@pytest.mark.xfail(strict=True, reason=(
-    "daemon.sd_notify lets OSError escape: with NOTIFY_SOCKET's listener gone, "
-    "sd_notify('STOPPING=1') raises ConnectionRefusedError, the counters are never logged, "
-    "and cli reports 'cannot listen on port N: Connection refused' with exit status 1"))
-def test_gateway_stops_cleanly_when_the_notify_socket_is_gone(line, pty_pair, start_gateway):
-    line()
-    gw = start_gateway(pty_pair.gateway, "--stout", str(STOUT_MS))   # harness closed it
-    assert gw.stop() == 0, gw.log_path.read_text()
-    assert "stopped; counters:" in gw.log_path.read_text()
+def test_sigterm_as_ready_goes_out_stops_cleanly(pty_pair, tmp_path):
+    """systemd may stop a unit as soon as READY=1 is in, so the SIGTERM handler must already
+    be in place (it once came after READY=1: the default action killed the gateway, status
+    -15, no counters).  Made deterministic: the notify socket's queue is full, so the gateway
+    blocks in its sendto(READY=1); SIGTERM comes then, and only then is the queue drained."""
+    path = str(tmp_path / "notify")
+    notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    notify.bind(path)
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as filler:
+        filler.setblocking(False)
+        try:
+            while True:
+                filler.sendto(b"FILLER=1", path)
+        except BlockingIOError:
+            pass
+    log_path = tmp_path / "mbgw.log"
+    with open(log_path, "w") as log:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "mbgw", "slave", "--device", pty_pair.gateway,
+             "--bind", "127.0.0.1", "--mdbport", str(free_port())],
+            env=dict(os.environ, NOTIFY_SOCKET=path), stdout=log, stderr=log)
+    try:
+        deadline = time.monotonic() + READY_TIMEOUT_S
+        # no event exists for "blocked in sendto": poll the kernel's wait channel
+        while Path(f"/proc/{proc.pid}/wchan").read_text() != "unix_wait_for_peer":
+            assert proc.poll() is None and time.monotonic() < deadline, log_path.read_text()
+            time.sleep(0.002)
+        proc.send_signal(signal.SIGTERM)
+        notify.setblocking(False)
+        said = []
+        try:
+            while True:
+                said.append(notify.recv(4096))
+        except BlockingIOError:
+            pass
+        assert proc.wait(READY_TIMEOUT_S) == 0, log_path.read_text()
+        assert "stopped; counters:" in log_path.read_text()
+    finally:
+        stop(proc)
+        notify.close()

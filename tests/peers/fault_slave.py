@@ -1,18 +1,26 @@
 """A scripted Modbus RTU slave for fault injection, answering by serial address.
 
 usage: fault_slave.py DEVICE [--record PATH] [--late-ms MS] [--garbage HEX]
+                      [--garbage-pause-ms MS] [--foreign-pause-ms MS]
 
 Prints READY once the pty is open, and nothing else on stdout.  Holding (and input) register i
 holds 1000 + i.  Behaviour by the request's address:
 
-   1  normal reply                      8  frame from address 9, 5 ms pause, then the reply
-   2  silent                           10  vendor FC 108 (0x6C): 0x6C + 37 bytes back
-   3  reply after --late-ms (800)      11  exception 02 (illegal data address)
-   4  reply with a bad CRC             12  answers only every second request it gets
-   5  reply carrying address 6         13  --garbage (55 aa 55), 20 ms silence, reply
-   7  reply with FC 0x04 for 0x03       0  broadcast: recorded, never answered
-any other address: normal reply.  Vendor FC 108 is answered by every address (unit 10 is the
-one the tests use for it); other function codes get exception 01.
+   0  broadcast: recorded, never answered
+   1  normal reply (so does any address not listed)
+   2  silent
+   3  the reply, after --late-ms (800)
+   4  the reply with a bad CRC
+   5  the reply carrying address 6
+   7  the reply with function 0x04 for 0x03 (0x03 for anything else)
+   8  the reply from address 9, a pause (--foreign-pause-ms, 5), then the reply
+  10  the one the tests use for vendor FC 108 (0x6C), answered by 0x6C + 37 bytes
+  11  exception 02 (illegal data address)
+  12  the reply to every second request it gets, nothing to the others
+  13  --garbage (55 aa 55), a silence (--garbage-pause-ms, 20), then the reply
+
+The reply: FC03/04 the registers, FC06 the echo, FC 108 the vendor reply (any address),
+anything else exception 01.
 
 Requests are framed by length for the function codes whose request length is fixed by the
 spec (01..06, 0F, 10, and 0x6C sub-functions 07/08), otherwise by 3 ms of silence.  Every frame
@@ -99,9 +107,12 @@ def normal_reply(address: int, pdu: bytes) -> bytes:
 
 
 class Slave:
-    def __init__(self, fd: int, record, late_s: float, garbage: bytes) -> None:
+    def __init__(self, fd: int, record, late_s: float, garbage: bytes, garbage_pause_s: float,
+                 foreign_pause_s: float) -> None:
         self.fd = fd
         self.garbage = garbage
+        self.garbage_pause_s = garbage_pause_s
+        self.foreign_pause_s = foreign_pause_s
         self.record = record
         self.late_s = late_s
         self.pending: list[tuple[float, int, bytes]] = []     # (when, seq, bytes) to write
@@ -139,7 +150,7 @@ class Slave:
             self.later(0, adu(7, wrong))
         elif address == 8:
             self.later(0, adu(9, reply[1:-2]))
-            self.later(0.005, reply)
+            self.later(self.foreign_pause_s, reply)
         elif address == 11:
             self.later(0, adu(11, bytes((pdu[0] | 0x80, 0x02))))
         elif address == 12:
@@ -147,7 +158,7 @@ class Slave:
                 self.later(0, reply)
         elif address == 13:
             self.later(0, self.garbage)
-            self.later(0.020, reply)
+            self.later(self.garbage_pause_s, reply)
         else:
             self.later(0, reply)
 
@@ -200,6 +211,8 @@ def main() -> None:
     parser.add_argument("--record", default=None)
     parser.add_argument("--late-ms", type=int, default=800)
     parser.add_argument("--garbage", type=bytes.fromhex, default=bytes.fromhex("55 aa 55"))
+    parser.add_argument("--garbage-pause-ms", type=float, default=20)
+    parser.add_argument("--foreign-pause-ms", type=float, default=5)
     args = parser.parse_args()
     fd = os.open(args.device, os.O_RDWR | os.O_NOCTTY)
     tty.setraw(fd, termios.TCSANOW)
@@ -207,7 +220,8 @@ def main() -> None:
     record = open(args.record, "w", buffering=1) if args.record else None
     print("READY", flush=True)
     try:
-        Slave(fd, record, args.late_ms / 1000, args.garbage).run()
+        Slave(fd, record, args.late_ms / 1000, args.garbage, args.garbage_pause_ms / 1000,
+              args.foreign_pause_ms / 1000).run()
     except KeyboardInterrupt:
         pass
     finally:
