@@ -7,6 +7,7 @@ import socket
 
 from mbgw.config import SlaveConfig
 from mbgw.counters import Counters
+from mbgw.device_stats import DeviceTable
 from mbgw.line_worker import LineWorker
 from mbgw.serial_port import SerialLine
 from mbgw.scheduler import Scheduler
@@ -37,22 +38,23 @@ class ListenError(Exception):
 def run_slave(cfg: SlaveConfig) -> None:
     """Raises SerialError when the device cannot be opened, ListenError when mdbport cannot
     be bound; otherwise returns after SIGTERM or SIGINT."""
-    line = SerialLine(cfg.serial)
+    counters = Counters()
+    line = SerialLine(cfg.serial, counters)
     try:
-        asyncio.run(_serve(cfg, line))
+        asyncio.run(_serve(cfg, line, counters))
     finally:
         line.close()
 
 
-async def _serve(cfg: SlaveConfig, line: SerialLine) -> None:
+async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters) -> None:
     loop = asyncio.get_running_loop()
-    counters = Counters()
+    devices = DeviceTable()
     scheduler = Scheduler()
 
     def deliver(job, reply) -> None:
         loop.call_soon_threadsafe(job.client.deliver, job, reply)
 
-    worker = LineWorker(cfg, line, scheduler, counters, deliver)
+    worker = LineWorker(cfg, line, scheduler, counters, devices, deliver)
     server = TcpServer(cfg, scheduler, counters, lambda: worker.up)
     stop = asyncio.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):

@@ -33,14 +33,20 @@ class RtuFraming:
             try:
                 frame = self.port.receive_confirmation(adu[0], timeout_us)
             except LineTimeout:
-                self.last_rx_ns = time.monotonic_ns()
-                if self.last_rx_ns < deadline:   # the byte timeout: a gap broke a frame
+                now = time.monotonic_ns()
+                if now < deadline:   # the byte timeout: a gap broke a frame
+                    self.last_rx_ns = now - self._end_us * 1000   # so the line is quiet
                     raise FrameError("incomplete frame") from None
+                self.last_rx_ns = now
                 raise
             self.last_rx_ns = time.monotonic_ns()
-            return frame[:-2] if frame is not None else None
+            if frame is None:
+                return None
+            self.line.counters.bytes_received += len(frame)
+            return frame[:-2]
         frame = self.port.read_reply(len(adu), deadline, self._end_us, False)
         self.last_rx_ns = self.port.last_byte_ns
+        self.line.counters.bytes_received += len(frame)
         if len(frame) < 4:
             raise FrameError("incomplete frame")
         if native.crc16(frame) != 0:
@@ -53,12 +59,15 @@ class RtuFraming:
         """nocheck: whatever came until the end-of-frame silence, CRC removed unchecked."""
         frame = self.port.read_reply(len(adu), deadline, self._end_us, True)
         self.last_rx_ns = self.port.last_byte_ns
+        self.line.counters.bytes_received += len(frame)
         return frame[:-2]
 
     def resync(self) -> int:
-        """Skip the rest of a broken frame; returns the bytes skipped."""
-        skipped = self.port.wait_quiet(time.monotonic_ns(), self._end_us)
-        self.last_rx_ns = time.monotonic_ns()
+        """Skip the rest of a broken frame, up to the end-of-frame silence after its last
+        byte (nothing, when a silence already ended it); returns the bytes skipped."""
+        skipped = self.port.wait_quiet(self.last_rx_ns, self._end_us)
+        if skipped:
+            self.last_rx_ns = time.monotonic_ns()
         return skipped
 
 
@@ -77,6 +86,7 @@ class AsciiFraming:
     def _read(self, deadline: int) -> bytes:
         frame = self.port.read_ascii(deadline, self._interchar_us)
         self.last_rx_ns = self.port.last_byte_ns
+        self.line.counters.bytes_received += len(frame)
         return frame
 
     def receive(self, adu: bytes, deadline: int) -> bytes | None:

@@ -10,6 +10,7 @@ import time
 from mbgw import pdu
 from mbgw.config import SlaveConfig
 from mbgw.counters import Counters
+from mbgw.device_stats import DeviceTable
 from mbgw.errors import LineTimeout, SerialError
 from mbgw.framing import framing_for
 from mbgw.scheduler import Job, Scheduler
@@ -23,19 +24,20 @@ REOPEN_MAX_S = 5.0
 
 
 class LineWorker(threading.Thread):
-    def __init__(self, cfg: SlaveConfig, line: SerialLine, scheduler: Scheduler, counters: Counters,
-                 deliver) -> None:
+    def __init__(self, cfg: SlaveConfig, line: SerialLine, scheduler: Scheduler,
+                 counters: Counters, devices: DeviceTable, deliver) -> None:
         super().__init__(name="mbgw-line", daemon=True)
         self._cfg = cfg
         self._scheduler = scheduler
         self._counters = counters
+        self.devices = devices
         self._deliver = deliver        # deliver(job, reply_pdu_or_None), thread-safe
         self._stopping = False
         self._master: SerialMaster | None = self._master_on(line)
         self.up = True                 # read by the asyncio thread to fail fast while down
 
     def _master_on(self, line: SerialLine) -> SerialMaster:
-        return SerialMaster(framing_for(line), self._cfg.serial, self._counters,
+        return SerialMaster(framing_for(line), self._cfg.serial, self._counters, self.devices,
                             self._cfg.retries, self._cfg.turnaround_ms)
 
     def stop(self) -> None:
@@ -72,6 +74,7 @@ class LineWorker(threading.Thread):
         if not self._cfg.exception or job.adu[0] == pdu.BROADCAST:
             return None
         self._counters.gateway_exceptions += 1
+        self.devices.get(job.adu[0]).gateway_exception(code)
         return pdu.exception_pdu(job.adu[1], code)
 
     def _idle(self) -> None:
@@ -100,7 +103,7 @@ class LineWorker(threading.Thread):
                     os.eventfd_read(self._scheduler.wake_fd)
                 continue
             try:
-                line = SerialLine(self._cfg.serial)
+                line = SerialLine(self._cfg.serial, self._counters)
             except SerialError as err:
                 log.debug("reopen failed: %s", err)
                 delay = min(delay * 2, REOPEN_MAX_S)

@@ -6,19 +6,23 @@ function, a size the request did not ask for -- is counted and dropped, and we k
 until stout has passed, as the spec's master does (Serial Line V1.02, 2.4.1).
 """
 import logging
+import time
 
 from mbgw import pdu
 from mbgw.config import SerialConfig
 from mbgw.counters import Counters
+from mbgw.device_stats import DeviceStats, DeviceTable
 from mbgw.errors import ChecksumError, FrameError, LineTimeout
 
 wire = logging.getLogger("mbgw.wire")
 
 
 class SerialMaster:
-    def __init__(self, framing, cfg: SerialConfig, counters: Counters,
+    def __init__(self, framing, cfg: SerialConfig, counters: Counters, devices: DeviceTable,
                  retries: int = 0, turnaround_ms: int = 100) -> None:
         self.framing = framing
+        self.devices = devices
+        self._sent_ns = 0
         self._counters = counters
         self._retries = retries
         self._nocheck = cfg.nocheck
@@ -30,20 +34,36 @@ class SerialMaster:
     def transact(self, adu: bytes) -> bytes | None:
         """Send adu (address + PDU) and return the reply PDU; None for a broadcast.
         Raises LineTimeout when no valid reply came, SerialError when the port failed."""
+        device = self.devices.get(adu[0])
+        device.transactions += 1
         deadline = self._send(adu)
+        started = self._sent_ns
         if adu[0] == pdu.BROADCAST:
             self._counters.broadcasts += 1
+            device.broadcasts += 1
             self._quiet_us = self._turnaround_us
             return None
         for attempt in range(self._retries + 1):
             if attempt:
-                self._counters.retries += 1
+                self._count(device, "retries")
                 deadline = self._send(adu)
-            reply = self._receive(adu, deadline)
+            reply = self._receive(adu, deadline, device)
             if reply is not None:
+                ended = self.framing.last_rx_ns
+                self._counters.line_busy_ns += ended - started
+                exception = reply[1] if reply[0] & pdu.EXCEPTION_FLAG and len(reply) > 1 else None
+                if exception is not None:
+                    self._counters.device_exceptions += 1
+                device.answered((ended - self._sent_ns) / 1e6, exception)
                 return reply
-        self._counters.timeouts += 1
+        self._counters.line_busy_ns += deadline - started
+        self._count(device, "timeouts")
+        device.failed()
         raise LineTimeout()
+
+    def _count(self, device: DeviceStats, name: str) -> None:
+        setattr(self._counters, name, getattr(self._counters, name) + 1)
+        setattr(device, name, getattr(device, name) + 1)
 
     def _send(self, adu: bytes) -> int:
         """Returns the reply's deadline."""
@@ -52,11 +72,12 @@ class SerialMaster:
             self._counters.late_bytes += stale
         if wire.isEnabledFor(logging.DEBUG):
             wire.debug("tx %s", adu.hex(" "))
+        self._sent_ns = time.monotonic_ns()
         self._quiet_from_ns = self.framing.send(adu)
         self._quiet_us = self.framing.inter_frame_us
         return self._quiet_from_ns + self._stout_ns
 
-    def _receive(self, adu: bytes, deadline: int) -> bytes | None:
+    def _receive(self, adu: bytes, deadline: int, device: DeviceStats) -> bytes | None:
         """The reply PDU, or None once stout has passed without one."""
         framing = self.framing
         while True:
@@ -67,27 +88,25 @@ class SerialMaster:
             except LineTimeout:
                 return None
             except ChecksumError:
-                self._counters.crc_errors += 1
+                self._count(device, "crc_errors")
                 self._counters.late_bytes += framing.resync()
                 continue
             except FrameError:
-                self._counters.invalid_frames += 1
+                self._count(device, "invalid_frames")
                 self._counters.late_bytes += framing.resync()
                 continue
             finally:
                 self._quiet_from_ns = max(self._quiet_from_ns, framing.last_rx_ns)
             if frame is None:
-                self._counters.wrong_unit += 1
+                self._count(device, "wrong_unit")
                 continue
             if wire.isEnabledFor(logging.DEBUG):
                 wire.debug("rx %s", frame.hex(" "))
             if framing.last_rx_ns > deadline:
-                self._counters.late_replies += 1
+                self._count(device, "late_replies")
                 continue
             reply = frame[1:]
             if not reply or not pdu.reply_matches(adu[1:], reply):
-                self._counters.wrong_function += 1
+                self._count(device, "wrong_function")
                 continue
-            if reply[0] & pdu.EXCEPTION_FLAG:
-                self._counters.device_exceptions += 1
             return reply

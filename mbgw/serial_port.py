@@ -5,6 +5,7 @@ import time
 
 from mbgw import native
 from mbgw.config import SerialConfig
+from mbgw.counters import Counters
 from mbgw.errors import FrameError, LineTimeout
 
 log = logging.getLogger("mbgw.line")
@@ -13,8 +14,10 @@ ECHO_MARGIN_NS = 50_000_000     # the echo of a frame is back well within this a
 
 
 class SerialLine:
-    def __init__(self, cfg: SerialConfig) -> None:
+    def __init__(self, cfg: SerialConfig, counters: Counters | None = None) -> None:
         self.cfg = cfg
+        # Line counters outlive a reopened port: the owner passes its own.
+        self.counters = counters if counters is not None else Counters()
         fmt = cfg.format
         # libmodbus opens and configures the tty; what it cannot do is fixed after.
         libmodbus_parity = fmt.parity if fmt.parity in "neo" else "n"
@@ -43,7 +46,6 @@ class SerialLine:
             port.close()
             raise
         self.port = port
-        self.echo_errors = 0
         self._char_ns = cfg.char_ns
         self._before_us = cfg.rtsdelays[0] * 1000
         self._after_us = cfg.rtsdelays[1] * 1000
@@ -58,11 +60,12 @@ class SerialLine:
             self.port.send_rtu(rtu_adu)
         else:
             self.port.write(wire, self.rts_control, self._before_us, self._after_us)
+        self.counters.bytes_sent += len(wire)
         done_ns = time.monotonic_ns() + len(wire) * self._char_ns
         if self.cfg.interface.echo:
             try:
                 self.port.discard_echo(wire, done_ns + ECHO_MARGIN_NS)
             except (FrameError, LineTimeout):
-                self.echo_errors += 1     # a collision or a deaf receiver; the reply may still come
+                self.counters.echo_errors += 1   # a collision or a deaf receiver; the reply may still come
                 self.port.wait_quiet(time.monotonic_ns(), self.cfg.end_of_frame_us)
         return done_ns

@@ -1,0 +1,121 @@
+"""What each serial device (serial address) has done, and how healthy it looks.
+
+Written by the line thread only; read (racily, which is fine for figures) by the asyncio
+thread for status and metrics.  Health is judged from recent outcomes and logged once per
+change, never per failure.
+"""
+import logging
+import time
+
+log = logging.getLogger("mbgw.devices")
+
+COUNTS = ("transactions", "replies", "timeouts", "retries", "crc_errors", "invalid_frames",
+          "wrong_unit", "wrong_function", "late_replies", "broadcasts")
+LATENCY_BUCKETS_MS = (2, 5, 10, 25, 50, 100, 250, 500, 1000, 2500, 5000)
+DOWN_AFTER_FAILURES = 3        # consecutive transactions without a valid reply
+RECENT_WINDOW = 20             # outcomes considered for "degraded"
+
+UP, DEGRADED, DOWN = "up", "degraded", "down"
+
+
+class DeviceStats:
+    __slots__ = COUNTS + ("address", "exceptions", "gateway_exceptions", "latency_buckets",
+                          "latency_sum_ms", "last_success", "consecutive_failures",
+                          "recent_failures", "health", "health_since")
+
+    def __init__(self, address: int) -> None:
+        self.address = address
+        for name in COUNTS:
+            setattr(self, name, 0)
+        self.exceptions: dict[int, int] = {}          # exception replies from the device
+        self.gateway_exceptions: dict[int, int] = {}  # exception replies mbgw generated
+        self.latency_buckets = [0] * (len(LATENCY_BUCKETS_MS) + 1)
+        self.latency_sum_ms = 0.0
+        self.last_success: float | None = None
+        self.consecutive_failures = 0
+        self.recent_failures = 0                      # bit i: the i-th latest outcome failed
+        self.health = UP
+        self.health_since = time.time()
+
+    def answered(self, latency_ms: float, exception_code: int | None) -> None:
+        self.replies += 1
+        if exception_code is not None:
+            self.exceptions[exception_code] = self.exceptions.get(exception_code, 0) + 1
+        self.latency_sum_ms += latency_ms
+        bucket = 0
+        while bucket < len(LATENCY_BUCKETS_MS) and latency_ms > LATENCY_BUCKETS_MS[bucket]:
+            bucket += 1
+        self.latency_buckets[bucket] += 1
+        self.last_success = time.time()
+        self.consecutive_failures = 0
+        self._judge(False)
+
+    def failed(self) -> None:
+        self.consecutive_failures += 1
+        self._judge(True)
+
+    def gateway_exception(self, code: int) -> None:
+        self.gateway_exceptions[code] = self.gateway_exceptions.get(code, 0) + 1
+
+    def _judge(self, failed: bool) -> None:
+        self.recent_failures = ((self.recent_failures << 1) | failed) & ((1 << RECENT_WINDOW) - 1)
+        if self.consecutive_failures >= DOWN_AFTER_FAILURES:
+            health = DOWN
+        elif self.recent_failures:
+            health = DEGRADED
+        else:
+            health = UP
+        if health != self.health:
+            self._change(health)
+
+    def _change(self, health: str) -> None:
+        self.health = health
+        self.health_since = time.time()
+        if health == DOWN:
+            log.warning("device %d is down: %d requests in a row without a valid reply",
+                        self.address, self.consecutive_failures)
+        elif health == DEGRADED:
+            log.warning("device %d is degraded: %d of its last %d requests failed",
+                        self.address, bin(self.recent_failures).count("1"), RECENT_WINDOW)
+        else:
+            log.info("device %d is up: its last %d requests were answered", self.address,
+                     RECENT_WINDOW)
+
+    def snapshot(self) -> dict:
+        data = {name: getattr(self, name) for name in COUNTS}
+        data.update(
+            address=self.address, health=self.health, health_since=self.health_since,
+            last_success=self.last_success, consecutive_failures=self.consecutive_failures,
+            exceptions={f"0x{c:02x}": n for c, n in sorted(self.exceptions.items())},
+            gateway_exceptions={f"0x{c:02x}": n
+                                for c, n in sorted(self.gateway_exceptions.items())},
+            latency_buckets_ms=dict(zip([*map(str, LATENCY_BUCKETS_MS), "+Inf"],
+                                        self.latency_buckets)),
+            latency_sum_ms=round(self.latency_sum_ms, 3))
+        return data
+
+
+class DeviceTable:
+    """DeviceStats by serial address, created on first use."""
+
+    def __init__(self) -> None:
+        self._devices: dict[int, DeviceStats] = {}
+
+    def get(self, address: int) -> DeviceStats:
+        stats = self._devices.get(address)
+        if stats is None:
+            stats = self._devices[address] = DeviceStats(address)
+        return stats
+
+    def all(self) -> list[DeviceStats]:
+        return [self._devices[a] for a in sorted(self._devices)]
+
+    def reset(self) -> None:
+        """Zero every counter; health and last success are kept (they are state, not
+        counts)."""
+        for stats in self._devices.values():
+            fresh = DeviceStats(stats.address)
+            for name in ("last_success", "consecutive_failures", "recent_failures", "health",
+                         "health_since"):
+                setattr(fresh, name, getattr(stats, name))
+            self._devices[stats.address] = fresh
