@@ -24,6 +24,7 @@ from pymodbus.client import ModbusTcpClient
 
 from mbgw.config import Interface, SerialConfig
 from mbgw.counters import Counters
+from mbgw.device_stats import DeviceTable
 from mbgw.errors import LineTimeout
 from mbgw.framing import framing_for
 from mbgw.serial_master import SerialMaster
@@ -413,11 +414,11 @@ def in_process(pty_pair):
     def make(protocol: str = "rtu", interface: str = "rs485 echo", stout_ms: int = STOUT_MS):
         cfg = SerialConfig(pty_pair.gateway, baudrate=19200, protocol=protocol,
                            interface=Interface.parse(interface), stout_ms=stout_ms)
-        line = SerialLine(cfg)
+        counters = Counters()
+        line = SerialLine(cfg, counters)
         lines.append(line)
         line.rts_control = False
-        counters = Counters()
-        return SerialMaster(framing_for(line), cfg, counters), counters
+        return SerialMaster(framing_for(line), cfg, counters, DeviceTable()), counters
 
     yield make
     for line in lines:
@@ -440,6 +441,7 @@ def test_echo_collision_is_no_valid_reply(paced, in_process):
     master, counters = in_process("rtu")
     with pytest.raises(LineTimeout):
         master.transact(bytes((7,)) + read_holding(0, 1))
+    assert counters.echo_errors == 1
 
 
 def test_echo_mode_without_an_echo_times_out(paced, in_process):
@@ -447,6 +449,7 @@ def test_echo_mode_without_an_echo_times_out(paced, in_process):
     master, counters = in_process("rtu")
     with pytest.raises(LineTimeout):
         master.transact(bytes((1,)) + read_holding(0, 1))
+    assert counters.echo_errors == 1
 
 
 def test_echo_not_configured_is_never_taken_for_a_reply(paced, gateway, client):
