@@ -77,8 +77,6 @@ long mbgw_wait_quiet(int fd, int64_t last_ns, int32_t quiet_us)
         discarded += n;
         last_ns = now_ns();
     }
-    if (tcflush(fd, TCIFLUSH) < 0 && errno != ENOTTY)
-        return -errno;
     return discarded;
 }
 

@@ -28,8 +28,9 @@ int mbgw_rtu_reply_length(size_t req_len, const uint8_t *rsp, size_t have);
 /* The same for a request (master mode receives requests for several addresses). */
 int mbgw_rtu_request_length(const uint8_t *req, size_t have);
 
-/* Discard input until the line has been quiet for quiet_us since last_ns (CLOCK_MONOTONIC),
- * then flush the input queue.  Returns the number of bytes discarded. */
+/* Read and discard input until the line has been quiet for quiet_us since last_ns
+ * (CLOCK_MONOTONIC).  Returns the number of bytes discarded.  (No tcflush: it would drop,
+ * uncounted, a frame that arrived after the quiet period.) */
 long mbgw_wait_quiet(int fd, int64_t last_ns, int32_t quiet_us);
 
 /* Sleep until wake_fd (an eventfd) is signalled, input arrives on fd, or timeout_ms passes
@@ -103,10 +104,3 @@ int mbgw_discard_echo(int fd, const uint8_t *sent, size_t len, int64_t deadline_
  * -EBADMSG too short, -EMSGSIZE longer than cap. */
 long mbgw_rtu_read_request(int fd, int wake_fd, uint8_t *buf, size_t cap,
                            const uint8_t *reply_to, size_t reply_to_len, int32_t gap_us);
-
-/* The same for an ASCII frame, ':' to CR LF (characters before a ':' are dropped, a ':'
- * restarts, each character within interchar_us of the previous one).  Never reads past the
- * LF.  Returns its length.  -ECANCELED woken first, -EBADMSG broken by a pause, -EMSGSIZE
- * longer than cap. */
-long mbgw_ascii_read_request(int fd, int wake_fd, uint8_t *buf, size_t cap,
-                             int32_t interchar_us);

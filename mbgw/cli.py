@@ -107,10 +107,15 @@ def main() -> None:
 @click.option("--turnaround", type=click.IntRange(0, 65535), default=config.DEFAULT_TURNAROUND_MS,
               show_default=True, metavar="MS",
               help="Pause on the line after a broadcast (unit 0), before the next request.")
+@click.option("--control", metavar="PATH", default=None,
+              help="Control socket for mbgw status/trace [default: "
+                   "$RUNTIME_DIRECTORY/mbgw.sock or /run/mbgw/mbgw.sock].")
+@click.option("--metrics", metavar="ADDR:PORT", default=None,
+              help="Serve Prometheus metrics on http://ADDR:PORT/metrics [default: off].")
 @click.option("--log-level", type=LOG_LEVELS, default="info", show_default=True)
 def slave(device, protocol, baudrate, line_format, interface, rtsdelays, stout, silence,
           ascii_timeout, nocheck, slaveid, exception, authip, mdbport, bind, max_connections,
-          retries, turnaround, log_level) -> None:
+          retries, turnaround, control, metrics, log_level) -> None:
     """Slave mode: Modbus TCP clients reach the slaves on a serial line."""
     from mbgw import daemon, log
 
@@ -118,7 +123,8 @@ def slave(device, protocol, baudrate, line_format, interface, rtsdelays, stout, 
                             stout, silence, ascii_timeout, nocheck)
     cfg = _convert("'--authip'", lambda: config.SlaveConfig(
         serial=serial, slaveid=slaveid, exception=exception, authip=authip, mdbport=mdbport,
-        bind=bind, max_connections=max_connections, retries=retries, turnaround_ms=turnaround))
+        bind=bind, max_connections=max_connections, retries=retries, turnaround_ms=turnaround,
+        control=control, metrics=metrics))
     log.setup(log_level)
     try:
         daemon.run_slave(cfg)

@@ -11,10 +11,17 @@ from mbgw.errors import ConfigError, ConfigFileError
 from mbgw.toml_edit import dump_value, set_line, write_atomic
 
 SHOW_WIDTH = 16                    # the key column of `mbgw config show`
+META_FILE = "mbgw.config_file"     # ctx.meta: the file the running mode command took values from
+META_MODE_FROM_FILE = "mbgw.mode_from_file"   # ctx.meta: `mbgw run` took the mode from it
+EX_CONFIG = 78                     # sysexits.h; the units do not restart on it
 
 
 class Failure(click.ClickException):
-    """Printed as "mbgw: ..." lines on stderr; exit status 1."""
+    """Printed as "mbgw: ..." lines on stderr; exit status 1, or `exit_code`."""
+
+    def __init__(self, message: str, exit_code: int = 1) -> None:
+        super().__init__(message)
+        self.exit_code = exit_code
 
     def show(self, file=None) -> None:
         for line in self.format_message().splitlines():
@@ -47,13 +54,14 @@ def _permission_failure(ctx, path, doing: str, words) -> Failure:
                    f"sudo {_command_line(ctx, *words)}")
 
 
-def _load(ctx: click.Context, schema: cf.Schema, path: Path, words=()) -> cf.Settings:
+def _load(ctx: click.Context, schema: cf.Schema, path: Path, words=(),
+          exit_code: int = 1) -> cf.Settings:
     try:
         return cf.load(schema, path)
     except PermissionError:
         raise _permission_failure(ctx, path, "read", words) from None
     except ConfigFileError as err:
-        raise Failure(str(err)) from None
+        raise Failure(str(err), exit_code) from None
 
 
 # --- the --config option of `mbgw slave` / `mbgw master` -----------------------------------------
@@ -69,16 +77,46 @@ def _mode_config_option() -> click.Option:
 def _apply_file(ctx: click.Context, param: click.Parameter, value) -> None:
     """Eager: runs before the other options take their values, and gives them the file's
     values as defaults (click's default_map), so the command line wins over the file."""
+    given = ctx.get_parameter_source(param.name) == click.core.ParameterSource.COMMANDLINE
+    if ctx.default_map is not None and not given:   # `mbgw run`, load_options gave the file
+        return
     if value is None:
-        if ctx.default_map is not None:       # `mbgw run` or load_options already gave them
-            return
         if not cf.DEFAULT_PATH.exists():
             return
         value = cf.DEFAULT_PATH
     schema = _schema(ctx)
-    settings = _load(ctx, schema, Path(value))
+    settings = _load(ctx, schema, Path(value), exit_code=EX_CONFIG)
     ctx.default_map = {**settings.default_map(schema, ctx.command.name),
                        **(ctx.default_map or {})}
+    ctx.meta[META_FILE] = Path(value)
+
+
+def reloader(ctx: click.Context | None = None):
+    """For the mode command running now (its context, by default the current one): a function
+    that reads its configuration file again, for SIGHUP, and returns {"mode": ..., then the
+    command's parameters as its function received them}: the file's values, with the options
+    given on the command line (or by environment) kept as they were.  It raises ConfigError
+    (the message names the file, the key and the reason) when the file is wrong, or when
+    `mbgw run` took the mode from the file and it has changed (a restart is needed).  None
+    when the command took nothing from a file."""
+    ctx = ctx or click.get_current_context()
+    path = ctx.meta.get(META_FILE)
+    if path is None:
+        return None
+    mode = ctx.command.name
+    root = _schema(ctx).root
+    kept = {name: ctx.params[name] for name in ctx.params
+            if ctx.get_parameter_source(name) in (click.core.ParameterSource.COMMANDLINE,
+                                                  click.core.ParameterSource.ENVIRONMENT)}
+    from_file = ctx.meta.get(META_MODE_FROM_FILE, False)
+
+    def reload() -> dict:
+        options = cf.load_options(path, root=root, mode=None if from_file else mode)
+        if options["mode"] != mode:
+            raise ConfigError(f"{path}: serial.mode is {options['mode']} now: changing the "
+                              f"mode needs a restart (systemctl restart mbgw)")
+        return {**options, **kept}
+    return reload
 
 
 # --- the file options of the other commands -------------------------------------------------
@@ -127,16 +165,19 @@ def _reload_hint(path: Path) -> str | None:
 def run(ctx: click.Context, config_path: Path, instance: str | None, args) -> None:
     """Start the mode the configuration file selects (serial.mode): what the mbgw service
     runs.  Options after the file options are the mode command's and win over the file,
-    e.g. `mbgw run --log-level debug`."""
+    e.g. `mbgw run --log-level debug`.  Exit status 78 when the file is wrong."""
     path = _path(ctx, config_path, instance)
     schema = _schema(ctx)
-    settings = _load(ctx, schema, path)
+    settings = _load(ctx, schema, path, exit_code=EX_CONFIG)
     command = schema.commands[settings.mode]
+    ctx.meta[META_FILE] = path                  # shared with the mode command's context
+    ctx.meta[META_MODE_FROM_FILE] = True
     try:
         sub = command.make_context(settings.mode, list(args), parent=ctx,
                                    default_map=settings.default_map(schema, settings.mode))
     except click.MissingParameter as err:
-        raise Failure(f"{path}: {cf._click_problem(schema, settings, err)}") from None
+        raise Failure(f"{path}: {cf.click_problem(schema, settings, err)}", EX_CONFIG) \
+            from None
     with sub:
         command.invoke(sub)
 

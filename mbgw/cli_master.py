@@ -18,7 +18,8 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
               help="Serial addresses FS..LS go to the server at IP, as unit id FR + (address "
                    "- FS), or 0xFF when FR is 0; M=1 adds (address - FS) to the IP's last "
                    f"byte too.  Repeat for up to {MAX_RANGES} ranges; a line whose FS lies in "
-                   "a range already defined replaces the oldest; FS=0 clears the table.")
+                   "a range already defined replaces it (other overlaps are refused); FS=0 "
+                   "clears the table.")
 @click.option("--tcpto", type=click.IntRange(*config.TCPTO_RANGE),
               default=config.DEFAULT_TCPTO_MS, show_default=True, metavar="MS",
               help="Time for a transaction with a server, connecting included, 1..65535 ms.")

@@ -120,6 +120,8 @@ class SlaveConfig:
     max_connections: int = 5
     retries: int = 0
     turnaround_ms: int = DEFAULT_TURNAROUND_MS
+    control: str | None = None     # control socket path; None: the default one
+    metrics: str | None = None     # ADDR:PORT for Prometheus, None: off
 
     def __post_init__(self) -> None:
         if len(self.authip) > MAX_AUTHIP:

@@ -39,7 +39,7 @@ NO_ADDRESS = "0.0.0.0"                     # "IP address 0.0.0.0 clears the entr
 FACTORY_MODE = "slave"
 FACTORY_DEVICE = "/dev/ttyUSB0"
 JOIN_WORDS = {"format": ""}                # "set serial format 8 e 1" is 8e1
-OWN_OPTIONS = frozenset({"config", "instance"})   # options about the file itself, not keys
+OWN_OPTIONS = frozenset({"config"})        # the option naming the file is not a key
 _REMOVE = object()                         # a change that takes a key out of the file
 
 
@@ -412,20 +412,21 @@ def load(schema: Schema, path: Path) -> Settings:
     return check(schema, path, parse(path, text))
 
 
-def resolve(schema: Schema, settings: Settings, args=()) -> dict:
-    """The mode command's parameters as its callback receives them, from the file and `args`
-    (command-line options, which win).  Also checks what only the whole command can: options
-    it requires (device), callbacks.  Raises ConfigFileError."""
-    command = schema.commands[settings.mode]
+def resolve(schema: Schema, settings: Settings, args=(), mode: str | None = None) -> dict:
+    """The parameters of a mode command (the file's mode, or `mode`) as its function receives
+    them, from the file and `args` (command-line options, which win).  Also checks what only
+    the whole command can: options it requires (device), callbacks.  Raises ConfigFileError."""
+    mode = mode or settings.mode
+    command = schema.commands[mode]
     try:
-        ctx = command.make_context(settings.mode, list(args),
-                                   default_map=settings.default_map(schema, settings.mode))
+        ctx = command.make_context(mode, list(args),
+                                   default_map=settings.default_map(schema, mode))
     except click.ClickException as err:
-        raise ConfigFileError(settings.path, [_click_problem(schema, settings, err)]) from None
+        raise ConfigFileError(settings.path, [click_problem(schema, settings, err)]) from None
     return {name: None if _is_unset(v) else v for name, v in ctx.params.items()}
 
 
-def _click_problem(schema: Schema, settings: Settings, err: click.ClickException) -> str:
+def click_problem(schema: Schema, settings: Settings, err: click.ClickException) -> str:
     param = getattr(err, "param", None)
     key = schema.key_of_param(param) if param is not None else None
     if key is None:
@@ -436,13 +437,15 @@ def _click_problem(schema: Schema, settings: Settings, err: click.ClickException
     return f"{key.label}: {err.message}"
 
 
-def load_options(path=DEFAULT_PATH, args=(), root: click.Group | None = None) -> dict:
+def load_options(path=DEFAULT_PATH, args=(), root: click.Group | None = None,
+                 mode: str | None = None) -> dict:
     """What `mbgw run --config PATH ARGS...` would start, without starting it: {"mode": "slave"
     or "master", then every parameter of that mode's command exactly as click passes it to the
     command's function (converted, checked, defaults filled in)}.  `args` are command-line
-    options that win over the file (give the ones the daemon was started with to keep them on
-    reload).  Raises ConfigFileError (a ConfigError) naming the file, the key and the reason;
-    the file is only read, so a daemon can call it on SIGHUP and keep running on error."""
+    options that win over the file; `mode` takes another mode than the file's (as `mbgw slave
+    --config PATH` does).  Raises ConfigFileError (a ConfigError) naming the file, the key and
+    the reason.  The file is only read, so a daemon can call it on SIGHUP and keep running on
+    an error (see mbgw.cli_config.reloader)."""
     if root is None:
         from mbgw.cli import main as root
     schema = Schema(root)
@@ -450,7 +453,8 @@ def load_options(path=DEFAULT_PATH, args=(), root: click.Group | None = None) ->
         settings = load(schema, Path(path))
     except PermissionError as err:
         raise ConfigFileError(path, [f"cannot read it: {err.strerror}"]) from None
-    return {"mode": settings.mode, **resolve(schema, settings, args)}
+    mode = mode or settings.mode
+    return {"mode": mode, **resolve(schema, settings, args, mode)}
 
 
 # --- changes in the guide's syntax -------------------------------------------------------------

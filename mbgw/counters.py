@@ -21,6 +21,11 @@ class Counters:
     def snapshot(self) -> dict[str, int]:
         return {name: getattr(self, name) for name in NAMES}
 
+    def reset(self) -> None:
+        for cls in type(self).__mro__:
+            for name in getattr(cls, "__slots__", ()):
+                setattr(self, name, 0)
+
 # Master mode's own events; the counters line at stop lists these.
 MASTER_NAMES = (
     "requests", "replies", "device_exceptions", "gateway_exceptions", "timeouts",

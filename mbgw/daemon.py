@@ -6,10 +6,12 @@ import signal
 import socket
 
 from mbgw.config import SlaveConfig
+from mbgw.control import ControlServer, default_path
 from mbgw.counters import Counters
 from mbgw.device_stats import DeviceTable
 from mbgw.line_worker import LineWorker
 from mbgw.serial_port import SerialLine
+from mbgw.status import SlaveStatus
 from mbgw.scheduler import Scheduler
 from mbgw.tcp_server import TcpServer
 
@@ -64,6 +66,14 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters) -> None
     except OSError as err:
         raise ListenError(cfg.mdbport, err) from None
     worker.start()
+    status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses)
+    control = ControlServer(cfg.control or default_path(), status.commands())
+    try:
+        await control.start()
+    except OSError as err:
+        log.warning("control socket %s unavailable (%s): mbgw status and trace will not "
+                    "reach this daemon", control.path, err.strerror)
+        control = None
     s = cfg.serial
     log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s",
              ", ".join(addresses), s.device, s.baudrate, s.format, s.protocol, s.interface,
@@ -74,6 +84,8 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters) -> None
     await stop.wait()
     sd_notify("STOPPING=1")
     log.info("stopping")
+    if control is not None:
+        control.close()
     server.close()
     worker.stop()
     await asyncio.to_thread(worker.join)

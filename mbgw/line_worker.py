@@ -13,7 +13,8 @@ from mbgw.counters import Counters
 from mbgw.device_stats import DeviceTable
 from mbgw.errors import LineTimeout, SerialError
 from mbgw.framing import framing_for
-from mbgw.scheduler import Job, Scheduler
+from mbgw.scheduler import (OUTCOME_BROADCAST, OUTCOME_ERROR, OUTCOME_EXCEPTION,
+                            OUTCOME_LINE_DOWN, OUTCOME_REPLY, OUTCOME_TIMEOUT, Job, Scheduler)
 from mbgw.serial_master import SerialMaster
 from mbgw.serial_port import SerialLine
 
@@ -60,13 +61,22 @@ class LineWorker(threading.Thread):
     def _serve(self, job: Job) -> None:
         try:
             reply = self._master.transact(job.adu)
+            if reply is None:
+                job.outcome = OUTCOME_BROADCAST
+            elif reply[0] & pdu.EXCEPTION_FLAG:
+                job.outcome = OUTCOME_EXCEPTION
+            else:
+                job.outcome = OUTCOME_REPLY
         except LineTimeout:
+            job.outcome = OUTCOME_TIMEOUT
             reply = self._failure(job, pdu.GATEWAY_TARGET_FAILED)
         except SerialError as err:
             self._lost(err)
+            job.outcome = OUTCOME_LINE_DOWN
             reply = self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE)
         except Exception:   # a bug must cost one transaction, never the line
             log.exception("internal error serving %s", job.adu.hex(" "))
+            job.outcome = OUTCOME_ERROR
             reply = self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE)
         self._deliver(job, reply)
 
@@ -118,4 +128,5 @@ class LineWorker(threading.Thread):
         """While the port is down, nothing waits: every queued request is refused at once."""
         while (job := self._scheduler.take()) is not None:
             self._counters.line_down_rejects += 1
+            job.outcome = OUTCOME_LINE_DOWN
             self._deliver(job, self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE))

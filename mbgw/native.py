@@ -216,12 +216,3 @@ class Port:
         if n == -errno.ECANCELED:
             return None
         return ffi.buffer(self._buf, self._check(n, "read") - 2)[:]
-
-    def read_ascii_request(self, wake_fd: int, interchar_us: int) -> bytes | None:
-        """Master mode: the next ASCII frame (':' to CR LF, undecoded); None when woken
-        through wake_fd first.  Raises FrameError, SerialError."""
-        n = lib.mbgw_ascii_read_request(self.fd, wake_fd, self._buf, ASCII_MAX_FRAME,
-                                        interchar_us)
-        if n == -errno.ECANCELED:
-            return None
-        return ffi.buffer(self._buf, self._check(n, "read"))[:]

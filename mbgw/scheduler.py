@@ -10,13 +10,24 @@ from collections import deque
 
 
 class Job:
-    __slots__ = ("client", "tid", "unit", "adu")
+    __slots__ = ("client", "tid", "unit", "adu", "outcome", "received_ns")
 
-    def __init__(self, client, tid: int, unit: int, adu: bytes) -> None:
+    def __init__(self, client, tid: int, unit: int, adu: bytes, received_ns: int = 0) -> None:
         self.client = client
         self.tid = tid
         self.unit = unit
         self.adu = adu
+        self.outcome = ""          # set by the line thread: one of the OUTCOME_* strings
+        self.received_ns = received_ns
+
+
+OUTCOME_REPLY = "reply"
+OUTCOME_EXCEPTION = "device exception"
+OUTCOME_TIMEOUT = "timeout"
+OUTCOME_LINE_DOWN = "line down"
+OUTCOME_BROADCAST = "broadcast"
+OUTCOME_UNROUTABLE = "unroutable"
+OUTCOME_ERROR = "internal error"
 
 
 class Queue:
@@ -33,11 +44,13 @@ class Scheduler:
         self._lock = threading.Lock()
         self._ring: deque[Queue] = deque()
         self._sleeping = False
+        self.depth = 0              # jobs waiting, for status and metrics
         self.wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
 
     def submit(self, queue: Queue, job: Job) -> None:
         with self._lock:
             queue.jobs.append(job)
+            self.depth += 1
             if not queue.scheduled:
                 queue.scheduled = True
                 self._ring.append(queue)
@@ -53,6 +66,7 @@ class Scheduler:
                 return None
             queue = self._ring.popleft()
             job = queue.jobs.popleft()
+            self.depth -= 1
             if queue.jobs:
                 self._ring.append(queue)
             else:
@@ -62,6 +76,7 @@ class Scheduler:
     def discard(self, queue: Queue) -> None:
         """Forget a client's pending jobs (it disconnected)."""
         with self._lock:
+            self.depth -= len(queue.jobs)
             queue.jobs.clear()
             if queue.scheduled:
                 queue.scheduled = False

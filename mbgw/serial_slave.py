@@ -22,7 +22,8 @@ import time
 from mbgw import native, pdu
 from mbgw.config import MasterConfig
 from mbgw.counters import MasterCounters
-from mbgw.errors import ChecksumError, FrameError, GatewayTimeout, NoRoute, SerialError
+from mbgw.errors import (ChecksumError, FrameError, GatewayTimeout, LineTimeout, NoRoute,
+                         SerialError)
 from mbgw.framing import framing_for
 from mbgw.line_worker import REOPEN_FIRST_S, REOPEN_MAX_S
 from mbgw.serial_port import SerialLine
@@ -31,6 +32,7 @@ from mbgw.tcp_client import Interrupted, UpstreamPool
 log = logging.getLogger("mbgw.line")
 wire = logging.getLogger("mbgw.wire")
 
+IDLE_INPUT = 1      # Port.idle_wait: input is waiting
 IDLE_TIMEOUT = 2    # Port.idle_wait: nothing happened
 
 
@@ -43,6 +45,9 @@ class SerialSlave(threading.Thread):
         self._tcpto_ns = cfg.tcpto_ns
         self._gap_us = cfg.serial.end_of_frame_us
         self._interchar_us = cfg.serial.ascii_timeout_ms * 1000
+        # the longest ASCII frame at the line's speed, plus one inter-character pause
+        self._ascii_frame_ns = (native.ASCII_MAX_FRAME * cfg.serial.char_ns
+                                + self._interchar_us * 1000)
         self.wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         self._pool = UpstreamPool(cfg.mdbport, cfg.max_connections, counters, self.wake_fd)
         self._stopping = False
@@ -92,7 +97,7 @@ class SerialSlave(threading.Thread):
             self._counters.crc_errors += 1
             self._reply_to = b""
             return
-        except FrameError:
+        except (FrameError, LineTimeout):      # LineTimeout: noise, no ':' (ASCII)
             self._counters.invalid_frames += 1
             self._reply_to = b""
             return
@@ -118,8 +123,11 @@ class SerialSlave(threading.Thread):
         return self._port.read_request(self.wake_fd, self._reply_to, self._gap_us)
 
     def _receive_ascii(self) -> bytes | None:
-        frame = self._port.read_ascii_request(self.wake_fd, self._interchar_us)
-        return None if frame is None else native.ascii_decode(frame)
+        if self._port.idle_wait(self.wake_fd, -1) != IDLE_INPUT:
+            return None
+        frame = self._port.read_ascii(time.monotonic_ns() + self._ascii_frame_ns,
+                                      self._interchar_us)
+        return native.ascii_decode(frame)
 
     # --- forwarding ---
 

@@ -5,6 +5,7 @@ max_connections the least recently active idle connection is closed for the newc
 every connection has a request in flight, the newcomer is refused.
 """
 import asyncio
+import itertools
 import logging
 import socket
 import time
@@ -13,12 +14,14 @@ from mbgw import mbap, pdu
 from mbgw.acl import AccessList
 from mbgw.config import SlaveConfig
 from mbgw.counters import Counters
-from mbgw.scheduler import Job, Queue, Scheduler
+from mbgw.scheduler import OUTCOME_LINE_DOWN, OUTCOME_UNROUTABLE, Job, Queue, Scheduler
+from mbgw.trace import TraceHub
 
 log = logging.getLogger("mbgw.tcp")
 
 MAX_IN_FLIGHT = 16          # TCP guide 4.4.2: a server holds 1..16 transactions per client
 REFUSAL_LOG_INTERVAL_S = 60.0
+_client_ids = itertools.count(1)
 
 
 class Client(asyncio.Protocol):
@@ -26,8 +29,10 @@ class Client(asyncio.Protocol):
 
     def __init__(self, server: "TcpServer") -> None:
         self._server = server
+        self.id = next(_client_ids)
         self.transport: asyncio.Transport | None = None
         self.peer = "?"
+        self.local = "?"
         self.queue = Queue()
         self.in_flight = 0
         self.requests = 0
@@ -37,8 +42,9 @@ class Client(asyncio.Protocol):
         self._paused = False
 
     def connection_made(self, transport) -> None:
-        host, port = transport.get_extra_info("peername")[:2]
-        self.peer = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+        host = transport.get_extra_info("peername")[0]
+        self.peer = format_address(transport.get_extra_info("peername"))
+        self.local = format_address(transport.get_extra_info("sockname"))
         if not self._server.admit(self, host):
             transport.abort()
             return
@@ -77,6 +83,9 @@ class Client(asyncio.Protocol):
         """The line's outcome for job (runs in the loop thread)."""
         self.in_flight -= 1
         self.send(job.tid, job.unit, reply)
+        if self._server.trace.active:
+            self._server.traced(self, job.tid, job.unit, job.adu[1], reply, job.outcome,
+                                job.received_ns)
         if self._paused and self.in_flight < MAX_IN_FLIGHT and self.transport is not None:
             self._paused = False
             self.transport.resume_reading()
@@ -99,13 +108,14 @@ class TcpServer:
         self.clients: list[Client] = []
         self._refusals: dict[str, float] = {}
         self._server: asyncio.base_events.Server | None = None
+        self.trace = TraceHub()
 
     async def start(self) -> list[str]:
         """Listen; returns the listening addresses."""
         loop = asyncio.get_running_loop()
         self._server = await loop.create_server(lambda: Client(self), host=self._cfg.bind,
                                                 port=self._cfg.mdbport, reuse_address=True)
-        return [_format_sockname(s.getsockname()) for s in self._server.sockets]
+        return [format_address(s.getsockname()) for s in self._server.sockets]
 
     def close(self) -> None:
         if self._server is not None:
@@ -136,6 +146,15 @@ class TcpServer:
         log.info("client %s connected", client.peer)
         return True
 
+    def close_client(self, client_id: int) -> bool:
+        """Force-close a client connection (operator's command)."""
+        for client in self.clients:
+            if client.id == client_id:
+                log.info("client %s closed by the operator", client.peer)
+                client.transport.abort()
+                return True
+        return False
+
     def forget(self, client: Client) -> None:
         if client in self.clients:
             self.clients.remove(client)
@@ -151,17 +170,47 @@ class TcpServer:
 
     def request(self, client: Client, tid: int, unit: int, request: bytes) -> None:
         self.counters.requests += 1
+        tracing = self.trace.active
+        received_ns = time.monotonic_ns() if tracing else 0
+        if tracing:
+            self.trace.emit(self._event("request", client, tid, unit, request, "", 0))
         address = self._cfg.slaveid or unit
         if address > pdu.MAX_SERIAL_ADDRESS:
             self.counters.unroutable += 1
-            client.send(tid, unit, self._path_unavailable(request[0]))
+            self._refuse(client, tid, unit, request, OUTCOME_UNROUTABLE, received_ns)
             return
         if not self._line_up():
             self.counters.line_down_rejects += 1
-            client.send(tid, unit, self._path_unavailable(request[0]))
+            self._refuse(client, tid, unit, request, OUTCOME_LINE_DOWN, received_ns)
             return
         client.submitted()
-        self._scheduler.submit(client.queue, Job(client, tid, unit, bytes((address,)) + request))
+        self._scheduler.submit(client.queue, Job(client, tid, unit, bytes((address,)) + request,
+                                                 received_ns))
+
+    def _refuse(self, client: Client, tid: int, unit: int, request: bytes, outcome: str,
+                received_ns: int) -> None:
+        reply = self._path_unavailable(request[0])
+        client.send(tid, unit, reply)
+        if self.trace.active:
+            self.traced(client, tid, unit, request[0], reply, outcome, received_ns)
+
+    def traced(self, client: Client, tid: int, unit: int, function: int, reply: bytes | None,
+               outcome: str, received_ns: int) -> None:
+        latency_ms = (time.monotonic_ns() - received_ns) / 1e6 if received_ns else None
+        if reply is None:
+            self.trace.emit(self._event("no reply", client, tid, unit, bytes((function,)),
+                                        outcome, latency_ms))
+        else:
+            self.trace.emit(self._event("reply", client, tid, unit, reply, outcome, latency_ms))
+
+    @staticmethod
+    def _event(direction: str, client: Client, tid: int, unit: int, data: bytes,
+               outcome: str, latency_ms) -> dict:
+        return {"time": time.time(), "direction": direction, "client": client.id,
+                "peer": client.peer, "local": client.local, "tid": tid, "unit": unit,
+                "function": data[0], "length": len(data) if direction != "no reply" else 0,
+                "pdu": data.hex() if direction != "no reply" else "", "outcome": outcome,
+                "latency_ms": latency_ms}
 
     def _path_unavailable(self, function: int) -> bytes | None:
         if not self._cfg.exception:
@@ -170,6 +219,6 @@ class TcpServer:
         return pdu.exception_pdu(function, pdu.GATEWAY_PATH_UNAVAILABLE)
 
 
-def _format_sockname(name) -> str:
+def format_address(name) -> str:
     host, port = name[:2]
     return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"

@@ -88,7 +88,10 @@ class Gateway:
         notify_path = str(directory / f"notify-{self.port}")
         notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         notify.bind(notify_path)
-        env = dict(os.environ, NOTIFY_SOCKET=notify_path)
+        # The daemon's control socket goes where systemd's RuntimeDirectory= would put it
+        runtime = directory / f"run-{self.port}"
+        self.control = str(runtime / "mbgw.sock")
+        env = dict(os.environ, NOTIFY_SOCKET=notify_path, RUNTIME_DIRECTORY=str(runtime))
         network = ["--bind", "127.0.0.1", "--mdbport", str(self.port)] if listen else []
         self.args = [sys.executable, "-m", "mbgw", mode, "--device", device, *network, *args]
         self._log = open(self.log_path, "w")
