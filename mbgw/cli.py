@@ -139,3 +139,4 @@ def fatal(message: str) -> None:
     sys.exit(1)
 from mbgw import cli_master  # noqa: E402,F401  (registers `mbgw master`)
 from mbgw.cli_config import register; register(main)  # run, check-config, config; --config
+from mbgw import cli_diag; cli_diag.register(main)  # noqa: E402,E702  status, clients, stats, trace

@@ -173,7 +173,7 @@ class TcpServer:
         tracing = self.trace.active
         received_ns = time.monotonic_ns() if tracing else 0
         if tracing:
-            self.trace.emit(self._event("request", client, tid, unit, request, "", 0))
+            self.trace.emit(self._event("request", client, tid, unit, request, "", None))
         address = self._cfg.slaveid or unit
         if address > pdu.MAX_SERIAL_ADDRESS:
             self.counters.unroutable += 1
