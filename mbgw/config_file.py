@@ -28,11 +28,12 @@ MODE_KEY = "mode"                          # in [serial]; selects the command `m
 PROTOCOL_KEY = "protocol"                  # "set serial mode rtu|ascii" sets it
 PROTOCOL_WORDS = ("rtu", "ascii")
 GROUPS = ("serial", "net", "general")
-# The guide's "set net ..." commands and our network options; [general] holds what the guide has
-# no command for.  Every other option is a serial-line one, so new serial options need nothing.
+# [serial]: the options of mbgw.cli.serial_options (both modes' line settings, found at run
+# time) and the slave mode's line behaviour below; [net]: the guide's "set net ..." commands and
+# our network options; [general]: the rest (logging, control socket, metrics, ...).
+LINE_KEYS = frozenset({"retries", "turnaround"})
 NET_KEYS = frozenset({"slaveid", "authip", "mdbport", "tcpto", "exception", "metric", "bind",
                       "max-connections"})
-GENERAL_KEYS = frozenset({"log-level"})
 MODE_TABLES = ("authip", "slaveid")        # cleared when the mode changes (the guide says so)
 AUTHIP_ENTRIES = 8                         # "n: table entry index, from 1 to 8"
 NO_ADDRESS = "0.0.0.0"                     # "IP address 0.0.0.0 clears the entry"
@@ -70,12 +71,15 @@ class Schema:
         if not self.commands:
             raise RuntimeError(f"{root.name} has no mode command ({', '.join(MODES)})")
         self.modes = tuple(self.commands)
+        serial = serial_option_keys() | LINE_KEYS
         found: dict[str, Key] = {}
         for mode, command in self.commands.items():
             for param in command.params:
                 name = option_key(param)
                 if name is not None:
-                    found.setdefault(name, Key(name, group_of(name), {})).params[mode] = param
+                    group = "net" if name in NET_KEYS else "serial" if name in serial \
+                        else "general"
+                    found.setdefault(name, Key(name, group, {})).params[mode] = param
         self.keys = {k.name: k for g in GROUPS for k in found.values() if k.group == g}
 
     @property
@@ -109,12 +113,12 @@ def option_key(param: click.Parameter) -> str | None:
     return longs[0][2:] if longs else None
 
 
-def group_of(name: str) -> str:
-    if name in NET_KEYS:
-        return "net"
-    if name in GENERAL_KEYS:
-        return "general"
-    return "serial"
+def serial_option_keys() -> frozenset:
+    """The keys of the serial-line options both mode commands share (mbgw.cli.serial_options,
+    the decorator stack that adds them), so that a new serial option is in [serial] at once."""
+    from mbgw.cli import serial_options
+    params = getattr(serial_options(lambda: None), "__click_params__", [])
+    return frozenset(filter(None, map(option_key, params)))
 
 
 def _is_unset(value) -> bool:

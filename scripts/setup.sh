@@ -11,9 +11,11 @@ export DEBIAN_FRONTEND=noninteractive
 $SUDO apt-get update -qq
 # Build-Depends of debian/control (compiler, libmodbus-dev, python3-dev, debhelper, ...)
 $SUDO apt-get build-dep -y -qq ./
-# What the tests use besides: socat (pty pairs), mbpoll (a real Modbus client), lintian, and
-# systemd for systemd-analyze (scripts/smoke-installed.sh)
-$SUDO apt-get install -y -qq --no-install-recommends python3-venv socat mbpoll lintian systemd
+# What the tests use besides: socat (pty pairs), mbpoll (a real Modbus client), lintian,
+# systemd for systemd-analyze (scripts/smoke-installed.sh), and tshark (decodes the pcap of
+# mbgw trace; its debconf question on non-root capture takes the default, no, unasked)
+$SUDO apt-get install -y -qq --no-install-recommends python3-venv socat mbpoll lintian systemd \
+    tshark
 
 # Debian's own python3, the interpreter the .deb runs on (never a pyenv shim).
 /usr/bin/python3 -m venv .venv

@@ -11,7 +11,7 @@ import pytest
 
 from mbgw import config_file as cf
 from mbgw import toml_edit
-from mbgw.cli import main
+from mbgw.cli import main, serial_options
 from mbgw.config import LineFormat
 from mbgw.errors import ConfigError, ConfigFileError
 
@@ -51,21 +51,31 @@ def test_every_long_option_of_both_modes_is_a_key(schema):
     ("protocol", "serial"), ("silence", "serial"), ("nocheck", "serial"),
     ("interface", "serial"), ("rtsdelays", "serial"),
     ("slaveid", "net"), ("authip", "net"), ("mdbport", "net"), ("exception", "net"),
-    ("bind", "net"), ("max-connections", "net"), ("log-level", "general"),
+    ("bind", "net"), ("max-connections", "net"), ("tcpto", "net"), ("retries", "serial"),
+    ("turnaround", "serial"), ("log-level", "general"),
 ])
 def test_keys_are_grouped_like_the_guide(schema, name, group):
     assert schema.keys[name].group == group
 
 
 def test_a_new_option_is_a_new_key_with_nothing_to_list():
+    """A serial option (one of mbgw.cli.serial_options) goes to [serial], another to
+    [general]; both appear in the factory file at their defaults."""
     @click.command("slave")
-    @click.option("--device", required=True)
+    @serial_options
     @click.option("--frobnicate-ms", type=click.IntRange(0, 9), default=3)
     def slave(**_):
         pass
     schema = cf.Schema(click.Group("g", commands={"slave": slave}))
-    assert schema.keys["frobnicate-ms"].group == "serial"
+    assert schema.keys["frobnicate-ms"].group == "general"
+    assert schema.keys["silence"].group == "serial"
     assert "# frobnicate-ms = 3" in cf.factory_text(schema)
+
+
+def test_every_serial_option_is_in_serial(schema):
+    serial = {o[2:] for p in serial_options(lambda: None).__click_params__ for o in p.opts
+              if o.startswith("--")}
+    assert serial and serial <= set(schema.group_keys("serial"))
 
 
 def test_master_keys_join_the_slave_keys(schema):
