@@ -157,6 +157,13 @@ int mbgw_tty_claim(int fd)
     return 0;
 }
 
+int mbgw_tty_release(int fd)
+{
+    if (ioctl(fd, TIOCNXCL) < 0 && errno != ENOTTY)
+        return -errno;
+    return 0;
+}
+
 int mbgw_rts_available(int fd)
 {
     int bits;

@@ -60,6 +60,10 @@ int mbgw_tty_lock(const char *path);
 /* TIOCEXCL: no further opens of the tty (except by root, whom the flock stops). */
 int mbgw_tty_claim(int fd);
 
+/* Undo mbgw_tty_claim before closing: TIOCEXCL outlives our fd on a tty that another
+ * process (socat, getty) keeps open, and would refuse our own restart. */
+int mbgw_tty_release(int fd);
+
 /* 0 when the modem lines (RTS) can be driven on fd, else -errno. */
 int mbgw_rts_available(int fd);
 

@@ -103,6 +103,7 @@ class Port:
 
     def close(self) -> None:
         if self._ctx is not None:
+            lib.mbgw_tty_release(self.fd)
             lib.modbus_close(self._ctx)
             lib.modbus_free(self._ctx)
             self._ctx = None

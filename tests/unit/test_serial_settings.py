@@ -294,6 +294,26 @@ def test_format_bits_a_pty_keeps(pty, open_line, fmt, present, absent):
     assert kernel_termios2(line)[0] == cflag
 
 
+TIOCGEXCL = 0x80045440     # Linux include/uapi/asm-generic/ioctls.h: is the tty exclusive?
+
+
+def _exclusive(path: str) -> bool:
+    fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    try:
+        return struct.unpack("i", fcntl.ioctl(fd, TIOCGEXCL, b"\0" * 4))[0] != 0
+    finally:
+        os.close(fd)
+
+
+def test_line_is_exclusive_while_open_and_released_at_close(pty, open_line):
+    """TIOCEXCL outlives our fd while another process holds the tty: a restart of the gateway
+    as a non-root user would then be refused."""
+    line = open_line(pty, baudrate=19200)
+    assert _exclusive(pty)
+    line.close()
+    assert not _exclusive(pty)
+
+
 def test_second_open_of_the_same_line_fails_in_use(pty, open_line):
     open_line(pty, baudrate=19200)
     with pytest.raises(SerialError, match="in use"):
