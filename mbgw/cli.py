@@ -27,6 +27,13 @@ def _parse_authip(values) -> tuple:
     return tuple(str(config.parse_ip("authip", v)) for v in values)
 
 
+def _parse_metrics(value):
+    if value is not None:
+        from mbgw.metrics import parse_address
+        parse_address(value)
+    return value
+
+
 def _stack(*decorators):
     def apply(function):
         for decorator in reversed(decorators):
@@ -110,8 +117,9 @@ def main() -> None:
 @click.option("--control", metavar="PATH", default=None,
               help="Control socket for mbgw status/trace [default: "
                    "$RUNTIME_DIRECTORY/mbgw.sock or /run/mbgw/mbgw.sock].")
-@click.option("--metrics", metavar="ADDR:PORT", default=None,
-              help="Serve Prometheus metrics on http://ADDR:PORT/metrics [default: off].")
+@click.option("--metrics", metavar="ADDR:PORT", default=None, callback=_parser(_parse_metrics),
+              help="Serve Prometheus metrics on http://ADDR:PORT/metrics ([IPV6]:PORT; "
+                   ":PORT for every address) [default: off].")
 @click.option("--log-level", type=LOG_LEVELS, default="info", show_default=True)
 def slave(device, protocol, baudrate, line_format, interface, rtsdelays, stout, silence,
           ascii_timeout, nocheck, slaveid, exception, authip, mdbport, bind, max_connections,

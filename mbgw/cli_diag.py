@@ -89,7 +89,7 @@ def format_status(s: dict, now: float) -> str:
             exceptions = " ".join(f"{code}:{n}" for code, n in d["exceptions"].items())
             generated = " ".join(f"{code}:{n}" for code, n in d["gateway_exceptions"].items())
             if generated:
-                exceptions += f" (gateway {generated})"
+                exceptions = " ".join(filter(None, (exceptions, f"(gateway {generated})")))
             lines.append(f"  {d['address']:>4}  {d['health']:<8} "
                          f"{_ago(d['health_since'], now):<12} "
                          f"{_ago(d['last_success'], now):<14} {d['consecutive_failures']:>5} "
@@ -187,4 +187,4 @@ def format_event(e: dict) -> str:
     if e.get("latency_ms") is not None:
         outcome = f"{outcome} {e['latency_ms']:.1f} ms"
     return (f"{stamp:<15} {e['direction']:<9} {e['peer']:<24} {e['tid']:>5} {e['unit']:>4} "
-            f"0x{e['function']:02x} {e['length']:>4}  {outcome}")
+            f"0x{e['function']:02x} {e['length']:>4}  {outcome}").rstrip()

@@ -132,7 +132,7 @@ class SlaveConfig:
 def parse_ip(option: str, text: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address:
     try:
         # Peers are compared without their scope id (see acl.AccessList.allows)
-        address = ipaddress.ip_address(text.split("%", 1)[0])
+        address = ipaddress.ip_address(str(text).split("%", 1)[0])
     except ValueError:
         raise ConfigError(f"{option} {text!r}: not an IP address") from None
     if isinstance(address, ipaddress.IPv6Address) and address.ipv4_mapped:

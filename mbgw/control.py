@@ -58,7 +58,11 @@ class ControlServer:
                 await self._commands["trace"](request, reader, writer)
                 return
             handler = self._commands.get(name)
-            reply = handler(request) if handler else {"error": f"unknown command {name!r}"}
+            try:
+                reply = handler(request) if handler else {"error": f"unknown command {name!r}"}
+            except Exception:   # a bug must cost one command, and say so, not a silent EOF
+                log.exception("control command %r failed", name)
+                reply = {"error": f"internal error in {name} (see the daemon's log)"}
             writer.write(json.dumps(reply).encode() + b"\n")
             await writer.drain()
         except (ConnectionError, json.JSONDecodeError, AttributeError) as err:

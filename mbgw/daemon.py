@@ -4,12 +4,14 @@ import logging
 import os
 import signal
 import socket
+import time
 
 from mbgw.config import SlaveConfig
 from mbgw.control import ControlServer, default_path
 from mbgw.counters import Counters
 from mbgw.device_stats import DeviceTable
 from mbgw.line_worker import LineWorker
+from mbgw.metrics import MetricsServer, render
 from mbgw.serial_port import SerialLine
 from mbgw.status import SlaveStatus
 from mbgw.scheduler import Scheduler
@@ -35,6 +37,12 @@ def sd_notify(state: str) -> None:
 class ListenError(Exception):
     def __init__(self, port: int, err: OSError) -> None:
         super().__init__(f"cannot listen on port {port}: {err.strerror}")
+
+
+class MetricsListenError(ListenError):
+    def __init__(self, address: str, err: OSError) -> None:
+        reason = os.strerror(err.errno) if err.errno else str(err)
+        Exception.__init__(self, f"--metrics {address}: cannot listen there: {reason}")
 
 
 def run_slave(cfg: SlaveConfig) -> None:
@@ -65,6 +73,16 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters) -> None
         addresses = await server.start()
     except OSError as err:
         raise ListenError(cfg.mdbport, err) from None
+    metrics = None
+    if cfg.metrics:
+        started = time.time()
+        metrics = MetricsServer(cfg.metrics, lambda: render(
+            counters, devices, scheduler, server, worker, started))
+        try:
+            metrics_addresses = await metrics.start()
+        except OSError as err:
+            server.close()
+            raise MetricsListenError(cfg.metrics, err) from None
     worker.start()
     status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses)
     control = ControlServer(cfg.control or default_path(), status.commands())
@@ -78,6 +96,8 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters) -> None
     log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s",
              ", ".join(addresses), s.device, s.baudrate, s.format, s.protocol, s.interface,
              s.stout_ms, ", nocheck" if s.nocheck else "")
+    if metrics is not None:
+        log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics_addresses))
     if s.nocheck:
         log.warning("nocheck is on: serial replies are forwarded unchecked (a debugging mode)")
     sd_notify("READY=1")
@@ -86,6 +106,8 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters) -> None
     log.info("stopping")
     if control is not None:
         control.close()
+    if metrics is not None:
+        metrics.close()
     server.close()
     worker.stop()
     await asyncio.to_thread(worker.join)

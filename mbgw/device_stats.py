@@ -25,12 +25,9 @@ class DeviceStats:
 
     def __init__(self, address: int) -> None:
         self.address = address
-        for name in COUNTS:
-            setattr(self, name, 0)
         self.exceptions: dict[int, int] = {}          # exception replies from the device
         self.gateway_exceptions: dict[int, int] = {}  # exception replies mbgw generated
-        self.latency_buckets = [0] * (len(LATENCY_BUCKETS_MS) + 1)
-        self.latency_sum_ms = 0.0
+        self.reset_counts()
         self.last_success: float | None = None
         self.consecutive_failures = 0
         self.recent_failures = 0                      # bit i: the i-th latest outcome failed
@@ -53,6 +50,14 @@ class DeviceStats:
     def failed(self) -> None:
         self.consecutive_failures += 1
         self._judge(True)
+
+    def reset_counts(self) -> None:
+        for name in COUNTS:
+            setattr(self, name, 0)
+        self.exceptions = {}
+        self.gateway_exceptions = {}
+        self.latency_buckets = [0] * (len(LATENCY_BUCKETS_MS) + 1)
+        self.latency_sum_ms = 0.0
 
     def gateway_exception(self, code: int) -> None:
         self.gateway_exceptions[code] = self.gateway_exceptions.get(code, 0) + 1
@@ -112,10 +117,8 @@ class DeviceTable:
 
     def reset(self) -> None:
         """Zero every counter; health and last success are kept (they are state, not
-        counts)."""
-        for stats in self._devices.values():
-            fresh = DeviceStats(stats.address)
-            for name in ("last_success", "consecutive_failures", "recent_failures", "health",
-                         "health_since"):
-                setattr(fresh, name, getattr(stats, name))
-            self._devices[stats.address] = fresh
+        counts).  In place: the line thread may be in a transaction with one of them (a
+        replaced object would swallow that transaction's outcome, health included), and it
+        may add a device meanwhile (hence the copy of the values)."""
+        for stats in list(self._devices.values()):
+            stats.reset_counts()

@@ -21,6 +21,8 @@ from mbgw.serial_port import SerialLine
 log = logging.getLogger("mbgw.line")
 
 REOPEN_FIRST_S = 0.5
+# Serial settings that need the port opened again; the others apply to the next transaction.
+REOPEN_SETTINGS = ("device", "baudrate", "format", "interface", "rtsdelays")
 REOPEN_MAX_S = 5.0
 
 
@@ -34,6 +36,8 @@ class LineWorker(threading.Thread):
         self.devices = devices
         self._deliver = deliver        # deliver(job, reply_pdu_or_None), thread-safe
         self._stopping = False
+        self._new_cfg: SlaveConfig | None = None
+        self.reconfigured = False
         self._master: SerialMaster | None = self._master_on(line)
         self.up = True                 # read by the asyncio thread to fail fast while down
 
@@ -45,8 +49,32 @@ class LineWorker(threading.Thread):
         self._stopping = True
         self._scheduler.wake()
 
+    def reconfigure(self, cfg: SlaveConfig) -> None:
+        """Use cfg from the next transaction on (called from another thread)."""
+        self._new_cfg = cfg
+        self._scheduler.wake()
+
+    def _apply_new_cfg(self) -> None:
+        cfg, self._new_cfg = self._new_cfg, None
+        old = self._cfg.serial
+        reopen = any(getattr(cfg.serial, name) != getattr(old, name)
+                     for name in REOPEN_SETTINGS)
+        self._cfg = cfg
+        if self._master is None:
+            return                                  # the reopen loop uses the new cfg
+        if reopen:
+            self.up = False
+            self.reconfigured = True
+            self._master.framing.line.close()
+            self._master = None
+            log.info("serial line settings changed: reopening %s", cfg.serial.device)
+        else:
+            self._master = self._master_on(self._master.framing.line)
+
     def run(self) -> None:
         while not self._stopping:
+            if self._new_cfg is not None:
+                self._apply_new_cfg()
             if self._master is None:
                 self._reopen()
                 continue
@@ -104,8 +132,10 @@ class LineWorker(threading.Thread):
 
     def _reopen(self) -> None:
         delay = REOPEN_FIRST_S
-        next_try = time.monotonic() + delay
-        while not self._stopping:
+        # a lost device gets a pause first, new settings are applied at once
+        next_try = time.monotonic() + (0 if self.reconfigured else delay)
+        self.reconfigured = False
+        while not self._stopping and self._new_cfg is None:
             self._reject_waiting()
             left = next_try - time.monotonic()
             if left > 0:

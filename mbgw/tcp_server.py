@@ -5,6 +5,7 @@ max_connections the least recently active idle connection is closed for the newc
 every connection has a request in flight, the newcomer is refused.
 """
 import asyncio
+import dataclasses
 import itertools
 import logging
 import socket
@@ -42,7 +43,7 @@ class Client(asyncio.Protocol):
         self._paused = False
 
     def connection_made(self, transport) -> None:
-        host = transport.get_extra_info("peername")[0]
+        host = self.host = transport.get_extra_info("peername")[0]
         self.peer = format_address(transport.get_extra_info("peername"))
         self.local = format_address(transport.get_extra_info("sockname"))
         if not self._server.admit(self, host):
@@ -115,7 +116,29 @@ class TcpServer:
         loop = asyncio.get_running_loop()
         self._server = await loop.create_server(lambda: Client(self), host=self._cfg.bind,
                                                 port=self._cfg.mdbport, reuse_address=True)
+        return self.addresses()
+
+    def addresses(self) -> list[str]:
         return [format_address(s.getsockname()) for s in self._server.sockets]
+
+    async def reconfigure(self, cfg: SlaveConfig) -> None:
+        """Apply new settings; connections they do not concern stay open."""
+        old, self._cfg = self._cfg, cfg
+        self._acl = AccessList(cfg.authip)
+        for client in list(self.clients):
+            if not self._acl.allows(client.host):
+                log.info("client %s closed: no longer allowed by authip", client.peer)
+                client.transport.abort()
+        if (cfg.mdbport, cfg.bind) != (old.mdbport, old.bind):
+            self._server.close()
+            try:
+                await self.start()
+            except OSError as err:
+                log.error("cannot listen on port %d (%s): staying on port %d", cfg.mdbport,
+                          err.strerror, old.mdbport)
+                self._cfg = dataclasses.replace(cfg, mdbport=old.mdbport, bind=old.bind)
+                await self.start()
+            log.info("now listening on %s", ", ".join(self.addresses()))
 
     def close(self) -> None:
         if self._server is not None:

@@ -1,7 +1,7 @@
 """A scripted Modbus RTU slave for fault injection, answering by serial address.
 
 usage: fault_slave.py DEVICE [--record PATH] [--late-ms MS] [--garbage HEX]
-                      [--garbage-pause-ms MS] [--foreign-pause-ms MS]
+                      [--garbage-pause-ms MS] [--foreign-pause-ms MS] [--mute-first N]
 
 Prints READY once the pty is open, and nothing else on stdout.  Holding (and input) register i
 holds 1000 + i.  Behaviour by the request's address:
@@ -18,6 +18,7 @@ holds 1000 + i.  Behaviour by the request's address:
   11  exception 02 (illegal data address)
   12  the reply to every second request it gets, nothing to the others
   13  --garbage (55 aa 55), a silence (--garbage-pause-ms, 20), then the reply
+  14  silent to its first --mute-first (3) requests, then the reply (a device that recovers)
 
 The reply: FC03/04 the registers, FC06 the echo, FC 108 the vendor reply (any address),
 anything else exception 01.
@@ -108,8 +109,9 @@ def normal_reply(address: int, pdu: bytes) -> bytes:
 
 class Slave:
     def __init__(self, fd: int, record, late_s: float, garbage: bytes, garbage_pause_s: float,
-                 foreign_pause_s: float) -> None:
+                 foreign_pause_s: float, mute_first: int = 3) -> None:
         self.fd = fd
+        self.mute_first = mute_first
         self.garbage = garbage
         self.garbage_pause_s = garbage_pause_s
         self.foreign_pause_s = foreign_pause_s
@@ -159,6 +161,9 @@ class Slave:
         elif address == 13:
             self.later(0, self.garbage)
             self.later(self.garbage_pause_s, reply)
+        elif address == 14:
+            if n > self.mute_first:
+                self.later(0, reply)
         else:
             self.later(0, reply)
 
@@ -213,6 +218,7 @@ def main() -> None:
     parser.add_argument("--garbage", type=bytes.fromhex, default=bytes.fromhex("55 aa 55"))
     parser.add_argument("--garbage-pause-ms", type=float, default=20)
     parser.add_argument("--foreign-pause-ms", type=float, default=5)
+    parser.add_argument("--mute-first", type=int, default=3)
     args = parser.parse_args()
     fd = os.open(args.device, os.O_RDWR | os.O_NOCTTY)
     tty.setraw(fd, termios.TCSANOW)
@@ -221,7 +227,7 @@ def main() -> None:
     print("READY", flush=True)
     try:
         Slave(fd, record, args.late_ms / 1000, args.garbage, args.garbage_pause_ms / 1000,
-              args.foreign_pause_ms / 1000).run()
+              args.foreign_pause_ms / 1000, args.mute_first).run()
     except KeyboardInterrupt:
         pass
     finally:

@@ -1,0 +1,221 @@
+"""Per-device statistics and health (mbgw.device_stats): the state machine up / degraded /
+down, logged once per change; exception replies by code; the latency buckets; reset."""
+import logging
+from types import SimpleNamespace
+
+import pytest
+
+from mbgw import device_stats
+from mbgw.device_stats import (COUNTS, DOWN_AFTER_FAILURES, LATENCY_BUCKETS_MS, RECENT_WINDOW,
+                               DeviceStats, DeviceTable)
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = 1_000_000.0
+
+    def time(self) -> float:
+        return self.now
+
+
+@pytest.fixture
+def clock(monkeypatch):
+    """The module's time.time(), under the test's control."""
+    c = Clock()
+    monkeypatch.setattr(device_stats, "time", SimpleNamespace(time=c.time))
+    return c
+
+
+@pytest.fixture
+def health_log(caplog):
+    """The health messages logged so far, as (level, message)."""
+    caplog.set_level(logging.DEBUG, logger="mbgw.devices")
+
+    def records():
+        return [(r.levelname, r.getMessage()) for r in caplog.records
+                if r.name == "mbgw.devices"]
+    return records
+
+
+def test_the_spec_constants_are_what_the_tests_assume():
+    assert DOWN_AFTER_FAILURES == 3
+    assert RECENT_WINDOW == 20
+    assert LATENCY_BUCKETS_MS == (2, 5, 10, 25, 50, 100, 250, 500, 1000, 2500, 5000)
+
+
+def test_a_new_device_is_up_with_nothing_counted(clock):
+    d = DeviceStats(9)
+    snap = d.snapshot()
+    assert snap["health"] == "up" and snap["health_since"] == clock.now
+    assert snap["last_success"] is None and snap["consecutive_failures"] == 0
+    assert {name: snap[name] for name in COUNTS} == dict.fromkeys(COUNTS, 0)
+    assert snap["exceptions"] == {} and snap["gateway_exceptions"] == {}
+    assert sum(snap["latency_buckets_ms"].values()) == 0 and snap["latency_sum_ms"] == 0
+
+
+def test_health_goes_degraded_down_degraded_up_and_logs_each_change_once(clock, health_log):
+    d = DeviceStats(7)
+    clock.now += 1
+    d.failed()
+    assert (d.health, d.consecutive_failures, d.health_since) == ("degraded", 1, clock.now)
+    assert health_log() == [
+        ("WARNING", "device 7 is degraded: 1 of its last 20 requests failed")]
+    d.failed()
+    assert (d.health, d.consecutive_failures) == ("degraded", 2)
+    assert len(health_log()) == 1                     # no news: not logged again
+    clock.now += 1
+    d.failed()
+    assert (d.health, d.consecutive_failures, d.health_since) == ("down", 3, clock.now)
+    assert health_log()[1:] == [
+        ("WARNING", "device 7 is down: 3 requests in a row without a valid reply")]
+    down_since = clock.now
+    for _ in range(5):
+        clock.now += 1
+        d.failed()
+    assert (d.health, d.consecutive_failures, d.health_since) == ("down", 8, down_since)
+    assert len(health_log()) == 2                     # still down: never once per failure
+
+    clock.now += 1
+    d.answered(3.0, None)
+    # answered, but 8 of the last 20 outcomes failed: degraded, not up
+    assert (d.health, d.consecutive_failures, d.last_success) == ("degraded", 0, clock.now)
+    assert health_log()[2:] == [
+        ("WARNING", "device 7 is degraded: 8 of its last 20 requests failed")]
+    # the failures leave the window after 20 answers in all, not before
+    for _ in range(RECENT_WINDOW - 2):
+        d.answered(3.0, None)
+    assert d.health == "degraded" and len(health_log()) == 3
+    clock.now += 1
+    d.answered(3.0, None)
+    assert (d.health, d.health_since) == ("up", clock.now)
+    assert health_log()[3:] == [("INFO", "device 7 is up: its last 20 requests were answered")]
+    d.answered(3.0, None)
+    assert len(health_log()) == 4
+
+
+def test_failures_that_are_not_consecutive_never_make_a_device_down(clock, health_log):
+    d = DeviceStats(12)
+    for _ in range(10):
+        d.failed()
+        d.failed()
+        d.answered(1.0, None)
+    assert d.health == "degraded" and d.consecutive_failures == 0
+    assert [m for _, m in health_log()] == [
+        "device 12 is degraded: 1 of its last 20 requests failed"]
+
+
+def test_an_exception_reply_is_an_answer(clock):
+    """A device that answers with an exception is alive: it counts as a success for health,
+    and the exception is counted by its code."""
+    d = DeviceStats(11)
+    d.failed()
+    d.failed()
+    d.answered(4.0, 0x02)
+    assert d.consecutive_failures == 0 and d.last_success == clock.now
+    assert d.replies == 1
+
+
+def test_exceptions_are_counted_by_code_from_devices_and_from_the_gateway_apart():
+    d = DeviceStats(11)
+    d.answered(1.0, 0x02)
+    d.answered(1.0, 0x02)
+    d.answered(1.0, 0x06)
+    d.answered(1.0, None)
+    d.gateway_exception(0x0B)
+    d.gateway_exception(0x0B)
+    d.gateway_exception(0x0A)
+    assert d.exceptions == {0x02: 2, 0x06: 1}
+    assert d.gateway_exceptions == {0x0B: 2, 0x0A: 1}
+    snap = d.snapshot()
+    assert snap["exceptions"] == {"0x02": 2, "0x06": 1}
+    assert snap["gateway_exceptions"] == {"0x0a": 1, "0x0b": 2}
+    assert list(snap["gateway_exceptions"]) == ["0x0a", "0x0b"]     # sorted by code
+    assert snap["replies"] == 4                 # generated exceptions are not device replies
+
+
+@pytest.mark.parametrize("latency_ms, bucket", [
+    (0.0, "2"), (0.4, "2"), (2.0, "2"),        # an upper bound is inclusive (Prometheus le)
+    (2.001, "5"), (5.0, "5"), (9.99, "10"), (10.0, "10"), (10.5, "25"), (99.0, "100"),
+    (250.0, "250"), (999.9, "1000"), (2500.0, "2500"), (5000.0, "5000"),
+    (5000.5, "+Inf"), (60000.0, "+Inf"),
+])
+def test_latency_lands_in_the_first_bucket_whose_bound_it_does_not_exceed(latency_ms, bucket):
+    d = DeviceStats(1)
+    d.answered(latency_ms, None)
+    buckets = d.snapshot()["latency_buckets_ms"]
+    assert list(buckets) == [*map(str, LATENCY_BUCKETS_MS), "+Inf"]
+    assert buckets == {b: int(b == bucket) for b in buckets}
+
+
+def test_latency_buckets_hold_per_bucket_counts_and_the_sum():
+    d = DeviceStats(1)
+    for ms in (1.0, 1.5, 3.0, 7.0, 7.5, 7.25, 30000.0):
+        d.answered(ms, None)
+    snap = d.snapshot()
+    assert snap["latency_buckets_ms"] == {"2": 2, "5": 1, "10": 3, "25": 0, "50": 0, "100": 0,
+                                          "250": 0, "500": 0, "1000": 0, "2500": 0, "5000": 0,
+                                          "+Inf": 1}
+    assert snap["latency_sum_ms"] == pytest.approx(30027.25)
+    assert sum(snap["latency_buckets_ms"].values()) == snap["replies"] == 7
+
+
+def test_failures_add_nothing_to_the_latency():
+    d = DeviceStats(2)
+    d.failed()
+    assert sum(d.latency_buckets) == 0 and d.latency_sum_ms == 0 and d.last_success is None
+
+
+def test_table_creates_a_device_on_first_use_and_lists_them_by_address():
+    table = DeviceTable()
+    assert table.all() == []
+    a = table.get(17)
+    assert table.get(17) is a
+    table.get(3)
+    table.get(247)
+    assert [d.address for d in table.all()] == [3, 17, 247]
+
+
+def test_reset_zeroes_the_counts_and_keeps_health_and_last_success(clock, health_log):
+    table = DeviceTable()
+    d = table.get(5)
+    d.transactions = 9
+    for name in COUNTS:
+        setattr(d, name, 4)
+    d.answered(7.0, 0x02)
+    d.gateway_exception(0x0B)
+    success_at = clock.now
+    clock.now += 10
+    for _ in range(3):
+        d.failed()
+    assert d.health == "down"
+    logged = len(health_log())
+
+    clock.now += 10
+    table.reset()
+    r = table.get(5)
+    snap = r.snapshot()
+    assert {name: snap[name] for name in COUNTS} == dict.fromkeys(COUNTS, 0)
+    assert snap["exceptions"] == {} and snap["gateway_exceptions"] == {}
+    assert sum(snap["latency_buckets_ms"].values()) == 0 and snap["latency_sum_ms"] == 0
+    assert snap["health"] == "down" and snap["health_since"] == success_at + 10
+    assert snap["last_success"] == success_at and snap["consecutive_failures"] == 3
+    assert len(health_log()) == logged            # a reset is no change of health
+    # the recent outcomes survive too: one answer makes it degraded, not up
+    r.answered(1.0, None)
+    assert r.health == "degraded"
+    assert [d.address for d in table.all()] == [5]
+
+
+def test_reset_is_in_place_so_a_transaction_in_progress_keeps_counting(health_log):
+    """The line thread holds its device's object through a transaction while the operator
+    resets: the outcome must land in the table, health included."""
+    table = DeviceTable()
+    held = table.get(3)
+    for _ in range(3):
+        held.failed()
+    table.reset()
+    held.answered(1.0, None)              # the transaction that was in progress
+    device = table.get(3)
+    assert (device.health, device.replies, device.consecutive_failures) == ("degraded", 1, 0)
+    assert [m.split(":")[0] for _, m in health_log()] == [
+        "device 3 is degraded", "device 3 is down", "device 3 is degraded"]
