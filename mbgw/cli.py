@@ -121,30 +121,48 @@ def main() -> None:
               help="Serve Prometheus metrics on http://ADDR:PORT/metrics ([IPV6]:PORT; "
                    ":PORT for every address) [default: off].")
 @click.option("--log-level", type=LOG_LEVELS, default="info", show_default=True)
-def slave(device, protocol, baudrate, line_format, interface, rtsdelays, stout, silence,
-          ascii_timeout, nocheck, slaveid, exception, authip, mdbport, bind, max_connections,
-          retries, turnaround, control, metrics, log_level) -> None:
+def slave(**options) -> None:
     """Slave mode: Modbus TCP clients reach the slaves on a serial line."""
-    from mbgw import daemon, log
+    from mbgw import cli_config, daemon, log
 
-    serial = _serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
-                            stout, silence, ascii_timeout, nocheck)
-    cfg = _convert("'--authip'", lambda: config.SlaveConfig(
-        serial=serial, slaveid=slaveid, exception=exception, authip=authip, mdbport=mdbport,
-        bind=bind, max_connections=max_connections, retries=retries, turnaround_ms=turnaround,
-        control=control, metrics=metrics))
-    log.setup(log_level)
+    cfg = slave_config(**options)
+    log.setup(options["log_level"])
+    reload = cli_config.reloader()
+
+    def reconfigure() -> config.SlaveConfig:
+        """SIGHUP: the configuration file again, command-line options kept."""
+        new = reload()
+        new.pop("mode", None)
+        log.setup(new["log_level"])
+        return slave_config(**new)
+
     try:
-        daemon.run_slave(cfg)
+        daemon.run_slave(cfg, reconfigure if reload else None)
     except SerialError as err:
         fatal(err.strerror)
     except daemon.ListenError as err:
         fatal(str(err))
 
 
+def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout,
+                 silence, ascii_timeout, nocheck, slaveid, exception, authip, mdbport, bind,
+                 max_connections, retries, turnaround, control, metrics,
+                 log_level=None) -> config.SlaveConfig:
+    serial = _serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
+                            stout, silence, ascii_timeout, nocheck)
+    return _convert("'--authip'", lambda: config.SlaveConfig(
+        serial=serial, slaveid=slaveid, exception=exception, authip=authip, mdbport=mdbport,
+        bind=bind, max_connections=max_connections, retries=retries, turnaround_ms=turnaround,
+        control=control, metrics=metrics))
+
+
 def fatal(message: str) -> None:
     click.echo(f"mbgw: {message}", err=True)
     sys.exit(1)
-from mbgw import cli_master  # noqa: E402,F401  (registers `mbgw master`)
-from mbgw.cli_config import register; register(main)  # run, check-config, config; --config
-from mbgw import cli_diag; cli_diag.register(main)  # noqa: E402,E702  status, clients, stats, trace
+
+
+# The other commands live in their own modules and register themselves on `main`.
+from mbgw import cli_master  # noqa: E402,F401  mbgw master
+from mbgw import cli_config, cli_diag  # noqa: E402
+cli_config.register(main)   # run, check-config, config; --config on the mode commands
+cli_diag.register(main)     # status, clients, stats, trace

@@ -1,5 +1,6 @@
 """Runs slave mode: opens the line, listens, tells systemd it is ready, stops on a signal."""
 import asyncio
+import dataclasses
 import logging
 import os
 import signal
@@ -45,18 +46,19 @@ class MetricsListenError(ListenError):
         Exception.__init__(self, f"--metrics {address}: cannot listen there: {reason}")
 
 
-def run_slave(cfg: SlaveConfig) -> None:
+def run_slave(cfg: SlaveConfig, reconfigure=None) -> None:
     """Raises SerialError when the device cannot be opened, ListenError when mdbport cannot
-    be bound; otherwise returns after SIGTERM or SIGINT."""
+    be bound; otherwise returns after SIGTERM or SIGINT.  reconfigure() gives the settings
+    to apply on SIGHUP (None: there is no file to reload)."""
     counters = Counters()
     line = SerialLine(cfg.serial, counters)
     try:
-        asyncio.run(_serve(cfg, line, counters))
+        asyncio.run(_serve(cfg, line, counters, reconfigure))
     finally:
         line.close()
 
 
-async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters) -> None:
+async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfigure) -> None:
     loop = asyncio.get_running_loop()
     devices = DeviceTable()
     scheduler = Scheduler()
@@ -100,6 +102,17 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters) -> None
         log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics_addresses))
     if s.nocheck:
         log.warning("nocheck is on: serial replies are forwarded unchecked (a debugging mode)")
+    async def reload() -> None:
+        nonlocal cfg
+        sd_notify("RELOADING=1")
+        try:
+            new = await _reloaded(cfg, reconfigure, server, worker)
+        finally:
+            sd_notify("READY=1")
+        if new is not None:
+            cfg = status.cfg = new
+
+    loop.add_signal_handler(signal.SIGHUP, lambda: asyncio.ensure_future(reload()))
     sd_notify("READY=1")
     await stop.wait()
     sd_notify("STOPPING=1")
@@ -114,3 +127,36 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters) -> None
     scheduler.close()
     log.info("stopped; counters: %s",
              " ".join(f"{k}={v}" for k, v in counters.snapshot().items()))
+
+
+RESTART_SETTINGS = ("control", "metrics")
+
+
+async def _reloaded(cfg: SlaveConfig, reconfigure, server: TcpServer,
+                    worker: LineWorker) -> SlaveConfig | None:
+    """Apply the configuration file again; None when it cannot be (the reason is logged)."""
+    if reconfigure is None:
+        log.warning("SIGHUP: no configuration file to reload (settings came from the "
+                    "command line)")
+        return None
+    try:
+        new = reconfigure()
+    except Exception as err:      # a bad file must never stop a running gateway
+        reason = err.format_message() if hasattr(err, "format_message") else str(err)
+        log.error("reload refused, the running configuration stays: %s", reason)
+        return None
+    changed = [f"serial.{f.name}" for f in dataclasses.fields(new.serial)
+               if getattr(new.serial, f.name) != getattr(cfg.serial, f.name)]
+    changed += [f.name for f in dataclasses.fields(new)
+                if f.name != "serial" and getattr(new, f.name) != getattr(cfg, f.name)]
+    if not changed:
+        log.info("configuration reloaded: nothing changed")
+        return cfg
+    kept = [name for name in RESTART_SETTINGS if name in changed]
+    if kept:
+        log.warning("%s: changes need a restart (systemctl restart mbgw)", ", ".join(kept))
+        new = dataclasses.replace(new, **{name: getattr(cfg, name) for name in kept})
+    await server.reconfigure(new)
+    worker.reconfigure(new)
+    log.info("configuration reloaded: %s changed", ", ".join(changed))
+    return new

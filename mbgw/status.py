@@ -14,7 +14,7 @@ class SlaveStatus:
     """The control commands of slave mode, over the daemon's live objects."""
 
     def __init__(self, cfg, server, worker, scheduler, counters, devices, addresses) -> None:
-        self._cfg = cfg
+        self.cfg = cfg
         self._server = server
         self._worker = worker
         self._scheduler = scheduler
@@ -31,7 +31,7 @@ class SlaveStatus:
 
     def status(self, request: dict) -> dict:
         now, mono = time.time(), time.monotonic()
-        s = self._cfg.serial
+        s = self.cfg.serial
         counters = self._counters.snapshot()
         uptime = mono - self._started_mono
         busy_s = counters.pop("line_busy_ns") / 1e9
