@@ -19,6 +19,7 @@ class RtuFraming:
         # libmodbus's byte timeout is the end-of-frame silence: a longer gap breaks the frame
         self.port.set_byte_timeout(self._end_us)
         self.last_rx_ns = 0
+        self.foreign_address = -1     # set when receive() returns None
 
     def send(self, adu: bytes) -> int:
         return self.line.transmit(adu + CRC.pack(native.crc16(adu)), rtu_adu=adu)
@@ -32,6 +33,10 @@ class RtuFraming:
                 raise LineTimeout()
             try:
                 frame = self.port.receive_confirmation(adu[0], timeout_us)
+            except ChecksumError:
+                self.last_rx_ns = time.monotonic_ns()
+                self.line.counters.bytes_received += self.port.dropped_length
+                raise
             except LineTimeout:
                 now = time.monotonic_ns()
                 if now < deadline:   # the byte timeout: a gap broke a frame
@@ -41,6 +46,8 @@ class RtuFraming:
                 raise
             self.last_rx_ns = time.monotonic_ns()
             if frame is None:
+                self.line.counters.bytes_received += self.port.dropped_length
+                self.foreign_address = self.port.foreign_address
                 return None
             self.line.counters.bytes_received += len(frame)
             return frame[:-2]
@@ -52,6 +59,7 @@ class RtuFraming:
         if native.crc16(frame) != 0:
             raise ChecksumError()
         if frame[0] != adu[0]:
+            self.foreign_address = frame[0]
             return None
         return frame[:-2]
 
@@ -68,6 +76,7 @@ class RtuFraming:
         skipped = self.port.wait_quiet(self.last_rx_ns, self._end_us)
         if skipped:
             self.last_rx_ns = time.monotonic_ns()
+            self.line.counters.bytes_received += skipped
         return skipped
 
 
@@ -79,6 +88,7 @@ class AsciiFraming:
         self.port = line.port
         self._interchar_us = line.cfg.ascii_timeout_ms * 1000
         self.last_rx_ns = 0
+        self.foreign_address = -1     # set when receive() returns None
 
     def send(self, adu: bytes) -> int:
         return self.line.transmit(native.ascii_encode(adu))
@@ -93,7 +103,10 @@ class AsciiFraming:
         decoded = native.ascii_decode(self._read(deadline))
         if len(decoded) < 2:
             raise FrameError("frame too short")
-        return decoded if decoded[0] == adu[0] else None
+        if decoded[0] != adu[0]:
+            self.foreign_address = decoded[0]
+            return None
+        return decoded
 
     def receive_unchecked(self, adu: bytes, deadline: int) -> bytes:
         """nocheck: the frame's bytes, LRC removed unchecked."""

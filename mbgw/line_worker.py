@@ -119,8 +119,9 @@ class LineWorker(threading.Thread):
         port = self._master.framing.port
         try:
             if port.idle_wait(self._scheduler.wake_fd, -1) == 1:
-                self._counters.unsolicited_bytes += port.wait_quiet(
-                    time.monotonic_ns(), self._cfg.serial.t35_us)
+                unsolicited = port.wait_quiet(time.monotonic_ns(), self._cfg.serial.t35_us)
+                self._counters.unsolicited_bytes += unsolicited
+                self._counters.bytes_received += unsolicited
         except SerialError as err:
             self._lost(err)
 

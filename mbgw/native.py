@@ -83,6 +83,8 @@ class Port:
             raise
         self._buf = ffi.new("uint8_t[]", ASCII_MAX_FRAME + 4)
         self._end_ns = ffi.new("int64_t *")
+        self.dropped_length = 0        # bytes of the frame receive_confirmation dropped
+        self.foreign_address = -1      # the address of the frame it ignored
         self.set_byte_timeout(0)
 
     def _open(self, device: str, baudrate: int, parity: str, data_bits: int,
@@ -176,11 +178,16 @@ class Port:
         lib.modbus_set_slave(self._ctx, address)
         lib.modbus_set_response_timeout(self._ctx, timeout_us // 1_000_000, timeout_us % 1_000_000)
         n = lib.modbus_receive_confirmation(self._ctx, self._buf)
+        if n > 0:
+            self.dropped_length = 0
+            return ffi.buffer(self._buf, n)[:]
+        code = ffi.errno
+        # libmodbus read a whole frame by its function code before dropping it: how long
+        self.dropped_length = max(lib.mbgw_rtu_reply_length(0, self._buf, RTU_MAX_ADU), 0)
+        self.foreign_address = self._buf[0]
         if n < 0:
-            raise self._fail(ffi.errno, "read")
-        if n == 0:
-            return None
-        return ffi.buffer(self._buf, n)[:]
+            raise self._fail(code, "read")
+        return None
 
     def read_reply(self, request_len: int, deadline_ns: int, gap_us: int,
                    by_silence: bool) -> bytes:

@@ -23,6 +23,7 @@ class SerialMaster:
         self.framing = framing
         self.devices = devices
         self._sent_ns = 0
+        self._timed_out: DeviceStats | None = None   # whose late reply may still come
         self._counters = counters
         self._retries = retries
         self._nocheck = cfg.nocheck
@@ -55,10 +56,13 @@ class SerialMaster:
                 if exception is not None:
                     self._counters.device_exceptions += 1
                 device.answered((ended - self._sent_ns) / 1e6, exception)
+                if self._timed_out is device:
+                    self._timed_out = None
                 return reply
         self._counters.line_busy_ns += deadline - started
         self._count(device, "timeouts")
         device.failed()
+        self._timed_out = device
         raise LineTimeout()
 
     def _count(self, device: DeviceStats, name: str) -> None:
@@ -70,6 +74,7 @@ class SerialMaster:
         stale = self.framing.port.wait_quiet(self._quiet_from_ns, self._quiet_us)
         if stale:
             self._counters.late_bytes += stale
+            self._counters.bytes_received += stale
         if wire.isEnabledFor(logging.DEBUG):
             wire.debug("tx %s", adu.hex(" "))
         self._sent_ns = time.monotonic_ns()
@@ -98,7 +103,11 @@ class SerialMaster:
             finally:
                 self._quiet_from_ns = max(self._quiet_from_ns, framing.last_rx_ns)
             if frame is None:
-                self._count(device, "wrong_unit")
+                late = self._timed_out
+                if late is not None and framing.foreign_address == late.address:
+                    self._count(late, "late_replies")     # the answer to its timed-out request
+                else:
+                    self._count(device, "wrong_unit")
                 continue
             if wire.isEnabledFor(logging.DEBUG):
                 wire.debug("rx %s", frame.hex(" "))
@@ -107,6 +116,7 @@ class SerialMaster:
                 continue
             reply = frame[1:]
             if not reply or not pdu.reply_matches(adu[1:], reply):
-                self._count(device, "wrong_function")
+                self._count(device, "late_replies" if self._timed_out is device
+                            else "wrong_function")
                 continue
             return reply

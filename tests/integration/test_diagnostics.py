@@ -185,9 +185,6 @@ def test_counters_and_health_move_exactly_under_a_faulty_slave(rig, client):
     assert {k: at_stop[k] for k in s["counters"]} == s["counters"]
 
 
-@pytest.mark.xfail(strict=True, reason="bug: on the libmodbus receive path (FC 01..06, 0F, "
-                   "10...) a frame with a bad CRC or another address, noise skipped by the "
-                   "resync and bytes on the idle line never reach bytes_received")
 def test_bytes_received_counts_every_byte_the_line_carried(rig, client):
     gw = rig("--exception")
     c = client(gw)
