@@ -1,15 +1,18 @@
 """Test harness: socat pty pairs, the gateway as a real subprocess, peers as subprocesses.
 Readiness is always an event (a line printed, a datagram received), never a sleep."""
+import contextlib
 import os
 import selectors
 import signal
 import socket
+import stat
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 PEERS = Path(__file__).parent / "peers"
+CHECKOUT = Path(__file__).resolve().parent.parent
 READY_TIMEOUT_S = 15.0
 
 
@@ -128,3 +131,21 @@ class Peer:
 
     def stop(self) -> None:
         stop(self.proc)
+
+
+@contextlib.contextmanager
+def reachable_by_others(path: Path = CHECKOUT):
+    """Let other users reach path (and so the venv's python and the checkout's mbgw), for a
+    command run as another user: o+x on every ancestor that lacks it (a CI clone may live in
+    a 0700 temporary directory), restored afterwards."""
+    changed = []
+    for directory in [path, *path.parents]:
+        mode = directory.stat().st_mode
+        if not mode & stat.S_IXOTH:
+            os.chmod(directory, mode | stat.S_IXOTH)
+            changed.append((directory, mode))
+    try:
+        yield
+    finally:
+        for directory, mode in changed:
+            os.chmod(directory, stat.S_IMODE(mode))

@@ -26,7 +26,7 @@ import pytest
 
 from mbgw import control
 from mbgw.device_stats import COUNTS, LATENCY_BUCKETS_MS
-from tests.harness import _read_lines_until, free_port
+from tests.harness import CHECKOUT, _read_lines_until, free_port, reachable_by_others
 from tests.integration.test_faults import (Client, holding_reply, mbap, read_holding, rtu,
                                            stop_counters)
 
@@ -66,10 +66,13 @@ def mbgw(*args: str, user: str | None = None, groups: str | None = None,
          timeout: float = 15) -> subprocess.CompletedProcess:
     """`python -m mbgw ARGS`; as user (with these supplementary groups) when asked."""
     command = [sys.executable, "-m", "mbgw", *args]
-    if user is not None:
-        command = ["setpriv", f"--reuid={user}", "--regid=nogroup",
-                   f"--groups={groups}" if groups else "--clear-groups", *command]
-    return subprocess.run(command, capture_output=True, text=True, timeout=timeout)
+    if user is None:
+        return subprocess.run(command, capture_output=True, text=True, timeout=timeout)
+    command = ["setpriv", f"--reuid={user}", "--regid=nogroup",
+               f"--groups={groups}" if groups else "--clear-groups", *command]
+    with reachable_by_others():
+        return subprocess.run(command, capture_output=True, text=True, timeout=timeout,
+                              cwd=CHECKOUT)
 
 
 def status(gw) -> dict:

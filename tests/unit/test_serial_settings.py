@@ -15,7 +15,6 @@ import struct
 import subprocess
 import sys
 import termios
-from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
@@ -25,6 +24,7 @@ from mbgw.cli import main
 from mbgw.config import Interface, LineFormat, SerialConfig
 from mbgw.errors import ChecksumError, ConfigError, FrameError, SerialError
 from mbgw.serial_port import SerialLine
+from tests.harness import CHECKOUT, reachable_by_others
 
 # ---------------------------------------------------------------------------------------------
 # ASCII codec
@@ -340,9 +340,10 @@ def test_second_open_by_another_user_says_in_use(pty, open_line):
             f"    SerialLine(SerialConfig({pty!r}))\n"
             "except Exception as err:\n"
             "    print(type(err).__name__, err)\n")
-    result = subprocess.run(["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups",
-                             sys.executable, "-c", code], capture_output=True, text=True,
-                            timeout=30, cwd=Path(__file__).resolve().parents[2])
+    with reachable_by_others():
+        result = subprocess.run(["setpriv", "--reuid=65534", "--regid=65534",
+                                 "--clear-groups", sys.executable, "-c", code],
+                                capture_output=True, text=True, timeout=30, cwd=CHECKOUT)
     assert result.stdout.startswith("SerialError"), result.stdout + result.stderr
     assert "in use" in result.stdout, result.stdout
 
