@@ -136,13 +136,14 @@ class Peer:
 @contextlib.contextmanager
 def reachable_by_others(path: Path = CHECKOUT):
     """Let other users reach path (and so the venv's python and the checkout's mbgw), for a
-    command run as another user: o+x on every ancestor that lacks it (a CI clone may live in
-    a 0700 temporary directory), restored afterwards."""
+    command run as another user: search permission on every ancestor that lacks it (a CI
+    clone may live in a 0700 temporary directory), restored afterwards."""
     changed = []
+    traverse = stat.S_IXGRP | stat.S_IXOTH     # group too: the user may be in the owner's group
     for directory in [path, *path.parents]:
         mode = directory.stat().st_mode
-        if not mode & stat.S_IXOTH:
-            os.chmod(directory, mode | stat.S_IXOTH)
+        if mode & traverse != traverse:
+            os.chmod(directory, mode | traverse)
             changed.append((directory, mode))
     try:
         yield
