@@ -60,6 +60,9 @@ int mbgw_tty_lock(const char *path);
 /* TIOCEXCL: no further opens of the tty (except by root, whom the flock stops). */
 int mbgw_tty_claim(int fd);
 
+/* Call first in the thread that owns the line: its timers then fire on time. */
+int mbgw_line_thread_init(void);
+
 /* Undo mbgw_tty_claim before closing: TIOCEXCL outlives our fd on a tty that another
  * process (socat, getty) keeps open, and would refuse our own restart. */
 int mbgw_tty_release(int fd);

@@ -13,6 +13,7 @@ from mbgw.counters import Counters
 from mbgw.device_stats import DeviceTable
 from mbgw.errors import LineTimeout, SerialError
 from mbgw.framing import framing_for
+from mbgw.native import line_thread_init
 from mbgw.scheduler import (OUTCOME_BROADCAST, OUTCOME_ERROR, OUTCOME_EXCEPTION,
                             OUTCOME_LINE_DOWN, OUTCOME_REPLY, OUTCOME_TIMEOUT, Job, Scheduler)
 from mbgw.serial_master import SerialMaster
@@ -72,6 +73,7 @@ class LineWorker(threading.Thread):
             self._master = self._master_on(self._master.framing.line)
 
     def run(self) -> None:
+        line_thread_init()
         while not self._stopping:
             if self._new_cfg is not None:
                 self._apply_new_cfg()

@@ -61,6 +61,11 @@ def tty_cflag(cflag: int, data_bits: int, parity: str, stop_bits: int) -> int:
     return lib.mbgw_tty_cflag(cflag, data_bits, parity.encode(), stop_bits)
 
 
+def line_thread_init() -> None:
+    """In the thread that owns the line, before its first transaction."""
+    lib.mbgw_line_thread_init()
+
+
 def _strerror(code: int) -> str:
     return _LIBMODBUS_ERRORS.get(code) or os.strerror(code)
 
