@@ -79,6 +79,19 @@ serial_options = _stack(
 )
 
 
+# The operator's tools, the same in both modes: control socket, metrics, log level.
+daemon_options = _stack(
+    click.option("--control", metavar="PATH", default=None,
+                 help="Control socket for mbgw status/trace [default: "
+                      "$RUNTIME_DIRECTORY/mbgw.sock or /run/mbgw/mbgw.sock]."),
+    click.option("--metrics", metavar="ADDR:PORT", default=None,
+                 callback=_parser(_parse_metrics),
+                 help="Serve Prometheus metrics on http://ADDR:PORT/metrics ([IPV6]:PORT; "
+                      ":PORT for every address) [default: off]."),
+    click.option("--log-level", type=LOG_LEVELS, default="info", show_default=True),
+)
+
+
 def _serial_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout,
                    silence, ascii_timeout, nocheck) -> config.SerialConfig:
     return _convert("'--baudrate'", lambda: config.SerialConfig(
@@ -114,13 +127,7 @@ def main() -> None:
 @click.option("--turnaround", type=click.IntRange(0, 65535), default=config.DEFAULT_TURNAROUND_MS,
               show_default=True, metavar="MS",
               help="Pause on the line after a broadcast (unit 0), before the next request.")
-@click.option("--control", metavar="PATH", default=None,
-              help="Control socket for mbgw status/trace [default: "
-                   "$RUNTIME_DIRECTORY/mbgw.sock or /run/mbgw/mbgw.sock].")
-@click.option("--metrics", metavar="ADDR:PORT", default=None, callback=_parser(_parse_metrics),
-              help="Serve Prometheus metrics on http://ADDR:PORT/metrics ([IPV6]:PORT; "
-                   ":PORT for every address) [default: off].")
-@click.option("--log-level", type=LOG_LEVELS, default="info", show_default=True)
+@daemon_options
 def slave(**options) -> None:
     """Slave mode: Modbus TCP clients reach the slaves on a serial line."""
     from mbgw import cli_config, daemon, log

@@ -111,7 +111,8 @@ def reloader(ctx: click.Context | None = None):
     from_file = ctx.meta.get(META_MODE_FROM_FILE, False)
 
     def reload() -> dict:
-        options = cf.load_options(path, root=root, mode=None if from_file else mode)
+        options = cf.load_options(path, root=root, mode=None if from_file else mode,
+                                  given=kept)
         if options["mode"] != mode:
             raise ConfigError(f"{path}: serial.mode is {options['mode']} now: changing the "
                               f"mode needs a restart (systemctl restart mbgw)")

@@ -7,6 +7,7 @@ import time
 import click
 
 from mbgw import control as ctl
+from mbgw.diag_format import format_event, format_status, trace_columns
 
 control_option = click.option(
     "--control", metavar="PATH", default=None,
@@ -35,75 +36,6 @@ def _fail(message: str):
     sys.exit(1)
 
 
-def _ago(moment: float | None, now: float) -> str:
-    if moment is None:
-        return "never"
-    return f"{_duration(now - moment)} ago"
-
-
-def _duration(seconds: float) -> str:
-    seconds = max(seconds, 0)
-    if seconds < 60:
-        return f"{seconds:.1f}s"
-    minutes, secs = divmod(int(seconds), 60)
-    hours, minutes = divmod(minutes, 60)
-    days, hours = divmod(hours, 24)
-    if days:
-        return f"{days}d{hours:02d}h{minutes:02d}m"
-    if hours:
-        return f"{hours}h{minutes:02d}m"
-    return f"{minutes}m{secs:02d}s"
-
-
-def _clock(moment: float) -> str:
-    return time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(moment))
-
-
-def format_status(s: dict, now: float) -> str:
-    serial = s["serial"]
-    lines = [
-        f"mbgw {s['version']}, {s['mode']} mode, pid {s['pid']}, up {_duration(s['uptime_s'])}",
-        f"listening  {', '.join(s['listening'])}",
-        f"serial     {serial['device']} {serial['baudrate']} {serial['format']} "
-        f"{serial['protocol']} {serial['interface']}, stout {serial['stout_ms']} ms: "
-        f"line {serial['state']}, queue {s['queue_depth']}, "
-        f"utilisation {s['line_utilisation_pct']:.1f} %",
-        "",
-        f"clients ({len(s['clients'])})",
-    ]
-    if s["clients"]:
-        lines.append(f"  {'ID':>4}  {'PEER':<24} {'CONNECTED':<19}  {'REQUESTS':>8}  "
-                     f"{'IN FLIGHT':>9}  LAST ACTIVITY")
-        for c in s["clients"]:
-            lines.append(f"  {c['id']:>4}  {c['peer']:<24} {_clock(c['connected_since'])}  "
-                         f"{c['requests']:>8}  {c['in_flight']:>9}  "
-                         f"{_ago(c['last_activity'], now)}")
-    lines += ["", f"devices ({len(s['devices'])})"]
-    if s["devices"]:
-        lines.append(f"  {'ADDR':>4}  {'HEALTH':<8} {'SINCE':<12} {'LAST SUCCESS':<14} "
-                     f"{'FAILS':>5} {'REQUESTS':>8} {'REPLIES':>8} {'TIMEOUTS':>8} "
-                     f"{'CRC':>5} {'OTHER':>5}  EXCEPTIONS")
-        for d in s["devices"]:
-            other = d["invalid_frames"] + d["wrong_unit"] + d["wrong_function"] + \
-                d["late_replies"]
-            exceptions = " ".join(f"{code}:{n}" for code, n in d["exceptions"].items())
-            generated = " ".join(f"{code}:{n}" for code, n in d["gateway_exceptions"].items())
-            if generated:
-                exceptions = " ".join(filter(None, (exceptions, f"(gateway {generated})")))
-            lines.append(f"  {d['address']:>4}  {d['health']:<8} "
-                         f"{_ago(d['health_since'], now):<12} "
-                         f"{_ago(d['last_success'], now):<14} {d['consecutive_failures']:>5} "
-                         f"{d['transactions']:>8} {d['replies']:>8} {d['timeouts']:>8} "
-                         f"{d['crc_errors']:>5} {other:>5}  {exceptions or '-'}")
-    counters = s["counters"]
-    lines += ["", f"counters since {_clock(s['counters_since'])}"]
-    names = list(counters)
-    for i in range(0, len(names), 3):
-        lines.append("  " + "".join(f"{n:<28}{counters[n]:>10}   " for n in names[i:i + 3])
-                     .rstrip())
-    return "\n".join(lines)
-
-
 def register(main: click.Group) -> None:
     @main.command()
     @click.option("--json", "as_json", is_flag=True, help="Print the status as JSON.")
@@ -118,7 +50,7 @@ def register(main: click.Group) -> None:
 
     @main.group()
     def clients() -> None:
-        """The Modbus TCP clients of the running daemon."""
+        """The Modbus TCP clients of the running daemon (slave mode)."""
 
     @clients.command("close")
     @click.argument("client_id", type=int, metavar="ID")
@@ -164,9 +96,8 @@ def register(main: click.Group) -> None:
         seen = 0
         with sock, sock.makefile("rb") as events:
             sock.sendall(b'{"command": "trace"}\n')
-            events.readline()          # {"listening": [...]}
-            echo(f"{'TIME':<15} {'DIRECTION':<9} {'CLIENT':<24} {'TID':>5} {'UNIT':>4} "
-                 f"{'FC':>4} {'LEN':>4}  OUTCOME")
+            header = json.loads(events.readline() or b"{}")     # {"mode": ..., ...}
+            echo(trace_columns(header.get("mode", "slave")))
             try:
                 for line in events:
                     event = json.loads(line)
@@ -178,13 +109,3 @@ def register(main: click.Group) -> None:
                         break
             except KeyboardInterrupt:
                 pass
-
-
-def format_event(e: dict) -> str:
-    stamp = time.strftime("%H:%M:%S", time.localtime(e["time"])) + \
-        f".{int(e['time'] * 1000) % 1000:03d}"
-    outcome = e["outcome"]
-    if e.get("latency_ms") is not None:
-        outcome = f"{outcome} {e['latency_ms']:.1f} ms"
-    return (f"{stamp:<15} {e['direction']:<9} {e['peer']:<24} {e['tid']:>5} {e['unit']:>4} "
-            f"0x{e['function']:02x} {e['length']:>4}  {outcome}").rstrip()

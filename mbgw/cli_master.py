@@ -1,10 +1,12 @@
 """The `mbgw master` command: a Modbus master on the serial line reaches Modbus TCP servers.
-Registered by mbgw.cli; it shares the serial options with slave mode."""
+Registered by mbgw.cli; it shares the serial options and the operator's tools (control
+socket, metrics, log level) with slave mode."""
 import click
 from click.core import ParameterSource
 
 from mbgw import config
-from mbgw.cli import LOG_LEVELS, _convert, _parser, _serial_config, fatal, main, serial_options
+from mbgw.cli import (_convert, _parser, _serial_config, daemon_options, fatal, main,
+                      serial_options)
 from mbgw.errors import SerialError
 from mbgw.slaveid_table import MAX_RANGES, SlaveIdTable
 
@@ -31,26 +33,42 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
 @click.option("--max-connections", type=click.IntRange(1, 1000), default=5, show_default=True,
               help="Connections kept open to servers; one more closes the least recently "
                    "used.")
-@click.option("--log-level", type=LOG_LEVELS, default="info", show_default=True)
+@daemon_options
 @click.pass_context
-def master(ctx, device, protocol, baudrate, line_format, interface, rtsdelays, stout, silence,
-           ascii_timeout, nocheck, slaveid, tcpto, mdbport, exception, max_connections,
-           log_level) -> None:
+def master(ctx, **options) -> None:
     """Master mode: a Modbus master on the serial line reaches Modbus TCP servers."""
-    from mbgw import log
+    from mbgw import cli_config, log
+    from mbgw.daemon import ListenError
     from mbgw.master_daemon import run_master
 
     for name in SLAVE_MODE_ONLY:
         if ctx.get_parameter_source(name) in (ParameterSource.COMMANDLINE,
                                               ParameterSource.ENVIRONMENT):
             raise click.BadParameter("applies to slave mode only", param_hint=f"'--{name}'")
-    serial = _serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
-                            stout, silence, ascii_timeout, nocheck)
-    cfg = _convert("'--tcpto'", lambda: config.MasterConfig(
-        serial=serial, slaveid=slaveid, tcpto_ms=tcpto, mdbport=mdbport, exception=exception,
-        max_connections=max_connections))
-    log.setup(log_level)
+    cfg = master_config(**options)
+    log.setup(options["log_level"])
+    reload = cli_config.reloader()
+
+    def reconfigure() -> config.MasterConfig:
+        """SIGHUP: the configuration file again, command-line options kept."""
+        new = reload()
+        new.pop("mode", None)
+        log.setup(new["log_level"])
+        return master_config(**new)
+
     try:
-        run_master(cfg)
+        run_master(cfg, reconfigure if reload else None)
     except SerialError as err:
         fatal(err.strerror)
+    except ListenError as err:
+        fatal(str(err))
+
+
+def master_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout,
+                  silence, ascii_timeout, nocheck, slaveid, tcpto, mdbport, exception,
+                  max_connections, control, metrics, log_level=None) -> config.MasterConfig:
+    serial = _serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
+                            stout, silence, ascii_timeout, nocheck)
+    return _convert("'--tcpto'", lambda: config.MasterConfig(
+        serial=serial, slaveid=slaveid, tcpto_ms=tcpto, mdbport=mdbport, exception=exception,
+        max_connections=max_connections, control=control, metrics=metrics))

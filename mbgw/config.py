@@ -158,6 +158,8 @@ class MasterConfig:
     mdbport: int = 502              # the remote servers' port
     exception: bool = False
     max_connections: int = 5
+    control: str | None = None      # control socket path; None: the default one
+    metrics: str | None = None      # ADDR:PORT for Prometheus, None: off
 
     def __post_init__(self) -> None:
         low, high = TCPTO_RANGE

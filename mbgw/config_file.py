@@ -8,6 +8,7 @@ option added to a command is a key at once.  A value is checked by its option's 
 and callback, and reaches the command through click's default_map: command line > file >
 built-in default.  Changes go through `mbgw config set` (the guide's `set` syntax), which edits
 the text in place so that comments survive, and replaces the file atomically."""
+import copy
 import dataclasses
 import difflib
 import ipaddress
@@ -416,18 +417,30 @@ def load(schema: Schema, path: Path) -> Settings:
     return check(schema, path, parse(path, text))
 
 
-def resolve(schema: Schema, settings: Settings, args=(), mode: str | None = None) -> dict:
+def resolve(schema: Schema, settings: Settings, args=(), mode: str | None = None,
+            given=()) -> dict:
     """The parameters of a mode command (the file's mode, or `mode`) as its function receives
     them, from the file and `args` (command-line options, which win).  Also checks what only
-    the whole command can: options it requires (device), callbacks.  Raises ConfigFileError."""
+    the whole command can: options it requires (device), callbacks.  `given`: names of
+    parameters the caller has from elsewhere (a running daemon's command line), which the
+    file need not have even when required.  Raises ConfigFileError."""
     mode = mode or settings.mode
     command = schema.commands[mode]
+    if any(p.required and p.name in given for p in command.params):
+        command = copy.copy(command)
+        command.params = [_optional(p) if p.name in given else p for p in command.params]
     try:
         ctx = command.make_context(mode, list(args),
                                    default_map=settings.default_map(schema, mode))
     except click.ClickException as err:
         raise ConfigFileError(settings.path, [click_problem(schema, settings, err)]) from None
     return {name: None if _is_unset(v) else v for name, v in ctx.params.items()}
+
+
+def _optional(param: click.Parameter) -> click.Parameter:
+    param = copy.copy(param)
+    param.required = False
+    return param
 
 
 def click_problem(schema: Schema, settings: Settings, err: click.ClickException) -> str:
@@ -442,14 +455,15 @@ def click_problem(schema: Schema, settings: Settings, err: click.ClickException)
 
 
 def load_options(path=DEFAULT_PATH, args=(), root: click.Group | None = None,
-                 mode: str | None = None) -> dict:
+                 mode: str | None = None, given=()) -> dict:
     """What `mbgw run --config PATH ARGS...` would start, without starting it: {"mode": "slave"
     or "master", then every parameter of that mode's command exactly as click passes it to the
     command's function (converted, checked, defaults filled in)}.  `args` are command-line
     options that win over the file; `mode` takes another mode than the file's (as `mbgw slave
     --config PATH` does).  Raises ConfigFileError (a ConfigError) naming the file, the key and
     the reason.  The file is only read, so a daemon can call it on SIGHUP and keep running on
-    an error (see mbgw.cli_config.reloader)."""
+    an error (see mbgw.cli_config.reloader), passing as `given` the parameters its command
+    line set (see resolve)."""
     if root is None:
         from mbgw.cli import main as root
     schema = Schema(root)
@@ -458,7 +472,7 @@ def load_options(path=DEFAULT_PATH, args=(), root: click.Group | None = None,
     except PermissionError as err:
         raise ConfigFileError(path, [f"cannot read it: {err.strerror}"]) from None
     mode = mode or settings.mode
-    return {"mode": mode, **resolve(schema, settings, args, mode)}
+    return {"mode": mode, **resolve(schema, settings, args, mode, given)}
 
 
 # --- changes in the guide's syntax -------------------------------------------------------------

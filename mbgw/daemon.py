@@ -75,56 +75,77 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
         addresses = await server.start()
     except OSError as err:
         raise ListenError(cfg.mdbport, err) from None
-    metrics = None
-    if cfg.metrics:
-        started = time.time()
-        metrics = MetricsServer(cfg.metrics, lambda: render(
+    started = time.time()
+    try:
+        metrics = await start_metrics(cfg.metrics, lambda: render(
             counters, devices, scheduler, server, worker, started))
-        try:
-            metrics_addresses = await metrics.start()
-        except OSError as err:
-            server.close()
-            raise MetricsListenError(cfg.metrics, err) from None
+    except MetricsListenError:
+        server.close()
+        raise
     worker.start()
     status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses)
-    control = ControlServer(cfg.control or default_path(), status.commands())
-    try:
-        await control.start()
-    except OSError as err:
-        log.warning("control socket %s unavailable (%s): mbgw status and trace will not "
-                    "reach this daemon", control.path, err.strerror)
-        control = None
+    control = await start_control(cfg.control, status.commands())
     s = cfg.serial
     log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s",
              ", ".join(addresses), s.device, s.baudrate, s.format, s.protocol, s.interface,
              s.stout_ms, ", nocheck" if s.nocheck else "")
     if metrics is not None:
-        log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics_addresses))
+        log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
     if s.nocheck:
         log.warning("nocheck is on: serial replies are forwarded unchecked (a debugging mode)")
-    async def reload() -> None:
-        nonlocal cfg
-        sd_notify("RELOADING=1")
-        try:
-            new = await _reloaded(cfg, reconfigure, server, worker)
-        finally:
-            sd_notify("READY=1")
-        if new is not None:
-            cfg = status.cfg = new
 
-    loop.add_signal_handler(signal.SIGHUP, lambda: asyncio.ensure_future(reload()))
+    async def apply(new: SlaveConfig) -> None:
+        await server.reconfigure(new)
+        worker.reconfigure(new)
+
+    reload_on_sighup(loop, status, reconfigure, apply)
     sd_notify("READY=1")
     await stop.wait()
     sd_notify("STOPPING=1")
     log.info("stopping")
-    if control is not None:
-        control.close()
-    if metrics is not None:
-        metrics.close()
+    close_tools(control, metrics)
     server.close()
     worker.stop()
     await asyncio.to_thread(worker.join)
     scheduler.close()
+    log_stopped(counters)
+
+
+# --- what both modes' daemons use -----------------------------------------------------------
+
+async def start_metrics(address: str | None, collect) -> MetricsServer | None:
+    """The --metrics endpoint (None when off); .names are its listening addresses.  Raises
+    MetricsListenError when it cannot listen."""
+    if not address:
+        return None
+    metrics = MetricsServer(address, collect)
+    try:
+        metrics.names = await metrics.start()
+    except OSError as err:
+        raise MetricsListenError(address, err) from None
+    return metrics
+
+
+async def start_control(path: str | None, commands: dict) -> ControlServer | None:
+    """The control socket; None (logged) when it cannot be had: the gateway runs without."""
+    control = ControlServer(path or default_path(), commands)
+    try:
+        await control.start()
+    except OSError as err:
+        log.warning("control socket %s unavailable (%s): mbgw status and trace will not "
+                    "reach this daemon", control.path, err.strerror)
+        return None
+    return control
+
+
+def close_tools(control: ControlServer | None, metrics: MetricsServer | None) -> None:
+    if control is not None:
+        control.close()
+    if metrics is not None:
+        metrics.close()
+
+
+def log_stopped(counters) -> None:
     log.info("stopped; counters: %s",
              " ".join(f"{k}={v}" for k, v in counters.snapshot().items()))
 
@@ -132,9 +153,26 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
 RESTART_SETTINGS = ("control", "metrics")
 
 
-async def _reloaded(cfg: SlaveConfig, reconfigure, server: TcpServer,
-                    worker: LineWorker) -> SlaveConfig | None:
-    """Apply the configuration file again; None when it cannot be (the reason is logged)."""
+def reload_on_sighup(loop: asyncio.AbstractEventLoop, holder, reconfigure, apply) -> None:
+    """SIGHUP (systemctl reload) applies the configuration file again, in either mode.
+    holder.cfg is the running configuration, replaced when a reload is applied; reconfigure()
+    gives the file's settings (None: there is no file); `await apply(new)` puts them in
+    force in the mode's live objects."""
+    async def reload() -> None:
+        sd_notify("RELOADING=1")
+        try:
+            new = await _reloaded(holder.cfg, reconfigure, apply)
+        finally:
+            sd_notify("READY=1")
+        if new is not None:
+            holder.cfg = new
+
+    loop.add_signal_handler(signal.SIGHUP, lambda: asyncio.ensure_future(reload()))
+
+
+async def _reloaded(cfg, reconfigure, apply):
+    """Apply the configuration file again; the configuration now in force, or None when the
+    file cannot be applied (the reason is logged)."""
     if reconfigure is None:
         log.warning("SIGHUP: no configuration file to reload (settings came from the "
                     "command line)")
@@ -156,7 +194,6 @@ async def _reloaded(cfg: SlaveConfig, reconfigure, server: TcpServer,
     if kept:
         log.warning("%s: changes need a restart (systemctl restart mbgw)", ", ".join(kept))
         new = dataclasses.replace(new, **{name: getattr(cfg, name) for name in kept})
-    await server.reconfigure(new)
-    worker.reconfigure(new)
+    await apply(new)
     log.info("configuration reloaded: %s changed", ", ".join(changed))
     return new

@@ -1,5 +1,8 @@
 """What each serial device (serial address) has done, and how healthy it looks.
 
+In slave mode a device is a slave on the line; in master mode it is an address mbgw answers
+for on the line, whose upstream is the server and unit the slaveid table maps it to.
+
 Written by the line thread only; read (racily, which is fine for figures) by the asyncio
 thread for status and metrics.  Health is judged from recent outcomes and logged once per
 change, never per failure.
@@ -11,6 +14,10 @@ log = logging.getLogger("mbgw.devices")
 
 COUNTS = ("transactions", "replies", "timeouts", "retries", "crc_errors", "invalid_frames",
           "wrong_unit", "wrong_function", "late_replies", "broadcasts")
+# Master mode: an address mbgw answers for on the line, standing for a server's unit.
+MASTER_COUNTS = ("transactions", "replies", "timeouts", "unreachable", "abandoned",
+                 "broadcasts")
+ALL_COUNTS = tuple(dict.fromkeys(COUNTS + MASTER_COUNTS))
 LATENCY_BUCKETS_MS = (2, 5, 10, 25, 50, 100, 250, 500, 1000, 2500, 5000)
 DOWN_AFTER_FAILURES = 3        # consecutive transactions without a valid reply
 RECENT_WINDOW = 20             # outcomes considered for "degraded"
@@ -19,12 +26,15 @@ UP, DEGRADED, DOWN = "up", "degraded", "down"
 
 
 class DeviceStats:
-    __slots__ = COUNTS + ("address", "exceptions", "gateway_exceptions", "latency_buckets",
-                          "latency_sum_ms", "last_success", "consecutive_failures",
-                          "recent_failures", "health", "health_since")
+    __slots__ = ALL_COUNTS + ("address", "counts", "upstream", "exceptions",
+                              "gateway_exceptions", "latency_buckets", "latency_sum_ms",
+                              "last_success", "consecutive_failures", "recent_failures",
+                              "health", "health_since")
 
-    def __init__(self, address: int) -> None:
+    def __init__(self, address: int, counts: tuple = COUNTS) -> None:
         self.address = address
+        self.counts = counts           # the counters this mode keeps (COUNTS, MASTER_COUNTS)
+        self.upstream: tuple[str, int] | None = None   # master mode: (server IP, unit id)
         self.exceptions: dict[int, int] = {}          # exception replies from the device
         self.gateway_exceptions: dict[int, int] = {}  # exception replies mbgw generated
         self.reset_counts()
@@ -52,7 +62,7 @@ class DeviceStats:
         self._judge(True)
 
     def reset_counts(self) -> None:
-        for name in COUNTS:
+        for name in ALL_COUNTS:
             setattr(self, name, 0)
         self.exceptions = {}
         self.gateway_exceptions = {}
@@ -76,18 +86,22 @@ class DeviceStats:
     def _change(self, health: str) -> None:
         self.health = health
         self.health_since = time.time()
+        via = f" (server {self.upstream[0]} unit {self.upstream[1]})" if self.upstream else ""
         if health == DOWN:
-            log.warning("device %d is down: %d requests in a row without a valid reply",
-                        self.address, self.consecutive_failures)
+            log.warning("device %d is down: %d requests in a row without a valid reply%s",
+                        self.address, self.consecutive_failures, via)
         elif health == DEGRADED:
-            log.warning("device %d is degraded: %d of its last %d requests failed",
-                        self.address, bin(self.recent_failures).count("1"), RECENT_WINDOW)
+            log.warning("device %d is degraded: %d of its last %d requests failed%s",
+                        self.address, bin(self.recent_failures).count("1"), RECENT_WINDOW,
+                        via)
         else:
-            log.info("device %d is up: its last %d requests were answered", self.address,
-                     RECENT_WINDOW)
+            log.info("device %d is up: its last %d requests were answered%s", self.address,
+                     RECENT_WINDOW, via)
 
     def snapshot(self) -> dict:
-        data = {name: getattr(self, name) for name in COUNTS}
+        data = {name: getattr(self, name) for name in self.counts}
+        if self.upstream is not None:
+            data["upstream"] = {"host": self.upstream[0], "unit": self.upstream[1]}
         data.update(
             address=self.address, health=self.health, health_since=self.health_since,
             last_success=self.last_success, consecutive_failures=self.consecutive_failures,
@@ -103,13 +117,14 @@ class DeviceStats:
 class DeviceTable:
     """DeviceStats by serial address, created on first use."""
 
-    def __init__(self) -> None:
+    def __init__(self, counts: tuple = COUNTS) -> None:
+        self.counts = counts
         self._devices: dict[int, DeviceStats] = {}
 
     def get(self, address: int) -> DeviceStats:
         stats = self._devices.get(address)
         if stats is None:
-            stats = self._devices[address] = DeviceStats(address)
+            stats = self._devices[address] = DeviceStats(address, self.counts)
         return stats
 
     def all(self) -> list[DeviceStats]:

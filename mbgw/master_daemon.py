@@ -1,21 +1,27 @@
 """Runs master mode: opens the line, serves the serial master, tells systemd it is ready,
-stops on a signal."""
+stops on a signal; the operator's tools (control socket, metrics, SIGHUP reload) are slave
+mode's (mbgw.daemon)."""
 import asyncio
 import logging
 import signal
+import time
 
 from mbgw.config import MasterConfig
 from mbgw.counters import MasterCounters
-from mbgw.daemon import sd_notify
+from mbgw.daemon import (close_tools, log_stopped, reload_on_sighup, sd_notify, start_control,
+                         start_metrics)
+from mbgw.master_status import MasterStatus
+from mbgw.metrics import render_master
 from mbgw.serial_port import SerialLine
 from mbgw.serial_slave import SerialSlave
 
 log = logging.getLogger("mbgw")
 
 
-def run_master(cfg: MasterConfig) -> None:
-    """Raises SerialError when the device cannot be opened; otherwise returns after SIGTERM
-    or SIGINT."""
+def run_master(cfg: MasterConfig, reconfigure=None) -> None:
+    """Raises SerialError when the device cannot be opened, MetricsListenError when the
+    metrics address cannot be bound; otherwise returns after SIGTERM or SIGINT.
+    reconfigure() gives the settings to apply on SIGHUP (None: there is no file to reload)."""
     counters = MasterCounters()
     line = SerialLine(cfg.serial)
     try:
@@ -24,30 +30,45 @@ def run_master(cfg: MasterConfig) -> None:
         line.close()
         raise
     try:
-        asyncio.run(_serve(cfg, slave, counters))
+        asyncio.run(_serve(cfg, slave, counters, reconfigure))
     finally:
         slave.close()
 
 
-async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters) -> None:
+async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters,
+                 reconfigure) -> None:
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(signum, stop.set)
+    started = time.time()
+    metrics = await start_metrics(cfg.metrics, lambda: render_master(
+        counters, slave.devices, slave, started))
     slave.start()
+    status = MasterStatus(cfg, slave, counters)
+    control = await start_control(cfg.control, status.commands())
     s = cfg.serial
     log.info("master mode: serial %s %d %s %s %s; servers' port %d, tcpto %d ms, exception %s, "
              "at most %d connections; slaveid %s", s.device, s.baudrate, s.format, s.protocol,
              s.interface, cfg.mdbport, cfg.tcpto_ms, "on" if cfg.exception else "off",
              cfg.max_connections, cfg.slaveid)
+    if metrics is not None:
+        log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
     if not cfg.slaveid.ranges:
         log.warning("the slaveid table is empty: every request on the line is ignored")
+
+    async def apply(new: MasterConfig) -> None:
+        if not new.slaveid.ranges:
+            log.warning("the slaveid table is empty: every request on the line is ignored")
+        slave.reconfigure(new)
+
+    reload_on_sighup(loop, status, reconfigure, apply)
     sd_notify("READY=1")
 
     await stop.wait()
     sd_notify("STOPPING=1")
     log.info("stopping")
+    close_tools(control, metrics)
     slave.stop()
     await asyncio.to_thread(slave.join)
-    log.info("stopped; counters: %s",
-             " ".join(f"{k}={v}" for k, v in counters.snapshot().items()))
+    log_stopped(counters)

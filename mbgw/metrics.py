@@ -11,7 +11,7 @@ import logging
 import math
 
 from mbgw import __version__
-from mbgw.device_stats import COUNTS, DEGRADED, DOWN, LATENCY_BUCKETS_MS, UP
+from mbgw.device_stats import DEGRADED, DOWN, LATENCY_BUCKETS_MS, UP
 from mbgw.errors import ConfigError
 
 log = logging.getLogger("mbgw.metrics")
@@ -59,6 +59,31 @@ _DEVICE_HELP = {
     "wrong_function": "Replies from this address with another function or size.",
     "late_replies": "Replies from this address after the slave timeout.",
     "broadcasts": "Broadcasts (address 0).",
+    "unreachable": "Requests for this address whose server could not be reached.",
+    "abandoned": "Answers for this address not written: the master had moved on.",
+}
+
+# Master mode: the serial master's requests go to Modbus TCP servers.
+_MASTER_COUNTER_HELP = {
+    "requests": "Requests from the serial master for an address of the slaveid table.",
+    "replies": "Replies written on the serial line (exception replies included).",
+    "device_exceptions": "Exception replies received from the servers.",
+    "timeouts": "Requests a server did not answer within tcpto.",
+    "unreachable": "Requests whose server could not be reached (connection failed).",
+    "broadcasts": "Broadcasts (address 0) from the master, sent to every server.",
+    "crc_errors": "Frames from the master received with a bad CRC or LRC.",
+    "invalid_frames": "Frames from the master received malformed.",
+    "other_addresses": "Frames for an address outside the slaveid table (ignored).",
+    "late_replies": "Server replies that came after tcpto, dropped by transaction id.",
+    "abandoned": "Answers not written on the line: the master had moved on.",
+    "connections_opened": "Connections opened to servers.",
+    "connections_evicted": "Connections to servers closed to make room for another.",
+    "connections_lost": "Connections to servers closed by the server or broken.",
+}
+_MASTER_DEVICE_HELP = {
+    "transactions": "Requests from the master to this serial address, sent to its server.",
+    "replies": "Replies from this address's server (exception replies included).",
+    "timeouts": "Requests to this address its server did not answer within tcpto.",
 }
 
 
@@ -109,10 +134,27 @@ class _Text:
         return "\n".join(self.lines) + "\n"
 
 
-def render(counters, devices, scheduler, server, worker, started: float,
-           mode: str = "slave") -> str:
-    """The exposition text of the daemon's live objects (read from the asyncio thread; the
-    line thread may be counting meanwhile: a scrape is a snapshot within a transaction)."""
+def render(counters, devices, scheduler, server, worker, started: float) -> str:
+    """Slave mode's exposition text."""
+    return render_daemon(counters, devices, started, "slave", [
+        ("mbgw_line_up", "1 while the serial device is open and usable.", int(worker.up)),
+        ("mbgw_queue_depth", "Requests waiting for the serial line.", scheduler.depth),
+        ("mbgw_clients_connected", "Modbus TCP clients connected.", len(server.clients))])
+
+
+def render_master(counters, devices, slave, started: float) -> str:
+    """Master mode's exposition text."""
+    return render_daemon(counters, devices, started, "master", [
+        ("mbgw_line_up", "1 while the serial device is open and usable.", int(slave.up)),
+        ("mbgw_upstream_connections", "Connections open to Modbus TCP servers.",
+         len(slave.connections()))])
+
+
+def render_daemon(counters, devices, started: float, mode: str, gauges) -> str:
+    """The exposition text of a daemon's live objects (read from the asyncio thread; the
+    line thread may be counting meanwhile: a scrape is a snapshot within a transaction).
+    gauges: (name, help, value) of the mode's own gauges."""
+    master = mode == "master"
     out = _Text()
     out.family("mbgw_info", "gauge", "mbgw's version and mode (always 1).")
     out.sample("mbgw_info", 1, version=__version__, mode=mode)
@@ -128,26 +170,27 @@ def render(counters, devices, scheduler, server, worker, started: float,
             out.sample("mbgw_line_busy_seconds_total", value / 1e9)
             continue
         metric = f"mbgw_{name}_total"
-        out.family(metric, "counter", _COUNTER_HELP.get(name, name.replace("_", " ") + "."))
+        help_text = (master and _MASTER_COUNTER_HELP.get(name)) or _COUNTER_HELP.get(name) \
+            or name.replace("_", " ") + "."
+        out.family(metric, "counter", help_text)
         out.sample(metric, value)
 
-    out.family("mbgw_line_up", "gauge", "1 while the serial device is open and usable.")
-    out.sample("mbgw_line_up", 1 if worker.up else 0)
-    out.family("mbgw_queue_depth", "gauge", "Requests waiting for the serial line.")
-    out.sample("mbgw_queue_depth", scheduler.depth)
-    out.family("mbgw_clients_connected", "gauge", "Modbus TCP clients connected.")
-    out.sample("mbgw_clients_connected", len(server.clients))
+    for name, help_text, value in gauges:
+        out.family(name, "gauge", help_text)
+        out.sample(name, value)
 
     table = devices.all()
-    for name in COUNTS:
+    for name in devices.counts:
         metric = f"mbgw_device_{name}_total"
-        out.family(metric, "counter", _DEVICE_HELP[name] + " By serial address.")
+        help_text = (master and _MASTER_DEVICE_HELP.get(name)) or _DEVICE_HELP[name]
+        out.family(metric, "counter", help_text + " By serial address.")
         for d in table:
             out.sample(metric, getattr(d, name), address=d.address)
 
     out.family("mbgw_device_exception_replies_total", "counter",
                "Exception replies by serial address and exception code; source: the device "
-               "sent it, or the gateway generated it (0x0B: no reply, 0x0A: line down).")
+               "(in master mode its server) sent it, or the gateway generated it (0x0B: no "
+               "reply, 0x0A: line down or server unreachable).")
     for d in table:
         for source, by_code in (("device", d.exceptions), ("gateway", d.gateway_exceptions)):
             for code, n in sorted(dict(by_code).items()):
@@ -180,6 +223,8 @@ def render(counters, devices, scheduler, server, worker, started: float,
                        round(d.last_success, 3), address=d.address)
 
     out.family("mbgw_transaction_latency_seconds", "histogram",
+               "Time from receiving the master's request to its server's reply, by serial "
+               "address." if master else
                "Time from sending a request on the line to the end of its valid reply "
                "(the last try's, after retries), by serial address.")
     bounds = [*(ms / 1000 for ms in LATENCY_BUCKETS_MS), math.inf]
@@ -202,6 +247,7 @@ class MetricsServer:
     def __init__(self, address: str, collect) -> None:
         self.address = address
         self.host, self.port = parse_address(address)
+        self.names: list[str] = []         # the listening addresses, once started
         self._collect = collect            # () -> the exposition text
         self._server: asyncio.base_events.Server | None = None
         self._tasks: set[asyncio.Task] = set()

@@ -12,7 +12,11 @@ the eventfd wakes it to stop) and:
   silence; server unreachable: 0x0A, or silence.  If the master has sent something new in
   the meantime it has given up on the request, and the late answer is dropped.
 A device that fails is closed, reopened with backoff, and reported once per change.
+Each serial address answered for has its statistics and health (mbgw.device_stats), and the
+traffic goes to `mbgw trace` while someone traces (mbgw.master_trace).  A new configuration
+(SIGHUP) is taken between two transactions; new line settings reopen the line.
 """
+import dataclasses
 import logging
 import os
 import select
@@ -22,18 +26,27 @@ import time
 from mbgw import native, pdu
 from mbgw.config import MasterConfig
 from mbgw.counters import MasterCounters
+from mbgw.device_stats import MASTER_COUNTS, DeviceTable
 from mbgw.errors import (ChecksumError, FrameError, GatewayTimeout, LineTimeout, NoRoute,
                          SerialError)
 from mbgw.framing import framing_for
 from mbgw.line_worker import REOPEN_FIRST_S, REOPEN_MAX_S
+from mbgw.master_trace import (OUTCOME_EXCEPTION, OUTCOME_REPLY, OUTCOME_TIMEOUT,
+                               OUTCOME_UNREACHABLE, MasterTracer)
 from mbgw.serial_port import SerialLine
-from mbgw.tcp_client import Interrupted, UpstreamPool
+from mbgw.tcp_client import Interrupted, UpstreamPool, drain
+from mbgw.trace import TraceHub
 
 log = logging.getLogger("mbgw.line")
 wire = logging.getLogger("mbgw.wire")
 
 IDLE_INPUT = 1      # Port.idle_wait: input is waiting
 IDLE_TIMEOUT = 2    # Port.idle_wait: nothing happened
+UNUSED_SETTINGS = {"stout_ms": 0, "nocheck": False}   # slave mode's: no reopen for them
+
+
+def _line_settings(serial):
+    return dataclasses.replace(serial, **UNUSED_SETTINGS)
 
 
 class SerialSlave(threading.Thread):
@@ -43,14 +56,14 @@ class SerialSlave(threading.Thread):
         self._table = cfg.slaveid
         self._counters = counters
         self._tcpto_ns = cfg.tcpto_ns
-        self._gap_us = cfg.serial.end_of_frame_us
-        self._interchar_us = cfg.serial.ascii_timeout_ms * 1000
-        # the longest ASCII frame at the line's speed, plus one inter-character pause
-        self._ascii_frame_ns = (native.ASCII_MAX_FRAME * cfg.serial.char_ns
-                                + self._interchar_us * 1000)
+        self.devices = DeviceTable(MASTER_COUNTS)
+        self.trace = TraceHub()
+        self._tracer = MasterTracer(self.trace)
         self.wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         self._pool = UpstreamPool(cfg.mdbport, cfg.max_connections, counters, self.wake_fd)
         self._stopping = False
+        self._new_cfg: MasterConfig | None = None
+        self._reopen_now = False
         self._reply_to = b""       # the last frame for another slave: its reply may come next
         self._line: SerialLine | None = None
         self._attach(line)
@@ -59,12 +72,46 @@ class SerialSlave(threading.Thread):
         self._line = line
         self._port = line.port
         self._framing = framing_for(line)
-        self._receive = (self._receive_ascii if line.cfg.protocol == "ascii"
-                         else self._receive_rtu)
+        serial = line.cfg
+        self._receive = self._receive_ascii if serial.protocol == "ascii" else self._receive_rtu
+        self._gap_us = serial.end_of_frame_us
+        self._interchar_us = serial.ascii_timeout_ms * 1000
+        # the longest ASCII frame at the line's speed, plus one inter-character pause
+        self._ascii_frame_ns = (native.ASCII_MAX_FRAME * serial.char_ns
+                                + self._interchar_us * 1000)
+
+    @property
+    def up(self) -> bool:
+        """The serial device is open (read by the asyncio thread)."""
+        return self._line is not None
+
+    def connections(self) -> list[dict]:
+        """The open upstream connections (from any thread)."""
+        return self._pool.connections()
 
     def stop(self) -> None:
         self._stopping = True
+        self._pool.stopping = True
         os.eventfd_write(self.wake_fd, 1)
+
+    def reconfigure(self, cfg: MasterConfig) -> None:
+        """Use cfg from the next transaction on (called from another thread)."""
+        self._new_cfg = cfg
+        os.eventfd_write(self.wake_fd, 1)
+
+    def _apply_new_cfg(self) -> None:
+        cfg, self._new_cfg = self._new_cfg, None
+        old, self._cfg = self._cfg, cfg
+        self._table = cfg.slaveid
+        self._tcpto_ns = cfg.tcpto_ns
+        self._pool.reconfigure(cfg.mdbport, cfg.max_connections)
+        if _line_settings(cfg.serial) != _line_settings(old.serial):
+            self._reply_to = b""
+            self._reopen_now = True
+            if self._line is not None:
+                self._line.close()
+                self._line = None
+                log.info("serial line settings changed: reopening %s", cfg.serial.device)
 
     def close(self) -> None:
         """After the thread has ended (or if it never started)."""
@@ -76,6 +123,8 @@ class SerialSlave(threading.Thread):
 
     def run(self) -> None:
         while not self._stopping:
+            if self._new_cfg is not None:
+                self._apply_new_cfg()
             if self._line is None:
                 self._reopen()
                 continue
@@ -115,6 +164,8 @@ class SerialSlave(threading.Thread):
         if route is None:
             self._counters.other_addresses += 1
             self._reply_to = adu
+            if self.trace.active:
+                self._tracer.ignored(adu)
             return
         self._reply_to = b""
         self._forward(adu, *route)
@@ -133,45 +184,94 @@ class SerialSlave(threading.Thread):
 
     def _forward(self, adu: bytes, host: str, unit: int) -> None:
         self._counters.requests += 1
+        stats = self.devices.get(adu[0])
+        stats.transactions += 1
+        if stats.upstream != (host, unit):
+            stats.upstream = (host, unit)
         if wire.isEnabledFor(logging.DEBUG):
             wire.debug("line rx %s -> %s unit %d", adu.hex(" "), host, unit)
-        deadline = time.monotonic_ns() + self._tcpto_ns
+        tracing = self.trace.active
+        if tracing:
+            server, sent = f"{host}:{self._pool.port}", []
+            self._pool.on_sent = lambda conn, tid: (
+                sent.append((conn, tid)), self._tracer.request(adu, server, conn, tid, unit))
+        received_ns = time.monotonic_ns()
+        reply, code = None, None
         try:
-            reply = self._pool.transact(host, unit, adu[1:], deadline)
+            reply = self._pool.transact(host, unit, adu[1:], received_ns + self._tcpto_ns)
         except GatewayTimeout:
             self._counters.timeouts += 1
-            reply = self._failure(adu[1], pdu.GATEWAY_TARGET_FAILED)
+            stats.timeouts += 1
+            stats.failed()
+            outcome, code = OUTCOME_TIMEOUT, pdu.GATEWAY_TARGET_FAILED
         except NoRoute:
             self._counters.unreachable += 1
-            reply = self._failure(adu[1], pdu.GATEWAY_PATH_UNAVAILABLE)
+            stats.unreachable += 1
+            stats.failed()
+            outcome, code = OUTCOME_UNREACHABLE, pdu.GATEWAY_PATH_UNAVAILABLE
         else:
-            if reply[0] & pdu.EXCEPTION_FLAG:
+            exception = reply[0] & pdu.EXCEPTION_FLAG
+            if exception:
                 self._counters.device_exceptions += 1
-        if reply is None:
-            return
-        if self._port.idle_wait(self.wake_fd, 0) != IDLE_TIMEOUT:
-            self._counters.abandoned += 1       # the master moved on (or we are stopping)
-            return
-        answer = bytes((adu[0],)) + reply
-        if wire.isEnabledFor(logging.DEBUG):
-            wire.debug("line tx %s", answer.hex(" "))
-        self._framing.send(answer)
-        self._counters.replies += 1
+            latency_ms = (time.monotonic_ns() - received_ns) / 1e6
+            stats.answered(latency_ms, reply[1] if exception and len(reply) > 1 else None)
+            outcome = OUTCOME_EXCEPTION if exception else OUTCOME_REPLY
+        finally:
+            if tracing:
+                self._pool.on_sent = None
+        answer = reply if code is None else self._failure(adu[1], code, stats)
+        if answer is not None:
+            if self._answer(adu[0], answer):
+                if code is not None:
+                    outcome += f", answered 0x{code:02x}"
+            else:
+                stats.abandoned += 1
+                outcome += ", abandoned: the master moved on"
+        if tracing:
+            self._tracer.outcome(adu, server, sent[0] if sent else None, unit, reply, outcome,
+                                 None if reply is None else latency_ms)
 
-    def _failure(self, function: int, code: int) -> bytes | None:
+    def _answer(self, address: int, answer: bytes) -> bool:
+        """Write the answer on the line, unless the master has moved on (False)."""
+        while (idle := self._port.idle_wait(self.wake_fd, 0)) != IDLE_TIMEOUT:
+            if idle == IDLE_INPUT or self._stopping:
+                self._counters.abandoned += 1
+                return False
+            # woken (and the signal taken) for a new configuration: it waits for this answer
+        frame = bytes((address,)) + answer
+        if wire.isEnabledFor(logging.DEBUG):
+            wire.debug("line tx %s", frame.hex(" "))
+        self._framing.send(frame)
+        self._counters.replies += 1
+        return True
+
+    def _failure(self, function: int, code: int, stats) -> bytes | None:
         if not self._cfg.exception:
             return None
         self._counters.gateway_exceptions += 1
+        stats.gateway_exception(code)
         return pdu.exception_pdu(function, code)
 
     def _broadcast(self, adu: bytes) -> None:
-        self._counters.broadcasts += 1
-        deadline = time.monotonic_ns() + self._tcpto_ns
-        reached = self._pool.send_all(self._table.destinations, pdu.BROADCAST, adu[1:],
-                                      deadline)
-        if reached < len(self._table.destinations):
-            log.debug("broadcast reached %d of %d servers", reached,
-                      len(self._table.destinations))
+        destinations = self._table.destinations
+        if self.trace.active:
+            port = self._pool.port
+            self._pool.on_sent = lambda conn, tid: self._tracer.request(
+                adu, f"{conn.host}:{port}", conn, tid, pdu.BROADCAST)
+        try:
+            reached = self._pool.send_all(destinations, pdu.BROADCAST, adu[1:],
+                                          time.monotonic_ns() + self._tcpto_ns)
+        finally:
+            self._pool.on_sent = None
+        self._counters.broadcasts += 1        # counted once sent: its transaction is over
+        stats = self.devices.get(pdu.BROADCAST)
+        stats.transactions += 1
+        stats.broadcasts += 1
+        if reached < len(destinations):
+            log.debug("broadcast reached %d of %d servers", reached, len(destinations))
+        if self.trace.active:
+            self._tracer.outcome(adu, None, None, pdu.BROADCAST, None,
+                                 f"broadcast: {reached} of {len(destinations)} servers", None)
 
     # --- the device ---
 
@@ -182,15 +282,20 @@ class SerialSlave(threading.Thread):
         self._reply_to = b""
 
     def _reopen(self) -> None:
+        """Until the device opens again, the gateway stops, or a new configuration comes."""
         delay = REOPEN_FIRST_S
-        while not self._stopping:
-            if select.select([self.wake_fd], [], [], delay)[0]:
-                return                          # stopping
+        # a lost device gets a pause first, new settings are tried at once
+        wait, self._reopen_now = (0 if self._reopen_now else delay), False
+        while not self._stopping and self._new_cfg is None:
+            if wait and select.select([self.wake_fd], [], [], wait)[0]:
+                drain(self.wake_fd)                 # stopping, or a new configuration
+                continue
             try:
                 line = SerialLine(self._cfg.serial)
             except SerialError as err:
                 log.debug("reopen failed: %s", err)
                 delay = min(delay * 2, REOPEN_MAX_S)
+                wait = delay
                 continue
             self._attach(line)
             log.info("serial device %s is back", self._cfg.serial.device)

@@ -119,5 +119,11 @@ class SlaveIdTable:
         """(server IP, unit id) for a serial address; None when no range holds it."""
         return self._routes[address]
 
+    def __eq__(self, other) -> bool:
+        return isinstance(other, SlaveIdTable) and self.ranges == other.ranges
+
+    def __hash__(self) -> int:
+        return hash(self.ranges)
+
     def __str__(self) -> str:
         return ", ".join(str(r) for r in self.ranges) or "empty"

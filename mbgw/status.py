@@ -1,4 +1,6 @@
-"""What the running slave-mode daemon reports through the control socket."""
+"""What the running daemon reports through the control socket: the commands both modes share
+(stats reset, trace) and slave mode's status and client close.  Master mode's are in
+mbgw.master_status."""
 import asyncio
 import json
 import logging
@@ -10,17 +12,16 @@ from mbgw import __version__
 log = logging.getLogger("mbgw.control")
 
 
-class SlaveStatus:
-    """The control commands of slave mode, over the daemon's live objects."""
+class DaemonStatus:
+    """The control commands of a mode, over the daemon's live objects.  A mode adds status()
+    and close(), and gives the counters, the device table and the trace hub."""
+    mode = ""
 
-    def __init__(self, cfg, server, worker, scheduler, counters, devices, addresses) -> None:
-        self.cfg = cfg
-        self._server = server
-        self._worker = worker
-        self._scheduler = scheduler
+    def __init__(self, cfg, counters, devices, trace) -> None:
+        self.cfg = cfg                   # the running configuration (replaced by a reload)
         self._counters = counters
         self._devices = devices
-        self._addresses = addresses
+        self._trace = trace
         self._started = time.time()
         self._started_mono = time.monotonic()
         self._reset_at = self._started
@@ -30,18 +31,79 @@ class SlaveStatus:
                 "trace": self.trace}
 
     def status(self, request: dict) -> dict:
-        now, mono = time.time(), time.monotonic()
+        raise NotImplementedError
+
+    def close(self, request: dict) -> dict:
+        raise NotImplementedError
+
+    def _common(self) -> dict:
+        """What every mode's status starts with."""
         s = self.cfg.serial
+        return {"mode": self.mode, "version": __version__, "pid": os.getpid(),
+                "started": self._started,
+                "uptime_s": round(time.monotonic() - self._started_mono, 3),
+                "serial": {"device": s.device, "protocol": s.protocol, "baudrate": s.baudrate,
+                           "format": str(s.format), "interface": str(s.interface)}}
+
+    def trace_header(self) -> dict:
+        """The first line of a trace stream."""
+        return {"mode": self.mode}
+
+    def reset(self, request: dict) -> dict:
+        self._counters.reset()
+        self._devices.reset()
+        self._reset_at = time.time()
+        log.info("counters reset by the operator (uid %s)", request.get("uid"))
+        return {"ok": True}
+
+    async def trace(self, request: dict, reader: asyncio.StreamReader,
+                    writer: asyncio.StreamWriter) -> None:
+        hub = self._trace
+        queue = hub.subscribe()
+        log.info("trace started (uid %s)", request.get("uid"))
+        gone = asyncio.ensure_future(reader.read())   # the client closing ends the trace
+        try:
+            writer.write(json.dumps(self.trace_header()).encode() + b"\n")
+            while not gone.done():
+                getter = asyncio.ensure_future(queue.get())
+                await asyncio.wait({getter, gone}, return_when=asyncio.FIRST_COMPLETED)
+                if not getter.done():
+                    getter.cancel()
+                    break
+                writer.write(json.dumps(getter.result()).encode() + b"\n")
+                await writer.drain()
+        except ConnectionError:
+            pass
+        finally:
+            gone.cancel()
+            dropped = hub.unsubscribe(queue)
+            log.info("trace ended%s", f"; {dropped} events dropped for a slow reader"
+                     if dropped else "")
+
+
+class SlaveStatus(DaemonStatus):
+    """Slave mode: TCP clients, the queue, the serial slaves."""
+    mode = "slave"
+
+    def __init__(self, cfg, server, worker, scheduler, counters, devices, addresses) -> None:
+        super().__init__(cfg, counters, devices, server.trace)
+        self._server = server
+        self._worker = worker
+        self._scheduler = scheduler
+        self._addresses = addresses
+
+    def trace_header(self) -> dict:
+        return {"mode": self.mode, "listening": self._addresses}
+
+    def status(self, request: dict) -> dict:
+        now, mono = time.time(), time.monotonic()
         counters = self._counters.snapshot()
-        uptime = mono - self._started_mono
         busy_s = counters.pop("line_busy_ns") / 1e9
+        data = self._common()
+        data["serial"].update(stout_ms=self.cfg.serial.stout_ms,
+                              state="up" if self._worker.up else "down")
         return {
-            "mode": "slave", "version": __version__, "pid": os.getpid(),
-            "started": self._started, "uptime_s": round(uptime, 3),
-            "listening": self._addresses,
-            "serial": {"device": s.device, "protocol": s.protocol, "baudrate": s.baudrate,
-                       "format": str(s.format), "interface": str(s.interface),
-                       "stout_ms": s.stout_ms, "state": "up" if self._worker.up else "down"},
+            **data, "listening": self._addresses,
             "queue_depth": self._scheduler.depth,
             "clients": [{"id": c.id, "peer": c.peer, "connected_since": c.connected_at,
                          "requests": c.requests, "in_flight": c.in_flight,
@@ -60,34 +122,3 @@ class SlaveStatus:
         if self._server.close_client(client_id):
             return {"ok": True}
         return {"error": f"no client {client_id}"}
-
-    def reset(self, request: dict) -> dict:
-        self._counters.reset()
-        self._devices.reset()
-        self._reset_at = time.time()
-        log.info("counters reset by the operator (uid %s)", request.get("uid"))
-        return {"ok": True}
-
-    async def trace(self, request: dict, reader: asyncio.StreamReader,
-                    writer: asyncio.StreamWriter) -> None:
-        hub = self._server.trace
-        queue = hub.subscribe()
-        log.info("trace started (uid %s)", request.get("uid"))
-        gone = asyncio.ensure_future(reader.read())   # the client closing ends the trace
-        try:
-            writer.write(json.dumps({"listening": self._addresses}).encode() + b"\n")
-            while not gone.done():
-                getter = asyncio.ensure_future(queue.get())
-                await asyncio.wait({getter, gone}, return_when=asyncio.FIRST_COMPLETED)
-                if not getter.done():
-                    getter.cancel()
-                    break
-                writer.write(json.dumps(getter.result()).encode() + b"\n")
-                await writer.drain()
-        except ConnectionError:
-            pass
-        finally:
-            gone.cancel()
-            dropped = hub.unsubscribe(queue)
-            log.info("trace ended%s", f"; {dropped} events dropped for a slow reader"
-                     if dropped else "")

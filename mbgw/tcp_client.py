@@ -8,7 +8,9 @@ found before the request is sent and reopened; connecting counts against the dea
 
 Everything runs on the serial line's thread: the master sends one request at a time, so a
 thread hop would only add latency.  The sockets are non-blocking and every wait is one
-poll() that the line's eventfd also wakes, so stopping never waits for tcpto.
+poll() that the line's eventfd also wakes, so stopping never waits for tcpto (a wake for a
+new configuration does not interrupt the transaction: it is applied after it).  The status
+reads connections() from the asyncio thread.
 """
 import errno
 import logging
@@ -34,7 +36,8 @@ class Interrupted(MbgwError):
 
 
 class Connection:
-    __slots__ = ("host", "sock", "poller", "buf", "tid")
+    __slots__ = ("host", "sock", "poller", "buf", "tid", "local", "connected_at",
+                 "last_active", "requests", "units")
 
     def __init__(self, host: str, sock: socket.socket, poller) -> None:
         self.host = host
@@ -42,6 +45,12 @@ class Connection:
         self.poller = poller
         self.buf = bytearray()
         self.tid = 0
+        local = sock.getsockname()
+        self.local = f"{local[0]}:{local[1]}"      # mbgw's end
+        self.connected_at = time.time()
+        self.last_active = time.monotonic()
+        self.requests = 0
+        self.units: set[int] = set()              # the unit ids it has carried requests for
 
     def next_tid(self) -> int:
         self.tid = (self.tid + 1) & TID_MASK
@@ -58,6 +67,41 @@ class UpstreamPool:
         self._failing: set[str] = set()     # servers whose last connection attempt failed
         self._chunk = bytearray(RECV_SIZE)
         self._view = memoryview(self._chunk)
+        self.stopping = False     # set before the eventfd is signalled to stop
+        self.on_sent = None       # (conn, tid) after each request went out; for the trace
+
+    @property
+    def port(self) -> int:
+        return self._port
+
+    def reconfigure(self, port: int, limit: int) -> None:
+        """New settings, on the line's thread between transactions: another port closes
+        every connection; a lower limit closes the least recently used ones over it."""
+        if port != self._port:
+            self.close()
+            self._failing.clear()
+            self._port = port
+        self._limit = limit
+        while len(self._open) > limit:
+            _, oldest = self._open.popitem(last=False)
+            oldest.sock.close()
+            self._counters.connections_evicted += 1
+
+    def connections(self) -> list[dict]:
+        """The open connections, least recently used first (from any thread)."""
+        for _ in range(3):
+            try:
+                conns = list(self._open.values())
+                break
+            except RuntimeError:      # changed by the line thread meanwhile
+                continue
+        else:
+            return []
+        now, mono = time.time(), time.monotonic()
+        return [{"server": f"{c.host}:{self._port}", "local": c.local,
+                 "connected_since": c.connected_at, "requests": c.requests,
+                 "units": sorted(c.units), "last_activity": now - (mono - c.last_active)}
+                for c in conns]
 
     def transact(self, host: str, unit: int, request: bytes, deadline_ns: int) -> bytes:
         """Send the request PDU to host's unit and return the reply PDU.  Raises GatewayTimeout
@@ -65,11 +109,14 @@ class UpstreamPool:
         after the request went out, NoRoute when host cannot be reached, Interrupted."""
         conn = self._connection(host, deadline_ns)
         tid = conn.next_tid()
-        self._send(conn, mbap.frame(tid, unit, request))
+        self._send(conn, mbap.frame(tid, unit, request), unit)
+        if self.on_sent is not None:
+            self.on_sent(conn, tid)
         while True:
             try:
                 for reply_tid, _unit, reply in mbap.split_frames(conn.buf):
                     if reply_tid == tid:
+                        conn.last_active = time.monotonic()
                         if wire.isEnabledFor(logging.DEBUG):
                             wire.debug("tcp %s rx tid=%d %s", host, tid, reply.hex(" "))
                         return reply
@@ -88,9 +135,12 @@ class UpstreamPool:
         for host in hosts:
             try:
                 conn = self._connection(host, deadline_ns)
-                self._send(conn, mbap.frame(conn.next_tid(), unit, request))
+                tid = conn.next_tid()
+                self._send(conn, mbap.frame(tid, unit, request), unit)
             except (GatewayTimeout, NoRoute):
                 continue
+            if self.on_sent is not None:
+                self.on_sent(conn, tid)
             reached += 1
         return reached
 
@@ -176,7 +226,10 @@ class UpstreamPool:
 
     # --- I/O ---
 
-    def _send(self, conn: Connection, frame: bytes) -> None:
+    def _send(self, conn: Connection, frame: bytes, unit: int) -> None:
+        conn.requests += 1
+        conn.units.add(unit)
+        conn.last_active = time.monotonic()
         if wire.isEnabledFor(logging.DEBUG):
             wire.debug("tcp %s tx %s", conn.host, frame.hex(" "))
         try:
@@ -208,12 +261,27 @@ class UpstreamPool:
 
     def _wait(self, poller, deadline_ns: int) -> None:
         """Until the socket is ready; raises GatewayTimeout at deadline_ns, Interrupted when
-        the eventfd is signalled."""
-        timeout_ms = -(-(deadline_ns - time.monotonic_ns()) // 1_000_000)
-        if timeout_ms <= 0:
-            raise GatewayTimeout()
-        events = poller.poll(timeout_ms)
-        if not events:
-            raise GatewayTimeout()
-        if any(fd == self._wake_fd for fd, _ in events):
-            raise Interrupted()
+        the eventfd is signalled to stop (another signal, a new configuration, is taken and
+        the wait goes on)."""
+        while True:
+            timeout_ms = -(-(deadline_ns - time.monotonic_ns()) // 1_000_000)
+            if timeout_ms <= 0:
+                raise GatewayTimeout()
+            events = poller.poll(timeout_ms)
+            if not events:
+                raise GatewayTimeout()
+            if not any(fd == self._wake_fd for fd, _ in events):
+                return
+            if self.stopping:
+                raise Interrupted()
+            drain(self._wake_fd)
+            if len(events) > 1:
+                return
+
+
+def drain(fd: int) -> None:
+    """Take the signal of an eventfd (non-blocking), if there is one."""
+    try:
+        os.eventfd_read(fd)
+    except BlockingIOError:
+        pass

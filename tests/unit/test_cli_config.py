@@ -336,6 +336,18 @@ def test_reloader_rereads_the_file_keeping_the_command_line(tmp_path):
         reload()
 
 
+def test_reloader_takes_a_required_option_from_the_command_line(tmp_path):
+    """The device given on the command line need not be in the file, at start or on SIGHUP."""
+    group, calls = recorder()
+    path = tmp_path / "f.toml"
+    path.write_text("[serial]\nstout = 700\n")
+    assert mbgw("master", "--config", path, "--device", "/dev/ttyS3", root=group).exit_code == 0
+    path.write_text("[serial]\nstout = 800\n")
+    assert group.reloaders[-1]() == {"mode": "master", "device": "/dev/ttyS3", "stout": 800,
+                                     "baudrate": 9600, "authip": ()}
+    assert group.commands["master"].params[0].required      # the command itself unchanged
+
+
 def test_reloader_after_run_refuses_a_change_of_mode(tmp_path):
     group, calls = recorder()
     path = tmp_path / "f.toml"

@@ -6,10 +6,10 @@ from types import SimpleNamespace
 
 import pytest
 
-from mbgw.counters import NAMES, Counters
-from mbgw.device_stats import DeviceTable
+from mbgw.counters import MASTER_NAMES, NAMES, Counters, MasterCounters
+from mbgw.device_stats import MASTER_COUNTS, DeviceTable
 from mbgw.errors import ConfigError
-from mbgw.metrics import MetricsServer, parse_address, render
+from mbgw.metrics import MetricsServer, parse_address, render, render_master
 
 
 @pytest.mark.parametrize("text, expected", [
@@ -148,6 +148,34 @@ def test_an_empty_gateway_renders_a_valid_text():
                             SimpleNamespace(clients=[]), SimpleNamespace(up=False), 0.0))
     assert found["mbgw_line_up"].samples[0].value == 0
     assert found["mbgw_device_health"].samples == []
+
+
+def test_master_mode_renders_its_own_counters_gauges_and_per_address_counts():
+    counters = MasterCounters()
+    for i, name in enumerate(MASTER_NAMES):
+        setattr(counters, name, i + 1)
+    devices = DeviceTable(MASTER_COUNTS)
+    three = devices.get(3)
+    three.transactions, three.unreachable = 2, 2
+    three.failed()
+    three.gateway_exception(0x0A)
+    slave = SimpleNamespace(up=False, connections=lambda: [{}, {}, {}])
+    found = families(render_master(counters, devices, slave, 0.0))
+    assert [s.labels["mode"] for s in found["mbgw_info"].samples] == ["master"]
+    for i, name in enumerate(MASTER_NAMES):
+        assert [s.value for s in found[f"mbgw_{name}"].samples] == [i + 1], name
+    assert found["mbgw_unreachable"].documentation.startswith("Requests whose server")
+    assert found["mbgw_requests"].documentation.startswith("Requests from the serial master")
+    assert found["mbgw_upstream_connections"].samples[0].value == 3
+    assert found["mbgw_line_up"].samples[0].value == 0
+    assert "mbgw_queue_depth" not in found and "mbgw_line_busy_seconds" not in found
+    per_address = {name[len("mbgw_device_"):] for name, f in found.items()
+                   if f.type == "counter" and f.samples and "address" in f.samples[0].labels}
+    assert per_address == set(MASTER_COUNTS) | {"exception_replies"}
+    assert samples(found["mbgw_device_unreachable"], address="3") == \
+        {("mbgw_device_unreachable_total", ()): 2}
+    assert [(s.labels["code"], s.labels["source"], s.value)
+            for s in found["mbgw_device_exception_replies"].samples] == [("0x0a", "gateway", 1)]
 
 
 # --- the HTTP server ---------------------------------------------------------------------------

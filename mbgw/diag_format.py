@@ -1,0 +1,150 @@
+"""How `mbgw status` and `mbgw trace` print what the daemon reports, in either mode."""
+import time
+
+
+def _ago(moment: float | None, now: float) -> str:
+    if moment is None:
+        return "never"
+    return f"{_duration(now - moment)} ago"
+
+
+def _duration(seconds: float) -> str:
+    seconds = max(seconds, 0)
+    if seconds < 60:
+        return f"{seconds:.1f}s"
+    minutes, secs = divmod(int(seconds), 60)
+    hours, minutes = divmod(minutes, 60)
+    days, hours = divmod(hours, 24)
+    if days:
+        return f"{days}d{hours:02d}h{minutes:02d}m"
+    if hours:
+        return f"{hours}h{minutes:02d}m"
+    return f"{minutes}m{secs:02d}s"
+
+
+def _clock(moment: float) -> str:
+    return time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(moment))
+
+
+# --- mbgw status ---------------------------------------------------------------------------
+
+def format_status(s: dict, now: float) -> str:
+    lines = [f"mbgw {s['version']}, {s['mode']} mode, pid {s['pid']}, "
+             f"up {_duration(s['uptime_s'])}"]
+    if s["mode"] == "master":
+        lines += _master_sections(s, now)
+    else:
+        lines += _slave_sections(s, now)
+    counters = s["counters"]
+    lines += ["", f"counters since {_clock(s['counters_since'])}"]
+    names = list(counters)
+    for i in range(0, len(names), 3):
+        lines.append("  " + "".join(f"{n:<28}{counters[n]:>10}   " for n in names[i:i + 3])
+                     .rstrip())
+    return "\n".join(lines)
+
+
+def _line(serial: dict) -> str:
+    return (f"serial     {serial['device']} {serial['baudrate']} {serial['format']} "
+            f"{serial['protocol']} {serial['interface']}")
+
+
+def _exceptions(d: dict) -> str:
+    exceptions = " ".join(f"{code}:{n}" for code, n in d["exceptions"].items())
+    generated = " ".join(f"{code}:{n}" for code, n in d["gateway_exceptions"].items())
+    if generated:
+        exceptions = " ".join(filter(None, (exceptions, f"(gateway {generated})")))
+    return exceptions or "-"
+
+
+def _health(d: dict, now: float) -> str:
+    return (f"  {d['address']:>4}  {d['health']:<8} {_ago(d['health_since'], now):<12} "
+            f"{_ago(d['last_success'], now):<14} {d['consecutive_failures']:>5} "
+            f"{d['transactions']:>8} {d['replies']:>8} {d['timeouts']:>8}")
+
+
+_HEALTH_COLUMNS = (f"  {'ADDR':>4}  {'HEALTH':<8} {'SINCE':<12} {'LAST SUCCESS':<14} "
+                   f"{'FAILS':>5} {'REQUESTS':>8} {'REPLIES':>8} {'TIMEOUTS':>8}")
+
+
+def _slave_sections(s: dict, now: float) -> list[str]:
+    serial = s["serial"]
+    lines = [
+        f"listening  {', '.join(s['listening'])}",
+        f"{_line(serial)}, stout {serial['stout_ms']} ms: line {serial['state']}, "
+        f"queue {s['queue_depth']}, utilisation {s['line_utilisation_pct']:.1f} %",
+        "",
+        f"clients ({len(s['clients'])})",
+    ]
+    if s["clients"]:
+        lines.append(f"  {'ID':>4}  {'PEER':<24} {'CONNECTED':<19}  {'REQUESTS':>8}  "
+                     f"{'IN FLIGHT':>9}  LAST ACTIVITY")
+        for c in s["clients"]:
+            lines.append(f"  {c['id']:>4}  {c['peer']:<24} {_clock(c['connected_since'])}  "
+                         f"{c['requests']:>8}  {c['in_flight']:>9}  "
+                         f"{_ago(c['last_activity'], now)}")
+    lines += ["", f"devices ({len(s['devices'])})"]
+    if s["devices"]:
+        lines.append(f"{_HEALTH_COLUMNS} {'CRC':>5} {'OTHER':>5}  EXCEPTIONS")
+        for d in s["devices"]:
+            other = d["invalid_frames"] + d["wrong_unit"] + d["wrong_function"] + \
+                d["late_replies"]
+            lines.append(f"{_health(d, now)} {d['crc_errors']:>5} {other:>5}  "
+                         f"{_exceptions(d)}")
+    return lines
+
+
+def _master_sections(s: dict, now: float) -> list[str]:
+    up = s["upstream"]
+    lines = [
+        f"{_line(s['serial'])}: line {s['serial']['state']}",
+        f"servers    port {up['port']}, tcpto {up['tcpto_ms']} ms, exception "
+        f"{'on' if up['exception'] else 'off'}, at most {up['max_connections']} connections",
+    ]
+    routes = [r["route"] for r in s["slaveid"]] or ["empty: every request is ignored"]
+    lines += [f"{'slaveid' if i == 0 else '':<10} {route}" for i, route in enumerate(routes)]
+    lines += ["", f"upstream connections ({len(up['connections'])})"]
+    if up["connections"]:
+        lines.append(f"  {'SERVER':<21} {'LOCAL':<21} {'CONNECTED':<19}  {'REQUESTS':>8}  "
+                     f"{'UNITS':<12} LAST ACTIVITY")
+        for c in up["connections"]:
+            units = ",".join(map(str, c["units"])) or "-"
+            lines.append(f"  {c['server']:<21} {c['local']:<21} "
+                         f"{_clock(c['connected_since'])}  {c['requests']:>8}  {units:<12} "
+                         f"{_ago(c['last_activity'], now)}")
+    lines += ["", f"devices ({len(s['devices'])})"]
+    if s["devices"]:
+        lines.append(f"{_HEALTH_COLUMNS} {'UNREACH':>7} {'ABANDON':>7}  {'SERVER':<15} "
+                     f"{'UNIT':>4}  EXCEPTIONS")
+        for d in s["devices"]:
+            host, unit = (d["upstream"]["host"], d["upstream"]["unit"]) \
+                if d.get("upstream") else ("*", 0)
+            lines.append(f"{_health(d, now)} {d['unreachable']:>7} {d['abandoned']:>7}  "
+                         f"{host:<15} {unit:>4}  {_exceptions(d)}")
+    return lines
+
+
+# --- mbgw trace ----------------------------------------------------------------------------
+
+def trace_columns(mode: str) -> str:
+    if mode == "master":
+        return (f"{'TIME':<15} {'DIRECTION':<9} {'ADDR':>4} {'SERVER':<21} {'TID':>5} "
+                f"{'UNIT':>4} {'FC':>4} {'LEN':>4}  OUTCOME")
+    return (f"{'TIME':<15} {'DIRECTION':<9} {'CLIENT':<24} {'TID':>5} {'UNIT':>4} "
+            f"{'FC':>4} {'LEN':>4}  OUTCOME")
+
+
+def format_event(e: dict) -> str:
+    stamp = time.strftime("%H:%M:%S", time.localtime(e["time"])) + \
+        f".{int(e['time'] * 1000) % 1000:03d}"
+    outcome = e["outcome"]
+    if e.get("latency_ms") is not None:
+        outcome = f"{outcome} {e['latency_ms']:.1f} ms"
+    if e.get("mode") == "master":
+        tid = "-" if e["tid"] is None else e["tid"]
+        unit = "-" if e["unit"] is None else e["unit"]
+        where = f"{e['address']:>4} {e['server'] or '-':<21}"
+    else:
+        tid, unit, where = e["tid"], e["unit"], f"{e['peer']:<24}"
+    return (f"{stamp:<15} {e['direction']:<9} {where} {tid:>5} {unit:>4} "
+            f"0x{e['function']:02x} {e['length']:>4}  {outcome}").rstrip()
