@@ -169,7 +169,7 @@ def fatal(message: str) -> None:
 
 
 # The other commands live in their own modules and register themselves on `main`.
-from mbgw import cli_master  # noqa: E402,F401  mbgw master
-from mbgw import cli_config, cli_diag  # noqa: E402
+from mbgw import cli_config, cli_diag, cli_master  # noqa: E402
+cli_master.register(main)   # master (before cli_config, which gives both modes --config)
 cli_config.register(main)   # run, check-config, config; --config on the mode commands
 cli_diag.register(main)     # status, clients, stats, trace

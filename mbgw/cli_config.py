@@ -7,6 +7,8 @@ from pathlib import Path
 import click
 
 from mbgw import config_file as cf
+from mbgw import config_keys as ck
+from mbgw import config_set, config_text
 from mbgw.errors import ConfigError, ConfigFileError
 from mbgw.toml_edit import dump_value, set_line, write_atomic
 
@@ -30,7 +32,7 @@ class Failure(click.ClickException):
 
 def register(root: click.Group) -> None:
     """Add the commands to `root`, and a --config FILE option to its mode commands."""
-    for mode in cf.MODES:
+    for mode in ck.MODES:
         command = root.commands.get(mode)
         if command is not None and not any(p.name == "config" for p in command.params):
             command.params.append(_mode_config_option())
@@ -38,11 +40,11 @@ def register(root: click.Group) -> None:
         root.add_command(command)
 
 
-def _schema(ctx: click.Context) -> cf.Schema:
+def _schema(ctx: click.Context) -> ck.Schema:
     root = ctx.find_root().command
-    if not isinstance(root, click.Group) or not any(m in root.commands for m in cf.MODES):
+    if not isinstance(root, click.Group) or not any(m in root.commands for m in ck.MODES):
         root = click.Group(commands={ctx.command.name: ctx.command})
-    return cf.Schema(root)
+    return ck.Schema(root)
 
 
 def _command_line(ctx: click.Context, *words) -> str:
@@ -54,7 +56,7 @@ def _permission_failure(ctx, path, doing: str, words) -> Failure:
                    f"sudo {_command_line(ctx, *words)}")
 
 
-def _load(ctx: click.Context, schema: cf.Schema, path: Path, words=(),
+def _load(ctx: click.Context, schema: ck.Schema, path: Path, words=(),
           exit_code: int = 1) -> cf.Settings:
     try:
         return cf.load(schema, path)
@@ -70,7 +72,7 @@ def _mode_config_option() -> click.Option:
     return click.Option(
         ["--config"], metavar="FILE", type=click.Path(dir_okay=False), envvar="MBGW_CONFIG",
         is_eager=True, expose_value=False, callback=_apply_file,
-        help=f"Take the options not given here from FILE [default: {cf.DEFAULT_PATH}, when "
+        help=f"Take the options not given here from FILE [default: {ck.DEFAULT_PATH}, when "
              f"it exists; also $MBGW_CONFIG].")
 
 
@@ -81,9 +83,9 @@ def _apply_file(ctx: click.Context, param: click.Parameter, value) -> None:
     if ctx.default_map is not None and not given:   # `mbgw run`, load_options gave the file
         return
     if value is None:
-        if not cf.DEFAULT_PATH.exists():
+        if not ck.DEFAULT_PATH.exists():
             return
-        value = cf.DEFAULT_PATH
+        value = ck.DEFAULT_PATH
     schema = _schema(ctx)
     settings = _load(ctx, schema, Path(value), exit_code=EX_CONFIG)
     ctx.default_map = {**settings.default_map(schema, ctx.command.name),
@@ -125,10 +127,10 @@ def reloader(ctx: click.Context | None = None):
 def _file_options(function):
     function = click.option(
         "-i", "--instance", metavar="NAME",
-        help=f"The file of the service instance mbgw@NAME: {cf.CONFIG_DIR}/NAME.toml.")(function)
+        help=f"The file of the service instance mbgw@NAME: {ck.CONFIG_DIR}/NAME.toml.")(function)
     return click.option(
         "--config", "config_path", metavar="FILE", envvar="MBGW_CONFIG",
-        type=click.Path(dir_okay=False, path_type=Path), default=cf.DEFAULT_PATH,
+        type=click.Path(dir_okay=False, path_type=Path), default=ck.DEFAULT_PATH,
         show_default=True, help="The configuration file (also $MBGW_CONFIG).")(function)
 
 
@@ -140,20 +142,30 @@ def _path(ctx: click.Context, config_path: Path, instance: str | None) -> Path:
     if not instance or "/" in instance or instance.startswith("."):
         raise click.BadParameter(f"{instance!r}: a name such as ttyUSB1",
                                  param_hint="'--instance'")
-    return cf.CONFIG_DIR / f"{instance}.toml"
+    return ck.CONFIG_DIR / f"{instance}.toml"
 
 
 def _file_words(ctx: click.Context, path: Path) -> list[str]:
     """The file options to repeat in a suggested command."""
-    return [] if path == cf.DEFAULT_PATH else ["--config", str(path)]
+    return [] if path == ck.DEFAULT_PATH else ["--config", str(path)]
 
 
-def _reload_hint(path: Path) -> str | None:
-    if path == cf.DEFAULT_PATH:
-        return "systemctl reload mbgw"
-    if path.parent == cf.CONFIG_DIR and path.suffix == ".toml":
-        return f"systemctl reload mbgw@{path.stem}"
-    return None
+def _say_how_to_apply(path: Path) -> None:
+    """Print the command that makes the running service take the file, when it is a
+    service's file."""
+    if path == ck.DEFAULT_PATH:
+        click.echo("apply it with: systemctl reload mbgw")
+    elif path.parent == ck.CONFIG_DIR and path.suffix == ".toml":
+        click.echo(f"apply it with: systemctl reload mbgw@{path.stem}")
+
+
+def _write(ctx, path: Path, text: str, words) -> None:
+    try:
+        write_atomic(path, text)
+    except PermissionError:
+        raise _permission_failure(ctx, path, "write", words) from None
+    except OSError as err:
+        raise Failure(f"cannot write {path}: {err.strerror or err}") from None
 
 
 # --- mbgw run, mbgw check-config ----------------------------------------------------------------
@@ -191,7 +203,7 @@ def check_config(ctx: click.Context, file: Path | None) -> None:
     accepted as on the command line, what its mode requires present.  FILE defaults to
     $MBGW_CONFIG, else /etc/mbgw/mbgw.toml."""
     import os
-    path = file or Path(os.environ.get("MBGW_CONFIG") or cf.DEFAULT_PATH)
+    path = file or Path(os.environ.get("MBGW_CONFIG") or ck.DEFAULT_PATH)
     schema = _schema(ctx)
     settings = _load(ctx, schema, path, [path])
     try:
@@ -211,26 +223,9 @@ def config() -> None:
     mbgw`."""
 
 
-def _show_lines(schema: cf.Schema, settings: cf.Settings, name: str) -> list[str]:
-    value = settings.get(schema, name)
-    if name == "authip" and isinstance(value, list):
-        return [f"{i} {a}" for i, a in enumerate(value, 1) if a != cf.NO_ADDRESS] \
-            or ["(empty: any client may connect)"]
-    key = schema.keys.get(name)
-    param = key.params[key.mode_for(settings.mode)] if key else None
-    if param is not None and param.multiple:
-        return [" ".join(map(str, v)) if isinstance(v, list) else str(v) for v in value] \
-            or ["(empty)"]
-    if isinstance(value, bool):
-        return ["on" if value else "off"]
-    if isinstance(value, list):
-        return [" ".join(map(str, value))]
-    return ["(not set)" if value is None else str(value)]
-
-
 @config.command("show")
 @_file_options
-@click.argument("group", required=False, type=click.Choice(cf.GROUPS))
+@click.argument("group", required=False, type=click.Choice(ck.GROUPS))
 @click.argument("param", required=False)
 @click.pass_context
 def show(ctx, config_path: Path, instance: str | None, group: str | None,
@@ -250,16 +245,16 @@ def show(ctx, config_path: Path, instance: str | None, group: str | None,
         if name not in schema.group_keys(group):
             raise click.BadParameter(f"{group}.{param}: unknown{schema.hint(name)}",
                                      param_hint="PARAM")
-        for line in _show_lines(schema, settings, name):
+        for line in config_set.show_lines(schema, settings, name):
             click.echo(line)
         return
-    for shown in [group] if group else cf.GROUPS:
+    for shown in [group] if group else ck.GROUPS:
         names = schema.group_keys(shown)
         if not names:
             continue
         click.echo(f"[{shown}]")
         for name in names:
-            for line in _show_lines(schema, settings, name):
+            for line in config_set.show_lines(schema, settings, name):
                 click.echo(f"{name:<{SHOW_WIDTH}} {line}")
 
 
@@ -270,7 +265,7 @@ def _change(ctx, path: Path, words, change) -> None:
     try:
         text = cf.read_text(path)
     except FileNotFoundError:
-        text = cf.factory_text(schema)
+        text = config_text.factory_text(schema)
     except PermissionError:
         raise _permission_failure(ctx, path, "read", words) from None
     try:
@@ -282,36 +277,30 @@ def _change(ctx, path: Path, words, change) -> None:
             from None
     try:
         changes = change(schema, settings, data)
-        new_data = cf.apply_changes(data, schema, changes)
+        new_data = config_set.apply_changes(data, schema, changes)
         cf.check(schema, path, new_data)
     except ConfigError as err:
         message = str(err)
         raise Failure(message if message.startswith(str(path)) else f"{path}: {message}") \
             from None
-    new_mode = changes.get(cf.MODE_KEY, settings.mode)
-    new_text = cf.edit(text, schema, new_mode, changes)
+    new_mode = changes.get(ck.MODE_KEY, settings.mode)
+    new_text = config_text.edit(text, schema, new_mode, changes)
     if tomllib.loads(new_text) != new_data:          # the editor's own check
         raise Failure(f"{path}: could not edit the file in place; nothing written")
-    try:
-        write_atomic(path, new_text)
-    except PermissionError:
-        raise _permission_failure(ctx, path, "write", words) from None
-    except OSError as err:
-        raise Failure(f"cannot write {path}: {err.strerror or err}") from None
+    _write(ctx, path, new_text, words)
     for name, value in changes.items():
-        label = schema.label(name) if name == cf.MODE_KEY or name in schema.keys else name
-        if value is cf._REMOVE:
+        label = schema.label(name) if name == ck.MODE_KEY or name in schema.keys else name
+        if value is config_set.REMOVE:
             click.echo(f"{path}: {label} back to its default")
         else:
             click.echo(f"{path}: {label} = {dump_value(value)}")
-    hint = _reload_hint(path)
-    if hint and text != new_text:
-        click.echo(f"apply it with: {hint}")
+    if text != new_text:
+        _say_how_to_apply(path)
 
 
 @config.command("set")
 @_file_options
-@click.argument("group", type=click.Choice(cf.GROUPS))
+@click.argument("group", type=click.Choice(ck.GROUPS))
 @click.argument("param")
 @click.argument("values", nargs=-1, required=True)
 @click.pass_context
@@ -331,13 +320,13 @@ def set_(ctx, config_path: Path, instance: str | None, group: str, param: str,
     path = _path(ctx, config_path, instance)
     words = [group, param, *values, *_file_words(ctx, path)]
     _change(ctx, path, words,
-            lambda schema, settings, data: cf.changes_for_set(schema, settings, group, param,
+            lambda schema, settings, data: config_set.changes_for_set(schema, settings, group, param,
                                                               list(values)))
 
 
 @config.command("unset")
 @_file_options
-@click.argument("group", type=click.Choice(cf.GROUPS))
+@click.argument("group", type=click.Choice(ck.GROUPS))
 @click.argument("param")
 @click.pass_context
 def unset(ctx, config_path: Path, instance: str | None, group: str, param: str) -> None:
@@ -345,8 +334,8 @@ def unset(ctx, config_path: Path, instance: str | None, group: str, param: str) 
     misspelt key too."""
     path = _path(ctx, config_path, instance)
     words = [group, param, *_file_words(ctx, path)]
-    if group == "serial" and param == cf.MODE_KEY:
-        _change(ctx, path, words, lambda schema, settings, data: cf.changes_for_set(
+    if group == "serial" and param == ck.MODE_KEY:
+        _change(ctx, path, words, lambda schema, settings, data: config_set.changes_for_set(
             schema, settings, group, param, [schema.default_mode]))
     else:
         _unset(ctx, path, words, group, param)
@@ -369,7 +358,7 @@ def _unset(ctx, path: Path, words, group: str, param: str) -> None:
         return
     serial = data.get("serial") if isinstance(data.get("serial"), dict) else {}
     known = param in schema.keys and schema.keys[param].group == group
-    commented = cf.default_line(schema, param, str(serial.get(cf.MODE_KEY, ""))) if known \
+    commented = config_text.default_line(schema, param, str(serial.get(ck.MODE_KEY, ""))) if known \
         else None
     new_text = set_line(text, group, param, None, commented)
     new_data = _parse(path, new_text)
@@ -384,9 +373,7 @@ def _unset(ctx, path: Path, words, group: str, param: str) -> None:
         cf.check(schema, path, new_data)
     except ConfigFileError as err:
         raise Failure(f"{err}\n(the file still has these problems)") from None
-    hint = _reload_hint(path)
-    if hint:
-        click.echo(f"apply it with: {hint}")
+    _say_how_to_apply(path)
 
 
 def _parse(path: Path, text: str) -> dict:
@@ -403,15 +390,7 @@ def default(ctx, config_path: Path, instance: str | None) -> None:
     """Write the factory defaults: the guide's `set default`.  Every key is listed with its
     help, commented out at its built-in default; the device is /dev/ttyUSB0."""
     path = _path(ctx, config_path, instance)
-    try:
-        write_atomic(path, cf.factory_text(_schema(ctx)))
-    except PermissionError:
-        raise _permission_failure(ctx, path, "write", _file_words(ctx, path)) \
-            from None
-    except OSError as err:
-        raise Failure(f"cannot write {path}: {err.strerror or err}") from None
+    _write(ctx, path, config_text.factory_text(_schema(ctx)), _file_words(ctx, path))
     click.echo(f"{path}: factory defaults written")
-    hint = _reload_hint(path)
-    if hint:
-        click.echo(f"apply it with: {hint}")
+    _say_how_to_apply(path)
 

@@ -5,15 +5,14 @@ import click
 from click.core import ParameterSource
 
 from mbgw import config
-from mbgw.cli import (_convert, _parser, _serial_config, daemon_options, fatal, main,
-                      serial_options)
+from mbgw.cli import _convert, _parser, _serial_config, daemon_options, fatal, serial_options
 from mbgw.errors import SerialError
 from mbgw.slaveid_table import MAX_RANGES, SlaveIdTable
 
 SLAVE_MODE_ONLY = ("stout", "nocheck")
 
 
-@main.command()
+@click.command()
 @serial_options
 @click.option("--slaveid", "slaveid", multiple=True, metavar='"FS LS FR M IP"',
               callback=_parser(SlaveIdTable.parse),
@@ -72,3 +71,7 @@ def master_config(device, protocol, baudrate, line_format, interface, rtsdelays,
     return _convert("'--tcpto'", lambda: config.MasterConfig(
         serial=serial, slaveid=slaveid, tcpto_ms=tcpto, mdbport=mdbport, exception=exception,
         max_connections=max_connections, control=control, metrics=metrics))
+
+
+def register(root: click.Group) -> None:
+    root.add_command(master)

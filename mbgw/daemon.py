@@ -7,6 +7,7 @@ import signal
 import socket
 import time
 
+from mbgw import mbap
 from mbgw.config import SlaveConfig
 from mbgw.control import ControlServer, default_path
 from mbgw.counters import Counters
@@ -64,7 +65,10 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     scheduler = Scheduler()
 
     def deliver(job, reply) -> None:
-        loop.call_soon_threadsafe(job.client.deliver, job, reply)
+        """Line thread: the reply goes out at once, the bookkeeping follows in the loop."""
+        if reply is not None:
+            job.client.write_now(mbap.frame(job.tid, job.unit, reply))
+        loop.call_soon_threadsafe(job.client.delivered, job, reply)
 
     worker = LineWorker(cfg, line, scheduler, counters, devices, deliver)
     server = TcpServer(cfg, scheduler, counters, lambda: worker.up)
@@ -98,12 +102,7 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
         await server.reconfigure(new)
         worker.reconfigure(new)
 
-    reload_on_sighup(loop, status, reconfigure, apply)
-    sd_notify("READY=1")
-    await stop.wait()
-    sd_notify("STOPPING=1")
-    log.info("stopping")
-    close_tools(control, metrics)
+    await serve_until_stopped(stop, status, reconfigure, apply, control, metrics)
     server.close()
     worker.stop()
     await asyncio.to_thread(worker.join)
@@ -136,6 +135,20 @@ async def start_control(path: str | None, commands: dict) -> ControlServer | Non
                     "reach this daemon", control.path, err.strerror)
         return None
     return control
+
+
+async def serve_until_stopped(stop: asyncio.Event, holder, reconfigure, apply,
+                              control: ControlServer | None,
+                              metrics: MetricsServer | None) -> None:
+    """Ready: reload on SIGHUP (see reload_on_sighup), tell systemd, wait for `stop`
+    (SIGTERM, SIGINT), then tell systemd and close the operator's tools; the mode closes its
+    own objects after."""
+    reload_on_sighup(asyncio.get_running_loop(), holder, reconfigure, apply)
+    sd_notify("READY=1")
+    await stop.wait()
+    sd_notify("STOPPING=1")
+    log.info("stopping")
+    close_tools(control, metrics)
 
 
 def close_tools(control: ControlServer | None, metrics: MetricsServer | None) -> None:

@@ -8,8 +8,7 @@ import time
 
 from mbgw.config import MasterConfig
 from mbgw.counters import MasterCounters
-from mbgw.daemon import (close_tools, log_stopped, reload_on_sighup, sd_notify, start_control,
-                         start_metrics)
+from mbgw.daemon import log_stopped, serve_until_stopped, start_control, start_metrics
 from mbgw.master_status import MasterStatus
 from mbgw.metrics import render_master
 from mbgw.serial_port import SerialLine
@@ -62,13 +61,7 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
             log.warning("the slaveid table is empty: every request on the line is ignored")
         slave.reconfigure(new)
 
-    reload_on_sighup(loop, status, reconfigure, apply)
-    sd_notify("READY=1")
-
-    await stop.wait()
-    sd_notify("STOPPING=1")
-    log.info("stopping")
-    close_tools(control, metrics)
+    await serve_until_stopped(stop, status, reconfigure, apply, control, metrics)
     slave.stop()
     await asyncio.to_thread(slave.join)
     log_stopped(counters)

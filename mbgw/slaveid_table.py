@@ -70,6 +70,13 @@ class SlaveRange:
             raise bad(f"{ip} + {span} runs past the last byte of the address")
         return cls(first, last, remote_first, bool(mode), ip)
 
+    def overlaps(self, other: "SlaveRange") -> bool:
+        return self.first <= other.last and other.first <= self.last
+
+    def line(self) -> str:
+        """The range as parse() reads it: 'fs ls fr m ip'."""
+        return f"{self.first} {self.last} {self.remote_first} {int(self.variable_ip)} {self.ip}"
+
     def route(self, address: int) -> tuple[str, int]:
         """(server IP, unit id) for a serial address of this range."""
         offset = address - self.first
@@ -99,7 +106,7 @@ class SlaveIdTable:
             elif len(ranges) == MAX_RANGES:
                 raise ConfigError(f"slaveid: at most {MAX_RANGES} ranges (FS=0 clears the table)")
             for other in ranges:
-                if other.first <= entry.last and entry.first <= other.last:
+                if other.overlaps(entry):
                     raise ConfigError(f"slaveid: addresses {entry.first}..{entry.last} overlap "
                                       f"the range {other.first}..{other.last}")
             ranges.append(entry)

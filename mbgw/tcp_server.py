@@ -8,7 +8,9 @@ import asyncio
 import dataclasses
 import itertools
 import logging
+import os
 import socket
+import threading
 import time
 
 from mbgw import mbap, pdu
@@ -41,6 +43,12 @@ class Client(asyncio.Protocol):
         self.last_active = time.monotonic()
         self._buf = bytearray()
         self._paused = False
+        self._fd = -1
+        self._loop: asyncio.AbstractEventLoop | None = None
+        # Replies are written straight from the line thread when nothing else is waiting to
+        # go out; otherwise through the loop, in order.  The lock covers both.
+        self._write_lock = threading.Lock()
+        self._queued_writes = 0
 
     def connection_made(self, transport) -> None:
         host = self.host = transport.get_extra_info("peername")[0]
@@ -50,13 +58,16 @@ class Client(asyncio.Protocol):
             transport.abort()
             return
         self.transport = transport
+        self._loop = asyncio.get_running_loop()
         sock = transport.get_extra_info("socket")
         if sock is not None:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
+            self._fd = sock.fileno()
 
     def connection_lost(self, exc) -> None:
-        if self.transport is not None:
-            self.transport = None
+        with self._write_lock:
+            transport, self.transport = self.transport, None
+        if transport is not None:
             self._server.forget(self)
 
     def data_received(self, data: bytes) -> None:
@@ -80,10 +91,46 @@ class Client(asyncio.Protocol):
     def submitted(self) -> None:
         self.in_flight += 1
 
-    def deliver(self, job: Job, reply: bytes | None) -> None:
-        """The line's outcome for job (runs in the loop thread)."""
+    def write_now(self, frame: bytes) -> None:
+        """Line thread: put a reply on the socket at once, sparing it a trip through the
+        event loop (the loop wakes later for the bookkeeping: delivered())."""
+        with self._write_lock:
+            if self.transport is None:
+                return
+            if not self._queued_writes and self.transport.get_write_buffer_size() == 0:
+                try:
+                    sent = os.write(self._fd, frame)
+                except BlockingIOError:
+                    sent = 0
+                except OSError:
+                    return                     # the loop sees the broken connection
+                if sent == len(frame):
+                    return
+                frame = frame[sent:]
+            self._queued_writes += 1
+            self._loop.call_soon_threadsafe(self._write_queued, frame)
+
+    def _write_queued(self, frame: bytes) -> None:
+        with self._write_lock:
+            self._queued_writes -= 1
+            if self.transport is not None:
+                self.transport.write(frame)
+
+    def _write(self, frame: bytes) -> None:
+        """Loop thread: behind whatever the line thread queued."""
+        with self._write_lock:
+            if self._queued_writes:
+                self._queued_writes += 1
+                self._loop.call_soon(self._write_queued, frame)
+            elif self.transport is not None:
+                self.transport.write(frame)
+
+    def delivered(self, job: Job, reply: bytes | None) -> None:
+        """Bookkeeping after the line's outcome for job went out (runs in the loop thread)."""
         self.in_flight -= 1
-        self.send(job.tid, job.unit, reply)
+        if reply is not None and self.transport is not None:
+            self._server.counters.replies += 1
+            self.last_active = time.monotonic()
         if self._server.trace.active:
             self._server.traced(self, job.tid, job.unit, job.adu[1], reply, job.outcome,
                                 job.received_ns)
@@ -93,7 +140,7 @@ class Client(asyncio.Protocol):
 
     def send(self, tid: int, unit: int, reply: bytes | None) -> None:
         if reply is not None and self.transport is not None:
-            self.transport.write(mbap.frame(tid, unit, reply))
+            self._write(mbap.frame(tid, unit, reply))
             self._server.counters.replies += 1
             self.last_active = time.monotonic()
 

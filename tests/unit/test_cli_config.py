@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from mbgw import cli_config
-from mbgw import config_file as cf
+from mbgw import config_keys
 from mbgw import toml_edit
 from mbgw.cli import main
 from mbgw.errors import ConfigError
@@ -214,7 +214,7 @@ def test_default_restores_the_factory_file(conf):
 
 
 def test_instance_files_live_in_the_config_dir(tmp_path, monkeypatch):
-    monkeypatch.setattr(cf, "CONFIG_DIR", tmp_path)
+    monkeypatch.setattr(config_keys, "CONFIG_DIR", tmp_path)
     result = mbgw("config", "set", "-i", "ttyUSB1", "serial", "device", "/dev/ttyUSB1")
     assert result.exit_code == 0, result.output
     assert values(tmp_path / "ttyUSB1.toml")["serial"]["device"] == "/dev/ttyUSB1"
@@ -360,7 +360,7 @@ def test_reloader_after_run_refuses_a_change_of_mode(tmp_path):
 
 
 def test_no_reloader_without_a_file(tmp_path, monkeypatch):
-    monkeypatch.setattr(cf, "DEFAULT_PATH", tmp_path / "absent.toml")
+    monkeypatch.setattr(config_keys, "DEFAULT_PATH", tmp_path / "absent.toml")
     group, calls = recorder()
     result = mbgw("slave", "--device", "/dev/ttyS1", root=group, MBGW_CONFIG=None)
     assert result.exit_code == 0, result.output

@@ -1,6 +1,7 @@
-"""The configuration file (mbgw.config_file, mbgw.toml_edit): keys derived from the commands,
-checks naming file, key and reason, the ACKSYS `set` semantics, text edits that keep comments,
-the atomic write.  The guide is /work/shared/seeds/000 (ACKSYS MODBUS TCP user guide A.5)."""
+"""The configuration file (mbgw.config_keys, config_file, config_values, config_set,
+config_text, toml_edit): keys derived from the commands, checks naming file, key and reason,
+the ACKSYS `set` semantics, text edits that keep comments, the atomic write.  The guide is
+/work/shared/seeds/000 (ACKSYS MODBUS TCP user guide A.5)."""
 import os
 import re
 import stat
@@ -10,17 +11,19 @@ import click
 import pytest
 
 from mbgw import config_file as cf
+from mbgw import config_keys, config_set, config_text
 from mbgw import toml_edit
 from mbgw.cli import main, serial_options
 from mbgw.config import LineFormat
 from mbgw.errors import ConfigError, ConfigFileError
+from mbgw.slaveid_table import SlaveRange
 
 GUIDE_SLAVEID = ["1 8 1 0 192.168.0.30", "9 16 0 1 192.168.20.0", "17 24 31 1 192.168.50.0"]
 
 
 @pytest.fixture
-def schema() -> cf.Schema:
-    return cf.Schema(main)
+def schema() -> config_keys.Schema:
+    return config_keys.Schema(main)
 
 
 def write(tmp_path, text: str, name: str = "mbgw.toml"):
@@ -66,10 +69,10 @@ def test_a_new_option_is_a_new_key_with_nothing_to_list():
     @click.option("--frobnicate-ms", type=click.IntRange(0, 9), default=3)
     def slave(**_):
         pass
-    schema = cf.Schema(click.Group("g", commands={"slave": slave}))
+    schema = config_keys.Schema(click.Group("g", commands={"slave": slave}))
     assert schema.keys["frobnicate-ms"].group == "general"
     assert schema.keys["silence"].group == "serial"
-    assert "# frobnicate-ms = 3" in cf.factory_text(schema)
+    assert "# frobnicate-ms = 3" in config_text.factory_text(schema)
 
 
 def test_every_serial_option_is_in_serial(schema):
@@ -87,12 +90,12 @@ def test_master_keys_join_the_slave_keys(schema):
 # --- the factory file (what the package installs as /etc/mbgw/mbgw.toml) ------------------
 
 def test_factory_file_is_valid_and_lists_every_key(schema, tmp_path):
-    text = cf.factory_text(schema)
+    text = config_text.factory_text(schema)
     settings = cf.check(schema, tmp_path / "f.toml", tomllib.loads(text))
     assert settings.mode == "slave"
-    assert settings.values == {"device": cf.FACTORY_DEVICE}
+    assert settings.values == {"device": config_keys.FACTORY_DEVICE}
     options = cf.resolve(schema, settings)
-    assert options["device"] == cf.FACTORY_DEVICE and options["stout"] == 600
+    assert options["device"] == config_keys.FACTORY_DEVICE and options["stout"] == 600
     lines = text.splitlines()
     for name in schema.keys:
         assert any(line.startswith((f"{name} =", f"# {name} =")) for line in lines), name
@@ -227,9 +230,9 @@ def settings_of(schema, text: str = "", tmp_path=None) -> cf.Settings:
 def do_set(schema, text, group, name, *words):
     """`set GROUP PARAM WORDS` on a file text: the new file's values, checked."""
     data = tomllib.loads(text)
-    changes = cf.changes_for_set(schema, cf.check(schema, "f", data), group, name, list(words))
-    new_data = cf.apply_changes(data, schema, changes)
-    new_text = cf.edit(text, schema, changes.get("mode", "slave"), changes)
+    changes = config_set.changes_for_set(schema, cf.check(schema, "f", data), group, name, list(words))
+    new_data = config_set.apply_changes(data, schema, changes)
+    new_text = config_text.edit(text, schema, changes.get("mode", "slave"), changes)
     assert tomllib.loads(new_text) == new_data
     return cf.check(schema, "f", new_data).values, new_text
 
@@ -317,7 +320,7 @@ def test_slaveid_table_the_guides_three_examples(schema):
     for entry in GUIDE_SLAVEID:
         values, text = do_set(schema, text, "net", "slaveid", *entry.split())
     assert values["slaveid"] == GUIDE_SLAVEID
-    ranges = [cf.SlaveRange.parse(e) for e in values["slaveid"]]
+    ranges = [SlaveRange.parse(e) for e in values["slaveid"]]
     assert [(r.first, r.last, r.remote_first, r.variable_ip, str(r.ip)) for r in ranges] == [
         (1, 8, 1, False, "192.168.0.30"), (9, 16, 0, True, "192.168.20.0"),
         (17, 24, 31, True, "192.168.50.0")]
