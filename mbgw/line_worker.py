@@ -121,7 +121,9 @@ class LineWorker(threading.Thread):
         port = self._master.framing.port
         try:
             if port.idle_wait(self._scheduler.wake_fd, -1) == 1:
+                # one frame without a request: whatever comes until the line is quiet again
                 unsolicited = port.wait_quiet(time.monotonic_ns(), self._cfg.serial.t35_us)
+                self._counters.unsolicited_frames += 1
                 self._counters.unsolicited_bytes += unsolicited
                 self._counters.bytes_received += unsolicited
         except SerialError as err:

@@ -33,8 +33,8 @@ _COUNTER_HELP = {
     "wrong_function": "Serial replies with another function or size than the request asked.",
     "late_replies": "Serial replies that arrived after the slave timeout (stout).",
     "late_bytes": "Bytes received on the line before a request could go out (late replies).",
-    "unsolicited_bytes": "Bytes received on the idle line, without a request "
-                         "(frame received without request).",
+    "unsolicited_frames": "Frames received on the idle line, without a request.",
+    "unsolicited_bytes": "Bytes received on the idle line, without a request.",
     "broadcasts": "Broadcast requests (unit 0) sent on the line.",
     "unroutable": "Requests for a unit that is no serial address (248..255), not sent.",
     "line_down_rejects": "Requests refused because the serial device was down.",

@@ -233,7 +233,7 @@ def test_late_reply_is_never_taken_for_the_next_requests_answer(line, gateway, c
     # A's reply, arriving during B's wait, is counted as unit 3's late reply
     assert_counters(gw, requests=3, replies=3 if exception else 1, timeouts=2,
                     gateway_exceptions=2 if exception else 0, late_replies=1,
-                    unsolicited_bytes=len(rtu(3, holding_reply(10, 5))))
+                    unsolicited_frames=1, unsolicited_bytes=len(rtu(3, holding_reply(10, 5))))
 
 
 def test_late_reply_during_the_turnaround_counts_as_late_bytes(line, gateway, client):
