@@ -213,7 +213,7 @@ class TcpServer:
             victim.transport = None
         self.counters.connections_accepted += 1
         self.clients.append(client)
-        log.info("client %s connected", client.peer)
+        log.debug("client %s connected", client.peer)
         return True
 
     def close_client(self, client_id: int) -> bool:
@@ -229,7 +229,7 @@ class TcpServer:
         if client in self.clients:
             self.clients.remove(client)
             self._scheduler.discard(client.queue)
-            log.info("client %s disconnected", client.peer)
+            log.debug("client %s disconnected", client.peer)
 
     def _log_refusal(self, host: str) -> None:
         now = time.monotonic()
