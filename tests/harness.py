@@ -71,9 +71,13 @@ class PtyPair:
              f"pty,raw,echo=0,link={self.device}"],
             stderr=subprocess.PIPE, text=True)
         # socat logs "starting data transfer loop" once both ptys and links exist
-        _read_lines_until(self.proc, self.proc.stderr,
-                          lambda ls: any("starting data transfer loop" in l for l in ls),
-                          READY_TIMEOUT_S)
+        try:
+            _read_lines_until(self.proc, self.proc.stderr,
+                              lambda ls: any("starting data transfer loop" in l for l in ls),
+                              READY_TIMEOUT_S)
+        except BaseException:
+            self.stop()
+            raise
 
     def stop(self) -> None:
         stop(self.proc)
@@ -150,3 +154,19 @@ def reachable_by_others(path: Path = CHECKOUT):
     finally:
         for directory, mode in changed:
             os.chmod(directory, stat.S_IMODE(mode))
+
+
+def logged_counters(line: str) -> dict[str, int]:
+    """The counters of a gateway's "... stopped; counters: name=value ..." log line."""
+    words = line.split("stopped; counters:", 1)[1].split()
+    return {k: int(v) for k, v in (w.split("=") for w in words)}
+
+
+def stop_counters(gw: Gateway) -> dict[str, int]:
+    """Stop the gateway (it must exit 0) and return the counters of its one 'stopped' log
+    line."""
+    assert gw.stop() == 0, gw.log_path.read_text()
+    text = gw.log_path.read_text()
+    lines = [l for l in text.splitlines() if "stopped; counters:" in l]
+    assert len(lines) == 1, text
+    return logged_counters(lines[0])

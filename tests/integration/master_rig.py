@@ -5,24 +5,18 @@ master's end of the line as a raw fd, and the operator's commands over the contr
 Readiness is always an event: a server's READY, the gateway's READY=1, a frame back on the
 line, a log line, or a condition on the daemon's own status (polled over the control socket
 where the daemon does something on its own after the last event a test can see)."""
-import json
 import os
-import subprocess
-import sys
-import time
 
 import pytest
 
-from tests.harness import Gateway, Peer, free_port
+from tests.harness import Gateway, Peer, free_port, stop_counters
 from tests.integration.test_master import (BAUD, REPLY_S, holding_reply, identity,
                                            read_holding, recv, rtu)
-from mbgw import control
+from tests.ops import mbgw, status, wait_for, wait_for_log
 
 __all__ = ["BAUD", "REPLY_S", "holding_reply", "identity", "read_holding", "recv", "rtu",
            "servers_at", "start_master", "line", "ask", "unanswered", "mbgw", "status", "wait_for",
            "wait_for_log", "stop_counters"]
-
-CONDITION_TIMEOUT_S = 5.0
 
 
 @pytest.fixture
@@ -47,19 +41,12 @@ def servers_at():
 
 
 @pytest.fixture
-def start_master(tmp_path, pty_pair):
+def start_master(pty_pair, start_gateway):
     """start_master(*options) -> a ready `mbgw master` on the pty at BAUD; stopped after."""
-    started = []
-
     def start(*options: str) -> Gateway:
-        gw = Gateway(tmp_path, pty_pair.gateway, "--baudrate", BAUD, *options, mode="master",
-                     listen=False)
-        started.append(gw)
-        return gw
-
-    yield start
-    for gw in started:
-        gw.stop()
+        return start_gateway(pty_pair.gateway, "--baudrate", BAUD, *options, mode="master",
+                             listen=False)
+    return start
 
 
 @pytest.fixture
@@ -84,43 +71,3 @@ def unanswered(fd: int, *frames: bytes, then: bytes, expected: bytes) -> None:
     """The requests get no answer: the request `then`, written right behind them, gets its
     answer `expected` first."""
     ask(fd, *frames, then, expected=expected)
-
-
-def mbgw(*args: str, timeout: float = 15) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "mbgw", *args], capture_output=True,
-                          text=True, timeout=timeout)
-
-
-def status(gw) -> dict:
-    """`mbgw status --json`, as an operator runs it."""
-    result = mbgw("status", "--json", "--control", gw.control)
-    assert result.returncode == 0, result.stderr
-    return json.loads(result.stdout)
-
-
-def wait_for(gw, condition, what: str) -> dict:
-    """The daemon's status once condition(status) holds."""
-    deadline = time.monotonic() + CONDITION_TIMEOUT_S
-    while True:
-        s = control.call(gw.control, {"command": "status"})
-        if condition(s):
-            return s
-        assert time.monotonic() < deadline, f"never {what}: {s}"
-        time.sleep(0.02)
-
-
-def wait_for_log(gw, text: str, count: int = 1) -> str:
-    deadline = time.monotonic() + CONDITION_TIMEOUT_S
-    while (log := gw.log()).count(text) < count:
-        assert time.monotonic() < deadline, f"no {text!r} in the log:\n{log}"
-        time.sleep(0.02)
-    return log
-
-
-def stop_counters(gw) -> dict[str, int]:
-    """Stop the gateway; the counters it logs at stop."""
-    assert gw.stop() == 0, gw.log_path.read_text()
-    text = gw.log_path.read_text()
-    lines = [l for l in text.splitlines() if "stopped; counters:" in l]
-    assert len(lines) == 1, text
-    return {k: int(v) for k, v in (w.split("=") for w in lines[0].split("counters:")[1].split())}

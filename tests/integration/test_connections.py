@@ -8,37 +8,16 @@ import socket
 import struct
 import subprocess
 import sys
-import time
 
 import pytest
 
 from tests import harness
+from tests.modbus import mbap as adu, recv_adu
 
 pytestmark = pytest.mark.integration
 
 REPLY_TIMEOUT_S = 3.0
 CLOSED_WITHIN_S = 0.5     # a refused or evicted connection must see EOF/reset within this
-
-
-def adu(tid: int, unit: int, pdu: bytes) -> bytes:
-    return struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu
-
-
-def recv_exact(sock: socket.socket, n: int, timeout: float = REPLY_TIMEOUT_S) -> bytes:
-    deadline = time.monotonic() + timeout
-    data = b""
-    while len(data) < n:
-        sock.settimeout(max(deadline - time.monotonic(), 0.001))
-        chunk = sock.recv(n - len(data))
-        if not chunk:
-            raise ConnectionError(f"EOF after {data.hex(' ')!r}")
-        data += chunk
-    return data
-
-
-def recv_adu(sock: socket.socket, timeout: float = REPLY_TIMEOUT_S) -> bytes:
-    header = recv_exact(sock, 6, timeout)
-    return header + recv_exact(sock, struct.unpack(">H", header[4:6])[0], timeout)
 
 
 READ_3 = bytes.fromhex("03 0000 0003")

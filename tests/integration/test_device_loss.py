@@ -11,16 +11,13 @@ import time
 
 import pytest
 
+from tests.modbus import mbap as adu
 
 pytestmark = pytest.mark.integration
 
 STOUT_S = 1.0
 PROMPT_S = 0.3            # "promptly": well before stout
 RECOVERY_S = 8.0          # the gateway retries the device with backoff (0.5 s, then doubling)
-
-
-def adu(tid: int, unit: int, pdu: bytes) -> bytes:
-    return struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu
 
 
 def recv_adu(sock: socket.socket, timeout: float) -> bytes:

@@ -8,6 +8,7 @@ pcap by Debian's tshark.  Clients are raw sockets with hand-built MBAP frames, e
 for its own reply (or, with --exception, the gateway's 0x0B after stout): a reply is the event
 that says the transaction is over and counted.
 """
+import functools
 import json
 import os
 import pwd
@@ -16,7 +17,6 @@ import shutil
 import socket
 import stat
 import subprocess
-import sys
 import tempfile
 import time
 import urllib.error
@@ -24,88 +24,31 @@ import urllib.request
 
 import pytest
 
-from mbgw import control
 from mbgw.device_stats import COUNTS, LATENCY_BUCKETS_MS
-from tests.harness import CHECKOUT, _read_lines_until, free_port, reachable_by_others
-from tests.integration.test_faults import (Client, holding_reply, mbap, read_holding, rtu,
-                                           stop_counters)
+from tests.harness import free_port, stop_counters
+from tests.modbus import Client, holding_reply, mbap, read_holding, rtu
+from tests.ops import (devices, health_log, mbgw, metric_families, metric_value, status,
+                       tracing, tshark_warnings, wait_for)
 
 pytestmark = pytest.mark.integration
 
 STOUT_MS = 200
-CONDITION_TIMEOUT_S = 5.0       # for what the daemon does on its own after a reply
 
 
 @pytest.fixture
-def rig(pty_pair, start_peer, start_gateway, tmp_path):
+def rig(pty_pair, recording_peer, start_gateway):
     """rig(*gateway_options, peer=(...)) -> a ready gateway (stout 200 ms, 38400 bit/s) with
     the fault slave on its line."""
     def start(*options: str, peer=()):
-        start_peer("fault_slave.py", pty_pair.device, "--record", str(tmp_path / "record.txt"),
-                   *peer)
+        recording_peer("fault_slave.py", *peer)
         return start_gateway(pty_pair.gateway, "--baudrate", "38400", "--stout", str(STOUT_MS),
                              *options)
     return start
 
 
-@pytest.fixture
-def client():
-    clients = []
-
-    def connect(gw) -> Client:
-        c = Client(gw.port)
-        clients.append(c)
-        return c
-
-    yield connect
-    for c in clients:
-        c.close()
-
-
-def mbgw(*args: str, user: str | None = None, groups: str | None = None,
-         timeout: float = 15) -> subprocess.CompletedProcess:
-    """`python -m mbgw ARGS`; as user (with these supplementary groups) when asked."""
-    command = [sys.executable, "-m", "mbgw", *args]
-    if user is None:
-        return subprocess.run(command, capture_output=True, text=True, timeout=timeout)
-    command = ["setpriv", f"--reuid={user}", "--regid=nogroup",
-               f"--groups={groups}" if groups else "--clear-groups", *command]
-    with reachable_by_others():
-        return subprocess.run(command, capture_output=True, text=True, timeout=timeout,
-                              cwd=CHECKOUT)
-
-
-def status(gw) -> dict:
-    result = mbgw("status", "--json", "--control", gw.control)
-    assert result.returncode == 0, result.stderr
-    return json.loads(result.stdout)
-
-
-def devices(s: dict) -> dict[int, dict]:
-    return {d["address"]: d for d in s["devices"]}
-
-
 def counts(device: dict) -> dict[str, int]:
     """The device's non-zero counters."""
     return {name: device[name] for name in COUNTS if device[name]}
-
-
-def wait_for(gw, condition, what: str) -> dict:
-    """The daemon's status once condition(status) holds (it is polled over the control socket,
-    in process: the daemon does this on its own, after the reply that was the last event)."""
-    deadline = time.monotonic() + CONDITION_TIMEOUT_S
-    while True:
-        s = control.call(gw.control, {"command": "status"})
-        if condition(s):
-            return s
-        assert time.monotonic() < deadline, f"never {what}: {s}"
-        time.sleep(0.02)
-
-
-def health_log(gw, address: int) -> list[str]:
-    """The health states the daemon logged for this address, in order."""
-    pattern = re.compile(rf"mbgw\.devices: device {address} is (up|degraded|down)\b")
-    return [m.group(1) for m in map(pattern.search, gw.log().splitlines()) if m]
 
 
 def peer_of(c: Client) -> str:
@@ -405,16 +348,8 @@ def test_metrics_are_the_status_figures_for_prometheus(rig, client):
     code, content_type, text = scrape(port)
     s = status(gw)
     assert code == 200 and content_type == "text/plain; version=0.0.4; charset=utf-8"
-    families = {f.name: f for f in parser.text_string_to_metric_families(text)}
-    for f in families.values():
-        assert f.documentation and f.type in ("counter", "gauge", "histogram"), f.name
-
-    def value(metric: str, sample: str | None = None, **labels) -> float:
-        found = [x.value for x in families[metric].samples
-                 if x.name == (sample or metric) and
-                 all(x.labels.get(k) == str(v) for k, v in labels.items())]
-        assert len(found) == 1, (metric, labels, found)
-        return found[0]
+    families = metric_families(parser, text)
+    value = functools.partial(metric_value, families)
 
     for name, n in s["counters"].items():
         assert value(f"mbgw_{name}", f"mbgw_{name}_total") == n, name
@@ -488,12 +423,7 @@ def test_trace_shows_the_traffic_and_writes_a_pcap_that_tshark_decodes(rig, clie
         pytest.fail("tshark is missing (scripts/setup.sh installs it)")
     gw = rig()
     pcap = tmp_path / "trace.pcap"
-    trace = subprocess.Popen([sys.executable, "-m", "mbgw", "trace", "--pcap", str(pcap),
-                              "--count", "10", "--control", gw.control],
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    try:
-        # the column header comes once the daemon has taken the subscription
-        header = _read_lines_until(trace, trace.stdout, lambda ls: len(ls) >= 1, 10)
+    with tracing(gw, pcap, count=10) as (trace, header):
         assert header[0].split() == ["TIME", "DIRECTION", "CLIENT", "TID", "UNIT", "FC", "LEN",
                                      "OUTCOME"]
         c = client(gw)
@@ -505,10 +435,6 @@ def test_trace_shows_the_traffic_and_writes_a_pcap_that_tshark_decodes(rig, clie
         c.send(mbap(0x4444, 2, read_holding(0, 1)), mbap(0x5555, 1, b"\x04\x00\x00\x00\x01"))
         assert c.recv() == (0x5555, 1, b"\x04\x02\x03\xe8")
         out, err = trace.communicate(timeout=10)
-    finally:
-        if trace.poll() is None:
-            trace.kill()
-            trace.wait()
     assert trace.returncode == 0, err
     me = peer_of(c)
     events = []
@@ -548,9 +474,7 @@ def test_trace_shows_the_traffic_and_writes_a_pcap_that_tshark_decodes(rig, clie
         (*r, 0x5555, 1, 4, "", "Response"),
     ]
     # no malformed or unreassembled segment anywhere
-    expert = subprocess.run(["tshark", "-r", str(pcap), "-o", f"mbtcp.tcp.port:{gw.port}",
-                             "-Y", "_ws.malformed || _ws.expert.severity >= warning"],
-                            capture_output=True, text=True, timeout=60)
+    expert = tshark_warnings(pcap, gw.port)
     assert expert.returncode == 0 and expert.stdout == "", expert.stdout
     # the daemon noticed the trace end (the client closed its end after 10 events)
     wait_for(gw, lambda s: "trace ended" in gw.log(), "ended the trace")

@@ -6,7 +6,7 @@ behind the faulty one whenever it can: the line serves a client's requests in or
 first reply to arrive must be unit 1's.  Each test ends by stopping the gateway and checking
 the counters it logs at stop.
 """
-import importlib.util
+import functools
 import os
 import signal
 import socket
@@ -18,18 +18,15 @@ from pathlib import Path
 
 import pytest
 
-from tests.harness import PEERS, READY_TIMEOUT_S, free_port, stop
+from tests.harness import READY_TIMEOUT_S, free_port, stop, stop_counters
+from tests.modbus import holding_reply, mbap, read_holding, rtu
+from tests.peers import fault_slave
 
 pytestmark = pytest.mark.integration
-
-_spec = importlib.util.spec_from_file_location("fault_slave", PEERS / "fault_slave.py")
-fault_slave = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(fault_slave)
 
 STOUT_MS = 200
 STOUT_S = STOUT_MS / 1000
 NO_REPLY_S = STOUT_S + 0.15         # long enough for a reply that would come at stout
-REPLY_S = 3.0                       # a reply that is due never takes this long
 VENDOR_FC = fault_slave.VENDOR_FC   # ICP DAS FC 108, sub-function 07: read range code
 VENDOR_REQUEST = bytes((VENDOR_FC, 0x07, 0x01, 0x00))
 
@@ -39,70 +36,10 @@ CHECKED = ("requests", "replies", "device_exceptions", "gateway_exceptions", "ti
            "late_replies", "late_bytes", "broadcasts", "unroutable", "line_down_rejects")
 
 
-def mbap(tid: int, unit: int, pdu: bytes) -> bytes:
-    return struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu
-
-
-def read_holding(start: int, count: int) -> bytes:
-    return struct.pack(">BHH", 0x03, start, count)
-
-
-def holding_reply(start: int, count: int) -> bytes:
-    return bytes((0x03, 2 * count)) + b"".join(struct.pack(">H", 1000 + start + i)
-                                                for i in range(count))
-
-
-def rtu(address: int, pdu: bytes) -> bytes:
-    return fault_slave.adu(address, pdu)
-
-
-class Client:
-    def __init__(self, port: int) -> None:
-        self.sock = socket.create_connection(("127.0.0.1", port), timeout=REPLY_S)
-
-    def send(self, *frames: bytes) -> None:
-        self.sock.sendall(b"".join(frames))
-
-    def _exactly(self, n: int) -> bytes:
-        data = b""
-        while len(data) < n:
-            chunk = self.sock.recv(n - len(data))
-            if not chunk:
-                raise ConnectionError(f"connection closed after {data.hex(' ')!r}")
-            data += chunk
-        return data
-
-    def recv_raw(self, timeout: float = REPLY_S) -> bytes | None:
-        """One whole MBAP frame, or None when nothing starts arriving within timeout."""
-        self.sock.settimeout(timeout)
-        try:
-            header = self._exactly(6)
-        except socket.timeout:
-            return None
-        self.sock.settimeout(REPLY_S)
-        return header + self._exactly(struct.unpack(">H", header[4:6])[0])
-
-    def recv(self, timeout: float = REPLY_S) -> tuple[int, int, bytes] | None:
-        """(tid, unit, pdu), or None when no reply came within timeout."""
-        frame = self.recv_raw(timeout)
-        if frame is None:
-            return None
-        tid, protocol, length, unit = struct.unpack(">HHHB", frame[:7])
-        assert protocol == 0 and length == len(frame) - 6, frame.hex(" ")
-        return tid, unit, frame[7:]
-
-    def close(self) -> None:
-        self.sock.close()
-
-
 @pytest.fixture
-def line(pty_pair, start_peer, tmp_path):
+def line(recording_peer):
     """line(*peer_options) -> the path of the peer's record; the peer is ready."""
-    def start(*options: str):
-        record = tmp_path / "record.txt"
-        start_peer("fault_slave.py", pty_pair.device, "--record", str(record), *options)
-        return record
-    return start
+    return functools.partial(recording_peer, "fault_slave.py")
 
 
 @pytest.fixture
@@ -115,20 +52,6 @@ def gateway(pty_pair, start_gateway):
     return start
 
 
-@pytest.fixture
-def client():
-    clients = []
-
-    def connect(gw) -> Client:
-        c = Client(gw.port)
-        clients.append(c)
-        return c
-
-    yield connect
-    for c in clients:
-        c.close()
-
-
 def received(record) -> list[tuple[float, bytes]]:
     """(arrival time, frame) for every frame the slave received, in order."""
     frames = []
@@ -138,15 +61,6 @@ def received(record) -> list[tuple[float, bytes]]:
             assert kind == "rx", f"the slave got a broken frame: {line}"
             frames.append((float(when), bytes.fromhex(data)))
     return frames
-
-
-def stop_counters(gw) -> dict[str, int]:
-    """Stop the gateway and return the counters of its 'stopped' log line."""
-    assert gw.stop() == 0
-    lines = [l for l in gw.log_path.read_text().splitlines() if "stopped; counters:" in l]
-    assert len(lines) == 1, gw.log_path.read_text()
-    pairs = lines[0].split("stopped; counters:", 1)[1].split()
-    return {k: int(v) for k, v in (p.split("=") for p in pairs)}
 
 
 def assert_counters(gw, **expected: int) -> dict[str, int]:

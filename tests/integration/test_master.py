@@ -20,7 +20,8 @@ from pymodbus.framer import FramerType
 
 from mbgw import native
 from tests import harness
-from tests.harness import Gateway, Peer, free_port
+from tests.harness import Gateway, Peer, free_port, logged_counters
+from tests.modbus import rtu_frame as rtu
 
 pytestmark = pytest.mark.integration
 
@@ -127,8 +128,7 @@ def counters(gw: Gateway) -> dict[str, int]:
     code = gw.stop()
     log = gw.log_path.read_text()
     assert code == 0, log
-    line = next(l for l in log.splitlines() if "stopped; counters:" in l)
-    return {k: int(v) for k, v in (w.split("=") for w in line.split("counters:")[1].split())}
+    return logged_counters(next(l for l in log.splitlines() if "stopped; counters:" in l))
 
 
 @pytest.fixture
@@ -156,10 +156,6 @@ def serial_client(pty_pair):
 
 
 # ---- frames ----
-
-def rtu(adu: bytes) -> bytes:
-    return adu + struct.pack("<H", native.crc16(adu))
-
 
 def read_holding(address: int, start: int = 0, count: int = 3) -> bytes:
     return struct.pack(">BBHH", address, 0x03, start, count)

@@ -4,21 +4,23 @@ pty (raw RTU frames written by the test) and pymodbus Modbus TCP servers on loop
 that answers, one that accepts connections and never answers, one address where nobody
 listens.  Each request's answer on the line is the event that says it is over; what the
 daemon does after writing it (counting the reply) is waited for on its own status."""
+import functools
 import os
 import re
 import shutil
 import subprocess
-import sys
 import time
 import urllib.request
 
 import pytest
 
 from mbgw.device_stats import LATENCY_BUCKETS_MS, MASTER_COUNTS
-from tests.harness import _read_lines_until, free_port
+from tests.harness import free_port
 from tests.integration.master_rig import (ask, holding_reply, identity, line, mbgw,  # noqa: F401
                                           read_holding, rtu, servers_at, start_master,
                                           status, stop_counters, unanswered, wait_for)
+from tests.ops import (devices, health_log, metric_families, metric_value, tracing,
+                       tshark_warnings)
 
 pytestmark = pytest.mark.integration
 
@@ -68,17 +70,8 @@ def every_outcome(gw, fd: int) -> dict:
                     s["counters"]["replies"] == 6, "counted the broadcast and the replies")
 
 
-def devices(s: dict) -> dict[int, dict]:
-    return {d["address"]: d for d in s["devices"]}
-
-
 def counts(device: dict) -> dict[str, int]:
     return {name: device[name] for name in MASTER_COUNTS if device[name]}
-
-
-def health_log(gw, address: int) -> list[str]:
-    pattern = re.compile(rf"mbgw\.devices: device {address} is (up|degraded|down)\b")
-    return [m.group(1) for m in map(pattern.search, gw.log().splitlines()) if m]
 
 
 # --- status ---------------------------------------------------------------------------------
@@ -238,20 +231,11 @@ def test_trace_shows_both_sides_and_writes_a_pcap_that_tshark_decodes(rig, line,
         pytest.fail("tshark is missing (scripts/setup.sh installs it)")
     gw, port = rig()
     pcap = tmp_path / "trace.pcap"
-    trace = subprocess.Popen([sys.executable, "-m", "mbgw", "trace", "--pcap", str(pcap),
-                              "--count", "15", "--control", gw.control],
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    try:
-        # the column header comes once the daemon has taken the subscription
-        header = _read_lines_until(trace, trace.stdout, lambda ls: len(ls) >= 1, 10)
+    with tracing(gw, pcap, count=15) as (trace, header):
         assert header[0].split() == ["TIME", "DIRECTION", "ADDR", "SERVER", "TID", "UNIT",
                                      "FC", "LEN", "OUTCOME"]
         every_outcome(gw, line)
         out, err = trace.communicate(timeout=10)
-    finally:
-        if trace.poll() is None:
-            trace.kill()
-            trace.wait()
     assert trace.returncode == 0, err
     events = []
     for text in out.decode().splitlines():
@@ -298,9 +282,7 @@ def test_trace_shows_both_sides_and_writes_a_pcap_that_tshark_decodes(rig, line,
         (ok, 4, 2, 3, "", "Query"), ("mbgw", 4, 2, 3, "", "Response"),
         (ok, 5, 0, 6, "", "Query"), (mute, 2, 0, 6, "", "Query"),
     ]
-    expert = subprocess.run(["tshark", "-r", str(pcap), "-o", f"mbtcp.tcp.port:{port}",
-                             "-Y", "_ws.malformed || _ws.expert.severity >= warning"],
-                            capture_output=True, text=True, timeout=60)
+    expert = tshark_warnings(pcap, port)
     assert expert.returncode == 0 and expert.stdout == "", expert.stdout
     wait_for(gw, lambda s: "trace ended" in gw.log(), "ended the trace")
 
@@ -318,16 +300,8 @@ def test_metrics_are_the_status_figures_for_prometheus(rig, line):
         assert r.status == 200
         text = r.read().decode()
     s = status(gw)
-    families = {f.name: f for f in parser.text_string_to_metric_families(text)}
-    for f in families.values():
-        assert f.documentation and f.type in ("counter", "gauge", "histogram"), f.name
-
-    def value(metric: str, sample: str | None = None, **labels) -> float:
-        found = [x.value for x in families[metric].samples
-                 if x.name == (sample or metric) and
-                 all(x.labels.get(k) == str(v) for k, v in labels.items())]
-        assert len(found) == 1, (metric, labels, found)
-        return found[0]
+    families = metric_families(parser, text)
+    value = functools.partial(metric_value, families)
 
     assert value("mbgw_info", mode="master") == 1
     assert set(s["counters"]) >= {"unreachable", "other_addresses", "abandoned"}

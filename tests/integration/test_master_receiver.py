@@ -2,7 +2,6 @@
 pty pair: the test writes what a serial master and the other slaves of the bus would, often
 several frames in one write, and checks the frames come out one by one, unchanged."""
 import os
-import struct
 import threading
 import time
 
@@ -10,15 +9,12 @@ import pytest
 
 from mbgw import native
 from mbgw.errors import ChecksumError, FrameError, SerialError
+from tests.modbus import rtu_frame as rtu
 
 pytestmark = pytest.mark.integration
 
 GAP_US = 20_000         # end-of-frame silence; a pty delivers each write whole, well within it
 OTHER = 50              # a slave on the bus that mbgw does not stand for
-
-
-def rtu(adu: bytes) -> bytes:
-    return adu + struct.pack("<H", native.crc16(adu))
 
 
 READ_17 = bytes.fromhex("11 03 006b 0003")

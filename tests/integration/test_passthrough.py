@@ -18,6 +18,7 @@ import time
 import pytest
 from pymodbus.client import ModbusTcpClient
 
+from tests.modbus import crc16, mbap as adu, recv_adu
 from tests.peers.pymodbus_slave import IDENTITY
 
 pytestmark = pytest.mark.integration
@@ -27,29 +28,6 @@ NO_REPLY_S = 0.5          # how long "no reply" is awaited
 
 
 # ---- raw Modbus TCP, written from the TCP guide (3.1.3), independent of mbgw.mbap ----
-
-def adu(tid: int, unit: int, pdu: bytes) -> bytes:
-    return struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu
-
-
-def recv_exact(sock: socket.socket, n: int, timeout: float = REPLY_TIMEOUT_S) -> bytes:
-    deadline = time.monotonic() + timeout
-    data = b""
-    while len(data) < n:
-        sock.settimeout(max(deadline - time.monotonic(), 0.001))
-        chunk = sock.recv(n - len(data))
-        if not chunk:
-            raise ConnectionError(f"EOF after {data.hex(' ')!r}")
-        data += chunk
-    return data
-
-
-def recv_adu(sock: socket.socket, timeout: float = REPLY_TIMEOUT_S) -> bytes:
-    """One whole MBAP frame (header included)."""
-    header = recv_exact(sock, 6, timeout)
-    (length,) = struct.unpack(">H", header[4:6])
-    return header + recv_exact(sock, length, timeout)
-
 
 def transact(sock: socket.socket, tid: int, unit: int, pdu: bytes) -> bytes:
     """Send one request and return the reply PDU, checking the MBAP header of the reply."""
@@ -66,16 +44,6 @@ def registers(*values: int) -> bytes:
 
 def read_registers_reply(function: int, first: int, count: int, base: int) -> bytes:
     return bytes((function, 2 * count)) + registers(*range(base + first, base + first + count))
-
-
-def crc16(frame: bytes) -> bytes:
-    """Modbus RTU CRC (Serial Line V1.02, 6.2.2), low byte first."""
-    crc = 0xFFFF
-    for byte in frame:
-        crc ^= byte
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return crc.to_bytes(2, "little")
 
 
 def device_identification(read_code: int, object_ids) -> bytes:

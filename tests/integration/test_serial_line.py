@@ -5,19 +5,19 @@ Peers: pymodbus's ASCII and RTU servers (tests/peers/pymodbus_ascii_slave.py,
 pymodbus_slave.py: holding register n holds 100 + n) and a scripted slave that shapes its
 replies on the wire (tests/peers/paced_slave.py: holding register n holds 1000 + n; what each
 address does is listed there).  The clients are pymodbus, mbpoll and raw sockets with MBAP
-frames built here, so the assertions are on exact bytes.  Readiness is an event (READY lines,
-sd_notify); "no reply" is made an event too: with --exception the gateway answers 0x0B.
+frames built by tests/modbus.py, so the assertions are on exact bytes.  Readiness is an event
+(READY lines, sd_notify); "no reply" is made an event too: with --exception the gateway
+answers 0x0B.
 """
 import fcntl
+import functools
 import os
 import re
-import selectors
 import socket
 import struct
 import subprocess
 import sys
 import termios
-import time
 
 import pytest
 from pymodbus.client import ModbusTcpClient
@@ -29,7 +29,8 @@ from mbgw.errors import LineTimeout
 from mbgw.framing import framing_for
 from mbgw.serial_master import SerialMaster
 from mbgw.serial_port import SerialLine
-from tests.harness import READY_TIMEOUT_S, PtyPair
+from tests.harness import READY_TIMEOUT_S, stop_counters
+from tests.modbus import holding_reply, read_holding
 
 pytestmark = pytest.mark.integration
 
@@ -40,83 +41,7 @@ VENDOR_DATA = bytes(range(0xA0, 0xA0 + 20))
 TARGET_FAILED = 0x0B
 
 
-# --- wire helpers, from the specs, independent of mbgw -----------------------------------------
-
-def mbap(tid: int, unit: int, pdu: bytes) -> bytes:
-    return struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu
-
-
-def read_holding(start: int, count: int) -> bytes:
-    return struct.pack(">BHH", 0x03, start, count)
-
-
-def holding_reply(start: int, count: int) -> bytes:
-    """paced_slave: holding register i holds 1000 + i."""
-    return bytes((0x03, 2 * count)) + b"".join(struct.pack(">H", 1000 + start + i)
-                                                for i in range(count))
-
-
-class Client:
-    def __init__(self, port: int) -> None:
-        self.sock = socket.create_connection(("127.0.0.1", port), timeout=REPLY_S)
-        self.tid = 0
-
-    def _exactly(self, n: int) -> bytes:
-        data = b""
-        while len(data) < n:
-            chunk = self.sock.recv(n - len(data))
-            if not chunk:
-                raise ConnectionError(f"connection closed after {data.hex(' ')!r}")
-            data += chunk
-        return data
-
-    def ask(self, unit: int, pdu: bytes) -> bytes:
-        """Send one request and return the reply PDU, checking the MBAP header."""
-        self.tid += 1
-        self.sock.sendall(mbap(self.tid, unit, pdu))
-        header = self._exactly(7)
-        tid, protocol, length, got_unit = struct.unpack(">HHHB", header)
-        assert (tid, protocol, got_unit) == (self.tid, 0, unit), header.hex(" ")
-        return self._exactly(length - 1)
-
-    def close(self) -> None:
-        self.sock.close()
-
-
 # --- fixtures ---------------------------------------------------------------------------------
-
-class _PtyPair(PtyPair):
-    """harness.PtyPair reading socat's stderr through the raw fd (as test_faults.py does):
-    the harness's buffered readline can miss "starting data transfer loop"."""
-
-    def start(self) -> None:
-        self.proc = subprocess.Popen(
-            ["socat", "-d", "-d", f"pty,raw,echo=0,link={self.gateway}",
-             f"pty,raw,echo=0,link={self.device}"], stderr=subprocess.PIPE)
-        fd, said = self.proc.stderr.fileno(), b""
-        deadline = time.monotonic() + READY_TIMEOUT_S
-        try:
-            with selectors.DefaultSelector() as sel:
-                sel.register(fd, selectors.EVENT_READ)
-                while b"starting data transfer loop" not in said:
-                    left = deadline - time.monotonic()
-                    if left <= 0 or not sel.select(left):
-                        raise TimeoutError(f"socat not ready; said: {said!r}")
-                    chunk = os.read(fd, 4096)
-                    if not chunk:
-                        raise RuntimeError(f"socat exited ({self.proc.wait()}): {said!r}")
-                    said += chunk
-        except BaseException:
-            self.stop()
-            raise
-
-
-@pytest.fixture
-def pty_pair(tmp_path):
-    pair = _PtyPair(tmp_path)
-    yield pair
-    pair.stop()
-
 
 @pytest.fixture
 def gateway(pty_pair, start_gateway, tmp_path):
@@ -143,36 +68,15 @@ def gateway(pty_pair, start_gateway, tmp_path):
 
 
 @pytest.fixture
-def paced(pty_pair, start_peer, tmp_path):
+def paced(recording_peer):
     """paced(*options) -> the path of paced_slave's record of what it received."""
-    def start(*options: str):
-        record = tmp_path / "record.txt"
-        start_peer("paced_slave.py", pty_pair.device, "--record", str(record), *options)
-        return record
-    return start
+    return functools.partial(recording_peer, "paced_slave.py")
 
 
 @pytest.fixture
-def client():
-    clients = []
-
-    def connect(gw) -> Client:
-        c = Client(gw.port)
-        clients.append(c)
-        return c
-
-    yield connect
-    for c in clients:
-        c.close()
-
-
-def stop_counters(gw) -> dict[str, int]:
-    """Stop the gateway and return the counters of its 'stopped' log line."""
-    assert gw.stop() == 0, gw.log()
-    lines = [l for l in gw.log_path.read_text().splitlines() if "stopped; counters:" in l]
-    assert len(lines) == 1, gw.log_path.read_text()
-    pairs = lines[0].split("stopped; counters:", 1)[1].split()
-    return {k: int(v) for k, v in (p.split("=") for p in pairs)}
+def client(client):
+    """conftest's client, with this module's REPLY_S."""
+    return functools.partial(client, timeout=REPLY_S)
 
 
 def recorded(record) -> list[bytes]:

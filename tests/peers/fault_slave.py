@@ -26,47 +26,24 @@ anything else exception 01.
 Requests are framed by length for the function codes whose request length is fixed by the
 spec (01..06, 0F, 10, and 0x6C sub-functions 07/08), otherwise by 3 ms of silence.  Every frame
 received is written to --record as "<time.monotonic()> rx <hex>" (bad ones as "rx-bad"), and
-every frame sent as "<time> tx <hex>", one line each, flushed at once.  The CRC here is our own
-table-driven CRC-16/MODBUS, independent of mbgw's.
+every frame sent as "<time> tx <hex>", one line each, flushed at once.  The CRC is wire.py's
+own table-driven CRC-16/MODBUS, independent of mbgw's.
 """
 import argparse
 import heapq
 import os
 import select
 import sys
-import termios
 import time
-import tty
 
-
-def _crc_table() -> list[int]:
-    table = []
-    for byte in range(256):
-        crc = byte
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-        table.append(crc)
-    return table
-
-
-_TABLE = _crc_table()
-
-
-def crc16(data: bytes) -> bytes:
-    """CRC-16/MODBUS of data, as the two bytes sent on the wire (low byte first)."""
-    crc = 0xFFFF
-    for b in data:
-        crc = (crc >> 8) ^ _TABLE[(crc ^ b) & 0xFF]
-    return bytes((crc & 0xFF, crc >> 8))
-
-
-# Published vector (Modbus over Serial Line V1.02 and countless examples): 11 03 00 6B 00 03
-assert crc16(bytes.fromhex("11 03 00 6B 00 03")) == bytes.fromhex("76 87")
-assert crc16(bytes.fromhex("01 03 00 00 00 01")) == bytes.fromhex("84 0A")
+if __package__:     # imported by a test as tests.peers.fault_slave
+    from .wire import crc16, open_pty, open_record, reply_pdu, rtu, rtu_request_length, serve
+else:               # run as a script: its directory is on sys.path
+    from wire import crc16, open_pty, open_record, reply_pdu, rtu, rtu_request_length, serve
 
 
 def adu(address: int, pdu: bytes) -> bytes:
-    return bytes((address,)) + pdu + crc16(bytes((address,)) + pdu)
+    return rtu(bytes((address,)) + pdu)
 
 
 VENDOR_FC = 0x6C
@@ -78,33 +55,16 @@ PARTIAL_S = 0.050       # a length-known frame not completed within this is drop
 
 def request_length(buf: bytes) -> int | None:
     """Total ADU length (CRC included), 0 when more bytes are needed, None if unknown."""
-    if len(buf) < 2:
-        return 0
-    fc = buf[1]
-    if fc in (0x01, 0x02, 0x03, 0x04, 0x05, 0x06):
-        return 8
-    if fc in (0x0F, 0x10):
-        return 0 if len(buf) < 7 else 9 + buf[6]
-    if fc == VENDOR_FC:
+    if len(buf) >= 2 and buf[1] == VENDOR_FC:
         if len(buf) < 3:
             return 0
         return {0x07: 7, 0x08: 8}.get(buf[2])
-    return None
+    return rtu_request_length(buf)
 
 
 def normal_reply(address: int, pdu: bytes) -> bytes:
     """The reply PDU of a well-behaved slave."""
-    fc = pdu[0]
-    if fc in (0x03, 0x04) and len(pdu) == 5:
-        start = int.from_bytes(pdu[1:3], "big")
-        count = int.from_bytes(pdu[3:5], "big")
-        data = b"".join((1000 + start + i).to_bytes(2, "big") for i in range(count))
-        return bytes((fc, len(data))) + data
-    if fc == 0x06 and len(pdu) == 5:
-        return pdu
-    if fc == VENDOR_FC:
-        return VENDOR_REPLY
-    return bytes((fc | 0x80, 0x01))
+    return reply_pdu(pdu, VENDOR_FC, VENDOR_REPLY)
 
 
 class Slave:
@@ -220,19 +180,11 @@ def main() -> None:
     parser.add_argument("--foreign-pause-ms", type=float, default=5)
     parser.add_argument("--mute-first", type=int, default=3)
     args = parser.parse_args()
-    fd = os.open(args.device, os.O_RDWR | os.O_NOCTTY)
-    tty.setraw(fd, termios.TCSANOW)
-    os.set_blocking(fd, False)
-    record = open(args.record, "w", buffering=1) if args.record else None
-    print("READY", flush=True)
-    try:
-        Slave(fd, record, args.late_ms / 1000, args.garbage, args.garbage_pause_ms / 1000,
-              args.foreign_pause_ms / 1000, args.mute_first).run()
-    except KeyboardInterrupt:
-        pass
-    finally:
-        if record:
-            record.close()
+    fd = open_pty(args.device)
+    record = open_record(args.record)
+    slave = Slave(fd, record, args.late_ms / 1000, args.garbage, args.garbage_pause_ms / 1000,
+                  args.foreign_pause_ms / 1000, args.mute_first)
+    serve(slave.run, record)
 
 
 if __name__ == "__main__":

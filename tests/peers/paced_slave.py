@@ -31,73 +31,30 @@ ASCII (--ascii; requests framed by ':' .. CR LF)
   10  a 515-character frame (the shortest too long), then the reply, in one write
 
 Every request received is written to --record as "rx <hex of the raw bytes>", one line each,
-flushed at once.  The CRC and LRC here are computed bit by bit, independently of mbgw's.
+flushed at once.  The CRC and LRC are wire.py's own, independent of mbgw's.
 """
 import argparse
 import os
 import select
 import sys
-import termios
 import time
-import tty
+
+if __package__:     # imported by a test as tests.peers.paced_slave
+    from .wire import (crc16, lrc, open_pty, open_record, reply_pdu, rtu, rtu_request_length,
+                       serve)
+else:               # run as a script: its directory is on sys.path
+    from wire import (crc16, lrc, open_pty, open_record, reply_pdu, rtu, rtu_request_length,
+                      serve)
 
 VENDOR_FC = 0x41
 VENDOR_DATA = bytes(range(0xA0, 0xA0 + 20))
+VENDOR_REPLY = bytes((VENDOR_FC,)) + VENDOR_DATA
 SILENCE_S = 0.003            # ends a request whose length the peer cannot tell
-
-
-def crc16(data: bytes) -> bytes:
-    """CRC-16/MODBUS as the two bytes sent on the wire (low byte first), bit by bit."""
-    crc = 0xFFFF
-    for b in data:
-        crc ^= b
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return bytes((crc & 0xFF, crc >> 8))
-
-
-def lrc(data: bytes) -> int:
-    return -sum(data) & 0xFF
-
-
-# Published vectors: Modbus over Serial Line V1.02 (11 03 00 6B 00 03: CRC 76 87, LRC 7E)
-assert crc16(bytes.fromhex("11 03 00 6B 00 03")) == bytes.fromhex("76 87")
-assert lrc(bytes.fromhex("11 03 00 6B 00 03")) == 0x7E
-
-
-def rtu(body: bytes) -> bytes:
-    return body + crc16(body)
 
 
 def ascii_frame(body: bytes, lower: bool = False) -> bytes:
     text = (body + bytes((lrc(body),))).hex()
     return b":" + (text if lower else text.upper()).encode() + b"\r\n"
-
-
-def reply_pdu(pdu: bytes) -> bytes:
-    fc = pdu[0]
-    if fc in (0x03, 0x04) and len(pdu) == 5:
-        start = int.from_bytes(pdu[1:3], "big")
-        count = int.from_bytes(pdu[3:5], "big")
-        data = b"".join((1000 + start + i).to_bytes(2, "big") for i in range(count))
-        return bytes((fc, len(data))) + data
-    if fc == 0x06 and len(pdu) == 5:
-        return pdu
-    if fc == VENDOR_FC:
-        return bytes((VENDOR_FC,)) + VENDOR_DATA
-    return bytes((fc | 0x80, 0x01))
-
-
-def rtu_request_length(buf: bytes) -> int | None:
-    """Total ADU length (CRC included), 0 when more bytes are needed, None if unknown."""
-    if len(buf) < 2:
-        return 0
-    fc = buf[1]
-    if fc in (0x01, 0x02, 0x03, 0x04, 0x05, 0x06):
-        return 8
-    if fc in (0x0F, 0x10):
-        return 0 if len(buf) < 7 else 9 + buf[6]
-    return None
 
 
 class Slave:
@@ -154,7 +111,7 @@ class Slave:
             address, pdu = raw[0], raw[1:-2]
             if address == 0:
                 continue
-            reply = rtu(bytes((address,)) + reply_pdu(pdu))
+            reply = rtu(bytes((address,)) + reply_pdu(pdu, VENDOR_FC, VENDOR_REPLY))
             if address == 2:
                 half = len(reply) // 2
                 self.write(reply[:half], reply[half:])
@@ -196,7 +153,7 @@ class Slave:
             address, pdu = body[0], body[1:-1]
             if address == 0:
                 continue
-            adu = bytes((address,)) + reply_pdu(pdu)
+            adu = bytes((address,)) + reply_pdu(pdu, VENDOR_FC, VENDOR_REPLY)
             reply = ascii_frame(adu)
             if address == 2:
                 bad = (lrc(adu) + 1) & 0xFF
@@ -229,19 +186,11 @@ def main() -> None:
     parser.add_argument("--gap-ms", type=float, default=10.0)
     parser.add_argument("--record", default=None)
     args = parser.parse_args()
-    fd = os.open(args.device, os.O_RDWR | os.O_NOCTTY)
-    tty.setraw(fd, termios.TCSANOW)
-    os.set_blocking(fd, False)
-    record = open(args.record, "w", buffering=1) if args.record else None
+    fd = open_pty(args.device)
+    record = open_record(args.record)
     slave = Slave(fd, args.gap_ms / 1000, record)
-    print("READY", flush=True)
-    try:
-        slave.serve_ascii() if args.ascii else slave.serve_rtu()
-    except (KeyboardInterrupt, EOFError):
-        pass
-    finally:
-        if record:
-            record.close()
+    serve(slave.serve_ascii if args.ascii else slave.serve_rtu, record,
+          ends=(KeyboardInterrupt, EOFError))
 
 
 if __name__ == "__main__":
