@@ -42,9 +42,12 @@ class LineWorker(threading.Thread):
         self._master: SerialMaster | None = self._master_on(line)
         self.up = True                 # read by the asyncio thread to fail fast while down
 
-    def _master_on(self, line: SerialLine) -> SerialMaster:
-        return SerialMaster(framing_for(line), self._cfg.serial, self._counters, self.devices,
-                            self._cfg.retries, self._cfg.turnaround_ms)
+    def _master_on(self, line: SerialLine, previous: SerialMaster | None = None) -> SerialMaster:
+        master = SerialMaster(framing_for(line), self._cfg.serial, self._counters, self.devices,
+                              self._cfg.retries, self._cfg.turnaround_ms)
+        if previous is not None:
+            master.keep_line_state(previous)
+        return master
 
     def stop(self) -> None:
         self._stopping = True
@@ -70,7 +73,7 @@ class LineWorker(threading.Thread):
             self._master = None
             log.info("serial line settings changed: reopening %s", cfg.serial.device)
         else:
-            self._master = self._master_on(self._master.framing.line)
+            self._master = self._master_on(self._master.framing.line, self._master)
 
     def run(self) -> None:
         line_thread_init()

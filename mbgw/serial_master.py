@@ -32,6 +32,13 @@ class SerialMaster:
         self._quiet_from_ns = 0
         self._quiet_us = 0
 
+    def keep_line_state(self, previous: "SerialMaster") -> None:
+        """Taking over the line from previous (new settings): the silence it owes the line
+        and the late reply it may still see are owed and seen here too."""
+        self._quiet_from_ns = previous._quiet_from_ns
+        self._quiet_us = previous._quiet_us
+        self._timed_out = previous._timed_out
+
     def transact(self, adu: bytes) -> bytes | None:
         """Send adu (address + PDU) and return the reply PDU; None for a broadcast.
         Raises LineTimeout when no valid reply came, SerialError when the port failed."""
