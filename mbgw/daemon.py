@@ -7,7 +7,6 @@ import signal
 import socket
 import time
 
-from mbgw import mbap
 from mbgw.config import SlaveConfig
 from mbgw.control import ControlServer, default_path
 from mbgw.counters import Counters
@@ -65,10 +64,7 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     scheduler = Scheduler()
 
     def deliver(job, reply) -> None:
-        """Line thread: the reply goes out at once, the bookkeeping follows in the loop."""
-        if reply is not None:
-            job.client.write_now(mbap.frame(job.tid, job.unit, reply))
-        loop.call_soon_threadsafe(job.client.delivered, job, reply)
+        job.client.finished(job, reply)    # the line thread writes the reply itself
 
     worker = LineWorker(cfg, line, scheduler, counters, devices, deliver)
     server = TcpServer(cfg, scheduler, counters, lambda: worker.up)

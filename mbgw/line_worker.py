@@ -41,6 +41,7 @@ class LineWorker(threading.Thread):
         self.reconfigured = False
         self._master: SerialMaster | None = self._master_on(line)
         self.up = True                 # read by the asyncio thread to fail fast while down
+        scheduler.start_now = self._start_now
 
     def _master_on(self, line: SerialLine, previous: SerialMaster | None = None) -> SerialMaster:
         master = SerialMaster(framing_for(line), self._cfg.serial, self._counters, self.devices,
@@ -78,7 +79,7 @@ class LineWorker(threading.Thread):
     def run(self) -> None:
         line_thread_init()
         while not self._stopping:
-            if self._new_cfg is not None:
+            if self._new_cfg is not None and not self._scheduler.has_started:
                 self._apply_new_cfg()
             if self._master is None:
                 self._reopen()
@@ -91,9 +92,27 @@ class LineWorker(threading.Thread):
         if self._master is not None:
             self._master.framing.line.close()
 
+    def _start_now(self, job: Job) -> bool:
+        """Submitting thread, while this one is parked in _idle(): put job on the line at
+        once if nothing (settings, silence, input, direction switching) makes it wait."""
+        master = self._master
+        if (master is None or self._new_cfg is not None or self._stopping
+                or not master.can_start_now()):
+            return False
+        try:
+            master.start(job.adu)
+        except SerialError as err:
+            job.start_error = err      # the line thread meets it as if it had sent
+        return True
+
     def _serve(self, job: Job) -> None:
         try:
-            reply = self._master.transact(job.adu)
+            if not job.started:
+                reply = self._master.transact(job.adu)
+            elif job.start_error is not None:
+                raise job.start_error
+            else:
+                reply = self._master.finish(job.adu)
             if reply is None:
                 job.outcome = OUTCOME_BROADCAST
             elif reply[0] & pdu.EXCEPTION_FLAG:
@@ -122,13 +141,22 @@ class LineWorker(threading.Thread):
 
     def _idle(self) -> None:
         port = self._master.framing.port
+        if not self._scheduler.park():
+            return
         try:
-            if port.idle_wait(self._scheduler.wake_fd, -1) == 1:
-                # one frame without a request: whatever comes until the line is quiet again
-                unsolicited = port.wait_quiet(time.monotonic_ns(), self._cfg.serial.t35_us)
-                self._counters.unsolicited_frames += 1
-                self._counters.unsolicited_bytes += unsolicited
-                self._counters.bytes_received += unsolicited
+            woken = port.idle_wait(self._scheduler.wake_fd, -1)
+        except SerialError as err:
+            if not self._scheduler.unpark():   # else serving the started job meets it
+                self._lost(err)
+            return
+        if self._scheduler.unpark() or woken != 1:
+            return
+        try:
+            # one frame without a request: whatever comes until the line is quiet again
+            unsolicited = port.wait_quiet(time.monotonic_ns(), self._cfg.serial.t35_us)
+            self._counters.unsolicited_frames += 1
+            self._counters.unsolicited_bytes += unsolicited
+            self._counters.bytes_received += unsolicited
         except SerialError as err:
             self._lost(err)
 

@@ -46,7 +46,8 @@ class Client(asyncio.Protocol):
         self._fd = -1
         self._loop: asyncio.AbstractEventLoop | None = None
         # Replies are written straight from the line thread when nothing else is waiting to
-        # go out; otherwise through the loop, in order.  The lock covers both.
+        # go out; otherwise through the loop, in order.  The lock covers both, and in_flight
+        # and _paused, which both threads change.
         self._write_lock = threading.Lock()
         self._queued_writes = 0
 
@@ -84,12 +85,15 @@ class Client(asyncio.Protocol):
             log.warning("client %s: bad MBAP header (%s); closing the connection", self.peer, err)
             self.transport.abort()
             return
-        if self.in_flight >= MAX_IN_FLIGHT and not self._paused:
-            self._paused = True
+        with self._write_lock:
+            pause = self.in_flight >= MAX_IN_FLIGHT and not self._paused
+            self._paused |= pause
+        if pause:
             self.transport.pause_reading()
 
     def submitted(self) -> None:
-        self.in_flight += 1
+        with self._write_lock:
+            self.in_flight += 1
 
     def write_now(self, frame: bytes) -> None:
         """Line thread: put a reply on the socket at once, sparing it a trip through the
@@ -125,23 +129,34 @@ class Client(asyncio.Protocol):
             elif self.transport is not None:
                 self.transport.write(frame)
 
-    def delivered(self, job: Job, reply: bytes | None) -> None:
-        """Bookkeeping after the line's outcome for job went out (runs in the loop thread)."""
-        self.in_flight -= 1
-        if reply is not None and self.transport is not None:
-            self._server.counters.replies += 1
+    def finished(self, job: Job, reply: bytes | None) -> None:
+        """Line thread: job's outcome is known; its reply (if any) goes out at once.  The loop
+        is woken only when it has something to do (resume reading, trace): waking it for
+        every reply would hold up the client that is just being woken to read it."""
+        if reply is not None:
+            self.write_now(mbap.frame(job.tid, job.unit, reply))
+        with self._write_lock:
+            self.in_flight -= 1
+            connected = self.transport is not None
+            resume = self._paused and self.in_flight < MAX_IN_FLIGHT and connected
+            self._paused &= not resume
+        if reply is not None and connected:
+            self._server.count_reply()
             self.last_active = time.monotonic()
+        if resume or self._server.trace.active:
+            self._loop.call_soon_threadsafe(self._after_reply, job, reply, resume)
+
+    def _after_reply(self, job: Job, reply: bytes | None, resume: bool) -> None:
         if self._server.trace.active:
             self._server.traced(self, job.tid, job.unit, job.adu[1], reply, job.outcome,
                                 job.received_ns)
-        if self._paused and self.in_flight < MAX_IN_FLIGHT and self.transport is not None:
-            self._paused = False
+        if resume and self.transport is not None:
             self.transport.resume_reading()
 
     def send(self, tid: int, unit: int, reply: bytes | None) -> None:
         if reply is not None and self.transport is not None:
             self._write(mbap.frame(tid, unit, reply))
-            self._server.counters.replies += 1
+            self._server.count_reply()
             self.last_active = time.monotonic()
 
 
@@ -157,6 +172,11 @@ class TcpServer:
         self._refusals: dict[str, float] = {}
         self._server: asyncio.base_events.Server | None = None
         self.trace = TraceHub()
+        self._replies_lock = threading.Lock()    # both threads count replies
+
+    def count_reply(self) -> None:
+        with self._replies_lock:
+            self.counters.replies += 1
 
     async def start(self) -> list[str]:
         """Listen; returns the listening addresses."""

@@ -20,6 +20,7 @@ import pytest
 
 from tests.harness import READY_TIMEOUT_S, free_port, stop, stop_counters
 from tests.modbus import holding_reply, mbap, read_holding, rtu
+from tests.ops import wait_for
 from tests.peers import fault_slave
 
 pytestmark = pytest.mark.integration
@@ -321,6 +322,27 @@ def test_broadcast_reaches_the_line_unanswered_and_holds_the_line_for_turnaround
     gap = frames[1][0] - frames[0][0]      # 300 ms, less the jitter of the arrival times
     assert 0.27 <= gap < 0.6, gap
     assert_counters(gw, requests=2, replies=1, broadcasts=1)
+
+
+def test_a_request_on_the_idle_line_after_a_broadcast_waits_for_turnaround_elsewhere(
+        line, gateway, client):
+    """The broadcast is out and the line thread idle when the next request comes: the request
+    is not put on the line before the turnaround has passed, and the wait holds up nobody
+    else (another client's request that cannot reach the line is answered meanwhile)."""
+    record = line()
+    gw = gateway("--turnaround", "300", "--exception")
+    c, other = client(gw), client(gw)
+    c.send(mbap(1, 0, b"\x06\x00\x01\x00\x2a"))
+    wait_for(gw, lambda s: s["counters"]["broadcasts"] == 1, "sent the broadcast")
+    c.send(mbap(2, 1, read_holding(0, 1)))
+    other.send(mbap(3, 250, read_holding(0, 1)))
+    assert other.recv() == (3, 250, b"\x83\x0a")
+    answered_other = time.monotonic()
+    assert c.recv() == (2, 1, holding_reply(0, 1))
+    frames = received(record)
+    assert [f[0] for _, f in frames] == [0, 1]
+    assert 0.27 <= frames[1][0] - frames[0][0] < 0.6
+    assert answered_other < frames[1][0]
 
 
 def test_slaveid_forces_the_serial_address_and_keeps_the_clients_unit(line, gateway, client):

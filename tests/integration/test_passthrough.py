@@ -210,6 +210,21 @@ def test_pipelined_requests_are_answered_in_order(connect):
         assert recv_adu(sock) == adu(tid, 17, read_registers_reply(0x03, address, count, 100))
 
 
+def test_a_client_pipelining_beyond_16_requests_gets_every_answer(connect):
+    """With 16 or more of a client's requests in the gateway, it stops reading that
+    connection, and reads on as answers go out: all are answered, in order."""
+    sock = connect()
+
+    def request(tid: int) -> bytes:
+        return adu(tid, 17, struct.pack(">BHH", 3, tid, 1))
+
+    sock.sendall(b"".join(request(tid) for tid in range(20)))
+    assert recv_adu(sock) == adu(0, 17, read_registers_reply(0x03, 0, 1, 100))
+    sock.sendall(b"".join(request(tid) for tid in range(20, 40)))    # while reading is paused
+    for tid in range(1, 40):
+        assert recv_adu(sock) == adu(tid, 17, read_registers_reply(0x03, tid, 1, 100))
+
+
 def test_a_pipelining_client_does_not_starve_another(connect):
     a, b = connect(), connect()
     a_count = 15

@@ -131,3 +131,92 @@ def test_wake_always_signals(scheduler):
     scheduler.wake()
     assert _woken(scheduler)
     assert not _woken(scheduler)
+
+
+# --- a request on an idle line is put on it by the submitting thread -----------------------
+
+class Starter:
+    """The line worker's start_now: records what it was asked to start; accepts or not."""
+
+    def __init__(self, accept: bool = True) -> None:
+        self.accept = accept
+        self.asked: list[tuple[str, int]] = []
+
+    def __call__(self, job: Job) -> bool:
+        self.asked.append((job.client, job.tid))
+        return self.accept
+
+
+@pytest.fixture
+def starter(scheduler):
+    scheduler.start_now = Starter()
+    return scheduler.start_now
+
+
+def _park(scheduler: Scheduler) -> None:
+    assert scheduler.take() is None
+    assert scheduler.park()
+
+
+def test_a_request_for_a_parked_line_is_started_at_once_and_the_line_woken(scheduler, starter):
+    _park(scheduler)
+    scheduler.submit(Queue(), _job("a", 7))
+    assert starter.asked == [("a", 7)]
+    assert os.eventfd_read(scheduler.wake_fd) == 1
+    assert scheduler.unpark()                    # the line thread learns of it on waking
+    job = scheduler.take()
+    assert (job.client, job.tid, job.started) == ("a", 7, True)
+    assert scheduler.depth == 0 and scheduler.take() is None
+
+
+def test_only_one_request_is_started_the_next_ones_queue(scheduler, starter):
+    _park(scheduler)
+    queue = Queue()
+    _submit(scheduler, queue, "a", 3)
+    assert starter.asked == [("a", 0)]
+    assert scheduler.unpark()
+    assert [(j.client, j.tid, j.started) for j in iter(scheduler.take, None)] == \
+        [("a", 0, True), ("a", 1, False), ("a", 2, False)]
+
+
+def test_a_declined_start_queues_the_request_and_wakes_the_line(scheduler, starter):
+    starter.accept = False
+    _park(scheduler)
+    scheduler.submit(Queue(), _job("a", 0))
+    assert os.eventfd_read(scheduler.wake_fd) == 1
+    assert not scheduler.unpark()
+    job = scheduler.take()
+    assert (job.tid, job.started) == (0, False)
+
+
+def test_once_a_request_waits_the_next_one_is_not_started_ahead_of_it(scheduler, starter):
+    starter.accept = False
+    _park(scheduler)
+    scheduler.submit(Queue(), _job("a", 0))
+    starter.accept = True
+    scheduler.submit(Queue(), _job("b", 0))        # the line is still parked: it has not woken
+    assert starter.asked == [("a", 0)]
+    assert not scheduler.unpark()
+    assert _drain(scheduler) == [("a", 0), ("b", 0)]
+
+
+def test_nothing_is_started_while_the_line_is_busy(scheduler, starter):
+    _submit(scheduler, Queue(), "a", 1)
+    assert scheduler.take() is not None            # busy with it, not parked
+    _submit(scheduler, Queue(), "b", 1)
+    assert starter.asked == []
+    assert _drain(scheduler) == [("b", 0)]
+
+
+def test_nothing_is_started_after_the_line_unparked(scheduler, starter):
+    _park(scheduler)
+    assert not scheduler.unpark()                  # woken by unsolicited input, say
+    _submit(scheduler, Queue(), "a", 1)
+    assert starter.asked == []
+    assert _drain(scheduler) == [("a", 0)]
+
+
+def test_the_line_does_not_park_while_work_waits(scheduler, starter):
+    _submit(scheduler, Queue(), "a", 1)
+    assert not scheduler.park()
+    assert _drain(scheduler) == [("a", 0)]
