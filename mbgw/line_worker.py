@@ -38,6 +38,7 @@ class LineWorker(threading.Thread):
         self._deliver = deliver        # deliver(job, reply_pdu_or_None), thread-safe
         self._stopping = False
         self._new_cfg: SlaveConfig | None = None
+        self._serving: Job | None = None     # until its outcome has been delivered
         self.reconfigured = False
         self._master: SerialMaster | None = self._master_on(line)
         self.up = True                 # read by the asyncio thread to fail fast while down
@@ -46,6 +47,7 @@ class LineWorker(threading.Thread):
     def _master_on(self, line: SerialLine, previous: SerialMaster | None = None) -> SerialMaster:
         master = SerialMaster(framing_for(line), self._cfg.serial, self._counters, self.devices,
                               self._cfg.retries, self._cfg.turnaround_ms)
+        master.on_reply = self._reply_now
         if previous is not None:
             master.keep_line_state(previous)
         return master
@@ -106,6 +108,7 @@ class LineWorker(threading.Thread):
         return True
 
     def _serve(self, job: Job) -> None:
+        self._serving = job
         try:
             if not job.started:
                 reply = self._master.transact(job.adu)
@@ -114,11 +117,7 @@ class LineWorker(threading.Thread):
             else:
                 reply = self._master.finish(job.adu)
             if reply is None:
-                job.outcome = OUTCOME_BROADCAST
-            elif reply[0] & pdu.EXCEPTION_FLAG:
-                job.outcome = OUTCOME_EXCEPTION
-            else:
-                job.outcome = OUTCOME_REPLY
+                job.outcome = OUTCOME_BROADCAST    # a reply went out through _reply_now
         except LineTimeout:
             job.outcome = OUTCOME_TIMEOUT
             reply = self._failure(job, pdu.GATEWAY_TARGET_FAILED)
@@ -130,6 +129,14 @@ class LineWorker(threading.Thread):
             log.exception("internal error serving %s", job.adu.hex(" "))
             job.outcome = OUTCOME_ERROR
             reply = self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE)
+        if self._serving is not None:
+            self._serving = None
+            self._deliver(job, reply)
+
+    def _reply_now(self, reply: bytes) -> None:
+        """The serial master found the reply: it goes to the client before the books."""
+        job, self._serving = self._serving, None
+        job.outcome = OUTCOME_EXCEPTION if reply[0] & pdu.EXCEPTION_FLAG else OUTCOME_REPLY
         self._deliver(job, reply)
 
     def _failure(self, job: Job, code: int) -> bytes | None:

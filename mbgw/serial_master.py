@@ -32,6 +32,7 @@ class SerialMaster:
         self._quiet_from_ns = 0
         self._quiet_us = 0
         self._device: DeviceStats | None = None     # the transaction start() began
+        self.on_reply = None    # on_reply(reply PDU): called before the reply is booked
         self._deadline = self._started_ns = 0
 
     def keep_line_state(self, previous: "SerialMaster") -> None:
@@ -76,6 +77,8 @@ class SerialMaster:
                 deadline = self._send(adu)
             reply = self._receive(adu, deadline, device)
             if reply is not None:
+                if self.on_reply is not None:
+                    self.on_reply(reply)
                 ended = self.framing.last_rx_ns
                 self._counters.line_busy_ns += ended - started
                 exception = reply[1] if reply[0] & pdu.EXCEPTION_FLAG and len(reply) > 1 else None
