@@ -13,7 +13,9 @@ full-speed pty it answers at once.  Against that slave the script measures:
     from the reply's last byte, next request -- the best a master can do on this line;
   * the gateway (python -m mbgw slave) with 1, 5 and 32 closed-loop Modbus TCP clients;
   * the gateway with one client that leaves the line idle between requests (its next request
-    comes t3.5 + 1 ms after a reply), for the latency the gateway adds to one transaction.
+    comes t3.5 + 1 ms after a reply), for the latency the gateway adds to one transaction,
+    in rounds that alternate with the direct master and with the least gateway there can be
+    (simline relay: C, one thread, no checks) at the same pace, each on a slave of its own.
 
 The slave records every gap between the end of a reply (its write) and the arrival of the next
 request, so the gaps are seen from the line's side, not from the gateway's.  See README.md.
@@ -94,6 +96,7 @@ class Run:
     collisions: int = 0
     bad_frames: int = 0
     held: list = field(default_factory=list)   # (gap, write) ns where the write was slow
+    timed: list = field(default_factory=list)  # (gap, write) ns of every gap
     cycles: list = field(default_factory=list)    # ns from request to request, at the slave
 
     @property
@@ -121,11 +124,16 @@ class Run:
         return pct(self.gaps, q) / 1e3
 
     def gaps_below(self, limit_us: float) -> int:
-        """Gaps certainly shorter than limit_us: measured ones, and those after a held-up
-        write that would be short even if the reply ended when the write began."""
+        """Gaps certainly shorter than limit_us: short even if the reply ended when the
+        slave's write began (the gateway cannot have seen it sooner)."""
         limit = limit_us * 1000
-        return (sum(1 for g in self.gaps if g < limit)
-                + sum(1 for g, w in self.held if g + w < limit))
+        return sum(1 for g, w in self.timed if g + w < limit)
+
+    def gaps_unsure(self, limit_us: float) -> list:
+        """(gap, write) of the gaps that are below limit_us measured from the end of the
+        slave's write and above it measured from its start: which, the bench cannot tell."""
+        limit = limit_us * 1000
+        return [(g, w) for g, w in self.timed if g < limit <= g + w]
 
     @property
     def gap_count(self) -> int:
@@ -173,6 +181,7 @@ class Slave:
         records = [tuple(int(v) for v in g.split(",")) for g in gaps[1:]]
         run.gaps = sorted(g for g, w, _ in records if w <= HELD_WRITE_NS)
         run.held = sorted((g, w) for g, w, _ in records if w > HELD_WRITE_NS)
+        run.timed = sorted((g, w) for g, w, _ in records)
         run.cycles = sorted(c for _, _, c in records)
         run.collisions, run.bad_frames = int(stats[3]), int(stats[4])
 
@@ -186,11 +195,12 @@ class Slave:
                 self.proc.wait()
 
 
-def run_direct(exe: str, device: str, slave: Slave, t35: int, seconds: float) -> Run:
+def run_direct(exe: str, device: str, slave: Slave, t35: int, seconds: float,
+               pause_us: int = 0) -> Run:
     run = Run("direct master")
     slave.reset()
-    out = subprocess.run([exe, "master", device, str(t35), str(seconds)], check=True,
-                         capture_output=True, text=True).stdout.splitlines()
+    out = subprocess.run([exe, "master", device, str(t35), str(seconds), str(pause_us)],
+                         check=True, capture_output=True, text=True).stdout.splitlines()
     result, lat = out[0].split(), out[1].split()
     run.count, run.seconds = int(result[1]), int(result[2]) / 1e9
     run.errors = int(result[3]) + int(result[4])
@@ -375,6 +385,69 @@ def tcp_floor(exe: str, warmup: float, seconds: float) -> Run:
         proc.wait()
 
 
+class Relay:
+    """simline relay on device: the least gateway, for the host's floor of added latency."""
+
+    def __init__(self, exe: str, device: str) -> None:
+        self.proc = subprocess.Popen([exe, "relay", device], stdout=subprocess.PIPE, text=True)
+        self.port = int(self.proc.stdout.readline().split()[1])
+
+    def stop(self) -> None:
+        self.proc.kill()
+        self.proc.wait()
+
+
+def merge(name: str, parts: list) -> Run:
+    run = Run(name)
+    for p in parts:
+        run.count += p.count
+        run.seconds += p.seconds
+        run.errors += p.errors
+        run.collisions += p.collisions
+        run.bad_frames += p.bad_frames
+        run.latencies += p.latencies
+        run.gaps += p.gaps
+        run.held += p.held
+        run.timed += p.timed
+        run.cycles += p.cycles
+    for values in (run.latencies, run.gaps, run.held, run.timed, run.cycles):
+        values.sort()
+    return run
+
+
+def run_idle_rounds(exe: str, line: "Line", sides: dict, gateway_port: int, relay_port: int,
+                    rounds: int, seconds: float) -> None:
+    """The idle-line pace for the direct master, the relay and the gateway, taking turns, so
+    that a change in the host's mood during the run weighs on all three alike."""
+    pause_us = round(IDLE_EXTRA_S * 1e6)
+    parts = {"direct": [], "relay": [], "gateway": []}
+    for _ in range(rounds):
+        direct = sides["direct"]
+        parts["direct"].append(run_direct(exe, direct.device, direct.slave, line.t35, seconds,
+                                          pause_us))
+        parts["relay"].append(run_idle_client(relay_port, sides["relay"].slave, line.t35,
+                                              0.05, seconds))
+        parts["gateway"].append(run_idle_client(gateway_port, sides["gateway"].slave,
+                                                line.t35, 0.05, seconds))
+    line.idle_direct = merge("direct master, idle line", parts["direct"])
+    line.idle_relay = merge("least gateway, idle line", parts["relay"])
+    line.idle = merge("gateway, 1 client, idle line", parts["gateway"])
+
+
+class Side:
+    """A simulated slave, on a pty of its own or behind a socat pair; device: the master's end."""
+
+    def __init__(self, exe: str, tmp: Path, use_socat: bool, baud: int) -> None:
+        self.pair = PtyPair(Path(tempfile.mkdtemp(dir=tmp))) if use_socat else None
+        self.slave = Slave(exe, self.pair.device if self.pair else None, baud)
+        self.device = self.pair.gateway if self.pair else self.slave.device
+
+    def stop(self) -> None:
+        self.slave.stop()
+        if self.pair:
+            self.pair.stop()
+
+
 # ------------------------------------------------------------------------ one line setting
 
 @dataclass
@@ -384,7 +457,9 @@ class Line:
     paced: bool          # the slave takes the wire time to answer
     seconds: float
     runs: list = field(default_factory=list)
-    idle: Run | None = None
+    idle: Run | None = None              # the gateway's idle-line client
+    idle_direct: Run | None = None       # the direct master at the same pace
+    idle_relay: Run | None = None        # the least gateway at the same pace
     slave_policy: str = "?"
 
     @property
@@ -396,29 +471,35 @@ class Line:
         return self.runs[0]
 
 
-def measure(line: Line, exe: str, tmp: Path, use_socat: bool, warmup: float) -> None:
-    pair = PtyPair(tmp) if use_socat else None
-    slave = Slave(exe, pair.device if pair else None, line.baud if line.paced else 0)
-    master_device = pair.gateway if pair else slave.device
-    line.slave_policy = slave.policy
-    gateway = None
+def measure(line: Line, exe: str, tmp: Path, use_socat: bool, warmup: float,
+            rounds: int, slice_s: float) -> None:
+    baud = line.baud if line.paced else 0
+    sides = {}
+    gateway = relay = None
     try:
-        line.runs.append(run_direct(exe, master_device, slave, line.t35, line.seconds))
-        gateway = Gateway(tmp, master_device, "--baudrate", str(line.baud), "--stout", "1000",
-                          "--max-connections", str(max(CLIENT_COUNTS) + 8),
+        for name in ("direct", "gateway", "relay"):
+            sides[name] = Side(exe, tmp, use_socat, baud)
+        line.slave_policy = sides["direct"].slave.policy
+        direct = sides["direct"]
+        line.runs.append(run_direct(exe, direct.device, direct.slave, line.t35, line.seconds))
+        gateway = Gateway(tmp, sides["gateway"].device, "--baudrate", str(line.baud),
+                          "--stout", "1000", "--max-connections", str(max(CLIENT_COUNTS) + 8),
                           "--log-level", "warning")
         for n in CLIENT_COUNTS:
-            line.runs.append(run_clients(gateway.port, n, slave, warmup, line.seconds))
-        line.idle = run_idle_client(gateway.port, slave, line.t35, warmup, line.seconds)
+            line.runs.append(run_clients(gateway.port, n, sides["gateway"].slave, warmup,
+                                         line.seconds))
+        relay = Relay(exe, sides["relay"].device)
+        run_idle_rounds(exe, line, sides, gateway.port, relay.port, rounds, slice_s)
     finally:
+        if relay is not None:
+            relay.stop()
         if gateway is not None:
             rc = gateway.stop()
             log = gateway.log_path.read_text().strip()
             if log or rc:
                 print(f"  gateway exit status {rc}; its log:\n    " + log.replace("\n", "\n    "))
-        slave.stop()
-        if pair:
-            pair.stop()
+        for side in sides.values():
+            side.stop()
 
 
 # ------------------------------------------------------------------------ report
@@ -431,8 +512,9 @@ def _median_share(r: Run, d: Run) -> float:
     return 100 * d.median_cycle_us / r.median_cycle_us
 
 
-def _added_us(line: Line, q: float = 50) -> float:
-    return (line.idle.lat_ms(q) - line.direct.lat_ms(q)) * 1000
+def _added_us(line: Line, q: float = 50, run: str = "idle") -> float:
+    """What the gateway (or the relay) adds at the idle-line pace, at percentile q."""
+    return (getattr(line, run).lat_ms(q) - line.idle_direct.lat_ms(q)) * 1000
 
 
 def report_line(line: Line) -> None:
@@ -453,11 +535,12 @@ def report_line(line: Line) -> None:
           f"{'lat':>7} {'min':>5} {'p50':>5} {'< t3.5':>9}")
     print(f"  {'':28} {'':>6} {'%':>6} {'us':>6} {'%':>6} {'ms':>7} {'ms':>7} "
           f"{'ms':>7} {'us':>5} {'us':>5} {'':>9}")
-    for i, r in enumerate(line.runs + [line.idle]):
+    idle_runs = [line.idle_direct, line.idle_relay, line.idle]
+    for i, r in enumerate(line.runs + idle_runs):
         below = f"{r.gaps_below(line.t35)}/{r.gap_count}"
-        if r is line.idle:
+        if any(r is x for x in idle_runs):
             rate = f"{'-':>6} {'-':>6} {'-':>6} {'-':>6}"
-            ideal = d.lat_ms(50)            # one transaction of the direct master
+            ideal = line.idle_direct.lat_ms(50)     # one transaction of the direct master
         else:
             rate = (f"{r.rate:6.1f} {_share(r, d):6.1f} {r.median_cycle_us:6.0f} "
                     f"{_median_share(r, d):6.1f}")
@@ -466,25 +549,27 @@ def report_line(line: Line) -> None:
         print(f"  {r.name:28} {rate} {r.lat_ms(50):7.3f} {r.lat_ms(99):7.3f} {ideal:7.3f} "
               f"{r.gap_us(0):5.0f} {r.gap_us(50):5.0f} {below:>9}")
     print(f"  added latency, 1 client on an idle line: p50 {_added_us(line):+.0f} us, "
-          f"p99 {_added_us(line, 99):+.0f} us")
+          f"p99 {_added_us(line, 99):+.0f} us; the least gateway adds p50 "
+          f"{_added_us(line, 50, 'idle_relay'):+.0f} us, p99 "
+          f"{_added_us(line, 99, 'idle_relay'):+.0f} us (this host's floor)")
     gw = line.runs[-1]
     print(f"  line saturated (32 clients): the gateway's median cycle is "
           f"{gw.median_cycle_us - d.median_cycle_us:+.0f} us over the direct master's "
           f"(mean {gw.cycle_us - d.cycle_us:+.0f} us); its median gap "
           f"{gw.gap_us(50) - d.gap_us(50):+.0f} us")
-    for r in line.runs + [line.idle]:
+    for r in line.runs + idle_runs:
         if r.errors or r.collisions or r.bad_frames:
             print(f"  !! {r.name}: {r.errors} failed transactions, {r.collisions} requests over a "
                   f"reply, {r.bad_frames} bad frames at the slave")
-        unsure = [(g, w) for g, w in r.held if g < line.t35 * 1000 <= g + w]
+        unsure = r.gaps_unsure(line.t35)
         if unsure:
             g, w = unsure[0]
             print(f"  !! {r.name}: {len(unsure)} gap(s) of unknown length around t3.5, e.g. "
                   f"{g / 1000:.0f}..{(g + w) / 1000:.0f} us: the slave was held up "
                   f"{w / 1000:.0f} us writing the reply before it")
-    held = sum(len(r.held) for r in line.runs + [line.idle])
+    held = sum(len(r.held) for r in line.runs + idle_runs)
     if held:
-        total = sum(r.gap_count for r in line.runs + [line.idle])
+        total = sum(r.gap_count for r in line.runs + idle_runs)
         print(f"  ({held} of {total} gaps left out of min/p50: the slave was held up "
               f"> {HELD_WRITE_NS // 1000} us writing the reply before them)")
 
@@ -493,20 +578,23 @@ def summary(lines: list) -> None:
     print("\nAgainst the issue's targets (figures only; mbusd for reference: 75 % of direct at "
           "115200, ~1 ms added)")
     print(f"  {'':16} {'rate of direct, 1/5/32 clients':>31} {'':>18} {'smallest':>9} "
-          f"{'':>5} {'added':>8}")
+          f"{'':>5} {'added':>8} {'floor':>6}")
     print(f"  {'':16} {'counted':>31} {'median cycles':>18} {'gap us':>9} "
-          f"{'t3.5':>5} {'p50 us':>8}")
+          f"{'t3.5':>5} {'p50 us':>8} {'p50 us':>6}")
     for line in lines:
         d = line.direct
         counted = " / ".join(f"{_share(r, d):.1f}" for r in line.runs[1:])
         median = " / ".join(f"{_median_share(r, d):.1f}" for r in line.runs[1:])
         gap = min(r.gap_us(0) for r in line.runs[1:] + [line.idle])
         below = sum(r.gaps_below(line.t35) for r in line.runs[1:] + [line.idle])
-        gap_text = f"{gap:.0f}" + (f" ({below} < t3.5)" if below else "")
+        unsure = sum(len(r.gaps_unsure(line.t35)) for r in line.runs[1:] + [line.idle])
+        gap_text = (f"{gap:.0f}" + (f" ({below} < t3.5)" if below else "")
+                    + (f" ({unsure} unsure)" if unsure else ""))
         print(f"  {line.title:16} {counted + ' %':>31} {median + ' %':>18} {gap_text:>9} "
-              f"{line.t35:5d} {_added_us(line):+8.0f}")
+              f"{line.t35:5d} {_added_us(line):+8.0f} {_added_us(line, 50, 'idle_relay'):+6.0f}")
     print(f"  {'target':16} {f'>= {TARGET_RATE:g} % at line speed':>31} {'':>18} "
           f"{'>= t3.5':>9} {'':5} {f'<= {TARGET_ADDED_US:.0f}':>8}")
+    print("  (floor: what the least gateway -- C, one thread, no checks -- adds on this host)")
 
 
 def _loadavg() -> str:
@@ -523,9 +611,9 @@ def main() -> None:
                     help="put the line on a socat pty pair (as the tests do) instead of one pty")
     args = ap.parse_args()
     if args.quick:
-        secs, warmup = {19200: 1.5, 115200: 1.0, 0: 1.0}, 0.2
+        secs, warmup, rounds, slice_s = {19200: 1.5, 115200: 1.0, 0: 1.0}, 0.2, 3, 0.4
     else:
-        secs, warmup = {19200: 8.0, 115200: 5.0, 0: 4.0}, 0.3
+        secs, warmup, rounds, slice_s = {19200: 8.0, 115200: 5.0, 0: 4.0}, 0.3, 8, 0.8
     lines = [Line("19200 baud", 19200, True, secs[19200]),
              Line("115200 baud", 115200, True, secs[115200]),
              Line("full-speed pty", 4000000, False, secs[0])]
@@ -549,7 +637,7 @@ def main() -> None:
               f"at once: p50 {floor.lat_ms(50) * 1000:.0f} us, p99 {floor.lat_ms(99) * 1000:.0f} us "
               f"(part of any gateway's added latency)")
         for line in lines:
-            measure(line, exe, tmp, args.socat, warmup)
+            measure(line, exe, tmp, args.socat, warmup, rounds, slice_s)
             report_line(line)
     summary(lines)
     print(f"\n({time.monotonic() - began:.0f} s; load average after: {_loadavg()})")

@@ -14,10 +14,16 @@
  *   simline tcp
  *       A Modbus TCP server on 127.0.0.1 (port printed) that answers FC03 at once: the floor
  *       of a TCP round trip for the benchmark's client, with no gateway in the way.
- *   simline master DEVICE T35_US SECONDS
+ *   simline relay DEVICE
+ *       The least a gateway can be: a Modbus TCP server on 127.0.0.1 (port printed) that
+ *       puts each FC03 request of its one client on DEVICE as an RTU frame and sends back
+ *       the 25-byte reply, in one thread, checking nothing.  What it adds over the direct
+ *       master is what the TCP hop and the wake-ups cost on this host, whoever the gateway.
+ *   simline master DEVICE T35_US SECONDS [PAUSE_US]
  *       A direct master: send FC03 (unit 1, 10 registers), read the 25-byte reply, wait
- *       T35_US from the reply's last byte, send the next one; for SECONDS.  Prints the
- *       count, the elapsed time and every latency (request written -> reply's last byte).
+ *       T35_US (plus PAUSE_US, default 0) from the reply's last byte, send the next one; for
+ *       SECONDS.  Prints the count, the elapsed time and every latency (request written ->
+ *       reply's last byte).
  *
  * Waits sleep with clock_nanosleep (timer slack 1 ns) to just before their end and spin the
  * rest, so the simulated wire times are exact to a few microseconds.  The slave does not spin
@@ -284,7 +290,7 @@ static int read_reply(int fd, uint8_t *buf, size_t want, int64_t deadline, int64
     return 0;
 }
 
-static int run_master(const char *device, int64_t t35_ns, double seconds)
+static int run_master(const char *device, int64_t t35_ns, int64_t pause_ns, double seconds)
 {
     int fd = open(device, O_RDWR | O_NOCTTY | O_NONBLOCK);
     if (fd < 0)
@@ -310,7 +316,7 @@ static int run_master(const char *device, int64_t t35_ns, double seconds)
         } else {
             lat[n++] = end - sent;
         }
-        wait_until(end + t35_ns);
+        wait_until(end + t35_ns + pause_ns);
     }
     int64_t elapsed = now_ns() - start;
     printf("RESULT %zu %lld %ld %ld\nLAT", n, (long long)elapsed, timeouts, bad);
@@ -366,6 +372,57 @@ static int run_tcp(void)
     return 0;
 }
 
+/* ---------------------------------------------------------------- least gateway */
+
+static int run_relay(const char *device)
+{
+    int fd = open(device, O_RDWR | O_NOCTTY | O_NONBLOCK);
+    if (fd < 0)
+        die(device);
+    make_raw(fd);
+    int ls = socket(AF_INET, SOCK_STREAM, 0), one = 1;
+    struct sockaddr_in a = { .sin_family = AF_INET, .sin_addr.s_addr = htonl(INADDR_LOOPBACK) };
+    socklen_t alen = sizeof a;
+    setsockopt(ls, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
+    if (bind(ls, (struct sockaddr *)&a, sizeof a) < 0 || listen(ls, 8) < 0 ||
+        getsockname(ls, (struct sockaddr *)&a, &alen) < 0)
+        die("listen");
+    printf("READY %d\n", ntohs(a.sin_port));
+    fflush(stdout);
+    for (;;) {
+        int s = accept(ls, NULL, NULL);
+        if (s < 0)
+            die("accept");
+        setsockopt(s, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+        uint8_t req[12], rtu[8], rsp[25], out[29];
+        for (;;) {
+            size_t have = 0;
+            while (have < sizeof req) {
+                ssize_t n = read(s, req + have, sizeof req - have);
+                if (n <= 0)
+                    goto closed;
+                have += (size_t)n;
+            }
+            memcpy(rtu, req + 6, 6);                /* unit, function, address, count */
+            add_crc(rtu, 6);
+            if (write(fd, rtu, sizeof rtu) != (ssize_t)sizeof rtu)
+                die("write");
+            int64_t end;
+            if (read_reply(fd, rsp, sizeof rsp, now_ns() + 1000000000LL, &end) < 0)
+                continue;
+            memcpy(out, req, 4);
+            out[4] = 0;
+            out[5] = sizeof rsp - 2;
+            memcpy(out + 6, rsp, sizeof rsp - 2);
+            if (write(s, out, 6 + sizeof rsp - 2) < 0)
+                break;
+        }
+closed:
+        close(s);
+    }
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     prctl(PR_SET_TIMERSLACK, 1UL, 0, 0, 0);
@@ -373,10 +430,14 @@ int main(int argc, char **argv)
         return run_slave(argv[2], atol(argv[3]));
     if (argc == 2 && strcmp(argv[1], "tcp") == 0)
         return run_tcp();
-    if (argc == 5 && strcmp(argv[1], "master") == 0)
-        return run_master(argv[2], atoll(argv[3]) * 1000, atof(argv[4]));
+    if (argc == 3 && strcmp(argv[1], "relay") == 0)
+        return run_relay(argv[2]);
+    if ((argc == 5 || argc == 6) && strcmp(argv[1], "master") == 0)
+        return run_master(argv[2], atoll(argv[3]) * 1000,
+                          argc == 6 ? atoll(argv[5]) * 1000 : 0, atof(argv[4]));
     fprintf(stderr, "usage: simline slave DEVICE|- BAUD\n"
                     "       simline tcp\n"
-                    "       simline master DEVICE T35_US SECONDS\n");
+                    "       simline relay DEVICE\n"
+                    "       simline master DEVICE T35_US SECONDS [PAUSE_US]\n");
     return 2;
 }
