@@ -142,7 +142,7 @@ class LineWorker(threading.Thread):
     def _failure(self, job: Job, code: int) -> bytes | None:
         if not self._cfg.exception or job.adu[0] == pdu.BROADCAST:
             return None
-        self._counters.gateway_exceptions += 1
+        self._counters.add("gateway_exceptions")
         self.devices.get(job.adu[0]).gateway_exception(code)
         return pdu.exception_pdu(job.adu[1], code)
 
@@ -200,6 +200,6 @@ class LineWorker(threading.Thread):
     def _reject_waiting(self) -> None:
         """While the port is down, nothing waits: every queued request is refused at once."""
         while (job := self._scheduler.take()) is not None:
-            self._counters.line_down_rejects += 1
+            self._counters.add("line_down_rejects")
             job.outcome = OUTCOME_LINE_DOWN
             self._deliver(job, self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE))

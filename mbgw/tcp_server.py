@@ -147,7 +147,7 @@ class Client(asyncio.BufferedProtocol):
             resume = self._paused and self.in_flight < MAX_IN_FLIGHT and connected
             self._paused &= not resume
         if reply is not None and connected:
-            self._server.count_reply()
+            self._server.counters.add("replies")
             self.last_active = time.monotonic()
         if resume or self._server.trace.active:
             self._loop.call_soon_threadsafe(self._after_reply, job, reply, resume)
@@ -162,7 +162,7 @@ class Client(asyncio.BufferedProtocol):
     def send(self, tid: int, unit: int, reply: bytes | None) -> None:
         if reply is not None and self.transport is not None:
             self._write(mbap.frame(tid, unit, reply))
-            self._server.count_reply()
+            self._server.counters.add("replies")
             self.last_active = time.monotonic()
 
 
@@ -178,11 +178,6 @@ class TcpServer:
         self._refusals: dict[str, float] = {}
         self._server: asyncio.base_events.Server | None = None
         self.trace = TraceHub()
-        self._replies_lock = threading.Lock()    # both threads count replies
-
-    def count_reply(self) -> None:
-        with self._replies_lock:
-            self.counters.replies += 1
 
     async def start(self) -> list[str]:
         """Listen; returns the listening addresses."""
@@ -276,7 +271,7 @@ class TcpServer:
             self._refuse(client, tid, unit, request, OUTCOME_UNROUTABLE, received_ns)
             return
         if not self._line_up():
-            self.counters.line_down_rejects += 1
+            self.counters.add("line_down_rejects")
             self._refuse(client, tid, unit, request, OUTCOME_LINE_DOWN, received_ns)
             return
         client.submitted()
@@ -311,7 +306,7 @@ class TcpServer:
     def _path_unavailable(self, function: int) -> bytes | None:
         if not self._cfg.exception:
             return None
-        self.counters.gateway_exceptions += 1
+        self.counters.add("gateway_exceptions")
         return pdu.exception_pdu(function, pdu.GATEWAY_PATH_UNAVAILABLE)
 
 

@@ -19,9 +19,6 @@ class Server:
         self.counters = Counters()
         self.trace = TraceHub()
 
-    def count_reply(self) -> None:
-        self.counters.replies += 1
-
     def admit(self, client, host) -> bool:
         return True
 
