@@ -479,9 +479,10 @@ def measure(line: Line, exe: str, tmp: Path, use_socat: bool, warmup: float,
     try:
         for name in ("direct", "gateway", "relay"):
             sides[name] = Side(exe, tmp, use_socat, baud)
-        line.slave_policy = sides["direct"].slave.policy
-        direct = sides["direct"]
-        line.runs.append(run_direct(exe, direct.device, direct.slave, line.t35, line.seconds))
+        line.slave_policy = sides["gateway"].slave.policy
+        # the closed-loop reference on the very slave the gateway then uses
+        same = sides["gateway"]
+        line.runs.append(run_direct(exe, same.device, same.slave, line.t35, line.seconds))
         gateway = Gateway(tmp, sides["gateway"].device, "--baudrate", str(line.baud),
                           "--stout", "1000", "--max-connections", str(max(CLIENT_COUNTS) + 8),
                           "--log-level", "warning")
