@@ -90,12 +90,6 @@ long mbgw_wait_quiet(int fd, int64_t last_ns, int32_t quiet_us)
     return discarded;
 }
 
-int mbgw_input_pending(int fd)
-{
-    int count;
-    return ioctl(fd, FIONREAD, &count) < 0 ? -errno : count;
-}
-
 int mbgw_idle_wait(int fd, int wake_fd, int timeout_ms)
 {
     struct pollfd p[2] = { { wake_fd, POLLIN, 0 }, { fd, POLLIN, 0 } };

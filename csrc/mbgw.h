@@ -37,9 +37,6 @@ long mbgw_wait_quiet(int fd, int64_t last_ns, int32_t quiet_us);
  * (-1: no timeout).  Returns 0 woken, 1 input waiting, 2 timed out. */
 int mbgw_idle_wait(int fd, int wake_fd, int timeout_ms);
 
-/* The number of bytes received and not yet read on fd. */
-int mbgw_input_pending(int fd);
-
 /* Read the reply to a request of req_len bytes (CRC excluded) into buf.  The first byte must
  * arrive before deadline_ns; the frame ends when its length (known from the function code)
  * is reached or, failing that, after gap_us of silence: what came is returned, complete or

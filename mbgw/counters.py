@@ -1,6 +1,4 @@
-"""Event counters kept by the daemon.  Plain integers, each written by one thread, but for
-the few that both the asyncio thread and the line thread count: those go through add()."""
-import threading
+"""Event counters kept by the daemon.  Plain integers: each is written by one thread."""
 
 NAMES = (
     "requests", "replies", "device_exceptions", "gateway_exceptions", "timeouts", "retries",
@@ -13,9 +11,6 @@ NAMES = (
 )
 
 
-_SHARED = threading.Lock()
-
-
 class Counters:
     __slots__ = NAMES
 
@@ -25,12 +20,6 @@ class Counters:
 
     def snapshot(self) -> dict[str, int]:
         return {name: getattr(self, name) for name in NAMES}
-
-    def add(self, name: str) -> None:
-        """One more of a counter that two threads write (replies, gateway_exceptions,
-        line_down_rejects in slave mode): += alone could lose a count between them."""
-        with _SHARED:
-            setattr(self, name, getattr(self, name) + 1)
 
     def reset(self) -> None:
         for cls in type(self).__mro__:

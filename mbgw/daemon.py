@@ -63,11 +63,9 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     devices = DeviceTable()
     scheduler = Scheduler()
 
-    def deliver(job, reply) -> None:
-        job.client.finished(job, reply)    # the line thread writes the reply itself
-
-    worker = LineWorker(cfg, line, scheduler, counters, devices, deliver)
     server = TcpServer(cfg, scheduler, counters, lambda: worker.up)
+    worker = LineWorker(cfg, line, scheduler, server.connections, counters, devices,
+                        server.finished)
     stop = asyncio.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(signum, stop.set)

@@ -1,14 +1,15 @@
-"""The serial line's one owner: a thread that takes jobs from the scheduler, runs them on the
-line and hands each outcome back to the asyncio loop.  It also keeps the port alive: a device
-that fails is closed, reopened with backoff, and reported once per change of state."""
+"""The serial line's one owner, and the reader and writer of slave mode's TCP connections:
+a thread that reads the clients' requests, takes jobs from the scheduler, runs them on the
+line and delivers each outcome.  It also keeps the port alive: a device that fails is closed,
+reopened with backoff, and reported once per change of state."""
 import logging
-import os
-import select
+import math
 import threading
 import time
 
 from mbgw import pdu
 from mbgw.config import SlaveConfig
+from mbgw.connections import Connections
 from mbgw.counters import Counters
 from mbgw.device_stats import DeviceTable
 from mbgw.errors import LineTimeout, SerialError
@@ -29,20 +30,21 @@ REOPEN_MAX_S = 5.0
 
 class LineWorker(threading.Thread):
     def __init__(self, cfg: SlaveConfig, line: SerialLine, scheduler: Scheduler,
-                 counters: Counters, devices: DeviceTable, deliver) -> None:
+                 connections: Connections, counters: Counters, devices: DeviceTable,
+                 deliver) -> None:
         super().__init__(name="mbgw-line", daemon=True)
         self._cfg = cfg
         self._scheduler = scheduler
+        self._connections = connections
         self._counters = counters
         self.devices = devices
-        self._deliver = deliver        # deliver(job, reply_pdu_or_None), thread-safe
+        self._deliver = deliver        # deliver(job, reply_pdu_or_None)
         self._stopping = False
         self._new_cfg: SlaveConfig | None = None
         self._serving: Job | None = None     # until its outcome has been delivered
         self.reconfigured = False
         self._master: SerialMaster | None = self._master_on(line)
-        self.up = True                 # read by the asyncio thread to fail fast while down
-        scheduler.start_now = self._start_now
+        self.up = True                 # False while the port is down: requests are refused
 
     def _master_on(self, line: SerialLine, previous: SerialMaster | None = None) -> SerialMaster:
         master = SerialMaster(framing_for(line), self._cfg.serial, self._counters, self.devices,
@@ -81,7 +83,7 @@ class LineWorker(threading.Thread):
     def run(self) -> None:
         line_thread_init()
         while not self._stopping:
-            if self._new_cfg is not None and not self._scheduler.has_started:
+            if self._new_cfg is not None:
                 self._apply_new_cfg()
             if self._master is None:
                 self._reopen()
@@ -91,31 +93,15 @@ class LineWorker(threading.Thread):
                 self._idle()
             else:
                 self._serve(job)
+                self._connections.wait(0)      # what the clients sent meanwhile
+        self._connections.close_all()
         if self._master is not None:
             self._master.framing.line.close()
-
-    def _start_now(self, job: Job) -> bool:
-        """Submitting thread, while this one is parked in _idle(): put job on the line at
-        once if nothing (settings, silence, input, direction switching) makes it wait."""
-        master = self._master
-        if (master is None or self._new_cfg is not None or self._stopping
-                or not master.can_start_now()):
-            return False
-        try:
-            master.start(job.adu)
-        except SerialError as err:
-            job.start_error = err      # the line thread meets it as if it had sent
-        return True
 
     def _serve(self, job: Job) -> None:
         self._serving = job
         try:
-            if not job.started:
-                reply = self._master.transact(job.adu)
-            elif job.start_error is not None:
-                raise job.start_error
-            else:
-                reply = self._master.finish(job.adu)
+            reply = self._master.transact(job.adu)
             if reply is None:
                 job.outcome = OUTCOME_BROADCAST    # a reply went out through _reply_now
         except LineTimeout:
@@ -142,28 +128,20 @@ class LineWorker(threading.Thread):
     def _failure(self, job: Job, code: int) -> bytes | None:
         if not self._cfg.exception or job.adu[0] == pdu.BROADCAST:
             return None
-        self._counters.add("gateway_exceptions")
+        self._counters.gateway_exceptions += 1
         self.devices.get(job.adu[0]).gateway_exception(code)
         return pdu.exception_pdu(job.adu[1], code)
 
     def _idle(self) -> None:
+        """Wait for a request, new settings or stopping; count input nobody asked for."""
         port = self._master.framing.port
-        if not self._scheduler.park():
-            return
         try:
-            woken = port.idle_wait(self._scheduler.wake_fd, -1)
-        except SerialError as err:
-            if not self._scheduler.unpark():   # else serving the started job meets it
-                self._lost(err)
-            return
-        if self._scheduler.unpark() or woken != 1:
-            return
-        try:
-            # one frame without a request: whatever comes until the line is quiet again
-            unsolicited = port.wait_quiet(time.monotonic_ns(), self._cfg.serial.t35_us)
-            self._counters.unsolicited_frames += 1
-            self._counters.unsolicited_bytes += unsolicited
-            self._counters.bytes_received += unsolicited
+            if self._connections.wait(-1, port.fd):
+                # one frame without a request: whatever comes until the line is quiet again
+                unsolicited = port.wait_quiet(time.monotonic_ns(), self._cfg.serial.t35_us)
+                self._counters.unsolicited_frames += 1
+                self._counters.unsolicited_bytes += unsolicited
+                self._counters.bytes_received += unsolicited
         except SerialError as err:
             self._lost(err)
 
@@ -182,8 +160,7 @@ class LineWorker(threading.Thread):
             self._reject_waiting()
             left = next_try - time.monotonic()
             if left > 0:
-                if select.select([self._scheduler.wake_fd], [], [], left)[0]:
-                    os.eventfd_read(self._scheduler.wake_fd)
+                self._connections.wait(math.ceil(left * 1000))   # clients are refused meanwhile
                 continue
             try:
                 line = SerialLine(self._cfg.serial, self._counters)
@@ -200,6 +177,6 @@ class LineWorker(threading.Thread):
     def _reject_waiting(self) -> None:
         """While the port is down, nothing waits: every queued request is refused at once."""
         while (job := self._scheduler.take()) is not None:
-            self._counters.add("line_down_rejects")
+            self._counters.line_down_rejects += 1
             job.outcome = OUTCOME_LINE_DOWN
             self._deliver(job, self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE))

@@ -215,10 +215,6 @@ class Port:
         """Wait until the line has been quiet for quiet_us; returns the bytes discarded."""
         return self._check(lib.mbgw_wait_quiet(self.fd, since_ns, quiet_us), "read")
 
-    def input_pending(self) -> int:
-        """Bytes received and not yet read."""
-        return self._check(lib.mbgw_input_pending(self.fd), "read")
-
     def idle_wait(self, wake_fd: int, timeout_ms: int) -> int:
         """0 woken through wake_fd, 1 unsolicited input, 2 timed out."""
         return self._check(lib.mbgw_idle_wait(self.fd, wake_fd, timeout_ms), "poll")

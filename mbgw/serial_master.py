@@ -31,9 +31,7 @@ class SerialMaster:
         self._turnaround_us = turnaround_ms * 1000
         self._quiet_from_ns = 0
         self._quiet_us = 0
-        self._device: DeviceStats | None = None     # the transaction start() began
         self.on_reply = None    # on_reply(reply PDU): called before the reply is booked
-        self._deadline = self._started_ns = 0
 
     def keep_line_state(self, previous: "SerialMaster") -> None:
         """Taking over the line from previous (new settings): the silence it owes the line
@@ -45,27 +43,10 @@ class SerialMaster:
     def transact(self, adu: bytes) -> bytes | None:
         """Send adu (address + PDU) and return the reply PDU; None for a broadcast.
         Raises LineTimeout when no valid reply came, SerialError when the port failed."""
-        self.start(adu)
-        return self.finish(adu)
-
-    def can_start_now(self) -> bool:
-        """Whether start() would put a request on the line without waiting: the line has
-        been quiet for as long as it must, nothing is arriving, and sending blocks on no
-        direction switching or echo."""
-        return (self.framing.line.sends_at_once
-                and time.monotonic_ns() >= self._quiet_from_ns + self._quiet_us * 1000
-                and not self.framing.port.input_pending())
-
-    def start(self, adu: bytes) -> None:
-        """The first half of transact(): adu goes out, once the line has been quiet."""
-        device = self._device = self.devices.get(adu[0])
+        device = self.devices.get(adu[0])
         device.transactions += 1
-        self._deadline = self._send(adu)
-        self._started_ns = self._sent_ns
-
-    def finish(self, adu: bytes) -> bytes | None:
-        """The second half: the reply to the adu start() sent (retries included)."""
-        device, deadline, started = self._device, self._deadline, self._started_ns
+        deadline = self._send(adu)
+        started = self._sent_ns
         if adu[0] == pdu.BROADCAST:
             self._counters.broadcasts += 1
             device.broadcasts += 1

@@ -49,8 +49,6 @@ class SerialLine:
         self._char_ns = cfg.char_ns
         self._before_us = cfg.rtsdelays[0] * 1000
         self._after_us = cfg.rtsdelays[1] * 1000
-        # transmit() returns at once, without waiting for the frame to leave or come back
-        self.sends_at_once = not self.rts_control and not cfg.interface.echo
 
     def close(self) -> None:
         self.port.close()

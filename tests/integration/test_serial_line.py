@@ -13,13 +13,11 @@ import fcntl
 import functools
 import os
 import re
-import select
 import socket
 import struct
 import subprocess
 import sys
 import termios
-import time
 
 import pytest
 from pymodbus.client import ModbusTcpClient
@@ -356,37 +354,6 @@ def test_echo_mode_without_an_echo_times_out(paced, in_process):
     with pytest.raises(LineTimeout):
         master.transact(bytes((1,)) + read_holding(0, 1))
     assert counters.echo_errors == 1
-
-
-# --- a request on an idle line goes out from the submitting thread: only when nothing waits --
-
-def test_an_idle_quiet_line_can_take_a_request_at_once(in_process):
-    master, _ = in_process(interface="rs232")
-    assert master.can_start_now()
-
-
-def test_a_request_is_not_started_at_once_within_the_turnaround_after_a_broadcast(in_process):
-    master, _ = in_process(interface="rs232")     # turnaround: SerialMaster's default 100 ms
-    assert master.transact(b"\x00\x06\x00\x01\x00\x2a") is None
-    assert not master.can_start_now()
-    time.sleep(0.11)    # the broadcast's 4.2 ms on the wire, then the turnaround: time is the event
-    assert master.can_start_now()
-
-
-def test_a_request_is_not_started_at_once_while_bytes_are_arriving(in_process, pty_pair):
-    master, _ = in_process(interface="rs232")
-    device = os.open(pty_pair.device, os.O_RDWR | os.O_NOCTTY)
-    try:
-        os.write(device, b"\x05\x03\x02")
-        assert select.select([master.framing.port.fd], [], [], READY_TIMEOUT_S)[0]
-        assert not master.can_start_now()
-    finally:
-        os.close(device)
-
-
-def test_a_request_is_not_started_at_once_when_its_echo_must_be_read(in_process):
-    master, _ = in_process(interface="rs485 echo")
-    assert not master.can_start_now()
 
 
 def test_echo_not_configured_is_never_taken_for_a_reply(paced, gateway, client):

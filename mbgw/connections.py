@@ -1,0 +1,122 @@
+"""The line thread's side of slave mode's Modbus TCP connections: one poll() over the
+clients, the serial port and the wake-up eventfd.
+
+The asyncio thread accepts and admits a connection, then adopts it here.  From then on the
+line thread reads it, frames the requests and hands each to on_request; replies are written
+with Client.send.  A request that arrives on an idle line thus wakes one thread, which puts
+it on the line at once.  A connection that ends, breaks or sends a bad MBAP header is closed
+here, and on_closed is told.
+"""
+import logging
+import os
+import select
+from collections import deque
+
+from mbgw import mbap
+from mbgw.tcp_connection import RECEIVE_SIZE, Client
+
+log = logging.getLogger("mbgw.tcp")
+
+_IN = select.POLLIN
+_OUT = select.POLLOUT
+
+
+class Connections:
+    def __init__(self, wake_fd: int, on_request, on_closed, counters) -> None:
+        self._wake_fd = wake_fd
+        self._on_request = on_request      # on_request(client, tid, unit, pdu), line thread
+        self._on_closed = on_closed        # on_closed(client), line thread
+        self._counters = counters
+        self._poll = select.poll()
+        self._poll.register(wake_fd, _IN)
+        self._clients: dict[int, Client] = {}      # by fd
+        self._events: dict[int, int] = {}          # what each client's fd is polled for
+        self._adopted: deque[Client] = deque()     # from the asyncio thread, not yet polled
+        self._receive = memoryview(bytearray(RECEIVE_SIZE))
+
+    def adopt(self, client: Client) -> None:
+        """Asyncio thread: from now on the line thread serves client."""
+        self._adopted.append(client)
+        os.eventfd_write(self._wake_fd, 1)
+
+    def wait(self, timeout_ms: int, serial_fd: int = -1) -> bool:
+        """Line thread: wait up to timeout_ms (-1: no limit, 0: not at all) for a client, the
+        wake-up eventfd or input on serial_fd, and serve the clients that are ready.  True
+        when serial_fd has input (or an error) waiting."""
+        self._update()
+        if serial_fd >= 0:
+            self._poll.register(serial_fd, _IN)
+        try:
+            ready = self._poll.poll(timeout_ms)
+        finally:
+            if serial_fd >= 0:
+                self._poll.unregister(serial_fd)
+        serial = False
+        for fd, events in ready:
+            if fd == serial_fd:
+                serial = True
+            elif fd == self._wake_fd:
+                self._woken()
+            else:
+                client = self._clients.get(fd)
+                if client is not None:
+                    self._serve(client, events)
+        return serial
+
+    def close_all(self) -> None:
+        while self._adopted:
+            self._adopted.popleft().close()
+        for client in list(self._clients.values()):
+            self._close(client)
+
+    def _woken(self) -> None:
+        try:
+            os.eventfd_read(self._wake_fd)
+        except BlockingIOError:
+            pass
+        while self._adopted:
+            client = self._adopted.popleft()
+            self._clients[client.fd] = client
+            self._events[client.fd] = 0
+
+    def _update(self) -> None:
+        """Poll each client for what it can take now: no input while it has 16 requests in
+        the gateway or a backlog of replies it does not read."""
+        for fd, client in self._clients.items():
+            wanted = (_IN if client.readable else 0) | (_OUT if client.output_waiting else 0)
+            if wanted == self._events[fd]:
+                continue
+            if not wanted:
+                self._poll.unregister(fd)
+            elif self._events[fd]:
+                self._poll.modify(fd, wanted)
+            else:
+                self._poll.register(fd, wanted)
+            self._events[fd] = wanted
+
+    def _serve(self, client: Client, events: int) -> None:
+        if events & _OUT:
+            client.flush()
+        if not events & ~_OUT:
+            return
+        try:
+            frames = client.receive(self._receive)
+        except mbap.BadHeader as err:
+            self._counters.connections_bad_header += 1
+            log.warning("client %s: bad MBAP header (%s); closing the connection",
+                        client.peer, err)
+            self._close(client)
+            return
+        if frames is None:
+            self._close(client)
+            return
+        for tid, unit, request in frames:
+            self._on_request(client, tid, unit, request)
+
+    def _close(self, client: Client) -> None:
+        fd = client.fd
+        if self._events.pop(fd, 0):
+            self._poll.unregister(fd)
+        del self._clients[fd]
+        client.close()
+        self._on_closed(client)
