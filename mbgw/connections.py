@@ -110,8 +110,12 @@ class Connections:
         if frames is None:
             self._close(client)
             return
-        for tid, unit, request in frames:
-            self._on_request(client, tid, unit, request)
+        try:
+            for tid, unit, request in frames:
+                self._on_request(client, tid, unit, request)
+        except Exception:   # a bug must cost one connection, never the line
+            log.exception("internal error on a request of client %s; closing it", client.peer)
+            self._close(client)
 
     def _close(self, client: Client) -> None:
         fd = client.fd

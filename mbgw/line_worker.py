@@ -117,7 +117,10 @@ class LineWorker(threading.Thread):
             reply = self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE)
         if self._serving is not None:
             self._serving = None
-            self._deliver(job, reply)
+            try:
+                self._deliver(job, reply)
+            except Exception:
+                log.exception("internal error delivering the outcome of %s", job.adu.hex(" "))
 
     def _reply_now(self, reply: bytes) -> None:
         """The serial master found the reply: it goes to the client before the books."""
