@@ -75,9 +75,12 @@ class Connections:
         except BlockingIOError:
             pass
         while self._adopted:
+            # read at once: what a newcomer sent must not wait for the next transaction
             client = self._adopted.popleft()
             self._clients[client.fd] = client
-            self._events[client.fd] = 0
+            self._events[client.fd] = _IN
+            self._poll.register(client.fd, _IN)
+            self._serve(client, _IN)
 
     def _update(self) -> None:
         """Poll each client for what it can take now: no input while it has 16 requests in
