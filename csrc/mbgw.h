@@ -2,6 +2,8 @@
  * so it holds only prototypes and plain #defines (no #include, no #if).
  * Every function returns a negative errno value on failure. */
 
+struct _modbus;                /* libmodbus's modbus_t */
+
 #define MBGW_RTU_MAX_ADU 256   /* Modbus over Serial Line V1.02 section 2.5.1 */
 #define MBGW_LEN_UNKNOWN -1    /* the frame's end can only be found by silence */
 #define MBGW_ASCII_MAX_FRAME 513  /* characters, ':' to LF included (V1.02 2.5.2.1) */
@@ -100,6 +102,25 @@ int mbgw_write_frame(int fd, const uint8_t *buf, size_t len, int rts_control,
 /* Read back and drop the echo of the frame just sent (2-wire RS-485 with the receiver on).
  * -EPROTO when the echo differs (a collision), -ETIMEDOUT when it does not come. */
 int mbgw_discard_echo(int fd, const uint8_t *sent, size_t len, int64_t deadline_ns);
+
+/* --- reply.c: slave mode's replies --- */
+
+/* 1 when the reply PDU rsp can be the answer to the request PDU req: an exception for the
+ * request's function, or its function with the size or echo the request asked for. */
+int mbgw_reply_matches(const uint8_t *req, size_t req_len, const uint8_t *rsp, size_t rsp_len);
+
+#define MBGW_REPLY_AT 6   /* where mbgw_receive_reply puts the ADU: after an MBAP header's first 6 bytes */
+
+/* libmodbus's receive of the reply to req (address + PDU, no CRC) until deadline_ns, into
+ * buf + MBGW_REPLY_AT.  When the reply answers req (libmodbus checked address and CRC, this
+ * checks function and size) and client_fd >= 0, it goes to client_fd at once as a Modbus TCP
+ * frame with tid and unit, and *sent is the bytes the socket took (all of them when the
+ * connection is broken: its next read tells); else *sent is -1.  *end_ns: when the receive ended.
+ * Returns the ADU's length with CRC, 0 for a frame from another address (dropped), or a
+ * negative errno (libmodbus's EMBBADCRC...). */
+int mbgw_receive_reply(struct _modbus *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
+                       int64_t deadline_ns, int client_fd, uint16_t tid, uint8_t unit,
+                       int64_t *end_ns, int *sent);
 
 /* --- request.c: master mode, the serial master's requests for any address --- */
 

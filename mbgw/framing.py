@@ -1,13 +1,12 @@
 """How a frame looks on the serial line: RTU (binary, CRC, ended by silence) or ASCII
 (':' hex LRC CR LF).  Each framing sends an ADU (address + PDU) and receives one, checked."""
-import struct
 import time
 
 from mbgw import native, pdu
 from mbgw.errors import ChecksumError, FrameError, LineTimeout
 from mbgw.serial_port import SerialLine
 
-CRC = struct.Struct("<H")     # the CRC goes low byte first
+NO_FORWARD = (-1, 0, 0)       # receive(): the reply goes nowhere before it is returned
 
 
 class RtuFraming:
@@ -20,35 +19,38 @@ class RtuFraming:
         self.port.set_byte_timeout(self._end_us)
         self.last_rx_ns = 0
         self.foreign_address = -1     # set when receive() returns None
+        self.sent = -1
 
     def send(self, adu: bytes) -> int:
-        return self.line.transmit(adu + CRC.pack(native.crc16(adu)), rtu_adu=adu)
+        return self.line.transmit_rtu(adu)
 
-    def receive(self, adu: bytes, deadline: int) -> bytes | None:
+    def receive(self, adu: bytes, deadline: int, forward=NO_FORWARD) -> bytes | None:
         """address + PDU of a frame with a valid CRC from adu's address; None: another
-        address.  Raises LineTimeout, ChecksumError, FrameError."""
+        address.  forward: (socket fd, tid, unit) of the client to which a reply that
+        answers adu goes at once (self.sent: its bytes the socket took, -1 none).  Raises
+        LineTimeout, ChecksumError, FrameError."""
+        self.sent = -1
         if adu[1] in pdu.LIBMODBUS_FRAMED:
-            timeout_us = (deadline - time.monotonic_ns()) // 1000
-            if timeout_us <= 0:
-                raise LineTimeout()
+            port = self.port
             try:
-                frame = self.port.receive_confirmation(adu[0], timeout_us)
+                frame = port.receive_reply(adu, deadline, *forward)
             except ChecksumError:
-                self.last_rx_ns = time.monotonic_ns()
-                self.line.counters.bytes_received += self.port.dropped_length
+                self.last_rx_ns = port.last_byte_ns
+                self.line.counters.bytes_received += port.dropped_length
                 raise
             except LineTimeout:
-                now = time.monotonic_ns()
+                now = port.last_byte_ns
                 if now < deadline:   # the byte timeout: a gap broke a frame
                     self.last_rx_ns = now - self._end_us * 1000   # so the line is quiet
                     raise FrameError("incomplete frame") from None
                 self.last_rx_ns = now
                 raise
-            self.last_rx_ns = time.monotonic_ns()
+            self.last_rx_ns = port.last_byte_ns
             if frame is None:
-                self.line.counters.bytes_received += self.port.dropped_length
-                self.foreign_address = self.port.foreign_address
+                self.line.counters.bytes_received += port.dropped_length
+                self.foreign_address = port.foreign_address
                 return None
+            self.sent = port.sent
             self.line.counters.bytes_received += len(frame)
             return frame[:-2]
         frame = self.port.read_reply(len(adu), deadline, self._end_us, False)
@@ -82,6 +84,7 @@ class RtuFraming:
 
 class AsciiFraming:
     inter_frame_us = 0     # ASCII frames are delimited by ':' and CR LF, not by silence
+    sent = -1              # replies are never forwarded before they are checked here
 
     def __init__(self, line: SerialLine) -> None:
         self.line = line
@@ -99,7 +102,7 @@ class AsciiFraming:
         self.line.counters.bytes_received += len(frame)
         return frame
 
-    def receive(self, adu: bytes, deadline: int) -> bytes | None:
+    def receive(self, adu: bytes, deadline: int, forward=NO_FORWARD) -> bytes | None:
         decoded = native.ascii_decode(self._read(deadline))
         if len(decoded) < 2:
             raise FrameError("frame too short")

@@ -13,7 +13,7 @@ from mbgw.connections import Connections
 from mbgw.counters import Counters
 from mbgw.device_stats import DeviceTable
 from mbgw.errors import LineTimeout, SerialError
-from mbgw.framing import framing_for
+from mbgw.framing import NO_FORWARD, framing_for
 from mbgw.native import line_thread_init
 from mbgw.scheduler import (OUTCOME_BROADCAST, OUTCOME_ERROR, OUTCOME_EXCEPTION,
                             OUTCOME_LINE_DOWN, OUTCOME_REPLY, OUTCOME_TIMEOUT, Job, Scheduler)
@@ -38,7 +38,7 @@ class LineWorker(threading.Thread):
         self._connections = connections
         self._counters = counters
         self.devices = devices
-        self._deliver = deliver        # deliver(job, reply_pdu_or_None)
+        self._deliver = deliver        # deliver(job, reply_pdu_or_None[, bytes forwarded])
         self._stopping = False
         self._new_cfg: SlaveConfig | None = None
         self._serving: Job | None = None     # until its outcome has been delivered
@@ -101,7 +101,11 @@ class LineWorker(threading.Thread):
     def _serve(self, job: Job) -> None:
         self._serving = job
         try:
-            reply = self._master.transact(job.adu)
+            client = job.client
+            # the reply may go straight to a client whose earlier replies have all gone out
+            forward = NO_FORWARD if client.output_waiting or client.closed else \
+                (client.fd, job.tid, job.unit)
+            reply = self._master.transact(job.adu, forward)
             if reply is None:
                 job.outcome = OUTCOME_BROADCAST    # a reply went out through _reply_now
         except LineTimeout:
@@ -122,11 +126,12 @@ class LineWorker(threading.Thread):
             except Exception:
                 log.exception("internal error delivering the outcome of %s", job.adu.hex(" "))
 
-    def _reply_now(self, reply: bytes) -> None:
-        """The serial master found the reply: it goes to the client before the books."""
+    def _reply_now(self, reply: bytes, sent: int) -> None:
+        """The serial master found the reply (sent: the bytes of it already forwarded, or
+        -1): it goes to the client before the books."""
         job, self._serving = self._serving, None
         job.outcome = OUTCOME_EXCEPTION if reply[0] & pdu.EXCEPTION_FLAG else OUTCOME_REPLY
-        self._deliver(job, reply)
+        self._deliver(job, reply, sent)
 
     def _failure(self, job: Job, code: int) -> bytes | None:
         if not self._cfg.exception or job.adu[0] == pdu.BROADCAST:

@@ -12,6 +12,7 @@ from mbgw.errors import ChecksumError, FrameError, LineTimeout, SerialError
 LEN_UNKNOWN = lib.MBGW_LEN_UNKNOWN
 RTU_MAX_ADU = lib.MBGW_RTU_MAX_ADU
 ASCII_MAX_FRAME = lib.MBGW_ASCII_MAX_FRAME
+REPLY_AT = lib.MBGW_REPLY_AT
 
 _LIBMODBUS_ERRORS = {
     lib.EMBBADCRC: "invalid CRC",
@@ -57,6 +58,10 @@ def ascii_decode(frame: bytes) -> bytes:
     return ffi.buffer(_ascii_in, n)[:]
 
 
+def reply_matches(request: bytes, reply: bytes) -> bool:
+    return lib.mbgw_reply_matches(request, len(request), reply, len(reply)) == 1
+
+
 def tty_cflag(cflag: int, data_bits: int, parity: str, stop_bits: int) -> int:
     return lib.mbgw_tty_cflag(cflag, data_bits, parity.encode(), stop_bits)
 
@@ -88,7 +93,9 @@ class Port:
             raise
         self._buf = ffi.new("uint8_t[]", ASCII_MAX_FRAME + 4)
         self._end_ns = ffi.new("int64_t *")
-        self.dropped_length = 0        # bytes of the frame receive_confirmation dropped
+        self._sent = ffi.new("int *")
+        self.sent = -1                 # what receive_reply sent to the client
+        self.dropped_length = 0        # bytes of the frame receive_reply dropped
         self.foreign_address = -1      # the address of the frame it ignored
         self.set_byte_timeout(0)
 
@@ -177,21 +184,25 @@ class Port:
     def discard_echo(self, sent: bytes, deadline_ns: int) -> None:
         self._check(lib.mbgw_discard_echo(self.fd, sent, len(sent), deadline_ns), "read echo")
 
-    def receive_confirmation(self, address: int, timeout_us: int) -> bytes | None:
-        """libmodbus's receive for the codes it frames right.  None: a frame from another
-        address (libmodbus ignores it and returns at once)."""
-        lib.modbus_set_slave(self._ctx, address)
-        lib.modbus_set_response_timeout(self._ctx, timeout_us // 1_000_000, timeout_us % 1_000_000)
-        n = lib.modbus_receive_confirmation(self._ctx, self._buf)
+    def receive_reply(self, adu: bytes, deadline_ns: int, client_fd: int = -1, tid: int = 0,
+                      unit: int = 0) -> bytes | None:
+        """libmodbus's receive of the reply to adu, for the codes it frames right: the frame
+        (CRC checked), or None for a frame from another address (libmodbus drops it and
+        returns at once).  With client_fd, a reply that answers adu in time has gone to that
+        socket as a Modbus TCP frame with tid and unit already: self.sent tells how many of
+        its bytes the socket took (-1: nothing was sent)."""
+        n = lib.mbgw_receive_reply(self._ctx, self._buf, adu, len(adu), deadline_ns, client_fd,
+                                   tid, unit, self._end_ns, self._sent)
+        self.sent = self._sent[0]
         if n > 0:
             self.dropped_length = 0
-            return ffi.buffer(self._buf, n)[:]
-        code = ffi.errno
+            return ffi.buffer(self._buf + REPLY_AT, n)[:]
         # libmodbus read a whole frame by its function code before dropping it: how long
-        self.dropped_length = max(lib.mbgw_rtu_reply_length(0, self._buf, RTU_MAX_ADU), 0)
-        self.foreign_address = self._buf[0]
+        frame = self._buf + REPLY_AT
+        self.dropped_length = max(lib.mbgw_rtu_reply_length(0, frame, RTU_MAX_ADU), 0)
+        self.foreign_address = frame[0]
         if n < 0:
-            raise self._fail(code, "read")
+            raise self._fail(-n, "read")
         return None
 
     def read_reply(self, request_len: int, deadline_ns: int, gap_us: int,

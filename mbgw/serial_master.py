@@ -9,6 +9,8 @@ import logging
 import time
 
 from mbgw import pdu
+from mbgw.framing import NO_FORWARD
+from mbgw.native import reply_matches
 from mbgw.config import SerialConfig
 from mbgw.counters import Counters
 from mbgw.device_stats import DeviceStats, DeviceTable
@@ -31,7 +33,8 @@ class SerialMaster:
         self._turnaround_us = turnaround_ms * 1000
         self._quiet_from_ns = 0
         self._quiet_us = 0
-        self.on_reply = None    # on_reply(reply PDU): called before the reply is booked
+        # on_reply(reply PDU, bytes of it forwarded or -1): called before the reply is booked
+        self.on_reply = None
 
     def keep_line_state(self, previous: "SerialMaster") -> None:
         """Taking over the line from previous (new settings): the silence it owes the line
@@ -40,8 +43,9 @@ class SerialMaster:
         self._quiet_us = previous._quiet_us
         self._timed_out = previous._timed_out
 
-    def transact(self, adu: bytes) -> bytes | None:
+    def transact(self, adu: bytes, forward=NO_FORWARD) -> bytes | None:
         """Send adu (address + PDU) and return the reply PDU; None for a broadcast.
+        forward: (socket fd, tid, unit) where the reply may go straight from the C receive.
         Raises LineTimeout when no valid reply came, SerialError when the port failed."""
         device = self.devices.get(adu[0])
         device.transactions += 1
@@ -56,10 +60,10 @@ class SerialMaster:
             if attempt:
                 self._count(device, "retries")
                 deadline = self._send(adu)
-            reply = self._receive(adu, deadline, device)
+            reply = self._receive(adu, deadline, device, forward)
             if reply is not None:
                 if self.on_reply is not None:
-                    self.on_reply(reply)
+                    self.on_reply(reply, self.framing.sent)
                 ended = self.framing.last_rx_ns
                 self._counters.line_busy_ns += ended - started
                 exception = reply[1] if reply[0] & pdu.EXCEPTION_FLAG and len(reply) > 1 else None
@@ -81,25 +85,29 @@ class SerialMaster:
 
     def _send(self, adu: bytes) -> int:
         """Returns the reply's deadline."""
-        stale = self.framing.port.wait_quiet(self._quiet_from_ns, self._quiet_us)
-        if stale:
-            self._counters.late_bytes += stale
-            self._counters.bytes_received += stale
+        now = time.monotonic_ns()
+        if now < self._quiet_from_ns + self._quiet_us * 1000:    # else no C call is needed
+            stale = self.framing.port.wait_quiet(self._quiet_from_ns, self._quiet_us)
+            if stale:
+                self._counters.late_bytes += stale
+                self._counters.bytes_received += stale
+            now = time.monotonic_ns()
         if wire.isEnabledFor(logging.DEBUG):
             wire.debug("tx %s", adu.hex(" "))
-        self._sent_ns = time.monotonic_ns()
+        self._sent_ns = now
         self._quiet_from_ns = self.framing.send(adu)
         self._quiet_us = self.framing.inter_frame_us
         return self._quiet_from_ns + self._stout_ns
 
-    def _receive(self, adu: bytes, deadline: int, device: DeviceStats) -> bytes | None:
+    def _receive(self, adu: bytes, deadline: int, device: DeviceStats,
+                 forward) -> bytes | None:
         """The reply PDU, or None once stout has passed without one."""
         framing = self.framing
         while True:
             try:
                 if self._nocheck:
                     return framing.receive_unchecked(adu, deadline)[1:] or None
-                frame = framing.receive(adu, deadline)
+                frame = framing.receive(adu, deadline, forward)
             except LineTimeout:
                 return None
             except ChecksumError:
@@ -125,7 +133,7 @@ class SerialMaster:
                 self._count(device, "late_replies")
                 continue
             reply = frame[1:]
-            if not reply or not pdu.reply_matches(adu[1:], reply):
+            if not reply_matches(adu[1:], reply):
                 self._count(device, "late_replies" if self._timed_out is device
                             else "wrong_function")
                 continue

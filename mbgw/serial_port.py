@@ -1,6 +1,7 @@
 """Opening the serial line with every setting, and putting frames on it (direction control,
 echo).  Both gateway modes use it."""
 import logging
+import struct
 import time
 
 from mbgw import native
@@ -11,6 +12,7 @@ from mbgw.errors import FrameError, LineTimeout
 log = logging.getLogger("mbgw.line")
 
 ECHO_MARGIN_NS = 50_000_000     # the echo of a frame is back well within this after it ends
+CRC = struct.Struct("<H")       # an RTU frame's CRC goes low byte first
 
 
 class SerialLine:
@@ -49,20 +51,31 @@ class SerialLine:
         self._char_ns = cfg.char_ns
         self._before_us = cfg.rtsdelays[0] * 1000
         self._after_us = cfg.rtsdelays[1] * 1000
+        self._echo = cfg.interface.echo
 
     def close(self) -> None:
         self.port.close()
 
-    def transmit(self, wire: bytes, rtu_adu: bytes | None = None) -> int:
+    def transmit(self, wire: bytes) -> int:
         """Put one whole frame on the line; returns when its last byte will have left
-        (CLOCK_MONOTONIC ns).  rtu_adu: the frame without CRC, which libmodbus then sends."""
-        if rtu_adu is not None and not self.rts_control:
-            self.port.send_rtu(rtu_adu)
-        else:
-            self.port.write(wire, self.rts_control, self._before_us, self._after_us)
+        (CLOCK_MONOTONIC ns)."""
+        self.port.write(wire, self.rts_control, self._before_us, self._after_us)
+        return self._sent(wire)
+
+    def transmit_rtu(self, adu: bytes) -> int:
+        """transmit() for an RTU frame given without its CRC: libmodbus adds it and writes,
+        unless mbgw drives RTS or reads the echo back, which need the whole frame here."""
+        if self.rts_control or self._echo:
+            return self.transmit(adu + CRC.pack(native.crc16(adu)))
+        self.port.send_rtu(adu)
+        length = len(adu) + 2
+        self.counters.bytes_sent += length
+        return time.monotonic_ns() + length * self._char_ns
+
+    def _sent(self, wire: bytes) -> int:
         self.counters.bytes_sent += len(wire)
         done_ns = time.monotonic_ns() + len(wire) * self._char_ns
-        if self.cfg.interface.echo:
+        if self._echo:
             try:
                 self.port.discard_echo(wire, done_ns + ECHO_MARGIN_NS)
             except (FrameError, LineTimeout):

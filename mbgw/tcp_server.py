@@ -174,11 +174,12 @@ class TcpServer:
         self._scheduler.submit(client.queue, Job(client, tid, unit, bytes((address,)) + request,
                                                  received_ns))
 
-    def finished(self, job: Job, reply: bytes | None) -> None:
-        """job's outcome: its reply (if any) goes out at once."""
+    def finished(self, job: Job, reply: bytes | None, sent: int = -1) -> None:
+        """job's outcome: its reply (if any) goes out at once, or its rest when the serial
+        receive sent `sent` bytes of it already."""
         client = job.client
         client.in_flight -= 1
-        self._answer(client, job.tid, job.unit, reply)
+        self._answer(client, job.tid, job.unit, reply, sent)
         if self.trace.active:
             self.traced(client, job.tid, job.unit, job.adu[1], reply, job.outcome,
                         job.received_ns)
@@ -189,9 +190,13 @@ class TcpServer:
         if loop is not None and not loop.is_closed():
             loop.call_soon_threadsafe(self.forget, client)
 
-    def _answer(self, client: Client, tid: int, unit: int, reply: bytes | None) -> None:
+    def _answer(self, client: Client, tid: int, unit: int, reply: bytes | None,
+                sent: int = -1) -> None:
         if reply is not None and not client.closed:
-            client.send(mbap.frame(tid, unit, reply))
+            if sent < 0:
+                client.send(mbap.frame(tid, unit, reply))
+            elif sent < mbap.HEADER_LEN + len(reply):
+                client.send(mbap.frame(tid, unit, reply)[sent:])
             self.counters.replies += 1
             client.last_active = time.monotonic()
 

@@ -1,7 +1,8 @@
-"""mbgw.pdu.reply_matches: can this reply PDU be the answer to that request PDU?"""
+"""reply_matches (csrc/reply.c): can this reply PDU be the answer to that request PDU?"""
 import pytest
 
 from mbgw import pdu
+from mbgw.native import reply_matches
 from tests.unit.vectors import PDU_PAIRS
 
 
@@ -17,32 +18,32 @@ def _with(data: bytes, index: int, value: int) -> bytes:
 
 @pytest.mark.parametrize("pair", PDU_PAIRS, ids=[p.label for p in PDU_PAIRS])
 def test_published_response_matches_its_request(pair):
-    assert pdu.reply_matches(pair.request, pair.response), pair.source
+    assert reply_matches(pair.request, pair.response), pair.source
 
 
 @pytest.mark.parametrize("pair", PDU_PAIRS, ids=[p.label for p in PDU_PAIRS])
 def test_exception_for_the_requests_function_matches(pair):
     function = pair.request[0]
     for code in (0x01, 0x02, 0x04, pdu.GATEWAY_PATH_UNAVAILABLE, pdu.GATEWAY_TARGET_FAILED):
-        assert pdu.reply_matches(pair.request, bytes((function | 0x80, code)))
+        assert reply_matches(pair.request, bytes((function | 0x80, code)))
 
 
 def test_exception_of_another_function_does_not_match():
     request = _pair("FC03").request
-    assert not pdu.reply_matches(request, b"\x84\x02")
-    assert not pdu.reply_matches(request, b"\x81\x02")
+    assert not reply_matches(request, b"\x84\x02")
+    assert not reply_matches(request, b"\x81\x02")
 
 
 def test_exception_reply_of_the_wrong_size_does_not_match():
     request = _pair("FC03").request
-    assert not pdu.reply_matches(request, b"\x83")
-    assert not pdu.reply_matches(request, b"\x83\x02\x00")
+    assert not reply_matches(request, b"\x83")
+    assert not reply_matches(request, b"\x83\x02\x00")
 
 
 @pytest.mark.parametrize("pair", PDU_PAIRS, ids=[p.label for p in PDU_PAIRS])
 def test_reply_with_another_function_does_not_match(pair):
     other = 0x03 if pair.request[0] != 0x03 else 0x04
-    assert not pdu.reply_matches(pair.request, bytes((other,)) + pair.response[1:])
+    assert not reply_matches(pair.request, bytes((other,)) + pair.response[1:])
 
 
 @pytest.mark.parametrize("label", ["FC01", "FC02", "FC03", "FC04", "FC17",
@@ -52,23 +53,23 @@ def test_read_reply_with_a_byte_count_the_request_did_not_ask_for(label):
     count = pair.response[1]
     longer = pair.response[:1] + bytes((count + 2,)) + pair.response[2:] + b"\x00\x00"
     shorter = pair.response[:1] + bytes((count - 1,)) + pair.response[2:-1]
-    assert not pdu.reply_matches(pair.request, longer)
-    assert not pdu.reply_matches(pair.request, shorter)
+    assert not reply_matches(pair.request, longer)
+    assert not reply_matches(pair.request, shorter)
 
 
 @pytest.mark.parametrize("label", ["FC01", "FC02", "FC03", "FC04", "FC17", "VPG03"])
 def test_read_reply_shorter_or_longer_than_its_byte_count(label):
     pair = _pair(label)
-    assert not pdu.reply_matches(pair.request, pair.response[:-1])
-    assert not pdu.reply_matches(pair.request, pair.response + b"\x00")
+    assert not reply_matches(pair.request, pair.response[:-1])
+    assert not reply_matches(pair.request, pair.response + b"\x00")
 
 
 def test_read_coils_byte_count_rounds_up_to_whole_bytes():
     # 6.1: "If the returned output quantity is not a multiple of eight, the remaining bits in
     # the final data byte will be padded with zeros": 8 coils -> 1 byte, 9 -> 2 bytes.
-    assert pdu.reply_matches(bytes.fromhex("01 00 00 00 08"), bytes.fromhex("01 01 FF"))
-    assert not pdu.reply_matches(bytes.fromhex("01 00 00 00 09"), bytes.fromhex("01 01 FF"))
-    assert pdu.reply_matches(bytes.fromhex("01 00 00 00 09"), bytes.fromhex("01 02 FF 01"))
+    assert reply_matches(bytes.fromhex("01 00 00 00 08"), bytes.fromhex("01 01 FF"))
+    assert not reply_matches(bytes.fromhex("01 00 00 00 09"), bytes.fromhex("01 01 FF"))
+    assert reply_matches(bytes.fromhex("01 00 00 00 09"), bytes.fromhex("01 02 FF 01"))
 
 
 @pytest.mark.parametrize("label", ["FC05", "FC06", "FC0F", "FC10",
@@ -77,14 +78,14 @@ def test_read_coils_byte_count_rounds_up_to_whole_bytes():
 def test_write_reply_that_does_not_echo_address_and_value_or_quantity(label, index):
     pair = _pair(label)
     wrong = _with(pair.response, index, pair.response[index] ^ 0x01)
-    assert not pdu.reply_matches(pair.request, wrong)
+    assert not reply_matches(pair.request, wrong)
 
 
 @pytest.mark.parametrize("label", ["FC05", "FC06", "FC0F", "FC10"])
 def test_write_reply_of_the_wrong_size(label):
     pair = _pair(label)
-    assert not pdu.reply_matches(pair.request, pair.response[:4])
-    assert not pdu.reply_matches(pair.request, pair.response + b"\x00")
+    assert not reply_matches(pair.request, pair.response[:4])
+    assert not reply_matches(pair.request, pair.response + b"\x00")
 
 
 def test_exception_pdu():
@@ -94,4 +95,4 @@ def test_exception_pdu():
 
 def test_mask_write_reply_that_does_not_echo_the_request():
     pair = _pair("FC16")
-    assert not pdu.reply_matches(pair.request, _with(pair.response, 6, 0x24))
+    assert not reply_matches(pair.request, _with(pair.response, 6, 0x24))

@@ -1,0 +1,125 @@
+"""The C receive that hands a reply straight to its client's socket (csrc/reply.c): a reply
+that answers the request goes out at once as the client's Modbus TCP frame; one that does not
+never reaches the socket.  A real pty pair carries the slave's frames; the expected bytes come
+from tests/modbus.py's builders, not from mbgw."""
+import os
+import socket
+import time
+
+import pytest
+
+from mbgw.errors import LineTimeout
+from mbgw.native import Port
+from tests.modbus import holding_reply, mbap, read_holding, rtu
+
+pytestmark = pytest.mark.integration
+
+UNIT, TID, CLIENT_UNIT = 17, 0x1234, 99
+REQUEST = bytes((UNIT,)) + read_holding(0, 3)
+
+
+@pytest.fixture
+def line(pty_pair):
+    """(Port on the gateway's end, fd of the slave's end)."""
+    port = Port(pty_pair.gateway, 19200, "n", 8, 1)
+    port.set_byte_timeout(2000)
+    slave = os.open(pty_pair.device, os.O_RDWR | os.O_NOCTTY)
+    yield port, slave
+    os.close(slave)
+    port.close()
+
+
+@pytest.fixture
+def client():
+    """(the gateway's end of a client connection, the client's end)."""
+    ours, theirs = socket.socketpair()
+    ours.setblocking(False)
+    theirs.settimeout(0.5)
+    yield ours, theirs
+    ours.close()
+    theirs.close()
+
+
+def deadline(seconds: float = 1.0) -> int:
+    return time.monotonic_ns() + int(seconds * 1e9)
+
+
+def nothing_on(sock: socket.socket) -> bool:
+    sock.setblocking(False)
+    try:
+        return not sock.recv(1024)
+    except BlockingIOError:
+        return True
+
+
+def test_a_reply_that_answers_goes_to_the_client_at_once(line, client):
+    port, slave = line
+    ours, theirs = client
+    os.write(slave, rtu(UNIT, holding_reply(0, 3)))
+    frame = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT)
+    assert frame == rtu(UNIT, holding_reply(0, 3))
+    expected = mbap(TID, CLIENT_UNIT, holding_reply(0, 3))
+    assert port.sent == len(expected)
+    assert theirs.recv(1024) == expected
+
+
+def test_a_device_exception_is_an_answer_too(line, client):
+    port, slave = line
+    ours, theirs = client
+    os.write(slave, rtu(UNIT, b"\x83\x02"))
+    assert port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT)
+    assert theirs.recv(1024) == mbap(TID, CLIENT_UNIT, b"\x83\x02")
+
+
+@pytest.mark.parametrize("reply", [
+    holding_reply(0, 2),                    # two registers where three were asked for
+    b"\x04\x06" + bytes(6),                 # another function
+    b"\x84\x02",                            # an exception for another function
+], ids=["wrong size", "wrong function", "wrong exception"])
+def test_a_reply_that_does_not_answer_never_reaches_the_client(line, client, reply):
+    port, slave = line
+    ours, theirs = client
+    os.write(slave, rtu(UNIT, reply))
+    assert port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT) == \
+        rtu(UNIT, reply)
+    assert port.sent == -1
+    assert nothing_on(theirs)
+
+
+def test_a_frame_from_another_address_is_dropped_unsent(line, client):
+    port, slave = line
+    ours, theirs = client
+    os.write(slave, rtu(UNIT + 1, holding_reply(0, 3)))
+    assert port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT) is None
+    assert port.foreign_address == UNIT + 1
+    assert port.sent == -1
+    assert nothing_on(theirs)
+
+
+def test_a_full_client_socket_takes_nothing_and_loses_nothing(line, client):
+    port, slave = line
+    ours, theirs = client
+    while True:
+        try:
+            ours.send(bytes(4096))
+        except BlockingIOError:
+            break
+    os.write(slave, rtu(UNIT, holding_reply(0, 3)))
+    assert port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT) == \
+        rtu(UNIT, holding_reply(0, 3))
+    assert port.sent == 0     # the caller sends the whole reply later, behind what waits
+
+
+def test_without_a_client_nothing_is_sent(line):
+    port, slave = line
+    os.write(slave, rtu(UNIT, holding_reply(0, 3)))
+    assert port.receive_reply(REQUEST, deadline()) == rtu(UNIT, holding_reply(0, 3))
+    assert port.sent == -1
+
+
+def test_no_reply_by_the_deadline_is_a_timeout(line, client):
+    port, _ = line
+    ours, theirs = client
+    with pytest.raises(LineTimeout):
+        port.receive_reply(REQUEST, deadline(0.05), ours.fileno(), TID, CLIENT_UNIT)
+    assert nothing_on(theirs)
