@@ -109,7 +109,9 @@ int mbgw_discard_echo(int fd, const uint8_t *sent, size_t len, int64_t deadline_
  * request's function, or its function with the size or echo the request asked for. */
 int mbgw_reply_matches(const uint8_t *req, size_t req_len, const uint8_t *rsp, size_t rsp_len);
 
-#define MBGW_REPLY_AT 6   /* where mbgw_receive_reply puts the ADU: after an MBAP header's first 6 bytes */
+/* Where mbgw_receive_reply puts the ADU: behind the first 6 bytes of an MBAP header, so the
+ * address byte sits where the unit id goes. */
+#define MBGW_REPLY_AT 6
 
 /* libmodbus's receive of the reply to req (address + PDU, no CRC) until deadline_ns, into
  * buf + MBGW_REPLY_AT.  When the reply answers req (libmodbus checked address and CRC, this

@@ -10,7 +10,6 @@
 
 #include "mbgw.h"
 
-#define MBAP_LEN 7
 #define CRC_LEN 2
 
 static unsigned quantity(const uint8_t *req)
