@@ -9,12 +9,12 @@ import logging
 import time
 
 from mbgw import pdu
-from mbgw.framing import NO_FORWARD
-from mbgw.native import reply_matches
 from mbgw.config import SerialConfig
 from mbgw.counters import Counters
 from mbgw.device_stats import DeviceStats, DeviceTable
 from mbgw.errors import ChecksumError, FrameError, LineTimeout
+from mbgw.framing import NO_FORWARD
+from mbgw.native import reply_matches
 
 wire = logging.getLogger("mbgw.wire")
 

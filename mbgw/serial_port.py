@@ -68,13 +68,15 @@ class SerialLine:
         if self.rts_control or self._echo:
             return self.transmit(adu + CRC.pack(native.crc16(adu)))
         self.port.send_rtu(adu)
-        length = len(adu) + 2
+        return self._done(len(adu) + CRC.size)
+
+    def _done(self, length: int) -> int:
+        """Count a frame of length bytes just written; when its last byte will have left."""
         self.counters.bytes_sent += length
         return time.monotonic_ns() + length * self._char_ns
 
     def _sent(self, wire: bytes) -> int:
-        self.counters.bytes_sent += len(wire)
-        done_ns = time.monotonic_ns() + len(wire) * self._char_ns
+        done_ns = self._done(len(wire))
         if self._echo:
             try:
                 self.port.discard_echo(wire, done_ns + ECHO_MARGIN_NS)
