@@ -113,16 +113,34 @@ int mbgw_reply_matches(const uint8_t *req, size_t req_len, const uint8_t *rsp, s
  * address byte sits where the unit id goes. */
 #define MBGW_REPLY_AT 6
 
+/* Where a reply that answers its request goes at once: the client's socket (fd < 0: nowhere),
+ * with the client's transaction id and unit id.  yield: then give the CPU to the client that
+ * was woken, before returning (yield_cpu: nothing else waits for the line). */
+struct mbgw_forward {
+    int fd;
+    uint16_t tid;
+    uint8_t unit;
+    uint8_t yield_cpu;
+};
+
 /* libmodbus's receive of the reply to req (address + PDU, no CRC) until deadline_ns, into
  * buf + MBGW_REPLY_AT.  When the reply answers req (libmodbus checked address and CRC, this
- * checks function and size) and client_fd >= 0, it goes to client_fd at once as a Modbus TCP
- * frame with tid and unit, and *sent is the bytes the socket took (all of them when the
- * connection is broken: its next read tells); else *sent is -1.  *end_ns: when the receive ended.
+ * checks function and size) and to->fd >= 0, it goes to that socket at once as a Modbus TCP
+ * frame, and *sent is the bytes the socket took (all of them when the connection is broken:
+ * its next read tells); else *sent is -1.  *end_ns: when the receive ended.
  * Returns the ADU's length with CRC, 0 for a frame from another address (dropped), or a
  * negative errno (libmodbus's EMBBADCRC...). */
 int mbgw_receive_reply(struct _modbus *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
-                       int64_t deadline_ns, int client_fd, uint16_t tid, uint8_t unit,
-                       int64_t *end_ns, int *sent);
+                       int64_t deadline_ns, const struct mbgw_forward *to, int64_t *end_ns,
+                       int *sent);
+
+/* libmodbus's send of req (it adds the CRC), then mbgw_receive_reply with the deadline stout_ns
+ * after the request's last byte, in one call: the thread sleeps the moment the request is
+ * written.  times[0]: when the request's last byte leaves (char_ns a character), or -1 when
+ * the write failed; times[1]: when the receive ended. */
+int mbgw_exchange(struct _modbus *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
+                  int64_t char_ns, int64_t stout_ns, const struct mbgw_forward *to,
+                  int64_t *times, int *sent);
 
 /* --- request.c: master mode, the serial master's requests for any address --- */
 

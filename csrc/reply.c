@@ -1,6 +1,7 @@
 /* Is a reply the answer to the request, and slave mode's quick way from the line to the
  * client: a reply that is goes to the client's socket before Python sees it. */
 #include <errno.h>
+#include <sched.h>
 #include <stdint.h>
 #include <string.h>
 #include <sys/socket.h>
@@ -51,9 +52,10 @@ static int64_t now_ns(void)
     return (int64_t)t.tv_sec * 1000000000 + t.tv_nsec;
 }
 
-int mbgw_receive_reply(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
-                       int64_t deadline_ns, int client_fd, uint16_t tid, uint8_t unit,
-                       int64_t *end_ns, int *sent)
+/* libmodbus's receive until deadline_ns, then the forward to the client (see mbgw.h). */
+static int receive(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
+                   int64_t deadline_ns, const struct mbgw_forward *to, int64_t *end_ns,
+                   int *sent)
 {
     *sent = -1;
     int64_t left_us = (deadline_ns - now_ns()) / 1000;
@@ -69,24 +71,48 @@ int mbgw_receive_reply(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t r
     *end_ns = now_ns();
     if (n < 0)
         return -errno;
-    if (n < 2 + CRC_LEN || client_fd < 0 || *end_ns > deadline_ns)
+    if (n < 2 + CRC_LEN || to->fd < 0 || *end_ns > deadline_ns)
         return n;
     size_t pdu_len = (size_t)n - 1 - CRC_LEN;
     if (!mbgw_reply_matches(req + 1, req_len - 1, adu + 1, pdu_len))
         return n;
     /* MBAP header: transaction id, protocol 0, length (unit id + PDU), unit id */
     uint8_t address = adu[0];
-    buf[0] = tid >> 8;
-    buf[1] = tid & 0xff;
+    buf[0] = to->tid >> 8;
+    buf[1] = to->tid & 0xff;
     buf[2] = buf[3] = 0;
     buf[4] = (pdu_len + 1) >> 8;
     buf[5] = (pdu_len + 1) & 0xff;
-    adu[0] = unit;
-    ssize_t w = send(client_fd, buf, MBGW_REPLY_AT + 1 + pdu_len, MSG_DONTWAIT | MSG_NOSIGNAL);
+    adu[0] = to->unit;
+    ssize_t w = send(to->fd, buf, MBGW_REPLY_AT + 1 + pdu_len, MSG_DONTWAIT | MSG_NOSIGNAL);
     adu[0] = address;
     if (w >= 0)
         *sent = (int)w;
     else
         *sent = errno == EAGAIN ? 0 : (int)(MBGW_REPLY_AT + 1 + pdu_len);
+    /* The client was just woken, often onto this CPU: let it run before our bookkeeping. */
+    if (w > 0 && to->yield_cpu)
+        sched_yield();
     return n;
+}
+
+int mbgw_receive_reply(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
+                       int64_t deadline_ns, const struct mbgw_forward *to, int64_t *end_ns,
+                       int *sent)
+{
+    return receive(ctx, buf, req, req_len, deadline_ns, to, end_ns, sent);
+}
+
+int mbgw_exchange(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
+                  int64_t char_ns, int64_t stout_ns, const struct mbgw_forward *to,
+                  int64_t *times, int *sent)
+{
+    *sent = -1;
+    if (modbus_send_raw_request(ctx, req, (int)req_len) < 0) {
+        times[0] = -1;
+        times[1] = now_ns();
+        return -errno;
+    }
+    times[0] = now_ns() + (int64_t)(req_len + CRC_LEN) * char_ns;
+    return receive(ctx, buf, req, req_len, times[0] + stout_ns, to, &times[1], sent);
 }

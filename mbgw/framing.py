@@ -6,7 +6,7 @@ from mbgw import native, pdu
 from mbgw.errors import ChecksumError, FrameError, LineTimeout
 from mbgw.serial_port import SerialLine
 
-NO_FORWARD = (-1, 0, 0)       # receive(): the reply goes nowhere before it is returned
+NO_FORWARD = (-1, 0, 0, False)   # receive(): the reply goes nowhere before it is returned
 
 
 class RtuFraming:
@@ -20,39 +20,78 @@ class RtuFraming:
         self.last_rx_ns = 0
         self.foreign_address = -1     # set when receive() returns None
         self.sent = -1
+        self.sent_end_ns = 0
 
     def send(self, adu: bytes) -> int:
         return self.line.transmit_rtu(adu)
 
     def receive(self, adu: bytes, deadline: int, forward=NO_FORWARD) -> bytes | None:
         """address + PDU of a frame with a valid CRC from adu's address; None: another
-        address.  forward: (socket fd, tid, unit) of the client to which a reply that
+        address.  forward: (socket fd, tid, unit, yield) of the client to which a reply that
         answers adu goes at once (self.sent: its bytes the socket took, -1 none).  Raises
         LineTimeout, ChecksumError, FrameError."""
         self.sent = -1
-        if adu[1] in pdu.LIBMODBUS_FRAMED:
-            port = self.port
-            try:
-                frame = port.receive_reply(adu, deadline, *forward)
-            except ChecksumError:
-                self.last_rx_ns = port.last_byte_ns
-                self.line.counters.bytes_received += port.dropped_length
-                raise
-            except LineTimeout:
-                now = port.last_byte_ns
-                if now < deadline:   # the byte timeout: a gap broke a frame
-                    self.last_rx_ns = now - self._end_us * 1000   # so the line is quiet
-                    raise FrameError("incomplete frame") from None
-                self.last_rx_ns = now
-                raise
+        if adu[1] not in pdu.LIBMODBUS_FRAMED:
+            return self._receive_own(adu, deadline)
+        try:
+            frame = self.port.receive_reply(adu, deadline, *forward)
+        except (ChecksumError, LineTimeout) as err:
+            self._failed(err, deadline)
+            raise
+        return self._received(frame)
+
+    def exchanges(self, adu: bytes) -> bool:
+        """exchange() can take adu: libmodbus sends it and frames its reply."""
+        return adu[1] in pdu.LIBMODBUS_FRAMED and self.line.libmodbus_sends
+
+    def exchange(self, adu: bytes, stout_ns: int, forward=NO_FORWARD) -> bytes | None:
+        """send(adu) and receive() with the deadline stout_ns after the request, in one C
+        call, so that nothing runs between the write and the wait for the reply.
+        self.sent_end_ns: when the request's last byte left (raising SerialError, the write
+        failed: the line is lost)."""
+        self.sent = -1
+        port = self.port
+        try:
+            frame = port.exchange(adu, self.line.char_ns, stout_ns, *forward)
+        except (ChecksumError, LineTimeout) as err:
+            self._exchanged(adu)
+            self._failed(err, self.sent_end_ns + stout_ns)
+            raise
+        except FrameError:
+            self._exchanged(adu)
+            raise
+        self._exchanged(adu)
+        return self._received(frame)
+
+    def _exchanged(self, adu: bytes) -> None:
+        self.sent_end_ns = self.port.sent_end_ns
+        self.line.sent_rtu(len(adu))
+
+    def _failed(self, err: Exception, deadline: int) -> None:
+        port = self.port
+        if isinstance(err, ChecksumError):
             self.last_rx_ns = port.last_byte_ns
-            if frame is None:
-                self.line.counters.bytes_received += port.dropped_length
-                self.foreign_address = port.foreign_address
-                return None
-            self.sent = port.sent
-            self.line.counters.bytes_received += len(frame)
-            return frame[:-2]
+            self.line.counters.bytes_received += port.dropped_length
+            return
+        now = port.last_byte_ns
+        if now < deadline:   # the byte timeout: a gap broke a frame
+            self.last_rx_ns = now - self._end_us * 1000   # so the line is quiet
+            raise FrameError("incomplete frame") from None
+        self.last_rx_ns = now
+
+    def _received(self, frame: bytes | None) -> bytes | None:
+        port = self.port
+        self.last_rx_ns = port.last_byte_ns
+        if frame is None:
+            self.line.counters.bytes_received += port.dropped_length
+            self.foreign_address = port.foreign_address
+            return None
+        self.sent = port.sent
+        self.line.counters.bytes_received += len(frame)
+        return frame[:-2]
+
+    def _receive_own(self, adu: bytes, deadline: int) -> bytes | None:
+        """Our receive, for the codes libmodbus does not frame right."""
         frame = self.port.read_reply(len(adu), deadline, self._end_us, False)
         self.last_rx_ns = self.port.last_byte_ns
         self.line.counters.bytes_received += len(frame)
@@ -95,6 +134,9 @@ class AsciiFraming:
 
     def send(self, adu: bytes) -> int:
         return self.line.transmit(native.ascii_encode(adu))
+
+    def exchanges(self, adu: bytes) -> bool:
+        return False
 
     def _read(self, deadline: int) -> bytes:
         frame = self.port.read_ascii(deadline, self._interchar_us)

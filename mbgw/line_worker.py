@@ -102,9 +102,11 @@ class LineWorker(threading.Thread):
         self._serving = job
         try:
             client = job.client
-            # the reply may go straight to a client whose earlier replies have all gone out
+            # The reply may go straight to a client whose earlier replies have all gone out.
+            # With no other request waiting for the line, that client (often woken onto this
+            # CPU) then runs before our bookkeeping.
             forward = NO_FORWARD if client.output_waiting or client.closed else \
-                (client.fd, job.tid, job.unit)
+                (client.fd, job.tid, job.unit, not self._scheduler.depth)
             reply = self._master.transact(job.adu, forward)
             if reply is None:
                 job.outcome = OUTCOME_BROADCAST    # a reply went out through _reply_now

@@ -94,9 +94,12 @@ class Port:
         self._buf = ffi.new("uint8_t[]", ASCII_MAX_FRAME + 4)
         self._end_ns = ffi.new("int64_t *")
         self._sent = ffi.new("int *")
+        self._times = ffi.new("int64_t[2]")
+        self._to = ffi.new("struct mbgw_forward *")
         self.sent = -1                 # what receive_reply sent to the client
         self.dropped_length = 0        # bytes of the frame receive_reply dropped
         self.foreign_address = -1      # the address of the frame it ignored
+        self.sent_end_ns = 0           # exchange(): when the request's last byte leaves
         self.set_byte_timeout(0)
 
     def _open(self, device: str, baudrate: int, parity: str, data_bits: int,
@@ -185,14 +188,43 @@ class Port:
         self._check(lib.mbgw_discard_echo(self.fd, sent, len(sent), deadline_ns), "read echo")
 
     def receive_reply(self, adu: bytes, deadline_ns: int, client_fd: int = -1, tid: int = 0,
-                      unit: int = 0) -> bytes | None:
+                      unit: int = 0, yield_cpu: bool = False) -> bytes | None:
         """libmodbus's receive of the reply to adu, for the codes it frames right: the frame
         (CRC checked), or None for a frame from another address (libmodbus drops it and
         returns at once).  With client_fd, a reply that answers adu in time has gone to that
         socket as a Modbus TCP frame with tid and unit already: self.sent tells how many of
-        its bytes the socket took (-1: nothing was sent)."""
-        n = lib.mbgw_receive_reply(self._ctx, self._buf, adu, len(adu), deadline_ns, client_fd,
-                                   tid, unit, self._end_ns, self._sent)
+        its bytes the socket took (-1: nothing was sent); yield_cpu: then the client that
+        was woken runs before this returns."""
+        n = lib.mbgw_receive_reply(self._ctx, self._buf, adu, len(adu), deadline_ns,
+                                   self._forward_to(client_fd, tid, unit, yield_cpu),
+                                   self._end_ns, self._sent)
+        return self._received(n)
+
+    def exchange(self, adu: bytes, char_ns: int, stout_ns: int, client_fd: int = -1,
+                 tid: int = 0, unit: int = 0, yield_cpu: bool = False) -> bytes | None:
+        """send_rtu(adu) and receive_reply() in one call, the deadline stout_ns after the
+        request's last byte: nothing runs between the write and the wait.  self.sent_end_ns:
+        when the request's last byte leaves (char_ns a character)."""
+        times = self._times
+        n = lib.mbgw_exchange(self._ctx, self._buf, adu, len(adu), char_ns, stout_ns,
+                              self._forward_to(client_fd, tid, unit, yield_cpu), times,
+                              self._sent)
+        self._end_ns[0] = times[1]
+        if times[0] < 0:
+            self.sent = -1
+            raise self._fail(-n, "write")
+        self.sent_end_ns = times[0]
+        return self._received(n)
+
+    def _forward_to(self, client_fd: int, tid: int, unit: int, yield_cpu: bool):
+        to = self._to
+        to.fd = client_fd
+        to.tid = tid
+        to.unit = unit
+        to.yield_cpu = yield_cpu
+        return to
+
+    def _received(self, n: int) -> bytes | None:
         self.sent = self._sent[0]
         if n > 0:
             self.dropped_length = 0

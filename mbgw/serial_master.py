@@ -33,6 +33,7 @@ class SerialMaster:
         self._turnaround_us = turnaround_ms * 1000
         self._quiet_from_ns = 0
         self._quiet_us = 0
+        self._deadline = 0          # of the reply to the request last sent
         # on_reply(reply PDU, bytes of it forwarded or -1): called before the reply is booked
         self.on_reply = None
 
@@ -45,22 +46,27 @@ class SerialMaster:
 
     def transact(self, adu: bytes, forward=NO_FORWARD) -> bytes | None:
         """Send adu (address + PDU) and return the reply PDU; None for a broadcast.
-        forward: (socket fd, tid, unit) where the reply may go straight from the C receive.
-        Raises LineTimeout when no valid reply came, SerialError when the port failed."""
+        forward: (socket fd, tid, unit, yield) where the reply may go straight from the C
+        receive.  Raises LineTimeout when no valid reply came, SerialError when the port
+        failed."""
         device = self.devices.get(adu[0])
         device.transactions += 1
-        deadline = self._send(adu)
-        started = self._sent_ns
         if adu[0] == pdu.BROADCAST:
+            self._await_quiet(adu)
+            self._sent(self.framing.send(adu))
             self._counters.broadcasts += 1
             device.broadcasts += 1
             self._quiet_us = self._turnaround_us
             return None
+        started = 0
         for attempt in range(self._retries + 1):
             if attempt:
                 self._count(device, "retries")
-                deadline = self._send(adu)
-            reply = self._receive(adu, deadline, device, forward)
+            self._await_quiet(adu)
+            if not attempt:
+                started = self._sent_ns
+            reply = self._receive(adu, device, forward, self.framing.exchanges(adu)
+                                  and not self._nocheck)
             if reply is not None:
                 if self.on_reply is not None:
                     self.on_reply(reply, self.framing.sent)
@@ -73,7 +79,7 @@ class SerialMaster:
                 if self._timed_out is device:
                     self._timed_out = None
                 return reply
-        self._counters.line_busy_ns += deadline - started
+        self._counters.line_busy_ns += self._deadline - started
         self._count(device, "timeouts")
         device.failed()
         self._timed_out = device
@@ -83,8 +89,8 @@ class SerialMaster:
         setattr(self._counters, name, getattr(self._counters, name) + 1)
         setattr(device, name, getattr(device, name) + 1)
 
-    def _send(self, adu: bytes) -> int:
-        """Returns the reply's deadline."""
+    def _await_quiet(self, adu: bytes) -> None:
+        """Until the line has been quiet long enough for adu to go out."""
         now = time.monotonic_ns()
         if now < self._quiet_from_ns + self._quiet_us * 1000:    # else no C call is needed
             stale = self.framing.port.wait_quiet(self._quiet_from_ns, self._quiet_us)
@@ -95,19 +101,31 @@ class SerialMaster:
         if wire.isEnabledFor(logging.DEBUG):
             wire.debug("tx %s", adu.hex(" "))
         self._sent_ns = now
-        self._quiet_from_ns = self.framing.send(adu)
-        self._quiet_us = self.framing.inter_frame_us
-        return self._quiet_from_ns + self._stout_ns
 
-    def _receive(self, adu: bytes, deadline: int, device: DeviceStats,
-                 forward) -> bytes | None:
-        """The reply PDU, or None once stout has passed without one."""
+    def _sent(self, end_ns: int) -> None:
+        """The request's last byte leaves the line at end_ns."""
+        self._quiet_from_ns = end_ns
+        self._quiet_us = self.framing.inter_frame_us
+        self._deadline = end_ns + self._stout_ns
+
+    def _receive(self, adu: bytes, device: DeviceStats, forward, exchange: bool) -> bytes | None:
+        """Send adu (in one C call with the first receive when exchange) and return the reply
+        PDU, or None once stout has passed without one."""
         framing = self.framing
+        if not exchange:
+            self._sent(framing.send(adu))
         while True:
             try:
-                if self._nocheck:
-                    return framing.receive_unchecked(adu, deadline)[1:] or None
-                frame = framing.receive(adu, deadline, forward)
+                if exchange:
+                    exchange = False
+                    try:
+                        frame = framing.exchange(adu, self._stout_ns, forward)
+                    finally:
+                        self._sent(framing.sent_end_ns)
+                elif self._nocheck:
+                    return framing.receive_unchecked(adu, self._deadline)[1:] or None
+                else:
+                    frame = framing.receive(adu, self._deadline, forward)
             except LineTimeout:
                 return None
             except ChecksumError:
@@ -129,7 +147,7 @@ class SerialMaster:
                 continue
             if wire.isEnabledFor(logging.DEBUG):
                 wire.debug("rx %s", frame.hex(" "))
-            if framing.last_rx_ns > deadline:
+            if framing.last_rx_ns > self._deadline:
                 self._count(device, "late_replies")
                 continue
             reply = frame[1:]

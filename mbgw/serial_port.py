@@ -48,10 +48,13 @@ class SerialLine:
             port.close()
             raise
         self.port = port
-        self._char_ns = cfg.char_ns
+        self.char_ns = cfg.char_ns
         self._before_us = cfg.rtsdelays[0] * 1000
         self._after_us = cfg.rtsdelays[1] * 1000
         self._echo = cfg.interface.echo
+        # RTU frames go out through libmodbus unless mbgw drives RTS or reads the echo
+        # back: both need the whole frame here
+        self.libmodbus_sends = not (self.rts_control or self._echo)
 
     def close(self) -> None:
         self.port.close()
@@ -64,16 +67,20 @@ class SerialLine:
 
     def transmit_rtu(self, adu: bytes) -> int:
         """transmit() for an RTU frame given without its CRC: libmodbus adds it and writes,
-        unless mbgw drives RTS or reads the echo back, which need the whole frame here."""
-        if self.rts_control or self._echo:
+        when it may (libmodbus_sends)."""
+        if not self.libmodbus_sends:
             return self.transmit(adu + CRC.pack(native.crc16(adu)))
         self.port.send_rtu(adu)
         return self._done(len(adu) + CRC.size)
 
+    def sent_rtu(self, adu_length: int) -> None:
+        """Count an RTU frame that libmodbus wrote (native.Port.exchange)."""
+        self.counters.bytes_sent += adu_length + CRC.size
+
     def _done(self, length: int) -> int:
         """Count a frame of length bytes just written; when its last byte will have left."""
         self.counters.bytes_sent += length
-        return time.monotonic_ns() + length * self._char_ns
+        return time.monotonic_ns() + length * self.char_ns
 
     def _sent(self, wire: bytes) -> int:
         done_ns = self._done(len(wire))

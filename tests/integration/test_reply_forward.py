@@ -1,9 +1,10 @@
 """The C receive that hands a reply straight to its client's socket (csrc/reply.c): a reply
 that answers the request goes out at once as the client's Modbus TCP frame; one that does not
-never reaches the socket.  A real pty pair carries the slave's frames; the expected bytes come
+never reaches the socket.  The exchange writes the request and receives in one call.  A real pty pair carries the slave's frames; the expected bytes come
 from tests/modbus.py's builders, not from mbgw."""
 import os
 import socket
+import threading
 import time
 
 import pytest
@@ -122,4 +123,46 @@ def test_no_reply_by_the_deadline_is_a_timeout(line, client):
     ours, theirs = client
     with pytest.raises(LineTimeout):
         port.receive_reply(REQUEST, deadline(0.05), ours.fileno(), TID, CLIENT_UNIT)
+    assert nothing_on(theirs)
+
+
+CHAR_NS = 10 * 1_000_000_000 // 19200
+
+
+def answer_once(slave: int, reply: bytes) -> tuple[threading.Thread, list]:
+    """A slave that reads one request and answers it; the request read goes to the list."""
+    got = []
+
+    def serve():
+        request = b""
+        while len(request) < len(REQUEST) + 2:
+            request += os.read(slave, 256)
+        got.append(request)
+        os.write(slave, reply)
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    return thread, got
+
+
+def test_the_exchange_writes_the_request_and_forwards_its_reply(line, client):
+    port, slave = line
+    ours, theirs = client
+    thread, got = answer_once(slave, rtu(UNIT, holding_reply(0, 3)))
+    before = time.monotonic_ns()
+    frame = port.exchange(REQUEST, CHAR_NS, 1_000_000_000, ours.fileno(), TID, CLIENT_UNIT)
+    thread.join(1)
+    assert got == [rtu(UNIT, read_holding(0, 3))]
+    assert frame == rtu(UNIT, holding_reply(0, 3))
+    assert theirs.recv(1024) == mbap(TID, CLIENT_UNIT, holding_reply(0, 3))
+    # the request's last byte leaves 8 characters after the write began
+    assert before + 8 * CHAR_NS <= port.sent_end_ns <= port.last_byte_ns + 8 * CHAR_NS
+
+
+def test_the_exchange_waits_stout_from_the_end_of_the_request(line, client):
+    port, slave = line
+    ours, theirs = client
+    with pytest.raises(LineTimeout):
+        port.exchange(REQUEST, CHAR_NS, 50_000_000, ours.fileno(), TID, CLIENT_UNIT)
+    assert port.last_byte_ns >= port.sent_end_ns + 50_000_000
+    assert os.read(slave, 256) == rtu(UNIT, read_holding(0, 3))
     assert nothing_on(theirs)
