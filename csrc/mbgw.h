@@ -142,6 +142,33 @@ int mbgw_exchange(struct _modbus *ctx, uint8_t *buf, const uint8_t *req, size_t 
                   int64_t char_ns, int64_t stout_ns, const struct mbgw_forward *to,
                   int64_t *times, int *sent);
 
+/* mbgw_take_request's result when it left the request to the caller. */
+#define MBGW_NOT_TAKEN 1000000
+#define MBGW_MAX_ADDRESS 247   /* the highest unicast serial address */
+
+/* What a request must meet to take the shortcut to the line, and what came of it. */
+struct mbgw_shortcut {
+    const uint8_t *framed;     /* 256 flags: the function codes libmodbus frames */
+    int64_t quiet_until_ns;    /* the line must stay silent until then */
+    int64_t char_ns;
+    int64_t stout_ns;
+    uint8_t slaveid;           /* the serial address of every request; 0: the unit id */
+    int result;                /* out: mbgw_exchange's return, or MBGW_NOT_TAKEN */
+    int64_t times[2];          /* out: mbgw_exchange's */
+    int sent;                  /* out: mbgw_exchange's */
+};
+
+/* Slave mode, a client readable while the line is idle: read what it sent (up to in_cap
+ * bytes) into in.  When that is exactly one Modbus TCP request with a valid header, a
+ * function code marked in sc->framed, and a serial address 1..MBGW_MAX_ADDRESS, and the line
+ * has been silent until sc->quiet_until_ns, the request goes on the line at once
+ * (mbgw_exchange, its reply forwarded to client_fd, which then runs first); the caller keeps
+ * the books.  Otherwise sc->result is MBGW_NOT_TAKEN and the bytes are the caller's to frame.
+ * Returns the bytes read, 0 when the connection has ended, -EAGAIN when nothing came, or
+ * another negative errno. */
+int mbgw_take_request(struct _modbus *ctx, int client_fd, uint8_t *in, size_t in_cap,
+                      uint8_t *buf, struct mbgw_shortcut *sc);
+
 /* --- request.c: master mode, the serial master's requests for any address --- */
 
 /* Wait (no deadline) for a frame on fd, then read it into buf: framed by the request length

@@ -1,5 +1,6 @@
-/* Is a reply the answer to the request, and slave mode's quick way from the line to the
- * client: a reply that is goes to the client's socket before Python sees it. */
+/* Is a reply the answer to the request, and slave mode's quick ways between the client and
+ * the line: a reply that answers goes to the client's socket before Python sees it, and a
+ * request that finds the line idle goes on it before Python sees it. */
 #include <errno.h>
 #include <sched.h>
 #include <stdint.h>
@@ -12,6 +13,8 @@
 #include "mbgw.h"
 
 #define CRC_LEN 2
+#define MBAP_LEN 7             /* with the unit id */
+#define MBAP_MAX_LENGTH 254    /* unit id + the largest PDU */
 
 static unsigned quantity(const uint8_t *req)
 {
@@ -115,4 +118,31 @@ int mbgw_exchange(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_le
     }
     times[0] = now_ns() + (int64_t)(req_len + CRC_LEN) * char_ns;
     return receive(ctx, buf, req, req_len, times[0] + stout_ns, to, &times[1], sent);
+}
+
+int mbgw_take_request(modbus_t *ctx, int client_fd, uint8_t *in, size_t in_cap, uint8_t *buf,
+                      struct mbgw_shortcut *sc)
+{
+    sc->result = MBGW_NOT_TAKEN;
+    ssize_t n = recv(client_fd, in, in_cap, MSG_DONTWAIT);
+    if (n < 0)
+        return errno == EAGAIN || errno == EINTR ? -EAGAIN : -errno;
+    if (n < MBAP_LEN + 1)
+        return (int)n;
+    /* MBAP header: transaction id, protocol id, length (unit id + PDU), unit id */
+    unsigned length = (unsigned)in[4] << 8 | in[5];
+    if (in[2] || in[3] || (size_t)n != 6 + length || length < 2 || length > MBAP_MAX_LENGTH)
+        return (int)n;                  /* a bad header, or not exactly one request */
+    uint8_t unit = in[6];
+    uint8_t address = sc->slaveid ? sc->slaveid : unit;
+    if (address < 1 || address > MBGW_MAX_ADDRESS || !sc->framed[in[7]] ||
+        now_ns() < sc->quiet_until_ns)
+        return (int)n;
+    uint8_t adu[MBGW_RTU_MAX_ADU];
+    adu[0] = address;
+    memcpy(adu + 1, in + 7, length - 1);
+    struct mbgw_forward to = { client_fd, (uint16_t)(in[0] << 8 | in[1]), unit, 1 };
+    sc->result = mbgw_exchange(ctx, buf, adu, length, sc->char_ns, sc->stout_ns, &to,
+                               sc->times, &sc->sent);
+    return (int)n;
 }

@@ -39,10 +39,12 @@ class Connections:
         self._adopted.append(client)
         os.eventfd_write(self._wake_fd, 1)
 
-    def wait(self, timeout_ms: int, serial_fd: int = -1) -> bool:
+    def wait(self, timeout_ms: int, serial_fd: int = -1, take=None) -> bool:
         """Line thread: wait up to timeout_ms (-1: no limit, 0: not at all) for a client, the
         wake-up eventfd or input on serial_fd, and serve the clients that are ready.  True
-        when serial_fd has input (or an error) waiting."""
+        when serial_fd has input (or an error) waiting.  take(client): reads one client at
+        rest in its own way, once, when the serial line is quiet (the line worker's
+        shortcut), and returns what Client.receive would."""
         self._update()
         if serial_fd >= 0:
             self._poll.register(serial_fd, _IN)
@@ -52,6 +54,8 @@ class Connections:
             if serial_fd >= 0:
                 self._poll.unregister(serial_fd)
         serial = False
+        if take is not None and any(fd == serial_fd for fd, _ in ready):
+            take = None         # input nobody asked for: the line is not quiet
         for fd, events in ready:
             if fd == serial_fd:
                 serial = True
@@ -59,7 +63,12 @@ class Connections:
                 self._woken()
             else:
                 client = self._clients.get(fd)
-                if client is not None:
+                if client is None:
+                    continue
+                if take is not None and client.at_rest:
+                    self._serve(client, events, take)
+                    take = None
+                else:
                     self._serve(client, events)
         return serial
 
@@ -97,13 +106,13 @@ class Connections:
                 self._poll.register(fd, wanted)
             self._events[fd] = wanted
 
-    def _serve(self, client: Client, events: int) -> None:
+    def _serve(self, client: Client, events: int, take=None) -> None:
         if events & _OUT:
             client.flush()
         if not events & ~_OUT:
             return
         try:
-            frames = client.receive(self._receive)
+            frames = client.receive(self._receive) if take is None else take(client)
         except mbap.BadHeader as err:
             self._counters.connections_bad_header += 1
             log.warning("client %s: bad MBAP header (%s); closing the connection",

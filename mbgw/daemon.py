@@ -64,8 +64,7 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     scheduler = Scheduler()
 
     server = TcpServer(cfg, scheduler, counters, lambda: worker.up)
-    worker = LineWorker(cfg, line, scheduler, server.connections, counters, devices,
-                        server.finished)
+    worker = LineWorker(cfg, line, scheduler, server, counters, devices)
     stop = asyncio.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(signum, stop.set)

@@ -44,15 +44,19 @@ class RtuFraming:
         """exchange() can take adu: libmodbus sends it and frames its reply."""
         return adu[1] in pdu.LIBMODBUS_FRAMED and self.line.libmodbus_sends
 
-    def exchange(self, adu: bytes, stout_ns: int, forward=NO_FORWARD) -> bytes | None:
+    def exchange(self, adu: bytes, stout_ns: int, forward=NO_FORWARD,
+                 taken: bool = False) -> bytes | None:
         """send(adu) and receive() with the deadline stout_ns after the request, in one C
-        call, so that nothing runs between the write and the wait for the reply.
-        self.sent_end_ns: when the request's last byte left (raising SerialError, the write
-        failed: the line is lost)."""
+        call, so that nothing runs between the write and the wait for the reply (taken: the
+        port took adu from its client and exchanged it already).  self.sent_end_ns: when the
+        request's last byte left (raising SerialError, the write failed: the line is lost)."""
         self.sent = -1
         port = self.port
         try:
-            frame = port.exchange(adu, self.line.char_ns, stout_ns, *forward)
+            if taken:
+                frame = port.exchanged()
+            else:
+                frame = port.exchange(adu, self.line.char_ns, stout_ns, *forward)
         except (ChecksumError, LineTimeout) as err:
             self._exchanged(adu)
             self._failed(err, self.sent_end_ns + stout_ns)

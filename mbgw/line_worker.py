@@ -2,12 +2,13 @@
 a thread that reads the clients' requests, takes jobs from the scheduler, runs them on the
 line and delivers each outcome.  It also keeps the port alive: a device that fails is closed,
 reopened with backoff, and reported once per change of state."""
+import errno
 import logging
 import math
 import threading
 import time
 
-from mbgw import pdu
+from mbgw import mbap, pdu
 from mbgw.config import SlaveConfig
 from mbgw.connections import Connections
 from mbgw.counters import Counters
@@ -19,8 +20,10 @@ from mbgw.scheduler import (OUTCOME_BROADCAST, OUTCOME_ERROR, OUTCOME_EXCEPTION,
                             OUTCOME_LINE_DOWN, OUTCOME_REPLY, OUTCOME_TIMEOUT, Job, Scheduler)
 from mbgw.serial_master import SerialMaster
 from mbgw.serial_port import SerialLine
+from mbgw.tcp_connection import Client
 
 log = logging.getLogger("mbgw.line")
+wire = logging.getLogger("mbgw.wire")
 
 REOPEN_FIRST_S = 0.5
 # Serial settings that need the port opened again; the others apply to the next transaction.
@@ -30,15 +33,17 @@ REOPEN_MAX_S = 5.0
 
 class LineWorker(threading.Thread):
     def __init__(self, cfg: SlaveConfig, line: SerialLine, scheduler: Scheduler,
-                 connections: Connections, counters: Counters, devices: DeviceTable,
-                 deliver) -> None:
+                 server, counters: Counters, devices: DeviceTable) -> None:
         super().__init__(name="mbgw-line", daemon=True)
         self._cfg = cfg
         self._scheduler = scheduler
-        self._connections = connections
+        self._server = server          # the TcpServer
+        self._connections: Connections = server.connections
         self._counters = counters
         self.devices = devices
-        self._deliver = deliver        # deliver(job, reply_pdu_or_None[, bytes forwarded])
+        self._deliver = server.finished    # deliver(job, reply_pdu_or_None[, bytes forwarded])
+        self._taken: Job | None = None     # put on the line by the shortcut, books to keep
+        self._shortcut = False
         self._stopping = False
         self._new_cfg: SlaveConfig | None = None
         self._serving: Job | None = None     # until its outcome has been delivered
@@ -47,9 +52,16 @@ class LineWorker(threading.Thread):
         self.up = True                 # False while the port is down: requests are refused
 
     def _master_on(self, line: SerialLine, previous: SerialMaster | None = None) -> SerialMaster:
-        master = SerialMaster(framing_for(line), self._cfg.serial, self._counters, self.devices,
-                              self._cfg.retries, self._cfg.turnaround_ms)
+        cfg = self._cfg
+        master = SerialMaster(framing_for(line), cfg.serial, self._counters, self.devices,
+                              cfg.retries, cfg.turnaround_ms)
         master.on_reply = self._reply_now
+        # The shortcut takes plain RTU requests, which libmodbus sends and frames.
+        self._shortcut = cfg.serial.protocol == "rtu" and line.libmodbus_sends and \
+            not cfg.serial.nocheck
+        if self._shortcut:
+            line.port.shortcut_rules(pdu.LIBMODBUS_FRAMED, line.char_ns,
+                                     cfg.serial.stout_ms * 1_000_000, cfg.slaveid)
         if previous is not None:
             master.keep_line_state(previous)
         return master
@@ -91,6 +103,9 @@ class LineWorker(threading.Thread):
             job = self._scheduler.take()
             if job is None:
                 self._idle()
+                job, self._taken = self._taken, None
+                if job is not None:
+                    self._serve(job, taken=True)
             else:
                 self._serve(job)
                 self._connections.wait(0)      # what the clients sent meanwhile
@@ -98,7 +113,7 @@ class LineWorker(threading.Thread):
         if self._master is not None:
             self._master.framing.line.close()
 
-    def _serve(self, job: Job) -> None:
+    def _serve(self, job: Job, taken: bool = False) -> None:
         self._serving = job
         try:
             client = job.client
@@ -107,7 +122,7 @@ class LineWorker(threading.Thread):
             # CPU) then runs before our bookkeeping.
             forward = NO_FORWARD if client.output_waiting or client.closed else \
                 (client.fd, job.tid, job.unit, not self._scheduler.depth)
-            reply = self._master.transact(job.adu, forward)
+            reply = self._master.transact(job.adu, forward, taken)
             if reply is None:
                 job.outcome = OUTCOME_BROADCAST    # a reply went out through _reply_now
         except LineTimeout:
@@ -145,8 +160,10 @@ class LineWorker(threading.Thread):
     def _idle(self) -> None:
         """Wait for a request, new settings or stopping; count input nobody asked for."""
         port = self._master.framing.port
+        take = self._take if self._shortcut and not self._server.trace.active and \
+            not wire.isEnabledFor(logging.DEBUG) else None
         try:
-            if self._connections.wait(-1, port.fd):
+            if self._connections.wait(-1, port.fd, take):
                 # one frame without a request: whatever comes until the line is quiet again
                 unsolicited = port.wait_quiet(time.monotonic_ns(), self._cfg.serial.t35_us)
                 self._counters.unsolicited_frames += 1
@@ -154,6 +171,33 @@ class LineWorker(threading.Thread):
                 self._counters.bytes_received += unsolicited
         except SerialError as err:
             self._lost(err)
+
+    def _take(self, client: Client) -> list | None:
+        """The shortcut for a request that finds the line idle: C reads the client and, when
+        what came is one request it can put on the line as it is, exchanges it at once and
+        forwards the reply; the books are kept after (self._taken).  Anything else read is
+        the client's to frame.  Returns what Client.receive would."""
+        master = self._master
+        port = master.framing.port
+        client.in_flight += 1          # from now on, never an idle connection to evict
+        try:
+            n, taken = port.take_request(client.fd, master.quiet_until_ns)
+        except BaseException:
+            client.in_flight -= 1
+            raise
+        if not taken:
+            client.in_flight -= 1
+            if n == -errno.EAGAIN:
+                return []
+            return client.received(port.taken_input[:n]) if n > 0 else None
+        data = port.taken_input[:n]
+        tid, _, _, unit = mbap.HEADER.unpack_from(data)
+        client.last_active = time.monotonic()
+        self._taken = self._server.taken(client, tid, unit, data[mbap.HEADER_LEN:])
+        if self._taken is None:     # the shortcut and the server disagree on a route: a bug
+            client.in_flight -= 1
+            log.error("internal error: the shortcut took %s, which does not route", data.hex(" "))
+        return []
 
     def _lost(self, err: SerialError) -> None:
         log.error("serial device %s lost: %s; reopening", self._cfg.serial.device, err.strerror)

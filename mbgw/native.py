@@ -13,6 +13,8 @@ LEN_UNKNOWN = lib.MBGW_LEN_UNKNOWN
 RTU_MAX_ADU = lib.MBGW_RTU_MAX_ADU
 ASCII_MAX_FRAME = lib.MBGW_ASCII_MAX_FRAME
 REPLY_AT = lib.MBGW_REPLY_AT
+NOT_TAKEN = lib.MBGW_NOT_TAKEN
+INPUT_SIZE = 4096       # what take_request() reads from a client at most
 
 _LIBMODBUS_ERRORS = {
     lib.EMBBADCRC: "invalid CRC",
@@ -96,6 +98,9 @@ class Port:
         self._sent = ffi.new("int *")
         self._times = ffi.new("int64_t[2]")
         self._to = ffi.new("struct mbgw_forward *")
+        self._shortcut = ffi.new("struct mbgw_shortcut *")
+        self._framed = ffi.NULL
+        self._in = ffi.new("uint8_t[]", INPUT_SIZE)
         self.sent = -1                 # what receive_reply sent to the client
         self.dropped_length = 0        # bytes of the frame receive_reply dropped
         self.foreign_address = -1      # the address of the frame it ignored
@@ -209,6 +214,38 @@ class Port:
         n = lib.mbgw_exchange(self._ctx, self._buf, adu, len(adu), char_ns, stout_ns,
                               self._forward_to(client_fd, tid, unit, yield_cpu), times,
                               self._sent)
+        return self._exchanged(n, times)
+
+    def shortcut_rules(self, framed, char_ns: int, stout_ns: int, slaveid: int) -> None:
+        """What take_request() needs: the function codes libmodbus frames, the line's
+        character time, stout, and the forced serial address (0: none)."""
+        self._framed = ffi.new("uint8_t[256]", [code in framed for code in range(256)])
+        sc = self._shortcut
+        sc.framed = self._framed
+        sc.char_ns = char_ns
+        sc.stout_ns = stout_ns
+        sc.slaveid = slaveid
+
+    def take_request(self, client_fd: int, quiet_until_ns: int) -> tuple[int, bool]:
+        """mbgw_take_request: read client_fd and, when what came is one request the line can
+        take as it is, exchange it at once.  Returns (bytes read, taken); the bytes are in
+        self.taken_input.  After a take, exchanged() gives the outcome."""
+        sc = self._shortcut
+        sc.quiet_until_ns = quiet_until_ns
+        n = lib.mbgw_take_request(self._ctx, client_fd, self._in, INPUT_SIZE, self._buf, sc)
+        return n, sc.result != NOT_TAKEN
+
+    @property
+    def taken_input(self) -> memoryview:
+        return ffi.buffer(self._in)
+
+    def exchanged(self) -> bytes | None:
+        """What exchange() would have returned, for the request take_request() took."""
+        sc = self._shortcut
+        self._sent[0] = sc.sent
+        return self._exchanged(sc.result, sc.times)
+
+    def _exchanged(self, n: int, times) -> bytes | None:
         self._end_ns[0] = times[1]
         if times[0] < 0:
             self.sent = -1

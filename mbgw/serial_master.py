@@ -44,11 +44,16 @@ class SerialMaster:
         self._quiet_us = previous._quiet_us
         self._timed_out = previous._timed_out
 
-    def transact(self, adu: bytes, forward=NO_FORWARD) -> bytes | None:
+    @property
+    def quiet_until_ns(self) -> int:
+        """The line must stay silent until then."""
+        return self._quiet_from_ns + self._quiet_us * 1000
+
+    def transact(self, adu: bytes, forward=NO_FORWARD, taken: bool = False) -> bytes | None:
         """Send adu (address + PDU) and return the reply PDU; None for a broadcast.
         forward: (socket fd, tid, unit, yield) where the reply may go straight from the C
-        receive.  Raises LineTimeout when no valid reply came, SerialError when the port
-        failed."""
+        receive; taken: the port has exchanged adu already (native.Port.take_request).
+        Raises LineTimeout when no valid reply came, SerialError when the port failed."""
         device = self.devices.get(adu[0])
         device.transactions += 1
         if adu[0] == pdu.BROADCAST:
@@ -62,11 +67,13 @@ class SerialMaster:
         for attempt in range(self._retries + 1):
             if attempt:
                 self._count(device, "retries")
-            self._await_quiet(adu)
+                taken = False
+            if not taken:
+                self._await_quiet(adu)
+            reply = self._receive(adu, device, forward, taken or (
+                self.framing.exchanges(adu) and not self._nocheck), taken)
             if not attempt:
                 started = self._sent_ns
-            reply = self._receive(adu, device, forward, self.framing.exchanges(adu)
-                                  and not self._nocheck)
             if reply is not None:
                 if self.on_reply is not None:
                     self.on_reply(reply, self.framing.sent)
@@ -108,9 +115,11 @@ class SerialMaster:
         self._quiet_us = self.framing.inter_frame_us
         self._deadline = end_ns + self._stout_ns
 
-    def _receive(self, adu: bytes, device: DeviceStats, forward, exchange: bool) -> bytes | None:
-        """Send adu (in one C call with the first receive when exchange) and return the reply
-        PDU, or None once stout has passed without one."""
+    def _receive(self, adu: bytes, device: DeviceStats, forward, exchange: bool,
+                 taken: bool = False) -> bytes | None:
+        """Send adu (in one C call with the first receive when exchange; taken: that call
+        was made already) and return the reply PDU, or None once stout has passed without
+        one."""
         framing = self.framing
         if not exchange:
             self._sent(framing.send(adu))
@@ -119,9 +128,12 @@ class SerialMaster:
                 if exchange:
                     exchange = False
                     try:
-                        frame = framing.exchange(adu, self._stout_ns, forward)
+                        frame = framing.exchange(adu, self._stout_ns, forward, taken)
                     finally:
                         self._sent(framing.sent_end_ns)
+                        if taken:
+                            self._sent_ns = framing.sent_end_ns - \
+                                (len(adu) + 2) * framing.line.char_ns
                 elif self._nocheck:
                     return framing.receive_unchecked(adu, self._deadline)[1:] or None
                 else:

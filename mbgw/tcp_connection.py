@@ -52,7 +52,16 @@ class Client:
             return None
         if not n:
             return None
-        self._buf += into[:n]
+        return self.received(into[:n])
+
+    @property
+    def at_rest(self) -> bool:
+        """Nothing of this client's in the gateway: no part of a frame, no request, no reply."""
+        return not (self._buf or self._out or self.in_flight or self.closed)
+
+    def received(self, data) -> list:
+        """What was read from the connection, framed as receive() does."""
+        self._buf += data
         self.last_active = time.monotonic()
         return list(mbap.split_frames(self._buf))
 

@@ -154,6 +154,20 @@ class TcpServer:
     # --- the line thread: requests in, outcomes out ---
 
     def request(self, client: Client, tid: int, unit: int, request: bytes) -> None:
+        job = self._admit(client, tid, unit, request)
+        if job is not None:
+            client.in_flight += 1
+            self._scheduler.submit(client.queue, job)
+
+    def taken(self, client: Client, tid: int, unit: int, request: bytes) -> Job | None:
+        """A request the line worker put on the idle line itself (its shortcut, which takes
+        only what routes), counted and checked as request() does; the client has it in
+        flight already."""
+        return self._admit(client, tid, unit, request)
+
+    def _admit(self, client: Client, tid: int, unit: int, request: bytes) -> Job | None:
+        """The job for a request, or None when it was answered at once (it cannot reach the
+        line)."""
         client.requests += 1
         self.counters.requests += 1
         tracing = self.trace.active
@@ -165,14 +179,12 @@ class TcpServer:
         if address > pdu.MAX_SERIAL_ADDRESS:
             self.counters.unroutable += 1
             self._refuse(client, tid, unit, request, OUTCOME_UNROUTABLE, received_ns)
-            return
+            return None
         if not self._line_up():
             self.counters.line_down_rejects += 1
             self._refuse(client, tid, unit, request, OUTCOME_LINE_DOWN, received_ns)
-            return
-        client.in_flight += 1
-        self._scheduler.submit(client.queue, Job(client, tid, unit, bytes((address,)) + request,
-                                                 received_ns))
+            return None
+        return Job(client, tid, unit, bytes((address,)) + request, received_ns)
 
     def finished(self, job: Job, reply: bytes | None, sent: int = -1) -> None:
         """job's outcome: its reply (if any) goes out at once, or its rest when the serial

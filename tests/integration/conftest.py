@@ -1,3 +1,5 @@
+import socket
+
 import pytest
 
 from tests.modbus import Client
@@ -29,3 +31,15 @@ def client():
     yield connect
     for c in clients:
         c.close()
+
+
+@pytest.fixture
+def socket_ends():
+    """(the gateway's end of a client connection, non-blocking; the client's end), for the
+    tests of the C paths that read and write client sockets."""
+    ours, theirs = socket.socketpair()
+    ours.setblocking(False)
+    theirs.settimeout(1.0)
+    yield ours, theirs
+    ours.close()
+    theirs.close()

@@ -30,17 +30,6 @@ def line(pty_pair):
     port.close()
 
 
-@pytest.fixture
-def client():
-    """(the gateway's end of a client connection, the client's end)."""
-    ours, theirs = socket.socketpair()
-    ours.setblocking(False)
-    theirs.settimeout(0.5)
-    yield ours, theirs
-    ours.close()
-    theirs.close()
-
-
 def deadline(seconds: float = 1.0) -> int:
     return time.monotonic_ns() + int(seconds * 1e9)
 
@@ -53,9 +42,9 @@ def nothing_on(sock: socket.socket) -> bool:
         return True
 
 
-def test_a_reply_that_answers_goes_to_the_client_at_once(line, client):
+def test_a_reply_that_answers_goes_to_the_client_at_once(line, socket_ends):
     port, slave = line
-    ours, theirs = client
+    ours, theirs = socket_ends
     os.write(slave, rtu(UNIT, holding_reply(0, 3)))
     frame = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT)
     assert frame == rtu(UNIT, holding_reply(0, 3))
@@ -64,9 +53,9 @@ def test_a_reply_that_answers_goes_to_the_client_at_once(line, client):
     assert theirs.recv(1024) == expected
 
 
-def test_a_device_exception_is_an_answer_too(line, client):
+def test_a_device_exception_is_an_answer_too(line, socket_ends):
     port, slave = line
-    ours, theirs = client
+    ours, theirs = socket_ends
     os.write(slave, rtu(UNIT, b"\x83\x02"))
     assert port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT)
     assert theirs.recv(1024) == mbap(TID, CLIENT_UNIT, b"\x83\x02")
@@ -77,9 +66,9 @@ def test_a_device_exception_is_an_answer_too(line, client):
     b"\x04\x06" + bytes(6),                 # another function
     b"\x84\x02",                            # an exception for another function
 ], ids=["wrong size", "wrong function", "wrong exception"])
-def test_a_reply_that_does_not_answer_never_reaches_the_client(line, client, reply):
+def test_a_reply_that_does_not_answer_never_reaches_the_client(line, socket_ends, reply):
     port, slave = line
-    ours, theirs = client
+    ours, theirs = socket_ends
     os.write(slave, rtu(UNIT, reply))
     assert port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT) == \
         rtu(UNIT, reply)
@@ -87,9 +76,9 @@ def test_a_reply_that_does_not_answer_never_reaches_the_client(line, client, rep
     assert nothing_on(theirs)
 
 
-def test_a_frame_from_another_address_is_dropped_unsent(line, client):
+def test_a_frame_from_another_address_is_dropped_unsent(line, socket_ends):
     port, slave = line
-    ours, theirs = client
+    ours, theirs = socket_ends
     os.write(slave, rtu(UNIT + 1, holding_reply(0, 3)))
     assert port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT) is None
     assert port.foreign_address == UNIT + 1
@@ -97,9 +86,9 @@ def test_a_frame_from_another_address_is_dropped_unsent(line, client):
     assert nothing_on(theirs)
 
 
-def test_a_full_client_socket_takes_nothing_and_loses_nothing(line, client):
+def test_a_full_client_socket_takes_nothing_and_loses_nothing(line, socket_ends):
     port, slave = line
-    ours, theirs = client
+    ours, theirs = socket_ends
     while True:
         try:
             ours.send(bytes(4096))
@@ -118,9 +107,9 @@ def test_without_a_client_nothing_is_sent(line):
     assert port.sent == -1
 
 
-def test_no_reply_by_the_deadline_is_a_timeout(line, client):
+def test_no_reply_by_the_deadline_is_a_timeout(line, socket_ends):
     port, _ = line
-    ours, theirs = client
+    ours, theirs = socket_ends
     with pytest.raises(LineTimeout):
         port.receive_reply(REQUEST, deadline(0.05), ours.fileno(), TID, CLIENT_UNIT)
     assert nothing_on(theirs)
@@ -144,9 +133,9 @@ def answer_once(slave: int, reply: bytes) -> tuple[threading.Thread, list]:
     return thread, got
 
 
-def test_the_exchange_writes_the_request_and_forwards_its_reply(line, client):
+def test_the_exchange_writes_the_request_and_forwards_its_reply(line, socket_ends):
     port, slave = line
-    ours, theirs = client
+    ours, theirs = socket_ends
     thread, got = answer_once(slave, rtu(UNIT, holding_reply(0, 3)))
     before = time.monotonic_ns()
     frame = port.exchange(REQUEST, CHAR_NS, 1_000_000_000, ours.fileno(), TID, CLIENT_UNIT)
@@ -158,9 +147,9 @@ def test_the_exchange_writes_the_request_and_forwards_its_reply(line, client):
     assert before + 8 * CHAR_NS <= port.sent_end_ns <= port.last_byte_ns + 8 * CHAR_NS
 
 
-def test_the_exchange_waits_stout_from_the_end_of_the_request(line, client):
+def test_the_exchange_waits_stout_from_the_end_of_the_request(line, socket_ends):
     port, slave = line
-    ours, theirs = client
+    ours, theirs = socket_ends
     with pytest.raises(LineTimeout):
         port.exchange(REQUEST, CHAR_NS, 50_000_000, ours.fileno(), TID, CLIENT_UNIT)
     assert port.last_byte_ns >= port.sent_end_ns + 50_000_000

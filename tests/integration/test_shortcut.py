@@ -1,0 +1,151 @@
+"""The shortcut for a request that finds the line idle (csrc/reply.c, mbgw_take_request): C
+reads the client and, when what came is exactly one request the line can take as it is, puts
+it on the line and forwards its reply at once; anything else is left, whole and unsent, to
+the Python path.  A real pty pair carries the frames; the expected bytes come from
+tests/modbus.py's builders, not from mbgw."""
+import errno
+import os
+import struct
+import threading
+import time
+
+import pytest
+
+from mbgw import pdu
+from mbgw.errors import LineTimeout
+from mbgw.native import Port
+from tests.modbus import holding_reply, mbap, read_holding, rtu
+
+pytestmark = pytest.mark.integration
+
+UNIT, TID = 17, 0x4321
+CHAR_NS = 10 * 1_000_000_000 // 19200
+STOUT_NS = 1_000_000_000
+REQUEST = mbap(TID, UNIT, read_holding(0, 3))
+
+
+def make_port(device: str, slaveid: int = 0) -> Port:
+    port = Port(device, 19200, "n", 8, 1)
+    port.set_byte_timeout(2000)
+    port.shortcut_rules(pdu.LIBMODBUS_FRAMED, CHAR_NS, STOUT_NS, slaveid)
+    return port
+
+
+@pytest.fixture
+def line(pty_pair):
+    """(a function making the Port on the gateway's end, fd of the slave's end)."""
+    ports = []
+    slave = os.open(pty_pair.device, os.O_RDWR | os.O_NOCTTY)
+
+    def port(slaveid: int = 0) -> Port:
+        ports.append(make_port(pty_pair.gateway, slaveid))
+        return ports[-1]
+    yield port, slave
+    os.close(slave)
+    for p in ports:
+        p.close()
+
+
+def slave_answers(slave: int, address: int, reply: bytes) -> list:
+    """A slave that reads one request (8 bytes: FC03) and answers it as address; the
+    request read goes to the list returned."""
+    got = []
+
+    def serve():
+        request = b""
+        while len(request) < 8:
+            request += os.read(slave, 256)
+        got.append(request)
+        os.write(slave, rtu(address, reply))
+    threading.Thread(target=serve, daemon=True).start()
+    return got
+
+
+def nothing_written(slave: int) -> bool:
+    os.set_blocking(slave, False)
+    try:
+        return not os.read(slave, 256)
+    except BlockingIOError:
+        return True
+    finally:
+        os.set_blocking(slave, True)
+
+
+def test_one_whole_request_goes_to_the_line_and_its_reply_to_the_client(line, socket_ends):
+    make, slave = line
+    port = make()
+    ours, theirs = socket_ends
+    got = slave_answers(slave, UNIT, holding_reply(0, 3))
+    theirs.sendall(REQUEST)
+    n, taken = port.take_request(ours.fileno(), 0)
+    assert (n, taken) == (len(REQUEST), True)
+    assert port.taken_input[:n] == REQUEST
+    assert port.exchanged() == rtu(UNIT, holding_reply(0, 3))
+    assert got == [rtu(UNIT, read_holding(0, 3))]
+    assert theirs.recv(1024) == mbap(TID, UNIT, holding_reply(0, 3))
+    assert port.sent == len(mbap(TID, UNIT, holding_reply(0, 3)))
+
+
+def test_slaveid_sets_the_serial_address_and_the_client_keeps_its_unit(line, socket_ends):
+    make, slave = line
+    port = make(slaveid=UNIT)
+    ours, theirs = socket_ends
+    got = slave_answers(slave, UNIT, holding_reply(0, 3))
+    theirs.sendall(mbap(TID, 99, read_holding(0, 3)))
+    assert port.take_request(ours.fileno(), 0)[1]
+    assert port.exchanged() == rtu(UNIT, holding_reply(0, 3))
+    assert got == [rtu(UNIT, read_holding(0, 3))]
+    assert theirs.recv(1024) == mbap(TID, 99, holding_reply(0, 3))
+
+
+def test_no_reply_leaves_the_client_without_one(line, socket_ends):
+    make, slave = line
+    port = make()
+    port.shortcut_rules(pdu.LIBMODBUS_FRAMED, CHAR_NS, 50_000_000, 0)
+    ours, theirs = socket_ends
+    theirs.sendall(REQUEST)
+    assert port.take_request(ours.fileno(), 0)[1]
+    with pytest.raises(LineTimeout):
+        port.exchanged()
+    assert port.last_byte_ns >= port.sent_end_ns + 50_000_000
+    assert os.read(slave, 256) == rtu(UNIT, read_holding(0, 3))
+    theirs.setblocking(False)
+    with pytest.raises(BlockingIOError):
+        theirs.recv(1024)
+
+
+NOT_QUIET = -1     # quiet_until: one second from now
+
+
+@pytest.mark.parametrize("sent, quiet_until", [
+    (mbap(1, UNIT, read_holding(0, 3)) + mbap(2, UNIT, read_holding(3, 3)), 0),
+    (REQUEST[:9], 0),
+    (mbap(TID, 0, read_holding(0, 3)), 0),
+    (mbap(TID, 248, read_holding(0, 3)), 0),
+    (mbap(TID, UNIT, bytes((0x6C, 0x01, 0x02))), 0),
+    (mbap(TID, UNIT, bytes((0x08, 0x00, 0x00, 0x12, 0x34))), 0),
+    (struct.pack(">HHHB", TID, 1, 6, UNIT) + read_holding(0, 3), 0),
+    (struct.pack(">HHHB", TID, 0, 255, UNIT) + read_holding(0, 3), 0),
+    (REQUEST, NOT_QUIET),
+], ids=["two requests", "part of one", "unit 0", "unit 248", "FC 108", "FC 08",
+        "protocol 1", "length 255", "line not yet quiet"])
+def test_anything_else_is_left_whole_to_the_caller(line, socket_ends, sent, quiet_until):
+    make, slave = line
+    port = make()
+    ours, theirs = socket_ends
+    theirs.sendall(sent)
+    if quiet_until == NOT_QUIET:
+        quiet_until = time.monotonic_ns() + 1_000_000_000
+    n, taken = port.take_request(ours.fileno(), quiet_until)
+    assert (n, taken) == (len(sent), False)
+    assert port.taken_input[:n] == sent
+    assert nothing_written(slave)
+
+
+def test_an_ended_connection_and_an_empty_one(line, socket_ends):
+    make, _ = line
+    port = make()
+    ours, theirs = socket_ends
+    assert port.take_request(ours.fileno(), 0) == (-errno.EAGAIN, False)
+    theirs.close()
+    assert port.take_request(ours.fileno(), 0) == (0, False)
