@@ -114,13 +114,16 @@ int mbgw_reply_matches(const uint8_t *req, size_t req_len, const uint8_t *rsp, s
 #define MBGW_REPLY_AT 6
 
 /* Where a reply that answers its request goes at once: the client's socket (fd < 0: nowhere),
- * with the client's transaction id and unit id.  yield: then give the CPU to the client that
- * was woken, before returning (yield_cpu: nothing else waits for the line). */
+ * with the client's transaction id and unit id.  in_flight (or NULL): the client's count of
+ * requests in the gateway, decremented as the reply is handed over, so that the client is
+ * idle again the moment it can see its reply.  yield_cpu: then give the CPU to the client
+ * that was woken before returning (nothing else waits for the line). */
 struct mbgw_forward {
     int fd;
     uint16_t tid;
     uint8_t unit;
     uint8_t yield_cpu;
+    int *in_flight;
 };
 
 /* libmodbus's receive of the reply to req (address + PDU, no CRC) until deadline_ns, into
@@ -162,12 +165,12 @@ struct mbgw_shortcut {
  * bytes) into in.  When that is exactly one Modbus TCP request with a valid header, a
  * function code marked in sc->framed, and a serial address 1..MBGW_MAX_ADDRESS, and the line
  * has been silent until sc->quiet_until_ns, the request goes on the line at once
- * (mbgw_exchange, its reply forwarded to client_fd, which then runs first); the caller keeps
- * the books.  Otherwise sc->result is MBGW_NOT_TAKEN and the bytes are the caller's to frame.
+ * (mbgw_exchange, its reply forwarded to client_fd, which then runs first, and in_flight
+ * decremented as it is); the caller keeps the books.  Otherwise sc->result is MBGW_NOT_TAKEN and the bytes are the caller's to frame.
  * Returns the bytes read, 0 when the connection has ended, -EAGAIN when nothing came, or
  * another negative errno. */
-int mbgw_take_request(struct _modbus *ctx, int client_fd, uint8_t *in, size_t in_cap,
-                      uint8_t *buf, struct mbgw_shortcut *sc);
+int mbgw_take_request(struct _modbus *ctx, int client_fd, int *in_flight, uint8_t *in,
+                      size_t in_cap, uint8_t *buf, struct mbgw_shortcut *sc);
 
 /* --- request.c: master mode, the serial master's requests for any address --- */
 

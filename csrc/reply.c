@@ -87,6 +87,8 @@ static int receive(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_l
     buf[4] = (pdu_len + 1) >> 8;
     buf[5] = (pdu_len + 1) & 0xff;
     adu[0] = to->unit;
+    if (to->in_flight)
+        --*to->in_flight;
     ssize_t w = send(to->fd, buf, MBGW_REPLY_AT + 1 + pdu_len, MSG_DONTWAIT | MSG_NOSIGNAL);
     adu[0] = address;
     if (w >= 0)
@@ -120,8 +122,8 @@ int mbgw_exchange(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_le
     return receive(ctx, buf, req, req_len, times[0] + stout_ns, to, &times[1], sent);
 }
 
-int mbgw_take_request(modbus_t *ctx, int client_fd, uint8_t *in, size_t in_cap, uint8_t *buf,
-                      struct mbgw_shortcut *sc)
+int mbgw_take_request(modbus_t *ctx, int client_fd, int *in_flight, uint8_t *in, size_t in_cap,
+                      uint8_t *buf, struct mbgw_shortcut *sc)
 {
     sc->result = MBGW_NOT_TAKEN;
     ssize_t n = recv(client_fd, in, in_cap, MSG_DONTWAIT);
@@ -141,7 +143,7 @@ int mbgw_take_request(modbus_t *ctx, int client_fd, uint8_t *in, size_t in_cap, 
     uint8_t adu[MBGW_RTU_MAX_ADU];
     adu[0] = address;
     memcpy(adu + 1, in + 7, length - 1);
-    struct mbgw_forward to = { client_fd, (uint16_t)(in[0] << 8 | in[1]), unit, 1 };
+    struct mbgw_forward to = { client_fd, (uint16_t)(in[0] << 8 | in[1]), unit, 1, in_flight };
     sc->result = mbgw_exchange(ctx, buf, adu, length, sc->char_ns, sc->stout_ns, &to,
                                sc->times, &sc->sent);
     return (int)n;

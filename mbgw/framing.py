@@ -6,7 +6,8 @@ from mbgw import native, pdu
 from mbgw.errors import ChecksumError, FrameError, LineTimeout
 from mbgw.serial_port import SerialLine
 
-NO_FORWARD = (-1, 0, 0, False)   # receive(): the reply goes nowhere before it is returned
+# receive(): the reply goes nowhere before it is returned
+NO_FORWARD = (-1, 0, 0, False, native.NO_COUNTER)
 
 
 class RtuFraming:
@@ -27,8 +28,9 @@ class RtuFraming:
 
     def receive(self, adu: bytes, deadline: int, forward=NO_FORWARD) -> bytes | None:
         """address + PDU of a frame with a valid CRC from adu's address; None: another
-        address.  forward: (socket fd, tid, unit, yield) of the client to which a reply that
-        answers adu goes at once (self.sent: its bytes the socket took, -1 none).  Raises
+        address.  forward: (socket fd, tid, unit, yield, in-flight counter) of the client to
+        which a reply that answers adu goes at once (self.sent: its bytes the socket took, -1
+        none; native.Port.receive_reply tells the rest).  Raises
         LineTimeout, ChecksumError, FrameError."""
         self.sent = -1
         if adu[1] not in pdu.LIBMODBUS_FRAMED:

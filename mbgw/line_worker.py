@@ -121,7 +121,7 @@ class LineWorker(threading.Thread):
             # With no other request waiting for the line, that client (often woken onto this
             # CPU) then runs before our bookkeeping.
             forward = NO_FORWARD if client.output_waiting or client.closed else \
-                (client.fd, job.tid, job.unit, not self._scheduler.depth)
+                (client.fd, job.tid, job.unit, not self._scheduler.depth, client.flight)
             reply = self._master.transact(job.adu, forward, taken)
             if reply is None:
                 job.outcome = OUTCOME_BROADCAST    # a reply went out through _reply_now
@@ -180,11 +180,7 @@ class LineWorker(threading.Thread):
         master = self._master
         port = master.framing.port
         client.in_flight += 1          # from now on, never an idle connection to evict
-        try:
-            n, taken = port.take_request(client.fd, master.quiet_until_ns)
-        except BaseException:
-            client.in_flight -= 1
-            raise
+        n, taken = port.take_request(client.fd, master.quiet_until_ns, client.flight)
         if not taken:
             client.in_flight -= 1
             if n == -errno.EAGAIN:
@@ -193,10 +189,12 @@ class LineWorker(threading.Thread):
         data = port.taken_input[:n]
         tid, _, _, unit = mbap.HEADER.unpack_from(data)
         client.last_active = time.monotonic()
-        self._taken = self._server.taken(client, tid, unit, data[mbap.HEADER_LEN:])
-        if self._taken is None:     # the shortcut and the server disagree on a route: a bug
+        try:
+            self._taken = self._server.taken(client, tid, unit, data[mbap.HEADER_LEN:])
+        except Exception:   # a bug must cost one transaction, never the line
+            log.exception("internal error on a request the shortcut took: %s", data.hex(" "))
+        if self._taken is None:
             client.in_flight -= 1
-            log.error("internal error: the shortcut took %s, which does not route", data.hex(" "))
         return []
 
     def _lost(self, err: SerialError) -> None:

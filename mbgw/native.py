@@ -22,6 +22,14 @@ _LIBMODBUS_ERRORS = {
 }
 
 
+NO_COUNTER = ffi.NULL
+
+
+def counter():
+    """An int that C can count down (a client's requests in flight): c[0]."""
+    return ffi.new("int *")
+
+
 def crc16(data: bytes) -> int:
     return lib.mbgw_crc16(data, len(data))
 
@@ -193,27 +201,30 @@ class Port:
         self._check(lib.mbgw_discard_echo(self.fd, sent, len(sent), deadline_ns), "read echo")
 
     def receive_reply(self, adu: bytes, deadline_ns: int, client_fd: int = -1, tid: int = 0,
-                      unit: int = 0, yield_cpu: bool = False) -> bytes | None:
+                      unit: int = 0, yield_cpu: bool = False,
+                      in_flight=NO_COUNTER) -> bytes | None:
         """libmodbus's receive of the reply to adu, for the codes it frames right: the frame
         (CRC checked), or None for a frame from another address (libmodbus drops it and
         returns at once).  With client_fd, a reply that answers adu in time has gone to that
         socket as a Modbus TCP frame with tid and unit already: self.sent tells how many of
-        its bytes the socket took (-1: nothing was sent); yield_cpu: then the client that
-        was woken runs before this returns."""
+        its bytes the socket took (-1: nothing was sent), and in_flight (a counter())
+        went down by one as it was; yield_cpu: then the client that was woken runs before
+        this returns."""
         n = lib.mbgw_receive_reply(self._ctx, self._buf, adu, len(adu), deadline_ns,
-                                   self._forward_to(client_fd, tid, unit, yield_cpu),
+                                   self._forward_to(client_fd, tid, unit, yield_cpu, in_flight),
                                    self._end_ns, self._sent)
         return self._received(n)
 
     def exchange(self, adu: bytes, char_ns: int, stout_ns: int, client_fd: int = -1,
-                 tid: int = 0, unit: int = 0, yield_cpu: bool = False) -> bytes | None:
+                 tid: int = 0, unit: int = 0, yield_cpu: bool = False,
+                 in_flight=NO_COUNTER) -> bytes | None:
         """send_rtu(adu) and receive_reply() in one call, the deadline stout_ns after the
         request's last byte: nothing runs between the write and the wait.  self.sent_end_ns:
         when the request's last byte leaves (char_ns a character)."""
         times = self._times
         n = lib.mbgw_exchange(self._ctx, self._buf, adu, len(adu), char_ns, stout_ns,
-                              self._forward_to(client_fd, tid, unit, yield_cpu), times,
-                              self._sent)
+                              self._forward_to(client_fd, tid, unit, yield_cpu, in_flight),
+                              times, self._sent)
         return self._exchanged(n, times)
 
     def shortcut_rules(self, framed, char_ns: int, stout_ns: int, slaveid: int) -> None:
@@ -226,13 +237,16 @@ class Port:
         sc.stout_ns = stout_ns
         sc.slaveid = slaveid
 
-    def take_request(self, client_fd: int, quiet_until_ns: int) -> tuple[int, bool]:
+    def take_request(self, client_fd: int, quiet_until_ns: int,
+                     in_flight=NO_COUNTER) -> tuple[int, bool]:
         """mbgw_take_request: read client_fd and, when what came is one request the line can
-        take as it is, exchange it at once.  Returns (bytes read, taken); the bytes are in
-        self.taken_input.  After a take, exchanged() gives the outcome."""
+        take as it is, exchange it at once (in_flight: the client's counter()).  Returns
+        (bytes read, taken); the bytes are in self.taken_input.  After a take, exchanged()
+        gives the outcome."""
         sc = self._shortcut
         sc.quiet_until_ns = quiet_until_ns
-        n = lib.mbgw_take_request(self._ctx, client_fd, self._in, INPUT_SIZE, self._buf, sc)
+        n = lib.mbgw_take_request(self._ctx, client_fd, in_flight, self._in, INPUT_SIZE,
+                                  self._buf, sc)
         return n, sc.result != NOT_TAKEN
 
     @property
@@ -253,12 +267,13 @@ class Port:
         self.sent_end_ns = times[0]
         return self._received(n)
 
-    def _forward_to(self, client_fd: int, tid: int, unit: int, yield_cpu: bool):
+    def _forward_to(self, client_fd: int, tid: int, unit: int, yield_cpu: bool, in_flight):
         to = self._to
         to.fd = client_fd
         to.tid = tid
         to.unit = unit
         to.yield_cpu = yield_cpu
+        to.in_flight = in_flight
         return to
 
     def _received(self, n: int) -> bytes | None:

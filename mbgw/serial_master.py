@@ -51,8 +51,7 @@ class SerialMaster:
 
     def transact(self, adu: bytes, forward=NO_FORWARD, taken: bool = False) -> bytes | None:
         """Send adu (address + PDU) and return the reply PDU; None for a broadcast.
-        forward: (socket fd, tid, unit, yield) where the reply may go straight from the C
-        receive; taken: the port has exchanged adu already (native.Port.take_request).
+        forward: where the reply may go straight from the C receive (framing.NO_FORWARD); taken: the port has exchanged adu already (native.Port.take_request).
         Raises LineTimeout when no valid reply came, SerialError when the port failed."""
         device = self.devices.get(adu[0])
         device.transactions += 1

@@ -6,7 +6,7 @@ import socket
 import threading
 import time
 
-from mbgw import mbap
+from mbgw import mbap, native
 from mbgw.scheduler import Queue
 
 MAX_IN_FLIGHT = 16          # TCP guide 4.4.2: a server holds 1..16 transactions per client
@@ -24,7 +24,8 @@ class Client:
         self.peer = peer
         self.local = local
         self.queue = Queue()
-        self.in_flight = 0          # requests taken in and not yet answered
+        # requests taken in and not yet answered: C counts one down as it hands a reply over
+        self.flight = native.counter()
         self.requests = 0
         self.connected_at = time.time()
         self.last_active = time.monotonic()
@@ -32,6 +33,14 @@ class Client:
         self._buf = bytearray()     # received, not yet a whole frame
         self._out = bytearray()     # replies the socket would not take yet
         self._lock = threading.Lock()   # close() in the line thread, shutdown() in asyncio's
+
+    @property
+    def in_flight(self) -> int:
+        return self.flight[0]
+
+    @in_flight.setter
+    def in_flight(self, count: int) -> None:
+        self.flight[0] = count
 
     @property
     def readable(self) -> bool:

@@ -190,7 +190,8 @@ class TcpServer:
         """job's outcome: its reply (if any) goes out at once, or its rest when the serial
         receive sent `sent` bytes of it already."""
         client = job.client
-        client.in_flight -= 1
+        if sent < 0:            # else C counted it answered as it sent the reply
+            client.in_flight -= 1
         self._answer(client, job.tid, job.unit, reply, sent)
         if self.trace.active:
             self.traced(client, job.tid, job.unit, job.adu[1], reply, job.outcome,

@@ -8,11 +8,13 @@ import socket
 import struct
 import subprocess
 import sys
+import time
 
 import pytest
 
 from tests import harness
-from tests.modbus import mbap as adu, recv_adu
+from tests.ops import wait_for
+from tests.modbus import holding_reply, mbap as adu, recv_adu
 
 pytestmark = pytest.mark.integration
 
@@ -50,10 +52,18 @@ def connect(port: int, source: str | None = None) -> socket.socket:
     return sock
 
 
+class Sockets(list):
+    """Sockets to close after the test."""
+
+    def connect(self, port: int) -> socket.socket:
+        """A new connection to port, closed after the test."""
+        self.append(connect(port))
+        return self[-1]
+
+
 @pytest.fixture
 def sockets():
-    """Sockets to close after the test."""
-    opened: list[socket.socket] = []
+    opened = Sockets()
     yield opened
     for sock in opened:
         sock.close()
@@ -97,15 +107,56 @@ def test_newcomer_refused_while_every_connection_has_a_request_in_flight(rtu, st
     assert recv_adu(first) == adu(1, 17, REPLY_3)
     assert recv_adu(second) == adu(1, 17, REPLY_3)
     # Both have requests in flight for at least another stout: the newcomer is refused.
-    third = connect(gw.port)
-    sockets.append(third)
-    assert_closed(third)
+    assert_closed(sockets.connect(gw.port))
     # ... and the busy connections were left alone: each gets its 0x0B (no reply) answers.
     timeout = 3 * stout_s + REPLY_TIMEOUT_S
     assert recv_adu(first, timeout) == adu(2, 30, bytes.fromhex("83 0b"))
     assert recv_adu(second, timeout) == adu(2, 30, bytes.fromhex("83 0b"))
     assert recv_adu(first, timeout) == adu(3, 30, bytes.fromhex("83 0b"))
     assert "connections are busy" in gw.log()
+
+
+def settled(gw, sock: socket.socket, unit: int = 17, reply: bytes = REPLY_3) -> None:
+    """sock, adopted and served once, and the gateway's books kept: the line thread is
+    asleep with the line idle, where the next request meets the idle line's shortcut."""
+    sock.sendall(adu(9, unit, READ_3))
+    assert recv_adu(sock) == adu(9, unit, reply)
+    wait_for(gw, lambda s: s["counters"]["replies"] == 1, "kept the books of the reply")
+
+
+def test_a_connection_is_idle_again_once_its_pipelined_requests_are_answered(
+        rtu, start_gateway, sockets):
+    gw = start_gateway(rtu.gateway, "--baudrate", "19200", "--max-connections", "1")
+    first = sockets.connect(gw.port)
+    settled(gw, first)
+    # two requests in one segment: the shortcut leaves them to the queue
+    first.sendall(adu(1, 17, READ_3) + adu(2, 17, READ_3))
+    assert recv_adu(first) == adu(1, 17, REPLY_3)
+    assert recv_adu(first) == adu(2, 17, REPLY_3)
+    assert_served(sockets.connect(gw.port))
+    assert_closed(first)
+
+
+def test_a_lone_request_on_the_line_keeps_its_connection_from_eviction(
+        pty_pair, recording_peer, start_gateway, sockets):
+    record = recording_peer("fault_slave.py")           # address 2 never answers
+    gw = start_gateway(pty_pair.gateway, "--baudrate", "19200", "--max-connections", "1",
+                       "--exception", "--stout", "1000")
+    first = sockets.connect(gw.port)
+    settled(gw, first, unit=1, reply=holding_reply(0, 3))
+    first.sendall(adu(1, 2, READ_3))                    # taken by the shortcut
+    wait_for_record(record, "rx 02 03")                   # on the line, stout to go
+    assert_closed(sockets.connect(gw.port))
+    assert recv_adu(first) == adu(1, 2, bytes.fromhex("83 0b"))
+    assert "connections are busy" in gw.log()
+
+
+def wait_for_record(record, text: str) -> None:
+    """Until the scripted slave has recorded a frame starting with text."""
+    deadline = time.monotonic() + REPLY_TIMEOUT_S
+    while not (record.exists() and text in record.read_text()):
+        assert time.monotonic() < deadline, f"the slave never recorded {text!r}"
+        time.sleep(0.01)
 
 
 # ---- --authip ----

@@ -10,7 +10,7 @@ import time
 import pytest
 
 from mbgw.errors import LineTimeout
-from mbgw.native import Port
+from mbgw.native import Port, counter
 from tests.modbus import holding_reply, mbap, read_holding, rtu
 
 pytestmark = pytest.mark.integration
@@ -45,12 +45,16 @@ def nothing_on(sock: socket.socket) -> bool:
 def test_a_reply_that_answers_goes_to_the_client_at_once(line, socket_ends):
     port, slave = line
     ours, theirs = socket_ends
+    in_flight = counter()
+    in_flight[0] = 1
     os.write(slave, rtu(UNIT, holding_reply(0, 3)))
-    frame = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT)
+    frame = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT, True,
+                               in_flight)
     assert frame == rtu(UNIT, holding_reply(0, 3))
     expected = mbap(TID, CLIENT_UNIT, holding_reply(0, 3))
     assert port.sent == len(expected)
     assert theirs.recv(1024) == expected
+    assert in_flight[0] == 0      # answered as it was sent
 
 
 def test_a_device_exception_is_an_answer_too(line, socket_ends):
@@ -69,11 +73,14 @@ def test_a_device_exception_is_an_answer_too(line, socket_ends):
 def test_a_reply_that_does_not_answer_never_reaches_the_client(line, socket_ends, reply):
     port, slave = line
     ours, theirs = socket_ends
+    in_flight = counter()
+    in_flight[0] = 1
     os.write(slave, rtu(UNIT, reply))
-    assert port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT) == \
-        rtu(UNIT, reply)
+    assert port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT, False,
+                              in_flight) == rtu(UNIT, reply)
     assert port.sent == -1
     assert nothing_on(theirs)
+    assert in_flight[0] == 1
 
 
 def test_a_frame_from_another_address_is_dropped_unsent(line, socket_ends):

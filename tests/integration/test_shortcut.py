@@ -13,7 +13,7 @@ import pytest
 
 from mbgw import pdu
 from mbgw.errors import LineTimeout
-from mbgw.native import Port
+from mbgw.native import Port, counter
 from tests.modbus import holding_reply, mbap, read_holding, rtu
 
 pytestmark = pytest.mark.integration
@@ -77,8 +77,11 @@ def test_one_whole_request_goes_to_the_line_and_its_reply_to_the_client(line, so
     ours, theirs = socket_ends
     got = slave_answers(slave, UNIT, holding_reply(0, 3))
     theirs.sendall(REQUEST)
-    n, taken = port.take_request(ours.fileno(), 0)
+    in_flight = counter()
+    in_flight[0] = 1                # the caller's mark, made before the call
+    n, taken = port.take_request(ours.fileno(), 0, in_flight)
     assert (n, taken) == (len(REQUEST), True)
+    assert in_flight[0] == 0        # answered as the reply was sent
     assert port.taken_input[:n] == REQUEST
     assert port.exchanged() == rtu(UNIT, holding_reply(0, 3))
     assert got == [rtu(UNIT, read_holding(0, 3))]
