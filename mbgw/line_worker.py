@@ -193,8 +193,8 @@ class LineWorker(threading.Thread):
             self._taken = self._server.taken(client, tid, unit, data[mbap.HEADER_LEN:])
         except Exception:   # a bug must cost one transaction, never the line
             log.exception("internal error on a request the shortcut took: %s", data.hex(" "))
-        if self._taken is None:
-            client.in_flight -= 1
+        if self._taken is None and port.taken_sent < 0:
+            client.in_flight -= 1      # not counted answered by a reply's forward either
         return []
 
     def _lost(self, err: SerialError) -> None:

@@ -253,6 +253,11 @@ class Port:
     def taken_input(self) -> memoryview:
         return ffi.buffer(self._in)
 
+    @property
+    def taken_sent(self) -> int:
+        """The bytes of the taken request's reply sent to the client; -1 none."""
+        return self._shortcut.sent
+
     def exchanged(self) -> bytes | None:
         """What exchange() would have returned, for the request take_request() took."""
         sc = self._shortcut
