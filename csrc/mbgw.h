@@ -166,7 +166,8 @@ struct mbgw_shortcut {
  * function code marked in sc->framed, and a serial address 1..MBGW_MAX_ADDRESS, and the line
  * has been silent until sc->quiet_until_ns, the request goes on the line at once
  * (mbgw_exchange, its reply forwarded to client_fd, which then runs first, and in_flight
- * decremented as it is); the caller keeps the books.  Otherwise sc->result is MBGW_NOT_TAKEN and the bytes are the caller's to frame.
+ * decremented as it is); the caller keeps the books.  Otherwise sc->result is
+ * MBGW_NOT_TAKEN and the bytes are the caller's to frame.
  * Returns the bytes read, 0 when the connection has ended, -EAGAIN when nothing came, or
  * another negative errno. */
 int mbgw_take_request(struct _modbus *ctx, int client_fd, int *in_flight, uint8_t *in,

@@ -55,10 +55,9 @@ static int64_t now_ns(void)
     return (int64_t)t.tv_sec * 1000000000 + t.tv_nsec;
 }
 
-/* libmodbus's receive until deadline_ns, then the forward to the client (see mbgw.h). */
-static int receive(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
-                   int64_t deadline_ns, const struct mbgw_forward *to, int64_t *end_ns,
-                   int *sent)
+int mbgw_receive_reply(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
+                       int64_t deadline_ns, const struct mbgw_forward *to, int64_t *end_ns,
+                       int *sent)
 {
     *sent = -1;
     int64_t left_us = (deadline_ns - now_ns()) / 1000;
@@ -101,13 +100,6 @@ static int receive(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_l
     return n;
 }
 
-int mbgw_receive_reply(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
-                       int64_t deadline_ns, const struct mbgw_forward *to, int64_t *end_ns,
-                       int *sent)
-{
-    return receive(ctx, buf, req, req_len, deadline_ns, to, end_ns, sent);
-}
-
 int mbgw_exchange(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
                   int64_t char_ns, int64_t stout_ns, const struct mbgw_forward *to,
                   int64_t *times, int *sent)
@@ -119,7 +111,7 @@ int mbgw_exchange(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_le
         return -errno;
     }
     times[0] = now_ns() + (int64_t)(req_len + CRC_LEN) * char_ns;
-    return receive(ctx, buf, req, req_len, times[0] + stout_ns, to, &times[1], sent);
+    return mbgw_receive_reply(ctx, buf, req, req_len, times[0] + stout_ns, to, &times[1], sent);
 }
 
 int mbgw_take_request(modbus_t *ctx, int client_fd, int *in_flight, uint8_t *in, size_t in_cap,

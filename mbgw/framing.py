@@ -30,8 +30,8 @@ class RtuFraming:
         """address + PDU of a frame with a valid CRC from adu's address; None: another
         address.  forward: (socket fd, tid, unit, yield, in-flight counter) of the client to
         which a reply that answers adu goes at once (self.sent: its bytes the socket took, -1
-        none; native.Port.receive_reply tells the rest).  Raises
-        LineTimeout, ChecksumError, FrameError."""
+        none; native.Port.receive_reply tells the rest).  Raises LineTimeout, ChecksumError,
+        FrameError."""
         self.sent = -1
         if adu[1] not in pdu.LIBMODBUS_FRAMED:
             return self._receive_own(adu, deadline)
@@ -60,18 +60,13 @@ class RtuFraming:
             else:
                 frame = port.exchange(adu, self.line.char_ns, stout_ns, *forward)
         except (ChecksumError, LineTimeout) as err:
-            self._exchanged(adu)
-            self._failed(err, self.sent_end_ns + stout_ns)
+            self._failed(err, port.sent_end_ns + stout_ns)
             raise
-        except FrameError:
-            self._exchanged(adu)
-            raise
-        self._exchanged(adu)
+        finally:
+            self.sent_end_ns = port.sent_end_ns
+            if self.sent_end_ns >= 0:        # else the write failed
+                self.line.sent_rtu(len(adu))
         return self._received(frame)
-
-    def _exchanged(self, adu: bytes) -> None:
-        self.sent_end_ns = self.port.sent_end_ns
-        self.line.sent_rtu(len(adu))
 
     def _failed(self, err: Exception, deadline: int) -> None:
         port = self.port

@@ -220,7 +220,7 @@ class Port:
                  in_flight=NO_COUNTER) -> bytes | None:
         """send_rtu(adu) and receive_reply() in one call, the deadline stout_ns after the
         request's last byte: nothing runs between the write and the wait.  self.sent_end_ns:
-        when the request's last byte leaves (char_ns a character)."""
+        when the request's last byte leaves (char_ns a character), -1 when the write failed."""
         times = self._times
         n = lib.mbgw_exchange(self._ctx, self._buf, adu, len(adu), char_ns, stout_ns,
                               self._forward_to(client_fd, tid, unit, yield_cpu, in_flight),
@@ -250,7 +250,8 @@ class Port:
         return n, sc.result != NOT_TAKEN
 
     @property
-    def taken_input(self) -> memoryview:
+    def taken_input(self):
+        """What take_request() read (a buffer: slice it to the bytes read)."""
         return ffi.buffer(self._in)
 
     @property
@@ -266,10 +267,10 @@ class Port:
 
     def _exchanged(self, n: int, times) -> bytes | None:
         self._end_ns[0] = times[1]
+        self.sent_end_ns = times[0]
         if times[0] < 0:
             self.sent = -1
             raise self._fail(-n, "write")
-        self.sent_end_ns = times[0]
         return self._received(n)
 
     def _forward_to(self, client_fd: int, tid: int, unit: int, yield_cpu: bool, in_flight):

@@ -51,7 +51,8 @@ class SerialMaster:
 
     def transact(self, adu: bytes, forward=NO_FORWARD, taken: bool = False) -> bytes | None:
         """Send adu (address + PDU) and return the reply PDU; None for a broadcast.
-        forward: where the reply may go straight from the C receive (framing.NO_FORWARD); taken: the port has exchanged adu already (native.Port.take_request).
+        forward: where the reply may go straight from the C receive (framing.NO_FORWARD);
+        taken: the port has exchanged adu already (native.Port.take_request).
         Raises LineTimeout when no valid reply came, SerialError when the port failed."""
         device = self.devices.get(adu[0])
         device.transactions += 1
@@ -98,7 +99,7 @@ class SerialMaster:
     def _await_quiet(self, adu: bytes) -> None:
         """Until the line has been quiet long enough for adu to go out."""
         now = time.monotonic_ns()
-        if now < self._quiet_from_ns + self._quiet_us * 1000:    # else no C call is needed
+        if now < self.quiet_until_ns:    # else no C call is needed
             stale = self.framing.port.wait_quiet(self._quiet_from_ns, self._quiet_us)
             if stale:
                 self._counters.late_bytes += stale
