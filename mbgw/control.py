@@ -9,10 +9,55 @@ import logging
 import os
 import socket
 import struct
+import time
 
 log = logging.getLogger("mbgw.control")
 
 DEFAULT_DIR = "/run/mbgw"
+MAX_REQUEST = 64 * 1024          # one request line; status replies are far larger than any request
+REQUEST_TIMEOUT_S = 10.0         # a client that connects and says nothing is not kept
+BAD_REQUEST_LOG_INTERVAL_S = 60.0
+
+
+class BadRequest(Exception):
+    """A control request that cannot be served: the client is told why, in one JSON line."""
+
+
+def parse_request(line: bytes) -> dict:
+    """One request line to its JSON object; raises BadRequest naming what is wrong."""
+    try:
+        text = line.decode("utf-8")
+    except UnicodeDecodeError:
+        raise BadRequest("request is not UTF-8") from None
+    try:
+        request = json.loads(text or "{}")
+    except (ValueError, RecursionError):
+        raise BadRequest("request is not valid JSON") from None
+    if not isinstance(request, dict):
+        raise BadRequest("request must be a JSON object")
+    if not isinstance(request.get("command"), str):
+        raise BadRequest('request needs "command": a string')
+    return request
+
+
+class BadRequestLog:
+    """One warning per interval for bad control requests, with how many came meanwhile: a
+    misbehaving client must not be able to fill the log."""
+
+    def __init__(self, interval_s: float = BAD_REQUEST_LOG_INTERVAL_S) -> None:
+        self._interval_s = interval_s
+        self._next = 0.0
+        self._suppressed = 0
+
+    def warn(self, reason: str) -> None:
+        now = time.monotonic()
+        if now < self._next:
+            self._suppressed += 1
+            return
+        more = f" ({self._suppressed} more since the last warning)" if self._suppressed else ""
+        log.warning("control socket: bad request refused: %s%s", reason, more)
+        self._suppressed = 0
+        self._next = now + self._interval_s
 
 
 def default_path(name: str = "mbgw") -> str:
@@ -26,6 +71,7 @@ class ControlServer:
         self.path = path
         self._commands = commands      # name -> callable(request dict) -> reply dict
         self._server: asyncio.base_events.Server | None = None
+        self._bad_requests = BadRequestLog()
 
     async def start(self) -> None:
         directory = os.path.dirname(self.path) or "."
@@ -37,7 +83,8 @@ class ControlServer:
                 os.unlink(self.path)      # left by a daemon that did not stop cleanly
             else:
                 raise OSError(errno.EADDRINUSE, "another mbgw daemon is using it")
-        self._server = await asyncio.start_unix_server(self._handle, self.path)
+        self._server = await asyncio.start_unix_server(self._handle, self.path,
+                                                       limit=MAX_REQUEST)
         os.chmod(self.path, 0o660)
 
     def close(self) -> None:
@@ -50,9 +97,13 @@ class ControlServer:
 
     async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         try:
-            line = await reader.readline()
-            request = json.loads(line or b"{}")
-            name = request.get("command")
+            try:
+                request = parse_request(await _read_request(reader))
+            except BadRequest as err:
+                self._bad_requests.warn(str(err))
+                await _reply(writer, {"error": str(err)})
+                return
+            name = request["command"]
             request["uid"] = _peer_uid(writer)
             if name == "trace":
                 await self._commands["trace"](request, reader, writer)
@@ -63,12 +114,24 @@ class ControlServer:
             except Exception:   # a bug must cost one command, and say so, not a silent EOF
                 log.exception("control command %r failed", name)
                 reply = {"error": f"internal error in {name} (see the daemon's log)"}
-            writer.write(json.dumps(reply).encode() + b"\n")
-            await writer.drain()
-        except (ConnectionError, json.JSONDecodeError, AttributeError) as err:
+            await _reply(writer, reply)
+        except (ConnectionError, TimeoutError) as err:
             log.debug("control connection: %s", err)
         finally:
             writer.close()
+
+
+async def _read_request(reader: asyncio.StreamReader) -> bytes:
+    """The request line; raises BadRequest when it is over MAX_REQUEST bytes."""
+    try:
+        return await asyncio.wait_for(reader.readline(), REQUEST_TIMEOUT_S)
+    except ValueError:            # over the stream's limit
+        raise BadRequest(f"request longer than {MAX_REQUEST} bytes") from None
+
+
+async def _reply(writer: asyncio.StreamWriter, reply: dict) -> None:
+    writer.write(json.dumps(reply).encode() + b"\n")
+    await writer.drain()
 
 
 def _peer_uid(writer: asyncio.StreamWriter) -> int:
