@@ -8,7 +8,7 @@ import subprocess
 import sys
 import time
 
-from mbgw import control
+from mbgw.ops import control
 from tests.harness import CHECKOUT, _read_lines_until, reachable_by_others
 
 CONDITION_TIMEOUT_S = 5.0       # for what the daemon does on its own after the last event

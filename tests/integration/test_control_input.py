@@ -10,7 +10,7 @@ import socket
 
 import pytest
 
-from mbgw import control
+from mbgw.ops import control
 
 pytestmark = pytest.mark.integration
 

@@ -24,7 +24,7 @@ import urllib.request
 
 import pytest
 
-from mbgw.device_stats import COUNTS, LATENCY_BUCKETS_MS
+from mbgw.ops.device_stats import COUNTS, LATENCY_BUCKETS_MS
 from tests.harness import free_port, stop_counters
 from tests.modbus import Client, holding_reply, mbap, read_holding, rtu
 from tests.ops import (devices, health_log, mbgw, metric_families, metric_value, status,

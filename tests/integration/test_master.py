@@ -18,7 +18,7 @@ import pytest
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.framer import FramerType
 
-from mbgw import native
+from mbgw.line import native
 from tests import harness
 from tests.harness import Gateway, Peer, free_port, logged_counters
 from tests.modbus import rtu_frame as rtu

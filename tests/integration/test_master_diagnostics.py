@@ -14,7 +14,7 @@ import urllib.request
 
 import pytest
 
-from mbgw.device_stats import LATENCY_BUCKETS_MS, MASTER_COUNTS
+from mbgw.ops.device_stats import LATENCY_BUCKETS_MS, MASTER_COUNTS
 from tests.harness import free_port
 from tests.integration.master_rig import (ask, holding_reply, identity, line, mbgw,  # noqa: F401
                                           read_holding, rtu, servers_at, start_master,

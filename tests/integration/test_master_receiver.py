@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from mbgw import native
+from mbgw.line import native
 from mbgw.errors import ChecksumError, FrameError, SerialError
 from tests.modbus import rtu_frame as rtu
 

@@ -22,13 +22,13 @@ import termios
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from mbgw.config import Interface, SerialConfig
-from mbgw.counters import Counters
-from mbgw.device_stats import DeviceTable
+from mbgw.config.model import Interface, SerialConfig
+from mbgw.ops.counters import Counters
+from mbgw.ops.device_stats import DeviceTable
 from mbgw.errors import LineTimeout
-from mbgw.framing import framing_for
-from mbgw.serial_master import SerialMaster
-from mbgw.serial_port import SerialLine
+from mbgw.line.framing import framing_for
+from mbgw.slave.transaction import SerialMaster
+from mbgw.line.port import SerialLine
 from tests.harness import READY_TIMEOUT_S, stop_counters
 from tests.modbus import holding_reply, read_holding
 

@@ -1,12 +1,12 @@
 """Modbus ASCII: the LRC and the ':' HEX LRC CR LF framing, against published frames."""
 import pytest
 
-from mbgw import native
+from mbgw.line import native
 from mbgw.errors import ChecksumError, FrameError
 from tests.unit.vectors import CHECK_VECTORS
 
 pytestmark = pytest.mark.skipif(not hasattr(native, "ascii_encode"),
-                                reason="mbgw.native has no ASCII codec")
+                                reason="mbgw.line.native has no ASCII codec")
 
 WITH_LRC = [v for v in CHECK_VECTORS if v.lrc is not None]
 IDS = [v.where for v in WITH_LRC]

@@ -9,10 +9,11 @@ import click
 import pytest
 from click.testing import CliRunner
 
-from mbgw import cli_config
-from mbgw import config_keys
-from mbgw import toml_edit
+from mbgw.cli import config as cli_config
+from mbgw.config import schema as config_keys
+from mbgw.config import toml_text as toml_edit
 from mbgw.cli import main
+from mbgw.config.schema import SerialOption
 from mbgw.errors import ConfigError
 
 
@@ -50,9 +51,10 @@ def recorder() -> tuple[click.Group, list]:
 
     def mode_command(name: str) -> click.Command:
         @click.command(name)
-        @click.option("--device", required=True)
-        @click.option("--stout", type=click.IntRange(1, 65535), default=600)
-        @click.option("--baudrate", type=click.IntRange(50, 4000000), default=9600)
+        @click.option("--device", cls=SerialOption, required=True)
+        @click.option("--stout", cls=SerialOption, type=click.IntRange(1, 65535), default=600)
+        @click.option("--baudrate", cls=SerialOption, type=click.IntRange(50, 4000000),
+                      default=9600)
         @click.option("--authip", multiple=True)
         def command(**options):
             calls.append((name, options))

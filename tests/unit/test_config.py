@@ -1,9 +1,9 @@
-"""Validated settings (mbgw.config): line format, character time, t3.5, baud rate, authip."""
+"""Validated settings (mbgw.config.model): line format, character time, t3.5, baud rate, authip."""
 import ipaddress
 
 import pytest
 
-from mbgw.config import Interface, LineFormat, SerialConfig, SlaveConfig, parse_ip
+from mbgw.config.model import Interface, LineFormat, SerialConfig, SlaveConfig, parse_ip
 from mbgw.errors import ConfigError
 
 # The rates libmodbus 3.1.6 sets itself (/work/shared/notes/libmodbus.md 2.7).

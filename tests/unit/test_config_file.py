@@ -1,4 +1,4 @@
-"""The configuration file (mbgw.config_keys, config_file, config_values, config_set,
+"""The configuration file (mbgw.config.schema, config_file, config_values, config_set,
 config_text, toml_edit): keys derived from the commands, checks naming file, key and reason,
 the ACKSYS `set` semantics, text edits that keep comments, the atomic write.  The guide is
 /work/shared/seeds/000 (ACKSYS MODBUS TCP user guide A.5)."""
@@ -10,13 +10,16 @@ import tomllib
 import click
 import pytest
 
-from mbgw import config_file as cf
-from mbgw import config_keys, config_set, config_text
-from mbgw import toml_edit
-from mbgw.cli import main, serial_options
-from mbgw.config import LineFormat
+from mbgw.config import file as cf
+from mbgw.config import schema as config_keys
+from mbgw.config import edit as config_set
+from mbgw.config import text as config_text
+from mbgw.config import toml_text as toml_edit
+from mbgw.cli import main
+from mbgw.cli.options import serial_options
+from mbgw.config.model import LineFormat
 from mbgw.errors import ConfigError, ConfigFileError
-from mbgw.slaveid_table import SlaveRange
+from mbgw.config.slaveid import SlaveRange
 
 GUIDE_SLAVEID = ["1 8 1 0 192.168.0.30", "9 16 0 1 192.168.20.0", "17 24 31 1 192.168.50.0"]
 
@@ -62,7 +65,7 @@ def test_keys_are_grouped_like_the_guide(schema, name, group):
 
 
 def test_a_new_option_is_a_new_key_with_nothing_to_list():
-    """A serial option (one of mbgw.cli.serial_options) goes to [serial], another to
+    """A serial option (one of mbgw.cli.options.serial_options) goes to [serial], another to
     [general]; both appear in the factory file at their defaults."""
     @click.command("slave")
     @serial_options
@@ -106,14 +109,14 @@ def test_factory_file_is_valid_and_lists_every_key(schema, tmp_path):
 def test_load_options_precedence_command_line_then_file_then_default(tmp_path):
     path = write(tmp_path, '[serial]\ndevice = "/dev/ttyS3"\nstout = 700\nformat = "8e1"\n'
                            '[net]\nauthip = ["192.0.2.1", "0.0.0.0", "192.0.2.3"]\n')
-    options = cf.load_options(path)
+    options = cf.load_options(main, path)
     assert options["mode"] == "slave"
     assert options["device"] == "/dev/ttyS3"
     assert options["stout"] == 700                       # file over default
     assert options["line_format"] == LineFormat(8, "e", 1)   # through the option's callback
     assert options["baudrate"] == 9600                   # built-in default
     assert options["authip"] == ("192.0.2.1", "192.0.2.3")   # cleared entries left out
-    options = cf.load_options(path, ["--stout", "800", "--device", "/dev/ttyS4"])
+    options = cf.load_options(main, path, ["--stout", "800", "--device", "/dev/ttyS4"])
     assert options["stout"] == 800 and options["device"] == "/dev/ttyS4"
     assert set(options) == {"mode", *(p.name for p in main.commands["slave"].params
                                       if p.expose_value)}
@@ -122,14 +125,14 @@ def test_load_options_precedence_command_line_then_file_then_default(tmp_path):
 def test_load_options_errors_name_file_key_reason(tmp_path):
     path = write(tmp_path, '[serial]\ndevice = "/dev/ttyS3"\nstout = 0\n')
     with pytest.raises(ConfigError, match=rf"^{path}: serial.stout: 0 is not in the range"):
-        cf.load_options(path)
+        cf.load_options(main, path)
     with pytest.raises(ConfigFileError, match="no such file"):
-        cf.load_options(tmp_path / "absent.toml")
+        cf.load_options(main, tmp_path / "absent.toml")
 
 
 def test_load_options_needs_the_device(tmp_path):
     with pytest.raises(ConfigFileError, match=r"serial.device: missing; slave mode needs it"):
-        cf.load_options(write(tmp_path, "[serial]\nstout = 700\n"))
+        cf.load_options(main, write(tmp_path, "[serial]\nstout = 700\n"))
 
 
 def test_tables_belong_to_their_mode(schema, tmp_path):
@@ -359,7 +362,7 @@ def test_slaveid_table_holds_eight_ranges(schema):
     ("1", "8", "1", "1", "10.0.0.250"),
 ])
 def test_slaveid_entry_refuses(schema, words):
-    """The reasons are master mode's own (mbgw.slaveid_table); here: named and refused."""
+    """The reasons are master mode's own (mbgw.config.slaveid); here: named and refused."""
     with pytest.raises(ConfigError, match=r"^net\.slaveid: slaveid '"):
         do_set(schema, MASTER, "net", "slaveid", *words)
 

@@ -1,12 +1,12 @@
-"""The line thread's poll over the clients (mbgw.connections), over real sockets."""
+"""The line thread's poll over the clients (mbgw.slave.connections), over real sockets."""
 import os
 import socket
 
 import pytest
 
-from mbgw.connections import Connections
-from mbgw.counters import Counters
-from mbgw.tcp_connection import Client
+from mbgw.slave.connections import Connections
+from mbgw.ops.counters import Counters
+from mbgw.slave.client import Client
 from tests.modbus import mbap, read_holding
 
 

@@ -1,7 +1,7 @@
-"""mbgw.native.crc16 against published CRC-16/MODBUS values."""
+"""mbgw.line.native.crc16 against published CRC-16/MODBUS values."""
 import pytest
 
-from mbgw import native
+from mbgw.line import native
 from tests.unit.vectors import CHECK_VECTORS
 
 VECTOR_IDS = [v.where for v in CHECK_VECTORS]

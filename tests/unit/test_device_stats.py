@@ -1,12 +1,12 @@
-"""Per-device statistics and health (mbgw.device_stats): the state machine up / degraded /
+"""Per-device statistics and health (mbgw.ops.device_stats): the state machine up / degraded /
 down, logged once per change; exception replies by code; the latency buckets; reset."""
 import logging
 from types import SimpleNamespace
 
 import pytest
 
-from mbgw import device_stats
-from mbgw.device_stats import (COUNTS, DOWN_AFTER_FAILURES, LATENCY_BUCKETS_MS, RECENT_WINDOW,
+from mbgw.ops import device_stats
+from mbgw.ops.device_stats import (COUNTS, DOWN_AFTER_FAILURES, LATENCY_BUCKETS_MS, RECENT_WINDOW,
                                DeviceStats, DeviceTable)
 
 

@@ -1,9 +1,9 @@
-"""Modbus TCP framing (mbgw.mbap), per the Messaging on TCP/IP Implementation Guide V1.0b,
+"""Modbus TCP framing (mbgw.protocol.mbap), per the Messaging on TCP/IP Implementation Guide V1.0b,
 3.1.3: transaction id (2), protocol id (2, 0 = Modbus), length (2, unit id + PDU), unit id
 (1), big-endian, then the PDU."""
 import pytest
 
-from mbgw import mbap
+from mbgw.protocol import mbap
 
 # The spec's FC03 example (Application Protocol 6.3) to unit 0x11, transaction 1.
 READ_PDU = bytes.fromhex("03 00 6B 00 03")

@@ -1,4 +1,4 @@
-"""The Prometheus endpoint (mbgw.metrics): the --metrics address, the exposition text read by
+"""The Prometheus endpoint (mbgw.ops.metrics): the --metrics address, the exposition text read by
 prometheus_client's own parser, and the little HTTP server's behaviour with odd clients."""
 import asyncio
 import math
@@ -6,10 +6,10 @@ from types import SimpleNamespace
 
 import pytest
 
-from mbgw.counters import MASTER_NAMES, NAMES, Counters, MasterCounters
-from mbgw.device_stats import MASTER_COUNTS, DeviceTable
+from mbgw.ops.counters import MASTER_NAMES, NAMES, Counters, MasterCounters
+from mbgw.ops.device_stats import MASTER_COUNTS, DeviceTable
 from mbgw.errors import ConfigError
-from mbgw.metrics import MetricsServer, parse_address, render, render_master
+from mbgw.ops.metrics import MetricsServer, parse_address, render, render_master
 
 
 @pytest.mark.parametrize("text, expected", [

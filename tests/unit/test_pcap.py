@@ -1,4 +1,4 @@
-"""The pcap writer of `mbgw trace --pcap` (mbgw.pcap), read back with a parser written here
+"""The pcap writer of `mbgw trace --pcap` (mbgw.cli.pcap), read back with a parser written here
 from the formats' definitions (pcap, Ethernet II, IPv4 RFC 791, IPv6 RFC 8200, TCP RFC 9293),
 not with mbgw's code."""
 import io
@@ -7,7 +7,7 @@ import struct
 
 import pytest
 
-from mbgw.pcap import PcapWriter
+from mbgw.cli.pcap import PcapWriter
 
 T0 = 1_700_000_000.25
 

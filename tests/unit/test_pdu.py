@@ -1,8 +1,8 @@
 """reply_matches (csrc/reply.c): can this reply PDU be the answer to that request PDU?"""
 import pytest
 
-from mbgw import pdu
-from mbgw.native import reply_matches
+from mbgw.protocol import pdu
+from mbgw.line.native import reply_matches
 from tests.unit.vectors import PDU_PAIRS
 
 

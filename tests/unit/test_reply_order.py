@@ -5,8 +5,8 @@ import socket
 
 import pytest
 
-from mbgw import mbap
-from mbgw.tcp_connection import OUTPUT_LIMIT, Client
+from mbgw.protocol import mbap
+from mbgw.slave.client import OUTPUT_LIMIT, Client
 
 
 def frames_from(data: bytes) -> list[int]:

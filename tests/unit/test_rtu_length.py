@@ -1,4 +1,4 @@
-"""RTU frame lengths (mbgw.native.rtu_request_length / rtu_reply_length) for every public
+"""RTU frame lengths (mbgw.line.native.rtu_request_length / rtu_reply_length) for every public
 function code, from the PDU layouts of the Modbus Application Protocol V1.1b3, section 6.
 
 An RTU ADU is address + PDU + 2 CRC bytes.  The length functions never look at the CRC, so
@@ -6,7 +6,7 @@ frames built here from published PDUs carry two filler bytes in its place.
 """
 import pytest
 
-from mbgw import native
+from mbgw.line import native
 from tests.unit.vectors import CHECK_VECTORS, PDU_PAIRS
 
 ADDRESS = b"\x11"

@@ -1,10 +1,10 @@
-"""The line queue (mbgw.scheduler): fair between clients, in order within a client, and an
+"""The line queue (mbgw.slave.scheduler): fair between clients, in order within a client, and an
 eventfd through which other threads wake the line thread."""
 import os
 
 import pytest
 
-from mbgw.scheduler import Job, Queue, Scheduler
+from mbgw.slave.scheduler import Job, Queue, Scheduler
 
 
 @pytest.fixture

@@ -19,11 +19,11 @@ import termios
 import pytest
 from click.testing import CliRunner
 
-from mbgw import native
+from mbgw.line import native
 from mbgw.cli import main
-from mbgw.config import Interface, LineFormat, SerialConfig
+from mbgw.config.model import Interface, LineFormat, SerialConfig
 from mbgw.errors import ChecksumError, ConfigError, FrameError, SerialError
-from mbgw.serial_port import SerialLine
+from mbgw.line.port import SerialLine
 from tests.harness import CHECKOUT, reachable_by_others
 
 # ---------------------------------------------------------------------------------------------
@@ -334,8 +334,8 @@ def test_second_open_by_another_user_says_in_use(pty, open_line):
     open_line(pty, baudrate=19200)
     os.chmod(pty, 0o666)
     code = ("import sys\n"
-            "from mbgw.config import SerialConfig\n"
-            "from mbgw.serial_port import SerialLine\n"
+            "from mbgw.config.model import SerialConfig\n"
+            "from mbgw.line.port import SerialLine\n"
             "try:\n"
             f"    SerialLine(SerialConfig({pty!r}))\n"
             "except Exception as err:\n"

@@ -1,0 +1,386 @@
+"""The configuration-file commands: `mbgw run`, `mbgw check-config`, `mbgw config show|set|
+unset|default`, and the --config option of the mode commands.  register(main) adds them."""
+import shlex
+import tomllib
+from pathlib import Path
+
+import click
+
+from mbgw.config import file as cf
+from mbgw.config import schema as ck
+from mbgw.config import edit as config_set
+from mbgw.config import text as config_text
+from mbgw.cli.options import Failure
+from mbgw.errors import ConfigError, ConfigFileError
+from mbgw.config.toml_text import dump_value, set_line, write_atomic
+
+SHOW_WIDTH = 16                    # the key column of `mbgw config show`
+META_FILE = "mbgw.config_file"     # ctx.meta: the file the running mode command took values from
+META_MODE_FROM_FILE = "mbgw.mode_from_file"   # ctx.meta: `mbgw run` took the mode from it
+EX_CONFIG = 78                     # sysexits.h; the units do not restart on it
+
+
+def register(root: click.Group) -> None:
+    """Add the commands to `root`, and a --config FILE option to its mode commands."""
+    for mode in ck.MODES:
+        command = root.commands.get(mode)
+        if command is not None and not any(p.name == "config" for p in command.params):
+            command.params.append(_mode_config_option())
+    for command in (run, check_config, config):
+        root.add_command(command)
+
+
+def _schema(ctx: click.Context) -> ck.Schema:
+    root = ctx.find_root().command
+    if not isinstance(root, click.Group) or not any(m in root.commands for m in ck.MODES):
+        root = click.Group(commands={ctx.command.name: ctx.command})
+    return ck.Schema(root)
+
+
+def _command_line(ctx: click.Context, *words) -> str:
+    return shlex.join([*ctx.command_path.split(), *map(str, words)])
+
+
+def _permission_failure(ctx, path, doing: str, words) -> Failure:
+    return Failure(f"cannot {doing} {path}: permission denied; run it as root: "
+                   f"sudo {_command_line(ctx, *words)}")
+
+
+def _load(ctx: click.Context, schema: ck.Schema, path: Path, words=(),
+          exit_code: int = 1) -> cf.Settings:
+    try:
+        return cf.load(schema, path)
+    except PermissionError:
+        raise _permission_failure(ctx, path, "read", words) from None
+    except ConfigFileError as err:
+        raise Failure(str(err), exit_code) from None
+
+
+# --- the --config option of `mbgw slave` / `mbgw master` -----------------------------------------
+
+def _mode_config_option() -> click.Option:
+    return click.Option(
+        ["--config"], metavar="FILE", type=click.Path(dir_okay=False), envvar="MBGW_CONFIG",
+        is_eager=True, expose_value=False, callback=_apply_file,
+        help=f"Take the options not given here from FILE [default: {ck.DEFAULT_PATH}, when "
+             f"it exists; also $MBGW_CONFIG].")
+
+
+def _apply_file(ctx: click.Context, param: click.Parameter, value) -> None:
+    """Eager: runs before the other options take their values, and gives them the file's
+    values as defaults (click's default_map), so the command line wins over the file."""
+    given = ctx.get_parameter_source(param.name) == click.core.ParameterSource.COMMANDLINE
+    if ctx.default_map is not None and not given:   # `mbgw run`, load_options gave the file
+        return
+    if value is None:
+        if not ck.DEFAULT_PATH.exists():
+            return
+        value = ck.DEFAULT_PATH
+    schema = _schema(ctx)
+    settings = _load(ctx, schema, Path(value), exit_code=EX_CONFIG)
+    ctx.default_map = {**settings.default_map(schema, ctx.command.name),
+                       **(ctx.default_map or {})}
+    ctx.meta[META_FILE] = Path(value)
+
+
+def reloader(ctx: click.Context | None = None):
+    """For the mode command running now (its context, by default the current one): a function
+    that reads its configuration file again, for SIGHUP, and returns {"mode": ..., then the
+    command's parameters as its function received them}: the file's values, with the options
+    given on the command line (or by environment) kept as they were.  It raises ConfigError
+    (the message names the file, the key and the reason) when the file is wrong, or when
+    `mbgw run` took the mode from the file and it has changed (a restart is needed).  None
+    when the command took nothing from a file."""
+    ctx = ctx or click.get_current_context()
+    path = ctx.meta.get(META_FILE)
+    if path is None:
+        return None
+    mode = ctx.command.name
+    root = _schema(ctx).root
+    kept = {name: ctx.params[name] for name in ctx.params
+            if ctx.get_parameter_source(name) in (click.core.ParameterSource.COMMANDLINE,
+                                                  click.core.ParameterSource.ENVIRONMENT)}
+    from_file = ctx.meta.get(META_MODE_FROM_FILE, False)
+
+    def reload() -> dict:
+        options = cf.load_options(root, path, mode=None if from_file else mode,
+                                  given=kept)
+        if options["mode"] != mode:
+            raise ConfigError(f"{path}: serial.mode is {options['mode']} now: changing the "
+                              f"mode needs a restart (systemctl restart mbgw)")
+        return {**options, **kept}
+    return reload
+
+
+# --- the file options of the other commands -------------------------------------------------
+
+def _file_options(function):
+    function = click.option(
+        "-i", "--instance", metavar="NAME",
+        help=f"The file of the service instance mbgw@NAME: {ck.CONFIG_DIR}/NAME.toml.")(function)
+    return click.option(
+        "--config", "config_path", metavar="FILE", envvar="MBGW_CONFIG",
+        type=click.Path(dir_okay=False, path_type=Path), default=ck.DEFAULT_PATH,
+        show_default=True, help="The configuration file (also $MBGW_CONFIG).")(function)
+
+
+def _path(ctx: click.Context, config_path: Path, instance: str | None) -> Path:
+    if instance is None:
+        return Path(config_path)
+    if ctx.get_parameter_source("config_path") == click.core.ParameterSource.COMMANDLINE:
+        raise click.UsageError("give --config or --instance, not both")
+    if not instance or "/" in instance or instance.startswith("."):
+        raise click.BadParameter(f"{instance!r}: a name such as ttyUSB1",
+                                 param_hint="'--instance'")
+    return ck.CONFIG_DIR / f"{instance}.toml"
+
+
+def _file_words(ctx: click.Context, path: Path) -> list[str]:
+    """The file options to repeat in a suggested command."""
+    return [] if path == ck.DEFAULT_PATH else ["--config", str(path)]
+
+
+def _say_how_to_apply(path: Path) -> None:
+    """Print the command that makes the running service take the file, when it is a
+    service's file."""
+    if path == ck.DEFAULT_PATH:
+        click.echo("apply it with: systemctl reload mbgw")
+    elif path.parent == ck.CONFIG_DIR and path.suffix == ".toml":
+        click.echo(f"apply it with: systemctl reload mbgw@{path.stem}")
+
+
+def _write(ctx, path: Path, text: str, words) -> None:
+    try:
+        write_atomic(path, text)
+    except PermissionError:
+        raise _permission_failure(ctx, path, "write", words) from None
+    except OSError as err:
+        raise Failure(f"cannot write {path}: {err.strerror or err}") from None
+
+
+# --- mbgw run, mbgw check-config ----------------------------------------------------------------
+
+@click.command("run", context_settings={"ignore_unknown_options": True,
+                                        "allow_interspersed_args": False})
+@_file_options
+@click.argument("args", nargs=-1, type=click.UNPROCESSED, metavar="[MODE OPTIONS]...")
+@click.pass_context
+def run(ctx: click.Context, config_path: Path, instance: str | None, args) -> None:
+    """Start the mode the configuration file selects (serial.mode): what the mbgw service
+    runs.  Options after the file options are the mode command's and win over the file,
+    e.g. `mbgw run --log-level debug`.  Exit status 78 when the file is wrong."""
+    path = _path(ctx, config_path, instance)
+    schema = _schema(ctx)
+    settings = _load(ctx, schema, path, exit_code=EX_CONFIG)
+    command = schema.commands[settings.mode]
+    ctx.meta[META_FILE] = path                  # shared with the mode command's context
+    ctx.meta[META_MODE_FROM_FILE] = True
+    try:
+        sub = command.make_context(settings.mode, list(args), parent=ctx,
+                                   default_map=settings.default_map(schema, settings.mode))
+    except click.MissingParameter as err:
+        raise Failure(f"{path}: {cf.click_problem(schema, settings, err)}", EX_CONFIG) \
+            from None
+    with sub:
+        command.invoke(sub)
+
+
+@click.command("check-config")
+@click.argument("file", required=False, type=click.Path(dir_okay=False, path_type=Path))
+@click.pass_context
+def check_config(ctx: click.Context, file: Path | None) -> None:
+    """Check a configuration file without starting anything: every key known, every value
+    accepted as on the command line, what its mode requires present.  FILE defaults to
+    $MBGW_CONFIG, else /etc/mbgw/mbgw.toml."""
+    import os
+    path = file or Path(os.environ.get("MBGW_CONFIG") or ck.DEFAULT_PATH)
+    schema = _schema(ctx)
+    settings = _load(ctx, schema, path, [path])
+    try:
+        cf.resolve(schema, settings)
+    except ConfigFileError as err:
+        raise Failure(str(err)) from None
+    click.echo(f"{path}: ok ({settings.mode} mode)")
+
+
+# --- mbgw config ... -----------------------------------------------------------------------------
+
+@click.group("config")
+def config() -> None:
+    """Show and change the configuration file with the ACKSYS commands: `mbgw config set
+    serial stout 700` is the guide's `set serial stout 700`.  Each change is checked like the
+    command line and written atomically; the running service takes it on `systemctl reload
+    mbgw`."""
+
+
+@config.command("show")
+@_file_options
+@click.argument("group", required=False, type=click.Choice(ck.GROUPS))
+@click.argument("param", required=False)
+@click.pass_context
+def show(ctx, config_path: Path, instance: str | None, group: str | None,
+         param: str | None) -> None:
+    """Show the settings in effect (the file's, else the built-in defaults): all, one GROUP
+    (serial, net, general), or one PARAM, like the guide's `show serial stout`."""
+    path = _path(ctx, config_path, instance)
+    schema = _schema(ctx)
+    if path.exists():
+        settings = _load(ctx, schema, path, [*filter(None, (group, param)),
+                                             *_file_words(ctx, path)])
+    else:
+        click.echo(f"mbgw: {path} does not exist: built-in defaults", err=True)
+        settings = cf.Settings(path, schema.default_mode, {})
+    if param is not None:
+        name = param.lower()
+        if name not in schema.group_keys(group):
+            raise click.BadParameter(f"{group}.{param}: unknown{schema.hint(name)}",
+                                     param_hint="PARAM")
+        for line in config_set.show_lines(schema, settings, name):
+            click.echo(line)
+        return
+    for shown in [group] if group else ck.GROUPS:
+        names = schema.group_keys(shown)
+        if not names:
+            continue
+        click.echo(f"[{shown}]")
+        for name in names:
+            for line in config_set.show_lines(schema, settings, name):
+                click.echo(f"{name:<{SHOW_WIDTH}} {line}")
+
+
+def _change(ctx, path: Path, words, change) -> None:
+    """Read the file (or start from the factory file), make `change(schema, settings, data)`
+    -> {key: value}, check the whole result, write it atomically, say what changed."""
+    schema = _schema(ctx)
+    try:
+        text = cf.read_text(path)
+    except FileNotFoundError:
+        text = config_text.factory_text(schema)
+    except PermissionError:
+        raise _permission_failure(ctx, path, "read", words) from None
+    try:
+        data = cf.parse(path, text)
+        settings = cf.check(schema, path, data)
+    except ConfigFileError as err:
+        raise Failure(f"{err}\nmbgw: fix the file first (or start again: "
+                      f"{_command_line(ctx.parent, 'default', *_file_words(ctx, path))})") \
+            from None
+    try:
+        changes = change(schema, settings, data)
+        new_data = config_set.apply_changes(data, schema, changes)
+        cf.check(schema, path, new_data)
+    except ConfigError as err:
+        message = str(err)
+        raise Failure(message if message.startswith(str(path)) else f"{path}: {message}") \
+            from None
+    new_mode = changes.get(ck.MODE_KEY, settings.mode)
+    new_text = config_text.edit(text, schema, new_mode, changes)
+    if tomllib.loads(new_text) != new_data:          # the editor's own check
+        raise Failure(f"{path}: could not edit the file in place; nothing written")
+    _write(ctx, path, new_text, words)
+    for name, value in changes.items():
+        label = schema.label(name) if name == ck.MODE_KEY or name in schema.keys else name
+        if value is config_set.REMOVE:
+            click.echo(f"{path}: {label} back to its default")
+        else:
+            click.echo(f"{path}: {label} = {dump_value(value)}")
+    if text != new_text:
+        _say_how_to_apply(path)
+
+
+@config.command("set")
+@_file_options
+@click.argument("group", type=click.Choice(ck.GROUPS))
+@click.argument("param")
+@click.argument("values", nargs=-1, required=True)
+@click.pass_context
+def set_(ctx, config_path: Path, instance: str | None, group: str, param: str,
+         values: tuple) -> None:
+    """Set PARAM of GROUP with the guide's syntax, e.g.
+
+    \b
+      mbgw config set serial stout 700
+      mbgw config set serial format 8e1
+      mbgw config set serial mode master       (clears net.authip and net.slaveid)
+      mbgw config set serial mode rtu          (the protocol)
+      mbgw config set net authip 1 192.168.1.5 (entry 1..8; 0.0.0.0 clears it)
+      mbgw config set net slaveid 1 8 1 0 192.168.0.30   (master: FS LS FR M IP; FS 0 clears)
+      mbgw config set net exception on
+    """
+    path = _path(ctx, config_path, instance)
+    words = [group, param, *values, *_file_words(ctx, path)]
+    _change(ctx, path, words,
+            lambda schema, settings, data: config_set.changes_for_set(schema, settings, group, param,
+                                                              list(values)))
+
+
+@config.command("unset")
+@_file_options
+@click.argument("group", type=click.Choice(ck.GROUPS))
+@click.argument("param")
+@click.pass_context
+def unset(ctx, config_path: Path, instance: str | None, group: str, param: str) -> None:
+    """Take PARAM out of the file: it goes back to its built-in default.  Works on a
+    misspelt key too."""
+    path = _path(ctx, config_path, instance)
+    words = [group, param, *_file_words(ctx, path)]
+    if group == "serial" and param == ck.MODE_KEY:
+        _change(ctx, path, words, lambda schema, settings, data: config_set.changes_for_set(
+            schema, settings, group, param, [schema.default_mode]))
+    else:
+        _unset(ctx, path, words, group, param)
+
+
+def _unset(ctx, path: Path, words, group: str, param: str) -> None:
+    """Works on the text, even when the key is unknown (a typo) or its value is bad."""
+    schema = _schema(ctx)
+    try:
+        text = cf.read_text(path)
+    except FileNotFoundError:
+        click.echo(f"{path}: no such file: {group}.{param} is at its default")
+        return
+    except PermissionError:
+        raise _permission_failure(ctx, path, "read", words) from None
+    data = _parse(path, text)
+    content = data.get(group) if isinstance(data.get(group), dict) else {}
+    if param not in content:
+        click.echo(f"{path}: {group}.{param} is not set: it is at its default")
+        return
+    serial = data.get("serial") if isinstance(data.get("serial"), dict) else {}
+    known = param in schema.keys and schema.keys[param].group == group
+    commented = config_text.default_line(schema, param, str(serial.get(ck.MODE_KEY, ""))) if known \
+        else None
+    new_text = set_line(text, group, param, None, commented)
+    new_data = _parse(path, new_text)
+    if param in new_data.get(group, {}):
+        raise Failure(f"{path}: could not edit the file in place; nothing written")
+    try:
+        write_atomic(path, new_text)
+    except PermissionError:
+        raise _permission_failure(ctx, path, "write", words) from None
+    click.echo(f"{path}: {group}.{param} back to its default")
+    try:
+        cf.check(schema, path, new_data)
+    except ConfigFileError as err:
+        raise Failure(f"{err}\n(the file still has these problems)") from None
+    _say_how_to_apply(path)
+
+
+def _parse(path: Path, text: str) -> dict:
+    try:
+        return cf.parse(path, text)
+    except ConfigFileError as err:
+        raise Failure(str(err)) from None
+
+
+@config.command("default")
+@_file_options
+@click.pass_context
+def default(ctx, config_path: Path, instance: str | None) -> None:
+    """Write the factory defaults: the guide's `set default`.  Every key is listed with its
+    help, commented out at its built-in default; the device is /dev/ttyUSB0."""
+    path = _path(ctx, config_path, instance)
+    _write(ctx, path, config_text.factory_text(_schema(ctx)), _file_words(ctx, path))
+    click.echo(f"{path}: factory defaults written")
+    _say_how_to_apply(path)
+

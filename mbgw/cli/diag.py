@@ -1,0 +1,110 @@
+"""Operator commands that talk to the running daemon: status, clients close, stats reset,
+trace.  Registered on the main group by mbgw.cli."""
+import json
+import time
+
+import click
+
+from mbgw.ops import control as ctl
+from mbgw.cli.options import Failure
+from mbgw.cli.render import format_event, format_status, trace_columns
+
+control_option = click.option(
+    "--control", metavar="PATH", default=None,
+    help="The daemon's control socket [default: $RUNTIME_DIRECTORY/mbgw.sock or "
+         "/run/mbgw/mbgw.sock; for mbgw@NAME: /run/mbgw/NAME/mbgw.sock].")
+
+
+def _call(path: str | None, request: dict) -> dict:
+    path = path or ctl.default_path()
+    try:
+        reply = ctl.call(path, request)
+    except PermissionError:
+        _fail(f"permission denied on {path}: run it as root or as a member of the service's "
+              f"group (e.g. sudo mbgw {request['command']})")
+    except (FileNotFoundError, ConnectionRefusedError):
+        _fail(f"no mbgw daemon answers on {path} (is it running? --control PATH)")
+    except OSError as err:
+        _fail(f"{path}: {err.strerror or err}")
+    if "error" in reply:
+        _fail(reply["error"])
+    return reply
+
+
+def _fail(message: str):
+    raise Failure(message)
+
+
+def register(main: click.Group) -> None:
+    @main.command()
+    @click.option("--json", "as_json", is_flag=True, help="Print the status as JSON.")
+    @control_option
+    def status(as_json: bool, control: str | None) -> None:
+        """What the running daemon is doing: clients, devices, counters."""
+        reply = _call(control, {"command": "status"})
+        if as_json:
+            click.echo(json.dumps(reply, indent=2))
+        else:
+            click.echo(format_status(reply, time.time()))
+
+    @main.group()
+    def clients() -> None:
+        """The Modbus TCP clients of the running daemon (slave mode)."""
+
+    @clients.command("close")
+    @click.argument("client_id", type=int, metavar="ID")
+    @control_option
+    def close(client_id: int, control: str | None) -> None:
+        """Force-close client ID (the ID column of mbgw status)."""
+        _call(control, {"command": "close", "client": client_id})
+        click.echo(f"client {client_id} closed")
+
+    @main.group()
+    def stats() -> None:
+        """The running daemon's counters."""
+
+    @stats.command("reset")
+    @control_option
+    def reset(control: str | None) -> None:
+        """Zero every counter (logged by the daemon)."""
+        _call(control, {"command": "reset"})
+        click.echo("counters reset")
+
+    @main.command()
+    @click.option("--pcap", "pcap_file", type=click.File("wb"), default=None, metavar="FILE",
+                  help="Also write the traffic to FILE as a Modbus/TCP pcap capture "
+                       "(Wireshark, tshark; '-' for standard output).")
+    @click.option("--count", type=click.IntRange(1), default=None,
+                  help="Stop after this many events [default: until Ctrl-C].")
+    @control_option
+    def trace(pcap_file, count: int | None, control: str | None) -> None:
+        """Live, decoded view of the traffic through the running daemon."""
+        from mbgw.cli.pcap import PcapWriter
+
+        path = control or ctl.default_path()
+        try:
+            sock = ctl.connect(path, timeout=None)
+        except PermissionError:
+            _fail(f"permission denied on {path}: run it as root or as a member of the "
+                  f"service's group (e.g. sudo mbgw trace)")
+        except (FileNotFoundError, ConnectionRefusedError):
+            _fail(f"no mbgw daemon answers on {path} (is it running? --control PATH)")
+        writer = PcapWriter(pcap_file) if pcap_file else None
+        echo = (lambda text: click.echo(text, err=True)) if pcap_file and \
+            pcap_file.name == "<stdout>" else click.echo
+        seen = 0
+        with sock, sock.makefile("rb") as events:
+            sock.sendall(b'{"command": "trace"}\n')
+            header = json.loads(events.readline() or b"{}")     # {"mode": ..., ...}
+            echo(trace_columns(header.get("mode", "slave")))
+            try:
+                for line in events:
+                    event = json.loads(line)
+                    echo(format_event(event))
+                    if writer is not None:
+                        writer.write_event(event)
+                    seen += 1
+                    if count is not None and seen >= count:
+                        break
+            except KeyboardInterrupt:
+                pass

@@ -1,0 +1,75 @@
+"""The `mbgw master` command: a Modbus master on the serial line reaches Modbus TCP servers.
+Registered by mbgw.cli; it shares the serial options and the operator's tools (control
+socket, metrics, log level) with slave mode."""
+import click
+from click.core import ParameterSource
+
+from mbgw.config import model as config
+from mbgw.cli.options import (Failure, convert, daemon_options, parser, serial_config,
+                              serial_options)
+from mbgw.cli.config import reloader
+from mbgw.errors import SerialError
+from mbgw.config.slaveid import MAX_RANGES, SlaveIdTable
+
+SLAVE_MODE_ONLY = ("stout", "nocheck")
+
+
+@click.command()
+@serial_options
+@click.option("--slaveid", "slaveid", multiple=True, metavar='"FS LS FR M IP"',
+              callback=parser(SlaveIdTable.parse),
+              help="Serial addresses FS..LS go to the server at IP, as unit id FR + (address "
+                   "- FS), or 0xFF when FR is 0; M=1 adds (address - FS) to the IP's last "
+                   f"byte too.  Repeat for up to {MAX_RANGES} ranges; a line whose FS lies in "
+                   "a range already defined replaces it (other overlaps are refused); FS=0 "
+                   "clears the table.")
+@click.option("--tcpto", type=click.IntRange(*config.TCPTO_RANGE),
+              default=config.DEFAULT_TCPTO_MS, show_default=True, metavar="MS",
+              help="Time for a transaction with a server, connecting included, 1..65535 ms.")
+@click.option("--mdbport", type=click.IntRange(1, 65535), default=502, show_default=True,
+              help="Modbus TCP port of the remote servers.")
+@click.option("--exception/--no-exception", default=False, show_default=True,
+              help="Answer exception 0x0B when a server does not reply within tcpto, 0x0A "
+                   "when it cannot be reached, instead of staying silent.")
+@click.option("--max-connections", type=click.IntRange(1, 1000), default=5, show_default=True,
+              help="Connections kept open to servers; one more closes the least recently "
+                   "used.")
+@daemon_options
+@click.pass_context
+def master(ctx, **options) -> None:
+    """Master mode: a Modbus master on the serial line reaches Modbus TCP servers."""
+    from mbgw.master.daemon import run_master
+    from mbgw.ops import log
+    from mbgw.ops.service import ListenError
+
+    for name in SLAVE_MODE_ONLY:
+        if ctx.get_parameter_source(name) in (ParameterSource.COMMANDLINE,
+                                              ParameterSource.ENVIRONMENT):
+            raise click.BadParameter("applies to slave mode only", param_hint=f"'--{name}'")
+    cfg = master_config(**options)
+    log.setup(options["log_level"])
+    reload = reloader()
+
+    def reconfigure() -> config.MasterConfig:
+        """SIGHUP: the configuration file again, command-line options kept."""
+        new = reload()
+        new.pop("mode", None)
+        log.setup(new["log_level"])
+        return master_config(**new)
+
+    try:
+        run_master(cfg, reconfigure if reload else None)
+    except SerialError as err:
+        raise Failure(err.strerror or str(err)) from None
+    except ListenError as err:
+        raise Failure(str(err)) from None
+
+
+def master_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout,
+                  silence, ascii_timeout, nocheck, slaveid, tcpto, mdbport, exception,
+                  max_connections, control, metrics, log_level=None) -> config.MasterConfig:
+    serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
+                            stout, silence, ascii_timeout, nocheck)
+    return convert("'--tcpto'", lambda: config.MasterConfig(
+        serial=serial, slaveid=slaveid, tcpto_ms=tcpto, mdbport=mdbport, exception=exception,
+        max_connections=max_connections, control=control, metrics=metrics))

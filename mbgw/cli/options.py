@@ -1,0 +1,109 @@
+"""What the mode commands share: the serial line's options, the operator's tools, turning a
+configuration error into a usage error, and the one way a command fails."""
+import click
+
+from mbgw.config import model as config
+from mbgw.config.schema import SerialOption
+from mbgw.errors import ConfigError
+
+
+class Failure(click.ClickException):
+    """Printed as "mbgw: ..." lines on stderr; exit status 1, or `exit_code`."""
+
+    def __init__(self, message: str, exit_code: int = 1) -> None:
+        super().__init__(message)
+        self.exit_code = exit_code
+
+    def show(self, file=None) -> None:
+        for line in self.format_message().splitlines():
+            click.echo(f"mbgw: {line}", file=file, err=file is None)
+
+
+LOG_LEVELS = click.Choice(["debug", "info", "warning", "error"], case_sensitive=False)
+
+
+def convert(param_name: str, build):
+    """Run a config constructor, turning ConfigError into a usage error (exit 2)."""
+    try:
+        return build()
+    except ConfigError as err:
+        raise click.BadParameter(str(err), param_hint=param_name) from None
+
+
+def parser(parse):
+    def callback(ctx, param, value):
+        return convert(f"'{param.opts[0]}'", lambda: parse(value))
+    return callback
+
+
+def _parse_metrics(value):
+    if value is not None:
+        from mbgw.ops.metrics import parse_address
+        parse_address(value)
+    return value
+
+
+def stack(*decorators):
+    def apply(function):
+        for decorator in reversed(decorators):
+            function = decorator(function)
+        return function
+    return apply
+
+
+serial_options = stack(
+    click.option("--device", cls=SerialOption, required=True, metavar="PATH",
+                 help="Serial device, e.g. /dev/ttyUSB0."),
+    click.option("--protocol", cls=SerialOption, type=click.Choice(config.PROTOCOLS), default="rtu",
+                 show_default=True, help="Modbus framing on the serial line."),
+    click.option("--baudrate", cls=SerialOption, type=click.IntRange(*config.BAUDRATE_RANGE), default=9600,
+                 show_default=True, help="Line speed in bit/s, any rate from 50 to 4000000."),
+    click.option("--format", "line_format", cls=SerialOption, default="8n1", show_default=True,
+                 callback=parser(config.LineFormat.parse), metavar="NPS",
+                 help="Data bits (7|8), parity (n|e|o|m|s: none, even, odd, mark, space), "
+                      "stop bits (1|2)."),
+    click.option("--interface", cls=SerialOption, default="rs232", show_default=True,
+                 callback=parser(config.Interface.parse), metavar="KIND",
+                 help="rs232, rs422, 'rs485 noecho' or 'rs485 echo' (the transceiver "
+                      "hears its own frames; they are dropped)."),
+    click.option("--rtsdelays", cls=SerialOption, type=(click.IntRange(0, 255), click.IntRange(0, 255)),
+                 default=(0, 0), show_default=True, metavar="BEFORE AFTER",
+                 help="RS-485: ms between raising RTS and the first byte, and between the "
+                      "last byte and dropping RTS, 0..255."),
+    click.option("--stout", cls=SerialOption, type=click.IntRange(*config.STOUT_RANGE),
+                 default=config.DEFAULT_STOUT_MS, show_default=True, metavar="MS",
+                 help="Time from the end of a request to the end of its answer, 1..65535 ms."),
+    click.option("--silence", cls=SerialOption, type=click.IntRange(0, 65535), default=0, show_default=True,
+                 metavar="MS",
+                 help="RTU end-of-frame silence in ms, 0..65535 (0: the standard 3.5 "
+                      "characters, 1.75 ms above 19200 bit/s); shorter gaps stay inside "
+                      "a frame."),
+    click.option("--ascii-timeout", cls=SerialOption, type=click.IntRange(1, 65535),
+                 default=config.DEFAULT_ASCII_TIMEOUT_MS, show_default=True, metavar="MS",
+                 help="ASCII: longest pause between two characters of a frame, 1..65535 ms."),
+    click.option("--nocheck", cls=SerialOption, is_flag=True, default=False, show_default=True,
+                 help="Debugging only: forward serial replies unchecked (no CRC/LRC, "
+                      "address or length control), as received until end of frame.  "
+                      "[default: off]"),
+)
+
+
+# The operator's tools, the same in both modes: control socket, metrics, log level.
+daemon_options = stack(
+    click.option("--control", metavar="PATH", default=None,
+                 help="Control socket for mbgw status/trace [default: "
+                      "$RUNTIME_DIRECTORY/mbgw.sock or /run/mbgw/mbgw.sock]."),
+    click.option("--metrics", metavar="ADDR:PORT", default=None,
+                 callback=parser(_parse_metrics),
+                 help="Serve Prometheus metrics on http://ADDR:PORT/metrics ([IPV6]:PORT; "
+                      ":PORT for every address) [default: off]."),
+    click.option("--log-level", type=LOG_LEVELS, default="info", show_default=True),
+)
+
+
+def serial_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout,
+                   silence, ascii_timeout, nocheck) -> config.SerialConfig:
+    return convert("'--baudrate'", lambda: config.SerialConfig(
+        device=device, protocol=protocol, baudrate=baudrate, format=line_format,
+        interface=interface, rtsdelays=tuple(rtsdelays), stout_ms=stout, silence_ms=silence,
+        ascii_timeout_ms=ascii_timeout, nocheck=nocheck))

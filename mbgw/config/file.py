@@ -1,0 +1,192 @@
+"""The configuration file, /etc/mbgw/mbgw.toml (`mbgw@NAME` reads /etc/mbgw/NAME.toml):
+reading and checking it, and the options it gives a mode command.
+
+It holds every option of both modes under its ACKSYS name, grouped like the ACKSYS guide:
+[serial] (mode, device, baudrate, format, stout, ...), [net] (slaveid, authip, mdbport, tcpto,
+...) and [general] (what the guide has no command for).  The keys are the long options of the
+mode commands (mbgw.config.schema).  A value is checked by its option's own click type and
+callback (mbgw.config.values), and reaches the command through click's default_map: command
+line > file > built-in default.  Changes go through `mbgw config set` (the guide's `set`
+syntax, mbgw.config.edit), which edits the text in place so that comments survive
+(mbgw.config.text), and replaces the file atomically."""
+import copy
+import dataclasses
+import difflib
+import tomllib
+from pathlib import Path
+
+import click
+
+from mbgw.config.schema import (DEFAULT_PATH, FACTORY_DEVICE, GROUPS, MODE_KEY, MODE_TABLES, MODES,
+                              PROTOCOL_WORDS, Schema, default_value, is_unset)
+from mbgw.config.values import check_value, to_click
+from mbgw.errors import ConfigFileError
+
+
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    """A checked file: the mode it selects and its key values as written (TOML types)."""
+    path: Path
+    mode: str
+    values: dict               # key name -> value, for the keys present in the file
+
+    def default_map(self, schema: Schema, command_name: str) -> dict:
+        """click's default_map for a mode command: its options the file sets.  The authip and
+        slaveid tables belong to the file's mode and are left out for the other command."""
+        mapping = {}
+        for name, value in self.values.items():
+            key = schema.keys.get(name)
+            param = key.params.get(command_name) if key else None
+            if param is None or (name in MODE_TABLES and command_name != self.mode):
+                continue
+            mapping[param.name] = to_click(name, param, value)
+        return mapping
+
+    def get(self, schema: Schema, name: str):
+        """The effective value of a key: the file's, else the built-in default."""
+        if name == MODE_KEY:
+            return self.mode
+        if name in self.values:
+            return self.values[name]
+        return default_value(schema, name, self.mode)
+
+
+def read_text(path: Path) -> str:
+    """Raises FileNotFoundError, PermissionError (the caller words them)."""
+    return Path(path).read_text(encoding="utf-8")
+
+
+def parse(path: Path, text: str) -> dict:
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigFileError(path, [f"not valid TOML: {err}"]) from None
+
+
+def check(schema: Schema, path: Path, data: dict) -> Settings:
+    """Every key known, every value accepted by its option; raises ConfigFileError listing all
+    the problems found."""
+    problems = []
+    for name, content in data.items():
+        if name in GROUPS:
+            if not isinstance(content, dict):
+                problems.append(f"{name}: expected a group [{name}], not a value")
+        elif isinstance(content, dict):
+            match = difflib.get_close_matches(name.lower(), GROUPS, n=1, cutoff=0.6)
+            problems.append(f"[{name}]: unknown group (groups: {', '.join(GROUPS)})"
+                            + (f"; did you mean [{match[0]}]?" if match else ""))
+        elif name == MODE_KEY or name in schema.keys:
+            problems.append(f"{name}: outside any group; put it under "
+                            f"[{schema.label(name).split('.')[0]}]")
+        else:
+            problems.append(f"{name}: unknown key{schema.hint(name)}")
+    groups = {g: data[g] for g in GROUPS if isinstance(data.get(g), dict)}
+    mode = _check_mode(schema, groups.get("serial", {}), problems)
+    values = {}
+    for group, content in groups.items():
+        for name, value in content.items():
+            label = f"{group}.{name}"
+            if group == "serial" and name == MODE_KEY:
+                continue
+            key = schema.keys.get(name)
+            if key is None:
+                problems.append(f"{label}: unknown key{schema.hint(name)}")
+            elif key.group != group:
+                problems.append(f"{label}: belongs in [{key.group}] ({key.label})")
+            else:
+                problems += check_value(schema, key, mode, value)
+                values[name] = value
+    if problems:
+        raise ConfigFileError(path, problems)
+    return Settings(Path(path), mode, values)
+
+
+def _check_mode(schema: Schema, serial: dict, problems: list) -> str:
+    value = serial.get(MODE_KEY, schema.default_mode)
+    if value in schema.modes:
+        return value
+    label = f"serial.{MODE_KEY}"
+    if value in MODES:
+        problems.append(f"{label}: {value} mode is not in this mbgw (modes: "
+                        f"{', '.join(schema.modes)})")
+    elif isinstance(value, str) and value.lower() in PROTOCOL_WORDS:
+        problems.append(f"{label}: {value!r} is the framing: write protocol = "
+                        f"\"{value.lower()}\" (mode is {' or '.join(MODES)})")
+    else:
+        problems.append(f"{label}: expected {' or '.join(repr(m) for m in MODES)}, got "
+                        f"{value!r}")
+    return schema.default_mode
+
+
+
+def load(schema: Schema, path: Path) -> Settings:
+    """Read and check a file that must exist; raises ConfigFileError, or PermissionError (for
+    the caller to suggest sudo)."""
+    try:
+        text = read_text(path)
+    except FileNotFoundError:
+        raise ConfigFileError(path, ["no such file (create it with: mbgw config default"
+                                     + ("" if Path(path) == DEFAULT_PATH else f" --config {path}")
+                                     + ")"]) from None
+    except PermissionError:
+        raise
+    except OSError as err:
+        raise ConfigFileError(path, [f"cannot read it: {err.strerror or err}"]) from None
+    return check(schema, path, parse(path, text))
+
+
+def resolve(schema: Schema, settings: Settings, args=(), mode: str | None = None,
+            given=()) -> dict:
+    """The parameters of a mode command (the file's mode, or `mode`) as its function receives
+    them, from the file and `args` (command-line options, which win).  Also checks what only
+    the whole command can: options it requires (device), callbacks.  `given`: names of
+    parameters the caller has from elsewhere (a running daemon's command line), which the
+    file need not have even when required.  Raises ConfigFileError."""
+    mode = mode or settings.mode
+    command = schema.commands[mode]
+    if any(p.required and p.name in given for p in command.params):
+        command = copy.copy(command)
+        command.params = [_optional(p) if p.name in given else p for p in command.params]
+    try:
+        ctx = command.make_context(mode, list(args),
+                                   default_map=settings.default_map(schema, mode))
+    except click.ClickException as err:
+        raise ConfigFileError(settings.path, [click_problem(schema, settings, err)]) from None
+    return {name: None if is_unset(v) else v for name, v in ctx.params.items()}
+
+
+def _optional(param: click.Parameter) -> click.Parameter:
+    param = copy.copy(param)
+    param.required = False
+    return param
+
+
+def click_problem(schema: Schema, settings: Settings, err: click.ClickException) -> str:
+    param = getattr(err, "param", None)
+    key = schema.key_of_param(param) if param is not None else None
+    if key is None:
+        return err.format_message()
+    if isinstance(err, click.MissingParameter):
+        return (f"{key.label}: missing; {settings.mode} mode needs it (e.g. mbgw config set "
+                f"{key.group} {key.name} {FACTORY_DEVICE if key.name == 'device' else '...'})")
+    return f"{key.label}: {err.message}"
+
+
+def load_options(root: click.Group, path=DEFAULT_PATH, args=(), mode: str | None = None,
+                 given=()) -> dict:
+    """What `mbgw run --config PATH ARGS...` (root: the mbgw command group) would start, without starting it: {"mode": "slave"
+    or "master", then every parameter of that mode's command exactly as click passes it to the
+    command's function (converted, checked, defaults filled in)}.  `args` are command-line
+    options that win over the file; `mode` takes another mode than the file's (as `mbgw slave
+    --config PATH` does).  Raises ConfigFileError (a ConfigError) naming the file, the key and
+    the reason.  The file is only read, so a daemon can call it on SIGHUP and keep running on
+    an error (see mbgw.cli.config.reloader), passing as `given` the parameters its command
+    line set (see resolve)."""
+    schema = Schema(root)
+    try:
+        settings = load(schema, Path(path))
+    except PermissionError as err:
+        raise ConfigFileError(path, [f"cannot read it: {err.strerror}"]) from None
+    mode = mode or settings.mode
+    return {"mode": mode, **resolve(schema, settings, args, mode, given)}
+

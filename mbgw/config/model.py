@@ -1,0 +1,174 @@
+"""Validated settings.  Options keep the ACKSYS names and units (ms); every default and
+bound is stated here once."""
+import ipaddress
+import math
+import re
+from dataclasses import dataclass, field
+
+from mbgw.errors import ConfigError
+
+# Rates libmodbus 3.1.6 sets itself; it silently turns any other rate into 9600.
+LIBMODBUS_BAUDRATES = (110, 300, 600, 1200, 2400, 4800, 9600, 19200, 38400, 57600, 115200,
+                       230400, 460800, 500000, 576000, 921600, 1000000, 1152000, 1500000,
+                       2500000, 3000000, 3500000, 4000000)
+BAUDRATE_RANGE = (50, 4000000)   # others than libmodbus's are set through termios2/BOTHER
+FORMAT_PATTERN = re.compile(r"^([78])([neoms])([12])$")
+PROTOCOLS = ("rtu", "ascii")
+INTERFACES = ("rs232", "rs485", "rs422")
+DEFAULT_ASCII_TIMEOUT_MS = 1000   # Serial Line V1.02 2.5.2.1: inter-character time-out
+MAX_AUTHIP = 8
+STOUT_RANGE = (1, 65535)
+DEFAULT_STOUT_MS = 600
+DEFAULT_TURNAROUND_MS = 100    # Serial Line V1.02 2.4.1: "typically 100 to 200 ms"
+FAST_LINE_BAUD = 19200         # above it, t3.5 is the fixed 1.75 ms (Serial Line V1.02 2.5.1.1)
+FAST_LINE_T35_US = 1750
+
+
+@dataclass(frozen=True)
+class LineFormat:
+    data_bits: int = 8
+    parity: str = "n"
+    stop_bits: int = 1
+
+    @classmethod
+    def parse(cls, text: str) -> "LineFormat":
+        match = FORMAT_PATTERN.fullmatch(text.lower())
+        if not match:
+            raise ConfigError(f"format {text!r}: expected data bits (7 or 8), parity "
+                              f"(n, e, o, m or s) and stop bits (1 or 2), e.g. 8n1")
+        return cls(int(match[1]), match[2], int(match[3]))
+
+    @property
+    def char_bits(self) -> int:
+        """Bits on the wire per character: start + data + parity + stop."""
+        return 1 + self.data_bits + (0 if self.parity == "n" else 1) + self.stop_bits
+
+    def __str__(self) -> str:
+        return f"{self.data_bits}{self.parity}{self.stop_bits}"
+
+
+@dataclass(frozen=True)
+class Interface:
+    """The electrical interface: rs232, rs422, or rs485 with or without its own echo."""
+    kind: str = "rs232"
+    echo: bool = False
+
+    @classmethod
+    def parse(cls, text: str) -> "Interface":
+        words = text.lower().split()
+        if not words or words[0] not in INTERFACES or len(words) > 2 or (
+                len(words) == 2 and (words[0] != "rs485" or words[1] not in ("echo", "noecho"))):
+            raise ConfigError(f"interface {text!r}: expected rs232, rs422, rs485, "
+                              f"'rs485 echo' or 'rs485 noecho'")
+        return cls(words[0], len(words) == 2 and words[1] == "echo")
+
+    def __str__(self) -> str:
+        return f"{self.kind} echo" if self.echo else self.kind
+
+
+@dataclass(frozen=True)
+class SerialConfig:
+    device: str
+    baudrate: int = 9600
+    format: LineFormat = field(default_factory=LineFormat)
+    stout_ms: int = DEFAULT_STOUT_MS
+    protocol: str = "rtu"
+    silence_ms: int = 0            # 0: the standard t3.5
+    nocheck: bool = False
+    interface: Interface = field(default_factory=Interface)
+    rtsdelays: tuple[int, int] = (0, 0)
+    ascii_timeout_ms: int = DEFAULT_ASCII_TIMEOUT_MS
+
+    def __post_init__(self) -> None:
+        low, high = BAUDRATE_RANGE
+        if not low <= self.baudrate <= high:
+            raise ConfigError(f"baudrate {self.baudrate}: out of range {low}..{high}")
+        if self.protocol not in PROTOCOLS:
+            raise ConfigError(f"protocol {self.protocol!r}: expected rtu or ascii")
+
+    @property
+    def libmodbus_baudrate(self) -> bool:
+        """libmodbus can set this rate itself (others go through termios2)."""
+        return self.baudrate in LIBMODBUS_BAUDRATES
+
+    @property
+    def char_ns(self) -> int:
+        return self.format.char_bits * 1_000_000_000 // self.baudrate
+
+    @property
+    def end_of_frame_us(self) -> int:
+        """The silence that ends an RTU frame: --silence, else t3.5."""
+        return self.silence_ms * 1000 or self.t35_us
+
+    @property
+    def t35_us(self) -> int:
+        """Inter-frame silence (t3.5)."""
+        if self.baudrate > FAST_LINE_BAUD:
+            return FAST_LINE_T35_US
+        return math.ceil(3.5 * self.format.char_bits * 1_000_000 / self.baudrate)
+
+
+@dataclass(frozen=True)
+class SlaveConfig:
+    """Slave mode: slaves on the serial line, Modbus TCP clients on the network."""
+    serial: SerialConfig
+    slaveid: int = 0
+    exception: bool = False
+    authip: tuple = ()
+    mdbport: int = 502
+    bind: str | None = None
+    max_connections: int = 5
+    retries: int = 0
+    turnaround_ms: int = DEFAULT_TURNAROUND_MS
+    control: str | None = None     # control socket path; None: the default one
+    metrics: str | None = None     # ADDR:PORT for Prometheus, None: off
+
+    def __post_init__(self) -> None:
+        if len(self.authip) > MAX_AUTHIP:
+            raise ConfigError(f"authip: at most {MAX_AUTHIP} addresses, got {len(self.authip)}")
+        object.__setattr__(self, "authip", tuple(parse_ip("authip", a) for a in self.authip))
+
+
+def parse_ip(option: str, text: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address:
+    try:
+        # Peers are compared without their scope id (see acl.AccessList.allows)
+        address = ipaddress.ip_address(str(text).split("%", 1)[0])
+    except ValueError:
+        raise ConfigError(f"{option} {text!r}: not an IP address") from None
+    if isinstance(address, ipaddress.IPv6Address) and address.ipv4_mapped:
+        return address.ipv4_mapped
+    return address
+
+
+import typing  # noqa: E402  (master mode's settings were added below slave mode's)
+
+if typing.TYPE_CHECKING:
+    from mbgw.config.slaveid import SlaveIdTable
+
+TCPTO_RANGE = (1, 65535)
+DEFAULT_TCPTO_MS = 800          # ACKSYS "set net tcpto" default
+
+
+@dataclass(frozen=True)
+class MasterConfig:
+    """Master mode: a Modbus master on the serial line, Modbus TCP servers on the network."""
+    serial: SerialConfig
+    slaveid: "SlaveIdTable"
+    tcpto_ms: int = DEFAULT_TCPTO_MS
+    mdbport: int = 502              # the remote servers' port
+    exception: bool = False
+    max_connections: int = 5
+    control: str | None = None      # control socket path; None: the default one
+    metrics: str | None = None      # ADDR:PORT for Prometheus, None: off
+
+    def __post_init__(self) -> None:
+        low, high = TCPTO_RANGE
+        if not low <= self.tcpto_ms <= high:
+            raise ConfigError(f"tcpto {self.tcpto_ms}: out of range {low}..{high}")
+        if self.max_connections < 1:
+            raise ConfigError(f"max-connections {self.max_connections}: at least 1")
+
+    @property
+    def tcpto_ns(self) -> int:
+        return self.tcpto_ms * 1_000_000
+

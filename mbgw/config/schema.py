@@ -1,0 +1,122 @@
+"""The keys of the configuration file: the long options of the mode commands (`mbgw slave`,
+`mbgw master`), walked at run time so that an option added to a command is a key at once, in
+the groups of the ACKSYS guide ([serial], [net], [general]), with their built-in defaults."""
+import dataclasses
+import difflib
+from pathlib import Path
+
+import click
+
+DEFAULT_PATH = Path("/etc/mbgw/mbgw.toml")
+CONFIG_DIR = DEFAULT_PATH.parent           # the instance mbgw@NAME reads CONFIG_DIR/NAME.toml
+MODES = ("slave", "master")                # "set serial mode slave|master"
+MODE_KEY = "mode"                          # in [serial]; selects the command `mbgw run` starts
+PROTOCOL_KEY = "protocol"                  # "set serial mode rtu|ascii" sets it
+PROTOCOL_WORDS = ("rtu", "ascii")
+GROUPS = ("serial", "net", "general")
+# [serial]: the options of class SerialOption (both modes' line settings) and the slave mode's
+# line behaviour below; [net]: the guide's "set net ..." commands and
+# our network options; [general]: the rest (logging, control socket, metrics, ...).
+LINE_KEYS = frozenset({"retries", "turnaround"})
+NET_KEYS = frozenset({"slaveid", "authip", "mdbport", "tcpto", "exception", "metric", "bind",
+                      "max-connections"})
+MODE_TABLES = ("authip", "slaveid")        # cleared when the mode changes (the guide says so)
+AUTHIP_ENTRIES = 8                         # "n: table entry index, from 1 to 8"
+NO_ADDRESS = "0.0.0.0"                     # "IP address 0.0.0.0 clears the entry"
+FACTORY_MODE = "slave"
+FACTORY_DEVICE = "/dev/ttyUSB0"
+OWN_OPTIONS = frozenset({"config"})        # the option naming the file is not a key
+
+
+@dataclasses.dataclass
+class Key:
+    name: str                  # the ACKSYS spelling: the option's long flag without "--"
+    group: str
+    params: dict               # mode -> its click.Option (one per mode command that has it)
+
+    def mode_for(self, mode: str) -> str:
+        """The mode whose option checks this key: the file's mode when it has the key."""
+        return mode if mode in self.params else next(iter(self.params))
+
+    @property
+    def label(self) -> str:
+        return f"{self.group}.{self.name}"
+
+
+class Schema:
+    """The keys of the mode commands of `root` (a click group), in [serial], [net], [general]
+    order, each group in the commands' option order."""
+
+    def __init__(self, root: click.Group) -> None:
+        self.root = root
+        self.commands = {m: root.commands[m] for m in MODES if m in root.commands}
+        if not self.commands:
+            raise RuntimeError(f"{root.name} has no mode command ({', '.join(MODES)})")
+        self.modes = tuple(self.commands)
+        found: dict[str, Key] = {}
+        for mode, command in self.commands.items():
+            for param in command.params:
+                name = option_key(param)
+                if name is not None:
+                    group = "net" if name in NET_KEYS else "serial" \
+                        if name in LINE_KEYS or isinstance(param, SerialOption) else "general"
+                    found.setdefault(name, Key(name, group, {})).params[mode] = param
+        self.keys = {k.name: k for g in GROUPS for k in found.values() if k.group == g}
+
+    @property
+    def default_mode(self) -> str:
+        return FACTORY_MODE if FACTORY_MODE in self.modes else self.modes[0]
+
+    def group_keys(self, group: str) -> list[str]:
+        names = [k.name for k in self.keys.values() if k.group == group]
+        return [MODE_KEY, *names] if group == "serial" else names
+
+    def label(self, name: str) -> str:
+        return f"serial.{MODE_KEY}" if name == MODE_KEY else self.keys[name].label
+
+    def hint(self, name: str) -> str:
+        """'; did you mean net.authip?' for a misspelt key, else ''."""
+        names = [MODE_KEY, *self.keys]
+        match = difflib.get_close_matches(name.lower(), names, n=1, cutoff=0.6)
+        return f"; did you mean {self.label(match[0])}?" if match else ""
+
+    def key_of_param(self, param: click.Parameter) -> Key | None:
+        name = option_key(param)
+        return self.keys.get(name) if name else None
+
+
+def option_key(param: click.Parameter) -> str | None:
+    """The configuration key of a command option: its long flag without the dashes."""
+    if not isinstance(param, click.Option) or not param.expose_value or param.hidden \
+            or param.name in OWN_OPTIONS:
+        return None
+    longs = [o for o in param.opts if o.startswith("--")]
+    return longs[0][2:] if longs else None
+
+
+class SerialOption(click.Option):
+    """An option of the serial line (both modes'): its key is in [serial], so a new serial
+    option is there at once."""
+
+
+def is_unset(value) -> bool:
+    """click 8.1 says None where click 8.2+ says Sentinel.UNSET."""
+    return value is None or (type(value).__name__ == "Sentinel"
+                             and getattr(value, "name", "") == "UNSET")
+
+
+def default_value(schema: Schema, name: str, mode: str):
+    """The built-in default of a key in a mode, as it would be written in the file; None if it
+    has none."""
+    if name == MODE_KEY:
+        return schema.default_mode
+    key = schema.keys[name]
+    mode = key.mode_for(mode)
+    param = key.params[mode]
+    value = param.get_default(click.Context(schema.commands[mode], info_name=mode))
+    if is_unset(value):
+        return [] if param.multiple else None
+    if param.multiple or param.nargs != 1:
+        return list(value)
+    return value
+

@@ -1,0 +1,169 @@
+"""One value of the configuration file, checked by its key's option exactly as the command
+line would be (its click type, then its callback), after a check of its TOML shape; and the
+tables whose file form is the guide's: net.authip (entries 1..8, 0.0.0.0 for an empty one)
+and master mode's net.slaveid (ranges "FS LS FR M IP", no two overlapping)."""
+import click
+
+from mbgw.config.schema import AUTHIP_ENTRIES, NO_ADDRESS, Key, Schema
+from mbgw.errors import ConfigError
+from mbgw.config.slaveid import SlaveRange
+from mbgw.config.toml_text import dump_value, dumpable
+
+
+def _kind(param_type: click.ParamType) -> str:
+    if isinstance(param_type, click.types.BoolParamType):
+        return "bool"
+    if isinstance(param_type, click.types.IntParamType):
+        return "int"
+    if isinstance(param_type, click.types.FloatParamType):
+        return "float"
+    if isinstance(param_type, (click.types.StringParamType, click.Choice)):
+        return "str"
+    return "any"
+
+
+def element_kinds(param: click.Parameter) -> list[str]:
+    if isinstance(param.type, click.Tuple):
+        return [_kind(t) for t in param.type.types]
+    return [_kind(param.type)] * max(param.nargs, 1)
+
+
+_KIND_CHECKS = {
+    "bool": (lambda v: isinstance(v, bool), "true or false"),
+    "int": (lambda v: isinstance(v, int) and not isinstance(v, bool), "an integer"),
+    "float": (lambda v: isinstance(v, (int, float)) and not isinstance(v, bool), "a number"),
+    "str": (lambda v: isinstance(v, str), "a string"),
+    "any": (lambda v: isinstance(v, (str, int, float, bool)), "a value"),
+}
+
+
+def _kind_problem(kinds: list[str], values: list) -> str | None:
+    for kind, value in zip(kinds, values):
+        accepts, wanted = _KIND_CHECKS[kind]
+        if not accepts(value):
+            shown = dump_value(value) if dumpable(value) else repr(value)
+            return f"expected {wanted}, got {shown}"
+    return None
+
+
+def _shape_problem(param: click.Parameter, value) -> str | None:
+    """Is the TOML value the shape the option takes (scalar, list of N, list)?"""
+    if isinstance(value, dict):
+        return "expected a value, not a table"
+    if param.multiple:
+        if not isinstance(value, list):
+            return "expected a list, e.g. [\"...\"]"
+        if param.nargs != 1:
+            return None                    # entries are "A B" strings or lists: click checks
+        return next(filter(None, (_kind_problem(element_kinds(param), [v]) for v in value)),
+                    None)
+    if param.nargs != 1:
+        if not isinstance(value, list) or len(value) != param.nargs:
+            return f"expected a list of {param.nargs} values"
+        return _kind_problem(element_kinds(param), value)
+    if isinstance(value, list):
+        return "expected a single value, not a list"
+    return _kind_problem(element_kinds(param), [value])
+
+
+def to_click(name: str, param: click.Parameter, value):
+    """A file value as the command line would give it to click."""
+    if name == "authip" and param.multiple:
+        return [v for v in value if v != NO_ADDRESS]
+    if param.multiple and param.nargs != 1:
+        return [v.split() if isinstance(v, str) else v for v in value]
+    return value
+
+
+class Problem(Exception):
+    """A value its option refuses; the message says why."""
+
+
+def process(command: click.Command, param: click.Parameter, value):
+    """Convert and check a value exactly as the command line would: type, then callback."""
+    ctx = click.Context(command, info_name=command.name)
+    try:
+        return param.process_value(ctx, value)
+    except click.BadParameter as err:
+        raise Problem(err.message) from None
+    except click.UsageError as err:
+        raise Problem(err.format_message()) from None
+    except (TypeError, ValueError, AttributeError):
+        raise Problem(f"invalid value {value!r}") from None
+
+
+
+def check_value(schema: Schema, key: Key, mode: str, value) -> list[str]:
+    """Problems with one key's value, checked by the option of the file's mode (or of the mode
+    that has the key)."""
+    mode = key.mode_for(mode)
+    command, param = schema.commands[mode], key.params[mode]
+    label = key.label
+    if key.name == "authip" and param.multiple:
+        return _check_authip(command, param, value, label)
+    if key.name == "slaveid" and param.multiple:
+        return _check_slaveid_table(command, param, value, label)
+    shape = _shape_problem(param, value)
+    if shape:
+        return [f"{label}: {shape}"]
+    if param.multiple:
+        problems = []
+        for index, element in enumerate(value, 1):
+            try:
+                process(command, param, to_click(key.name, param, [element]))
+            except Problem as problem:
+                problems.append(f"{label}[{index}]: {problem}")
+        if problems:
+            return problems
+    try:
+        process(command, param, to_click(key.name, param, value))
+    except Problem as problem:
+        return [f"{label}: {problem}"]
+    return []
+
+
+def _check_authip(command, param, value, label) -> list[str]:
+    if not isinstance(value, list):
+        return [f"{label}: expected a list of addresses, e.g. [\"192.168.1.5\"]"]
+    if len(value) > AUTHIP_ENTRIES:
+        return [f"{label}: {len(value)} entries, the table holds {AUTHIP_ENTRIES}"]
+    problems = []
+    for index, entry in enumerate(value, 1):
+        if not isinstance(entry, str):
+            problems.append(f"{label}[{index}]: expected an address string, got {entry!r}")
+        elif entry != NO_ADDRESS:
+            try:
+                process(command, param, [entry])
+            except Problem as problem:
+                problems.append(f"{label}[{index}]: {problem}")
+    return problems
+
+
+def _check_slaveid_table(command, param, value, label) -> list[str]:
+    """Master mode's table: each entry a range "FS LS FR M IP", no two ranges overlapping
+    (in a file, a range whose FS lies in another would silently replace it)."""
+    if not isinstance(value, list):
+        return [f"{label}: in master mode, a list of ranges \"FS LS FR M IP\""]
+    problems, ranges = [], []
+    for index, entry in enumerate(value, 1):
+        try:
+            if not isinstance(entry, str):
+                raise ConfigError(f"expected a string \"FS LS FR M IP\", got {entry!r}")
+            entry_range = SlaveRange.parse(entry)
+            if entry_range is None:
+                raise ConfigError("FS 0 clears the table: leave the list empty instead")
+        except ConfigError as problem:
+            problems.append(f"{label}[{index}]: {problem}")
+            continue
+        for other_index, other in ranges:
+            if entry_range.overlaps(other):
+                problems.append(f"{label}[{index}]: addresses {entry_range.first}.."
+                                f"{entry_range.last} overlap {label}[{other_index}] "
+                                f"({other.first}..{other.last})")
+        ranges.append((index, entry_range))
+    if not problems:
+        try:
+            process(command, param, value)
+        except Problem as problem:
+            problems.append(f"{label}: {problem}")
+    return problems

@@ -1,0 +1,110 @@
+"""Opening the serial line with every setting, and putting frames on it (direction control,
+echo).  Both gateway modes use it."""
+import dataclasses
+import logging
+import struct
+import time
+from typing import TYPE_CHECKING, Protocol
+
+from mbgw.errors import FrameError, LineTimeout
+from mbgw.line import native
+
+if TYPE_CHECKING:      # the settings' type only: the line never reads the configuration files
+    from mbgw.config.model import SerialConfig
+
+log = logging.getLogger("mbgw.line")
+
+ECHO_MARGIN_NS = 50_000_000     # the echo of a frame is back well within this after it ends
+CRC = struct.Struct("<H")       # an RTU frame's CRC goes low byte first
+
+
+class LineCounters(Protocol):
+    """What the line counts itself, in counters its owner keeps (mbgw.ops.counters)."""
+    bytes_sent: int
+    bytes_received: int
+    echo_errors: int
+
+
+@dataclasses.dataclass(slots=True)
+class _Uncounted:
+    bytes_sent: int = 0
+    bytes_received: int = 0
+    echo_errors: int = 0
+
+
+class SerialLine:
+    def __init__(self, cfg: "SerialConfig", counters: LineCounters | None = None) -> None:
+        self.cfg = cfg
+        # Line counters outlive a reopened port: the owner passes its own.
+        self.counters: LineCounters = counters if counters is not None else _Uncounted()
+        fmt = cfg.format
+        # libmodbus opens and configures the tty; what it cannot do is fixed after.
+        libmodbus_parity = fmt.parity if fmt.parity in "neo" else "n"
+        libmodbus_rate = cfg.baudrate if cfg.libmodbus_baudrate else 9600
+        port = native.Port(cfg.device, libmodbus_rate, libmodbus_parity, fmt.data_bits,
+                           fmt.stop_bits)
+        try:
+            if not cfg.libmodbus_baudrate:
+                port.set_baudrate(cfg.baudrate)
+            if fmt.parity in "ms":
+                port.set_format(fmt.data_bits, fmt.parity, fmt.stop_bits)
+            port.set_low_latency()
+            self.rts_control = False
+            if cfg.interface.kind == "rs485":
+                before, after = cfg.rtsdelays
+                if port.set_rs485(before, after, cfg.interface.echo):
+                    pass
+                elif port.rts_available():
+                    self.rts_control = True
+                    log.info("%s has no kernel RS-485 mode: mbgw drives RTS itself",
+                             cfg.device)
+                else:
+                    log.warning("%s has neither kernel RS-485 mode nor an RTS line: the "
+                                "transceiver must switch direction by itself", cfg.device)
+        except BaseException:
+            port.close()
+            raise
+        self.port = port
+        self.char_ns = cfg.char_ns
+        self._before_us = cfg.rtsdelays[0] * 1000
+        self._after_us = cfg.rtsdelays[1] * 1000
+        self._echo = cfg.interface.echo
+        # RTU frames go out through libmodbus unless mbgw drives RTS or reads the echo
+        # back: both need the whole frame here
+        self.libmodbus_sends = not (self.rts_control or self._echo)
+
+    def close(self) -> None:
+        self.port.close()
+
+    def transmit(self, wire: bytes) -> int:
+        """Put one whole frame on the line; returns when its last byte will have left
+        (CLOCK_MONOTONIC ns)."""
+        self.port.write(wire, self.rts_control, self._before_us, self._after_us)
+        return self._sent(wire)
+
+    def transmit_rtu(self, adu: bytes) -> int:
+        """transmit() for an RTU frame given without its CRC: libmodbus adds it and writes,
+        when it may (libmodbus_sends)."""
+        if not self.libmodbus_sends:
+            return self.transmit(adu + CRC.pack(native.crc16(adu)))
+        self.port.send_rtu(adu)
+        return self._done(len(adu) + CRC.size)
+
+    def sent_rtu(self, adu_length: int) -> None:
+        """Count an RTU frame that libmodbus wrote (native.Port.exchange)."""
+        self.counters.bytes_sent += adu_length + CRC.size
+
+    def _done(self, length: int) -> int:
+        """Count a frame of length bytes just written; when its last byte will have left."""
+        self.counters.bytes_sent += length
+        return time.monotonic_ns() + length * self.char_ns
+
+    def _sent(self, wire: bytes) -> int:
+        done_ns = self._done(len(wire))
+        if self._echo:
+            try:
+                self.port.discard_echo(wire, done_ns + ECHO_MARGIN_NS)
+            except (FrameError, LineTimeout):
+                self.counters.echo_errors += 1   # a collision or a deaf receiver; the reply may still come
+                self.port.wait_quiet(time.monotonic_ns(), self.cfg.end_of_frame_us)
+        return done_ns

@@ -1,0 +1,67 @@
+"""Runs master mode: opens the line, serves the serial master, tells systemd it is ready,
+stops on a signal; the operator's tools (control socket, metrics, SIGHUP reload) are
+mbgw.ops.service's."""
+import asyncio
+import logging
+import signal
+import time
+
+from mbgw.config.model import MasterConfig
+from mbgw.ops.counters import MasterCounters
+from mbgw.ops.service import log_stopped, serve_until_stopped, start_control, start_metrics
+from mbgw.master.status import MasterStatus
+from mbgw.ops.metrics import render_master
+from mbgw.line.port import SerialLine
+from mbgw.master.line_thread import SerialSlave
+
+log = logging.getLogger("mbgw")
+
+
+def run_master(cfg: MasterConfig, reconfigure=None) -> None:
+    """Raises SerialError when the device cannot be opened, MetricsListenError when the
+    metrics address cannot be bound; otherwise returns after SIGTERM or SIGINT.
+    reconfigure() gives the settings to apply on SIGHUP (None: there is no file to reload)."""
+    counters = MasterCounters()
+    line = SerialLine(cfg.serial)
+    try:
+        slave = SerialSlave(cfg, line, counters)
+    except BaseException:
+        line.close()
+        raise
+    try:
+        asyncio.run(_serve(cfg, slave, counters, reconfigure))
+    finally:
+        slave.close()
+
+
+async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters,
+                 reconfigure) -> None:
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(signum, stop.set)
+    started = time.time()
+    metrics = await start_metrics(cfg.metrics, lambda: render_master(
+        counters, slave.devices, slave, started))
+    slave.start()
+    status = MasterStatus(cfg, slave, counters)
+    control = await start_control(cfg.control, status.commands())
+    s = cfg.serial
+    log.info("master mode: serial %s %d %s %s %s; servers' port %d, tcpto %d ms, exception %s, "
+             "at most %d connections; slaveid %s", s.device, s.baudrate, s.format, s.protocol,
+             s.interface, cfg.mdbport, cfg.tcpto_ms, "on" if cfg.exception else "off",
+             cfg.max_connections, cfg.slaveid)
+    if metrics is not None:
+        log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
+    if not cfg.slaveid.ranges:
+        log.warning("the slaveid table is empty: every request on the line is ignored")
+
+    async def apply(new: MasterConfig) -> None:
+        if not new.slaveid.ranges:
+            log.warning("the slaveid table is empty: every request on the line is ignored")
+        slave.reconfigure(new)
+
+    await serve_until_stopped(stop, status, reconfigure, apply, control, metrics)
+    slave.stop()
+    await asyncio.to_thread(slave.join)
+    log_stopped(counters)

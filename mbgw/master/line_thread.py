@@ -1,0 +1,303 @@
+"""Master mode's serial side: mbgw answers on the line for every serial address of the
+slaveid table, as the proxy of the remote Modbus TCP servers.
+
+One thread owns the line and the upstream connections.  It waits for a frame (no deadline;
+the eventfd wakes it to stop) and:
+- ignores a frame for an address outside the table, and the reply the slave it was for (if
+  one is on the bus) sends next: the receiver is told to expect it (csrc/request.c);
+- forwards a broadcast (address 0) with unit id 0 to every server of the table, and answers
+  nothing (Serial Line V1.02, 2.1);
+- forwards any other frame to its server and unit id with tcpto as the deadline, then writes
+  the reply with the master's serial address.  No reply in time: 0x0B with `exception`, else
+  silence; server unreachable: 0x0A, or silence.  If the master has sent something new in
+  the meantime it has given up on the request, and the late answer is dropped.
+A device that fails is closed, reopened with backoff, and reported once per change.
+Each serial address answered for has its statistics and health (mbgw.ops.device_stats), and the
+traffic goes to `mbgw trace` while someone traces (mbgw.master.trace).  A new configuration
+(SIGHUP) is taken between two transactions; new line settings reopen the line.
+"""
+import dataclasses
+import logging
+import os
+import select
+import threading
+import time
+
+from mbgw.line import native
+from mbgw.protocol import pdu
+from mbgw.config.model import MasterConfig
+from mbgw.ops.counters import MasterCounters
+from mbgw.ops.device_stats import MASTER_COUNTS, DeviceTable
+from mbgw.errors import (ChecksumError, FrameError, GatewayTimeout, LineTimeout, NoRoute,
+                         SerialError)
+from mbgw.line.framing import framing_for
+from mbgw.slave.line_thread import REOPEN_FIRST_S, REOPEN_MAX_S
+from mbgw.master.trace import (OUTCOME_EXCEPTION, OUTCOME_REPLY, OUTCOME_TIMEOUT,
+                               OUTCOME_UNREACHABLE, MasterTracer)
+from mbgw.line.port import SerialLine
+from mbgw.master.upstream import Interrupted, UpstreamPool, drain
+from mbgw.ops.trace import TraceHub
+
+log = logging.getLogger("mbgw.line")
+wire = logging.getLogger("mbgw.wire")
+
+IDLE_INPUT = 1      # Port.idle_wait: input is waiting
+IDLE_TIMEOUT = 2    # Port.idle_wait: nothing happened
+UNUSED_SETTINGS = {"stout_ms": 0, "nocheck": False}   # slave mode's: no reopen for them
+
+
+def _line_settings(serial):
+    return dataclasses.replace(serial, **UNUSED_SETTINGS)
+
+
+class SerialSlave(threading.Thread):
+    def __init__(self, cfg: MasterConfig, line: SerialLine, counters: MasterCounters) -> None:
+        super().__init__(name="mbgw-line", daemon=True)
+        self._cfg = cfg
+        self._table = cfg.slaveid
+        self._counters = counters
+        self._tcpto_ns = cfg.tcpto_ns
+        self.devices = DeviceTable(MASTER_COUNTS)
+        self.trace = TraceHub()
+        self._tracer = MasterTracer(self.trace)
+        self.wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        self._pool = UpstreamPool(cfg.mdbport, cfg.max_connections, counters, self.wake_fd)
+        self._stopping = False
+        self._new_cfg: MasterConfig | None = None
+        self._reopen_now = False
+        self._reply_to = b""       # the last frame for another slave: its reply may come next
+        self._line: SerialLine | None = None
+        self._attach(line)
+
+    def _attach(self, line: SerialLine) -> None:
+        self._line = line
+        self._port = line.port
+        self._framing = framing_for(line)
+        serial = line.cfg
+        self._receive = self._receive_ascii if serial.protocol == "ascii" else self._receive_rtu
+        self._gap_us = serial.end_of_frame_us
+        self._interchar_us = serial.ascii_timeout_ms * 1000
+        # the longest ASCII frame at the line's speed, plus one inter-character pause
+        self._ascii_frame_ns = (native.ASCII_MAX_FRAME * serial.char_ns
+                                + self._interchar_us * 1000)
+
+    @property
+    def up(self) -> bool:
+        """The serial device is open (read by the asyncio thread)."""
+        return self._line is not None
+
+    def connections(self) -> list[dict]:
+        """The open upstream connections (from any thread)."""
+        return self._pool.connections()
+
+    def stop(self) -> None:
+        self._stopping = True
+        self._pool.stopping = True
+        os.eventfd_write(self.wake_fd, 1)
+
+    def reconfigure(self, cfg: MasterConfig) -> None:
+        """Use cfg from the next transaction on (called from another thread)."""
+        self._new_cfg = cfg
+        os.eventfd_write(self.wake_fd, 1)
+
+    def _apply_new_cfg(self) -> None:
+        cfg, self._new_cfg = self._new_cfg, None
+        old, self._cfg = self._cfg, cfg
+        self._table = cfg.slaveid
+        self._tcpto_ns = cfg.tcpto_ns
+        self._pool.reconfigure(cfg.mdbport, cfg.max_connections)
+        if _line_settings(cfg.serial) != _line_settings(old.serial):
+            self._reply_to = b""
+            self._reopen_now = True
+            if self._line is not None:
+                self._line.close()
+                self._line = None
+                log.info("serial line settings changed: reopening %s", cfg.serial.device)
+
+    def close(self) -> None:
+        """After the thread has ended (or if it never started)."""
+        self._pool.close()
+        if self._line is not None:
+            self._line.close()
+            self._line = None
+        os.close(self.wake_fd)
+
+    def run(self) -> None:
+        while not self._stopping:
+            if self._new_cfg is not None:
+                self._apply_new_cfg()
+            if self._line is None:
+                self._reopen()
+                continue
+            try:
+                self._serve_next()
+            except Interrupted:
+                pass
+            except SerialError as err:
+                self._lost(err)
+            except Exception:   # a bug must cost one transaction, never the line
+                log.exception("internal error")
+
+    # --- receiving ---
+
+    def _serve_next(self) -> None:
+        try:
+            adu = self._receive()
+        except ChecksumError:
+            self._counters.crc_errors += 1
+            self._reply_to = b""
+            return
+        except (FrameError, LineTimeout):      # LineTimeout: noise, no ':' (ASCII)
+            self._counters.invalid_frames += 1
+            self._reply_to = b""
+            return
+        if adu is None:
+            return
+        if len(adu) < 2:
+            self._counters.invalid_frames += 1
+            return
+        address = adu[0]
+        if address == pdu.BROADCAST:
+            self._reply_to = b""
+            self._broadcast(adu)
+            return
+        route = self._table.route(address)
+        if route is None:
+            self._counters.other_addresses += 1
+            self._reply_to = adu
+            if self.trace.active:
+                self._tracer.ignored(adu)
+            return
+        self._reply_to = b""
+        self._forward(adu, *route)
+
+    def _receive_rtu(self) -> bytes | None:
+        return self._port.read_request(self.wake_fd, self._reply_to, self._gap_us)
+
+    def _receive_ascii(self) -> bytes | None:
+        if self._port.idle_wait(self.wake_fd, -1) != IDLE_INPUT:
+            return None
+        frame = self._port.read_ascii(time.monotonic_ns() + self._ascii_frame_ns,
+                                      self._interchar_us)
+        return native.ascii_decode(frame)
+
+    # --- forwarding ---
+
+    def _forward(self, adu: bytes, host: str, unit: int) -> None:
+        self._counters.requests += 1
+        stats = self.devices.get(adu[0])
+        stats.transactions += 1
+        if stats.upstream != (host, unit):
+            stats.upstream = (host, unit)
+        if wire.isEnabledFor(logging.DEBUG):
+            wire.debug("line rx %s -> %s unit %d", adu.hex(" "), host, unit)
+        tracing = self.trace.active
+        if tracing:
+            server, sent = f"{host}:{self._pool.port}", []
+            self._pool.on_sent = lambda conn, tid: (
+                sent.append((conn, tid)), self._tracer.request(adu, server, conn, tid, unit))
+        received_ns = time.monotonic_ns()
+        reply, code = None, None
+        try:
+            reply = self._pool.transact(host, unit, adu[1:], received_ns + self._tcpto_ns)
+        except GatewayTimeout:
+            self._counters.timeouts += 1
+            stats.timeouts += 1
+            stats.failed()
+            outcome, code = OUTCOME_TIMEOUT, pdu.GATEWAY_TARGET_FAILED
+        except NoRoute:
+            self._counters.unreachable += 1
+            stats.unreachable += 1
+            stats.failed()
+            outcome, code = OUTCOME_UNREACHABLE, pdu.GATEWAY_PATH_UNAVAILABLE
+        else:
+            exception = reply[0] & pdu.EXCEPTION_FLAG
+            if exception:
+                self._counters.device_exceptions += 1
+            latency_ms = (time.monotonic_ns() - received_ns) / 1e6
+            stats.answered(latency_ms, reply[1] if exception and len(reply) > 1 else None)
+            outcome = OUTCOME_EXCEPTION if exception else OUTCOME_REPLY
+        finally:
+            if tracing:
+                self._pool.on_sent = None
+        answer = reply if code is None else self._failure(adu[1], code, stats)
+        if answer is not None:
+            if self._answer(adu[0], answer):
+                if code is not None:
+                    outcome += f", answered 0x{code:02x}"
+            else:
+                stats.abandoned += 1
+                outcome += ", abandoned: the master moved on"
+        if tracing:
+            self._tracer.outcome(adu, server, sent[0] if sent else None, unit, reply, outcome,
+                                 None if reply is None else latency_ms)
+
+    def _answer(self, address: int, answer: bytes) -> bool:
+        """Write the answer on the line, unless the master has moved on (False)."""
+        while (idle := self._port.idle_wait(self.wake_fd, 0)) != IDLE_TIMEOUT:
+            if idle == IDLE_INPUT or self._stopping:
+                self._counters.abandoned += 1
+                return False
+            # woken (and the signal taken) for a new configuration: it waits for this answer
+        frame = bytes((address,)) + answer
+        if wire.isEnabledFor(logging.DEBUG):
+            wire.debug("line tx %s", frame.hex(" "))
+        self._framing.send(frame)
+        self._counters.replies += 1
+        return True
+
+    def _failure(self, function: int, code: int, stats) -> bytes | None:
+        if not self._cfg.exception:
+            return None
+        self._counters.gateway_exceptions += 1
+        stats.gateway_exception(code)
+        return pdu.exception_pdu(function, code)
+
+    def _broadcast(self, adu: bytes) -> None:
+        destinations = self._table.destinations
+        if self.trace.active:
+            port = self._pool.port
+            self._pool.on_sent = lambda conn, tid: self._tracer.request(
+                adu, f"{conn.host}:{port}", conn, tid, pdu.BROADCAST)
+        try:
+            reached = self._pool.send_all(destinations, pdu.BROADCAST, adu[1:],
+                                          time.monotonic_ns() + self._tcpto_ns)
+        finally:
+            self._pool.on_sent = None
+        self._counters.broadcasts += 1        # counted once sent: its transaction is over
+        stats = self.devices.get(pdu.BROADCAST)
+        stats.transactions += 1
+        stats.broadcasts += 1
+        if reached < len(destinations):
+            log.debug("broadcast reached %d of %d servers", reached, len(destinations))
+        if self.trace.active:
+            self._tracer.outcome(adu, None, None, pdu.BROADCAST, None,
+                                 f"broadcast: {reached} of {len(destinations)} servers", None)
+
+    # --- the device ---
+
+    def _lost(self, err: SerialError) -> None:
+        log.error("serial device %s lost: %s; reopening", self._cfg.serial.device, err.strerror)
+        self._line.close()
+        self._line = None
+        self._reply_to = b""
+
+    def _reopen(self) -> None:
+        """Until the device opens again, the gateway stops, or a new configuration comes."""
+        delay = REOPEN_FIRST_S
+        # a lost device gets a pause first, new settings are tried at once
+        wait, self._reopen_now = (0 if self._reopen_now else delay), False
+        while not self._stopping and self._new_cfg is None:
+            if wait and select.select([self.wake_fd], [], [], wait)[0]:
+                drain(self.wake_fd)                 # stopping, or a new configuration
+                continue
+            try:
+                line = SerialLine(self._cfg.serial)
+            except SerialError as err:
+                log.debug("reopen failed: %s", err)
+                delay = min(delay * 2, REOPEN_MAX_S)
+                wait = delay
+                continue
+            self._attach(line)
+            log.info("serial device %s is back", self._cfg.serial.device)
+            return

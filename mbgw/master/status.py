@@ -1,0 +1,34 @@
+"""What the running master-mode daemon reports through the control socket (the commands
+both modes share are in mbgw.ops.status)."""
+from mbgw.ops.status import DaemonStatus
+
+
+class MasterStatus(DaemonStatus):
+    """Master mode: the serial master's addresses, the slaveid table, the upstream servers."""
+    mode = "master"
+
+    def __init__(self, cfg, slave, counters) -> None:
+        super().__init__(cfg, counters, slave.devices, slave.trace)
+        self._slave = slave
+
+    def status(self, request: dict) -> dict:
+        cfg = self.cfg
+        data = self._common()
+        data["serial"]["state"] = "up" if self._slave.up else "down"
+        return {
+            **data,
+            "upstream": {"port": cfg.mdbport, "tcpto_ms": cfg.tcpto_ms,
+                         "exception": cfg.exception, "max_connections": cfg.max_connections,
+                         "connections": self._slave.connections()},
+            "slaveid": [{"first": r.first, "last": r.last, "remote_first": r.remote_first,
+                         "variable_ip": r.variable_ip, "ip": str(r.ip), "route": str(r)}
+                        for r in cfg.slaveid.ranges],
+            "counters": self._counters.snapshot(),
+            "counters_since": self._reset_at,
+            "devices": [d.snapshot() for d in self._devices.all()],
+        }
+
+    def close(self, request: dict) -> dict:
+        return {"error": "clients close: not available in master mode: this daemon has no "
+                         "Modbus TCP clients (its connections go to servers; mbgw status "
+                         "lists them)"}

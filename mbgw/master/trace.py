@@ -1,0 +1,48 @@
+"""Master mode's events for `mbgw trace` (see mbgw.ops.trace for the fields), built on the line
+thread only while someone traces.  Each request of the master that goes upstream is one
+"request" event (the Modbus/TCP frame sent, with the serial address), then one "reply" (the
+server's frame) or "no reply" event with the outcome and what went back on the line; a frame
+for an address outside the slaveid table is one "ignored" event."""
+import time
+
+OUTCOME_REPLY = "reply"
+OUTCOME_EXCEPTION = "server exception"
+OUTCOME_TIMEOUT = "timeout"
+OUTCOME_UNREACHABLE = "unreachable"
+OUTCOME_IGNORED = "not in the slaveid table"
+
+
+class MasterTracer:
+    def __init__(self, hub) -> None:
+        self.hub = hub            # a TraceHub; .active tells whether anyone traces
+
+    def request(self, adu: bytes, server: str, conn, tid: int, unit: int) -> None:
+        self.hub.emit_threadsafe(_event("request", adu[0], adu[1], server, conn, tid, unit,
+                                        adu[1:], "", None))
+
+    def outcome(self, adu: bytes, server: str, sent, unit: int, reply: bytes | None,
+                outcome: str, latency_ms: float | None) -> None:
+        """The end of a transaction: the server's reply, or none.  sent: (conn, tid) of the
+        request, or None when it never went out (no connection)."""
+        conn, tid = sent or (None, None)
+        if reply is None:
+            event = _event("no reply", adu[0], adu[1], server, conn, tid, unit, b"", outcome,
+                           latency_ms)
+        else:
+            event = _event("reply", adu[0], reply[0], server, conn, tid, unit, reply, outcome,
+                           latency_ms)
+        self.hub.emit_threadsafe(event)
+
+    def ignored(self, adu: bytes) -> None:
+        self.hub.emit_threadsafe(_event("ignored", adu[0], adu[1], None, None, None, None,
+                                        adu[1:], OUTCOME_IGNORED, None))
+
+
+def _event(direction: str, address: int, function: int, server: str | None, conn,
+           tid: int | None, unit: int | None, data: bytes, outcome: str,
+           latency_ms: float | None) -> dict:
+    return {"time": time.time(), "mode": "master", "direction": direction,
+            "address": address, "server": server,
+            "peer": conn.local if conn is not None else None, "local": server,
+            "tid": tid, "unit": unit, "function": function, "length": len(data),
+            "pdu": data.hex(), "outcome": outcome, "latency_ms": latency_ms}

@@ -1,0 +1,287 @@
+"""Master mode's network side: Modbus TCP connections to the remote servers.
+
+One connection per server IP, at most `limit` open: opening one more first closes the least
+recently used (TCP guide 4.2.3: "close the oldest unused").  Requests go out in MBAP with a
+transaction id of our own, one at a time; only the reply with that id is accepted, earlier
+ones (late after tcpto) are dropped and counted.  A connection the server has closed is
+found before the request is sent and reopened; connecting counts against the deadline.
+
+Everything runs on the serial line's thread: the master sends one request at a time, so a
+thread hop would only add latency.  The sockets are non-blocking and every wait is one
+poll() that the line's eventfd also wakes, so stopping never waits for tcpto (a wake for a
+new configuration does not interrupt the transaction: it is applied after it).  The status
+reads connections() from the asyncio thread.
+"""
+import errno
+import logging
+import os
+import select
+import socket
+import time
+from collections import OrderedDict
+
+from mbgw.protocol import mbap
+from mbgw.ops.counters import MasterCounters
+from mbgw.errors import GatewayTimeout, MbgwError, NoRoute
+
+log = logging.getLogger("mbgw.tcp")
+wire = logging.getLogger("mbgw.wire")
+
+RECV_SIZE = 4096
+TID_MASK = 0xFFFF
+
+
+class Interrupted(MbgwError):
+    """The line's eventfd was signalled during a wait: the gateway is stopping."""
+
+
+class Connection:
+    __slots__ = ("host", "sock", "poller", "buf", "tid", "local", "connected_at",
+                 "last_active", "requests", "units")
+
+    def __init__(self, host: str, sock: socket.socket, poller) -> None:
+        self.host = host
+        self.sock = sock
+        self.poller = poller
+        self.buf = bytearray()
+        self.tid = 0
+        local = sock.getsockname()
+        self.local = f"{local[0]}:{local[1]}"      # mbgw's end
+        self.connected_at = time.time()
+        self.last_active = time.monotonic()
+        self.requests = 0
+        self.units: set[int] = set()              # the unit ids it has carried requests for
+
+    def next_tid(self) -> int:
+        self.tid = (self.tid + 1) & TID_MASK
+        return self.tid
+
+
+class UpstreamPool:
+    def __init__(self, port: int, limit: int, counters: MasterCounters, wake_fd: int) -> None:
+        self._port = port
+        self._limit = limit
+        self._counters = counters
+        self._wake_fd = wake_fd
+        self._open: OrderedDict[str, Connection] = OrderedDict()   # least recently used first
+        self._failing: set[str] = set()     # servers whose last connection attempt failed
+        self._chunk = bytearray(RECV_SIZE)
+        self._view = memoryview(self._chunk)
+        self.stopping = False     # set before the eventfd is signalled to stop
+        self.on_sent = None       # (conn, tid) after each request went out; for the trace
+
+    @property
+    def port(self) -> int:
+        return self._port
+
+    def reconfigure(self, port: int, limit: int) -> None:
+        """New settings, on the line's thread between transactions: another port closes
+        every connection; a lower limit closes the least recently used ones over it."""
+        if port != self._port:
+            self.close()
+            self._failing.clear()
+            self._port = port
+        self._limit = limit
+        while len(self._open) > limit:
+            _, oldest = self._open.popitem(last=False)
+            oldest.sock.close()
+            self._counters.connections_evicted += 1
+
+    def connections(self) -> list[dict]:
+        """The open connections, least recently used first (from any thread)."""
+        for _ in range(3):
+            try:
+                conns = list(self._open.values())
+                break
+            except RuntimeError:      # changed by the line thread meanwhile
+                continue
+        else:
+            return []
+        now, mono = time.time(), time.monotonic()
+        return [{"server": f"{c.host}:{self._port}", "local": c.local,
+                 "connected_since": c.connected_at, "requests": c.requests,
+                 "units": sorted(c.units), "last_activity": now - (mono - c.last_active)}
+                for c in conns]
+
+    def transact(self, host: str, unit: int, request: bytes, deadline_ns: int) -> bytes:
+        """Send the request PDU to host's unit and return the reply PDU.  Raises GatewayTimeout
+        when no reply came before deadline_ns (CLOCK_MONOTONIC) or the connection broke
+        after the request went out, NoRoute when host cannot be reached, Interrupted."""
+        conn = self._connection(host, deadline_ns)
+        tid = conn.next_tid()
+        self._send(conn, mbap.frame(tid, unit, request), unit)
+        if self.on_sent is not None:
+            self.on_sent(conn, tid)
+        while True:
+            try:
+                for reply_tid, _unit, reply in mbap.split_frames(conn.buf):
+                    if reply_tid == tid:
+                        conn.last_active = time.monotonic()
+                        if wire.isEnabledFor(logging.DEBUG):
+                            wire.debug("tcp %s rx tid=%d %s", host, tid, reply.hex(" "))
+                        return reply
+                    self._counters.late_replies += 1
+            except mbap.BadHeader as err:
+                self._lost(conn, f"bad MBAP header ({err})")
+                raise GatewayTimeout() from None
+            self._wait(conn.poller, deadline_ns)
+            if self._receive(conn) is False:
+                raise GatewayTimeout()
+
+    def send_all(self, hosts, unit: int, request: bytes, deadline_ns: int) -> int:
+        """Send a request that gets no reply (a broadcast) to each host; returns how many it
+        reached.  Hosts not connected by deadline_ns are skipped.  Raises Interrupted."""
+        reached = 0
+        for host in hosts:
+            try:
+                conn = self._connection(host, deadline_ns)
+                tid = conn.next_tid()
+                self._send(conn, mbap.frame(tid, unit, request), unit)
+            except (GatewayTimeout, NoRoute):
+                continue
+            if self.on_sent is not None:
+                self.on_sent(conn, tid)
+            reached += 1
+        return reached
+
+    def close(self) -> None:
+        for conn in self._open.values():
+            conn.sock.close()
+        self._open.clear()
+
+    # --- connections ---
+
+    def _connection(self, host: str, deadline_ns: int) -> Connection:
+        conn = self._open.get(host)
+        if conn is not None:
+            self._open.move_to_end(host)
+            if self._still_open(conn):
+                return conn
+        return self._connect(host, deadline_ns)
+
+    def _connect(self, host: str, deadline_ns: int) -> Connection:
+        if len(self._open) >= self._limit:
+            _, oldest = self._open.popitem(last=False)
+            oldest.sock.close()
+            self._counters.connections_evicted += 1
+            log.debug("server %s:%d: connection closed to make room for %s", oldest.host,
+                      self._port, host)
+        sock = socket.socket(socket.AF_INET,
+                             socket.SOCK_STREAM | socket.SOCK_NONBLOCK | socket.SOCK_CLOEXEC)
+        try:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
+            poller = select.poll()
+            poller.register(sock, select.POLLOUT)
+            poller.register(self._wake_fd, select.POLLIN)
+            code = sock.connect_ex((host, self._port))
+            if code == errno.EINPROGRESS:
+                try:
+                    self._wait(poller, deadline_ns)
+                except GatewayTimeout:
+                    self._failed(host, "no connection within tcpto")
+                    raise
+                code = sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
+            if code:
+                self._failed(host, os.strerror(code))
+                raise NoRoute(f"{host}:{self._port}: {os.strerror(code)}")
+            poller.modify(sock, select.POLLIN)
+        except BaseException:
+            sock.close()
+            raise
+        conn = Connection(host, sock, poller)
+        self._open[host] = conn
+        self._counters.connections_opened += 1
+        if host in self._failing:
+            self._failing.discard(host)
+            log.info("server %s:%d reachable again", host, self._port)
+        else:
+            log.debug("server %s:%d connected", host, self._port)
+        return conn
+
+    def _failed(self, host: str, reason: str) -> None:
+        """Report a failed connection attempt once, until the server is reachable again."""
+        if host not in self._failing:
+            self._failing.add(host)
+            log.warning("server %s:%d unreachable: %s", host, self._port, reason)
+
+    def _lost(self, conn: Connection, reason: str) -> None:
+        conn.sock.close()
+        if self._open.get(conn.host) is conn:
+            del self._open[conn.host]
+        self._counters.connections_lost += 1
+        log.debug("server %s:%d: connection lost: %s", conn.host, self._port, reason)
+
+    def _still_open(self, conn: Connection) -> bool:
+        """Read what came while the connection was idle (late replies, dropped) without
+        waiting; False when the server has closed it (it is then dropped)."""
+        while got := self._receive(conn):
+            try:
+                for _ in mbap.split_frames(conn.buf):
+                    self._counters.late_replies += 1
+            except mbap.BadHeader as err:
+                self._lost(conn, f"bad MBAP header ({err})")
+                return False
+        return got is None
+
+    # --- I/O ---
+
+    def _send(self, conn: Connection, frame: bytes, unit: int) -> None:
+        conn.requests += 1
+        conn.units.add(unit)
+        conn.last_active = time.monotonic()
+        if wire.isEnabledFor(logging.DEBUG):
+            wire.debug("tcp %s tx %s", conn.host, frame.hex(" "))
+        try:
+            sent = conn.sock.send(frame)
+        except OSError as err:
+            sent = -1
+            reason = err.strerror or str(err)
+        else:
+            reason = "send buffer full"
+        if sent != len(frame):
+            self._lost(conn, reason)
+            raise GatewayTimeout()
+
+    def _receive(self, conn: Connection) -> bool | None:
+        """Append what the socket holds to conn.buf: True.  None when nothing was waiting,
+        False when the connection was closed or broken (it is then dropped)."""
+        try:
+            n = conn.sock.recv_into(self._chunk)
+        except BlockingIOError:
+            return None
+        except OSError as err:
+            self._lost(conn, err.strerror or str(err))
+            return False
+        if n == 0:
+            self._lost(conn, "closed by the server")
+            return False
+        conn.buf += self._view[:n]
+        return True
+
+    def _wait(self, poller, deadline_ns: int) -> None:
+        """Until the socket is ready; raises GatewayTimeout at deadline_ns, Interrupted when
+        the eventfd is signalled to stop (another signal, a new configuration, is taken and
+        the wait goes on)."""
+        while True:
+            timeout_ms = -(-(deadline_ns - time.monotonic_ns()) // 1_000_000)
+            if timeout_ms <= 0:
+                raise GatewayTimeout()
+            events = poller.poll(timeout_ms)
+            if not events:
+                raise GatewayTimeout()
+            if not any(fd == self._wake_fd for fd, _ in events):
+                return
+            if self.stopping:
+                raise Interrupted()
+            drain(self._wake_fd)
+            if len(events) > 1:
+                return
+
+
+def drain(fd: int) -> None:
+    """Take the signal of an eventfd (non-blocking), if there is one."""
+    try:
+        os.eventfd_read(fd)
+    except BlockingIOError:
+        pass

@@ -1,0 +1,124 @@
+"""What the running daemon reports through the control socket: the commands both modes share
+(stats reset, trace) and slave mode's status and client close.  Master mode's are in
+mbgw.master.status."""
+import asyncio
+import json
+import logging
+import os
+import time
+
+from mbgw import __version__
+
+log = logging.getLogger("mbgw.control")
+
+
+class DaemonStatus:
+    """The control commands of a mode, over the daemon's live objects.  A mode adds status()
+    and close(), and gives the counters, the device table and the trace hub."""
+    mode = ""
+
+    def __init__(self, cfg, counters, devices, trace) -> None:
+        self.cfg = cfg                   # the running configuration (replaced by a reload)
+        self._counters = counters
+        self._devices = devices
+        self._trace = trace
+        self._started = time.time()
+        self._started_mono = time.monotonic()
+        self._reset_at = self._started
+
+    def commands(self) -> dict:
+        return {"status": self.status, "close": self.close, "reset": self.reset,
+                "trace": self.trace}
+
+    def status(self, request: dict) -> dict:
+        raise NotImplementedError
+
+    def close(self, request: dict) -> dict:
+        raise NotImplementedError
+
+    def _common(self) -> dict:
+        """What every mode's status starts with."""
+        s = self.cfg.serial
+        return {"mode": self.mode, "version": __version__, "pid": os.getpid(),
+                "started": self._started,
+                "uptime_s": round(time.monotonic() - self._started_mono, 3),
+                "serial": {"device": s.device, "protocol": s.protocol, "baudrate": s.baudrate,
+                           "format": str(s.format), "interface": str(s.interface)}}
+
+    def trace_header(self) -> dict:
+        """The first line of a trace stream."""
+        return {"mode": self.mode}
+
+    def reset(self, request: dict) -> dict:
+        self._counters.reset()
+        self._devices.reset()
+        self._reset_at = time.time()
+        log.info("counters reset by the operator (uid %s)", request.get("uid"))
+        return {"ok": True}
+
+    async def trace(self, request: dict, reader: asyncio.StreamReader,
+                    writer: asyncio.StreamWriter) -> None:
+        hub = self._trace
+        queue = hub.subscribe()
+        log.info("trace started (uid %s)", request.get("uid"))
+        gone = asyncio.ensure_future(reader.read())   # the client closing ends the trace
+        try:
+            writer.write(json.dumps(self.trace_header()).encode() + b"\n")
+            while not gone.done():
+                getter = asyncio.ensure_future(queue.get())
+                await asyncio.wait({getter, gone}, return_when=asyncio.FIRST_COMPLETED)
+                if not getter.done():
+                    getter.cancel()
+                    break
+                writer.write(json.dumps(getter.result()).encode() + b"\n")
+                await writer.drain()
+        except ConnectionError:
+            pass
+        finally:
+            gone.cancel()
+            dropped = hub.unsubscribe(queue)
+            log.info("trace ended%s", f"; {dropped} events dropped for a slow reader"
+                     if dropped else "")
+
+
+class SlaveStatus(DaemonStatus):
+    """Slave mode: TCP clients, the queue, the serial slaves."""
+    mode = "slave"
+
+    def __init__(self, cfg, server, worker, scheduler, counters, devices, addresses) -> None:
+        super().__init__(cfg, counters, devices, server.trace)
+        self._server = server
+        self._worker = worker
+        self._scheduler = scheduler
+        self._addresses = addresses
+
+    def trace_header(self) -> dict:
+        return {"mode": self.mode, "listening": self._addresses}
+
+    def status(self, request: dict) -> dict:
+        now, mono = time.time(), time.monotonic()
+        counters = self._counters.snapshot()
+        busy_s = counters.pop("line_busy_ns") / 1e9
+        data = self._common()
+        data["serial"].update(stout_ms=self.cfg.serial.stout_ms,
+                              state="up" if self._worker.up else "down")
+        return {
+            **data, "listening": self._addresses,
+            "queue_depth": self._scheduler.depth,
+            "clients": [{"id": c.id, "peer": c.peer, "connected_since": c.connected_at,
+                         "requests": c.requests, "in_flight": c.in_flight,
+                         "last_activity": now - (mono - c.last_active)}
+                        for c in self._server.clients],
+            "counters": counters,
+            "counters_since": self._reset_at,
+            "line_utilisation_pct": round(100 * busy_s / max(now - self._reset_at, 1e-9), 2),
+            "devices": [d.snapshot() for d in self._devices.all()],
+        }
+
+    def close(self, request: dict) -> dict:
+        client_id = request.get("client")
+        if not isinstance(client_id, int):
+            return {"error": "close needs a client id"}
+        if self._server.close_client(client_id):
+            return {"ok": True}
+        return {"error": f"no client {client_id}"}

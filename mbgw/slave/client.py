@@ -1,0 +1,114 @@
+"""One Modbus TCP connection of slave mode.  The line thread reads and writes it
+(mbgw.slave.connections); the asyncio thread reads its figures and may shut it down."""
+import itertools
+import os
+import socket
+import threading
+import time
+
+from mbgw.protocol import mbap
+from mbgw.line import native
+from mbgw.slave.scheduler import Queue
+
+MAX_IN_FLIGHT = 16          # TCP guide 4.4.2: a server holds 1..16 transactions per client
+RECEIVE_SIZE = 4096         # what one read takes from a connection: 15 requests of 260 bytes
+OUTPUT_LIMIT = 65536        # replies held for a client that does not read: then it is not read
+_client_ids = itertools.count(1)
+
+
+class Client:
+    def __init__(self, sock: socket.socket, host: str, peer: str, local: str) -> None:
+        self.id = next(_client_ids)
+        self.sock = sock
+        self.fd = sock.fileno()
+        self.host = host
+        self.peer = peer
+        self.local = local
+        self.queue = Queue()
+        # requests taken in and not yet answered: C counts one down as it hands a reply over
+        self.flight = native.counter()
+        self.requests = 0
+        self.connected_at = time.time()
+        self.last_active = time.monotonic()
+        self.closed = False
+        self._buf = bytearray()     # received, not yet a whole frame
+        self._out = bytearray()     # replies the socket would not take yet
+        self._lock = threading.Lock()   # close() in the line thread, shutdown() in asyncio's
+
+    @property
+    def in_flight(self) -> int:
+        return self.flight[0]
+
+    @in_flight.setter
+    def in_flight(self, count: int) -> None:
+        self.flight[0] = count
+
+    @property
+    def readable(self) -> bool:
+        return self.in_flight < MAX_IN_FLIGHT and len(self._out) < OUTPUT_LIMIT
+
+    @property
+    def output_waiting(self) -> bool:
+        return bool(self._out)
+
+    def receive(self, into: memoryview) -> list | None:
+        """What has arrived, as whole frames [(tid, unit, pdu)]; None once the connection
+        has ended.  Raises mbap.BadHeader."""
+        try:
+            n = self.sock.recv_into(into)
+        except (BlockingIOError, InterruptedError):
+            return []
+        except OSError:
+            return None
+        if not n:
+            return None
+        return self.received(into[:n])
+
+    @property
+    def at_rest(self) -> bool:
+        """Nothing of this client's in the gateway: no part of a frame, no request, no reply."""
+        return not (self._buf or self._out or self.in_flight or self.closed)
+
+    def received(self, data) -> list:
+        """What was read from the connection, framed as receive() does."""
+        self._buf += data
+        self.last_active = time.monotonic()
+        return list(mbap.split_frames(self._buf))
+
+    def send(self, frame: bytes) -> None:
+        """Onto the socket now, or behind the replies it could not take yet."""
+        if not self._out:
+            try:
+                sent = os.write(self.fd, frame)
+            except BlockingIOError:
+                sent = 0
+            except OSError:
+                return                      # the next read finds the connection broken
+            if sent == len(frame):
+                return
+            frame = frame[sent:]
+        self._out += frame
+
+    def flush(self) -> None:
+        try:
+            sent = os.write(self.fd, self._out)
+        except BlockingIOError:
+            return
+        except OSError:
+            self._out.clear()
+            return
+        del self._out[:sent]
+
+    def shutdown(self) -> None:
+        """Asyncio thread: end the connection; the line thread sees it end and closes it."""
+        with self._lock:
+            if not self.closed:
+                try:
+                    self.sock.shutdown(socket.SHUT_RDWR)
+                except OSError:
+                    pass
+
+    def close(self) -> None:
+        with self._lock:
+            self.closed = True
+            self.sock.close()

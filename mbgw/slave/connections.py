@@ -1,0 +1,138 @@
+"""The line thread's side of slave mode's Modbus TCP connections: one poll() over the
+clients, the serial port and the wake-up eventfd.
+
+The asyncio thread accepts and admits a connection, then adopts it here.  From then on the
+line thread reads it, frames the requests and hands each to on_request; replies are written
+with Client.send.  A request that arrives on an idle line thus wakes one thread, which puts
+it on the line at once.  A connection that ends, breaks or sends a bad MBAP header is closed
+here, and on_closed is told.
+"""
+import logging
+import os
+import select
+from collections import deque
+
+from mbgw.protocol import mbap
+from mbgw.slave.client import RECEIVE_SIZE, Client
+
+log = logging.getLogger("mbgw.tcp")
+
+_IN = select.POLLIN
+_OUT = select.POLLOUT
+
+
+class Connections:
+    def __init__(self, wake_fd: int, on_request, on_closed, counters) -> None:
+        self._wake_fd = wake_fd
+        self._on_request = on_request      # on_request(client, tid, unit, pdu), line thread
+        self._on_closed = on_closed        # on_closed(client), line thread
+        self._counters = counters
+        self._poll = select.poll()
+        self._poll.register(wake_fd, _IN)
+        self._clients: dict[int, Client] = {}      # by fd
+        self._events: dict[int, int] = {}          # what each client's fd is polled for
+        self._adopted: deque[Client] = deque()     # from the asyncio thread, not yet polled
+        self._receive = memoryview(bytearray(RECEIVE_SIZE))
+
+    def adopt(self, client: Client) -> None:
+        """Asyncio thread: from now on the line thread serves client."""
+        self._adopted.append(client)
+        os.eventfd_write(self._wake_fd, 1)
+
+    def wait(self, timeout_ms: int, serial_fd: int = -1, take=None) -> bool:
+        """Line thread: wait up to timeout_ms (-1: no limit, 0: not at all) for a client, the
+        wake-up eventfd or input on serial_fd, and serve the clients that are ready.  True
+        when serial_fd has input (or an error) waiting.  take(client): reads one client at
+        rest in its own way, once, when the serial line is quiet (the line worker's
+        shortcut), and returns what Client.receive would."""
+        self._update()
+        if serial_fd >= 0:
+            self._poll.register(serial_fd, _IN)
+        try:
+            ready = self._poll.poll(timeout_ms)
+        finally:
+            if serial_fd >= 0:
+                self._poll.unregister(serial_fd)
+        serial = False
+        if take is not None and any(fd == serial_fd for fd, _ in ready):
+            take = None         # input nobody asked for: the line is not quiet
+        for fd, events in ready:
+            if fd == serial_fd:
+                serial = True
+            elif fd == self._wake_fd:
+                self._woken()
+            else:
+                client = self._clients.get(fd)
+                if client is None:
+                    continue
+                if take is not None and client.at_rest:
+                    self._serve(client, events, take)
+                    take = None
+                else:
+                    self._serve(client, events)
+        return serial
+
+    def close_all(self) -> None:
+        while self._adopted:
+            self._adopted.popleft().close()
+        for client in list(self._clients.values()):
+            self._close(client)
+
+    def _woken(self) -> None:
+        try:
+            os.eventfd_read(self._wake_fd)
+        except BlockingIOError:
+            pass
+        while self._adopted:
+            # read at once: what a newcomer sent must not wait for the next transaction
+            client = self._adopted.popleft()
+            self._clients[client.fd] = client
+            self._events[client.fd] = _IN
+            self._poll.register(client.fd, _IN)
+            self._serve(client, _IN)
+
+    def _update(self) -> None:
+        """Poll each client for what it can take now: no input while it has 16 requests in
+        the gateway or a backlog of replies it does not read."""
+        for fd, client in self._clients.items():
+            wanted = (_IN if client.readable else 0) | (_OUT if client.output_waiting else 0)
+            if wanted == self._events[fd]:
+                continue
+            if not wanted:
+                self._poll.unregister(fd)
+            elif self._events[fd]:
+                self._poll.modify(fd, wanted)
+            else:
+                self._poll.register(fd, wanted)
+            self._events[fd] = wanted
+
+    def _serve(self, client: Client, events: int, take=None) -> None:
+        if events & _OUT:
+            client.flush()
+        if not events & ~_OUT:
+            return
+        try:
+            frames = client.receive(self._receive) if take is None else take(client)
+        except mbap.BadHeader as err:
+            self._counters.connections_bad_header += 1
+            log.warning("client %s: bad MBAP header (%s); closing the connection",
+                        client.peer, err)
+            self._close(client)
+            return
+        if frames is None:
+            self._close(client)
+            return
+        try:
+            for tid, unit, request in frames:
+                self._on_request(client, tid, unit, request)
+        except Exception:   # a bug must cost one connection, never the line
+            log.exception("internal error on a request of client %s; closing it", client.peer)
+            self._close(client)
+
+    def _close(self, client: Client) -> None:
+        fd = client.fd
+        if self._events.pop(fd, 0):
+            self._poll.unregister(fd)
+        del self._clients[fd]
+        client.close()
+        self._on_closed(client)

@@ -1,0 +1,76 @@
+"""Runs slave mode: opens the line, listens, tells systemd it is ready, stops on a signal."""
+import asyncio
+import logging
+import signal
+import time
+
+from mbgw.config.model import SlaveConfig
+from mbgw.ops.counters import Counters
+from mbgw.ops.device_stats import DeviceTable
+from mbgw.slave.line_thread import LineWorker
+from mbgw.ops.metrics import render
+from mbgw.ops.service import (ListenError, MetricsListenError, log_stopped, serve_until_stopped,
+                              start_control, start_metrics)
+from mbgw.line.port import SerialLine
+from mbgw.ops.status import SlaveStatus
+from mbgw.slave.scheduler import Scheduler
+from mbgw.slave.server import TcpServer
+
+log = logging.getLogger("mbgw")
+
+
+def run_slave(cfg: SlaveConfig, reconfigure=None) -> None:
+    """Raises SerialError when the device cannot be opened, ListenError when mdbport cannot
+    be bound; otherwise returns after SIGTERM or SIGINT.  reconfigure() gives the settings
+    to apply on SIGHUP (None: there is no file to reload)."""
+    counters = Counters()
+    line = SerialLine(cfg.serial, counters)
+    try:
+        asyncio.run(_serve(cfg, line, counters, reconfigure))
+    finally:
+        line.close()
+
+
+async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfigure) -> None:
+    loop = asyncio.get_running_loop()
+    devices = DeviceTable()
+    scheduler = Scheduler()
+
+    server = TcpServer(cfg, scheduler, counters, lambda: worker.up)
+    worker = LineWorker(cfg, line, scheduler, server, counters, devices)
+    stop = asyncio.Event()
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(signum, stop.set)
+    try:
+        addresses = await server.start()
+    except OSError as err:
+        raise ListenError(cfg.mdbport, err) from None
+    started = time.time()
+    try:
+        metrics = await start_metrics(cfg.metrics, lambda: render(
+            counters, devices, scheduler, server, worker, started))
+    except MetricsListenError:
+        server.close()
+        raise
+    worker.start()
+    status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses)
+    control = await start_control(cfg.control, status.commands())
+    s = cfg.serial
+    log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s",
+             ", ".join(addresses), s.device, s.baudrate, s.format, s.protocol, s.interface,
+             s.stout_ms, ", nocheck" if s.nocheck else "")
+    if metrics is not None:
+        log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
+    if s.nocheck:
+        log.warning("nocheck is on: serial replies are forwarded unchecked (a debugging mode)")
+
+    async def apply(new: SlaveConfig) -> None:
+        await server.reconfigure(new)
+        worker.reconfigure(new)
+
+    await serve_until_stopped(stop, status, reconfigure, apply, control, metrics)
+    server.close()
+    worker.stop()
+    await asyncio.to_thread(worker.join)
+    scheduler.close()
+    log_stopped(counters)

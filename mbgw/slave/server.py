@@ -1,0 +1,274 @@
+"""Slave mode's network side: the Modbus TCP server on mdbport.
+
+The asyncio thread listens and admits.  authip is checked as soon as a connection is
+accepted, before any byte is read; beyond max_connections the least recently active idle
+connection is closed for the newcomer; if every connection has a request in flight, the
+newcomer is refused.  An admitted connection then belongs to the line thread
+(mbgw.slave.connections), which calls request() for each frame it reads and finished() with each
+outcome: one thread carries a transaction from the client's bytes to the reply.
+"""
+import asyncio
+import dataclasses
+import logging
+import socket
+import time
+
+from mbgw.protocol import mbap
+from mbgw.protocol import pdu
+from mbgw.slave.acl import AccessList
+from mbgw.config.model import SlaveConfig
+from mbgw.slave.connections import Connections
+from mbgw.ops.counters import Counters
+from mbgw.slave.scheduler import OUTCOME_LINE_DOWN, OUTCOME_UNROUTABLE, Job, Scheduler
+from mbgw.slave.client import Client
+from mbgw.ops.trace import TraceHub
+
+log = logging.getLogger("mbgw.tcp")
+
+REFUSAL_LOG_INTERVAL_S = 60.0
+LISTEN_BACKLOG = 100
+
+
+class TcpServer:
+    def __init__(self, cfg: SlaveConfig, scheduler: Scheduler, counters: Counters,
+                 line_up) -> None:
+        self._cfg = cfg
+        self._scheduler = scheduler
+        self.counters = counters
+        self._line_up = line_up          # callable: is the serial line usable?
+        self._acl = AccessList(cfg.authip)
+        self.clients: list[Client] = []  # the asyncio thread's list, for admission and status
+        self._refusals: dict[str, float] = {}
+        self._listeners: list[socket.socket] = []
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self.trace = TraceHub()
+        self.connections = Connections(scheduler.wake_fd, self.request, self._closed, counters)
+
+    # --- the asyncio thread: listening and admission ---
+
+    async def start(self) -> list[str]:
+        """Listen; returns the listening addresses.  Raises OSError."""
+        self._loop = asyncio.get_running_loop()
+        self._listeners = listen(self._cfg.bind, self._cfg.mdbport)
+        for sock in self._listeners:
+            self._loop.add_reader(sock.fileno(), self._accept, sock)
+        return self.addresses()
+
+    def addresses(self) -> list[str]:
+        return [format_address(s.getsockname()) for s in self._listeners]
+
+    def _stop_listening(self) -> None:
+        for sock in self._listeners:
+            self._loop.remove_reader(sock.fileno())
+            sock.close()
+        self._listeners = []
+
+    async def reconfigure(self, cfg: SlaveConfig) -> None:
+        """Apply new settings; connections they do not concern stay open."""
+        old, self._cfg = self._cfg, cfg
+        self._acl = AccessList(cfg.authip)
+        for client in list(self.clients):
+            if not self._acl.allows(client.host):
+                log.info("client %s closed: no longer allowed by authip", client.peer)
+                self._drop(client)
+        if (cfg.mdbport, cfg.bind) != (old.mdbport, old.bind):
+            self._stop_listening()
+            try:
+                await self.start()
+            except OSError as err:
+                log.error("cannot listen on port %d (%s): staying on port %d", cfg.mdbport,
+                          err.strerror, old.mdbport)
+                self._cfg = dataclasses.replace(cfg, mdbport=old.mdbport, bind=old.bind)
+                await self.start()
+            log.info("now listening on %s", ", ".join(self.addresses()))
+
+    def close(self) -> None:
+        self._stop_listening()
+        for client in list(self.clients):
+            self._drop(client)
+
+    def _accept(self, listener: socket.socket) -> None:
+        try:
+            sock, address = listener.accept()
+        except (BlockingIOError, InterruptedError, ConnectionAbortedError):
+            return
+        except OSError as err:          # out of file descriptors, say: the next one may do
+            log.warning("cannot accept a connection: %s", err.strerror)
+            return
+        sock.setblocking(False)
+        client = Client(sock, address[0], format_address(address),
+                        format_address(sock.getsockname()))
+        if not self.admit(client, client.host):
+            sock.close()
+            return
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
+        self.connections.adopt(client)
+
+    def admit(self, client: Client, host: str) -> bool:
+        if not self._acl.allows(host):
+            self.counters.connections_refused_authip += 1
+            self._log_refusal(host)
+            return False
+        if len(self.clients) >= self._cfg.max_connections:
+            idle = [c for c in self.clients if c.in_flight == 0]
+            if not idle:
+                self.counters.connections_refused_limit += 1
+                log.warning("client %s refused: all %d connections are busy",
+                            client.peer, len(self.clients))
+                return False
+            victim = min(idle, key=lambda c: c.last_active)
+            log.info("client %s closed to make room for %s", victim.peer, client.peer)
+            self.counters.connections_evicted += 1
+            self._drop(victim)
+        self.counters.connections_accepted += 1
+        self.clients.append(client)
+        log.debug("client %s connected", client.peer)
+        return True
+
+    def close_client(self, client_id: int) -> bool:
+        """Force-close a client connection (operator's command)."""
+        for client in self.clients:
+            if client.id == client_id:
+                log.info("client %s closed by the operator", client.peer)
+                self._drop(client)
+                return True
+        return False
+
+    def _drop(self, client: Client) -> None:
+        """End a connection now; the line thread closes it when it sees it end."""
+        client.shutdown()
+        self.forget(client)
+
+    def forget(self, client: Client) -> None:
+        if client in self.clients:
+            self.clients.remove(client)
+            log.debug("client %s disconnected", client.peer)
+
+    def _log_refusal(self, host: str) -> None:
+        now = time.monotonic()
+        if now - self._refusals.get(host, -REFUSAL_LOG_INTERVAL_S) >= REFUSAL_LOG_INTERVAL_S:
+            self._refusals[host] = now
+            log.warning("connection from %s refused: not in authip (further refusals of this "
+                        "address are logged at most once a minute)", host)
+
+    # --- the line thread: requests in, outcomes out ---
+
+    def request(self, client: Client, tid: int, unit: int, request: bytes) -> None:
+        job = self._admit(client, tid, unit, request)
+        if job is not None:
+            client.in_flight += 1
+            self._scheduler.submit(client.queue, job)
+
+    def taken(self, client: Client, tid: int, unit: int, request: bytes) -> Job | None:
+        """A request the line worker put on the idle line itself (its shortcut, which takes
+        only what routes), counted and checked as request() does; the client has it in
+        flight already."""
+        return self._admit(client, tid, unit, request)
+
+    def _admit(self, client: Client, tid: int, unit: int, request: bytes) -> Job | None:
+        """The job for a request, or None when it was answered at once (it cannot reach the
+        line)."""
+        client.requests += 1
+        self.counters.requests += 1
+        tracing = self.trace.active
+        received_ns = time.monotonic_ns() if tracing else 0
+        if tracing:
+            self.trace.emit_threadsafe(self._event("request", client, tid, unit, request, "",
+                                                   None))
+        address = self._cfg.slaveid or unit
+        if address > pdu.MAX_SERIAL_ADDRESS:
+            self.counters.unroutable += 1
+            self._refuse(client, tid, unit, request, OUTCOME_UNROUTABLE, received_ns)
+            return None
+        if not self._line_up():
+            self.counters.line_down_rejects += 1
+            self._refuse(client, tid, unit, request, OUTCOME_LINE_DOWN, received_ns)
+            return None
+        return Job(client, tid, unit, bytes((address,)) + request, received_ns)
+
+    def finished(self, job: Job, reply: bytes | None, sent: int = -1) -> None:
+        """job's outcome: its reply (if any) goes out at once, or its rest when the serial
+        receive sent `sent` bytes of it already."""
+        client = job.client
+        if sent < 0:            # else C counted it answered as it sent the reply
+            client.in_flight -= 1
+        self._answer(client, job.tid, job.unit, reply, sent)
+        if self.trace.active:
+            self.traced(client, job.tid, job.unit, job.adu[1], reply, job.outcome,
+                        job.received_ns)
+
+    def _closed(self, client: Client) -> None:
+        self._scheduler.discard(client.queue)
+        loop = self._loop
+        if loop is not None and not loop.is_closed():
+            loop.call_soon_threadsafe(self.forget, client)
+
+    def _answer(self, client: Client, tid: int, unit: int, reply: bytes | None,
+                sent: int = -1) -> None:
+        if reply is not None and not client.closed:
+            if sent < 0:
+                client.send(mbap.frame(tid, unit, reply))
+            elif sent < mbap.HEADER_LEN + len(reply):
+                client.send(mbap.frame(tid, unit, reply)[sent:])
+            self.counters.replies += 1
+            client.last_active = time.monotonic()
+
+    def _refuse(self, client: Client, tid: int, unit: int, request: bytes, outcome: str,
+                received_ns: int) -> None:
+        reply = self._path_unavailable(request[0])
+        self._answer(client, tid, unit, reply)
+        if self.trace.active:
+            self.traced(client, tid, unit, request[0], reply, outcome, received_ns)
+
+    def traced(self, client: Client, tid: int, unit: int, function: int, reply: bytes | None,
+               outcome: str, received_ns: int) -> None:
+        latency_ms = (time.monotonic_ns() - received_ns) / 1e6 if received_ns else None
+        if reply is None:
+            event = self._event("no reply", client, tid, unit, bytes((function,)), outcome,
+                                latency_ms)
+        else:
+            event = self._event("reply", client, tid, unit, reply, outcome, latency_ms)
+        self.trace.emit_threadsafe(event)
+
+    @staticmethod
+    def _event(direction: str, client: Client, tid: int, unit: int, data: bytes,
+               outcome: str, latency_ms) -> dict:
+        return {"time": time.time(), "direction": direction, "client": client.id,
+                "peer": client.peer, "local": client.local, "tid": tid, "unit": unit,
+                "function": data[0], "length": len(data) if direction != "no reply" else 0,
+                "pdu": data.hex() if direction != "no reply" else "", "outcome": outcome,
+                "latency_ms": latency_ms}
+
+    def _path_unavailable(self, function: int) -> bytes | None:
+        if not self._cfg.exception:
+            return None
+        self.counters.gateway_exceptions += 1
+        return pdu.exception_pdu(function, pdu.GATEWAY_PATH_UNAVAILABLE)
+
+
+def listen(bind: str | None, port: int) -> list[socket.socket]:
+    """Listening sockets on bind (None: every interface, IPv4 and IPv6) and port."""
+    infos = socket.getaddrinfo(bind, port, socket.AF_UNSPEC, socket.SOCK_STREAM, 0,
+                               socket.AI_PASSIVE)
+    sockets = []
+    try:
+        for family, kind, proto, _, address in dict.fromkeys(infos):
+            sock = socket.socket(family, kind, proto)
+            sockets.append(sock)
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            if family == socket.AF_INET6:
+                sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+            sock.bind(address)
+            sock.listen(LISTEN_BACKLOG)
+            sock.setblocking(False)
+    except OSError:
+        for sock in sockets:
+            sock.close()
+        raise
+    return sockets
+
+
+def format_address(name) -> str:
+    host, port = name[:2]
+    return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"

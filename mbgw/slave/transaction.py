@@ -1,0 +1,170 @@
+"""One transaction on the serial line, as its master (slave mode).
+
+A request goes out only after the line has been quiet for t3.5 (or the turnaround delay after
+a broadcast).  Every frame that is not the reply -- bad CRC or LRC, another address, another
+function, a size the request did not ask for -- is counted and dropped, and we keep listening
+until stout has passed, as the spec's master does (Serial Line V1.02, 2.4.1).
+"""
+import logging
+import time
+
+from mbgw.protocol import pdu
+from mbgw.config.model import SerialConfig
+from mbgw.ops.counters import Counters
+from mbgw.ops.device_stats import DeviceStats, DeviceTable
+from mbgw.errors import ChecksumError, FrameError, LineTimeout
+from mbgw.line.framing import NO_FORWARD
+from mbgw.line.native import reply_matches
+
+wire = logging.getLogger("mbgw.wire")
+
+
+class SerialMaster:
+    def __init__(self, framing, cfg: SerialConfig, counters: Counters, devices: DeviceTable,
+                 retries: int = 0, turnaround_ms: int = 100) -> None:
+        self.framing = framing
+        self.devices = devices
+        self._sent_ns = 0
+        self._timed_out: DeviceStats | None = None   # whose late reply may still come
+        self._counters = counters
+        self._retries = retries
+        self._nocheck = cfg.nocheck
+        self._stout_ns = cfg.stout_ms * 1_000_000
+        self._turnaround_us = turnaround_ms * 1000
+        self._quiet_from_ns = 0
+        self._quiet_us = 0
+        self._deadline = 0          # of the reply to the request last sent
+        # on_reply(reply PDU, bytes of it forwarded or -1): called before the reply is booked
+        self.on_reply = None
+
+    def keep_line_state(self, previous: "SerialMaster") -> None:
+        """Taking over the line from previous (new settings): the silence it owes the line
+        and the late reply it may still see are owed and seen here too."""
+        self._quiet_from_ns = previous._quiet_from_ns
+        self._quiet_us = previous._quiet_us
+        self._timed_out = previous._timed_out
+
+    @property
+    def quiet_until_ns(self) -> int:
+        """The line must stay silent until then."""
+        return self._quiet_from_ns + self._quiet_us * 1000
+
+    def transact(self, adu: bytes, forward=NO_FORWARD, taken: bool = False) -> bytes | None:
+        """Send adu (address + PDU) and return the reply PDU; None for a broadcast.
+        forward: where the reply may go straight from the C receive (framing.NO_FORWARD);
+        taken: the port has exchanged adu already (native.Port.take_request).
+        Raises LineTimeout when no valid reply came, SerialError when the port failed."""
+        device = self.devices.get(adu[0])
+        device.transactions += 1
+        if adu[0] == pdu.BROADCAST:
+            self._await_quiet(adu)
+            self._sent(self.framing.send(adu))
+            self._counters.broadcasts += 1
+            device.broadcasts += 1
+            self._quiet_us = self._turnaround_us
+            return None
+        started = 0
+        for attempt in range(self._retries + 1):
+            if attempt:
+                self._count(device, "retries")
+                taken = False
+            if not taken:
+                self._await_quiet(adu)
+            reply = self._receive(adu, device, forward, taken or (
+                self.framing.exchanges(adu) and not self._nocheck), taken)
+            if not attempt:
+                started = self._sent_ns
+            if reply is not None:
+                if self.on_reply is not None:
+                    self.on_reply(reply, self.framing.sent)
+                ended = self.framing.last_rx_ns
+                self._counters.line_busy_ns += ended - started
+                exception = reply[1] if reply[0] & pdu.EXCEPTION_FLAG and len(reply) > 1 else None
+                if exception is not None:
+                    self._counters.device_exceptions += 1
+                device.answered((ended - self._sent_ns) / 1e6, exception)
+                if self._timed_out is device:
+                    self._timed_out = None
+                return reply
+        self._counters.line_busy_ns += self._deadline - started
+        self._count(device, "timeouts")
+        device.failed()
+        self._timed_out = device
+        raise LineTimeout()
+
+    def _count(self, device: DeviceStats, name: str) -> None:
+        setattr(self._counters, name, getattr(self._counters, name) + 1)
+        setattr(device, name, getattr(device, name) + 1)
+
+    def _await_quiet(self, adu: bytes) -> None:
+        """Until the line has been quiet long enough for adu to go out."""
+        now = time.monotonic_ns()
+        if now < self.quiet_until_ns:    # else no C call is needed
+            stale = self.framing.port.wait_quiet(self._quiet_from_ns, self._quiet_us)
+            if stale:
+                self._counters.late_bytes += stale
+                self._counters.bytes_received += stale
+            now = time.monotonic_ns()
+        if wire.isEnabledFor(logging.DEBUG):
+            wire.debug("tx %s", adu.hex(" "))
+        self._sent_ns = now
+
+    def _sent(self, end_ns: int) -> None:
+        """The request's last byte leaves the line at end_ns."""
+        self._quiet_from_ns = end_ns
+        self._quiet_us = self.framing.inter_frame_us
+        self._deadline = end_ns + self._stout_ns
+
+    def _receive(self, adu: bytes, device: DeviceStats, forward, exchange: bool,
+                 taken: bool = False) -> bytes | None:
+        """Send adu (in one C call with the first receive when exchange; taken: that call
+        was made already) and return the reply PDU, or None once stout has passed without
+        one."""
+        framing = self.framing
+        if not exchange:
+            self._sent(framing.send(adu))
+        while True:
+            try:
+                if exchange:
+                    exchange = False
+                    try:
+                        frame = framing.exchange(adu, self._stout_ns, forward, taken)
+                    finally:
+                        self._sent(framing.sent_end_ns)
+                        if taken:
+                            self._sent_ns = framing.sent_end_ns - \
+                                (len(adu) + 2) * framing.line.char_ns
+                elif self._nocheck:
+                    return framing.receive_unchecked(adu, self._deadline)[1:] or None
+                else:
+                    frame = framing.receive(adu, self._deadline, forward)
+            except LineTimeout:
+                return None
+            except ChecksumError:
+                self._count(device, "crc_errors")
+                self._counters.late_bytes += framing.resync()
+                continue
+            except FrameError:
+                self._count(device, "invalid_frames")
+                self._counters.late_bytes += framing.resync()
+                continue
+            finally:
+                self._quiet_from_ns = max(self._quiet_from_ns, framing.last_rx_ns)
+            if frame is None:
+                late = self._timed_out
+                if late is not None and framing.foreign_address == late.address:
+                    self._count(late, "late_replies")     # the answer to its timed-out request
+                else:
+                    self._count(device, "wrong_unit")
+                continue
+            if wire.isEnabledFor(logging.DEBUG):
+                wire.debug("rx %s", frame.hex(" "))
+            if framing.last_rx_ns > self._deadline:
+                self._count(device, "late_replies")
+                continue
+            reply = frame[1:]
+            if not reply_matches(adu[1:], reply):
+                self._count(device, "late_replies" if self._timed_out is device
+                            else "wrong_function")
+                continue
+            return reply
