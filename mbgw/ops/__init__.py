@@ -1,1 +1,9 @@
-"""ops"""
+"""Running as a service, for both modes: systemd notification, SIGHUP reload and stop
+(`service`), the control socket (`control`) with the commands both modes share (`status`),
+the trace hub (`trace`), Prometheus metrics (`metrics`), line-wide counters (`counters`),
+per-address statistics and health (`device_stats`), logging for operators (`log`).
+
+Shared between threads: the counters (the line thread writes most, the asyncio thread the
+connection counters and resets them), TraceHub.active, the line's up flag, and the
+running configuration (replaced whole by a reload).  Each is one attribute read or write,
+safe under the GIL; nothing on a request's path waits for this package."""
