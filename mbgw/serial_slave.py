@@ -11,7 +11,8 @@ the eventfd wakes it to stop) and:
   the reply with the master's serial address.  No reply in time: 0x0B with `exception`, else
   silence; server unreachable: 0x0A, or silence.  If the master has sent something new in
   the meantime it has given up on the request, and the late answer is dropped.
-A device that fails is closed, reopened with backoff, and reported once per change.
+A device that fails is closed, reopened when it is back (mbgw.reopen), and reported once per
+change.
 Each serial address answered for has its statistics and health (mbgw.device_stats), and the
 traffic goes to `mbgw trace` while someone traces (mbgw.master_trace).  A new configuration
 (SIGHUP) is taken between two transactions; new line settings reopen the line.
@@ -30,9 +31,9 @@ from mbgw.device_stats import MASTER_COUNTS, DeviceTable
 from mbgw.errors import (ChecksumError, FrameError, GatewayTimeout, LineTimeout, NoRoute,
                          SerialError)
 from mbgw.framing import framing_for
-from mbgw.line_worker import REOPEN_FIRST_S, REOPEN_MAX_S
 from mbgw.master_trace import (OUTCOME_EXCEPTION, OUTCOME_REPLY, OUTCOME_TIMEOUT,
                                OUTCOME_UNREACHABLE, MasterTracer)
+from mbgw.reopen import LOOK_S, Reopening
 from mbgw.serial_port import SerialLine
 from mbgw.tcp_client import Interrupted, UpstreamPool, drain
 from mbgw.trace import TraceHub
@@ -63,7 +64,7 @@ class SerialSlave(threading.Thread):
         self._pool = UpstreamPool(cfg.mdbport, cfg.max_connections, counters, self.wake_fd)
         self._stopping = False
         self._new_cfg: MasterConfig | None = None
-        self._reopen_now = False
+        self._reopening: Reopening | None = None     # while the device is down
         self._reply_to = b""       # the last frame for another slave: its reply may come next
         self._line: SerialLine | None = None
         self._attach(line)
@@ -107,7 +108,7 @@ class SerialSlave(threading.Thread):
         self._pool.reconfigure(cfg.mdbport, cfg.max_connections)
         if _line_settings(cfg.serial) != _line_settings(old.serial):
             self._reply_to = b""
-            self._reopen_now = True
+            self._reopening = Reopening(cfg.serial.device, pause=False)   # tried at once
             if self._line is not None:
                 self._line.close()
                 self._line = None
@@ -280,23 +281,17 @@ class SerialSlave(threading.Thread):
         self._line.close()
         self._line = None
         self._reply_to = b""
+        self._reopening = Reopening(self._cfg.serial.device, pause=True)
 
     def _reopen(self) -> None:
         """Until the device opens again, the gateway stops, or a new configuration comes."""
-        delay = REOPEN_FIRST_S
-        # a lost device gets a pause first, new settings are tried at once
-        wait, self._reopen_now = (0 if self._reopen_now else delay), False
         while not self._stopping and self._new_cfg is None:
-            if wait and select.select([self.wake_fd], [], [], wait)[0]:
-                drain(self.wake_fd)                 # stopping, or a new configuration
+            line = self._reopening.attempt(lambda: SerialLine(self._cfg.serial))
+            if line is None:
+                if select.select([self.wake_fd], [], [], LOOK_S)[0]:
+                    drain(self.wake_fd)             # stopping, or a new configuration
                 continue
-            try:
-                line = SerialLine(self._cfg.serial)
-            except SerialError as err:
-                log.debug("reopen failed: %s", err)
-                delay = min(delay * 2, REOPEN_MAX_S)
-                wait = delay
-                continue
+            self._reopening = None
             self._attach(line)
             log.info("serial device %s is back", self._cfg.serial.device)
             return
