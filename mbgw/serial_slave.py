@@ -8,9 +8,11 @@ the eventfd wakes it to stop) and:
 - forwards a broadcast (address 0) with unit id 0 to every server of the table, and answers
   nothing (Serial Line V1.02, 2.1);
 - forwards any other frame to its server and unit id with tcpto as the deadline, then writes
-  the reply with the master's serial address.  No reply in time: 0x0B with `exception`, else
-  silence; server unreachable: 0x0A, or silence.  If the master has sent something new in
-  the meantime it has given up on the request, and the late answer is dropped.
+  the reply with the master's serial address.  No reply in time, or a reply that does not
+  answer the request (another unit id, function or size, a bad MBAP header: logged at most
+  once a minute per address and kind): 0x0B with `exception`, else silence; server
+  unreachable: 0x0A, or silence.  If the master has sent something new in the meantime it
+  has given up on the request, and the late answer is dropped.
 A device that fails is closed, reopened when it is back (mbgw.reopen), and reported once per
 change.
 Each serial address answered for has its statistics and health (mbgw.device_stats), and the
@@ -28,11 +30,11 @@ from mbgw import native, pdu
 from mbgw.config import MasterConfig
 from mbgw.counters import MasterCounters
 from mbgw.device_stats import MASTER_COUNTS, DeviceTable
-from mbgw.errors import (ChecksumError, FrameError, GatewayTimeout, LineTimeout, NoRoute,
-                         SerialError)
+from mbgw.errors import (BadReply, ChecksumError, FrameError, GatewayTimeout, LineTimeout,
+                         NoRoute, SerialError)
 from mbgw.framing import framing_for
-from mbgw.master_trace import (OUTCOME_EXCEPTION, OUTCOME_REPLY, OUTCOME_TIMEOUT,
-                               OUTCOME_UNREACHABLE, MasterTracer)
+from mbgw.master_trace import (OUTCOME_BAD_REPLY, OUTCOME_EXCEPTION, OUTCOME_REPLY,
+                               OUTCOME_TIMEOUT, OUTCOME_UNREACHABLE, MasterTracer)
 from mbgw.reopen import LOOK_S, Reopening
 from mbgw.serial_port import SerialLine
 from mbgw.tcp_client import Interrupted, UpstreamPool, drain
@@ -44,6 +46,7 @@ wire = logging.getLogger("mbgw.wire")
 IDLE_INPUT = 1      # Port.idle_wait: input is waiting
 IDLE_TIMEOUT = 2    # Port.idle_wait: nothing happened
 UNUSED_SETTINGS = {"stout_ms": 0, "nocheck": False}   # slave mode's: no reopen for them
+BAD_REPLY_LOG_INTERVAL_S = 60.0
 
 
 def _line_settings(serial):
@@ -66,6 +69,7 @@ class SerialSlave(threading.Thread):
         self._new_cfg: MasterConfig | None = None
         self._reopening: Reopening | None = None     # while the device is down
         self._reply_to = b""       # the last frame for another slave: its reply may come next
+        self._bad_reply_logged: dict[tuple[int, str], float] = {}   # (address, kind): when
         self._line: SerialLine | None = None
         self._attach(line)
 
@@ -197,7 +201,7 @@ class SerialSlave(threading.Thread):
             self._pool.on_sent = lambda conn, tid: (
                 sent.append((conn, tid)), self._tracer.request(adu, server, conn, tid, unit))
         received_ns = time.monotonic_ns()
-        reply, code = None, None
+        reply, reply_unit, code = None, unit, None
         try:
             reply = self._pool.transact(host, unit, adu[1:], received_ns + self._tcpto_ns)
         except GatewayTimeout:
@@ -210,6 +214,12 @@ class SerialSlave(threading.Thread):
             stats.unreachable += 1
             stats.failed()
             outcome, code = OUTCOME_UNREACHABLE, pdu.GATEWAY_PATH_UNAVAILABLE
+        except BadReply as err:
+            self._bad_reply(stats, host, unit, err)
+            outcome, code = f"{OUTCOME_BAD_REPLY}: {err}", pdu.GATEWAY_TARGET_FAILED
+            if err.pdu is not None:       # the server's frame, for the trace
+                reply, reply_unit = err.pdu, err.unit
+                latency_ms = (time.monotonic_ns() - received_ns) / 1e6
         else:
             exception = reply[0] & pdu.EXCEPTION_FLAG
             if exception:
@@ -229,8 +239,22 @@ class SerialSlave(threading.Thread):
                 stats.abandoned += 1
                 outcome += ", abandoned: the master moved on"
         if tracing:
-            self._tracer.outcome(adu, server, sent[0] if sent else None, unit, reply, outcome,
-                                 None if reply is None else latency_ms)
+            self._tracer.outcome(adu, server, sent[0] if sent else None, reply_unit, reply,
+                                 outcome, None if reply is None else latency_ms)
+
+    def _bad_reply(self, stats, host: str, unit: int, err: BadReply) -> None:
+        """Counted as the device's failure; a warning per address and kind of bad reply, at
+        most once a minute (before the health change it may bring)."""
+        setattr(stats, err.counter, getattr(stats, err.counter) + 1)
+        key, now = (stats.address, err.counter), time.monotonic()
+        if now - self._bad_reply_logged.get(key, -BAD_REPLY_LOG_INTERVAL_S) >= \
+                BAD_REPLY_LOG_INTERVAL_S:
+            self._bad_reply_logged[key] = now
+            log.warning("device %d: the reply of server %s:%d unit %d does not answer the "
+                        "request (%s): dropped (replies of this kind for this address are "
+                        "logged at most once a minute)", stats.address, host, self._pool.port,
+                        unit, err)
+        stats.failed()
 
     def _answer(self, address: int, answer: bytes) -> bool:
         """Write the answer on the line, unless the master has moved on (False)."""
