@@ -1,4 +1,4 @@
-/* Is a reply the answer to the request, and slave mode's quick ways between the client and
+/* Is a reply the answer to the request (either mode), and slave mode's quick ways between the client and
  * the line: a reply that answers goes to the client's socket before Python sees it, and a
  * request that finds the line idle goes on it before Python sees it. */
 #include <errno.h>
@@ -46,6 +46,24 @@ int mbgw_reply_matches(const uint8_t *req, size_t req_len, const uint8_t *rsp, s
     default:
         return 1;
     }
+}
+
+int mbgw_tcp_reply_verdict(const uint8_t *req, size_t req_len, uint8_t unit, uint8_t rsp_unit,
+                           const uint8_t *rsp, size_t rsp_len)
+{
+    uint8_t adu[MBGW_RTU_MAX_ADU];      /* the reply as an RTU ADU, to read its own length */
+    if (rsp_len < 1 || rsp_len + 1 + CRC_LEN > sizeof adu)
+        return MBGW_REPLY_BAD_LENGTH;
+    adu[0] = rsp_unit;
+    memcpy(adu + 1, rsp, rsp_len);
+    int own = mbgw_rtu_reply_length(req_len + 1, adu, rsp_len + 1);
+    if (own != MBGW_LEN_UNKNOWN && own != (int)(rsp_len + 1 + CRC_LEN))
+        return MBGW_REPLY_BAD_LENGTH;
+    if (rsp_unit != unit)
+        return MBGW_REPLY_WRONG_UNIT;
+    if (!mbgw_reply_matches(req, req_len, rsp, rsp_len))
+        return MBGW_REPLY_WRONG_FUNCTION;
+    return MBGW_REPLY_ANSWERS;
 }
 
 static int64_t now_ns(void)

@@ -41,3 +41,16 @@ class GatewayTimeout(MbgwError):
 
 class NoRoute(MbgwError):
     """Master mode: the remote server cannot be reached (connection refused, no route)."""
+
+
+class BadReply(MbgwError):
+    """Master mode: the server's reply (right transaction id) does not answer the request.
+    counter: the device's counter for it (wrong_unit, wrong_function, invalid_frames);
+    unit, pdu: what the server sent, None when the frame could not be read (a bad header)."""
+
+    def __init__(self, counter: str, reason: str, unit: int | None = None,
+                 pdu: bytes | None = None) -> None:
+        super().__init__(reason)
+        self.counter = counter
+        self.unit = unit
+        self.pdu = pdu

@@ -114,13 +114,14 @@ def _master_sections(s: dict, now: float) -> list[str]:
                          f"{_ago(c['last_activity'], now)}")
     lines += ["", f"devices ({len(s['devices'])})"]
     if s["devices"]:
-        lines.append(f"{_HEALTH_COLUMNS} {'UNREACH':>7} {'ABANDON':>7}  {'SERVER':<15} "
-                     f"{'UNIT':>4}  EXCEPTIONS")
+        lines.append(f"{_HEALTH_COLUMNS} {'UNREACH':>7} {'INVALID':>7} {'ABANDON':>7}  "
+                     f"{'SERVER':<15} {'UNIT':>4}  EXCEPTIONS")
         for d in s["devices"]:
             host, unit = (d["upstream"]["host"], d["upstream"]["unit"]) \
                 if d.get("upstream") else ("*", 0)
-            lines.append(f"{_health(d, now)} {d['unreachable']:>7} {d['abandoned']:>7}  "
-                         f"{host:<15} {unit:>4}  {_exceptions(d)}")
+            invalid = d["wrong_unit"] + d["wrong_function"] + d["invalid_frames"]
+            lines.append(f"{_health(d, now)} {d['unreachable']:>7} {invalid:>7} "
+                         f"{d['abandoned']:>7}  {host:<15} {unit:>4}  {_exceptions(d)}")
     return lines
 
 

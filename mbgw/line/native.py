@@ -72,6 +72,19 @@ def reply_matches(request: bytes, reply: bytes) -> bool:
     return lib.mbgw_reply_matches(request, len(request), reply, len(reply)) == 1
 
 
+REPLY_ANSWERS = lib.MBGW_REPLY_ANSWERS
+REPLY_BAD_LENGTH = lib.MBGW_REPLY_BAD_LENGTH
+REPLY_WRONG_UNIT = lib.MBGW_REPLY_WRONG_UNIT
+REPLY_WRONG_FUNCTION = lib.MBGW_REPLY_WRONG_FUNCTION
+
+
+def tcp_reply_verdict(request: bytes, unit: int, reply_unit: int, reply: bytes) -> int:
+    """Master mode: what a server's reply PDU (and its unit id) is to the request PDU sent
+    to unit: one of REPLY_*."""
+    return lib.mbgw_tcp_reply_verdict(request, len(request), unit, reply_unit, reply,
+                                      len(reply))
+
+
 def tty_cflag(cflag: int, data_bits: int, parity: str, stop_bits: int) -> int:
     return lib.mbgw_tty_cflag(cflag, data_bits, parity.encode(), stop_bits)
 

@@ -8,10 +8,13 @@ the eventfd wakes it to stop) and:
 - forwards a broadcast (address 0) with unit id 0 to every server of the table, and answers
   nothing (Serial Line V1.02, 2.1);
 - forwards any other frame to its server and unit id with tcpto as the deadline, then writes
-  the reply with the master's serial address.  No reply in time: 0x0B with `exception`, else
-  silence; server unreachable: 0x0A, or silence.  If the master has sent something new in
-  the meantime it has given up on the request, and the late answer is dropped.
-A device that fails is closed, reopened with backoff, and reported once per change.
+  the reply with the master's serial address.  No reply in time, or a reply that does not
+  answer the request (another unit id, function or size, a bad MBAP header: logged at most
+  once a minute per address and kind): 0x0B with `exception`, else silence; server
+  unreachable: 0x0A, or silence.  If the master has sent something new in the meantime it
+  has given up on the request, and the late answer is dropped.
+A device that fails is closed, reopened when it is back (mbgw.line.supervisor), and reported once per
+change.
 Each serial address answered for has its statistics and health (mbgw.ops.device_stats), and the
 traffic goes to `mbgw trace` while someone traces (mbgw.master.trace).  A new configuration
 (SIGHUP) is taken between two transactions; new line settings reopen the line.
@@ -28,12 +31,12 @@ from mbgw.protocol import pdu
 from mbgw.config.model import MasterConfig
 from mbgw.ops.counters import MasterCounters
 from mbgw.ops.device_stats import MASTER_COUNTS, DeviceTable
-from mbgw.errors import (ChecksumError, FrameError, GatewayTimeout, LineTimeout, NoRoute,
-                         SerialError)
+from mbgw.errors import (BadReply, ChecksumError, FrameError, GatewayTimeout, LineTimeout,
+                         NoRoute, SerialError)
 from mbgw.line.framing import framing_for
-from mbgw.slave.line_thread import REOPEN_FIRST_S, REOPEN_MAX_S
-from mbgw.master.trace import (OUTCOME_EXCEPTION, OUTCOME_REPLY, OUTCOME_TIMEOUT,
-                               OUTCOME_UNREACHABLE, MasterTracer)
+from mbgw.master.trace import (OUTCOME_BAD_REPLY, OUTCOME_EXCEPTION, OUTCOME_REPLY,
+                               OUTCOME_TIMEOUT, OUTCOME_UNREACHABLE, MasterTracer)
+from mbgw.line.supervisor import LOOK_S, Reopening
 from mbgw.line.port import SerialLine
 from mbgw.master.upstream import Interrupted, UpstreamPool, drain
 from mbgw.ops.trace import TraceHub
@@ -44,6 +47,7 @@ wire = logging.getLogger("mbgw.wire")
 IDLE_INPUT = 1      # Port.idle_wait: input is waiting
 IDLE_TIMEOUT = 2    # Port.idle_wait: nothing happened
 UNUSED_SETTINGS = {"stout_ms": 0, "nocheck": False}   # slave mode's: no reopen for them
+BAD_REPLY_LOG_INTERVAL_S = 60.0
 
 
 def _line_settings(serial):
@@ -64,8 +68,9 @@ class SerialSlave(threading.Thread):
         self._pool = UpstreamPool(cfg.mdbport, cfg.max_connections, counters, self.wake_fd)
         self._stopping = False
         self._new_cfg: MasterConfig | None = None
-        self._reopen_now = False
+        self._reopening: Reopening | None = None     # while the device is down
         self._reply_to = b""       # the last frame for another slave: its reply may come next
+        self._bad_reply_logged: dict[tuple[int, str], float] = {}   # (address, kind): when
         self._line: SerialLine | None = None
         self._attach(line)
 
@@ -108,7 +113,7 @@ class SerialSlave(threading.Thread):
         self._pool.reconfigure(cfg.mdbport, cfg.max_connections)
         if _line_settings(cfg.serial) != _line_settings(old.serial):
             self._reply_to = b""
-            self._reopen_now = True
+            self._reopening = Reopening(cfg.serial.device, pause=False)   # tried at once
             if self._line is not None:
                 self._line.close()
                 self._line = None
@@ -197,7 +202,7 @@ class SerialSlave(threading.Thread):
             self._pool.on_sent = lambda conn, tid: (
                 sent.append((conn, tid)), self._tracer.request(adu, server, conn, tid, unit))
         received_ns = time.monotonic_ns()
-        reply, code = None, None
+        reply, reply_unit, code = None, unit, None
         try:
             reply = self._pool.transact(host, unit, adu[1:], received_ns + self._tcpto_ns)
         except GatewayTimeout:
@@ -210,6 +215,12 @@ class SerialSlave(threading.Thread):
             stats.unreachable += 1
             stats.failed()
             outcome, code = OUTCOME_UNREACHABLE, pdu.GATEWAY_PATH_UNAVAILABLE
+        except BadReply as err:
+            self._bad_reply(stats, host, unit, err)
+            outcome, code = f"{OUTCOME_BAD_REPLY}: {err}", pdu.GATEWAY_TARGET_FAILED
+            if err.pdu is not None:       # the server's frame, for the trace
+                reply, reply_unit = err.pdu, err.unit
+                latency_ms = (time.monotonic_ns() - received_ns) / 1e6
         else:
             exception = reply[0] & pdu.EXCEPTION_FLAG
             if exception:
@@ -229,8 +240,22 @@ class SerialSlave(threading.Thread):
                 stats.abandoned += 1
                 outcome += ", abandoned: the master moved on"
         if tracing:
-            self._tracer.outcome(adu, server, sent[0] if sent else None, unit, reply, outcome,
-                                 None if reply is None else latency_ms)
+            self._tracer.outcome(adu, server, sent[0] if sent else None, reply_unit, reply,
+                                 outcome, None if reply is None else latency_ms)
+
+    def _bad_reply(self, stats, host: str, unit: int, err: BadReply) -> None:
+        """Counted as the device's failure; a warning per address and kind of bad reply, at
+        most once a minute (before the health change it may bring)."""
+        setattr(stats, err.counter, getattr(stats, err.counter) + 1)
+        key, now = (stats.address, err.counter), time.monotonic()
+        if now - self._bad_reply_logged.get(key, -BAD_REPLY_LOG_INTERVAL_S) >= \
+                BAD_REPLY_LOG_INTERVAL_S:
+            self._bad_reply_logged[key] = now
+            log.warning("device %d: the reply of server %s:%d unit %d does not answer the "
+                        "request (%s): dropped (replies of this kind for this address are "
+                        "logged at most once a minute)", stats.address, host, self._pool.port,
+                        unit, err)
+        stats.failed()
 
     def _answer(self, address: int, answer: bytes) -> bool:
         """Write the answer on the line, unless the master has moved on (False)."""
@@ -281,23 +306,17 @@ class SerialSlave(threading.Thread):
         self._line.close()
         self._line = None
         self._reply_to = b""
+        self._reopening = Reopening(self._cfg.serial.device, pause=True)
 
     def _reopen(self) -> None:
         """Until the device opens again, the gateway stops, or a new configuration comes."""
-        delay = REOPEN_FIRST_S
-        # a lost device gets a pause first, new settings are tried at once
-        wait, self._reopen_now = (0 if self._reopen_now else delay), False
         while not self._stopping and self._new_cfg is None:
-            if wait and select.select([self.wake_fd], [], [], wait)[0]:
-                drain(self.wake_fd)                 # stopping, or a new configuration
+            line = self._reopening.attempt(lambda: SerialLine(self._cfg.serial))
+            if line is None:
+                if select.select([self.wake_fd], [], [], LOOK_S)[0]:
+                    drain(self.wake_fd)             # stopping, or a new configuration
                 continue
-            try:
-                line = SerialLine(self._cfg.serial)
-            except SerialError as err:
-                log.debug("reopen failed: %s", err)
-                delay = min(delay * 2, REOPEN_MAX_S)
-                wait = delay
-                continue
+            self._reopening = None
             self._attach(line)
             log.info("serial device %s is back", self._cfg.serial.device)
             return

@@ -9,6 +9,7 @@ OUTCOME_REPLY = "reply"
 OUTCOME_EXCEPTION = "server exception"
 OUTCOME_TIMEOUT = "timeout"
 OUTCOME_UNREACHABLE = "unreachable"
+OUTCOME_BAD_REPLY = "not the answer"       # the reply with our tid does not answer the request
 OUTCOME_IGNORED = "not in the slaveid table"
 
 

@@ -2,9 +2,14 @@
 
 One connection per server IP, at most `limit` open: opening one more first closes the least
 recently used (TCP guide 4.2.3: "close the oldest unused").  Requests go out in MBAP with a
-transaction id of our own, one at a time; only the reply with that id is accepted, earlier
-ones (late after tcpto) are dropped and counted.  A connection the server has closed is
-found before the request is sent and reopened; connecting counts against the deadline.
+transaction id of our own, one at a time; only the reply with that id is taken, earlier ones
+(late after tcpto) are dropped and counted.  That reply must answer the request: the unit id
+sent, the request's function (or its exception) with the size or echo the request implies, a
+PDU as long as its MBAP length says (native.tcp_reply_verdict).  One that does not ends the
+wait at once as BadReply, since no other reply will come for that id; a bad header (a
+protocol id other than 0, a length that does not fit) also closes the connection, whose
+stream can no longer be trusted.  A connection the server has closed is found before the
+request is sent and reopened; connecting counts against the deadline.
 
 Everything runs on the serial line's thread: the master sends one request at a time, so a
 thread hop would only add latency.  The sockets are non-blocking and every wait is one
@@ -21,8 +26,9 @@ import time
 from collections import OrderedDict
 
 from mbgw.protocol import mbap
+from mbgw.line import native
 from mbgw.ops.counters import MasterCounters
-from mbgw.errors import GatewayTimeout, MbgwError, NoRoute
+from mbgw.errors import BadReply, GatewayTimeout, MbgwError, NoRoute
 
 log = logging.getLogger("mbgw.tcp")
 wire = logging.getLogger("mbgw.wire")
@@ -106,7 +112,8 @@ class UpstreamPool:
     def transact(self, host: str, unit: int, request: bytes, deadline_ns: int) -> bytes:
         """Send the request PDU to host's unit and return the reply PDU.  Raises GatewayTimeout
         when no reply came before deadline_ns (CLOCK_MONOTONIC) or the connection broke
-        after the request went out, NoRoute when host cannot be reached, Interrupted."""
+        after the request went out, BadReply when the reply does not answer the request,
+        NoRoute when host cannot be reached, Interrupted."""
         conn = self._connection(host, deadline_ns)
         tid = conn.next_tid()
         self._send(conn, mbap.frame(tid, unit, request), unit)
@@ -114,16 +121,19 @@ class UpstreamPool:
             self.on_sent(conn, tid)
         while True:
             try:
-                for reply_tid, _unit, reply in mbap.split_frames(conn.buf):
+                for reply_tid, reply_unit, reply in mbap.split_frames(conn.buf):
                     if reply_tid == tid:
                         conn.last_active = time.monotonic()
                         if wire.isEnabledFor(logging.DEBUG):
-                            wire.debug("tcp %s rx tid=%d %s", host, tid, reply.hex(" "))
+                            wire.debug("tcp %s rx tid=%d unit=%d %s", host, tid, reply_unit,
+                                       reply.hex(" "))
+                        self._check(conn, request, unit, reply_unit, reply)
                         return reply
                     self._counters.late_replies += 1
             except mbap.BadHeader as err:
-                self._lost(conn, f"bad MBAP header ({err})")
-                raise GatewayTimeout() from None
+                reason = f"bad MBAP header: {err}"
+                self._bad_header(conn, reason)
+                raise BadReply("invalid_frames", reason) from None
             self._wait(conn.poller, deadline_ns)
             if self._receive(conn) is False:
                 raise GatewayTimeout()
@@ -143,6 +153,30 @@ class UpstreamPool:
                 self.on_sent(conn, tid)
             reached += 1
         return reached
+
+    def _check(self, conn: Connection, request: bytes, unit: int, reply_unit: int,
+               reply: bytes) -> None:
+        """Raise BadReply unless reply (from reply_unit) answers request (sent to unit)."""
+        verdict = native.tcp_reply_verdict(request, unit, reply_unit, reply)
+        if verdict == native.REPLY_ANSWERS:
+            return
+        if verdict == native.REPLY_BAD_LENGTH:
+            reason = (f"bad MBAP header: length {len(reply) + 1} does not fit its function "
+                      f"0x{reply[0]:02x} PDU")
+            self._bad_header(conn, reason)
+            raise BadReply("invalid_frames", reason)
+        if verdict == native.REPLY_WRONG_UNIT:
+            self._counters.wrong_unit += 1
+            raise BadReply("wrong_unit", f"unit id {reply_unit} instead of {unit}", reply_unit,
+                           reply)
+        self._counters.wrong_function += 1
+        function = request[0]
+        if reply[0] in (function, function | 0x80):
+            reason = f"a function 0x{reply[0]:02x} PDU of {len(reply)} bytes, not the size " \
+                     f"or echo the request asks for"
+        else:
+            reason = f"function 0x{reply[0]:02x} instead of 0x{function:02x}"
+        raise BadReply("wrong_function", reason, reply_unit, reply)
 
     def close(self) -> None:
         for conn in self._open.values():
@@ -205,12 +239,21 @@ class UpstreamPool:
             self._failing.add(host)
             log.warning("server %s:%d unreachable: %s", host, self._port, reason)
 
-    def _lost(self, conn: Connection, reason: str) -> None:
+    def _close(self, conn: Connection) -> None:
         conn.sock.close()
         if self._open.get(conn.host) is conn:
             del self._open[conn.host]
+
+    def _lost(self, conn: Connection, reason: str) -> None:
+        self._close(conn)
         self._counters.connections_lost += 1
         log.debug("server %s:%d: connection lost: %s", conn.host, self._port, reason)
+
+    def _bad_header(self, conn: Connection, reason: str) -> None:
+        """The stream cannot be trusted past a bad header: the next request opens another."""
+        self._close(conn)
+        self._counters.connections_bad_header += 1
+        log.debug("server %s:%d: connection closed: %s", conn.host, self._port, reason)
 
     def _still_open(self, conn: Connection) -> bool:
         """Read what came while the connection was idle (late replies, dropped) without
@@ -220,7 +263,7 @@ class UpstreamPool:
                 for _ in mbap.split_frames(conn.buf):
                     self._counters.late_replies += 1
             except mbap.BadHeader as err:
-                self._lost(conn, f"bad MBAP header ({err})")
+                self._bad_header(conn, f"bad MBAP header ({err})")
                 return False
         return got is None
 

@@ -30,8 +30,8 @@ class Counters:
 MASTER_NAMES = (
     "requests", "replies", "device_exceptions", "gateway_exceptions", "timeouts",
     "unreachable", "broadcasts", "crc_errors", "invalid_frames", "other_addresses",
-    "late_replies", "abandoned", "connections_opened", "connections_evicted",
-    "connections_lost",
+    "late_replies", "wrong_unit", "wrong_function", "abandoned", "connections_opened",
+    "connections_evicted", "connections_lost", "connections_bad_header",
 )
 
 

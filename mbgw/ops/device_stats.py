@@ -15,8 +15,8 @@ log = logging.getLogger("mbgw.devices")
 COUNTS = ("transactions", "replies", "timeouts", "retries", "crc_errors", "invalid_frames",
           "wrong_unit", "wrong_function", "late_replies", "broadcasts")
 # Master mode: an address mbgw answers for on the line, standing for a server's unit.
-MASTER_COUNTS = ("transactions", "replies", "timeouts", "unreachable", "abandoned",
-                 "broadcasts")
+MASTER_COUNTS = ("transactions", "replies", "timeouts", "unreachable", "wrong_unit",
+                 "wrong_function", "invalid_frames", "abandoned", "broadcasts")
 ALL_COUNTS = tuple(dict.fromkeys(COUNTS + MASTER_COUNTS))
 LATENCY_BUCKETS_MS = (2, 5, 10, 25, 50, 100, 250, 500, 1000, 2500, 5000)
 DOWN_AFTER_FAILURES = 3        # consecutive transactions without a valid reply

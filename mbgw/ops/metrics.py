@@ -75,15 +75,23 @@ _MASTER_COUNTER_HELP = {
     "invalid_frames": "Frames from the master received malformed.",
     "other_addresses": "Frames for an address outside the slaveid table (ignored).",
     "late_replies": "Server replies that came after tcpto, dropped by transaction id.",
+    "wrong_unit": "Server replies with another unit id than the one sent (not forwarded).",
+    "wrong_function": "Server replies with another function, size or echo than the request "
+                      "asked (not forwarded).",
     "abandoned": "Answers not written on the line: the master had moved on.",
     "connections_opened": "Connections opened to servers.",
     "connections_evicted": "Connections to servers closed to make room for another.",
     "connections_lost": "Connections to servers closed by the server or broken.",
+    "connections_bad_header": "Connections to servers closed for a bad MBAP header (protocol "
+                              "id, or a length that does not fit the PDU).",
 }
 _MASTER_DEVICE_HELP = {
     "transactions": "Requests from the master to this serial address, sent to its server.",
     "replies": "Replies from this address's server (exception replies included).",
     "timeouts": "Requests to this address its server did not answer within tcpto.",
+    "wrong_unit": "Replies from this address's server with another unit id than the one sent.",
+    "wrong_function": "Replies from this address's server with another function, size or echo.",
+    "invalid_frames": "Replies from this address's server with a bad MBAP header.",
 }
 
 

@@ -1,10 +1,9 @@
 """The serial line's one owner, and the reader and writer of slave mode's TCP connections:
 a thread that reads the clients' requests, takes jobs from the scheduler, runs them on the
 line and delivers each outcome.  It also keeps the port alive: a device that fails is closed,
-reopened with backoff, and reported once per change of state."""
+reopened when it is back (mbgw.line.supervisor), and reported once per change of state."""
 import errno
 import logging
-import math
 import threading
 import time
 
@@ -17,6 +16,7 @@ from mbgw.ops.device_stats import DeviceTable
 from mbgw.errors import LineTimeout, SerialError
 from mbgw.line.framing import NO_FORWARD, framing_for
 from mbgw.line.native import line_thread_init
+from mbgw.line.supervisor import LOOK_S, Reopening
 from mbgw.slave.scheduler import (OUTCOME_BROADCAST, OUTCOME_ERROR, OUTCOME_EXCEPTION,
                             OUTCOME_LINE_DOWN, OUTCOME_REPLY, OUTCOME_TIMEOUT, Job, Scheduler)
 from mbgw.slave.transaction import SerialMaster
@@ -26,10 +26,8 @@ from mbgw.slave.client import Client
 log = logging.getLogger("mbgw.line")
 wire = logging.getLogger("mbgw.wire")
 
-REOPEN_FIRST_S = 0.5
 # Serial settings that need the port opened again; the others apply to the next transaction.
 REOPEN_SETTINGS = ("device", "baudrate", "format", "interface", "rtsdelays")
-REOPEN_MAX_S = 5.0
 
 
 class LineWorker(threading.Thread):
@@ -48,8 +46,8 @@ class LineWorker(threading.Thread):
         self._stopping = False
         self._new_cfg: SlaveConfig | None = None
         self._serving: Job | None = None     # until its outcome has been delivered
-        self.reconfigured = False
         self._master: SerialMaster | None = self._master_on(line)
+        self._reopening: Reopening | None = None     # while the port is down
         self.up = True                 # False while the port is down: requests are refused
 
     def _master_on(self, line: SerialLine, previous: SerialMaster | None = None) -> SerialMaster:
@@ -82,16 +80,16 @@ class LineWorker(threading.Thread):
         reopen = any(getattr(cfg.serial, name) != getattr(old, name)
                      for name in REOPEN_SETTINGS)
         self._cfg = cfg
-        if self._master is None:
-            return                                  # the reopen loop uses the new cfg
-        if reopen:
+        if not reopen:
+            if self._master is not None:            # else the reopen loop uses the new cfg
+                self._master = self._master_on(self._master.framing.line, self._master)
+            return
+        self._reopening = Reopening(cfg.serial.device, pause=False)   # tried at once
+        if self._master is not None:
             self.up = False
-            self.reconfigured = True
             self._master.framing.line.close()
             self._master = None
             log.info("serial line settings changed: reopening %s", cfg.serial.device)
-        else:
-            self._master = self._master_on(self._master.framing.line, self._master)
 
     def run(self) -> None:
         line_thread_init()
@@ -203,25 +201,16 @@ class LineWorker(threading.Thread):
         self.up = False
         self._master.framing.line.close()
         self._master = None
+        self._reopening = Reopening(self._cfg.serial.device, pause=True)
 
     def _reopen(self) -> None:
-        delay = REOPEN_FIRST_S
-        # a lost device gets a pause first, new settings are applied at once
-        next_try = time.monotonic() + (0 if self.reconfigured else delay)
-        self.reconfigured = False
         while not self._stopping and self._new_cfg is None:
             self._reject_waiting()
-            left = next_try - time.monotonic()
-            if left > 0:
-                self._connections.wait(math.ceil(left * 1000))   # clients are refused meanwhile
+            line = self._reopening.attempt(lambda: SerialLine(self._cfg.serial, self._counters))
+            if line is None:
+                self._connections.wait(int(LOOK_S * 1000))   # clients are refused meanwhile
                 continue
-            try:
-                line = SerialLine(self._cfg.serial, self._counters)
-            except SerialError as err:
-                log.debug("reopen failed: %s", err)
-                delay = min(delay * 2, REOPEN_MAX_S)
-                next_try = time.monotonic() + delay
-                continue
+            self._reopening = None
             self._master = self._master_on(line)
             self.up = True
             log.info("serial device %s is back", self._cfg.serial.device)

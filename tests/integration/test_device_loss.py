@@ -3,8 +3,13 @@
 The device is a socat pty pair (tests/harness.py PtyPair) with pymodbus 3.16.1's RTU server on
 its far end (tests/peers/pymodbus_slave.py, slave 17: holding register n holds 100 + n).
 Stopping socat removes the pty under the gateway, as unplugging a USB adapter does; starting it
-again with the same link names brings the device back at the same path.
+again with the same link names brings the device back at the same path.  A regular file put
+at that path stands for a device that is there but cannot be opened as a serial line; the
+kernel (inotify) counts the gateway's attempts to open it.
 """
+import ctypes
+import os
+import select
 import socket
 import struct
 import time
@@ -12,12 +17,19 @@ import time
 import pytest
 
 from tests.modbus import mbap as adu
+from tests.ops import wait_for_log
 
 pytestmark = pytest.mark.integration
 
 STOUT_S = 1.0
 PROMPT_S = 0.3            # "promptly": well before stout
 RECOVERY_S = 8.0          # the gateway retries the device with backoff (0.5 s, then doubling)
+OUTAGE_S = 4.0            # long enough for a backoff from 0.5 s to reach its 2 s and 4 s steps
+BACK_WITHIN_S = 1.0       # served again this soon after the device is back (the rule: 0.5 s)
+WATCH_S = 4.0             # how long the attempts to open a device that fails are counted
+# Backing off from 0.5 s, the attempts after the first are 0.5, 1.5 and 3.5 s after it: at most
+# 3 in WATCH_S.  Retrying every 0.5 s would make 8, spinning thousands.
+ATTEMPTS_MAX = 5
 
 
 def recv_adu(sock: socket.socket, timeout: float) -> bytes:
@@ -117,3 +129,117 @@ def test_device_loss_without_exception_leaves_clients_unanswered_but_connected(
                 reply.hex(" ")
             break
     assert gw.proc.poll() is None
+
+
+def refused_for(sock: socket.socket, seconds: float, tid: int) -> int:
+    """Ask for `seconds` while the device is down: each request is refused at once (0x0A).
+    Returns the next transaction id."""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        reply, took = timed_transact(sock, tid, STOUT_S + 2)
+        assert reply == PATH_UNAVAILABLE, reply.hex(" ")
+        assert took < PROMPT_S, f"0x0A took {took:.3f} s (stout {STOUT_S} s)"
+        tid += 1
+        time.sleep(0.1)                       # the clients' pace, not synchronisation
+    return tid
+
+
+def served_after(sock: socket.socket, tid: int) -> float:
+    """Ask until a request is served (against RECOVERY_S); how long that took."""
+    start = time.monotonic()
+    while True:
+        reply, _ = timed_transact(sock, tid, STOUT_S + 2)
+        took = time.monotonic() - start
+        if reply == REPLY_3:
+            return took
+        assert reply == PATH_UNAVAILABLE, reply.hex(" ")
+        assert took < RECOVERY_S, f"not served again after {RECOVERY_S} s"
+        tid += 1
+        time.sleep(0.02)                      # poll interval, not synchronisation
+
+
+def bring_back(pty_pair, start_peer) -> None:
+    """The device is back at its path (socat's links exist) and its slave is READY."""
+    pty_pair.start()
+    start_peer("pymodbus_slave.py", pty_pair.device)
+
+
+def test_device_back_after_a_long_outage_is_served_within_a_second(pty_pair, start_peer,
+                                                                   start_gateway):
+    start_peer("pymodbus_slave.py", pty_pair.device)
+    gw = start_gateway(pty_pair.gateway, "--baudrate", "19200", "--exception",
+                       "--stout", str(int(STOUT_S * 1000)))
+    with socket.create_connection(("127.0.0.1", gw.port)) as sock:
+        assert timed_transact(sock, 1, STOUT_S + 2)[0] == REPLY_3
+        pty_pair.stop()
+        tid = refused_for(sock, OUTAGE_S, 2)
+        bring_back(pty_pair, start_peer)
+        took = served_after(sock, tid)
+        assert took < BACK_WITHIN_S, f"served {took:.2f} s after the device came back"
+    # an absent device is only looked at: no open attempt to fail, nothing logged
+    lines = gw.log().splitlines()
+    assert not [line for line in lines if " WARNING " in line], lines
+    assert [line for line in lines if " ERROR " in line] == \
+        [line for line in lines if "lost" in line], lines
+
+
+class OpenAttempts:
+    """The attempts to open one file, whoever makes them (inotify): an attempt is the opens
+    between two closes (mbgw's lock opens the device, then libmodbus does).  The kernel merges
+    an event into the same unread event before it, so the opens alone could not be counted."""
+    IN_OPEN = 0x20
+    IN_CLOSE = 0x08 | 0x10                    # IN_CLOSE_WRITE | IN_CLOSE_NOWRITE
+    EVENT = struct.Struct("iIII")             # struct inotify_event without its name
+
+    def __init__(self, path: str) -> None:
+        libc = ctypes.CDLL(None, use_errno=True)
+        self.fd = libc.inotify_init1(os.O_NONBLOCK | os.O_CLOEXEC)
+        if self.fd < 0 or libc.inotify_add_watch(self.fd, path.encode(),
+                                                  self.IN_OPEN | self.IN_CLOSE) < 0:
+            raise OSError(ctypes.get_errno(), f"inotify on {path}")
+
+    def count(self) -> int:
+        attempts, opened = 0, False
+        while select.select([self.fd], [], [], 0)[0]:
+            events = os.read(self.fd, 4096)
+            offset = 0
+            while offset < len(events):
+                _, mask, _, name_len = self.EVENT.unpack_from(events, offset)
+                offset += self.EVENT.size + name_len
+                attempts += bool(mask & self.IN_OPEN and not opened)
+                opened = bool(mask & self.IN_OPEN)
+        return attempts
+
+    def close(self) -> None:
+        os.close(self.fd)
+
+
+def test_a_device_that_cannot_be_opened_is_logged_once_and_backed_off(pty_pair, start_peer,
+                                                                      start_gateway):
+    start_peer("pymodbus_slave.py", pty_pair.device)
+    gw = start_gateway(pty_pair.gateway, "--baudrate", "19200", "--exception",
+                       "--stout", str(int(STOUT_S * 1000)))
+    with socket.create_connection(("127.0.0.1", gw.port)) as sock:
+        assert timed_transact(sock, 1, STOUT_S + 2)[0] == REPLY_3
+        pty_pair.stop()
+        wait_for_log(gw, "lost")
+        with open(pty_pair.gateway, "w"):     # there, but no tty: every open fails (ENOTTY)
+            pass
+        wait_for_log(gw, f"cannot open {pty_pair.gateway}")
+        attempts = OpenAttempts(pty_pair.gateway)
+        try:
+            tid = refused_for(sock, WATCH_S, 2)    # the daemon stays responsive meanwhile
+            tried = attempts.count()
+        finally:
+            attempts.close()
+        assert 1 <= tried <= ATTEMPTS_MAX, f"{tried} attempts to open in {WATCH_S} s"
+
+        os.unlink(pty_pair.gateway)           # the real device again, in the middle of a backoff
+        bring_back(pty_pair, start_peer)
+        took = served_after(sock, tid)
+        assert took < BACK_WITHIN_S, f"served {took:.2f} s after the device came back"
+
+    lines = gw.log().splitlines()
+    failed = [line for line in lines if "cannot open" in line]
+    assert len(failed) == 1 and " WARNING " in failed[0] and "backoff" in failed[0], lines
+    assert len([line for line in lines if "is back" in line]) == 1, lines

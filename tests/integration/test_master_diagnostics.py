@@ -92,8 +92,9 @@ def test_status_figures_match_the_traffic(rig, line):
     assert s["counters"] == {
         "requests": 6, "replies": 6, "device_exceptions": 1, "gateway_exceptions": 2,
         "timeouts": 1, "unreachable": 1, "broadcasts": 1, "crc_errors": 0,
-        "invalid_frames": 0, "other_addresses": 1, "late_replies": 0, "abandoned": 0,
-        "connections_opened": 2, "connections_evicted": 0, "connections_lost": 0}
+        "invalid_frames": 0, "other_addresses": 1, "late_replies": 0, "wrong_unit": 0,
+        "wrong_function": 0, "abandoned": 0, "connections_opened": 2, "connections_evicted": 0,
+        "connections_lost": 0, "connections_bad_header": 0}
 
     connections = {c["server"]: c for c in s["upstream"]["connections"]}
     assert set(connections) == {f"{SERVER}:{port}", f"{SILENT}:{port}"}
@@ -136,10 +137,10 @@ def test_status_figures_match_the_traffic(rig, line):
     assert "upstream connections (2)" in text and "devices (5)" in text
     rows = {l.split()[0]: l.split() for l in text.splitlines()
             if re.match(r"\s+\d+\s+(up|degraded|down)\s", l)}
-    # ADDR HEALTH SINCE(2) LAST-SUCCESS(1|2) FAILS REQUESTS REPLIES TIMEOUTS UNREACH ABANDON
-    # SERVER UNIT EXCEPTIONS...
+    # ADDR HEALTH SINCE(2) LAST-SUCCESS(1|2) FAILS REQUESTS REPLIES TIMEOUTS UNREACH INVALID
+    # ABANDON SERVER UNIT EXCEPTIONS...
     assert rows["3"][1:] == ["degraded", rows["3"][2], "ago", "never", "1", "1", "0", "1",
-                             "0", "0", SILENT, "1", "(gateway", "0x0b:1)"]
+                             "0", "0", "0", SILENT, "1", "(gateway", "0x0b:1)"]
     assert rows["2"][-3:] == [SERVER, "2", "0x02:1"]
     assert re.search(r"^\s+127\.0\.6\.1:\d+\s+127\.0\.0\.1:\d+\s+\S+ \S+\s+5\s+0,1,2\s", text,
                      re.M), text
