@@ -1,5 +1,5 @@
 """What the running daemon reports through the control socket: the commands both modes share
-(stats reset, trace) and slave mode's status and client close.  Master mode's are in
+(stats reset, trace); each mode's status and close are in mbgw.slave.status and
 mbgw.master.status."""
 import asyncio
 import json
@@ -79,46 +79,3 @@ class DaemonStatus:
             dropped = hub.unsubscribe(queue)
             log.info("trace ended%s", f"; {dropped} events dropped for a slow reader"
                      if dropped else "")
-
-
-class SlaveStatus(DaemonStatus):
-    """Slave mode: TCP clients, the queue, the serial slaves."""
-    mode = "slave"
-
-    def __init__(self, cfg, server, worker, scheduler, counters, devices, addresses) -> None:
-        super().__init__(cfg, counters, devices, server.trace)
-        self._server = server
-        self._worker = worker
-        self._scheduler = scheduler
-        self._addresses = addresses
-
-    def trace_header(self) -> dict:
-        return {"mode": self.mode, "listening": self._addresses}
-
-    def status(self, request: dict) -> dict:
-        now, mono = time.time(), time.monotonic()
-        counters = self._counters.snapshot()
-        busy_s = counters.pop("line_busy_ns") / 1e9
-        data = self._common()
-        data["serial"].update(stout_ms=self.cfg.serial.stout_ms,
-                              state="up" if self._worker.up else "down")
-        return {
-            **data, "listening": self._addresses,
-            "queue_depth": self._scheduler.depth,
-            "clients": [{"id": c.id, "peer": c.peer, "connected_since": c.connected_at,
-                         "requests": c.requests, "in_flight": c.in_flight,
-                         "last_activity": now - (mono - c.last_active)}
-                        for c in self._server.clients],
-            "counters": counters,
-            "counters_since": self._reset_at,
-            "line_utilisation_pct": round(100 * busy_s / max(now - self._reset_at, 1e-9), 2),
-            "devices": [d.snapshot() for d in self._devices.all()],
-        }
-
-    def close(self, request: dict) -> dict:
-        client_id = request.get("client")
-        if not isinstance(client_id, int):
-            return {"error": "close needs a client id"}
-        if self._server.close_client(client_id):
-            return {"ok": True}
-        return {"error": f"no client {client_id}"}

@@ -12,7 +12,7 @@ from mbgw.ops.metrics import render
 from mbgw.ops.service import (ListenError, MetricsListenError, log_stopped, serve_until_stopped,
                               start_control, start_metrics)
 from mbgw.line.port import SerialLine
-from mbgw.ops.status import SlaveStatus
+from mbgw.slave.status import SlaveStatus
 from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
 
