@@ -1,4 +1,5 @@
-"""When a lost serial device is opened again: one rule for both modes' line threads.
+"""The skeleton of both modes' line threads (LineThread), and when a lost serial device is
+opened again (Reopening).
 
 The line thread looks at the device's path every LOOK_S (a stat, links followed: a link to a
 vanished pty is absent).  An absent path is only looked at: no open attempt, no log line.  A
@@ -9,9 +10,12 @@ BACKOFF_FIRST_S to BACKOFF_MAX_S, and its first failed open is logged once.
 import errno
 import logging
 import os
+import threading
 import time
 
 from mbgw.errors import SerialError
+from mbgw.line import native
+from mbgw.line.port import SerialLine
 
 log = logging.getLogger("mbgw.line")
 
@@ -72,3 +76,122 @@ class Reopening:
             self._held, self._backoff_s, self._warned = found, BACKOFF_FIRST_S, False
         self._open_at = time.monotonic() + self._backoff_s
         self._backoff_s = min(self._backoff_s * 2, BACKOFF_MAX_S)
+
+
+class LineThread(threading.Thread):
+    """What a line thread is in either mode: it serves one turn at a time (`_turn`) while the
+    device is open; when the device is lost it closes it and opens it again when it is back
+    (`_while_down` meanwhile); new settings, handed over by reconfigure() from another
+    thread, are taken between two turns; stop() is a flag and a wake-up; a bug costs one
+    turn, never the thread.  A mode fills in the hooks below."""
+
+    def __init__(self, cfg, line: SerialLine) -> None:
+        super().__init__(name="mbgw-line", daemon=True)
+        self._cfg = cfg
+        self._stopping = False
+        self._new_cfg = None
+        self._reopening: Reopening | None = None     # while the device is down
+        self._line: SerialLine | None = line
+
+    @property
+    def up(self) -> bool:
+        """The serial device is open (read by the asyncio thread)."""
+        return self._line is not None
+
+    def stop(self) -> None:
+        self._stopping = True
+        self._wake()
+
+    def reconfigure(self, cfg) -> None:
+        """Use cfg from the next turn on (called from another thread)."""
+        self._new_cfg = cfg
+        self._wake()
+
+    def run(self) -> None:
+        native.line_thread_init()
+        try:
+            while not self._stopping:
+                if self._new_cfg is not None:
+                    self._take_new_cfg()
+                if self._line is None:
+                    self._reopen()
+                    continue
+                try:
+                    self._turn()
+                except SerialError as err:
+                    self._lost(err)
+                except Exception:   # a bug must cost one turn, never the line
+                    log.exception("internal error")
+        finally:
+            self._finish()
+
+    def close_line(self) -> None:
+        if self._line is not None:
+            self._line.close()
+            self._line = None
+            self._detach()
+
+    def _take_new_cfg(self) -> None:
+        cfg, self._new_cfg = self._new_cfg, None
+        old, self._cfg = self._cfg, cfg
+        reopen = self._reopens(old.serial, cfg.serial)
+        self._configure(old, reopen)
+        if reopen:
+            self._reopening = Reopening(cfg.serial.device, pause=False)   # tried at once
+            if self._line is not None:
+                self.close_line()
+                log.info("serial line settings changed: reopening %s", cfg.serial.device)
+
+    def _lost(self, err: SerialError) -> None:
+        log.error("serial device %s lost: %s; reopening", self._cfg.serial.device, err.strerror)
+        self.close_line()
+        self._reopening = Reopening(self._cfg.serial.device, pause=True)
+
+    def _reopen(self) -> None:
+        """Until the device opens again, the gateway stops, or new settings come."""
+        while not self._stopping and self._new_cfg is None:
+            assert self._reopening is not None
+            line = self._reopening.attempt(self._open_line)
+            if line is None:
+                self._while_down(LOOK_S)
+                continue
+            self._reopening = None
+            self._line = line
+            self._attach(line)
+            log.info("serial device %s is back", self._cfg.serial.device)
+            return
+
+    # --- what a mode fills in ---
+
+    def _wake(self) -> None:
+        """Wake the thread from any wait (called from another thread)."""
+        raise NotImplementedError
+
+    def _turn(self) -> None:
+        """Serve what comes next: one transaction, or a wait for one."""
+        raise NotImplementedError
+
+    def _while_down(self, timeout_s: float) -> None:
+        """Wait up to timeout_s for a wake-up while the device is down."""
+        raise NotImplementedError
+
+    def _open_line(self) -> SerialLine:
+        return SerialLine(self._cfg.serial)
+
+    def _attach(self, line: SerialLine) -> None:
+        """The device is open (again): set up what serves on it."""
+
+    def _detach(self) -> None:
+        """The device has been closed: forget what was set up on it."""
+
+    def _reopens(self, old, new) -> bool:
+        """New serial settings that need the device opened again."""
+        return old != new
+
+    def _configure(self, old, reopen: bool) -> None:
+        """self._cfg is new (old was in force until now); the line is reopened after when
+        `reopen`."""
+
+    def _finish(self) -> None:
+        """The thread ends: close what the mode owns on this thread."""
+        self.close_line()

@@ -13,8 +13,8 @@ the eventfd wakes it to stop) and:
   once a minute per address and kind): 0x0B with `exception`, else silence; server
   unreachable: 0x0A, or silence.  If the master has sent something new in the meantime it
   has given up on the request, and the late answer is dropped.
-A device that fails is closed, reopened when it is back (mbgw.line.supervisor), and reported once per
-change.
+A device that fails is closed, reopened when it is back (mbgw.line.supervisor), and reported
+once per change.
 Each serial address answered for has its statistics and health (mbgw.ops.device_stats), and the
 traffic goes to `mbgw trace` while someone traces (mbgw.master.trace).  A new configuration
 (SIGHUP) is taken between two transactions; new line settings reopen the line.
@@ -23,7 +23,6 @@ import dataclasses
 import logging
 import os
 import select
-import threading
 import time
 
 from mbgw.line import native
@@ -32,11 +31,11 @@ from mbgw.config.model import MasterConfig
 from mbgw.ops.counters import MasterCounters
 from mbgw.ops.device_stats import MASTER_COUNTS, DeviceTable
 from mbgw.errors import (BadReply, ChecksumError, FrameError, GatewayTimeout, LineTimeout,
-                         NoRoute, SerialError)
+                         NoRoute)
 from mbgw.line.framing import framing_for
 from mbgw.master.trace import (OUTCOME_BAD_REPLY, OUTCOME_EXCEPTION, OUTCOME_REPLY,
                                OUTCOME_TIMEOUT, OUTCOME_UNREACHABLE, MasterTracer)
-from mbgw.line.supervisor import LOOK_S, Reopening
+from mbgw.line.supervisor import LineThread
 from mbgw.line.port import SerialLine
 from mbgw.master.upstream import Interrupted, UpstreamPool, drain
 from mbgw.ops.trace import TraceHub
@@ -54,10 +53,9 @@ def _line_settings(serial):
     return dataclasses.replace(serial, **UNUSED_SETTINGS)
 
 
-class SerialSlave(threading.Thread):
+class SerialSlave(LineThread):
     def __init__(self, cfg: MasterConfig, line: SerialLine, counters: MasterCounters) -> None:
-        super().__init__(name="mbgw-line", daemon=True)
-        self._cfg = cfg
+        super().__init__(cfg, line)
         self._table = cfg.slaveid
         self._counters = counters
         self._tcpto_ns = cfg.tcpto_ns
@@ -66,16 +64,11 @@ class SerialSlave(threading.Thread):
         self._tracer = MasterTracer(self.trace)
         self.wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         self._pool = UpstreamPool(cfg.mdbport, cfg.max_connections, counters, self.wake_fd)
-        self._stopping = False
-        self._new_cfg: MasterConfig | None = None
-        self._reopening: Reopening | None = None     # while the device is down
         self._reply_to = b""       # the last frame for another slave: its reply may come next
         self._bad_reply_logged: dict[tuple[int, str], float] = {}   # (address, kind): when
-        self._line: SerialLine | None = None
         self._attach(line)
 
     def _attach(self, line: SerialLine) -> None:
-        self._line = line
         self._port = line.port
         self._framing = framing_for(line)
         serial = line.cfg
@@ -86,38 +79,42 @@ class SerialSlave(threading.Thread):
         self._ascii_frame_ns = (native.ASCII_MAX_FRAME * serial.char_ns
                                 + self._interchar_us * 1000)
 
-    @property
-    def up(self) -> bool:
-        """The serial device is open (read by the asyncio thread)."""
-        return self._line is not None
-
     def connections(self) -> list[dict]:
         """The open upstream connections (from any thread)."""
         return self._pool.connections()
 
     def stop(self) -> None:
-        self._stopping = True
         self._pool.stopping = True
+        super().stop()
+
+    # --- the line thread's hooks (mbgw.line.supervisor.LineThread) ---
+
+    def _wake(self) -> None:
         os.eventfd_write(self.wake_fd, 1)
 
-    def reconfigure(self, cfg: MasterConfig) -> None:
-        """Use cfg from the next transaction on (called from another thread)."""
-        self._new_cfg = cfg
-        os.eventfd_write(self.wake_fd, 1)
+    def _detach(self) -> None:
+        self._reply_to = b""
 
-    def _apply_new_cfg(self) -> None:
-        cfg, self._new_cfg = self._new_cfg, None
-        old, self._cfg = self._cfg, cfg
+    def _reopens(self, old, new) -> bool:
+        return _line_settings(new) != _line_settings(old)
+
+    def _configure(self, old: MasterConfig, reopen: bool) -> None:
+        cfg = self._cfg
         self._table = cfg.slaveid
         self._tcpto_ns = cfg.tcpto_ns
         self._pool.reconfigure(cfg.mdbport, cfg.max_connections)
-        if _line_settings(cfg.serial) != _line_settings(old.serial):
+        if reopen:
             self._reply_to = b""
-            self._reopening = Reopening(cfg.serial.device, pause=False)   # tried at once
-            if self._line is not None:
-                self._line.close()
-                self._line = None
-                log.info("serial line settings changed: reopening %s", cfg.serial.device)
+
+    def _turn(self) -> None:
+        try:
+            self._serve_next()
+        except Interrupted:
+            pass
+
+    def _while_down(self, timeout_s: float) -> None:
+        if select.select([self.wake_fd], [], [], timeout_s)[0]:
+            drain(self.wake_fd)             # stopping, or a new configuration
 
     def close(self) -> None:
         """After the thread has ended (or if it never started)."""
@@ -126,22 +123,6 @@ class SerialSlave(threading.Thread):
             self._line.close()
             self._line = None
         os.close(self.wake_fd)
-
-    def run(self) -> None:
-        while not self._stopping:
-            if self._new_cfg is not None:
-                self._apply_new_cfg()
-            if self._line is None:
-                self._reopen()
-                continue
-            try:
-                self._serve_next()
-            except Interrupted:
-                pass
-            except SerialError as err:
-                self._lost(err)
-            except Exception:   # a bug must cost one transaction, never the line
-                log.exception("internal error")
 
     # --- receiving ---
 
@@ -298,25 +279,3 @@ class SerialSlave(threading.Thread):
         if self.trace.active:
             self._tracer.outcome(adu, None, None, pdu.BROADCAST, None,
                                  f"broadcast: {reached} of {len(destinations)} servers", None)
-
-    # --- the device ---
-
-    def _lost(self, err: SerialError) -> None:
-        log.error("serial device %s lost: %s; reopening", self._cfg.serial.device, err.strerror)
-        self._line.close()
-        self._line = None
-        self._reply_to = b""
-        self._reopening = Reopening(self._cfg.serial.device, pause=True)
-
-    def _reopen(self) -> None:
-        """Until the device opens again, the gateway stops, or a new configuration comes."""
-        while not self._stopping and self._new_cfg is None:
-            line = self._reopening.attempt(lambda: SerialLine(self._cfg.serial))
-            if line is None:
-                if select.select([self.wake_fd], [], [], LOOK_S)[0]:
-                    drain(self.wake_fd)             # stopping, or a new configuration
-                continue
-            self._reopening = None
-            self._attach(line)
-            log.info("serial device %s is back", self._cfg.serial.device)
-            return

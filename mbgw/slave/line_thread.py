@@ -4,7 +4,6 @@ line and delivers each outcome.  It also keeps the port alive: a device that fai
 reopened when it is back (mbgw.line.supervisor), and reported once per change of state."""
 import errno
 import logging
-import threading
 import time
 
 from mbgw.protocol import mbap
@@ -15,8 +14,7 @@ from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
 from mbgw.errors import LineTimeout, SerialError
 from mbgw.line.framing import NO_FORWARD, framing_for
-from mbgw.line.native import line_thread_init
-from mbgw.line.supervisor import LOOK_S, Reopening
+from mbgw.line.supervisor import LineThread
 from mbgw.slave.scheduler import (OUTCOME_BROADCAST, OUTCOME_ERROR, OUTCOME_EXCEPTION,
                             OUTCOME_LINE_DOWN, OUTCOME_REPLY, OUTCOME_TIMEOUT, Job, Scheduler)
 from mbgw.slave.transaction import SerialMaster
@@ -30,11 +28,10 @@ wire = logging.getLogger("mbgw.wire")
 REOPEN_SETTINGS = ("device", "baudrate", "format", "interface", "rtsdelays")
 
 
-class LineWorker(threading.Thread):
+class LineWorker(LineThread):
     def __init__(self, cfg: SlaveConfig, line: SerialLine, scheduler: Scheduler,
                  server, counters: Counters, devices: DeviceTable) -> None:
-        super().__init__(name="mbgw-line", daemon=True)
-        self._cfg = cfg
+        super().__init__(cfg, line)
         self._scheduler = scheduler
         self._server = server          # the TcpServer
         self._connections: Connections = server.connections
@@ -43,12 +40,8 @@ class LineWorker(threading.Thread):
         self._deliver = server.finished    # deliver(job, reply_pdu_or_None[, bytes forwarded])
         self._taken: Job | None = None     # put on the line by the shortcut, books to keep
         self._shortcut = False
-        self._stopping = False
-        self._new_cfg: SlaveConfig | None = None
         self._serving: Job | None = None     # until its outcome has been delivered
         self._master: SerialMaster | None = self._master_on(line)
-        self._reopening: Reopening | None = None     # while the port is down
-        self.up = True                 # False while the port is down: requests are refused
 
     def _master_on(self, line: SerialLine, previous: SerialMaster | None = None) -> SerialMaster:
         cfg = self._cfg
@@ -65,52 +58,47 @@ class LineWorker(threading.Thread):
             master.keep_line_state(previous)
         return master
 
-    def stop(self) -> None:
-        self._stopping = True
+    # --- the line thread's hooks (mbgw.line.supervisor.LineThread) ---
+
+    def _wake(self) -> None:
         self._scheduler.wake()
 
-    def reconfigure(self, cfg: SlaveConfig) -> None:
-        """Use cfg from the next transaction on (called from another thread)."""
-        self._new_cfg = cfg
-        self._scheduler.wake()
+    def _open_line(self) -> SerialLine:
+        return SerialLine(self._cfg.serial, self._counters)
 
-    def _apply_new_cfg(self) -> None:
-        cfg, self._new_cfg = self._new_cfg, None
-        old = self._cfg.serial
-        reopen = any(getattr(cfg.serial, name) != getattr(old, name)
-                     for name in REOPEN_SETTINGS)
-        self._cfg = cfg
-        if not reopen:
-            if self._master is not None:            # else the reopen loop uses the new cfg
-                self._master = self._master_on(self._master.framing.line, self._master)
-            return
-        self._reopening = Reopening(cfg.serial.device, pause=False)   # tried at once
-        if self._master is not None:
-            self.up = False
-            self._master.framing.line.close()
-            self._master = None
-            log.info("serial line settings changed: reopening %s", cfg.serial.device)
+    def _attach(self, line: SerialLine) -> None:
+        self._master = self._master_on(line)
 
-    def run(self) -> None:
-        line_thread_init()
-        while not self._stopping:
-            if self._new_cfg is not None:
-                self._apply_new_cfg()
-            if self._master is None:
-                self._reopen()
-                continue
-            job = self._scheduler.take()
-            if job is None:
-                self._idle()
-                job, self._taken = self._taken, None
-                if job is not None:
-                    self._serve(job, taken=True)
-            else:
-                self._serve(job)
-                self._connections.wait(0)      # what the clients sent meanwhile
+    def _detach(self) -> None:
+        self._master = None
+
+    def _reopens(self, old, new) -> bool:
+        return any(getattr(new, name) != getattr(old, name) for name in REOPEN_SETTINGS)
+
+    def _configure(self, old: SlaveConfig, reopen: bool) -> None:
+        if not reopen and self._master is not None and self._line is not None:
+            self._master = self._master_on(self._line, self._master)
+
+    def _turn(self) -> None:
+        job = self._scheduler.take()
+        if job is None:
+            self._idle()
+            job, self._taken = self._taken, None
+            if job is not None:
+                self._serve(job, taken=True)
+        else:
+            self._serve(job)
+            self._connections.wait(0)      # what the clients sent meanwhile
+
+    def _while_down(self, timeout_s: float) -> None:
+        self._reject_waiting()             # requests are refused at once meanwhile
+        self._connections.wait(int(timeout_s * 1000))
+
+    def _finish(self) -> None:
         self._connections.close_all()
-        if self._master is not None:
-            self._master.framing.line.close()
+        self.close_line()
+
+    # --- serving ---
 
     def _serve(self, job: Job, taken: bool = False) -> None:
         self._serving = job
@@ -195,26 +183,6 @@ class LineWorker(threading.Thread):
         if self._taken is None and port.taken_sent < 0:
             client.in_flight -= 1      # not counted answered by a reply's forward either
         return []
-
-    def _lost(self, err: SerialError) -> None:
-        log.error("serial device %s lost: %s; reopening", self._cfg.serial.device, err.strerror)
-        self.up = False
-        self._master.framing.line.close()
-        self._master = None
-        self._reopening = Reopening(self._cfg.serial.device, pause=True)
-
-    def _reopen(self) -> None:
-        while not self._stopping and self._new_cfg is None:
-            self._reject_waiting()
-            line = self._reopening.attempt(lambda: SerialLine(self._cfg.serial, self._counters))
-            if line is None:
-                self._connections.wait(int(LOOK_S * 1000))   # clients are refused meanwhile
-                continue
-            self._reopening = None
-            self._master = self._master_on(line)
-            self.up = True
-            log.info("serial device %s is back", self._cfg.serial.device)
-            return
 
     def _reject_waiting(self) -> None:
         """While the port is down, nothing waits: every queued request is refused at once."""
