@@ -5,7 +5,6 @@ import gzip
 import math
 import socket
 import threading
-import urllib.request
 from types import SimpleNamespace
 
 import prometheus_client
@@ -344,13 +343,14 @@ def test_prometheus_may_ask_for_openmetrics_and_gzip():
     collector = slave_collector(o.counters, o.devices, o.scheduler, o.server, o.worker, 0.0)
 
     def test(server, port):
-        request = urllib.request.Request(f"http://127.0.0.1:{port}/metrics", headers={
-            "Accept": "application/openmetrics-text;version=1.0.0,text/plain;q=0.5",
-            "Accept-Encoding": "gzip"})
-        with urllib.request.urlopen(request, timeout=5) as r:
-            assert r.headers["Content-Type"].startswith("application/openmetrics-text")
-            assert r.headers["Content-Encoding"] == "gzip"
-            text = gzip.decompress(r.read()).decode()
+        status, headers, body = _split(_exchange(port, b"GET /metrics HTTP/1.0\r\n"
+            b"Accept: application/openmetrics-text;version=1.0.0,text/plain;q=0.5\r\n"
+            b"Accept-Encoding: gzip\r\n\r\n"))
+        assert status == "HTTP/1.0 200 OK"
+        assert headers["Content-Type"].startswith("application/openmetrics-text")
+        assert headers["Content-Encoding"] == "gzip"
+        assert int(headers["Content-Length"]) == len(body)
+        text = gzip.decompress(body).decode()
         found = {f.name: f for f in parser.text_string_to_metric_families(text)}
         assert found["mbgw_timeouts"].samples[0].value == o.counters.timeouts
         assert found["mbgw_transaction_latency_seconds"].type == "histogram"
