@@ -382,8 +382,10 @@ def free_port() -> int:
 
 
 def test_a_taken_port_is_an_error_and_leaves_nothing_listening():
-    with socket.socket() as taken:
-        taken.bind(("0.0.0.0", 0))
+    # [::] taken: 0.0.0.0, which comes first, is had and must be let go
+    with socket.socket(socket.AF_INET6) as taken:
+        taken.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+        taken.bind(("::", 0))
         taken.listen()
         port = taken.getsockname()[1]
         server = MetricsServer(f":{port}", Scrapes())
