@@ -10,7 +10,6 @@ from mbgw.config import MasterConfig
 from mbgw.counters import MasterCounters
 from mbgw.daemon import log_stopped, serve_until_stopped, start_control, start_metrics
 from mbgw.master_status import MasterStatus
-from mbgw.metrics import render_master
 from mbgw.serial_port import SerialLine
 from mbgw.serial_slave import SerialSlave
 
@@ -41,7 +40,7 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
     for signum in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(signum, stop.set)
     started = time.time()
-    metrics = await start_metrics(cfg.metrics, lambda: render_master(
+    metrics = start_metrics(cfg.metrics, lambda m: m.master_collector(
         counters, slave.devices, slave, started))
     slave.start()
     status = MasterStatus(cfg, slave, counters)
