@@ -53,6 +53,8 @@ version=$(dpkg-query -W -f '${Version}' mbgw)
 mbgw slave --help | grep -q -- "--stout" || fail "mbgw slave --help"
 mbgw master --help | grep -q -- "--tcpto" || fail "mbgw master --help"
 (cd / && /usr/bin/python3 -I -c 'import mbgw._ffi') || fail "the C core mbgw._ffi does not import"
+dpkg-query -W -f '${Depends}' mbgw | grep -q python3-prometheus-client \
+    || fail "mbgw does not depend on python3-prometheus-client (--metrics)"
 dpkg-query -W -f '${Conffiles}\n' mbgw | grep -q "^ /etc/mbgw/mbgw.toml " \
     || fail "/etc/mbgw/mbgw.toml is not a conffile"
 [ "$(stat -c %a /etc/mbgw/mbgw.toml)" = 644 ] || fail "/etc/mbgw/mbgw.toml: mode"
@@ -115,14 +117,24 @@ poll() {
         || fail "mbpoll on port $1 read: $out"
 }
 
+# scrape_one_reply: /metrics (port 9502) counts one reply from slave 17
+scrape_one_reply() {
+    local text
+    text=$(/usr/bin/python3 -c 'import urllib.request
+print(urllib.request.urlopen("http://127.0.0.1:9502/metrics", timeout=10).read().decode())') \
+        && grep -Eq '^mbgw_device_replies_total\{address="17"\} 1(\.0)?$' <<<"$text"
+}
+
 stop_gateway() {
     kill -TERM "$gateway"
     wait "$gateway" || fail "mbgw $1 exited with $? on SIGTERM: $(cat "$work/$1.log")"
 }
 
 # The owner's way: options on the command line (the installed conffile gives the rest).
-start_gateway cli slave --device "$work/ttyGW" --mdbport 1502 --bind 127.0.0.1
+start_gateway cli slave --device "$work/ttyGW" --mdbport 1502 --bind 127.0.0.1 \
+    --metrics 127.0.0.1:9502
 poll 1502
+wait_for "slave 17's reply in /metrics (Debian's prometheus_client)" scrape_one_reply
 mbgw status --control "$work/run-cli/mbgw.sock" >/dev/null || fail "mbgw status"
 stop_gateway cli
 

@@ -1,6 +1,6 @@
 """Runs master mode: opens the line, serves the serial master, tells systemd it is ready,
-stops on a signal; the operator's tools (control socket, metrics, SIGHUP reload) are
-mbgw.ops.service's."""
+stops on a signal; the operator's tools (control socket, metrics, SIGHUP reload) are slave
+mode's (mbgw.slave.daemon)."""
 import asyncio
 import logging
 import signal
@@ -8,9 +8,8 @@ import time
 
 from mbgw.config.model import MasterConfig
 from mbgw.ops.counters import MasterCounters
-from mbgw.ops.service import log_stopped, serve_until_stopped, start_control, start_metrics
+from mbgw.slave.daemon import log_stopped, serve_until_stopped, start_control, start_metrics
 from mbgw.master.status import MasterStatus
-from mbgw.ops.metrics import render_master
 from mbgw.line.port import SerialLine
 from mbgw.master.line_thread import SerialSlave
 
@@ -41,7 +40,7 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
     for signum in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(signum, stop.set)
     started = time.time()
-    metrics = await start_metrics(cfg.metrics, lambda: render_master(
+    metrics = start_metrics(cfg.metrics, lambda m: m.master_collector(
         counters, slave.devices, slave, started))
     slave.start()
     status = MasterStatus(cfg, slave, counters)

@@ -1,14 +1,22 @@
 """`--metrics ADDR:PORT`: the daemon's counters for Prometheus, on http://ADDR:PORT/metrics.
 
-A deliberately tiny HTTP/1.0 server on the daemon's asyncio loop (no new dependency): one
-GET per connection, answered with the text exposition format 0.0.4 and closed.  The figures
-are read from the live objects at each scrape, as `mbgw status` reads them, so the two always
-agree.  A client that is slow or vanishes costs its own connection only: reads and writes
-have deadlines, and nothing waits on it but its own task.
+prometheus_client (Debian's python3-prometheus-client) does the exposition and the HTTP:
+`DaemonCollector` turns the live objects into metric families at each scrape, as `mbgw
+status` reads them, so the two always agree and the line path never calls prometheus_client.
+Its WSGI app is served by wsgiref on one server per listening address, each in a daemon thread
+with a thread per scrape: a client that is slow or vanishes costs its own connection (and
+thread) only, until its read deadline.
 """
-import asyncio
 import logging
-import math
+import socket
+import socketserver
+import sys
+import threading
+from wsgiref.simple_server import WSGIRequestHandler, WSGIServer
+
+from prometheus_client import CollectorRegistry, make_wsgi_app
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily
+from prometheus_client.utils import floatToGoString
 
 from mbgw import __version__
 from mbgw.ops.device_stats import DEGRADED, DOWN, LATENCY_BUCKETS_MS, UP
@@ -16,9 +24,7 @@ from mbgw.errors import ConfigError
 
 log = logging.getLogger("mbgw.metrics")
 
-CONTENT_TYPE = "text/plain; version=0.0.4; charset=utf-8"
-REQUEST_LIMIT = 8192            # bytes of request line + headers
-IO_TIMEOUT_S = 10.0             # to send the request, or to take the response
+IO_TIMEOUT_S = 10.0             # the longest a scrape's socket waits to read or write
 
 _COUNTER_HELP = {
     "requests": "Modbus TCP requests received from clients.",
@@ -110,214 +116,264 @@ def parse_address(text: str) -> tuple[str | None, int]:
     return host or None, int(port)
 
 
-# --- the exposition format -------------------------------------------------------------------
-
-def _escape(value: str) -> str:
-    return value.replace("\\", "\\\\").replace("\n", "\\n").replace('"', '\\"')
-
-
-def _number(value) -> str:
-    if isinstance(value, float):
-        if math.isinf(value):
-            return "+Inf" if value > 0 else "-Inf"
-        return repr(value)
-    return str(value)
-
-
-class _Text:
-    def __init__(self) -> None:
-        self.lines: list[str] = []
-
-    def family(self, name: str, kind: str, help_text: str) -> None:
-        self.lines.append(f"# HELP {name} {help_text.replace(chr(92), chr(92) * 2)}")
-        self.lines.append(f"# TYPE {name} {kind}")
-
-    def sample(self, name: str, value, **labels) -> None:
-        if labels:
-            inner = ",".join(f'{k}="{_escape(str(v))}"' for k, v in labels.items())
-            name = f"{name}{{{inner}}}"
-        self.lines.append(f"{name} {_number(value)}")
-
-    def text(self) -> str:
-        return "\n".join(self.lines) + "\n"
+def parse_address(text: str) -> tuple[str | None, int]:
+    """'ADDR:PORT', '[IPV6]:PORT' or ':PORT' (every address) -> (host or None, port)."""
+    host, sep, port = text.rpartition(":")
+    if not sep:
+        raise ConfigError(f"metrics {text!r}: not ADDR:PORT")
+    if host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
+    elif ":" in host:
+        raise ConfigError(f"metrics {text!r}: write an IPv6 address in brackets, "
+                          f"[ADDR]:PORT")
+    if not port.isdigit() or not 1 <= int(port) <= 65535:
+        raise ConfigError(f"metrics {text!r}: port {port!r} is not 1..65535")
+    return host or None, int(port)
 
 
-def render(counters, devices, scheduler, server, worker, started: float) -> str:
-    """Slave mode's exposition text."""
-    return render_daemon(counters, devices, started, "slave", [
+# --- the metric families ---------------------------------------------------------------------
+
+class DaemonCollector:
+    """A prometheus_client collector of a daemon's live objects.  They are read in the
+    scrape's thread while the line thread may be counting: a scrape is a snapshot within a
+    transaction.  gauges() gives (name, help, value) of the mode's own gauges."""
+
+    def __init__(self, counters, devices, started: float, mode: str, gauges) -> None:
+        self._counters = counters
+        self._devices = devices
+        self._started = started
+        self._mode = mode
+        self._gauges = gauges
+
+    def collect(self):
+        yield from self._daemon()
+        yield from self._line_counters()
+        for name, help_text, value in self._gauges():
+            yield GaugeMetricFamily(name, help_text, value=value)
+        table = self._devices.all()
+        yield from self._device_counters(table)
+        yield from self._device_health(table)
+        yield self._latency(table)
+
+    def _daemon(self):
+        info = GaugeMetricFamily("mbgw_info", "mbgw's version and mode (always 1).",
+                                 labels=["version", "mode"])
+        info.add_metric([__version__, self._mode], 1)
+        yield info
+        yield GaugeMetricFamily("mbgw_start_time_seconds",
+                                "When the daemon started (Unix time).",
+                                value=round(self._started, 3))
+
+    def _line_counters(self):
+        master = self._mode == "master"
+        for name, value in self._counters.snapshot().items():
+            if name == "line_busy_ns":
+                yield CounterMetricFamily(
+                    "mbgw_line_busy_seconds", "Time the serial line carried a transaction "
+                    "(request to reply or timeout); its rate is the line's utilisation.",
+                    value=value / 1e9)
+                continue
+            help_text = (master and _MASTER_COUNTER_HELP.get(name)) or \
+                _COUNTER_HELP.get(name) or name.replace("_", " ") + "."
+            yield CounterMetricFamily(f"mbgw_{name}", help_text, value=value)
+
+    def _device_counters(self, table):
+        master = self._mode == "master"
+        for name in self._devices.counts:
+            help_text = (master and _MASTER_DEVICE_HELP.get(name)) or _DEVICE_HELP[name]
+            family = CounterMetricFamily(f"mbgw_device_{name}",
+                                         help_text + " By serial address.", labels=["address"])
+            for d in table:
+                family.add_metric([str(d.address)], getattr(d, name))
+            yield family
+        family = CounterMetricFamily(
+            "mbgw_device_exception_replies", "Exception replies by serial address and "
+            "exception code; source: the device (in master mode its server) sent it, or the "
+            "gateway generated it (0x0B: no reply, 0x0A: line down or server unreachable).",
+            labels=["address", "code", "source"])
+        for d in table:
+            for source, by_code in (("device", d.exceptions),
+                                    ("gateway", d.gateway_exceptions)):
+                for code, n in sorted(dict(by_code).items()):
+                    family.add_metric([str(d.address), f"0x{code:02x}", source], n)
+        yield family
+
+    def _device_health(self, table):
+        health = GaugeMetricFamily(
+            "mbgw_device_health", "Health of the serial address: 1 for its current state "
+            "(up: its recent requests were answered; degraded: some failed; down: the last "
+            "several failed in a row), 0 for the others.", labels=["address", "state"])
+        since = GaugeMetricFamily(
+            "mbgw_device_health_since_seconds",
+            "When the serial address entered its current health state (Unix time).",
+            labels=["address"])
+        failures = GaugeMetricFamily(
+            "mbgw_device_consecutive_failures",
+            "Transactions in a row without a valid reply, by serial address.",
+            labels=["address"])
+        success = GaugeMetricFamily(
+            "mbgw_device_last_success_timestamp_seconds",
+            "When the serial address last answered (Unix time); absent if it never did.",
+            labels=["address"])
+        for d in table:
+            address = str(d.address)
+            for state in (UP, DEGRADED, DOWN):
+                health.add_metric([address, state], 1 if d.health == state else 0)
+            since.add_metric([address], round(d.health_since, 3))
+            failures.add_metric([address], d.consecutive_failures)
+            if d.last_success is not None:
+                success.add_metric([address], round(d.last_success, 3))
+        yield from (health, since, failures, success)
+
+    def _latency(self, table):
+        family = HistogramMetricFamily(
+            "mbgw_transaction_latency_seconds",
+            "Time from receiving the master's request to its server's reply, by serial "
+            "address." if self._mode == "master" else
+            "Time from sending a request on the line to the end of its valid reply "
+            "(the last try's, after retries), by serial address.", labels=["address"])
+        bounds = [floatToGoString(ms / 1000) for ms in LATENCY_BUCKETS_MS] + ["+Inf"]
+        for d in table:
+            cumulative, buckets = 0, []
+            for bound, n in zip(bounds, list(d.latency_buckets)):
+                cumulative += n
+                buckets.append((bound, cumulative))
+            family.add_metric([str(d.address)], buckets, d.latency_sum_ms / 1000)
+        return family
+
+
+def slave_collector(counters, devices, scheduler, server, worker,
+                    started: float) -> DaemonCollector:
+    """Slave mode's metrics."""
+    return DaemonCollector(counters, devices, started, "slave", lambda: [
         ("mbgw_line_up", "1 while the serial device is open and usable.", int(worker.up)),
         ("mbgw_queue_depth", "Requests waiting for the serial line.", scheduler.depth),
         ("mbgw_clients_connected", "Modbus TCP clients connected.", len(server.clients))])
 
 
-def render_master(counters, devices, slave, started: float) -> str:
-    """Master mode's exposition text."""
-    return render_daemon(counters, devices, started, "master", [
+def master_collector(counters, devices, slave, started: float) -> DaemonCollector:
+    """Master mode's metrics."""
+    return DaemonCollector(counters, devices, started, "master", lambda: [
         ("mbgw_line_up", "1 while the serial device is open and usable.", int(slave.up)),
         ("mbgw_upstream_connections", "Connections open to Modbus TCP servers.",
          len(slave.connections()))])
 
 
-def render_daemon(counters, devices, started: float, mode: str, gauges) -> str:
-    """The exposition text of a daemon's live objects (read from the asyncio thread; the
-    line thread may be counting meanwhile: a scrape is a snapshot within a transaction).
-    gauges: (name, help, value) of the mode's own gauges."""
-    master = mode == "master"
-    out = _Text()
-    out.family("mbgw_info", "gauge", "mbgw's version and mode (always 1).")
-    out.sample("mbgw_info", 1, version=__version__, mode=mode)
-    out.family("mbgw_start_time_seconds", "gauge", "When the daemon started (Unix time).")
-    out.sample("mbgw_start_time_seconds", round(started, 3))
-
-    values = counters.snapshot()
-    for name, value in values.items():
-        if name == "line_busy_ns":
-            out.family("mbgw_line_busy_seconds_total", "counter",
-                       "Time the serial line carried a transaction (request to reply or "
-                       "timeout); its rate is the line's utilisation.")
-            out.sample("mbgw_line_busy_seconds_total", value / 1e9)
-            continue
-        metric = f"mbgw_{name}_total"
-        help_text = (master and _MASTER_COUNTER_HELP.get(name)) or _COUNTER_HELP.get(name) \
-            or name.replace("_", " ") + "."
-        out.family(metric, "counter", help_text)
-        out.sample(metric, value)
-
-    for name, help_text, value in gauges:
-        out.family(name, "gauge", help_text)
-        out.sample(name, value)
-
-    table = devices.all()
-    for name in devices.counts:
-        metric = f"mbgw_device_{name}_total"
-        help_text = (master and _MASTER_DEVICE_HELP.get(name)) or _DEVICE_HELP[name]
-        out.family(metric, "counter", help_text + " By serial address.")
-        for d in table:
-            out.sample(metric, getattr(d, name), address=d.address)
-
-    out.family("mbgw_device_exception_replies_total", "counter",
-               "Exception replies by serial address and exception code; source: the device "
-               "(in master mode its server) sent it, or the gateway generated it (0x0B: no "
-               "reply, 0x0A: line down or server unreachable).")
-    for d in table:
-        for source, by_code in (("device", d.exceptions), ("gateway", d.gateway_exceptions)):
-            for code, n in sorted(dict(by_code).items()):
-                out.sample("mbgw_device_exception_replies_total", n, address=d.address,
-                           code=f"0x{code:02x}", source=source)
-
-    out.family("mbgw_device_health", "gauge",
-               "Health of the serial address: 1 for its current state (up: its recent "
-               "requests were answered; degraded: some failed; down: the last "
-               "several failed in a row), 0 for the others.")
-    for d in table:
-        for state in (UP, DEGRADED, DOWN):
-            out.sample("mbgw_device_health", 1 if d.health == state else 0, address=d.address,
-                       state=state)
-    out.family("mbgw_device_health_since_seconds", "gauge",
-               "When the serial address entered its current health state (Unix time).")
-    for d in table:
-        out.sample("mbgw_device_health_since_seconds", round(d.health_since, 3),
-                   address=d.address)
-    out.family("mbgw_device_consecutive_failures", "gauge",
-               "Transactions in a row without a valid reply, by serial address.")
-    for d in table:
-        out.sample("mbgw_device_consecutive_failures", d.consecutive_failures,
-                   address=d.address)
-    out.family("mbgw_device_last_success_timestamp_seconds", "gauge",
-               "When the serial address last answered (Unix time); absent if it never did.")
-    for d in table:
-        if d.last_success is not None:
-            out.sample("mbgw_device_last_success_timestamp_seconds",
-                       round(d.last_success, 3), address=d.address)
-
-    out.family("mbgw_transaction_latency_seconds", "histogram",
-               "Time from receiving the master's request to its server's reply, by serial "
-               "address." if master else
-               "Time from sending a request on the line to the end of its valid reply "
-               "(the last try's, after retries), by serial address.")
-    bounds = [*(ms / 1000 for ms in LATENCY_BUCKETS_MS), math.inf]
-    for d in table:
-        counts = list(d.latency_buckets)
-        cumulative = 0
-        for bound, n in zip(bounds, counts):
-            cumulative += n
-            out.sample("mbgw_transaction_latency_seconds_bucket", cumulative,
-                       address=d.address, le=_number(bound))
-        out.sample("mbgw_transaction_latency_seconds_sum", d.latency_sum_ms / 1000,
-                   address=d.address)
-        out.sample("mbgw_transaction_latency_seconds_count", cumulative, address=d.address)
-    return out.text()
-
-
 # --- the HTTP side ---------------------------------------------------------------------------
 
 class MetricsServer:
-    def __init__(self, address: str, collect) -> None:
+    """prometheus_client's WSGI app for a collector, on every address of ADDR:PORT."""
+
+    def __init__(self, address: str, collector) -> None:
         self.address = address
         self.host, self.port = parse_address(address)
         self.names: list[str] = []         # the listening addresses, once started
-        self._collect = collect            # () -> the exposition text
-        self._server: asyncio.base_events.Server | None = None
-        self._tasks: set[asyncio.Task] = set()
+        self._collector = collector
+        self._servers: list[_HttpServer] = []
 
-    async def start(self) -> list[str]:
+    def start(self) -> list[str]:
         """Listen; returns the listening addresses.  Raises OSError if it cannot."""
-        self._server = await asyncio.start_server(self._handle, self.host, self.port,
-                                                  reuse_address=True, limit=REQUEST_LIMIT)
+        registry = CollectorRegistry(auto_describe=False)   # ours only: no process metrics
+        registry.register(self._collector)
+        app = _metrics_only(make_wsgi_app(registry))
+        try:
+            for family, sockaddr in _listening_addresses(self.host, self.port):
+                self._servers.append(_HttpServer(family, sockaddr, app))
+        except OSError:
+            for server in self._servers:
+                server.server_close()
+            self._servers = []
+            raise
         names = []
-        for sock in self._server.sockets:
-            host, port = sock.getsockname()[:2]
+        for server in self._servers:
+            host, port = server.socket.getsockname()[:2]
             names.append(f"[{host}]:{port}" if ":" in host else f"{host}:{port}")
+            threading.Thread(target=server.serve_forever, name=f"metrics {port}",
+                             daemon=True).start()
         return names
 
     def close(self) -> None:
-        if self._server is not None:
-            self._server.close()
-        for task in list(self._tasks):
-            task.cancel()
+        """Stop listening; a scrape under way finishes in its own thread."""
+        for server in self._servers:
+            # wakes serve_forever's select at once; shutdown() alone waits for its next poll
+            server.socket.shutdown(socket.SHUT_RDWR)
+            server.shutdown()
+            server.server_close()
+        self._servers = []
 
-    async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        task = asyncio.current_task()
-        self._tasks.add(task)
-        try:
-            status, body, head_only = await asyncio.wait_for(self._request(reader),
-                                                             IO_TIMEOUT_S)
-            content_type = CONTENT_TYPE if status.startswith("200") else \
-                "text/plain; charset=utf-8"
-            data = body.encode()
-            writer.write((f"HTTP/1.0 {status}\r\nContent-Type: {content_type}\r\n"
-                          f"Content-Length: {len(data)}\r\nConnection: close\r\n\r\n")
-                         .encode() + (b"" if head_only else data))
-            await asyncio.wait_for(writer.drain(), IO_TIMEOUT_S)
-        except (ConnectionError, asyncio.TimeoutError, asyncio.IncompleteReadError,
-                asyncio.LimitOverrunError, ValueError) as err:
-            log.debug("metrics client %s: %s", writer.get_extra_info("peername"),
-                      err or type(err).__name__)
-        except asyncio.CancelledError:
-            pass
-        except Exception:      # a bug must cost one scrape, never the daemon
-            log.exception("metrics: internal error")
-        finally:
-            self._tasks.discard(task)
-            writer.close()
 
-    async def _request(self, reader: asyncio.StreamReader) -> tuple[str, str, bool]:
-        """(status line, body, HEAD?) for the request on reader."""
-        request_line = (await reader.readuntil(b"\n")).decode("latin-1").strip()
-        while (await reader.readuntil(b"\n")).strip():     # the headers: not needed
-            pass
-        parts = request_line.split()
-        if len(parts) < 2:
-            return "400 Bad Request", "bad request\n", False
-        method, target = parts[0], parts[1]
-        path = target.split("?", 1)[0]
-        if path != "/metrics":
-            return "404 Not Found", "not found: the metrics are on /metrics\n", False
+def _listening_addresses(host: str | None, port: int) -> list[tuple[int, tuple]]:
+    """(family, socket address) of every address host:port names, None: every address of
+    the machine (as asyncio's start_server)."""
+    infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    return list(dict.fromkeys((family, sockaddr) for family, _, _, _, sockaddr in infos))
+
+
+def _metrics_only(app):
+    """app on GET and HEAD /metrics, with a Content-Length; 404 or 405 for anything else;
+    a bug in a scrape costs that scrape only."""
+    def metrics_app(environ, start_response):
+        method = environ["REQUEST_METHOD"]
+        if environ["PATH_INFO"] != "/metrics":
+            return _refuse(start_response, "404 Not Found",
+                           "not found: the metrics are on /metrics\n")
         if method not in ("GET", "HEAD"):
-            return "405 Method Not Allowed", "only GET (or HEAD) /metrics\n", False
+            return _refuse(start_response, "405 Method Not Allowed",
+                           "only GET (or HEAD) /metrics\n")
+        answer = []
         try:
-            body = self._collect()
+            body = b"".join(app({**environ, "REQUEST_METHOD": "GET"},
+                                lambda status, headers: answer.append((status, headers))))
         except Exception:      # a bug must cost one scrape, never the daemon
             log.exception("metrics: internal error")
-            return "500 Internal Server Error", "internal error: see the daemon's log\n", False
-        return "200 OK", body, method == "HEAD"
+            return _refuse(start_response, "500 Internal Server Error",
+                           "internal error: see the daemon's log\n")
+        status, headers = answer[0]
+        start_response(status, [*headers, ("Content-Length", str(len(body)))])
+        return [b""] if method == "HEAD" else [body]
+    return metrics_app
+
+
+def _refuse(start_response, status: str, text: str) -> list[bytes]:
+    body = text.encode()
+    start_response(status, [("Content-Type", "text/plain; charset=utf-8"),
+                            ("Content-Length", str(len(body)))])
+    return [body]
+
+
+class _Handler(WSGIRequestHandler):
+    timeout = IO_TIMEOUT_S      # a client that stalls loses its connection
+    default_request_version = "HTTP/1.0"    # not 0.9: every answer has a status line
+
+    def log_request(self, code="-", size="-") -> None:
+        pass                    # a scrape is no event
+
+    def log_message(self, format: str, *args) -> None:
+        log.debug("metrics client %s: %s", self.client_address[0], format % args)
+
+
+class _HttpServer(socketserver.ThreadingMixIn, WSGIServer):
+    daemon_threads = True       # the daemon's stop waits for no scrape
+    block_on_close = False
+
+    def __init__(self, family: int, sockaddr: tuple, app) -> None:
+        self.address_family = family
+        super().__init__(sockaddr, _Handler, bind_and_activate=False)
+        try:
+            if family == socket.AF_INET6:   # [::] beside 0.0.0.0, as asyncio does
+                self.socket.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+            self.server_bind()
+            self.server_activate()
+        except OSError:
+            self.server_close()
+            raise
+        self.set_app(app)
+
+    def server_bind(self) -> None:
+        # not HTTPServer's: its socket.getfqdn() may wait on DNS, which a gateway may lack
+        socketserver.TCPServer.server_bind(self)
+        self.server_name, self.server_port = self.server_address[:2]
+        self.setup_environ()
+
+    def handle_error(self, request, client_address) -> None:
+        log.debug("metrics client %s: %s", client_address[0], sys.exception())

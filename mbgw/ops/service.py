@@ -6,9 +6,12 @@ import logging
 import os
 import signal
 import socket
+from typing import TYPE_CHECKING
 
 from mbgw.ops.control import ControlServer, default_path
-from mbgw.ops.metrics import MetricsServer
+
+if TYPE_CHECKING:
+    from mbgw.ops.metrics import MetricsServer
 
 log = logging.getLogger("mbgw")
 
@@ -38,14 +41,16 @@ class MetricsListenError(ListenError):
         Exception.__init__(self, f"--metrics {address}: cannot listen there: {reason}")
 
 
-async def start_metrics(address: str | None, collect) -> MetricsServer | None:
-    """The --metrics endpoint (None when off); .names are its listening addresses.  Raises
-    MetricsListenError when it cannot listen."""
+def start_metrics(address: str | None, collector) -> "MetricsServer | None":
+    """The --metrics endpoint (None when off) serving collector(mbgw.ops.metrics); .names are
+    its listening addresses.  Raises MetricsListenError when it cannot listen.  Without
+    --metrics, mbgw.ops.metrics and prometheus_client are never imported (45 ms, 3 MiB)."""
     if not address:
         return None
-    metrics = MetricsServer(address, collect)
+    from mbgw.ops import metrics as module
+    metrics = module.MetricsServer(address, collector(module))
     try:
-        metrics.names = await metrics.start()
+        metrics.names = metrics.start()
     except OSError as err:
         raise MetricsListenError(address, err) from None
     return metrics
@@ -65,7 +70,7 @@ async def start_control(path: str | None, commands: dict) -> ControlServer | Non
 
 async def serve_until_stopped(stop: asyncio.Event, holder, reconfigure, apply,
                               control: ControlServer | None,
-                              metrics: MetricsServer | None) -> None:
+                              metrics: "MetricsServer | None") -> None:
     """Ready: reload on SIGHUP (see reload_on_sighup), tell systemd, wait for `stop`
     (SIGTERM, SIGINT), then tell systemd and close the operator's tools; the mode closes its
     own objects after."""
@@ -77,7 +82,7 @@ async def serve_until_stopped(stop: asyncio.Event, holder, reconfigure, apply,
     close_tools(control, metrics)
 
 
-def close_tools(control: ControlServer | None, metrics: MetricsServer | None) -> None:
+def close_tools(control: ControlServer | None, metrics: "MetricsServer | None") -> None:
     if control is not None:
         control.close()
     if metrics is not None:

@@ -8,11 +8,10 @@ from mbgw.config.model import SlaveConfig
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
 from mbgw.slave.line_thread import LineWorker
-from mbgw.ops.metrics import render
-from mbgw.ops.service import (ListenError, MetricsListenError, log_stopped, serve_until_stopped,
-                              start_control, start_metrics)
 from mbgw.line.port import SerialLine
 from mbgw.slave.status import SlaveStatus
+from mbgw.ops.service import (ListenError, MetricsListenError, log_stopped, serve_until_stopped,
+                              start_control, start_metrics)
 from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
 
@@ -47,7 +46,7 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
         raise ListenError(cfg.mdbport, err) from None
     started = time.time()
     try:
-        metrics = await start_metrics(cfg.metrics, lambda: render(
+        metrics = start_metrics(cfg.metrics, lambda m: m.slave_collector(
             counters, devices, scheduler, server, worker, started))
     except MetricsListenError:
         server.close()

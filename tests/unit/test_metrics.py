@@ -1,15 +1,20 @@
 """The Prometheus endpoint (mbgw.ops.metrics): the --metrics address, the exposition text read by
-prometheus_client's own parser, and the little HTTP server's behaviour with odd clients."""
-import asyncio
+prometheus_client's own parser, and the HTTP server's behaviour with odd clients."""
+import errno
+import gzip
 import math
+import socket
+import threading
 from types import SimpleNamespace
 
+import prometheus_client
 import pytest
+from prometheus_client.core import CounterMetricFamily
 
 from mbgw.ops.counters import MASTER_NAMES, NAMES, Counters, MasterCounters
 from mbgw.ops.device_stats import MASTER_COUNTS, DeviceTable
 from mbgw.errors import ConfigError
-from mbgw.ops.metrics import MetricsServer, parse_address, render, render_master
+from mbgw.ops.metrics import MetricsServer, master_collector, parse_address, slave_collector
 
 
 @pytest.mark.parametrize("text, expected", [
@@ -30,6 +35,21 @@ def test_metrics_address(text, expected):
 def test_bad_metrics_address(text):
     with pytest.raises(ConfigError, match="metrics"):
         parse_address(text)
+
+
+def exposition(collector) -> str:
+    """The text prometheus_client serves for collector."""
+    registry = prometheus_client.CollectorRegistry()
+    registry.register(collector)
+    return prometheus_client.generate_latest(registry).decode()
+
+
+def render(*objects) -> str:
+    return exposition(slave_collector(*objects))
+
+
+def render_master(*objects) -> str:
+    return exposition(master_collector(*objects))
 
 
 def live_objects():
@@ -178,33 +198,66 @@ def test_master_mode_renders_its_own_counters_gauges_and_per_address_counts():
             for s in found["mbgw_device_exception_replies"].samples] == [("0x0a", "gateway", 1)]
 
 
+def test_a_scrape_reads_the_live_objects():
+    o = live_objects()
+    collector = slave_collector(o.counters, o.devices, o.scheduler, o.server, o.worker, 0.0)
+    before = families(exposition(collector))["mbgw_timeouts"].samples[0].value
+    o.counters.timeouts += 7
+    o.devices.get(40).transactions = 2
+    text = exposition(collector)
+    found = families(text)
+    assert found["mbgw_timeouts"].samples[0].value == before + 7
+    assert samples(found["mbgw_device_transactions"], address="40") == \
+        {("mbgw_device_transactions_total", ()): 2}
+    assert "_created" not in text
+
+
 # --- the HTTP server ---------------------------------------------------------------------------
 
-async def _exchange(port: int, data: bytes) -> bytes:
-    reader, writer = await asyncio.open_connection("127.0.0.1", port)
-    writer.write(data)
-    response = await asyncio.wait_for(reader.read(), 5)
-    writer.close()
-    return response
+class Scrapes:
+    """A collector that counts the scrapes; raises on the first one with fail_first."""
+
+    def __init__(self, fail_first: bool = False) -> None:
+        self.count = 0
+        self.fail_first = fail_first
+
+    def collect(self):
+        self.count += 1
+        if self.fail_first and self.count == 1:
+            raise RuntimeError("boom")
+        yield CounterMetricFamily("mbgw_scrapes", "Scrapes.", value=self.count)
 
 
-def _serve(test):
-    """Run test(server, port) against a MetricsServer on a free port of 127.0.0.1."""
-    async def main():
-        scrapes = []
+def scraped(body: bytes) -> float:
+    """mbgw_scrapes_total in a response body."""
+    return families(body.decode())["mbgw_scrapes"].samples[0].value
 
-        def collect():
-            scrapes.append(1)
-            return f"mbgw_scrapes_total {len(scrapes)}\n"
-        server = MetricsServer("127.0.0.1:1", collect)
-        server.port = 0
-        addresses = await server.start()
-        port = int(addresses[0].rsplit(":", 1)[1])
+
+def _exchange(port: int, data: bytes, host: str = "127.0.0.1") -> bytes:
+    """What the server answers to data, up to its end of the connection."""
+    with socket.create_connection((host, port), timeout=5) as sock:
         try:
-            await test(server, port)
-        finally:
-            server.close()
-    asyncio.run(main())
+            sock.sendall(data)
+        except ConnectionError:         # the server had enough of it already
+            pass
+        response = b""
+        try:
+            while chunk := sock.recv(65536):
+                response += chunk
+        except ConnectionResetError:    # it closed with our bytes unread
+            pass
+        return response
+
+
+def _serve(test, collector=None, address: str = "127.0.0.1:1"):
+    """Run test(server, port) against a MetricsServer on a free port of address's host."""
+    server = MetricsServer(address, collector or Scrapes())
+    server.port = 0
+    port = int(server.start()[0].rsplit(":", 1)[1])
+    try:
+        test(server, port)
+    finally:
+        server.close()
 
 
 def _split(response: bytes) -> tuple[str, dict, bytes]:
@@ -214,75 +267,144 @@ def _split(response: bytes) -> tuple[str, dict, bytes]:
 
 
 def test_get_metrics_answers_the_text_format_and_closes():
-    async def test(server, port):
-        status, headers, body = _split(await _exchange(
+    def test(server, port):
+        status, headers, body = _split(_exchange(
             port, b"GET /metrics HTTP/1.1\r\nHost: x\r\nAccept: */*\r\n\r\n"))
         assert status == "HTTP/1.0 200 OK"
         assert headers["Content-Type"] == "text/plain; version=0.0.4; charset=utf-8"
         assert int(headers["Content-Length"]) == len(body)
-        assert body == b"mbgw_scrapes_total 1\n"
+        assert scraped(body) == 1
+        # a registry of its own: no process or interpreter metrics
+        assert list(families(body.decode())) == ["mbgw_scrapes"]
         # a query string and a bare LF line end (netcat) are fine too
-        status, _, body = _split(await _exchange(port, b"GET /metrics?x=1 HTTP/1.0\n\n"))
-        assert status == "HTTP/1.0 200 OK" and body == b"mbgw_scrapes_total 2\n"
+        status, _, body = _split(_exchange(port, b"GET /metrics?x=1 HTTP/1.0\n\n"))
+        assert status == "HTTP/1.0 200 OK" and scraped(body) == 2
     _serve(test)
 
 
 @pytest.mark.parametrize("request_line, status", [
-    (b"GET / HTTP/1.0", "HTTP/1.0 404 Not Found"),
-    (b"GET /metricsx HTTP/1.0", "HTTP/1.0 404 Not Found"),
-    (b"POST /metrics HTTP/1.0", "HTTP/1.0 405 Method Not Allowed"),
-    (b"BLAH", "HTTP/1.0 400 Bad Request"),
+    (b"GET / HTTP/1.0", "HTTP/1.0 404"),
+    (b"GET /metricsx HTTP/1.0", "HTTP/1.0 404"),
+    (b"GET /favicon.ico HTTP/1.0", "HTTP/1.0 404"),
+    (b"POST /metrics HTTP/1.0", "HTTP/1.0 405"),
+    (b"BLAH", "HTTP/1.0 400"),
 ])
 def test_anything_else_is_refused(request_line, status):
-    async def test(server, port):
-        got, _, _ = _split(await _exchange(port, request_line + b"\r\n\r\n"))
-        assert got == status
-    _serve(test)
+    scrapes = Scrapes()
+
+    def test(server, port):
+        got, _, body = _split(_exchange(port, request_line + b"\r\n\r\n"))
+        assert got.startswith(status + " ") and b"mbgw_scrapes" not in body
+    _serve(test, scrapes)
+    assert scrapes.count == 0
 
 
 def test_head_sends_the_headers_only():
-    async def test(server, port):
-        status, headers, body = _split(await _exchange(port, b"HEAD /metrics HTTP/1.0\r\n\r\n"))
+    def test(server, port):
+        status, headers, body = _split(_exchange(port, b"HEAD /metrics HTTP/1.0\r\n\r\n"))
         assert status == "HTTP/1.0 200 OK" and body == b""
-        assert int(headers["Content-Length"]) == len(b"mbgw_scrapes_total 1\n")
+        _, _, get = _split(_exchange(port, b"GET /metrics HTTP/1.0\r\n\r\n"))
+        assert int(headers["Content-Length"]) == len(get)
     _serve(test)
 
 
 def test_clients_that_stall_or_vanish_do_not_hold_up_a_scrape():
-    async def test(server, port):
+    def test(server, port):
         # one says half a request and waits; one connects and goes; one sends a huge header
-        _, stalled = await asyncio.open_connection("127.0.0.1", port)
-        stalled.write(b"GET /metr")
-        await stalled.drain()
-        _, gone = await asyncio.open_connection("127.0.0.1", port)
-        gone.write(b"GET /metrics HTTP/1.0\r\n")
-        gone.transport.abort()
-        flood = await _exchange(port, b"GET /metrics HTTP/1.0\r\nX: " + b"a" * 20000 +
-                                b"\r\n\r\n")
-        assert b"mbgw_scrapes_total" not in flood
-        status, _, body = _split(await _exchange(port, b"GET /metrics HTTP/1.0\r\n\r\n"))
-        assert status == "HTTP/1.0 200 OK" and body == b"mbgw_scrapes_total 1\n"
+        stalled = socket.create_connection(("127.0.0.1", port))
+        stalled.sendall(b"GET /metr")
+        gone = socket.create_connection(("127.0.0.1", port))
+        gone.sendall(b"GET /metrics HTTP/1.0\r\n")
+        gone.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, b"\1\0\0\0\0\0\0\0")   # RST
+        gone.close()
+        flood = _exchange(port, b"GET /metrics HTTP/1.0\r\nX: " + b"a" * 70000 + b"\r\n\r\n")
+        assert b"mbgw_scrapes" not in flood
+        status, _, body = _split(_exchange(port, b"GET /metrics HTTP/1.0\r\n\r\n"))
+        assert status == "HTTP/1.0 200 OK" and scraped(body) == 1
         stalled.close()
     _serve(test)
 
 
-def test_a_render_bug_costs_one_scrape_only():
-    async def main():
-        calls = []
+def test_a_collector_bug_costs_one_scrape_only(caplog):
+    def test(server, port):
+        status, _, body = _split(_exchange(port, b"GET /metrics HTTP/1.0\r\n\r\n"))
+        assert status == "HTTP/1.0 500 Internal Server Error"
+        assert body == b"internal error: see the daemon's log\n"
+        status, _, body = _split(_exchange(port, b"GET /metrics HTTP/1.0\r\n\r\n"))
+        assert status == "HTTP/1.0 200 OK" and scraped(body) == 2
+    _serve(test, Scrapes(fail_first=True))
+    assert [r.message for r in caplog.records if r.name == "mbgw.metrics"] == \
+        ["metrics: internal error"]
 
-        def collect():
-            calls.append(1)
-            if len(calls) == 1:
-                raise RuntimeError("boom")
-            return "ok 1\n"
-        server = MetricsServer("127.0.0.1:1", collect)
-        server.port = 0
-        port = int((await server.start())[0].rsplit(":", 1)[1])
-        try:
-            status, _, _ = _split(await _exchange(port, b"GET /metrics HTTP/1.0\r\n\r\n"))
-            assert status == "HTTP/1.0 500 Internal Server Error"
-            status, _, body = _split(await _exchange(port, b"GET /metrics HTTP/1.0\r\n\r\n"))
-            assert status == "HTTP/1.0 200 OK" and body == b"ok 1\n"
-        finally:
-            server.close()
-    asyncio.run(main())
+
+def test_prometheus_may_ask_for_openmetrics_and_gzip():
+    parser = pytest.importorskip("prometheus_client.openmetrics.parser")
+    o = live_objects()
+    collector = slave_collector(o.counters, o.devices, o.scheduler, o.server, o.worker, 0.0)
+
+    def test(server, port):
+        status, headers, body = _split(_exchange(port, b"GET /metrics HTTP/1.0\r\n"
+            b"Accept: application/openmetrics-text;version=1.0.0,text/plain;q=0.5\r\n"
+            b"Accept-Encoding: gzip\r\n\r\n"))
+        assert status == "HTTP/1.0 200 OK"
+        assert headers["Content-Type"].startswith("application/openmetrics-text")
+        assert headers["Content-Encoding"] == "gzip"
+        assert int(headers["Content-Length"]) == len(body)
+        text = gzip.decompress(body).decode()
+        found = {f.name: f for f in parser.text_string_to_metric_families(text)}
+        assert found["mbgw_timeouts"].samples[0].value == o.counters.timeouts
+        assert found["mbgw_transaction_latency_seconds"].type == "histogram"
+    _serve(test, collector)
+
+
+def test_every_address_of_the_host_or_one_ipv6_address():
+    def get(port: int, host: str) -> str:
+        return _split(_exchange(port, b"GET /metrics HTTP/1.0\r\n\r\n", host))[0]
+    server = MetricsServer(":1", Scrapes())
+    server.port = free_port()
+    try:
+        assert sorted(server.start()) == [f"0.0.0.0:{server.port}", f"[::]:{server.port}"]
+        assert get(server.port, "127.0.0.1") == get(server.port, "::1") == "HTTP/1.0 200 OK"
+    finally:
+        server.close()
+
+    def test(server, port):
+        assert get(port, "::1") == "HTTP/1.0 200 OK"
+        with pytest.raises(ConnectionRefusedError):
+            get(port, "127.0.0.1")
+    _serve(test, address="[::1]:1")
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_a_taken_port_is_an_error_and_leaves_nothing_listening():
+    # [::] taken: 0.0.0.0, which comes first, is had and must be let go
+    with socket.socket(socket.AF_INET6) as taken:
+        taken.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+        taken.bind(("::", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        server = MetricsServer(f":{port}", Scrapes())
+        with pytest.raises(OSError) as err:
+            server.start()
+        assert err.value.errno == errno.EADDRINUSE
+    # neither address is held: both can be had again
+    with socket.socket(socket.AF_INET6) as v6, socket.socket() as v4:
+        v6.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+        v6.bind(("::", port))
+        v4.bind(("0.0.0.0", port))
+
+
+def test_close_stops_listening_and_its_threads():
+    server = MetricsServer("127.0.0.1:1", Scrapes())
+    server.port = 0
+    port = int(server.start()[0].rsplit(":", 1)[1])
+    assert _split(_exchange(port, b"GET /metrics HTTP/1.0\r\n\r\n"))[0] == "HTTP/1.0 200 OK"
+    server.close()
+    with pytest.raises(ConnectionRefusedError):
+        socket.create_connection(("127.0.0.1", port), timeout=5)
+    assert not [t for t in threading.enumerate() if t.name == f"metrics {port}"]
