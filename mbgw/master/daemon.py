@@ -8,7 +8,7 @@ import time
 
 from mbgw.config.model import MasterConfig
 from mbgw.ops.counters import MasterCounters
-from mbgw.slave.daemon import log_stopped, serve_until_stopped, start_control, start_metrics
+from mbgw.ops.service import log_stopped, serve_until_stopped, start_control, start_metrics
 from mbgw.master.status import MasterStatus
 from mbgw.line.port import SerialLine
 from mbgw.master.line_thread import SerialSlave
