@@ -27,8 +27,13 @@ def _parse_authip(values) -> tuple:
 @click.option("--bind", metavar="ADDR", default=None,
               help="Listen on this address only [default: all, IPv4 and IPv6].")
 @click.option("--max-connections", type=click.IntRange(1, 1000), default=5, show_default=True,
-              help="Simultaneous TCP clients; a newcomer closes the least recently active "
-                   "idle one.")
+              help="Simultaneous TCP clients (closed ones do not count); a newcomer closes an "
+                   "idle one that never sent a request, else the least recently active one "
+                   f"quiet for {config.ACTIVE_WINDOW_S} s, else it is refused.")
+@click.option("--max-connections-per-ip", type=click.IntRange(0, 1000),
+              default=config.SlaveConfig.max_connections_per_ip, show_default=True,
+              help="Simultaneous TCP clients from one address (0: no limit); one more from "
+                   "that address is refused.")
 @click.option("--retries", type=click.IntRange(0, 10), default=0, show_default=True,
               help="Times a request is repeated after no valid reply.")
 @click.option("--turnaround", type=click.IntRange(0, 65535), default=config.DEFAULT_TURNAROUND_MS,
@@ -62,11 +67,12 @@ def slave(**options) -> None:
 
 def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout,
                  silence, ascii_timeout, nocheck, slaveid, exception, authip, mdbport, bind,
-                 max_connections, retries, turnaround, control, metrics,
-                 log_level=None) -> config.SlaveConfig:
+                 max_connections, max_connections_per_ip, retries, turnaround, control,
+                 metrics, log_level=None) -> config.SlaveConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
     return convert("'--authip'", lambda: config.SlaveConfig(
         serial=serial, slaveid=slaveid, exception=exception, authip=authip, mdbport=mdbport,
-        bind=bind, max_connections=max_connections, retries=retries, turnaround_ms=turnaround,
-        control=control, metrics=metrics))
+        bind=bind, max_connections=max_connections,
+        max_connections_per_ip=max_connections_per_ip, retries=retries,
+        turnaround_ms=turnaround, control=control, metrics=metrics))

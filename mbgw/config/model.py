@@ -22,6 +22,8 @@ DEFAULT_STOUT_MS = 600
 DEFAULT_TURNAROUND_MS = 100    # Serial Line V1.02 2.4.1: "typically 100 to 200 ms"
 FAST_LINE_BAUD = 19200         # above it, t3.5 is the fixed 1.75 ms (Serial Line V1.02 2.5.1.1)
 FAST_LINE_T35_US = 1750
+# A client that sent a request or got a reply within this is polling: no newcomer closes it.
+ACTIVE_WINDOW_S = 60
 
 
 @dataclass(frozen=True)
@@ -118,6 +120,7 @@ class SlaveConfig:
     mdbport: int = 502
     bind: str | None = None
     max_connections: int = 5
+    max_connections_per_ip: int = 0    # 0: no limit per client address
     retries: int = 0
     turnaround_ms: int = DEFAULT_TURNAROUND_MS
     control: str | None = None     # control socket path; None: the default one

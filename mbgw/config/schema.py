@@ -19,7 +19,7 @@ GROUPS = ("serial", "net", "general")
 # our network options; [general]: the rest (logging, control socket, metrics, ...).
 LINE_KEYS = frozenset({"retries", "turnaround"})
 NET_KEYS = frozenset({"slaveid", "authip", "mdbport", "tcpto", "exception", "metric", "bind",
-                      "max-connections"})
+                      "max-connections", "max-connections-per-ip"})
 MODE_TABLES = ("authip", "slaveid")        # cleared when the mode changes (the guide says so)
 AUTHIP_ENTRIES = 8                         # "n: table entry index, from 1 to 8"
 NO_ADDRESS = "0.0.0.0"                     # "IP address 0.0.0.0 clears the entry"

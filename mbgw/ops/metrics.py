@@ -49,7 +49,8 @@ _COUNTER_HELP = {
     "echo_errors": "RS-485 echo frames that did not match what was sent.",
     "connections_accepted": "Modbus TCP connections accepted.",
     "connections_refused_authip": "Modbus TCP connections refused by authip.",
-    "connections_refused_limit": "Modbus TCP connections refused: every connection was busy.",
+    "connections_refused_limit": "Modbus TCP connections refused by max-connections (none idle "
+                                 "could go) or max-connections-per-ip.",
     "connections_evicted": "Idle Modbus TCP connections closed to make room for a newcomer.",
     "connections_bad_header": "Modbus TCP connections closed for a bad MBAP header.",
 }

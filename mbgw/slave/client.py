@@ -2,6 +2,7 @@
 (mbgw.slave.connections); the asyncio thread reads its figures and may shut it down."""
 import itertools
 import os
+import select
 import socket
 import threading
 import time
@@ -14,6 +15,8 @@ MAX_IN_FLIGHT = 16          # TCP guide 4.4.2: a server holds 1..16 transactions
 RECEIVE_SIZE = 4096         # what one read takes from a connection: 15 requests of 260 bytes
 OUTPUT_LIMIT = 65536        # replies held for a client that does not read: then it is not read
 _client_ids = itertools.count(1)
+# What poll() says of a connection whose peer has closed it or reset it.
+PEER_GONE = select.POLLRDHUP | select.POLLHUP | select.POLLERR | select.POLLNVAL
 
 
 class Client:
@@ -69,6 +72,11 @@ class Client:
         """Nothing of this client's in the gateway: no part of a frame, no request, no reply."""
         return not (self._buf or self._out or self.in_flight or self.closed)
 
+    @property
+    def busy(self) -> bool:
+        """Part of a request read, a request queued or on the line, or replies held for it."""
+        return bool(self._buf or self._out or self.in_flight)
+
     def received(self, data) -> list:
         """What was read from the connection, framed as receive() does."""
         self._buf += data
@@ -98,6 +106,17 @@ class Client:
             self._out.clear()
             return
         del self._out[:sent]
+
+    def probe(self) -> int:
+        """Asyncio thread: poll()'s events on the connection now: POLLIN while input waits
+        unread, PEER_GONE bits once the peer has closed or reset it (or we closed it)."""
+        with self._lock:        # the line thread cannot close the fd, or its number be reused
+            if self.closed:
+                return select.POLLNVAL
+            probe = select.poll()
+            probe.register(self.fd, select.POLLIN | select.POLLRDHUP)
+            ready = probe.poll(0)
+        return ready[0][1] if ready else 0
 
     def shutdown(self) -> None:
         """Asyncio thread: end the connection; the line thread sees it end and closes it."""

@@ -166,10 +166,12 @@ class LineWorker(LineThread):
         the client's to frame.  Returns what Client.receive would."""
         master = self._master
         port = master.framing.port
-        client.in_flight += 1          # from now on, never an idle connection to evict
+        client.in_flight += 1          # from now on, never an idle connection to evict,
+        client.requests += 1           # nor one that never sent a request, once answered
         n, taken = port.take_request(client.fd, master.quiet_until_ns, client.flight)
         if not taken:
             client.in_flight -= 1
+            client.requests -= 1
             if n == -errno.EAGAIN:
                 return []
             return client.received(port.taken_input[:n]) if n > 0 else None

@@ -1,26 +1,29 @@
 """Slave mode's network side: the Modbus TCP server on mdbport.
 
 The asyncio thread listens and admits.  authip is checked as soon as a connection is
-accepted, before any byte is read; beyond max_connections the least recently active idle
-connection is closed for the newcomer; if every connection has a request in flight, the
-newcomer is refused.  An admitted connection then belongs to the line thread
+accepted, before any byte is read.  The limits count live connections: one whose peer has
+closed or reset it is forgotten first, even before the line thread has read its end.  A
+newcomer over max_connections_per_ip is refused; over max_connections it takes the place of
+an idle client (eviction_victim), or is refused when none may go.  An admitted connection
+then belongs to the line thread
 (mbgw.slave.connections), which calls request() for each frame it reads and finished() with each
 outcome: one thread carries a transaction from the client's bytes to the reply.
 """
 import asyncio
 import dataclasses
 import logging
+import select
 import socket
 import time
 
 from mbgw.protocol import mbap
 from mbgw.protocol import pdu
 from mbgw.slave.acl import AccessList
-from mbgw.config.model import SlaveConfig
+from mbgw.config.model import ACTIVE_WINDOW_S, SlaveConfig
 from mbgw.slave.connections import Connections
 from mbgw.ops.counters import Counters
 from mbgw.slave.scheduler import OUTCOME_LINE_DOWN, OUTCOME_UNROUTABLE, Job, Scheduler
-from mbgw.slave.client import Client
+from mbgw.slave.client import PEER_GONE, Client
 from mbgw.ops.trace import TraceHub
 
 log = logging.getLogger("mbgw.tcp")
@@ -108,23 +111,51 @@ class TcpServer:
     def admit(self, client: Client, host: str) -> bool:
         if not self._acl.allows(host):
             self.counters.connections_refused_authip += 1
-            self._log_refusal(host)
+            self._log_refusal(host, "not in authip")
             return False
-        if len(self.clients) >= self._cfg.max_connections:
-            idle = [c for c in self.clients if c.in_flight == 0]
-            if not idle:
-                self.counters.connections_refused_limit += 1
-                log.warning("client %s refused: all %d connections are busy",
-                            client.peer, len(self.clients))
-                return False
-            victim = min(idle, key=lambda c: c.last_active)
-            log.info("client %s closed to make room for %s", victim.peer, client.peer)
-            self.counters.connections_evicted += 1
-            self._drop(victim)
+        if not self._room_for(client):
+            self.counters.connections_refused_limit += 1
+            return False
         self.counters.connections_accepted += 1
         self.clients.append(client)
         log.debug("client %s connected", client.peer)
         return True
+
+    def _room_for(self, newcomer: Client) -> bool:
+        """Whether newcomer fits within the limits, an idle client closed for it if need be."""
+        per_ip = self._cfg.max_connections_per_ip
+        if per_ip and len(self._live(c for c in self.clients if c.host == newcomer.host)) \
+                >= per_ip:
+            self._log_refusal(newcomer.host, f"it has max-connections-per-ip ({per_ip}) open")
+            return False
+        if len(self.clients) < self._cfg.max_connections:
+            return True
+        live = self._live(self.clients)
+        if len(live) < self._cfg.max_connections:
+            return True
+        idle = [c for c, events in live.items() if not (c.busy or events & select.POLLIN)]
+        victim = eviction_victim(idle, time.monotonic())
+        if victim is None:
+            log.warning("client %s refused: all %d connections are busy (a request in the "
+                        "gateway, or one within the last %d s)", newcomer.peer, len(live),
+                        ACTIVE_WINDOW_S)
+            return False
+        log.info("client %s closed to make room for %s", victim.peer, newcomer.peer)
+        self.counters.connections_evicted += 1
+        self._drop(victim)
+        return True
+
+    def _live(self, clients) -> dict[Client, int]:
+        """Those of clients whose peer is still there, with what poll() says of each; the
+        others, which the line thread has not seen end yet, are forgotten now."""
+        live = {}
+        for client in list(clients):
+            events = client.probe()
+            if events & PEER_GONE:
+                self.forget(client)
+            else:
+                live[client] = events
+        return live
 
     def close_client(self, client_id: int) -> bool:
         """Force-close a client connection (operator's command)."""
@@ -145,16 +176,17 @@ class TcpServer:
             self.clients.remove(client)
             log.debug("client %s disconnected", client.peer)
 
-    def _log_refusal(self, host: str) -> None:
+    def _log_refusal(self, host: str, reason: str) -> None:
         now = time.monotonic()
         if now - self._refusals.get(host, -REFUSAL_LOG_INTERVAL_S) >= REFUSAL_LOG_INTERVAL_S:
             self._refusals[host] = now
-            log.warning("connection from %s refused: not in authip (further refusals of this "
-                        "address are logged at most once a minute)", host)
+            log.warning("connection from %s refused: %s (further refusals of this address "
+                        "are logged at most once a minute)", host, reason)
 
     # --- the line thread: requests in, outcomes out ---
 
     def request(self, client: Client, tid: int, unit: int, request: bytes) -> None:
+        client.requests += 1
         job = self._admit(client, tid, unit, request)
         if job is not None:
             client.in_flight += 1
@@ -163,13 +195,12 @@ class TcpServer:
     def taken(self, client: Client, tid: int, unit: int, request: bytes) -> Job | None:
         """A request the line worker put on the idle line itself (its shortcut, which takes
         only what routes), counted and checked as request() does; the client has it in
-        flight already."""
+        flight and counted already."""
         return self._admit(client, tid, unit, request)
 
     def _admit(self, client: Client, tid: int, unit: int, request: bytes) -> Job | None:
         """The job for a request, or None when it was answered at once (it cannot reach the
         line)."""
-        client.requests += 1
         self.counters.requests += 1
         tracing = self.trace.active
         received_ns = time.monotonic_ns() if tracing else 0
@@ -245,6 +276,15 @@ class TcpServer:
             return None
         self.counters.gateway_exceptions += 1
         return pdu.exception_pdu(function, pdu.GATEWAY_PATH_UNAVAILABLE)
+
+
+def eviction_victim(idle: list[Client], now: float) -> Client | None:
+    """The idle client a newcomer takes the place of: of those that never sent a request, the
+    least recently active; else the least recently active of those quiet for ACTIVE_WINDOW_S;
+    None when every one is polling."""
+    silent = [c for c in idle if not c.requests]
+    quiet = silent or [c for c in idle if now - c.last_active >= ACTIVE_WINDOW_S]
+    return min(quiet, key=lambda c: c.last_active, default=None)
 
 
 def listen(bind: str | None, port: int) -> list[socket.socket]:

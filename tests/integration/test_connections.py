@@ -1,13 +1,16 @@
-"""Slave mode's TCP side: connection limit, authip, bad MBAP headers, readiness, the command line.
+"""Slave mode's TCP side: connection limits, authip, bad MBAP headers, readiness, the command
+line.
 
 The serial side is pymodbus 3.16.1's RTU server on a socat pty (tests/peers/pymodbus_slave.py,
 slave 17: holding register n holds 100 + n).
 """
+import itertools
 import signal
 import socket
 import struct
 import subprocess
 import sys
+import threading
 import time
 
 import pytest
@@ -43,6 +46,12 @@ def assert_closed(sock: socket.socket, within: float = CLOSED_WITHIN_S) -> None:
     assert data == b"", f"the gateway answered: {data.hex(' ')}"
 
 
+def reset(sock: socket.socket) -> None:
+    """Close sock with a reset (SO_LINGER 0) instead of a FIN."""
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+    sock.close()
+
+
 def connect(port: int, source: str | None = None) -> socket.socket:
     sock = socket.socket()
     sock.settimeout(REPLY_TIMEOUT_S)
@@ -55,9 +64,9 @@ def connect(port: int, source: str | None = None) -> socket.socket:
 class Sockets(list):
     """Sockets to close after the test."""
 
-    def connect(self, port: int) -> socket.socket:
+    def connect(self, port: int, source: str | None = None) -> socket.socket:
         """A new connection to port, closed after the test."""
-        self.append(connect(port))
+        self.append(connect(port, source))
         return self[-1]
 
 
@@ -78,18 +87,26 @@ def rtu(pty_pair, start_peer):
 
 # ---- --max-connections ----
 
-def test_newcomer_closes_the_least_recently_active_idle_connection(rtu, start_gateway, sockets):
+def test_newcomer_closes_a_connection_that_never_sent_a_request(rtu, start_gateway, sockets):
     gw = start_gateway(rtu.gateway, "--baudrate", "19200", "--max-connections", "2")
-    first, second = connect(gw.port), connect(gw.port)
-    sockets += [first, second]
-    assert_served(second)
-    assert_served(first)          # the older connection is now the more recently active one
-    third = connect(gw.port)
-    sockets.append(third)
-    assert_served(third)
-    assert_closed(second)
-    assert_served(first)
+    poller = sockets.connect(gw.port)
+    assert_served(poller)
+    silent = sockets.connect(gw.port)       # more recently active than the poller, but silent
+    newcomer = sockets.connect(gw.port)
+    assert_served(newcomer)
+    assert_closed(silent)
+    assert_served(poller, tid=2)
     assert "closed to make room" in gw.log()
+
+
+def test_a_newcomer_cannot_close_a_polling_client(rtu, start_gateway, sockets):
+    gw = start_gateway(rtu.gateway, "--baudrate", "19200", "--max-connections", "1")
+    poller = sockets.connect(gw.port)
+    assert_served(poller)
+    assert_closed(sockets.connect(gw.port))
+    assert_served(poller, tid=2)
+    assert "connections are busy" in gw.log()
+    assert "closed to make room" not in gw.log()
 
 
 def test_newcomer_refused_while_every_connection_has_a_request_in_flight(rtu, start_gateway,
@@ -133,8 +150,8 @@ def test_a_connection_is_idle_again_once_its_pipelined_requests_are_answered(
     first.sendall(adu(1, 17, READ_3) + adu(2, 17, READ_3))
     assert recv_adu(first) == adu(1, 17, REPLY_3)
     assert recv_adu(first) == adu(2, 17, REPLY_3)
-    assert_served(sockets.connect(gw.port))
-    assert_closed(first)
+    # (a newcomer cannot show it: the connection has been active within the minute)
+    wait_for(gw, lambda s: [c["in_flight"] for c in s["clients"]] == [0], "idle again")
 
 
 def test_a_lone_request_on_the_line_keeps_its_connection_from_eviction(
@@ -157,6 +174,117 @@ def wait_for_record(record, text: str) -> None:
     while not (record.exists() and text in record.read_text()):
         assert time.monotonic() < deadline, f"the slave never recorded {text!r}"
         time.sleep(0.01)
+
+
+SLOW = bytes.fromhex("03 0000 0001")           # to address 2, which never answers
+NO_REPLY = bytes.fromhex("83 0b")
+
+
+@pytest.mark.parametrize("end", [socket.socket.close, reset], ids=["close", "reset"])
+def test_a_connection_its_peer_has_ended_does_not_count(pty_pair, recording_peer,
+                                                        start_gateway, sockets, end):
+    record = recording_peer("fault_slave.py")
+    gw = start_gateway(pty_pair.gateway, "--baudrate", "19200", "--max-connections", "2",
+                       "--exception", "--stout", "1000")
+    first, second = sockets.connect(gw.port), sockets.connect(gw.port)
+    settled(gw, first, unit=1, reply=holding_reply(0, 3))
+    second.sendall(adu(9, 1, READ_3))
+    assert recv_adu(second) == adu(9, 1, holding_reply(0, 3))
+    first.sendall(adu(1, 2, SLOW))
+    wait_for_record(record, "rx 02 03")     # the line thread waits for stout, reads nobody
+    end(second)                             # both were active just now: neither may be closed
+    newcomer = sockets.connect(gw.port)     # ... but second is gone: there is room
+    newcomer.sendall(adu(2, 1, READ_3))
+    assert recv_adu(first) == adu(1, 2, NO_REPLY)
+    assert recv_adu(newcomer) == adu(2, 1, holding_reply(0, 3))
+    assert "refused" not in gw.log() and "closed to make room" not in gw.log()
+
+
+def test_a_first_request_not_read_yet_keeps_its_connection(pty_pair, recording_peer,
+                                                           start_gateway, sockets):
+    record = recording_peer("fault_slave.py")
+    gw = start_gateway(pty_pair.gateway, "--baudrate", "19200", "--max-connections", "2",
+                       "--exception", "--stout", "1000")
+    first = sockets.connect(gw.port)
+    settled(gw, first, unit=1, reply=holding_reply(0, 3))
+    first.sendall(adu(1, 2, SLOW))
+    wait_for_record(record, "rx 02 03")     # the line thread waits for stout, reads nobody
+    second = sockets.connect(gw.port)
+    second.sendall(adu(2, 1, READ_3))       # its first request, in the gateway's socket
+    assert_closed(sockets.connect(gw.port))
+    assert recv_adu(first) == adu(1, 2, NO_REPLY)
+    assert recv_adu(second) == adu(2, 1, holding_reply(0, 3))
+    assert "closed to make room" not in gw.log()
+
+
+CHURNS = 300
+CHURNERS = 4          # each holds at most one connection: at most 4 others open at once
+PARTIAL_HEADER = adu(1, 17, READ_3)[:3]
+
+
+def churn(port: int, kind: int) -> None:
+    """One connection that comes and goes: connect + close, part of a header + close, or
+    connect + reset."""
+    sock = socket.socket()
+    try:
+        sock.connect(("127.0.0.1", port))
+        if kind == 1:
+            sock.sendall(PARTIAL_HEADER)
+        elif kind == 2:
+            reset(sock)
+    except OSError:
+        pass                              # refused meanwhile: it is gone too
+    finally:
+        sock.close()
+
+
+def test_a_polling_client_outlives_connections_that_come_and_go(rtu, start_gateway, sockets):
+    gw = start_gateway(rtu.gateway, "--baudrate", "19200", "--max-connections", "5")
+    poller = sockets.connect(gw.port)
+    assert_served(poller)
+    numbers = itertools.count()
+    lock = threading.Lock()
+
+    def churner() -> None:
+        while True:
+            with lock:
+                n = next(numbers)
+            if n >= CHURNS:
+                return
+            churn(gw.port, n % 3)
+
+    threads = [threading.Thread(target=churner) for _ in range(CHURNERS)]
+    for thread in threads:
+        thread.start()
+    polls = 0
+    try:
+        while any(thread.is_alive() for thread in threads):
+            polls += 1
+            assert_served(poller, tid=polls & 0xFFFF)
+    finally:
+        for thread in threads:
+            thread.join()
+    poller_address = "127.0.0.1:%d" % poller.getsockname()[1]
+    assert f"client {poller_address} closed" not in gw.log()
+
+
+# ---- --max-connections-per-ip ----
+
+def test_one_address_over_its_limit_is_refused_and_another_gets_in(rtu, start_gateway,
+                                                                    sockets):
+    gw = start_gateway(rtu.gateway, "--baudrate", "19200", "--max-connections-per-ip", "2")
+    first, second = sockets.connect(gw.port), sockets.connect(gw.port)
+    assert_closed(sockets.connect(gw.port))
+    other = sockets.connect(gw.port, source="127.0.0.2")
+    assert_served(other)
+    assert_served(first)
+    assert_served(second)
+    reset(first)                            # gone: its address has room again
+    assert_served(sockets.connect(gw.port))
+    refusals = [line for line in gw.log().splitlines() if "refused" in line]
+    assert len(refusals) == 1 and "127.0.0.1" in refusals[0], refusals
+    assert "max-connections-per-ip" in refusals[0]
+    assert "closed to make room" not in gw.log()
 
 
 # ---- --authip ----
@@ -236,6 +364,7 @@ BAD_OPTIONS = {
     "authip": ("--authip", "1.2.3"),
     "mdbport": ("--mdbport", "70000"),
     "max-connections": ("--max-connections", "0"),
+    "max-connections-per-ip": ("--max-connections-per-ip", "-1"),
     "retries": ("--retries", "11"),
     "log-level": ("--log-level", "chatty"),
 }

@@ -111,6 +111,16 @@ def test_set_writes_the_value_and_show_reads_it_back(conf):
     assert "stout            700\n" in mbgw("config", "show", "serial", "--config", conf).output
 
 
+def test_set_max_connections_per_ip_in_net(conf):
+    result = mbgw("config", "set", "net", "max-connections-per-ip", "2", "--config", conf)
+    assert result.exit_code == 0, result.output
+    assert values(conf)["net"]["max-connections-per-ip"] == 2
+    assert mbgw("check-config", conf).exit_code == 0
+    result = mbgw("config", "set", "net", "max-connections-per-ip", "1001", "--config", conf)
+    assert result.exit_code == 1
+    assert "net.max-connections-per-ip: 1001 is not in the range" in result.output
+
+
 def test_set_keeps_the_comments(conf):
     before = conf.read_text()
     mbgw("config", "set", "serial", "stout", "700", "--config", conf)

@@ -57,7 +57,8 @@ def test_every_long_option_of_both_modes_is_a_key(schema):
     ("protocol", "serial"), ("silence", "serial"), ("nocheck", "serial"),
     ("interface", "serial"), ("rtsdelays", "serial"),
     ("slaveid", "net"), ("authip", "net"), ("mdbport", "net"), ("exception", "net"),
-    ("bind", "net"), ("max-connections", "net"), ("tcpto", "net"), ("retries", "serial"),
+    ("bind", "net"), ("max-connections", "net"), ("max-connections-per-ip", "net"),
+    ("tcpto", "net"), ("retries", "serial"),
     ("turnaround", "serial"), ("log-level", "general"),
 ])
 def test_keys_are_grouped_like_the_guide(schema, name, group):
