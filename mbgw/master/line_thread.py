@@ -30,6 +30,7 @@ from mbgw.protocol import pdu
 from mbgw.config.model import MasterConfig
 from mbgw.ops.counters import MasterCounters
 from mbgw.ops.device_stats import MASTER_COUNTS, DeviceTable
+from mbgw.ops.exception_reply import gateway_exception
 from mbgw.errors import (BadReply, ChecksumError, FrameError, GatewayTimeout, LineTimeout,
                          NoRoute)
 from mbgw.line.framing import framing_for
@@ -212,7 +213,8 @@ class SerialSlave(LineThread):
         finally:
             if tracing:
                 self._pool.on_sent = None
-        answer = reply if code is None else self._failure(adu[1], code, stats)
+        answer = reply if code is None else gateway_exception(
+            self._cfg.exception, adu[1], code, self._counters, stats)
         if answer is not None:
             if self._answer(adu[0], answer):
                 if code is not None:
@@ -251,13 +253,6 @@ class SerialSlave(LineThread):
         self._framing.send(frame)
         self._counters.replies += 1
         return True
-
-    def _failure(self, function: int, code: int, stats) -> bytes | None:
-        if not self._cfg.exception:
-            return None
-        self._counters.gateway_exceptions += 1
-        stats.gateway_exception(code)
-        return pdu.exception_pdu(function, code)
 
     def _broadcast(self, adu: bytes) -> None:
         destinations = self._table.destinations

@@ -12,6 +12,7 @@ from mbgw.config.model import SlaveConfig
 from mbgw.slave.connections import Connections
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
+from mbgw.ops.exception_reply import gateway_exception
 from mbgw.errors import LineTimeout, SerialError
 from mbgw.line.framing import NO_FORWARD, framing_for
 from mbgw.line.supervisor import LineThread
@@ -138,11 +139,10 @@ class LineWorker(LineThread):
         self._deliver(job, reply, sent)
 
     def _failure(self, job: Job, code: int) -> bytes | None:
-        if not self._cfg.exception or job.adu[0] == pdu.BROADCAST:
+        if job.adu[0] == pdu.BROADCAST:
             return None
-        self._counters.gateway_exceptions += 1
-        self.devices.get(job.adu[0]).gateway_exception(code)
-        return pdu.exception_pdu(job.adu[1], code)
+        return gateway_exception(self._cfg.exception, job.adu[1], code, self._counters,
+                                 self.devices.get(job.adu[0]))
 
     def _idle(self) -> None:
         """Wait for a request, new settings or stopping; count input nobody asked for."""

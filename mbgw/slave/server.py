@@ -22,6 +22,7 @@ from mbgw.slave.acl import AccessList
 from mbgw.config.model import ACTIVE_WINDOW_S, SlaveConfig
 from mbgw.slave.connections import Connections
 from mbgw.ops.counters import Counters
+from mbgw.ops.exception_reply import gateway_exception
 from mbgw.slave.scheduler import OUTCOME_LINE_DOWN, OUTCOME_UNROUTABLE, Job, Scheduler
 from mbgw.slave.client import PEER_GONE, Client
 from mbgw.ops.trace import TraceHub
@@ -247,7 +248,8 @@ class TcpServer:
 
     def _refuse(self, client: Client, tid: int, unit: int, request: bytes, outcome: str,
                 received_ns: int) -> None:
-        reply = self._path_unavailable(request[0])
+        reply = gateway_exception(self._cfg.exception, request[0],
+                                  pdu.GATEWAY_PATH_UNAVAILABLE, self.counters)
         self._answer(client, tid, unit, reply)
         if self.trace.active:
             self.traced(client, tid, unit, request[0], reply, outcome, received_ns)
@@ -270,12 +272,6 @@ class TcpServer:
                 "function": data[0], "length": len(data) if direction != "no reply" else 0,
                 "pdu": data.hex() if direction != "no reply" else "", "outcome": outcome,
                 "latency_ms": latency_ms}
-
-    def _path_unavailable(self, function: int) -> bytes | None:
-        if not self._cfg.exception:
-            return None
-        self.counters.gateway_exceptions += 1
-        return pdu.exception_pdu(function, pdu.GATEWAY_PATH_UNAVAILABLE)
 
 
 def eviction_victim(idle: list[Client], now: float) -> Client | None:
