@@ -1,47 +1,79 @@
-"""Event counters kept by the daemon.  Plain integers: each is written by one thread."""
-
-NAMES = (
-    "requests", "replies", "device_exceptions", "gateway_exceptions", "timeouts", "retries",
-    "crc_errors", "invalid_frames", "wrong_unit", "wrong_function", "late_replies",
-    "late_bytes",
-    "unsolicited_frames", "unsolicited_bytes", "broadcasts", "unroutable", "line_down_rejects",
-    "bytes_sent", "bytes_received", "echo_errors", "line_busy_ns",
-    "connections_accepted", "connections_refused_authip", "connections_refused_limit",
-    "connections_evicted", "connections_bad_header",
-)
+"""Line-wide event counters, one class per mode: named integer fields.  The line thread writes
+most of them, the asyncio thread the connection counters and reset(); each write is one
+attribute store, safe under the GIL."""
+import dataclasses
+from dataclasses import dataclass
 
 
-class Counters:
-    __slots__ = NAMES
-
-    def __init__(self) -> None:
-        for name in NAMES:
-            setattr(self, name, 0)
+class _Counting:
+    """What both modes' counters do: a snapshot in field order, and reset to zero."""
+    __slots__ = ()
 
     def snapshot(self) -> dict[str, int]:
-        return {name: getattr(self, name) for name in NAMES}
+        return {name: getattr(self, name) for name in self.names()}
 
     def reset(self) -> None:
-        for cls in type(self).__mro__:
-            for name in getattr(cls, "__slots__", ()):
-                setattr(self, name, 0)
-
-# Master mode's own events; the counters line at stop lists these.
-MASTER_NAMES = (
-    "requests", "replies", "device_exceptions", "gateway_exceptions", "timeouts",
-    "unreachable", "broadcasts", "crc_errors", "invalid_frames", "other_addresses",
-    "late_replies", "wrong_unit", "wrong_function", "abandoned", "connections_opened",
-    "connections_evicted", "connections_lost", "connections_bad_header",
-)
-
-
-class MasterCounters(Counters):
-    __slots__ = tuple(name for name in MASTER_NAMES if name not in NAMES)
-
-    def __init__(self) -> None:
-        super().__init__()
-        for name in self.__slots__:
+        for name in self.names():
             setattr(self, name, 0)
 
-    def snapshot(self) -> dict[str, int]:
-        return {name: getattr(self, name) for name in MASTER_NAMES}
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in dataclasses.fields(cls))  # type: ignore[arg-type]
+
+
+@dataclass(slots=True)
+class Counters(_Counting):
+    """Slave mode's."""
+    requests: int = 0
+    replies: int = 0
+    device_exceptions: int = 0
+    gateway_exceptions: int = 0
+    timeouts: int = 0
+    retries: int = 0
+    crc_errors: int = 0
+    invalid_frames: int = 0
+    wrong_unit: int = 0
+    wrong_function: int = 0
+    late_replies: int = 0
+    late_bytes: int = 0
+    unsolicited_frames: int = 0
+    unsolicited_bytes: int = 0
+    broadcasts: int = 0
+    unroutable: int = 0
+    line_down_rejects: int = 0
+    bytes_sent: int = 0
+    bytes_received: int = 0
+    echo_errors: int = 0
+    line_busy_ns: int = 0
+    connections_accepted: int = 0
+    connections_refused_authip: int = 0
+    connections_refused_limit: int = 0
+    connections_evicted: int = 0
+    connections_bad_header: int = 0
+
+
+@dataclass(slots=True)
+class MasterCounters(_Counting):
+    """Master mode's; the counters line at stop lists these."""
+    requests: int = 0
+    replies: int = 0
+    device_exceptions: int = 0
+    gateway_exceptions: int = 0
+    timeouts: int = 0
+    unreachable: int = 0
+    broadcasts: int = 0
+    crc_errors: int = 0
+    invalid_frames: int = 0
+    other_addresses: int = 0
+    late_replies: int = 0
+    wrong_unit: int = 0
+    wrong_function: int = 0
+    abandoned: int = 0
+    connections_opened: int = 0
+    connections_evicted: int = 0
+    connections_lost: int = 0
+    connections_bad_header: int = 0
+
+
+NAMES = Counters.names()
+MASTER_NAMES = MasterCounters.names()
