@@ -635,7 +635,8 @@ def main() -> None:
         exe = build_simline(tmp)
         floor = tcp_floor(exe, warmup, 0.5 if args.quick else 1.0)
         print(f"  TCP floor: this client against a C Modbus TCP server on loopback that answers "
-              f"at once: p50 {floor.lat_ms(50) * 1000:.0f} us, p99 {floor.lat_ms(99) * 1000:.0f} us "
+              f"at once: p50 {floor.lat_ms(50) * 1000:.0f} us, "
+              f"p99 {floor.lat_ms(99) * 1000:.0f} us "
               f"(part of any gateway's added latency)")
         for line in lines:
             measure(line, exe, tmp, args.socat, warmup, rounds, slice_s)

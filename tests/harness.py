@@ -73,7 +73,7 @@ class PtyPair:
         # socat logs "starting data transfer loop" once both ptys and links exist
         try:
             _read_lines_until(self.proc, self.proc.stderr,
-                              lambda ls: any("starting data transfer loop" in l for l in ls),
+                              lambda ls: any("starting data transfer loop" in row for row in ls),
                               READY_TIMEOUT_S)
         except BaseException:
             self.stop()
@@ -167,6 +167,6 @@ def stop_counters(gw: Gateway) -> dict[str, int]:
     line."""
     assert gw.stop() == 0, gw.log_path.read_text()
     text = gw.log_path.read_text()
-    lines = [l for l in text.splitlines() if "stopped; counters:" in l]
+    lines = [row for row in text.splitlines() if "stopped; counters:" in row]
     assert len(lines) == 1, text
     return logged_counters(lines[0])

@@ -33,7 +33,7 @@ def register(root: click.Group) -> None:
 def _schema(ctx: click.Context) -> ck.Schema:
     root = ctx.find_root().command
     if not isinstance(root, click.Group) or not any(m in root.commands for m in ck.MODES):
-        root = click.Group(commands={ctx.command.name: ctx.command})
+        root = click.Group(commands=[ctx.command])
     return ck.Schema(root)
 
 
@@ -78,7 +78,7 @@ def _apply_file(ctx: click.Context, param: click.Parameter, value) -> None:
         value = ck.DEFAULT_PATH
     schema = _schema(ctx)
     settings = _load(ctx, schema, Path(value), exit_code=EX_CONFIG)
-    ctx.default_map = {**settings.default_map(schema, ctx.command.name),
+    ctx.default_map = {**settings.default_map(schema, ctx.command.name or ""),
                        **(ctx.default_map or {})}
     ctx.meta[META_FILE] = Path(value)
 
@@ -232,7 +232,7 @@ def show(ctx, config_path: Path, instance: str | None, group: str | None,
         settings = cf.Settings(path, schema.default_mode, {})
     if param is not None:
         name = param.lower()
-        if name not in schema.group_keys(group):
+        if group is None or name not in schema.group_keys(group):
             raise click.BadParameter(f"{group}.{param}: unknown{schema.hint(name)}",
                                      param_hint="PARAM")
         for line in config_set.show_lines(schema, settings, name):
@@ -310,7 +310,8 @@ def set_(ctx, config_path: Path, instance: str | None, group: str, param: str,
     path = _path(ctx, config_path, instance)
     words = [group, param, *values, *_file_words(ctx, path)]
     _change(ctx, path, words,
-            lambda schema, settings, data: config_set.changes_for_set(schema, settings, group, param,
+            lambda schema, settings, data: config_set.changes_for_set(schema, settings, group,
+                                                                      param,
                                                               list(values)))
 
 
@@ -342,14 +343,16 @@ def _unset(ctx, path: Path, words, group: str, param: str) -> None:
     except PermissionError:
         raise _permission_failure(ctx, path, "read", words) from None
     data = _parse(path, text)
-    content = data.get(group) if isinstance(data.get(group), dict) else {}
+    group_data = data.get(group)
+    content = group_data if isinstance(group_data, dict) else {}
     if param not in content:
         click.echo(f"{path}: {group}.{param} is not set: it is at its default")
         return
-    serial = data.get("serial") if isinstance(data.get("serial"), dict) else {}
+    serial_data = data.get("serial")
+    serial = serial_data if isinstance(serial_data, dict) else {}
     known = param in schema.keys and schema.keys[param].group == group
-    commented = config_text.default_line(schema, param, str(serial.get(ck.MODE_KEY, ""))) if known \
-        else None
+    commented = config_text.default_line(schema, param, str(serial.get(ck.MODE_KEY, ""))) \
+        if known else None
     new_text = set_line(text, group, param, None, commented)
     new_data = _parse(path, new_text)
     if param in new_data.get(group, {}):

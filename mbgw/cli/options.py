@@ -12,7 +12,7 @@ class Failure(click.ClickException):
 
     def __init__(self, message: str, exit_code: int = 1) -> None:
         super().__init__(message)
-        self.exit_code = exit_code
+        self.exit_code = exit_code      # type: ignore[misc]  # click's is a ClassVar
 
     def show(self, file=None) -> None:
         for line in self.format_message().splitlines():
@@ -56,7 +56,8 @@ serial_options = stack(
                  help="Serial device, e.g. /dev/ttyUSB0."),
     click.option("--protocol", cls=SerialOption, type=click.Choice(config.PROTOCOLS), default="rtu",
                  show_default=True, help="Modbus framing on the serial line."),
-    click.option("--baudrate", cls=SerialOption, type=click.IntRange(*config.BAUDRATE_RANGE), default=9600,
+    click.option("--baudrate", cls=SerialOption, type=click.IntRange(*config.BAUDRATE_RANGE),
+                 default=9600,
                  show_default=True, help="Line speed in bit/s, any rate from 50 to 4000000."),
     click.option("--format", "line_format", cls=SerialOption, default="8n1", show_default=True,
                  callback=parser(config.LineFormat.parse), metavar="NPS",
@@ -66,14 +67,16 @@ serial_options = stack(
                  callback=parser(config.Interface.parse), metavar="KIND",
                  help="rs232, rs422, 'rs485 noecho' or 'rs485 echo' (the transceiver "
                       "hears its own frames; they are dropped)."),
-    click.option("--rtsdelays", cls=SerialOption, type=(click.IntRange(0, 255), click.IntRange(0, 255)),
+    click.option("--rtsdelays", cls=SerialOption,
+                 type=(click.IntRange(0, 255), click.IntRange(0, 255)),
                  default=(0, 0), show_default=True, metavar="BEFORE AFTER",
                  help="RS-485: ms between raising RTS and the first byte, and between the "
                       "last byte and dropping RTS, 0..255."),
     click.option("--stout", cls=SerialOption, type=click.IntRange(*config.STOUT_RANGE),
                  default=config.DEFAULT_STOUT_MS, show_default=True, metavar="MS",
                  help="Time from the end of a request to the end of its answer, 1..65535 ms."),
-    click.option("--silence", cls=SerialOption, type=click.IntRange(0, 65535), default=0, show_default=True,
+    click.option("--silence", cls=SerialOption, type=click.IntRange(0, 65535), default=0,
+                 show_default=True,
                  metavar="MS",
                  help="RTU end-of-frame silence in ms, 0..65535 (0: the standard 3.5 "
                       "characters, 1.75 ms above 19200 bit/s); shorter gaps stay inside "

@@ -69,7 +69,7 @@ def _set_mode(schema: Schema, settings: Settings, words: list[str]) -> dict:
         available = ", ".join((*schema.modes, *PROTOCOL_WORDS))
         reason = "is not in this mbgw" if word in MODES else "is not a mode"
         raise ConfigError(f"serial.{MODE_KEY}: {word!r} {reason} (expected {available})")
-    changes = {MODE_KEY: word}
+    changes: dict[str, object] = {MODE_KEY: word}
     if word != settings.mode:
         changes.update({table: REMOVE for table in MODE_TABLES if table in settings.values})
     return changes
@@ -124,7 +124,7 @@ def _value_from_words(key: Key, param: click.Parameter, words: list[str]):
     if param.nargs != 1:
         if len(words) != param.nargs:
             raise ConfigError(f"{key.label}: expected {param.nargs} values, got {len(words)}")
-        return [_word_value(k, w, key.label) for k, w in zip(kinds, words)]
+        return [_word_value(k, w, key.label) for k, w in zip(kinds, words, strict=True)]
     if kinds[0] in ("bool", "int", "float"):
         if len(words) != 1:
             raise ConfigError(f"{key.label}: expected one value, got {' '.join(words)!r}")

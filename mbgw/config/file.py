@@ -174,7 +174,8 @@ def click_problem(schema: Schema, settings: Settings, err: click.ClickException)
 
 def load_options(root: click.Group, path=DEFAULT_PATH, args=(), mode: str | None = None,
                  given=()) -> dict:
-    """What `mbgw run --config PATH ARGS...` (root: the mbgw command group) would start, without starting it: {"mode": "slave"
+    """What `mbgw run --config PATH ARGS...` (root: the mbgw command group) would start,
+    without starting it: {"mode": "slave"
     or "master", then every parameter of that mode's command exactly as click passes it to the
     command's function (converted, checked, defaults filled in)}.  `args` are command-line
     options that win over the file; `mode` takes another mode than the file's (as `mbgw slave

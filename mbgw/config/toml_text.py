@@ -106,7 +106,7 @@ def set_line(text: str, table: str, name: str, new_line: str | None,
     section = next((s for s in _scan(lines) if s.name == table), None)
     if section is not None and name in section.keys:
         start, end = section.keys[name]
-        indent = re.match(r"\s*", lines[start])[0]
+        indent = _indent(lines[start])
         if new_line is None:
             lines[start:end] = [indent + commented_default] if commented_default else []
         else:
@@ -115,7 +115,7 @@ def set_line(text: str, table: str, name: str, new_line: str | None,
         return text
     elif section is not None and name in section.commented:
         index = section.commented[name]
-        lines[index] = re.match(r"\s*", lines[index])[0] + new_line
+        lines[index] = _indent(lines[index]) + new_line
     elif section is not None:
         lines.insert(section.last_content + 1, new_line)
     else:
@@ -162,3 +162,7 @@ def write_atomic(path: Path, text: str) -> None:
         os.fsync(directory)
     finally:
         os.close(directory)
+
+
+def _indent(line: str) -> str:
+    return line[:len(line) - len(line.lstrip())]

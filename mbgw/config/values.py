@@ -38,7 +38,7 @@ _KIND_CHECKS = {
 
 
 def _kind_problem(kinds: list[str], values: list) -> str | None:
-    for kind, value in zip(kinds, values):
+    for kind, value in zip(kinds, values, strict=True):
         accepts, wanted = _KIND_CHECKS[kind]
         if not accepts(value):
             shown = dump_value(value) if dumpable(value) else repr(value)
@@ -144,7 +144,8 @@ def _check_slaveid_table(command, param, value, label) -> list[str]:
     (in a file, a range whose FS lies in another would silently replace it)."""
     if not isinstance(value, list):
         return [f"{label}: in master mode, a list of ranges \"FS LS FR M IP\""]
-    problems, ranges = [], []
+    problems: list[str] = []
+    ranges: list[tuple[int, SlaveRange]] = []
     for index, entry in enumerate(value, 1):
         try:
             if not isinstance(entry, str):

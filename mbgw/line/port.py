@@ -105,6 +105,7 @@ class SerialLine:
             try:
                 self.port.discard_echo(wire, done_ns + ECHO_MARGIN_NS)
             except (FrameError, LineTimeout):
-                self.counters.echo_errors += 1   # a collision or a deaf receiver; the reply may still come
+                # a collision or a deaf receiver; the reply may still come
+                self.counters.echo_errors += 1
                 self.port.wait_quiet(time.monotonic_ns(), self.cfg.end_of_frame_us)
         return done_ns

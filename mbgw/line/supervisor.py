@@ -12,10 +12,14 @@ import logging
 import os
 import threading
 import time
+from typing import TYPE_CHECKING, Generic, Protocol, TypeVar
 
 from mbgw.errors import SerialError
 from mbgw.line import native
 from mbgw.line.port import SerialLine
+
+if TYPE_CHECKING:      # the settings' type only: the line never reads the configuration files
+    from mbgw.config.model import SerialConfig
 
 log = logging.getLogger("mbgw.line")
 
@@ -78,18 +82,26 @@ class Reopening:
         self._backoff_s = min(self._backoff_s * 2, BACKOFF_MAX_S)
 
 
-class LineThread(threading.Thread):
+class _Settings(Protocol):
+    @property
+    def serial(self) -> "SerialConfig": ...
+
+
+Settings = TypeVar("Settings", bound=_Settings)
+
+
+class LineThread(threading.Thread, Generic[Settings]):
     """What a line thread is in either mode: it serves one turn at a time (`_turn`) while the
     device is open; when the device is lost it closes it and opens it again when it is back
     (`_while_down` meanwhile); new settings, handed over by reconfigure() from another
     thread, are taken between two turns; stop() is a flag and a wake-up; a bug costs one
     turn, never the thread.  A mode fills in the hooks below."""
 
-    def __init__(self, cfg, line: SerialLine) -> None:
+    def __init__(self, cfg: Settings, line: SerialLine) -> None:
         super().__init__(name="mbgw-line", daemon=True)
         self._cfg = cfg
         self._stopping = False
-        self._new_cfg = None
+        self._new_cfg: Settings | None = None
         self._reopening: Reopening | None = None     # while the device is down
         self._line: SerialLine | None = line
 
@@ -102,7 +114,7 @@ class LineThread(threading.Thread):
         self._stopping = True
         self._wake()
 
-    def reconfigure(self, cfg) -> None:
+    def reconfigure(self, cfg: Settings) -> None:
         """Use cfg from the next turn on (called from another thread)."""
         self._new_cfg = cfg
         self._wake()
@@ -133,6 +145,7 @@ class LineThread(threading.Thread):
 
     def _take_new_cfg(self) -> None:
         cfg, self._new_cfg = self._new_cfg, None
+        assert cfg is not None
         old, self._cfg = self._cfg, cfg
         reopen = self._reopens(old.serial, cfg.serial)
         self._configure(old, reopen)
@@ -184,11 +197,11 @@ class LineThread(threading.Thread):
     def _detach(self) -> None:
         """The device has been closed: forget what was set up on it."""
 
-    def _reopens(self, old, new) -> bool:
+    def _reopens(self, old: "SerialConfig", new: "SerialConfig") -> bool:
         """New serial settings that need the device opened again."""
         return old != new
 
-    def _configure(self, old, reopen: bool) -> None:
+    def _configure(self, old: Settings, reopen: bool) -> None:
         """self._cfg is new (old was in force until now); the line is reopened after when
         `reopen`."""
 

@@ -54,7 +54,7 @@ def _line_settings(serial):
     return dataclasses.replace(serial, **UNUSED_SETTINGS)
 
 
-class SerialSlave(LineThread):
+class SerialSlave(LineThread[MasterConfig]):
     def __init__(self, cfg: MasterConfig, line: SerialLine, counters: MasterCounters) -> None:
         super().__init__(cfg, line)
         self._table = cfg.slaveid
@@ -181,10 +181,14 @@ class SerialSlave(LineThread):
         tracing = self.trace.active
         if tracing:
             server, sent = f"{host}:{self._pool.port}", []
-            self._pool.on_sent = lambda conn, tid: (
-                sent.append((conn, tid)), self._tracer.request(adu, server, conn, tid, unit))
+
+            def on_sent(conn, tid: int) -> None:
+                sent.append((conn, tid))
+                self._tracer.request(adu, server, conn, tid, unit)
+            self._pool.on_sent = on_sent
         received_ns = time.monotonic_ns()
-        reply, reply_unit, code = None, unit, None
+        reply, code = None, None
+        reply_unit: int | None = unit
         try:
             reply = self._pool.transact(host, unit, adu[1:], received_ns + self._tcpto_ns)
         except GatewayTimeout:

@@ -21,7 +21,7 @@ class MasterTracer:
         self.hub.emit_threadsafe(_event("request", adu[0], adu[1], server, conn, tid, unit,
                                         adu[1:], "", None))
 
-    def outcome(self, adu: bytes, server: str, sent, unit: int, reply: bytes | None,
+    def outcome(self, adu: bytes, server: str | None, sent, unit: int | None, reply: bytes | None,
                 outcome: str, latency_ms: float | None) -> None:
         """The end of a transaction: the server's reply, or none.  sent: (conn, tid) of the
         request, or None when it never went out (no connection)."""

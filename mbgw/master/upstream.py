@@ -19,6 +19,7 @@ reads connections() from the asyncio thread.
 """
 import errno
 import logging
+from collections.abc import Callable
 import os
 import select
 import socket
@@ -74,7 +75,8 @@ class UpstreamPool:
         self._chunk = bytearray(RECV_SIZE)
         self._view = memoryview(self._chunk)
         self.stopping = False     # set before the eventfd is signalled to stop
-        self.on_sent = None       # (conn, tid) after each request went out; for the trace
+        # (conn, tid) after each request went out; for the trace
+        self.on_sent: Callable[[Connection, int], None] | None = None
 
     @property
     def port(self) -> int:

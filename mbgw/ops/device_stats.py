@@ -26,6 +26,19 @@ UP, DEGRADED, DOWN = "up", "degraded", "down"
 
 
 class DeviceStats:
+    # the counts (ALL_COUNTS; a mode keeps those of `counts`)
+    transactions: int
+    replies: int
+    timeouts: int
+    retries: int
+    crc_errors: int
+    invalid_frames: int
+    wrong_unit: int
+    wrong_function: int
+    late_replies: int
+    broadcasts: int
+    unreachable: int
+    abandoned: int
     __slots__ = ALL_COUNTS + ("address", "counts", "upstream", "exceptions",
                               "gateway_exceptions", "latency_buckets", "latency_sum_ms",
                               "last_success", "consecutive_failures", "recent_failures",
@@ -109,7 +122,7 @@ class DeviceStats:
             gateway_exceptions={f"0x{c:02x}": n
                                 for c, n in sorted(self.gateway_exceptions.items())},
             latency_buckets_ms=dict(zip([*map(str, LATENCY_BUCKETS_MS), "+Inf"],
-                                        self.latency_buckets)),
+                                        self.latency_buckets, strict=True)),
             latency_sum_ms=round(self.latency_sum_ms, 3))
         return data
 

@@ -117,21 +117,6 @@ def parse_address(text: str) -> tuple[str | None, int]:
     return host or None, int(port)
 
 
-def parse_address(text: str) -> tuple[str | None, int]:
-    """'ADDR:PORT', '[IPV6]:PORT' or ':PORT' (every address) -> (host or None, port)."""
-    host, sep, port = text.rpartition(":")
-    if not sep:
-        raise ConfigError(f"metrics {text!r}: not ADDR:PORT")
-    if host.startswith("[") and host.endswith("]"):
-        host = host[1:-1]
-    elif ":" in host:
-        raise ConfigError(f"metrics {text!r}: write an IPv6 address in brackets, "
-                          f"[ADDR]:PORT")
-    if not port.isdigit() or not 1 <= int(port) <= 65535:
-        raise ConfigError(f"metrics {text!r}: port {port!r} is not 1..65535")
-    return host or None, int(port)
-
-
 # --- the metric families ---------------------------------------------------------------------
 
 class DaemonCollector:
@@ -236,7 +221,7 @@ class DaemonCollector:
         bounds = [floatToGoString(ms / 1000) for ms in LATENCY_BUCKETS_MS] + ["+Inf"]
         for d in table:
             cumulative, buckets = 0, []
-            for bound, n in zip(bounds, list(d.latency_buckets)):
+            for bound, n in zip(bounds, list(d.latency_buckets), strict=True):
                 cumulative += n
                 buckets.append((bound, cumulative))
             family.add_metric([str(d.address)], buckets, d.latency_sum_ms / 1000)
@@ -373,7 +358,8 @@ class _HttpServer(socketserver.ThreadingMixIn, WSGIServer):
     def server_bind(self) -> None:
         # not HTTPServer's: its socket.getfqdn() may wait on DNS, which a gateway may lack
         socketserver.TCPServer.server_bind(self)
-        self.server_name, self.server_port = self.server_address[:2]
+        host, self.server_port = self.server_address[:2]
+        self.server_name = str(host)
         self.setup_environ()
 
     def handle_error(self, request, client_address) -> None:

@@ -35,6 +35,7 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     devices = DeviceTable()
     scheduler = Scheduler()
 
+    worker: LineWorker
     server = TcpServer(cfg, scheduler, counters, lambda: worker.up)
     worker = LineWorker(cfg, line, scheduler, server, counters, devices)
     stop = asyncio.Event()

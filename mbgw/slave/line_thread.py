@@ -29,7 +29,7 @@ wire = logging.getLogger("mbgw.wire")
 REOPEN_SETTINGS = ("device", "baudrate", "format", "interface", "rtsdelays")
 
 
-class LineWorker(LineThread):
+class LineWorker(LineThread[SlaveConfig]):
     def __init__(self, cfg: SlaveConfig, line: SerialLine, scheduler: Scheduler,
                  server, counters: Counters, devices: DeviceTable) -> None:
         super().__init__(cfg, line)
@@ -110,7 +110,9 @@ class LineWorker(LineThread):
             # CPU) then runs before our bookkeeping.
             forward = NO_FORWARD if client.output_waiting or client.closed else \
                 (client.fd, job.tid, job.unit, not self._scheduler.depth, client.flight)
-            reply = self._master.transact(job.adu, forward, taken)
+            master = self._master
+            assert master is not None          # jobs are served only while the line is up
+            reply = master.transact(job.adu, forward, taken)
             if reply is None:
                 job.outcome = OUTCOME_BROADCAST    # a reply went out through _reply_now
         except LineTimeout:
@@ -135,6 +137,7 @@ class LineWorker(LineThread):
         """The serial master found the reply (sent: the bytes of it already forwarded, or
         -1): it goes to the client before the books."""
         job, self._serving = self._serving, None
+        assert job is not None
         job.outcome = OUTCOME_EXCEPTION if reply[0] & pdu.EXCEPTION_FLAG else OUTCOME_REPLY
         self._deliver(job, reply, sent)
 
@@ -146,6 +149,7 @@ class LineWorker(LineThread):
 
     def _idle(self) -> None:
         """Wait for a request, new settings or stopping; count input nobody asked for."""
+        assert self._master is not None
         port = self._master.framing.port
         take = self._take if self._shortcut and not self._server.trace.active and \
             not wire.isEnabledFor(logging.DEBUG) else None
@@ -165,6 +169,7 @@ class LineWorker(LineThread):
         forwards the reply; the books are kept after (self._taken).  Anything else read is
         the client's to frame.  Returns what Client.receive would."""
         master = self._master
+        assert master is not None
         port = master.framing.port
         client.in_flight += 1          # from now on, never an idle connection to evict,
         client.requests += 1           # nor one that never sent a request, once answered

@@ -63,7 +63,8 @@ class TcpServer:
 
     def _stop_listening(self) -> None:
         for sock in self._listeners:
-            self._loop.remove_reader(sock.fileno())
+            if self._loop is not None:
+                self._loop.remove_reader(sock.fileno())
             sock.close()
         self._listeners = []
 

@@ -6,6 +6,7 @@ function, a size the request did not ask for -- is counted and dropped, and we k
 until stout has passed, as the spec's master does (Serial Line V1.02, 2.4.1).
 """
 import logging
+from collections.abc import Callable
 import time
 
 from mbgw.protocol import pdu
@@ -35,7 +36,7 @@ class SerialMaster:
         self._quiet_us = 0
         self._deadline = 0          # of the reply to the request last sent
         # on_reply(reply PDU, bytes of it forwarded or -1): called before the reply is booked
-        self.on_reply = None
+        self.on_reply: Callable[[bytes, int], None] | None = None
 
     def keep_line_state(self, previous: "SerialMaster") -> None:
         """Taking over the line from previous (new settings): the silence it owes the line

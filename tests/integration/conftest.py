@@ -1,7 +1,10 @@
+import os
 import socket
 
 import pytest
 
+from tests.harness import Gateway, Peer, free_port
+from tests.integration.test_master import BAUD
 from tests.modbus import Client
 
 
@@ -43,3 +46,43 @@ def socket_ends():
     yield ours, theirs
     ours.close()
     theirs.close()
+
+
+# --- master mode: pymodbus Modbus TCP servers on loopback addresses, `mbgw master` on a pty
+
+@pytest.fixture
+def servers_at():
+    """servers_at(*hosts, silent=(), port=None) -> (port, Peer): pymodbus servers on these
+    loopback addresses and on the silent ones (which never answer), all on one port;
+    stopped after the test."""
+    started = []
+
+    def start(*hosts: str, silent=(), port: int | None = None):
+        port = port or free_port()
+        args = [str(port), *hosts, *silent]
+        if silent:
+            args += ["--silent", *silent]
+        peer = Peer("pymodbus_tcp_servers.py", *args)
+        started.append(peer)
+        return port, peer
+
+    yield start
+    for peer in started:
+        peer.stop()
+
+
+@pytest.fixture
+def start_master(pty_pair, start_gateway):
+    """start_master(*options) -> a ready `mbgw master` on the pty at BAUD; stopped after."""
+    def start(*options: str) -> Gateway:
+        return start_gateway(pty_pair.gateway, "--baudrate", BAUD, *options, mode="master",
+                             listen=False)
+    return start
+
+
+@pytest.fixture
+def line(pty_pair):
+    """The master's end of the line as a raw fd."""
+    fd = os.open(pty_pair.device, os.O_RDWR | os.O_NOCTTY)
+    yield fd
+    os.close(fd)

@@ -161,7 +161,7 @@ def test_a_device_that_stops_answering_is_down_then_degraded_then_up(rig, client
 
     human = mbgw("status", "--control", gw.control)
     assert human.returncode == 0, human.stderr
-    row = [l.split() for l in human.stdout.splitlines() if l.split()[:2] == ["14", "down"]]
+    row = [row.split() for row in human.stdout.splitlines() if row.split()[:2] == ["14", "down"]]
     assert len(row) == 1, human.stdout
     assert row[0][2:5] == [row[0][2], "ago", "never"] and row[0][5:10] == ["3", "3", "0", "3",
                                                                           "0"]
@@ -208,16 +208,16 @@ def test_status_lists_every_client_and_device(rig, client):
     assert f"listening  127.0.0.1:{gw.port}" in text
     assert "line up, queue 0" in text
     assert "clients (3)" in text and "devices (2)" in text
-    rows = {l.split()[1]: l.split() for l in text.splitlines()
-            if re.match(r"\s+\d+\s+127\.0\.0\.1:\d+\s", l)}
+    rows = {row.split()[1]: row.split() for row in text.splitlines()
+            if re.match(r"\s+\d+\s+127\.0\.0\.1:\d+\s", row)}
     assert set(rows) == {peer_of(c) for c in clients}
-    for c, requests in zip(s["clients"], (1, 2, 4)):
+    for c, requests in zip(s["clients"], (1, 2, 4), strict=True):
         # ID, PEER, CONNECTED (date time), REQUESTS, IN FLIGHT, LAST ACTIVITY
         row = rows[c["peer"]]
         assert row[0] == str(c["id"]) and row[4:6] == [str(requests), "0"]
         assert row[-1] == "ago"
-    device_rows = {l.split()[0]: l.split()[1] for l in text.splitlines()
-                   if re.match(r"\s+\d+\s+(up|degraded|down)\s", l)}
+    device_rows = {row.split()[0]: row.split()[1] for row in text.splitlines()
+                   if re.match(r"\s+\d+\s+(up|degraded|down)\s", row)}
     assert device_rows == {"1": "up", "2": "degraded"}
     assert re.search(r"^\s+requests\s+7\b", text, re.M)
     assert re.search(r"\btimeouts\s+1\b", text)

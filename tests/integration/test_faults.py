@@ -142,8 +142,8 @@ def test_late_reply_is_never_taken_for_the_next_requests_answer(line, gateway, c
     assert [f for _, f in frames] == [rtu(3, read_holding(0, 3)), rtu(3, read_holding(10, 5)),
                                       rtu(1, read_holding(0, 2))]
     # A's late reply really arrived while B was pending (the peer logged when it sent it)
-    sent = [float(l.split()[0]) for l in record.read_text().splitlines()
-            if l.split()[1] == "tx" and l.endswith(rtu(3, holding_reply(0, 3)).hex(" "))]
+    sent = [float(row.split()[0]) for row in record.read_text().splitlines()
+            if row.split()[1] == "tx" and row.endswith(rtu(3, holding_reply(0, 3)).hex(" "))]
     assert len(sent) == 1 and frames[1][0] < sent[0] < frames[2][0]
     # A's reply, arriving during B's wait, is counted as unit 3's late reply
     assert_counters(gw, requests=3, replies=3 if exception else 1, timeouts=2,

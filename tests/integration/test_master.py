@@ -128,15 +128,7 @@ def counters(gw: Gateway) -> dict[str, int]:
     code = gw.stop()
     log = gw.log_path.read_text()
     assert code == 0, log
-    return logged_counters(next(l for l in log.splitlines() if "stopped; counters:" in l))
-
-
-@pytest.fixture
-def line(pty_pair):
-    """The master's end of the line as a raw fd."""
-    fd = os.open(pty_pair.device, os.O_RDWR | os.O_NOCTTY)
-    yield fd
-    os.close(fd)
+    return logged_counters(next(row for row in log.splitlines() if "stopped; counters:" in row))
 
 
 @pytest.fixture
@@ -352,7 +344,7 @@ def test_the_least_recently_used_connection_makes_room(gateway, serial_client, s
     seen = len(events.lines)
 
     def mine(lines) -> list[str]:
-        return [l for l in lines[seen:] if l.split()[-1] in EVICTION_HOSTS]
+        return [row for row in lines[seen:] if row.split()[-1] in EVICTION_HOSTS]
 
     gw = gateway(f"1 3 1 1 {EVICTION_HOSTS[0]}", options=["--max-connections", "2"])
     client = serial_client()

@@ -13,8 +13,7 @@ import time
 
 import pytest
 
-from tests.integration.master_rig import (ask, holding_reply, identity,  # noqa: F401
-                                          read_holding, recv, rtu, servers_at, start_master,
+from tests.integration.master_rig import (ask, holding_reply, identity, read_holding, recv, rtu,
                                           wait_for_log)
 
 pytestmark = pytest.mark.integration

@@ -16,8 +16,7 @@ import pytest
 
 from mbgw.ops.device_stats import LATENCY_BUCKETS_MS, MASTER_COUNTS
 from tests.harness import free_port
-from tests.integration.master_rig import (ask, holding_reply, identity, line, mbgw,  # noqa: F401
-                                          read_holding, rtu, servers_at, start_master,
+from tests.integration.master_rig import (ask, holding_reply, identity, mbgw, read_holding, rtu,
                                           status, stop_counters, unanswered, wait_for)
 from tests.ops import (devices, health_log, metric_families, metric_value, tracing,
                        tshark_warnings)
@@ -135,8 +134,8 @@ def test_status_figures_match_the_traffic(rig, line):
            f"connections" in text
     assert f"slaveid    1..2 -> {SERVER} unit 1..2" in text
     assert "upstream connections (2)" in text and "devices (5)" in text
-    rows = {l.split()[0]: l.split() for l in text.splitlines()
-            if re.match(r"\s+\d+\s+(up|degraded|down)\s", l)}
+    rows = {row.split()[0]: row.split() for row in text.splitlines()
+            if re.match(r"\s+\d+\s+(up|degraded|down)\s", row)}
     # ADDR HEALTH SINCE(2) LAST-SUCCESS(1|2) FAILS REQUESTS REPLIES TIMEOUTS UNREACH INVALID
     # ABANDON SERVER UNIT EXCEPTIONS...
     assert rows["3"][1:] == ["degraded", rows["3"][2], "ago", "never", "1", "1", "0", "1",

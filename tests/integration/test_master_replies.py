@@ -19,8 +19,8 @@ import threading
 import pytest
 
 from tests.harness import free_port
-from tests.integration.master_rig import (ask, holding_reply, line, read_holding,  # noqa: F401
-                                          rtu, start_master, stop_counters, wait_for)
+from tests.integration.master_rig import (ask, holding_reply, read_holding, rtu, stop_counters,
+                                          wait_for)
 from tests.ops import devices, health_log, tracing
 
 pytestmark = pytest.mark.integration

@@ -1,7 +1,8 @@
 """The C receive that hands a reply straight to its client's socket (csrc/reply.c): a reply
 that answers the request goes out at once as the client's Modbus TCP frame; one that does not
-never reaches the socket.  The exchange writes the request and receives in one call.  A real pty pair carries the slave's frames; the expected bytes come
-from tests/modbus.py's builders, not from mbgw."""
+never reaches the socket.  The exchange writes the request and receives in one call.  A real
+pty pair carries the slave's frames; the expected bytes come from tests/modbus.py's builders,
+not from mbgw."""
 import os
 import socket
 import threading

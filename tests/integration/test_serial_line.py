@@ -396,7 +396,7 @@ def test_ascii_echo_not_configured_is_skipped_as_a_wrong_reply(paced, gateway, c
     assert (counters["wrong_function"], counters["timeouts"]) == (1, 0)
 
 
-# --- baud rate outside libmodbus's table -----------------------------------------------------------
+# --- baud rate outside libmodbus's table ---------------------------------------------------
 
 TERMIOS2 = struct.Struct("=4I B 19s I I")     # struct termios2, asm-generic/termbits.h
 TCGETS2 = (2 << 30) | (TERMIOS2.size << 16) | (ord("T") << 8) | 0x2A

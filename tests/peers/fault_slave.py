@@ -108,7 +108,8 @@ class Slave:
         elif address == 5:
             self.later(0, adu(6, reply[1:-2]))
         elif address == 7:
-            wrong = bytes((0x04,)) + reply[2:-2] if reply[1] == 0x03 else bytes((0x03,)) + reply[2:-2]
+            function = 0x04 if reply[1] == 0x03 else 0x03
+            wrong = bytes((function,)) + reply[2:-2]
             self.later(0, adu(7, wrong))
         elif address == 8:
             self.later(0, adu(9, reply[1:-2]))

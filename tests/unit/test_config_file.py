@@ -234,7 +234,8 @@ def settings_of(schema, text: str = "", tmp_path=None) -> cf.Settings:
 def do_set(schema, text, group, name, *words):
     """`set GROUP PARAM WORDS` on a file text: the new file's values, checked."""
     data = tomllib.loads(text)
-    changes = config_set.changes_for_set(schema, cf.check(schema, "f", data), group, name, list(words))
+    changes = config_set.changes_for_set(schema, cf.check(schema, "f", data), group, name,
+                                         list(words))
     new_data = config_set.apply_changes(data, schema, changes)
     new_text = config_text.edit(text, schema, changes.get("mode", "slave"), changes)
     assert tomllib.loads(new_text) == new_data

@@ -219,3 +219,10 @@ def test_reset_is_in_place_so_a_transaction_in_progress_keeps_counting(health_lo
     assert (device.health, device.replies, device.consecutive_failures) == ("degraded", 1, 0)
     assert [m.split(":")[0] for _, m in health_log()] == [
         "device 3 is degraded", "device 3 is down", "device 3 is degraded"]
+
+
+def test_every_count_is_a_declared_int_field():
+    from mbgw.ops.device_stats import ALL_COUNTS, DeviceStats
+    declared = {name for name, kind in DeviceStats.__annotations__.items()
+                if kind in (int, "int")}
+    assert declared == set(ALL_COUNTS)

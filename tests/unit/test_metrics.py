@@ -113,7 +113,7 @@ def test_every_counter_and_gauge_is_there_with_help_and_type():
         assert f.type in ("counter", "gauge", "histogram"), f.name
     # every metric family is declared once, before its samples
     lines = text.splitlines()
-    types = [l.split()[2] for l in lines if l.startswith("# TYPE ")]
+    types = [row.split()[2] for row in lines if row.startswith("# TYPE ")]
     assert len(types) == len(set(types))
     assert text.endswith("\n")
 

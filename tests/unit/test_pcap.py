@@ -150,7 +150,7 @@ def test_sequence_numbers_advance_per_direction_and_acknowledge_the_other():
     assert [len(p["payload"]) for p in down] == [11, 13]
     # each direction's stream is contiguous: seq(n+1) = seq(n) + len(n)
     for stream in (up, down):
-        for a, b in zip(stream, stream[1:]):
+        for a, b in zip(stream, stream[1:], strict=False):
             assert b["seq"] == (a["seq"] + len(a["payload"])) & 0xFFFFFFFF
     # each segment acknowledges everything the other side had sent before it
     sent = {502: up[0]["seq"], 40001: down[0]["seq"]}     # next seq expected, per sender port
