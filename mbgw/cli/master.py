@@ -5,10 +5,9 @@ import click
 from click.core import ParameterSource
 
 from mbgw.config import model as config
-from mbgw.cli.options import (Failure, convert, daemon_options, parser, serial_config,
+from mbgw.cli.options import (convert, daemon_options, parser, serial_config,
                               serial_options)
-from mbgw.cli.config import reloader
-from mbgw.errors import SerialError
+from mbgw.cli.run import run_daemon
 from mbgw.config.slaveid import MAX_RANGES, SlaveIdTable
 
 SLAVE_MODE_ONLY = ("stout", "nocheck")
@@ -24,14 +23,17 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
                    "a range already defined replaces it (other overlaps are refused); FS=0 "
                    "clears the table.")
 @click.option("--tcpto", type=click.IntRange(*config.TCPTO_RANGE),
-              default=config.DEFAULT_TCPTO_MS, show_default=True, metavar="MS",
+              default=config.MasterConfig.tcpto_ms, show_default=True, metavar="MS",
               help="Time for a transaction with a server, connecting included, 1..65535 ms.")
-@click.option("--mdbport", type=click.IntRange(1, 65535), default=502, show_default=True,
+@click.option("--mdbport", type=click.IntRange(*config.PORT_RANGE),
+              default=config.MasterConfig.mdbport, show_default=True,
               help="Modbus TCP port of the remote servers.")
-@click.option("--exception/--no-exception", default=False, show_default=True,
+@click.option("--exception/--no-exception", default=config.MasterConfig.exception,
+              show_default=True,
               help="Answer exception 0x0B when a server does not reply within tcpto, 0x0A "
                    "when it cannot be reached, instead of staying silent.")
-@click.option("--max-connections", type=click.IntRange(1, 1000), default=5, show_default=True,
+@click.option("--max-connections", type=click.IntRange(*config.MAX_CONNECTIONS_RANGE),
+              default=config.MasterConfig.max_connections, show_default=True,
               help="Connections kept open to servers; one more closes the least recently "
                    "used.")
 @daemon_options
@@ -39,30 +41,12 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
 def master(ctx, **options) -> None:
     """Master mode: a Modbus master on the serial line reaches Modbus TCP servers."""
     from mbgw.master.daemon import run_master
-    from mbgw.ops import log
-    from mbgw.ops.service import ListenError
 
     for name in SLAVE_MODE_ONLY:
         if ctx.get_parameter_source(name) in (ParameterSource.COMMANDLINE,
                                               ParameterSource.ENVIRONMENT):
             raise click.BadParameter("applies to slave mode only", param_hint=f"'--{name}'")
-    cfg = master_config(**options)
-    log.setup(options["log_level"])
-    reload = reloader()
-
-    def reconfigure() -> config.MasterConfig:
-        """SIGHUP: the configuration file again, command-line options kept."""
-        new = reload()
-        new.pop("mode", None)
-        log.setup(new["log_level"])
-        return master_config(**new)
-
-    try:
-        run_master(cfg, reconfigure if reload else None)
-    except SerialError as err:
-        raise Failure(err.strerror or str(err)) from None
-    except ListenError as err:
-        raise Failure(str(err)) from None
+    run_daemon(run_master, master_config, options)
 
 
 def master_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout,

@@ -1,11 +1,10 @@
 """The `mbgw slave` command: Modbus TCP clients reach the slaves on a serial line."""
 import click
 
-from mbgw.cli.options import (Failure, convert, daemon_options, parser, serial_config,
+from mbgw.cli.options import (convert, daemon_options, parser, serial_config,
                               serial_options)
-from mbgw.cli.config import reloader
+from mbgw.cli.run import run_daemon
 from mbgw.config import model as config
-from mbgw.errors import SerialError
 
 
 def _parse_authip(values) -> tuple:
@@ -15,54 +14,42 @@ def _parse_authip(values) -> tuple:
 
 @click.command()
 @serial_options
-@click.option("--slaveid", type=click.IntRange(0, 247), default=0, show_default=True,
+@click.option("--slaveid", type=click.IntRange(*config.SLAVEID_RANGE),
+              default=config.SlaveConfig.slaveid, show_default=True,
               help="0: the TCP unit id is the serial address; 1..247: force this address.")
-@click.option("--exception/--no-exception", default=False, show_default=True,
+@click.option("--exception/--no-exception", default=config.SlaveConfig.exception,
+              show_default=True,
               help="Answer exception 0x0B when a slave does not reply, 0x0A when the line "
                    "cannot be reached, instead of staying silent.")
 @click.option("--authip", multiple=True, metavar="IP", callback=parser(_parse_authip),
               help="Client address allowed to connect (repeat, at most 8; none: anyone).")
-@click.option("--mdbport", type=click.IntRange(1, 65535), default=502, show_default=True,
+@click.option("--mdbport", type=click.IntRange(*config.PORT_RANGE),
+              default=config.SlaveConfig.mdbport, show_default=True,
               help="Modbus TCP port to listen on.")
 @click.option("--bind", metavar="ADDR", default=None,
               help="Listen on this address only [default: all, IPv4 and IPv6].")
-@click.option("--max-connections", type=click.IntRange(1, 1000), default=5, show_default=True,
+@click.option("--max-connections", type=click.IntRange(*config.MAX_CONNECTIONS_RANGE),
+              default=config.SlaveConfig.max_connections, show_default=True,
               help="Simultaneous TCP clients (closed ones do not count); a newcomer closes an "
                    "idle one that never sent a request, else the least recently active one "
                    f"quiet for {config.ACTIVE_WINDOW_S} s, else it is refused.")
-@click.option("--max-connections-per-ip", type=click.IntRange(0, 1000),
+@click.option("--max-connections-per-ip", type=click.IntRange(*config.MAX_CONNECTIONS_PER_IP_RANGE),
               default=config.SlaveConfig.max_connections_per_ip, show_default=True,
               help="Simultaneous TCP clients from one address (0: no limit); one more from "
                    "that address is refused.")
-@click.option("--retries", type=click.IntRange(0, 10), default=0, show_default=True,
+@click.option("--retries", type=click.IntRange(*config.RETRIES_RANGE),
+              default=config.SlaveConfig.retries, show_default=True,
               help="Times a request is repeated after no valid reply.")
-@click.option("--turnaround", type=click.IntRange(0, 65535), default=config.DEFAULT_TURNAROUND_MS,
+@click.option("--turnaround", type=click.IntRange(*config.TURNAROUND_RANGE),
+              default=config.SlaveConfig.turnaround_ms,
               show_default=True, metavar="MS",
               help="Pause on the line after a broadcast (unit 0), before the next request.")
 @daemon_options
 def slave(**options) -> None:
     """Slave mode: Modbus TCP clients reach the slaves on a serial line."""
-    from mbgw.ops import log
-    from mbgw.ops.service import ListenError
     from mbgw.slave.daemon import run_slave
 
-    cfg = slave_config(**options)
-    log.setup(options["log_level"])
-    reload = reloader()
-
-    def reconfigure() -> config.SlaveConfig:
-        """SIGHUP: the configuration file again, command-line options kept."""
-        new = reload()
-        new.pop("mode", None)
-        log.setup(new["log_level"])
-        return slave_config(**new)
-
-    try:
-        run_slave(cfg, reconfigure if reload else None)
-    except SerialError as err:
-        raise Failure(err.strerror or str(err)) from None
-    except ListenError as err:
-        raise Failure(str(err)) from None
+    run_daemon(run_slave, slave_config, options)
 
 
 def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout,

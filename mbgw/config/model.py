@@ -19,6 +19,18 @@ DEFAULT_ASCII_TIMEOUT_MS = 1000   # Serial Line V1.02 2.5.2.1: inter-character t
 MAX_AUTHIP = 8
 STOUT_RANGE = (1, 65535)
 DEFAULT_STOUT_MS = 600
+# the other bounds of the options (the click options read these)
+RTSDELAY_RANGE = (0, 255)
+SILENCE_RANGE = (0, 65535)
+ASCII_TIMEOUT_RANGE = (1, 65535)
+SLAVEID_RANGE = (0, 247)
+PORT_RANGE = (1, 65535)
+MAX_CONNECTIONS_RANGE = (1, 1000)
+MAX_CONNECTIONS_PER_IP_RANGE = (0, 1000)
+RETRIES_RANGE = (0, 10)
+TURNAROUND_RANGE = (0, 65535)
+DEFAULT_MDBPORT = 502
+DEFAULT_MAX_CONNECTIONS = 5
 DEFAULT_TURNAROUND_MS = 100    # Serial Line V1.02 2.4.1: "typically 100 to 200 ms"
 FAST_LINE_BAUD = 19200         # above it, t3.5 is the fixed 1.75 ms (Serial Line V1.02 2.5.1.1)
 FAST_LINE_T35_US = 1750
@@ -117,9 +129,9 @@ class SlaveConfig:
     slaveid: int = 0
     exception: bool = False
     authip: tuple = ()
-    mdbport: int = 502
+    mdbport: int = DEFAULT_MDBPORT
     bind: str | None = None
-    max_connections: int = 5
+    max_connections: int = DEFAULT_MAX_CONNECTIONS
     max_connections_per_ip: int = 0    # 0: no limit per client address
     retries: int = 0
     turnaround_ms: int = DEFAULT_TURNAROUND_MS
@@ -158,9 +170,9 @@ class MasterConfig:
     serial: SerialConfig
     slaveid: "SlaveIdTable"
     tcpto_ms: int = DEFAULT_TCPTO_MS
-    mdbport: int = 502              # the remote servers' port
+    mdbport: int = DEFAULT_MDBPORT  # the remote servers' port
     exception: bool = False
-    max_connections: int = 5
+    max_connections: int = DEFAULT_MAX_CONNECTIONS
     control: str | None = None      # control socket path; None: the default one
     metrics: str | None = None      # ADDR:PORT for Prometheus, None: off
 

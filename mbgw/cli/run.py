@@ -1,0 +1,33 @@
+"""Running a mode command's daemon, the same for both modes: the settings from the options,
+logging, SIGHUP applying the configuration file again, and a device or port that cannot be
+had turned into the command's failure."""
+from collections.abc import Callable
+
+from mbgw.cli.config import reloader
+from mbgw.cli.options import Failure
+from mbgw.errors import SerialError
+
+
+def run_daemon(run: Callable, make_config: Callable, options: dict) -> None:
+    """run(cfg, reconfigure) until it stops, cfg = make_config(**options); reconfigure() is
+    what SIGHUP applies: the configuration file again, command-line options kept (None when
+    the settings did not come from a file)."""
+    from mbgw.ops import log
+    from mbgw.ops.service import ListenError
+
+    cfg = make_config(**options)
+    log.setup(options["log_level"])
+    reload = reloader()
+
+    def reconfigure():
+        new = reload()
+        new.pop("mode", None)
+        log.setup(new["log_level"])
+        return make_config(**new)
+
+    try:
+        run(cfg, reconfigure if reload else None)
+    except SerialError as err:
+        raise Failure(err.strerror or str(err)) from None
+    except ListenError as err:
+        raise Failure(str(err)) from None
