@@ -4,6 +4,7 @@ NAMES = (
     "requests", "replies", "device_exceptions", "gateway_exceptions", "timeouts", "retries",
     "crc_errors", "invalid_frames", "wrong_unit", "wrong_function", "late_replies",
     "late_bytes",
+    "noise_bytes",
     "unsolicited_frames", "unsolicited_bytes", "broadcasts", "unroutable", "line_down_rejects",
     "bytes_sent", "bytes_received", "echo_errors", "line_busy_ns",
     "connections_accepted", "connections_refused_authip", "connections_refused_limit",
