@@ -210,8 +210,9 @@ int mbgw_take_request(struct _modbus *ctx, int client_fd, int *in_flight, uint8_
 /* Wait (no deadline) for a frame on fd, then read it into buf: framed by the request length
  * of its function code, or by the reply length when it comes from reply_to's address (the
  * last frame for a slave mbgw does not answer for; reply_to_len 0: none), the first length
- * whose CRC checks; else by gap_us of silence.  Never reads past the frame.  Returns its
- * length with the CRC (valid).  -ECANCELED wake_fd was signalled first, -EILSEQ bad CRC,
- * -EBADMSG too short, -EMSGSIZE longer than cap. */
+ * whose CRC checks; else by gap_us of silence (a frame behind noise is then looked for at
+ * the end of that burst).  Never reads past the frame.  Returns its length with the CRC
+ * (valid).  -ECANCELED wake_fd was signalled first, -EILSEQ bad CRC, -EBADMSG too short,
+ * -EMSGSIZE longer than cap. */
 long mbgw_rtu_read_request(int fd, int wake_fd, uint8_t *buf, size_t cap,
                            const uint8_t *reply_to, size_t reply_to_len, int32_t gap_us);
