@@ -7,6 +7,7 @@
 #include <poll.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <string.h>
 #include <sys/file.h>
 #include <sys/prctl.h>
 #include <sys/ioctl.h>
@@ -147,6 +148,129 @@ long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, size_t req_len,
     }
 }
 
+/* --- slave mode: the reply among what the line carries --- */
+
+#define CRC_LEN 2
+#define MIN_FRAME 4       /* address, function code, CRC */
+#define MIN_REPLY 5       /* an exception (address, function, code, CRC): the shortest reply */
+#define NO_FRAME (-2)     /* frame_length: no frame starts here */
+
+/* The length of a frame at f (have bytes of it) by its own function code: > 0, 0 more bytes
+ * are needed to tell, MBGW_LEN_UNKNOWN silence ends it, NO_FRAME no frame is that long. */
+static int frame_length(size_t req_len, const uint8_t *f, size_t have)
+{
+    int len = mbgw_rtu_reply_length(req_len, f, have);
+    if (len > 0 && (len < MIN_FRAME || len > MBGW_RTU_MAX_ADU))
+        return NO_FRAME;
+    return len;
+}
+
+/* The length of the frame with a valid CRC at f, of length len (frame_length's, ended: the
+ * burst is over, so a frame that silence ends ends here), or 0: none. */
+static size_t whole_frame(const uint8_t *f, size_t have, int len, int ended)
+{
+    if (len == MBGW_LEN_UNKNOWN && ended)
+        len = have > MBGW_RTU_MAX_ADU ? 0 : (int)have;
+    if (len < MIN_FRAME || (size_t)len > have)
+        return 0;
+    return mbgw_crc16(f, (size_t)len) == 0 ? (size_t)len : 0;
+}
+
+/* f starts as the reply to req would: its address, then its function or that exception. */
+static int starts_reply(const uint8_t *req, const uint8_t *f)
+{
+    return f[0] == req[0] && (f[1] == req[1] || f[1] == (req[1] | 0x80));
+}
+
+/* The reply to req inside buf[1..have): a frame that starts as the reply, has a valid CRC and
+ * answers req (mbgw_reply_matches).  Returns its length and *at its offset, or 0. */
+static size_t reply_inside(const uint8_t *req, size_t req_len, const uint8_t *buf, size_t have,
+                           int ended, size_t *at)
+{
+    for (size_t i = 1; i + MIN_REPLY <= have; i++) {
+        const uint8_t *f = buf + i;
+        if (!starts_reply(req, f))
+            continue;
+        size_t len = whole_frame(f, have - i, frame_length(req_len, f, have - i), ended);
+        if (len && mbgw_reply_matches(req + 1, req_len - 1, f + 1, len - 1 - CRC_LEN)) {
+            *at = i;
+            return len;
+        }
+    }
+    return 0;
+}
+
+/* How many bytes to read now: while the burst may begin with a frame, no further than that
+ * frame's end (a frame right behind it is the next call's); else what came. */
+static size_t next_read(int head, size_t have, size_t cap)
+{
+    if (head == 0 && have < MIN_REPLY)
+        return MIN_REPLY - have;
+    if (head > 0 && (size_t)head > have)
+        return (size_t)head - have;
+    return cap - have;
+}
+
+/* Why a burst held no frame: the reply with a bad CRC (it starts as the reply and is whole
+ * by its length, or by silence), or something else. */
+static long no_frame(const uint8_t *req, const uint8_t *buf, size_t have, int head, size_t cap)
+{
+    if (have == cap)
+        return -EMSGSIZE;
+    if (have >= 2 && starts_reply(req, buf) &&
+        (head == MBGW_LEN_UNKNOWN || (head > 0 && (size_t)head <= have)))
+        return -EILSEQ;
+    return -EBADMSG;
+}
+
+long mbgw_find_reply(int fd, uint8_t *buf, size_t cap, const uint8_t *req, size_t req_len,
+                     int64_t deadline_ns, int32_t gap_us, int64_t *end_ns, int *noise)
+{
+    size_t have = 0;
+    int head = 0;                       /* frame_length of the burst's first bytes */
+    *noise = 0;
+    *end_ns = now_ns();
+    if (*end_ns >= deadline_ns)
+        return -ETIMEDOUT;
+    for (;;) {
+        /* The first byte is awaited until the deadline; after it, a silence of gap_us ends
+         * the burst (Serial Line V1.02 2.5.1.1). */
+        long rc = wait_input(fd, have > 0 ? *end_ns + (int64_t)gap_us * 1000 : deadline_ns);
+        if (rc > 0) {
+            rc = read_some(fd, buf + have, next_read(head, have, cap));
+            if (rc == 0)
+                continue;                       /* woken without a byte */
+        } else if (rc == 0 && have == 0) {
+            *end_ns = now_ns();
+            return -ETIMEDOUT;
+        }
+        if (rc < 0) {
+            *noise = (int)have;
+            return rc;
+        }
+        if (rc > 0) {
+            have += (size_t)rc;
+            *end_ns = now_ns();
+        }
+        int ended = rc == 0 || have == cap;
+        head = frame_length(req_len, buf, have);
+        size_t at = 0;
+        size_t len = whole_frame(buf, have, head, ended);
+        if (len == 0)
+            len = reply_inside(req, req_len, buf, have, ended, &at);
+        if (len > 0) {
+            if (at > 0)
+                memmove(buf, buf + at, len);
+            *noise = (int)(have - len);
+            return (long)len;
+        }
+        if (ended) {
+            *noise = (int)have;
+            return no_frame(req, buf, have, head, cap);
+        }
+    }
+}
+
 int mbgw_tty_lock(const char *path)
 {
     int fd = open(path, O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
@@ -187,12 +311,14 @@ int mbgw_rts_available(int fd)
 }
 
 long mbgw_ascii_read_frame(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns,
-                           int32_t interchar_us, int64_t *end_ns)
+                           int32_t interchar_us, int64_t *end_ns, int *noise)
 {
     /* One character per read: ASCII frames need no silence between them, so the next
      * frame may already be queued behind this one and must stay there. */
     uint8_t chunk[1];
     size_t have = 0;
+    long got = 0;                               /* every byte read */
+    long rc;
     if (cap > MBGW_ASCII_MAX_FRAME)
         cap = MBGW_ASCII_MAX_FRAME;
     *end_ns = 0;
@@ -200,28 +326,37 @@ long mbgw_ascii_read_frame(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns
         int64_t until = deadline_ns;
         if (have > 0 && *end_ns + (int64_t)interchar_us * 1000 < until)
             until = *end_ns + (int64_t)interchar_us * 1000;
-        int rc = wait_input(fd, until);
+        rc = wait_input(fd, until);
         if (rc < 0)
-            return rc;
-        if (rc == 0)
-            return have > 0 ? -EBADMSG : -ETIMEDOUT;
-        long n = read_some(fd, chunk, sizeof chunk);
-        if (n < 0)
-            return n;
+            break;
+        if (rc == 0) {
+            rc = have > 0 ? -EBADMSG : -ETIMEDOUT;
+            break;
+        }
+        rc = read_some(fd, chunk, sizeof chunk);
+        if (rc < 0)
+            break;
+        got += rc;
         *end_ns = now_ns();
-        for (long i = 0; i < n; i++) {
+        for (long i = 0; i < rc; i++) {
             uint8_t c = chunk[i];
             if (c == ':')
                 have = 0;                       /* a colon always starts a new frame */
             else if (have == 0)
                 continue;                       /* noise between frames */
-            if (have == cap)
+            if (have == cap) {
+                *noise = (int)got;
                 return -EMSGSIZE;
+            }
             buf[have++] = c;
-            if (c == '\n' && have >= 2 && buf[have - 2] == '\r')
+            if (c == '\n' && have >= 2 && buf[have - 2] == '\r') {
+                *noise = (int)(got - (long)have);
                 return (long)have;
+            }
         }
     }
+    *noise = (int)got;
+    return rc;
 }
 
 static int set_rts(int fd, int on)

@@ -47,12 +47,28 @@ int mbgw_idle_wait(int fd, int wake_fd, int timeout_ms);
 long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, size_t req_len,
                      int64_t deadline_ns, int32_t gap_us, int by_silence, int64_t *end_ns);
 
+/* Slave mode: read what the line carries after the request req (address + PDU, CRC
+ * excluded), at most cap bytes, until it holds a frame, and put that frame at buf[0].  The
+ * first byte must come before deadline_ns; after it, gap_us of silence ends the burst.  A
+ * burst that begins with a whole frame with a valid CRC (any address, length by its function
+ * code) gives that frame, and no byte behind it is read (it is the next call's).  Otherwise
+ * the reply is looked for behind what cannot start it, at each following offset: req's
+ * address, its function or that exception, the length its byte count or function code gives
+ * (else the rest of the burst), a valid CRC, and mbgw_reply_matches.  *noise: the bytes read
+ * that are not the frame returned; *end_ns: when the last byte came (nothing came: when the
+ * wait ended).  Returns the frame's length with CRC; -ETIMEDOUT nothing came; a burst without
+ * a frame: -EILSEQ the reply by its start and length but a bad CRC, -EMSGSIZE cap bytes,
+ * -EBADMSG anything else. */
+long mbgw_find_reply(int fd, uint8_t *buf, size_t cap, const uint8_t *req, size_t req_len,
+                     int64_t deadline_ns, int32_t gap_us, int64_t *end_ns, int *noise);
+
 /* Read one ASCII frame (':' to CR LF) into buf.  The ':' must come before deadline_ns, each
  * following character within interchar_us of the previous one, the whole frame before
- * deadline_ns; a ':' restarts the frame.  -ETIMEDOUT nothing came, -EBADMSG incomplete,
- * -EMSGSIZE longer than MBGW_ASCII_MAX_FRAME. */
+ * deadline_ns; a ':' restarts the frame.  *noise: the bytes read that are not the frame
+ * returned (before its ':', a frame it restarted, all of them on an error).
+ * -ETIMEDOUT no ':' came, -EBADMSG incomplete, -EMSGSIZE longer than MBGW_ASCII_MAX_FRAME. */
 long mbgw_ascii_read_frame(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns,
-                           int32_t interchar_us, int64_t *end_ns);
+                           int32_t interchar_us, int64_t *end_ns, int *noise);
 
 /* Open path and take an advisory flock on it, before anything touches the line's settings:
  * a second gateway is refused without disturbing the first.  Returns the fd (kept open as
@@ -123,6 +139,8 @@ int mbgw_tcp_reply_verdict(const uint8_t *req, size_t req_len, uint8_t unit, uin
 /* Where mbgw_receive_reply puts the ADU: behind the first 6 bytes of an MBAP header, so the
  * address byte sits where the unit id goes. */
 #define MBGW_REPLY_AT 6
+/* The bytes behind MBGW_REPLY_AT a receive may read: a whole frame after as much noise. */
+#define MBGW_REPLY_SCAN 512
 
 /* Where a reply that answers its request goes at once: the client's socket (fd < 0: nowhere),
  * with the client's transaction id and unit id.  in_flight (or NULL): the client's count of
@@ -137,24 +155,24 @@ struct mbgw_forward {
     int *in_flight;
 };
 
-/* libmodbus's receive of the reply to req (address + PDU, no CRC) until deadline_ns, into
- * buf + MBGW_REPLY_AT.  When the reply answers req (libmodbus checked address and CRC, this
- * checks function and size) and to->fd >= 0, it goes to that socket at once as a Modbus TCP
- * frame, and *sent is the bytes the socket took (all of them when the connection is broken:
- * its next read tells); else *sent is -1.  *end_ns: when the receive ended.
- * Returns the ADU's length with CRC, 0 for a frame from another address (dropped), or a
- * negative errno (libmodbus's EMBBADCRC...). */
+/* mbgw_find_reply of the reply to req (address + PDU, no CRC) until deadline_ns (gap_us: the
+ * end-of-frame silence), into buf + MBGW_REPLY_AT (buf holds MBGW_REPLY_AT +
+ * MBGW_REPLY_SCAN bytes).  When the frame is from req's address and answers req
+ * (mbgw_reply_matches), came in time and to->fd >= 0, it goes to that socket at once as a
+ * Modbus TCP frame, and *sent is the bytes the socket took (all of them when the connection
+ * is broken: its next read tells); else *sent is -1.  *end_ns, *noise: mbgw_find_reply's.
+ * Returns the frame's length with CRC (any address), or mbgw_find_reply's negative errno. */
 int mbgw_receive_reply(struct _modbus *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
-                       int64_t deadline_ns, const struct mbgw_forward *to, int64_t *end_ns,
-                       int *sent);
+                       int64_t deadline_ns, int32_t gap_us, const struct mbgw_forward *to,
+                       int64_t *end_ns, int *sent, int *noise);
 
 /* libmodbus's send of req (it adds the CRC), then mbgw_receive_reply with the deadline stout_ns
  * after the request's last byte, in one call: the thread sleeps the moment the request is
  * written.  times[0]: when the request's last byte leaves (char_ns a character), or -1 when
- * the write failed; times[1]: when the receive ended. */
+ * the write failed; times[1]: mbgw_receive_reply's *end_ns. */
 int mbgw_exchange(struct _modbus *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
-                  int64_t char_ns, int64_t stout_ns, const struct mbgw_forward *to,
-                  int64_t *times, int *sent);
+                  int64_t char_ns, int64_t stout_ns, int32_t gap_us,
+                  const struct mbgw_forward *to, int64_t *times, int *sent, int *noise);
 
 /* mbgw_take_request's result when it left the request to the caller. */
 #define MBGW_NOT_TAKEN 1000000
@@ -166,10 +184,13 @@ struct mbgw_shortcut {
     int64_t quiet_until_ns;    /* the line must stay silent until then */
     int64_t char_ns;
     int64_t stout_ns;
+    int32_t gap_us;            /* the end-of-frame silence */
     uint8_t slaveid;           /* the serial address of every request; 0: the unit id */
     int result;                /* out: mbgw_exchange's return, or MBGW_NOT_TAKEN */
     int64_t times[2];          /* out: mbgw_exchange's */
     int sent;                  /* out: mbgw_exchange's */
+    int noise;                 /* out: mbgw_exchange's */
+    uint8_t address;           /* out: the serial address the request went to */
 };
 
 /* Slave mode, a client readable while the line is idle: read what it sent (up to in_cap
@@ -189,8 +210,9 @@ int mbgw_take_request(struct _modbus *ctx, int client_fd, int *in_flight, uint8_
 /* Wait (no deadline) for a frame on fd, then read it into buf: framed by the request length
  * of its function code, or by the reply length when it comes from reply_to's address (the
  * last frame for a slave mbgw does not answer for; reply_to_len 0: none), the first length
- * whose CRC checks; else by gap_us of silence.  Never reads past the frame.  Returns its
- * length with the CRC (valid).  -ECANCELED wake_fd was signalled first, -EILSEQ bad CRC,
- * -EBADMSG too short, -EMSGSIZE longer than cap. */
+ * whose CRC checks; else by gap_us of silence (a frame behind noise is then looked for at
+ * the end of that burst).  Never reads past the frame.  Returns its length with the CRC
+ * (valid).  -ECANCELED wake_fd was signalled first, -EILSEQ bad CRC, -EBADMSG too short,
+ * -EMSGSIZE longer than cap. */
 long mbgw_rtu_read_request(int fd, int wake_fd, uint8_t *buf, size_t cap,
                            const uint8_t *reply_to, size_t reply_to_len, int32_t gap_us);

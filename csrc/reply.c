@@ -74,24 +74,14 @@ static int64_t now_ns(void)
 }
 
 int mbgw_receive_reply(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
-                       int64_t deadline_ns, const struct mbgw_forward *to, int64_t *end_ns,
-                       int *sent)
+                       int64_t deadline_ns, int32_t gap_us, const struct mbgw_forward *to,
+                       int64_t *end_ns, int *sent, int *noise)
 {
     *sent = -1;
-    int64_t left_us = (deadline_ns - now_ns()) / 1000;
-    if (left_us <= 0) {
-        *end_ns = now_ns();
-        return -ETIMEDOUT;
-    }
     uint8_t *adu = buf + MBGW_REPLY_AT;
-    modbus_set_slave(ctx, req[0]);
-    modbus_set_response_timeout(ctx, (uint32_t)(left_us / 1000000),
-                                (uint32_t)(left_us % 1000000));
-    int n = modbus_receive_confirmation(ctx, adu);
-    *end_ns = now_ns();
-    if (n < 0)
-        return -errno;
-    if (n < 2 + CRC_LEN || to->fd < 0 || *end_ns > deadline_ns)
+    int n = (int)mbgw_find_reply(modbus_get_socket(ctx), adu, MBGW_REPLY_SCAN, req, req_len,
+                                 deadline_ns, gap_us, end_ns, noise);
+    if (n < 0 || adu[0] != req[0] || to->fd < 0 || *end_ns > deadline_ns)
         return n;
     size_t pdu_len = (size_t)n - 1 - CRC_LEN;
     if (!mbgw_reply_matches(req + 1, req_len - 1, adu + 1, pdu_len))
@@ -119,17 +109,19 @@ int mbgw_receive_reply(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t r
 }
 
 int mbgw_exchange(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
-                  int64_t char_ns, int64_t stout_ns, const struct mbgw_forward *to,
-                  int64_t *times, int *sent)
+                  int64_t char_ns, int64_t stout_ns, int32_t gap_us,
+                  const struct mbgw_forward *to, int64_t *times, int *sent, int *noise)
 {
     *sent = -1;
+    *noise = 0;
     if (modbus_send_raw_request(ctx, req, (int)req_len) < 0) {
         times[0] = -1;
         times[1] = now_ns();
         return -errno;
     }
     times[0] = now_ns() + (int64_t)(req_len + CRC_LEN) * char_ns;
-    return mbgw_receive_reply(ctx, buf, req, req_len, times[0] + stout_ns, to, &times[1], sent);
+    return mbgw_receive_reply(ctx, buf, req, req_len, times[0] + stout_ns, gap_us, to,
+                              &times[1], sent, noise);
 }
 
 int mbgw_take_request(modbus_t *ctx, int client_fd, int *in_flight, uint8_t *in, size_t in_cap,
@@ -151,10 +143,10 @@ int mbgw_take_request(modbus_t *ctx, int client_fd, int *in_flight, uint8_t *in,
         now_ns() < sc->quiet_until_ns)
         return (int)n;
     uint8_t adu[MBGW_RTU_MAX_ADU];
-    adu[0] = address;
+    adu[0] = sc->address = address;
     memcpy(adu + 1, in + 7, length - 1);
     struct mbgw_forward to = { client_fd, (uint16_t)(in[0] << 8 | in[1]), unit, 1, in_flight };
-    sc->result = mbgw_exchange(ctx, buf, adu, length, sc->char_ns, sc->stout_ns, &to,
-                               sc->times, &sc->sent);
+    sc->result = mbgw_exchange(ctx, buf, adu, length, sc->char_ns, sc->stout_ns, sc->gap_us,
+                               &to, sc->times, &sc->sent, &sc->noise);
     return (int)n;
 }

@@ -13,13 +13,16 @@
  *   the function code has no known length, the frame ends with gap_us of silence.
  * Bytes are read no further than the next possible end, so a frame that follows at once
  * (the other slave's reply, or a burst written in one go) stays in the kernel's queue for
- * the next call and no state is kept between calls.
+ * the next call and no state is kept between calls.  Noise before a frame (a glitch as a
+ * transceiver turns around) spoils the first of these lengths: when the burst that silence
+ * ends has no valid CRC, the frame is looked for at its end, behind the noise.
  */
 #define _GNU_SOURCE
 #include <errno.h>
 #include <poll.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <string.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -74,6 +77,27 @@ static size_t next_read(const int *ends, int n, size_t have, size_t cap)
     return want;
 }
 
+/* The frame at the end of a burst of have bytes that fails its CRC, behind noise: from the
+ * first offset at which the rest has a valid CRC and is a frame by length (a request's, or
+ * the reply to reply_to's) or one that only silence ends.  Moved to buf[0]; 0 when none. */
+static size_t frame_behind_noise(uint8_t *buf, size_t have, const uint8_t *reply_to,
+                                 size_t reply_to_len)
+{
+    for (size_t at = 1; at + MIN_FRAME <= have; at++) {
+        uint8_t *f = buf + at;
+        int len = (int)(have - at);
+        int request = mbgw_rtu_request_length(f, (size_t)len);
+        int reply = reply_to_len > 0 && f[0] == reply_to[0] ?
+            mbgw_rtu_reply_length(reply_to_len, f, (size_t)len) : 0;
+        if ((request == len || request == MBGW_LEN_UNKNOWN || reply == len) &&
+            mbgw_crc16(f, (size_t)len) == 0) {
+            memmove(buf, f, (size_t)len);
+            return (size_t)len;
+        }
+    }
+    return 0;
+}
+
 /* Skip input until gap_us of silence. */
 static long skip_frame(int fd, int32_t gap_us)
 {
@@ -116,7 +140,10 @@ long mbgw_rtu_read_request(int fd, int wake_fd, uint8_t *buf, size_t cap,
         if (rc == 0) {                          /* silence: the frame is over */
             if (have < MIN_FRAME)
                 return -EBADMSG;
-            return mbgw_crc16(buf, have) == 0 ? (long)have : -EILSEQ;
+            if (mbgw_crc16(buf, have) == 0)
+                return (long)have;
+            size_t len = frame_behind_noise(buf, have, reply_to, reply_to_len);
+            return len > 0 ? (long)len : -EILSEQ;
         }
         ssize_t n = read(fd, buf + have, next_read(ends, 2, have, cap));
         if (n < 0 && (errno == EINTR || errno == EAGAIN))

@@ -4,7 +4,7 @@ import time
 
 from mbgw.line import native
 from mbgw.protocol import pdu
-from mbgw.errors import ChecksumError, FrameError, LineTimeout
+from mbgw.errors import FrameError
 from mbgw.line.port import SerialLine
 
 # receive(): the reply goes nowhere before it is returned
@@ -17,7 +17,7 @@ class RtuFraming:
         self.port = line.port
         self.inter_frame_us = line.cfg.t35_us
         self._end_us = line.cfg.end_of_frame_us
-        # libmodbus's byte timeout is the end-of-frame silence: a longer gap breaks the frame
+        # the end-of-frame silence: a longer gap ends a frame, or a burst of noise
         self.port.set_byte_timeout(self._end_us)
         self.last_rx_ns = 0
         self.foreign_address = -1     # set when receive() returns None
@@ -29,22 +29,21 @@ class RtuFraming:
 
     def receive(self, adu: bytes, deadline: int, forward=NO_FORWARD) -> bytes | None:
         """address + PDU of a frame with a valid CRC from adu's address; None: another
-        address.  forward: (socket fd, tid, unit, yield, in-flight counter) of the client to
-        which a reply that answers adu goes at once (self.sent: its bytes the socket took, -1
-        none; native.Port.receive_reply tells the rest).  Raises LineTimeout, ChecksumError,
+        address.  Noise before the reply is skipped and counted (noise_bytes).  forward:
+        (socket fd, tid, unit, yield, in-flight counter) of the client to which a reply that
+        answers adu goes at once (self.sent: its bytes the socket took, -1 none;
+        native.Port.receive_reply tells the rest).  Raises LineTimeout, ChecksumError,
         FrameError."""
         self.sent = -1
-        if adu[1] not in pdu.LIBMODBUS_FRAMED:
-            return self._receive_own(adu, deadline)
         try:
             frame = self.port.receive_reply(adu, deadline, *forward)
-        except (ChecksumError, LineTimeout) as err:
-            self._failed(err, deadline)
-            raise
+        finally:
+            self._count_noise()
         return self._received(frame)
 
     def exchanges(self, adu: bytes) -> bool:
-        """exchange() can take adu: libmodbus sends it and frames its reply."""
+        """exchange() can take adu: a function code of pdu.LIBMODBUS_FRAMED, on a line
+        libmodbus writes to."""
         return adu[1] in pdu.LIBMODBUS_FRAMED and self.line.libmodbus_sends
 
     def exchange(self, adu: bytes, stout_ns: int, forward=NO_FORWARD,
@@ -60,50 +59,29 @@ class RtuFraming:
                 frame = port.exchanged()
             else:
                 frame = port.exchange(adu, self.line.char_ns, stout_ns, *forward)
-        except (ChecksumError, LineTimeout) as err:
-            self._failed(err, port.sent_end_ns + stout_ns)
-            raise
         finally:
             self.sent_end_ns = port.sent_end_ns
             if self.sent_end_ns >= 0:        # else the write failed
                 self.line.sent_rtu(len(adu))
+            self._count_noise()
         return self._received(frame)
 
-    def _failed(self, err: Exception, deadline: int) -> None:
+    def _count_noise(self) -> None:
+        """After a receive, whatever its outcome: the bytes it read that were in no frame."""
         port = self.port
-        if isinstance(err, ChecksumError):
-            self.last_rx_ns = port.last_byte_ns
-            self.line.counters.bytes_received += port.dropped_length
-            return
-        now = port.last_byte_ns
-        if now < deadline:   # the byte timeout: a gap broke a frame
-            self.last_rx_ns = now - self._end_us * 1000   # so the line is quiet
-            raise FrameError("incomplete frame") from None
-        self.last_rx_ns = now
+        self.last_rx_ns = port.last_byte_ns
+        counters = self.line.counters
+        counters.noise_bytes += port.noise
+        counters.bytes_received += port.noise
 
     def _received(self, frame: bytes | None) -> bytes | None:
         port = self.port
-        self.last_rx_ns = port.last_byte_ns
         if frame is None:
             self.line.counters.bytes_received += port.dropped_length
             self.foreign_address = port.foreign_address
             return None
         self.sent = port.sent
         self.line.counters.bytes_received += len(frame)
-        return frame[:-2]
-
-    def _receive_own(self, adu: bytes, deadline: int) -> bytes | None:
-        """Our receive, for the codes libmodbus does not frame right."""
-        frame = self.port.read_reply(len(adu), deadline, self._end_us, False)
-        self.last_rx_ns = self.port.last_byte_ns
-        self.line.counters.bytes_received += len(frame)
-        if len(frame) < 4:
-            raise FrameError("incomplete frame")
-        if native.crc16(frame) != 0:
-            raise ChecksumError()
-        if frame[0] != adu[0]:
-            self.foreign_address = frame[0]
-            return None
         return frame[:-2]
 
     def receive_unchecked(self, adu: bytes, deadline: int) -> bytes:
@@ -113,14 +91,14 @@ class RtuFraming:
         self.line.counters.bytes_received += len(frame)
         return frame[:-2]
 
-    def resync(self) -> int:
+    def resync(self) -> None:
         """Skip the rest of a broken frame, up to the end-of-frame silence after its last
-        byte (nothing, when a silence already ended it); returns the bytes skipped."""
+        byte (nothing, when a silence already ended it): noise."""
         skipped = self.port.wait_quiet(self.last_rx_ns, self._end_us)
         if skipped:
             self.last_rx_ns = time.monotonic_ns()
+            self.line.counters.noise_bytes += skipped
             self.line.counters.bytes_received += skipped
-        return skipped
 
 
 class AsciiFraming:
@@ -141,9 +119,16 @@ class AsciiFraming:
         return False
 
     def _read(self, deadline: int) -> bytes:
-        frame = self.port.read_ascii(deadline, self._interchar_us)
-        self.last_rx_ns = self.port.last_byte_ns
-        self.line.counters.bytes_received += len(frame)
+        """One frame; what came outside it (before its ':', a frame cut short) is noise."""
+        port = self.port
+        counters = self.line.counters
+        try:
+            frame = port.read_ascii(deadline, self._interchar_us)
+        finally:
+            self.last_rx_ns = port.last_byte_ns
+            counters.noise_bytes += port.noise
+            counters.bytes_received += port.noise
+        counters.bytes_received += len(frame)
         return frame
 
     def receive(self, adu: bytes, deadline: int, forward=NO_FORWARD) -> bytes | None:
@@ -165,9 +150,8 @@ class AsciiFraming:
             raise FrameError("not hexadecimal") from None
         return raw[:-1]
 
-    def resync(self) -> int:
+    def resync(self) -> None:
         self.last_rx_ns = time.monotonic_ns()
-        return 0
 
 
 def framing_for(line: SerialLine):

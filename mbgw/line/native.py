@@ -13,6 +13,7 @@ LEN_UNKNOWN = lib.MBGW_LEN_UNKNOWN
 RTU_MAX_ADU = lib.MBGW_RTU_MAX_ADU
 ASCII_MAX_FRAME = lib.MBGW_ASCII_MAX_FRAME
 REPLY_AT = lib.MBGW_REPLY_AT
+REPLY_SCAN = lib.MBGW_REPLY_SCAN
 NOT_TAKEN = lib.MBGW_NOT_TAKEN
 INPUT_SIZE = 4096       # what take_request() reads from a client at most
 
@@ -114,17 +115,19 @@ class Port:
         except BaseException:
             self.close()
             raise
-        self._buf = ffi.new("uint8_t[]", ASCII_MAX_FRAME + 4)
+        self._buf = ffi.new("uint8_t[]", max(ASCII_MAX_FRAME, REPLY_AT + REPLY_SCAN))
         self._end_ns = ffi.new("int64_t *")
         self._sent = ffi.new("int *")
+        self._noise = ffi.new("int *")
         self._times = ffi.new("int64_t[2]")
         self._to = ffi.new("struct mbgw_forward *")
         self._shortcut = ffi.new("struct mbgw_shortcut *")
         self._framed = ffi.NULL
         self._in = ffi.new("uint8_t[]", INPUT_SIZE)
         self.sent = -1                 # what receive_reply sent to the client
-        self.dropped_length = 0        # bytes of the frame receive_reply dropped
-        self.foreign_address = -1      # the address of the frame it ignored
+        self.noise = 0                 # bytes it read that were in no frame
+        self.dropped_length = 0        # bytes of the frame from another address it dropped
+        self.foreign_address = -1      # the address of that frame
         self.sent_end_ns = 0           # exchange(): when the request's last byte leaves
         self.set_byte_timeout(0)
 
@@ -195,8 +198,9 @@ class Port:
         return lib.mbgw_rts_available(self.fd) == 0
 
     def set_byte_timeout(self, timeout_us: int) -> None:
-        """libmodbus's limit on the silence between two bytes of a reply (0: none)."""
-        lib.modbus_set_byte_timeout(self._ctx, timeout_us // 1_000_000, timeout_us % 1_000_000)
+        """The silence that ends a reply's frame (and a burst of noise) in receive_reply."""
+        self._gap_us = timeout_us
+        self._shortcut.gap_us = timeout_us
 
     # --- transfers ---
 
@@ -216,17 +220,19 @@ class Port:
     def receive_reply(self, adu: bytes, deadline_ns: int, client_fd: int = -1, tid: int = 0,
                       unit: int = 0, yield_cpu: bool = False,
                       in_flight=NO_COUNTER) -> bytes | None:
-        """libmodbus's receive of the reply to adu, for the codes it frames right: the frame
-        (CRC checked), or None for a frame from another address (libmodbus drops it and
-        returns at once).  With client_fd, a reply that answers adu in time has gone to that
+        """The next frame after the request adu (csrc mbgw_find_reply: noise is skipped and
+        the reply found behind it): the frame (CRC checked), or None for a frame from another
+        address (self.dropped_length, self.foreign_address).  self.noise: the bytes read that
+        were in no frame.  With client_fd, a reply that answers adu in time has gone to that
         socket as a Modbus TCP frame with tid and unit already: self.sent tells how many of
         its bytes the socket took (-1: nothing was sent), and in_flight (a counter())
         went down by one as it was; yield_cpu: then the client that was woken runs before
         this returns."""
         n = lib.mbgw_receive_reply(self._ctx, self._buf, adu, len(adu), deadline_ns,
+                                   self._gap_us,
                                    self._forward_to(client_fd, tid, unit, yield_cpu, in_flight),
-                                   self._end_ns, self._sent)
-        return self._received(n)
+                                   self._end_ns, self._sent, self._noise)
+        return self._received(n, adu[0])
 
     def exchange(self, adu: bytes, char_ns: int, stout_ns: int, client_fd: int = -1,
                  tid: int = 0, unit: int = 0, yield_cpu: bool = False,
@@ -236,9 +242,10 @@ class Port:
         when the request's last byte leaves (char_ns a character), -1 when the write failed."""
         times = self._times
         n = lib.mbgw_exchange(self._ctx, self._buf, adu, len(adu), char_ns, stout_ns,
+                              self._gap_us,
                               self._forward_to(client_fd, tid, unit, yield_cpu, in_flight),
-                              times, self._sent)
-        return self._exchanged(n, times)
+                              times, self._sent, self._noise)
+        return self._exchanged(n, times, adu[0])
 
     def shortcut_rules(self, framed, char_ns: int, stout_ns: int, slaveid: int) -> None:
         """What take_request() needs: the function codes libmodbus frames, the line's
@@ -276,15 +283,17 @@ class Port:
         """What exchange() would have returned, for the request take_request() took."""
         sc = self._shortcut
         self._sent[0] = sc.sent
-        return self._exchanged(sc.result, sc.times)
+        self._noise[0] = sc.noise
+        return self._exchanged(sc.result, sc.times, sc.address)
 
-    def _exchanged(self, n: int, times) -> bytes | None:
+    def _exchanged(self, n: int, times, address: int) -> bytes | None:
         self._end_ns[0] = times[1]
         self.sent_end_ns = times[0]
         if times[0] < 0:
             self.sent = -1
+            self.noise = self.dropped_length = 0
             raise self._fail(-n, "write")
-        return self._received(n)
+        return self._received(n, address)
 
     def _forward_to(self, client_fd: int, tid: int, unit: int, yield_cpu: bool, in_flight):
         to = self._to
@@ -295,18 +304,19 @@ class Port:
         to.in_flight = in_flight
         return to
 
-    def _received(self, n: int) -> bytes | None:
+    def _received(self, n: int, address: int) -> bytes | None:
+        """The frame C received (n bytes) when it is from address, else None."""
         self.sent = self._sent[0]
-        if n > 0:
-            self.dropped_length = 0
-            return ffi.buffer(self._buf + REPLY_AT, n)[:]
-        # libmodbus read a whole frame by its function code before dropping it: how long
-        frame = self._buf + REPLY_AT
-        self.dropped_length = max(lib.mbgw_rtu_reply_length(0, frame, RTU_MAX_ADU), 0)
-        self.foreign_address = frame[0]
+        self.noise = self._noise[0]
+        self.dropped_length = 0
         if n < 0:
             raise self._fail(-n, "read")
-        return None
+        frame = ffi.buffer(self._buf + REPLY_AT, n)[:]
+        if frame[0] != address:
+            self.dropped_length = n
+            self.foreign_address = frame[0]
+            return None
+        return frame
 
     def read_reply(self, request_len: int, deadline_ns: int, gap_us: int,
                    by_silence: bool) -> bytes:
@@ -316,8 +326,10 @@ class Port:
         return ffi.buffer(self._buf, self._check(n, "read"))[:]
 
     def read_ascii(self, deadline_ns: int, interchar_us: int) -> bytes:
+        """One ASCII frame, ':' to CR LF; self.noise: the bytes read outside it."""
         n = lib.mbgw_ascii_read_frame(self.fd, self._buf, ASCII_MAX_FRAME, deadline_ns,
-                                      interchar_us, self._end_ns)
+                                      interchar_us, self._end_ns, self._noise)
+        self.noise = self._noise[0]
         return ffi.buffer(self._buf, self._check(n, "read"))[:]
 
     @property

@@ -22,6 +22,7 @@ class LineCounters(Protocol):
     """What the line counts itself, in counters its owner keeps (mbgw.ops.counters)."""
     bytes_sent: int
     bytes_received: int
+    noise_bytes: int
     echo_errors: int
 
 
@@ -29,6 +30,7 @@ class LineCounters(Protocol):
 class _Uncounted:
     bytes_sent: int = 0
     bytes_received: int = 0
+    noise_bytes: int = 0
     echo_errors: int = 0
 
 

@@ -36,6 +36,7 @@ class Counters(_Counting):
     wrong_function: int = 0
     late_replies: int = 0
     late_bytes: int = 0
+    noise_bytes: int = 0
     unsolicited_frames: int = 0
     unsolicited_bytes: int = 0
     broadcasts: int = 0

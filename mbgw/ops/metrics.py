@@ -39,6 +39,7 @@ _COUNTER_HELP = {
     "wrong_function": "Serial replies with another function or size than the request asked.",
     "late_replies": "Serial replies that arrived after the slave timeout (stout).",
     "late_bytes": "Bytes received on the line before a request could go out (late replies).",
+    "noise_bytes": "Bytes received on the line that were in no frame (skipped as noise).",
     "unsolicited_frames": "Frames received on the idle line, without a request.",
     "unsolicited_bytes": "Bytes received on the idle line, without a request.",
     "broadcasts": "Broadcast requests (unit 0) sent on the line.",

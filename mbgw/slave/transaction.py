@@ -143,11 +143,11 @@ class SerialMaster:
                 return None
             except ChecksumError:
                 self._count(device, "crc_errors")
-                self._counters.late_bytes += framing.resync()
+                framing.resync()
                 continue
             except FrameError:
                 self._count(device, "invalid_frames")
-                self._counters.late_bytes += framing.resync()
+                framing.resync()
                 continue
             finally:
                 self._quiet_from_ns = max(self._quiet_from_ns, framing.last_rx_ns)

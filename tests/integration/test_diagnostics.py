@@ -87,10 +87,12 @@ def test_counters_and_health_move_exactly_under_a_faulty_slave(rig, client):
 
     s = status(gw)
     expected = dict.fromkeys(s["counters"], 0)
+    noise = len(rtu(4, holding_reply(0, 1))) + len(b"\x55\xaa\x55")  # bad CRC, garbage
     expected.update(requests=11, replies=10, device_exceptions=1, gateway_exceptions=5,
                     timeouts=5, crc_errors=1, invalid_frames=1, wrong_unit=2, wrong_function=1,
                     broadcasts=1, unsolicited_frames=1, unsolicited_bytes=late, bytes_sent=11 * 8,
-                    bytes_received=s["counters"]["bytes_received"], connections_accepted=1)
+                    bytes_received=s["counters"]["bytes_received"], connections_accepted=1,
+                    noise_bytes=noise)
     assert s["counters"] == expected
     # at least the frames that were taken
     assert s["counters"]["bytes_received"] >= 2 * 7 + 7 + 5 + 7 + 7

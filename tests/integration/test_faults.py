@@ -34,7 +34,8 @@ VENDOR_REQUEST = bytes((VENDOR_FC, 0x07, 0x01, 0x00))
 # Counters every test checks; any not named in the expectation must stay at 0.
 CHECKED = ("requests", "replies", "device_exceptions", "gateway_exceptions", "timeouts",
            "retries", "crc_errors", "invalid_frames", "wrong_unit", "wrong_function",
-           "late_replies", "late_bytes", "broadcasts", "unroutable", "line_down_rejects")
+           "late_replies", "late_bytes", "broadcasts", "unroutable", "line_down_rejects",
+           "noise_bytes")
 
 
 @pytest.fixture
@@ -183,8 +184,9 @@ def test_bad_crc_reply_is_dropped(line, gateway, client, function, exception):
     if exception:
         assert c.recv() == (1, 4, bytes((function | 0x80, 0x0B)))
     assert c.recv() == (2, 1, holding_reply(0, 1))
+    bad_reply = rtu(4, READS[function][1])       # no frame: its bytes are noise
     assert_counters(gw, requests=2, replies=2 if exception else 1, timeouts=1, crc_errors=1,
-                    gateway_exceptions=1 if exception else 0)
+                    gateway_exceptions=1 if exception else 0, noise_bytes=len(bad_reply))
 
 
 @BOTH_PATHS
@@ -240,7 +242,7 @@ def test_reply_after_garbage_and_silence_is_delivered(line, gateway, client, fun
     request, reply = READS[function]
     c.send(mbap(13, 13, request))
     assert c.recv() == (13, 13, reply)
-    assert_counters(gw, requests=1, replies=1, invalid_frames=1)
+    assert_counters(gw, requests=1, replies=1, invalid_frames=1, noise_bytes=3)
 
 
 @BOTH_PATHS
@@ -256,7 +258,139 @@ def test_reply_after_garbage_and_the_least_silence_is_delivered(line, gateway, c
     request, reply = READS[function]
     c.send(mbap(13, 13, request))
     assert c.recv() == (13, 13, reply)
-    assert_counters(gw, requests=1, replies=1, invalid_frames=1)
+    assert_counters(gw, requests=1, replies=1, invalid_frames=1, noise_bytes=3)
+
+
+# --- noise right before the reply ------------------------------------------------------------
+# A glitch byte, or a few bytes of noise, in the same write as the reply (an RS-485 transceiver
+# turning around): the reply is found behind them by its address, function and CRC, and what
+# the line carried is counted byte for byte.  Both ways to the line: one client on an idle
+# line takes the shortcut (csrc/reply.c, mbgw_take_request); with wire logging at DEBUG
+# every request goes the ordinary way (SerialMaster.transact).
+
+PATHS = pytest.mark.parametrize("path", [(), ("--log-level", "debug")],
+                                ids=["shortcut", "ordinary"])
+NOISE = [
+    pytest.param("09 18 ff ff 01 02", id="fifo-header"),    # FC 0x18 claiming 65535 bytes
+    pytest.param("00", id="glitch-00"),
+    pytest.param("ff", id="glitch-ff"),
+    pytest.param("0d", id="own-address"),                   # unit 13's address alone
+    pytest.param("0d 03 20", id="own-address-and-fc"),      # ... claiming 32 data bytes
+    pytest.param("0d 83", id="own-exception-header"),
+]
+
+
+def written(record) -> int:
+    """The bytes the slave wrote on the line, from its own record."""
+    return sum(len(bytes.fromhex(line.split(" ", 2)[2]))
+               for line in record.read_text().splitlines() if line.split(" ", 2)[1] == "tx")
+
+
+def noise_then(noise: str) -> list[str]:
+    """The peer's options: noise (hex), and right behind it in one write the reply (unit 13)."""
+    return ["--garbage", noise, "--garbage-pause-ms", "0"]
+
+
+@PATHS
+@pytest.mark.parametrize("noise", NOISE)
+def test_reply_right_behind_noise_is_delivered(line, gateway, client, path, noise):
+    record = line(*noise_then(noise))
+    gw = gateway("--exception", *path)
+    c = client(gw)
+    c.send(mbap(0x1313, 13, read_holding(0, 2)))
+    assert c.recv_raw() == mbap(0x1313, 13, holding_reply(0, 2))
+    assert ("tx 0d 03" in gw.log()) == bool(path)      # which way the request went
+    assert_counters(gw, requests=1, replies=1, noise_bytes=len(bytes.fromhex(noise)),
+                    bytes_received=written(record))
+    assert written(record) == len(bytes.fromhex(noise)) + len(rtu(13, holding_reply(0, 2)))
+
+
+@pytest.mark.parametrize("noise", ["09 18 ff ff 01 02", "00", "0d 6c"],
+                         ids=["fifo-header", "glitch-00", "own-address-and-fc"])
+def test_a_reply_framed_by_silence_right_behind_noise_is_delivered(line, gateway, client,
+                                                                   noise):
+    """FC 108's reply has no length to go by: it is the rest of the burst behind the noise."""
+    record = line(*noise_then(noise))
+    gw = gateway("--exception")
+    c = client(gw)
+    c.send(mbap(0x6C6C, 13, VENDOR_REQUEST))
+    assert c.recv_raw() == mbap(0x6C6C, 13, fault_slave.VENDOR_REPLY)
+    assert_counters(gw, requests=1, replies=1, noise_bytes=len(bytes.fromhex(noise)),
+                    bytes_received=written(record))
+
+
+@PATHS
+@pytest.mark.parametrize("noise", [
+    pytest.param("09 18 ff ff 01 02", id="fifo-header"),
+    pytest.param("0f 03 20", id="own-address-and-fc"),
+    pytest.param("ff" + rtu(15, holding_reply(0, 1)).hex(), id="frame-of-another-size"),
+    pytest.param("ff" + rtu(15, b"\x04\x04" + bytes(4)).hex(), id="frame-of-another-fc"),
+    pytest.param("ff" + rtu(9, holding_reply(0, 2)).hex(), id="frame-of-another-unit"),
+])
+def test_noise_alone_is_no_reply(line, gateway, client, path, noise):
+    """Unit 15 sends the noise only.  Noise that holds a whole frame with a valid CRC is no
+    reply either when that frame does not answer the request."""
+    record = line("--garbage", noise)
+    gw = gateway("--exception", *path)
+    c = client(gw)
+    c.send(mbap(0x1515, 15, read_holding(0, 2)))
+    assert c.recv_raw() == mbap(0x1515, 15, b"\x83\x0b")
+    assert_counters(gw, requests=1, replies=1, timeouts=1, gateway_exceptions=1,
+                    invalid_frames=1, noise_bytes=len(bytes.fromhex(noise)),
+                    bytes_received=written(record))
+
+
+@PATHS
+@pytest.mark.parametrize("frame", [
+    pytest.param(rtu(13, holding_reply(0, 1)), id="another-size"),
+    pytest.param(rtu(13, b"\x04\x04" + bytes(4)), id="another-fc"),
+    pytest.param(rtu(9, holding_reply(0, 2)), id="another-unit"),
+])
+def test_a_frame_inside_the_noise_is_not_taken_for_the_reply(line, gateway, client, path,
+                                                              frame):
+    """A glitch, a whole frame with a valid CRC that does not answer, then the reply."""
+    noise = "ff" + frame.hex()
+    record = line(*noise_then(noise))
+    gw = gateway("--exception", *path)
+    c = client(gw)
+    c.send(mbap(0x1313, 13, read_holding(0, 2)))
+    assert c.recv_raw() == mbap(0x1313, 13, holding_reply(0, 2))
+    assert_counters(gw, requests=1, replies=1, noise_bytes=1 + len(frame),
+                    bytes_received=written(record))
+
+
+@PATHS
+@pytest.mark.parametrize("frame, counted", [
+    pytest.param(rtu(13, b"\x04\x04" + bytes(4)), "wrong_function", id="another-fc"),
+    pytest.param(rtu(9, holding_reply(0, 2)), "wrong_unit", id="another-unit"),
+])
+def test_a_frame_right_before_the_reply_is_counted_and_dropped(line, gateway, client, path,
+                                                                frame, counted):
+    """A whole frame that does not answer, and the reply right behind it in one write: the
+    frame is one (counted as such, no noise) and the reply is still found."""
+    record = line(*noise_then(frame.hex()))
+    gw = gateway("--exception", *path)
+    c = client(gw)
+    c.send(mbap(0x1313, 13, read_holding(0, 2)))
+    assert c.recv_raw() == mbap(0x1313, 13, holding_reply(0, 2))
+    assert_counters(gw, requests=1, replies=1, bytes_received=written(record), **{counted: 1})
+
+
+@PATHS
+def test_a_run_with_noise_before_every_reply_counts_what_the_line_carried(line, gateway,
+                                                                          client, path):
+    """The issue's run, shorter: before the fix, 2,000 requests counted 87,014 bytes received
+    for 40,216 written, and replies were lost."""
+    noise = bytes.fromhex("09 18 ff ff 01 02")
+    record = line(*noise_then(noise.hex()))
+    gw = gateway("--exception", *path)
+    c = client(gw)
+    runs = 40
+    for i in range(runs):
+        assert c.ask(13, read_holding(i, 3)) == holding_reply(i, 3)
+    assert_counters(gw, requests=runs, replies=runs, noise_bytes=runs * len(noise),
+                    bytes_received=written(record))
+    assert written(record) == runs * (len(noise) + len(rtu(13, holding_reply(0, 3))))
 
 
 # --- pass-through ---------------------------------------------------------------------------

@@ -249,6 +249,17 @@ def test_another_slaves_reply_is_not_taken_for_a_request(gateway, line, other_re
         2, 1, 0, 0)
 
 
+@pytest.mark.parametrize("noise", ["ff", "00", "09 18 ff ff 01 02"],
+                         ids=["glitch-ff", "glitch-00", "fifo-header"])
+def test_noise_right_before_a_request_does_not_cost_it(gateway, line, noise):
+    gw = gateway(*GUIDE_LINES)
+    os.write(line, bytes.fromhex(noise) + rtu(read_holding(1)))
+    expected = rtu(holding_reply(1, *identity("127.0.0.30", 1)))
+    assert recv(line, len(expected)).hex(" ") == expected.hex(" ")
+    c = counters(gw)
+    assert (c["requests"], c["replies"], c["crc_errors"], c["invalid_frames"]) == (1, 1, 0, 0)
+
+
 def test_a_remote_exception_passes_through(gateway, serial_client, line):
     gw = gateway(*GUIDE_LINES, options=["--exception"])
     client = serial_client()

@@ -105,6 +105,39 @@ def test_a_bad_crc_is_reported_and_the_next_frame_is_read(line, wake_fd):
     assert port.read_request(wake_fd, b"", GAP_US) == READ_17
 
 
+NOISE = [
+    pytest.param("ff", id="glitch-ff"),
+    pytest.param("00", id="glitch-00"),
+    pytest.param("11", id="the-address"),
+    pytest.param("09 18 ff ff 01 02", id="fifo-header"),          # FC 0x18 claiming 65 KB
+    pytest.param("11 10 00 00 00 10 20", id="long-write-header"),  # claims 41 bytes
+]
+
+
+@pytest.mark.parametrize("noise", NOISE)
+def test_noise_right_before_a_request_is_skipped(line, wake_fd, noise):
+    bus, port = line
+    os.write(bus, bytes.fromhex(noise) + rtu(READ_17))
+    assert port.read_request(wake_fd, b"", GAP_US) == READ_17
+    os.write(bus, rtu(READ_17))                 # and the next frame comes out as it is
+    assert port.read_request(wake_fd, b"", GAP_US) == READ_17
+
+
+def test_noise_right_before_another_slaves_reply_is_skipped(line, wake_fd):
+    bus, port = line
+    os.write(bus, rtu(READ_OTHER))
+    assert port.read_request(wake_fd, b"", GAP_US) == READ_OTHER
+    os.write(bus, b"\xff" + rtu(OTHER_REPLY))
+    assert port.read_request(wake_fd, READ_OTHER, GAP_US) == OTHER_REPLY
+
+
+def test_noise_alone_is_still_a_bad_frame(line, wake_fd):
+    bus, port = line
+    os.write(bus, bytes.fromhex("09 18 ff ff 01 02"))
+    with pytest.raises(ChecksumError):
+        port.read_request(wake_fd, b"", GAP_US)
+
+
 def test_a_frame_broken_by_silence_is_dropped(line, wake_fd):
     bus, port = line
     os.write(bus, READ_17[:2])

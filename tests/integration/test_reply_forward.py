@@ -10,7 +10,7 @@ import time
 
 import pytest
 
-from mbgw.errors import LineTimeout
+from mbgw.errors import FrameError, LineTimeout
 from mbgw.line.native import Port, counter
 from tests.modbus import holding_reply, mbap, read_holding, rtu
 
@@ -91,6 +91,38 @@ def test_a_frame_from_another_address_is_dropped_unsent(line, socket_ends):
     assert port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT) is None
     assert port.foreign_address == UNIT + 1
     assert port.sent == -1
+    assert nothing_on(theirs)
+
+
+@pytest.mark.parametrize("noise", ["00", "ff", "11 03 20", "09 18 ff ff 01 02"])
+def test_a_reply_behind_noise_goes_to_the_client_and_the_noise_is_counted(line, socket_ends,
+                                                                          noise):
+    port, slave = line
+    ours, theirs = socket_ends
+    os.write(slave, bytes.fromhex(noise) + rtu(UNIT, holding_reply(0, 3)))
+    assert port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT) == \
+        rtu(UNIT, holding_reply(0, 3))
+    assert theirs.recv(1024) == mbap(TID, CLIENT_UNIT, holding_reply(0, 3))
+    assert port.noise == len(bytes.fromhex(noise))
+
+
+def test_a_frame_right_behind_a_foreign_one_stays_for_the_next_receive(line, socket_ends):
+    port, slave = line
+    ours, theirs = socket_ends
+    os.write(slave, rtu(UNIT + 1, b"\x83\x02") + rtu(UNIT, holding_reply(0, 3)))
+    assert port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT) is None
+    assert (port.foreign_address, port.dropped_length, port.noise) == (UNIT + 1, 5, 0)
+    assert nothing_on(theirs)
+    assert port.receive_reply(REQUEST, deadline()) == rtu(UNIT, holding_reply(0, 3))
+
+
+def test_noise_alone_is_counted_and_sends_nothing(line, socket_ends):
+    port, slave = line
+    ours, theirs = socket_ends
+    os.write(slave, bytes.fromhex("09 18 ff ff 01 02"))
+    with pytest.raises(FrameError):
+        port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT)
+    assert port.noise == 6
     assert nothing_on(theirs)
 
 

@@ -30,7 +30,8 @@ from mbgw.line.framing import framing_for
 from mbgw.slave.transaction import SerialMaster
 from mbgw.line.port import SerialLine
 from tests.harness import READY_TIMEOUT_S, stop_counters
-from tests.modbus import holding_reply, read_holding
+from tests.modbus import holding_reply, read_holding, rtu
+from tests.peers import paced_slave
 
 pytestmark = pytest.mark.integration
 
@@ -182,6 +183,17 @@ def test_ascii_reply_right_behind_a_frame_from_another_address_is_delivered(pace
     gw = gateway("--protocol", "ascii", "--exception")
     assert client(gw).ask(8, read_holding(2, 2)) == holding_reply(2, 2)
     assert stop_counters(gw)["wrong_unit"] == 1
+
+
+def test_ascii_noise_before_the_reply_is_skipped_and_counted(paced, gateway, client):
+    paced("--ascii")        # address 11: noise, a frame cut short, then the reply (one write)
+    gw = gateway("--protocol", "ascii", "--exception")
+    assert client(gw).ask(11, read_holding(0, 2)) == holding_reply(0, 2)
+    counters = stop_counters(gw)
+    reply = paced_slave.ascii_frame(bytes((11,)) + holding_reply(0, 2))
+    noise = len(paced_slave.ASCII_NOISE)
+    assert (counters["noise_bytes"], counters["bytes_received"]) == (noise, noise + len(reply))
+    assert (counters["invalid_frames"], counters["crc_errors"]) == (0, 0)
 
 
 def test_ascii_pause_inside_a_frame_under_the_ascii_timeout_is_allowed(paced, gateway, client):
@@ -358,16 +370,17 @@ def test_echo_mode_without_an_echo_times_out(paced, in_process):
 
 def test_echo_not_configured_is_never_taken_for_a_reply(paced, gateway, client):
     """The echo of an FC 03 request is a frame from the same address with the same function.
-    Without 'rs485 echo' it must not reach the client as the answer: libmodbus reads
-    11 03 00 .. as a reply with byte count 0, the CRC is wrong and the frame is dropped; the
-    real reply behind it is skipped with it, so the request ends without an answer."""
+    Without 'rs485 echo' it must not reach the client as the answer: read as a reply,
+    03 03 00 .. has byte count 0 and a wrong CRC, so it is noise, and the real reply right
+    behind it is found and delivered."""
     paced()
     gw = gateway("--exception", "--stout", str(STOUT_MS))
     c = client(gw)
-    assert c.ask(3, read_holding(0, 2)) == bytes((0x83, TARGET_FAILED))
+    assert c.ask(3, read_holding(0, 2)) == holding_reply(0, 2)
     assert c.ask(1, read_holding(0, 2)) == holding_reply(0, 2)
     counters = stop_counters(gw)
-    assert counters["crc_errors"] == 1
+    echo = rtu(3, read_holding(0, 2))
+    assert (counters["crc_errors"], counters["noise_bytes"]) == (0, len(echo))
 
 
 def test_echo_not_configured_fc06_echo_is_taken_as_the_reply(paced, gateway, client):

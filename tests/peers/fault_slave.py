@@ -17,8 +17,10 @@ holds 1000 + i.  Behaviour by the request's address:
   10  the one the tests use for vendor FC 108 (0x6C), answered by 0x6C + 37 bytes
   11  exception 02 (illegal data address)
   12  the reply to every second request it gets, nothing to the others
-  13  --garbage (55 aa 55), a silence (--garbage-pause-ms, 20), then the reply
+  13  --garbage (55 aa 55), a silence (--garbage-pause-ms, 20), then the reply; with
+      --garbage-pause-ms 0 the garbage and the reply in one write (noise right before it)
   14  silent to its first --mute-first (3) requests, then the reply (a device that recovers)
+  15  --garbage only, never the reply (noise alone)
 
 The reply: FC03/04 the registers, FC06 the echo, FC 108 the vendor reply (any address),
 anything else exception 01.
@@ -119,12 +121,16 @@ class Slave:
         elif address == 12:
             if n % 2 == 0:
                 self.later(0, reply)
+        elif address == 13 and not self.garbage_pause_s:
+            self.later(0, self.garbage + reply)
         elif address == 13:
             self.later(0, self.garbage)
             self.later(self.garbage_pause_s, reply)
         elif address == 14:
             if n > self.mute_first:
                 self.later(0, reply)
+        elif address == 15:
+            self.later(0, self.garbage)
         else:
             self.later(0, reply)
 

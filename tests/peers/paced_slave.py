@@ -29,6 +29,7 @@ ASCII (--ascii; requests framed by ':' .. CR LF)
    8  the reply carrying address 0x7F, then at once (one write) the reply
    9  the reply carrying address 0x7F, --gap-ms of silence, then the reply
   10  a 515-character frame (the shortest too long), then the reply, in one write
+  11  ASCII_NOISE (bytes before a ':', then a frame cut short), then the reply, in one write
 
 Every request received is written to --record as "rx <hex of the raw bytes>", one line each,
 flushed at once.  The CRC and LRC are wire.py's own, independent of mbgw's.
@@ -50,6 +51,7 @@ VENDOR_FC = 0x41
 VENDOR_DATA = bytes(range(0xA0, 0xA0 + 20))
 VENDOR_REPLY = bytes((VENDOR_FC,)) + VENDOR_DATA
 SILENCE_S = 0.003            # ends a request whose length the peer cannot tell
+ASCII_NOISE = b"\x00\xff\r\n:01"   # noise, then a ':' that the reply's own ':' cuts short
 
 
 def ascii_frame(body: bytes, lower: bool = False) -> bytes:
@@ -171,6 +173,8 @@ class Slave:
                 self.write(ascii_frame(bytes((address,)) + bytes(299)) + reply)
             elif address == 10:
                 self.write(ascii_frame(bytes((address,)) + bytes(254)) + reply)
+            elif address == 11:
+                self.write(ASCII_NOISE + reply)
             elif address == 8:
                 self.write(ascii_frame(bytes((0x7F,)) + adu[1:]) + reply)
             elif address == 9:
