@@ -1,17 +1,21 @@
 """How a frame looks on the serial line: RTU (binary, CRC, ended by silence) or ASCII
-(':' hex LRC CR LF).  Each framing sends an ADU (address + PDU) and receives one, checked."""
+(':' hex LRC CR LF).  Each framing sends an ADU (address + PDU) and receives one, checked:
+what came is a native.Reception, its frame address + PDU without the check bytes."""
 import time
 
+from mbgw.errors import ChecksumError, FrameError
 from mbgw.line import native
-from mbgw.protocol import pdu
-from mbgw.errors import FrameError
+from mbgw.line.native import Reception
 from mbgw.line.port import SerialLine
+from mbgw.protocol import pdu
 
 # receive(): the reply goes nowhere before it is returned
 NO_FORWARD = (-1, 0, 0, False, native.NO_COUNTER)
 
 
 class RtuFraming:
+    inter_frame_us: int
+
     def __init__(self, line: SerialLine) -> None:
         self.line = line
         self.port = line.port
@@ -19,27 +23,16 @@ class RtuFraming:
         self._end_us = line.cfg.end_of_frame_us
         # the end-of-frame silence: a longer gap ends a frame, or a burst of noise
         self.port.set_byte_timeout(self._end_us)
-        self.last_rx_ns = 0
-        self.foreign_address = -1     # set when receive() returns None
-        self.sent = -1
-        self.sent_end_ns = 0
 
     def send(self, adu: bytes) -> int:
         return self.line.transmit_rtu(adu)
 
-    def receive(self, adu: bytes, deadline: int, forward=NO_FORWARD) -> bytes | None:
-        """address + PDU of a frame with a valid CRC from adu's address; None: another
-        address.  Noise before the reply is skipped and counted (noise_bytes).  forward:
-        (socket fd, tid, unit, yield, in-flight counter) of the client to which a reply that
-        answers adu goes at once (self.sent: its bytes the socket took, -1 none;
-        native.Port.receive_reply tells the rest).  Raises LineTimeout, ChecksumError,
-        FrameError."""
-        self.sent = -1
-        try:
-            frame = self.port.receive_reply(adu, deadline, *forward)
-        finally:
-            self._count_noise()
-        return self._received(frame)
+    def receive(self, adu: bytes, deadline: int, forward=NO_FORWARD) -> Reception:
+        """The next frame after adu, address + PDU (its valid CRC removed); noise before it
+        is skipped and counted (noise_bytes).  forward: (socket fd, tid, unit, yield,
+        in-flight counter) of the client to which a reply that answers adu goes at once
+        (Reception.forwarded)."""
+        return self._book(self.port.receive_reply(adu, deadline, *forward))
 
     def exchanges(self, adu: bytes) -> bool:
         """exchange() can take adu: a function code of pdu.LIBMODBUS_FRAMED, on a line
@@ -47,70 +40,53 @@ class RtuFraming:
         return adu[1] in pdu.LIBMODBUS_FRAMED and self.line.libmodbus_sends
 
     def exchange(self, adu: bytes, stout_ns: int, forward=NO_FORWARD,
-                 taken: bool = False) -> bytes | None:
+                 taken: bool = False) -> Reception:
         """send(adu) and receive() with the deadline stout_ns after the request, in one C
         call, so that nothing runs between the write and the wait for the reply (taken: the
-        port took adu from its client and exchanged it already).  self.sent_end_ns: when the
-        request's last byte left (raising SerialError, the write failed: the line is lost)."""
-        self.sent = -1
+        port took adu from its client and exchanged it already).  Raises SerialError when
+        the write failed (the line is lost)."""
         port = self.port
-        try:
-            if taken:
-                frame = port.exchanged()
-            else:
-                frame = port.exchange(adu, self.line.char_ns, stout_ns, *forward)
-        finally:
-            self.sent_end_ns = port.sent_end_ns
-            if self.sent_end_ns >= 0:        # else the write failed
-                self.line.sent_rtu(len(adu))
-            self._count_noise()
-        return self._received(frame)
+        if taken:
+            got = port.exchanged()
+        else:
+            got = port.exchange(adu, self.line.char_ns, stout_ns, *forward)
+        self.line.sent_rtu(len(adu))
+        return self._book(got)
 
-    def _count_noise(self) -> None:
-        """After a receive, whatever its outcome: the bytes it read that were in no frame."""
-        port = self.port
-        self.last_rx_ns = port.last_byte_ns
+    def _book(self, got: Reception) -> Reception:
+        """Count what a receive read; the frame without its CRC."""
         counters = self.line.counters
-        counters.noise_bytes += port.noise
-        counters.bytes_received += port.noise
+        counters.noise_bytes += got.noise
+        counters.bytes_received += got.noise + got.length
+        if got.frame is None:
+            return got
+        return got._replace(frame=got.frame[:-2])
 
-    def _received(self, frame: bytes | None) -> bytes | None:
-        port = self.port
-        if frame is None:
-            self.line.counters.bytes_received += port.dropped_length
-            self.foreign_address = port.foreign_address
-            return None
-        self.sent = port.sent
-        self.line.counters.bytes_received += len(frame)
-        return frame[:-2]
-
-    def receive_unchecked(self, adu: bytes, deadline: int) -> bytes:
+    def receive_unchecked(self, adu: bytes, deadline: int) -> Reception:
         """nocheck: whatever came until the end-of-frame silence, CRC removed unchecked."""
-        frame = self.port.read_reply(len(adu), deadline, self._end_us, True)
-        self.last_rx_ns = self.port.last_byte_ns
-        self.line.counters.bytes_received += len(frame)
-        return frame[:-2]
+        got = self.port.read_reply(len(adu), deadline, self._end_us, True)
+        self.line.counters.bytes_received += got.length
+        return got if got.frame is None else got._replace(frame=got.frame[:-2])
 
-    def resync(self) -> None:
+    def resync(self, last_byte_ns: int) -> int:
         """Skip the rest of a broken frame, up to the end-of-frame silence after its last
-        byte (nothing, when a silence already ended it): noise."""
-        skipped = self.port.wait_quiet(self.last_rx_ns, self._end_us)
-        if skipped:
-            self.last_rx_ns = time.monotonic_ns()
-            self.line.counters.noise_bytes += skipped
-            self.line.counters.bytes_received += skipped
+        byte (last_byte_ns; nothing, when a silence already ended it): noise.  Returns when
+        the line last carried a byte."""
+        skipped = self.port.wait_quiet(last_byte_ns, self._end_us)
+        if not skipped:
+            return last_byte_ns
+        self.line.counters.noise_bytes += skipped
+        self.line.counters.bytes_received += skipped
+        return time.monotonic_ns()
 
 
 class AsciiFraming:
     inter_frame_us = 0     # ASCII frames are delimited by ':' and CR LF, not by silence
-    sent = -1              # replies are never forwarded before they are checked here
 
     def __init__(self, line: SerialLine) -> None:
         self.line = line
         self.port = line.port
         self._interchar_us = line.cfg.ascii_timeout_ms * 1000
-        self.last_rx_ns = 0
-        self.foreign_address = -1     # set when receive() returns None
 
     def send(self, adu: bytes) -> int:
         return self.line.transmit(native.ascii_encode(adu))
@@ -118,40 +94,43 @@ class AsciiFraming:
     def exchanges(self, adu: bytes) -> bool:
         return False
 
-    def _read(self, deadline: int) -> bytes:
+    def _read(self, deadline: int) -> Reception:
         """One frame; what came outside it (before its ':', a frame cut short) is noise."""
-        port = self.port
+        got = self.port.read_ascii(deadline, self._interchar_us)
         counters = self.line.counters
-        try:
-            frame = port.read_ascii(deadline, self._interchar_us)
-        finally:
-            self.last_rx_ns = port.last_byte_ns
-            counters.noise_bytes += port.noise
-            counters.bytes_received += port.noise
-        counters.bytes_received += len(frame)
-        return frame
+        counters.noise_bytes += got.noise
+        counters.bytes_received += got.noise + got.length
+        return got
 
-    def receive(self, adu: bytes, deadline: int, forward=NO_FORWARD) -> bytes | None:
-        decoded = native.ascii_decode(self._read(deadline))
-        if len(decoded) < 2:
-            raise FrameError("frame too short")
+    def receive(self, adu: bytes, deadline: int, forward=NO_FORWARD) -> Reception:
+        """The next frame, address + PDU (its LRC checked and removed); replies are never
+        forwarded before they are checked here."""
+        got = self._read(deadline)
+        if got.frame is None:
+            return got
+        try:
+            decoded = native.ascii_decode(got.frame)
+            if len(decoded) < 2:
+                raise FrameError("frame too short")
+        except (ChecksumError, FrameError) as fault:
+            return got._replace(frame=None, fault=fault)
         if decoded[0] != adu[0]:
-            self.foreign_address = decoded[0]
-            return None
-        return decoded
+            return got._replace(frame=None, foreign_address=decoded[0])
+        return got._replace(frame=decoded)
 
-    def receive_unchecked(self, adu: bytes, deadline: int) -> bytes:
+    def receive_unchecked(self, adu: bytes, deadline: int) -> Reception:
         """nocheck: the frame's bytes, LRC removed unchecked."""
-        frame = self._read(deadline)
-        body = frame[1:-2]
+        got = self._read(deadline)
+        if got.frame is None:
+            return got
         try:
-            raw = bytes.fromhex(body.decode("ascii"))
+            raw = bytes.fromhex(got.frame[1:-2].decode("ascii"))
         except ValueError:
-            raise FrameError("not hexadecimal") from None
-        return raw[:-1]
+            return got._replace(frame=None, fault=FrameError("not hexadecimal"))
+        return got._replace(frame=raw[:-1])
 
-    def resync(self) -> None:
-        self.last_rx_ns = time.monotonic_ns()
+    def resync(self, last_byte_ns: int) -> int:
+        return time.monotonic_ns()
 
 
 def framing_for(line: SerialLine):

@@ -5,9 +5,10 @@ never stalls the asyncio thread.
 """
 import errno
 import os
+from typing import NamedTuple
 
 from mbgw._ffi import ffi, lib
-from mbgw.errors import ChecksumError, FrameError, LineTimeout, SerialError
+from mbgw.errors import ChecksumError, FrameError, LineTimeout, MbgwError, SerialError
 
 LEN_UNKNOWN = lib.MBGW_LEN_UNKNOWN
 RTU_MAX_ADU = lib.MBGW_RTU_MAX_ADU
@@ -24,6 +25,27 @@ _LIBMODBUS_ERRORS = {
 
 
 NO_COUNTER = ffi.NULL
+
+
+class Reception(NamedTuple):
+    """What one receive on the line gave (Port.receive_reply, exchange, exchanged, read_ascii,
+    read_reply).  A lost device is raised (SerialError), never returned."""
+    frame: bytes | None       # the frame from the request's address; None: none, or another's
+    fault: MbgwError | None   # LineTimeout, ChecksumError or FrameError instead of a frame
+    foreign_address: int      # the address of a frame from another address (-1: none)
+    length: int               # the bytes of the frame received (the other address's too)
+    noise: int                # bytes read that were in no frame
+    forwarded: int            # bytes of the reply its client's socket took (-1: not sent)
+    request_end_ns: int       # exchange: when the request's last byte left (0: not sent here)
+    last_byte_ns: int         # when the last byte read arrived (CLOCK_MONOTONIC)
+
+
+class Take(NamedTuple):
+    """What Port.take_request read from a client, and whether it went on the line."""
+    input: bytes              # what was read; b"" when nothing (or the connection ended)
+    status: int               # bytes read, 0 at the connection's end, -errno
+    taken: bool               # exchanged: Port.exchanged() gives its outcome
+    forwarded: int            # bytes of its reply the client's socket took (-1: not sent)
 
 
 def counter():
@@ -124,11 +146,6 @@ class Port:
         self._shortcut = ffi.new("struct mbgw_shortcut *")
         self._framed = ffi.NULL
         self._in = ffi.new("uint8_t[]", INPUT_SIZE)
-        self.sent = -1                 # what receive_reply sent to the client
-        self.noise = 0                 # bytes it read that were in no frame
-        self.dropped_length = 0        # bytes of the frame from another address it dropped
-        self.foreign_address = -1      # the address of that frame
-        self.sent_end_ns = 0           # exchange(): when the request's last byte leaves
         self.set_byte_timeout(0)
 
     def _open(self, device: str, baudrate: int, parity: str, data_bits: int,
@@ -166,6 +183,10 @@ class Port:
         if code in (lib.EMBBADDATA, errno.EBADMSG, errno.EMSGSIZE, errno.EPROTO):
             return FrameError(_strerror(code))
         return SerialError(code, f"{self.device}: {action}: {_strerror(code)}")
+
+    def error(self, code: int, action: str) -> MbgwError:
+        """The exception for errno `code` of a call doing `action`."""
+        return self._fail(code, action)
 
     def _check(self, rc: int, action: str) -> int:
         if rc < 0:
@@ -219,33 +240,30 @@ class Port:
 
     def receive_reply(self, adu: bytes, deadline_ns: int, client_fd: int = -1, tid: int = 0,
                       unit: int = 0, yield_cpu: bool = False,
-                      in_flight=NO_COUNTER) -> bytes | None:
+                      in_flight=NO_COUNTER) -> Reception:
         """The next frame after the request adu (csrc mbgw_find_reply: noise is skipped and
-        the reply found behind it): the frame (CRC checked), or None for a frame from another
-        address (self.dropped_length, self.foreign_address).  self.noise: the bytes read that
-        were in no frame.  With client_fd, a reply that answers adu in time has gone to that
-        socket as a Modbus TCP frame with tid and unit already: self.sent tells how many of
-        its bytes the socket took (-1: nothing was sent), and in_flight (a counter())
-        went down by one as it was; yield_cpu: then the client that was woken runs before
-        this returns."""
+        the reply found behind it), CRC checked.  With client_fd, a reply that answers adu in
+        time has gone to that socket as a Modbus TCP frame with tid and unit already
+        (Reception.forwarded), and in_flight (a counter()) went down by one as it was;
+        yield_cpu: then the client that was woken runs before this returns."""
         n = lib.mbgw_receive_reply(self._ctx, self._buf, adu, len(adu), deadline_ns,
                                    self._gap_us,
                                    self._forward_to(client_fd, tid, unit, yield_cpu, in_flight),
                                    self._end_ns, self._sent, self._noise)
-        return self._received(n, adu[0])
+        return self._received(n, adu[0], 0, self._end_ns[0], self._sent[0], self._noise[0])
 
     def exchange(self, adu: bytes, char_ns: int, stout_ns: int, client_fd: int = -1,
                  tid: int = 0, unit: int = 0, yield_cpu: bool = False,
-                 in_flight=NO_COUNTER) -> bytes | None:
+                 in_flight=NO_COUNTER) -> Reception:
         """send_rtu(adu) and receive_reply() in one call, the deadline stout_ns after the
-        request's last byte: nothing runs between the write and the wait.  self.sent_end_ns:
-        when the request's last byte leaves (char_ns a character), -1 when the write failed."""
+        request's last byte (char_ns a character): nothing runs between the write and the
+        wait.  Raises SerialError when the write failed."""
         times = self._times
         n = lib.mbgw_exchange(self._ctx, self._buf, adu, len(adu), char_ns, stout_ns,
                               self._gap_us,
                               self._forward_to(client_fd, tid, unit, yield_cpu, in_flight),
                               times, self._sent, self._noise)
-        return self._exchanged(n, times, adu[0])
+        return self._exchanged(n, times, adu[0], self._sent[0], self._noise[0])
 
     def shortcut_rules(self, framed, char_ns: int, stout_ns: int, slaveid: int) -> None:
         """What take_request() needs: the function codes libmodbus frames, the line's
@@ -258,42 +276,28 @@ class Port:
         sc.slaveid = slaveid
 
     def take_request(self, client_fd: int, quiet_until_ns: int,
-                     in_flight=NO_COUNTER) -> tuple[int, bool]:
+                     in_flight=NO_COUNTER) -> Take:
         """mbgw_take_request: read client_fd and, when what came is one request the line can
-        take as it is, exchange it at once (in_flight: the client's counter()).  Returns
-        (bytes read, taken); the bytes are in self.taken_input.  After a take, exchanged()
-        gives the outcome."""
+        take as it is, exchange it at once (in_flight: the client's counter()).  After a
+        take, exchanged() gives the outcome."""
         sc = self._shortcut
         sc.quiet_until_ns = quiet_until_ns
         n = lib.mbgw_take_request(self._ctx, client_fd, in_flight, self._in, INPUT_SIZE,
                                   self._buf, sc)
-        return n, sc.result != NOT_TAKEN
+        data = ffi.buffer(self._in, n)[:] if n > 0 else b""
+        taken = sc.result != NOT_TAKEN
+        return Take(data, n, taken, sc.sent if taken else -1)
 
-    @property
-    def taken_input(self):
-        """What take_request() read (a buffer: slice it to the bytes read)."""
-        return ffi.buffer(self._in)
-
-    @property
-    def taken_sent(self) -> int:
-        """The bytes of the taken request's reply sent to the client; -1 none."""
-        return self._shortcut.sent
-
-    def exchanged(self) -> bytes | None:
+    def exchanged(self) -> Reception:
         """What exchange() would have returned, for the request take_request() took."""
         sc = self._shortcut
-        self._sent[0] = sc.sent
-        self._noise[0] = sc.noise
-        return self._exchanged(sc.result, sc.times, sc.address)
+        return self._exchanged(sc.result, sc.times, sc.address, sc.sent, sc.noise)
 
-    def _exchanged(self, n: int, times, address: int) -> bytes | None:
-        self._end_ns[0] = times[1]
-        self.sent_end_ns = times[0]
+    def _exchanged(self, n: int, times, address: int, forwarded: int,
+                   noise: int) -> Reception:
         if times[0] < 0:
-            self.sent = -1
-            self.noise = self.dropped_length = 0
             raise self._fail(-n, "write")
-        return self._received(n, address)
+        return self._received(n, address, times[0], times[1], forwarded, noise)
 
     def _forward_to(self, client_fd: int, tid: int, unit: int, yield_cpu: bool, in_flight):
         to = self._to
@@ -304,38 +308,41 @@ class Port:
         to.in_flight = in_flight
         return to
 
-    def _received(self, n: int, address: int) -> bytes | None:
-        """The frame C received (n bytes) when it is from address, else None."""
-        self.sent = self._sent[0]
-        self.noise = self._noise[0]
-        self.dropped_length = 0
+    def _received(self, n: int, address: int, request_end_ns: int, last_byte_ns: int,
+                  forwarded: int, noise: int) -> Reception:
+        """What C received (n bytes of frame, or -errno) after a request to address."""
         if n < 0:
-            raise self._fail(-n, "read")
+            fault = self._fail(-n, "read")
+            if isinstance(fault, SerialError):
+                raise fault
+            return Reception(None, fault, -1, 0, noise, -1, request_end_ns, last_byte_ns)
         frame = ffi.buffer(self._buf + REPLY_AT, n)[:]
         if frame[0] != address:
-            self.dropped_length = n
-            self.foreign_address = frame[0]
-            return None
-        return frame
+            return Reception(None, None, frame[0], n, noise, -1, request_end_ns, last_byte_ns)
+        return Reception(frame, None, -1, n, noise, forwarded, request_end_ns, last_byte_ns)
 
     def read_reply(self, request_len: int, deadline_ns: int, gap_us: int,
-                   by_silence: bool) -> bytes:
-        """Our own RTU receive: framed by length where known, else by gap_us of silence."""
+                   by_silence: bool) -> Reception:
+        """Our own RTU receive, nothing checked: framed by length where known, else by gap_us
+        of silence."""
         n = lib.mbgw_read_reply(self.fd, self._buf, RTU_MAX_ADU + 4, request_len,
                                 deadline_ns, gap_us, by_silence, self._end_ns)
-        return ffi.buffer(self._buf, self._check(n, "read"))[:]
+        return self._read(n, 0)
 
-    def read_ascii(self, deadline_ns: int, interchar_us: int) -> bytes:
-        """One ASCII frame, ':' to CR LF; self.noise: the bytes read outside it."""
+    def read_ascii(self, deadline_ns: int, interchar_us: int) -> Reception:
+        """One ASCII frame, ':' to CR LF, as it came (its LRC unchecked)."""
         n = lib.mbgw_ascii_read_frame(self.fd, self._buf, ASCII_MAX_FRAME, deadline_ns,
                                       interchar_us, self._end_ns, self._noise)
-        self.noise = self._noise[0]
-        return ffi.buffer(self._buf, self._check(n, "read"))[:]
+        return self._read(n, self._noise[0])
 
-    @property
-    def last_byte_ns(self) -> int:
-        """When the last byte of the latest read_reply/read_ascii arrived (CLOCK_MONOTONIC)."""
-        return self._end_ns[0]
+    def _read(self, n: int, noise: int) -> Reception:
+        if n < 0:
+            fault = self._fail(-n, "read")
+            if isinstance(fault, SerialError):
+                raise fault
+            return Reception(None, fault, -1, 0, noise, -1, 0, self._end_ns[0])
+        return Reception(ffi.buffer(self._buf, n)[:], None, -1, n, noise, -1, 0,
+                         self._end_ns[0])
 
     def wait_quiet(self, since_ns: int, quiet_us: int) -> int:
         """Wait until the line has been quiet for quiet_us; returns the bytes discarded."""

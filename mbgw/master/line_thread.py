@@ -164,9 +164,12 @@ class SerialSlave(LineThread[MasterConfig]):
     def _receive_ascii(self) -> bytes | None:
         if self._port.idle_wait(self.wake_fd, -1) != IDLE_INPUT:
             return None
-        frame = self._port.read_ascii(time.monotonic_ns() + self._ascii_frame_ns,
-                                      self._interchar_us)
-        return native.ascii_decode(frame)
+        got = self._port.read_ascii(time.monotonic_ns() + self._ascii_frame_ns,
+                                    self._interchar_us)
+        if got.fault is not None:
+            raise got.fault
+        assert got.frame is not None
+        return native.ascii_decode(got.frame)
 
     # --- forwarding ---
 

@@ -9,6 +9,7 @@ import time
 
 from mbgw.protocol import mbap
 from mbgw.line import native
+from mbgw.line.framing import NO_FORWARD
 from mbgw.slave.scheduler import Queue
 
 MAX_IN_FLIGHT = 16          # TCP guide 4.4.2: a server holds 1..16 transactions per client
@@ -66,6 +67,18 @@ class Client:
         if not n:
             return None
         return self.received(into[:n])
+
+    # C may write a reply to the client's socket itself only while no earlier reply waits
+    # here to go out before it (order) and the connection is open: forward_target() for a
+    # request from the queue, at_rest for the idle line's shortcut (mbgw_take_request).
+
+    def forward_target(self, tid: int, unit: int, yield_cpu: bool) -> tuple:
+        """Where the C receive may send the reply to request tid straight from the line (a
+        framing forward tuple), or NO_FORWARD; yield_cpu: nothing else waits for the line,
+        so the client woken by the reply may run first."""
+        if self._out or self.closed:
+            return NO_FORWARD
+        return (self.fd, tid, unit, yield_cpu, self.flight)
 
     @property
     def at_rest(self) -> bool:

@@ -14,7 +14,7 @@ from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.errors import LineTimeout, SerialError
-from mbgw.line.framing import NO_FORWARD, framing_for
+from mbgw.line.framing import framing_for
 from mbgw.line.supervisor import LineThread
 from mbgw.slave.scheduler import (OUTCOME_BROADCAST, OUTCOME_ERROR, OUTCOME_EXCEPTION,
                             OUTCOME_LINE_DOWN, OUTCOME_REPLY, OUTCOME_TIMEOUT, Job, Scheduler)
@@ -108,8 +108,7 @@ class LineWorker(LineThread[SlaveConfig]):
             # The reply may go straight to a client whose earlier replies have all gone out.
             # With no other request waiting for the line, that client (often woken onto this
             # CPU) then runs before our bookkeeping.
-            forward = NO_FORWARD if client.output_waiting or client.closed else \
-                (client.fd, job.tid, job.unit, not self._scheduler.depth, client.flight)
+            forward = client.forward_target(job.tid, job.unit, not self._scheduler.depth)
             master = self._master
             assert master is not None          # jobs are served only while the line is up
             reply = master.transact(job.adu, forward, taken)
@@ -173,21 +172,21 @@ class LineWorker(LineThread[SlaveConfig]):
         port = master.framing.port
         client.in_flight += 1          # from now on, never an idle connection to evict,
         client.requests += 1           # nor one that never sent a request, once answered
-        n, taken = port.take_request(client.fd, master.quiet_until_ns, client.flight)
-        if not taken:
+        take = port.take_request(client.fd, master.quiet_until_ns, client.flight)
+        data = take.input
+        if not take.taken:
             client.in_flight -= 1
             client.requests -= 1
-            if n == -errno.EAGAIN:
+            if take.status == -errno.EAGAIN:
                 return []
-            return client.received(port.taken_input[:n]) if n > 0 else None
-        data = port.taken_input[:n]
+            return client.received(data) if take.status > 0 else None
         tid, _, _, unit = mbap.HEADER.unpack_from(data)
         client.last_active = time.monotonic()
         try:
             self._taken = self._server.taken(client, tid, unit, data[mbap.HEADER_LEN:])
         except Exception:   # a bug must cost one transaction, never the line
             log.exception("internal error on a request the shortcut took: %s", data.hex(" "))
-        if self._taken is None and port.taken_sent < 0:
+        if self._taken is None and take.forwarded < 0:
             client.in_flight -= 1      # not counted answered by a reply's forward either
         return []
 

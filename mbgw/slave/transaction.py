@@ -13,9 +13,9 @@ from mbgw.protocol import pdu
 from mbgw.config.model import SerialConfig
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceStats, DeviceTable
-from mbgw.errors import ChecksumError, FrameError, LineTimeout
+from mbgw.errors import ChecksumError, LineTimeout
 from mbgw.line.framing import NO_FORWARD
-from mbgw.line.native import reply_matches
+from mbgw.line.native import Reception, reply_matches
 
 wire = logging.getLogger("mbgw.wire")
 
@@ -71,14 +71,15 @@ class SerialMaster:
                 taken = False
             if not taken:
                 self._await_quiet(adu)
-            reply = self._receive(adu, device, forward, taken or (
+            got = self._receive(adu, device, forward, taken or (
                 self.framing.exchanges(adu) and not self._nocheck), taken)
             if not attempt:
                 started = self._sent_ns
-            if reply is not None:
+            if got is not None and got.frame is not None:
+                reply = got.frame[1:]
                 if self.on_reply is not None:
-                    self.on_reply(reply, self.framing.sent)
-                ended = self.framing.last_rx_ns
+                    self.on_reply(reply, got.forwarded)
+                ended = got.last_byte_ns
                 self._counters.line_busy_ns += ended - started
                 exception = reply[1] if reply[0] & pdu.EXCEPTION_FLAG and len(reply) > 1 else None
                 if exception is not None:
@@ -117,55 +118,51 @@ class SerialMaster:
         self._deadline = end_ns + self._stout_ns
 
     def _receive(self, adu: bytes, device: DeviceStats, forward, exchange: bool,
-                 taken: bool = False) -> bytes | None:
+                 taken: bool = False) -> Reception | None:
         """Send adu (in one C call with the first receive when exchange; taken: that call
-        was made already) and return the reply PDU, or None once stout has passed without
-        one."""
+        was made already) and return what brought the reply (its frame: address + PDU), or
+        None once stout has passed without one."""
         framing = self.framing
         if not exchange:
             self._sent(framing.send(adu))
         while True:
-            try:
-                if exchange:
-                    exchange = False
-                    try:
-                        frame = framing.exchange(adu, self._stout_ns, forward, taken)
-                    finally:
-                        self._sent(framing.sent_end_ns)
-                        if taken:
-                            self._sent_ns = framing.sent_end_ns - \
-                                (len(adu) + 2) * framing.line.char_ns
-                elif self._nocheck:
-                    return framing.receive_unchecked(adu, self._deadline)[1:] or None
-                else:
-                    frame = framing.receive(adu, self._deadline, forward)
-            except LineTimeout:
-                return None
-            except ChecksumError:
-                self._count(device, "crc_errors")
-                framing.resync()
+            if exchange:
+                exchange = False
+                got = framing.exchange(adu, self._stout_ns, forward, taken)
+                self._sent(got.request_end_ns)
+                if taken:
+                    self._sent_ns = got.request_end_ns - (len(adu) + 2) * framing.line.char_ns
+            elif self._nocheck:
+                got = framing.receive_unchecked(adu, self._deadline)
+            else:
+                got = framing.receive(adu, self._deadline, forward)
+            if got.fault is not None:
+                if isinstance(got.fault, LineTimeout):
+                    self._quiet_from_ns = max(self._quiet_from_ns, got.last_byte_ns)
+                    return None
+                self._count(device, "crc_errors" if isinstance(got.fault, ChecksumError)
+                            else "invalid_frames")
+                self._quiet_from_ns = max(self._quiet_from_ns,
+                                          framing.resync(got.last_byte_ns))
                 continue
-            except FrameError:
-                self._count(device, "invalid_frames")
-                framing.resync()
-                continue
-            finally:
-                self._quiet_from_ns = max(self._quiet_from_ns, framing.last_rx_ns)
+            self._quiet_from_ns = max(self._quiet_from_ns, got.last_byte_ns)
+            frame = got.frame
             if frame is None:
                 late = self._timed_out
-                if late is not None and framing.foreign_address == late.address:
+                if late is not None and got.foreign_address == late.address:
                     self._count(late, "late_replies")     # the answer to its timed-out request
                 else:
                     self._count(device, "wrong_unit")
                 continue
+            if self._nocheck:
+                return got if len(frame) > 1 else None
             if wire.isEnabledFor(logging.DEBUG):
                 wire.debug("rx %s", frame.hex(" "))
-            if framing.last_rx_ns > self._deadline:
+            if got.last_byte_ns > self._deadline:
                 self._count(device, "late_replies")
                 continue
-            reply = frame[1:]
-            if not reply_matches(adu[1:], reply):
+            if not reply_matches(adu[1:], frame[1:]):
                 self._count(device, "late_replies" if self._timed_out is device
                             else "wrong_function")
                 continue
-            return reply
+            return got

@@ -187,7 +187,7 @@ ASCII_TIMEOUT_US = 200_000
 def read_ascii(port: native.Port, wake_fd: int) -> bytes | None:
     if port.idle_wait(wake_fd, -1) != 1:
         return None
-    return port.read_ascii(time.monotonic_ns() + 2_000_000_000, ASCII_TIMEOUT_US)
+    return port.read_ascii(time.monotonic_ns() + 2_000_000_000, ASCII_TIMEOUT_US).frame
 
 
 def test_ascii_frames_in_one_burst_come_out_one_by_one(line, wake_fd):

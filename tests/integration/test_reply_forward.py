@@ -49,11 +49,11 @@ def test_a_reply_that_answers_goes_to_the_client_at_once(line, socket_ends):
     in_flight = counter()
     in_flight[0] = 1
     os.write(slave, rtu(UNIT, holding_reply(0, 3)))
-    frame = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT, True,
-                               in_flight)
-    assert frame == rtu(UNIT, holding_reply(0, 3))
+    got = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT, True,
+                             in_flight)
+    assert got.frame == rtu(UNIT, holding_reply(0, 3))
     expected = mbap(TID, CLIENT_UNIT, holding_reply(0, 3))
-    assert port.sent == len(expected)
+    assert got.forwarded == len(expected)
     assert theirs.recv(1024) == expected
     assert in_flight[0] == 0      # answered as it was sent
 
@@ -62,7 +62,7 @@ def test_a_device_exception_is_an_answer_too(line, socket_ends):
     port, slave = line
     ours, theirs = socket_ends
     os.write(slave, rtu(UNIT, b"\x83\x02"))
-    assert port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT)
+    assert port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT).frame
     assert theirs.recv(1024) == mbap(TID, CLIENT_UNIT, b"\x83\x02")
 
 
@@ -77,9 +77,10 @@ def test_a_reply_that_does_not_answer_never_reaches_the_client(line, socket_ends
     in_flight = counter()
     in_flight[0] = 1
     os.write(slave, rtu(UNIT, reply))
-    assert port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT, False,
-                              in_flight) == rtu(UNIT, reply)
-    assert port.sent == -1
+    got = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT, False,
+                             in_flight)
+    assert got.frame == rtu(UNIT, reply)
+    assert got.forwarded == -1
     assert nothing_on(theirs)
     assert in_flight[0] == 1
 
@@ -88,9 +89,10 @@ def test_a_frame_from_another_address_is_dropped_unsent(line, socket_ends):
     port, slave = line
     ours, theirs = socket_ends
     os.write(slave, rtu(UNIT + 1, holding_reply(0, 3)))
-    assert port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT) is None
-    assert port.foreign_address == UNIT + 1
-    assert port.sent == -1
+    got = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT)
+    assert got.frame is None
+    assert got.foreign_address == UNIT + 1
+    assert got.forwarded == -1
     assert nothing_on(theirs)
 
 
@@ -100,29 +102,30 @@ def test_a_reply_behind_noise_goes_to_the_client_and_the_noise_is_counted(line, 
     port, slave = line
     ours, theirs = socket_ends
     os.write(slave, bytes.fromhex(noise) + rtu(UNIT, holding_reply(0, 3)))
-    assert port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT) == \
-        rtu(UNIT, holding_reply(0, 3))
+    got = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT)
+    assert got.frame == rtu(UNIT, holding_reply(0, 3))
     assert theirs.recv(1024) == mbap(TID, CLIENT_UNIT, holding_reply(0, 3))
-    assert port.noise == len(bytes.fromhex(noise))
+    assert got.noise == len(bytes.fromhex(noise))
 
 
 def test_a_frame_right_behind_a_foreign_one_stays_for_the_next_receive(line, socket_ends):
     port, slave = line
     ours, theirs = socket_ends
     os.write(slave, rtu(UNIT + 1, b"\x83\x02") + rtu(UNIT, holding_reply(0, 3)))
-    assert port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT) is None
-    assert (port.foreign_address, port.dropped_length, port.noise) == (UNIT + 1, 5, 0)
+    got = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT)
+    assert got.frame is None
+    assert (got.foreign_address, got.length, got.noise) == (UNIT + 1, 5, 0)
     assert nothing_on(theirs)
-    assert port.receive_reply(REQUEST, deadline()) == rtu(UNIT, holding_reply(0, 3))
+    assert port.receive_reply(REQUEST, deadline()).frame == rtu(UNIT, holding_reply(0, 3))
 
 
 def test_noise_alone_is_counted_and_sends_nothing(line, socket_ends):
     port, slave = line
     ours, theirs = socket_ends
     os.write(slave, bytes.fromhex("09 18 ff ff 01 02"))
-    with pytest.raises(FrameError):
-        port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT)
-    assert port.noise == 6
+    got = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT)
+    assert isinstance(got.fault, FrameError)
+    assert got.noise == 6
     assert nothing_on(theirs)
 
 
@@ -135,23 +138,24 @@ def test_a_full_client_socket_takes_nothing_and_loses_nothing(line, socket_ends)
         except BlockingIOError:
             break
     os.write(slave, rtu(UNIT, holding_reply(0, 3)))
-    assert port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT) == \
-        rtu(UNIT, holding_reply(0, 3))
-    assert port.sent == 0     # the caller sends the whole reply later, behind what waits
+    got = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT)
+    assert got.frame == rtu(UNIT, holding_reply(0, 3))
+    assert got.forwarded == 0     # the caller sends the whole reply later, behind what waits
 
 
 def test_without_a_client_nothing_is_sent(line):
     port, slave = line
     os.write(slave, rtu(UNIT, holding_reply(0, 3)))
-    assert port.receive_reply(REQUEST, deadline()) == rtu(UNIT, holding_reply(0, 3))
-    assert port.sent == -1
+    got = port.receive_reply(REQUEST, deadline())
+    assert got.frame == rtu(UNIT, holding_reply(0, 3))
+    assert got.forwarded == -1
 
 
 def test_no_reply_by_the_deadline_is_a_timeout(line, socket_ends):
     port, _ = line
     ours, theirs = socket_ends
-    with pytest.raises(LineTimeout):
-        port.receive_reply(REQUEST, deadline(0.05), ours.fileno(), TID, CLIENT_UNIT)
+    got = port.receive_reply(REQUEST, deadline(0.05), ours.fileno(), TID, CLIENT_UNIT)
+    assert isinstance(got.fault, LineTimeout)
     assert nothing_on(theirs)
 
 
@@ -178,20 +182,20 @@ def test_the_exchange_writes_the_request_and_forwards_its_reply(line, socket_end
     ours, theirs = socket_ends
     thread, got = answer_once(slave, rtu(UNIT, holding_reply(0, 3)))
     before = time.monotonic_ns()
-    frame = port.exchange(REQUEST, CHAR_NS, 1_000_000_000, ours.fileno(), TID, CLIENT_UNIT)
+    reply = port.exchange(REQUEST, CHAR_NS, 1_000_000_000, ours.fileno(), TID, CLIENT_UNIT)
     thread.join(1)
     assert got == [rtu(UNIT, read_holding(0, 3))]
-    assert frame == rtu(UNIT, holding_reply(0, 3))
+    assert reply.frame == rtu(UNIT, holding_reply(0, 3))
     assert theirs.recv(1024) == mbap(TID, CLIENT_UNIT, holding_reply(0, 3))
     # the request's last byte leaves 8 characters after the write began
-    assert before + 8 * CHAR_NS <= port.sent_end_ns <= port.last_byte_ns + 8 * CHAR_NS
+    assert before + 8 * CHAR_NS <= reply.request_end_ns <= reply.last_byte_ns + 8 * CHAR_NS
 
 
 def test_the_exchange_waits_stout_from_the_end_of_the_request(line, socket_ends):
     port, slave = line
     ours, theirs = socket_ends
-    with pytest.raises(LineTimeout):
-        port.exchange(REQUEST, CHAR_NS, 50_000_000, ours.fileno(), TID, CLIENT_UNIT)
-    assert port.last_byte_ns >= port.sent_end_ns + 50_000_000
+    got = port.exchange(REQUEST, CHAR_NS, 50_000_000, ours.fileno(), TID, CLIENT_UNIT)
+    assert isinstance(got.fault, LineTimeout)
+    assert got.last_byte_ns >= got.request_end_ns + 50_000_000
     assert os.read(slave, 256) == rtu(UNIT, read_holding(0, 3))
     assert nothing_on(theirs)

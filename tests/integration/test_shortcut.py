@@ -79,14 +79,14 @@ def test_one_whole_request_goes_to_the_line_and_its_reply_to_the_client(line, so
     theirs.sendall(REQUEST)
     in_flight = counter()
     in_flight[0] = 1                # the caller's mark, made before the call
-    n, taken = port.take_request(ours.fileno(), 0, in_flight)
-    assert (n, taken) == (len(REQUEST), True)
+    take = port.take_request(ours.fileno(), 0, in_flight)
+    assert (take.status, take.taken) == (len(REQUEST), True)
     assert in_flight[0] == 0        # answered as the reply was sent
-    assert port.taken_input[:n] == REQUEST
-    assert port.exchanged() == rtu(UNIT, holding_reply(0, 3))
+    assert take.input == REQUEST
+    assert port.exchanged().frame == rtu(UNIT, holding_reply(0, 3))
     assert got == [rtu(UNIT, read_holding(0, 3))]
     assert theirs.recv(1024) == mbap(TID, UNIT, holding_reply(0, 3))
-    assert port.sent == len(mbap(TID, UNIT, holding_reply(0, 3)))
+    assert take.forwarded == len(mbap(TID, UNIT, holding_reply(0, 3)))
 
 
 def test_slaveid_sets_the_serial_address_and_the_client_keeps_its_unit(line, socket_ends):
@@ -95,8 +95,8 @@ def test_slaveid_sets_the_serial_address_and_the_client_keeps_its_unit(line, soc
     ours, theirs = socket_ends
     got = slave_answers(slave, UNIT, holding_reply(0, 3))
     theirs.sendall(mbap(TID, 99, read_holding(0, 3)))
-    assert port.take_request(ours.fileno(), 0)[1]
-    assert port.exchanged() == rtu(UNIT, holding_reply(0, 3))
+    assert port.take_request(ours.fileno(), 0).taken
+    assert port.exchanged().frame == rtu(UNIT, holding_reply(0, 3))
     assert got == [rtu(UNIT, read_holding(0, 3))]
     assert theirs.recv(1024) == mbap(TID, 99, holding_reply(0, 3))
 
@@ -107,10 +107,10 @@ def test_no_reply_leaves_the_client_without_one(line, socket_ends):
     port.shortcut_rules(pdu.LIBMODBUS_FRAMED, CHAR_NS, 50_000_000, 0)
     ours, theirs = socket_ends
     theirs.sendall(REQUEST)
-    assert port.take_request(ours.fileno(), 0)[1]
-    with pytest.raises(LineTimeout):
-        port.exchanged()
-    assert port.last_byte_ns >= port.sent_end_ns + 50_000_000
+    assert port.take_request(ours.fileno(), 0).taken
+    got = port.exchanged()
+    assert isinstance(got.fault, LineTimeout)
+    assert got.last_byte_ns >= got.request_end_ns + 50_000_000
     assert os.read(slave, 256) == rtu(UNIT, read_holding(0, 3))
     theirs.setblocking(False)
     with pytest.raises(BlockingIOError):
@@ -139,9 +139,9 @@ def test_anything_else_is_left_whole_to_the_caller(line, socket_ends, sent, quie
     theirs.sendall(sent)
     if quiet_until == NOT_QUIET:
         quiet_until = time.monotonic_ns() + 1_000_000_000
-    n, taken = port.take_request(ours.fileno(), quiet_until)
-    assert (n, taken) == (len(sent), False)
-    assert port.taken_input[:n] == sent
+    take = port.take_request(ours.fileno(), quiet_until)
+    assert (take.status, take.taken) == (len(sent), False)
+    assert take.input == sent
     assert nothing_written(slave)
 
 
@@ -149,6 +149,6 @@ def test_an_ended_connection_and_an_empty_one(line, socket_ends):
     make, _ = line
     port = make()
     ours, theirs = socket_ends
-    assert port.take_request(ours.fileno(), 0) == (-errno.EAGAIN, False)
+    assert port.take_request(ours.fileno(), 0)[1:3] == (-errno.EAGAIN, False)
     theirs.close()
-    assert port.take_request(ours.fileno(), 0) == (0, False)
+    assert port.take_request(ours.fileno(), 0)[1:3] == (0, False)
