@@ -100,7 +100,11 @@ def _serial_config(device, protocol, baudrate, line_format, interface, rtsdelays
         ascii_timeout_ms=ascii_timeout, nocheck=nocheck))
 
 
-@click.group()
+# -h as well as --help, on every command: click hands it down to the subcommands' contexts.
+CONTEXT_SETTINGS = {"help_option_names": ["-h", "--help"]}
+
+
+@click.group(context_settings=CONTEXT_SETTINGS)
 @click.version_option(__version__, prog_name="mbgw")
 def main() -> None:
     """mbgw: a Modbus gateway between Modbus TCP and a Modbus RTU/ASCII serial line."""

@@ -3,6 +3,7 @@ result.exit_code are used: the rest of the runner's API differs between click 8.
 import logging
 import re
 
+import click
 import pytest
 from click.testing import CliRunner
 
@@ -148,3 +149,22 @@ def test_device_that_cannot_be_opened_exits_1_with_one_line_naming_it():
     assert len(lines) == 1, result.output
     assert "/nonexistent/tty" in lines[0]
     assert "Traceback" not in result.output
+
+
+def _command_paths(group: click.Group, path=()):
+    """The words of every command and group under group, e.g. ("clients", "close")."""
+    for name in group.list_commands(click.Context(group)):
+        command = group.get_command(click.Context(group), name)
+        yield (*path, name)
+        if isinstance(command, click.Group):
+            yield from _command_paths(command, (*path, name))
+
+
+def test_every_command_takes_dash_h_for_help():
+    paths = [(), *_command_paths(main)]
+    assert ("clients", "close") in paths and ("config", "set") in paths
+    for path in paths:
+        short = CliRunner().invoke(main, [*path, "-h"])
+        assert short.exit_code == 0, (path, short.output)
+        assert short.output == CliRunner().invoke(main, [*path, "--help"]).output, path
+        assert "-h, --help" in short.output, path
