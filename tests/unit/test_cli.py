@@ -168,3 +168,16 @@ def test_every_command_takes_dash_h_for_help():
         assert short.exit_code == 0, (path, short.output)
         assert short.output == CliRunner().invoke(main, [*path, "--help"]).output, path
         assert "-h, --help" in short.output, path
+
+
+@pytest.mark.parametrize("command", [["status"], ["trace"], ["clients", "close", "1"],
+                                     ["stats", "reset"]])
+def test_diagnostics_reach_a_service_instance_by_name(command):
+    """-i NAME: the socket of mbgw@NAME (its RuntimeDirectory=mbgw/%i), like `run -i NAME`
+    takes /etc/mbgw/NAME.toml; no daemon runs here, so the command names the path."""
+    result = CliRunner().invoke(main, [*command, "-i", "ttyTEST9"])
+    assert result.exit_code == 1, result.output
+    assert "no mbgw daemon answers on /run/mbgw/ttyTEST9/mbgw.sock" in result.output
+    assert CliRunner().invoke(main, [*command, "--instance", "../x"]).exit_code == 2
+    both = CliRunner().invoke(main, [*command, "-i", "x", "--control", "/tmp/x.sock"])
+    assert both.exit_code == 2 and "not both" in both.output
