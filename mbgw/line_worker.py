@@ -15,7 +15,7 @@ from mbgw.counters import Counters
 from mbgw.device_stats import DeviceTable
 from mbgw.errors import LineTimeout, SerialError
 from mbgw.framing import NO_FORWARD, framing_for
-from mbgw.native import line_thread_init
+from mbgw.native import ASCII_MAX_FRAME, RTU_MAX_ADU, line_thread_init, name_thread
 from mbgw.scheduler import (OUTCOME_BROADCAST, OUTCOME_ERROR, OUTCOME_EXCEPTION,
                             OUTCOME_LINE_DOWN, OUTCOME_REPLY, OUTCOME_TIMEOUT, Job, Scheduler)
 from mbgw.serial_master import SerialMaster
@@ -29,6 +29,22 @@ REOPEN_FIRST_S = 0.5
 # Serial settings that need the port opened again; the others apply to the next transaction.
 REOPEN_SETTINGS = ("device", "baudrate", "format", "interface", "rtsdelays")
 REOPEN_MAX_S = 5.0
+# What the watchdog (mbgw.daemon.tell_systemd) allows a turn of a line thread's loop on top
+# of what the line's settings say it may take: the thread's own time, scheduling delays.
+TURN_MARGIN_S = 1.0
+
+
+def longest_frame_s(serial) -> float:
+    """The time the longest frame of the line's protocol takes on the wire."""
+    chars = ASCII_MAX_FRAME if serial.protocol == "ascii" else RTU_MAX_ADU
+    return chars * serial.char_ns / 1e9
+
+
+def idle_wait_ms(wait_ms: int, idle_ms: int) -> int:
+    """wait_ms (-1: no limit), no longer than idle_ms (-1: no limit)."""
+    if idle_ms < 0:
+        return wait_ms
+    return idle_ms if wait_ms < 0 else min(wait_ms, idle_ms)
 
 
 class LineWorker(threading.Thread):
@@ -50,6 +66,21 @@ class LineWorker(threading.Thread):
         self.reconfigured = False
         self._master: SerialMaster | None = self._master_on(line)
         self.up = True                 # False while the port is down: requests are refused
+        # For systemd's watchdog: the monotonic time the loop last turned, and the longest
+        # the thread may sleep while nothing happens (-1: no limit; set before start()).
+        self.heartbeat = time.monotonic()
+        self.idle_ms = -1
+
+    @property
+    def turn_limit_s(self) -> float:
+        """The longest one turn of the loop takes while all is well: a transaction with its
+        retries (each a quiet line, the longest request, stout, the longest reply's end)
+        and the pause after a broadcast."""
+        cfg = self._cfg
+        s = cfg.serial
+        quiet_ms = max(s.t35_us / 1000, s.silence_ms) + sum(s.rtsdelays)
+        attempt_s = (quiet_ms + s.stout_ms) / 1000 + 2 * longest_frame_s(s)
+        return (cfg.retries + 1) * attempt_s + cfg.turnaround_ms / 1000 + TURN_MARGIN_S
 
     def _master_on(self, line: SerialLine, previous: SerialMaster | None = None) -> SerialMaster:
         cfg = self._cfg
@@ -94,7 +125,9 @@ class LineWorker(threading.Thread):
 
     def run(self) -> None:
         line_thread_init()
+        name_thread(self.name)
         while not self._stopping:
+            self.heartbeat = time.monotonic()
             if self._new_cfg is not None:
                 self._apply_new_cfg()
             if self._master is None:
@@ -163,7 +196,7 @@ class LineWorker(threading.Thread):
         take = self._take if self._shortcut and not self._server.trace.active and \
             not wire.isEnabledFor(logging.DEBUG) else None
         try:
-            if self._connections.wait(-1, port.fd, take):
+            if self._connections.wait(self.idle_ms, port.fd, take):
                 # one frame without a request: whatever comes until the line is quiet again
                 unsolicited = port.wait_quiet(time.monotonic_ns(), self._cfg.serial.t35_us)
                 self._counters.unsolicited_frames += 1
@@ -209,10 +242,12 @@ class LineWorker(threading.Thread):
         next_try = time.monotonic() + (0 if self.reconfigured else delay)
         self.reconfigured = False
         while not self._stopping and self._new_cfg is None:
+            self.heartbeat = time.monotonic()
             self._reject_waiting()
             left = next_try - time.monotonic()
             if left > 0:
-                self._connections.wait(math.ceil(left * 1000))   # clients are refused meanwhile
+                # clients are refused meanwhile
+                self._connections.wait(idle_wait_ms(math.ceil(left * 1000), self.idle_ms))
                 continue
             try:
                 line = SerialLine(self._cfg.serial, self._counters)

@@ -8,7 +8,8 @@ import time
 
 from mbgw.config import MasterConfig
 from mbgw.counters import MasterCounters
-from mbgw.daemon import log_stopped, serve_until_stopped, start_control, start_metrics
+from mbgw.daemon import (idle_ms, log_stopped, serve_until_stopped, start_control,
+                         start_metrics, watchdog_interval)
 from mbgw.master_status import MasterStatus
 from mbgw.metrics import render_master
 from mbgw.serial_port import SerialLine
@@ -43,6 +44,7 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
     started = time.time()
     metrics = await start_metrics(cfg.metrics, lambda: render_master(
         counters, slave.devices, slave, started))
+    slave.idle_ms = idle_ms(watchdog_interval())
     slave.start()
     status = MasterStatus(cfg, slave, counters)
     control = await start_control(cfg.control, status.commands())
@@ -61,7 +63,7 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
             log.warning("the slaveid table is empty: every request on the line is ignored")
         slave.reconfigure(new)
 
-    await serve_until_stopped(stop, status, reconfigure, apply, control, metrics)
+    await serve_until_stopped(stop, status, slave, reconfigure, apply, control, metrics)
     slave.stop()
     await asyncio.to_thread(slave.join)
     log_stopped(counters)

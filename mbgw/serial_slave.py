@@ -18,6 +18,7 @@ traffic goes to `mbgw trace` while someone traces (mbgw.master_trace).  A new co
 """
 import dataclasses
 import logging
+import math
 import os
 import select
 import threading
@@ -30,7 +31,8 @@ from mbgw.device_stats import MASTER_COUNTS, DeviceTable
 from mbgw.errors import (ChecksumError, FrameError, GatewayTimeout, LineTimeout, NoRoute,
                          SerialError)
 from mbgw.framing import framing_for
-from mbgw.line_worker import REOPEN_FIRST_S, REOPEN_MAX_S
+from mbgw.line_worker import (REOPEN_FIRST_S, REOPEN_MAX_S, TURN_MARGIN_S, idle_wait_ms,
+                              longest_frame_s)
 from mbgw.master_trace import (OUTCOME_EXCEPTION, OUTCOME_REPLY, OUTCOME_TIMEOUT,
                                OUTCOME_UNREACHABLE, MasterTracer)
 from mbgw.serial_port import SerialLine
@@ -67,6 +69,20 @@ class SerialSlave(threading.Thread):
         self._reply_to = b""       # the last frame for another slave: its reply may come next
         self._line: SerialLine | None = None
         self._attach(line)
+        # For systemd's watchdog: the monotonic time the loop last turned, and the longest
+        # the thread may wait for a frame (-1: no limit; set before start()).
+        self.heartbeat = time.monotonic()
+        self.idle_ms = -1
+
+    @property
+    def turn_limit_s(self) -> float:
+        """The longest one turn of the loop takes while all is well: the longest request and
+        the silence that ends it, tcpto with its server, the longest answer."""
+        cfg = self._cfg
+        s = cfg.serial
+        end_ms = s.ascii_timeout_ms if s.protocol == "ascii" else s.end_of_frame_us / 1000
+        return ((end_ms + sum(s.rtsdelays) + cfg.tcpto_ms) / 1000
+                + 2 * longest_frame_s(s) + TURN_MARGIN_S)
 
     def _attach(self, line: SerialLine) -> None:
         self._line = line
@@ -122,7 +138,9 @@ class SerialSlave(threading.Thread):
         os.close(self.wake_fd)
 
     def run(self) -> None:
+        native.name_thread(self.name)
         while not self._stopping:
+            self.heartbeat = time.monotonic()
             if self._new_cfg is not None:
                 self._apply_new_cfg()
             if self._line is None:
@@ -171,10 +189,11 @@ class SerialSlave(threading.Thread):
         self._forward(adu, *route)
 
     def _receive_rtu(self) -> bytes | None:
-        return self._port.read_request(self.wake_fd, self._reply_to, self._gap_us)
+        return self._port.read_request(self.wake_fd, self._reply_to, self._gap_us,
+                                       self.idle_ms)
 
     def _receive_ascii(self) -> bytes | None:
-        if self._port.idle_wait(self.wake_fd, -1) != IDLE_INPUT:
+        if self._port.idle_wait(self.wake_fd, self.idle_ms) != IDLE_INPUT:
             return None
         frame = self._port.read_ascii(time.monotonic_ns() + self._ascii_frame_ns,
                                       self._interchar_us)
@@ -285,17 +304,22 @@ class SerialSlave(threading.Thread):
         """Until the device opens again, the gateway stops, or a new configuration comes."""
         delay = REOPEN_FIRST_S
         # a lost device gets a pause first, new settings are tried at once
-        wait, self._reopen_now = (0 if self._reopen_now else delay), False
+        next_try = time.monotonic() + (0 if self._reopen_now else delay)
+        self._reopen_now = False
         while not self._stopping and self._new_cfg is None:
-            if wait and select.select([self.wake_fd], [], [], wait)[0]:
-                drain(self.wake_fd)                 # stopping, or a new configuration
+            self.heartbeat = time.monotonic()
+            left_ms = math.ceil((next_try - self.heartbeat) * 1000)
+            if left_ms > 0:
+                if select.select([self.wake_fd], [], [],
+                                 idle_wait_ms(left_ms, self.idle_ms) / 1000)[0]:
+                    drain(self.wake_fd)             # stopping, or a new configuration
                 continue
             try:
                 line = SerialLine(self._cfg.serial)
             except SerialError as err:
                 log.debug("reopen failed: %s", err)
                 delay = min(delay * 2, REOPEN_MAX_S)
-                wait = delay
+                next_try = time.monotonic() + delay
                 continue
             self._attach(line)
             log.info("serial device %s is back", self._cfg.serial.device)

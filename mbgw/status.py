@@ -36,6 +36,10 @@ class DaemonStatus:
     def close(self, request: dict) -> dict:
         raise NotImplementedError
 
+    def summary(self) -> str:
+        """One line for `systemctl status` (sd_notify STATUS=)."""
+        raise NotImplementedError
+
     def _common(self) -> dict:
         """What every mode's status starts with."""
         s = self.cfg.serial
@@ -114,6 +118,12 @@ class SlaveStatus(DaemonStatus):
             "line_utilisation_pct": round(100 * busy_s / max(now - self._reset_at, 1e-9), 2),
             "devices": [d.snapshot() for d in self._devices.all()],
         }
+
+    def summary(self) -> str:
+        c = self._counters
+        return (f"slave mode: line {'up' if self._worker.up else 'down'}, "
+                f"{len(self._server.clients)} clients, {c.requests} requests, "
+                f"{c.timeouts} timeouts")
 
     def close(self, request: dict) -> dict:
         client_id = request.get("client")
