@@ -24,19 +24,23 @@ log = logging.getLogger("mbgw")
 STATUS_PERIOD_S = 5.0    # how often systemd's STATUS= line is brought up to date
 
 
-def sd_notify(state: str) -> None:
-    """Tell systemd (or a test) about our state, when NOTIFY_SOCKET asks for it."""
+def sd_notify(state: str, wait: bool = True) -> bool:
+    """Tell systemd (or a test) about our state, when NOTIFY_SOCKET asks for it; True when
+    sent.  A change of state waits while the socket's queue is full, as libsystemd's
+    sd_notify does; wait=False drops a periodic message instead: the event loop must not
+    wait for it."""
     path = os.environ.get("NOTIFY_SOCKET")
     if not path:
-        return
+        return False
     if path.startswith("@"):
         path = "\0" + path[1:]
     try:
         with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC) as sock:
-            # never wait for a reader that is behind: the event loop serves the gateway
-            sock.sendto(state.encode(), socket.MSG_DONTWAIT, path)
+            sock.sendto(state.encode(), 0 if wait else socket.MSG_DONTWAIT, path)
     except OSError as err:    # nobody listening any more: not our problem to die of
         log.debug("sd_notify %s: %s", state, err)
+        return False
+    return True
 
 
 def watchdog_interval() -> float | None:
@@ -185,13 +189,12 @@ async def tell_systemd(line, summary, interval: float | None) -> None:
             age = time.monotonic() - line.heartbeat
             turning = line.is_alive() and age <= line.turn_limit_s + interval
             if turning:
-                sd_notify("WATCHDOG=1")
+                sd_notify("WATCHDOG=1", wait=False)
             if turning == stuck:
                 stuck = not turning
                 _log_line_thread(stuck, age, line)
         text = f"{summary()}; line thread stuck" if stuck else summary()
-        if text != shown:
-            sd_notify(f"STATUS={text}")
+        if text != shown and sd_notify(f"STATUS={text}", wait=False):
             shown = text
         await asyncio.sleep(period)
 

@@ -121,8 +121,8 @@ class Gateway:
 
     def notification(self, timeout: float) -> str | None:
         """The next message the gateway sent to systemd, or None after timeout seconds.
-        Unread messages are kept, at most 10 (net.unix.max_dgram_qlen): the gateway's are
-        not sent (it never waits for systemd) when the queue is full."""
+        Unread messages are kept, at most 10 (net.unix.max_dgram_qlen); with the queue
+        full, the gateway drops WATCHDOG=1 and STATUS= and waits to send the others."""
         self._notify.settimeout(timeout)
         try:
             return self._notify.recv(4096).decode()

@@ -149,6 +149,16 @@ def test_the_watchdog_is_pinged_while_the_device_is_lost(pty_pair, start_gateway
     assert "the line thread has not turned" not in gw.log()
 
 
+def test_a_full_notify_queue_never_holds_up_the_daemon(pty_pair, start_gateway):
+    """Nobody reads the notify socket (systemd busy): once its queue (10 datagrams) is full,
+    the periodic pings are dropped, logged at debug, and the daemon goes on serving."""
+    gw = start_gateway(pty_pair.gateway, "--log-level", "debug", env=WATCHDOG,
+                       keep_notify=True)
+    wait_for_log(gw, "sd_notify WATCHDOG=1: ")
+    assert status(gw)["pid"] == gw.proc.pid
+    pinged(gw, 20)              # the queued ones, then new ones
+
+
 def test_no_watchdog_for_another_process(pty_pair, start_gateway):
     """WATCHDOG_PID names the process systemd watches: another one (a child that inherited
     the environment) must not ping."""
