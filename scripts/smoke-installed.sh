@@ -70,7 +70,7 @@ for section in FILES ENVIRONMENT "EXIT STATUS" SIGNALS EXAMPLES "SEE ALSO"; do
     zcat /usr/share/man/man1/mbgw.1.gz | grep -q "^\.SH \"\?$section\"\?$" \
         || fail "mbgw(1): no $section"
 done
-zcat /usr/share/man/man5/mbgw.toml.5.gz | grep -q 'max-connections' || fail "mbgw.toml(5)"
+zcat /usr/share/man/man5/mbgw.toml.5.gz | grep -qF '.SH "[general]"' || fail "mbgw.toml(5)"
 for page in /usr/share/man/man1/mbgw.1.gz /usr/share/man/man5/mbgw.toml.5.gz; do
     out=$(LC_ALL=C.UTF-8 MANWIDTH=80 man --warnings -l "$page" 2>&1 >/dev/null) \
         || fail "man -l $page: $out"
