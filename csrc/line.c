@@ -297,6 +297,11 @@ int mbgw_line_thread_init(void)
     return prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL) < 0 ? -errno : 0;
 }
 
+int mbgw_name_thread(const char *name)
+{
+    return prctl(PR_SET_NAME, (unsigned long)name, 0UL, 0UL, 0UL) < 0 ? -errno : 0;
+}
+
 int mbgw_tty_release(int fd)
 {
     if (ioctl(fd, TIOCNXCL) < 0 && errno != ENOTTY)

@@ -81,6 +81,9 @@ int mbgw_tty_claim(int fd);
 /* Call first in the thread that owns the line: its timers then fire on time. */
 int mbgw_line_thread_init(void);
 
+/* Name the calling thread (at most 15 bytes) for ps -L, top -H and /proc/PID/task. */
+int mbgw_name_thread(const char *name);
+
 /* Undo mbgw_tty_claim before closing: TIOCEXCL outlives our fd on a tty that another
  * process (socat, getty) keeps open, and would refuse our own restart. */
 int mbgw_tty_release(int fd);
@@ -212,7 +215,8 @@ int mbgw_take_request(struct _modbus *ctx, int client_fd, int *in_flight, uint8_
  * last frame for a slave mbgw does not answer for; reply_to_len 0: none), the first length
  * whose CRC checks; else by gap_us of silence (a frame behind noise is then looked for at
  * the end of that burst).  Never reads past the frame.  Returns its length with the CRC
- * (valid).  -ECANCELED wake_fd was signalled first, -EILSEQ bad CRC, -EBADMSG too short,
- * -EMSGSIZE longer than cap. */
+ * (valid).  -ECANCELED wake_fd was signalled, or idle_ms (-1: no limit) passed, before a
+ * frame began; -EILSEQ bad CRC, -EBADMSG too short, -EMSGSIZE longer than cap. */
 long mbgw_rtu_read_request(int fd, int wake_fd, uint8_t *buf, size_t cap,
-                           const uint8_t *reply_to, size_t reply_to_len, int32_t gap_us);
+                           const uint8_t *reply_to, size_t reply_to_len, int32_t gap_us,
+                           int idle_ms);

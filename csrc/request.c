@@ -112,30 +112,33 @@ static long skip_frame(int fd, int32_t gap_us)
 }
 
 /*
- * long mbgw_rtu_read_request(fd, wake_fd, buf, cap, reply_to, reply_to_len, gap_us)
+ * long mbgw_rtu_read_request(fd, wake_fd, buf, cap, reply_to, reply_to_len, gap_us,
+ *                            idle_ms)
  *
- * Description: waits, without a deadline, for a frame on fd, then reads that one frame into
- * buf (cap should be MBGW_RTU_MAX_ADU).  reply_to (reply_to_len bytes, CRC excluded) is the
- * frame seen last for an address mbgw does not answer for, whose reply may come now;
- * reply_to_len 0 when there is none.  gap_us is the end-of-frame silence (t3.5 or the
+ * Description: waits up to idle_ms (-1: no limit) for a frame on fd, then reads that one
+ * frame into buf (cap should be MBGW_RTU_MAX_ADU).  reply_to (reply_to_len bytes, CRC
+ * excluded) is the frame seen last for an address mbgw does not answer for, whose reply may
+ * come now; reply_to_len 0 when there is none.  gap_us is the end-of-frame silence (t3.5 or the
  * configured silence); a longer gap inside a frame ends it (incomplete frames are dropped).
  *
  * Returns: the frame's length, CRC included (at least 4; the CRC is valid).
  *
- * Errors: -ECANCELED wake_fd (an eventfd) was signalled before a frame began; -EILSEQ the
- * frame ended by silence with a bad CRC; -EBADMSG it was shorter than 4 bytes; -EMSGSIZE it
- * was longer than cap (the rest was skipped); -EIO the device hung up; other -errno.
+ * Errors: -ECANCELED wake_fd (an eventfd) was signalled, or idle_ms passed, before a frame
+ * began (so that the caller's loop turns: systemd's watchdog); -EILSEQ the frame ended by
+ * silence with a bad CRC; -EBADMSG it was shorter than 4 bytes; -EMSGSIZE it was longer
+ * than cap (the rest was skipped); -EIO the device hung up; other -errno.
  */
 long mbgw_rtu_read_request(int fd, int wake_fd, uint8_t *buf, size_t cap,
-                           const uint8_t *reply_to, size_t reply_to_len, int32_t gap_us)
+                           const uint8_t *reply_to, size_t reply_to_len, int32_t gap_us,
+                           int idle_ms)
 {
     size_t have = 0;
     int ends[2] = { 0, -1 };                    /* as a request; as the awaited reply */
     for (;;) {
-        int rc = have == 0 ? mbgw_idle_wait(fd, wake_fd, -1) : wait_gap(fd, gap_us);
+        int rc = have == 0 ? mbgw_idle_wait(fd, wake_fd, idle_ms) : wait_gap(fd, gap_us);
         if (rc < 0)
             return rc;
-        if (rc == 0 && have == 0)
+        if (have == 0 && rc != 1)               /* woken, or idle_ms without input */
             return -ECANCELED;
         if (rc == 0) {                          /* silence: the frame is over */
             if (have < MIN_FRAME)

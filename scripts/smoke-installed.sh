@@ -52,6 +52,9 @@ version=$(dpkg-query -W -f '${Version}' mbgw)
 [ "$(mbgw --version)" = "mbgw, version $version" ] || fail "mbgw --version: $(mbgw --version)"
 mbgw slave --help | grep -q -- "--stout" || fail "mbgw slave --help"
 mbgw master --help | grep -q -- "--tcpto" || fail "mbgw master --help"
+mbgw status -h | grep -q -- "--instance NAME" || fail "mbgw status -h"
+out=$(mbgw status -i ttySMOKE 2>&1) && fail "mbgw status -i: a daemon answered"
+grep -q "/run/mbgw/ttySMOKE/mbgw.sock" <<<"$out" || fail "mbgw status -i: $out"
 (cd / && /usr/bin/python3 -I -c 'import mbgw._ffi') || fail "the C core mbgw._ffi does not import"
 dpkg-query -W -f '${Depends}' mbgw | grep -q python3-prometheus-client \
     || fail "mbgw does not depend on python3-prometheus-client (--metrics)"
@@ -59,21 +62,45 @@ dpkg-query -W -f '${Conffiles}\n' mbgw | grep -q "^ /etc/mbgw/mbgw.toml " \
     || fail "/etc/mbgw/mbgw.toml is not a conffile"
 [ "$(stat -c %a /etc/mbgw/mbgw.toml)" = 644 ] || fail "/etc/mbgw/mbgw.toml: mode"
 mbgw check-config /etc/mbgw/mbgw.toml
-id -nG mbgw | grep -qw dialout || fail "user mbgw is not in dialout"
+# dialout is the units' grant (SupplementaryGroups=), for the service only
+! id -nG mbgw | grep -qw dialout || fail "user mbgw is in dialout: the units grant it"
 [ "$(getent passwd mbgw | cut -d: -f7)" = /usr/sbin/nologin ] || fail "user mbgw has a shell"
 runuser -u mbgw -- /usr/bin/mbgw check-config /etc/mbgw/mbgw.toml >/dev/null \
     || fail "the service user cannot read its configuration"
 zcat /usr/share/man/man1/mbgw.1.gz | grep -q 'mbgw config set' || fail "man page: no commands"
+for section in FILES ENVIRONMENT "EXIT STATUS" SIGNALS EXAMPLES "SEE ALSO"; do
+    zcat /usr/share/man/man1/mbgw.1.gz | grep -q "^\.SH \"\?$section\"\?$" \
+        || fail "mbgw(1): no $section"
+done
+zcat /usr/share/man/man5/mbgw.toml.5.gz | grep -qF '.SH "[general]"' || fail "mbgw.toml(5)"
+for page in /usr/share/man/man1/mbgw.1.gz /usr/share/man/man5/mbgw.toml.5.gz; do
+    out=$(LC_ALL=C.UTF-8 MANWIDTH=80 man --warnings -l "$page" 2>&1 >/dev/null) \
+        || fail "man -l $page: $out"
+    [ -z "$out" ] || fail "man -l $page: $out"
+done
 for unit in mbgw.service mbgw@.service; do
     [ -f "/lib/systemd/system/$unit" ] || fail "$unit not installed"
 done
 [ ! -e /etc/systemd/system/multi-user.target.wants/mbgw.service ] || fail "enabled on install"
 
-say "systemd-analyze verify"
+say "systemd-analyze verify, security"
 for unit in /lib/systemd/system/mbgw.service /lib/systemd/system/mbgw@.service \
             /lib/systemd/system/mbgw@ttyUSB1.service; do
     out=$(systemd-analyze verify --man=no "$unit" 2>&1) || fail "verify $unit: $out"
     [ -z "$out" ] || fail "verify $unit: $out"
+done
+for unit in mbgw.service mbgw@.service; do
+    for setting in WatchdogSec=30s ProtectProc=invisible ProcSubset=pid \
+                   "SystemCallFilter=~@privileged @resources" SupplementaryGroups=dialout; do
+        grep -qx -- "$setting" "/lib/systemd/system/$unit" || fail "$unit: no $setting"
+    done
+done
+# The exposure level (0..100; `systemd-analyze security` prints it divided by 10) must not
+# grow: 21 with the units' sandboxing.
+cp /lib/systemd/system/mbgw@.service "$work/mbgw@ttyUSB1.service"
+for unit in /lib/systemd/system/mbgw.service "$work/mbgw@ttyUSB1.service"; do
+    out=$(systemd-analyze security --offline=true --threshold=21 "$unit" 2>&1) \
+        || fail "security $unit: $(tail -1 <<<"$out")"
 done
 
 say "mbgw config: an unprivileged user is told to use sudo; root changes the conffile"
@@ -100,8 +127,10 @@ start_gateway() {
     wait_for "notify socket" test -S "$work/notify-$name"
     # RUNTIME_DIRECTORY: where the control socket goes, as systemd's RuntimeDirectory= gives it
     mkdir "$work/run-$name"
+    # WATCHDOG_USEC: WatchdogSec=2s, so WATCHDOG=1 comes every second
     (cd / && exec env -i PATH=/usr/bin:/bin LANG=C.UTF-8 NOTIFY_SOCKET="$work/notify-$name" \
-        RUNTIME_DIRECTORY="$work/run-$name" /usr/bin/mbgw "$@") >"$work/$name.log" 2>&1 &
+        WATCHDOG_USEC=2000000 RUNTIME_DIRECTORY="$work/run-$name" /usr/bin/mbgw "$@") \
+        >"$work/$name.log" 2>&1 &
     gateway=$!
     pids+=($gateway)
     wait_for "READY=1 from mbgw $name ($(cat "$work/$name.log"))" \
@@ -136,6 +165,9 @@ start_gateway cli slave --device "$work/ttyGW" --mdbport 1502 --bind 127.0.0.1 \
 poll 1502
 wait_for "slave 17's reply in /metrics (Debian's prometheus_client)" scrape_one_reply
 mbgw status --control "$work/run-cli/mbgw.sock" >/dev/null || fail "mbgw status"
+wait_for "WATCHDOG=1 from mbgw cli" grep -q WATCHDOG=1 "$work/notified-cli"
+wait_for "STATUS= from mbgw cli" grep -q "STATUS=slave mode: line up, 0 clients, 1 requests" \
+    "$work/notified-cli"
 stop_gateway cli
 
 # The service's way: `mbgw run` with a file written by `mbgw config set`.

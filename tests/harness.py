@@ -87,9 +87,12 @@ class Gateway:
     """`python -m mbgw slave ...` on 127.0.0.1:port, ready when it sends READY=1."""
 
     def __init__(self, directory: Path, device: str, *args: str, port: int | None = None,
-                 mode: str = "slave", listen: bool = True) -> None:
+                 mode: str = "slave", listen: bool = True, env: dict | None = None,
+                 keep_notify: bool = False) -> None:
         """listen=False: no --bind/--mdbport (master mode, where --mdbport is the remote
-        servers' port and is among args); port then only names the log and notify files."""
+        servers' port and is among args); port then only names the log and notify files.
+        env: more environment variables.  keep_notify: the notify socket stays open after
+        READY=1, for notification(); a test that keeps it must read it (see notification)."""
         self.port = port or free_port()
         self.log_path = directory / f"mbgw-{self.port}.log"
         notify_path = str(directory / f"notify-{self.port}")
@@ -98,22 +101,38 @@ class Gateway:
         # The daemon's control socket goes where systemd's RuntimeDirectory= would put it
         runtime = directory / f"run-{self.port}"
         self.control = str(runtime / "mbgw.sock")
-        env = dict(os.environ, NOTIFY_SOCKET=notify_path, RUNTIME_DIRECTORY=str(runtime))
+        env = dict(os.environ, NOTIFY_SOCKET=notify_path, RUNTIME_DIRECTORY=str(runtime),
+                   **(env or {}))
         network = ["--bind", "127.0.0.1", "--mdbport", str(self.port)] if listen else []
         self.args = [sys.executable, "-m", "mbgw", mode, "--device", device, *network, *args]
         self._log = open(self.log_path, "w")
         self.proc = subprocess.Popen(self.args, env=env, stdout=self._log, stderr=self._log)
+        self._notify = notify
         try:
-            notify.settimeout(READY_TIMEOUT_S)
             while True:
-                try:
-                    message = notify.recv(4096).decode()
-                except socket.timeout:
-                    raise TimeoutError(f"gateway not ready: {self.log()}") from None
+                message = self.notification(READY_TIMEOUT_S)
+                if message is None:
+                    raise TimeoutError(f"gateway not ready: {self.log()}")
                 if "READY=1" in message:
                     break
         finally:
-            notify.close()
+            if not keep_notify:
+                self._close_notify()
+
+    def notification(self, timeout: float) -> str | None:
+        """The next message the gateway sent to systemd, or None after timeout seconds.
+        Unread messages are kept, at most 10 (net.unix.max_dgram_qlen); with the queue
+        full, the gateway drops WATCHDOG=1 and STATUS= and waits to send the others."""
+        self._notify.settimeout(timeout)
+        try:
+            return self._notify.recv(4096).decode()
+        except socket.timeout:
+            return None
+
+    def _close_notify(self) -> None:
+        if self._notify is not None:
+            self._notify.close()
+            self._notify = None
 
     def log(self) -> str:
         self._log.flush()
@@ -121,6 +140,7 @@ class Gateway:
 
     def stop(self) -> int:
         stop(self.proc)
+        self._close_notify()
         self._log.close()
         return self.proc.returncode
 

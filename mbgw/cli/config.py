@@ -129,10 +129,15 @@ def _path(ctx: click.Context, config_path: Path, instance: str | None) -> Path:
         return Path(config_path)
     if ctx.get_parameter_source("config_path") == click.core.ParameterSource.COMMANDLINE:
         raise click.UsageError("give --config or --instance, not both")
+    return ck.CONFIG_DIR / f"{check_instance(instance)}.toml"
+
+
+def check_instance(instance: str) -> str:
+    """NAME of the service instance mbgw@NAME; a usage error when it cannot be one."""
     if not instance or "/" in instance or instance.startswith("."):
         raise click.BadParameter(f"{instance!r}: a name such as ttyUSB1",
                                  param_hint="'--instance'")
-    return ck.CONFIG_DIR / f"{instance}.toml"
+    return instance
 
 
 def _file_words(ctx: click.Context, path: Path) -> list[str]:

@@ -5,25 +5,40 @@ import time
 
 import click
 
-from mbgw.ops import control as ctl
+from mbgw.cli.config import check_instance
 from mbgw.cli.options import Failure
 from mbgw.cli.render import format_event, format_status, trace_columns
-
-control_option = click.option(
-    "--control", metavar="PATH", default=None,
-    help="The daemon's control socket [default: $RUNTIME_DIRECTORY/mbgw.sock or "
-         "/run/mbgw/mbgw.sock; for mbgw@NAME: /run/mbgw/NAME/mbgw.sock].")
+from mbgw.ops import control as ctl
 
 
-def _call(path: str | None, request: dict) -> dict:
-    path = path or ctl.default_path()
+def control_option(function):
+    """--control PATH and -i/--instance NAME: the daemon to talk to."""
+    function = click.option(
+        "-i", "--instance", metavar="NAME",
+        help="The daemon of the service instance mbgw@NAME, on "
+             "/run/mbgw/NAME/mbgw.sock.")(function)
+    return click.option(
+        "--control", metavar="PATH", default=None,
+        help="The daemon's control socket [default: $RUNTIME_DIRECTORY/mbgw.sock or "
+             "/run/mbgw/mbgw.sock].")(function)
+
+
+def _socket_path(control: str | None, instance: str | None) -> str:
+    if instance is None:
+        return control or ctl.default_path()
+    if control is not None:
+        raise click.UsageError("give --control or --instance, not both")
+    return ctl.instance_path(check_instance(instance))
+
+
+def _call(path: str, request: dict) -> dict:
     try:
         reply = ctl.call(path, request)
     except PermissionError:
         _fail(f"permission denied on {path}: run it as root or as a member of the service's "
               f"group (e.g. sudo mbgw {request['command']})")
     except (FileNotFoundError, ConnectionRefusedError):
-        _fail(f"no mbgw daemon answers on {path} (is it running? --control PATH)")
+        _fail(f"no mbgw daemon answers on {path} (is it running? --control PATH or -i NAME)")
     except OSError as err:
         _fail(f"{path}: {err.strerror or err}")
     if "error" in reply:
@@ -39,9 +54,9 @@ def register(main: click.Group) -> None:
     @main.command()
     @click.option("--json", "as_json", is_flag=True, help="Print the status as JSON.")
     @control_option
-    def status(as_json: bool, control: str | None) -> None:
+    def status(as_json: bool, control: str | None, instance: str | None) -> None:
         """What the running daemon is doing: clients, devices, counters."""
-        reply = _call(control, {"command": "status"})
+        reply = _call(_socket_path(control, instance), {"command": "status"})
         if as_json:
             click.echo(json.dumps(reply, indent=2))
         else:
@@ -54,9 +69,9 @@ def register(main: click.Group) -> None:
     @clients.command("close")
     @click.argument("client_id", type=int, metavar="ID")
     @control_option
-    def close(client_id: int, control: str | None) -> None:
+    def close(client_id: int, control: str | None, instance: str | None) -> None:
         """Force-close client ID (the ID column of mbgw status)."""
-        _call(control, {"command": "close", "client": client_id})
+        _call(_socket_path(control, instance), {"command": "close", "client": client_id})
         click.echo(f"client {client_id} closed")
 
     @main.group()
@@ -65,9 +80,9 @@ def register(main: click.Group) -> None:
 
     @stats.command("reset")
     @control_option
-    def reset(control: str | None) -> None:
+    def reset(control: str | None, instance: str | None) -> None:
         """Zero every counter (logged by the daemon)."""
-        _call(control, {"command": "reset"})
+        _call(_socket_path(control, instance), {"command": "reset"})
         click.echo("counters reset")
 
     @main.command()
@@ -77,18 +92,20 @@ def register(main: click.Group) -> None:
     @click.option("--count", type=click.IntRange(1), default=None,
                   help="Stop after this many events [default: until Ctrl-C].")
     @control_option
-    def trace(pcap_file, count: int | None, control: str | None) -> None:
+    def trace(pcap_file, count: int | None, control: str | None,
+              instance: str | None) -> None:
         """Live, decoded view of the traffic through the running daemon."""
         from mbgw.cli.pcap import PcapWriter
 
-        path = control or ctl.default_path()
+        path = _socket_path(control, instance)
         try:
             sock = ctl.connect(path, timeout=None)
         except PermissionError:
             _fail(f"permission denied on {path}: run it as root or as a member of the "
                   f"service's group (e.g. sudo mbgw trace)")
         except (FileNotFoundError, ConnectionRefusedError):
-            _fail(f"no mbgw daemon answers on {path} (is it running? --control PATH)")
+            _fail(f"no mbgw daemon answers on {path} (is it running? --control PATH or "
+                  f"-i NAME)")
         writer = PcapWriter(pcap_file) if pcap_file else None
         echo = (lambda text: click.echo(text, err=True)) if pcap_file and \
             pcap_file.name == "<stdout>" else click.echo

@@ -117,6 +117,11 @@ def line_thread_init() -> None:
     lib.mbgw_line_thread_init()
 
 
+def name_thread(name: str) -> None:
+    """The calling thread's name as ps -L and top -H show it (at most 15 bytes)."""
+    lib.mbgw_name_thread(name.encode())
+
+
 def _strerror(code: int) -> str:
     return _LIBMODBUS_ERRORS.get(code) or os.strerror(code)
 
@@ -352,13 +357,14 @@ class Port:
         """0 woken through wake_fd, 1 unsolicited input, 2 timed out."""
         return self._check(lib.mbgw_idle_wait(self.fd, wake_fd, timeout_ms), "poll")
 
-    def read_request(self, wake_fd: int, reply_to: bytes, gap_us: int) -> bytes | None:
+    def read_request(self, wake_fd: int, reply_to: bytes, gap_us: int,
+                     idle_ms: int = -1) -> bytes | None:
         """Master mode: the next RTU frame for any address, without its (valid) CRC; None
-        when woken through wake_fd first.  reply_to: the last frame for an address we do not
-        answer for (its slave's reply may come next), or b"".  Raises ChecksumError,
-        FrameError, SerialError."""
+        when woken through wake_fd, or after idle_ms (-1: no limit), before a frame began.
+        reply_to: the last frame for an address we do not answer for (its slave's reply may
+        come next), or b"".  Raises ChecksumError, FrameError, SerialError."""
         n = lib.mbgw_rtu_read_request(self.fd, wake_fd, self._buf, RTU_MAX_ADU, reply_to,
-                                      len(reply_to), gap_us)
+                                      len(reply_to), gap_us, idle_ms)
         if n == -errno.ECANCELED:
             return None
         return ffi.buffer(self._buf, self._check(n, "read") - 2)[:]

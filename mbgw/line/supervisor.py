@@ -26,6 +26,15 @@ log = logging.getLogger("mbgw.line")
 LOOK_S = 0.1
 BACKOFF_FIRST_S = 0.5
 BACKOFF_MAX_S = 5.0
+# What the watchdog (mbgw.ops.service.tell_systemd) allows a turn of a line thread's loop on
+# top of what the line's settings say it may take: the thread's own time, scheduling delays.
+TURN_MARGIN_S = 1.0
+
+
+def longest_frame_s(serial: "SerialConfig") -> float:
+    """The time the longest frame of the line's protocol takes on the wire."""
+    chars = native.ASCII_MAX_FRAME if serial.protocol == "ascii" else native.RTU_MAX_ADU
+    return chars * serial.char_ns / 1e9
 
 
 def _file_at(path: str) -> tuple[int, int] | None:
@@ -104,6 +113,10 @@ class LineThread(threading.Thread, Generic[Settings]):
         self._new_cfg: Settings | None = None
         self._reopening: Reopening | None = None     # while the device is down
         self._line: SerialLine | None = line
+        # For systemd's watchdog: the monotonic time the loop last turned, and the longest
+        # the thread may wait while nothing happens (-1: no limit; set before start()).
+        self.heartbeat = time.monotonic()
+        self.idle_ms = -1
 
     @property
     def up(self) -> bool:
@@ -119,10 +132,17 @@ class LineThread(threading.Thread, Generic[Settings]):
         self._new_cfg = cfg
         self._wake()
 
+    @property
+    def turn_limit_s(self) -> float:
+        """The longest one turn of the loop takes while all is well (for the watchdog)."""
+        raise NotImplementedError
+
     def run(self) -> None:
         native.line_thread_init()
+        native.name_thread(self.name)
         try:
             while not self._stopping:
+                self.heartbeat = time.monotonic()
                 if self._new_cfg is not None:
                     self._take_new_cfg()
                 if self._line is None:
@@ -163,6 +183,7 @@ class LineThread(threading.Thread, Generic[Settings]):
     def _reopen(self) -> None:
         """Until the device opens again, the gateway stops, or new settings come."""
         while not self._stopping and self._new_cfg is None:
+            self.heartbeat = time.monotonic()
             assert self._reopening is not None
             line = self._reopening.attempt(self._open_line)
             if line is None:

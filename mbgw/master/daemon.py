@@ -1,6 +1,6 @@
 """Runs master mode: opens the line, serves the serial master, tells systemd it is ready,
-stops on a signal; the operator's tools (control socket, metrics, SIGHUP reload) are slave
-mode's (mbgw.slave.daemon)."""
+stops on a signal; the operator's tools (control socket, metrics, SIGHUP reload, systemd's
+watchdog) are mbgw.ops.service's."""
 import asyncio
 import logging
 import signal
@@ -8,7 +8,8 @@ import time
 
 from mbgw.config.model import MasterConfig
 from mbgw.ops.counters import MasterCounters
-from mbgw.ops.service import log_stopped, serve_until_stopped, start_control, start_metrics
+from mbgw.ops.service import (idle_ms, log_stopped, serve_until_stopped, start_control,
+                              start_metrics, watchdog_interval)
 from mbgw.master.status import MasterStatus
 from mbgw.line.port import SerialLine
 from mbgw.master.line_thread import SerialSlave
@@ -42,6 +43,7 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
     started = time.time()
     metrics = start_metrics(cfg.metrics, lambda m: m.master_collector(
         counters, slave.devices, slave, started))
+    slave.idle_ms = idle_ms(watchdog_interval())
     slave.start()
     status = MasterStatus(cfg, slave, counters)
     control = await start_control(cfg.control, status.commands())
@@ -60,7 +62,7 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
             log.warning("the slaveid table is empty: every request on the line is ignored")
         slave.reconfigure(new)
 
-    await serve_until_stopped(stop, status, reconfigure, apply, control, metrics)
+    await serve_until_stopped(stop, status, slave, reconfigure, apply, control, metrics)
     slave.stop()
     await asyncio.to_thread(slave.join)
     log_stopped(counters)

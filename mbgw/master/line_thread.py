@@ -36,7 +36,7 @@ from mbgw.errors import (BadReply, ChecksumError, FrameError, GatewayTimeout, Li
 from mbgw.line.framing import framing_for
 from mbgw.master.trace import (OUTCOME_BAD_REPLY, OUTCOME_EXCEPTION, OUTCOME_REPLY,
                                OUTCOME_TIMEOUT, OUTCOME_UNREACHABLE, MasterTracer)
-from mbgw.line.supervisor import LineThread
+from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s
 from mbgw.line.port import SerialLine
 from mbgw.master.upstream import Interrupted, UpstreamPool, drain
 from mbgw.ops.trace import TraceHub
@@ -68,6 +68,16 @@ class SerialSlave(LineThread[MasterConfig]):
         self._reply_to = b""       # the last frame for another slave: its reply may come next
         self._bad_reply_logged: dict[tuple[int, str], float] = {}   # (address, kind): when
         self._attach(line)
+
+    @property
+    def turn_limit_s(self) -> float:
+        """The longest request and the silence that ends it, tcpto with its server, the
+        longest answer."""
+        cfg = self._cfg
+        s = cfg.serial
+        end_ms = s.ascii_timeout_ms if s.protocol == "ascii" else s.end_of_frame_us / 1000
+        return ((end_ms + sum(s.rtsdelays) + cfg.tcpto_ms) / 1000
+                + 2 * longest_frame_s(s) + TURN_MARGIN_S)
 
     def _attach(self, line: SerialLine) -> None:
         self._port = line.port
@@ -159,10 +169,11 @@ class SerialSlave(LineThread[MasterConfig]):
         self._forward(adu, *route)
 
     def _receive_rtu(self) -> bytes | None:
-        return self._port.read_request(self.wake_fd, self._reply_to, self._gap_us)
+        return self._port.read_request(self.wake_fd, self._reply_to, self._gap_us,
+                                       self.idle_ms)
 
     def _receive_ascii(self) -> bytes | None:
-        if self._port.idle_wait(self.wake_fd, -1) != IDLE_INPUT:
+        if self._port.idle_wait(self.wake_fd, self.idle_ms) != IDLE_INPUT:
             return None
         got = self._port.read_ascii(time.monotonic_ns() + self._ascii_frame_ns,
                                     self._interchar_us)

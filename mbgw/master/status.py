@@ -28,6 +28,12 @@ class MasterStatus(DaemonStatus):
             "devices": [d.snapshot() for d in self._devices.all()],
         }
 
+    def summary(self) -> str:
+        c = self._counters
+        return (f"master mode: line {'up' if self._slave.up else 'down'}, "
+                f"{len(self._slave.connections())} server connections, {c.requests} requests, "
+                f"{c.timeouts} timeouts")
+
     def close(self, request: dict) -> dict:
         return {"error": "clients close: not available in master mode: this daemon has no "
                          "Modbus TCP clients (its connections go to servers; mbgw status "

@@ -66,6 +66,11 @@ def default_path(name: str = "mbgw") -> str:
     return os.path.join(directory, f"{name}.sock")
 
 
+def instance_path(instance: str) -> str:
+    """The socket of the service instance mbgw@NAME, whose RuntimeDirectory= is mbgw/%i."""
+    return os.path.join(DEFAULT_DIR, instance, "mbgw.sock")
+
+
 class ControlServer:
     def __init__(self, path: str, commands: dict) -> None:
         self.path = path

@@ -13,9 +13,21 @@ class _JournalFormatter(logging.Formatter):
         return f"<{_SYSLOG_PRIORITY.get(record.levelno, 6)}>{super().format(record)}"
 
 
+def _stderr_is_the_journal() -> bool:
+    """systemd.exec(5): JOURNAL_STREAM is the device and inode ("DEV:INODE") of the stream
+    systemd connected stderr to; stderr is still the journal only if it is that same file
+    (not redirected, nor a child's that inherited the variable)."""
+    try:
+        device, inode = map(int, os.environ.get("JOURNAL_STREAM", "").split(":"))
+        stat = os.fstat(sys.stderr.fileno())
+    except (ValueError, OSError, AttributeError):   # unset, malformed, no real stderr
+        return False
+    return (stat.st_dev, stat.st_ino) == (device, inode)
+
+
 def setup(level: str) -> None:
     handler = logging.StreamHandler(sys.stderr)
-    if os.environ.get("JOURNAL_STREAM"):
+    if _stderr_is_the_journal():
         handler.setFormatter(_JournalFormatter("%(name)s: %(message)s"))
     else:
         handler.setFormatter(logging.Formatter(

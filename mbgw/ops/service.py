@@ -3,9 +3,11 @@ endpoint started and closed, SIGHUP reload, the stop and its last log line."""
 import asyncio
 import dataclasses
 import logging
+import math
 import os
 import signal
 import socket
+import time
 from typing import TYPE_CHECKING
 
 from mbgw.ops.control import ControlServer, default_path
@@ -15,19 +17,45 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("mbgw")
 
+STATUS_PERIOD_S = 5.0    # how often systemd's STATUS= line is brought up to date
 
-def sd_notify(state: str) -> None:
-    """Tell systemd (or a test) about our state, when NOTIFY_SOCKET asks for it."""
+
+def sd_notify(state: str, wait: bool = True) -> bool:
+    """Tell systemd (or a test) about our state, when NOTIFY_SOCKET asks for it; True when
+    sent.  A change of state waits while the socket's queue is full, as libsystemd's
+    sd_notify does; wait=False drops a periodic message instead: the event loop must not
+    wait for it."""
     path = os.environ.get("NOTIFY_SOCKET")
     if not path:
-        return
+        return False
     if path.startswith("@"):
         path = "\0" + path[1:]
     try:
         with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC) as sock:
-            sock.sendto(state.encode(), path)
+            sock.sendto(state.encode(), 0 if wait else socket.MSG_DONTWAIT, path)
     except OSError as err:    # nobody listening any more: not our problem to die of
         log.debug("sd_notify %s: %s", state, err)
+        return False
+    return True
+
+
+def watchdog_interval() -> float | None:
+    """Half of systemd's WatchdogSec= (WATCHDOG_USEC) when its watchdog is on for this
+    process (WATCHDOG_PID, when set, is ours); None when it is off."""
+    pid = os.environ.get("WATCHDOG_PID")
+    if pid and pid != str(os.getpid()):
+        return None
+    try:
+        usec = int(os.environ.get("WATCHDOG_USEC", ""))
+    except ValueError:
+        return None
+    return usec / 2_000_000 if usec > 0 else None
+
+
+def idle_ms(interval: float | None) -> int:
+    """The longest a line thread may wait while nothing happens (-1: no limit): it must turn
+    at least once per watchdog interval."""
+    return -1 if interval is None else math.ceil(interval * 1000)
 
 
 class ListenError(Exception):
@@ -68,18 +96,55 @@ async def start_control(path: str | None, commands: dict) -> ControlServer | Non
     return control
 
 
-async def serve_until_stopped(stop: asyncio.Event, holder, reconfigure, apply,
+async def serve_until_stopped(stop: asyncio.Event, holder, line, reconfigure, apply,
                               control: ControlServer | None,
                               metrics: "MetricsServer | None") -> None:
-    """Ready: reload on SIGHUP (see reload_on_sighup), tell systemd, wait for `stop`
-    (SIGTERM, SIGINT), then tell systemd and close the operator's tools; the mode closes its
-    own objects after."""
+    """Ready: reload on SIGHUP (see reload_on_sighup), tell systemd, keep it told (see
+    tell_systemd), wait for `stop` (SIGTERM, SIGINT), then tell systemd and close the
+    operator's tools; the mode closes its own objects after."""
     reload_on_sighup(asyncio.get_running_loop(), holder, reconfigure, apply)
     sd_notify("READY=1")
+    told = asyncio.ensure_future(tell_systemd(line, holder.summary, watchdog_interval())) \
+        if os.environ.get("NOTIFY_SOCKET") else None
     await stop.wait()
+    if told is not None:
+        told.cancel()
     sd_notify("STOPPING=1")
     log.info("stopping")
     close_tools(control, metrics)
+
+
+async def tell_systemd(line, summary, interval: float | None) -> None:
+    """WATCHDOG=1 every interval (None: no watchdog) while the line thread turns: its
+    heartbeat is no older than the longest a turn takes while all is well (turn_limit_s)
+    plus the interval, the longest it waits idle; and STATUS=summary() when it changes.
+    A line thread that stops turning is logged, once: systemd restarts the daemon when
+    WatchdogSec= passes without a ping."""
+    period = min(interval or STATUS_PERIOD_S, STATUS_PERIOD_S)
+    shown, stuck = None, False
+    while True:
+        if interval is not None:
+            age = time.monotonic() - line.heartbeat
+            turning = line.is_alive() and age <= line.turn_limit_s + interval
+            if turning:
+                sd_notify("WATCHDOG=1", wait=False)
+            if turning == stuck:
+                stuck = not turning
+                _log_line_thread(stuck, age, line)
+        text = f"{summary()}; line thread stuck" if stuck else summary()
+        if text != shown and sd_notify(f"STATUS={text}", wait=False):
+            shown = text
+        await asyncio.sleep(period)
+
+
+def _log_line_thread(stuck: bool, age: float, line) -> None:
+    if not stuck:
+        log.warning("the line thread turns again: watchdog pings resumed")
+    elif not line.is_alive():
+        log.error("the line thread has ended: no more watchdog pings, systemd restarts mbgw")
+    else:
+        log.error("the line thread has not turned for %.1f s (a turn takes at most %.1f s): "
+                  "no more watchdog pings, systemd restarts mbgw", age, line.turn_limit_s)
 
 
 def close_tools(control: ControlServer | None, metrics: "MetricsServer | None") -> None:

@@ -36,6 +36,10 @@ class DaemonStatus:
     def close(self, request: dict) -> dict:
         raise NotImplementedError
 
+    def summary(self) -> str:
+        """One line for `systemctl status` (sd_notify STATUS=)."""
+        raise NotImplementedError
+
     def _common(self) -> dict:
         """What every mode's status starts with."""
         s = self.cfg.serial

@@ -10,8 +10,9 @@ from mbgw.ops.device_stats import DeviceTable
 from mbgw.slave.line_thread import LineWorker
 from mbgw.line.port import SerialLine
 from mbgw.slave.status import SlaveStatus
-from mbgw.ops.service import (ListenError, MetricsListenError, log_stopped, serve_until_stopped,
-                              start_control, start_metrics)
+from mbgw.ops.service import (ListenError, MetricsListenError, idle_ms, log_stopped,
+                              serve_until_stopped, start_control, start_metrics,
+                              watchdog_interval)
 from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
 
@@ -52,6 +53,7 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     except MetricsListenError:
         server.close()
         raise
+    worker.idle_ms = idle_ms(watchdog_interval())
     worker.start()
     status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses)
     control = await start_control(cfg.control, status.commands())
@@ -68,7 +70,7 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
         await server.reconfigure(new)
         worker.reconfigure(new)
 
-    await serve_until_stopped(stop, status, reconfigure, apply, control, metrics)
+    await serve_until_stopped(stop, status, worker, reconfigure, apply, control, metrics)
     server.close()
     worker.stop()
     await asyncio.to_thread(worker.join)

@@ -15,7 +15,7 @@ from mbgw.ops.device_stats import DeviceTable
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.errors import LineTimeout, SerialError
 from mbgw.line.framing import framing_for
-from mbgw.line.supervisor import LineThread
+from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s
 from mbgw.slave.scheduler import (OUTCOME_BROADCAST, OUTCOME_ERROR, OUTCOME_EXCEPTION,
                             OUTCOME_LINE_DOWN, OUTCOME_REPLY, OUTCOME_TIMEOUT, Job, Scheduler)
 from mbgw.slave.transaction import SerialMaster
@@ -60,6 +60,16 @@ class LineWorker(LineThread[SlaveConfig]):
         return master
 
     # --- the line thread's hooks (mbgw.line.supervisor.LineThread) ---
+
+    @property
+    def turn_limit_s(self) -> float:
+        """A transaction with its retries (each a quiet line, the longest request, stout, the
+        longest reply's end) and the pause after a broadcast."""
+        cfg = self._cfg
+        s = cfg.serial
+        quiet_ms = max(s.t35_us / 1000, s.silence_ms) + sum(s.rtsdelays)
+        attempt_s = (quiet_ms + s.stout_ms) / 1000 + 2 * longest_frame_s(s)
+        return (cfg.retries + 1) * attempt_s + cfg.turnaround_ms / 1000 + TURN_MARGIN_S
 
     def _wake(self) -> None:
         self._scheduler.wake()
@@ -153,7 +163,7 @@ class LineWorker(LineThread[SlaveConfig]):
         take = self._take if self._shortcut and not self._server.trace.active and \
             not wire.isEnabledFor(logging.DEBUG) else None
         try:
-            if self._connections.wait(-1, port.fd, take):
+            if self._connections.wait(self.idle_ms, port.fd, take):
                 # one frame without a request: whatever comes until the line is quiet again
                 unsolicited = port.wait_quiet(time.monotonic_ns(), self._cfg.serial.t35_us)
                 self._counters.unsolicited_frames += 1

@@ -39,6 +39,12 @@ class SlaveStatus(DaemonStatus):
             "devices": [d.snapshot() for d in self._devices.all()],
         }
 
+    def summary(self) -> str:
+        c = self._counters
+        return (f"slave mode: line {'up' if self._worker.up else 'down'}, "
+                f"{len(self._server.clients)} clients, {c.requests} requests, "
+                f"{c.timeouts} timeouts")
+
     def close(self, request: dict) -> dict:
         client_id = request.get("client")
         if not isinstance(client_id, int):

@@ -164,6 +164,14 @@ def test_the_eventfd_ends_the_wait(line, wake_fd):
     assert time.monotonic() - started < 2
 
 
+def test_idle_ms_ends_a_wait_with_nothing_on_the_line_and_keeps_the_next_frame(line, wake_fd):
+    """The watchdog's idle limit: the thread's loop turns while the line is silent."""
+    bus, port = line
+    assert port.read_request(wake_fd, b"", GAP_US, idle_ms=20) is None
+    os.write(bus, rtu(READ_17))
+    assert port.read_request(wake_fd, b"", GAP_US, idle_ms=20) == READ_17
+
+
 def test_a_device_that_goes_away_is_a_serial_error():
     bus, tty = os.openpty()
     port = native.Port(os.ttyname(tty), 19200, "n", 8, 1)

@@ -3,6 +3,7 @@ result.exit_code are used: the rest of the runner's API differs between click 8.
 import logging
 import re
 
+import click
 import pytest
 from click.testing import CliRunner
 
@@ -151,3 +152,35 @@ def test_device_that_cannot_be_opened_exits_1_with_one_line_naming_it():
     assert len(lines) == 1, result.output
     assert "/nonexistent/tty" in lines[0]
     assert "Traceback" not in result.output
+
+
+def _command_paths(group: click.Group, path=()):
+    """The words of every command and group under group, e.g. ("clients", "close")."""
+    for name in group.list_commands(click.Context(group)):
+        command = group.get_command(click.Context(group), name)
+        yield (*path, name)
+        if isinstance(command, click.Group):
+            yield from _command_paths(command, (*path, name))
+
+
+def test_every_command_takes_dash_h_for_help():
+    paths = [(), *_command_paths(main)]
+    assert ("clients", "close") in paths and ("config", "set") in paths
+    for path in paths:
+        short = CliRunner().invoke(main, [*path, "-h"])
+        assert short.exit_code == 0, (path, short.output)
+        assert short.output == CliRunner().invoke(main, [*path, "--help"]).output, path
+        assert "-h, --help" in short.output, path
+
+
+@pytest.mark.parametrize("command", [["status"], ["trace"], ["clients", "close", "1"],
+                                     ["stats", "reset"]])
+def test_diagnostics_reach_a_service_instance_by_name(command):
+    """-i NAME: the socket of mbgw@NAME (its RuntimeDirectory=mbgw/%i), like `run -i NAME`
+    takes /etc/mbgw/NAME.toml; no daemon runs here, so the command names the path."""
+    result = CliRunner().invoke(main, [*command, "-i", "ttyTEST9"])
+    assert result.exit_code == 1, result.output
+    assert "no mbgw daemon answers on /run/mbgw/ttyTEST9/mbgw.sock" in result.output
+    assert CliRunner().invoke(main, [*command, "--instance", "../x"]).exit_code == 2
+    both = CliRunner().invoke(main, [*command, "-i", "x", "--control", "/tmp/x.sock"])
+    assert both.exit_code == 2 and "not both" in both.output
