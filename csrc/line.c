@@ -15,14 +15,8 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "internal.h"
 #include "mbgw.h"
-
-static int64_t now_ns(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
-}
 
 /* Wait for input until `until_ns`.  1 readable, 0 timed out, -errno on error or hang-up. */
 static int wait_input(int fd, int64_t until_ns)
@@ -102,15 +96,15 @@ int mbgw_idle_wait(int fd, int wake_fd, int timeout_ms)
             return -errno;
         }
         if (rc == 0)
-            return 2;
+            return MBGW_IDLE_TIMEOUT;
         if (p[0].revents & POLLIN) {
             uint64_t count;
             if (read(wake_fd, &count, sizeof count) < 0 && errno != EAGAIN)
                 return -errno;
-            return 0;
+            return MBGW_IDLE_WOKEN;
         }
         if (p[1].revents & POLLIN)
-            return 1;
+            return MBGW_IDLE_INPUT;
         return -EIO;
     }
 }
@@ -150,9 +144,6 @@ long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, size_t req_len,
 
 /* --- slave mode: the reply among what the line carries --- */
 
-#define CRC_LEN 2
-#define MIN_FRAME 4       /* address, function code, CRC */
-#define MIN_REPLY 5       /* an exception (address, function, code, CRC): the shortest reply */
 #define NO_FRAME (-2)     /* frame_length: no frame starts here */
 
 /* The length of a frame at f (have bytes of it) by its own function code: > 0, 0 more bytes

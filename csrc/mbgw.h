@@ -36,7 +36,10 @@ int mbgw_rtu_request_length(const uint8_t *req, size_t have);
 long mbgw_wait_quiet(int fd, int64_t last_ns, int32_t quiet_us);
 
 /* Sleep until wake_fd (an eventfd) is signalled, input arrives on fd, or timeout_ms passes
- * (-1: no timeout).  Returns 0 woken, 1 input waiting, 2 timed out. */
+ * (-1: no timeout).  Returns one of MBGW_IDLE_*. */
+#define MBGW_IDLE_WOKEN 0   /* wake_fd was signalled (its count is read) */
+#define MBGW_IDLE_INPUT 1   /* input waits on fd */
+#define MBGW_IDLE_TIMEOUT 2
 int mbgw_idle_wait(int fd, int wake_fd, int timeout_ms);
 
 /* Read the reply to a request of req_len bytes (CRC excluded) into buf.  The first byte must

@@ -6,15 +6,11 @@
 #include <stdint.h>
 #include <string.h>
 #include <sys/socket.h>
-#include <time.h>
 
 #include <modbus.h>
 
+#include "internal.h"
 #include "mbgw.h"
-
-#define CRC_LEN 2
-#define MBAP_LEN 7             /* with the unit id */
-#define MBAP_MAX_LENGTH 254    /* unit id + the largest PDU */
 
 static unsigned quantity(const uint8_t *req)
 {
@@ -64,13 +60,6 @@ int mbgw_tcp_reply_verdict(const uint8_t *req, size_t req_len, uint8_t unit, uin
     if (!mbgw_reply_matches(req, req_len, rsp, rsp_len))
         return MBGW_REPLY_WRONG_FUNCTION;
     return MBGW_REPLY_ANSWERS;
-}
-
-static int64_t now_ns(void)
-{
-    struct timespec t;
-    clock_gettime(CLOCK_MONOTONIC, &t);
-    return (int64_t)t.tv_sec * 1000000000 + t.tv_nsec;
 }
 
 int mbgw_receive_reply(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
@@ -135,7 +124,7 @@ int mbgw_take_request(modbus_t *ctx, int client_fd, int *in_flight, uint8_t *in,
         return (int)n;
     /* MBAP header: transaction id, protocol id, length (unit id + PDU), unit id */
     unsigned length = (unsigned)in[4] << 8 | in[5];
-    if (in[2] || in[3] || (size_t)n != 6 + length || length < 2 || length > MBAP_MAX_LENGTH)
+    if (in[2] || in[3] || (size_t)n != MBAP_HEAD_LEN + length || length < 2 || length > MBAP_MAX_LENGTH)
         return (int)n;                  /* a bad header, or not exactly one request */
     uint8_t unit = in[6];
     uint8_t address = sc->slaveid ? sc->slaveid : unit;
@@ -144,7 +133,7 @@ int mbgw_take_request(modbus_t *ctx, int client_fd, int *in_flight, uint8_t *in,
         return (int)n;
     uint8_t adu[MBGW_RTU_MAX_ADU];
     adu[0] = sc->address = address;
-    memcpy(adu + 1, in + 7, length - 1);
+    memcpy(adu + 1, in + MBAP_LEN, length - 1);
     struct mbgw_forward to = { client_fd, (uint16_t)(in[0] << 8 | in[1]), unit, 1, in_flight };
     sc->result = mbgw_exchange(ctx, buf, adu, length, sc->char_ns, sc->stout_ns, sc->gap_us,
                                &to, sc->times, &sc->sent, &sc->noise);

@@ -26,9 +26,9 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "internal.h"
 #include "mbgw.h"
 
-#define MIN_FRAME 4   /* address, function code, CRC (Serial Line V1.02, 2.5.1) */
 #define HEADER 2      /* address and function code: what every length is computed from */
 
 /* Wait up to gap_us for more input.  1 input, 0 silence, -errno on error or hang-up. */
@@ -135,7 +135,7 @@ long mbgw_rtu_read_request(int fd, int wake_fd, uint8_t *buf, size_t cap,
         int rc = have == 0 ? mbgw_idle_wait(fd, wake_fd, -1) : wait_gap(fd, gap_us);
         if (rc < 0)
             return rc;
-        if (rc == 0 && have == 0)
+        if (rc == MBGW_IDLE_WOKEN && have == 0)
             return -ECANCELED;
         if (rc == 0) {                          /* silence: the frame is over */
             if (have < MIN_FRAME)
