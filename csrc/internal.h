@@ -26,4 +26,25 @@ static inline int64_t now_ns(void)
     return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
 }
 
+/* --- match.c: slave mode's reply among the bytes a burst on the line brought, req being
+ * the request (address + PDU, no CRC) and buf[0..have) the burst so far --- */
+
+/* The length of the frame the burst begins with, by its function code: > 0, 0 more bytes
+ * are needed to tell, MBGW_LEN_UNKNOWN silence ends it, < 0 otherwise: no frame is that
+ * long. */
+int burst_head(size_t req_len, const uint8_t *buf, size_t have);
+
+/* The frame to take from the burst: the whole frame with a valid CRC that it begins with
+ * (head: burst_head's; ended: the burst is over, so a frame that silence ends ends here),
+ * else the reply to req behind what cannot start it: req's address, its function or that
+ * exception, its length, a valid CRC, and mbgw_reply_matches.  Returns its length and *at
+ * its offset, or 0: none (yet). */
+size_t burst_frame(const uint8_t *req, size_t req_len, const uint8_t *buf, size_t have,
+                   int head, int ended, size_t *at);
+
+/* Why a burst that has ended held no frame: -EMSGSIZE it filled cap, -EILSEQ the reply by
+ * its start and its length (or silence) but a bad CRC, -EBADMSG anything else. */
+long burst_error(const uint8_t *req, const uint8_t *buf, size_t have, int head,
+                 size_t cap);
+
 #endif

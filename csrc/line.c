@@ -144,53 +144,6 @@ long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, size_t req_len,
 
 /* --- slave mode: the reply among what the line carries --- */
 
-#define NO_FRAME (-2)     /* frame_length: no frame starts here */
-
-/* The length of a frame at f (have bytes of it) by its own function code: > 0, 0 more bytes
- * are needed to tell, MBGW_LEN_UNKNOWN silence ends it, NO_FRAME no frame is that long. */
-static int frame_length(size_t req_len, const uint8_t *f, size_t have)
-{
-    int len = mbgw_rtu_reply_length(req_len, f, have);
-    if (len > 0 && (len < MIN_FRAME || len > MBGW_RTU_MAX_ADU))
-        return NO_FRAME;
-    return len;
-}
-
-/* The length of the frame with a valid CRC at f, of length len (frame_length's, ended: the
- * burst is over, so a frame that silence ends ends here), or 0: none. */
-static size_t whole_frame(const uint8_t *f, size_t have, int len, int ended)
-{
-    if (len == MBGW_LEN_UNKNOWN && ended)
-        len = have > MBGW_RTU_MAX_ADU ? 0 : (int)have;
-    if (len < MIN_FRAME || (size_t)len > have)
-        return 0;
-    return mbgw_crc16(f, (size_t)len) == 0 ? (size_t)len : 0;
-}
-
-/* f starts as the reply to req would: its address, then its function or that exception. */
-static int starts_reply(const uint8_t *req, const uint8_t *f)
-{
-    return f[0] == req[0] && (f[1] == req[1] || f[1] == (req[1] | 0x80));
-}
-
-/* The reply to req inside buf[1..have): a frame that starts as the reply, has a valid CRC and
- * answers req (mbgw_reply_matches).  Returns its length and *at its offset, or 0. */
-static size_t reply_inside(const uint8_t *req, size_t req_len, const uint8_t *buf, size_t have,
-                           int ended, size_t *at)
-{
-    for (size_t i = 1; i + MIN_REPLY <= have; i++) {
-        const uint8_t *f = buf + i;
-        if (!starts_reply(req, f))
-            continue;
-        size_t len = whole_frame(f, have - i, frame_length(req_len, f, have - i), ended);
-        if (len && mbgw_reply_matches(req + 1, req_len - 1, f + 1, len - 1 - CRC_LEN)) {
-            *at = i;
-            return len;
-        }
-    }
-    return 0;
-}
-
 /* How many bytes to read now: while the burst may begin with a frame, no further than that
  * frame's end (a frame right behind it is the next call's); else what came. */
 static size_t next_read(int head, size_t have, size_t cap)
@@ -202,23 +155,11 @@ static size_t next_read(int head, size_t have, size_t cap)
     return cap - have;
 }
 
-/* Why a burst held no frame: the reply with a bad CRC (it starts as the reply and is whole
- * by its length, or by silence), or something else. */
-static long no_frame(const uint8_t *req, const uint8_t *buf, size_t have, int head, size_t cap)
-{
-    if (have == cap)
-        return -EMSGSIZE;
-    if (have >= 2 && starts_reply(req, buf) &&
-        (head == MBGW_LEN_UNKNOWN || (head > 0 && (size_t)head <= have)))
-        return -EILSEQ;
-    return -EBADMSG;
-}
-
 long mbgw_find_reply(int fd, uint8_t *buf, size_t cap, const uint8_t *req, size_t req_len,
                      int64_t deadline_ns, int32_t gap_us, int64_t *end_ns, int *noise)
 {
     size_t have = 0;
-    int head = 0;                       /* frame_length of the burst's first bytes */
+    int head = 0;                       /* burst_head of the bytes read */
     *noise = 0;
     *end_ns = now_ns();
     if (*end_ns >= deadline_ns)
@@ -244,11 +185,9 @@ long mbgw_find_reply(int fd, uint8_t *buf, size_t cap, const uint8_t *req, size_
             *end_ns = now_ns();
         }
         int ended = rc == 0 || have == cap;
-        head = frame_length(req_len, buf, have);
-        size_t at = 0;
-        size_t len = whole_frame(buf, have, head, ended);
-        if (len == 0)
-            len = reply_inside(req, req_len, buf, have, ended, &at);
+        head = burst_head(req_len, buf, have);
+        size_t at;
+        size_t len = burst_frame(req, req_len, buf, have, head, ended, &at);
         if (len > 0) {
             if (at > 0)
                 memmove(buf, buf + at, len);
@@ -257,7 +196,7 @@ long mbgw_find_reply(int fd, uint8_t *buf, size_t cap, const uint8_t *req, size_
         }
         if (ended) {
             *noise = (int)have;
-            return no_frame(req, buf, have, head, cap);
+            return burst_error(req, buf, have, head, cap);
         }
     }
 }

@@ -122,7 +122,7 @@ int mbgw_write_frame(int fd, const uint8_t *buf, size_t len, int rts_control,
  * -EPROTO when the echo differs (a collision), -ETIMEDOUT when it does not come. */
 int mbgw_discard_echo(int fd, const uint8_t *sent, size_t len, int64_t deadline_ns);
 
-/* --- reply.c: does a reply answer its request; slave mode's replies --- */
+/* --- match.c: does a reply answer its request (no I/O) --- */
 
 /* 1 when the reply PDU rsp can be the answer to the request PDU req: an exception for the
  * request's function, or its function with the size or echo the request asked for. */
@@ -138,6 +138,8 @@ int mbgw_reply_matches(const uint8_t *req, size_t req_len, const uint8_t *rsp, s
 #define MBGW_REPLY_WRONG_FUNCTION 3 /* another function, or a size or echo not asked for */
 int mbgw_tcp_reply_verdict(const uint8_t *req, size_t req_len, uint8_t unit, uint8_t rsp_unit,
                            const uint8_t *rsp, size_t rsp_len);
+
+/* --- forward.c: slave mode's replies to the client's socket, requests to the line --- */
 
 /* Where mbgw_receive_reply puts the ADU: behind the first 6 bytes of an MBAP header, so the
  * address byte sits where the unit id goes. */

@@ -1,4 +1,4 @@
-"""The C receive that hands a reply straight to its client's socket (csrc/reply.c): a reply
+"""The C receive that hands a reply straight to its client's socket (csrc/forward.c): a reply
 that answers the request goes out at once as the client's Modbus TCP frame; one that does not
 never reaches the socket.  The exchange writes the request and receives in one call.  A real
 pty pair carries the slave's frames; the expected bytes come from tests/modbus.py's builders,
