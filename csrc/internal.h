@@ -47,4 +47,9 @@ size_t burst_frame(const uint8_t *req, size_t req_len, const uint8_t *buf, size_
 long burst_error(const uint8_t *req, const uint8_t *buf, size_t have, int head,
                  size_t cap);
 
+/* --- tty.c --- */
+
+/* Raise (on) or drop RTS. */
+int tty_set_rts(int fd, int on);
+
 #endif

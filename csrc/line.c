@@ -3,14 +3,10 @@
  * inter-frame silence is 1.75 ms, so a millisecond lost per transaction would cost ~10 %. */
 #define _GNU_SOURCE
 #include <errno.h>
-#include <fcntl.h>
 #include <poll.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <string.h>
-#include <sys/file.h>
-#include <sys/prctl.h>
-#include <sys/ioctl.h>
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
@@ -201,45 +197,6 @@ long mbgw_find_reply(int fd, uint8_t *buf, size_t cap, const uint8_t *req, size_
     }
 }
 
-int mbgw_tty_lock(const char *path)
-{
-    int fd = open(path, O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
-    if (fd < 0)
-        return -errno;
-    if (flock(fd, LOCK_EX | LOCK_NB) < 0) {
-        int err = errno == EWOULDBLOCK ? EBUSY : errno;
-        close(fd);
-        return -err;
-    }
-    return fd;
-}
-
-int mbgw_tty_claim(int fd)
-{
-    if (ioctl(fd, TIOCEXCL) < 0 && errno != ENOTTY)
-        return -errno;
-    return 0;
-}
-
-int mbgw_line_thread_init(void)
-{
-    /* Timers of the line's thread fire on time, not up to 50 us late (the default slack). */
-    return prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL) < 0 ? -errno : 0;
-}
-
-int mbgw_tty_release(int fd)
-{
-    if (ioctl(fd, TIOCNXCL) < 0 && errno != ENOTTY)
-        return -errno;
-    return 0;
-}
-
-int mbgw_rts_available(int fd)
-{
-    int bits;
-    return ioctl(fd, TIOCMGET, &bits) < 0 ? -errno : 0;
-}
-
 long mbgw_ascii_read_frame(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns,
                            int32_t interchar_us, int64_t *end_ns, int *noise)
 {
@@ -289,12 +246,6 @@ long mbgw_ascii_read_frame(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns
     return rc;
 }
 
-static int set_rts(int fd, int on)
-{
-    int bit = TIOCM_RTS;
-    return ioctl(fd, on ? TIOCMBIS : TIOCMBIC, &bit) < 0 ? -errno : 0;
-}
-
 static void sleep_us(int32_t us)
 {
     if (us <= 0)
@@ -309,7 +260,7 @@ int mbgw_write_frame(int fd, const uint8_t *buf, size_t len, int rts_control,
 {
     int rc;
     if (rts_control) {
-        if ((rc = set_rts(fd, 1)) < 0)
+        if ((rc = tty_set_rts(fd, 1)) < 0)
             return rc;
         sleep_us(before_us);
     }
@@ -334,7 +285,7 @@ int mbgw_write_frame(int fd, const uint8_t *buf, size_t len, int rts_control,
         if (tcdrain(fd) < 0)
             return -errno;
         sleep_us(after_us);
-        if ((rc = set_rts(fd, 0)) < 0)
+        if ((rc = tty_set_rts(fd, 0)) < 0)
             return rc;
     }
     return 0;

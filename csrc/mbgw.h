@@ -30,6 +30,8 @@ int mbgw_rtu_reply_length(size_t req_len, const uint8_t *rsp, size_t have);
 /* The same for a request (master mode receives requests for several addresses). */
 int mbgw_rtu_request_length(const uint8_t *req, size_t have);
 
+/* --- line.c: timed reads on the tty's fd --- */
+
 /* Read and discard input until the line has been quiet for quiet_us since last_ns
  * (CLOCK_MONOTONIC).  Returns the number of bytes discarded.  (No tcflush: it would drop,
  * uncounted, a frame that arrived after the quiet period.) */
@@ -73,6 +75,8 @@ long mbgw_find_reply(int fd, uint8_t *buf, size_t cap, const uint8_t *req, size_
 long mbgw_ascii_read_frame(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns,
                            int32_t interchar_us, int64_t *end_ns, int *noise);
 
+/* --- tty.c: the tty itself: its claim, settings libmodbus cannot make, RTS --- */
+
 /* Open path and take an advisory flock on it, before anything touches the line's settings:
  * a second gateway is refused without disturbing the first.  Returns the fd (kept open as
  * long as the line is used) or -EBUSY when another program holds the lock. */
@@ -81,17 +85,9 @@ int mbgw_tty_lock(const char *path);
 /* TIOCEXCL: no further opens of the tty (except by root, whom the flock stops). */
 int mbgw_tty_claim(int fd);
 
-/* Call first in the thread that owns the line: its timers then fire on time. */
-int mbgw_line_thread_init(void);
-
 /* Undo mbgw_tty_claim before closing: TIOCEXCL outlives our fd on a tty that another
  * process (socat, getty) keeps open, and would refuse our own restart. */
 int mbgw_tty_release(int fd);
-
-/* 0 when the modem lines (RTS) can be driven on fd, else -errno. */
-int mbgw_rts_available(int fd);
-
-/* --- tty.c: settings libmodbus cannot make --- */
 
 /* cflag with the size, parity (n e o m s) and stop bits of a line format set. */
 uint32_t mbgw_tty_cflag(uint32_t cflag, int data_bits, char parity, int stop_bits);
@@ -109,6 +105,12 @@ int mbgw_tty_low_latency(int fd);
 /* Kernel RS-485: RTS drives the transmitter during each frame, with delays around it.
  * -ENOTTY (or -EINVAL) when the driver has no RS-485 support. */
 int mbgw_tty_rs485(int fd, int before_ms, int after_ms, int rx_during_tx);
+
+/* 0 when the modem lines (RTS) can be driven on fd, else -errno. */
+int mbgw_rts_available(int fd);
+
+/* Call first in the thread that owns the line: its timers then fire on time. */
+int mbgw_line_thread_init(void);
 
 /* --- line.c: writing --- */
 
