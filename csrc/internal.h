@@ -26,6 +26,16 @@ static inline int64_t now_ns(void)
     return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
 }
 
+/* --- line.c --- */
+
+/* Wait for input until until_ns (CLOCK_MONOTONIC).  1 readable, 0 timed out, -errno on
+ * error or hang-up. */
+int wait_input(int fd, int64_t until_ns);
+
+/* read() of at most cap bytes, EINTR retried.  Returns how many came, 0 none was
+ * waiting, -EIO the tty hung up, else -errno. */
+long read_some(int fd, uint8_t *buf, size_t cap);
+
 /* --- match.c: slave mode's reply among the bytes a burst on the line brought, req being
  * the request (address + PDU, no CRC) and buf[0..have) the burst so far --- */
 

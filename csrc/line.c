@@ -14,8 +14,7 @@
 #include "internal.h"
 #include "mbgw.h"
 
-/* Wait for input until `until_ns`.  1 readable, 0 timed out, -errno on error or hang-up. */
-static int wait_input(int fd, int64_t until_ns)
+int wait_input(int fd, int64_t until_ns)
 {
     for (;;) {
         int64_t left = until_ns - now_ns();
@@ -37,7 +36,7 @@ static int wait_input(int fd, int64_t until_ns)
     }
 }
 
-static long read_some(int fd, uint8_t *buf, size_t cap)
+long read_some(int fd, uint8_t *buf, size_t cap)
 {
     for (;;) {
         ssize_t n = read(fd, buf, cap);
