@@ -18,9 +18,15 @@ int mbgw_receive_reply(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t r
                        int64_t *end_ns, int *sent, int *noise)
 {
     *sent = -1;
+    int fd = modbus_get_socket(ctx);
+    if (fd < 0) { /* no line open: ppoll would ignore the fd and wait for the deadline */
+        *noise = 0;
+        *end_ns = now_ns();
+        return -EBADF;
+    }
     uint8_t *adu = buf + MBGW_REPLY_AT;
-    int n = (int)mbgw_find_reply(modbus_get_socket(ctx), adu, MBGW_REPLY_SCAN, req,
-                                 req_len, deadline_ns, gap_us, end_ns, noise);
+    int n = (int)mbgw_find_reply(fd, adu, MBGW_REPLY_SCAN, req, req_len, deadline_ns,
+                                 gap_us, end_ns, noise);
     if (n < 0 || adu[0] != req[0] || to->fd < 0 || *end_ns > deadline_ns)
         return n;
     size_t pdu_len = (size_t)n - 1 - CRC_LEN;

@@ -168,7 +168,8 @@ struct mbgw_forward {
  * (mbgw_reply_matches), came in time and to->fd >= 0, it goes to that socket at once as a
  * Modbus TCP frame, and *sent is the bytes the socket took (all of them when the connection
  * is broken: its next read tells); else *sent is -1.  *end_ns, *noise: mbgw_find_reply's.
- * Returns the frame's length with CRC (any address), or mbgw_find_reply's negative errno. */
+ * Returns the frame's length with CRC (any address), or mbgw_find_reply's negative errno;
+ * -EBADF ctx has no line open. */
 int mbgw_receive_reply(struct _modbus *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
                        int64_t deadline_ns, int32_t gap_us, const struct mbgw_forward *to,
                        int64_t *end_ns, int *sent, int *noise);
