@@ -104,11 +104,10 @@ int mbgw_idle_wait(int fd, int wake_fd, int timeout_ms)
     }
 }
 
-long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, size_t req_len,
-                     int64_t deadline_ns, int32_t gap_us, int by_silence, int64_t *end_ns)
+long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns, int32_t gap_us,
+                     int64_t *end_ns)
 {
     size_t have = 0;
-    int expected = 0;
     *end_ns = 0;
     for (;;) {
         /* The first byte is awaited until the deadline; after it, a silence of gap_us ends
@@ -125,14 +124,6 @@ long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, size_t req_len,
         have += (size_t)n;
         *end_ns = now_ns();
         if (have >= cap)
-            return (long)have;
-        if (!by_silence && expected <= 0) {
-            int len = mbgw_rtu_reply_length(req_len, buf, have);
-            if (len > 0 && (size_t)len > cap)
-                len = (int)cap;
-            expected = len;
-        }
-        if (expected > 0 && have >= (size_t)expected)
             return (long)have;
     }
 }

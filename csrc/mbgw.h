@@ -44,13 +44,12 @@ long mbgw_wait_quiet(int fd, int64_t last_ns, int32_t quiet_us);
 #define MBGW_IDLE_TIMEOUT 2
 int mbgw_idle_wait(int fd, int wake_fd, int timeout_ms);
 
-/* Read the reply to a request of req_len bytes (CRC excluded) into buf.  The first byte must
- * arrive before deadline_ns; the frame ends when its length (known from the function code)
- * is reached or, failing that, after gap_us of silence: what came is returned, complete or
- * not (or with by_silence set, the length is not looked at).  *end_ns receives the time the
- * last byte arrived.  Returns the bytes read or -ETIMEDOUT when nothing came. */
-long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, size_t req_len,
-                     int64_t deadline_ns, int32_t gap_us, int by_silence, int64_t *end_ns);
+/* nocheck's receive: whatever comes, unchecked, into buf.  The first byte must arrive
+ * before deadline_ns; after it, gap_us of silence ends the frame, complete or not (or cap
+ * bytes do).  *end_ns receives the time the last byte arrived.  Returns the bytes read or
+ * -ETIMEDOUT when nothing came. */
+long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns, int32_t gap_us,
+                     int64_t *end_ns);
 
 /* Slave mode: read what the line carries after the request req (address + PDU, CRC
  * excluded), at most cap bytes, until it holds a frame, and put that frame at buf[0].  The

@@ -321,8 +321,8 @@ class Port:
     def read_reply(self, request_len: int, deadline_ns: int, gap_us: int,
                    by_silence: bool) -> bytes:
         """Our own RTU receive: framed by length where known, else by gap_us of silence."""
-        n = lib.mbgw_read_reply(self.fd, self._buf, RTU_MAX_ADU + 4, request_len,
-                                deadline_ns, gap_us, by_silence, self._end_ns)
+        n = lib.mbgw_read_reply(self.fd, self._buf, RTU_MAX_ADU + 4, deadline_ns, gap_us,
+                                self._end_ns)
         return ffi.buffer(self._buf, self._check(n, "read"))[:]
 
     def read_ascii(self, deadline_ns: int, interchar_us: int) -> bytes:
