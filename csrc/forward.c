@@ -13,6 +13,9 @@
 #include "internal.h"
 #include "mbgw.h"
 
+/* An MBAP header's first bytes, then the ADU: its address where the unit id goes. */
+_Static_assert(MBGW_REPLY_AT == MBAP_HEAD_LEN, "MBGW_REPLY_AT is MBAP_HEAD_LEN");
+
 int mbgw_receive_reply(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
                        int64_t deadline_ns, int32_t gap_us, const struct mbgw_forward *to,
                        int64_t *end_ns, int *sent, int *noise)
