@@ -6,6 +6,7 @@ import subprocess
 
 from cffi import FFI
 
+# The part of libmodbus 3.1.6 that the Python side calls or reads, and no more.
 LIBMODBUS_CDEF = """
 typedef struct _modbus modbus_t;
 modbus_t *modbus_new_rtu(const char *device, int baud, char parity, int data_bit, int stop_bit);
@@ -13,16 +14,9 @@ int modbus_connect(modbus_t *ctx);
 void modbus_close(modbus_t *ctx);
 void modbus_free(modbus_t *ctx);
 int modbus_get_socket(modbus_t *ctx);
-int modbus_set_slave(modbus_t *ctx, int slave);
-int modbus_set_response_timeout(modbus_t *ctx, uint32_t to_sec, uint32_t to_usec);
-int modbus_set_byte_timeout(modbus_t *ctx, uint32_t to_sec, uint32_t to_usec);
 int modbus_send_raw_request(modbus_t *ctx, const uint8_t *raw_req, int raw_req_length);
-int modbus_receive_confirmation(modbus_t *ctx, uint8_t *rsp);
-const char *modbus_strerror(int errnum);
-#define MODBUS_ENOBASE ...
 #define EMBBADCRC ...
 #define EMBBADDATA ...
-#define MODBUS_MAX_ADU_LENGTH ...
 """
 
 

@@ -3,29 +3,18 @@
  * inter-frame silence is 1.75 ms, so a millisecond lost per transaction would cost ~10 %. */
 #define _GNU_SOURCE
 #include <errno.h>
-#include <fcntl.h>
 #include <poll.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <string.h>
-#include <sys/file.h>
-#include <sys/prctl.h>
-#include <sys/ioctl.h>
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
 
+#include "internal.h"
 #include "mbgw.h"
 
-static int64_t now_ns(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
-}
-
-/* Wait for input until `until_ns`.  1 readable, 0 timed out, -errno on error or hang-up. */
-static int wait_input(int fd, int64_t until_ns)
+int wait_input(int fd, int64_t until_ns)
 {
     for (;;) {
         int64_t left = until_ns - now_ns();
@@ -47,7 +36,7 @@ static int wait_input(int fd, int64_t until_ns)
     }
 }
 
-static long read_some(int fd, uint8_t *buf, size_t cap)
+long read_some(int fd, uint8_t *buf, size_t cap)
 {
     for (;;) {
         ssize_t n = read(fd, buf, cap);
@@ -102,24 +91,23 @@ int mbgw_idle_wait(int fd, int wake_fd, int timeout_ms)
             return -errno;
         }
         if (rc == 0)
-            return 2;
+            return MBGW_IDLE_TIMEOUT;
         if (p[0].revents & POLLIN) {
             uint64_t count;
             if (read(wake_fd, &count, sizeof count) < 0 && errno != EAGAIN)
                 return -errno;
-            return 0;
+            return MBGW_IDLE_WOKEN;
         }
         if (p[1].revents & POLLIN)
-            return 1;
+            return MBGW_IDLE_INPUT;
         return -EIO;
     }
 }
 
-long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, size_t req_len,
-                     int64_t deadline_ns, int32_t gap_us, int by_silence, int64_t *end_ns)
+long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns, int32_t gap_us,
+                     int64_t *end_ns)
 {
     size_t have = 0;
-    int expected = 0;
     *end_ns = 0;
     for (;;) {
         /* The first byte is awaited until the deadline; after it, a silence of gap_us ends
@@ -137,68 +125,10 @@ long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, size_t req_len,
         *end_ns = now_ns();
         if (have >= cap)
             return (long)have;
-        if (!by_silence && expected <= 0) {
-            int len = mbgw_rtu_reply_length(req_len, buf, have);
-            if (len > 0 && (size_t)len > cap)
-                len = (int)cap;
-            expected = len;
-        }
-        if (expected > 0 && have >= (size_t)expected)
-            return (long)have;
     }
 }
 
 /* --- slave mode: the reply among what the line carries --- */
-
-#define CRC_LEN 2
-#define MIN_FRAME 4       /* address, function code, CRC */
-#define MIN_REPLY 5       /* an exception (address, function, code, CRC): the shortest reply */
-#define NO_FRAME (-2)     /* frame_length: no frame starts here */
-
-/* The length of a frame at f (have bytes of it) by its own function code: > 0, 0 more bytes
- * are needed to tell, MBGW_LEN_UNKNOWN silence ends it, NO_FRAME no frame is that long. */
-static int frame_length(size_t req_len, const uint8_t *f, size_t have)
-{
-    int len = mbgw_rtu_reply_length(req_len, f, have);
-    if (len > 0 && (len < MIN_FRAME || len > MBGW_RTU_MAX_ADU))
-        return NO_FRAME;
-    return len;
-}
-
-/* The length of the frame with a valid CRC at f, of length len (frame_length's, ended: the
- * burst is over, so a frame that silence ends ends here), or 0: none. */
-static size_t whole_frame(const uint8_t *f, size_t have, int len, int ended)
-{
-    if (len == MBGW_LEN_UNKNOWN && ended)
-        len = have > MBGW_RTU_MAX_ADU ? 0 : (int)have;
-    if (len < MIN_FRAME || (size_t)len > have)
-        return 0;
-    return mbgw_crc16(f, (size_t)len) == 0 ? (size_t)len : 0;
-}
-
-/* f starts as the reply to req would: its address, then its function or that exception. */
-static int starts_reply(const uint8_t *req, const uint8_t *f)
-{
-    return f[0] == req[0] && (f[1] == req[1] || f[1] == (req[1] | 0x80));
-}
-
-/* The reply to req inside buf[1..have): a frame that starts as the reply, has a valid CRC and
- * answers req (mbgw_reply_matches).  Returns its length and *at its offset, or 0. */
-static size_t reply_inside(const uint8_t *req, size_t req_len, const uint8_t *buf, size_t have,
-                           int ended, size_t *at)
-{
-    for (size_t i = 1; i + MIN_REPLY <= have; i++) {
-        const uint8_t *f = buf + i;
-        if (!starts_reply(req, f))
-            continue;
-        size_t len = whole_frame(f, have - i, frame_length(req_len, f, have - i), ended);
-        if (len && mbgw_reply_matches(req + 1, req_len - 1, f + 1, len - 1 - CRC_LEN)) {
-            *at = i;
-            return len;
-        }
-    }
-    return 0;
-}
 
 /* How many bytes to read now: while the burst may begin with a frame, no further than that
  * frame's end (a frame right behind it is the next call's); else what came. */
@@ -211,23 +141,11 @@ static size_t next_read(int head, size_t have, size_t cap)
     return cap - have;
 }
 
-/* Why a burst held no frame: the reply with a bad CRC (it starts as the reply and is whole
- * by its length, or by silence), or something else. */
-static long no_frame(const uint8_t *req, const uint8_t *buf, size_t have, int head, size_t cap)
-{
-    if (have == cap)
-        return -EMSGSIZE;
-    if (have >= 2 && starts_reply(req, buf) &&
-        (head == MBGW_LEN_UNKNOWN || (head > 0 && (size_t)head <= have)))
-        return -EILSEQ;
-    return -EBADMSG;
-}
-
 long mbgw_find_reply(int fd, uint8_t *buf, size_t cap, const uint8_t *req, size_t req_len,
                      int64_t deadline_ns, int32_t gap_us, int64_t *end_ns, int *noise)
 {
     size_t have = 0;
-    int head = 0;                       /* frame_length of the burst's first bytes */
+    int head = 0;                       /* burst_head of the bytes read */
     *noise = 0;
     *end_ns = now_ns();
     if (*end_ns >= deadline_ns)
@@ -253,11 +171,9 @@ long mbgw_find_reply(int fd, uint8_t *buf, size_t cap, const uint8_t *req, size_
             *end_ns = now_ns();
         }
         int ended = rc == 0 || have == cap;
-        head = frame_length(req_len, buf, have);
-        size_t at = 0;
-        size_t len = whole_frame(buf, have, head, ended);
-        if (len == 0)
-            len = reply_inside(req, req_len, buf, have, ended, &at);
+        head = burst_head(req_len, buf, have);
+        size_t at;
+        size_t len = burst_frame(req, req_len, buf, have, head, ended, &at);
         if (len > 0) {
             if (at > 0)
                 memmove(buf, buf + at, len);
@@ -266,53 +182,9 @@ long mbgw_find_reply(int fd, uint8_t *buf, size_t cap, const uint8_t *req, size_
         }
         if (ended) {
             *noise = (int)have;
-            return no_frame(req, buf, have, head, cap);
+            return burst_error(req, buf, have, head, cap);
         }
     }
-}
-
-int mbgw_tty_lock(const char *path)
-{
-    int fd = open(path, O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
-    if (fd < 0)
-        return -errno;
-    if (flock(fd, LOCK_EX | LOCK_NB) < 0) {
-        int err = errno == EWOULDBLOCK ? EBUSY : errno;
-        close(fd);
-        return -err;
-    }
-    return fd;
-}
-
-int mbgw_tty_claim(int fd)
-{
-    if (ioctl(fd, TIOCEXCL) < 0 && errno != ENOTTY)
-        return -errno;
-    return 0;
-}
-
-int mbgw_line_thread_init(void)
-{
-    /* Timers of the line's thread fire on time, not up to 50 us late (the default slack). */
-    return prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL) < 0 ? -errno : 0;
-}
-
-int mbgw_name_thread(const char *name)
-{
-    return prctl(PR_SET_NAME, (unsigned long)name, 0UL, 0UL, 0UL) < 0 ? -errno : 0;
-}
-
-int mbgw_tty_release(int fd)
-{
-    if (ioctl(fd, TIOCNXCL) < 0 && errno != ENOTTY)
-        return -errno;
-    return 0;
-}
-
-int mbgw_rts_available(int fd)
-{
-    int bits;
-    return ioctl(fd, TIOCMGET, &bits) < 0 ? -errno : 0;
 }
 
 long mbgw_ascii_read_frame(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns,
@@ -364,12 +236,6 @@ long mbgw_ascii_read_frame(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns
     return rc;
 }
 
-static int set_rts(int fd, int on)
-{
-    int bit = TIOCM_RTS;
-    return ioctl(fd, on ? TIOCMBIS : TIOCMBIC, &bit) < 0 ? -errno : 0;
-}
-
 static void sleep_us(int32_t us)
 {
     if (us <= 0)
@@ -384,7 +250,7 @@ int mbgw_write_frame(int fd, const uint8_t *buf, size_t len, int rts_control,
 {
     int rc;
     if (rts_control) {
-        if ((rc = set_rts(fd, 1)) < 0)
+        if ((rc = tty_set_rts(fd, 1)) < 0)
             return rc;
         sleep_us(before_us);
     }
@@ -409,7 +275,7 @@ int mbgw_write_frame(int fd, const uint8_t *buf, size_t len, int rts_control,
         if (tcdrain(fd) < 0)
             return -errno;
         sleep_us(after_us);
-        if ((rc = set_rts(fd, 0)) < 0)
+        if ((rc = tty_set_rts(fd, 0)) < 0)
             return rc;
     }
     return 0;

@@ -30,22 +30,26 @@ int mbgw_rtu_reply_length(size_t req_len, const uint8_t *rsp, size_t have);
 /* The same for a request (master mode receives requests for several addresses). */
 int mbgw_rtu_request_length(const uint8_t *req, size_t have);
 
+/* --- line.c: timed reads on the tty's fd --- */
+
 /* Read and discard input until the line has been quiet for quiet_us since last_ns
  * (CLOCK_MONOTONIC).  Returns the number of bytes discarded.  (No tcflush: it would drop,
  * uncounted, a frame that arrived after the quiet period.) */
 long mbgw_wait_quiet(int fd, int64_t last_ns, int32_t quiet_us);
 
 /* Sleep until wake_fd (an eventfd) is signalled, input arrives on fd, or timeout_ms passes
- * (-1: no timeout).  Returns 0 woken, 1 input waiting, 2 timed out. */
+ * (-1: no timeout).  Returns one of MBGW_IDLE_*. */
+#define MBGW_IDLE_WOKEN 0   /* wake_fd was signalled (its count is read) */
+#define MBGW_IDLE_INPUT 1   /* input waits on fd */
+#define MBGW_IDLE_TIMEOUT 2
 int mbgw_idle_wait(int fd, int wake_fd, int timeout_ms);
 
-/* Read the reply to a request of req_len bytes (CRC excluded) into buf.  The first byte must
- * arrive before deadline_ns; the frame ends when its length (known from the function code)
- * is reached or, failing that, after gap_us of silence: what came is returned, complete or
- * not (or with by_silence set, the length is not looked at).  *end_ns receives the time the
- * last byte arrived.  Returns the bytes read or -ETIMEDOUT when nothing came. */
-long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, size_t req_len,
-                     int64_t deadline_ns, int32_t gap_us, int by_silence, int64_t *end_ns);
+/* nocheck's receive: whatever comes, unchecked, into buf.  The first byte must arrive
+ * before deadline_ns; after it, gap_us of silence ends the frame, complete or not (or cap
+ * bytes do).  *end_ns receives the time the last byte arrived.  Returns the bytes read or
+ * -ETIMEDOUT when nothing came. */
+long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns, int32_t gap_us,
+                     int64_t *end_ns);
 
 /* Slave mode: read what the line carries after the request req (address + PDU, CRC
  * excluded), at most cap bytes, until it holds a frame, and put that frame at buf[0].  The
@@ -70,6 +74,8 @@ long mbgw_find_reply(int fd, uint8_t *buf, size_t cap, const uint8_t *req, size_
 long mbgw_ascii_read_frame(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns,
                            int32_t interchar_us, int64_t *end_ns, int *noise);
 
+/* --- tty.c: the tty itself: its claim, settings libmodbus cannot make, RTS --- */
+
 /* Open path and take an advisory flock on it, before anything touches the line's settings:
  * a second gateway is refused without disturbing the first.  Returns the fd (kept open as
  * long as the line is used) or -EBUSY when another program holds the lock. */
@@ -78,20 +84,9 @@ int mbgw_tty_lock(const char *path);
 /* TIOCEXCL: no further opens of the tty (except by root, whom the flock stops). */
 int mbgw_tty_claim(int fd);
 
-/* Call first in the thread that owns the line: its timers then fire on time. */
-int mbgw_line_thread_init(void);
-
-/* Name the calling thread (at most 15 bytes) for ps -L, top -H and /proc/PID/task. */
-int mbgw_name_thread(const char *name);
-
 /* Undo mbgw_tty_claim before closing: TIOCEXCL outlives our fd on a tty that another
  * process (socat, getty) keeps open, and would refuse our own restart. */
 int mbgw_tty_release(int fd);
-
-/* 0 when the modem lines (RTS) can be driven on fd, else -errno. */
-int mbgw_rts_available(int fd);
-
-/* --- tty.c: settings libmodbus cannot make --- */
 
 /* cflag with the size, parity (n e o m s) and stop bits of a line format set. */
 uint32_t mbgw_tty_cflag(uint32_t cflag, int data_bits, char parity, int stop_bits);
@@ -110,6 +105,15 @@ int mbgw_tty_low_latency(int fd);
  * -ENOTTY (or -EINVAL) when the driver has no RS-485 support. */
 int mbgw_tty_rs485(int fd, int before_ms, int after_ms, int rx_during_tx);
 
+/* 0 when the modem lines (RTS) can be driven on fd, else -errno. */
+int mbgw_rts_available(int fd);
+
+/* Call first in the thread that owns the line: its timers then fire on time. */
+int mbgw_line_thread_init(void);
+
+/* Name the calling thread (at most 15 bytes) for ps -L, top -H and /proc/PID/task. */
+int mbgw_name_thread(const char *name);
+
 /* --- line.c: writing --- */
 
 /* Write the whole frame.  With rts_control, raise RTS before_us before the first byte and
@@ -122,7 +126,7 @@ int mbgw_write_frame(int fd, const uint8_t *buf, size_t len, int rts_control,
  * -EPROTO when the echo differs (a collision), -ETIMEDOUT when it does not come. */
 int mbgw_discard_echo(int fd, const uint8_t *sent, size_t len, int64_t deadline_ns);
 
-/* --- reply.c: does a reply answer its request; slave mode's replies --- */
+/* --- match.c: does a reply answer its request (no I/O) --- */
 
 /* 1 when the reply PDU rsp can be the answer to the request PDU req: an exception for the
  * request's function, or its function with the size or echo the request asked for. */
@@ -138,6 +142,8 @@ int mbgw_reply_matches(const uint8_t *req, size_t req_len, const uint8_t *rsp, s
 #define MBGW_REPLY_WRONG_FUNCTION 3 /* another function, or a size or echo not asked for */
 int mbgw_tcp_reply_verdict(const uint8_t *req, size_t req_len, uint8_t unit, uint8_t rsp_unit,
                            const uint8_t *rsp, size_t rsp_len);
+
+/* --- forward.c: slave mode's replies to the client's socket, requests to the line --- */
 
 /* Where mbgw_receive_reply puts the ADU: behind the first 6 bytes of an MBAP header, so the
  * address byte sits where the unit id goes. */
@@ -164,7 +170,8 @@ struct mbgw_forward {
  * (mbgw_reply_matches), came in time and to->fd >= 0, it goes to that socket at once as a
  * Modbus TCP frame, and *sent is the bytes the socket took (all of them when the connection
  * is broken: its next read tells); else *sent is -1.  *end_ns, *noise: mbgw_find_reply's.
- * Returns the frame's length with CRC (any address), or mbgw_find_reply's negative errno. */
+ * Returns the frame's length with CRC (any address), or mbgw_find_reply's negative errno;
+ * -EBADF ctx has no line open. */
 int mbgw_receive_reply(struct _modbus *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
                        int64_t deadline_ns, int32_t gap_us, const struct mbgw_forward *to,
                        int64_t *end_ns, int *sent, int *noise);

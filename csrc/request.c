@@ -17,36 +17,20 @@
  * transceiver turns around) spoils the first of these lengths: when the burst that silence
  * ends has no valid CRC, the frame is looked for at its end, behind the noise.
  */
-#define _GNU_SOURCE
 #include <errno.h>
-#include <poll.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <string.h>
-#include <time.h>
-#include <unistd.h>
 
+#include "internal.h"
 #include "mbgw.h"
 
-#define MIN_FRAME 4   /* address, function code, CRC (Serial Line V1.02, 2.5.1) */
 #define HEADER 2      /* address and function code: what every length is computed from */
 
 /* Wait up to gap_us for more input.  1 input, 0 silence, -errno on error or hang-up. */
 static int wait_gap(int fd, int32_t gap_us)
 {
-    struct timespec ts = { gap_us / 1000000, (long)(gap_us % 1000000) * 1000 };
-    struct pollfd p = { fd, POLLIN, 0 };
-    for (;;) {
-        int rc = ppoll(&p, 1, &ts, NULL);
-        if (rc < 0) {
-            if (errno == EINTR)
-                continue;                       /* a signal only lengthens this gap */
-            return -errno;
-        }
-        if (rc == 0)
-            return 0;
-        return (p.revents & POLLIN) ? 1 : -EIO;
-    }
+    return wait_input(fd, now_ns() + (int64_t)gap_us * 1000);
 }
 
 /* A possible end of frame: > 0 the length, 0 more bytes are needed to tell, -1 none. */
@@ -106,8 +90,9 @@ static long skip_frame(int fd, int32_t gap_us)
         int rc = wait_gap(fd, gap_us);
         if (rc <= 0)
             return rc;
-        if (read(fd, junk, sizeof junk) < 0 && errno != EINTR && errno != EAGAIN)
-            return -errno;
+        long n = read_some(fd, junk, sizeof junk);
+        if (n < 0)
+            return n;
     }
 }
 
@@ -138,7 +123,7 @@ long mbgw_rtu_read_request(int fd, int wake_fd, uint8_t *buf, size_t cap,
         int rc = have == 0 ? mbgw_idle_wait(fd, wake_fd, idle_ms) : wait_gap(fd, gap_us);
         if (rc < 0)
             return rc;
-        if (have == 0 && rc != 1)               /* woken, or idle_ms without input */
+        if (have == 0 && rc != MBGW_IDLE_INPUT)   /* woken, or idle_ms without input */
             return -ECANCELED;
         if (rc == 0) {                          /* silence: the frame is over */
             if (have < MIN_FRAME)
@@ -148,13 +133,11 @@ long mbgw_rtu_read_request(int fd, int wake_fd, uint8_t *buf, size_t cap,
             size_t len = frame_behind_noise(buf, have, reply_to, reply_to_len);
             return len > 0 ? (long)len : -EILSEQ;
         }
-        ssize_t n = read(fd, buf + have, next_read(ends, 2, have, cap));
-        if (n < 0 && (errno == EINTR || errno == EAGAIN))
-            continue;
+        long n = read_some(fd, buf + have, next_read(ends, 2, have, cap));
         if (n < 0)
-            return -errno;
+            return n;
         if (n == 0)
-            return -EIO;                        /* end of file on a tty: hung up */
+            continue;                           /* woken without a byte */
         have += (size_t)n;
 
         ends[0] = end_candidate(mbgw_rtu_request_length(buf, have), cap);

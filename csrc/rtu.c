@@ -3,9 +3,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "internal.h"
 #include "mbgw.h"
-
-#define CRC_LEN 2
 
 /* Length of a frame whose byte count sits at offset `at`, with `fixed` bytes besides it
  * and the counted data (CRC excluded). */

@@ -1,17 +1,51 @@
-/* Line settings libmodbus cannot make: any baud rate (termios2 + BOTHER; libmodbus silently
- * turns rates outside its table into 9600), mark and space parity (CMSPAR; libmodbus refuses
- * them), low-latency mode, and the kernel's RS-485 direction control.
- * <asm/termbits.h> clashes with <termios.h>, hence this file of its own. */
+/* The tty itself: claiming it for this process (flock, TIOCEXCL), the line settings
+ * libmodbus cannot make, RTS.  Those settings are any baud rate (termios2 + BOTHER;
+ * libmodbus silently turns rates outside its table into 9600), mark and space parity
+ * (CMSPAR; libmodbus refuses them), low-latency mode, and the kernel's RS-485 direction
+ * control.  <asm/termbits.h> clashes with <termios.h>, hence this file of its own. */
 #include <asm/ioctls.h>
 #include <asm/termbits.h>
 #include <errno.h>
+#include <fcntl.h>
 #include <linux/serial.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <sys/file.h>
+#include <sys/ioctl.h>
+#include <sys/prctl.h>
+#include <unistd.h>
 
+#include "internal.h"
 #include "mbgw.h"
 
-int ioctl(int fd, unsigned long request, ...);
+int mbgw_tty_lock(const char *path)
+{
+    int fd = open(path, O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
+    if (fd < 0)
+        return -errno;
+    if (flock(fd, LOCK_EX | LOCK_NB) < 0) {
+        int err = errno == EWOULDBLOCK ? EBUSY : errno;
+        close(fd);
+        return -err;
+    }
+    return fd;
+}
+
+int mbgw_tty_claim(int fd)
+{
+    if (ioctl(fd, TIOCEXCL) < 0 && errno != ENOTTY)
+        return -errno;
+    return 0;
+}
+
+int mbgw_tty_release(int fd)
+{
+    if (ioctl(fd, TIOCNXCL) < 0 && errno != ENOTTY)
+        return -errno;
+    return 0;
+}
+
+/* --- settings --- */
 
 uint32_t mbgw_tty_cflag(uint32_t cflag, int data_bits, char parity, int stop_bits)
 {
@@ -92,4 +126,31 @@ int mbgw_tty_rs485(int fd, int before_ms, int after_ms, int rx_during_tx)
     if (ioctl(fd, TIOCSRS485, &rs) < 0)
         return -errno;
     return 0;
+}
+
+/* --- the modem lines --- */
+
+int mbgw_rts_available(int fd)
+{
+    int bits;
+    return ioctl(fd, TIOCMGET, &bits) < 0 ? -errno : 0;
+}
+
+int tty_set_rts(int fd, int on)
+{
+    int bit = TIOCM_RTS;
+    return ioctl(fd, on ? TIOCMBIS : TIOCMBIC, &bit) < 0 ? -errno : 0;
+}
+
+/* --- the thread that owns the line --- */
+
+int mbgw_line_thread_init(void)
+{
+    /* The line thread's timers fire on time, not up to 50 us late (the default slack). */
+    return prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL) < 0 ? -errno : 0;
+}
+
+int mbgw_name_thread(const char *name)
+{
+    return prctl(PR_SET_NAME, (unsigned long)name, 0UL, 0UL, 0UL) < 0 ? -errno : 0;
 }

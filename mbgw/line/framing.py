@@ -64,7 +64,7 @@ class RtuFraming:
 
     def receive_unchecked(self, adu: bytes, deadline: int) -> Reception:
         """nocheck: whatever came until the end-of-frame silence, CRC removed unchecked."""
-        got = self.port.read_reply(len(adu), deadline, self._end_us, True)
+        got = self.port.read_reply(deadline, self._end_us)
         self.line.counters.bytes_received += got.length
         return got if got.frame is None else got._replace(frame=got.frame[:-2])
 

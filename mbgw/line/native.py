@@ -326,12 +326,10 @@ class Port:
             return Reception(None, None, frame[0], n, noise, -1, request_end_ns, last_byte_ns)
         return Reception(frame, None, -1, n, noise, forwarded, request_end_ns, last_byte_ns)
 
-    def read_reply(self, request_len: int, deadline_ns: int, gap_us: int,
-                   by_silence: bool) -> Reception:
-        """Our own RTU receive, nothing checked: framed by length where known, else by gap_us
-        of silence."""
-        n = lib.mbgw_read_reply(self.fd, self._buf, RTU_MAX_ADU + 4, request_len,
-                                deadline_ns, gap_us, by_silence, self._end_ns)
+    def read_reply(self, deadline_ns: int, gap_us: int) -> Reception:
+        """Our own RTU receive, nothing checked: framed by gap_us of silence."""
+        n = lib.mbgw_read_reply(self.fd, self._buf, RTU_MAX_ADU + 4, deadline_ns, gap_us,
+                                self._end_ns)
         return self._read(n, 0)
 
     def read_ascii(self, deadline_ns: int, interchar_us: int) -> Reception:

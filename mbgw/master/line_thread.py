@@ -44,8 +44,8 @@ from mbgw.ops.trace import TraceHub
 log = logging.getLogger("mbgw.line")
 wire = logging.getLogger("mbgw.wire")
 
-IDLE_INPUT = 1      # Port.idle_wait: input is waiting
-IDLE_TIMEOUT = 2    # Port.idle_wait: nothing happened
+IDLE_INPUT = native.lib.MBGW_IDLE_INPUT       # Port.idle_wait: input is waiting
+IDLE_TIMEOUT = native.lib.MBGW_IDLE_TIMEOUT   # Port.idle_wait: nothing happened
 UNUSED_SETTINGS = {"stout_ms": 0, "nocheck": False}   # slave mode's: no reopen for them
 BAD_REPLY_LOG_INTERVAL_S = 60.0
 

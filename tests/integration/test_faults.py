@@ -265,7 +265,7 @@ def test_reply_after_garbage_and_the_least_silence_is_delivered(line, gateway, c
 # A glitch byte, or a few bytes of noise, in the same write as the reply (an RS-485 transceiver
 # turning around): the reply is found behind them by its address, function and CRC, and what
 # the line carried is counted byte for byte.  Both ways to the line: one client on an idle
-# line takes the shortcut (csrc/reply.c, mbgw_take_request); with wire logging at DEBUG
+# line takes the shortcut (csrc/forward.c, mbgw_take_request); with wire logging at DEBUG
 # every request goes the ordinary way (SerialMaster.transact).
 
 PATHS = pytest.mark.parametrize("path", [(), ("--log-level", "debug")],

@@ -1,8 +1,9 @@
-"""The C receive that hands a reply straight to its client's socket (csrc/reply.c): a reply
+"""The C receive that hands a reply straight to its client's socket (csrc/forward.c): a reply
 that answers the request goes out at once as the client's Modbus TCP frame; one that does not
 never reaches the socket.  The exchange writes the request and receives in one call.  A real
 pty pair carries the slave's frames; the expected bytes come from tests/modbus.py's builders,
 not from mbgw."""
+import errno
 import os
 import socket
 import threading
@@ -10,8 +11,9 @@ import time
 
 import pytest
 
+from mbgw._ffi import ffi, lib
 from mbgw.errors import FrameError, LineTimeout
-from mbgw.line.native import Port, counter
+from mbgw.line.native import REPLY_AT, REPLY_SCAN, Port, counter
 from tests.modbus import holding_reply, mbap, read_holding, rtu
 
 pytestmark = pytest.mark.integration
@@ -199,3 +201,20 @@ def test_the_exchange_waits_stout_from_the_end_of_the_request(line, socket_ends)
     assert got.last_byte_ns >= got.request_end_ns + 50_000_000
     assert os.read(slave, 256) == rtu(UNIT, read_holding(0, 3))
     assert nothing_on(theirs)
+
+
+
+def test_a_receive_on_a_context_without_a_line_fails_at_once():
+    """modbus_get_socket gives -1 for a libmodbus context with no line open: an error of
+    the line (-EBADF), not a slave that stays silent until the deadline."""
+    ctx = lib.modbus_new_rtu(b"/dev/null", 19200, b"N", 8, 1)      # never connected
+    buf = ffi.new("uint8_t[]", REPLY_AT + REPLY_SCAN)
+    nowhere = ffi.new("struct mbgw_forward *", {"fd": -1})
+    end_ns, sent, noise = ffi.new("int64_t *"), ffi.new("int *"), ffi.new("int *")
+    try:
+        rc = lib.mbgw_receive_reply(ctx, buf, REQUEST, len(REQUEST), deadline(5.0), 2000,
+                                    nowhere, end_ns, sent, noise)
+    finally:
+        lib.modbus_free(ctx)
+    assert rc == -errno.EBADF
+    assert sent[0] == -1 and noise[0] == 0

@@ -1,4 +1,4 @@
-"""The shortcut for a request that finds the line idle (csrc/reply.c, mbgw_take_request): C
+"""The shortcut for a request that finds the line idle (csrc/forward.c, mbgw_take_request): C
 reads the client and, when what came is exactly one request the line can take as it is, puts
 it on the line and forwards its reply at once; anything else is left, whole and unsent, to
 the Python path.  A real pty pair carries the frames; the expected bytes come from

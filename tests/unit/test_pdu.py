@@ -1,4 +1,4 @@
-"""reply_matches (csrc/reply.c): can this reply PDU be the answer to that request PDU?"""
+"""reply_matches (csrc/match.c): can this reply PDU be the answer to that request PDU?"""
 import pytest
 
 from mbgw.protocol import pdu

@@ -205,7 +205,7 @@ def test_read_registers_reply_with_the_largest_byte_count():
 
 def test_read_coils_reply_length_follows_the_byte_count_not_the_request():
     # The reply length comes from the reply itself; whether it fits the request is
-    # reply_matches's business (csrc/reply.c).
+    # reply_matches's business (csrc/match.c).
     assert native.rtu_reply_length(6, ADDRESS + b"\x01\x01") == 6
     assert native.rtu_reply_length(6, ADDRESS + b"\x01\x00") == 5
 

@@ -1,4 +1,4 @@
-"""tcp_reply_verdict (csrc/reply.c): master mode's judgement of a server's Modbus TCP reply to
+"""tcp_reply_verdict (csrc/match.c): master mode's judgement of a server's Modbus TCP reply to
 a request sent to a unit: its PDU's own length against its MBAP length, its unit id, then
 reply_matches.  Published pairs (tests/vectors/pdu_pairs.txt), changed by hand."""
 import pytest

@@ -1,0 +1,104 @@
+/* Slave mode's quick ways between a client's socket and the line, before Python sees
+ * anything: a reply that answers goes to the client's socket (mbgw_receive_reply,
+ * mbgw_exchange), and a request that finds the line idle goes on it (mbgw_take_request).
+ * Whether a reply answers is match.c's to say. */
+#include <errno.h>
+#include <sched.h>
+#include <stdint.h>
+#include <string.h>
+#include <sys/socket.h>
+
+#include <modbus.h>
+
+#include "internal.h"
+#include "mbgw.h"
+
+/* An MBAP header's first bytes, then the ADU: its address where the unit id goes. */
+_Static_assert(MBGW_REPLY_AT == MBAP_HEAD_LEN, "MBGW_REPLY_AT is MBAP_HEAD_LEN");
+
+int mbgw_receive_reply(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
+                       int64_t deadline_ns, int32_t gap_us, const struct mbgw_forward *to,
+                       int64_t *end_ns, int *sent, int *noise)
+{
+    *sent = -1;
+    int fd = modbus_get_socket(ctx);
+    if (fd < 0) { /* no line open: ppoll would ignore the fd and wait for the deadline */
+        *noise = 0;
+        *end_ns = now_ns();
+        return -EBADF;
+    }
+    uint8_t *adu = buf + MBGW_REPLY_AT;
+    int n = (int)mbgw_find_reply(fd, adu, MBGW_REPLY_SCAN, req, req_len, deadline_ns,
+                                 gap_us, end_ns, noise);
+    if (n < 0 || adu[0] != req[0] || to->fd < 0 || *end_ns > deadline_ns)
+        return n;
+    size_t pdu_len = (size_t)n - 1 - CRC_LEN;
+    if (!mbgw_reply_matches(req + 1, req_len - 1, adu + 1, pdu_len))
+        return n;
+    /* MBAP header: transaction id, protocol 0, length (unit id + PDU), unit id */
+    uint8_t address = adu[0];
+    buf[0] = to->tid >> 8;
+    buf[1] = to->tid & 0xff;
+    buf[2] = buf[3] = 0;
+    buf[4] = (pdu_len + 1) >> 8;
+    buf[5] = (pdu_len + 1) & 0xff;
+    adu[0] = to->unit;
+    if (to->in_flight)
+        --*to->in_flight;
+    ssize_t w =
+        send(to->fd, buf, MBGW_REPLY_AT + 1 + pdu_len, MSG_DONTWAIT | MSG_NOSIGNAL);
+    adu[0] = address;
+    if (w >= 0)
+        *sent = (int)w;
+    else
+        *sent = errno == EAGAIN ? 0 : (int)(MBGW_REPLY_AT + 1 + pdu_len);
+    /* The client just woken is often on this CPU: let it run before our bookkeeping. */
+    if (w > 0 && to->yield_cpu)
+        sched_yield();
+    return n;
+}
+
+int mbgw_exchange(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
+                  int64_t char_ns, int64_t stout_ns, int32_t gap_us,
+                  const struct mbgw_forward *to, int64_t *times, int *sent, int *noise)
+{
+    *sent = -1;
+    *noise = 0;
+    if (modbus_send_raw_request(ctx, req, (int)req_len) < 0) {
+        times[0] = -1;
+        times[1] = now_ns();
+        return -errno;
+    }
+    times[0] = now_ns() + (int64_t)(req_len + CRC_LEN) * char_ns;
+    return mbgw_receive_reply(ctx, buf, req, req_len, times[0] + stout_ns, gap_us, to,
+                              &times[1], sent, noise);
+}
+
+int mbgw_take_request(modbus_t *ctx, int client_fd, int *in_flight, uint8_t *in,
+                      size_t in_cap, uint8_t *buf, struct mbgw_shortcut *sc)
+{
+    sc->result = MBGW_NOT_TAKEN;
+    ssize_t n = recv(client_fd, in, in_cap, MSG_DONTWAIT);
+    if (n < 0)
+        return errno == EAGAIN || errno == EINTR ? -EAGAIN : -errno;
+    if (n < MBAP_LEN + 1)
+        return (int)n;
+    /* MBAP header: transaction id, protocol id, length (unit id + PDU), unit id */
+    unsigned length = (unsigned)in[4] << 8 | in[5];
+    if (in[2] || in[3] || (size_t)n != MBAP_HEAD_LEN + length || length < 2 ||
+        length > MBAP_MAX_LENGTH)
+        return (int)n; /* a bad header, or not exactly one request */
+    uint8_t unit = in[6];
+    uint8_t address = sc->slaveid ? sc->slaveid : unit;
+    if (address < 1 || address > MBGW_MAX_ADDRESS || !sc->framed[in[7]] ||
+        now_ns() < sc->quiet_until_ns)
+        return (int)n;
+    uint8_t adu[MBGW_RTU_MAX_ADU];
+    adu[0] = sc->address = address;
+    memcpy(adu + 1, in + MBAP_LEN, length - 1);
+    struct mbgw_forward to = { client_fd, (uint16_t)(in[0] << 8 | in[1]), unit, 1,
+                               in_flight };
+    sc->result = mbgw_exchange(ctx, buf, adu, length, sc->char_ns, sc->stout_ns,
+                               sc->gap_us, &to, sc->times, &sc->sent, &sc->noise);
+    return (int)n;
+}
