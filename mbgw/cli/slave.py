@@ -45,6 +45,8 @@ def _parse_authip(values) -> tuple:
               show_default=True, metavar="MS",
               help="Pause on the line after a broadcast (unit 0), before the next request.")
 @daemon_options
+@click.option("--shortcut/--no-shortcut", default=config.SlaveConfig.shortcut, hidden=True,
+              help="Put a request that finds the line idle on it from C (for diagnosis).")
 def slave(**options) -> None:
     """Slave mode: Modbus TCP clients reach the slaves on a serial line."""
     from mbgw.slave.daemon import run_slave
@@ -55,11 +57,11 @@ def slave(**options) -> None:
 def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout,
                  silence, ascii_timeout, nocheck, slaveid, exception, authip, mdbport, bind,
                  max_connections, max_connections_per_ip, retries, turnaround, control,
-                 metrics, log_level=None) -> config.SlaveConfig:
+                 metrics, log_level=None, shortcut=True) -> config.SlaveConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
     return convert("'--authip'", lambda: config.SlaveConfig(
         serial=serial, slaveid=slaveid, exception=exception, authip=authip, mdbport=mdbport,
         bind=bind, max_connections=max_connections,
         max_connections_per_ip=max_connections_per_ip, retries=retries,
-        turnaround_ms=turnaround, control=control, metrics=metrics))
+        turnaround_ms=turnaround, control=control, metrics=metrics, shortcut=shortcut))

@@ -137,6 +137,7 @@ class SlaveConfig:
     turnaround_ms: int = DEFAULT_TURNAROUND_MS
     control: str | None = None     # control socket path; None: the default one
     metrics: str | None = None     # ADDR:PORT for Prometheus, None: off
+    shortcut: bool = True          # an idle line's request goes on it from C (a hidden switch)
 
     def __post_init__(self) -> None:
         if len(self.authip) > MAX_AUTHIP:

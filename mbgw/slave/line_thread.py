@@ -50,8 +50,8 @@ class LineWorker(LineThread[SlaveConfig]):
                               cfg.retries, cfg.turnaround_ms)
         master.on_reply = self._reply_now
         # The shortcut takes plain RTU requests, which libmodbus sends and frames.
-        self._shortcut = cfg.serial.protocol == "rtu" and line.libmodbus_sends and \
-            not cfg.serial.nocheck
+        self._shortcut = cfg.shortcut and cfg.serial.protocol == "rtu" and \
+            line.libmodbus_sends and not cfg.serial.nocheck
         if self._shortcut:
             line.port.shortcut_rules(pdu.LIBMODBUS_FRAMED, line.char_ns,
                                      cfg.serial.stout_ms * 1_000_000, cfg.slaveid)
@@ -160,8 +160,7 @@ class LineWorker(LineThread[SlaveConfig]):
         """Wait for a request, new settings or stopping; count input nobody asked for."""
         assert self._master is not None
         port = self._master.framing.port
-        take = self._take if self._shortcut and not self._server.trace.active and \
-            not wire.isEnabledFor(logging.DEBUG) else None
+        take = self._take if self._shortcut else None
         try:
             if self._connections.wait(self.idle_ms, port.fd, take):
                 # one frame without a request: whatever comes until the line is quiet again
@@ -182,6 +181,7 @@ class LineWorker(LineThread[SlaveConfig]):
         port = master.framing.port
         client.in_flight += 1          # from now on, never an idle connection to evict,
         client.requests += 1           # nor one that never sent a request, once answered
+        received_ns = time.monotonic_ns()
         take = port.take_request(client.fd, master.quiet_until_ns, client.flight)
         data = take.input
         if not take.taken:
@@ -193,7 +193,8 @@ class LineWorker(LineThread[SlaveConfig]):
         tid, _, _, unit = mbap.HEADER.unpack_from(data)
         client.last_active = time.monotonic()
         try:
-            self._taken = self._server.taken(client, tid, unit, data[mbap.HEADER_LEN:])
+            self._taken = self._server.taken(client, tid, unit, data[mbap.HEADER_LEN:],
+                                             received_ns)
         except Exception:   # a bug must cost one transaction, never the line
             log.exception("internal error on a request the shortcut took: %s", data.hex(" "))
         if self._taken is None and take.forwarded < 0:

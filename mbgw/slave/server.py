@@ -194,18 +194,21 @@ class TcpServer:
             client.in_flight += 1
             self._scheduler.submit(client.queue, job)
 
-    def taken(self, client: Client, tid: int, unit: int, request: bytes) -> Job | None:
+    def taken(self, client: Client, tid: int, unit: int, request: bytes,
+              received_ns: int) -> Job | None:
         """A request the line worker put on the idle line itself (its shortcut, which takes
-        only what routes), counted and checked as request() does; the client has it in
-        flight and counted already."""
-        return self._admit(client, tid, unit, request)
+        only what routes) after it arrived at received_ns, counted, checked and traced as
+        request() does; the client has it in flight and counted already."""
+        return self._admit(client, tid, unit, request, received_ns)
 
-    def _admit(self, client: Client, tid: int, unit: int, request: bytes) -> Job | None:
+    def _admit(self, client: Client, tid: int, unit: int, request: bytes,
+               received_ns: int = 0) -> Job | None:
         """The job for a request, or None when it was answered at once (it cannot reach the
         line)."""
         self.counters.requests += 1
         tracing = self.trace.active
-        received_ns = time.monotonic_ns() if tracing else 0
+        if tracing and not received_ns:
+            received_ns = time.monotonic_ns()
         if tracing:
             self.trace.emit_threadsafe(self._event("request", client, tid, unit, request, "",
                                                    None))

@@ -71,6 +71,8 @@ class SerialMaster:
                 taken = False
             if not taken:
                 self._await_quiet(adu)
+            elif wire.isEnabledFor(logging.DEBUG):
+                wire.debug("tx %s", adu.hex(" "))
             got = self._receive(adu, device, forward, taken or (
                 self.framing.exchanges(adu) and not self._nocheck), taken)
             if not attempt:

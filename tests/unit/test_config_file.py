@@ -47,9 +47,12 @@ def problems(schema, tmp_path, text: str) -> str:
 # --- keys come from the commands --------------------------------------------------------------
 
 def test_every_long_option_of_both_modes_is_a_key(schema):
+    """...but the hidden ones, switches for diagnosis that no configuration file keeps."""
     options = {o[2:] for mode in ("slave", "master") for p in main.commands[mode].params
-               if isinstance(p, click.Option) for o in p.opts if o.startswith("--")}
+               if isinstance(p, click.Option) and not p.hidden
+               for o in p.opts if o.startswith("--")}
     assert set(schema.keys) == options - {"config"}
+    assert "shortcut" not in schema.keys
 
 
 @pytest.mark.parametrize("name, group", [
