@@ -28,7 +28,7 @@ class RtuFraming:
         return self.line.transmit_rtu(adu)
 
     def receive(self, adu: bytes, deadline: int, forward=NO_FORWARD) -> Reception:
-        """The next frame after adu, address + PDU (its valid CRC removed); noise before it
+        """The next frame after adu, address + PDU (its CRC checked and removed); noise before it
         is skipped and counted (noise_bytes).  forward: (socket fd, tid, unit, yield,
         in-flight counter) of the client to which a reply that answers adu goes at once
         (Reception.forwarded)."""
@@ -54,13 +54,11 @@ class RtuFraming:
         return self._book(got)
 
     def _book(self, got: Reception) -> Reception:
-        """Count what a receive read; the frame without its CRC."""
+        """Count what a receive read."""
         counters = self.line.counters
         counters.noise_bytes += got.noise
         counters.bytes_received += got.noise + got.length
-        if got.frame is None:
-            return got
-        return got._replace(frame=got.frame[:-2])
+        return got
 
     def receive_unchecked(self, adu: bytes, deadline: int) -> Reception:
         """nocheck: whatever came until the end-of-frame silence, CRC removed unchecked."""

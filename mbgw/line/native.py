@@ -17,6 +17,7 @@ REPLY_AT = lib.MBGW_REPLY_AT
 REPLY_SCAN = lib.MBGW_REPLY_SCAN
 NOT_TAKEN = lib.MBGW_NOT_TAKEN
 INPUT_SIZE = 4096       # what take_request() reads from a client at most
+CRC_LEN = 2
 
 _LIBMODBUS_ERRORS = {
     lib.EMBBADCRC: "invalid CRC",
@@ -30,7 +31,8 @@ NO_COUNTER = ffi.NULL
 class Reception(NamedTuple):
     """What one receive on the line gave (Port.receive_reply, exchange, exchanged, read_ascii,
     read_reply).  A lost device is raised (SerialError), never returned."""
-    frame: bytes | None       # the frame from the request's address; None: none, or another's
+    frame: bytes | None       # the request's address + PDU (RTU: its CRC checked and removed);
+    #                           None: no frame, or one from another address
     fault: MbgwError | None   # LineTimeout, ChecksumError or FrameError instead of a frame
     foreign_address: int      # the address of a frame from another address (-1: none)
     length: int               # the bytes of the frame received (the other address's too)
@@ -321,7 +323,7 @@ class Port:
             if isinstance(fault, SerialError):
                 raise fault
             return Reception(None, fault, -1, 0, noise, -1, request_end_ns, last_byte_ns)
-        frame = ffi.buffer(self._buf + REPLY_AT, n)[:]
+        frame = ffi.buffer(self._buf + REPLY_AT, n - CRC_LEN)[:]
         if frame[0] != address:
             return Reception(None, None, frame[0], n, noise, -1, request_end_ns, last_byte_ns)
         return Reception(frame, None, -1, n, noise, forwarded, request_end_ns, last_byte_ns)

@@ -53,7 +53,7 @@ def test_a_reply_that_answers_goes_to_the_client_at_once(line, socket_ends):
     os.write(slave, rtu(UNIT, holding_reply(0, 3)))
     got = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT, True,
                              in_flight)
-    assert got.frame == rtu(UNIT, holding_reply(0, 3))
+    assert got.frame == bytes((UNIT,)) + holding_reply(0, 3)
     expected = mbap(TID, CLIENT_UNIT, holding_reply(0, 3))
     assert got.forwarded == len(expected)
     assert theirs.recv(1024) == expected
@@ -81,7 +81,7 @@ def test_a_reply_that_does_not_answer_never_reaches_the_client(line, socket_ends
     os.write(slave, rtu(UNIT, reply))
     got = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT, False,
                              in_flight)
-    assert got.frame == rtu(UNIT, reply)
+    assert got.frame == bytes((UNIT,)) + reply
     assert got.forwarded == -1
     assert nothing_on(theirs)
     assert in_flight[0] == 1
@@ -105,7 +105,7 @@ def test_a_reply_behind_noise_goes_to_the_client_and_the_noise_is_counted(line, 
     ours, theirs = socket_ends
     os.write(slave, bytes.fromhex(noise) + rtu(UNIT, holding_reply(0, 3)))
     got = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT)
-    assert got.frame == rtu(UNIT, holding_reply(0, 3))
+    assert got.frame == bytes((UNIT,)) + holding_reply(0, 3)
     assert theirs.recv(1024) == mbap(TID, CLIENT_UNIT, holding_reply(0, 3))
     assert got.noise == len(bytes.fromhex(noise))
 
@@ -118,7 +118,7 @@ def test_a_frame_right_behind_a_foreign_one_stays_for_the_next_receive(line, soc
     assert got.frame is None
     assert (got.foreign_address, got.length, got.noise) == (UNIT + 1, 5, 0)
     assert nothing_on(theirs)
-    assert port.receive_reply(REQUEST, deadline()).frame == rtu(UNIT, holding_reply(0, 3))
+    assert port.receive_reply(REQUEST, deadline()).frame == bytes((UNIT,)) + holding_reply(0, 3)
 
 
 def test_noise_alone_is_counted_and_sends_nothing(line, socket_ends):
@@ -141,7 +141,7 @@ def test_a_full_client_socket_takes_nothing_and_loses_nothing(line, socket_ends)
             break
     os.write(slave, rtu(UNIT, holding_reply(0, 3)))
     got = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT)
-    assert got.frame == rtu(UNIT, holding_reply(0, 3))
+    assert got.frame == bytes((UNIT,)) + holding_reply(0, 3)
     assert got.forwarded == 0     # the caller sends the whole reply later, behind what waits
 
 
@@ -149,7 +149,7 @@ def test_without_a_client_nothing_is_sent(line):
     port, slave = line
     os.write(slave, rtu(UNIT, holding_reply(0, 3)))
     got = port.receive_reply(REQUEST, deadline())
-    assert got.frame == rtu(UNIT, holding_reply(0, 3))
+    assert got.frame == bytes((UNIT,)) + holding_reply(0, 3)
     assert got.forwarded == -1
 
 
@@ -187,7 +187,7 @@ def test_the_exchange_writes_the_request_and_forwards_its_reply(line, socket_end
     reply = port.exchange(REQUEST, CHAR_NS, 1_000_000_000, ours.fileno(), TID, CLIENT_UNIT)
     thread.join(1)
     assert got == [rtu(UNIT, read_holding(0, 3))]
-    assert reply.frame == rtu(UNIT, holding_reply(0, 3))
+    assert reply.frame == bytes((UNIT,)) + holding_reply(0, 3)
     assert theirs.recv(1024) == mbap(TID, CLIENT_UNIT, holding_reply(0, 3))
     # the request's last byte leaves 8 characters after the write began
     assert before + 8 * CHAR_NS <= reply.request_end_ns <= reply.last_byte_ns + 8 * CHAR_NS

@@ -83,7 +83,7 @@ def test_one_whole_request_goes_to_the_line_and_its_reply_to_the_client(line, so
     assert (take.status, take.taken) == (len(REQUEST), True)
     assert in_flight[0] == 0        # answered as the reply was sent
     assert take.input == REQUEST
-    assert port.exchanged().frame == rtu(UNIT, holding_reply(0, 3))
+    assert port.exchanged().frame == bytes((UNIT,)) + holding_reply(0, 3)
     assert got == [rtu(UNIT, read_holding(0, 3))]
     assert theirs.recv(1024) == mbap(TID, UNIT, holding_reply(0, 3))
     assert take.forwarded == len(mbap(TID, UNIT, holding_reply(0, 3)))
@@ -96,7 +96,7 @@ def test_slaveid_sets_the_serial_address_and_the_client_keeps_its_unit(line, soc
     got = slave_answers(slave, UNIT, holding_reply(0, 3))
     theirs.sendall(mbap(TID, 99, read_holding(0, 3)))
     assert port.take_request(ours.fileno(), 0).taken
-    assert port.exchanged().frame == rtu(UNIT, holding_reply(0, 3))
+    assert port.exchanged().frame == bytes((UNIT,)) + holding_reply(0, 3)
     assert got == [rtu(UNIT, read_holding(0, 3))]
     assert theirs.recv(1024) == mbap(TID, 99, holding_reply(0, 3))
 
