@@ -44,3 +44,13 @@ def start_peer():
     yield start
     for peer in started:
         peer.stop()
+
+
+@pytest.fixture
+def pty():
+    """The slave path of a fresh pty; its master stays open during the test."""
+    master, slave = os.openpty()
+    path = os.ttyname(slave)
+    os.close(slave)
+    yield path
+    os.close(master)

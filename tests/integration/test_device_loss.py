@@ -164,13 +164,20 @@ def bring_back(pty_pair, start_peer) -> None:
     start_peer("pymodbus_slave.py", pty_pair.device)
 
 
-def test_device_back_after_a_long_outage_is_served_within_a_second(pty_pair, start_peer,
-                                                                   start_gateway):
+def serving(pty_pair, start_peer, start_gateway):
+    """A gateway with --exception whose device has just served, and a client of it."""
     start_peer("pymodbus_slave.py", pty_pair.device)
     gw = start_gateway(pty_pair.gateway, "--baudrate", "19200", "--exception",
                        "--stout", str(int(STOUT_S * 1000)))
-    with socket.create_connection(("127.0.0.1", gw.port)) as sock:
-        assert timed_transact(sock, 1, STOUT_S + 2)[0] == REPLY_3
+    sock = socket.create_connection(("127.0.0.1", gw.port))
+    assert timed_transact(sock, 1, STOUT_S + 2)[0] == REPLY_3
+    return gw, sock
+
+
+def test_device_back_after_a_long_outage_is_served_within_a_second(pty_pair, start_peer,
+                                                                   start_gateway):
+    gw, sock = serving(pty_pair, start_peer, start_gateway)
+    with sock:
         pty_pair.stop()
         tid = refused_for(sock, OUTAGE_S, 2)
         bring_back(pty_pair, start_peer)
@@ -216,11 +223,8 @@ class OpenAttempts:
 
 def test_a_device_that_cannot_be_opened_is_logged_once_and_backed_off(pty_pair, start_peer,
                                                                       start_gateway):
-    start_peer("pymodbus_slave.py", pty_pair.device)
-    gw = start_gateway(pty_pair.gateway, "--baudrate", "19200", "--exception",
-                       "--stout", str(int(STOUT_S * 1000)))
-    with socket.create_connection(("127.0.0.1", gw.port)) as sock:
-        assert timed_transact(sock, 1, STOUT_S + 2)[0] == REPLY_3
+    gw, sock = serving(pty_pair, start_peer, start_gateway)
+    with sock:
         pty_pair.stop()
         wait_for_log(gw, "lost")
         with open(pty_pair.gateway, "w"):     # there, but no tty: every open fails (ENOTTY)

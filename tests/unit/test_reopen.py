@@ -13,16 +13,6 @@ from mbgw.line import native
 from mbgw.line.supervisor import Reopening
 
 
-@pytest.fixture
-def pty():
-    """A real pty: (its path, the master's fd)."""
-    master, slave = os.openpty()
-    path = os.ttyname(slave)
-    os.close(slave)
-    yield path
-    os.close(master)
-
-
 class Opener:
     """Opens the device as the gateway does, counting the attempts."""
 

@@ -221,16 +221,6 @@ def kernel_termios2(line: SerialLine) -> tuple[int, int, int]:
 
 
 @pytest.fixture
-def pty():
-    """The slave path of a fresh pty; its master stays open during the test."""
-    master, slave = os.openpty()
-    path = os.ttyname(slave)
-    os.close(slave)
-    yield path
-    os.close(master)
-
-
-@pytest.fixture
 def open_line():
     lines = []
 
