@@ -136,10 +136,10 @@ def test_status_figures_match_the_traffic(rig, line):
     assert "upstream connections (2)" in text and "devices (5)" in text
     rows = {row.split()[0]: row.split() for row in text.splitlines()
             if re.match(r"\s+\d+\s+(up|degraded|down)\s", row)}
-    # ADDR HEALTH SINCE(2) LAST-SUCCESS(1|2) FAILS REQUESTS REPLIES TIMEOUTS UNREACH INVALID
-    # ABANDON SERVER UNIT EXCEPTIONS...
+    # ADDR HEALTH SINCE(2) LAST-SUCCESS(1|2) FAILS REQUESTS REPLIES TIMEOUTS REFUSED UNREACH
+    # INVALID ABANDON SERVER UNIT EXCEPTIONS...
     assert rows["3"][1:] == ["degraded", rows["3"][2], "ago", "never", "1", "1", "0", "1",
-                             "0", "0", "0", SILENT, "1", "(gateway", "0x0b:1)"]
+                             "0", "0", "0", "0", SILENT, "1", "(gateway", "0x0b:1)"]
     assert rows["2"][-3:] == [SERVER, "2", "0x02:1"]
     assert re.search(r"^\s+127\.0\.6\.1:\d+\s+127\.0\.0\.1:\d+\s+\S+ \S+\s+5\s+0,1,2\s", text,
                      re.M), text
