@@ -12,7 +12,9 @@ the eventfd wakes it to stop) and:
   answer the request (another unit id, function or size, a bad MBAP header: logged at most
   once a minute per address and kind): 0x0B with `exception`, else silence; server
   unreachable: 0x0A, or silence.  If the master has sent something new in the meantime it
-  has given up on the request, and the late answer is dropped.
+  has given up on the request, and the late answer is dropped;
+- answers at once (0x0B with `exception`, else silence) a frame for an address that is down
+  (demotion, mbgw.ops.device_stats), without a word to its server, unless a probe is due.
 A device that fails is closed, reopened when it is back (mbgw.line.supervisor), and reported
 once per change.
 Each serial address answered for has its statistics and health (mbgw.ops.device_stats), and the
