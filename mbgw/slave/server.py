@@ -227,15 +227,15 @@ class TcpServer:
             self.counters.line_down_rejects += 1
             self._refuse(client, tid, unit, request, OUTCOME_LINE_DOWN, received_ns)
             return None
-        probe = self._down[address]
-        if probe:
+        down = self._down[address] == 1
+        if down:
             device = self._devices.get(address)
             if not device.admit(time.monotonic()):
                 self.counters.demoted_rejects += 1
                 self._refuse(client, tid, unit, request, OUTCOME_DEVICE_DOWN, received_ns,
                              pdu.GATEWAY_TARGET_FAILED, device)
                 return None
-        return Job(client, tid, unit, bytes((address,)) + request, received_ns, bool(probe))
+        return Job(client, tid, unit, bytes((address,)) + request, received_ns, probe=down)
 
     def finished(self, job: Job, reply: bytes | None, sent: int = -1) -> None:
         """job's outcome: its reply (if any) goes out at once, or its rest when the serial
