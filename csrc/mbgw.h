@@ -191,6 +191,7 @@ int mbgw_exchange(struct _modbus *ctx, uint8_t *buf, const uint8_t *req, size_t 
 /* What a request must meet to take the shortcut to the line, and what came of it. */
 struct mbgw_shortcut {
     const uint8_t *framed;     /* 256 flags: the function codes libmodbus frames */
+    const uint8_t *down;       /* 256 flags: the serial addresses that are down (demoted) */
     int64_t quiet_until_ns;    /* the line must stay silent until then */
     int64_t char_ns;
     int64_t stout_ns;
@@ -205,7 +206,8 @@ struct mbgw_shortcut {
 
 /* Slave mode, a client readable while the line is idle: read what it sent (up to in_cap
  * bytes) into in.  When that is exactly one Modbus TCP request with a valid header, a
- * function code marked in sc->framed, and a serial address 1..MBGW_MAX_ADDRESS, and the line
+ * function code marked in sc->framed, and a serial address 1..MBGW_MAX_ADDRESS not marked
+ * in sc->down (the caller refuses those requests, or sends one as the probe), and the line
  * has been silent until sc->quiet_until_ns, the request goes on the line at once
  * (mbgw_exchange, its reply forwarded to client_fd, which then runs first, and in_flight
  * decremented as it is); the caller keeps the books.  Otherwise sc->result is

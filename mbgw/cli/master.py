@@ -5,8 +5,8 @@ import click
 from click.core import ParameterSource
 
 from mbgw.config import model as config
-from mbgw.cli.options import (convert, daemon_options, parser, serial_config,
-                              serial_options)
+from mbgw.cli.options import (convert, daemon_options, demotion, demotion_options, parser,
+                              serial_config, serial_options)
 from mbgw.cli.run import run_daemon
 from mbgw.config.slaveid import MAX_RANGES, SlaveIdTable
 
@@ -36,6 +36,7 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
               default=config.MasterConfig.max_connections, show_default=True,
               help="Connections kept open to servers; one more closes the least recently "
                    "used.")
+@demotion_options
 @daemon_options
 @click.pass_context
 def master(ctx, **options) -> None:
@@ -51,9 +52,12 @@ def master(ctx, **options) -> None:
 
 def master_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout,
                   silence, ascii_timeout, nocheck, slaveid, tcpto, mdbport, exception,
-                  max_connections, control, metrics, log_level=None) -> config.MasterConfig:
+                  max_connections, control, metrics, log_level=None,
+                  down_after=config.DEFAULT_DOWN_AFTER,
+                  probe_interval=config.DEFAULT_PROBE_INTERVAL_MS) -> config.MasterConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
     return convert("'--tcpto'", lambda: config.MasterConfig(
         serial=serial, slaveid=slaveid, tcpto_ms=tcpto, mdbport=mdbport, exception=exception,
-        max_connections=max_connections, control=control, metrics=metrics))
+        max_connections=max_connections, control=control, metrics=metrics,
+        demotion=demotion(down_after, probe_interval)))

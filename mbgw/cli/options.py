@@ -97,6 +97,28 @@ serial_options = stack(
 )
 
 
+# Demotion of silent serial addresses, the same rule in both modes ([serial] keys).
+demotion_options = stack(
+    click.option("--down-after", cls=SerialOption, type=click.IntRange(*config.DOWN_AFTER_RANGE),
+                 default=config.DEFAULT_DOWN_AFTER, show_default=True, metavar="N",
+                 help="A serial address is down after N requests in a row without a valid "
+                      "reply; its requests are then refused at once (0x0B with --exception) "
+                      "but for a probe per --probe-interval, until it answers.  0: never "
+                      "down.  %d..%d." % config.DOWN_AFTER_RANGE),
+    click.option("--probe-interval", cls=SerialOption,
+                 type=click.IntRange(*config.PROBE_INTERVAL_RANGE),
+                 default=config.DEFAULT_PROBE_INTERVAL_MS, show_default=True, metavar="MS",
+                 help="While an address is down, one request per interval goes to it as a "
+                      "probe; the interval doubles while the probes fail, up to %d ms.  "
+                      "%d..%d ms." % (config.PROBE_BACKOFF_MAX_MS,
+                                      *config.PROBE_INTERVAL_RANGE)),
+)
+
+
+def demotion(down_after: int, probe_interval: int) -> config.Demotion:
+    return convert("'--down-after'", lambda: config.Demotion(down_after, probe_interval))
+
+
 # The operator's tools, the same in both modes: control socket, metrics, log level.
 daemon_options = stack(
     click.option("--control", metavar="PATH", default=None,

@@ -60,11 +60,13 @@ def _exceptions(d: dict) -> str:
 def _health(d: dict, now: float) -> str:
     return (f"  {d['address']:>4}  {d['health']:<8} {_ago(d['health_since'], now):<12} "
             f"{_ago(d['last_success'], now):<14} {d['consecutive_failures']:>5} "
-            f"{d['transactions']:>8} {d['replies']:>8} {d['timeouts']:>8}")
+            f"{d['transactions']:>8} {d['replies']:>8} {d['timeouts']:>8} "
+            f"{d['demoted_rejects']:>7}")
 
 
 _HEALTH_COLUMNS = (f"  {'ADDR':>4}  {'HEALTH':<8} {'SINCE':<12} {'LAST SUCCESS':<14} "
-                   f"{'FAILS':>5} {'REQUESTS':>8} {'REPLIES':>8} {'TIMEOUTS':>8}")
+                   f"{'FAILS':>5} {'REQUESTS':>8} {'REPLIES':>8} {'TIMEOUTS':>8} "
+                   f"{'REFUSED':>7}")
 
 
 def _slave_sections(s: dict, now: float) -> list[str]:

@@ -1,8 +1,8 @@
 """The `mbgw slave` command: Modbus TCP clients reach the slaves on a serial line."""
 import click
 
-from mbgw.cli.options import (convert, daemon_options, parser, serial_config,
-                              serial_options)
+from mbgw.cli.options import (convert, daemon_options, demotion, demotion_options, parser,
+                              serial_config, serial_options)
 from mbgw.cli.run import run_daemon
 from mbgw.config import model as config
 
@@ -44,6 +44,7 @@ def _parse_authip(values) -> tuple:
               default=config.SlaveConfig.turnaround_ms,
               show_default=True, metavar="MS",
               help="Pause on the line after a broadcast (unit 0), before the next request.")
+@demotion_options
 @daemon_options
 @click.option("--shortcut/--no-shortcut", default=config.SlaveConfig.shortcut, hidden=True,
               help="Put a request that finds the line idle on it from C (for diagnosis).")
@@ -57,11 +58,13 @@ def slave(**options) -> None:
 def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout,
                  silence, ascii_timeout, nocheck, slaveid, exception, authip, mdbport, bind,
                  max_connections, max_connections_per_ip, retries, turnaround, control,
-                 metrics, log_level=None, shortcut=True) -> config.SlaveConfig:
+                 metrics, log_level=None, shortcut=True, down_after=config.DEFAULT_DOWN_AFTER,
+                 probe_interval=config.DEFAULT_PROBE_INTERVAL_MS) -> config.SlaveConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
     return convert("'--authip'", lambda: config.SlaveConfig(
         serial=serial, slaveid=slaveid, exception=exception, authip=authip, mdbport=mdbport,
         bind=bind, max_connections=max_connections,
         max_connections_per_ip=max_connections_per_ip, retries=retries,
-        turnaround_ms=turnaround, control=control, metrics=metrics, shortcut=shortcut))
+        turnaround_ms=turnaround, control=control, metrics=metrics, shortcut=shortcut,
+        demotion=demotion(down_after, probe_interval)))

@@ -36,6 +36,14 @@ FAST_LINE_BAUD = 19200         # above it, t3.5 is the fixed 1.75 ms (Serial Lin
 FAST_LINE_T35_US = 1750
 # A client that sent a request or got a reply within this is polling: no newcomer closes it.
 ACTIVE_WINDOW_S = 60
+# Demotion: a serial address down after this many failures in a row (0: never) has its
+# requests refused at once, but for one probe per interval (ms, as stout and tcpto), which
+# doubles while the address stays silent up to PROBE_BACKOFF_MAX_MS (or the interval if longer).
+DOWN_AFTER_RANGE = (0, 100)
+DEFAULT_DOWN_AFTER = 3
+PROBE_INTERVAL_RANGE = (100, 65535)
+DEFAULT_PROBE_INTERVAL_MS = 5000
+PROBE_BACKOFF_MAX_MS = 60000
 
 
 @dataclass(frozen=True)
@@ -78,6 +86,20 @@ class Interface:
 
     def __str__(self) -> str:
         return f"{self.kind} echo" if self.echo else self.kind
+
+
+@dataclass(frozen=True)
+class Demotion:
+    """When a serial address is down, and how often it is probed meanwhile (both modes)."""
+    down_after: int = DEFAULT_DOWN_AFTER
+    probe_interval_ms: int = DEFAULT_PROBE_INTERVAL_MS
+
+    def __post_init__(self) -> None:
+        for name, value, (low, high) in (
+                ("down-after", self.down_after, DOWN_AFTER_RANGE),
+                ("probe-interval", self.probe_interval_ms, PROBE_INTERVAL_RANGE)):
+            if not low <= value <= high:
+                raise ConfigError(f"{name} {value}: out of range {low}..{high}")
 
 
 @dataclass(frozen=True)
@@ -137,6 +159,7 @@ class SlaveConfig:
     turnaround_ms: int = DEFAULT_TURNAROUND_MS
     control: str | None = None     # control socket path; None: the default one
     metrics: str | None = None     # ADDR:PORT for Prometheus, None: off
+    demotion: Demotion = field(default_factory=Demotion)
     shortcut: bool = True          # an idle line's request goes on it from C (a hidden switch)
 
     def __post_init__(self) -> None:
@@ -176,6 +199,7 @@ class MasterConfig:
     max_connections: int = DEFAULT_MAX_CONNECTIONS
     control: str | None = None      # control socket path; None: the default one
     metrics: str | None = None      # ADDR:PORT for Prometheus, None: off
+    demotion: Demotion = field(default_factory=Demotion)
 
     def __post_init__(self) -> None:
         low, high = TCPTO_RANGE

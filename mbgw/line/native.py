@@ -152,6 +152,7 @@ class Port:
         self._to = ffi.new("struct mbgw_forward *")
         self._shortcut = ffi.new("struct mbgw_shortcut *")
         self._framed = ffi.NULL
+        self._down = ffi.NULL
         self._in = ffi.new("uint8_t[]", INPUT_SIZE)
         self.set_byte_timeout(0)
 
@@ -272,12 +273,17 @@ class Port:
                               times, self._sent, self._noise)
         return self._exchanged(n, times, adu[0], self._sent[0], self._noise[0])
 
-    def shortcut_rules(self, framed, char_ns: int, stout_ns: int, slaveid: int) -> None:
+    def shortcut_rules(self, framed, char_ns: int, stout_ns: int, slaveid: int,
+                       down: bytearray) -> None:
         """What take_request() needs: the function codes libmodbus frames, the line's
-        character time, stout, and the forced serial address (0: none)."""
+        character time, stout, the forced serial address (0: none), and the addresses that
+        are down (256 flags, read by C as they are at each take, so kept up to date by the
+        owner: never resized)."""
         self._framed = ffi.new("uint8_t[256]", [code in framed for code in range(256)])
+        self._down = ffi.from_buffer("uint8_t[]", down)
         sc = self._shortcut
         sc.framed = self._framed
+        sc.down = self._down
         sc.char_ns = char_ns
         sc.stout_ns = stout_ns
         sc.slaveid = slaveid

@@ -12,7 +12,9 @@ the eventfd wakes it to stop) and:
   answer the request (another unit id, function or size, a bad MBAP header: logged at most
   once a minute per address and kind): 0x0B with `exception`, else silence; server
   unreachable: 0x0A, or silence.  If the master has sent something new in the meantime it
-  has given up on the request, and the late answer is dropped.
+  has given up on the request, and the late answer is dropped;
+- answers at once (0x0B with `exception`, else silence) a frame for an address that is down
+  (demotion, mbgw.ops.device_stats), without a word to its server, unless a probe is due.
 A device that fails is closed, reopened when it is back (mbgw.line.supervisor), and reported
 once per change.
 Each serial address answered for has its statistics and health (mbgw.ops.device_stats), and the
@@ -29,13 +31,14 @@ from mbgw.line import native
 from mbgw.protocol import pdu
 from mbgw.config.model import MasterConfig
 from mbgw.ops.counters import MasterCounters
-from mbgw.ops.device_stats import MASTER_COUNTS, DeviceTable
+from mbgw.ops.device_stats import MASTER_COUNTS, DeviceTable, HealthRule
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.errors import (BadReply, ChecksumError, FrameError, GatewayTimeout, LineTimeout,
                          NoRoute)
 from mbgw.line.framing import framing_for
-from mbgw.master.trace import (OUTCOME_BAD_REPLY, OUTCOME_EXCEPTION, OUTCOME_REPLY,
-                               OUTCOME_TIMEOUT, OUTCOME_UNREACHABLE, MasterTracer)
+from mbgw.master.trace import (OUTCOME_BAD_REPLY, OUTCOME_DEVICE_DOWN, OUTCOME_EXCEPTION,
+                               OUTCOME_REPLY, OUTCOME_TIMEOUT, OUTCOME_UNREACHABLE,
+                               MasterTracer)
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s
 from mbgw.line.port import SerialLine
 from mbgw.master.upstream import Interrupted, UpstreamPool, drain
@@ -60,7 +63,8 @@ class SerialSlave(LineThread[MasterConfig]):
         self._table = cfg.slaveid
         self._counters = counters
         self._tcpto_ns = cfg.tcpto_ns
-        self.devices = DeviceTable(MASTER_COUNTS)
+        self.devices = DeviceTable(MASTER_COUNTS, HealthRule(cfg.demotion))
+        self._down = self.devices.rule.down    # the addresses that are down, by address
         self.trace = TraceHub()
         self._tracer = MasterTracer(self.trace)
         self.wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
@@ -86,6 +90,8 @@ class SerialSlave(LineThread[MasterConfig]):
         self._receive = self._receive_ascii if serial.protocol == "ascii" else self._receive_rtu
         self._gap_us = serial.end_of_frame_us
         self._interchar_us = serial.ascii_timeout_ms * 1000
+        # what an answer given at once waits after the request: t3.5 (RTU), in whole ms
+        self._quiet_ms = -(-self._framing.inter_frame_us // 1000)
         # the longest ASCII frame at the line's speed, plus one inter-character pause
         self._ascii_frame_ns = (native.ASCII_MAX_FRAME * serial.char_ns
                                 + self._interchar_us * 1000)
@@ -114,6 +120,8 @@ class SerialSlave(LineThread[MasterConfig]):
         self._table = cfg.slaveid
         self._tcpto_ns = cfg.tcpto_ns
         self._pool.reconfigure(cfg.mdbport, cfg.max_connections)
+        if cfg.demotion != old.demotion:
+            self.devices.set_rule(cfg.demotion)
         if reopen:
             self._reply_to = b""
 
@@ -187,9 +195,12 @@ class SerialSlave(LineThread[MasterConfig]):
     def _forward(self, adu: bytes, host: str, unit: int) -> None:
         self._counters.requests += 1
         stats = self.devices.get(adu[0])
-        stats.transactions += 1
         if stats.upstream != (host, unit):
             stats.upstream = (host, unit)
+        if self._down[adu[0]] and not stats.admit(time.monotonic()):
+            self._refuse_as_down(adu, stats, host, unit)
+            return
+        stats.transactions += 1
         if wire.isEnabledFor(logging.DEBUG):
             wire.debug("line rx %s -> %s unit %d", adu.hex(" "), host, unit)
         tracing = self.trace.active
@@ -244,6 +255,23 @@ class SerialSlave(LineThread[MasterConfig]):
             self._tracer.outcome(adu, server, sent[0] if sent else None, reply_unit, reply,
                                  outcome, None if reply is None else latency_ms)
 
+    def _refuse_as_down(self, adu: bytes, stats, host: str, unit: int) -> None:
+        """The address is down and this is no probe: nothing goes to its server, the master
+        gets 0x0B once the line has been quiet for t3.5 (with `exception`), else nothing."""
+        self._counters.demoted_rejects += 1
+        outcome = OUTCOME_DEVICE_DOWN
+        answer = gateway_exception(self._cfg.exception, adu[1], pdu.GATEWAY_TARGET_FAILED,
+                                   self._counters, stats)
+        if answer is not None:
+            if self._answer(adu[0], answer, self._quiet_ms):
+                outcome += f", answered 0x{pdu.GATEWAY_TARGET_FAILED:02x}"
+            else:
+                stats.abandoned += 1
+                outcome += ", abandoned: the master moved on"
+        if self.trace.active:
+            self._tracer.outcome(adu, f"{host}:{self._pool.port}", None, unit, None, outcome,
+                                 None)
+
     def _bad_reply(self, stats, host: str, unit: int, err: BadReply) -> None:
         """Counted as the device's failure; a warning per address and kind of bad reply, at
         most once a minute (before the health change it may bring)."""
@@ -258,9 +286,10 @@ class SerialSlave(LineThread[MasterConfig]):
                         unit, err)
         stats.failed()
 
-    def _answer(self, address: int, answer: bytes) -> bool:
-        """Write the answer on the line, unless the master has moved on (False)."""
-        while (idle := self._port.idle_wait(self.wake_fd, 0)) != IDLE_TIMEOUT:
+    def _answer(self, address: int, answer: bytes, quiet_ms: int = 0) -> bool:
+        """Write the answer on the line once it has been quiet for quiet_ms, unless the
+        master has moved on (False)."""
+        while (idle := self._port.idle_wait(self.wake_fd, quiet_ms)) != IDLE_TIMEOUT:
             if idle == IDLE_INPUT or self._stopping:
                 self._counters.abandoned += 1
                 return False

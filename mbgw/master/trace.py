@@ -11,6 +11,7 @@ OUTCOME_TIMEOUT = "timeout"
 OUTCOME_UNREACHABLE = "unreachable"
 OUTCOME_BAD_REPLY = "not the answer"       # the reply with our tid does not answer the request
 OUTCOME_IGNORED = "not in the slaveid table"
+OUTCOME_DEVICE_DOWN = "device down"        # refused at once: its address is down, no probe
 
 
 class MasterTracer:

@@ -1,7 +1,8 @@
 """Running as a service, for both modes: systemd notification, SIGHUP reload and stop
 (`service`), the control socket (`control`) with the commands both modes share (`status`),
 the trace hub (`trace`), Prometheus metrics (`metrics`), line-wide counters (`counters`),
-per-address statistics and health (`device_stats`), logging for operators (`log`).
+per-address statistics and health, which also demotes a silent address (`device_stats`),
+logging for operators (`log`).
 
 Shared between threads: the counters (the line thread writes most, the asyncio thread the
 connection counters and resets them), TraceHub.active, the line's up flag, and the

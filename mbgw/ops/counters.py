@@ -42,6 +42,7 @@ class Counters(_Counting):
     broadcasts: int = 0
     unroutable: int = 0
     line_down_rejects: int = 0
+    demoted_rejects: int = 0
     bytes_sent: int = 0
     bytes_received: int = 0
     echo_errors: int = 0
@@ -62,6 +63,7 @@ class MasterCounters(_Counting):
     gateway_exceptions: int = 0
     timeouts: int = 0
     unreachable: int = 0
+    demoted_rejects: int = 0
     broadcasts: int = 0
     crc_errors: int = 0
     invalid_frames: int = 0

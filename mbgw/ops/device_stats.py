@@ -6,23 +6,53 @@ for on the line, whose upstream is the server and unit the slaveid table maps it
 Written by the line thread only; read (racily, which is fine for figures) by the asyncio
 thread for status and metrics.  Health is judged from recent outcomes and logged once per
 change, never per failure.
+
+Health also drives the line (demotion, HealthRule): an address is down after `down_after`
+transactions in a row without a valid reply; while it is down its requests do not go on the
+line (admit() says so, the caller refuses them at once) but for one probe per interval, the
+interval doubling while the probes fail; the first answer, an exception reply included, ends
+it.  HealthRule.down flags the down addresses for whoever must tell at once: the routing, and
+slave mode's C shortcut, which hands their requests back rather than putting them on the line.
 """
 import logging
 import time
 
+from mbgw.config.model import PROBE_BACKOFF_MAX_MS, Demotion
+
 log = logging.getLogger("mbgw.devices")
 
 COUNTS = ("transactions", "replies", "timeouts", "retries", "crc_errors", "invalid_frames",
-          "wrong_unit", "wrong_function", "late_replies", "broadcasts")
+          "wrong_unit", "wrong_function", "late_replies", "broadcasts", "demoted_rejects")
 # Master mode: an address mbgw answers for on the line, standing for a server's unit.
 MASTER_COUNTS = ("transactions", "replies", "timeouts", "unreachable", "wrong_unit",
-                 "wrong_function", "invalid_frames", "abandoned", "broadcasts")
+                 "wrong_function", "invalid_frames", "abandoned", "broadcasts",
+                 "demoted_rejects")
 ALL_COUNTS = tuple(dict.fromkeys(COUNTS + MASTER_COUNTS))
 LATENCY_BUCKETS_MS = (2, 5, 10, 25, 50, 100, 250, 500, 1000, 2500, 5000)
-DOWN_AFTER_FAILURES = 3        # consecutive transactions without a valid reply
 RECENT_WINDOW = 20             # outcomes considered for "degraded"
 
 UP, DEGRADED, DOWN = "up", "degraded", "down"
+
+
+class HealthRule:
+    """The settings of health that a table's devices share, and which addresses are down."""
+    __slots__ = ("down_after", "probe_interval_s", "probe_max_s", "down")
+
+    def __init__(self, settings: Demotion | None = None) -> None:
+        self.down = bytearray(256)     # 1 for an address that is down (read by C too)
+        self.set(settings or Demotion())
+
+    def set(self, settings: Demotion) -> None:
+        self.down_after = settings.down_after   # failures in a row that make it down; 0: never
+        self.probe_interval_s = settings.probe_interval_ms / 1000
+        self.probe_max_s = max(PROBE_BACKOFF_MAX_MS, settings.probe_interval_ms) / 1000
+
+    def describe(self) -> str:
+        """How a down address is probed, for the log."""
+        if self.probe_max_s == self.probe_interval_s:
+            return f"a probe every {self.probe_interval_s:g} s"
+        return (f"a probe every {self.probe_interval_s:g} s, backing off to "
+                f"{self.probe_max_s:g} s")
 
 
 class DeviceStats:
@@ -37,16 +67,19 @@ class DeviceStats:
     wrong_function: int
     late_replies: int
     broadcasts: int
+    demoted_rejects: int
     unreachable: int
     abandoned: int
-    __slots__ = ALL_COUNTS + ("address", "counts", "upstream", "exceptions",
+    __slots__ = ALL_COUNTS + ("address", "counts", "rule", "upstream", "exceptions",
                               "gateway_exceptions", "latency_buckets", "latency_sum_ms",
                               "last_success", "consecutive_failures", "recent_failures",
-                              "health", "health_since")
+                              "health", "health_since", "probe_at", "probe_wait_s")
 
-    def __init__(self, address: int, counts: tuple = COUNTS) -> None:
+    def __init__(self, address: int, counts: tuple = COUNTS,
+                 rule: HealthRule | None = None) -> None:
         self.address = address
         self.counts = counts           # the counters this mode keeps (COUNTS, MASTER_COUNTS)
+        self.rule = rule if rule is not None else HealthRule()
         self.upstream: tuple[str, int] | None = None   # master mode: (server IP, unit id)
         self.exceptions: dict[int, int] = {}          # exception replies from the device
         self.gateway_exceptions: dict[int, int] = {}  # exception replies mbgw generated
@@ -56,6 +89,21 @@ class DeviceStats:
         self.recent_failures = 0                      # bit i: the i-th latest outcome failed
         self.health = UP
         self.health_since = time.time()
+        self.probe_at = 0.0            # while down: when the next probe may go (monotonic)
+        self.probe_wait_s = 0.0        # while down: the interval after a failed probe
+
+    def admit(self, now: float) -> bool:
+        """Whether a request for this address goes on the line at `now` (time.monotonic()):
+        always unless it is down; while it is down, only the probe, one per interval (the
+        next one an interval later whatever becomes of this one).  A request not admitted is
+        counted refused (demoted_rejects)."""
+        if self.health != DOWN:
+            return True
+        if now < self.probe_at:
+            self.demoted_rejects += 1
+            return False
+        self.probe_at = now + self.probe_wait_s
+        return True
 
     def answered(self, latency_ms: float, exception_code: int | None) -> None:
         self.replies += 1
@@ -72,6 +120,9 @@ class DeviceStats:
 
     def failed(self) -> None:
         self.consecutive_failures += 1
+        if self.health == DOWN:        # a probe failed: the next waits twice as long
+            self.probe_wait_s = min(2 * self.probe_wait_s, self.rule.probe_max_s)
+            self.probe_at = time.monotonic() + self.probe_wait_s
         self._judge(True)
 
     def reset_counts(self) -> None:
@@ -87,7 +138,12 @@ class DeviceStats:
 
     def _judge(self, failed: bool) -> None:
         self.recent_failures = ((self.recent_failures << 1) | failed) & ((1 << RECENT_WINDOW) - 1)
-        if self.consecutive_failures >= DOWN_AFTER_FAILURES:
+        self.rejudge()
+
+    def rejudge(self) -> None:
+        """Health by the rule, from the outcomes so far (also after the rule changed)."""
+        down_after = self.rule.down_after
+        if down_after and self.consecutive_failures >= down_after:
             health = DOWN
         elif self.recent_failures:
             health = DEGRADED
@@ -96,13 +152,28 @@ class DeviceStats:
         if health != self.health:
             self._change(health)
 
+    def reprobe(self, now: float) -> None:
+        """The probe interval has changed: while down, the backoff starts again from it, and
+        the next probe is due within one interval."""
+        if self.health == DOWN:
+            self.probe_wait_s = self.rule.probe_interval_s
+            self.probe_at = min(self.probe_at, now + self.probe_wait_s)
+
+    def _probe_from(self, now: float) -> None:
+        """Down from now on: the first probe an interval later."""
+        self.probe_wait_s = self.rule.probe_interval_s
+        self.probe_at = now + self.probe_wait_s
+
     def _change(self, health: str) -> None:
         self.health = health
         self.health_since = time.time()
+        self.rule.down[self.address] = health == DOWN
         via = f" (server {self.upstream[0]} unit {self.upstream[1]})" if self.upstream else ""
         if health == DOWN:
-            log.warning("device %d is down: %d requests in a row without a valid reply%s",
-                        self.address, self.consecutive_failures, via)
+            self._probe_from(time.monotonic())
+            log.warning("device %d is down: %d requests in a row without a valid reply%s; "
+                        "its requests are refused, but for %s", self.address,
+                        self.consecutive_failures, via, self.rule.describe())
         elif health == DEGRADED:
             log.warning("device %d is degraded: %d of its last %d requests failed%s",
                         self.address, bin(self.recent_failures).count("1"), RECENT_WINDOW,
@@ -128,17 +199,28 @@ class DeviceStats:
 
 
 class DeviceTable:
-    """DeviceStats by serial address, created on first use."""
+    """DeviceStats by serial address, created on first use, under one HealthRule."""
 
-    def __init__(self, counts: tuple = COUNTS) -> None:
+    def __init__(self, counts: tuple = COUNTS, rule: HealthRule | None = None) -> None:
         self.counts = counts
+        self.rule = rule if rule is not None else HealthRule()
         self._devices: dict[int, DeviceStats] = {}
 
     def get(self, address: int) -> DeviceStats:
         stats = self._devices.get(address)
         if stats is None:
-            stats = self._devices[address] = DeviceStats(address, self.counts)
+            stats = self._devices[address] = DeviceStats(address, self.counts, self.rule)
         return stats
+
+    def set_rule(self, settings: Demotion) -> None:
+        """New settings (a reload, on the line thread): every device is judged again by them."""
+        interval_changed = settings.probe_interval_ms / 1000 != self.rule.probe_interval_s
+        self.rule.set(settings)
+        now = time.monotonic()
+        for stats in list(self._devices.values()):
+            stats.rejudge()
+            if interval_changed:
+                stats.reprobe(now)
 
     def all(self) -> list[DeviceStats]:
         return [self._devices[a] for a in sorted(self._devices)]

@@ -45,6 +45,8 @@ _COUNTER_HELP = {
     "broadcasts": "Broadcast requests (unit 0) sent on the line.",
     "unroutable": "Requests for a unit that is no serial address (248..255), not sent.",
     "line_down_rejects": "Requests refused because the serial device was down.",
+    "demoted_rejects": "Requests refused without going on the line: their serial address "
+                       "was down (demoted), and it was not the time for a probe.",
     "bytes_sent": "Bytes sent on the serial line.",
     "bytes_received": "Bytes received on the serial line.",
     "echo_errors": "RS-485 echo frames that did not match what was sent.",
@@ -67,6 +69,7 @@ _DEVICE_HELP = {
     "wrong_function": "Replies from this address with another function or size.",
     "late_replies": "Replies from this address after the slave timeout.",
     "broadcasts": "Broadcasts (address 0).",
+    "demoted_rejects": "Requests for this address refused while it was down (not probes).",
     "unreachable": "Requests for this address whose server could not be reached.",
     "abandoned": "Answers for this address not written: the master had moved on.",
 }
@@ -87,6 +90,8 @@ _MASTER_COUNTER_HELP = {
     "wrong_function": "Server replies with another function, size or echo than the request "
                       "asked (not forwarded).",
     "abandoned": "Answers not written on the line: the master had moved on.",
+    "demoted_rejects": "Requests refused without going to the server: their serial address "
+                       "was down (demoted), and it was not the time for a probe.",
     "connections_opened": "Connections opened to servers.",
     "connections_evicted": "Connections to servers closed to make room for another.",
     "connections_lost": "Connections to servers closed by the server or broken.",
@@ -100,6 +105,8 @@ _MASTER_DEVICE_HELP = {
     "wrong_unit": "Replies from this address's server with another unit id than the one sent.",
     "wrong_function": "Replies from this address's server with another function, size or echo.",
     "invalid_frames": "Replies from this address's server with a bad MBAP header.",
+    "demoted_rejects": "Requests for this address answered at once while it was down (not "
+                       "probes): not sent to its server.",
 }
 
 
@@ -189,7 +196,8 @@ class DaemonCollector:
         health = GaugeMetricFamily(
             "mbgw_device_health", "Health of the serial address: 1 for its current state "
             "(up: its recent requests were answered; degraded: some failed; down: the last "
-            "several failed in a row), 0 for the others.", labels=["address", "state"])
+            "down-after failed in a row, its requests are refused but for probes), 0 for the "
+            "others.", labels=["address", "state"])
         since = GaugeMetricFamily(
             "mbgw_device_health_since_seconds",
             "When the serial address entered its current health state (Unix time).",

@@ -160,6 +160,7 @@ def log_stopped(counters) -> None:
 
 
 RESTART_SETTINGS = ("control", "metrics")
+GROUPED_SETTINGS = ("serial", "demotion")     # a change is named by the setting inside
 
 
 def reload_on_sighup(loop: asyncio.AbstractEventLoop, holder, reconfigure, apply) -> None:
@@ -192,10 +193,11 @@ async def _reloaded(cfg, reconfigure, apply):
         reason = err.format_message() if hasattr(err, "format_message") else str(err)
         log.error("reload refused, the running configuration stays: %s", reason)
         return None
-    changed = [f"serial.{f.name}" for f in dataclasses.fields(new.serial)
-               if getattr(new.serial, f.name) != getattr(cfg.serial, f.name)]
-    changed += [f.name for f in dataclasses.fields(new)
-                if f.name != "serial" and getattr(new, f.name) != getattr(cfg, f.name)]
+    changed = [f"{group}.{f.name}" for group in GROUPED_SETTINGS
+               for f in dataclasses.fields(getattr(new, group))
+               if getattr(getattr(new, group), f.name) != getattr(getattr(cfg, group), f.name)]
+    changed += [f.name for f in dataclasses.fields(new) if f.name not in GROUPED_SETTINGS
+                and getattr(new, f.name) != getattr(cfg, f.name)]
     if not changed:
         log.info("configuration reloaded: nothing changed")
         return cfg

@@ -6,7 +6,7 @@ import time
 
 from mbgw.config.model import SlaveConfig
 from mbgw.ops.counters import Counters
-from mbgw.ops.device_stats import DeviceTable
+from mbgw.ops.device_stats import DeviceTable, HealthRule
 from mbgw.slave.line_thread import LineWorker
 from mbgw.line.port import SerialLine
 from mbgw.slave.status import SlaveStatus
@@ -33,11 +33,11 @@ def run_slave(cfg: SlaveConfig, reconfigure=None) -> None:
 
 async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfigure) -> None:
     loop = asyncio.get_running_loop()
-    devices = DeviceTable()
+    devices = DeviceTable(rule=HealthRule(cfg.demotion))
     scheduler = Scheduler()
 
     worker: LineWorker
-    server = TcpServer(cfg, scheduler, counters, lambda: worker.up)
+    server = TcpServer(cfg, scheduler, counters, lambda: worker.up, devices)
     worker = LineWorker(cfg, line, scheduler, server, counters, devices)
     stop = asyncio.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):

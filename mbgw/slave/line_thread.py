@@ -16,8 +16,9 @@ from mbgw.ops.exception_reply import gateway_exception
 from mbgw.errors import LineTimeout, SerialError
 from mbgw.line.framing import framing_for
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s
-from mbgw.slave.scheduler import (OUTCOME_BROADCAST, OUTCOME_ERROR, OUTCOME_EXCEPTION,
-                            OUTCOME_LINE_DOWN, OUTCOME_REPLY, OUTCOME_TIMEOUT, Job, Scheduler)
+from mbgw.slave.scheduler import (OUTCOME_BROADCAST, OUTCOME_DEVICE_DOWN, OUTCOME_ERROR,
+                                  OUTCOME_EXCEPTION, OUTCOME_LINE_DOWN, OUTCOME_REPLY,
+                                  OUTCOME_TIMEOUT, Job, Scheduler)
 from mbgw.slave.transaction import SerialMaster
 from mbgw.line.port import SerialLine
 from mbgw.slave.client import Client
@@ -38,6 +39,7 @@ class LineWorker(LineThread[SlaveConfig]):
         self._connections: Connections = server.connections
         self._counters = counters
         self.devices = devices
+        self._down = devices.rule.down     # the addresses that are down, by address
         self._deliver = server.finished    # deliver(job, reply_pdu_or_None[, bytes forwarded])
         self._taken: Job | None = None     # put on the line by the shortcut, books to keep
         self._shortcut = False
@@ -54,7 +56,7 @@ class LineWorker(LineThread[SlaveConfig]):
             line.libmodbus_sends and not cfg.serial.nocheck
         if self._shortcut:
             line.port.shortcut_rules(pdu.LIBMODBUS_FRAMED, line.char_ns,
-                                     cfg.serial.stout_ms * 1_000_000, cfg.slaveid)
+                                     cfg.serial.stout_ms * 1_000_000, cfg.slaveid, self._down)
         if previous is not None:
             master.keep_line_state(previous)
         return master
@@ -87,6 +89,8 @@ class LineWorker(LineThread[SlaveConfig]):
         return any(getattr(new, name) != getattr(old, name) for name in REOPEN_SETTINGS)
 
     def _configure(self, old: SlaveConfig, reopen: bool) -> None:
+        if self._cfg.demotion != old.demotion:
+            self.devices.set_rule(self._cfg.demotion)
         if not reopen and self._master is not None and self._line is not None:
             self._master = self._master_on(self._line, self._master)
 
@@ -97,7 +101,7 @@ class LineWorker(LineThread[SlaveConfig]):
             job, self._taken = self._taken, None
             if job is not None:
                 self._serve(job, taken=True)
-        else:
+        elif not self._refused_as_down(job):
             self._serve(job)
             self._connections.wait(0)      # what the clients sent meanwhile
 
@@ -141,6 +145,20 @@ class LineWorker(LineThread[SlaveConfig]):
                 self._deliver(job, reply)
             except Exception:
                 log.exception("internal error delivering the outcome of %s", job.adu.hex(" "))
+
+    def _refused_as_down(self, job: Job) -> bool:
+        """A job queued before its address went down is refused now, unless it is the probe
+        (admitted as one when it came, or now if one is due)."""
+        address = job.adu[0]
+        if not self._down[address] or job.probe:
+            return False
+        device = self.devices.get(address)
+        if device.admit(time.monotonic()):
+            return False
+        self._counters.demoted_rejects += 1
+        job.outcome = OUTCOME_DEVICE_DOWN
+        self._deliver(job, self._failure(job, pdu.GATEWAY_TARGET_FAILED))
+        return True
 
     def _reply_now(self, reply: bytes, sent: int) -> None:
         """The serial master found the reply (sent: the bytes of it already forwarded, or

@@ -10,21 +10,24 @@ from collections import deque
 
 
 class Job:
-    __slots__ = ("client", "tid", "unit", "adu", "outcome", "received_ns")
+    __slots__ = ("client", "tid", "unit", "adu", "outcome", "received_ns", "probe")
 
-    def __init__(self, client, tid: int, unit: int, adu: bytes, received_ns: int = 0) -> None:
+    def __init__(self, client, tid: int, unit: int, adu: bytes, received_ns: int = 0,
+                 probe: bool = False) -> None:
         self.client = client
         self.tid = tid
         self.unit = unit
         self.adu = adu
         self.outcome = ""          # set by the line thread: one of the OUTCOME_* strings
         self.received_ns = received_ns
+        self.probe = probe         # admitted while its address is down: it goes on the line
 
 
 OUTCOME_REPLY = "reply"
 OUTCOME_EXCEPTION = "device exception"
 OUTCOME_TIMEOUT = "timeout"
 OUTCOME_LINE_DOWN = "line down"
+OUTCOME_DEVICE_DOWN = "device down"    # refused: its address is down, and it is no probe
 OUTCOME_BROADCAST = "broadcast"
 OUTCOME_UNROUTABLE = "unroutable"
 OUTCOME_ERROR = "internal error"

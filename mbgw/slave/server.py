@@ -22,8 +22,10 @@ from mbgw.slave.acl import AccessList
 from mbgw.config.model import ACTIVE_WINDOW_S, SlaveConfig
 from mbgw.slave.connections import Connections
 from mbgw.ops.counters import Counters
+from mbgw.ops.device_stats import DeviceTable
 from mbgw.ops.exception_reply import gateway_exception
-from mbgw.slave.scheduler import OUTCOME_LINE_DOWN, OUTCOME_UNROUTABLE, Job, Scheduler
+from mbgw.slave.scheduler import (OUTCOME_DEVICE_DOWN, OUTCOME_LINE_DOWN, OUTCOME_UNROUTABLE,
+                                  Job, Scheduler)
 from mbgw.slave.client import PEER_GONE, Client
 from mbgw.ops.trace import TraceHub
 
@@ -35,11 +37,13 @@ LISTEN_BACKLOG = 100
 
 class TcpServer:
     def __init__(self, cfg: SlaveConfig, scheduler: Scheduler, counters: Counters,
-                 line_up) -> None:
+                 line_up, devices: DeviceTable) -> None:
         self._cfg = cfg
         self._scheduler = scheduler
         self.counters = counters
         self._line_up = line_up          # callable: is the serial line usable?
+        self._devices = devices
+        self._down = devices.rule.down   # the addresses that are down, by address
         self._acl = AccessList(cfg.authip)
         self.clients: list[Client] = []  # the asyncio thread's list, for admission and status
         self._refusals: dict[str, float] = {}
@@ -197,14 +201,16 @@ class TcpServer:
     def taken(self, client: Client, tid: int, unit: int, request: bytes,
               received_ns: int) -> Job | None:
         """A request the line worker put on the idle line itself (its shortcut, which takes
-        only what routes) after it arrived at received_ns, counted, checked and traced as
-        request() does; the client has it in flight and counted already."""
+        only what routes, never for an address that is down) after it arrived at
+        received_ns, counted, checked and traced as request() does; the client has it in
+        flight and counted already."""
         return self._admit(client, tid, unit, request, received_ns)
 
     def _admit(self, client: Client, tid: int, unit: int, request: bytes,
                received_ns: int = 0) -> Job | None:
         """The job for a request, or None when it was answered at once (it cannot reach the
-        line)."""
+        line, or its address is down and this is no probe: it must not wait in the queue
+        for a refusal)."""
         self.counters.requests += 1
         tracing = self.trace.active
         if tracing and not received_ns:
@@ -221,7 +227,15 @@ class TcpServer:
             self.counters.line_down_rejects += 1
             self._refuse(client, tid, unit, request, OUTCOME_LINE_DOWN, received_ns)
             return None
-        return Job(client, tid, unit, bytes((address,)) + request, received_ns)
+        down = self._down[address] == 1
+        if down:
+            device = self._devices.get(address)
+            if not device.admit(time.monotonic()):
+                self.counters.demoted_rejects += 1
+                self._refuse(client, tid, unit, request, OUTCOME_DEVICE_DOWN, received_ns,
+                             pdu.GATEWAY_TARGET_FAILED, device)
+                return None
+        return Job(client, tid, unit, bytes((address,)) + request, received_ns, probe=down)
 
     def finished(self, job: Job, reply: bytes | None, sent: int = -1) -> None:
         """job's outcome: its reply (if any) goes out at once, or its rest when the serial
@@ -251,9 +265,10 @@ class TcpServer:
             client.last_active = time.monotonic()
 
     def _refuse(self, client: Client, tid: int, unit: int, request: bytes, outcome: str,
-                received_ns: int) -> None:
-        reply = gateway_exception(self._cfg.exception, request[0],
-                                  pdu.GATEWAY_PATH_UNAVAILABLE, self.counters)
+                received_ns: int, code: int = pdu.GATEWAY_PATH_UNAVAILABLE,
+                device=None) -> None:
+        reply = gateway_exception(self._cfg.exception, request[0], code, self.counters,
+                                  device)
         self._answer(client, tid, unit, reply)
         if self.trace.active:
             self.traced(client, tid, unit, request[0], reply, outcome, received_ns)

@@ -6,6 +6,7 @@ Readiness is always an event: a server's READY, the gateway's READY=1, a frame b
 line, a log line, or a condition on the daemon's own status (polled over the control socket
 where the daemon does something on its own after the last event a test can see)."""
 import os
+import time
 
 from tests.harness import stop_counters
 from tests.integration.test_master import (BAUD, REPLY_S, holding_reply, identity,
@@ -13,7 +14,8 @@ from tests.integration.test_master import (BAUD, REPLY_S, holding_reply, identit
 from tests.ops import mbgw, status, wait_for, wait_for_log
 
 __all__ = ["BAUD", "REPLY_S", "holding_reply", "identity", "read_holding", "recv", "rtu",
-           "ask", "unanswered", "mbgw", "status", "wait_for", "wait_for_log", "stop_counters"]
+           "ask", "unanswered", "probed", "mbgw", "status", "wait_for", "wait_for_log",
+           "stop_counters"]
 
 
 def ask(fd: int, *frames: bytes, expected: bytes) -> None:
@@ -30,3 +32,23 @@ def unanswered(fd: int, *frames: bytes, then: bytes, expected: bytes) -> None:
     """The requests get no answer: the request `then`, written right behind them, gets its
     answer `expected` first."""
     ask(fd, *frames, then, expected=expected)
+
+
+def probed(fd: int, request: bytes, expected: bytes, refused: bytes) -> int:
+    """Write the request on the line until it is answered `expected`: the probe of an address
+    that is down.  Every answer before it must be `refused` (the gateway's own, given at
+    once).  Returns how many there were."""
+    deadline = time.monotonic() + 15 * REPLY_S
+    count = 0
+    while True:
+        os.write(fd, rtu(request))
+        got = recv(fd, 2)
+        if got == rtu(refused)[:2]:
+            got += recv(fd, len(rtu(refused)) - 2)
+            assert got == rtu(refused), got.hex(" ")
+            count += 1
+            assert time.monotonic() < deadline, f"no probe after {count} refusals"
+            continue
+        got += recv(fd, len(rtu(expected)) - 2)
+        assert got == rtu(expected), got.hex(" ")
+        return count

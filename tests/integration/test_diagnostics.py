@@ -26,6 +26,7 @@ import pytest
 
 from mbgw.ops.device_stats import COUNTS, LATENCY_BUCKETS_MS
 from tests.harness import free_port, stop_counters
+from tests.integration.test_demotion import probed
 from tests.modbus import Client, holding_reply, mbap, read_holding, rtu
 from tests.ops import (devices, health_log, mbgw, metric_families, metric_value, status,
                        tracing, tshark_warnings, wait_for)
@@ -144,9 +145,9 @@ def test_bytes_received_counts_every_byte_the_line_carried(rig, client):
 
 def test_a_device_that_stops_answering_is_down_then_degraded_then_up(rig, client):
     """Address 14 ignores its first three requests: three timeouts make it down; its first
-    answer makes it degraded; a window of 20 answers without a failure makes it up.  Each
-    change is logged once."""
-    gw = rig("--exception")
+    answer (to a probe) makes it degraded; a window of 20 answers without a failure makes it
+    up.  Each change is logged once."""
+    gw = rig("--exception", "--probe-interval", "100")
     c = client(gw)
     served(c, 1)
     before = time.time()
@@ -165,14 +166,17 @@ def test_a_device_that_stops_answering_is_down_then_degraded_then_up(rig, client
     assert human.returncode == 0, human.stderr
     row = [row.split() for row in human.stdout.splitlines() if row.split()[:2] == ["14", "down"]]
     assert len(row) == 1, human.stdout
-    assert row[0][2:5] == [row[0][2], "ago", "never"] and row[0][5:10] == ["3", "3", "0", "3",
-                                                                          "0"]
+    # FAILS REQUESTS REPLIES TIMEOUTS REFUSED CRC
+    assert row[0][2:5] == [row[0][2], "ago", "never"] and row[0][5:11] == ["3", "3", "0", "3",
+                                                                          "0", "0"]
     assert row[0][-2:] == ["(gateway", "0x0b:3)"]
 
-    served(c, 4, unit=14)
+    refused = probed(c, 14, read_holding(0, 1), holding_reply(0, 1))
     device = devices(status(gw))[14]
     assert (device["health"], device["consecutive_failures"], device["replies"]) == \
         ("degraded", 0, 1)
+    assert device["demoted_rejects"] == refused
+    assert device["gateway_exceptions"] == {"0x0b": 3 + refused}
     assert device["last_success"] >= down["health_since"]
     # 19 answers in all: the failures are still in the window of 20
     c.send(*(mbap(tid, 14, read_holding(0, 1)) for tid in range(5, 23)))

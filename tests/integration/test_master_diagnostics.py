@@ -16,8 +16,9 @@ import pytest
 
 from mbgw.ops.device_stats import LATENCY_BUCKETS_MS, MASTER_COUNTS
 from tests.harness import free_port
-from tests.integration.master_rig import (ask, holding_reply, identity, mbgw, read_holding, rtu,
-                                          status, stop_counters, unanswered, wait_for)
+from tests.integration.master_rig import (ask, holding_reply, identity, mbgw, probed,
+                                          read_holding, rtu, status, stop_counters, unanswered,
+                                          wait_for)
 from tests.ops import (devices, health_log, metric_families, metric_value, tracing,
                        tshark_warnings)
 
@@ -90,7 +91,7 @@ def test_status_figures_match_the_traffic(rig, line):
         f"1..2 -> {SERVER} unit 1..2", f"3..3 -> {SILENT} unit 1", f"4..4 -> {ABSENT} unit 1"]
     assert s["counters"] == {
         "requests": 6, "replies": 6, "device_exceptions": 1, "gateway_exceptions": 2,
-        "timeouts": 1, "unreachable": 1, "broadcasts": 1, "crc_errors": 0,
+        "timeouts": 1, "unreachable": 1, "demoted_rejects": 0, "broadcasts": 1, "crc_errors": 0,
         "invalid_frames": 0, "other_addresses": 1, "late_replies": 0, "wrong_unit": 0,
         "wrong_function": 0, "abandoned": 0, "connections_opened": 2, "connections_evicted": 0,
         "connections_lost": 0, "connections_bad_header": 0}
@@ -136,10 +137,10 @@ def test_status_figures_match_the_traffic(rig, line):
     assert "upstream connections (2)" in text and "devices (5)" in text
     rows = {row.split()[0]: row.split() for row in text.splitlines()
             if re.match(r"\s+\d+\s+(up|degraded|down)\s", row)}
-    # ADDR HEALTH SINCE(2) LAST-SUCCESS(1|2) FAILS REQUESTS REPLIES TIMEOUTS UNREACH INVALID
-    # ABANDON SERVER UNIT EXCEPTIONS...
+    # ADDR HEALTH SINCE(2) LAST-SUCCESS(1|2) FAILS REQUESTS REPLIES TIMEOUTS REFUSED UNREACH
+    # INVALID ABANDON SERVER UNIT EXCEPTIONS...
     assert rows["3"][1:] == ["degraded", rows["3"][2], "ago", "never", "1", "1", "0", "1",
-                             "0", "0", "0", SILENT, "1", "(gateway", "0x0b:1)"]
+                             "0", "0", "0", "0", SILENT, "1", "(gateway", "0x0b:1)"]
     assert rows["2"][-3:] == [SERVER, "2", "0x02:1"]
     assert re.search(r"^\s+127\.0\.6\.1:\d+\s+127\.0\.0\.1:\d+\s+\S+ \S+\s+5\s+0,1,2\s", text,
                      re.M), text
@@ -188,11 +189,11 @@ def test_a_silent_server_takes_its_address_down_and_a_recovery_brings_it_up(
         servers_at, start_master, line):
     """Address 5's server accepts connections and never answers: three tcpto in a row make
     the address down.  The server is replaced by one that answers (same address and port):
-    the first reply makes it degraded, 20 in a row up.  Each change is logged once."""
+    the first probe's reply makes it degraded, 20 in a row up.  Each change is logged once."""
     host = "127.0.6.5"
     port, mute = servers_at(silent=[host])
     gw = start_master("--mdbport", str(port), "--tcpto", str(TCPTO_MS), "--exception",
-                      "--slaveid", f"5 5 3 0 {host}")
+                      "--slaveid", f"5 5 3 0 {host}", "--probe-interval", "100")
     for n in (1, 2, 3):
         ask(line, read_holding(5), expected=exception(5, 0x0B))
         device = devices(status(gw))[5]
@@ -205,10 +206,11 @@ def test_a_silent_server_takes_its_address_down_and_a_recovery_brings_it_up(
 
     mute.stop()
     servers_at(host, port=port)
-    ask(line, read_holding(5), expected=reply(5, host, 3))
+    refused = probed(line, read_holding(5), reply(5, host, 3), exception(5, 0x0B))
     device = devices(status(gw))[5]
     assert (device["health"], device["consecutive_failures"], device["replies"]) == (
         "degraded", 0, 1)
+    assert device["demoted_rejects"] == refused
     for _ in range(18):
         ask(line, read_holding(5), expected=reply(5, host, 3))
     assert devices(status(gw))[5]["health"] == "degraded"     # 3 failures in the last 20

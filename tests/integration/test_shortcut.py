@@ -24,10 +24,11 @@ STOUT_NS = 1_000_000_000
 REQUEST = mbap(TID, UNIT, read_holding(0, 3))
 
 
-def make_port(device: str, slaveid: int = 0) -> Port:
+def make_port(device: str, slaveid: int = 0, down: bytearray | None = None) -> Port:
     port = Port(device, 19200, "n", 8, 1)
     port.set_byte_timeout(2000)
-    port.shortcut_rules(pdu.LIBMODBUS_FRAMED, CHAR_NS, STOUT_NS, slaveid)
+    port.shortcut_rules(pdu.LIBMODBUS_FRAMED, CHAR_NS, STOUT_NS, slaveid,
+                        bytearray(256) if down is None else down)
     return port
 
 
@@ -37,8 +38,8 @@ def line(pty_pair):
     ports = []
     slave = os.open(pty_pair.device, os.O_RDWR | os.O_NOCTTY)
 
-    def port(slaveid: int = 0) -> Port:
-        ports.append(make_port(pty_pair.gateway, slaveid))
+    def port(slaveid: int = 0, down: bytearray | None = None) -> Port:
+        ports.append(make_port(pty_pair.gateway, slaveid, down))
         return ports[-1]
     yield port, slave
     os.close(slave)
@@ -104,7 +105,7 @@ def test_slaveid_sets_the_serial_address_and_the_client_keeps_its_unit(line, soc
 def test_no_reply_leaves_the_client_without_one(line, socket_ends):
     make, slave = line
     port = make()
-    port.shortcut_rules(pdu.LIBMODBUS_FRAMED, CHAR_NS, 50_000_000, 0)
+    port.shortcut_rules(pdu.LIBMODBUS_FRAMED, CHAR_NS, 50_000_000, 0, bytearray(256))
     ours, theirs = socket_ends
     theirs.sendall(REQUEST)
     assert port.take_request(ours.fileno(), 0).taken
@@ -143,6 +144,26 @@ def test_anything_else_is_left_whole_to_the_caller(line, socket_ends, sent, quie
     assert (take.status, take.taken) == (len(sent), False)
     assert take.input == sent
     assert nothing_written(slave)
+
+
+def test_a_request_for_a_down_address_is_left_whole_to_the_caller(line, socket_ends):
+    """The owner's table of down addresses is read as it is at each take: a request for an
+    address marked down never reaches the line from C, and is taken once the mark is gone."""
+    make, slave = line
+    down = bytearray(256)
+    port = make(down=down)
+    ours, theirs = socket_ends
+    down[UNIT] = 1
+    theirs.sendall(REQUEST)
+    take = port.take_request(ours.fileno(), 0)
+    assert (take.status, take.taken, take.input) == (len(REQUEST), False, REQUEST)
+    assert nothing_written(slave)
+    down[UNIT] = 0
+    got = slave_answers(slave, UNIT, holding_reply(0, 3))
+    theirs.sendall(REQUEST)
+    assert port.take_request(ours.fileno(), 0).taken
+    assert got == [rtu(UNIT, read_holding(0, 3))]
+    assert theirs.recv(1024) == mbap(TID, UNIT, holding_reply(0, 3))
 
 
 def test_an_ended_connection_and_an_empty_one(line, socket_ends):

@@ -60,6 +60,10 @@ def _usage_error(result, option: str, value: str) -> None:
     ("--max-connections-per-ip", "1001"),
     ("--retries", "11"),
     ("--turnaround", "65536"),
+    ("--down-after", "-1"),
+    ("--down-after", "101"),
+    ("--probe-interval", "99"),
+    ("--probe-interval", "65536"),
     ("--log-level", "loud"),
 ])
 def test_bad_value_is_a_usage_error_naming_option_and_value(option, value):
@@ -128,6 +132,8 @@ HELP_DEFAULTS = {
     "--max-connections-per-ip": "default: 0",
     "--retries": "default: 0",
     "--turnaround": "default: 100",
+    "--down-after": "default: 3",
+    "--probe-interval": "default: 5000",
     "--log-level": "default: info",
 }
 

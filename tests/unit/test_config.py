@@ -3,7 +3,7 @@ import ipaddress
 
 import pytest
 
-from mbgw.config.model import Interface, LineFormat, SerialConfig, SlaveConfig, parse_ip
+from mbgw.config.model import Demotion, Interface, LineFormat, SerialConfig, SlaveConfig, parse_ip
 from mbgw.errors import ConfigError
 
 # The rates libmodbus 3.1.6 sets itself (/work/shared/notes/libmodbus.md 2.7).
@@ -216,3 +216,14 @@ def test_parse_ip_keeps_ipv6():
 def test_slave_defaults_follow_the_acksys_commands():
     cfg = SlaveConfig(_serial())
     assert (cfg.slaveid, cfg.exception, cfg.authip, cfg.mdbport) == (0, False, (), 502)
+
+
+@pytest.mark.parametrize("down_after, probe_interval_ms, named", [
+    (-1, 5000, "down-after -1: out of range 0..100"),
+    (101, 5000, "down-after 101: out of range 0..100"),
+    (3, 99, "probe-interval 99: out of range 100..65535"),
+    (3, 65536, "probe-interval 65536: out of range 100..65535"),
+])
+def test_demotion_settings_out_of_range_name_the_key(down_after, probe_interval_ms, named):
+    with pytest.raises(ConfigError, match=named):
+        Demotion(down_after, probe_interval_ms)

@@ -62,7 +62,8 @@ def test_every_long_option_of_both_modes_is_a_key(schema):
     ("slaveid", "net"), ("authip", "net"), ("mdbport", "net"), ("exception", "net"),
     ("bind", "net"), ("max-connections", "net"), ("max-connections-per-ip", "net"),
     ("tcpto", "net"), ("retries", "serial"),
-    ("turnaround", "serial"), ("log-level", "general"),
+    ("turnaround", "serial"), ("down-after", "serial"), ("probe-interval", "serial"),
+    ("log-level", "general"),
 ])
 def test_keys_are_grouped_like_the_guide(schema, name, group):
     assert schema.keys[name].group == group

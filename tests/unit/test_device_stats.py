@@ -5,24 +5,31 @@ from types import SimpleNamespace
 
 import pytest
 
+from mbgw.config.model import (DEFAULT_DOWN_AFTER, DEFAULT_PROBE_INTERVAL_MS,
+                               PROBE_BACKOFF_MAX_MS, Demotion)
 from mbgw.ops import device_stats
-from mbgw.ops.device_stats import (COUNTS, DOWN_AFTER_FAILURES, LATENCY_BUCKETS_MS, RECENT_WINDOW,
-                               DeviceStats, DeviceTable)
+from mbgw.ops.device_stats import (COUNTS, LATENCY_BUCKETS_MS, RECENT_WINDOW, DeviceStats,
+                                   DeviceTable, HealthRule)
 
 
 class Clock:
+    """Both clocks of the module: time.time() and time.monotonic(), moved together."""
     def __init__(self) -> None:
         self.now = 1_000_000.0
 
     def time(self) -> float:
         return self.now
 
+    def monotonic(self) -> float:
+        return self.now - 999_000.0
+
 
 @pytest.fixture
 def clock(monkeypatch):
-    """The module's time.time(), under the test's control."""
+    """The module's time.time() and time.monotonic(), under the test's control."""
     c = Clock()
-    monkeypatch.setattr(device_stats, "time", SimpleNamespace(time=c.time))
+    monkeypatch.setattr(device_stats, "time", SimpleNamespace(time=c.time,
+                                                              monotonic=c.monotonic))
     return c
 
 
@@ -38,7 +45,8 @@ def health_log(caplog):
 
 
 def test_the_spec_constants_are_what_the_tests_assume():
-    assert DOWN_AFTER_FAILURES == 3
+    assert DEFAULT_DOWN_AFTER == 3
+    assert (DEFAULT_PROBE_INTERVAL_MS, PROBE_BACKOFF_MAX_MS) == (5000, 60000)
     assert RECENT_WINDOW == 20
     assert LATENCY_BUCKETS_MS == (2, 5, 10, 25, 50, 100, 250, 500, 1000, 2500, 5000)
 
@@ -67,7 +75,8 @@ def test_health_goes_degraded_down_degraded_up_and_logs_each_change_once(clock, 
     d.failed()
     assert (d.health, d.consecutive_failures, d.health_since) == ("down", 3, clock.now)
     assert health_log()[1:] == [
-        ("WARNING", "device 7 is down: 3 requests in a row without a valid reply")]
+        ("WARNING", "device 7 is down: 3 requests in a row without a valid reply; its "
+                    "requests are refused, but for a probe every 5 s, backing off to 60 s")]
     down_since = clock.now
     for _ in range(5):
         clock.now += 1
@@ -226,3 +235,104 @@ def test_every_count_is_a_declared_int_field():
     declared = {name for name, kind in DeviceStats.__annotations__.items()
                 if kind in (int, "int")}
     assert declared == set(ALL_COUNTS)
+
+
+# --- demotion: health drives the line -------------------------------------------------------
+
+def rule(down_after: int = 3, probe_interval_ms: int = 1000) -> HealthRule:
+    return HealthRule(Demotion(down_after, probe_interval_ms))
+
+
+def test_down_after_exactly_down_after_failures_and_flagged_for_the_line(clock):
+    table = DeviceTable(rule=rule(down_after=4))
+    d = table.get(9)
+    for n in range(1, 5):
+        assert table.rule.down[9] == 0 and d.admit(clock.monotonic())
+        d.failed()
+        assert d.health == ("down" if n == 4 else "degraded")
+    assert table.rule.down[9] == 1
+    assert sum(table.rule.down) == 1
+    d.answered(2.0, None)
+    assert (d.health, table.rule.down[9]) == ("degraded", 0)
+
+
+def test_a_down_device_admits_one_probe_per_interval_doubling_while_it_fails(clock):
+    """Interval 1 s: the first probe 1 s after going down, then 2, 4, ... up to 60 s (timed
+    from the probe's failure); everything between is refused and counted."""
+    d = DeviceStats(5, rule=rule(probe_interval_ms=1000))
+    for _ in range(3):
+        d.failed()
+    assert d.health == "down"
+    waits = []
+    for _ in range(9):
+        refused = d.demoted_rejects
+        start = clock.now
+        while not d.admit(clock.monotonic()):
+            clock.now += 0.25
+        assert d.demoted_rejects - refused == (clock.now - start) / 0.25
+        assert not d.admit(clock.monotonic())      # one probe, not two
+        waits.append(clock.now - start)
+        d.failed()                                  # the probe failed at once
+    assert waits == [1, 2, 4, 8, 16, 32, 60, 60, 60]
+    assert d.health == "down" and d.consecutive_failures == 12
+    d.answered(1.0, None)                           # the probe after that answers
+    assert d.health == "degraded" and d.admit(clock.monotonic())
+
+
+def test_a_probe_is_due_an_interval_after_the_last_one_even_if_it_never_ended(clock):
+    """A probe that never gets its outcome (its client went, say) holds the next back one
+    interval, no more."""
+    d = DeviceStats(5, rule=rule(probe_interval_ms=1000))
+    for _ in range(3):
+        d.failed()
+    clock.now += 1
+    assert d.admit(clock.monotonic())
+    clock.now += 0.5
+    assert not d.admit(clock.monotonic())
+    clock.now += 0.5
+    assert d.admit(clock.monotonic())
+
+
+def test_an_exception_reply_keeps_a_device_from_ever_going_down(clock):
+    d = DeviceStats(11, rule=rule(down_after=2))
+    for _ in range(10):
+        d.failed()
+        d.answered(3.0, 0x02)
+    assert d.health == "degraded" and d.consecutive_failures == 0
+    assert d.admit(clock.monotonic()) and d.demoted_rejects == 0
+
+
+def test_down_after_0_never_demotes(clock, health_log):
+    d = DeviceStats(2, rule=rule(down_after=0))
+    for _ in range(50):
+        assert d.admit(clock.monotonic())
+        d.failed()
+    assert (d.health, d.consecutive_failures, d.demoted_rejects) == ("degraded", 50, 0)
+    assert [m for _, m in health_log()] == [
+        "device 2 is degraded: 1 of its last 20 requests failed"]
+
+
+def test_new_settings_judge_every_device_again_and_log_only_the_changes(clock, health_log):
+    table = DeviceTable(rule=rule(down_after=5, probe_interval_ms=8000))
+    a, b = table.get(1), table.get(2)
+    for _ in range(3):
+        a.failed()
+    b.failed()
+    assert (a.health, b.health) == ("degraded", "degraded")
+    logged = len(health_log())
+    table.set_rule(Demotion(3, 8000))
+    assert (a.health, b.health, table.rule.down[1]) == ("down", "degraded", 1)
+    assert [m.split(":")[0] for _, m in health_log()[logged:]] == ["device 1 is down"]
+    clock.now += 7.5
+    assert not a.admit(clock.monotonic())
+    table.set_rule(Demotion(3, 500))               # a shorter interval: due within it
+    assert not a.admit(clock.monotonic())
+    clock.now += 0.5
+    assert a.admit(clock.monotonic())
+    a.failed()
+    clock.now += 1                                 # and the backoff starts from it
+    assert a.admit(clock.monotonic())
+    table.set_rule(Demotion(0, 500))                # demotion off: nothing is down
+    assert (a.health, table.rule.down[1]) == ("degraded", 0)
+    assert [m.split(":")[0] for _, m in health_log()[logged:]] == [
+        "device 1 is down", "device 1 is degraded"]
