@@ -7,7 +7,8 @@ begins one when its request arrives (the kernel's receive timestamp, so requests
 together after a transaction keep the order they came in); a client with more requests
 after the one taken begins its next when the line comes to take a job again, behind every
 request that arrived meanwhile.  So no request is overtaken by another client's that arrived
-after it, and each waits for at most one transaction of each other waiting client.  Only the
+after it, and besides the transaction on the line when it came, each waits for at most one
+transaction of each other waiting client.  Only the
 line thread submits and takes; other threads wake it through wake_fd (a new connection, new
 settings, stopping).
 """
