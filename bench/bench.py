@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """mbgw throughput, latency and line-gap benchmark.  Prints figures, never pass/fail.
 
-    .venv/bin/python bench/bench.py [--quick] [--socat]
+    .venv/bin/python bench/bench.py [--quick] [--socat] [--fairness]
 
 For each line -- 19200 baud, 115200 baud, and a full-speed pty -- a simulated RTU slave
 (bench/simline.c, compiled at run time) answers FC03 reads of 10 registers (8-byte request,
@@ -18,12 +18,16 @@ full-speed pty it answers at once.  Against that slave the script measures:
     (simline relay: C, one thread, no checks) at the same pace, each on a slave of its own.
 
 The slave records every gap between the end of a reply (its write) and the arrival of the next
-request, so the gaps are seen from the line's side, not from the gateway's.  See README.md.
+request, so the gaps are seen from the line's side, not from the gateway's.
+
+--fairness measures instead a dead unit beside closed-loop clients (issue 13: their share of
+the line, their slowest request) and the per-client spread of transactions.  See README.md.
 """
 import argparse
 import math
 import os
 import platform
+import re
 import selectors
 import shutil
 import signal
@@ -98,6 +102,7 @@ class Run:
     held: list = field(default_factory=list)   # (gap, write) ns where the write was slow
     timed: list = field(default_factory=list)  # (gap, write) ns of every gap
     cycles: list = field(default_factory=list)    # ns from request to request, at the slave
+    per_client: list = field(default_factory=list)  # transactions of each client, sorted
 
     @property
     def rate(self) -> float:
@@ -251,41 +256,51 @@ class Gateway:
 # ------------------------------------------------------------------------ Modbus TCP clients
 
 class Client:
-    __slots__ = ("sock", "tid", "sent", "buf", "waiting")
+    __slots__ = ("sock", "tid", "sent", "buf", "waiting", "unit", "count")
 
-    def __init__(self, port: int) -> None:
+    def __init__(self, port: int, unit: int = UNIT) -> None:
         self.sock = socket.create_connection(("127.0.0.1", port))
         self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.unit = unit
         self.tid = 0
         self.sent = 0
         self.buf = b""
         self.waiting = False
+        self.count = 0          # good replies in the measured window
 
     def send(self) -> None:
         self.tid = (self.tid + 1) & 0xFFFF
-        frame = MBAP.pack(self.tid, 0, len(REQUEST_PDU) + 1, UNIT) + REQUEST_PDU
+        frame = MBAP.pack(self.tid, 0, len(REQUEST_PDU) + 1, self.unit) + REQUEST_PDU
         self.sent = time.perf_counter_ns()
         self.sock.sendall(frame)
         self.waiting = True
 
     def reply(self) -> bool | None:
-        """Read what came; None: not a whole reply yet; True/False: a good/bad reply."""
+        """Read what came; None: not a whole reply yet; True/False: a good/bad reply (an
+        exception is a bad one)."""
         data = self.sock.recv(4096)
         if not data:
             raise ConnectionError("the gateway closed the connection")
         self.buf += data
-        if len(self.buf) < TCP_REPLY_LEN:
+        if len(self.buf) < MBAP.size:
             return None
-        frame, self.buf = self.buf[:TCP_REPLY_LEN], self.buf[TCP_REPLY_LEN:]
+        size = 6 + MBAP.unpack_from(self.buf)[2]
+        if len(self.buf) < size:
+            return None
+        frame, self.buf = self.buf[:size], self.buf[size:]
         self.waiting = False
         tid, _, _, _ = MBAP.unpack_from(frame)
-        return tid == self.tid and frame[7] == 3 and frame[8] == 20
+        return size == TCP_REPLY_LEN and tid == self.tid and frame[7] == 3 and frame[8] == 20
 
 
-def run_clients(port: int, n: int, slave: Slave, warmup: float, seconds: float) -> Run:
-    """n closed-loop clients: each sends its next request as soon as its reply is in."""
+def run_clients(port: int, n: int, slave: Slave, warmup: float, seconds: float,
+                others: int = 0, other_unit: int = 0) -> Run:
+    """n closed-loop clients: each sends its next request as soon as its reply is in; and
+    `others` more on other_unit, also in a closed loop, whose replies are neither counted
+    nor timed (nor errors: a dead unit's 0x0B)."""
     run = Run(f"gateway, {n} client{'s' if n > 1 else ''}")
-    clients = [Client(port) for _ in range(n)]
+    measured = [Client(port) for _ in range(n)]
+    clients = measured + [Client(port, other_unit) for _ in range(others)]
     sel = selectors.DefaultSelector()
     for c in clients:
         c.sock.setblocking(False)
@@ -313,16 +328,17 @@ def run_clients(port: int, n: int, slave: Slave, warmup: float, seconds: float) 
             if ok is None:
                 continue
             done = time.perf_counter_ns()
-            if end is not None and start <= done <= end:
+            if end is not None and start <= done <= end and c.unit == UNIT:
                 first_done = first_done or done
                 last_done = done
                 if ok:
                     latencies.append(done - c.sent)
+                    c.count += 1
                 else:
                     run.errors += 1
             if drain_until is None:
                 c.send()
-    run.errors += sum(c.waiting for c in clients)     # no reply even after the drain
+    run.errors += sum(c.waiting for c in measured)    # no reply even after the drain
     for c in clients:
         sel.unregister(c.sock)
         c.sock.close()
@@ -330,6 +346,7 @@ def run_clients(port: int, n: int, slave: Slave, warmup: float, seconds: float) 
     run.count, run.seconds = len(latencies), (end - start) / 1e9
     run.span_ns = last_done - first_done
     run.latencies = sorted(latencies)
+    run.per_client = sorted(c.count for c in measured)
     slave.collect(run)
     return run
 
@@ -598,6 +615,172 @@ def summary(lines: list) -> None:
     print("  (floor: what the least gateway -- C, one thread, no checks -- adds on this host)")
 
 
+# ------------------------------------------------------------------------ fairness (--fairness)
+
+DEAD_UNIT = 9                  # no slave answers it (simline serves unit 1 only)
+DEAD_BAUD = 19200
+DEAD_STOUT_MS = 600
+DEAD_CLIENTS = 4               # closed-loop clients of unit 1 beside the dead unit's one
+SPREAD_COUNTS = (5, 32)
+TARGET_DEAD_SHARE = 90.0       # % of the unit-1 rate without the dead unit's client (demotion)
+TARGET_SPREAD = 2.0            # % between the most and the least served client
+# Demotion of silent devices (issue 13), when the gateway has it: off, and at its defaults.
+DEMOTION_OPTIONS = ("--down-after", "--probe-interval")
+WITHOUT_DEMOTION = ("--down-after", "0")
+WITH_DEMOTION = ("--down-after", "3", "--probe-interval", "5")
+
+
+def gateway_accepts(*options: str) -> bool:
+    """Whether the gateway's `slave --help` lists every one of options."""
+    text = subprocess.run([*GATEWAY_COMMAND, "--help"], capture_output=True,
+                          text=True).stdout
+    return all(re.search(rf"(^|\s){re.escape(o)}\b", text, re.M) for o in options)
+
+
+@dataclass
+class DeadUnitCase:
+    title: str
+    options: tuple             # the gateway's demotion options
+    alone: Run                 # the unit-1 clients without the dead unit's client
+    beside: Run                # the same with it
+
+    @property
+    def share(self) -> float:
+        return _share(self.beside, self.alone)
+
+    @property
+    def round_ms(self) -> float:
+        """The line's own cycle for these clients: each request's median latency alone,
+        one transaction of each of them."""
+        return self.alone.lat_ms(50)
+
+    @property
+    def over_round_ms(self) -> float:
+        """How much longer than that round the slowest unit-1 request took beside the
+        dead unit (target: at most one stout)."""
+        return self.beside.lat_ms(100) - self.round_ms
+
+
+def measure_dead_unit(exe: str, tmp: Path, use_socat: bool, warmup: float,
+                      seconds: float) -> list[DeadUnitCase]:
+    """The dead-unit case, on a gateway of its own for each demotion setting the gateway
+    knows (none before issue 13's demotion: the run is then without it)."""
+    variants = [("without demotion", ())]
+    if gateway_accepts(*DEMOTION_OPTIONS):
+        variants = [("without demotion", WITHOUT_DEMOTION), ("with demotion", WITH_DEMOTION)]
+    cases = []
+    for title, options in variants:
+        side = Side(exe, tmp, use_socat, DEAD_BAUD)
+        gateway = None
+        try:
+            gateway = Gateway(tmp, side.device, "--baudrate", str(DEAD_BAUD), "--stout",
+                              str(DEAD_STOUT_MS), "--exception", "--max-connections", "40",
+                              "--log-level", "warning", *options)
+            alone = run_clients(gateway.port, DEAD_CLIENTS, side.slave, warmup, seconds)
+            beside = run_clients(gateway.port, DEAD_CLIENTS, side.slave, warmup, seconds,
+                                 others=1, other_unit=DEAD_UNIT)
+            cases.append(DeadUnitCase(title, options, alone, beside))
+        finally:
+            if gateway is not None:
+                _stop_and_show(gateway)
+            side.stop()
+    return cases
+
+
+def measure_spread(line: Line, exe: str, tmp: Path, use_socat: bool, warmup: float) -> None:
+    """Closed-loop clients (SPREAD_COUNTS of them) on a gateway as the main runs start it."""
+    side = Side(exe, tmp, use_socat, line.baud if line.paced else 0)
+    gateway = None
+    try:
+        gateway = Gateway(tmp, side.device, "--baudrate", str(line.baud), "--stout", "1000",
+                          "--max-connections", str(max(SPREAD_COUNTS) + 8),
+                          "--log-level", "warning")
+        for n in SPREAD_COUNTS:
+            line.runs.append(run_clients(gateway.port, n, side.slave, warmup, line.seconds))
+    finally:
+        if gateway is not None:
+            _stop_and_show(gateway)
+        side.stop()
+
+
+def _stop_and_show(gateway: Gateway) -> None:
+    rc = gateway.stop()
+    log = gateway.log_path.read_text().strip()
+    if log or rc:
+        print(f"  gateway exit status {rc}; its log:\n    " + log.replace("\n", "\n    "))
+
+
+def spread_pct(run: Run) -> float:
+    """How many fewer transactions the least served client had than the most served, in %
+    of the most."""
+    most, least = run.per_client[-1], run.per_client[0]
+    return 100 * (most - least) / most if most else float("nan")
+
+
+def report_dead_unit(cases: list[DeadUnitCase], seconds: float) -> None:
+    print(f"\nDead unit: {DEAD_BAUD} baud 8N1, --stout {DEAD_STOUT_MS} --exception; "
+          f"{DEAD_CLIENTS} closed-loop clients read unit {UNIT}, a fifth reads unit "
+          f"{DEAD_UNIT}, which no slave answers (its 0x0B replies are not counted); "
+          f"{seconds:g} s a run")
+    print(f"  {'':44} {'unit-1':>7} {'of':>6} {'lat':>7} {'lat':>7} {'slowest':>8} "
+          f"{'over':>7} {'unit-9':>7}")
+    print(f"  {'':44} {'tx/s':>7} {'alone':>6} {'p50':>7} {'p99':>7} {'':>8} "
+          f"{'round':>7} {'frames':>7}")
+    print(f"  {'':44} {'':>7} {'%':>6} {'ms':>7} {'ms':>7} {'ms':>8} {'ms':>7} {'':>7}")
+    for case in cases:
+        for name, run in ((f"{case.title}: {DEAD_CLIENTS} clients alone", case.alone),
+                          (f"{case.title}: and unit {DEAD_UNIT}'s client", case.beside)):
+            beside = run is case.beside
+            share = f"{case.share:6.1f}" if beside else f"{100.0:6.1f}"
+            over = f"{case.over_round_ms:7.0f}" if beside else f"{'-':>7}"
+            frames = f"{run.bad_frames:7d}" if beside else f"{'-':>7}"
+            print(f"  {name:44} {run.rate:7.1f} {share} {run.lat_ms(50):7.1f} "
+                  f"{run.lat_ms(99):7.1f} {run.lat_ms(100):8.1f} {over} {frames}")
+            if run.errors or run.collisions:
+                print(f"  !! {name}: {run.errors} failed transactions, {run.collisions} "
+                      f"requests over a reply")
+        options = f" ({' '.join(case.options)})" if case.options else ""
+        print(f"  {case.title}{options}: the line's own cycle for {DEAD_CLIENTS} clients "
+              f"(their p50 alone) {case.round_ms:.1f} ms; the slowest unit-1 request beside "
+              f"unit {DEAD_UNIT} took {case.over_round_ms:.0f} ms more (target: <= one "
+              f"stout, {DEAD_STOUT_MS} ms)")
+    print("  (unit-9 frames: the requests for unit 9 the slave saw on the line; of alone: "
+          f"target >= {TARGET_DEAD_SHARE:g} % with demotion)")
+
+
+def report_spread(lines: list[Line]) -> None:
+    print(f"\nPer-client spread: closed-loop clients, transactions each in the window "
+          f"(target: the least served within {TARGET_SPREAD:g} % of the most)")
+    print(f"  {'':16} {'clients':>7} {'s':>4} {'tx/s':>7} {'least':>6} {'most':>6} "
+          f"{'spread':>7} {'1 tx':>6}")
+    print(f"  {'':16} {'':>7} {'':>4} {'':>7} {'':>6} {'':>6} {'%':>7} {'%':>6}")
+    for line in lines:
+        for n, run in zip(SPREAD_COUNTS, line.runs, strict=True):
+            one = 100 / run.per_client[-1] if run.per_client[-1] else float("nan")
+            print(f"  {line.title:16} {n:7d} {line.seconds:4g} {run.rate:7.1f} "
+                  f"{run.per_client[0]:6d} {run.per_client[-1]:6d} {spread_pct(run):7.2f} "
+                  f"{one:6.2f}")
+            if run.errors or run.collisions or run.bad_frames:
+                print(f"  !! {run.errors} failed transactions, {run.collisions} requests over "
+                      f"a reply, {run.bad_frames} bad frames at the slave")
+    print("  (1 tx: what one transaction more or less is, in % of the most served: the "
+          "resolution of the spread)")
+
+
+def fairness(args, tmp: Path, exe: str) -> None:
+    quick = args.quick
+    dead_warmup, dead_s = (2.5, 3.0) if quick else (3.0, 10.0)
+    spread_s = {19200: 3.0, 115200: 2.0, 0: 2.0} if quick else {19200: 20.0, 115200: 10.0,
+                                                               0: 10.0}
+    report_dead_unit(measure_dead_unit(exe, tmp, args.socat, dead_warmup, dead_s), dead_s)
+    lines = [Line("19200 baud", 19200, True, spread_s[19200]),
+             Line("115200 baud", 115200, True, spread_s[115200]),
+             Line("full-speed pty", 4000000, False, spread_s[0])]
+    for line in lines:
+        measure_spread(line, exe, tmp, args.socat, 0.3)
+    report_spread(lines)
+
+
 def _loadavg() -> str:
     try:
         return " ".join(Path("/proc/loadavg").read_text().split()[:3])
@@ -610,6 +793,9 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="short runs (under 30 s in all)")
     ap.add_argument("--socat", action="store_true",
                     help="put the line on a socat pty pair (as the tests do) instead of one pty")
+    ap.add_argument("--fairness", action="store_true",
+                    help="instead of the runs above: a dead unit beside closed-loop clients, "
+                    "and the per-client spread of transactions (about 110 s; --quick: 30 s)")
     args = ap.parse_args()
     if args.quick:
         secs, warmup, rounds, slice_s = {19200: 1.5, 115200: 1.0, 0: 1.0}, 0.2, 3, 0.4
@@ -633,6 +819,10 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="mbgw-bench-") as tmp:
         tmp = Path(tmp)
         exe = build_simline(tmp)
+        if args.fairness:
+            fairness(args, tmp, exe)
+            print(f"\n({time.monotonic() - began:.0f} s; load average after: {_loadavg()})")
+            return
         floor = tcp_floor(exe, warmup, 0.5 if args.quick else 1.0)
         print(f"  TCP floor: this client against a C Modbus TCP server on loopback that answers "
               f"at once: p50 {floor.lat_ms(50) * 1000:.0f} us, "

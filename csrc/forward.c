@@ -1,12 +1,14 @@
 /* Slave mode's quick ways between a client's socket and the line, before Python sees
  * anything: a reply that answers goes to the client's socket (mbgw_receive_reply,
  * mbgw_exchange), and a request that finds the line idle goes on it (mbgw_take_request).
- * Whether a reply answers is match.c's to say. */
+ * Whether a reply answers is match.c's to say.  And the read of a client's socket that
+ * tells when what it read arrived (mbgw_client_recv), for the line's order. */
 #include <errno.h>
 #include <sched.h>
 #include <stdint.h>
 #include <string.h>
 #include <sys/socket.h>
+#include <sys/uio.h>
 
 #include <modbus.h>
 
@@ -15,6 +17,66 @@
 
 /* An MBAP header's first bytes, then the ADU: its address where the unit id goes. */
 _Static_assert(MBGW_REPLY_AT == MBAP_HEAD_LEN, "MBGW_REPLY_AT is MBAP_HEAD_LEN");
+
+int mbgw_stamp_arrivals(int fd)
+{
+    int on = 1;
+    return setsockopt(fd, SOL_SOCKET, SO_TIMESTAMPNS, &on, sizeof on) < 0 ? -errno : 0;
+}
+
+/* The wall clock's lead over the monotonic clock, from readings close together: one read
+ * between two of the other, again when something ran in between. */
+static int64_t wall_lead_ns(void)
+{
+    int64_t lead = 0;
+    for (int tries = 0; tries < 3; tries++) {
+        struct timespec real;
+        int64_t before = now_ns();
+        clock_gettime(CLOCK_REALTIME, &real);
+        int64_t after = now_ns();
+        lead = (int64_t)real.tv_sec * 1000000000 + real.tv_nsec - (before + after) / 2;
+        if (after - before < 2000)
+            break;
+    }
+    return lead;
+}
+
+/* The kernel's receive timestamp (CLOCK_REALTIME, of the newest segment the read took) on
+ * the monotonic clock, never after now; now when there is none (a socket without
+ * SO_TIMESTAMPNS, data that came before the first socket asked for timestamps).  A step of
+ * the wall clock between the arrival and the read moves the arrival by as much. */
+static int64_t arrival_ns(struct msghdr *msg)
+{
+    int64_t now = now_ns();
+    for (struct cmsghdr *c = CMSG_FIRSTHDR(msg); c; c = CMSG_NXTHDR(msg, c)) {
+        if (c->cmsg_level != SOL_SOCKET || c->cmsg_type != SCM_TIMESTAMPNS)
+            continue;
+        struct timespec stamp;
+        memcpy(&stamp, CMSG_DATA(c), sizeof stamp);
+        int64_t arrived = (int64_t)stamp.tv_sec * 1000000000 + stamp.tv_nsec - wall_lead_ns();
+        return arrived < now ? arrived : now;
+    }
+    return now;
+}
+
+long mbgw_client_recv(int fd, uint8_t *buf, size_t cap, int64_t *arrived_ns)
+{
+    struct iovec iov = { buf, cap };
+    union {
+        struct cmsghdr align;
+        char space[CMSG_SPACE(sizeof(struct timespec))];
+    } control;
+    struct msghdr msg = { .msg_iov = &iov, .msg_iovlen = 1, .msg_control = control.space,
+                          .msg_controllen = sizeof control.space };
+    ssize_t n;
+    do
+        n = recvmsg(fd, &msg, MSG_DONTWAIT);
+    while (n < 0 && errno == EINTR);
+    if (n < 0)
+        return errno == EWOULDBLOCK ? -EAGAIN : -errno;
+    *arrived_ns = arrival_ns(&msg);
+    return n;
+}
 
 int mbgw_receive_reply(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
                        int64_t deadline_ns, int32_t gap_us, const struct mbgw_forward *to,
@@ -78,9 +140,9 @@ int mbgw_take_request(modbus_t *ctx, int client_fd, int *in_flight, uint8_t *in,
                       size_t in_cap, uint8_t *buf, struct mbgw_shortcut *sc)
 {
     sc->result = MBGW_NOT_TAKEN;
-    ssize_t n = recv(client_fd, in, in_cap, MSG_DONTWAIT);
+    long n = mbgw_client_recv(client_fd, in, in_cap, &sc->arrived_ns);
     if (n < 0)
-        return errno == EAGAIN || errno == EINTR ? -EAGAIN : -errno;
+        return (int)n;
     if (n < MBAP_LEN + 1)
         return (int)n;
     /* MBAP header: transaction id, protocol id, length (unit id + PDU), unit id */

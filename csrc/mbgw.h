@@ -184,6 +184,16 @@ int mbgw_exchange(struct _modbus *ctx, uint8_t *buf, const uint8_t *req, size_t 
                   int64_t char_ns, int64_t stout_ns, int32_t gap_us,
                   const struct mbgw_forward *to, int64_t *times, int *sent, int *noise);
 
+/* SO_TIMESTAMPNS on a socket (a listening one: on every connection it accepts too): the
+ * kernel then dates what arrives, for mbgw_client_recv. */
+int mbgw_stamp_arrivals(int fd);
+
+/* recv() of up to cap bytes from a client's socket, not waiting, and *arrived_ns: when
+ * they arrived (CLOCK_MONOTONIC), by the kernel's receive timestamp of the newest segment
+ * read (SO_TIMESTAMPNS), else now.  Returns the bytes read, 0 at the connection's end,
+ * -EAGAIN when nothing waits, another negative errno. */
+long mbgw_client_recv(int client_fd, uint8_t *buf, size_t cap, int64_t *arrived_ns);
+
 /* mbgw_take_request's result when it left the request to the caller. */
 #define MBGW_NOT_TAKEN 1000000
 #define MBGW_MAX_ADDRESS 247   /* the highest unicast serial address */
@@ -202,12 +212,14 @@ struct mbgw_shortcut {
     int sent;                  /* out: mbgw_exchange's */
     int noise;                 /* out: mbgw_exchange's */
     uint8_t address;           /* out: the serial address the request went to */
+    int64_t arrived_ns;        /* out: when what was read arrived (mbgw_client_recv) */
 };
 
 /* Slave mode, a client readable while the line is idle: read what it sent (up to in_cap
- * bytes) into in.  When that is exactly one Modbus TCP request with a valid header, a
- * function code marked in sc->framed, and a serial address 1..MBGW_MAX_ADDRESS not marked
- * in sc->down (the caller refuses those requests, or sends one as the probe), and the line
+ * bytes) into in (mbgw_client_recv).  When that is exactly one Modbus TCP request with a
+ * valid header, a function code marked in sc->framed, and a serial address
+ * 1..MBGW_MAX_ADDRESS not marked in sc->down (the caller refuses those requests, or sends
+ * one as the probe), and the line
  * has been silent until sc->quiet_until_ns, the request goes on the line at once
  * (mbgw_exchange, its reply forwarded to client_fd, which then runs first, and in_flight
  * decremented as it is); the caller keeps the books.  Otherwise sc->result is

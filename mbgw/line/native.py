@@ -48,11 +48,43 @@ class Take(NamedTuple):
     status: int               # bytes read, 0 at the connection's end, -errno
     taken: bool               # exchanged: Port.exchanged() gives its outcome
     forwarded: int            # bytes of its reply the client's socket took (-1: not sent)
+    arrived_ns: int           # when what was read arrived (ClientReader.arrived_ns)
 
 
 def counter():
     """An int that C can count down (a client's requests in flight): c[0]."""
     return ffi.new("int *")
+
+
+def stamp_arrivals(fd: int) -> None:
+    """The kernel dates what arrives on socket fd (a listening socket: on each connection it
+    accepts), for ClientReader.  Raises OSError."""
+    err = lib.mbgw_stamp_arrivals(fd)
+    if err < 0:
+        raise OSError(-err, os.strerror(-err))
+
+
+class ClientReader:
+    """Reads a client's socket into one buffer and tells when what it read arrived: by the
+    kernel's receive timestamp (stamp_arrivals), so that requests read together after a
+    transaction are known in the order they came.  For one thread (the line thread)."""
+
+    def __init__(self, size: int) -> None:
+        self._size = size
+        self._buf = ffi.new("uint8_t[]", size)
+        self._arrived = ffi.new("int64_t *")
+        self.data = memoryview(ffi.buffer(self._buf))   # read() put its bytes at the front
+
+    def read(self, fd: int) -> int:
+        """The bytes read into data, 0 at the connection's end, -EAGAIN when nothing waits,
+        another -errno."""
+        return lib.mbgw_client_recv(fd, self._buf, self._size, self._arrived)
+
+    @property
+    def arrived_ns(self) -> int:
+        """When the newest of what read() read arrived (CLOCK_MONOTONIC); now if the kernel
+        did not date it."""
+        return self._arrived[0]
 
 
 def crc16(data: bytes) -> int:
@@ -299,7 +331,7 @@ class Port:
                                   self._buf, sc)
         data = ffi.buffer(self._in, n)[:] if n > 0 else b""
         taken = sc.result != NOT_TAKEN
-        return Take(data, n, taken, sc.sent if taken else -1)
+        return Take(data, n, taken, sc.sent if taken else -1, sc.arrived_ns)
 
     def exchanged(self) -> Reception:
         """What exchange() would have returned, for the request take_request() took."""

@@ -1,5 +1,6 @@
 """One Modbus TCP connection of slave mode.  The line thread reads and writes it
 (mbgw.slave.connections); the asyncio thread reads its figures and may shut it down."""
+import errno
 import itertools
 import os
 import select
@@ -35,6 +36,10 @@ class Client:
         self.connected_at = time.time()
         self.last_active = time.monotonic()
         self.closed = False
+        # When the requests last framed arrived (CLOCK_MONOTONIC ns), for the line's order;
+        # never before resumed_ns: when the client was last read again after back-pressure.
+        self.arrived_ns = 0
+        self.resumed_ns = 0
         self._buf = bytearray()     # received, not yet a whole frame
         self._out = bytearray()     # replies the socket would not take yet
         self._lock = threading.Lock()   # close() in the line thread, shutdown() in asyncio's
@@ -55,18 +60,15 @@ class Client:
     def output_waiting(self) -> bool:
         return bool(self._out)
 
-    def receive(self, into: memoryview) -> list | None:
-        """What has arrived, as whole frames [(tid, unit, pdu)]; None once the connection
-        has ended.  Raises mbap.BadHeader."""
-        try:
-            n = self.sock.recv_into(into)
-        except (BlockingIOError, InterruptedError):
+    def receive(self, reader: native.ClientReader) -> list | None:
+        """What has arrived, as whole frames [(tid, unit, pdu)], and when (arrived_ns); None
+        once the connection has ended.  Raises mbap.BadHeader."""
+        n = reader.read(self.fd)
+        if n == -errno.EAGAIN:
             return []
-        except OSError:
+        if n <= 0:
             return None
-        if not n:
-            return None
-        return self.received(into[:n])
+        return self.received(reader.data[:n], reader.arrived_ns)
 
     # C may write a reply to the client's socket itself only while no earlier reply waits
     # here to go out before it (order) and the connection is open: forward_target() for a
@@ -90,9 +92,11 @@ class Client:
         """Part of a request read, a request queued or on the line, or replies held for it."""
         return bool(self._buf or self._out or self.in_flight)
 
-    def received(self, data) -> list:
-        """What was read from the connection, framed as receive() does."""
+    def received(self, data, arrived_ns: int) -> list:
+        """What was read from the connection (it arrived at arrived_ns), framed as receive()
+        does."""
         self._buf += data
+        self.arrived_ns = max(arrived_ns, self.resumed_ns)
         self.last_active = time.monotonic()
         return list(mbap.split_frames(self._buf))
 

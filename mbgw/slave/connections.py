@@ -10,9 +10,11 @@ here, and on_closed is told.
 import logging
 import os
 import select
+import time
 from collections import deque
 
 from mbgw.protocol import mbap
+from mbgw.line.native import ClientReader
 from mbgw.slave.client import RECEIVE_SIZE, Client
 
 log = logging.getLogger("mbgw.tcp")
@@ -32,7 +34,7 @@ class Connections:
         self._clients: dict[int, Client] = {}      # by fd
         self._events: dict[int, int] = {}          # what each client's fd is polled for
         self._adopted: deque[Client] = deque()     # from the asyncio thread, not yet polled
-        self._receive = memoryview(bytearray(RECEIVE_SIZE))
+        self._reader = ClientReader(RECEIVE_SIZE)
 
     def adopt(self, client: Client) -> None:
         """Asyncio thread: from now on the line thread serves client."""
@@ -42,9 +44,10 @@ class Connections:
     def wait(self, timeout_ms: int, serial_fd: int = -1, take=None) -> bool:
         """Line thread: wait up to timeout_ms (-1: no limit, 0: not at all) for a client, the
         wake-up eventfd or input on serial_fd, and serve the clients that are ready.  True
-        when serial_fd has input (or an error) waiting.  take(client): reads one client at
-        rest in its own way, once, when the serial line is quiet (the line worker's
-        shortcut), and returns what Client.receive would."""
+        when serial_fd has input (or an error) waiting.  take(client): reads a client at
+        rest in its own way when it is all that is ready (the line worker's shortcut: with
+        more, which came first is told by reading them all), and returns what
+        Client.receive would."""
         self._update()
         if serial_fd >= 0:
             self._poll.register(serial_fd, _IN)
@@ -54,8 +57,8 @@ class Connections:
             if serial_fd >= 0:
                 self._poll.unregister(serial_fd)
         serial = False
-        if take is not None and any(fd == serial_fd for fd, _ in ready):
-            take = None         # input nobody asked for: the line is not quiet
+        if len(ready) != 1:
+            take = None         # input on the line (it is not quiet), or several ready
         for fd, events in ready:
             if fd == serial_fd:
                 serial = True
@@ -93,11 +96,14 @@ class Connections:
 
     def _update(self) -> None:
         """Poll each client for what it can take now: no input while it has 16 requests in
-        the gateway or a backlog of replies it does not read."""
+        the gateway or a backlog of replies it does not read.  What a client held back so
+        sent meanwhile is in the line's order from when it is read again."""
         for fd, client in self._clients.items():
             wanted = (_IN if client.readable else 0) | (_OUT if client.output_waiting else 0)
             if wanted == self._events[fd]:
                 continue
+            if wanted & ~self._events[fd] & _IN:
+                client.resumed_ns = time.monotonic_ns()
             if not wanted:
                 self._poll.unregister(fd)
             elif self._events[fd]:
@@ -112,7 +118,7 @@ class Connections:
         if not events & ~_OUT:
             return
         try:
-            frames = client.receive(self._receive) if take is None else take(client)
+            frames = client.receive(self._reader) if take is None else take(client)
         except mbap.BadHeader as err:
             self._counters.connections_bad_header += 1
             log.warning("client %s: bad MBAP header (%s); closing the connection",

@@ -199,7 +199,6 @@ class LineWorker(LineThread[SlaveConfig]):
         port = master.framing.port
         client.in_flight += 1          # from now on, never an idle connection to evict,
         client.requests += 1           # nor one that never sent a request, once answered
-        received_ns = time.monotonic_ns()
         take = port.take_request(client.fd, master.quiet_until_ns, client.flight)
         data = take.input
         if not take.taken:
@@ -207,12 +206,12 @@ class LineWorker(LineThread[SlaveConfig]):
             client.requests -= 1
             if take.status == -errno.EAGAIN:
                 return []
-            return client.received(data) if take.status > 0 else None
+            return client.received(data, take.arrived_ns) if take.status > 0 else None
         tid, _, _, unit = mbap.HEADER.unpack_from(data)
         client.last_active = time.monotonic()
         try:
             self._taken = self._server.taken(client, tid, unit, data[mbap.HEADER_LEN:],
-                                             received_ns)
+                                             take.arrived_ns)
         except Exception:   # a bug must cost one transaction, never the line
             log.exception("internal error on a request the shortcut took: %s", data.hex(" "))
         if self._taken is None and take.forwarded < 0:

@@ -1,11 +1,19 @@
 """The queue in front of the serial line: fair between clients, in order within a client.
 
-Each client (a TCP connection) has its own FIFO; the line takes one request from each client
-in turn, so a client that pipelines many requests cannot starve the others.  Only the line
-thread submits and takes; other threads wake it through wake_fd (a new connection, new
+Each client (a TCP connection) has its own FIFO and, while it has requests waiting, one turn
+in a ring; the line takes the earliest turn, one request a turn, so a client that pipelines
+many requests cannot starve the others.  A turn is dated: a client with nothing waiting
+begins one when its request arrives (the kernel's receive timestamp, so requests read
+together after a transaction keep the order they came in); a client with more requests
+after the one taken begins its next when the line comes to take a job again, behind every
+request that arrived meanwhile.  So no request is overtaken by another client's that arrived
+after it, and besides the transaction on the line when it came, each waits for at most one
+transaction of each other waiting client.  Only the
+line thread submits and takes; other threads wake it through wake_fd (a new connection, new
 settings, stopping).
 """
 import os
+import time
 from collections import deque
 
 
@@ -34,36 +42,43 @@ OUTCOME_ERROR = "internal error"
 
 
 class Queue:
-    """One client's pending jobs."""
-    __slots__ = ("jobs", "scheduled")
+    """One client's pending jobs, and when its turn began (while it has one)."""
+    __slots__ = ("jobs", "scheduled", "turn_ns")
 
     def __init__(self) -> None:
         self.jobs: deque[Job] = deque()
-        self.scheduled = False
+        self.scheduled = False      # it has a turn: in the ring, or its job on the line
+        self.turn_ns = 0
 
 
 class Scheduler:
     def __init__(self) -> None:
-        self._ring: deque[Queue] = deque()
+        self._ring: deque[Queue] = deque()      # turns, by turn_ns
+        self._continuing: Queue | None = None   # its job is on the line, more wait behind it
         self.depth = 0              # jobs waiting, for status and metrics
         self.wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
 
     def submit(self, queue: Queue, job: Job) -> None:
+        """job (which arrived at job.received_ns) behind the client's others."""
         queue.jobs.append(job)
         self.depth += 1
         if not queue.scheduled:
             queue.scheduled = True
-            self._ring.append(queue)
+            self._line_up(queue, job.received_ns)
 
     def take(self) -> Job | None:
-        """The next job, round-robin over clients; None if none waits."""
+        """The job of the earliest turn; None if none waits.  The line is free: the client
+        served last, if it has more, lines up again now."""
+        if self._continuing is not None:
+            self._line_up(self._continuing, time.monotonic_ns())
+            self._continuing = None
         if not self._ring:
             return None
         queue = self._ring.popleft()
         job = queue.jobs.popleft()
         self.depth -= 1
         if queue.jobs:
-            self._ring.append(queue)
+            self._continuing = queue
         else:
             queue.scheduled = False
         return job
@@ -74,7 +89,21 @@ class Scheduler:
         queue.jobs.clear()
         if queue.scheduled:
             queue.scheduled = False
-            self._ring.remove(queue)
+            if queue is self._continuing:
+                self._continuing = None
+            else:
+                self._ring.remove(queue)
+
+    def _line_up(self, queue: Queue, turn_ns: int) -> None:
+        """queue's turn into the ring, behind every turn that began no later: usually at the
+        back; a request read late (after a transaction) goes before those that arrived after
+        it."""
+        queue.turn_ns = turn_ns
+        ring = self._ring
+        at = len(ring)
+        while at and ring[at - 1].turn_ns > turn_ns:
+            at -= 1
+        ring.insert(at, queue)
 
     def wake(self) -> None:
         """From another thread: the line thread looks at its flags again."""

@@ -18,6 +18,7 @@ import time
 
 from mbgw.protocol import mbap
 from mbgw.protocol import pdu
+from mbgw.line import native
 from mbgw.slave.acl import AccessList
 from mbgw.config.model import ACTIVE_WINDOW_S, SlaveConfig
 from mbgw.slave.connections import Connections
@@ -192,8 +193,9 @@ class TcpServer:
     # --- the line thread: requests in, outcomes out ---
 
     def request(self, client: Client, tid: int, unit: int, request: bytes) -> None:
+        """A request read from client, which arrived at client.arrived_ns."""
         client.requests += 1
-        job = self._admit(client, tid, unit, request)
+        job = self._admit(client, tid, unit, request, client.arrived_ns)
         if job is not None:
             client.in_flight += 1
             self._scheduler.submit(client.queue, job)
@@ -207,14 +209,12 @@ class TcpServer:
         return self._admit(client, tid, unit, request, received_ns)
 
     def _admit(self, client: Client, tid: int, unit: int, request: bytes,
-               received_ns: int = 0) -> Job | None:
-        """The job for a request, or None when it was answered at once (it cannot reach the
-        line, or its address is down and this is no probe: it must not wait in the queue
-        for a refusal)."""
+               received_ns: int) -> Job | None:
+        """The job for a request that arrived at received_ns, or None when it was answered
+        at once (it cannot reach the line, or its address is down and this is no probe: it
+        must not wait in the queue for a refusal)."""
         self.counters.requests += 1
         tracing = self.trace.active
-        if tracing and not received_ns:
-            received_ns = time.monotonic_ns()
         if tracing:
             self.trace.emit_threadsafe(self._event("request", client, tid, unit, request, "",
                                                    None))
@@ -312,6 +312,7 @@ def listen(bind: str | None, port: int) -> list[socket.socket]:
             sock = socket.socket(family, kind, proto)
             sockets.append(sock)
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            native.stamp_arrivals(sock.fileno())    # its connections' requests are dated
             if family == socket.AF_INET6:
                 sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
             sock.bind(address)

@@ -113,5 +113,5 @@ def test_a_connection_the_line_thread_closed_is_gone(tcp):
 
 def test_part_of_a_request_read_makes_a_client_busy(tcp):
     client, _ = tcp()
-    assert client.received(mbap(1, 1, read_holding(0, 1))[:5]) == []
+    assert client.received(mbap(1, 1, read_holding(0, 1))[:5], 0) == []
     assert client.busy

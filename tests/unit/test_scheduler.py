@@ -1,6 +1,13 @@
 """The line queue (mbgw.slave.scheduler): fair between clients, in order within a client, and an
-eventfd through which other threads wake the line thread."""
+eventfd through which other threads wake the line thread.
+
+The rule (docs/architecture.md, slave path step 4): one turn per waiting client, taken in the
+order the turns began: a client with nothing queued begins one when its request arrives
+(Job.received_ns); a client with more requests after the one taken begins its next when the
+line comes to take a job again.  Times here are made up, as the kernel's receive timestamps
+would give them; a job without one arrived at 0."""
 import os
+import time
 
 import pytest
 
@@ -14,8 +21,8 @@ def scheduler():
     s.close()
 
 
-def _job(client: str, n: int) -> Job:
-    return Job(client, n, 1, bytes((1, 3, 0, n, 0, 1)))
+def _job(client: str, n: int, arrived_ns: int = 0) -> Job:
+    return Job(client, n, 1, bytes((1, 3, 0, n, 0, 1)), arrived_ns)
 
 
 def _submit(scheduler: Scheduler, queue: Queue, client: str, count: int) -> None:
@@ -63,8 +70,51 @@ def test_a_pipelining_client_does_not_starve_a_latecomer(scheduler):
     busy, late = Queue(), Queue()
     _submit(scheduler, busy, "busy", 16)
     assert scheduler.take().client == "busy"
-    scheduler.submit(late, _job("late", 0))
-    assert [scheduler.take().client for _ in range(2)] == ["busy", "late"]
+    scheduler.submit(late, _job("late", 0, time.monotonic_ns()))   # during busy's transaction
+    assert [scheduler.take().client for _ in range(3)] == ["late", "busy", "busy"]
+
+
+def test_a_request_read_late_goes_before_the_turns_that_began_after_it_arrived(scheduler):
+    """Requests read in one poll after a transaction come in fd order; the ring takes them
+    in the order they arrived."""
+    a, b, c, d = Queue(), Queue(), Queue(), Queue()
+    scheduler.submit(a, _job("a", 0, 100))
+    scheduler.submit(b, _job("b", 0, 400))
+    scheduler.submit(c, _job("c", 0, 200))
+    scheduler.submit(d, _job("d", 0, 300))
+    assert _drain(scheduler) == [("a", 0), ("c", 0), ("d", 0), ("b", 0)]
+
+
+def test_turns_that_began_at_the_same_time_keep_the_order_they_were_read_in(scheduler):
+    a, b = Queue(), Queue()
+    scheduler.submit(a, _job("a", 0, 100))
+    scheduler.submit(b, _job("b", 0, 100))
+    assert _drain(scheduler) == [("a", 0), ("b", 0)]
+
+
+def test_a_client_with_more_requests_lines_up_again_when_the_line_is_free(scheduler):
+    """Behind what arrived during its transaction (read after it, dated before the line
+    came back), ahead of what arrives after."""
+    busy, during, after = Queue(), Queue(), Queue()
+    _submit(scheduler, busy, "busy", 3)
+    assert scheduler.take().tid == 0
+    scheduler.submit(during, _job("during", 0, time.monotonic_ns()))
+    assert scheduler.take().client == "during"
+    # busy lined up again as "during" was taken: what arrives now comes behind it
+    scheduler.submit(after, _job("after", 0, time.monotonic_ns()))
+    assert _drain(scheduler) == [("busy", 1), ("after", 0), ("busy", 2)]
+
+
+def test_each_waiting_client_is_served_once_before_anyone_twice(scheduler):
+    """However deep the queues and however the requests were read, a request at the head of
+    its queue waits for at most one transaction of each other client."""
+    queues = {name: Queue() for name in "abcd"}
+    for n in range(4):
+        for name, queue in queues.items():
+            scheduler.submit(queue, _job(name, n, 10 * n + ord(name)))
+    taken = _drain(scheduler)
+    assert [name for name, _ in taken] == list("abcd") * 4
+    assert [n for _, n in taken] == [n for n in range(4) for _ in range(4)]
 
 
 def test_a_client_that_runs_dry_rejoins_at_the_back(scheduler):
@@ -90,6 +140,18 @@ def test_discard_of_an_idle_client_is_harmless(scheduler):
     _submit(scheduler, b, "b", 1)
     scheduler.discard(a)
     assert _drain(scheduler) == [("b", 0)]
+
+
+def test_discard_of_the_client_whose_job_is_on_the_line_forgets_the_rest(scheduler):
+    a, b = Queue(), Queue()
+    _submit(scheduler, a, "a", 3)
+    assert scheduler.take().client == "a"
+    _submit(scheduler, b, "b", 1)
+    scheduler.discard(a)
+    assert scheduler.depth == 1
+    assert _drain(scheduler) == [("b", 0)]
+    scheduler.submit(a, _job("a", 9))
+    assert _drain(scheduler) == [("a", 9)]
 
 
 def test_a_discarded_client_can_queue_again(scheduler):
