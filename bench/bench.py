@@ -627,7 +627,7 @@ TARGET_SPREAD = 2.0            # % between the most and the least served client
 # Demotion of silent devices (issue 13), when the gateway has it: off, and at its defaults.
 DEMOTION_OPTIONS = ("--down-after", "--probe-interval")
 WITHOUT_DEMOTION = ("--down-after", "0")
-WITH_DEMOTION = ("--down-after", "3", "--probe-interval", "5")
+WITH_DEMOTION = ("--down-after", "3", "--probe-interval", "5000")   # the defaults
 
 
 def gateway_accepts(*options: str) -> bool:
