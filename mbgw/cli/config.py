@@ -6,13 +6,13 @@ from pathlib import Path
 
 import click
 
+from mbgw.cli.options import Failure
+from mbgw.config import edit as config_set
 from mbgw.config import file as cf
 from mbgw.config import schema as ck
-from mbgw.config import edit as config_set
 from mbgw.config import text as config_text
-from mbgw.cli.options import Failure
-from mbgw.errors import ConfigError, ConfigFileError
 from mbgw.config.toml_text import dump_value, set_line, write_atomic
+from mbgw.errors import ConfigError, ConfigFileError
 
 SHOW_WIDTH = 16                    # the key column of `mbgw config show`
 META_FILE = "mbgw.config_file"     # ctx.meta: the file the running mode command took values from

@@ -4,10 +4,17 @@ socket, metrics, log level) with slave mode."""
 import click
 from click.core import ParameterSource
 
-from mbgw.config import model as config
-from mbgw.cli.options import (convert, daemon_options, demotion, demotion_options, parser,
-                              serial_config, serial_options)
+from mbgw.cli.options import (
+    convert,
+    daemon_options,
+    demotion,
+    demotion_options,
+    parser,
+    serial_config,
+    serial_options,
+)
 from mbgw.cli.run import run_daemon
+from mbgw.config import model as config
 from mbgw.config.slaveid import MAX_RANGES, SlaveIdTable
 
 SLAVE_MODE_ONLY = ("stout", "nocheck")

@@ -1,8 +1,15 @@
 """The `mbgw slave` command: Modbus TCP clients reach the slaves on a serial line."""
 import click
 
-from mbgw.cli.options import (convert, daemon_options, demotion, demotion_options, parser,
-                              serial_config, serial_options)
+from mbgw.cli.options import (
+    convert,
+    daemon_options,
+    demotion,
+    demotion_options,
+    parser,
+    serial_config,
+    serial_options,
+)
 from mbgw.cli.run import run_daemon
 from mbgw.config import model as config
 

@@ -6,11 +6,20 @@ import ipaddress
 import click
 
 from mbgw.config.file import Settings
-from mbgw.config.schema import (AUTHIP_ENTRIES, MODE_KEY, MODE_TABLES, MODES, NO_ADDRESS,
-                              PROTOCOL_KEY, PROTOCOL_WORDS, Key, Schema)
+from mbgw.config.schema import (
+    AUTHIP_ENTRIES,
+    MODE_KEY,
+    MODE_TABLES,
+    MODES,
+    NO_ADDRESS,
+    PROTOCOL_KEY,
+    PROTOCOL_WORDS,
+    Key,
+    Schema,
+)
+from mbgw.config.slaveid import SlaveIdTable
 from mbgw.config.values import Problem, element_kinds, process
 from mbgw.errors import ConfigError
-from mbgw.config.slaveid import SlaveIdTable
 
 JOIN_WORDS = {"format": ""}                # "set serial format 8 e 1" is 8e1
 REMOVE = object()                          # a change that takes a key out of the file

@@ -17,8 +17,18 @@ from pathlib import Path
 
 import click
 
-from mbgw.config.schema import (DEFAULT_PATH, FACTORY_DEVICE, GROUPS, MODE_KEY, MODE_TABLES, MODES,
-                              PROTOCOL_WORDS, Schema, default_value, is_unset)
+from mbgw.config.schema import (
+    DEFAULT_PATH,
+    FACTORY_DEVICE,
+    GROUPS,
+    MODE_KEY,
+    MODE_TABLES,
+    MODES,
+    PROTOCOL_WORDS,
+    Schema,
+    default_value,
+    is_unset,
+)
 from mbgw.config.values import check_value, to_click
 from mbgw.errors import ConfigFileError
 

@@ -12,8 +12,8 @@ import ipaddress
 from dataclasses import dataclass
 from typing import Iterable
 
-from mbgw.protocol import pdu
 from mbgw.errors import ConfigError
+from mbgw.protocol import pdu
 
 MAX_RANGES = 8
 NO_UNIT_ID = 0xFF       # TCP guide 4.4.1.2: the unit id "useless" to a device on TCP itself

@@ -4,9 +4,16 @@ import textwrap
 
 import click
 
-from mbgw.config.schema import (AUTHIP_ENTRIES, FACTORY_DEVICE, GROUPS, MODE_KEY, NO_ADDRESS,
-                              Schema, default_value)
 from mbgw.config.edit import REMOVE
+from mbgw.config.schema import (
+    AUTHIP_ENTRIES,
+    FACTORY_DEVICE,
+    GROUPS,
+    MODE_KEY,
+    NO_ADDRESS,
+    Schema,
+    default_value,
+)
 from mbgw.config.toml_text import dump_value, set_line
 
 

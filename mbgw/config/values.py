@@ -5,9 +5,9 @@ and master mode's net.slaveid (ranges "FS LS FR M IP", no two overlapping)."""
 import click
 
 from mbgw.config.schema import AUTHIP_ENTRIES, NO_ADDRESS, Key, Schema
-from mbgw.errors import ConfigError
 from mbgw.config.slaveid import SlaveRange
 from mbgw.config.toml_text import dump_value, dumpable
+from mbgw.errors import ConfigError
 
 
 def _kind(param_type: click.ParamType) -> str:

@@ -7,12 +7,18 @@ import signal
 import time
 
 from mbgw.config.model import MasterConfig
-from mbgw.ops.counters import MasterCounters
-from mbgw.ops.service import (idle_ms, log_stopped, serve_until_stopped, start_control,
-                              start_metrics, watchdog_interval)
-from mbgw.master.status import MasterStatus
 from mbgw.line.port import SerialLine
 from mbgw.master.line_thread import SerialSlave
+from mbgw.master.status import MasterStatus
+from mbgw.ops.counters import MasterCounters
+from mbgw.ops.service import (
+    idle_ms,
+    log_stopped,
+    serve_until_stopped,
+    start_control,
+    start_metrics,
+    watchdog_interval,
+)
 
 log = logging.getLogger("mbgw")
 

@@ -27,22 +27,27 @@ import os
 import select
 import time
 
-from mbgw.line import native
-from mbgw.protocol import pdu
 from mbgw.config.model import MasterConfig
+from mbgw.errors import BadReply, ChecksumError, FrameError, GatewayTimeout, LineTimeout, NoRoute
+from mbgw.line import native
+from mbgw.line.framing import framing_for
+from mbgw.line.port import SerialLine
+from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s
+from mbgw.master.trace import (
+    OUTCOME_BAD_REPLY,
+    OUTCOME_DEVICE_DOWN,
+    OUTCOME_EXCEPTION,
+    OUTCOME_REPLY,
+    OUTCOME_TIMEOUT,
+    OUTCOME_UNREACHABLE,
+    MasterTracer,
+)
+from mbgw.master.upstream import Interrupted, UpstreamPool, drain
 from mbgw.ops.counters import MasterCounters
 from mbgw.ops.device_stats import MASTER_COUNTS, DeviceTable, HealthRule
 from mbgw.ops.exception_reply import gateway_exception
-from mbgw.errors import (BadReply, ChecksumError, FrameError, GatewayTimeout, LineTimeout,
-                         NoRoute)
-from mbgw.line.framing import framing_for
-from mbgw.master.trace import (OUTCOME_BAD_REPLY, OUTCOME_DEVICE_DOWN, OUTCOME_EXCEPTION,
-                               OUTCOME_REPLY, OUTCOME_TIMEOUT, OUTCOME_UNREACHABLE,
-                               MasterTracer)
-from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s
-from mbgw.line.port import SerialLine
-from mbgw.master.upstream import Interrupted, UpstreamPool, drain
 from mbgw.ops.trace import TraceHub
+from mbgw.protocol import pdu
 
 log = logging.getLogger("mbgw.line")
 wire = logging.getLogger("mbgw.wire")

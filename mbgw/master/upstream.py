@@ -19,17 +19,17 @@ reads connections() from the asyncio thread.
 """
 import errno
 import logging
-from collections.abc import Callable
 import os
 import select
 import socket
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 
-from mbgw.protocol import mbap
+from mbgw.errors import BadReply, GatewayTimeout, MbgwError, NoRoute
 from mbgw.line import native
 from mbgw.ops.counters import MasterCounters
-from mbgw.errors import BadReply, GatewayTimeout, MbgwError, NoRoute
+from mbgw.protocol import mbap
 
 log = logging.getLogger("mbgw.tcp")
 wire = logging.getLogger("mbgw.wire")

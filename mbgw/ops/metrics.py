@@ -19,8 +19,8 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Histo
 from prometheus_client.utils import floatToGoString
 
 from mbgw import __version__
-from mbgw.ops.device_stats import DEGRADED, DOWN, LATENCY_BUCKETS_MS, UP
 from mbgw.errors import ConfigError
+from mbgw.ops.device_stats import DEGRADED, DOWN, LATENCY_BUCKETS_MS, UP
 
 log = logging.getLogger("mbgw.metrics")
 

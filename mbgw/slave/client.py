@@ -8,9 +8,9 @@ import socket
 import threading
 import time
 
-from mbgw.protocol import mbap
 from mbgw.line import native
 from mbgw.line.framing import NO_FORWARD
+from mbgw.protocol import mbap
 from mbgw.slave.scheduler import Queue
 
 MAX_IN_FLIGHT = 16          # TCP guide 4.4.2: a server holds 1..16 transactions per client

@@ -13,8 +13,8 @@ import select
 import time
 from collections import deque
 
-from mbgw.protocol import mbap
 from mbgw.line.native import ClientReader
+from mbgw.protocol import mbap
 from mbgw.slave.client import RECEIVE_SIZE, Client
 
 log = logging.getLogger("mbgw.tcp")

@@ -5,16 +5,23 @@ import signal
 import time
 
 from mbgw.config.model import SlaveConfig
+from mbgw.line.port import SerialLine
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable, HealthRule
+from mbgw.ops.service import (
+    ListenError,
+    MetricsListenError,
+    idle_ms,
+    log_stopped,
+    serve_until_stopped,
+    start_control,
+    start_metrics,
+    watchdog_interval,
+)
 from mbgw.slave.line_thread import LineWorker
-from mbgw.line.port import SerialLine
-from mbgw.slave.status import SlaveStatus
-from mbgw.ops.service import (ListenError, MetricsListenError, idle_ms, log_stopped,
-                              serve_until_stopped, start_control, start_metrics,
-                              watchdog_interval)
 from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
+from mbgw.slave.status import SlaveStatus
 
 log = logging.getLogger("mbgw")
 

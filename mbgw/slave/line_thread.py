@@ -6,22 +6,29 @@ import errno
 import logging
 import time
 
-from mbgw.protocol import mbap
-from mbgw.protocol import pdu
 from mbgw.config.model import SlaveConfig
-from mbgw.slave.connections import Connections
+from mbgw.errors import LineTimeout, SerialError
+from mbgw.line.framing import framing_for
+from mbgw.line.port import SerialLine
+from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
 from mbgw.ops.exception_reply import gateway_exception
-from mbgw.errors import LineTimeout, SerialError
-from mbgw.line.framing import framing_for
-from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s
-from mbgw.slave.scheduler import (OUTCOME_BROADCAST, OUTCOME_DEVICE_DOWN, OUTCOME_ERROR,
-                                  OUTCOME_EXCEPTION, OUTCOME_LINE_DOWN, OUTCOME_REPLY,
-                                  OUTCOME_TIMEOUT, Job, Scheduler)
-from mbgw.slave.transaction import SerialMaster
-from mbgw.line.port import SerialLine
+from mbgw.protocol import mbap, pdu
 from mbgw.slave.client import Client
+from mbgw.slave.connections import Connections
+from mbgw.slave.scheduler import (
+    OUTCOME_BROADCAST,
+    OUTCOME_DEVICE_DOWN,
+    OUTCOME_ERROR,
+    OUTCOME_EXCEPTION,
+    OUTCOME_LINE_DOWN,
+    OUTCOME_REPLY,
+    OUTCOME_TIMEOUT,
+    Job,
+    Scheduler,
+)
+from mbgw.slave.transaction import SerialMaster
 
 log = logging.getLogger("mbgw.line")
 wire = logging.getLogger("mbgw.wire")

@@ -16,19 +16,23 @@ import select
 import socket
 import time
 
-from mbgw.protocol import mbap
-from mbgw.protocol import pdu
-from mbgw.line import native
-from mbgw.slave.acl import AccessList
 from mbgw.config.model import ACTIVE_WINDOW_S, SlaveConfig
-from mbgw.slave.connections import Connections
+from mbgw.line import native
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
 from mbgw.ops.exception_reply import gateway_exception
-from mbgw.slave.scheduler import (OUTCOME_DEVICE_DOWN, OUTCOME_LINE_DOWN, OUTCOME_UNROUTABLE,
-                                  Job, Scheduler)
-from mbgw.slave.client import PEER_GONE, Client
 from mbgw.ops.trace import TraceHub
+from mbgw.protocol import mbap, pdu
+from mbgw.slave.acl import AccessList
+from mbgw.slave.client import PEER_GONE, Client
+from mbgw.slave.connections import Connections
+from mbgw.slave.scheduler import (
+    OUTCOME_DEVICE_DOWN,
+    OUTCOME_LINE_DOWN,
+    OUTCOME_UNROUTABLE,
+    Job,
+    Scheduler,
+)
 
 log = logging.getLogger("mbgw.tcp")
 

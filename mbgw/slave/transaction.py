@@ -6,16 +6,16 @@ function, a size the request did not ask for -- is counted and dropped, and we k
 until stout has passed, as the spec's master does (Serial Line V1.02, 2.4.1).
 """
 import logging
-from collections.abc import Callable
 import time
+from collections.abc import Callable
 
-from mbgw.protocol import pdu
 from mbgw.config.model import SerialConfig
-from mbgw.ops.counters import Counters
-from mbgw.ops.device_stats import DeviceStats, DeviceTable
 from mbgw.errors import ChecksumError, LineTimeout
 from mbgw.line.framing import NO_FORWARD
 from mbgw.line.native import Reception, reply_matches
+from mbgw.ops.counters import Counters
+from mbgw.ops.device_stats import DeviceStats, DeviceTable
+from mbgw.protocol import pdu
 
 wire = logging.getLogger("mbgw.wire")
 

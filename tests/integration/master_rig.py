@@ -9,8 +9,15 @@ import os
 import time
 
 from tests.harness import stop_counters
-from tests.integration.test_master import (BAUD, REPLY_S, holding_reply, identity,
-                                           read_holding, recv, rtu)
+from tests.integration.test_master import (
+    BAUD,
+    REPLY_S,
+    holding_reply,
+    identity,
+    read_holding,
+    recv,
+    rtu,
+)
 from tests.ops import mbgw, status, wait_for, wait_for_log
 
 __all__ = ["BAUD", "REPLY_S", "holding_reply", "identity", "read_holding", "recv", "rtu",

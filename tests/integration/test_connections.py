@@ -16,8 +16,9 @@ import time
 import pytest
 
 from tests import harness
+from tests.modbus import holding_reply, recv_adu
+from tests.modbus import mbap as adu
 from tests.ops import wait_for
-from tests.modbus import holding_reply, mbap as adu, recv_adu
 
 pytestmark = pytest.mark.integration
 

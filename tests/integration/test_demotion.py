@@ -25,10 +25,12 @@ import time
 import pytest
 
 from tests.harness import free_port, stop_counters
-from tests.integration.master_rig import ask, read_holding as serial_read, unanswered
+from tests.integration.master_rig import ask, unanswered
 from tests.integration.master_rig import probed as probed_on_line
+from tests.integration.master_rig import read_holding as serial_read
 from tests.integration.test_faults import received
-from tests.integration.test_master_replies import ScriptedServer, mbap as server_mbap, read_reply
+from tests.integration.test_master_replies import ScriptedServer, read_reply
+from tests.integration.test_master_replies import mbap as server_mbap
 from tests.modbus import Client, holding_reply, mbap, read_holding
 from tests.ops import devices, health_log, mbgw, status, wait_for_log
 

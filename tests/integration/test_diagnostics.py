@@ -28,8 +28,17 @@ from mbgw.ops.device_stats import COUNTS, LATENCY_BUCKETS_MS
 from tests.harness import free_port, stop_counters
 from tests.integration.test_demotion import probed
 from tests.modbus import Client, holding_reply, mbap, read_holding, rtu
-from tests.ops import (devices, health_log, mbgw, metric_families, metric_value, status,
-                       tracing, tshark_warnings, wait_for)
+from tests.ops import (
+    devices,
+    health_log,
+    mbgw,
+    metric_families,
+    metric_value,
+    status,
+    tracing,
+    tshark_warnings,
+    wait_for,
+)
 
 pytestmark = pytest.mark.integration
 

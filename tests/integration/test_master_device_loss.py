@@ -13,8 +13,15 @@ import time
 
 import pytest
 
-from tests.integration.master_rig import (ask, holding_reply, identity, read_holding, recv, rtu,
-                                          wait_for_log)
+from tests.integration.master_rig import (
+    ask,
+    holding_reply,
+    identity,
+    read_holding,
+    recv,
+    rtu,
+    wait_for_log,
+)
 
 pytestmark = pytest.mark.integration
 

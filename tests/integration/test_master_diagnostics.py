@@ -16,11 +16,20 @@ import pytest
 
 from mbgw.ops.device_stats import LATENCY_BUCKETS_MS, MASTER_COUNTS
 from tests.harness import free_port
-from tests.integration.master_rig import (ask, holding_reply, identity, mbgw, probed,
-                                          read_holding, rtu, status, stop_counters, unanswered,
-                                          wait_for)
-from tests.ops import (devices, health_log, metric_families, metric_value, tracing,
-                       tshark_warnings)
+from tests.integration.master_rig import (
+    ask,
+    holding_reply,
+    identity,
+    mbgw,
+    probed,
+    read_holding,
+    rtu,
+    status,
+    stop_counters,
+    unanswered,
+    wait_for,
+)
+from tests.ops import devices, health_log, metric_families, metric_value, tracing, tshark_warnings
 
 pytestmark = pytest.mark.integration
 

@@ -7,8 +7,8 @@ import time
 
 import pytest
 
-from mbgw.line import native
 from mbgw.errors import ChecksumError, FrameError, SerialError
+from mbgw.line import native
 from tests.modbus import rtu_frame as rtu
 
 pytestmark = pytest.mark.integration

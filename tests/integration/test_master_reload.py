@@ -8,8 +8,18 @@ import time
 
 import pytest
 
-from tests.integration.master_rig import (ask, holding_reply, identity, mbgw, read_holding, status,
-                                          stop_counters, unanswered, wait_for, wait_for_log)
+from tests.integration.master_rig import (
+    ask,
+    holding_reply,
+    identity,
+    mbgw,
+    read_holding,
+    status,
+    stop_counters,
+    unanswered,
+    wait_for,
+    wait_for_log,
+)
 
 pytestmark = pytest.mark.integration
 

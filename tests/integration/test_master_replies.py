@@ -20,8 +20,14 @@ import time
 import pytest
 
 from tests.harness import free_port
-from tests.integration.master_rig import (ask, holding_reply, read_holding, rtu, stop_counters,
-                                          wait_for)
+from tests.integration.master_rig import (
+    ask,
+    holding_reply,
+    read_holding,
+    rtu,
+    stop_counters,
+    wait_for,
+)
 from tests.ops import devices, health_log, tracing
 
 pytestmark = pytest.mark.integration

@@ -18,7 +18,8 @@ import time
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from tests.modbus import crc16, mbap as adu, recv_adu
+from tests.modbus import crc16, recv_adu
+from tests.modbus import mbap as adu
 from tests.peers.pymodbus_slave import IDENTITY
 
 pytestmark = pytest.mark.integration

@@ -10,8 +10,8 @@ import threading
 import time
 
 import pytest
-
 from mbgw._ffi import ffi, lib
+
 from mbgw.errors import FrameError, LineTimeout
 from mbgw.line.native import REPLY_AT, REPLY_SCAN, Port, counter
 from tests.modbus import holding_reply, mbap, read_holding, rtu

@@ -23,12 +23,12 @@ import pytest
 from pymodbus.client import ModbusTcpClient
 
 from mbgw.config.model import Interface, SerialConfig
-from mbgw.ops.counters import Counters
-from mbgw.ops.device_stats import DeviceTable
 from mbgw.errors import LineTimeout
 from mbgw.line.framing import framing_for
-from mbgw.slave.transaction import SerialMaster
 from mbgw.line.port import SerialLine
+from mbgw.ops.counters import Counters
+from mbgw.ops.device_stats import DeviceTable
+from mbgw.slave.transaction import SerialMaster
 from tests.harness import READY_TIMEOUT_S, stop_counters
 from tests.modbus import holding_reply, read_holding, rtu
 from tests.peers import paced_slave

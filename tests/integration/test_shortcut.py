@@ -11,9 +11,9 @@ import time
 
 import pytest
 
-from mbgw.protocol import pdu
 from mbgw.errors import LineTimeout
 from mbgw.line.native import Port, counter
+from mbgw.protocol import pdu
 from tests.modbus import holding_reply, mbap, read_holding, rtu
 
 pytestmark = pytest.mark.integration

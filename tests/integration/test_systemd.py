@@ -15,11 +15,12 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from mbgw.ops import control
 from mbgw.cli import main
+from mbgw.ops import control
 from tests.harness import CHECKOUT
 from tests.integration.master_rig import ask, holding_reply, identity, read_holding
-from tests.modbus import Client, read_holding as read_holding_pdu
+from tests.modbus import Client
+from tests.modbus import read_holding as read_holding_pdu
 from tests.ops import status, wait_for_log
 
 pytestmark = pytest.mark.integration

@@ -41,11 +41,9 @@ import sys
 import time
 
 if __package__:     # imported by a test as tests.peers.paced_slave
-    from .wire import (crc16, lrc, open_pty, open_record, reply_pdu, rtu, rtu_request_length,
-                       serve)
+    from .wire import crc16, lrc, open_pty, open_record, reply_pdu, rtu, rtu_request_length, serve
 else:               # run as a script: its directory is on sys.path
-    from wire import (crc16, lrc, open_pty, open_record, reply_pdu, rtu, rtu_request_length,
-                      serve)
+    from wire import crc16, lrc, open_pty, open_record, reply_pdu, rtu, rtu_request_length, serve
 
 VENDOR_FC = 0x41
 VENDOR_DATA = bytes(range(0xA0, 0xA0 + 20))

@@ -14,8 +14,7 @@ executed on every address.  Prints READY when listening.
 import argparse
 import asyncio
 
-from pymodbus.datastore import (ModbusDeviceContext, ModbusSequentialDataBlock,
-                                ModbusServerContext)
+from pymodbus.datastore import ModbusDeviceContext, ModbusSequentialDataBlock, ModbusServerContext
 from pymodbus.framer import FramerType
 from pymodbus.pdu.device import ModbusDeviceIdentification
 from pymodbus.server import ModbusSerialServer

@@ -20,8 +20,7 @@ import ipaddress
 import logging
 import time
 
-from pymodbus.datastore import (ModbusDeviceContext, ModbusSequentialDataBlock,
-                                ModbusServerContext)
+from pymodbus.datastore import ModbusDeviceContext, ModbusSequentialDataBlock, ModbusServerContext
 from pymodbus.server import ModbusTcpServer
 
 UNITS = (*range(1, 41), 0xFF)

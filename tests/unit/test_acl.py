@@ -2,8 +2,8 @@
 validated SlaveConfig.authip."""
 import pytest
 
-from mbgw.slave.acl import AccessList
 from mbgw.config.model import SerialConfig, SlaveConfig
+from mbgw.slave.acl import AccessList
 
 
 def _acl(*authip: str) -> AccessList:

@@ -1,8 +1,8 @@
 """Modbus ASCII: the LRC and the ':' HEX LRC CR LF framing, against published frames."""
 import pytest
 
-from mbgw.line import native
 from mbgw.errors import ChecksumError, FrameError
+from mbgw.line import native
 from tests.unit.vectors import CHECK_VECTORS
 
 pytestmark = pytest.mark.skipif(not hasattr(native, "ascii_encode"),

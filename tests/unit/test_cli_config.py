@@ -10,9 +10,9 @@ import pytest
 from click.testing import CliRunner
 
 from mbgw.cli import config as cli_config
+from mbgw.cli import main
 from mbgw.config import schema as config_keys
 from mbgw.config import toml_text as toml_edit
-from mbgw.cli import main
 from mbgw.config.schema import SerialOption
 from mbgw.errors import ConfigError
 

@@ -10,16 +10,16 @@ import tomllib
 import click
 import pytest
 
-from mbgw.config import file as cf
-from mbgw.config import schema as config_keys
-from mbgw.config import edit as config_set
-from mbgw.config import text as config_text
-from mbgw.config import toml_text as toml_edit
 from mbgw.cli import main
 from mbgw.cli.options import serial_options
+from mbgw.config import edit as config_set
+from mbgw.config import file as cf
+from mbgw.config import schema as config_keys
+from mbgw.config import text as config_text
+from mbgw.config import toml_text as toml_edit
 from mbgw.config.model import LineFormat
-from mbgw.errors import ConfigError, ConfigFileError
 from mbgw.config.slaveid import SlaveRange
+from mbgw.errors import ConfigError, ConfigFileError
 
 GUIDE_SLAVEID = ["1 8 1 0 192.168.0.30", "9 16 0 1 192.168.20.0", "17 24 31 1 192.168.50.0"]
 

@@ -7,9 +7,9 @@ import time
 import pytest
 
 from mbgw.line import native
-from mbgw.slave.connections import Connections
 from mbgw.ops.counters import Counters
 from mbgw.slave.client import MAX_IN_FLIGHT, Client
+from mbgw.slave.connections import Connections
 from mbgw.slave.scheduler import Job, Scheduler
 from tests.modbus import mbap, read_holding
 

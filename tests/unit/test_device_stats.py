@@ -5,11 +5,21 @@ from types import SimpleNamespace
 
 import pytest
 
-from mbgw.config.model import (DEFAULT_DOWN_AFTER, DEFAULT_PROBE_INTERVAL_MS,
-                               PROBE_BACKOFF_MAX_MS, Demotion)
+from mbgw.config.model import (
+    DEFAULT_DOWN_AFTER,
+    DEFAULT_PROBE_INTERVAL_MS,
+    PROBE_BACKOFF_MAX_MS,
+    Demotion,
+)
 from mbgw.ops import device_stats
-from mbgw.ops.device_stats import (COUNTS, LATENCY_BUCKETS_MS, RECENT_WINDOW, DeviceStats,
-                                   DeviceTable, HealthRule)
+from mbgw.ops.device_stats import (
+    COUNTS,
+    LATENCY_BUCKETS_MS,
+    RECENT_WINDOW,
+    DeviceStats,
+    DeviceTable,
+    HealthRule,
+)
 
 
 class Clock:

@@ -11,9 +11,9 @@ import prometheus_client
 import pytest
 from prometheus_client.core import CounterMetricFamily
 
+from mbgw.errors import ConfigError
 from mbgw.ops.counters import MASTER_NAMES, NAMES, Counters, MasterCounters
 from mbgw.ops.device_stats import MASTER_COUNTS, DeviceTable
-from mbgw.errors import ConfigError
 from mbgw.ops.metrics import MetricsServer, master_collector, parse_address, slave_collector
 
 

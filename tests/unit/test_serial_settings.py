@@ -19,10 +19,10 @@ import termios
 import pytest
 from click.testing import CliRunner
 
-from mbgw.line import native
 from mbgw.cli import main
 from mbgw.config.model import Interface, LineFormat, SerialConfig
 from mbgw.errors import ChecksumError, ConfigError, FrameError, SerialError
+from mbgw.line import native
 from mbgw.line.port import SerialLine
 from tests.harness import CHECKOUT, reachable_by_others
 

@@ -4,8 +4,8 @@ import pytest
 from click.testing import CliRunner
 
 from mbgw.cli import main
-from mbgw.errors import ConfigError
 from mbgw.config.slaveid import MAX_RANGES, SlaveIdTable, SlaveRange
+from mbgw.errors import ConfigError
 
 GUIDE_LINES = ("1 8 1 0 192.168.0.30", "9 16 0 1 192.168.20.0", "17 24 31 1 192.168.50.0")
 
