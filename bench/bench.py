@@ -624,6 +624,7 @@ DEAD_CLIENTS = 4               # closed-loop clients of unit 1 beside the dead u
 SPREAD_COUNTS = (5, 32)
 TARGET_DEAD_SHARE = 90.0       # % of the unit-1 rate without the dead unit's client (demotion)
 TARGET_SPREAD = 2.0            # % between the most and the least served client
+SPREAD_MIN_TX = 60             # transactions each, so that one more or less is under 2 %
 # Demotion of silent devices (issue 13), when the gateway has it: off, and at its defaults.
 DEMOTION_OPTIONS = ("--down-after", "--probe-interval")
 WITHOUT_DEMOTION = ("--down-after", "0")
@@ -696,11 +697,21 @@ def measure_spread(line: Line, exe: str, tmp: Path, use_socat: bool, warmup: flo
                           "--max-connections", str(max(SPREAD_COUNTS) + 8),
                           "--log-level", "warning")
         for n in SPREAD_COUNTS:
-            line.runs.append(run_clients(gateway.port, n, side.slave, warmup, line.seconds))
+            line.runs.append(run_clients(gateway.port, n, side.slave, warmup,
+                                         spread_seconds(line, n)))
     finally:
         if gateway is not None:
             _stop_and_show(gateway)
         side.stop()
+
+
+def spread_seconds(line: Line, clients: int) -> float:
+    """line.seconds, or longer when clients served in turn would not each get SPREAD_MIN_TX
+    transactions in it: one transaction more or less must be below the spread's target."""
+    cycle_s = wire_us(line.baud) / 1e6 if line.paced else 0.0
+    cycle_s += line.t35 / 1e6
+    return max(line.seconds, clients * SPREAD_MIN_TX * cycle_s) if line.seconds >= 10 \
+        else line.seconds
 
 
 def _stop_and_show(gateway: Gateway) -> None:
@@ -757,7 +768,7 @@ def report_spread(lines: list[Line]) -> None:
     for line in lines:
         for n, run in zip(SPREAD_COUNTS, line.runs, strict=True):
             one = 100 / run.per_client[-1] if run.per_client[-1] else float("nan")
-            print(f"  {line.title:16} {n:7d} {line.seconds:4g} {run.rate:7.1f} "
+            print(f"  {line.title:16} {n:7d} {spread_seconds(line, n):4.0f} {run.rate:7.1f} "
                   f"{run.per_client[0]:6d} {run.per_client[-1]:6d} {spread_pct(run):7.2f} "
                   f"{one:6.2f}")
             if run.errors or run.collisions or run.bad_frames:

@@ -535,3 +535,36 @@ def test_sigterm_as_ready_goes_out_stops_cleanly(pty_pair, tmp_path):
     finally:
         stop(proc)
         notify.close()
+
+
+def test_a_notify_socket_nobody_reads_does_not_keep_the_gateway_from_stopping(pty_pair,
+                                                                             tmp_path):
+    """A notify socket whose queue is full (a supervisor that has stopped reading, or the
+    STATUS= lines of a long run nobody reads) holds STOPPING=1 for 2 s at most: SIGTERM still
+    stops the gateway, with its counters."""
+    path = str(tmp_path / "notify")
+    notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    notify.bind(path)
+    log_path = tmp_path / "mbgw.log"
+    with open(log_path, "w") as log:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "mbgw", "slave", "--device", pty_pair.gateway,
+             "--bind", "127.0.0.1", "--mdbport", str(free_port())],
+            env=dict(os.environ, NOTIFY_SOCKET=path), stdout=log, stderr=log)
+    try:
+        notify.settimeout(READY_TIMEOUT_S)
+        while b"READY=1" not in notify.recv(4096):
+            pass
+        with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as filler:
+            filler.setblocking(False)
+            try:
+                while True:
+                    filler.sendto(b"FILLER=1", path)
+            except BlockingIOError:
+                pass                       # full: nobody reads any more
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(READY_TIMEOUT_S) == 0, log_path.read_text()
+        assert "stopped; counters:" in log_path.read_text()
+    finally:
+        stop(proc)
+        notify.close()
