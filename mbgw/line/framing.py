@@ -4,13 +4,13 @@ what came is a native.Reception, its frame address + PDU without the check bytes
 import time
 
 from mbgw.errors import ChecksumError, FrameError
-from mbgw.line import native
+from mbgw.line import clients, frames
 from mbgw.line.native import Reception
 from mbgw.line.port import SerialLine
 from mbgw.protocol import pdu
 
 # receive(): the reply goes nowhere before it is returned
-NO_FORWARD = (-1, 0, 0, False, native.NO_COUNTER)
+NO_FORWARD = (-1, 0, 0, False, clients.NO_COUNTER)
 
 
 class RtuFraming:
@@ -87,7 +87,7 @@ class AsciiFraming:
         self._interchar_us = line.cfg.ascii_timeout_ms * 1000
 
     def send(self, adu: bytes) -> int:
-        return self.line.transmit(native.ascii_encode(adu))
+        return self.line.transmit(frames.ascii_encode(adu))
 
     def exchanges(self, adu: bytes) -> bool:
         return False
@@ -107,7 +107,7 @@ class AsciiFraming:
         if got.frame is None:
             return got
         try:
-            decoded = native.ascii_decode(got.frame)
+            decoded = frames.ascii_decode(got.frame)
             if len(decoded) < 2:
                 raise FrameError("frame too short")
         except (ChecksumError, FrameError) as fault:

@@ -1,4 +1,7 @@
-"""The only importer of the generated cffi module: typed wrappers over libmodbus and csrc/.
+"""The serial port over the C core: `Port` (a libmodbus context plus csrc/'s timed reads and
+writes) and what its calls hand back (`Reception`, `Take`).  The frame rules are in
+mbgw.line.frames, the client sockets' reads in mbgw.line.clients: with this module the only
+importers of the generated cffi module.
 
 Every blocking call here releases the GIL (cffi API mode), so the serial line's thread
 never stalls the asyncio thread.
@@ -9,13 +12,16 @@ from typing import NamedTuple
 
 from mbgw._ffi import ffi, lib
 from mbgw.errors import ChecksumError, FrameError, LineTimeout, MbgwError, SerialError
+from mbgw.line.clients import NO_COUNTER
+from mbgw.line.frames import ASCII_MAX_FRAME, RTU_MAX_ADU
 
-LEN_UNKNOWN = lib.MBGW_LEN_UNKNOWN
-RTU_MAX_ADU = lib.MBGW_RTU_MAX_ADU
-ASCII_MAX_FRAME = lib.MBGW_ASCII_MAX_FRAME
 REPLY_AT = lib.MBGW_REPLY_AT
 REPLY_SCAN = lib.MBGW_REPLY_SCAN
 NOT_TAKEN = lib.MBGW_NOT_TAKEN
+# what Port.idle_wait saw
+IDLE_WOKEN = lib.MBGW_IDLE_WOKEN
+IDLE_INPUT = lib.MBGW_IDLE_INPUT
+IDLE_TIMEOUT = lib.MBGW_IDLE_TIMEOUT
 INPUT_SIZE = 4096       # what take_request() reads from a client at most
 CRC_LEN = 2
 
@@ -24,8 +30,6 @@ _LIBMODBUS_ERRORS = {
     lib.EMBBADDATA: "invalid data",
 }
 
-
-NO_COUNTER = ffi.NULL
 
 
 class Reception(NamedTuple):
@@ -48,98 +52,7 @@ class Take(NamedTuple):
     status: int               # bytes read, 0 at the connection's end, -errno
     taken: bool               # exchanged: Port.exchanged() gives its outcome
     forwarded: int            # bytes of its reply the client's socket took (-1: not sent)
-    arrived_ns: int           # when what was read arrived (ClientReader.arrived_ns)
-
-
-def counter():
-    """An int that C can count down (a client's requests in flight): c[0]."""
-    return ffi.new("int *")
-
-
-def stamp_arrivals(fd: int) -> None:
-    """The kernel dates what arrives on socket fd (a listening socket: on each connection it
-    accepts), for ClientReader.  Raises OSError."""
-    err = lib.mbgw_stamp_arrivals(fd)
-    if err < 0:
-        raise OSError(-err, os.strerror(-err))
-
-
-class ClientReader:
-    """Reads a client's socket into one buffer and tells when what it read arrived: by the
-    kernel's receive timestamp (stamp_arrivals), so that requests read together after a
-    transaction are known in the order they came.  For one thread (the line thread)."""
-
-    def __init__(self, size: int) -> None:
-        self._size = size
-        self._buf = ffi.new("uint8_t[]", size)
-        self._arrived = ffi.new("int64_t *")
-        self.data = memoryview(ffi.buffer(self._buf))   # read() put its bytes at the front
-
-    def read(self, fd: int) -> int:
-        """The bytes read into data, 0 at the connection's end, -EAGAIN when nothing waits,
-        another -errno."""
-        return lib.mbgw_client_recv(fd, self._buf, self._size, self._arrived)
-
-    @property
-    def arrived_ns(self) -> int:
-        """When the newest of what read() read arrived (CLOCK_MONOTONIC); now if the kernel
-        did not date it."""
-        return self._arrived[0]
-
-
-def crc16(data: bytes) -> int:
-    return lib.mbgw_crc16(data, len(data))
-
-
-def lrc(data: bytes) -> int:
-    return lib.mbgw_lrc(data, len(data))
-
-
-def rtu_reply_length(request_len: int, reply: bytes) -> int:
-    return lib.mbgw_rtu_reply_length(request_len, reply, len(reply))
-
-
-def rtu_request_length(request: bytes) -> int:
-    return lib.mbgw_rtu_request_length(request, len(request))
-
-
-_ascii_out = ffi.new("uint8_t[]", ASCII_MAX_FRAME)
-_ascii_in = ffi.new("uint8_t[]", RTU_MAX_ADU)
-
-
-def ascii_encode(adu: bytes) -> bytes:
-    """address..data as an ASCII frame ':' HEX LRC CR LF (not thread-safe: one line thread)."""
-    n = lib.mbgw_ascii_encode(adu, len(adu), _ascii_out, ASCII_MAX_FRAME)
-    if n < 0:
-        raise FrameError(os.strerror(-n))
-    return ffi.buffer(_ascii_out, n)[:]
-
-
-def ascii_decode(frame: bytes) -> bytes:
-    """An ASCII frame back to address..data.  ChecksumError on a wrong LRC."""
-    n = lib.mbgw_ascii_decode(frame, len(frame), _ascii_in, RTU_MAX_ADU)
-    if n == -errno.EILSEQ:
-        raise ChecksumError()
-    if n < 0:
-        raise FrameError(os.strerror(-n))
-    return ffi.buffer(_ascii_in, n)[:]
-
-
-def reply_matches(request: bytes, reply: bytes) -> bool:
-    return lib.mbgw_reply_matches(request, len(request), reply, len(reply)) == 1
-
-
-REPLY_ANSWERS = lib.MBGW_REPLY_ANSWERS
-REPLY_BAD_LENGTH = lib.MBGW_REPLY_BAD_LENGTH
-REPLY_WRONG_UNIT = lib.MBGW_REPLY_WRONG_UNIT
-REPLY_WRONG_FUNCTION = lib.MBGW_REPLY_WRONG_FUNCTION
-
-
-def tcp_reply_verdict(request: bytes, unit: int, reply_unit: int, reply: bytes) -> int:
-    """Master mode: what a server's reply PDU (and its unit id) is to the request PDU sent
-    to unit: one of REPLY_*."""
-    return lib.mbgw_tcp_reply_verdict(request, len(request), unit, reply_unit, reply,
-                                      len(reply))
+    arrived_ns: int           # when what was read arrived (clients.ClientReader.arrived_ns)
 
 
 def tty_cflag(cflag: int, data_bits: int, parity: str, stop_bits: int) -> int:

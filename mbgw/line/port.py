@@ -7,7 +7,7 @@ import time
 from typing import TYPE_CHECKING, Protocol
 
 from mbgw.errors import FrameError, LineTimeout
-from mbgw.line import native
+from mbgw.line import frames, native
 
 if TYPE_CHECKING:      # the settings' type only: the line never reads the configuration files
     from mbgw.config.model import SerialConfig
@@ -88,7 +88,7 @@ class SerialLine:
         """transmit() for an RTU frame given without its CRC: libmodbus adds it and writes,
         when it may (libmodbus_sends)."""
         if not self.libmodbus_sends:
-            return self.transmit(adu + CRC.pack(native.crc16(adu)))
+            return self.transmit(adu + CRC.pack(frames.crc16(adu)))
         self.port.send_rtu(adu)
         return self._done(len(adu) + CRC.size)
 

@@ -29,7 +29,7 @@ import time
 
 from mbgw.config.model import MasterConfig
 from mbgw.errors import BadReply, ChecksumError, FrameError, GatewayTimeout, LineTimeout, NoRoute
-from mbgw.line import native
+from mbgw.line import frames, native
 from mbgw.line.framing import framing_for
 from mbgw.line.port import SerialLine
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s
@@ -52,8 +52,6 @@ from mbgw.protocol import pdu
 log = logging.getLogger("mbgw.line")
 wire = logging.getLogger("mbgw.wire")
 
-IDLE_INPUT = native.lib.MBGW_IDLE_INPUT       # Port.idle_wait: input is waiting
-IDLE_TIMEOUT = native.lib.MBGW_IDLE_TIMEOUT   # Port.idle_wait: nothing happened
 UNUSED_SETTINGS = {"stout_ms": 0, "nocheck": False}   # slave mode's: no reopen for them
 BAD_REPLY_LOG_INTERVAL_S = 60.0
 
@@ -98,7 +96,7 @@ class SerialSlave(LineThread[MasterConfig]):
         # what an answer given at once waits after the request: t3.5 (RTU), in whole ms
         self._quiet_ms = -(-self._framing.inter_frame_us // 1000)
         # the longest ASCII frame at the line's speed, plus one inter-character pause
-        self._ascii_frame_ns = (native.ASCII_MAX_FRAME * serial.char_ns
+        self._ascii_frame_ns = (frames.ASCII_MAX_FRAME * serial.char_ns
                                 + self._interchar_us * 1000)
 
     def connections(self) -> list[dict]:
@@ -186,14 +184,14 @@ class SerialSlave(LineThread[MasterConfig]):
                                        self.idle_ms)
 
     def _receive_ascii(self) -> bytes | None:
-        if self._port.idle_wait(self.wake_fd, self.idle_ms) != IDLE_INPUT:
+        if self._port.idle_wait(self.wake_fd, self.idle_ms) != native.IDLE_INPUT:
             return None
         got = self._port.read_ascii(time.monotonic_ns() + self._ascii_frame_ns,
                                     self._interchar_us)
         if got.fault is not None:
             raise got.fault
         assert got.frame is not None
-        return native.ascii_decode(got.frame)
+        return frames.ascii_decode(got.frame)
 
     # --- forwarding ---
 
@@ -294,8 +292,8 @@ class SerialSlave(LineThread[MasterConfig]):
     def _answer(self, address: int, answer: bytes, quiet_ms: int = 0) -> bool:
         """Write the answer on the line once it has been quiet for quiet_ms, unless the
         master has moved on (False)."""
-        while (idle := self._port.idle_wait(self.wake_fd, quiet_ms)) != IDLE_TIMEOUT:
-            if idle == IDLE_INPUT or self._stopping:
+        while (idle := self._port.idle_wait(self.wake_fd, quiet_ms)) != native.IDLE_TIMEOUT:
+            if idle == native.IDLE_INPUT or self._stopping:
                 self._counters.abandoned += 1
                 return False
             # woken (and the signal taken) for a new configuration: it waits for this answer

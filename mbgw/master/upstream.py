@@ -5,7 +5,7 @@ recently used (TCP guide 4.2.3: "close the oldest unused").  Requests go out in 
 transaction id of our own, one at a time; only the reply with that id is taken, earlier ones
 (late after tcpto) are dropped and counted.  That reply must answer the request: the unit id
 sent, the request's function (or its exception) with the size or echo the request implies, a
-PDU as long as its MBAP length says (native.tcp_reply_verdict).  One that does not ends the
+PDU as long as its MBAP length says (frames.tcp_reply_verdict).  One that does not ends the
 wait at once as BadReply, since no other reply will come for that id; a bad header (a
 protocol id other than 0, a length that does not fit) also closes the connection, whose
 stream can no longer be trusted.  A connection the server has closed is found before the
@@ -27,7 +27,7 @@ from collections import OrderedDict
 from collections.abc import Callable
 
 from mbgw.errors import BadReply, GatewayTimeout, MbgwError, NoRoute
-from mbgw.line import native
+from mbgw.line import frames
 from mbgw.ops.counters import MasterCounters
 from mbgw.protocol import mbap
 
@@ -159,15 +159,15 @@ class UpstreamPool:
     def _check(self, conn: Connection, request: bytes, unit: int, reply_unit: int,
                reply: bytes) -> None:
         """Raise BadReply unless reply (from reply_unit) answers request (sent to unit)."""
-        verdict = native.tcp_reply_verdict(request, unit, reply_unit, reply)
-        if verdict == native.REPLY_ANSWERS:
+        verdict = frames.tcp_reply_verdict(request, unit, reply_unit, reply)
+        if verdict == frames.REPLY_ANSWERS:
             return
-        if verdict == native.REPLY_BAD_LENGTH:
+        if verdict == frames.REPLY_BAD_LENGTH:
             reason = (f"bad MBAP header: length {len(reply) + 1} does not fit its function "
                       f"0x{reply[0]:02x} PDU")
             self._bad_header(conn, reason)
             raise BadReply("invalid_frames", reason)
-        if verdict == native.REPLY_WRONG_UNIT:
+        if verdict == frames.REPLY_WRONG_UNIT:
             self._counters.wrong_unit += 1
             raise BadReply("wrong_unit", f"unit id {reply_unit} instead of {unit}", reply_unit,
                            reply)

@@ -8,7 +8,7 @@ import socket
 import threading
 import time
 
-from mbgw.line import native
+from mbgw.line import clients
 from mbgw.line.framing import NO_FORWARD
 from mbgw.protocol import mbap
 from mbgw.slave.scheduler import Queue
@@ -31,7 +31,7 @@ class Client:
         self.local = local
         self.queue = Queue()
         # requests taken in and not yet answered: C counts one down as it hands a reply over
-        self.flight = native.counter()
+        self.flight = clients.counter()
         self.requests = 0
         self.connected_at = time.time()
         self.last_active = time.monotonic()
@@ -60,7 +60,7 @@ class Client:
     def output_waiting(self) -> bool:
         return bool(self._out)
 
-    def receive(self, reader: native.ClientReader) -> list | None:
+    def receive(self, reader: clients.ClientReader) -> list | None:
         """What has arrived, as whole frames [(tid, unit, pdu)], and when (arrived_ns); None
         once the connection has ended.  Raises mbap.BadHeader."""
         n = reader.read(self.fd)

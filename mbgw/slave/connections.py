@@ -13,7 +13,7 @@ import select
 import time
 from collections import deque
 
-from mbgw.line.native import ClientReader
+from mbgw.line.clients import ClientReader
 from mbgw.protocol import mbap
 from mbgw.slave.client import RECEIVE_SIZE, Client
 

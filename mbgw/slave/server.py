@@ -17,7 +17,7 @@ import socket
 import time
 
 from mbgw.config.model import ACTIVE_WINDOW_S, SlaveConfig
-from mbgw.line import native
+from mbgw.line import clients
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
 from mbgw.ops.exception_reply import gateway_exception
@@ -316,7 +316,7 @@ def listen(bind: str | None, port: int) -> list[socket.socket]:
             sock = socket.socket(family, kind, proto)
             sockets.append(sock)
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            native.stamp_arrivals(sock.fileno())    # its connections' requests are dated
+            clients.stamp_arrivals(sock.fileno())    # its connections' requests are dated
             if family == socket.AF_INET6:
                 sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
             sock.bind(address)

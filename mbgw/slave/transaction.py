@@ -11,8 +11,9 @@ from collections.abc import Callable
 
 from mbgw.config.model import SerialConfig
 from mbgw.errors import ChecksumError, LineTimeout
+from mbgw.line.frames import reply_matches
 from mbgw.line.framing import NO_FORWARD
-from mbgw.line.native import Reception, reply_matches
+from mbgw.line.native import Reception
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceStats, DeviceTable
 from mbgw.protocol import pdu

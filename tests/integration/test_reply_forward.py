@@ -13,7 +13,8 @@ import pytest
 from mbgw._ffi import ffi, lib
 
 from mbgw.errors import FrameError, LineTimeout
-from mbgw.line.native import REPLY_AT, REPLY_SCAN, Port, counter
+from mbgw.line.clients import counter
+from mbgw.line.native import REPLY_AT, REPLY_SCAN, Port
 from tests.modbus import holding_reply, mbap, read_holding, rtu
 
 pytestmark = pytest.mark.integration

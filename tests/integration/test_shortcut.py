@@ -12,7 +12,8 @@ import time
 import pytest
 
 from mbgw.errors import LineTimeout
-from mbgw.line.native import Port, counter
+from mbgw.line.clients import counter
+from mbgw.line.native import Port
 from mbgw.protocol import pdu
 from tests.modbus import holding_reply, mbap, read_holding, rtu
 
