@@ -495,6 +495,26 @@ def test_reserved_units_never_reach_the_line(line, gateway, client, exception):
 
 # --- stopping -------------------------------------------------------------------------------
 
+def fill(path: str) -> None:
+    """Fill the queue of the notify socket at path, as a reader that does not read would."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as filler:
+        filler.setblocking(False)
+        try:
+            while True:
+                filler.sendto(b"FILLER=1", path)
+        except BlockingIOError:
+            pass
+
+
+def start_notifying(pty_pair, path: str, log_path: Path) -> subprocess.Popen:
+    """`mbgw slave` on the pair's gateway end, telling its states to the socket at path."""
+    with open(log_path, "w") as log:
+        return subprocess.Popen(
+            [sys.executable, "-m", "mbgw", "slave", "--device", pty_pair.gateway,
+             "--bind", "127.0.0.1", "--mdbport", str(free_port())],
+            env=dict(os.environ, NOTIFY_SOCKET=path), stdout=log, stderr=log)
+
+
 def test_sigterm_as_ready_goes_out_stops_cleanly(pty_pair, tmp_path):
     """systemd may stop a unit as soon as READY=1 is in, so the SIGTERM handler must already
     be in place (it once came after READY=1: the default action killed the gateway, status
@@ -503,19 +523,9 @@ def test_sigterm_as_ready_goes_out_stops_cleanly(pty_pair, tmp_path):
     path = str(tmp_path / "notify")
     notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     notify.bind(path)
-    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as filler:
-        filler.setblocking(False)
-        try:
-            while True:
-                filler.sendto(b"FILLER=1", path)
-        except BlockingIOError:
-            pass
+    fill(path)
     log_path = tmp_path / "mbgw.log"
-    with open(log_path, "w") as log:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "mbgw", "slave", "--device", pty_pair.gateway,
-             "--bind", "127.0.0.1", "--mdbport", str(free_port())],
-            env=dict(os.environ, NOTIFY_SOCKET=path), stdout=log, stderr=log)
+    proc = start_notifying(pty_pair, path, log_path)
     try:
         deadline = time.monotonic() + READY_TIMEOUT_S
         # no event exists for "blocked in sendto": poll the kernel's wait channel
@@ -546,22 +556,12 @@ def test_a_notify_socket_nobody_reads_does_not_keep_the_gateway_from_stopping(pt
     notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     notify.bind(path)
     log_path = tmp_path / "mbgw.log"
-    with open(log_path, "w") as log:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "mbgw", "slave", "--device", pty_pair.gateway,
-             "--bind", "127.0.0.1", "--mdbport", str(free_port())],
-            env=dict(os.environ, NOTIFY_SOCKET=path), stdout=log, stderr=log)
+    proc = start_notifying(pty_pair, path, log_path)
     try:
         notify.settimeout(READY_TIMEOUT_S)
         while b"READY=1" not in notify.recv(4096):
             pass
-        with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as filler:
-            filler.setblocking(False)
-            try:
-                while True:
-                    filler.sendto(b"FILLER=1", path)
-            except BlockingIOError:
-                pass                       # full: nobody reads any more
+        fill(path)                         # full: nobody reads any more
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(READY_TIMEOUT_S) == 0, log_path.read_text()
         assert "stopped; counters:" in log_path.read_text()
