@@ -144,6 +144,44 @@ class SerialConfig:
         return math.ceil(3.5 * self.format.char_bits * 1_000_000 / self.baudrate)
 
 
+# The exchange table (mbgw/table): VPGate's register memory, served to both sides.
+TABLE_FUNCTIONS = (1, 2, 3, 4, 5, 6, 7, 15, 16, 23)
+DEFAULT_TABLE_UNITS = tuple(range(247, 255))   # slave mode, direct messaging on
+TABLE_ADDRESS_RANGE = (0, 247)                 # master mode; 0: the line has no table slave
+DEFAULT_TABLE_PORT = 502                       # master mode: TCP clients reach the table here
+PERSIST_INTERVAL_RANGE = (1, 86400)            # s
+DEFAULT_PERSIST_INTERVAL_S = 10
+
+
+@dataclass(frozen=True)
+class TableConfig:
+    """The exchange table: whether it is on, who reaches it, what it answers, where it is kept."""
+    enabled: bool = False
+    direct: bool = True            # slave mode: units outside `units` go to the line
+    units: tuple[int, ...] = DEFAULT_TABLE_UNITS
+    functions: tuple[int, ...] = TABLE_FUNCTIONS
+    address: int = 0               # master mode: the serial address mbgw answers as (0: none)
+    port: int = DEFAULT_TABLE_PORT
+    persist: str | None = None     # file keeping the outputs and the free zone; None: not kept
+    persist_interval_s: int = DEFAULT_PERSIST_INTERVAL_S
+
+    def __post_init__(self) -> None:
+        for unit in self.units:
+            if not 1 <= unit <= 255:
+                raise ConfigError(f"table-units {unit}: out of range 1..255 (unit 0 is the "
+                                  f"broadcast)")
+        for function in self.functions:
+            if function not in TABLE_FUNCTIONS:
+                raise ConfigError(f"table-functions {function}: the table answers only "
+                                  f"{', '.join(map(str, TABLE_FUNCTIONS))}")
+        for name, value, (low, high) in (
+                ("table-address", self.address, TABLE_ADDRESS_RANGE),
+                ("table-port", self.port, PORT_RANGE),
+                ("table-persist-interval", self.persist_interval_s, PERSIST_INTERVAL_RANGE)):
+            if not low <= value <= high:
+                raise ConfigError(f"{name} {value}: out of range {low}..{high}")
+
+
 @dataclass(frozen=True)
 class SlaveConfig:
     """Slave mode: slaves on the serial line, Modbus TCP clients on the network."""
@@ -161,6 +199,7 @@ class SlaveConfig:
     metrics: str | None = None     # ADDR:PORT for Prometheus, None: off
     demotion: Demotion = field(default_factory=Demotion)
     shortcut: bool = True          # an idle line's request goes on it from C (a hidden switch)
+    table: TableConfig = field(default_factory=TableConfig)
 
     def __post_init__(self) -> None:
         if len(self.authip) > MAX_AUTHIP:
@@ -200,6 +239,7 @@ class MasterConfig:
     control: str | None = None      # control socket path; None: the default one
     metrics: str | None = None      # ADDR:PORT for Prometheus, None: off
     demotion: Demotion = field(default_factory=Demotion)
+    table: TableConfig = field(default_factory=TableConfig)
 
     def __post_init__(self) -> None:
         low, high = TCPTO_RANGE
