@@ -22,6 +22,7 @@ from mbgw.slave.line_thread import LineWorker
 from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
 from mbgw.slave.status import SlaveStatus
+from mbgw.table.memory import Table
 
 log = logging.getLogger("mbgw")
 
@@ -42,9 +43,10 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     loop = asyncio.get_running_loop()
     devices = DeviceTable(rule=HealthRule(cfg.demotion))
     scheduler = Scheduler()
+    table = exchange_table(cfg, devices)
 
     worker: LineWorker
-    server = TcpServer(cfg, scheduler, counters, lambda: worker.up, devices)
+    server = TcpServer(cfg, scheduler, counters, lambda: worker.up, devices, table)
     worker = LineWorker(cfg, line, scheduler, server, counters, devices)
     stop = asyncio.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
@@ -83,3 +85,11 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     await asyncio.to_thread(worker.join)
     scheduler.close()
     log_stopped(counters)
+
+
+def exchange_table(cfg: SlaveConfig, devices: DeviceTable) -> Table:
+    """The exchange table, built even while it is off (a reload may turn it on); FC 7 tells
+    whether a device is down from the demotion's flags."""
+    table = Table(cfg.table.functions)
+    table.watch_down(devices.rule.down)
+    return table
