@@ -9,7 +9,6 @@ meanwhile; every reply is then written by Python under the gate (no forward from
 shortcut), so no two threads ever write one socket."""
 import errno
 import logging
-import threading
 import time
 
 from mbgw.config.model import SlaveConfig
@@ -34,7 +33,7 @@ from mbgw.slave.scheduler import (
     Job,
     Scheduler,
 )
-from mbgw.slave.table_reader import TableReader
+from mbgw.slave.table_reader import Gate, TableReader
 from mbgw.slave.transaction import SerialMaster
 
 log = logging.getLogger("mbgw.line")
@@ -58,7 +57,7 @@ class LineWorker(LineThread[SlaveConfig]):
         self._taken: Job | None = None     # put on the line by the shortcut, books to keep
         self._shortcut = False
         self._serving: Job | None = None     # until its outcome has been delivered
-        self._gate = threading.Lock()        # see the module's docstring
+        self._gate = Gate()                  # see the module's docstring
         self._reader: TableReader | None = None     # while the table is on
         self._master: SerialMaster | None = self._master_on(line)
 
@@ -95,9 +94,12 @@ class LineWorker(LineThread[SlaveConfig]):
         self._scheduler.wake()
 
     def run(self) -> None:
-        with self._gate:
+        self._gate.take()
+        try:
             self._start_reader()
             super().run()
+        finally:
+            self._gate.release()
 
     def _open_line(self) -> SerialLine:
         return SerialLine(self._cfg.serial, self._counters)
@@ -165,7 +167,7 @@ class LineWorker(LineThread[SlaveConfig]):
             try:
                 reader.join()
             finally:
-                self._gate.acquire()
+                self._gate.take()
             self._server.take_kept()
 
     def _transact(self, master: SerialMaster, job: Job, forward, taken: bool) -> bytes | None:
@@ -177,7 +179,7 @@ class LineWorker(LineThread[SlaveConfig]):
         try:
             return master.transact(job.adu, forward, taken)
         finally:
-            self._gate.acquire()
+            self._gate.take()
             self._server.take_kept()
 
     # --- serving ---
@@ -237,8 +239,11 @@ class LineWorker(LineThread[SlaveConfig]):
         if self._reader is None:
             self._deliver(job, reply, sent)
             return
-        with self._gate:
+        self._gate.take()
+        try:
             self._deliver(job, reply, sent)
+        finally:
+            self._gate.release()
 
     def _failure(self, job: Job, code: int) -> bytes | None:
         if job.adu[0] == pdu.BROADCAST:

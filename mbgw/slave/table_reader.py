@@ -23,8 +23,37 @@ log = logging.getLogger("mbgw.tcp")
 _IN = select.POLLIN
 
 
+class Gate:
+    """The lock the line thread and the table reader share.  The line thread has it back as
+    soon as the reader lets go, before the reader takes it again (a turnstile): a lock alone
+    goes to whichever thread runs first, and a reader kept busy by table requests would keep
+    the line waiting."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._turnstile = threading.Lock()
+
+    def take(self) -> None:
+        """The line thread's: first in line."""
+        with self._turnstile:
+            self._lock.acquire()
+
+    def release(self) -> None:
+        self._lock.release()
+
+    def __enter__(self) -> "Gate":
+        """The table reader's: behind the line thread if it is waiting."""
+        with self._turnstile:
+            pass
+        self._lock.acquire()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._lock.release()
+
+
 class TableReader(threading.Thread):
-    def __init__(self, gate: threading.Lock, connections: Connections, wake_fd: int,
+    def __init__(self, gate: Gate, connections: Connections, wake_fd: int,
                  on_request, responder) -> None:
         """on_request(client, tid, unit, pdu, responder): TcpServer.read_meanwhile."""
         super().__init__(name="mbgw-table", daemon=True)

@@ -202,9 +202,11 @@ def test_a_reader_never_sees_half_of_a_write(pty_pair, start_peer, start_gateway
     while readers read them back (and a client keeps the line busy with a silent slave, so
     the table reader serves too): every read sees 100 equal values."""
     start_peer("pymodbus_slave.py", pty_pair.device, "1", "--silent-unknown")
-    gw = start_gateway(pty_pair.gateway, "--baudrate", "19200", "--stout", "20", "--table")
-    rounds, start, count = 150, 0x2000, 100
+    gw = start_gateway(pty_pair.gateway, "--baudrate", "19200", "--stout", "20", "--table",
+                       "--exception", "--max-connections", "8", "--down-after", "0")
+    rounds, start, count = 1000, 0x2000, 100
     failures: list[str] = []
+    lines: list[bytes] = []
     stop = threading.Event()
 
     def writer(n: int) -> None:
@@ -229,13 +231,21 @@ def test_a_reader_never_sees_half_of_a_write(pty_pair, start_peer, start_gateway
     def line_load() -> None:
         c = clients[6]
         while not stop.is_set():
-            c.send(mbap(1, 7, read_holding(0, 1)))     # slave 7 is silent: stout, no reply
-            assert c.recv(0.1) is None
+            lines.append(c.ask(7, read_holding(0, 1)))    # slave 7 is silent: 0x0B after stout
 
     clients = [client(gw) for _ in range(7)]
-    readers = [threading.Thread(target=reader, args=(n,)) for n in range(2)]
-    writers = [threading.Thread(target=writer, args=(n,)) for n in range(4)]
-    busy = threading.Thread(target=line_load)
+    def failing(work, *args):
+        def run() -> None:
+            try:
+                work(*args)
+            except Exception as err:  # noqa: BLE001 (a thread's failure is the test's)
+                failures.append(f"{work.__name__}{args}: {err!r}")
+                stop.set()
+        return threading.Thread(target=run)
+
+    readers = [failing(reader, n) for n in range(2)]
+    writers = [failing(writer, n) for n in range(4)]
+    busy = failing(line_load)
     for t in [busy, *readers, *writers]:
         t.start()
     for t in writers:
@@ -244,6 +254,7 @@ def test_a_reader_never_sees_half_of_a_write(pty_pair, start_peer, start_gateway
     for t in [busy, *readers]:
         t.join()
     assert not failures, failures
+    assert lines and set(lines) == {bytes.fromhex("83 0b")}
 
 
 # --- the trace ------------------------------------------------------------------------------
