@@ -20,6 +20,7 @@ import pytest
 from pymodbus.client import ModbusTcpClient
 
 from tests.integration.test_passthrough import read_line
+from tests.integration.test_reload import config_set, reload
 from tests.modbus import crc16, mbap, read_holding
 from tests.ops import tracing
 
@@ -270,3 +271,33 @@ def test_the_trace_shows_table_transactions(table_gateway, client, tmp_path):
     assert [row[1] for row in rows] == ["request", "reply"], out
     assert rows[1][4:7] == ["247", "0x03", "4"], out
     assert rows[1][7] == "table", out
+
+
+# --- reload ---------------------------------------------------------------------------------
+
+def test_a_reload_turns_the_table_on_moves_its_units_and_turns_it_off_on_the_same_connection(
+        tmp_path, pty_pair, start_peer, start_gateway, client):
+    start_peer("pymodbus_slave.py", pty_pair.device, str(LINE_UNIT), "--silent-unknown")
+    path = tmp_path / "mbgw.toml"
+    for words in (("serial", "baudrate", "19200"), ("serial", "stout", "100"),
+                  ("net", "exception", "on")):
+        config_set(path, *words)
+    gw = start_gateway(pty_pair.gateway, "--config", str(path))
+    c = client(gw)
+    assert c.ask(247, read_holding(0, 1)) == bytes.fromhex("83 0b")     # the line's: silent
+    config_set(path, "table", "enabled", "on")
+    reload(gw, "configuration reloaded: table changed")
+    assert c.ask(247, bytes.fromhex("06 0000 0007")) == bytes.fromhex("06 0000 0007")
+    assert c.ask(LINE_UNIT, read_holding(0, 1)) == bytes.fromhex("03 02 0064")
+    config_set(path, "table", "units", "200")
+    reload(gw, "configuration reloaded: table changed", count=2)
+    assert c.ask(247, read_holding(0, 1)) == bytes.fromhex("83 0b")
+    assert c.ask(200, read_holding(0, 1)) == bytes.fromhex("03 02 0007")   # the same table
+    config_set(path, "table", "functions", "4")
+    reload(gw, "configuration reloaded: table changed", count=3)
+    assert c.ask(200, read_holding(0, 1)) == bytes.fromhex("83 01")
+    assert c.ask(200, bytes.fromhex("04 0000 0001")) == bytes.fromhex("04 02 0007")
+    config_set(path, "table", "enabled", "off")
+    reload(gw, "configuration reloaded: table changed", count=4)
+    assert c.ask(200, read_holding(0, 1)) == bytes.fromhex("83 0b")     # the line's: silent
+    assert c.ask(LINE_UNIT, read_holding(0, 1)) == bytes.fromhex("03 02 0064")
