@@ -9,6 +9,7 @@ same registers; the configuration zone (0x8000-) is read-only (0x02); a disabled
 0x01; units 247-254 reach it with direct messaging on, every unit with it off (unit 0 then is
 a broadcast write, never answered).
 """
+import json
 import os
 import select
 import socket
@@ -22,7 +23,7 @@ from pymodbus.client import ModbusTcpClient
 from tests.integration.test_passthrough import read_line
 from tests.integration.test_reload import config_set, reload
 from tests.modbus import crc16, mbap, read_holding
-from tests.ops import tracing
+from tests.ops import mbgw, status, tracing
 
 pytestmark = pytest.mark.integration
 
@@ -301,3 +302,39 @@ def test_a_reload_turns_the_table_on_moves_its_units_and_turns_it_off_on_the_sam
     reload(gw, "configuration reloaded: table changed", count=4)
     assert c.ask(200, read_holding(0, 1)) == bytes.fromhex("83 0b")     # the line's: silent
     assert c.ask(LINE_UNIT, read_holding(0, 1)) == bytes.fromhex("03 02 0064")
+
+
+# --- the operator: configuration zone, table read/write, status, persistence ----------------
+
+def test_the_operator_reads_and_writes_the_table_sees_its_figures_and_it_survives_a_restart(
+        tmp_path, pty_pair, start_peer, start_gateway, client):
+    start_peer("pymodbus_slave.py", pty_pair.device, str(LINE_UNIT), "--silent-unknown")
+    keep = tmp_path / "table.bin"
+    options = ("--baudrate", "19200", "--table", "--table-persist", str(keep))
+    gw = start_gateway(pty_pair.gateway, *options)
+    c = client(gw)
+    # the configuration zone: "mbgw" (0x8000-), then NULs, two characters a register
+    assert c.ask(247, read_holding(0x8000, 3)) == bytes.fromhex("03 06 6d62 6777 0000")
+    assert c.ask(247, bytes.fromhex("10 0800 0002 04 1234 5678")) == \
+        bytes.fromhex("10 0800 0002")
+    result = mbgw("table", "write", "0x1000", "0xbeef", "--control", gw.control)
+    assert result.returncode == 0, result.stderr
+    assert c.ask(253, read_holding(0x1000, 1)) == bytes.fromhex("03 02 beef")
+    result = mbgw("table", "read", "0x0800", "2", "--json", "--control", gw.control)
+    assert result.returncode == 0, result.stderr
+    assert json.loads(result.stdout)["values"] == [0x1234, 0x5678]
+    table = status(gw)["table"]
+    assert table["requests"]["16"] == {"answered": 1, "exception": 0, "broadcast": 0}
+    assert table["requests"]["3"]["answered"] == 2
+    assert gw.stop() == 0
+    gw = start_gateway(pty_pair.gateway, *options)
+    assert client(gw).ask(247, read_holding(0x0800, 2)) == bytes.fromhex("03 04 1234 5678")
+    assert client(gw).ask(247, read_holding(0x1000, 1)) == bytes.fromhex("03 02 beef")
+
+
+def test_without_the_table_there_is_no_table_section_and_no_table_command(pty_pair,
+                                                                         start_gateway):
+    gw = start_gateway(pty_pair.gateway, "--baudrate", "19200")
+    assert "table" not in status(gw)
+    result = mbgw("table", "read", "0", "--control", gw.control)
+    assert result.returncode != 0 and "exchange table is off" in result.stderr, result.stderr
