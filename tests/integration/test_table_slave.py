@@ -163,6 +163,7 @@ def test_a_table_request_on_an_idle_line_is_answered_from_the_table(table_gatewa
     c = client(table_gateway())
     assert c.ask(251, read_holding(0x0800, 2)) == bytes.fromhex("03 04 0000 0000")
     assert c.ask(LINE_UNIT, read_holding(0, 1)) == bytes.fromhex("03 02 0064")
+    assert c.ask(247, b"\x07") == bytes.fromhex("07 00")    # FC 7: line up, no device down
 
 
 # --- a table request never waits for the line -----------------------------------------------
