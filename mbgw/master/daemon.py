@@ -36,7 +36,7 @@ def run_master(cfg: MasterConfig, reconfigure=None) -> None:
     returns after SIGTERM or SIGINT.  reconfigure() gives the settings to apply on SIGHUP
     (None: there is no file to reload)."""
     counters = MasterCounters()
-    tables = TableService(cfg.table)
+    tables = TableService(cfg)
     line = SerialLine(cfg.serial)
     try:
         slave = SerialSlave(cfg, line, counters, tables.table)
@@ -88,7 +88,7 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
 
     async def apply(new: MasterConfig) -> None:
         _log_slaveid(new)
-        tables.reconfigure(new.table)
+        tables.reconfigure(new)
         slave.reconfigure(new)
 
     await serve_until_stopped(stop, status, slave, reconfigure, apply, control, metrics)

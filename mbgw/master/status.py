@@ -30,6 +30,9 @@ class MasterStatus(DaemonStatus):
             "table": self._tables.figures(self._slave.table_counters.snapshot()),
         }
 
+    def commands(self) -> dict:
+        return {**super().commands(), **self._tables.commands()}
+
     def reset(self, request: dict) -> dict:
         self._slave.table_counters.reset()
         self._tables.reset_counts()

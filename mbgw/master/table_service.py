@@ -4,7 +4,9 @@ serial slave answers from it, mbgw.master.line_thread), its Modbus TCP server on
 a reload changes.  Asyncio thread, but for the server's own thread."""
 import logging
 
-from mbgw.config.model import TableConfig
+from mbgw.config.model import MasterConfig
+from mbgw.table import identity
+from mbgw.table.control import table_commands
 from mbgw.table.memory import Table
 from mbgw.table.server import MAX_CONNECTIONS, TableListenError, TableServer
 
@@ -12,10 +14,12 @@ log = logging.getLogger("mbgw.table")
 
 
 class TableService:
-    def __init__(self, cfg: TableConfig) -> None:
-        self.cfg = cfg
+    def __init__(self, settings: MasterConfig) -> None:
+        self.cfg = cfg = settings.table
         self.table = Table(cfg.functions)
+        identity.fill(self.table, settings, "master")
         self.server: TableServer | None = None
+        self._commands = table_commands(self.table)
 
     def start(self) -> None:
         """Serve the table on table-port when it is on; raises TableListenError."""
@@ -28,10 +32,23 @@ class TableService:
         log.info("exchange table served on %s (at most %d clients)",
                  ", ".join(self.server.addresses), MAX_CONNECTIONS)
 
-    def reconfigure(self, new: TableConfig) -> None:
-        """New settings (SIGHUP): functions at once, the server started, stopped or moved.  A
-        port that cannot be listened on is logged, and the old one kept."""
+    def commands(self) -> dict:
+        """The operator's table-read and table-write, while the table is on."""
+        def when_on(command):
+            def serve(request: dict) -> dict:
+                if not self.cfg.enabled:
+                    return {"error": "the exchange table is off (--table, [table] enabled)"}
+                return command(request)
+            return serve
+        return {name: when_on(command) for name, command in self._commands.items()}
+
+    def reconfigure(self, settings: MasterConfig) -> None:
+        """New settings (SIGHUP): functions and the configuration zone at once, the server
+        started, stopped or moved.  A port that cannot be listened on is logged, and the old
+        one kept."""
+        new = settings.table
         old, self.cfg = self.cfg, new
+        identity.fill(self.table, settings, "master")
         if new.functions != old.functions:
             self.table.set_functions(new.functions)
         try:
