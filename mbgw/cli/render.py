@@ -151,6 +151,11 @@ def _table_section(t: dict, mode: str, now: float) -> list[str]:
         lines.append(f"  serial slave: {serial['requests']} requests, {serial['crc_errors']} "
                      f"invalid CRC, {serial['length_errors']} invalid length, "
                      f"{serial['send_failures']} failed sends")
+    tcp = t.get("tcp")
+    if tcp is not None:
+        lines.append(f"  TCP server: {tcp['connections']} of {tcp['max_connections']} clients, "
+                     f"{tcp['connections_accepted']} accepted, {tcp['connections_refused_limit']}"
+                     f" refused at the limit, {tcp['connections_bad_header']} bad headers")
     persist = t.get("persist")
     if persist is not None:
         lines.append(f"  persist {_table_persist(persist, now)}")
