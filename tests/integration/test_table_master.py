@@ -10,6 +10,7 @@ follows the one that must not, and the first bytes back must be its answer.
 """
 import json
 import os
+import re
 import select
 import signal
 import socket
@@ -31,7 +32,7 @@ from tests.integration.test_master import (
 )
 from tests.modbus import mbap, recv_adu
 from tests.modbus import rtu_frame as rtu
-from tests.ops import mbgw, status, wait_for
+from tests.ops import mbgw, status, tracing, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -422,3 +423,18 @@ def test_a_reload_moves_the_table_port_and_changes_the_functions(start_master, s
     os.write(line, rtu(read_holding(TABLE, FREE, 1)))
     expected = rtu(bytes.fromhex("0a 03 02 0001"))
     assert recv(line, len(expected)) == expected
+
+
+def test_table_transactions_are_traced_with_outcome_table(table_master, line, tmp_path):
+    gw, _ = table_master()
+    with tracing(gw, tmp_path / "trace.pcap", count=3) as (trace, _):
+        os.write(line, rtu(bytes.fromhex("0a 06 1000 0009")))
+        expected = rtu(bytes.fromhex("0a 06 1000 0009"))
+        assert recv(line, len(expected)) == expected
+        os.write(line, rtu(bytes.fromhex("00 06 1000 000a")))     # a broadcast: its event
+        out, err = trace.communicate(timeout=10)
+    assert trace.returncode == 0, err
+    rows = [re.sub(r" [\d.]+ ms$", "", row).split()[1:] for row in out.decode().splitlines()]
+    assert rows[:3] == [["request", "10", "table", "-", "-", "0x06", "5"],
+                        ["reply", "10", "table", "-", "-", "0x06", "5", "table"],
+                        ["request", "0", "table", "-", "-", "0x06", "5"]]
