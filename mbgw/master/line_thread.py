@@ -219,15 +219,15 @@ class SerialSlave(LineThread[MasterConfig]):
                 self.table_counters.length_errors += 1
             return
         address = adu[0]
-        if address == self._table_address:
-            self._reply_to = b""
-            self._answer_from_table(adu)
-            return
         if address == pdu.BROADCAST:
             self._reply_to = b""
             if self._table_address:
                 self._broadcast_to_table(adu)
             self._broadcast(adu)
+            return
+        if address == self._table_address:
+            self._reply_to = b""
+            self._answer_from_table(adu)
             return
         route = self._table.route(address)
         if route is None:
