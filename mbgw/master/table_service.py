@@ -115,7 +115,6 @@ class TableService:
         persistence = self.persistence
         persist = None if persistence is None else {
             "path": str(persistence.path), "interval_s": persistence.interval_s}
-        status = table_status(self.table, cfg, serial, persist)
         server = self.server
-        status["tcp"] = server.figures() if server is not None else None
-        return status
+        return table_status(self.table, cfg, serial, persist,
+                            server.figures() if server is not None else None)

@@ -379,7 +379,7 @@ def test_the_operator_reads_and_writes_the_table_the_serial_master_sees(table_ma
     shown = mbgw("status", "--control", gw.control)
     assert "serial slave: 1 requests, 0 invalid CRC, 0 invalid length, 0 failed sends" in \
         shown.stdout
-    assert "TCP server: 1 of 32 clients" in shown.stdout
+    assert "TCP server: 1 of 32 clients, 1 accepted" in shown.stdout
 
 
 def test_outputs_and_free_zone_survive_a_restart(start_master, servers, tmp_path, line, tcp):
