@@ -1,0 +1,120 @@
+"""Master mode's exchange table (issue 14) beside the line: the table itself (the line thread's
+serial slave answers from it, mbgw.master.line_thread), its Modbus TCP server on
+`table-port` (mbgw.table.server, a thread of its own) while the table is on, its file
+(`table-persist`, mbgw.table.persist: loaded at start, saved by tick() and at stop), and the
+settings a reload changes.  Asyncio thread, but for the server's own thread."""
+import logging
+import time
+
+from mbgw.config.model import MasterConfig, TableConfig
+from mbgw.table import identity
+from mbgw.table.control import table_commands
+from mbgw.table.memory import Table
+from mbgw.table.persist import Persistence
+from mbgw.table.report import table_status
+from mbgw.table.server import MAX_CONNECTIONS, TableListenError, TableServer
+
+log = logging.getLogger("mbgw.table")
+
+
+class TableService:
+    def __init__(self, settings: MasterConfig) -> None:
+        self.cfg = cfg = settings.table
+        self.table = Table(cfg.functions)
+        identity.fill(self.table, settings, "master")
+        self.server: TableServer | None = None
+        self._commands = table_commands(self.table)
+        self.persistence: Persistence | None = None
+        if cfg.enabled and cfg.persist:
+            self.persistence = Persistence(self.table, cfg.persist, cfg.persist_interval_s)
+
+    def start(self) -> None:
+        """Load the table's file, serve the table on table-port when it is on.  Raises
+        ConfigError (the file cannot be read), TableListenError."""
+        if self.persistence is not None:
+            self.persistence.load()
+        if self.cfg.enabled:
+            self._start_server(self.cfg.port)
+
+    def tick(self) -> None:
+        """Periodic (any thread but the line's): the file saved if the table changed and its
+        interval has passed."""
+        if self.persistence is not None:
+            self.persistence.maybe_save(time.monotonic())
+
+    def _start_server(self, port: int) -> None:
+        self.server = TableServer(self.table, port)
+        self.server.start()
+        log.info("exchange table served on %s (at most %d clients)",
+                 ", ".join(self.server.addresses), MAX_CONNECTIONS)
+
+    def commands(self) -> dict:
+        """The operator's table-read and table-write, while the table is on."""
+        def when_on(command):
+            def serve(request: dict) -> dict:
+                if not self.cfg.enabled:
+                    return {"error": "the exchange table is off (--table, [table] enabled)"}
+                return command(request)
+            return serve
+        return {name: when_on(command) for name, command in self._commands.items()}
+
+    def reconfigure(self, settings: MasterConfig) -> None:
+        """New settings (SIGHUP): functions and the configuration zone at once, the server
+        started, stopped or moved.  A port that cannot be listened on is logged, and the old
+        one kept."""
+        new = settings.table
+        old, self.cfg = self.cfg, new
+        identity.fill(self.table, settings, "master")
+        self._repersist(old, new)
+        if new.functions != old.functions:
+            self.table.set_functions(new.functions)
+        try:
+            if not new.enabled:
+                self._stop_server()
+            elif self.server is None:
+                self._start_server(new.port)
+            elif new.port != self.server.port:
+                self.server.move(new.port)
+        except TableListenError as err:
+            log.error("%s; the table's TCP server is left as it was", err.strerror)
+
+    def _repersist(self, old: TableConfig, new: TableConfig) -> None:
+        keeping = self.persistence is not None and new.enabled and new.persist == old.persist
+        if keeping:
+            assert self.persistence is not None
+            self.persistence.interval_s = new.persist_interval_s
+        elif (old.enabled and old.persist) != (new.enabled and new.persist):
+            log.warning("table-persist changed: the new setting takes effect at restart "
+                        "(the table is still kept in %s)",
+                        self.persistence.path if self.persistence else "no file")
+
+    def _stop_server(self) -> None:
+        server, self.server = self.server, None
+        if server is not None:
+            server.stop()
+            server.join()
+            log.info("exchange table no longer served on port %d", server.port)
+
+    def stop(self) -> None:
+        """After the line thread has ended: nothing writes the table any more."""
+        self._stop_server()
+        if self.persistence is not None:
+            self.persistence.save()
+
+    def reset_counts(self) -> None:
+        self.table.reset_counts()
+        if self.server is not None:
+            self.server.reset_counts()
+
+    def figures(self, serial: dict) -> dict | None:
+        """The table's part of the status (mbgw.table.report), with the TCP server's
+        figures; None while the table is off."""
+        cfg = self.cfg
+        if not cfg.enabled:
+            return None
+        persistence = self.persistence
+        persist = None if persistence is None else {
+            "path": str(persistence.path), "interval_s": persistence.interval_s}
+        server = self.server
+        return table_status(self.table, cfg, serial, persist,
+                            server.figures() if server is not None else None)
