@@ -242,7 +242,7 @@ long mbgw_rtu_read_request(int fd, int wake_fd, uint8_t *buf, size_t cap,
                            const uint8_t *reply_to, size_t reply_to_len, int32_t gap_us,
                            int idle_ms);
 
-/* --- table.c: the exchange table (issue 14) and the Modbus server that answers from it --- */
+/* --- table.c: the exchange table and the Modbus server that answers from it --- */
 
 #define MBGW_PDU_MAX 253    /* Modbus Application Protocol V1.1b3, 4.1 */
 #define MBGW_MBAP_MAX 260   /* the MBAP header (7 bytes) and the largest PDU */

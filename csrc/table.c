@@ -1,4 +1,4 @@
-/* The exchange table (issue 14): 65,536 registers that Modbus clients, a serial master and the
+/* The exchange table: 65,536 registers that Modbus clients, a serial master and the
  * operator read and write, and the Modbus server that answers a request PDU from it.
  * Modbus Application Protocol V1.1b3, sections 6 (functions) and 7 (exceptions).  Each
  * request runs whole under the table's mutex, so no reader ever sees half of a write; the

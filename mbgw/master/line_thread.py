@@ -30,7 +30,6 @@ import logging
 import os
 import select
 import time
-from dataclasses import dataclass
 
 from mbgw.config.model import MasterConfig
 from mbgw.errors import (
@@ -57,7 +56,7 @@ from mbgw.master.trace import (
     MasterTracer,
 )
 from mbgw.master.upstream import Interrupted, UpstreamPool, drain
-from mbgw.ops.counters import MasterCounters, _Counting
+from mbgw.ops.counters import MasterCounters, TableSlaveCounters
 from mbgw.ops.device_stats import MASTER_COUNTS, DeviceTable, HealthRule
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.ops.trace import TraceHub
@@ -77,16 +76,6 @@ def _line_settings(serial):
 def table_address(cfg: MasterConfig) -> int:
     """The serial address the table answers as; 0: none."""
     return cfg.table.address if cfg.table.enabled else 0
-
-
-@dataclass(slots=True)
-class TableSlaveCounters(_Counting):
-    """The serial slave of the exchange table (VPGate 8.5): frames for its address (with a
-    valid check), and the errors of frames for it (broadcasts: the table's own counts)."""
-    requests: int = 0
-    crc_errors: int = 0
-    length_errors: int = 0
-    send_failures: int = 0
 
 
 class SerialSlave(LineThread[MasterConfig]):

@@ -1,4 +1,4 @@
-"""Master mode's exchange table (issue 14) beside the line: the table itself (the line thread's
+"""Master mode's exchange table beside the line: the table itself (the line thread's
 serial slave answers from it, mbgw.master.line_thread), its Modbus TCP server on
 `table-port` (mbgw.table.server, a thread of its own) while the table is on, its file
 (`table-persist`, mbgw.table.persist: loaded at start, saved by tick() and at stop), and the

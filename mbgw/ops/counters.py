@@ -80,3 +80,13 @@ class MasterCounters(_Counting):
 
 NAMES = Counters.names()
 MASTER_NAMES = MasterCounters.names()
+
+
+@dataclass(slots=True)
+class TableSlaveCounters(_Counting):
+    """The serial slave of the exchange table (VPGate 8.5): frames for its address (with a
+    valid check), and the errors of frames for it (broadcasts: the table's own counts)."""
+    requests: int = 0
+    crc_errors: int = 0
+    length_errors: int = 0
+    send_failures: int = 0

@@ -1,4 +1,4 @@
-"""Slave mode's exchange table (issue 14) beside the line: the table itself (TcpServer answers
+"""Slave mode's exchange table beside the line: the table itself (TcpServer answers
 from it, in the line thread or the table reader), its configuration zone, its file
 (persistence), the operator's commands and its figures; the settings a reload changes.
 Asyncio thread."""

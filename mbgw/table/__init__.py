@@ -1,4 +1,4 @@
-"""The exchange table (issue 14): 65,536 registers of local data that Modbus TCP clients, a
+"""The exchange table: 65,536 registers of local data that Modbus TCP clients, a
 serial master and the operator read and write, and the Modbus server that answers from it.
 
 `memory` wraps the C core's table (csrc/table.c: zones, bit mapping, every check and

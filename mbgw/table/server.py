@@ -1,5 +1,5 @@
 """Master mode's Modbus TCP server of the exchange table: TCP clients on `table-port` read and
-write the registers the serial master reads and writes (issue 14, VPGate 3.4).
+write the registers the serial master reads and writes (VPGate 3.4).
 
 One thread of its own with one poll() over the listening sockets, the connections and a
 wake-up eventfd, so a table request never waits for the serial line.  A read takes whatever
