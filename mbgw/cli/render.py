@@ -105,7 +105,11 @@ def _master_sections(s: dict, now: float) -> list[str]:
         f"servers    port {up['port']}, tcpto {up['tcpto_ms']} ms, exception "
         f"{'on' if up['exception'] else 'off'}, at most {up['max_connections']} connections",
     ]
-    routes = [r["route"] for r in s["slaveid"]] or ["empty: every request is ignored"]
+    table = s.get("table", {})
+    table_address = table.get("address") if table.get("enabled") else None
+    routes = [r["route"] for r in s["slaveid"]] or [
+        f"empty: only the table's address {table_address} is answered" if table_address
+        else "empty: every request is ignored"]
     lines += [f"{'slaveid' if i == 0 else '':<10} {route}" for i, route in enumerate(routes)]
     lines += ["", f"upstream connections ({len(up['connections'])})"]
     if up["connections"]:
