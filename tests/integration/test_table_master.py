@@ -276,7 +276,7 @@ def test_with_an_empty_slaveid_table_mbgw_is_a_modbus_rtu_server_of_local_data(
     assert "mbgw is a Modbus RTU server of the exchange table only, at address 10" in gw.log()
     assert "every request on the line is ignored" not in gw.log()
     assert "slaveid    empty: only the table's address 10 is answered" in \
-        mbgw("status", "--control", gw.control)
+        mbgw("status", "--control", gw.control).stdout
     ask_tcp(tcp(port), 1, 1, bytes.fromhex("10 0000 0002 04 0011 0022"))
     assert "[0]: \t17\n[1]: \t34" in mbpoll_rtu(pty_pair.device, "-r", "0", "-c", "2")
     # any other address is another slave's
