@@ -292,6 +292,10 @@ void mbgw_table_set_config(mbgw_table *t, int address, int count, const uint16_t
  * device is down: down (256 flags by serial address, the caller's, NULL: none) is read at
  * each FC 7. */
 void mbgw_table_set_flags(mbgw_table *t, int line_down, int scenario_error);
+/* One of them alone (the line thread and the scenarios each own one). */
+#define MBGW_TABLE_LINE_DOWN 0
+#define MBGW_TABLE_SCENARIO_ERROR 1
+void mbgw_table_set_flag(mbgw_table *t, int flag, int on);
 void mbgw_table_watch_down(mbgw_table *t, const uint8_t *down);
 
 /* Counts the writes that changed a value in 0x0800-0x7FFF (the outputs and the free zone). */
@@ -304,3 +308,14 @@ uint64_t mbgw_table_persist_generation(mbgw_table *t);
 #define MBGW_TABLE_BROADCAST 2
 void mbgw_table_counts(mbgw_table *t, uint64_t *by_function, uint64_t *by_exception);
 void mbgw_table_reset_counts(mbgw_table *t);
+
+/* Watches: a change of a value in [first, first + count) sets the watch's flag and, if fd is an
+ * eventfd (else -1), writes 1 to it once until the flag is taken (a write that stores the same
+ * value changes nothing).  For scenarios sent on change and transparent mode's tx area.
+ * mbgw_table_watch returns the watch's id, -EINVAL for a bad range, -ENOSPC when all are in
+ * use.  mbgw_table_take_change returns the flag and clears it, and copies the range's
+ * registers to out (if not NULL) under the same lock, so no change is lost between the two. */
+#define MBGW_TABLE_WATCHES 512
+int mbgw_table_watch(mbgw_table *t, int first, int count, int fd);
+void mbgw_table_unwatch(mbgw_table *t, int id);
+int mbgw_table_take_change(mbgw_table *t, int id, uint16_t *out);

@@ -5,6 +5,7 @@
  * counters are plain arrays in the table, so answering allocates nothing. */
 #include <errno.h>
 #include <pthread.h>
+#include <unistd.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
@@ -33,8 +34,18 @@
 
 #define OUTCOMES 3 /* MBGW_TABLE_ANSWERED, _EXCEPTION, _BROADCAST */
 
+/* A range whose changes someone waits for: scenarios sent on change, transparent mode's tx
+ * area.  The flag is set, and the eventfd written once, by the first change after a take. */
+struct watch {
+    unsigned first, end;        /* end == 0: the slot is free */
+    int fd;
+    int changed;
+};
+
 struct mbgw_table {
     uint16_t reg[REGISTERS];
+    uint8_t watched[REGISTERS / 8];   /* registers inside some watch: the only ones looked up */
+    struct watch watches[MBGW_TABLE_WATCHES];
     pthread_mutex_t lock;
     uint32_t functions;
     int line_down;
@@ -88,11 +99,28 @@ static int persisted(unsigned address)
     return address >= OUTPUTS_FIRST && address < CONFIG_FIRST;
 }
 
+static void tell_watchers(mbgw_table *t, unsigned address)
+{
+    for (int i = 0; i < MBGW_TABLE_WATCHES; i++) {
+        struct watch *w = &t->watches[i];
+        if (address >= w->first && address < w->end && !w->changed) {
+            w->changed = 1;
+            if (w->fd >= 0) {
+                uint64_t one = 1;
+                ssize_t n = write(w->fd, &one, sizeof one);  /* EAGAIN: already signalled */
+                (void)n;
+            }
+        }
+    }
+}
+
 static void set_register(mbgw_table *t, unsigned address, uint16_t value, int *changed)
 {
     if (t->reg[address] != value) {
         t->reg[address] = value;
         *changed |= persisted(address);
+        if (t->watched[address >> 3] >> (address & 7) & 1)
+            tell_watchers(t, address);
     }
 }
 
@@ -393,6 +421,16 @@ void mbgw_table_set_flags(mbgw_table *t, int line_down, int scenario_error)
     pthread_mutex_unlock(&t->lock);
 }
 
+void mbgw_table_set_flag(mbgw_table *t, int flag, int on)
+{
+    pthread_mutex_lock(&t->lock);
+    if (flag == MBGW_TABLE_LINE_DOWN)
+        t->line_down = on;
+    else if (flag == MBGW_TABLE_SCENARIO_ERROR)
+        t->scenario_error = on;
+    pthread_mutex_unlock(&t->lock);
+}
+
 void mbgw_table_watch_down(mbgw_table *t, const uint8_t *down)
 {
     pthread_mutex_lock(&t->lock);
@@ -422,4 +460,57 @@ void mbgw_table_reset_counts(mbgw_table *t)
     memset(t->by_function, 0, sizeof t->by_function);
     memset(t->by_exception, 0, sizeof t->by_exception);
     pthread_mutex_unlock(&t->lock);
+}
+
+/* --- watches --- */
+
+static void mark_watched(mbgw_table *t)
+{
+    memset(t->watched, 0, sizeof t->watched);
+    for (int i = 0; i < MBGW_TABLE_WATCHES; i++)
+        for (unsigned a = t->watches[i].first; a < t->watches[i].end; a++)
+            t->watched[a >> 3] |= (uint8_t)(1u << (a & 7));
+}
+
+int mbgw_table_watch(mbgw_table *t, int first, int count, int fd)
+{
+    if (out_of_range(first, count) || count == 0)
+        return -EINVAL;
+    pthread_mutex_lock(&t->lock);
+    int id = -ENOSPC;
+    for (int i = 0; i < MBGW_TABLE_WATCHES; i++) {
+        if (t->watches[i].end == 0) {
+            t->watches[i] = (struct watch){(unsigned)first, (unsigned)(first + count), fd, 0};
+            id = i;
+            break;
+        }
+    }
+    if (id >= 0)
+        mark_watched(t);
+    pthread_mutex_unlock(&t->lock);
+    return id;
+}
+
+void mbgw_table_unwatch(mbgw_table *t, int id)
+{
+    if (id < 0 || id >= MBGW_TABLE_WATCHES)
+        return;
+    pthread_mutex_lock(&t->lock);
+    t->watches[id] = (struct watch){0, 0, -1, 0};
+    mark_watched(t);
+    pthread_mutex_unlock(&t->lock);
+}
+
+int mbgw_table_take_change(mbgw_table *t, int id, uint16_t *out)
+{
+    if (id < 0 || id >= MBGW_TABLE_WATCHES)
+        return -EINVAL;
+    pthread_mutex_lock(&t->lock);
+    struct watch *w = &t->watches[id];
+    int changed = w->changed;
+    w->changed = 0;
+    if (out && w->end)
+        memcpy(out, t->reg + w->first, (w->end - w->first) * sizeof *out);
+    pthread_mutex_unlock(&t->lock);
+    return changed;
 }

@@ -13,6 +13,7 @@ OUTPUTS = range(0x0800, 0x1000)
 FREE_ZONE = range(0x1000, 0x8000)
 CONFIG_ZONE = range(0x8000, 0x10000)
 PDU_MAX = lib.MBGW_PDU_MAX
+WATCHES = lib.MBGW_TABLE_WATCHES       # watches of changed values, at most
 MBAP_MAX = lib.MBGW_MBAP_MAX
 EXCEPTION_CODES = 16
 _OUTCOMES = ("answered", "exception", "broadcast")   # the C counters' order (MBGW_TABLE_*)
@@ -151,15 +152,43 @@ class Table:
         """The function codes answered; any other is exception 0x01."""
         lib.mbgw_table_set_functions(self._t, _function_mask(functions))
 
-    def set_flags(self, line_down: bool = False, scenario_error: bool = False) -> None:
-        """FC 7's bits 0 (the serial line is down) and 1 (a scenario is in error)."""
-        lib.mbgw_table_set_flags(self._t, int(line_down), int(scenario_error))
+    def set_flags(self, line_down: bool | None = None,
+                  scenario_error: bool | None = None) -> None:
+        """FC 7's bits 0 (the serial line is down) and 1 (a scenario is in error); a flag not
+        given keeps its value (the line thread and the scenarios each own one)."""
+        if line_down is not None:
+            lib.mbgw_table_set_flag(self._t, lib.MBGW_TABLE_LINE_DOWN, int(line_down))
+        if scenario_error is not None:
+            lib.mbgw_table_set_flag(self._t, lib.MBGW_TABLE_SCENARIO_ERROR, int(scenario_error))
 
     def watch_down(self, down: bytearray | None) -> None:
         """FC 7's bit 2: any of these 256 flags (HealthRule.down, by serial address) set,
         read by C at each FC 7; None: no device is ever down."""
         self._down = None if down is None else ffi.from_buffer("uint8_t[]", down)
         lib.mbgw_table_watch_down(self._t, ffi.NULL if down is None else self._down)
+
+    def watch(self, address: int, count: int, fd: int = -1) -> int:
+        """Watch [address, address + count) for changed values: the watch's id, for
+        take_change.  fd: an eventfd written once when a change comes after a take (-1: none).
+        Raises TableError beyond the table or when every watch is in use."""
+        _check_range(address, count, REGISTERS, "register")
+        watch = lib.mbgw_table_watch(self._t, address, count, fd)
+        if watch < 0:
+            raise TableError(f"no room for another watch of the table "
+                             f"({WATCHES} in use)")
+        return watch
+
+    def unwatch(self, watch: int) -> None:
+        lib.mbgw_table_unwatch(self._t, watch)
+
+    def take_change(self, watch: int, count: int) -> list[int] | None:
+        """The watched range's values if one changed since the last take (the flag cleared
+        under the same lock as the copy, so no change is lost), else None.  count: the
+        range's length."""
+        values = ffi.new("uint16_t[]", count)
+        if not lib.mbgw_table_take_change(self._t, watch, values):
+            return None
+        return list(values)
 
     @property
     def persist_generation(self) -> int:

@@ -2,12 +2,13 @@
 the bit mapping, broadcast, the MBAP form, counters, and no torn reads under concurrent writes.
 Expected bytes are written here from the Modbus Application Protocol V1.1b3 (its section 6
 examples where it has them), never produced by mbgw's code."""
+import os
 import struct
 import threading
 
 import pytest
 
-from mbgw.table.memory import Table, TableError
+from mbgw.table.memory import WATCHES, Table, TableError
 
 H = bytes.fromhex
 
@@ -116,9 +117,9 @@ def test_fc7_status_byte(table):
     table.set_flags(line_down=True)
     assert ask(table, "07") == "07 01"
     table.set_flags(scenario_error=True)
-    assert ask(table, "07") == "07 02"
-    table.set_flags(line_down=True, scenario_error=True)
     assert ask(table, "07") == "07 03"
+    table.set_flags(line_down=False, scenario_error=False)
+    assert ask(table, "07") == "07 00"
 
 
 def test_fc7_reads_the_watched_down_table_at_each_request(table):
@@ -474,3 +475,67 @@ def test_readers_never_see_a_torn_multi_register_write():
     assert not failures and not torn, (failures[:1], torn[:1])
     assert all(reads), reads
     assert table.persist_generation > writes_each
+
+
+# ---- watches: what changed, for scenarios sent on change and transparent mode ----
+
+def _signalled(fd: int) -> int:
+    try:
+        return os.eventfd_read(fd)
+    except BlockingIOError:
+        return 0
+
+
+def test_a_watch_sees_a_changed_value_once_and_not_the_same_value_written_again():
+    table = Table()
+    fd = os.eventfd(0, os.EFD_NONBLOCK)
+    try:
+        watch = table.watch(0x0800, 4, fd)
+        table.answer(bytes.fromhex("10 0800 0002 04 0001 0002"))     # FC 16 into it
+        table.answer(bytes.fromhex("06 0803 0009"))                  # again, before the take
+        assert _signalled(fd) == 1                                   # one wake-up for both
+        assert table.take_change(watch, 4) == [1, 2, 0, 9]
+        assert table.take_change(watch, 4) is None
+        table.answer(bytes.fromhex("06 0800 0001"))                  # the same value
+        table.answer(bytes.fromhex("06 0804 0001"))                  # just outside
+        assert _signalled(fd) == 0 and table.take_change(watch, 4) is None
+        table.answer(bytes.fromhex("05 8031 FF00"))                  # FC 5: bit 1 of 0x0803
+        assert _signalled(fd) == 1 and table.take_change(watch, 4) == [1, 2, 0, 9 | 2]
+        table.write(0x0801, [7])                                     # the operator's write
+        assert table.take_change(watch, 4) == [1, 7, 0, 11]
+    finally:
+        os.close(fd)
+
+
+def test_watches_overlap_and_an_unwatched_range_tells_nobody():
+    table = Table()
+    first, second = table.watch(0x1000, 10), table.watch(0x1005, 10)
+    table.answer(bytes.fromhex("06 1007 0001"))
+    assert table.take_change(first, 10) is not None
+    assert table.take_change(second, 10) is not None
+    table.unwatch(first)
+    table.answer(bytes.fromhex("06 1001 0001"))
+    assert table.take_change(second, 10) is None
+    table.answer(bytes.fromhex("06 1001 0002"))
+    assert table.take_change(second, 10) is None
+
+
+def test_watches_are_bounded():
+    table = Table()
+    with pytest.raises(TableError, match="beyond the table"):
+        table.watch(0xFFFF, 2)
+    ids = [table.watch(0, 1) for _ in range(WATCHES)]
+    assert len(set(ids)) == len(ids)
+    with pytest.raises(TableError, match="no room for another watch"):
+        table.watch(0, 1)
+    table.unwatch(ids[0])
+    assert table.watch(0, 1) == ids[0]
+
+
+def test_fc7_flags_are_set_one_at_a_time():
+    table = Table()
+    table.set_flags(scenario_error=True)
+    table.set_flags(line_down=True)
+    assert table.answer(bytes.fromhex("07")) == bytes.fromhex("07 03")
+    table.set_flags(line_down=False)
+    assert table.answer(bytes.fromhex("07")) == bytes.fromhex("07 02")
