@@ -241,3 +241,66 @@ int mbgw_take_request(struct _modbus *ctx, int client_fd, int *in_flight, uint8_
 long mbgw_rtu_read_request(int fd, int wake_fd, uint8_t *buf, size_t cap,
                            const uint8_t *reply_to, size_t reply_to_len, int32_t gap_us,
                            int idle_ms);
+
+/* --- table.c: the exchange table (issue 14) and the Modbus server that answers from it --- */
+
+#define MBGW_PDU_MAX 253    /* Modbus Application Protocol V1.1b3, 4.1 */
+#define MBGW_MBAP_MAX 260   /* the MBAP header (7 bytes) and the largest PDU */
+
+/* 65,536 registers of 16 bits, a mutex and the counters; zones: inputs 0x0000-0x07FF, outputs
+ * 0x0800-0x0FFF, free 0x1000-0x7FFF, configuration 0x8000-0xFFFF (read-only but to
+ * mbgw_table_set_config).  Bit B of the bit functions is bit B % 16 (0 = LSB) of register
+ * B / 16. */
+typedef struct mbgw_table mbgw_table;
+
+/* All registers zero, every function the table knows (1-7, 15, 16, 23) answered; NULL when
+ * out of memory. */
+mbgw_table *mbgw_table_new(void);
+void mbgw_table_free(mbgw_table *t);
+
+/* Bit n set: function code n is answered (only those the table knows count); any other is
+ * exception 0x01. */
+void mbgw_table_set_functions(mbgw_table *t, uint32_t mask);
+
+/* Answer one request PDU req (function code first, len bytes) into rsp (MBGW_PDU_MAX bytes):
+ * returns the reply PDU's length (a normal reply or exception 0x01, 0x02, 0x03), or 0 when
+ * broadcast != 0 (writes done, reads ignored, nothing to send) or len < 1.  Checks in the
+ * order: function unknown or disabled 0x01; quantity outside the Modbus limits, byte count
+ * or PDU length that does not match, FC 5 value not 0x0000/0xFF00 0x03; address + quantity
+ * beyond 65,536 or a write into the configuration zone 0x02 (nothing written).  The whole
+ * request runs under the table's lock. */
+int mbgw_table_answer(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp, int broadcast);
+
+/* The same for a whole Modbus TCP frame (7-byte MBAP header + PDU) into rsp (MBGW_MBAP_MAX
+ * bytes): the reply with the request's transaction id and unit id, protocol id 0 and its
+ * length field.  Returns its length, 0 for no reply, -EBADMSG when the header's protocol id
+ * is not 0 or its length field is not the frame's. */
+int mbgw_table_answer_mbap(mbgw_table *t, const uint8_t *adu, int len, uint8_t *rsp,
+                           int broadcast);
+
+/* count registers from address into out; -EINVAL beyond the table. */
+int mbgw_table_read(mbgw_table *t, int address, int count, uint16_t *out);
+
+/* count registers from address from in; -EINVAL beyond the table, -EPERM (-1) when they
+ * touch the configuration zone (nothing written). */
+int mbgw_table_write(mbgw_table *t, int address, int count, const uint16_t *in);
+
+/* The configuration zone's content; registers outside 0x8000-0xFFFF: nothing written. */
+void mbgw_table_set_config(mbgw_table *t, int address, int count, const uint16_t *in);
+
+/* FC 7's status byte: bit 0 the serial line is down, bit 1 a scenario is in error, bit 2 a
+ * device is down: down (256 flags by serial address, the caller's, NULL: none) is read at
+ * each FC 7. */
+void mbgw_table_set_flags(mbgw_table *t, int line_down, int scenario_error);
+void mbgw_table_watch_down(mbgw_table *t, const uint8_t *down);
+
+/* Counts the writes that changed a value in 0x0800-0x7FFF (the outputs and the free zone). */
+uint64_t mbgw_table_persist_generation(mbgw_table *t);
+
+/* by_function[fc * 3 + MBGW_TABLE_*] (256 * 3), by_exception[code] (16): since the last
+ * reset.  A broadcast counts as such whatever it did. */
+#define MBGW_TABLE_ANSWERED 0
+#define MBGW_TABLE_EXCEPTION 1
+#define MBGW_TABLE_BROADCAST 2
+void mbgw_table_counts(mbgw_table *t, uint64_t *by_function, uint64_t *by_exception);
+void mbgw_table_reset_counts(mbgw_table *t);

@@ -4,7 +4,7 @@ this package, and its modules never import its __init__."""
 import click
 
 from mbgw import __version__
-from mbgw.cli import config, diag
+from mbgw.cli import config, diag, table
 from mbgw.cli.master import master
 from mbgw.cli.slave import slave
 
@@ -19,3 +19,4 @@ main.add_command(slave)
 main.add_command(master)
 config.register(main)   # run, check-config, config; --config on the mode commands
 diag.register(main)     # status, clients, stats, trace
+table.register(main)    # table read, table write

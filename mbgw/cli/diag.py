@@ -46,6 +46,12 @@ def _call(path: str, request: dict) -> dict:
     return reply
 
 
+def ask(control: str | None, instance: str | None, request: dict) -> dict:
+    """Send one request to the daemon of --control/-i; its reply, or a Failure saying why
+    there is none (or the daemon's error)."""
+    return _call(_socket_path(control, instance), request)
+
+
 def _fail(message: str):
     raise Failure(message)
 

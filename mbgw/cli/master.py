@@ -12,9 +12,13 @@ from mbgw.cli.options import (
     parser,
     serial_config,
     serial_options,
+    table_config,
+    table_options,
+    table_switch,
 )
 from mbgw.cli.run import run_daemon
 from mbgw.config import model as config
+from mbgw.config.schema import TableOption
 from mbgw.config.slaveid import MAX_RANGES, SlaveIdTable
 
 SLAVE_MODE_ONLY = ("stout", "nocheck")
@@ -44,6 +48,18 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
               help="Connections kept open to servers; one more closes the least recently "
                    "used.")
 @demotion_options
+@table_switch
+@click.option("--table-address", cls=TableOption, key="address",
+              type=click.IntRange(*config.TABLE_ADDRESS_RANGE),
+              default=config.TableConfig.address, show_default=True, metavar="N",
+              help="With --table: mbgw answers requests for serial address N (1..247) from "
+                   "the table, as a serial slave; no --slaveid range may hold N.  0: the "
+                   "table is reached only on --table-port.")
+@click.option("--table-port", cls=TableOption, key="port",
+              type=click.IntRange(*config.PORT_RANGE),
+              default=config.TableConfig.port, show_default=True,
+              help="With --table: the TCP port where Modbus TCP clients reach the table.")
+@table_options
 @daemon_options
 @click.pass_context
 def master(ctx, **options) -> None:
@@ -61,10 +77,15 @@ def master_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                   silence, ascii_timeout, nocheck, slaveid, tcpto, mdbport, exception,
                   max_connections, control, metrics, log_level=None,
                   down_after=config.DEFAULT_DOWN_AFTER,
-                  probe_interval=config.DEFAULT_PROBE_INTERVAL_MS) -> config.MasterConfig:
+                  probe_interval=config.DEFAULT_PROBE_INTERVAL_MS,
+                  **table_settings) -> config.MasterConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
+    table = table_config(**table_settings)
+    conflict = config.table_address_conflict(table.address, slaveid) if table.enabled else None
+    if conflict:
+        raise click.BadParameter(conflict, param_hint="'--table-address' / '--slaveid'")
     return convert("'--tcpto'", lambda: config.MasterConfig(
         serial=serial, slaveid=slaveid, tcpto_ms=tcpto, mdbport=mdbport, exception=exception,
         max_connections=max_connections, control=control, metrics=metrics,
-        demotion=demotion(down_after, probe_interval)))
+        demotion=demotion(down_after, probe_interval), table=table))

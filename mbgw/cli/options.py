@@ -3,7 +3,7 @@ configuration error into a usage error, and the one way a command fails."""
 import click
 
 from mbgw.config import model as config
-from mbgw.config.schema import SerialOption
+from mbgw.config.schema import SerialOption, TableOption
 from mbgw.errors import ConfigError
 
 
@@ -117,6 +117,59 @@ demotion_options = stack(
 
 def demotion(down_after: int, probe_interval: int) -> config.Demotion:
     return convert("'--down-after'", lambda: config.Demotion(down_after, probe_interval))
+
+
+# The exchange table ([table] keys): --table first, then the mode's own options, then these.
+table_switch = click.option(
+    "--table/--no-table", "table_enabled", cls=TableOption, key="enabled",
+    default=config.TableConfig.enabled, show_default=True,
+    help="Serve the exchange table: 65,536 registers of local data that Modbus TCP clients "
+         "and the serial side read and write (mbgw.toml(5), [table]).  Slave mode: TCP "
+         "units --table-units reach it (every unit with --no-direct); master mode: the "
+         "serial address --table-address, and TCP clients on --table-port.")
+
+
+def _parse_functions(value) -> tuple[int, ...]:
+    functions = config.parse_number_list("table-functions", value, 1, 255)
+    others = [str(f) for f in functions if f not in config.TABLE_FUNCTIONS]
+    if others:
+        raise ConfigError(f"table-functions {value!r}: {', '.join(others)}: the table "
+                          f"answers only {', '.join(map(str, config.TABLE_FUNCTIONS))}")
+    return functions
+
+
+def _parse_persist(value):
+    if value is not None and not str(value).strip():
+        raise ConfigError("table-persist: empty; expected a file path")
+    return value
+
+
+table_options = stack(
+    click.option("--table-functions", cls=TableOption, key="functions",
+                 default=",".join(map(str, config.TABLE_FUNCTIONS)), show_default=True,
+                 callback=parser(_parse_functions), metavar="LIST",
+                 help="Function codes the table answers, of %s (e.g. 3,4,6,16); any other "
+                      "is exception 0x01." % ",".join(map(str, config.TABLE_FUNCTIONS))),
+    click.option("--table-persist", cls=TableOption, key="persist", metavar="PATH",
+                 default=config.TableConfig.persist, callback=parser(_parse_persist),
+                 help="Keep the outputs and the free zone (0x0800-0x7FFF) in this file "
+                      "across restarts, written atomically [default: not kept]."),
+    click.option("--table-persist-interval", cls=TableOption, key="persist-interval",
+                 type=click.IntRange(*config.PERSIST_INTERVAL_RANGE),
+                 default=config.DEFAULT_PERSIST_INTERVAL_S, show_default=True, metavar="S",
+                 help="With --table-persist: save changes at most every S seconds "
+                      "(%d..%d), and at stop." % config.PERSIST_INTERVAL_RANGE),
+)
+
+
+def table_config(**settings) -> config.TableConfig:
+    """TableConfig from the click values (table_enabled, table_functions, ...)."""
+    fields = {"enabled": "table_enabled", "direct": "table_direct", "units": "table_units",
+              "functions": "table_functions", "address": "table_address",
+              "port": "table_port", "persist": "table_persist",
+              "persist_interval_s": "table_persist_interval"}
+    return convert("'--table'", lambda: config.TableConfig(
+        **{f: settings[o] for f, o in fields.items() if settings.get(o) is not None}))
 
 
 # The operator's tools, the same in both modes: control socket, metrics, log level.

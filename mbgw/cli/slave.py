@@ -9,14 +9,21 @@ from mbgw.cli.options import (
     parser,
     serial_config,
     serial_options,
+    table_config,
+    table_options,
+    table_switch,
 )
 from mbgw.cli.run import run_daemon
 from mbgw.config import model as config
+from mbgw.config.schema import TableOption
 
 
 def _parse_authip(values) -> tuple:
     return tuple(str(config.parse_ip("authip", v)) for v in values)
 
+
+def _parse_units(value) -> tuple[int, ...]:
+    return config.parse_number_list("table-units", value, 1, 255)
 
 
 @click.command()
@@ -52,6 +59,19 @@ def _parse_authip(values) -> tuple:
               show_default=True, metavar="MS",
               help="Pause on the line after a broadcast (unit 0), before the next request.")
 @demotion_options
+@table_switch
+@click.option("--direct/--no-direct", "table_direct", cls=TableOption, key="direct",
+              default=config.TableConfig.direct, show_default=True,
+              help="With --table: only the units of --table-units reach the table, the others "
+                   "go to the serial line (direct messaging).  --no-direct: every unit reaches "
+                   "the table (a Modbus TCP server of local data; unit 0 is a broadcast write, "
+                   "not answered).")
+@click.option("--table-units", cls=TableOption, key="units", metavar="LIST",
+              default=config.number_list_text(config.DEFAULT_TABLE_UNITS), show_default=True,
+              callback=parser(_parse_units),
+              help="With --table and --direct: the TCP unit ids that reach the table, e.g. "
+                   "247-254 or 1,5,200-210 (1..255).")
+@table_options
 @daemon_options
 @click.option("--shortcut/--no-shortcut", default=config.SlaveConfig.shortcut, hidden=True,
               help="Put a request that finds the line idle on it from C (for diagnosis).")
@@ -66,12 +86,14 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
                  silence, ascii_timeout, nocheck, slaveid, exception, authip, mdbport, bind,
                  max_connections, max_connections_per_ip, retries, turnaround, control,
                  metrics, log_level=None, shortcut=True, down_after=config.DEFAULT_DOWN_AFTER,
-                 probe_interval=config.DEFAULT_PROBE_INTERVAL_MS) -> config.SlaveConfig:
+                 probe_interval=config.DEFAULT_PROBE_INTERVAL_MS,
+                 **table_settings) -> config.SlaveConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
+    table = table_config(**table_settings)
     return convert("'--authip'", lambda: config.SlaveConfig(
         serial=serial, slaveid=slaveid, exception=exception, authip=authip, mdbport=mdbport,
         bind=bind, max_connections=max_connections,
         max_connections_per_ip=max_connections_per_ip, retries=retries,
         turnaround_ms=turnaround, control=control, metrics=metrics, shortcut=shortcut,
-        demotion=demotion(down_after, probe_interval)))
+        demotion=demotion(down_after, probe_interval), table=table))

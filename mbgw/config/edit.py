@@ -21,7 +21,7 @@ from mbgw.config.slaveid import SlaveIdTable
 from mbgw.config.values import Problem, element_kinds, process
 from mbgw.errors import ConfigError
 
-JOIN_WORDS = {"format": ""}                # "set serial format 8 e 1" is 8e1
+JOIN_WORDS = {"format": "", "units": ",", "functions": ","}   # "format 8 e 1" is 8e1
 REMOVE = object()                          # a change that takes a key out of the file
 
 

@@ -29,7 +29,7 @@ from mbgw.config.schema import (
     default_value,
     is_unset,
 )
-from mbgw.config.values import check_value, to_click
+from mbgw.config.values import check_across, check_value, to_click
 from mbgw.errors import ConfigFileError
 
 
@@ -106,6 +106,8 @@ def check(schema: Schema, path: Path, data: dict) -> Settings:
             else:
                 problems += check_value(schema, key, mode, value)
                 values[name] = value
+    if not problems:
+        problems = check_across(schema, mode, values)
     if problems:
         raise ConfigFileError(path, problems)
     return Settings(Path(path), mode, values)

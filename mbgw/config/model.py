@@ -153,6 +153,50 @@ PERSIST_INTERVAL_RANGE = (1, 86400)            # s
 DEFAULT_PERSIST_INTERVAL_S = 10
 
 
+def parse_number_list(option: str, text: str, low: int, high: int) -> tuple[int, ...]:
+    """'1,5,200-210' (commas or spaces between items, N-M for a range) -> (1, 5, 200, ..., 210),
+    sorted, each number checked against low..high."""
+    numbers: set[int] = set()
+    items = [i for i in re.split(r"[,\s]+", str(text).strip()) if i]
+    if not items:
+        raise ConfigError(f"{option} {text!r}: empty; expected numbers or ranges, e.g. 1,5,200-210")
+    for item in items:
+        match = re.fullmatch(r"(\d+)(?:-(\d+))?", item)
+        if not match:
+            raise ConfigError(f"{option} {text!r}: {item!r} is not a number or a range N-M")
+        first, last = int(match[1]), int(match[2] or match[1])
+        if first > last:
+            raise ConfigError(f"{option} {text!r}: range {item} runs backwards")
+        for number in (first, last):
+            if not low <= number <= high:
+                raise ConfigError(f"{option} {text!r}: {number} out of range {low}..{high}")
+        numbers.update(range(first, last + 1))
+    return tuple(sorted(numbers))
+
+
+def number_list_text(numbers) -> str:
+    """(1, 5, 200, ..., 210) -> '1,5,200-210': what parse_number_list reads."""
+    parts: list[str] = []
+    for number in sorted(numbers):
+        if parts and number == int(parts[-1].rsplit("-", 1)[-1]) + 1:
+            parts[-1] = f"{parts[-1].split('-')[0]}-{number}"
+        else:
+            parts.append(str(number))
+    return ",".join(parts)
+
+
+def table_address_conflict(address: int, slaveid: "SlaveIdTable") -> str | None:
+    """Master mode: why the table's serial address cannot be `address` with this slaveid
+    table (a range routing it to a TCP server), or None."""
+    if address == 0:
+        return None
+    for r in slaveid.ranges:
+        if r.first <= address <= r.last:
+            return (f"serial address {address} is in the slaveid range {r.first}..{r.last} "
+                    f"({r.line()}): one address cannot be both the table and a TCP server")
+    return None
+
+
 @dataclass(frozen=True)
 class TableConfig:
     """The exchange table: whether it is on, who reaches it, what it answers, where it is kept."""
@@ -247,6 +291,10 @@ class MasterConfig:
             raise ConfigError(f"tcpto {self.tcpto_ms}: out of range {low}..{high}")
         if self.max_connections < 1:
             raise ConfigError(f"max-connections {self.max_connections}: at least 1")
+        conflict = table_address_conflict(self.table.address, self.slaveid) \
+            if self.table.enabled else None
+        if conflict:
+            raise ConfigError(f"table-address {self.table.address}: {conflict}")
 
     @property
     def tcpto_ns(self) -> int:

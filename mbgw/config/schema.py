@@ -1,6 +1,7 @@
 """The keys of the configuration file: the long options of the mode commands (`mbgw slave`,
 `mbgw master`), walked at run time so that an option added to a command is a key at once, in
-the groups of the ACKSYS guide ([serial], [net], [general]), with their built-in defaults."""
+the groups of the ACKSYS guide ([serial], [net], [general]) and [table] (the exchange table),
+with their built-in defaults."""
 import dataclasses
 import difflib
 from pathlib import Path
@@ -13,10 +14,11 @@ MODES = ("slave", "master")                # "set serial mode slave|master"
 MODE_KEY = "mode"                          # in [serial]; selects the command `mbgw run` starts
 PROTOCOL_KEY = "protocol"                  # "set serial mode rtu|ascii" sets it
 PROTOCOL_WORDS = ("rtu", "ascii")
-GROUPS = ("serial", "net", "general")
+GROUPS = ("serial", "net", "general", "table")
 # [serial]: the options of class SerialOption (both modes' line settings) and the slave mode's
 # line behaviour below; [net]: the guide's "set net ..." commands and
-# our network options; [general]: the rest (logging, control socket, metrics, ...).
+# our network options; [general]: the rest (logging, control socket, metrics, ...); [table]:
+# the options of class TableOption, each under its own key (--table-units is table.units).
 LINE_KEYS = frozenset({"retries", "turnaround"})
 NET_KEYS = frozenset({"slaveid", "authip", "mdbport", "tcpto", "exception", "metric", "bind",
                       "max-connections", "max-connections-per-ip"})
@@ -58,9 +60,11 @@ class Schema:
             for param in command.params:
                 name = option_key(param)
                 if name is not None:
-                    group = "net" if name in NET_KEYS else "serial" \
-                        if name in LINE_KEYS or isinstance(param, SerialOption) else "general"
+                    group = key_group(name, param)
                     found.setdefault(name, Key(name, group, {})).params[mode] = param
+                    if found[name].group != group:
+                        raise RuntimeError(f"key {name} is in [{found[name].group}] and "
+                                           f"[{group}]")
         self.keys = {k.name: k for g in GROUPS for k in found.values() if k.group == g}
 
     @property
@@ -85,11 +89,22 @@ class Schema:
         return self.keys.get(name) if name else None
 
 
+def key_group(name: str, param: click.Parameter) -> str:
+    if isinstance(param, TableOption):
+        return "table"
+    if name in NET_KEYS:
+        return "net"
+    return "serial" if name in LINE_KEYS or isinstance(param, SerialOption) else "general"
+
+
 def option_key(param: click.Parameter) -> str | None:
-    """The configuration key of a command option: its long flag without the dashes."""
+    """The configuration key of a command option: its long flag without the dashes (a
+    TableOption's own key)."""
     if not isinstance(param, click.Option) or not param.expose_value or param.hidden \
             or param.name in OWN_OPTIONS:
         return None
+    if isinstance(param, TableOption):
+        return param.key
     longs = [o for o in param.opts if o.startswith("--")]
     return longs[0][2:] if longs else None
 
@@ -97,6 +112,15 @@ def option_key(param: click.Parameter) -> str | None:
 class SerialOption(click.Option):
     """An option of the serial line (both modes'): its key is in [serial], so a new serial
     option is there at once."""
+
+
+class TableOption(click.Option):
+    """An option of the exchange table (--table, --table-units, ...): its key is `key` in
+    [table] (table.enabled, table.units, ...)."""
+
+    def __init__(self, *args, key: str, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.key = key
 
 
 def is_unset(value) -> bool:

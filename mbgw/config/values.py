@@ -4,8 +4,9 @@ tables whose file form is the guide's: net.authip (entries 1..8, 0.0.0.0 for an 
 and master mode's net.slaveid (ranges "FS LS FR M IP", no two overlapping)."""
 import click
 
-from mbgw.config.schema import AUTHIP_ENTRIES, NO_ADDRESS, Key, Schema
-from mbgw.config.slaveid import SlaveRange
+from mbgw.config.model import table_address_conflict
+from mbgw.config.schema import AUTHIP_ENTRIES, NO_ADDRESS, Key, Schema, default_value
+from mbgw.config.slaveid import SlaveIdTable, SlaveRange
 from mbgw.config.toml_text import dump_value, dumpable
 from mbgw.errors import ConfigError
 
@@ -168,3 +169,17 @@ def _check_slaveid_table(command, param, value, label) -> list[str]:
         except Problem as problem:
             problems.append(f"{label}: {problem}")
     return problems
+
+
+def check_across(schema: Schema, mode: str, values: dict) -> list[str]:
+    """What only keys together can get wrong, once each is right: in master mode, the
+    table's serial address inside a slaveid range."""
+    if mode != "master" or not {"enabled", "address", "slaveid"} <= set(schema.keys):
+        return []
+
+    def value(name: str):
+        return values[name] if name in values else default_value(schema, name, mode)
+    if not value("enabled"):
+        return []
+    conflict = table_address_conflict(value("address"), SlaveIdTable.parse(value("slaveid")))
+    return [f"table.address: {conflict} (net.slaveid)"] if conflict else []

@@ -1,4 +1,4 @@
-"""The serial line, for both modes; the only part that touches the C core (mbgw._ffi).
+"""The serial line, for both modes; with `table` the only part that touches the C core (mbgw._ffi).
 
 `native` wraps the serial port's C calls (libmodbus's RTU context plus csrc/: timed reads,
 writes with RTS, the reply forward); `frames` the frame rules (CRC, LRC, lengths, ASCII, does

@@ -196,7 +196,7 @@ def test_unset_puts_a_key_back_to_its_default_even_a_misspelt_one(conf):
     result = mbgw("config", "unset", "serial", "stout", "--config", conf)
     assert result.exit_code == 0, result.output
     assert "# stout = 600" in conf.read_text() and "stout" not in values(conf)["serial"]
-    conf.write_text(conf.read_text() + "stuot = 7\n")
+    conf.write_text(conf.read_text().replace("[general]\n", "[general]\nstuot = 7\n"))
     result = mbgw("config", "unset", "general", "stuot", "--config", conf)
     assert result.exit_code == 0, result.output
     assert mbgw("check-config", conf).exit_code == 0

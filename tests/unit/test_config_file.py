@@ -17,7 +17,7 @@ from mbgw.config import file as cf
 from mbgw.config import schema as config_keys
 from mbgw.config import text as config_text
 from mbgw.config import toml_text as toml_edit
-from mbgw.config.model import LineFormat
+from mbgw.config.model import LineFormat, TableConfig, number_list_text, parse_number_list
 from mbgw.config.slaveid import SlaveRange
 from mbgw.errors import ConfigError, ConfigFileError
 
@@ -47,11 +47,16 @@ def problems(schema, tmp_path, text: str) -> str:
 # --- keys come from the commands --------------------------------------------------------------
 
 def test_every_long_option_of_both_modes_is_a_key(schema):
-    """...but the hidden ones, switches for diagnosis that no configuration file keeps."""
-    options = {o[2:] for mode in ("slave", "master") for p in main.commands[mode].params
-               if isinstance(p, click.Option) and not p.hidden
+    """...but the hidden ones, switches for diagnosis that no configuration file keeps; a
+    table option is its own key in [table] (--table-units is table.units)."""
+    params = [p for mode in ("slave", "master") for p in main.commands[mode].params
+              if isinstance(p, click.Option) and not p.hidden]
+    options = {o[2:] for p in params if not isinstance(p, config_keys.TableOption)
                for o in p.opts if o.startswith("--")}
-    assert set(schema.keys) == options - {"config"}
+    table = {p.key for p in params if isinstance(p, config_keys.TableOption)}
+    assert table == {"enabled", "direct", "units", "functions", "address", "port", "persist",
+                     "persist-interval"}
+    assert set(schema.keys) == (options - {"config"}) | table
     assert "shortcut" not in schema.keys
 
 
@@ -157,7 +162,7 @@ def test_tables_belong_to_their_mode(schema, tmp_path):
     ("[net]\nauthpi = []\n", "net.authpi: unknown key; did you mean net.authip?"),
     ("[net]\nmax_connections = 3\n", "did you mean net.max-connections?"),
     ("[serial]\nfoo = 1\n", "serial.foo: unknown key"),
-    ("[seral]\nstout = 700\n", "[seral]: unknown group (groups: serial, net, general); "
+    ("[seral]\nstout = 700\n", "[seral]: unknown group (groups: serial, net, general, table); "
                                "did you mean [serial]?"),
     ("[net]\nstout = 700\n", "net.stout: belongs in [serial] (serial.stout)"),
     ("stout = 700\n", "stout: outside any group; put it under [serial]"),
@@ -483,3 +488,127 @@ def test_write_atomic_refuses_what_is_not_a_regular_file(tmp_path):
     (tmp_path / "dir.toml").mkdir()
     with pytest.raises(OSError, match="not a regular file"):
         toml_edit.write_atomic(tmp_path / "dir.toml", "x = 1\n")
+
+
+# --- [table]: the exchange table's keys ------------------------------------------------------
+
+@pytest.mark.parametrize("name", ["enabled", "direct", "units", "functions", "address", "port",
+                                  "persist", "persist-interval"])
+def test_table_keys_are_in_table(schema, name):
+    assert schema.keys[name].group == "table"
+    assert schema.label(name) == f"table.{name}"
+
+
+def test_table_keys_modes(schema):
+    assert set(schema.keys["direct"].params) == set(schema.keys["units"].params) == {"slave"}
+    assert set(schema.keys["address"].params) == set(schema.keys["port"].params) == {"master"}
+    for name in ("enabled", "functions", "persist", "persist-interval"):
+        assert set(schema.keys[name].params) == {"slave", "master"}, name
+
+
+def test_table_file_to_slave_config(tmp_path):
+    from mbgw.cli.slave import slave_config
+    path = write(tmp_path, '[serial]\ndevice = "/dev/ttyS3"\n[table]\nenabled = true\n'
+                           'direct = false\nunits = "1,5,200-202"\nfunctions = "3, 4,16"\n'
+                           'persist = "/var/lib/mbgw/table"\npersist-interval = 30\n')
+    options = cf.load_options(main, path)
+    options.pop("mode")
+    table = slave_config(**options).table
+    assert table.enabled and not table.direct
+    assert table.units == (1, 5, 200, 201, 202)
+    assert table.functions == (3, 4, 16)
+    assert table.persist == "/var/lib/mbgw/table" and table.persist_interval_s == 30
+
+
+def test_table_file_to_master_config(tmp_path):
+    from mbgw.cli.master import master_config
+    path = write(tmp_path, '[serial]\nmode = "master"\ndevice = "/dev/ttyS3"\n'
+                           '[net]\nslaveid = ["1 8 1 0 192.168.0.30"]\n'
+                           '[table]\nenabled = true\naddress = 9\nport = 1502\n')
+    options = cf.load_options(main, path)
+    options.pop("mode")
+    table = master_config(**options).table
+    assert (table.enabled, table.address, table.port) == (True, 9, 1502)
+    assert table.functions == (1, 2, 3, 4, 5, 6, 7, 15, 16, 23)     # the default: all
+
+
+def test_table_defaults_when_the_file_has_no_table(tmp_path):
+    from mbgw.cli.slave import slave_config
+    options = cf.load_options(main, write(tmp_path, '[serial]\ndevice = "/dev/ttyS3"\n'))
+    options.pop("mode")
+    assert slave_config(**options).table == TableConfig()
+
+
+@pytest.mark.parametrize("text, expected", [
+    ("[table]\nenabled = 'yes'", "table.enabled: expected true or false"),
+    ("[table]\nunits = '0-3'", "table.units: table-units '0-3': 0 out of range 1..255"),
+    ("[table]\nunits = '1,x'", "table.units: table-units '1,x': 'x' is not a number or a range"),
+    ("[table]\nunits = '9-3'", "table.units: table-units '9-3': range 9-3 runs backwards"),
+    ("[table]\nunits = ''", "table.units: table-units '': empty"),
+    ("[table]\nunits = [247, 248]", "table.units: expected a single value, not a list"),
+    ("[table]\nfunctions = '3,8'", "table.functions: table-functions '3,8': 8: the table "
+                                   "answers only 1, 2, 3, 4, 5, 6, 7, 15, 16, 23"),
+    ("[table]\npersist = ''", "table.persist: table-persist: empty"),
+    ("[table]\npersist-interval = 0", "table.persist-interval: 0 is not in the range"),
+    ("[serial]\nmode = 'master'\n[table]\naddress = 248",
+     "table.address: 248 is not in the range 0<=x<=247"),
+    ("[serial]\nmode = 'master'\n[table]\nport = 0", "table.port: 0 is not in the range"),
+    ("[table]\nunit = '1'", "table.unit: unknown key; did you mean table.units?"),
+    ("[net]\nunits = '1'", "net.units: belongs in [table] (table.units)"),
+    ("[table]\nmdbport = 502", "table.mdbport: belongs in [net] (net.mdbport)"),
+])
+def test_bad_table_values_name_the_key_and_the_reason(schema, tmp_path, text, expected):
+    assert expected in problems(schema, tmp_path, text)
+
+
+def test_master_table_address_inside_a_slaveid_range_names_both(schema, tmp_path):
+    text = ('[serial]\nmode = "master"\n[net]\nslaveid = ["1 8 1 0 192.168.0.30"]\n'
+            '[table]\nenabled = true\naddress = 5\n')
+    assert ("table.address: serial address 5 is in the slaveid range 1..8 "
+            "(1 8 1 0 192.168.0.30)") in problems(schema, tmp_path, text)
+    # the table off: its address reaches nobody, the range serves 5
+    cf.check(schema, "f", tomllib.loads(text.replace("enabled = true", "enabled = false")))
+
+
+@pytest.mark.parametrize("words, value", [
+    (("table", "enabled", "on"), True),
+    (("table", "direct", "off"), False),
+    (("table", "units", "247-254"), "247-254"),
+    (("table", "units", "1,5", "200-210"), "1,5,200-210"),
+    (("table", "functions", "3", "4", "16"), "3,4,16"),
+    (("table", "persist", "/var/lib/mbgw/table"), "/var/lib/mbgw/table"),
+    (("table", "persist-interval", "60"), 60),
+])
+def test_set_table_takes_the_guides_words(schema, words, value):
+    group, name, *rest = words
+    values, text = do_set(schema, "", group, name, *rest)
+    assert values[name] == value
+    assert "[table]" in text
+
+
+def test_set_table_address_in_master_mode(schema):
+    values, _ = do_set(schema, '[serial]\nmode = "master"\n', "table", "address", "17")
+    assert values["address"] == 17
+
+
+@pytest.mark.parametrize("words, expected", [
+    (("table", "units", "300"), "table.units: table-units '300': 300 out of range 1..255"),
+    (("table", "functions", "8"), "table.functions: table-functions '8': 8: the table"),
+    (("table", "enabled", "maybe"), "table.enabled: expected on or off"),
+    (("table", "persist-interval", "0"), "table.persist-interval: 0 is not in the range"),
+    (("net", "units", "1"), "net.units: belongs in [table]: mbgw config set table units"),
+])
+def test_set_table_refuses_what_the_command_line_refuses(schema, words, expected):
+    group, name, *rest = words
+    with pytest.raises(ConfigError) as caught:
+        do_set(schema, "", group, name, *rest)
+    assert expected in str(caught.value)
+
+
+@pytest.mark.parametrize("text, numbers", [
+    ("247-254", tuple(range(247, 255))), ("1,5,200-202", (1, 5, 200, 201, 202)),
+    ("5 1  3", (1, 3, 5)), ("3,3,1-3", (1, 2, 3)),
+])
+def test_number_lists(text, numbers):
+    assert parse_number_list("table-units", text, 1, 255) == numbers
+    assert parse_number_list("table-units", number_list_text(numbers), 1, 255) == numbers

@@ -1,0 +1,180 @@
+"""The exchange table: the only owner of the C core's table calls.  Requests are answered by
+C under the table's lock (a reader never sees half of a write); the operator's reads and
+writes go through the same lock."""
+from collections.abc import Iterable
+
+from mbgw._ffi import ffi, lib
+from mbgw.config.model import TABLE_FUNCTIONS
+from mbgw.errors import MbgwError
+
+REGISTERS = 0x10000
+BITS = 0x10000                  # bit B: bit B % 16 of register B // 16
+OUTPUTS = range(0x0800, 0x1000)
+FREE_ZONE = range(0x1000, 0x8000)
+CONFIG_ZONE = range(0x8000, 0x10000)
+PDU_MAX = lib.MBGW_PDU_MAX
+MBAP_MAX = lib.MBGW_MBAP_MAX
+EXCEPTION_CODES = 16
+_OUTCOMES = ("answered", "exception", "broadcast")   # the C counters' order (MBGW_TABLE_*)
+
+
+class TableError(MbgwError, ValueError):
+    """An access to the table it does not allow (out of range, the configuration zone, a value
+    that is not 16 bits); the message names the address and the reason."""
+
+
+def _function_mask(functions: Iterable[int]) -> int:
+    mask = 0
+    for function in functions:
+        if function not in TABLE_FUNCTIONS:
+            raise TableError(f"function {function}: the table answers only "
+                             f"{', '.join(map(str, TABLE_FUNCTIONS))}")
+        mask |= 1 << function
+    return mask
+
+
+def _check_range(address: int, count: int, limit: int, what: str) -> None:
+    if not (0 <= address < limit and 1 <= count <= limit - address):
+        raise TableError(f"{what} {address}+{count}: beyond the table "
+                         f"(0..{limit - 1})")
+
+
+class Responder:
+    """Answers requests from one table in one thread, into a buffer of its own (260 bytes,
+    allocated once): the reply a method returns is a view of it, valid until its next call.
+    One per thread that answers requests."""
+
+    __slots__ = ("_table", "buffer", "reply")
+
+    def __init__(self, table: "Table") -> None:
+        self._table = table
+        self.buffer = ffi.new("uint8_t[]", MBAP_MAX)
+        self.reply = memoryview(ffi.buffer(self.buffer))
+
+    def answer_mbap_into(self, frame, broadcast: bool = False) -> int:
+        """Answer a whole Modbus TCP frame (MBAP header + PDU, bytes or a buffer): the reply's
+        length in .reply (transaction id and unit id kept), 0 for none (broadcast), -EBADMSG
+        for a header whose protocol id or length field is wrong."""
+        return lib.mbgw_table_answer_mbap(self._table._t, ffi.from_buffer(frame), len(frame),
+                                          self.buffer, broadcast)
+
+    def answer_mbap(self, frame, broadcast: bool = False) -> memoryview | None:
+        """answer_mbap_into's reply as a view of .reply, None when there is none."""
+        n = self.answer_mbap_into(frame, broadcast)
+        return self.reply[:n] if n > 0 else None
+
+    def answer_into(self, pdu, broadcast: bool = False) -> int:
+        """Answer a request PDU (function code first): the reply PDU's length in .reply, 0
+        for none (broadcast, or an empty PDU)."""
+        return lib.mbgw_table_answer(self._table._t, ffi.from_buffer(pdu), len(pdu),
+                                     self.buffer, broadcast)
+
+    def answer(self, pdu, broadcast: bool = False) -> memoryview | None:
+        """answer_into's reply PDU as a view of .reply, None when there is none."""
+        n = self.answer_into(pdu, broadcast)
+        return self.reply[:n] if n > 0 else None
+
+
+class Table:
+    """The 65,536 registers, zero at the start, answering `functions`."""
+
+    def __init__(self, functions: Iterable[int] = TABLE_FUNCTIONS) -> None:
+        t = lib.mbgw_table_new()
+        if t == ffi.NULL:
+            raise MemoryError("the exchange table")
+        self._t = ffi.gc(t, lib.mbgw_table_free)
+        self._down = None            # the flags C reads at each FC 7, kept alive here
+        self.set_functions(functions)
+        self._own = Responder(self)
+        self.reply_buffer = self._own.buffer
+
+    def responder(self) -> Responder:
+        """A responder with its own reply buffer, for one thread."""
+        return Responder(self)
+
+    def answer(self, pdu: bytes, broadcast: bool = False) -> bytes | None:
+        """The reply PDU to a request PDU, None when there is none (a broadcast).  Allocates
+        its reply: the hot paths use a responder."""
+        rsp = ffi.new("uint8_t[]", PDU_MAX)
+        n = lib.mbgw_table_answer(self._t, ffi.from_buffer(pdu), len(pdu), rsp, broadcast)
+        return bytes(ffi.buffer(rsp, n)) if n > 0 else None
+
+    def answer_mbap_into(self, frame, broadcast: bool = False) -> int:
+        """Responder.answer_mbap_into into the table's own reply_buffer: for one thread only."""
+        return self._own.answer_mbap_into(frame, broadcast)
+
+    def read(self, address: int, count: int = 1) -> list[int]:
+        """count registers from address."""
+        _check_range(address, count, REGISTERS, "register")
+        out = ffi.new("uint16_t[]", count)
+        lib.mbgw_table_read(self._t, address, count, out)
+        return list(out)
+
+    def read_bits(self, address: int, count: int = 1) -> list[int]:
+        """count bits (0 or 1) from bit address: bit B is bit B % 16 of register B // 16."""
+        _check_range(address, count, BITS, "bit")
+        first = address // 16
+        registers = self.read(first, (address + count - 1) // 16 - first + 1)
+        return [registers[b // 16 - first] >> (b % 16) & 1
+                for b in range(address, address + count)]
+
+    def write(self, address: int, values: Iterable[int]) -> None:
+        """Write registers from address, all or none.  Raises TableError naming the address
+        when they go beyond the table or into the configuration zone, or a value is not 16
+        bits."""
+        values = list(values)
+        _check_range(address, len(values), REGISTERS, "register")
+        for offset, value in enumerate(values):
+            if not 0 <= value <= 0xFFFF:
+                raise TableError(f"register {address + offset}: value {value} is not 0..65535")
+        if address + len(values) > CONFIG_ZONE.start:
+            raise TableError(f"register {max(address, CONFIG_ZONE.start)}: the configuration "
+                             f"zone (0x8000-0xFFFF) is read-only")
+        lib.mbgw_table_write(self._t, address, len(values), ffi.new("uint16_t[]", values))
+
+    def set_config(self, address: int, values: Iterable[int]) -> None:
+        """Fill the configuration zone (what identity computes); raises TableError outside it."""
+        values = list(values)
+        _check_range(address, len(values), REGISTERS, "register")
+        if address < CONFIG_ZONE.start:
+            raise TableError(f"register {address}: not in the configuration zone "
+                             f"(0x8000-0xFFFF)")
+        lib.mbgw_table_set_config(self._t, address, len(values), ffi.new("uint16_t[]", values))
+
+    def set_functions(self, functions: Iterable[int]) -> None:
+        """The function codes answered; any other is exception 0x01."""
+        lib.mbgw_table_set_functions(self._t, _function_mask(functions))
+
+    def set_flags(self, line_down: bool = False, scenario_error: bool = False) -> None:
+        """FC 7's bits 0 (the serial line is down) and 1 (a scenario is in error)."""
+        lib.mbgw_table_set_flags(self._t, int(line_down), int(scenario_error))
+
+    def watch_down(self, down: bytearray | None) -> None:
+        """FC 7's bit 2: any of these 256 flags (HealthRule.down, by serial address) set,
+        read by C at each FC 7; None: no device is ever down."""
+        self._down = None if down is None else ffi.from_buffer("uint8_t[]", down)
+        lib.mbgw_table_watch_down(self._t, ffi.NULL if down is None else self._down)
+
+    @property
+    def persist_generation(self) -> int:
+        """Grows with each write that changed a value of the outputs or the free zone."""
+        return lib.mbgw_table_persist_generation(self._t)
+
+    def counts(self) -> dict:
+        """{"requests_by_function": {fc: {"answered": n, "exception": n, "broadcast": n}},
+        "exceptions_by_code": {code: n}}: the table's functions always, any other code that
+        was asked; the codes of the exceptions sent."""
+        by_function = ffi.new("uint64_t[]", 256 * len(_OUTCOMES))
+        by_exception = ffi.new("uint64_t[]", EXCEPTION_CODES)
+        lib.mbgw_table_counts(self._t, by_function, by_exception)
+        requests = {}
+        for fc in range(256):
+            row = by_function[fc * 3:fc * 3 + 3]
+            if fc in TABLE_FUNCTIONS or any(row):
+                requests[fc] = dict(zip(_OUTCOMES, row, strict=True))
+        return {"requests_by_function": requests,
+                "exceptions_by_code": {code: by_exception[code]
+                                       for code in range(EXCEPTION_CODES) if by_exception[code]}}
+
+    def reset_counts(self) -> None:
+        lib.mbgw_table_reset_counts(self._t)
