@@ -40,8 +40,8 @@ class PcapWriter:
 
     def write_event(self, event: dict) -> bool:
         """One traced request or reply; False for events that carried nothing."""
-        if event.get("direction") not in ("request", "reply"):
-            return False
+        if event.get("direction") not in ("request", "reply") or event.get("peer") is None:
+            return False          # nothing went over TCP (master mode's table slave)
         payload = mbap.frame(event["tid"], event["unit"], bytes.fromhex(event["pdu"]))
         client, server = _split(event["peer"]), _split(event["local"])
         if event["direction"] == "request":

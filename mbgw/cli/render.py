@@ -35,6 +35,8 @@ def format_status(s: dict, now: float) -> str:
         lines += _master_sections(s, now)
     else:
         lines += _slave_sections(s, now)
+    if s.get("table") is not None:
+        lines += ["", *_table_section(s["table"], s["mode"], now)]
     counters = s["counters"]
     lines += ["", f"counters since {_clock(s['counters_since'])}"]
     names = list(counters)
@@ -125,6 +127,60 @@ def _master_sections(s: dict, now: float) -> list[str]:
             lines.append(f"{_health(d, now)} {d['unreachable']:>7} {invalid:>7} "
                          f"{d['abandoned']:>7}  {host:<15} {unit:>4}  {_exceptions(d)}")
     return lines
+
+
+_TABLE_OUTCOMES = ("answered", "exception", "broadcast")
+
+
+def _table_section(t: dict, mode: str, now: float) -> list[str]:
+    """The exchange table: what reaches it, requests by function, exceptions sent, master
+    mode's serial slave, the persistence."""
+    lines = [f"table      {_table_reach(t, mode)}"]
+    rows = [(fc, row) for fc, row in t["requests"].items() if any(row.values())]
+    if rows:
+        lines.append(f"  {'FC':>4}  " + "  ".join(f"{o.upper():>9}" for o in _TABLE_OUTCOMES))
+        lines += [f"  {fc:>4}  " + "  ".join(f"{row.get(o, 0):>9}" for o in _TABLE_OUTCOMES)
+                  for fc, row in rows]
+    else:
+        lines.append("  no requests yet")
+    if t["exceptions"]:
+        lines.append("  exceptions sent " + " ".join(f"{code}:{n}"
+                                                    for code, n in t["exceptions"].items()))
+    serial = t.get("serial")
+    if serial is not None:
+        lines.append(f"  serial slave: {serial['requests']} requests, {serial['crc_errors']} "
+                     f"invalid CRC, {serial['length_errors']} invalid length, "
+                     f"{serial['send_failures']} failed sends")
+    persist = t.get("persist")
+    if persist is not None:
+        lines.append(f"  persist {_table_persist(persist, now)}")
+    return lines
+
+
+def _table_reach(t: dict, mode: str) -> str:
+    parts = []
+    if mode == "master" and "address" in t:
+        parts.append(f"serial address {t['address']}" if t["address"] else "no serial address")
+        parts.append(f"TCP port {t['port']}")
+    elif "units" in t:
+        parts.append(f"units {t['units']} (direct)" if t["direct"] else
+                     "every unit (no direct messaging)")
+    if "functions" in t:
+        parts.append("functions " + ",".join(map(str, t["functions"])))
+    return ", ".join(parts) or "on"
+
+
+def _table_persist(persist: dict, now: float) -> str:
+    """'PATH: last save 3.0s ago, saves 4, ...': every figure the persistence reports."""
+    figures = []
+    for name, value in persist.items():
+        if name == "path":
+            continue
+        if name.startswith("last_"):
+            value = _ago(value, now)
+        figures.append(f"{name.replace('_', ' ')} {value}")
+    return f"{persist.get('path', '-')}: {', '.join(figures)}" if figures else \
+        str(persist.get("path", "-"))
 
 
 # --- mbgw trace ----------------------------------------------------------------------------

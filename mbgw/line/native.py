@@ -319,3 +319,9 @@ class Port:
         if n == -errno.ECANCELED:
             return None
         return ffi.buffer(self._buf, self._check(n, "read") - 2)[:]
+
+    @property
+    def rejected_address(self) -> int:
+        """The first byte (the address, unless noise) of the frame read_request() has just
+        rejected (ChecksumError, FrameError)."""
+        return self._buf[0]

@@ -8,10 +8,12 @@ import time
 
 from mbgw.config.model import MasterConfig
 from mbgw.line.port import SerialLine
-from mbgw.master.line_thread import SerialSlave
+from mbgw.master.line_thread import SerialSlave, table_address
 from mbgw.master.status import MasterStatus
+from mbgw.master.table_service import TableService
 from mbgw.ops.counters import MasterCounters
 from mbgw.ops.service import (
+    ListenError,
     idle_ms,
     log_stopped,
     serve_until_stopped,
@@ -23,25 +25,47 @@ from mbgw.ops.service import (
 log = logging.getLogger("mbgw")
 
 
+class TableListenFailure(ListenError):
+    def __init__(self, err: OSError) -> None:
+        Exception.__init__(self, err.strerror)
+
+
 def run_master(cfg: MasterConfig, reconfigure=None) -> None:
     """Raises SerialError when the device cannot be opened, MetricsListenError when the
-    metrics address cannot be bound; otherwise returns after SIGTERM or SIGINT.
-    reconfigure() gives the settings to apply on SIGHUP (None: there is no file to reload)."""
+    metrics address cannot be bound, TableListenFailure when table-port cannot; otherwise
+    returns after SIGTERM or SIGINT.  reconfigure() gives the settings to apply on SIGHUP
+    (None: there is no file to reload)."""
     counters = MasterCounters()
+    tables = TableService(cfg)
     line = SerialLine(cfg.serial)
     try:
-        slave = SerialSlave(cfg, line, counters)
+        slave = SerialSlave(cfg, line, counters, tables.table)
     except BaseException:
         line.close()
         raise
     try:
-        asyncio.run(_serve(cfg, slave, counters, reconfigure))
+        try:
+            tables.start()
+        except OSError as err:
+            raise TableListenFailure(err) from None
+        asyncio.run(_serve(cfg, slave, counters, tables, reconfigure))
     finally:
+        tables.stop()
         slave.close()
 
 
+def _log_slaveid(cfg: MasterConfig) -> None:
+    if cfg.slaveid.ranges:
+        return
+    if table_address(cfg):
+        log.info("the slaveid table is empty: mbgw is a Modbus %s server of the exchange "
+                 "table only, at address %d", cfg.serial.protocol.upper(), cfg.table.address)
+    else:
+        log.warning("the slaveid table is empty: every request on the line is ignored")
+
+
 async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters,
-                 reconfigure) -> None:
+                 tables: TableService, reconfigure) -> None:
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
@@ -51,7 +75,7 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
         counters, slave.devices, slave, started))
     slave.idle_ms = idle_ms(watchdog_interval())
     slave.start()
-    status = MasterStatus(cfg, slave, counters)
+    status = MasterStatus(cfg, slave, counters, tables)
     control = await start_control(cfg.control, status.commands())
     s = cfg.serial
     log.info("master mode: serial %s %d %s %s %s; servers' port %d, tcpto %d ms, exception %s, "
@@ -60,12 +84,11 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
              cfg.max_connections, cfg.slaveid)
     if metrics is not None:
         log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
-    if not cfg.slaveid.ranges:
-        log.warning("the slaveid table is empty: every request on the line is ignored")
+    _log_slaveid(cfg)
 
     async def apply(new: MasterConfig) -> None:
-        if not new.slaveid.ranges:
-            log.warning("the slaveid table is empty: every request on the line is ignored")
+        _log_slaveid(new)
+        tables.reconfigure(new)
         slave.reconfigure(new)
 
     await serve_until_stopped(stop, status, slave, reconfigure, apply, control, metrics)

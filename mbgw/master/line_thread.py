@@ -14,7 +14,11 @@ the eventfd wakes it to stop) and:
   unreachable: 0x0A, or silence.  If the master has sent something new in the meantime it
   has given up on the request, and the late answer is dropped;
 - answers at once (0x0B with `exception`, else silence) a frame for an address that is down
-  (demotion, mbgw.ops.device_stats), without a word to its server, unless a probe is due.
+  (demotion, mbgw.ops.device_stats), without a word to its server, unless a probe is due;
+- answers a frame for the table address (`table-address`, with the table on) itself, from
+  the exchange table (mbgw.table), once the line has been quiet for t3.5, as a serial slave
+  of local data (VPGate 3.7); a broadcast is also written into the table.  The table slave
+  counts its requests, invalid CRCs and lengths, and failed sends (VPGate 8.5).
 A device that fails is closed, reopened when it is back (mbgw.line.supervisor), and reported
 once per change.
 Each serial address answered for has its statistics and health (mbgw.ops.device_stats), and the
@@ -26,9 +30,18 @@ import logging
 import os
 import select
 import time
+from dataclasses import dataclass
 
 from mbgw.config.model import MasterConfig
-from mbgw.errors import BadReply, ChecksumError, FrameError, GatewayTimeout, LineTimeout, NoRoute
+from mbgw.errors import (
+    BadReply,
+    ChecksumError,
+    FrameError,
+    GatewayTimeout,
+    LineTimeout,
+    NoRoute,
+    SerialError,
+)
 from mbgw.line import frames, native
 from mbgw.line.framing import framing_for
 from mbgw.line.port import SerialLine
@@ -38,12 +51,13 @@ from mbgw.master.trace import (
     OUTCOME_DEVICE_DOWN,
     OUTCOME_EXCEPTION,
     OUTCOME_REPLY,
+    OUTCOME_TABLE,
     OUTCOME_TIMEOUT,
     OUTCOME_UNREACHABLE,
     MasterTracer,
 )
 from mbgw.master.upstream import Interrupted, UpstreamPool, drain
-from mbgw.ops.counters import MasterCounters
+from mbgw.ops.counters import MasterCounters, _Counting
 from mbgw.ops.device_stats import MASTER_COUNTS, DeviceTable, HealthRule
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.ops.trace import TraceHub
@@ -60,8 +74,26 @@ def _line_settings(serial):
     return dataclasses.replace(serial, **UNUSED_SETTINGS)
 
 
+def table_address(cfg: MasterConfig) -> int:
+    """The serial address the table answers as; 0: none."""
+    return cfg.table.address if cfg.table.enabled else 0
+
+
+@dataclass(slots=True)
+class TableSlaveCounters(_Counting):
+    """The serial slave of the exchange table (VPGate 8.5): frames for its address (with a
+    valid check), broadcasts written into the table, and the errors of frames for it."""
+    requests: int = 0
+    broadcasts: int = 0
+    crc_errors: int = 0
+    length_errors: int = 0
+    send_failures: int = 0
+
+
 class SerialSlave(LineThread[MasterConfig]):
-    def __init__(self, cfg: MasterConfig, line: SerialLine, counters: MasterCounters) -> None:
+    def __init__(self, cfg: MasterConfig, line: SerialLine, counters: MasterCounters,
+                 table=None) -> None:
+        """table: the exchange table (mbgw.table.memory.Table), None in a gateway without."""
         super().__init__(cfg, line)
         self._table = cfg.slaveid
         self._counters = counters
@@ -74,6 +106,13 @@ class SerialSlave(LineThread[MasterConfig]):
         self._pool = UpstreamPool(cfg.mdbport, cfg.max_connections, counters, self.wake_fd)
         self._reply_to = b""       # the last frame for another slave: its reply may come next
         self._bad_reply_logged: dict[tuple[int, str], float] = {}   # (address, kind): when
+        self.table = table
+        self.table_counters = TableSlaveCounters()
+        self._table_address = table_address(cfg) if table is not None else 0
+        self._rejected = -1     # the address of the frame a receive has just rejected
+        if table is not None:
+            self._responder = table.responder()
+            table.watch_down(self._down)
         self._attach(line)
 
     @property
@@ -98,6 +137,8 @@ class SerialSlave(LineThread[MasterConfig]):
         # the longest ASCII frame at the line's speed, plus one inter-character pause
         self._ascii_frame_ns = (frames.ASCII_MAX_FRAME * serial.char_ns
                                 + self._interchar_us * 1000)
+        if self.table is not None:
+            self.table.set_flags(line_down=False)
 
     def connections(self) -> list[dict]:
         """The open upstream connections (from any thread)."""
@@ -114,6 +155,8 @@ class SerialSlave(LineThread[MasterConfig]):
 
     def _detach(self) -> None:
         self._reply_to = b""
+        if self.table is not None:
+            self.table.set_flags(line_down=True)
 
     def _reopens(self, old, new) -> bool:
         return _line_settings(new) != _line_settings(old)
@@ -123,6 +166,11 @@ class SerialSlave(LineThread[MasterConfig]):
         self._table = cfg.slaveid
         self._tcpto_ns = cfg.tcpto_ns
         self._pool.reconfigure(cfg.mdbport, cfg.max_connections)
+        if self.table is not None:
+            address = table_address(cfg)
+            if address != self._table_address:
+                self.table_counters.reset()     # a new slave (VPGate 8.5)
+            self._table_address = address
         if cfg.demotion != old.demotion:
             self.devices.set_rule(cfg.demotion)
         if reopen:
@@ -149,24 +197,37 @@ class SerialSlave(LineThread[MasterConfig]):
     # --- receiving ---
 
     def _serve_next(self) -> None:
+        self._rejected = -1
         try:
             adu = self._receive()
         except ChecksumError:
             self._counters.crc_errors += 1
+            if self._table_address and self._rejected == self._table_address:
+                self.table_counters.crc_errors += 1
             self._reply_to = b""
             return
         except (FrameError, LineTimeout):      # LineTimeout: noise, no ':' (ASCII)
             self._counters.invalid_frames += 1
+            if self._table_address and self._rejected == self._table_address:
+                self.table_counters.length_errors += 1
             self._reply_to = b""
             return
         if adu is None:
             return
         if len(adu) < 2:
             self._counters.invalid_frames += 1
+            if self._table_address and adu and adu[0] == self._table_address:
+                self.table_counters.length_errors += 1
             return
         address = adu[0]
+        if address == self._table_address:
+            self._reply_to = b""
+            self._answer_from_table(adu)
+            return
         if address == pdu.BROADCAST:
             self._reply_to = b""
+            if self._table_address:
+                self._broadcast_to_table(adu)
             self._broadcast(adu)
             return
         route = self._table.route(address)
@@ -180,8 +241,12 @@ class SerialSlave(LineThread[MasterConfig]):
         self._forward(adu, *route)
 
     def _receive_rtu(self) -> bytes | None:
-        return self._port.read_request(self.wake_fd, self._reply_to, self._gap_us,
-                                       self.idle_ms)
+        try:
+            return self._port.read_request(self.wake_fd, self._reply_to, self._gap_us,
+                                           self.idle_ms)
+        except (ChecksumError, FrameError):
+            self._rejected = self._port.rejected_address
+            raise
 
     def _receive_ascii(self) -> bytes | None:
         if self._port.idle_wait(self.wake_fd, self.idle_ms) != native.IDLE_INPUT:
@@ -191,7 +256,41 @@ class SerialSlave(LineThread[MasterConfig]):
         if got.fault is not None:
             raise got.fault
         assert got.frame is not None
-        return frames.ascii_decode(got.frame)
+        try:
+            return frames.ascii_decode(got.frame)
+        except (ChecksumError, FrameError):
+            self._rejected = _ascii_address(got.frame)
+            raise
+
+    # --- the exchange table's serial slave ---
+
+    def _answer_from_table(self, adu: bytes) -> None:
+        """A request for the table address: answered from the table once the line has been
+        quiet for t3.5, unless the master moves on first."""
+        counts = self.table_counters
+        counts.requests += 1
+        if _length_error(adu):
+            counts.length_errors += 1       # the table answers it 0x03
+        received_ns = time.monotonic_ns()
+        reply = self._responder.answer(memoryview(adu)[1:])
+        outcome = OUTCOME_TABLE
+        if reply is not None:
+            try:
+                sent = self._answer(adu[0], reply, self._quiet_ms)
+            except SerialError:
+                counts.send_failures += 1
+                raise
+            if not sent:
+                outcome += ", abandoned: the master moved on"
+        if self.trace.active:
+            self._tracer.table(adu, reply, outcome, (time.monotonic_ns() - received_ns) / 1e6)
+
+    def _broadcast_to_table(self, adu: bytes) -> None:
+        """A broadcast's writes go into the table too (its reads are ignored)."""
+        self.table_counters.broadcasts += 1
+        self._responder.answer(memoryview(adu)[1:], True)
+        if self.trace.active:
+            self._tracer.table(adu, None, f"{OUTCOME_TABLE}: broadcast", 0.0)
 
     # --- forwarding ---
 
@@ -289,7 +388,7 @@ class SerialSlave(LineThread[MasterConfig]):
                         unit, err)
         stats.failed()
 
-    def _answer(self, address: int, answer: bytes, quiet_ms: int = 0) -> bool:
+    def _answer(self, address: int, answer, quiet_ms: int = 0) -> bool:
         """Write the answer on the line once it has been quiet for quiet_ms, unless the
         master has moved on (False)."""
         while (idle := self._port.idle_wait(self.wake_fd, quiet_ms)) != native.IDLE_TIMEOUT:
@@ -324,3 +423,26 @@ class SerialSlave(LineThread[MasterConfig]):
         if self.trace.active:
             self._tracer.outcome(adu, None, None, pdu.BROADCAST, None,
                                  f"broadcast: {reached} of {len(destinations)} servers", None)
+
+
+def _ascii_address(frame: bytes) -> int:
+    """The address of an ASCII frame (':' and two hex digits), -1 when it has none."""
+    try:
+        return int(frame[1:3], 16)
+    except ValueError:
+        return -1
+
+
+def _length_error(adu: bytes) -> bool:
+    """The frame's length, or its byte count, is not what its function code and quantity say
+    (VPGate 8.5 "invalid length")."""
+    expected = frames.rtu_request_length(adu + b"\0\0")
+    if expected != frames.LEN_UNKNOWN and expected != len(adu) + native.CRC_LEN:
+        return True
+    function = adu[1]
+    if function in (0x0F, 0x10):
+        quantity = int.from_bytes(adu[4:6], "big")
+        return adu[6] != ((quantity + 7) // 8 if function == 0x0F else 2 * quantity)
+    if function == 0x17:
+        return adu[10] != 2 * int.from_bytes(adu[8:10], "big")
+    return False

@@ -7,9 +7,10 @@ class MasterStatus(DaemonStatus):
     """Master mode: the serial master's addresses, the slaveid table, the upstream servers."""
     mode = "master"
 
-    def __init__(self, cfg, slave, counters) -> None:
+    def __init__(self, cfg, slave, counters, tables) -> None:
         super().__init__(cfg, counters, slave.devices, slave.trace)
         self._slave = slave
+        self._tables = tables
 
     def status(self, request: dict) -> dict:
         cfg = self.cfg
@@ -26,7 +27,16 @@ class MasterStatus(DaemonStatus):
             "counters": self._counters.snapshot(),
             "counters_since": self._reset_at,
             "devices": [d.snapshot() for d in self._devices.all()],
+            "table": self._tables.figures(self._slave.table_counters.snapshot()),
         }
+
+    def commands(self) -> dict:
+        return {**super().commands(), **self._tables.commands()}
+
+    def reset(self, request: dict) -> dict:
+        self._slave.table_counters.reset()
+        self._tables.reset_counts()
+        return super().reset(request)
 
     def summary(self) -> str:
         c = self._counters

@@ -2,7 +2,9 @@
 thread only while someone traces.  Each request of the master that goes upstream is one
 "request" event (the Modbus/TCP frame sent, with the serial address), then one "reply" (the
 server's frame) or "no reply" event with the outcome and what went back on the line; a frame
-for an address outside the slaveid table is one "ignored" event."""
+for an address outside the slaveid table is one "ignored" event.  A request for the table
+address is a "request" event and a "reply" (or, for a broadcast, "no reply") event of server
+"table", outcome "table"."""
 import time
 
 OUTCOME_REPLY = "reply"
@@ -12,6 +14,8 @@ OUTCOME_UNREACHABLE = "unreachable"
 OUTCOME_BAD_REPLY = "not the answer"       # the reply with our tid does not answer the request
 OUTCOME_IGNORED = "not in the slaveid table"
 OUTCOME_DEVICE_DOWN = "device down"        # refused at once: its address is down, no probe
+OUTCOME_TABLE = "table"                    # answered from the exchange table by mbgw itself
+TABLE_SERVER = "table"
 
 
 class MasterTracer:
@@ -34,6 +38,19 @@ class MasterTracer:
             event = _event("reply", adu[0], reply[0], server, conn, tid, unit, reply, outcome,
                            latency_ms)
         self.hub.emit_threadsafe(event)
+
+    def table(self, adu: bytes, reply, outcome: str, latency_ms: float) -> None:
+        """A request answered from the exchange table (reply None: a broadcast, or the
+        master moved on)."""
+        emit = self.hub.emit_threadsafe
+        emit(_event("request", adu[0], adu[1], TABLE_SERVER, None, None, None, adu[1:], "",
+                    None))
+        if reply is None:
+            emit(_event("no reply", adu[0], adu[1], TABLE_SERVER, None, None, None, b"",
+                        outcome, latency_ms))
+        else:
+            emit(_event("reply", adu[0], reply[0], TABLE_SERVER, None, None, None, bytes(reply),
+                        outcome, latency_ms))
 
     def ignored(self, adu: bytes) -> None:
         self.hub.emit_threadsafe(_event("ignored", adu[0], adu[1], None, None, None, None,

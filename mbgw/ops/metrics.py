@@ -130,14 +130,17 @@ def parse_address(text: str) -> tuple[str | None, int]:
 class DaemonCollector:
     """A prometheus_client collector of a daemon's live objects.  They are read in the
     scrape's thread while the line thread may be counting: a scrape is a snapshot within a
-    transaction.  gauges() gives (name, help, value) of the mode's own gauges."""
+    transaction.  gauges() gives (name, help, value) of the mode's own gauges; table(), when
+    the daemon serves the exchange table, its status dict (mbgw.table.report.table_status)."""
 
-    def __init__(self, counters, devices, started: float, mode: str, gauges) -> None:
+    def __init__(self, counters, devices, started: float, mode: str, gauges,
+                 table=None) -> None:
         self._counters = counters
         self._devices = devices
         self._started = started
         self._mode = mode
         self._gauges = gauges
+        self._table = table
 
     def collect(self):
         yield from self._daemon()
@@ -148,6 +151,9 @@ class DaemonCollector:
         yield from self._device_counters(table)
         yield from self._device_health(table)
         yield self._latency(table)
+        status = self._table() if self._table is not None else None
+        if status is not None:
+            yield from table_families(status)
 
     def _daemon(self):
         info = GaugeMetricFamily("mbgw_info", "mbgw's version and mode (always 1).",
@@ -237,21 +243,57 @@ class DaemonCollector:
         return family
 
 
+_TABLE_SERIAL_ERRORS = {"crc": "crc_errors", "length": "length_errors",
+                        "send": "send_failures"}
+
+
+def table_families(status: dict):
+    """The exchange table's families from its status dict (mbgw.table.report)."""
+    requests = CounterMetricFamily(
+        "mbgw_table_requests", "Requests the exchange table answered, by function code and "
+        "outcome (answered; exception: an exception reply; broadcast: done, no reply).",
+        labels=["function", "outcome"])
+    for function, row in status["requests"].items():
+        for outcome, n in row.items():
+            requests.add_metric([str(function), outcome], n)
+    yield requests
+    exceptions = CounterMetricFamily(
+        "mbgw_table_exceptions", "Exception replies the exchange table sent, by code.",
+        labels=["code"])
+    for code, n in status["exceptions"].items():
+        exceptions.add_metric([code], n)
+    yield exceptions
+    serial = status.get("serial")
+    if serial is not None:
+        yield CounterMetricFamily(
+            "mbgw_table_serial_requests", "Requests from the serial master for the table's "
+            "address (master mode), broadcasts included.", value=serial["requests"])
+        errors = CounterMetricFamily(
+            "mbgw_table_serial_errors", "Master mode's serial slave: frames for the table's "
+            "address with a bad CRC or LRC (crc) or a bad length (length), and replies that "
+            "could not be sent (send).", labels=["kind"])
+        for kind, key in _TABLE_SERIAL_ERRORS.items():
+            errors.add_metric([kind], serial[key])
+        yield errors
+
+
 def slave_collector(counters, devices, scheduler, server, worker,
-                    started: float) -> DaemonCollector:
-    """Slave mode's metrics."""
+                    started: float, table=None) -> DaemonCollector:
+    """Slave mode's metrics; table(): the exchange table's status dict, when it is on."""
     return DaemonCollector(counters, devices, started, "slave", lambda: [
         ("mbgw_line_up", "1 while the serial device is open and usable.", int(worker.up)),
         ("mbgw_queue_depth", "Requests waiting for the serial line.", scheduler.depth),
-        ("mbgw_clients_connected", "Modbus TCP clients connected.", len(server.clients))])
+        ("mbgw_clients_connected", "Modbus TCP clients connected.", len(server.clients))],
+        table)
 
 
-def master_collector(counters, devices, slave, started: float) -> DaemonCollector:
-    """Master mode's metrics."""
+def master_collector(counters, devices, slave, started: float,
+                     table=None) -> DaemonCollector:
+    """Master mode's metrics; table(): the exchange table's status dict, when it is on."""
     return DaemonCollector(counters, devices, started, "master", lambda: [
         ("mbgw_line_up", "1 while the serial device is open and usable.", int(slave.up)),
         ("mbgw_upstream_connections", "Connections open to Modbus TCP servers.",
-         len(slave.connections()))])
+         len(slave.connections()))], table)
 
 
 # --- the HTTP side ---------------------------------------------------------------------------
