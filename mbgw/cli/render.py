@@ -135,22 +135,32 @@ _TABLE_OUTCOMES = ("answered", "exception", "broadcast")
 def _table_section(t: dict, mode: str, now: float) -> list[str]:
     """The exchange table: what reaches it, requests by function, exceptions sent, master
     mode's serial slave, the persistence."""
+    if t.get("enabled") is False:
+        return ["table      off"]
     lines = [f"table      {_table_reach(t, mode)}"]
-    rows = [(fc, row) for fc, row in t["requests"].items() if any(row.values())]
+    rows = [(fc, row) for fc, row in t.get("requests", {}).items() if any(row.values())]
     if rows:
         lines.append(f"  {'FC':>4}  " + "  ".join(f"{o.upper():>9}" for o in _TABLE_OUTCOMES))
         lines += [f"  {fc:>4}  " + "  ".join(f"{row.get(o, 0):>9}" for o in _TABLE_OUTCOMES)
                   for fc, row in rows]
     else:
         lines.append("  no requests yet")
-    if t["exceptions"]:
+    if t.get("exceptions"):
         lines.append("  exceptions sent " + " ".join(f"{code}:{n}"
                                                     for code, n in t["exceptions"].items()))
     serial = t.get("serial")
     if serial is not None:
-        lines.append(f"  serial slave: {serial['requests']} requests, {serial['crc_errors']} "
-                     f"invalid CRC, {serial['length_errors']} invalid length, "
-                     f"{serial['send_failures']} failed sends")
+        lines.append(f"  serial slave: {serial.get('requests', 0)} requests, "
+                     f"{serial.get('crc_errors', 0)} invalid CRC, "
+                     f"{serial.get('length_errors', 0)} invalid length, "
+                     f"{serial.get('send_failures', 0)} failed sends")
+    tcp = t.get("tcp")
+    if tcp is not None:
+        lines.append(f"  TCP server: {tcp.get('connections', 0)} of "
+                     f"{tcp.get('max_connections', '-')} clients, "
+                     f"{tcp.get('connections_accepted', 0)} accepted, "
+                     f"{tcp.get('connections_refused_limit', 0)} refused (limit), "
+                     f"{tcp.get('connections_bad_header', 0)} closed (bad header)")
     persist = t.get("persist")
     if persist is not None:
         lines.append(f"  persist {_table_persist(persist, now)}")

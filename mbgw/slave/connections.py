@@ -75,13 +75,31 @@ class Connections:
                     self._serve(client, events)
         return serial
 
+    # --- the table reader (mbgw.slave.table_reader), under the line worker's gate ---
+
+    def wanted(self):
+        """(fd, client) of the clients that may be read now."""
+        return ((fd, client) for fd, client in self._clients.items() if client.readable)
+
+    def serve_ready(self, ready, on_request) -> None:
+        """Serve what the table reader's poll() found ready (it polled without the gate: a
+        client may have been closed since, its fd even reused, or read by the line thread),
+        each request to on_request(client, tid, unit, pdu)."""
+        for fd, events in ready:
+            if fd == self._wake_fd:
+                self._woken(on_request)
+                continue
+            client = self._clients.get(fd)
+            if client is not None and client.readable:
+                self._serve(client, events & ~_OUT, on_request=on_request)
+
     def close_all(self) -> None:
         while self._adopted:
             self._adopted.popleft().close()
         for client in list(self._clients.values()):
             self._close(client)
 
-    def _woken(self) -> None:
+    def _woken(self, on_request=None) -> None:
         try:
             os.eventfd_read(self._wake_fd)
         except BlockingIOError:
@@ -92,7 +110,7 @@ class Connections:
             self._clients[client.fd] = client
             self._events[client.fd] = _IN
             self._poll.register(client.fd, _IN)
-            self._serve(client, _IN)
+            self._serve(client, _IN, on_request=on_request)
 
     def _update(self) -> None:
         """Poll each client for what it can take now: no input while it has 16 requests in
@@ -112,11 +130,12 @@ class Connections:
                 self._poll.register(fd, wanted)
             self._events[fd] = wanted
 
-    def _serve(self, client: Client, events: int, take=None) -> None:
+    def _serve(self, client: Client, events: int, take=None, on_request=None) -> None:
         if events & _OUT:
             client.flush()
         if not events & ~_OUT:
             return
+        on_request = on_request or self._on_request
         try:
             frames = client.receive(self._reader) if take is None else take(client)
         except mbap.BadHeader as err:
@@ -130,7 +149,7 @@ class Connections:
             return
         try:
             for tid, unit, request in frames:
-                self._on_request(client, tid, unit, request)
+                on_request(client, tid, unit, request)
         except Exception:   # a bug must cost one connection, never the line
             log.exception("internal error on a request of client %s; closing it", client.peer)
             self._close(client)

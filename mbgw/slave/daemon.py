@@ -22,6 +22,7 @@ from mbgw.slave.line_thread import LineWorker
 from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
 from mbgw.slave.status import SlaveStatus
+from mbgw.slave.table_service import TableService
 
 log = logging.getLogger("mbgw")
 
@@ -42,9 +43,10 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     loop = asyncio.get_running_loop()
     devices = DeviceTable(rule=HealthRule(cfg.demotion))
     scheduler = Scheduler()
+    tables = TableService(cfg, devices)
 
     worker: LineWorker
-    server = TcpServer(cfg, scheduler, counters, lambda: worker.up, devices)
+    server = TcpServer(cfg, scheduler, counters, lambda: worker.up, devices, tables.table)
     worker = LineWorker(cfg, line, scheduler, server, counters, devices)
     stop = asyncio.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
@@ -56,13 +58,13 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     started = time.time()
     try:
         metrics = start_metrics(cfg.metrics, lambda m: m.slave_collector(
-            counters, devices, scheduler, server, worker, started))
+            counters, devices, scheduler, server, worker, started, tables.figures))
     except MetricsListenError:
         server.close()
         raise
     worker.idle_ms = idle_ms(watchdog_interval())
     worker.start()
-    status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses)
+    status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses, tables)
     control = await start_control(cfg.control, status.commands())
     s = cfg.serial
     log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s",
@@ -74,12 +76,17 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
         log.warning("nocheck is on: serial replies are forwarded unchecked (a debugging mode)")
 
     async def apply(new: SlaveConfig) -> None:
+        tables.reconfigure(new)
         await server.reconfigure(new)
         worker.reconfigure(new)
 
+    kept = asyncio.ensure_future(tables.keep())
     await serve_until_stopped(stop, status, worker, reconfigure, apply, control, metrics)
+    kept.cancel()
     server.close()
     worker.stop()
     await asyncio.to_thread(worker.join)
+    tables.save()
     scheduler.close()
     log_stopped(counters)
+

@@ -1,14 +1,19 @@
 """The serial line's one owner, and the reader and writer of slave mode's TCP connections:
 a thread that reads the clients' requests, takes jobs from the scheduler, runs them on the
 line and delivers each outcome.  It also keeps the port alive: a device that fails is closed,
-reopened when it is back (mbgw.line.supervisor), and reported once per change of state."""
+reopened when it is back (mbgw.line.supervisor), and reported once per change of state.
+
+With the exchange table on, the thread holds the gate (a lock) at all times except around
+its blocking serial calls, and the table reader (mbgw.slave.table_reader) serves the clients
+meanwhile; every reply is then written by Python under the gate (no forward from C, no
+shortcut), so no two threads ever write one socket."""
 import errno
 import logging
 import time
 
 from mbgw.config.model import SlaveConfig
 from mbgw.errors import LineTimeout, SerialError
-from mbgw.line.framing import framing_for
+from mbgw.line.framing import NO_FORWARD, framing_for
 from mbgw.line.port import SerialLine
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s
 from mbgw.ops.counters import Counters
@@ -28,6 +33,7 @@ from mbgw.slave.scheduler import (
     Job,
     Scheduler,
 )
+from mbgw.slave.table_reader import Gate, TableReader
 from mbgw.slave.transaction import SerialMaster
 
 log = logging.getLogger("mbgw.line")
@@ -51,6 +57,8 @@ class LineWorker(LineThread[SlaveConfig]):
         self._taken: Job | None = None     # put on the line by the shortcut, books to keep
         self._shortcut = False
         self._serving: Job | None = None     # until its outcome has been delivered
+        self._gate = Gate()                  # see the module's docstring
+        self._reader: TableReader | None = None     # while the table is on
         self._master: SerialMaster | None = self._master_on(line)
 
     def _master_on(self, line: SerialLine, previous: SerialMaster | None = None) -> SerialMaster:
@@ -59,8 +67,10 @@ class LineWorker(LineThread[SlaveConfig]):
                               cfg.retries, cfg.turnaround_ms)
         master.on_reply = self._reply_now
         # The shortcut takes plain RTU requests, which libmodbus sends and frames.
+        # Not with the table on: C would write a reply to a client the table reader may be
+        # answering at the same time.
         self._shortcut = cfg.shortcut and cfg.serial.protocol == "rtu" and \
-            line.libmodbus_sends and not cfg.serial.nocheck
+            line.libmodbus_sends and not cfg.serial.nocheck and not cfg.table.enabled
         if self._shortcut:
             line.port.shortcut_rules(pdu.LIBMODBUS_FRAMED, line.char_ns,
                                      cfg.serial.stout_ms * 1_000_000, cfg.slaveid, self._down)
@@ -83,14 +93,30 @@ class LineWorker(LineThread[SlaveConfig]):
     def _wake(self) -> None:
         self._scheduler.wake()
 
+    def run(self) -> None:
+        self._gate.take()
+        try:
+            self._start_reader()
+            super().run()
+        finally:
+            self._gate.release()
+
     def _open_line(self) -> SerialLine:
         return SerialLine(self._cfg.serial, self._counters)
 
     def _attach(self, line: SerialLine) -> None:
         self._master = self._master_on(line)
+        self._line_state(down=False)
 
     def _detach(self) -> None:
         self._master = None
+        self._line_state(down=True)
+
+    def _line_state(self, down: bool) -> None:
+        """FC 7 of the exchange table tells whether the line is down."""
+        table = self._server.table
+        if table is not None:
+            table.set_flags(line_down=down)
 
     def _reopens(self, old, new) -> bool:
         return any(getattr(new, name) != getattr(old, name) for name in REOPEN_SETTINGS)
@@ -98,6 +124,9 @@ class LineWorker(LineThread[SlaveConfig]):
     def _configure(self, old: SlaveConfig, reopen: bool) -> None:
         if self._cfg.demotion != old.demotion:
             self.devices.set_rule(self._cfg.demotion)
+        if self._cfg.table.enabled != old.table.enabled:
+            self._stop_reader()
+            self._start_reader()
         if not reopen and self._master is not None and self._line is not None:
             self._master = self._master_on(self._line, self._master)
 
@@ -117,8 +146,41 @@ class LineWorker(LineThread[SlaveConfig]):
         self._connections.wait(int(timeout_s * 1000))
 
     def _finish(self) -> None:
+        self._stop_reader()
         self._connections.close_all()
         self.close_line()
+
+    # --- the table reader (the gate is held) ---
+
+    def _start_reader(self) -> None:
+        table = self._server.table
+        if self._cfg.table.enabled and table is not None:
+            self._reader = TableReader(self._gate, self._connections, self._scheduler.wake_fd,
+                                       self._server.read_meanwhile, table.responder())
+            self._reader.start()
+
+    def _stop_reader(self) -> None:
+        reader, self._reader = self._reader, None
+        if reader is not None:
+            reader.stop()
+            self._gate.release()
+            try:
+                reader.join()
+            finally:
+                self._gate.take()
+            self._server.take_kept()
+
+    def _transact(self, master: SerialMaster, job: Job, forward, taken: bool) -> bytes | None:
+        """master.transact, without the gate while the table reader runs; the requests it
+        kept for the line meanwhile are routed as soon as the gate is back."""
+        if self._reader is None:
+            return master.transact(job.adu, forward, taken)
+        self._gate.release()
+        try:
+            return master.transact(job.adu, forward, taken)
+        finally:
+            self._gate.take()
+            self._server.take_kept()
 
     # --- serving ---
 
@@ -129,10 +191,11 @@ class LineWorker(LineThread[SlaveConfig]):
             # The reply may go straight to a client whose earlier replies have all gone out.
             # With no other request waiting for the line, that client (often woken onto this
             # CPU) then runs before our bookkeeping.
-            forward = client.forward_target(job.tid, job.unit, not self._scheduler.depth)
+            forward = client.forward_target(job.tid, job.unit, not self._scheduler.depth) \
+                if self._reader is None else NO_FORWARD
             master = self._master
             assert master is not None          # jobs are served only while the line is up
-            reply = master.transact(job.adu, forward, taken)
+            reply = self._transact(master, job, forward, taken)
             if reply is None:
                 job.outcome = OUTCOME_BROADCAST    # a reply went out through _reply_now
         except LineTimeout:
@@ -173,7 +236,14 @@ class LineWorker(LineThread[SlaveConfig]):
         job, self._serving = self._serving, None
         assert job is not None
         job.outcome = OUTCOME_EXCEPTION if reply[0] & pdu.EXCEPTION_FLAG else OUTCOME_REPLY
-        self._deliver(job, reply, sent)
+        if self._reader is None:
+            self._deliver(job, reply, sent)
+            return
+        self._gate.take()
+        try:
+            self._deliver(job, reply, sent)
+        finally:
+            self._gate.release()
 
     def _failure(self, job: Job, code: int) -> bytes | None:
         if job.adu[0] == pdu.BROADCAST:

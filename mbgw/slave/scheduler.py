@@ -39,6 +39,7 @@ OUTCOME_DEVICE_DOWN = "device down"    # refused: its address is down, and it is
 OUTCOME_BROADCAST = "broadcast"
 OUTCOME_UNROUTABLE = "unroutable"
 OUTCOME_ERROR = "internal error"
+OUTCOME_TABLE = "table"                # answered from the exchange table, not the line
 
 
 class Queue:

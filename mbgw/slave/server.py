@@ -8,6 +8,11 @@ an idle client (eviction_victim), or is refused when none may go.  An admitted c
 then belongs to the line thread
 (mbgw.slave.connections), which calls request() for each frame it reads and finished() with each
 outcome: one thread carries a transaction from the client's bytes to the reply.
+
+With the exchange table on, a request for it (routes_to_table) is answered at once by the
+thread that read it: the line thread, or while that thread is in a serial transaction the
+table reader (mbgw.slave.table_reader), which calls read_meanwhile() and keeps the requests
+for the line for the line thread (take_kept).  Both hold the line worker's gate meanwhile.
 """
 import asyncio
 import dataclasses
@@ -29,6 +34,7 @@ from mbgw.slave.connections import Connections
 from mbgw.slave.scheduler import (
     OUTCOME_DEVICE_DOWN,
     OUTCOME_LINE_DOWN,
+    OUTCOME_TABLE,
     OUTCOME_UNROUTABLE,
     Job,
     Scheduler,
@@ -42,7 +48,9 @@ LISTEN_BACKLOG = 100
 
 class TcpServer:
     def __init__(self, cfg: SlaveConfig, scheduler: Scheduler, counters: Counters,
-                 line_up, devices: DeviceTable) -> None:
+                 line_up, devices: DeviceTable, table=None) -> None:
+        """table: the exchange table (mbgw.table.memory.Table), served while cfg.table is
+        enabled."""
         self._cfg = cfg
         self._scheduler = scheduler
         self.counters = counters
@@ -56,6 +64,12 @@ class TcpServer:
         self._loop: asyncio.AbstractEventLoop | None = None
         self.trace = TraceHub()
         self.connections = Connections(scheduler.wake_fd, self.request, self._closed, counters)
+        self.table = table
+        # Units the table answers (256 flags; all of them with direct messaging off); swapped
+        # whole at a reload, so the threads that route never see half of it.
+        self._table_units = table_units(cfg)
+        self._responder = table.responder() if table is not None else None   # line thread's
+        self._kept: list[tuple] = []     # requests for the line read by the table reader
 
     # --- the asyncio thread: listening and admission ---
 
@@ -81,6 +95,9 @@ class TcpServer:
         """Apply new settings; connections they do not concern stay open."""
         old, self._cfg = self._cfg, cfg
         self._acl = AccessList(cfg.authip)
+        self._table_units = table_units(cfg)
+        if self.table is not None and cfg.table.functions != old.table.functions:
+            self.table.set_functions(cfg.table.functions)
         for client in list(self.clients):
             if not self._acl.allows(client.host):
                 log.info("client %s closed: no longer allowed by authip", client.peer)
@@ -196,13 +213,60 @@ class TcpServer:
 
     # --- the line thread: requests in, outcomes out ---
 
-    def request(self, client: Client, tid: int, unit: int, request: bytes) -> None:
-        """A request read from client, which arrived at client.arrived_ns."""
+    def request(self, client: Client, tid: int, unit: int, request: bytes,
+                received_ns: int = 0) -> None:
+        """A request read from client, which arrived at received_ns (0: client.arrived_ns)."""
         client.requests += 1
-        job = self._admit(client, tid, unit, request, client.arrived_ns)
+        if self._table_units[unit]:
+            self._from_table(client, tid, unit, request, self._responder)
+            return
+        job = self._admit(client, tid, unit, request, received_ns or client.arrived_ns)
         if job is not None:
             client.in_flight += 1
             self._scheduler.submit(client.queue, job)
+
+    # --- the table reader, under the gate while the line thread is in a serial transaction
+
+    def read_meanwhile(self, client: Client, tid: int, unit: int, request: bytes,
+                       responder) -> None:
+        """A request the table reader read: a table request is answered now (with the
+        reader's own responder); one for the line is kept for the line thread, in flight
+        already so that the client's limit of requests in the gateway holds."""
+        if self._table_units[unit]:
+            client.requests += 1
+            self._from_table(client, tid, unit, request, responder)
+        else:
+            client.in_flight += 1
+            self._kept.append((client, tid, unit, request, client.arrived_ns))
+
+    def take_kept(self) -> None:
+        """Line thread, under the gate: route the requests the table reader kept for the line,
+        in the order they were read."""
+        kept = self._kept
+        if not kept:
+            return
+        for client, tid, unit, request, received_ns in kept:
+            client.in_flight -= 1
+            if not client.closed:
+                self.request(client, tid, unit, request, received_ns)
+        kept.clear()
+
+    def _from_table(self, client: Client, tid: int, unit: int, request: bytes,
+                    responder) -> None:
+        """Answer a request from the exchange table at once; unit 0 is a broadcast into it
+        (direct messaging off), with no reply."""
+        self.counters.requests += 1
+        tracing = self.trace.active
+        if tracing:
+            self.trace.emit_threadsafe(self._event("request", client, tid, unit, request, "",
+                                                   None))
+        if unit == pdu.BROADCAST:
+            reply = responder.answer(request, broadcast=True)
+        else:
+            reply = responder.answer(request)
+        self._answer(client, tid, unit, reply)
+        if tracing:
+            self.traced(client, tid, unit, request[0], reply, OUTCOME_TABLE, client.arrived_ns)
 
     def taken(self, client: Client, tid: int, unit: int, request: bytes,
               received_ns: int) -> Job | None:
@@ -295,6 +359,20 @@ class TcpServer:
                 "function": data[0], "length": len(data) if direction != "no reply" else 0,
                 "pdu": data.hex() if direction != "no reply" else "", "outcome": outcome,
                 "latency_ms": latency_ms}
+
+
+def table_units(cfg: SlaveConfig) -> bytes:
+    """256 flags, by unit id: the units the exchange table answers (none while it is off;
+    every one, unit 0 the broadcast, with direct messaging off)."""
+    table = cfg.table
+    if not table.enabled:
+        return bytes(256)
+    if not table.direct:
+        return bytes((1,)) * 256
+    flags = bytearray(256)
+    for unit in table.units:
+        flags[unit] = 1
+    return bytes(flags)
 
 
 def eviction_victim(idle: list[Client], now: float) -> Client | None:

@@ -9,12 +9,23 @@ class SlaveStatus(DaemonStatus):
     """Slave mode: TCP clients, the queue, the serial slaves."""
     mode = "slave"
 
-    def __init__(self, cfg, server, worker, scheduler, counters, devices, addresses) -> None:
+    def __init__(self, cfg, server, worker, scheduler, counters, devices, addresses,
+                 tables=None) -> None:
         super().__init__(cfg, counters, devices, server.trace)
+        self._tables = tables           # the exchange table (mbgw.slave.table_service)
         self._server = server
         self._worker = worker
         self._scheduler = scheduler
         self._addresses = addresses
+
+    def commands(self) -> dict:
+        tables = self._tables
+        return {**super().commands(), **(tables.commands() if tables is not None else {})}
+
+    def reset(self, request: dict) -> dict:
+        if self._tables is not None:
+            self._tables.table.reset_counts()
+        return super().reset(request)
 
     def trace_header(self) -> dict:
         return {"mode": self.mode, "listening": self._addresses}
@@ -26,8 +37,10 @@ class SlaveStatus(DaemonStatus):
         data = self._common()
         data["serial"].update(stout_ms=self.cfg.serial.stout_ms,
                               state="up" if self._worker.up else "down")
+        table = self._tables.figures() if self._tables is not None else None
         return {
             **data, "listening": self._addresses,
+            **({"table": table} if table is not None else {}),
             "queue_depth": self._scheduler.depth,
             "clients": [{"id": c.id, "peer": c.peer, "connected_since": c.connected_at,
                          "requests": c.requests, "in_flight": c.in_flight,

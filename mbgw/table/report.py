@@ -12,8 +12,11 @@ table_status(table, settings, serial, persist) ->
      "serial": {"requests": n, "crc_errors": n, "length_errors": n, "send_failures": n},
                                                master mode's serial slave (the master line
                                                thread's figures), when given
-     "persist": {...}}                         the persistence's state as it reports it
+     "persist": {...},                         the persistence's state as it reports it
                                                ("path", "last_save" (Unix time or null), ...)
+     "tcp": {"port": n, "connections": n, "max_connections": n, "connections_accepted": n,
+             "connections_refused_limit": n, "connections_bad_header": n}}
+                                               master mode's table TCP server, when given
 """
 from mbgw.config.model import TableConfig, number_list_text
 
@@ -21,12 +24,13 @@ SERIAL_KEYS = ("requests", "crc_errors", "length_errors", "send_failures")
 
 
 def table_status(table, settings: TableConfig | None = None, serial: dict | None = None,
-                 persist: dict | None = None) -> dict:
+                 persist: dict | None = None, tcp: dict | None = None) -> dict:
     """The "table" section of the status JSON (see the module's docstring)."""
     counts = table.counts()
     status: dict = {}
     if settings is not None:
-        status.update(functions=list(settings.functions), direct=settings.direct,
+        status.update(enabled=settings.enabled, functions=list(settings.functions),
+                      direct=settings.direct,
                       units=number_list_text(settings.units), address=settings.address,
                       port=settings.port)
     status["requests"] = {str(fc): dict(row)
@@ -37,4 +41,6 @@ def table_status(table, settings: TableConfig | None = None, serial: dict | None
         status["serial"] = {key: serial.get(key, 0) for key in SERIAL_KEYS}
     if persist is not None:
         status["persist"] = dict(persist)
+    if tcp is not None:
+        status["tcp"] = dict(tcp)
     return status

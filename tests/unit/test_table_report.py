@@ -45,6 +45,8 @@ def test_table_status_with_settings_serial_and_persist():
     assert status["serial"] == {"requests": 7, "crc_errors": 1, "length_errors": 0,
                                 "send_failures": 0}
     assert status["persist"] == {"path": "/var/lib/t", "last_save": None}
+    assert status["enabled"] is True and "tcp" not in status
+    assert table_status(Table(), tcp={"port": 502})["tcp"] == {"port": 502}
 
 
 # --- mbgw status -----------------------------------------------------------------------------
@@ -72,6 +74,11 @@ def requests(**rows) -> dict:
 
 def test_status_without_a_table_has_no_table_section():
     assert "table" not in format_status(slave_status(None), NOW)
+
+
+def test_status_table_off():
+    status = table_status(Table(), TableConfig(enabled=False))
+    assert "\ntable      off\n" in format_status(slave_status(status), NOW)
 
 
 def test_status_slave_table_section():
@@ -102,8 +109,13 @@ def test_status_master_table_section_with_serial_slave_and_persist():
              "port": 1502, "requests": requests(fc3=(1, 0, 0)), "exceptions": {},
              "serial": {"requests": 9, "crc_errors": 1, "length_errors": 2,
                         "send_failures": 0},
-             "persist": {"path": "/var/lib/mbgw/t", "last_save": NOW - 3.0, "saves": 4}}
+             "persist": {"path": "/var/lib/mbgw/t", "last_save": NOW - 3.0, "saves": 4},
+             "tcp": {"port": 1502, "connections": 2, "max_connections": 32,
+                     "connections_accepted": 5, "connections_refused_limit": 1,
+                     "connections_bad_header": 0}}
     lines = _table_section(table, "master", NOW)
+    assert "  TCP server: 2 of 32 clients, 5 accepted, 1 refused (limit), 0 closed (bad " \
+        "header)" in lines
     assert lines[0] == "table      serial address 17, TCP port 1502, functions 3"
     assert "  serial slave: 9 requests, 1 invalid CRC, 2 invalid length, 0 failed sends" \
         in lines

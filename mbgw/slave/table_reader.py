@@ -1,0 +1,105 @@
+"""The table reader: while the line thread is inside a serial transaction, a second thread
+reads the clients, so that a request for the exchange table never waits for the line.
+
+The line thread holds the gate (a lock) at all times except around its blocking serial calls
+(LineWorker._transact).  This thread polls the readable clients and the wake-up eventfd
+without the gate, then takes it -- which it gets only while the line thread is on the line --
+and serves what is ready with Connections' own code: a table request is answered at once, a
+request for the line is kept for the line thread (TcpServer.read_meanwhile), which routes it
+as soon as it has the gate back, so admission, demotion and the queue stay the line
+thread's.  What it polled may have changed before it has the gate (a client read by the line
+thread, closed, its fd reused): only the clients Connections knows then are served, and
+EAGAIN is normal.  Runs only while the table is on.
+"""
+import logging
+import os
+import select
+import threading
+
+from mbgw.slave.connections import Connections
+
+log = logging.getLogger("mbgw.tcp")
+
+_IN = select.POLLIN
+
+
+class Gate:
+    """The lock the line thread and the table reader share.  The line thread has it back as
+    soon as the reader lets go, before the reader takes it again (a turnstile): a lock alone
+    goes to whichever thread runs first, and a reader kept busy by table requests would keep
+    the line waiting."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._turnstile = threading.Lock()
+
+    def take(self) -> None:
+        """The line thread's: first in line."""
+        with self._turnstile:
+            self._lock.acquire()
+
+    def release(self) -> None:
+        self._lock.release()
+
+    def __enter__(self) -> "Gate":
+        """The table reader's: behind the line thread if it is waiting."""
+        with self._turnstile:
+            pass
+        self._lock.acquire()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._lock.release()
+
+
+class TableReader(threading.Thread):
+    def __init__(self, gate: Gate, connections: Connections, wake_fd: int,
+                 on_request, responder) -> None:
+        """on_request(client, tid, unit, pdu, responder): TcpServer.read_meanwhile."""
+        super().__init__(name="mbgw-table", daemon=True)
+        self._gate = gate
+        self._connections = connections
+        self._wake_fd = wake_fd
+        self._responder = responder          # this thread's own reply buffer
+        self._on_request = lambda client, tid, unit, pdu: on_request(client, tid, unit, pdu,
+                                                                     responder)
+        self._stop_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        self._stopping = False
+        self._poll = select.poll()
+        self._poll.register(self._stop_fd, _IN)
+        self._poll.register(wake_fd, _IN)
+        self._polled: dict[int, object] = {}      # client fd -> the client polled there
+
+    def stop(self) -> None:
+        """Called by the line thread, which must then let go of the gate and join."""
+        self._stopping = True
+        os.eventfd_write(self._stop_fd, 1)
+
+    def run(self) -> None:
+        ready: list = []
+        try:
+            while True:
+                with self._gate:
+                    if self._stopping:
+                        return
+                    try:
+                        self._connections.serve_ready(ready, self._on_request)
+                    except Exception:   # a bug must cost this wake-up, never the thread
+                        log.exception("internal error in the table reader")
+                    self._update()
+                ready = self._poll.poll()
+        finally:
+            os.close(self._stop_fd)
+
+    def _update(self) -> None:
+        """Poll the clients that may be read now (under the gate)."""
+        polled = self._polled
+        wanted = dict(self._connections.wanted())
+        for fd, client in list(polled.items()):
+            if wanted.get(fd) is not client:
+                self._poll.unregister(fd)
+                del polled[fd]
+        for fd, client in wanted.items():
+            if fd not in polled:
+                self._poll.register(fd, _IN)
+                polled[fd] = client

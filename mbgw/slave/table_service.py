@@ -1,0 +1,90 @@
+"""Slave mode's exchange table (issue 14) beside the line: the table itself (TcpServer answers
+from it, in the line thread or the table reader), its configuration zone, its file
+(persistence), the operator's commands and its figures; the settings a reload changes.
+Asyncio thread."""
+import asyncio
+import logging
+import time
+
+from mbgw.config.model import SlaveConfig
+from mbgw.ops.device_stats import DeviceTable
+from mbgw.table import identity
+from mbgw.table.control import table_commands
+from mbgw.table.memory import Table
+from mbgw.table.persist import Persistence
+from mbgw.table.report import table_status
+
+log = logging.getLogger("mbgw.table")
+
+TICK_S = 1.0        # how often the file is looked at (it is written at most every interval)
+
+
+class TableService:
+    def __init__(self, settings: SlaveConfig, devices: DeviceTable) -> None:
+        """The table, built even while it is off (a reload may turn it on); FC 7 tells
+        whether a device is down from the demotion's flags.  Raises ConfigError when the
+        table's file is there but cannot be read."""
+        self.settings = settings
+        self.table = Table(settings.table.functions)
+        self.table.watch_down(devices.rule.down)
+        identity.fill(self.table, settings, "slave")
+        self.persistence: Persistence | None = None
+        self._persist(settings)
+        self._commands = table_commands(self.table)
+
+    @property
+    def cfg(self):
+        return self.settings.table
+
+    def _persist(self, settings: SlaveConfig) -> None:
+        """Keep the table in the file the settings name (loaded now), if any."""
+        cfg = settings.table
+        if not (cfg.enabled and cfg.persist):
+            self.persistence = None
+            return
+        self.persistence = Persistence(self.table, cfg.persist, cfg.persist_interval_s)
+        self.persistence.load()
+
+    def reconfigure(self, settings: SlaveConfig) -> None:
+        """New settings (SIGHUP): the configuration zone; a new file is loaded after the old
+        one is written.  The functions and the units are TcpServer's."""
+        old, self.settings = self.settings, settings
+        identity.fill(self.table, settings, "slave")
+        if (settings.table.enabled, settings.table.persist, settings.table.persist_interval_s) \
+                != (old.table.enabled, old.table.persist, old.table.persist_interval_s):
+            self.save()
+            try:
+                self._persist(settings)
+            except Exception as err:   # a reload never stops the gateway
+                log.error("table: %s; the table is not kept in a file", err)
+                self.persistence = None
+
+    async def keep(self) -> None:
+        """Write the file when the table changed, at most every persist-interval (a task
+        running until cancelled)."""
+        while True:
+            await asyncio.sleep(TICK_S)
+            if self.persistence is not None:    # a write every interval at most: on the loop
+                self.persistence.maybe_save(time.monotonic())
+
+    def save(self) -> None:
+        """At stop (and before another file is used)."""
+        if self.persistence is not None:
+            self.persistence.save()
+
+    def commands(self) -> dict:
+        """The operator's table-read and table-write, while the table is on."""
+        def when_on(command):
+            def serve(request: dict) -> dict:
+                if not self.cfg.enabled:
+                    return {"error": "the exchange table is off (--table, [table] enabled)"}
+                return command(request)
+            return serve
+        return {name: when_on(command) for name, command in self._commands.items()}
+
+    def figures(self) -> dict | None:
+        """The status's "table" section (mbgw.table.report), None while the table is off."""
+        if not self.cfg.enabled:
+            return None
+        persist = None if self.persistence is None else {"path": str(self.persistence.path)}
+        return table_status(self.table, self.cfg, persist=persist)
