@@ -23,13 +23,15 @@ at the window's ends) and the generator's CPU time in % of the window (one threa
 would mean the generator, not the server, is the limit).  See README.md, "The exchange table".
 """
 import argparse
+import math
 import os
 import shutil
 import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from array import array
+from dataclasses import dataclass, field
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -49,23 +51,39 @@ AIM_OF_LIBMODBUS = 50.0
 
 @dataclass
 class TableRun:
+    """One server under one load (registers, clients), pooled over the rounds."""
     server: str
     registers: int
     clients: int
-    count: int
-    errors: int
-    window_ns: int
-    p50_ns: int
-    p99_ns: int
-    max_ns: int
-    generator_cpu_us: int
-    least: int
-    most: int
-    server_cpu_ns: int
+    count: int = 0
+    errors: int = 0
+    window_ns: int = 0
+    generator_cpu_us: int = 0
+    server_cpu_ns: int = 0
+    spread: float = 0.0            # the largest (most - least) / most of a round, in %
+    latencies: array = field(default_factory=lambda: array("Q"))    # ns, sorted at the end
+
+    def add(self, result: list[int], latencies: array, server_cpu_ns: int) -> None:
+        count, errors, window, _, _, _, user, system, least, most = result
+        self.count += count
+        self.errors += errors
+        self.window_ns += window
+        self.generator_cpu_us += user + system
+        self.server_cpu_ns += server_cpu_ns
+        if most:
+            self.spread = max(self.spread, 100 * (most - least) / most)
+        self.latencies.extend(latencies)
 
     @property
     def rate(self) -> float:
         return self.count / (self.window_ns / 1e9) if self.window_ns else 0.0
+
+    def latency_us(self, q: float) -> float:
+        """Nearest-rank percentile (q in 0..100) of the latencies, once sorted."""
+        if not self.latencies:
+            return float("nan")
+        rank = max(1, math.ceil(q / 100 * len(self.latencies)))
+        return self.latencies[min(rank, len(self.latencies)) - 1] / 1e3
 
     @property
     def server_us_per_request(self) -> float:
@@ -200,11 +218,30 @@ def mbgw_has_table() -> bool:
 
 # ------------------------------------------------------------------------ the load
 
-def run_load(load: str, server, clients: int, registers: int, warmup: float,
-             seconds: float) -> TableRun:
-    proc = subprocess.Popen([load, "client", str(server.port), str(clients), str(registers),
-                             str(UNIT), str(warmup), str(seconds)], stdout=subprocess.PIPE,
-                            text=True)
+def socket_count(pid: int) -> int:
+    count = 0
+    for fd in Path(f"/proc/{pid}/fd").iterdir():
+        try:
+            count += os.readlink(fd).startswith("socket:")
+        except OSError:
+            pass                 # closed meanwhile
+    return count
+
+
+def settle(server, sockets: int, limit_s: float = 2.0) -> None:
+    """Until the server has closed the last run's connections (back to `sockets`, its count
+    when idle), at most limit_s: a server at its connection limit would refuse the next run's."""
+    deadline = time.monotonic() + limit_s
+    while socket_count(server.pid) > sockets and time.monotonic() < deadline:
+        time.sleep(0.005)
+
+
+def run_load(load: str, server, run: TableRun, warmup: float, seconds: float,
+             latency_file: Path) -> None:
+    """One closed-loop run against server, added to run."""
+    proc = subprocess.Popen([load, "client", str(server.port), str(run.clients),
+                             str(run.registers), str(UNIT), str(warmup), str(seconds),
+                             str(latency_file)], stdout=subprocess.PIPE, text=True)
     cpu_start = cpu_end = 0
     result = None
     for line in proc.stdout:
@@ -216,42 +253,55 @@ def run_load(load: str, server, clients: int, registers: int, warmup: float,
             result = [int(v) for v in line.split()[1:]]
     if proc.wait() or result is None:
         raise RuntimeError(f"tableload against {server.name} failed ({proc.returncode})")
-    count, errors, window, p50, p99, worst, user, system, least, most = result
-    return TableRun(server.name, registers, clients, count, errors, window, p50, p99, worst,
-                    user + system, least, most, cpu_end - cpu_start)
+    latencies = array("Q")
+    latencies.frombytes(latency_file.read_bytes())
+    run.add(result, latencies, cpu_end - cpu_start)
 
 
-def measure(server, load: str, warmup: float, seconds: float) -> list[TableRun]:
+def measure(servers: list, load: str, tmp: Path, rounds: int, warmup: float,
+            seconds: float) -> list[TableRun]:
+    """Every load against every server, in rounds: within a round each server in turn, so
+    that a change in the host's mood (this VM's wake-up costs drift within seconds) weighs
+    on all of them alike."""
+    idle = {server.name: socket_count(server.pid) for server in servers}
     runs = []
-    try:
-        for registers in REGISTER_COUNTS:
-            for clients in CLIENT_COUNTS:
-                runs.append(run_load(load, server, clients, registers, warmup, seconds))
-    finally:
-        server.stop()
+    latency_file = tmp / "latencies"
+    for registers in REGISTER_COUNTS:
+        for clients in CLIENT_COUNTS:
+            case = [TableRun(server.name, registers, clients) for server in servers]
+            for _ in range(rounds):
+                for server, run in zip(servers, case, strict=True):
+                    settle(server, idle[server.name])
+                    run_load(load, server, run, warmup, seconds, latency_file)
+            for run in case:
+                run.latencies = array("Q", sorted(run.latencies))
+            runs += case
     return runs
 
 
 # ------------------------------------------------------------------------ report
 
-def report(runs: list[TableRun], seconds: float) -> None:
+def report(runs: list[TableRun], rounds: int, seconds: float) -> None:
     by = {(r.server, r.registers, r.clients): r for r in runs}
     print(f"\n  {'server':12} {'regs':>4} {'clients':>7} {'req/s':>8} {'of':>6} {'p50':>7} "
-          f"{'p99':>7} {'server':>7} {'gen':>5} {'least':>7} {'most':>7}")
+          f"{'p99':>7} {'server':>7} {'gen':>5} {'spread':>7}")
     print(f"  {'':12} {'':>4} {'':>7} {'':>8} {'libmb':>6} {'us':>7} {'us':>7} "
-          f"{'us/req':>7} {'CPU':>5} {'':>7} {'':>7}")
-    print(f"  {'':12} {'':>4} {'':>7} {'':>8} {'%':>6} {'':>7} {'':>7} {'':>7} {'%':>5}")
-    for r in runs:
+          f"{'us/req':>7} {'CPU':>5} {'':>7}")
+    print(f"  {'':12} {'':>4} {'':>7} {'':>8} {'%':>6} {'':>7} {'':>7} {'':>7} {'%':>5} "
+          f"{'%':>7}")
+    for r in sorted(runs, key=lambda r: (r.registers, r.clients)):
         ref = by.get(("libmodbus", r.registers, r.clients))
         of = f"{100 * r.rate / ref.rate:6.0f}" if ref and ref.rate else f"{'-':>6}"
+        spread = f"{r.spread:7.0f}" if r.clients > 1 else f"{'-':>7}"
         print(f"  {r.server:12} {r.registers:4d} {r.clients:7d} {r.rate:8.0f} {of} "
-              f"{r.p50_ns / 1e3:7.0f} {r.p99_ns / 1e3:7.0f} {r.server_us_per_request:7.1f} "
-              f"{r.generator_pct:5.0f} {r.least:7d} {r.most:7d}")
+              f"{r.latency_us(50):7.0f} {r.latency_us(99):7.0f} "
+              f"{r.server_us_per_request:7.1f} {r.generator_pct:5.0f} {spread}")
         if r.errors:
             print(f"  !! {r.server}: {r.errors} failed requests (exception, wrong reply or none)")
-    print(f"  ({seconds:g} s a run; least/most: the replies of the least and the most served "
-          "client; server us/req: its CPU time, every thread, per request; gen CPU: the load "
-          "generator's, one thread)")
+    print(f"  ({rounds} rounds of {seconds:g} s a run, the servers in turn within a round; "
+          "server us/req: its CPU time, every thread, per request; gen CPU: the load "
+          "generator's, one thread, in % of the window; spread: the largest gap between the "
+          "most and the least served client of a round, in % of the most)")
     aims(by)
 
 
@@ -281,40 +331,59 @@ def loadavg() -> str:
         return "?"
 
 
+def start_servers(tmp: Path, load: str, libmodbus: str | None,
+                  only: set[str] | None) -> list:
+    starts = [("raw", lambda: listening("raw", load, "raw"))]
+    if libmodbus:
+        starts.append(("libmodbus", lambda: listening("libmodbus", libmodbus)))
+    starts.append(("pymodbus", lambda: listening(
+        "pymodbus", sys.executable, str(HERE / "pymodbus_server.py"))))
+    if mbgw_has_table():
+        MASTER_OPTIONS[:] = master_options()
+        starts.append(("mbgw slave", lambda: MbgwServer("mbgw slave", tmp, "slave")))
+        starts.append(("mbgw master", lambda: MbgwServer("mbgw master", tmp, "master")))
+    else:
+        print("  mbgw: no --table in this build; its rows are left out")
+    servers: list = []
+    try:
+        for name, start in starts:
+            if not only or name in only:
+                servers.append(start())
+    except BaseException:
+        stop_servers(servers)
+        raise
+    return servers
+
+
+def stop_servers(servers: list) -> None:
+    for server in servers:
+        server.stop()
+
+
 def run(quick: bool, only: set[str] | None = None) -> None:
-    warmup, seconds = (0.2, 1.0) if quick else (0.5, 3.0)
+    rounds, warmup, seconds = (2, 0.1, 0.4) if quick else (5, 0.1, 0.6)
     print(f"mbgw bench, the exchange table: FC03 reads of {' and '.join(map(str, REGISTER_COUNTS))}"
           f" registers from address 0, {' / '.join(map(str, CLIENT_COUNTS))} closed-loop clients "
           "on loopback")
     print(f"  host: {os.cpu_count()} CPUs; load average before: {loadavg()} (anything else "
           "running skews the figures)")
     began = time.monotonic()
-    runs: list[TableRun] = []
     with tempfile.TemporaryDirectory(prefix="mbgw-bench-table-") as tmp_name:
         tmp = Path(tmp_name)
         load, libmodbus = build(tmp)
-        servers = [("raw", lambda: listening("raw", load, "raw"))]
-        if libmodbus:
-            servers.append(("libmodbus", lambda: listening("libmodbus", libmodbus)))
-        servers.append(("pymodbus", lambda: listening(
-            "pymodbus", sys.executable, str(HERE / "pymodbus_server.py"))))
-        if mbgw_has_table():
-            MASTER_OPTIONS[:] = master_options()
-            servers.append(("mbgw slave", lambda: MbgwServer("mbgw slave", tmp, "slave")))
-            servers.append(("mbgw master", lambda: MbgwServer("mbgw master", tmp, "master")))
-        else:
-            print("  mbgw: no --table in this build; its rows are left out")
-        for name, start in servers:
-            if only and name not in only:
-                continue
-            runs += measure(start(), load, warmup, seconds)
-    report(runs, seconds)
+        servers = start_servers(tmp, load, libmodbus, only)
+        try:
+            runs = measure(servers, load, tmp, rounds, warmup, seconds)
+        finally:
+            stop_servers(servers)
+    report(runs, rounds, seconds)
     print(f"\n({time.monotonic() - began:.0f} s; load average after: {loadavg()})")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="1 s runs instead of 3 s")
+    ap.add_argument("--quick", action="store_true",
+                    help="2 rounds of 0.4 s runs instead of 5 rounds of 0.6 s")
     ap.add_argument("--only", action="append", metavar="SERVER",
                     help="measure only this server (raw, libmodbus, pymodbus, 'mbgw slave', "
                     "'mbgw master'); repeat for more")

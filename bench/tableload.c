@@ -1,7 +1,7 @@
 /* The table row's load generator, and the fastest Modbus TCP server this host can have.
  * bench/table.py compiles this at run time (cc -O2) and drives it; it is not part of mbgw.
  *
- *   tableload client PORT CLIENTS REGISTERS UNIT WARMUP_S SECONDS
+ *   tableload client PORT CLIENTS REGISTERS UNIT WARMUP_S SECONDS [LATENCY_FILE]
  *       CLIENTS connections to 127.0.0.1:PORT, each a closed loop of FC03 reads of REGISTERS
  *       registers from address 0 of UNIT: its next request goes the moment its reply is in.
  *       One thread, epoll: a request costs the generator a send, a recv and its share of an
@@ -11,7 +11,9 @@
  *       time then), then
  *           RESULT count errors window_ns p50_ns p99_ns max_ns user_us sys_us least most
  *       latency: request sent -> whole reply read; user/sys: the generator's own CPU time in
- *       the window; least/most: the fewest and most replies one client had in it.
+ *       the window; least/most: the fewest and most replies one client had in it.  With
+ *       LATENCY_FILE, every latency of the window goes there too, sorted, as native uint64 ns
+ *       (for pooling runs).
  *   tableload raw PORT
  *       A Modbus TCP server on 127.0.0.1:PORT, epoll, one thread, that answers every FC03 with
  *       zeros and checks nothing: the ceiling for this generator on this host.  Prints
@@ -150,7 +152,14 @@ static int connect_to(int port)
     return fd;
 }
 
-static int run_client(int port, int n, double warmup_s, double seconds)
+static void write_latencies(const char *path, const uint64_t *lat, size_t count)
+{
+    FILE *f = fopen(path, "wb");
+    if (f == NULL || fwrite(lat, sizeof *lat, count, f) != count || fclose(f) != 0)
+        die(path);
+}
+
+static int run_client(int port, int n, double warmup_s, double seconds, const char *lat_path)
 {
     int ep = epoll_create1(EPOLL_CLOEXEC);
     if (ep < 0)
@@ -233,6 +242,8 @@ static int run_client(int port, int n, double warmup_s, double seconds)
         }
     }
     qsort(lat, count, sizeof *lat, cmp_u64);
+    if (lat_path != NULL)
+        write_latencies(lat_path, lat, count);
     uint64_t least = UINT64_MAX, most = 0;
     for (int i = 0; i < n; i++) {
         if (conns[i].count < least)
@@ -319,17 +330,19 @@ static int run_raw(int port)
 
 int main(int argc, char **argv)
 {
-    if (argc == 8 && strcmp(argv[1], "client") == 0) {
+    if ((argc == 8 || argc == 9) && strcmp(argv[1], "client") == 0) {
         int n = atoi(argv[3]);
         registers = atoi(argv[4]);
         unit = atoi(argv[5]);
         if (n < 1 || n > MAX_CLIENTS || registers < 1 || registers > 125)
             return 2;
-        return run_client(atoi(argv[2]), n, atof(argv[6]), atof(argv[7]));
+        return run_client(atoi(argv[2]), n, atof(argv[6]), atof(argv[7]),
+                          argc == 9 ? argv[8] : NULL);
     }
     if (argc == 3 && strcmp(argv[1], "raw") == 0)
         return run_raw(atoi(argv[2]));
-    fprintf(stderr, "usage: tableload client PORT CLIENTS REGISTERS UNIT WARMUP_S SECONDS\n"
+    fprintf(stderr, "usage: tableload client PORT CLIENTS REGISTERS UNIT WARMUP_S SECONDS "
+                    "[LATENCY_FILE]\n"
                     "       tableload raw PORT\n");
     return 2;
 }
