@@ -226,7 +226,7 @@ def config() -> None:
 def show(ctx, config_path: Path, instance: str | None, group: str | None,
          param: str | None) -> None:
     """Show the settings in effect (the file's, else the built-in defaults): all, one GROUP
-    (serial, net, general), or one PARAM, like the guide's `show serial stout`."""
+    (serial, net, general, table), or one PARAM, like the guide's `show serial stout`."""
     path = _path(ctx, config_path, instance)
     schema = _schema(ctx)
     if path.exists():

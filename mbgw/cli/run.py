@@ -5,7 +5,7 @@ from collections.abc import Callable
 
 from mbgw.cli.config import reloader
 from mbgw.cli.options import Failure
-from mbgw.errors import SerialError
+from mbgw.errors import ConfigError, SerialError
 
 
 def run_daemon(run: Callable, make_config: Callable, options: dict) -> None:
@@ -29,5 +29,5 @@ def run_daemon(run: Callable, make_config: Callable, options: dict) -> None:
         run(cfg, reconfigure if reload else None)
     except SerialError as err:
         raise Failure(err.strerror or str(err)) from None
-    except ListenError as err:
+    except (ListenError, ConfigError) as err:
         raise Failure(str(err)) from None

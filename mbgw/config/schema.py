@@ -46,8 +46,8 @@ class Key:
 
 
 class Schema:
-    """The keys of the mode commands of `root` (a click group), in [serial], [net], [general]
-    order, each group in the commands' option order."""
+    """The keys of the mode commands of `root` (a click group), in [serial], [net], [general],
+    [table] order, each group in the commands' option order."""
 
     def __init__(self, root: click.Group) -> None:
         self.root = root

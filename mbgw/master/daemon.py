@@ -23,6 +23,7 @@ from mbgw.ops.service import (
 )
 
 log = logging.getLogger("mbgw")
+TICK_S = 1.0        # how often the table's file is looked at (it is saved per its interval)
 
 
 class TableListenFailure(ListenError):
@@ -54,6 +55,12 @@ def run_master(cfg: MasterConfig, reconfigure=None) -> None:
         slave.close()
 
 
+async def _tick(tables: TableService) -> None:
+    while True:
+        await asyncio.sleep(TICK_S)
+        await asyncio.to_thread(tables.tick)       # a save writes and fsyncs a file
+
+
 def _log_slaveid(cfg: MasterConfig) -> None:
     if cfg.slaveid.ranges:
         return
@@ -72,7 +79,8 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
         loop.add_signal_handler(signum, stop.set)
     started = time.time()
     metrics = start_metrics(cfg.metrics, lambda m: m.master_collector(
-        counters, slave.devices, slave, started))
+        counters, slave.devices, slave, started,
+        lambda: tables.figures(slave.table_counters.snapshot())))
     slave.idle_ms = idle_ms(watchdog_interval())
     slave.start()
     status = MasterStatus(cfg, slave, counters, tables)
@@ -91,7 +99,9 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
         tables.reconfigure(new)
         slave.reconfigure(new)
 
+    ticking = asyncio.ensure_future(_tick(tables))
     await serve_until_stopped(stop, status, slave, reconfigure, apply, control, metrics)
+    ticking.cancel()
     slave.stop()
     await asyncio.to_thread(slave.join)
     log_stopped(counters)

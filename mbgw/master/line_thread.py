@@ -82,9 +82,8 @@ def table_address(cfg: MasterConfig) -> int:
 @dataclass(slots=True)
 class TableSlaveCounters(_Counting):
     """The serial slave of the exchange table (VPGate 8.5): frames for its address (with a
-    valid check), broadcasts written into the table, and the errors of frames for it."""
+    valid check), and the errors of frames for it (broadcasts: the table's own counts)."""
     requests: int = 0
-    broadcasts: int = 0
     crc_errors: int = 0
     length_errors: int = 0
     send_failures: int = 0
@@ -220,15 +219,15 @@ class SerialSlave(LineThread[MasterConfig]):
                 self.table_counters.length_errors += 1
             return
         address = adu[0]
-        if address == self._table_address:
-            self._reply_to = b""
-            self._answer_from_table(adu)
-            return
         if address == pdu.BROADCAST:
             self._reply_to = b""
             if self._table_address:
                 self._broadcast_to_table(adu)
             self._broadcast(adu)
+            return
+        if address == self._table_address:
+            self._reply_to = b""
+            self._answer_from_table(adu)
             return
         route = self._table.route(address)
         if route is None:
@@ -287,7 +286,6 @@ class SerialSlave(LineThread[MasterConfig]):
 
     def _broadcast_to_table(self, adu: bytes) -> None:
         """A broadcast's writes go into the table too (its reads are ignored)."""
-        self.table_counters.broadcasts += 1
         self._responder.answer(memoryview(adu)[1:], True)
         if self.trace.active:
             self._tracer.table(adu, None, f"{OUTCOME_TABLE}: broadcast", 0.0)

@@ -1,13 +1,17 @@
 """Master mode's exchange table (issue 14) beside the line: the table itself (the line thread's
 serial slave answers from it, mbgw.master.line_thread), its Modbus TCP server on
-`table-port` (mbgw.table.server, a thread of its own) while the table is on, and the settings
-a reload changes.  Asyncio thread, but for the server's own thread."""
+`table-port` (mbgw.table.server, a thread of its own) while the table is on, its file
+(`table-persist`, mbgw.table.persist: loaded at start, saved by tick() and at stop), and the
+settings a reload changes.  Asyncio thread, but for the server's own thread."""
 import logging
+import time
 
-from mbgw.config.model import MasterConfig
+from mbgw.config.model import MasterConfig, TableConfig
 from mbgw.table import identity
 from mbgw.table.control import table_commands
 from mbgw.table.memory import Table
+from mbgw.table.persist import Persistence
+from mbgw.table.report import table_status
 from mbgw.table.server import MAX_CONNECTIONS, TableListenError, TableServer
 
 log = logging.getLogger("mbgw.table")
@@ -20,11 +24,23 @@ class TableService:
         identity.fill(self.table, settings, "master")
         self.server: TableServer | None = None
         self._commands = table_commands(self.table)
+        self.persistence: Persistence | None = None
+        if cfg.enabled and cfg.persist:
+            self.persistence = Persistence(self.table, cfg.persist, cfg.persist_interval_s)
 
     def start(self) -> None:
-        """Serve the table on table-port when it is on; raises TableListenError."""
+        """Load the table's file, serve the table on table-port when it is on.  Raises
+        ConfigError (the file cannot be read), TableListenError."""
+        if self.persistence is not None:
+            self.persistence.load()
         if self.cfg.enabled:
             self._start_server(self.cfg.port)
+
+    def tick(self) -> None:
+        """Periodic (any thread but the line's): the file saved if the table changed and its
+        interval has passed."""
+        if self.persistence is not None:
+            self.persistence.maybe_save(time.monotonic())
 
     def _start_server(self, port: int) -> None:
         self.server = TableServer(self.table, port)
@@ -49,6 +65,7 @@ class TableService:
         new = settings.table
         old, self.cfg = self.cfg, new
         identity.fill(self.table, settings, "master")
+        self._repersist(old, new)
         if new.functions != old.functions:
             self.table.set_functions(new.functions)
         try:
@@ -61,6 +78,16 @@ class TableService:
         except TableListenError as err:
             log.error("%s; the table's TCP server is left as it was", err.strerror)
 
+    def _repersist(self, old: TableConfig, new: TableConfig) -> None:
+        keeping = self.persistence is not None and new.enabled and new.persist == old.persist
+        if keeping:
+            assert self.persistence is not None
+            self.persistence.interval_s = new.persist_interval_s
+        elif (old.enabled and old.persist) != (new.enabled and new.persist):
+            log.warning("table-persist changed: the new setting takes effect at restart "
+                        "(the table is still kept in %s)",
+                        self.persistence.path if self.persistence else "no file")
+
     def _stop_server(self) -> None:
         server, self.server = self.server, None
         if server is not None:
@@ -69,20 +96,25 @@ class TableService:
             log.info("exchange table no longer served on port %d", server.port)
 
     def stop(self) -> None:
+        """After the line thread has ended: nothing writes the table any more."""
         self._stop_server()
+        if self.persistence is not None:
+            self.persistence.save()
 
     def reset_counts(self) -> None:
         self.table.reset_counts()
         if self.server is not None:
             self.server.reset_counts()
 
-    def figures(self, serial: dict) -> dict:
-        """The table's part of the status: settings, the serial slave's figures (serial), the
-        TCP server's, the requests by function and the exceptions sent."""
+    def figures(self, serial: dict) -> dict | None:
+        """The table's part of the status (mbgw.table.report), with the TCP server's
+        figures; None while the table is off."""
         cfg = self.cfg
+        if not cfg.enabled:
+            return None
+        persistence = self.persistence
+        persist = None if persistence is None else {
+            "path": str(persistence.path), "interval_s": persistence.interval_s}
         server = self.server
-        return {"enabled": cfg.enabled, "address": cfg.address, "port": cfg.port,
-                "functions": list(cfg.functions), "serial": serial,
-                "tcp": server.figures() if server is not None else None,
-                "tcp_connections": server.connections() if server is not None else [],
-                **self.table.counts()}
+        return table_status(self.table, cfg, serial, persist,
+                            server.figures() if server is not None else None)

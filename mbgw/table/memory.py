@@ -33,6 +33,12 @@ def _function_mask(functions: Iterable[int]) -> int:
     return mask
 
 
+def _c_bytes(data):
+    """data for a `const uint8_t *` argument: bytes as they are, any other buffer through
+    ffi.from_buffer (no copy either way)."""
+    return data if type(data) is bytes else ffi.from_buffer(data)
+
+
 def _check_range(address: int, count: int, limit: int, what: str) -> None:
     if not (0 <= address < limit and 1 <= count <= limit - address):
         raise TableError(f"{what} {address}+{count}: beyond the table "
@@ -55,7 +61,7 @@ class Responder:
         """Answer a whole Modbus TCP frame (MBAP header + PDU, bytes or a buffer): the reply's
         length in .reply (transaction id and unit id kept), 0 for none (broadcast), -EBADMSG
         for a header whose protocol id or length field is wrong."""
-        return lib.mbgw_table_answer_mbap(self._table._t, ffi.from_buffer(frame), len(frame),
+        return lib.mbgw_table_answer_mbap(self._table._t, _c_bytes(frame), len(frame),
                                           self.buffer, broadcast)
 
     def answer_mbap(self, frame, broadcast: bool = False) -> memoryview | None:
@@ -66,7 +72,7 @@ class Responder:
     def answer_into(self, pdu, broadcast: bool = False) -> int:
         """Answer a request PDU (function code first): the reply PDU's length in .reply, 0
         for none (broadcast, or an empty PDU)."""
-        return lib.mbgw_table_answer(self._table._t, ffi.from_buffer(pdu), len(pdu),
+        return lib.mbgw_table_answer(self._table._t, _c_bytes(pdu), len(pdu),
                                      self.buffer, broadcast)
 
     def answer(self, pdu, broadcast: bool = False) -> memoryview | None:
@@ -96,7 +102,7 @@ class Table:
         """The reply PDU to a request PDU, None when there is none (a broadcast).  Allocates
         its reply: the hot paths use a responder."""
         rsp = ffi.new("uint8_t[]", PDU_MAX)
-        n = lib.mbgw_table_answer(self._t, ffi.from_buffer(pdu), len(pdu), rsp, broadcast)
+        n = lib.mbgw_table_answer(self._t, _c_bytes(pdu), len(pdu), rsp, broadcast)
         return bytes(ffi.buffer(rsp, n)) if n > 0 else None
 
     def answer_mbap_into(self, frame, broadcast: bool = False) -> int:

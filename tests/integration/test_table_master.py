@@ -8,8 +8,11 @@ expected frame is built here from the specs (tests/modbus.py: its own CRC; the L
 by mbgw's code.  "No answer on the line" is checked by order: a request that must be answered
 follows the one that must not, and the first bytes back must be its answer.
 """
+import json
 import os
+import re
 import select
+import signal
 import socket
 import struct
 import subprocess
@@ -29,7 +32,7 @@ from tests.integration.test_master import (
 )
 from tests.modbus import mbap, recv_adu
 from tests.modbus import rtu_frame as rtu
-from tests.ops import status, wait_for
+from tests.ops import mbgw, status, tracing, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -206,8 +209,9 @@ def test_a_broadcast_writes_the_table_and_gets_no_answer(table_master, line, tcp
     assert recv(line, len(expected)) == expected
     assert ask_tcp(tcp(port), 9, 1, bytes.fromhex("03 1064 0002")) == \
         bytes.fromhex("03 04 0102 0304")
-    serial = table_status(gw)["serial"]
-    assert (serial["requests"], serial["broadcasts"]) == (1, 1)
+    table = table_status(gw)
+    assert table["serial"]["requests"] == 1
+    assert table["requests"]["16"] == {"answered": 0, "exception": 0, "broadcast": 1}
 
 
 def test_a_bad_crc_to_the_table_address_is_counted_and_not_answered(table_master, line):
@@ -357,3 +361,80 @@ def test_more_than_32_tcp_clients_are_refused(table_master, tcp):
     assert extra.recv(16) == b""
     assert table_status(gw)["tcp"]["connections_refused_limit"] == 1
     assert "table client 127.0.0.1" in gw.log() and "refused" in gw.log()
+
+
+# ---- the operator, persistence, reload ----
+
+def test_the_operator_reads_and_writes_the_table_the_serial_master_sees(table_master, line, tcp):
+    gw, port = table_master()
+    done = mbgw("table", "write", "--control", gw.control, hex(FREE + 1), "0x1234", "5")
+    assert done.returncode == 0, done.stderr
+    os.write(line, rtu(read_holding(TABLE, FREE + 1, 2)))
+    expected = rtu(bytes.fromhex("0a 03 04 1234 0005"))
+    assert recv(line, len(expected)) == expected
+    ask_tcp(tcp(port), 1, 1, bytes.fromhex("06 0800 002a"))
+    read = mbgw("table", "read", "--control", gw.control, "--json", hex(OUTPUTS))
+    assert read.returncode == 0, read.stderr
+    assert json.loads(read.stdout)["values"] == [42]
+    shown = mbgw("status", "--control", gw.control)
+    assert "serial slave: 1 requests, 0 invalid CRC, 0 invalid length, 0 failed sends" in \
+        shown.stdout
+    assert "TCP server: 1 of 32 clients, 1 accepted" in shown.stdout
+
+
+def test_outputs_and_free_zone_survive_a_restart(start_master, servers, tmp_path, line, tcp):
+    path = tmp_path / "table.bin"
+    port = free_port()
+    options = ("--mdbport", str(servers[0]), "--table", "--table-address", str(TABLE),
+               "--table-port", str(port), "--table-persist", str(path))
+    gw = start_master(*options)
+    sock = tcp(port)
+    ask_tcp(sock, 1, 1, bytes.fromhex("10 0800 0002 04 0102 0304"))
+    ask_tcp(sock, 2, 1, bytes.fromhex("06 7fff beef"))
+    ask_tcp(sock, 3, 1, bytes.fromhex("06 0010 0001"))        # an input: not kept
+    sock.close()
+    assert gw.stop() == 0
+    assert path.exists()
+    start_master(*options)
+    os.write(line, rtu(read_holding(TABLE, OUTPUTS, 2)))
+    expected = rtu(bytes.fromhex("0a 03 04 0102 0304"))
+    assert recv(line, len(expected)) == expected
+    assert ask_tcp(tcp(port), 4, 1, bytes.fromhex("03 7fff 0001")) == bytes.fromhex("03 02 beef")
+    assert ask_tcp(tcp(port), 5, 1, bytes.fromhex("03 0010 0001")) == bytes.fromhex("03 02 0000")
+
+
+def test_a_reload_moves_the_table_port_and_changes_the_functions(start_master, servers, tmp_path,
+                                                                line, tcp):
+    old_port, new_port = free_port(), free_port()
+    config = tmp_path / "mbgw.toml"
+
+    def write_config(port: int, functions: str) -> None:
+        config.write_text(f'[serial]\nmode = "master"\nbaudrate = {BAUD}\n\n'
+                          f'[net]\nmdbport = {servers[0]}\n\n[table]\nenabled = true\n'
+                          f'address = {TABLE}\nport = {port}\nfunctions = "{functions}"\n')
+    write_config(old_port, "3,6,16")
+    gw = start_master("--config", str(config))
+    assert ask_tcp(tcp(old_port), 1, 1, bytes.fromhex("06 1000 0001")) == \
+        bytes.fromhex("06 1000 0001")
+    write_config(new_port, "3,16")
+    gw.proc.send_signal(signal.SIGHUP)
+    wait_for(gw, lambda s: s["table"]["tcp"]["port"] == new_port, "moved to the new port")
+    assert ask_tcp(tcp(new_port), 2, 1, bytes.fromhex("06 1000 0002")) == bytes.fromhex("86 01")
+    os.write(line, rtu(read_holding(TABLE, FREE, 1)))
+    expected = rtu(bytes.fromhex("0a 03 02 0001"))
+    assert recv(line, len(expected)) == expected
+
+
+def test_table_transactions_are_traced_with_outcome_table(table_master, line, tmp_path):
+    gw, _ = table_master()
+    with tracing(gw, tmp_path / "trace.pcap", count=3) as (trace, _):
+        os.write(line, rtu(bytes.fromhex("0a 06 1000 0009")))
+        expected = rtu(bytes.fromhex("0a 06 1000 0009"))
+        assert recv(line, len(expected)) == expected
+        os.write(line, rtu(bytes.fromhex("00 06 1000 000a")))     # a broadcast: its event
+        out, err = trace.communicate(timeout=10)
+    assert trace.returncode == 0, err
+    rows = [re.sub(r" [\d.]+ ms$", "", row).split()[1:] for row in out.decode().splitlines()]
+    assert rows[:3] == [["request", "10", "table", "-", "-", "0x06", "5"],
+                        ["reply", "10", "table", "-", "-", "0x06", "5", "table"],
+                        ["request", "0", "table", "-", "-", "0x06", "5"]]
