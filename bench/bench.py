@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """mbgw throughput, latency and line-gap benchmark.  Prints figures, never pass/fail.
 
-    .venv/bin/python bench/bench.py [--quick] [--socat] [--fairness]
+    .venv/bin/python bench/bench.py [--quick] [--socat] [--fairness | --table]
 
 For each line -- 19200 baud, 115200 baud, and a full-speed pty -- a simulated RTU slave
 (bench/simline.c, compiled at run time) answers FC03 reads of 10 registers (8-byte request,
@@ -21,7 +21,8 @@ The slave records every gap between the end of a reply (its write) and the arriv
 request, so the gaps are seen from the line's side, not from the gateway's.
 
 --fairness measures instead a dead unit beside closed-loop clients (issue 13: their share of
-the line, their slowest request) and the per-client spread of transactions.  See README.md.
+the line, their slowest request) and the per-client spread of transactions.  --table measures
+instead the exchange table as a Modbus TCP server (bench/table.py).  See README.md.
 """
 import argparse
 import math
@@ -807,7 +808,15 @@ def main() -> None:
     ap.add_argument("--fairness", action="store_true",
                     help="instead of the runs above: a dead unit beside closed-loop clients, "
                     "and the per-client spread of transactions (about 110 s; --quick: 30 s)")
+    ap.add_argument("--table", action="store_true",
+                    help="instead of the runs above: the exchange table as a Modbus TCP server "
+                    "beside libmodbus's and pymodbus's (bench/table.py; about 130 s; "
+                    "--quick: 40 s)")
     args = ap.parse_args()
+    if args.table:
+        import table  # bench/table.py, beside this script
+        table.run(args.quick)
+        return
     if args.quick:
         secs, warmup, rounds, slice_s = {19200: 1.5, 115200: 1.0, 0: 1.0}, 0.2, 3, 0.4
     else:
