@@ -3,7 +3,7 @@ configuration error into a usage error, and the one way a command fails."""
 import click
 
 from mbgw.config import model as config
-from mbgw.config.schema import SerialOption, TableOption
+from mbgw.config.schema import SerialOption, TableOption, TlsOption
 from mbgw.errors import ConfigError
 
 
@@ -170,6 +170,58 @@ def table_config(**settings) -> config.TableConfig:
               "persist_interval_s": "table_persist_interval"}
     return convert("'--table'", lambda: config.TableConfig(
         **{f: settings[o] for f, o in fields.items() if settings.get(o) is not None}))
+
+
+def _tls_file(check):
+    """A callback checking a [tls] file when one is given (start, reload, check-config)."""
+    def callback(ctx, param, value):
+        if value is not None:
+            convert(f"'{param.opts[0]}'", lambda: check(value))
+        return value
+    return callback
+
+
+def _check_cert(path):
+    from mbgw.ops.tls import check_certificate
+    check_certificate(path)
+
+
+def _check_key(path):
+    from mbgw.ops.tls import check_key
+    check_key(path)
+
+
+def _check_ca(path):
+    from mbgw.ops.tls import check_ca
+    check_ca(path)
+
+
+# Modbus/TCP Security ([tls] keys): TLS is on when a certificate is given.
+tls_options = stack(
+    # key tls-port, not port: a key's name is unique across the groups ([table] has port)
+    click.option("--tls-port", cls=TlsOption, key="tls-port",
+                 type=click.IntRange(*config.PORT_RANGE),
+                 default=config.DEFAULT_TLS_PORT, show_default=True,
+                 help="Modbus/TCP Security (TLS) port, with --tls-cert."),
+    click.option("--tls-cert", cls=TlsOption, key="cert", metavar="PATH", default=None,
+                 callback=_tls_file(_check_cert),
+                 help="Server certificate (PEM): turns TLS on (TLS 1.2/1.3, client "
+                      "certificates required) [default: off]."),
+    click.option("--tls-key", cls=TlsOption, key="key", metavar="PATH", default=None,
+                 callback=_tls_file(_check_key),
+                 help="The server certificate's private key (PEM, unencrypted)."),
+    click.option("--tls-ca", cls=TlsOption, key="ca", metavar="PATH", default=None,
+                 callback=_tls_file(_check_ca),
+                 help="CA certificate(s) (PEM) that client certificates must chain to; the "
+                      "client's role is its certificate's extension %s." % config.ROLE_OID),
+)
+
+
+def tls_config(tls_port, tls_cert, tls_key, tls_ca) -> config.TlsConfig:
+    from mbgw.ops.tls import file_stamps
+    return convert("'--tls-cert'", lambda: config.TlsConfig(
+        port=tls_port, cert=tls_cert, key=tls_key, ca=tls_ca,
+        files=file_stamps(tls_cert, tls_key, tls_ca)))
 
 
 # The operator's tools, the same in both modes: control socket, metrics, log level.

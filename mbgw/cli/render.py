@@ -86,7 +86,7 @@ def _slave_sections(s: dict, now: float) -> list[str]:
         for c in s["clients"]:
             lines.append(f"  {c['id']:>4}  {c['peer']:<24} {_clock(c['connected_since'])}  "
                          f"{c['requests']:>8}  {c['in_flight']:>9}  "
-                         f"{_ago(c['last_activity'], now)}")
+                         f"{_ago(c['last_activity'], now)}{_tls_role(c)}")
     lines += ["", f"devices ({len(s['devices'])})"]
     if s["devices"]:
         lines.append(f"{_HEALTH_COLUMNS} {'CRC':>5} {'OTHER':>5}  EXCEPTIONS")
@@ -119,7 +119,7 @@ def _master_sections(s: dict, now: float) -> list[str]:
             units = ",".join(map(str, c["units"])) or "-"
             lines.append(f"  {c['server']:<21} {c['local']:<21} "
                          f"{_clock(c['connected_since'])}  {c['requests']:>8}  {units:<12} "
-                         f"{_ago(c['last_activity'], now)}")
+                         f"{_ago(c['last_activity'], now)}{_tls_role(c)}")
     lines += ["", f"devices ({len(s['devices'])})"]
     if s["devices"]:
         lines.append(f"{_HEALTH_COLUMNS} {'UNREACH':>7} {'INVALID':>7} {'ABANDON':>7}  "
@@ -221,3 +221,10 @@ def format_event(e: dict) -> str:
         tid, unit, where = e["tid"], e["unit"], f"{e['peer']:<24}"
     return (f"{stamp:<15} {e['direction']:<9} {where} {tid:>5} {unit:>4} "
             f"0x{e['function']:02x} {e['length']:>4}  {outcome}").rstrip()
+
+
+def _tls_role(client: dict) -> str:
+    """'  TLS, role operator' for a Modbus/TCP Security client."""
+    if client.get("listener") != "tls":
+        return ""
+    return f"  TLS, role {client.get('role') or '(none)'}"

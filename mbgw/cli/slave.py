@@ -12,6 +12,8 @@ from mbgw.cli.options import (
     table_config,
     table_options,
     table_switch,
+    tls_config,
+    tls_options,
 )
 from mbgw.cli.run import run_daemon
 from mbgw.config import model as config
@@ -37,9 +39,9 @@ def _parse_units(value) -> tuple[int, ...]:
                    "cannot be reached, instead of staying silent.")
 @click.option("--authip", multiple=True, metavar="IP", callback=parser(_parse_authip),
               help="Client address allowed to connect (repeat, at most 8; none: anyone).")
-@click.option("--mdbport", type=click.IntRange(*config.PORT_RANGE),
+@click.option("--mdbport", type=click.IntRange(*config.MDBPORT_RANGE),
               default=config.SlaveConfig.mdbport, show_default=True,
-              help="Modbus TCP port to listen on.")
+              help="Modbus TCP port to listen on (0: none, Modbus/TCP Security only).")
 @click.option("--bind", metavar="ADDR", default=None,
               help="Listen on this address only [default: all, IPv4 and IPv6].")
 @click.option("--max-connections", type=click.IntRange(*config.MAX_CONNECTIONS_RANGE),
@@ -72,6 +74,7 @@ def _parse_units(value) -> tuple[int, ...]:
               help="With --table and --direct: the TCP unit ids that reach the table, e.g. "
                    "247-254 or 1,5,200-210 (1..255).")
 @table_options
+@tls_options
 @daemon_options
 @click.option("--shortcut/--no-shortcut", default=config.SlaveConfig.shortcut, hidden=True,
               help="Put a request that finds the line idle on it from C (for diagnosis).")
@@ -86,14 +89,19 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
                  silence, ascii_timeout, nocheck, slaveid, exception, authip, mdbport, bind,
                  max_connections, max_connections_per_ip, retries, turnaround, control,
                  metrics, log_level=None, shortcut=True, down_after=config.DEFAULT_DOWN_AFTER,
-                 probe_interval=config.DEFAULT_PROBE_INTERVAL_MS,
+                 probe_interval=config.DEFAULT_PROBE_INTERVAL_MS, tls_port=config.DEFAULT_TLS_PORT,
+                 tls_cert=None, tls_key=None, tls_ca=None,
                  **table_settings) -> config.SlaveConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
     table = table_config(**table_settings)
+    tls = tls_config(tls_port, tls_cert, tls_key, tls_ca)
+    if mdbport == 0 and not tls.enabled:
+        raise click.BadParameter("0 turns plain Modbus TCP off: it needs TLS (--tls-cert)",
+                                 param_hint="'--mdbport'")
     return convert("'--authip'", lambda: config.SlaveConfig(
         serial=serial, slaveid=slaveid, exception=exception, authip=authip, mdbport=mdbport,
         bind=bind, max_connections=max_connections,
         max_connections_per_ip=max_connections_per_ip, retries=retries,
         turnaround_ms=turnaround, control=control, metrics=metrics, shortcut=shortcut,
-        demotion=demotion(down_after, probe_interval), table=table))
+        demotion=demotion(down_after, probe_interval), table=table, tls=tls))

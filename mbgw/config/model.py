@@ -25,6 +25,7 @@ SILENCE_RANGE = (0, 65535)
 ASCII_TIMEOUT_RANGE = (1, 65535)
 SLAVEID_RANGE = (0, 247)
 PORT_RANGE = (1, 65535)
+MDBPORT_RANGE = (0, 65535)      # slave mode: 0 is no plain Modbus TCP (TLS only)
 MAX_CONNECTIONS_RANGE = (1, 1000)
 MAX_CONNECTIONS_PER_IP_RANGE = (0, 1000)
 RETRIES_RANGE = (0, 10)
@@ -226,6 +227,42 @@ class TableConfig:
                 raise ConfigError(f"{name} {value}: out of range {low}..{high}")
 
 
+# Modbus/TCP Security: TLS on its own port beside (or, slave mode's mdbport 0, instead of)
+# plain Modbus TCP; the client's role is in its certificate's extension ROLE_OID.
+DEFAULT_TLS_PORT = 802
+ROLE_OID = "1.3.6.1.4.1.50316.802.1"
+
+
+@dataclass(frozen=True)
+class TlsConfig:
+    """TLS for the Modbus TCP servers: on when a certificate is given."""
+    port: int = DEFAULT_TLS_PORT
+    cert: str | None = None        # the server's certificate (PEM)
+    key: str | None = None         # its private key (PEM)
+    ca: str | None = None          # the CA that client certificates must chain to (PEM)
+    # (path, mtime_ns, size) of each file when read, so that a renewed file is a change that
+    # a reload applies; the settings never name it
+    files: tuple = ()
+
+    def __post_init__(self) -> None:
+        low, high = PORT_RANGE
+        if not low <= self.port <= high:
+            raise ConfigError(f"tls-port {self.port}: out of range {low}..{high}")
+        if self.cert is not None:
+            missing = [name for name in ("key", "ca") if getattr(self, name) is None]
+            if missing:
+                raise ConfigError(f"tls-cert given without "
+                                  f"{' and '.join('tls-' + m for m in missing)}: TLS needs the "
+                                  f"server's key and the CA of the clients' certificates")
+        elif self.key is not None or self.ca is not None:
+            raise ConfigError("tls-key/tls-ca given without tls-cert: TLS is on only with a "
+                              "server certificate")
+
+    @property
+    def enabled(self) -> bool:
+        return self.cert is not None
+
+
 @dataclass(frozen=True)
 class SlaveConfig:
     """Slave mode: slaves on the serial line, Modbus TCP clients on the network."""
@@ -244,8 +281,11 @@ class SlaveConfig:
     demotion: Demotion = field(default_factory=Demotion)
     shortcut: bool = True          # an idle line's request goes on it from C (a hidden switch)
     table: TableConfig = field(default_factory=TableConfig)
+    tls: TlsConfig = field(default_factory=TlsConfig)
 
     def __post_init__(self) -> None:
+        if self.mdbport == 0 and not self.tls.enabled:
+            raise ConfigError("mdbport 0 turns plain Modbus TCP off: it needs TLS (tls-cert)")
         if len(self.authip) > MAX_AUTHIP:
             raise ConfigError(f"authip: at most {MAX_AUTHIP} addresses, got {len(self.authip)}")
         object.__setattr__(self, "authip", tuple(parse_ip("authip", a) for a in self.authip))

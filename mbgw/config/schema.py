@@ -14,7 +14,7 @@ MODES = ("slave", "master")                # "set serial mode slave|master"
 MODE_KEY = "mode"                          # in [serial]; selects the command `mbgw run` starts
 PROTOCOL_KEY = "protocol"                  # "set serial mode rtu|ascii" sets it
 PROTOCOL_WORDS = ("rtu", "ascii")
-GROUPS = ("serial", "net", "general", "table")
+GROUPS = ("serial", "net", "general", "table", "tls")
 # [serial]: the options of class SerialOption (both modes' line settings) and the slave mode's
 # line behaviour below; [net]: the guide's "set net ..." commands and
 # our network options; [general]: the rest (logging, control socket, metrics, ...); [table]:
@@ -91,7 +91,7 @@ class Schema:
 
 def key_group(name: str, param: click.Parameter) -> str:
     if isinstance(param, TableOption):
-        return "table"
+        return param.group
     if name in NET_KEYS:
         return "net"
     return "serial" if name in LINE_KEYS or isinstance(param, SerialOption) else "general"
@@ -118,9 +118,16 @@ class TableOption(click.Option):
     """An option of the exchange table (--table, --table-units, ...): its key is `key` in
     [table] (table.enabled, table.units, ...)."""
 
+    group = "table"
+
     def __init__(self, *args, key: str, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.key = key
+
+
+class TlsOption(TableOption):
+    """An option of Modbus/TCP Security (--tls-cert, ...): its key is `key` in [tls]."""
+    group = "tls"
 
 
 def is_unset(value) -> bool:

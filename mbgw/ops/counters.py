@@ -52,6 +52,7 @@ class Counters(_Counting):
     connections_refused_limit: int = 0
     connections_evicted: int = 0
     connections_bad_header: int = 0
+    connections_refused_tls: int = 0
 
 
 @dataclass(slots=True)

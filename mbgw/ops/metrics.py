@@ -56,6 +56,8 @@ _COUNTER_HELP = {
                                  "could go) or max-connections-per-ip.",
     "connections_evicted": "Idle Modbus TCP connections closed to make room for a newcomer.",
     "connections_bad_header": "Modbus TCP connections closed for a bad MBAP header.",
+    "connections_refused_tls": "Modbus/TCP Security connections refused in the TLS handshake "
+                               "(no valid client certificate, garbage, too slow, too many).",
 }
 
 _DEVICE_HELP = {

@@ -5,6 +5,7 @@ import itertools
 import os
 import select
 import socket
+import ssl
 import threading
 import time
 
@@ -22,6 +23,9 @@ PEER_GONE = select.POLLRDHUP | select.POLLHUP | select.POLLERR | select.POLLNVAL
 
 
 class Client:
+    listener = "plain"              # which listener accepted it: "plain" or "tls"
+    role: str | None = None         # TLS: the role in the client's certificate
+
     def __init__(self, sock: socket.socket, host: str, peer: str, local: str) -> None:
         self.id = next(_client_ids)
         self.sock = sock
@@ -148,3 +152,71 @@ class Client:
         with self._lock:
             self.closed = True
             self.sock.close()
+
+
+class TlsClient(Client):
+    """A Modbus/TCP Security connection, its handshake done: read and written through its
+    SSLSocket (never by C, which would see the ciphertext: no forward, no shortcut).  Each
+    read empties the SSL object, so no decrypted byte waits there unseen by poll()."""
+    listener = "tls"
+
+    def __init__(self, sock: ssl.SSLSocket, host: str, peer: str, local: str,
+                 role: str | None) -> None:
+        super().__init__(sock, host, peer, local)
+        self.role = role
+
+    def receive(self, reader: clients.ClientReader) -> list | None:
+        sock = self.sock
+        assert isinstance(sock, ssl.SSLSocket)
+        try:
+            data = sock.recv(RECEIVE_SIZE)
+            while data and sock.pending():
+                data += sock.recv(sock.pending())
+        except (ssl.SSLWantReadError, ssl.SSLWantWriteError):
+            return []
+        except OSError:                 # ssl.SSLError included: the connection is over
+            return None
+        if not data:
+            return None
+        return self.received(data, time.monotonic_ns())
+
+    def forward_target(self, tid: int, unit: int, yield_cpu: bool) -> tuple:
+        return NO_FORWARD
+
+    @property
+    def at_rest(self) -> bool:
+        return False                    # never the C shortcut's to read
+
+    def send(self, frame: bytes) -> None:
+        if not self._out:
+            sent = self._write(frame)
+            if sent is None or sent == len(frame):
+                return
+            frame = frame[sent:]
+        self._out += frame
+
+    def flush(self) -> None:
+        sent = self._write(self._out)
+        if sent is None:
+            self._out.clear()
+        else:
+            del self._out[:sent]
+
+    def _write(self, data) -> int | None:
+        """Bytes taken (0: try again when writable); None once the connection is broken."""
+        try:
+            return self.sock.send(data)
+        except (ssl.SSLWantWriteError, ssl.SSLWantReadError, BlockingIOError):
+            return 0
+        except OSError:
+            return None
+
+    def shutdown(self) -> None:
+        """Shut the TCP connection down under the SSL object, which the line thread may be
+        using (SSLSocket.shutdown would drop it)."""
+        with self._lock:
+            if not self.closed:
+                try:
+                    socket.socket.shutdown(self.sock, socket.SHUT_RDWR)
+                except OSError:
+                    pass

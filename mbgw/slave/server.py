@@ -19,17 +19,21 @@ import dataclasses
 import logging
 import select
 import socket
+import ssl
 import time
 
 from mbgw.config.model import ACTIVE_WINDOW_S, SlaveConfig
+from mbgw.errors import ConfigError
 from mbgw.line import clients
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
 from mbgw.ops.exception_reply import gateway_exception
+from mbgw.ops.service import ListenError
+from mbgw.ops.tls import role_of, server_context
 from mbgw.ops.trace import TraceHub
 from mbgw.protocol import mbap, pdu
 from mbgw.slave.acl import AccessList
-from mbgw.slave.client import PEER_GONE, Client
+from mbgw.slave.client import PEER_GONE, Client, TlsClient
 from mbgw.slave.connections import Connections
 from mbgw.slave.scheduler import (
     OUTCOME_DEVICE_DOWN,
@@ -44,6 +48,10 @@ log = logging.getLogger("mbgw.tcp")
 
 REFUSAL_LOG_INTERVAL_S = 60.0
 LISTEN_BACKLOG = 100
+# TLS handshakes under way at once, and how long one may take: a flood of connections that
+# never finish (or garbage) costs the asyncio thread one wake-up each and no more.
+MAX_HANDSHAKES = 64
+HANDSHAKE_TIMEOUT_S = 10.0
 
 
 class TcpServer:
@@ -61,6 +69,9 @@ class TcpServer:
         self.clients: list[Client] = []  # the asyncio thread's list, for admission and status
         self._refusals: dict[str, float] = {}
         self._listeners: list[socket.socket] = []
+        self._tls_listeners: list[socket.socket] = []
+        self._tls = server_context(cfg.tls) if cfg.tls.enabled else None   # ConfigError
+        self._handshakes: dict[int, Handshake] = {}     # by fd
         self._loop: asyncio.AbstractEventLoop | None = None
         self.trace = TraceHub()
         self.connections = Connections(scheduler.wake_fd, self.request, self._closed, counters)
@@ -76,20 +87,42 @@ class TcpServer:
     async def start(self) -> list[str]:
         """Listen; returns the listening addresses.  Raises OSError."""
         self._loop = asyncio.get_running_loop()
-        self._listeners = listen(self._cfg.bind, self._cfg.mdbport)
-        for sock in self._listeners:
-            self._loop.add_reader(sock.fileno(), self._accept, sock)
+        self._listen_plain()
+        try:
+            self._listen_tls()
+        except OSError as err:
+            self._stop_listening()
+            raise ListenError(self._cfg.tls.port, err) from None
         return self.addresses()
 
-    def addresses(self) -> list[str]:
-        return [format_address(s.getsockname()) for s in self._listeners]
-
-    def _stop_listening(self) -> None:
+    def _listen_plain(self) -> None:
+        """Listen on mdbport (0: not at all).  Raises OSError."""
+        assert self._loop is not None
+        if self._cfg.mdbport:
+            self._listeners = listen(self._cfg.bind, self._cfg.mdbport)
         for sock in self._listeners:
+            self._loop.add_reader(sock.fileno(), self._accept, sock)
+
+    def _listen_tls(self) -> None:
+        """Listen on tls-port while TLS is on.  Raises OSError."""
+        assert self._loop is not None
+        if self._tls is not None:
+            self._tls_listeners = listen(self._cfg.bind, self._cfg.tls.port)
+        for sock in self._tls_listeners:
+            self._loop.add_reader(sock.fileno(), self._accept_tls, sock)
+
+    def addresses(self) -> list[str]:
+        return [format_address(s.getsockname()) for s in self._listeners] + \
+            [f"{format_address(s.getsockname())} (TLS)" for s in self._tls_listeners]
+
+    def _stop_listening(self, tls: bool = False) -> None:
+        """Stop listening on mdbport, or (tls) on tls-port."""
+        listeners = self._tls_listeners if tls else self._listeners
+        for sock in listeners:
             if self._loop is not None:
                 self._loop.remove_reader(sock.fileno())
             sock.close()
-        self._listeners = []
+        listeners.clear()
 
     async def reconfigure(self, cfg: SlaveConfig) -> None:
         """Apply new settings; connections they do not concern stay open."""
@@ -102,19 +135,47 @@ class TcpServer:
             if not self._acl.allows(client.host):
                 log.info("client %s closed: no longer allowed by authip", client.peer)
                 self._drop(client)
+        if cfg.tls != old.tls or cfg.bind != old.bind:
+            self._retls(old)
         if (cfg.mdbport, cfg.bind) != (old.mdbport, old.bind):
             self._stop_listening()
             try:
-                await self.start()
+                self._listen_plain()
             except OSError as err:
                 log.error("cannot listen on port %d (%s): staying on port %d", cfg.mdbport,
                           err.strerror, old.mdbport)
-                self._cfg = dataclasses.replace(cfg, mdbport=old.mdbport, bind=old.bind)
-                await self.start()
+                self._cfg = dataclasses.replace(self._cfg, mdbport=old.mdbport, bind=old.bind)
+                self._listen_plain()
             log.info("now listening on %s", ", ".join(self.addresses()))
+
+    def _retls(self, old: SlaveConfig) -> None:
+        """New TLS settings or renewed files: the new context is for new connections; those
+        open keep theirs.  One that cannot be loaded leaves TLS as it was."""
+        new = self._cfg.tls
+        try:
+            context = server_context(new) if new.enabled else None
+        except ConfigError as err:
+            log.error("TLS settings not applied, the running ones stay: %s", err)
+            self._cfg = dataclasses.replace(self._cfg, tls=old.tls)
+            return
+        self._tls = context
+        if (new.port, new.enabled, self._cfg.bind) == (old.tls.port, old.tls.enabled, old.bind):
+            log.info("TLS: certificate %s loaded for new connections", new.cert)
+            return
+        self._stop_listening(tls=True)
+        try:
+            self._listen_tls()
+        except OSError as err:
+            log.error("cannot listen on tls-port %d (%s)", new.port, err.strerror)
+            return
+        log.info("now listening on %s", ", ".join(self.addresses()))
 
     def close(self) -> None:
         self._stop_listening()
+        self._stop_listening(tls=True)
+        for handshake in list(self._handshakes.values()):
+            self._end_handshake(handshake)
+            handshake.sock.close()
         for client in list(self.clients):
             self._drop(client)
 
@@ -132,6 +193,102 @@ class TcpServer:
         if not self.admit(client, client.host):
             sock.close()
             return
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
+        self.connections.adopt(client)
+
+    # --- Modbus/TCP Security: the handshake, non-blocking, in the asyncio thread ---
+
+    def _accept_tls(self, listener: socket.socket) -> None:
+        try:
+            sock, address = listener.accept()
+        except (BlockingIOError, InterruptedError, ConnectionAbortedError):
+            return
+        except OSError as err:
+            log.warning("cannot accept a connection: %s", err.strerror)
+            return
+        host = address[0]
+        if not self._acl.allows(host):          # before any byte is read
+            self.counters.connections_refused_authip += 1
+            self._log_refusal(host, "not in authip")
+            sock.close()
+            return
+        if len(self._handshakes) >= MAX_HANDSHAKES or self._tls is None:
+            self.counters.connections_refused_tls += 1
+            self._log_refusal(host, f"{MAX_HANDSHAKES} TLS handshakes under way already")
+            sock.close()
+            return
+        sock.setblocking(False)
+        tls = self._tls.wrap_socket(sock, server_side=True, do_handshake_on_connect=False)
+        assert self._loop is not None
+        handshake = Handshake(tls, address)
+        handshake.timer = self._loop.call_later(HANDSHAKE_TIMEOUT_S, self._handshake_failed,
+                                                handshake, "no handshake within "
+                                                f"{HANDSHAKE_TIMEOUT_S:g} s")
+        self._handshakes[handshake.fd] = handshake
+        self._shake(handshake)
+
+    def _shake(self, handshake: "Handshake") -> None:
+        """One step of a client's handshake; the next when its socket is ready for it."""
+        loop = self._loop
+        assert loop is not None
+        try:
+            handshake.sock.do_handshake()
+        except ssl.SSLWantReadError:
+            self._wait_for(handshake, read=True)
+            return
+        except ssl.SSLWantWriteError:
+            self._wait_for(handshake, read=False)
+            return
+        except ssl.SSLError as err:
+            self._handshake_failed(handshake, f"TLS handshake refused ({err.reason or err})")
+            return
+        except OSError as err:
+            self._handshake_failed(handshake, f"TLS handshake failed ({err.strerror or err})")
+            return
+        self._end_handshake(handshake)
+        self._admit_tls(handshake)
+
+    def _wait_for(self, handshake: "Handshake", read: bool) -> None:
+        loop = self._loop
+        assert loop is not None
+        if handshake.waiting_read is not read:
+            if handshake.waiting_read is not None:
+                (loop.remove_reader if handshake.waiting_read else loop.remove_writer)(
+                    handshake.fd)
+            (loop.add_reader if read else loop.add_writer)(handshake.fd, self._shake,
+                                                           handshake)
+            handshake.waiting_read = read
+
+    def _end_handshake(self, handshake: "Handshake") -> None:
+        loop = self._loop
+        self._handshakes.pop(handshake.fd, None)
+        if handshake.timer is not None:
+            handshake.timer.cancel()
+        if loop is not None and handshake.waiting_read is not None:
+            (loop.remove_reader if handshake.waiting_read else loop.remove_writer)(
+                handshake.fd)
+            handshake.waiting_read = None
+
+    def _handshake_failed(self, handshake: "Handshake", reason: str) -> None:
+        self._end_handshake(handshake)
+        handshake.sock.close()
+        self.counters.connections_refused_tls += 1
+        self._log_refusal(handshake.address[0], reason)
+
+    def _admit_tls(self, handshake: "Handshake") -> None:
+        sock, address = handshake.sock, handshake.address
+        try:
+            role = role_of(sock.getpeercert(binary_form=True))
+            client = TlsClient(sock, address[0], format_address(address),
+                               format_address(sock.getsockname()), role)
+        except OSError:                 # the peer has gone meanwhile
+            sock.close()
+            return
+        if not self.admit(client, client.host):
+            sock.close()
+            return
+        log.debug("client %s: TLS %s, role %s", client.peer, sock.version(), role)
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
         self.connections.adopt(client)
@@ -359,6 +516,18 @@ class TcpServer:
                 "function": data[0], "length": len(data) if direction != "no reply" else 0,
                 "pdu": data.hex() if direction != "no reply" else "", "outcome": outcome,
                 "latency_ms": latency_ms}
+
+
+class Handshake:
+    """A TLS connection whose handshake is under way (asyncio thread)."""
+    __slots__ = ("sock", "fd", "address", "timer", "waiting_read")
+
+    def __init__(self, sock: ssl.SSLSocket, address) -> None:
+        self.sock = sock
+        self.fd = sock.fileno()
+        self.address = address
+        self.timer: asyncio.TimerHandle | None = None
+        self.waiting_read: bool | None = None    # which readiness it waits for, if any
 
 
 def table_units(cfg: SlaveConfig) -> bytes:

@@ -44,7 +44,8 @@ class SlaveStatus(DaemonStatus):
             "queue_depth": self._scheduler.depth,
             "clients": [{"id": c.id, "peer": c.peer, "connected_since": c.connected_at,
                          "requests": c.requests, "in_flight": c.in_flight,
-                         "last_activity": now - (mono - c.last_active)}
+                         "last_activity": now - (mono - c.last_active),
+                         "listener": c.listener, "role": c.role}
                         for c in self._server.clients],
             "counters": counters,
             "counters_since": self._reset_at,
