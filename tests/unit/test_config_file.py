@@ -53,10 +53,12 @@ def test_every_long_option_of_both_modes_is_a_key(schema):
               if isinstance(p, click.Option) and not p.hidden]
     options = {o[2:] for p in params if not isinstance(p, config_keys.TableOption)
                for o in p.opts if o.startswith("--")}
-    table = {p.key for p in params if isinstance(p, config_keys.TableOption)}
+    table = {p.key for p in params if type(p) is config_keys.TableOption}
     assert table == {"enabled", "direct", "units", "functions", "address", "port", "persist",
                      "persist-interval"}
-    assert set(schema.keys) == (options - {"config"}) | table
+    tls = {p.key for p in params if isinstance(p, config_keys.TlsOption)}
+    assert tls == {"tls-port", "cert", "key", "ca"}
+    assert set(schema.keys) == (options - {"config"}) | table | tls
     assert "shortcut" not in schema.keys
 
 
@@ -162,7 +164,7 @@ def test_tables_belong_to_their_mode(schema, tmp_path):
     ("[net]\nauthpi = []\n", "net.authpi: unknown key; did you mean net.authip?"),
     ("[net]\nmax_connections = 3\n", "did you mean net.max-connections?"),
     ("[serial]\nfoo = 1\n", "serial.foo: unknown key"),
-    ("[seral]\nstout = 700\n", "[seral]: unknown group (groups: serial, net, general, table); "
+    ("[seral]\nstout = 700\n", "[seral]: unknown group (groups: serial, net, general, table, tls); "
                                "did you mean [serial]?"),
     ("[net]\nstout = 700\n", "net.stout: belongs in [serial] (serial.stout)"),
     ("stout = 700\n", "stout: outside any group; put it under [serial]"),
