@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """mbgw throughput, latency and line-gap benchmark.  Prints figures, never pass/fail.
 
-    .venv/bin/python bench/bench.py [--quick] [--socat] [--fairness | --table]
+    .venv/bin/python bench/bench.py [--quick] [--socat] [--fairness | --table | --tls]
 
 For each line -- 19200 baud, 115200 baud, and a full-speed pty -- a simulated RTU slave
 (bench/simline.c, compiled at run time) answers FC03 reads of 10 registers (8-byte request,
@@ -812,7 +812,14 @@ def main() -> None:
                     help="instead of the runs above: the exchange table as a Modbus TCP server "
                     "beside libmodbus's and pymodbus's (bench/table.py; about 130 s; "
                     "--quick: 40 s)")
+    ap.add_argument("--tls", action="store_true",
+                    help="instead of the runs above: Modbus/TCP Security's handshakes/s and "
+                    "latency added per request over plain TCP (bench/tls.py; about 25 s)")
     args = ap.parse_args()
+    if args.tls:
+        import tls  # bench/tls.py, beside this script
+        tls.run(args.quick)
+        return
     if args.table:
         import table  # bench/table.py, beside this script
         table.run(args.quick)
