@@ -5,6 +5,7 @@ import os
 import signal
 import socket
 import ssl
+import struct
 import subprocess
 import sys
 import time
@@ -13,7 +14,7 @@ import pytest
 from pymodbus.client import ModbusTlsClient
 
 from tests.harness import free_port
-from tests.integration.test_reload import ask, config_set, wait_for_log
+from tests.integration.test_reload import ask, config_set, recv_frame, wait_for_log
 from tests.pki import Authority
 
 pytestmark = pytest.mark.integration
@@ -247,3 +248,19 @@ def test_an_expired_server_certificate_is_refused_at_start_and_by_check_config(
                           capture_output=True, text=True, timeout=30)
     assert done.returncode != 0
     assert f"{cert}: not valid before 2099-01-01" in done.stderr + done.stdout
+
+
+def test_requests_in_one_tls_record_larger_than_a_read_are_all_answered(gateway, pki):
+    """16 writes of 123 registers (4,144 bytes) in one TLS record: the first read takes 4,096
+    bytes, the rest waits decrypted inside the SSL object, where poll() does not see it."""
+    ca = pki[0]
+    gw, port = gateway("--table", "--table-units", "247")
+    context = client_context(ca, ca.issue("op", role="operator"))
+    values = struct.pack(">123H", *range(123))
+    requests = b"".join(struct.pack(">HHHBBHHB", tid, 0, 7 + len(values), 247, 16, 0x1000,
+                                    123, len(values)) + values for tid in range(16))
+    assert len(requests) > 4096
+    with context.wrap_socket(socket.create_connection(("127.0.0.1", port))) as sock:
+        sock.sendall(requests)
+        for tid in range(16):
+            assert recv_frame(sock) == struct.pack(">HHHBBHH", tid, 0, 6, 247, 16, 0x1000, 123)
