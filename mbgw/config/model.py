@@ -265,9 +265,12 @@ def parse_ip(option: str, text: str) -> ipaddress.IPv4Address | ipaddress.IPv6Ad
 
 import typing  # noqa: E402  (master mode's settings were added below slave mode's)
 
+from typing import TYPE_CHECKING  # noqa: E402
+
 if typing.TYPE_CHECKING:
-    from mbgw.config.firewall import FirewallConfig
     from mbgw.config.slaveid import SlaveIdTable
+if TYPE_CHECKING:    # config.firewall reads this module's number lists
+    from mbgw.config.firewall import FirewallConfig
 
 TCPTO_RANGE = (1, 65535)
 DEFAULT_TCPTO_MS = 800          # ACKSYS "set net tcpto" default
