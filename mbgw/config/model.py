@@ -264,7 +264,6 @@ def parse_ip(option: str, text: str) -> ipaddress.IPv4Address | ipaddress.IPv6Ad
 
 
 import typing  # noqa: E402  (master mode's settings were added below slave mode's)
-
 from typing import TYPE_CHECKING  # noqa: E402
 
 if typing.TYPE_CHECKING:
