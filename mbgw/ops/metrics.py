@@ -293,13 +293,13 @@ def firewall_family(status: dict) -> CounterMetricFamily:
 
 
 def slave_collector(counters, devices, scheduler, server, worker,
-                    started: float, table=None) -> DaemonCollector:
+                    started: float, table=None, firewall=None) -> DaemonCollector:
     """Slave mode's metrics; table(): the exchange table's status dict, when it is on."""
     return DaemonCollector(counters, devices, started, "slave", lambda: [
         ("mbgw_line_up", "1 while the serial device is open and usable.", int(worker.up)),
         ("mbgw_queue_depth", "Requests waiting for the serial line.", scheduler.depth),
         ("mbgw_clients_connected", "Modbus TCP clients connected.", len(server.clients))],
-        table, lambda: server.firewall.report())
+        table, firewall)
 
 
 def master_collector(counters, devices, slave, started: float,
