@@ -37,6 +37,8 @@ def format_status(s: dict, now: float) -> str:
         lines += _slave_sections(s, now)
     if s.get("table") is not None:
         lines += ["", *_table_section(s["table"], s["mode"], now)]
+    if s.get("firewall") is not None:
+        lines += ["", *_firewall_section(s["firewall"])]
     counters = s["counters"]
     lines += ["", f"counters since {_clock(s['counters_since'])}"]
     names = list(counters)
@@ -69,6 +71,21 @@ def _health(d: dict, now: float) -> str:
 _HEALTH_COLUMNS = (f"  {'ADDR':>4}  {'HEALTH':<8} {'SINCE':<12} {'LAST SUCCESS':<14} "
                    f"{'FAILS':>5} {'REQUESTS':>8} {'REPLIES':>8} {'TIMEOUTS':>8} "
                    f"{'REFUSED':>7}")
+
+
+def _firewall_section(f: dict) -> list[str]:
+    """The firewall: refusals by rule and by client."""
+    lines = [f"firewall   {len(f['rules'])} rules, default {f['default']}: "
+             f"{f['refused']} requests refused"]
+    for rule in f["rules"]:
+        lines.append(f"  {rule['selects']:<56} {rule['refused']:>8} refused")
+    lines.append(f"  {'no rule (default ' + f['default'] + ')':<56} "
+                 f"{f['refused_default']:>8} refused")
+    for client in f["clients"]:
+        if client["refused"]:
+            lines.append(f"  client {client['peer']} (role {client['role'] or 'none'}): "
+                         f"{client['refused']} refused")
+    return lines
 
 
 def _slave_sections(s: dict, now: float) -> list[str]:
@@ -105,7 +122,7 @@ def _master_sections(s: dict, now: float) -> list[str]:
         f"servers    port {up['port']}, tcpto {up['tcpto_ms']} ms, exception "
         f"{'on' if up['exception'] else 'off'}, at most {up['max_connections']} connections",
     ]
-    table = s.get("table") or {}
+    table = s.get("table") or {}     # None while the table is off
     table_address = table.get("address") if table.get("enabled") else None
     routes = [r["route"] for r in s["slaveid"]] or [
         f"empty: only the table's address {table_address} is answered" if table_address

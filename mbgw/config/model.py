@@ -244,6 +244,7 @@ class SlaveConfig:
     demotion: Demotion = field(default_factory=Demotion)
     shortcut: bool = True          # an idle line's request goes on it from C (a hidden switch)
     table: TableConfig = field(default_factory=TableConfig)
+    firewall: "FirewallConfig | None" = None   # [[rule]] tables; None: every request allowed
 
     def __post_init__(self) -> None:
         if len(self.authip) > MAX_AUTHIP:
@@ -263,9 +264,12 @@ def parse_ip(option: str, text: str) -> ipaddress.IPv4Address | ipaddress.IPv6Ad
 
 
 import typing  # noqa: E402  (master mode's settings were added below slave mode's)
+from typing import TYPE_CHECKING  # noqa: E402
 
 if typing.TYPE_CHECKING:
     from mbgw.config.slaveid import SlaveIdTable
+if TYPE_CHECKING:    # config.firewall reads this module's number lists
+    from mbgw.config.firewall import FirewallConfig
 
 TCPTO_RANGE = (1, 65535)
 DEFAULT_TCPTO_MS = 800          # ACKSYS "set net tcpto" default
@@ -284,6 +288,7 @@ class MasterConfig:
     metrics: str | None = None      # ADDR:PORT for Prometheus, None: off
     demotion: Demotion = field(default_factory=Demotion)
     table: TableConfig = field(default_factory=TableConfig)
+    firewall: "FirewallConfig | None" = None   # the table server's; None: all allowed
 
     def __post_init__(self) -> None:
         low, high = TCPTO_RANGE

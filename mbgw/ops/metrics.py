@@ -134,13 +134,14 @@ class DaemonCollector:
     the daemon serves the exchange table, its status dict (mbgw.table.report.table_status)."""
 
     def __init__(self, counters, devices, started: float, mode: str, gauges,
-                 table=None) -> None:
+                 table=None, firewall=None) -> None:
         self._counters = counters
         self._devices = devices
         self._started = started
         self._mode = mode
         self._gauges = gauges
         self._table = table
+        self._firewall = firewall       # the firewall's status dict (mbgw.firewall), or None
 
     def collect(self):
         yield from self._daemon()
@@ -154,6 +155,9 @@ class DaemonCollector:
         status = self._table() if self._table is not None else None
         if status is not None:
             yield from table_families(status)
+        firewall = self._firewall() if self._firewall is not None else None
+        if firewall is not None:
+            yield firewall_family(firewall)
 
     def _daemon(self):
         info = GaugeMetricFamily("mbgw_info", "mbgw's version and mode (always 1).",
@@ -277,23 +281,34 @@ def table_families(status: dict):
         yield errors
 
 
+def firewall_family(status: dict) -> CounterMetricFamily:
+    """Requests the firewall refused, by rule (its index in the file, or default)."""
+    refused = CounterMetricFamily(
+        "mbgw_firewall_refused", "Requests the firewall refused (exception 0x01), by the rule "
+        "that decided (its place among the [[rule]] tables, or default).", labels=["rule"])
+    for rule in status["rules"]:
+        refused.add_metric([str(rule["rule"])], rule["refused"])
+    refused.add_metric(["default"], status["refused_default"])
+    return refused
+
+
 def slave_collector(counters, devices, scheduler, server, worker,
-                    started: float, table=None) -> DaemonCollector:
+                    started: float, table=None, firewall=None) -> DaemonCollector:
     """Slave mode's metrics; table(): the exchange table's status dict, when it is on."""
     return DaemonCollector(counters, devices, started, "slave", lambda: [
         ("mbgw_line_up", "1 while the serial device is open and usable.", int(worker.up)),
         ("mbgw_queue_depth", "Requests waiting for the serial line.", scheduler.depth),
         ("mbgw_clients_connected", "Modbus TCP clients connected.", len(server.clients))],
-        table)
+        table, firewall)
 
 
 def master_collector(counters, devices, slave, started: float,
-                     table=None) -> DaemonCollector:
+                     table=None, firewall=None) -> DaemonCollector:
     """Master mode's metrics; table(): the exchange table's status dict, when it is on."""
     return DaemonCollector(counters, devices, started, "master", lambda: [
         ("mbgw_line_up", "1 while the serial device is open and usable.", int(slave.up)),
         ("mbgw_upstream_connections", "Connections open to Modbus TCP servers.",
-         len(slave.connections()))], table)
+         len(slave.connections()))], table, firewall)
 
 
 # --- the HTTP side ---------------------------------------------------------------------------

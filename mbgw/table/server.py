@@ -7,7 +7,9 @@ the kernel holds (many pipelined requests at once); each whole MBAP frame is ans
 C call (Table.responder: the frame in, the reply frame out, under the table's lock), and the
 replies of one read leave in one send.  Unit id 0 is a broadcast (IDEC): its writes are
 done, nothing is sent back.  A protocol id other than 0 or a length outside 2..254 closes
-that connection only (counted).  A client that does not read its replies is not read either
+that connection only (counted).  The firewall (mbgw.firewall) compiles each client's rule
+when it connects (again at a reload); a request its rule refuses gets 0x01 and never
+reaches the table.  A client that does not read its replies is not read either
 until the socket has taken them (TCP back-pressure).  At most MAX_CONNECTIONS clients: the
 next one is refused (closed at once, counted, logged at most once a minute).  Nothing is
 logged per request.
@@ -20,6 +22,7 @@ import socket
 import threading
 import time
 
+from mbgw.firewall.guard import Firewall, Guard
 from mbgw.protocol import mbap
 
 log = logging.getLogger("mbgw.table")
@@ -79,9 +82,15 @@ def _name(address) -> str:
 
 
 class _Connection:
-    __slots__ = ("sock", "fd", "peer", "partial", "held", "connected_at", "requests")
+    __slots__ = ("sock", "fd", "peer", "partial", "held", "connected_at", "requests", "host",
+                 "role", "listener", "guard", "firewall_refused")
 
-    def __init__(self, sock: socket.socket, peer: str) -> None:
+    def __init__(self, sock: socket.socket, peer: str, host: str = "") -> None:
+        self.host = host
+        self.role: str | None = None        # the firewall's view of it (TLS sets a role)
+        self.listener = "plain"
+        self.guard: Guard | None = None
+        self.firewall_refused = 0
         self.sock = sock
         self.fd = sock.fileno()
         self.peer = peer
@@ -95,7 +104,8 @@ class TableServer(threading.Thread):
     """The table served on `port`; start() it, stop() and join() it.  figures() and
     connections() may be called from any thread."""
 
-    def __init__(self, table, port: int, bind: str | None = None) -> None:
+    def __init__(self, table, port: int, bind: str | None = None,
+                 firewall: Firewall | None = None) -> None:
         """Listens at once: raises TableListenError when it cannot."""
         super().__init__(name="mbgw-table", daemon=True)
         self._table = table
@@ -104,6 +114,8 @@ class TableServer(threading.Thread):
         self._wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         self._stopping = False
         self._new_listeners: list[socket.socket] | None = None
+        self.firewall = firewall or Firewall(None)
+        self._new_firewall: Firewall | None = None
         self._lock = threading.Lock()      # _new_listeners
         self._clients: dict[int, _Connection] = {}
         self._poll = select.poll()
@@ -133,6 +145,16 @@ class TableServer(threading.Thread):
 
     def reset_counts(self) -> None:
         self.accepted = self.refused_limit = self.bad_header = 0
+
+    def set_firewall(self, firewall: Firewall) -> None:
+        """New rules (another thread): the server's thread guards its clients by them."""
+        with self._lock:
+            self._new_firewall = firewall
+        os.eventfd_write(self._wake_fd, 1)
+
+    def firewall_clients(self) -> list[tuple]:
+        """(peer, role, refused) of each client, for the firewall's status."""
+        return [(c.peer, c.role, c.firewall_refused) for c in list(self._clients.values())]
 
     def move(self, port: int, bind: str | None = None) -> None:
         """Listen on port instead (called from another thread; the clients stay).  Raises
@@ -188,7 +210,8 @@ class TableServer(threading.Thread):
         sock.setblocking(False)
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
-        client = _Connection(sock, _name(address))
+        client = _Connection(sock, _name(address), address[0])
+        client.guard = self.firewall.guard(client.host, client.role, client.listener)
         self._clients[client.fd] = client
         self._poll.register(client.fd, _IN)
         self.accepted += 1
@@ -222,6 +245,11 @@ class TableServer(threading.Thread):
             pass
         with self._lock:
             new, self._new_listeners = self._new_listeners, None
+            firewall, self._new_firewall = self._new_firewall, None
+        if firewall is not None:
+            self.firewall = firewall
+            for client in self._clients.values():
+                client.guard = firewall.guard(client.host, client.role, client.listener)
         if new is None:
             return listeners
         for fd, sock in listeners.items():
@@ -282,7 +310,11 @@ class TableServer(threading.Thread):
                 if end > n:
                     break
                 client.requests += 1
-                reply = answer(view[at:end], unit == BROADCAST_UNIT)
+                guard = client.guard
+                if guard is not None and not guard.allows(unit, view[at + _HEADER_LEN:end]):
+                    reply = self._refused(client, guard, view[at:end], unit)
+                else:
+                    reply = answer(view[at:end], unit == BROADCAST_UNIT)
                 at = end
                 if not reply:
                     continue
@@ -296,6 +328,15 @@ class TableServer(threading.Thread):
                 replies.clear()
         if at < n:
             client.partial += view[at:n]
+
+    def _refused(self, client: _Connection, guard: Guard, frame, unit: int) -> bytes:
+        """The reply to a request the firewall refused: 0x01, nothing for a broadcast."""
+        client.firewall_refused += 1
+        refusal = self.firewall.refused(guard, client.peer, client.role, unit,
+                                        frame[_HEADER_LEN:])
+        if unit == BROADCAST_UNIT:
+            return b""
+        return mbap.frame(_HEADER.unpack_from(frame)[0], unit, refusal)
 
     def _send(self, client: _Connection, data) -> None:
         """Onto the socket now, or held (and the client no longer read) until it takes it."""
