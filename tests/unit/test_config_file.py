@@ -168,8 +168,8 @@ def test_tables_belong_to_their_mode(schema, tmp_path):
     ("[net]\nauthpi = []\n", "net.authpi: unknown key; did you mean net.authip?"),
     ("[net]\nmax_connections = 3\n", "did you mean net.max-connections?"),
     ("[serial]\nfoo = 1\n", "serial.foo: unknown key"),
-    ("[seral]\nstout = 700\n", "[seral]: unknown group (groups: serial, net, general, table, transparent); "
-                               "did you mean [serial]?"),
+    ("[seral]\nstout = 700\n", "[seral]: unknown group (groups: serial, net, general, table, "
+                               "transparent); did you mean [serial]?"),
     ("[net]\nstout = 700\n", "net.stout: belongs in [serial] (serial.stout)"),
     ("stout = 700\n", "stout: outside any group; put it under [serial]"),
     ("mode = 'slave'\n", "mode: outside any group; put it under [serial]"),
@@ -197,7 +197,8 @@ def test_unknown_keys_are_errors_with_a_hint(schema, tmp_path, text, expected):
     ("[serial]\nnocheck = 'yes'", "serial.nocheck: expected true or false, got \"yes\""),
     ("[serial]\nnocheck = 1", "serial.nocheck: expected true or false, got 1"),
     ("[serial]\nmode = 'rtu'", "serial.mode: 'rtu' is the framing: write protocol = \"rtu\""),
-    ("[serial]\nmode = 'both'", "serial.mode: expected 'slave' or 'master' or 'transparent', got 'both'"),
+    ("[serial]\nmode = 'both'",
+     "serial.mode: expected 'slave' or 'master' or 'transparent', got 'both'"),
     ("[net]\nslaveid = 248", "net.slaveid: 248 is not in the range 0<=x<=247"),
     ("[net]\nauthip = '192.0.2.1'", "net.authip: expected a list of addresses"),
     ("[net]\nauthip = ['192.0.2.1', 'nope']", "net.authip[2]: authip 'nope': not an IP"),
