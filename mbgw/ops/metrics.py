@@ -316,7 +316,7 @@ class TransparentCollector:
     and table() (mbgw.table.report)."""
 
     def __init__(self, line, figures, started: float, table) -> None:
-        self._line = line
+        self._line = line               # .up, .counters
         self._figures = figures
         self._started = started
         self._table = table
@@ -331,7 +331,7 @@ class TransparentCollector:
         yield GaugeMetricFamily("mbgw_line_up", "1 while the serial device is open and usable.",
                                 value=int(self._line.up))
         figures = self._figures()
-        for name, value in figures["counters"].items():
+        for name, value in self._line.counters.snapshot().items():
             help_text = _TRANSPARENT_HELP.get(name) or _COUNTER_HELP.get(name) or \
                 name.replace("_", " ") + "."
             prefix = "mbgw_transparent_" if name in _TRANSPARENT_HELP else "mbgw_"

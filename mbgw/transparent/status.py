@@ -19,7 +19,7 @@ class TransparentStatus(DaemonStatus):
         self._raw = raw
 
     def figures(self) -> dict:
-        """The mode's own part: the settings in force, the counters, the raw port."""
+        """The mode's own part: the settings in force, the raw port."""
         t = self.cfg.transparent
         raw = self._raw
         return {"eof": t.eof, "eof_char": t.eof_char,
@@ -28,14 +28,13 @@ class TransparentStatus(DaemonStatus):
                 "tx_address": t.tx_address, "tx_size": t.tx_size, "crc": t.crc,
                 "trigger": t.trigger, "silence_ms": t.silence_ms,
                 "raw_port": None if raw is None else raw.port,
-                "raw_client": None if raw is None or raw.client is None else raw.peer,
-                "counters": self._counters.snapshot()}
+                "raw_client": None if raw is None or raw.client is None else raw.peer}
 
     def status(self, request: dict) -> dict:
         data = self._common()
         data["serial"]["state"] = "up" if self._line.up else "down"
-        return {**data, "transparent": self.figures(), "counters_since": self._reset_at,
-                "table": self._table_figures()}
+        return {**data, "transparent": self.figures(), "counters": self._counters.snapshot(),
+                "counters_since": self._reset_at, "table": self._table_figures()}
 
     def reset(self, request: dict) -> dict:
         self._counters.reset()
