@@ -48,8 +48,7 @@ class FrameLine(LineThread[TransparentModeConfig]):
         self._poll.register(self._wake_fd, _IN)
         self._poll.register(self._tx_fd, _IN)
         if raw is not None:
-            for fd in raw.listeners:
-                self._poll.register(fd, _IN)
+            raw.attach(self._poll)
         self._tty_fd = -1
         self._outgoing: collections.deque[tuple[bytes, bool]] = collections.deque()
         self._quiet_from = 0.0         # monotonic: the line's last received byte
@@ -138,10 +137,8 @@ class FrameLine(LineThread[TransparentModeConfig]):
         elif fd == self._wake_fd:
             _drain(fd)
         elif raw is not None and fd in raw.listeners:
-            sock = raw.accept(fd)
-            if sock is not None:
-                self._poll.register(sock.fileno(), _IN)
-        elif raw is not None and raw.client is not None and fd == raw.client.fileno():
+            raw.accept(fd)
+        elif raw is not None and raw.is_client(fd):
             self._read_raw(raw)
 
     # --- receiving ---
@@ -221,12 +218,8 @@ class FrameLine(LineThread[TransparentModeConfig]):
         self._outgoing.append((frame, True))
 
     def _read_raw(self, raw: RawPort) -> None:
-        fd = raw.client.fileno() if raw.client is not None else -1
         data = raw.receive()
-        if data is None:
-            return
-        if not data:                     # gone, and closed
-            self._poll.unregister(fd)
+        if not data:                     # nothing now, or no more (then no longer polled)
             return
         self.counters.raw_bytes_in += len(data)
         self._outgoing.append((data, False))

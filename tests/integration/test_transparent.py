@@ -255,6 +255,15 @@ def test_raw_port_streams_both_ways_one_client_at_a_time(transparent):
     counters(gw, frames_stored=1, raw_refused=1)
     raw.sendall(b"?\r")
     assert device.read(2) == b"?\r"
+    raw.shutdown(socket.SHUT_WR)                            # done sending, as `socat -t` is
+    device.send(b"13.0kg\r")
+    assert raw.recv(64) == b"13.0kg\r"                      # still gets the frames
+    third = socket.create_connection(("127.0.0.1", raw_port), timeout=REPLY_S)
+    wait_for_log(gw, "gives way to")                        # ...until another client comes
+    assert raw.recv(64) == b""
+    device.send(b"14.0kg\r")
+    assert third.recv(64) == b"14.0kg\r"
+    third.close()
     raw.close()
 
 
