@@ -1,6 +1,5 @@
 """Transparent mode's settings and configuration keys: `mbgw config set serial mode
 transparent`, `mbgw run` reaching `mbgw transparent`, and the areas' bounds named by key."""
-import logging
 import tomllib
 
 import pytest
@@ -9,14 +8,6 @@ from click.testing import CliRunner
 from mbgw.cli import main
 from mbgw.config.model import SerialConfig, TransparentConfig
 from mbgw.errors import ConfigError
-
-
-@pytest.fixture(autouse=True)
-def _keep_logging():
-    logger = logging.getLogger("mbgw")
-    saved = (logger.handlers[:], logger.level, logger.propagate)
-    yield
-    logger.handlers[:], logger.level, logger.propagate = saved
 
 
 def mbgw(*args):
