@@ -104,11 +104,12 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
         log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
 
     async def apply(new: TransparentModeConfig) -> None:
+        old = status.cfg
         identity.fill(table, new, "transparent")
         for name in ("mdbport", "bind", "authip"):
-            if getattr(new, name) != getattr(cfg, name):
+            if getattr(new, name) != getattr(old, name):
                 log.warning("%s changed: the new setting takes effect at restart", name)
-        if new.transparent.raw_port != cfg.transparent.raw_port:
+        if new.transparent.raw_port != old.transparent.raw_port:
             log.warning("raw-port changed: the new setting takes effect at restart")
         frames.reconfigure(new)
 

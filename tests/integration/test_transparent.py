@@ -8,6 +8,7 @@ pymodbus.  Every expected register content and wire frame is built by the test f
 and the device's next bytes must be it."""
 import os
 import select
+import signal
 import socket
 import subprocess
 import sys
@@ -301,3 +302,17 @@ def test_counters_in_metrics_and_the_trace_shows_frames_in_hex(transparent):
     assert metric_value(families, "mbgw_transparent_frames_stored",
                         "mbgw_transparent_frames_stored_total") == 1
     assert metric_value(families, "mbgw_line_up") == 1
+
+
+def test_reload_applies_new_frame_settings(transparent, tmp_path):
+    path = tmp_path / "mbgw.toml"
+    path.write_text('[transparent]\neof = "cr"\nrx-size = 8\n')
+    gw, device, client = transparent("--config", str(path))
+    device.send(b"a\r")
+    counters(gw, frames_stored=1)
+    path.write_text('[transparent]\neof = "lf"\nrx-size = 8\n')
+    gw.proc.send_signal(signal.SIGHUP)
+    wait_for_log(gw, "configuration reloaded: transparent changed")
+    device.send(b"b\rc\n")
+    counters(gw, frames_stored=2)
+    assert read_area(client, RX, 8) == registers(b"b\rc\n", 8)
