@@ -124,8 +124,8 @@ def register(main: click.Group) -> None:
                 for line in events:
                     event = json.loads(line)
                     echo(format_event(event))
-                    if writer is not None:
-                        writer.write_event(event)
+                    if writer is not None and event.get("mode") != "transparent":
+                        writer.write_event(event)     # raw frames are not Modbus/TCP
                     seen += 1
                     if count is not None and seen >= count:
                         break

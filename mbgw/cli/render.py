@@ -33,6 +33,8 @@ def format_status(s: dict, now: float) -> str:
              f"up {_duration(s['uptime_s'])}"]
     if s["mode"] == "master":
         lines += _master_sections(s, now)
+    elif s["mode"] == "transparent":
+        lines += _transparent_sections(s)
     else:
         lines += _slave_sections(s, now)
     if s.get("table") is not None:
@@ -46,6 +48,20 @@ def format_status(s: dict, now: float) -> str:
         lines.append("  " + "".join(f"{n:<28}{counters[n]:>10}   " for n in names[i:i + 3])
                      .rstrip())
     return "\n".join(lines)
+
+
+def _transparent_sections(s: dict) -> list[str]:
+    t = s["transparent"]
+    eof = f"char 0x{t['eof_char']:02x}" if t["eof"] == "char" else t["eof"]
+    raw = "off" if t["raw_port"] is None else \
+        f"port {t['raw_port']}, client {t['raw_client'] or 'none'}"
+    return [f"{_line(s['serial'])}: line {s['serial']['state']}",
+            f"frames     eof {eof}, eof-timeout {t['eof_timeout_ms']} ms, crc "
+            f"{'on' if t['crc'] else 'off'}, trigger {'on' if t['trigger'] else 'off'}, "
+            f"silence {t['silence_ms']} ms",
+            f"areas      rx {t['rx_address']}+{t['rx_size']} bytes, tx {t['tx_address']}+"
+            f"{t['tx_size']} bytes",
+            f"raw        {raw}"]
 
 
 def _line(serial: dict) -> str:
@@ -217,6 +233,8 @@ def _table_persist(persist: dict, now: float) -> str:
 # --- mbgw trace ----------------------------------------------------------------------------
 
 def trace_columns(mode: str) -> str:
+    if mode == "transparent":
+        return f"{'TIME':<15} {'DIRECTION':<9} {'LEN':>4}  {'OUTCOME':<10} FRAME (hex)"
     if mode == "master":
         return (f"{'TIME':<15} {'DIRECTION':<9} {'ADDR':>4} {'SERVER':<21} {'TID':>5} "
                 f"{'UNIT':>4} {'FC':>4} {'LEN':>4}  OUTCOME")
@@ -230,6 +248,8 @@ def format_event(e: dict) -> str:
     outcome = e["outcome"]
     if e.get("latency_ms") is not None:
         outcome = f"{outcome} {e['latency_ms']:.1f} ms"
+    if e.get("mode") == "transparent":
+        return f"{stamp:<15} {e['direction']:<9} {e['length']:>4}  {outcome:<10} {e['frame']}"
     if e.get("mode") == "master":
         tid = "-" if e["tid"] is None else e["tid"]
         unit = "-" if e["unit"] is None else e["unit"]

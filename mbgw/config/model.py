@@ -305,3 +305,87 @@ class MasterConfig:
     def tcpto_ns(self) -> int:
         return self.tcpto_ms * 1_000_000
 
+
+
+# Transparent mode (VPGate 3.8, 6.5.2): raw frames between the line and the table.
+EOF_CHARS = {"nul": b"\x00", "space": b" ", "lf": b"\n", "cr": b"\r", "crlf": b"\r\n",
+             "lfcr": b"\n\r"}
+EOF_KINDS = (*EOF_CHARS, "char", "length", "timeout")
+EOF_CHAR_RANGE = (0, 255)
+EOF_TIMEOUT_RANGE = (0, 65535)         # ms; 0: the serial line's end-of-frame silence
+RX_ADDRESS_RANGE = (0, 2047)           # the inputs zone
+TX_ADDRESS_RANGE = (2048, 4095)        # the outputs zone
+FRAME_SIZE_RANGE = (1, 250)            # bytes, two to a register
+INTERFRAME_SILENCE_RANGE = (0, 65535)  # ms
+
+
+@dataclass(frozen=True)
+class TransparentConfig:
+    """How frames are cut on the line and where they are in the table."""
+    eof: str = "cr"
+    eof_char: int = 0x0D
+    eof_timeout_ms: int = 0
+    rx_address: int = 0
+    rx_size: int = 250
+    tx_address: int = 2048
+    tx_size: int = 250
+    crc: bool = False
+    trigger: bool = False
+    silence_ms: int = 0            # after a frame was received, before sending
+    raw_port: int | None = None    # one TCP client's raw byte stream to the line; None: off
+
+    def __post_init__(self) -> None:
+        if self.eof not in EOF_KINDS:
+            raise ConfigError(f"eof {self.eof!r}: expected one of {', '.join(EOF_KINDS)}")
+        for name, value, (low, high) in (
+                ("eof-char", self.eof_char, EOF_CHAR_RANGE),
+                ("eof-timeout", self.eof_timeout_ms, EOF_TIMEOUT_RANGE),
+                ("rx-size", self.rx_size, FRAME_SIZE_RANGE),
+                ("tx-size", self.tx_size, FRAME_SIZE_RANGE),
+                ("interframe-silence", self.silence_ms, INTERFRAME_SILENCE_RANGE)):
+            if not low <= value <= high:
+                raise ConfigError(f"{name} {value}: out of range {low}..{high}")
+        for name, address, size, (low, high) in (
+                ("rx-address", self.rx_address, self.rx_size, RX_ADDRESS_RANGE),
+                ("tx-address", self.tx_address, self.tx_size, TX_ADDRESS_RANGE)):
+            last = address + registers_of(size) - 1
+            if not low <= address <= high or last > high:
+                raise ConfigError(f"{name} {address}: the area (registers {address}..{last}) "
+                                  f"must lie in {low}..{high}")
+        if self.raw_port is not None and not PORT_RANGE[0] <= self.raw_port <= PORT_RANGE[1]:
+            raise ConfigError(f"raw-port {self.raw_port}: out of range {PORT_RANGE[0]}.."
+                              f"{PORT_RANGE[1]}")
+
+    @property
+    def end(self) -> bytes | None:
+        """The characters that end a frame, None when a frame ends otherwise."""
+        if self.eof == "char":
+            return bytes([self.eof_char])
+        return EOF_CHARS.get(self.eof)
+
+    def eof_timeout_for(self, serial: SerialConfig) -> int:
+        """eof-timeout in ms, the serial line's end-of-frame silence (at least 1 ms) for 0."""
+        return self.eof_timeout_ms or max(1, math.ceil(serial.end_of_frame_us / 1000))
+
+
+def registers_of(size: int) -> int:
+    """The registers that hold size bytes, two to a register."""
+    return (size + 1) // 2
+
+
+@dataclass(frozen=True)
+class TransparentModeConfig:
+    """Transparent mode: raw frames on the serial line, the table served on mdbport."""
+    serial: SerialConfig
+    transparent: TransparentConfig = field(default_factory=TransparentConfig)
+    authip: tuple = ()
+    mdbport: int = DEFAULT_MDBPORT
+    bind: str | None = None
+    control: str | None = None
+    metrics: str | None = None
+    table: TableConfig = field(default_factory=lambda: TableConfig(enabled=True, direct=False))
+
+    def __post_init__(self) -> None:
+        if len(self.authip) > MAX_AUTHIP:
+            raise ConfigError(f"authip: at most {MAX_AUTHIP} addresses, got {len(self.authip)}")
+        object.__setattr__(self, "authip", tuple(parse_ip("authip", a) for a in self.authip))

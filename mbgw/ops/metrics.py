@@ -311,6 +311,56 @@ def master_collector(counters, devices, slave, started: float,
          len(slave.connections()))], table, firewall)
 
 
+_TRANSPARENT_HELP = {
+    "frames_received": "Complete frames received on the line (CRC errors included).",
+    "frames_stored": "Frames stored at rx-address.",
+    "frames_truncated": "Frames stored cut to rx-size.",
+    "frames_incomplete": "Frames dropped: the line went quiet for eof-timeout before their end.",
+    "crc_errors": "Frames dropped for a wrong CRC (--crc).",
+    "frames_sent": "Frames sent from the tx area.",
+    "sends_refused": "Changes of the tx area that held no whole frame: nothing sent.",
+    "raw_bytes_in": "Bytes from the raw-port client to the line.",
+    "raw_bytes_out": "Bytes of frames from the line to the raw-port client.",
+    "raw_bytes_dropped": "Bytes of frames the raw-port client did not take in time.",
+    "raw_refused": "raw-port clients refused (one at a time; authip).",
+}
+
+
+class TransparentCollector:
+    """Transparent mode's metrics, from its status dicts: figures() (mbgw.transparent.status)
+    and table() (mbgw.table.report)."""
+
+    def __init__(self, line, figures, started: float, table) -> None:
+        self._line = line               # .up, .counters
+        self._figures = figures
+        self._started = started
+        self._table = table
+
+    def collect(self):
+        info = GaugeMetricFamily("mbgw_info", "mbgw's version and mode (always 1).",
+                                 labels=["version", "mode"])
+        info.add_metric([__version__, "transparent"], 1)
+        yield info
+        yield GaugeMetricFamily("mbgw_start_time_seconds", "When the daemon started (Unix time).",
+                                value=round(self._started, 3))
+        yield GaugeMetricFamily("mbgw_line_up", "1 while the serial device is open and usable.",
+                                value=int(self._line.up))
+        figures = self._figures()
+        for name, value in self._line.counters.snapshot().items():
+            help_text = _TRANSPARENT_HELP.get(name) or _COUNTER_HELP.get(name) or \
+                name.replace("_", " ") + "."
+            prefix = "mbgw_transparent_" if name in _TRANSPARENT_HELP else "mbgw_"
+            yield CounterMetricFamily(prefix + name, help_text, value=value)
+        yield GaugeMetricFamily("mbgw_transparent_raw_client_connected",
+                                "1 while a raw-port client is connected.",
+                                value=int(figures["raw_client"] is not None))
+        yield from table_families(self._table())
+
+
+def transparent_collector(line, figures, started: float, table) -> TransparentCollector:
+    return TransparentCollector(line, figures, started, table)
+
+
 # --- the HTTP side ---------------------------------------------------------------------------
 
 class MetricsServer:

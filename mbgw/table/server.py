@@ -105,11 +105,13 @@ class TableServer(threading.Thread):
     connections() may be called from any thread."""
 
     def __init__(self, table, port: int, bind: str | None = None,
-                 firewall: Firewall | None = None) -> None:
-        """Listens at once: raises TableListenError when it cannot."""
+                 firewall: Firewall | None = None, allows=None) -> None:
+        """Listens at once: raises TableListenError when it cannot.  allows(host): whether a
+        peer may connect (None: anyone; transparent mode's authip)."""
         super().__init__(name="mbgw-table", daemon=True)
         self._table = table
         self.port = port
+        self._allows = allows
         self._listeners = listen(port, bind)
         self._wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         self._stopping = False
@@ -126,6 +128,7 @@ class TableServer(threading.Thread):
         self.accepted = 0
         self.refused_limit = 0
         self.bad_header = 0
+        self.refused_authip = 0
 
     @property
     def addresses(self) -> list[str]:
@@ -137,14 +140,15 @@ class TableServer(threading.Thread):
                 "max_connections": MAX_CONNECTIONS,
                 "connections_accepted": self.accepted,
                 "connections_refused_limit": self.refused_limit,
-                "connections_bad_header": self.bad_header}
+                "connections_bad_header": self.bad_header,
+                "connections_refused_authip": self.refused_authip}
 
     def connections(self) -> list[dict]:
         return [{"peer": c.peer, "connected": c.connected_at, "requests": c.requests}
                 for c in list(self._clients.values())]
 
     def reset_counts(self) -> None:
-        self.accepted = self.refused_limit = self.bad_header = 0
+        self.accepted = self.refused_limit = self.bad_header = self.refused_authip = 0
 
     def set_firewall(self, firewall: Firewall) -> None:
         """New rules (another thread): the server's thread guards its clients by them."""
@@ -201,6 +205,11 @@ class TableServer(threading.Thread):
             return
         except OSError as err:          # out of file descriptors, say: the next one may do
             log.warning("table server: cannot accept a connection: %s", err.strerror)
+            return
+        if self._allows is not None and not self._allows(address[0]):
+            sock.close()
+            self.refused_authip += 1
+            log.warning("table client %s refused: not in authip", _name(address))
             return
         if len(self._clients) >= MAX_CONNECTIONS:
             sock.close()
