@@ -384,6 +384,7 @@ class TransparentModeConfig:
     control: str | None = None
     metrics: str | None = None
     table: TableConfig = field(default_factory=lambda: TableConfig(enabled=True, direct=False))
+    firewall: "FirewallConfig | None" = None   # on mdbport's requests; None: all allowed
 
     def __post_init__(self) -> None:
         if len(self.authip) > MAX_AUTHIP:

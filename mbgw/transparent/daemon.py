@@ -7,6 +7,7 @@ import signal
 import time
 
 from mbgw.config.model import TransparentModeConfig
+from mbgw.firewall.guard import Firewall
 from mbgw.line.port import SerialLine
 from mbgw.ops.service import (
     ListenError,
@@ -57,7 +58,8 @@ def run_transparent(cfg: TransparentModeConfig, reconfigure=None) -> None:
     identity.fill(table, cfg, "transparent")
     allows = access_check(cfg.authip)
     try:
-        server = TableServer(table, cfg.mdbport, cfg.bind, allows=allows)
+        server = TableServer(table, cfg.mdbport, cfg.bind, Firewall(cfg.firewall),
+                             allows=allows)
     except OSError as err:
         raise TransparentListenFailure("mdbport", cfg.mdbport, err) from None
     raw = _raw_port(cfg, allows, counters)
@@ -111,6 +113,8 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
                 log.warning("%s changed: the new setting takes effect at restart", name)
         if new.transparent.raw_port != old.transparent.raw_port:
             log.warning("raw-port changed: the new setting takes effect at restart")
+        if new.firewall != old.firewall:
+            server.set_firewall(server.firewall.renewed(new.firewall))
         frames.reconfigure(new)
 
     await serve_until_stopped(stop, status, frames, reconfigure, apply, control, metrics)

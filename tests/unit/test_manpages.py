@@ -46,6 +46,8 @@ FIREWALL_TABLES = {firewall.GROUP: firewall.GROUP_KEYS, firewall.RULE_TABLE: fir
 def test_the_firewall_tables_list_their_keys():
     for table, keys in FIREWALL_TABLES.items():
         assert tuple(ENTRIES[table]) == keys, table
+
+
 KEYS = [(group, name) for group in GROUPS for name in SCHEMA.group_keys(group)]
 
 
