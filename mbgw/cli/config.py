@@ -26,6 +26,7 @@ def register(root: click.Group) -> None:
         command = root.commands.get(mode)
         if command is not None and not any(p.name == "config" for p in command.params):
             command.params.append(_mode_config_option())
+            command.params.append(_scenarios_option())
     for command in (run, check_config, config):
         root.add_command(command)
 
@@ -64,6 +65,21 @@ def _mode_config_option() -> click.Option:
         is_eager=True, expose_value=False, callback=_apply_file,
         help=f"Take the options not given here from FILE [default: {ck.DEFAULT_PATH}, when "
              f"it exists; also $MBGW_CONFIG].")
+
+
+class _GivenValue(click.ParamType):
+    """A value the configuration file hands over already checked (the scenarios)."""
+    name = "given"
+
+    def convert(self, value, param, ctx):
+        return value
+
+
+def _scenarios_option() -> click.Option:
+    """The file's [[scenario]] tables (ScenarioConfig), through click's default_map like the
+    other keys' values: hidden, no command-line form."""
+    return click.Option(["--scenarios", cf.SCENARIOS_PARAM], type=_GivenValue(), default=(),
+                        hidden=True)
 
 
 def _apply_file(ctx: click.Context, param: click.Parameter, value) -> None:
