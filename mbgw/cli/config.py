@@ -101,6 +101,12 @@ def _apply_file(ctx: click.Context, param: click.Parameter, value) -> None:
     ctx.meta[META_FILE] = Path(value)
 
 
+def config_file(ctx: click.Context | None = None) -> Path | None:
+    """The configuration file the running mode command took values from, or None."""
+    ctx = ctx or click.get_current_context()
+    return ctx.meta.get(META_FILE)
+
+
 def reloader(ctx: click.Context | None = None):
     """For the mode command running now (its context, by default the current one): a function
     that reads its configuration file again, for SIGHUP, and returns {"mode": ..., then the

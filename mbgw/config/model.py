@@ -245,6 +245,7 @@ class SlaveConfig:
     shortcut: bool = True          # an idle line's request goes on it from C (a hidden switch)
     table: TableConfig = field(default_factory=TableConfig)
     scenarios: tuple = ()          # ScenarioConfig (mbgw.config.scenario), [[scenario]]
+    config_file: str | None = None  # the file the settings came from (scenario ... --save)
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "slave")
@@ -299,6 +300,7 @@ class MasterConfig:
     demotion: Demotion = field(default_factory=Demotion)
     table: TableConfig = field(default_factory=TableConfig)
     scenarios: tuple = ()           # ScenarioConfig (mbgw.config.scenario): TCP ones only
+    config_file: str | None = None  # the file the settings came from (scenario ... --save)
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "master")

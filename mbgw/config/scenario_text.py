@@ -79,3 +79,23 @@ def remove(text: str, name: str) -> str | None:
                 lines.pop()
             return "\n".join(lines) + "\n" if lines else ""
     return None
+
+
+def set_enabled(text: str, name: str, on: bool) -> str | None:
+    """The text with scenario `name` enabled (its `enabled` key taken out: true is the
+    default) or disabled (`enabled = false`), None when it has no such scenario."""
+    lines = text.splitlines()
+    for first, end in _blocks(lines):
+        try:
+            content = tomllib.loads("\n".join(lines[first + 1:end]))
+        except tomllib.TOMLDecodeError:
+            continue
+        if content.get("name") != name:
+            continue
+        keep = [line for line in lines[first + 1:end]
+                if not re.match(r"^\s*enabled\s*=", line)]
+        if not on:
+            keep.append("enabled = false")
+        lines[first + 1:end] = keep
+        return "\n".join(lines) + "\n"
+    return None

@@ -7,6 +7,7 @@ import logging
 import os
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 
@@ -25,11 +26,25 @@ _IN_ERROR: dict[int, set[int]] = {}
 _IN_ERROR_LOCK = threading.Lock()
 
 
+DEFAULT_TEST_WAIT_S = 60.0     # how long `scenario test` waits for its runner
+
+
 @dataclass
 class Run:
     scenario: ScenarioConfig
     pdu: bytes
     started: float
+
+
+class TestRun(Run):
+    """A `scenario test` run: the runner does it like a Run (take_test, test_done), between
+    its own runs; the operator's thread waits for `result`."""
+    __test__ = False        # not a pytest class
+
+    def __init__(self, scenario: ScenarioConfig, pdu: bytes, started: float) -> None:
+        super().__init__(scenario, pdu, started)
+        self.finished = threading.Event()
+        self.result: dict | None = None
 
 
 class _State:
@@ -73,6 +88,7 @@ class Scenarios:
         now = clock()
         self._planner = Planner((), now)
         self._flag = False                  # FC 7's "a scenario is in error", as last set
+        self._tests: deque[TestRun] = deque()
         self.reconfigure(configs)
 
     # --- the runner's side ---
@@ -83,6 +99,8 @@ class Scenarios:
         with self._lock:
             self._take_changes()
             self.tick(now)
+            if self._tests:
+                return 0.0
             due = self._planner.due_in(now)
             stale_due = self._next_stale_check(now)
             if stale_due is not None and (due is None or stale_due < due):
@@ -192,6 +210,37 @@ class Scenarios:
         now = self.clock()
         with self._lock:
             return [self._status(state, now) for state in self._states.values()]
+
+    def request_test(self, sc: ScenarioConfig, wait_s: float = DEFAULT_TEST_WAIT_S) -> dict:
+        """From any thread but the runner's: have the runner run `sc` once (take_test,
+        test_done) and wait for its result (test_result's dict)."""
+        with self._lock:
+            test = TestRun(sc, exchange.request_pdu(sc, self.table), 0.0)
+            self._tests.append(test)
+        os.eventfd_write(self.wake_fd, 1)
+        if not test.finished.wait(wait_s):
+            with self._lock:
+                if test in self._tests:
+                    self._tests.remove(test)
+            return {"error": f"the {self.kind} scenarios' runner did not run the test within "
+                             f"{wait_s:g} s"}
+        assert test.result is not None
+        return test.result
+
+    def take_test(self, now: float) -> TestRun | None:
+        """The runner's side of request_test: a test to run now, or None."""
+        with self._lock:
+            if not self._tests:
+                return None
+            test = self._tests.popleft()
+            test.started = now
+            return test
+
+    def test_done(self, test: TestRun, reply_pdu: bytes | None, error_kind: str | None,
+                  retries: int = 0) -> None:
+        test.result = self.test_result(test.scenario, test.pdu, reply_pdu, error_kind, retries,
+                                       self.clock() - test.started)
+        test.finished.set()
 
     def test(self, sc: ScenarioConfig, run_fn: Callable[[bytes], tuple]) -> dict:
         """Run `sc` once (it need not be configured): run_fn(pdu) -> (reply_pdu | None,
