@@ -78,7 +78,8 @@ def transparent_config(device, protocol, baudrate, line_format, interface, rtsde
                        silence, ascii_timeout, nocheck, authip, mdbport, bind, eof, eof_char,
                        eof_timeout, rx_address, rx_size, tx_address, tx_size, crc, trigger,
                        interframe_silence, raw_port, control, metrics,
-                       log_level=None, firewall=None) -> config.TransparentModeConfig:
+                       log_level=None, firewall=None,
+                       scenarios=()) -> config.TransparentModeConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
     frames = convert("'--rx-address' / '--tx-address'", lambda: config.TransparentConfig(
@@ -87,4 +88,4 @@ def transparent_config(device, protocol, baudrate, line_format, interface, rtsde
         silence_ms=interframe_silence, raw_port=raw_port))
     return convert("'--authip'", lambda: config.TransparentModeConfig(
         serial=serial, transparent=frames, authip=authip, mdbport=mdbport, bind=bind,
-        control=control, metrics=metrics, firewall=firewall))
+        control=control, metrics=metrics, firewall=firewall, scenarios=scenarios))

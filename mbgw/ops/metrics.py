@@ -134,7 +134,8 @@ class DaemonCollector:
     the daemon serves the exchange table, its status dict (mbgw.table.report.table_status)."""
 
     def __init__(self, counters, devices, started: float, mode: str, gauges,
-                 table=None, firewall=None) -> None:
+                 table=None, firewall=None,
+                 scenarios=None) -> None:
         self._counters = counters
         self._devices = devices
         self._started = started
@@ -142,6 +143,7 @@ class DaemonCollector:
         self._gauges = gauges
         self._table = table
         self._firewall = firewall       # the firewall's status dict (mbgw.firewall), or None
+        self.scenarios = scenarios      # () -> the status's "scenarios" rows, or None
 
     def collect(self):
         yield from self._daemon()
@@ -158,6 +160,8 @@ class DaemonCollector:
         firewall = self._firewall() if self._firewall is not None else None
         if firewall is not None:
             yield firewall_family(firewall)
+        if self.scenarios is not None:
+            yield from scenario_families(self.scenarios())
 
     def _daemon(self):
         info = GaugeMetricFamily("mbgw_info", "mbgw's version and mode (always 1).",
@@ -290,6 +294,41 @@ def firewall_family(status: dict) -> CounterMetricFamily:
         refused.add_metric([str(rule["rule"])], rule["refused"])
     refused.add_metric(["default"], status["refused_default"])
     return refused
+
+
+SCENARIO_STATES = ("starting", "running", "error", "disabled")
+
+
+def scenario_families(rows: list[dict]):
+    """The scenarios' families from the status's "scenarios" rows (mbgw.scenarios.report)."""
+    runs = CounterMetricFamily("mbgw_scenario_runs", "Runs of each scenario (requests sent, "
+                               "retries not counted).", labels=["scenario"])
+    errors = CounterMetricFamily("mbgw_scenario_errors", "Failed runs of each scenario, by "
+                                 "kind (timeout, illegal-address, unexpected-data, "
+                                 "connection-lost, ...).", labels=["scenario", "kind"])
+    retries = CounterMetricFamily("mbgw_scenario_retries", "Requests of each scenario "
+                                  "repeated after no valid reply.", labels=["scenario"])
+    overruns = CounterMetricFamily("mbgw_scenario_overruns", "Periods a cyclic scenario "
+                                   "missed: it ran later than one whole period.",
+                                   labels=["scenario"])
+    age = GaugeMetricFamily("mbgw_scenario_data_age_seconds", "Seconds since a read "
+                            "scenario last stored good data (absent before the first).",
+                            labels=["scenario"])
+    state = GaugeMetricFamily("mbgw_scenario_state", "1 for each scenario's state (starting, "
+                              "running, error, disabled), 0 for the others.",
+                              labels=["scenario", "state"])
+    for row in rows:
+        name = row["name"]
+        runs.add_metric([name], row["runs"])
+        for kind, n in row["errors"].items():
+            errors.add_metric([name, kind], n)
+        retries.add_metric([name], row["retries"])
+        overruns.add_metric([name], row["overruns"])
+        if row.get("data_age_s") is not None:
+            age.add_metric([name], row["data_age_s"])
+        for each in SCENARIO_STATES:
+            state.add_metric([name, each], int(row["state"] == each))
+    yield from (runs, errors, retries, overruns, age, state)
 
 
 def slave_collector(counters, devices, scheduler, server, worker,
