@@ -1,3 +1,4 @@
+import logging
 import os
 
 import pytest
@@ -7,6 +8,16 @@ from tests.harness import Gateway, Peer, PtyPair
 # `mbgw slave` takes the values it is not given from /etc/mbgw/mbgw.toml when that exists (an
 # installed mbgw.deb): the tests, and the gateways they start, read an empty file instead.
 os.environ["MBGW_CONFIG"] = os.devnull
+
+
+@pytest.fixture(autouse=True)
+def mbgw_logger_as_found():
+    """A command run in-process (CliRunner) sets up the "mbgw" logger as the daemon does: its
+    own handler, no propagation, which would hide later tests' records from caplog."""
+    logger = logging.getLogger("mbgw")
+    saved = logger.handlers[:], logger.level, logger.propagate
+    yield
+    logger.handlers[:], logger.level, logger.propagate = saved
 
 
 @pytest.fixture

@@ -4,9 +4,10 @@ this package, and its modules never import its __init__."""
 import click
 
 from mbgw import __version__
-from mbgw.cli import config, diag, table
+from mbgw.cli import config, diag, scenarios, table
 from mbgw.cli.master import master
 from mbgw.cli.slave import slave
+from mbgw.cli.transparent import transparent
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -17,6 +18,8 @@ def main() -> None:
 
 main.add_command(slave)
 main.add_command(master)
+main.add_command(transparent)
 config.register(main)   # run, check-config, config; --config on the mode commands
 diag.register(main)     # status, clients, stats, trace
 table.register(main)    # table read, table write
+scenarios.register(main)  # scenarios, scenario enable|disable|test

@@ -3,6 +3,7 @@ configuration error into a usage error, and the one way a command fails."""
 import click
 
 from mbgw.config import model as config
+from mbgw.config.firewall import FirewallConfig
 from mbgw.config.schema import SerialOption, TableOption, TlsOption
 from mbgw.errors import ConfigError
 
@@ -225,6 +226,18 @@ def tls_config(tls_port, tls_cert, tls_key, tls_ca) -> config.TlsConfig:
 
 
 # The operator's tools, the same in both modes: control socket, metrics, log level.
+class _FirewallRules(click.ParamType):
+    """The firewall comes from the configuration file only (mbgw.config.firewall): its
+    checked rules reach the command through click's default_map, never as text."""
+    name = "rules"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, FirewallConfig):
+            return value
+        self.fail("firewall rules are set in the configuration file's [[rule]] tables "
+                  "(mbgw.toml(5))", param, ctx)
+
+
 daemon_options = stack(
     click.option("--control", metavar="PATH", default=None,
                  help="Control socket for mbgw status/trace [default: "
@@ -234,6 +247,8 @@ daemon_options = stack(
                  help="Serve Prometheus metrics on http://ADDR:PORT/metrics ([IPV6]:PORT; "
                       ":PORT for every address) [default: off]."),
     click.option("--log-level", type=LOG_LEVELS, default="info", show_default=True),
+    click.option("--firewall", type=_FirewallRules(), default=None, hidden=True,
+                 help="The configuration file's [[rule]] tables and [firewall] group."),
 )
 
 

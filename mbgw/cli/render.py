@@ -33,10 +33,16 @@ def format_status(s: dict, now: float) -> str:
              f"up {_duration(s['uptime_s'])}"]
     if s["mode"] == "master":
         lines += _master_sections(s, now)
+    elif s["mode"] == "transparent":
+        lines += _transparent_sections(s)
     else:
         lines += _slave_sections(s, now)
     if s.get("table") is not None:
         lines += ["", *_table_section(s["table"], s["mode"], now)]
+    if s.get("firewall") is not None:
+        lines += ["", *_firewall_section(s["firewall"])]
+    if s.get("scenarios"):
+        lines += ["", *format_scenarios(s["scenarios"], now)]
     counters = s["counters"]
     lines += ["", f"counters since {_clock(s['counters_since'])}"]
     names = list(counters)
@@ -44,6 +50,20 @@ def format_status(s: dict, now: float) -> str:
         lines.append("  " + "".join(f"{n:<28}{counters[n]:>10}   " for n in names[i:i + 3])
                      .rstrip())
     return "\n".join(lines)
+
+
+def _transparent_sections(s: dict) -> list[str]:
+    t = s["transparent"]
+    eof = f"char 0x{t['eof_char']:02x}" if t["eof"] == "char" else t["eof"]
+    raw = "off" if t["raw_port"] is None else \
+        f"port {t['raw_port']}, client {t['raw_client'] or 'none'}"
+    return [f"{_line(s['serial'])}: line {s['serial']['state']}",
+            f"frames     eof {eof}, eof-timeout {t['eof_timeout_ms']} ms, crc "
+            f"{'on' if t['crc'] else 'off'}, trigger {'on' if t['trigger'] else 'off'}, "
+            f"silence {t['silence_ms']} ms",
+            f"areas      rx {t['rx_address']}+{t['rx_size']} bytes, tx {t['tx_address']}+"
+            f"{t['tx_size']} bytes",
+            f"raw        {raw}"]
 
 
 def _line(serial: dict) -> str:
@@ -69,6 +89,21 @@ def _health(d: dict, now: float) -> str:
 _HEALTH_COLUMNS = (f"  {'ADDR':>4}  {'HEALTH':<8} {'SINCE':<12} {'LAST SUCCESS':<14} "
                    f"{'FAILS':>5} {'REQUESTS':>8} {'REPLIES':>8} {'TIMEOUTS':>8} "
                    f"{'REFUSED':>7}")
+
+
+def _firewall_section(f: dict) -> list[str]:
+    """The firewall: refusals by rule and by client."""
+    lines = [f"firewall   {len(f['rules'])} rules, default {f['default']}: "
+             f"{f['refused']} requests refused"]
+    for rule in f["rules"]:
+        lines.append(f"  {rule['selects']:<56} {rule['refused']:>8} refused")
+    lines.append(f"  {'no rule (default ' + f['default'] + ')':<56} "
+                 f"{f['refused_default']:>8} refused")
+    for client in f["clients"]:
+        if client["refused"]:
+            lines.append(f"  client {client['peer']} (role {client['role'] or 'none'}): "
+                         f"{client['refused']} refused")
+    return lines
 
 
 def _slave_sections(s: dict, now: float) -> list[str]:
@@ -105,7 +140,7 @@ def _master_sections(s: dict, now: float) -> list[str]:
         f"servers    port {up['port']}, tcpto {up['tcpto_ms']} ms, exception "
         f"{'on' if up['exception'] else 'off'}, at most {up['max_connections']} connections",
     ]
-    table = s.get("table", {})
+    table = s.get("table") or {}     # None while the table is off
     table_address = table.get("address") if table.get("enabled") else None
     routes = [r["route"] for r in s["slaveid"]] or [
         f"empty: only the table's address {table_address} is answered" if table_address
@@ -197,9 +232,35 @@ def _table_persist(persist: dict, now: float) -> str:
         str(persist.get("path", "-"))
 
 
+# --- the scenarios (mbgw status, mbgw scenarios) ---------------------------------------------
+
+def format_scenarios(rows: list[dict], now: float) -> list[str]:
+    """One line per scenario, then its error message when in error."""
+    if not rows:
+        return ["scenarios  none"]
+    lines = [f"scenarios ({len(rows)})",
+             f"  {'NAME':<16} {'STATE':<9} {'TARGET':<24} {'FC':>2} {'TRIGGER':<8} "
+             f"{'RUNS':>7} {'ERRORS':>6} {'RETRY':>5} {'OVERRUN':>7} {'LATENCY':>8}  "
+             f"{'DATA AGE':<9} LAST SUCCESS"]
+    for r in rows:
+        latency = "-" if r["last_latency_ms"] is None else f"{r['last_latency_ms']:.1f}ms"
+        age = "-" if r["data_age_s"] is None else _duration(r["data_age_s"])
+        if r.get("stale"):
+            age += " stale"
+        lines.append(f"  {r['name']:<16} {r['state']:<9} {r['target']:<24} "
+                     f"{r['function']:>2} {r['trigger']:<8} {r['runs']:>7} "
+                     f"{sum(r['errors'].values()):>6} {r['retries']:>5} {r['overruns']:>7} "
+                     f"{latency:>8}  {age:<9} {_ago(r['last_success'], now)}")
+        if r["state"] == "error" and r["message"]:
+            lines.append(f"    error: {r['message']}")
+    return lines
+
+
 # --- mbgw trace ----------------------------------------------------------------------------
 
 def trace_columns(mode: str) -> str:
+    if mode == "transparent":
+        return f"{'TIME':<15} {'DIRECTION':<9} {'LEN':>4}  {'OUTCOME':<10} FRAME (hex)"
     if mode == "master":
         return (f"{'TIME':<15} {'DIRECTION':<9} {'ADDR':>4} {'SERVER':<21} {'TID':>5} "
                 f"{'UNIT':>4} {'FC':>4} {'LEN':>4}  OUTCOME")
@@ -213,6 +274,8 @@ def format_event(e: dict) -> str:
     outcome = e["outcome"]
     if e.get("latency_ms") is not None:
         outcome = f"{outcome} {e['latency_ms']:.1f} ms"
+    if e.get("mode") == "transparent":
+        return f"{stamp:<15} {e['direction']:<9} {e['length']:>4}  {outcome:<10} {e['frame']}"
     if e.get("mode") == "master":
         tid = "-" if e["tid"] is None else e["tid"]
         unit = "-" if e["unit"] is None else e["unit"]

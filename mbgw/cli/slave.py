@@ -89,8 +89,8 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
                  silence, ascii_timeout, nocheck, slaveid, exception, authip, mdbport, bind,
                  max_connections, max_connections_per_ip, retries, turnaround, control,
                  metrics, log_level=None, shortcut=True, down_after=config.DEFAULT_DOWN_AFTER,
-                 probe_interval=config.DEFAULT_PROBE_INTERVAL_MS, tls_port=config.DEFAULT_TLS_PORT,
-                 tls_cert=None, tls_key=None, tls_ca=None,
+                 probe_interval=config.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
+                 tls_port=config.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
                  **table_settings) -> config.SlaveConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
@@ -104,4 +104,5 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
         bind=bind, max_connections=max_connections,
         max_connections_per_ip=max_connections_per_ip, retries=retries,
         turnaround_ms=turnaround, control=control, metrics=metrics, shortcut=shortcut,
-        demotion=demotion(down_after, probe_interval), table=table, tls=tls))
+        demotion=demotion(down_after, probe_interval), table=table,
+        firewall=firewall, scenarios=scenarios, tls=tls))

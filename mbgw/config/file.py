@@ -17,6 +17,8 @@ from pathlib import Path
 
 import click
 
+from mbgw.config import firewall as fw
+from mbgw.config.scenario import parse_scenarios
 from mbgw.config.schema import (
     DEFAULT_PATH,
     FACTORY_DEVICE,
@@ -32,6 +34,9 @@ from mbgw.config.schema import (
 from mbgw.config.values import check_across, check_value, to_click
 from mbgw.errors import ConfigFileError
 
+SCENARIO_KEY = "scenario"       # [[scenario]]: an array of tables, beside the groups
+SCENARIOS_PARAM = "scenarios"   # the mode commands' hidden parameter the file fills
+
 
 @dataclasses.dataclass(frozen=True)
 class Settings:
@@ -39,6 +44,8 @@ class Settings:
     path: Path
     mode: str
     values: dict               # key name -> value, for the keys present in the file
+    firewall: fw.FirewallConfig = fw.FirewallConfig()   # [firewall], [[rule]]
+    scenarios: tuple = ()      # the [[scenario]] tables, checked (ScenarioConfig)
 
     def default_map(self, schema: Schema, command_name: str) -> dict:
         """click's default_map for a mode command: its options the file sets.  The authip and
@@ -50,6 +57,10 @@ class Settings:
             if param is None or (name in MODE_TABLES and command_name != self.mode):
                 continue
             mapping[param.name] = to_click(name, param, value)
+        if any(p.name == fw.PARAM for p in schema.commands[command_name].params):
+            mapping[fw.PARAM] = self.firewall
+        if self.scenarios:
+            mapping[SCENARIOS_PARAM] = self.scenarios
         return mapping
 
     def get(self, schema: Schema, name: str):
@@ -78,6 +89,8 @@ def check(schema: Schema, path: Path, data: dict) -> Settings:
     the problems found."""
     problems = []
     for name, content in data.items():
+        if name in (fw.GROUP, fw.RULE_TABLE, SCENARIO_KEY):
+            continue                    # fw.from_file's, parse_scenarios'
         if name in GROUPS:
             if not isinstance(content, dict):
                 problems.append(f"{name}: expected a group [{name}], not a value")
@@ -106,11 +119,15 @@ def check(schema: Schema, path: Path, data: dict) -> Settings:
             else:
                 problems += check_value(schema, key, mode, value)
                 values[name] = value
+    rules, firewall_problems = fw.from_file(data)
+    problems += firewall_problems
     if not problems:
         problems = check_across(schema, mode, values)
+    scenarios, scenario_problems = parse_scenarios(data.get(SCENARIO_KEY, []), mode)
+    problems += scenario_problems
     if problems:
         raise ConfigFileError(path, problems)
-    return Settings(Path(path), mode, values)
+    return Settings(Path(path), mode, values, rules, scenarios)
 
 
 def _check_mode(schema: Schema, serial: dict, problems: list) -> str:

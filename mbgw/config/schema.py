@@ -10,11 +10,11 @@ import click
 
 DEFAULT_PATH = Path("/etc/mbgw/mbgw.toml")
 CONFIG_DIR = DEFAULT_PATH.parent           # the instance mbgw@NAME reads CONFIG_DIR/NAME.toml
-MODES = ("slave", "master")                # "set serial mode slave|master"
+MODES = ("slave", "master", "transparent")  # "set serial mode slave|master|transparent"
 MODE_KEY = "mode"                          # in [serial]; selects the command `mbgw run` starts
 PROTOCOL_KEY = "protocol"                  # "set serial mode rtu|ascii" sets it
 PROTOCOL_WORDS = ("rtu", "ascii")
-GROUPS = ("serial", "net", "general", "table", "tls")
+GROUPS = ("serial", "net", "general", "table", "tls", "transparent")
 # [serial]: the options of class SerialOption (both modes' line settings) and the slave mode's
 # line behaviour below; [net]: the guide's "set net ..." commands and
 # our network options; [general]: the rest (logging, control socket, metrics, ...); [table]:
@@ -92,6 +92,8 @@ class Schema:
 def key_group(name: str, param: click.Parameter) -> str:
     if isinstance(param, TableOption):
         return param.group
+    if isinstance(param, TransparentOption):
+        return "transparent"
     if name in NET_KEYS:
         return "net"
     return "serial" if name in LINE_KEYS or isinstance(param, SerialOption) else "general"
@@ -103,7 +105,7 @@ def option_key(param: click.Parameter) -> str | None:
     if not isinstance(param, click.Option) or not param.expose_value or param.hidden \
             or param.name in OWN_OPTIONS:
         return None
-    if isinstance(param, TableOption):
+    if isinstance(param, (TableOption, TransparentOption)):
         return param.key
     longs = [o for o in param.opts if o.startswith("--")]
     return longs[0][2:] if longs else None
@@ -128,6 +130,15 @@ class TableOption(click.Option):
 class TlsOption(TableOption):
     """An option of Modbus/TCP Security (--tls-cert, ...): its key is `key` in [tls]."""
     group = "tls"
+
+
+class TransparentOption(click.Option):
+    """An option of transparent mode (--eof, --rx-address, ...): its key is `key` in
+    [transparent]."""
+
+    def __init__(self, *args, key: str, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.key = key
 
 
 def is_unset(value) -> bool:

@@ -62,7 +62,7 @@ def factory_text(schema: Schema) -> str:
     default, except mode and device (the device has no built-in default)."""
     mode = schema.default_mode
     out = ["# mbgw configuration: one gateway, one serial line. The keys are the options of",
-           "# 'mbgw slave --help' and 'mbgw master --help' (the ACKSYS command names); the",
+           "# 'mbgw slave|master|transparent --help' (the ACKSYS command names); the",
            "# command line wins over this file, and a key left out or commented out takes the",
            "# built-in default shown.",
            "#   mbgw config show                  the effective settings",

@@ -80,7 +80,7 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
     started = time.time()
     metrics = start_metrics(cfg.metrics, lambda m: m.master_collector(
         counters, slave.devices, slave, started,
-        lambda: tables.figures(slave.table_counters.snapshot())))
+        lambda: tables.figures(slave.table_counters.snapshot()), tables.firewall_report))
     slave.idle_ms = idle_ms(watchdog_interval())
     slave.start()
     status = MasterStatus(cfg, slave, counters, tables)

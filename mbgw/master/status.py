@@ -28,6 +28,7 @@ class MasterStatus(DaemonStatus):
             "counters_since": self._reset_at,
             "devices": [d.snapshot() for d in self._devices.all()],
             "table": self._tables.figures(self._slave.table_counters.snapshot()),
+            **({"firewall": firewall} if (firewall := self._tables.firewall_report()) else {}),
         }
 
     def commands(self) -> dict:

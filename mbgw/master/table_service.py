@@ -7,6 +7,7 @@ import logging
 import time
 
 from mbgw.config.model import MasterConfig, TableConfig
+from mbgw.firewall.guard import Firewall
 from mbgw.table import identity
 from mbgw.table.control import table_commands
 from mbgw.table.memory import Table
@@ -23,6 +24,7 @@ class TableService:
         self.table = Table(cfg.functions)
         identity.fill(self.table, settings, "master")
         self.server: TableServer | None = None
+        self.firewall = Firewall(settings.firewall)     # on the TCP server's requests
         self._commands = table_commands(self.table)
         self.persistence: Persistence | None = None
         if cfg.enabled and cfg.persist:
@@ -43,7 +45,7 @@ class TableService:
             self.persistence.maybe_save(time.monotonic())
 
     def _start_server(self, port: int) -> None:
-        self.server = TableServer(self.table, port)
+        self.server = TableServer(self.table, port, firewall=self.firewall)
         self.server.start()
         log.info("exchange table served on %s (at most %d clients)",
                  ", ".join(self.server.addresses), MAX_CONNECTIONS)
@@ -68,6 +70,11 @@ class TableService:
         self._repersist(old, new)
         if new.functions != old.functions:
             self.table.set_functions(new.functions)
+        firewall = self.firewall.renewed(settings.firewall)
+        if firewall is not self.firewall:
+            self.firewall = firewall
+            if self.server is not None:
+                self.server.set_firewall(firewall)
         try:
             if not new.enabled:
                 self._stop_server()
@@ -101,7 +108,15 @@ class TableService:
         if self.persistence is not None:
             self.persistence.save()
 
+    def firewall_report(self) -> dict | None:
+        """The firewall's status, when the file has rules (or denies by default)."""
+        if not self.firewall.configured:
+            return None
+        server = self.server
+        return self.firewall.report(server.firewall_clients() if server is not None else ())
+
     def reset_counts(self) -> None:
+        self.firewall.reset_counts()
         self.table.reset_counts()
         if self.server is not None:
             self.server.reset_counts()

@@ -136,13 +136,16 @@ class DaemonCollector:
     the daemon serves the exchange table, its status dict (mbgw.table.report.table_status)."""
 
     def __init__(self, counters, devices, started: float, mode: str, gauges,
-                 table=None) -> None:
+                 table=None, firewall=None,
+                 scenarios=None) -> None:
         self._counters = counters
         self._devices = devices
         self._started = started
         self._mode = mode
         self._gauges = gauges
         self._table = table
+        self._firewall = firewall       # the firewall's status dict (mbgw.firewall), or None
+        self.scenarios = scenarios      # () -> the status's "scenarios" rows, or None
 
     def collect(self):
         yield from self._daemon()
@@ -156,6 +159,11 @@ class DaemonCollector:
         status = self._table() if self._table is not None else None
         if status is not None:
             yield from table_families(status)
+        firewall = self._firewall() if self._firewall is not None else None
+        if firewall is not None:
+            yield firewall_family(firewall)
+        if self.scenarios is not None:
+            yield from scenario_families(self.scenarios())
 
     def _daemon(self):
         info = GaugeMetricFamily("mbgw_info", "mbgw's version and mode (always 1).",
@@ -279,23 +287,119 @@ def table_families(status: dict):
         yield errors
 
 
+def firewall_family(status: dict) -> CounterMetricFamily:
+    """Requests the firewall refused, by rule (its index in the file, or default)."""
+    refused = CounterMetricFamily(
+        "mbgw_firewall_refused", "Requests the firewall refused (exception 0x01), by the rule "
+        "that decided (its place among the [[rule]] tables, or default).", labels=["rule"])
+    for rule in status["rules"]:
+        refused.add_metric([str(rule["rule"])], rule["refused"])
+    refused.add_metric(["default"], status["refused_default"])
+    return refused
+
+
+SCENARIO_STATES = ("starting", "running", "error", "disabled")
+
+
+def scenario_families(rows: list[dict]):
+    """The scenarios' families from the status's "scenarios" rows (mbgw.scenarios.report)."""
+    runs = CounterMetricFamily("mbgw_scenario_runs", "Runs of each scenario (requests sent, "
+                               "retries not counted).", labels=["scenario"])
+    errors = CounterMetricFamily("mbgw_scenario_errors", "Failed runs of each scenario, by "
+                                 "kind (timeout, illegal-address, unexpected-data, "
+                                 "connection-lost, ...).", labels=["scenario", "kind"])
+    retries = CounterMetricFamily("mbgw_scenario_retries", "Requests of each scenario "
+                                  "repeated after no valid reply.", labels=["scenario"])
+    overruns = CounterMetricFamily("mbgw_scenario_overruns", "Periods a cyclic scenario "
+                                   "missed: it ran later than one whole period.",
+                                   labels=["scenario"])
+    age = GaugeMetricFamily("mbgw_scenario_data_age_seconds", "Seconds since a read "
+                            "scenario last stored good data (absent before the first).",
+                            labels=["scenario"])
+    state = GaugeMetricFamily("mbgw_scenario_state", "1 for each scenario's state (starting, "
+                              "running, error, disabled), 0 for the others.",
+                              labels=["scenario", "state"])
+    for row in rows:
+        name = row["name"]
+        runs.add_metric([name], row["runs"])
+        for kind, n in row["errors"].items():
+            errors.add_metric([name, kind], n)
+        retries.add_metric([name], row["retries"])
+        overruns.add_metric([name], row["overruns"])
+        if row.get("data_age_s") is not None:
+            age.add_metric([name], row["data_age_s"])
+        for each in SCENARIO_STATES:
+            state.add_metric([name, each], int(row["state"] == each))
+    yield from (runs, errors, retries, overruns, age, state)
+
+
 def slave_collector(counters, devices, scheduler, server, worker,
-                    started: float, table=None) -> DaemonCollector:
+                    started: float, table=None, firewall=None) -> DaemonCollector:
     """Slave mode's metrics; table(): the exchange table's status dict, when it is on."""
     return DaemonCollector(counters, devices, started, "slave", lambda: [
         ("mbgw_line_up", "1 while the serial device is open and usable.", int(worker.up)),
         ("mbgw_queue_depth", "Requests waiting for the serial line.", scheduler.depth),
         ("mbgw_clients_connected", "Modbus TCP clients connected.", len(server.clients))],
-        table)
+        table, firewall)
 
 
 def master_collector(counters, devices, slave, started: float,
-                     table=None) -> DaemonCollector:
+                     table=None, firewall=None) -> DaemonCollector:
     """Master mode's metrics; table(): the exchange table's status dict, when it is on."""
     return DaemonCollector(counters, devices, started, "master", lambda: [
         ("mbgw_line_up", "1 while the serial device is open and usable.", int(slave.up)),
         ("mbgw_upstream_connections", "Connections open to Modbus TCP servers.",
-         len(slave.connections()))], table)
+         len(slave.connections()))], table, firewall)
+
+
+_TRANSPARENT_HELP = {
+    "frames_received": "Complete frames received on the line (CRC errors included).",
+    "frames_stored": "Frames stored at rx-address.",
+    "frames_truncated": "Frames stored cut to rx-size.",
+    "frames_incomplete": "Frames dropped: the line went quiet for eof-timeout before their end.",
+    "crc_errors": "Frames dropped for a wrong CRC (--crc).",
+    "frames_sent": "Frames sent from the tx area.",
+    "sends_refused": "Changes of the tx area that held no whole frame: nothing sent.",
+    "raw_bytes_in": "Bytes from the raw-port client to the line.",
+    "raw_bytes_out": "Bytes of frames from the line to the raw-port client.",
+    "raw_bytes_dropped": "Bytes of frames the raw-port client did not take in time.",
+    "raw_refused": "raw-port clients refused (one at a time; authip).",
+}
+
+
+class TransparentCollector:
+    """Transparent mode's metrics, from its status dicts: figures() (mbgw.transparent.status)
+    and table() (mbgw.table.report)."""
+
+    def __init__(self, line, figures, started: float, table) -> None:
+        self._line = line               # .up, .counters
+        self._figures = figures
+        self._started = started
+        self._table = table
+
+    def collect(self):
+        info = GaugeMetricFamily("mbgw_info", "mbgw's version and mode (always 1).",
+                                 labels=["version", "mode"])
+        info.add_metric([__version__, "transparent"], 1)
+        yield info
+        yield GaugeMetricFamily("mbgw_start_time_seconds", "When the daemon started (Unix time).",
+                                value=round(self._started, 3))
+        yield GaugeMetricFamily("mbgw_line_up", "1 while the serial device is open and usable.",
+                                value=int(self._line.up))
+        figures = self._figures()
+        for name, value in self._line.counters.snapshot().items():
+            help_text = _TRANSPARENT_HELP.get(name) or _COUNTER_HELP.get(name) or \
+                name.replace("_", " ") + "."
+            prefix = "mbgw_transparent_" if name in _TRANSPARENT_HELP else "mbgw_"
+            yield CounterMetricFamily(prefix + name, help_text, value=value)
+        yield GaugeMetricFamily("mbgw_transparent_raw_client_connected",
+                                "1 while a raw-port client is connected.",
+                                value=int(figures["raw_client"] is not None))
+        yield from table_families(self._table())
+
+
+def transparent_collector(line, figures, started: float, table) -> TransparentCollector:
+    return TransparentCollector(line, figures, started, table)
 
 
 # --- the HTTP side ---------------------------------------------------------------------------

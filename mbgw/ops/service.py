@@ -198,7 +198,7 @@ async def _reloaded(cfg, reconfigure, apply):
         reason = err.format_message() if hasattr(err, "format_message") else str(err)
         log.error("reload refused, the running configuration stays: %s", reason)
         return None
-    changed = [f"{group}.{f.name}" for group in GROUPED_SETTINGS
+    changed = [f"{group}.{f.name}" for group in GROUPED_SETTINGS if hasattr(new, group)
                for f in dataclasses.fields(getattr(new, group))
                if getattr(getattr(new, group), f.name) != getattr(getattr(cfg, group), f.name)]
     changed += [f.name for f in dataclasses.fields(new) if f.name not in GROUPED_SETTINGS

@@ -9,6 +9,7 @@ import ssl
 import threading
 import time
 
+from mbgw.firewall.guard import Guard
 from mbgw.line import clients
 from mbgw.line.framing import NO_FORWARD
 from mbgw.protocol import mbap
@@ -23,8 +24,13 @@ PEER_GONE = select.POLLRDHUP | select.POLLHUP | select.POLLERR | select.POLLNVAL
 
 
 class Client:
-    listener = "plain"              # which listener accepted it: "plain" or "tls"
-    role: str | None = None         # TLS: the role in the client's certificate
+    # Who the client is for the firewall (mbgw.firewall): its certificate's role (None on the
+    # plain listener) and its listener ("plain" or "tls"); guard: its compiled rule, None when
+    # anything goes.
+    role: str | None = None
+    listener = "plain"
+    guard: Guard | None = None
+    firewall_refused = 0
 
     def __init__(self, sock: socket.socket, host: str, peer: str, local: str) -> None:
         self.id = next(_client_ids)

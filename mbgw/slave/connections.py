@@ -68,7 +68,7 @@ class Connections:
                 client = self._clients.get(fd)
                 if client is None:
                     continue
-                if take is not None and client.at_rest:
+                if take is not None and client.at_rest and client.guard is None:
                     self._serve(client, events, take)
                     take = None
                 else:

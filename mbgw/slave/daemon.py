@@ -58,7 +58,8 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     started = time.time()
     try:
         metrics = start_metrics(cfg.metrics, lambda m: m.slave_collector(
-            counters, devices, scheduler, server, worker, started, tables.figures))
+            counters, devices, scheduler, server, worker, started, tables.figures,
+            lambda: server.firewall.report() if server.firewall.configured else None))
     except MetricsListenError:
         server.close()
         raise

@@ -24,6 +24,7 @@ import time
 
 from mbgw.config.model import ACTIVE_WINDOW_S, SlaveConfig
 from mbgw.errors import ConfigError
+from mbgw.firewall.guard import Firewall
 from mbgw.line import clients
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
@@ -47,6 +48,7 @@ from mbgw.slave.scheduler import (
 log = logging.getLogger("mbgw.tcp")
 
 REFUSAL_LOG_INTERVAL_S = 60.0
+OUTCOME_FIREWALL = "firewall"    # refused by the firewall (0x01)
 LISTEN_BACKLOG = 100
 # TLS handshakes under way at once, and how long one may take: a flood of connections that
 # never finish (or garbage) costs the asyncio thread one wake-up each and no more.
@@ -66,6 +68,7 @@ class TcpServer:
         self._devices = devices
         self._down = devices.rule.down   # the addresses that are down, by address
         self._acl = AccessList(cfg.authip)
+        self.firewall = Firewall(cfg.firewall)
         self.clients: list[Client] = []  # the asyncio thread's list, for admission and status
         self._refusals: dict[str, float] = {}
         self._listeners: list[socket.socket] = []
@@ -128,6 +131,7 @@ class TcpServer:
         """Apply new settings; connections they do not concern stay open."""
         old, self._cfg = self._cfg, cfg
         self._acl = AccessList(cfg.authip)
+        self._guard_clients(self.firewall.renewed(cfg.firewall))
         self._table_units = table_units(cfg)
         if self.table is not None and cfg.table.functions != old.table.functions:
             self.table.set_functions(cfg.table.functions)
@@ -169,6 +173,15 @@ class TcpServer:
             log.error("cannot listen on tls-port %d (%s)", new.port, err.strerror)
             return
         log.info("now listening on %s", ", ".join(self.addresses()))
+
+    def _guard_clients(self, firewall: Firewall) -> None:
+        """The rules again for every client (a reload): a client whose rule has not changed
+        keeps what it may do; none is closed."""
+        if firewall is self.firewall:
+            return
+        self.firewall = firewall
+        for client in self.clients:
+            client.guard = firewall.guard(client.host, client.role, client.listener)
 
     def close(self) -> None:
         self._stop_listening()
@@ -302,6 +315,7 @@ class TcpServer:
             self.counters.connections_refused_limit += 1
             return False
         self.counters.connections_accepted += 1
+        client.guard = self.firewall.guard(host, client.role, client.listener)
         self.clients.append(client)
         log.debug("client %s connected", client.peer)
         return True
@@ -374,6 +388,10 @@ class TcpServer:
                 received_ns: int = 0) -> None:
         """A request read from client, which arrived at received_ns (0: client.arrived_ns)."""
         client.requests += 1
+        guard = client.guard
+        if guard is not None and not guard.allows(unit, request):
+            self._refused_by_firewall(client, guard, tid, unit, request, received_ns)
+            return
         if self._table_units[unit]:
             self._from_table(client, tid, unit, request, self._responder)
             return
@@ -391,7 +409,12 @@ class TcpServer:
         already so that the client's limit of requests in the gateway holds."""
         if self._table_units[unit]:
             client.requests += 1
-            self._from_table(client, tid, unit, request, responder)
+            guard = client.guard
+            if guard is not None and not guard.allows(unit, request):
+                self._refused_by_firewall(client, guard, tid, unit, request,
+                                          client.arrived_ns)
+            else:
+                self._from_table(client, tid, unit, request, responder)
         else:
             client.in_flight += 1
             self._kept.append((client, tid, unit, request, client.arrived_ns))
@@ -424,6 +447,26 @@ class TcpServer:
         self._answer(client, tid, unit, reply)
         if tracing:
             self.traced(client, tid, unit, request[0], reply, OUTCOME_TABLE, client.arrived_ns)
+
+    def _refused_by_firewall(self, client: Client, guard, tid: int, unit: int,
+                             request: bytes, received_ns: int) -> None:
+        """A request the client's rule does not allow: 0x01 (nothing for a broadcast); it
+        reaches neither the line nor the table."""
+        self.counters.requests += 1
+        client.firewall_refused += 1
+        tracing = self.trace.active
+        if tracing:
+            self.trace.emit_threadsafe(self._event("request", client, tid, unit, request, "",
+                                                   None))
+        refusal = self.firewall.refused(guard, client.peer, client.role, unit, request)
+        reply = None if self._is_broadcast(unit) else refusal
+        self._answer(client, tid, unit, reply)
+        if tracing:
+            self.traced(client, tid, unit, request[0], reply, OUTCOME_FIREWALL,
+                        received_ns or client.arrived_ns)
+
+    def _is_broadcast(self, unit: int) -> bool:
+        return unit == pdu.BROADCAST and bool(self._table_units[unit] or not self._cfg.slaveid)
 
     def taken(self, client: Client, tid: int, unit: int, request: bytes,
               received_ns: int) -> Job | None:

@@ -23,6 +23,7 @@ class SlaveStatus(DaemonStatus):
         return {**super().commands(), **(tables.commands() if tables is not None else {})}
 
     def reset(self, request: dict) -> dict:
+        self._server.firewall.reset_counts()
         if self._tables is not None:
             self._tables.table.reset_counts()
         return super().reset(request)
@@ -38,12 +39,17 @@ class SlaveStatus(DaemonStatus):
         data["serial"].update(stout_ms=self.cfg.serial.stout_ms,
                               state="up" if self._worker.up else "down")
         table = self._tables.figures() if self._tables is not None else None
+        firewall = self._server.firewall
         return {
             **data, "listening": self._addresses,
             **({"table": table} if table is not None else {}),
+            **({"firewall": firewall.report(
+                (c.peer, c.role, c.firewall_refused) for c in self._server.clients)}
+               if firewall.configured else {}),
             "queue_depth": self._scheduler.depth,
             "clients": [{"id": c.id, "peer": c.peer, "connected_since": c.connected_at,
                          "requests": c.requests, "in_flight": c.in_flight,
+                         "firewall_refused": c.firewall_refused,
                          "last_activity": now - (mono - c.last_active),
                          "listener": c.listener, "role": c.role}
                         for c in self._server.clients],

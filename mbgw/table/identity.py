@@ -7,7 +7,7 @@ import mbgw
 from mbgw.config.model import PROTOCOLS
 
 if TYPE_CHECKING:
-    from mbgw.config.model import MasterConfig, SlaveConfig
+    from mbgw.config.model import MasterConfig, SlaveConfig, TransparentModeConfig
     from mbgw.table.memory import Table
 
 VENDOR = "mbgw"
@@ -17,7 +17,7 @@ ZONE_START = 0x8000
 VENDOR_REGISTERS = 16          # 0x8000-0x800F
 PRODUCT_REGISTERS = 16         # 0x8010-0x801F
 VERSION_REGISTERS = 8          # 0x8020-0x8027
-MODES = {"slave": 1, "master": 2}                          # 0x8028
+MODES = {"slave": 1, "master": 2, "transparent": 3}      # 0x8028
 PROTOCOL_CODES = {name: code for code, name in enumerate(PROTOCOLS)}   # rtu 0, ascii 1
 UNIT_MASK_REGISTERS = 16       # 256 unit ids, one bit each
 
@@ -42,7 +42,7 @@ def mask_registers(bits, registers: int) -> list[int]:
     return words
 
 
-def zone(settings: "SlaveConfig | MasterConfig", mode: str) -> list[int]:
+def zone(settings: "SlaveConfig | MasterConfig | TransparentModeConfig", mode: str) -> list[int]:
     """The registers from 0x8000, in the documented layout."""
     serial, table = settings.serial, settings.table
     return [
@@ -63,6 +63,7 @@ def zone(settings: "SlaveConfig | MasterConfig", mode: str) -> list[int]:
     ]
 
 
-def fill(table: "Table", settings: "SlaveConfig | MasterConfig", mode: str) -> None:
+def fill(table: "Table", settings: "SlaveConfig | MasterConfig | TransparentModeConfig",
+         mode: str) -> None:
     """Write the zone's content into the table (at start and after a reload)."""
     table.set_config(ZONE_START, zone(settings, mode))

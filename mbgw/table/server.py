@@ -7,7 +7,9 @@ the kernel holds (many pipelined requests at once); each whole MBAP frame is ans
 C call (Table.responder: the frame in, the reply frame out, under the table's lock), and the
 replies of one read leave in one send.  Unit id 0 is a broadcast (IDEC): its writes are
 done, nothing is sent back.  A protocol id other than 0 or a length outside 2..254 closes
-that connection only (counted).  A client that does not read its replies is not read either
+that connection only (counted).  The firewall (mbgw.firewall) compiles each client's rule
+when it connects (again at a reload); a request its rule refuses gets 0x01 and never
+reaches the table.  A client that does not read its replies is not read either
 until the socket has taken them (TCP back-pressure).  At most MAX_CONNECTIONS clients: the
 next one is refused (closed at once, counted, logged at most once a minute).  Nothing is
 logged per request.
@@ -20,6 +22,7 @@ import socket
 import threading
 import time
 
+from mbgw.firewall.guard import Firewall, Guard
 from mbgw.protocol import mbap
 
 log = logging.getLogger("mbgw.table")
@@ -79,9 +82,15 @@ def _name(address) -> str:
 
 
 class _Connection:
-    __slots__ = ("sock", "fd", "peer", "partial", "held", "connected_at", "requests")
+    __slots__ = ("sock", "fd", "peer", "partial", "held", "connected_at", "requests", "host",
+                 "role", "listener", "guard", "firewall_refused")
 
-    def __init__(self, sock: socket.socket, peer: str) -> None:
+    def __init__(self, sock: socket.socket, peer: str, host: str = "") -> None:
+        self.host = host
+        self.role: str | None = None        # the firewall's view of it (TLS sets a role)
+        self.listener = "plain"
+        self.guard: Guard | None = None
+        self.firewall_refused = 0
         self.sock = sock
         self.fd = sock.fileno()
         self.peer = peer
@@ -95,15 +104,20 @@ class TableServer(threading.Thread):
     """The table served on `port`; start() it, stop() and join() it.  figures() and
     connections() may be called from any thread."""
 
-    def __init__(self, table, port: int, bind: str | None = None) -> None:
-        """Listens at once: raises TableListenError when it cannot."""
+    def __init__(self, table, port: int, bind: str | None = None,
+                 firewall: Firewall | None = None, allows=None) -> None:
+        """Listens at once: raises TableListenError when it cannot.  allows(host): whether a
+        peer may connect (None: anyone; transparent mode's authip)."""
         super().__init__(name="mbgw-table", daemon=True)
         self._table = table
         self.port = port
+        self._allows = allows
         self._listeners = listen(port, bind)
         self._wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         self._stopping = False
         self._new_listeners: list[socket.socket] | None = None
+        self.firewall = firewall or Firewall(None)
+        self._new_firewall: Firewall | None = None
         self._lock = threading.Lock()      # _new_listeners
         self._clients: dict[int, _Connection] = {}
         self._poll = select.poll()
@@ -114,6 +128,7 @@ class TableServer(threading.Thread):
         self.accepted = 0
         self.refused_limit = 0
         self.bad_header = 0
+        self.refused_authip = 0
 
     @property
     def addresses(self) -> list[str]:
@@ -125,14 +140,25 @@ class TableServer(threading.Thread):
                 "max_connections": MAX_CONNECTIONS,
                 "connections_accepted": self.accepted,
                 "connections_refused_limit": self.refused_limit,
-                "connections_bad_header": self.bad_header}
+                "connections_bad_header": self.bad_header,
+                "connections_refused_authip": self.refused_authip}
 
     def connections(self) -> list[dict]:
         return [{"peer": c.peer, "connected": c.connected_at, "requests": c.requests}
                 for c in list(self._clients.values())]
 
     def reset_counts(self) -> None:
-        self.accepted = self.refused_limit = self.bad_header = 0
+        self.accepted = self.refused_limit = self.bad_header = self.refused_authip = 0
+
+    def set_firewall(self, firewall: Firewall) -> None:
+        """New rules (another thread): the server's thread guards its clients by them."""
+        with self._lock:
+            self._new_firewall = firewall
+        os.eventfd_write(self._wake_fd, 1)
+
+    def firewall_clients(self) -> list[tuple]:
+        """(peer, role, refused) of each client, for the firewall's status."""
+        return [(c.peer, c.role, c.firewall_refused) for c in list(self._clients.values())]
 
     def move(self, port: int, bind: str | None = None) -> None:
         """Listen on port instead (called from another thread; the clients stay).  Raises
@@ -180,6 +206,11 @@ class TableServer(threading.Thread):
         except OSError as err:          # out of file descriptors, say: the next one may do
             log.warning("table server: cannot accept a connection: %s", err.strerror)
             return
+        if self._allows is not None and not self._allows(address[0]):
+            sock.close()
+            self.refused_authip += 1
+            log.warning("table client %s refused: not in authip", _name(address))
+            return
         if len(self._clients) >= MAX_CONNECTIONS:
             sock.close()
             self.refused_limit += 1
@@ -188,7 +219,8 @@ class TableServer(threading.Thread):
         sock.setblocking(False)
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
-        client = _Connection(sock, _name(address))
+        client = _Connection(sock, _name(address), address[0])
+        client.guard = self.firewall.guard(client.host, client.role, client.listener)
         self._clients[client.fd] = client
         self._poll.register(client.fd, _IN)
         self.accepted += 1
@@ -222,6 +254,11 @@ class TableServer(threading.Thread):
             pass
         with self._lock:
             new, self._new_listeners = self._new_listeners, None
+            firewall, self._new_firewall = self._new_firewall, None
+        if firewall is not None:
+            self.firewall = firewall
+            for client in self._clients.values():
+                client.guard = firewall.guard(client.host, client.role, client.listener)
         if new is None:
             return listeners
         for fd, sock in listeners.items():
@@ -282,7 +319,11 @@ class TableServer(threading.Thread):
                 if end > n:
                     break
                 client.requests += 1
-                reply = answer(view[at:end], unit == BROADCAST_UNIT)
+                guard = client.guard
+                if guard is not None and not guard.allows(unit, view[at + _HEADER_LEN:end]):
+                    reply = self._refused(client, guard, view[at:end], unit)
+                else:
+                    reply = answer(view[at:end], unit == BROADCAST_UNIT)
                 at = end
                 if not reply:
                     continue
@@ -296,6 +337,15 @@ class TableServer(threading.Thread):
                 replies.clear()
         if at < n:
             client.partial += view[at:n]
+
+    def _refused(self, client: _Connection, guard: Guard, frame, unit: int) -> bytes:
+        """The reply to a request the firewall refused: 0x01, nothing for a broadcast."""
+        client.firewall_refused += 1
+        refusal = self.firewall.refused(guard, client.peer, client.role, unit,
+                                        frame[_HEADER_LEN:])
+        if unit == BROADCAST_UNIT:
+            return b""
+        return mbap.frame(_HEADER.unpack_from(frame)[0], unit, refusal)
 
     def _send(self, client: _Connection, data) -> None:
         """Onto the socket now, or held (and the client no longer read) until it takes it."""

@@ -264,3 +264,31 @@ def test_requests_in_one_tls_record_larger_than_a_read_are_all_answered(gateway,
         sock.sendall(requests)
         for tid in range(16):
             assert recv_frame(sock) == struct.pack(">HHHBBHH", tid, 0, 6, 247, 16, 0x1000, 123)
+
+
+def test_the_firewall_applies_the_role_in_the_certificate(tmp_path, pty_pair, recording_peer,
+                                                          start_gateway, pki):
+    """Role operator reads only: its write gets 0x01 and never reaches the serial slave (its
+    record is the wire); a plain client, no rule selecting it, writes."""
+    ca, _, (cert, key) = pki
+    record = recording_peer("fault_slave.py")
+    port = free_port()
+    path = tmp_path / "mbgw.toml"
+    path.write_text(f'[serial]\nbaudrate = 19200\n[tls]\ntls-port = {port}\ncert = "{cert}"\n'
+                    f'key = "{key}"\nca = "{ca.cert}"\n'
+                    '[[rule]]\nrole = "operator"\nlistener = "tls"\nread-only = true\n')
+    gw = start_gateway(pty_pair.gateway, "--config", str(path))
+    client = tls_client(port, client_context(ca, ca.issue("op", role="operator")))
+    try:
+        reply = client.write_register(5, 7, device_id=1)
+        assert reply.isError() and reply.exception_code == 0x01
+        assert client.read_holding_registers(5, count=1, device_id=1).registers == [1005]
+    finally:
+        client.close()
+    with socket.create_connection(("127.0.0.1", gw.port)) as plain:
+        plain.sendall(struct.pack(">HHHBBHH", 9, 0, 6, 1, 6, 5, 7))
+        assert recv_frame(plain) == struct.pack(">HHHBBHH", 9, 0, 6, 1, 6, 5, 7)
+    seen = [line.split(" ", 2)[2] for line in record.read_text().splitlines()
+            if line.split(" ", 2)[1] == "rx"]
+    assert [bytes.fromhex(s)[1:-2] for s in seen] == [bytes.fromhex("03 0005 0001"),
+                                                      bytes.fromhex("06 0005 0007")]

@@ -49,16 +49,22 @@ def problems(schema, tmp_path, text: str) -> str:
 def test_every_long_option_of_both_modes_is_a_key(schema):
     """...but the hidden ones, switches for diagnosis that no configuration file keeps; a
     table option is its own key in [table] (--table-units is table.units)."""
-    params = [p for mode in ("slave", "master") for p in main.commands[mode].params
+    own_keys = (config_keys.TableOption, config_keys.TransparentOption)
+    params = [p for mode in ("slave", "master", "transparent") for p in main.commands[mode].params
               if isinstance(p, click.Option) and not p.hidden]
-    options = {o[2:] for p in params if not isinstance(p, config_keys.TableOption)
+    options = {o[2:] for p in params if not isinstance(p, own_keys)
                for o in p.opts if o.startswith("--")}
     table = {p.key for p in params if type(p) is config_keys.TableOption}
     assert table == {"enabled", "direct", "units", "functions", "address", "port", "persist",
                      "persist-interval"}
+    transparent = {p.key for p in params if isinstance(p, config_keys.TransparentOption)}
+    assert transparent == {"eof", "eof-char", "eof-timeout", "rx-address", "rx-size",
+                           "tx-address", "tx-size", "crc", "trigger", "interframe-silence",
+                           "raw-port"}
+    assert all(schema.keys[k].group == "transparent" for k in transparent)
     tls = {p.key for p in params if isinstance(p, config_keys.TlsOption)}
     assert tls == {"tls-port", "cert", "key", "ca"}
-    assert set(schema.keys) == (options - {"config"}) | table | tls
+    assert set(schema.keys) == (options - {"config"}) | table | transparent | tls
     assert "shortcut" not in schema.keys
 
 
@@ -97,7 +103,7 @@ def test_every_serial_option_is_in_serial(schema):
 
 
 def test_master_keys_join_the_slave_keys(schema):
-    assert schema.modes == ("slave", "master")
+    assert schema.modes == ("slave", "master", "transparent")
     assert schema.keys["tcpto"].group == "net"
     assert set(schema.keys["slaveid"].params) == {"slave", "master"}
 
@@ -164,8 +170,8 @@ def test_tables_belong_to_their_mode(schema, tmp_path):
     ("[net]\nauthpi = []\n", "net.authpi: unknown key; did you mean net.authip?"),
     ("[net]\nmax_connections = 3\n", "did you mean net.max-connections?"),
     ("[serial]\nfoo = 1\n", "serial.foo: unknown key"),
-    ("[seral]\nstout = 700\n", "[seral]: unknown group (groups: serial, net, general, table, tls); "
-                               "did you mean [serial]?"),
+    ("[seral]\nstout = 700\n", "[seral]: unknown group (groups: serial, net, general, table, "
+                               "tls, transparent); did you mean [serial]?"),
     ("[net]\nstout = 700\n", "net.stout: belongs in [serial] (serial.stout)"),
     ("stout = 700\n", "stout: outside any group; put it under [serial]"),
     ("mode = 'slave'\n", "mode: outside any group; put it under [serial]"),
@@ -193,7 +199,8 @@ def test_unknown_keys_are_errors_with_a_hint(schema, tmp_path, text, expected):
     ("[serial]\nnocheck = 'yes'", "serial.nocheck: expected true or false, got \"yes\""),
     ("[serial]\nnocheck = 1", "serial.nocheck: expected true or false, got 1"),
     ("[serial]\nmode = 'rtu'", "serial.mode: 'rtu' is the framing: write protocol = \"rtu\""),
-    ("[serial]\nmode = 'both'", "serial.mode: expected 'slave' or 'master', got 'both'"),
+    ("[serial]\nmode = 'both'",
+     "serial.mode: expected 'slave' or 'master' or 'transparent', got 'both'"),
     ("[net]\nslaveid = 248", "net.slaveid: 248 is not in the range 0<=x<=247"),
     ("[net]\nauthip = '192.0.2.1'", "net.authip: expected a list of addresses"),
     ("[net]\nauthip = ['192.0.2.1', 'nope']", "net.authip[2]: authip 'nope': not an IP"),

@@ -9,6 +9,7 @@ import click
 import pytest
 
 from mbgw.cli import main
+from mbgw.config import firewall
 from mbgw.config.schema import GROUPS, MODE_KEY, MODES, Schema, default_value
 from mbgw.config.toml_text import dump_value
 from tests.harness import CHECKOUT
@@ -38,11 +39,20 @@ def _entries() -> dict[str, dict[str, str]]:
 
 
 ENTRIES = _entries()
+# the firewall's tables (mbgw.config.firewall), which are no options: their sections follow
+FIREWALL_TABLES = {firewall.GROUP: firewall.GROUP_KEYS, firewall.RULE_TABLE: firewall.RULE_KEYS}
+
+
+def test_the_firewall_tables_list_their_keys():
+    for table, keys in FIREWALL_TABLES.items():
+        assert tuple(ENTRIES[table]) == keys, table
+
+
 KEYS = [(group, name) for group in GROUPS for name in SCHEMA.group_keys(group)]
 
 
 def test_every_group_lists_its_keys_in_the_factory_files_order():
-    assert list(ENTRIES) == list(GROUPS)
+    assert list(ENTRIES) == [*GROUPS, *FIREWALL_TABLES]
     for group in GROUPS:
         assert list(ENTRIES[group]) == SCHEMA.group_keys(group), group
 

@@ -1,0 +1,163 @@
+"""The compiled firewall: Firewall.guard() at connect time, Guard.allows() per request,
+Firewall.refused() for a request the guard refused (counted, logged rate-limited)."""
+import logging
+import struct
+import time
+
+from mbgw.config.firewall import FirewallConfig, Rule
+from mbgw.protocol import pdu
+
+log = logging.getLogger("mbgw.firewall")
+
+LOG_INTERVAL_S = 60.0
+DEFAULT_LABEL = "default"          # the refusals of [firewall] default = "deny"
+ILLEGAL_FUNCTION = 0x01            # MODBUS/TCP Security: an unauthorized request gets 0x01
+# Writes: refused by read-only (FC 23 writes as it reads)
+WRITE_FUNCTIONS = frozenset({0x05, 0x06, 0x0F, 0x10, 0x15, 0x16, 0x17})
+_ADDRESS_COUNT = struct.Struct(">HH")
+_ADDRESS = struct.Struct(">H")
+# the functions whose PDU carries an address and a count; those that carry an address alone
+_SPANS = frozenset({0x01, 0x02, 0x03, 0x04, 0x0F, 0x10})
+_SINGLE = frozenset({0x05, 0x06, 0x16})
+_READ_WRITE = 0x17
+
+
+class Guard:
+    """What one client may do: the rule that selected it, compiled (256 flags by unit and by
+    function; the address ranges, or None for all)."""
+    __slots__ = ("rule", "units", "functions", "ranges", "logged_at", "unlogged")
+
+    def __init__(self, rule: Rule | None) -> None:
+        """rule None: nothing allowed ([firewall] default = "deny")."""
+        self.rule = rule
+        self.units = _flags(rule.units if rule else (), 256)
+        functions = _flags(rule.functions if rule else (), 256)
+        if rule is not None and rule.read_only:
+            for function in WRITE_FUNCTIONS:
+                functions[function] = 0
+        self.functions = bytes(functions)
+        self.ranges = rule.registers if rule else None
+        self.logged_at = -LOG_INTERVAL_S
+        self.unlogged = 0
+
+    def allows(self, unit: int, request) -> bool:
+        """request: the PDU (function code first)."""
+        function = request[0]
+        if not (self.units[unit] and self.functions[function]):
+            return False
+        ranges = self.ranges
+        return ranges is None or _within(ranges, function, request)
+
+    @property
+    def label(self) -> str:
+        return DEFAULT_LABEL if self.rule is None else str(self.rule.index)
+
+
+def _flags(numbers, size: int) -> bytearray:
+    if numbers is None:
+        return bytearray(b"\x01" * size)
+    flags = bytearray(size)
+    for number in numbers:
+        flags[number] = 1
+    return flags
+
+
+def _within(ranges, function: int, request) -> bool:
+    """Whether the addresses the request touches lie in one of ranges each; a function that
+    carries none passes, a PDU too short to hold them does not."""
+    try:
+        if function in _SPANS:
+            return _span_within(ranges, *_ADDRESS_COUNT.unpack_from(request, 1))
+        if function in _SINGLE:
+            return _span_within(ranges, _ADDRESS.unpack_from(request, 1)[0], 1)
+        if function == _READ_WRITE:
+            read, read_count, write, write_count = struct.unpack_from(">HHHH", request, 1)
+            return _span_within(ranges, read, read_count) and \
+                _span_within(ranges, write, write_count)
+    except struct.error:
+        return False
+    return True
+
+
+def _span_within(ranges, first: int, count: int) -> bool:
+    last = first + max(count, 1) - 1
+    for low, high in ranges:
+        if low <= first and last <= high:
+            return True
+    return False
+
+
+class Firewall:
+    """The rules of one configuration, and their refusal counts."""
+
+    def __init__(self, cfg: FirewallConfig | None) -> None:
+        self.cfg = cfg or FirewallConfig()
+        self.refused_by = self._zero()           # by rule index, or DEFAULT_LABEL
+
+    @property
+    def enabled(self) -> bool:
+        return self.cfg.enabled
+
+    @property
+    def configured(self) -> bool:
+        """Whether the file has rules or denies by default (the status shows it then)."""
+        return bool(self.cfg.rules) or self.cfg.default != "allow"
+
+    def renewed(self, cfg: FirewallConfig | None) -> "Firewall":
+        """For a reload: this one (counts kept) when the rules are the same, else a new one."""
+        cfg = cfg or FirewallConfig()
+        if cfg == self.cfg:
+            return self
+        firewall = Firewall(cfg)
+        log.info("firewall: %s", firewall.summary())
+        return firewall
+
+    def summary(self) -> str:
+        rules = len(self.cfg.rules)
+        return f"{rules} rule{'s' if rules != 1 else ''}, default {self.cfg.default}"
+
+    def guard(self, host: str, role: str | None, listener: str) -> Guard | None:
+        """The guard of a client (its address, its certificate's role, its listener), or None
+        when it may do anything (no check per request)."""
+        for rule in self.cfg.rules:
+            if rule.selects(host, role, listener):
+                return None if rule.grants_all else Guard(rule)
+        return None if self.cfg.default == "allow" else Guard(None)
+
+    def refused(self, guard: Guard, peer: str, role: str | None, unit: int,
+                request) -> bytes:
+        """Count and log a request guard refused; its exception reply (0x01)."""
+        label = guard.label
+        self.refused_by[label] += 1
+        now = time.monotonic()
+        if now - guard.logged_at < LOG_INTERVAL_S:
+            guard.unlogged += 1
+        else:
+            rule = guard.rule.describe() if guard.rule else "no rule (default deny)"
+            more = f"; {guard.unlogged} more refused since the last report" \
+                if guard.unlogged else ""
+            log.warning("firewall: refused client %s (role %s) unit %d function %d: %s%s "
+                        "(logged at most once a minute per client)", peer, role or "none",
+                        unit, request[0], rule, more)
+            guard.logged_at = now
+            guard.unlogged = 0
+        return pdu.exception_pdu(request[0], ILLEGAL_FUNCTION)
+
+    def report(self, clients=()) -> dict:
+        """The status's firewall part; clients: (peer, role, refused) of those connected."""
+        return {"default": self.cfg.default,
+                "clients": [{"peer": peer, "role": role, "refused": refused}
+                            for peer, role, refused in clients],
+                "rules": [{"rule": r.index, "selects": r.describe(),
+                           "refused": self.refused_by.get(str(r.index), 0)}
+                          for r in self.cfg.rules],
+                "refused_default": self.refused_by.get(DEFAULT_LABEL, 0),
+                "refused": sum(self.refused_by.values())}
+
+    def reset_counts(self) -> None:
+        self.refused_by = self._zero()
+
+    def _zero(self) -> dict[str, int]:
+        """Every label there from the start: the line thread never grows the dict that
+        another thread reads."""
+        return dict.fromkeys([*(str(r.index) for r in self.cfg.rules), DEFAULT_LABEL], 0)

@@ -1,0 +1,123 @@
+"""Runs transparent mode: opens the line, serves the table on mdbport (mbgw.table.server)
+and the raw port, runs the line thread (mbgw.transparent.line_thread), tells systemd it is
+ready, stops on a signal; the operator's tools are mbgw.ops.service's."""
+import asyncio
+import logging
+import signal
+import time
+
+from mbgw.config.model import TransparentModeConfig
+from mbgw.firewall.guard import Firewall
+from mbgw.line.port import SerialLine
+from mbgw.ops.service import (
+    ListenError,
+    idle_ms,
+    log_stopped,
+    serve_until_stopped,
+    start_control,
+    start_metrics,
+    watchdog_interval,
+)
+from mbgw.table import identity
+from mbgw.table.control import table_commands
+from mbgw.table.memory import Table
+from mbgw.table.report import table_status
+from mbgw.table.server import TableListenError, TableServer, listen
+from mbgw.transparent.counters import TransparentCounters
+from mbgw.transparent.line_thread import FrameLine
+from mbgw.transparent.raw import RawPort, access_check
+from mbgw.transparent.status import TransparentStatus
+
+log = logging.getLogger("mbgw")
+
+
+class TransparentListenFailure(ListenError):
+    def __init__(self, option: str, port: int, err: OSError) -> None:
+        reason = err.strerror or str(err)
+        if isinstance(err, TableListenError):
+            reason = reason.split(": ", 2)[-1]
+        Exception.__init__(self, f"{option} {port}: cannot listen there: {reason}")
+
+
+def _raw_port(cfg: TransparentModeConfig, allows, counters) -> RawPort | None:
+    port = cfg.transparent.raw_port
+    if port is None:
+        return None
+    try:
+        return RawPort(listen(port, cfg.bind), allows, counters)
+    except OSError as err:
+        raise TransparentListenFailure("raw-port", port, err) from None
+
+
+def run_transparent(cfg: TransparentModeConfig, reconfigure=None) -> None:
+    """Raises SerialError when the device cannot be opened, ListenError when mdbport,
+    raw-port or the metrics address cannot be listened on; otherwise returns after SIGTERM or
+    SIGINT.  reconfigure() gives the settings SIGHUP applies (None: no file)."""
+    counters = TransparentCounters()
+    table = Table(cfg.table.functions)
+    identity.fill(table, cfg, "transparent")
+    allows = access_check(cfg.authip)
+    try:
+        server = TableServer(table, cfg.mdbport, cfg.bind, Firewall(cfg.firewall),
+                             allows=allows)
+    except OSError as err:
+        raise TransparentListenFailure("mdbport", cfg.mdbport, err) from None
+    raw = _raw_port(cfg, allows, counters)
+    line = SerialLine(cfg.serial, counters)
+    try:
+        frames = FrameLine(cfg, line, table, raw, counters)
+    except BaseException:
+        line.close()
+        raise
+    server.start()
+    try:
+        asyncio.run(_serve(cfg, frames, counters, table, server, raw, reconfigure))
+    finally:
+        server.stop()
+        server.join()
+
+
+async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table: Table,
+                 server: TableServer, raw: RawPort | None, reconfigure) -> None:
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    for signum in (signal.SIGTERM, signal.SIGINT):
+        loop.add_signal_handler(signum, stop.set)
+    started = time.time()
+
+    def table_figures() -> dict:
+        return table_status(table, cfg.table, None, None, server.figures())
+
+    status = TransparentStatus(cfg, frames, counters, table_figures, raw)
+    metrics = start_metrics(cfg.metrics, lambda m: m.transparent_collector(
+        frames, status.figures, started, table_figures))
+    frames.idle_ms = idle_ms(watchdog_interval())
+    frames.start()
+    control = await start_control(cfg.control, {**status.commands(), **table_commands(table)})
+    s, t = cfg.serial, cfg.transparent
+    log.info("transparent mode: serial %s %d %s %s; eof %s, eof-timeout %d ms, rx %d+%d bytes, "
+             "tx %d+%d bytes, crc %s, trigger %s, silence %d ms; table on %s%s",
+             s.device, s.baudrate, s.format, s.interface, t.eof if t.eof != "char" else
+             f"char 0x{t.eof_char:02x}", t.eof_timeout_for(s), t.rx_address, t.rx_size,
+             t.tx_address, t.tx_size, "on" if t.crc else "off", "on" if t.trigger else "off",
+             t.silence_ms, ", ".join(server.addresses),
+             f"; raw port {raw.port}" if raw is not None else "")
+    if metrics is not None:
+        log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
+
+    async def apply(new: TransparentModeConfig) -> None:
+        old = status.cfg
+        identity.fill(table, new, "transparent")
+        for name in ("mdbport", "bind", "authip"):
+            if getattr(new, name) != getattr(old, name):
+                log.warning("%s changed: the new setting takes effect at restart", name)
+        if new.transparent.raw_port != old.transparent.raw_port:
+            log.warning("raw-port changed: the new setting takes effect at restart")
+        if new.firewall != old.firewall:
+            server.set_firewall(server.firewall.renewed(new.firewall))
+        frames.reconfigure(new)
+
+    await serve_until_stopped(stop, status, frames, reconfigure, apply, control, metrics)
+    frames.stop()
+    await asyncio.to_thread(frames.join)
+    log_stopped(counters)

@@ -1,0 +1,133 @@
+"""`raw-port`: one TCP client at a time gets the line as a byte stream (as ser2net gives it):
+what it sends goes to the line, the frames the line brings go to it.  Served by the line
+thread's poll(); a second client is refused with a log line; authip applies."""
+import ipaddress
+import logging
+import select
+import socket
+
+from mbgw.transparent.counters import TransparentCounters
+
+log = logging.getLogger("mbgw.transparent")
+
+RECEIVE_SIZE = 4096
+
+
+def access_check(authip: tuple):
+    """allows(host): authip's rule (an empty list lets everyone in; IPv4-mapped IPv6 peers
+    count as their IPv4 address)."""
+    allowed = frozenset(authip)
+
+    def allows(host: str) -> bool:
+        if not allowed:
+            return True
+        address = ipaddress.ip_address(host.split("%", 1)[0])
+        if isinstance(address, ipaddress.IPv6Address) and address.ipv4_mapped:
+            address = address.ipv4_mapped
+        return address in allowed
+    return allows
+
+
+def _name(address) -> str:
+    host, port = address[:2]
+    return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+
+
+class RawPort:
+    """The listening sockets and the one client, in the line thread's poll (attach())."""
+
+    def __init__(self, listeners: list[socket.socket], allows,
+                 counters: TransparentCounters) -> None:
+        self.listeners = {s.fileno(): s for s in listeners}
+        self._poll: select.poll | None = None
+        self.allows = allows
+        self.client: socket.socket | None = None
+        self.peer = ""
+        self.reading = False            # the client may still send (no EOF from it yet)
+        self._counters = counters
+
+    def attach(self, poll: select.poll) -> None:
+        """Be served by this poll: the listeners and the client while it sends are in it."""
+        self._poll = poll
+        for fd in self.listeners:
+            poll.register(fd, select.POLLIN)
+
+    def is_client(self, fd: int) -> bool:
+        return self.reading and self.client is not None and fd == self.client.fileno()
+
+    @property
+    def port(self) -> int:
+        return next(iter(self.listeners.values())).getsockname()[1]
+
+    def accept(self, fd: int) -> None:
+        """A new client on listener fd, unless it is refused."""
+        try:
+            sock, address = self.listeners[fd].accept()
+        except OSError:
+            return
+        peer = _name(address)
+        if not self.allows(address[0]):
+            reason = "not in authip"
+        elif self.client is not None and self.reading:
+            reason = f"{self.peer} has the raw port (one client at a time)"
+        else:
+            if self.client is not None:
+                log.info("raw client %s, done sending, gives way to %s", self.peer, peer)
+                self.drop()
+            sock.setblocking(False)
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            self.client, self.peer, self.reading = sock, peer, True
+            if self._poll is not None:
+                self._poll.register(sock.fileno(), select.POLLIN)
+            log.info("raw client %s connected", peer)
+            return
+        sock.close()
+        self._counters.raw_refused += 1
+        log.warning("raw client %s refused: %s", peer, reason)
+
+    def receive(self) -> bytes | None:
+        """What the client sent: None for nothing now, b"" when it will send no more (then
+        poll it no more).  A client that has shut down its sending side (`socat -t`) still
+        gets the frames, until it goes or another client comes."""
+        assert self.client is not None
+        try:
+            data = self.client.recv(RECEIVE_SIZE)
+        except (BlockingIOError, InterruptedError):
+            return None
+        except OSError:
+            self.drop()
+            return b""
+        if not data:
+            self._unpoll()
+        return data
+
+    def _unpoll(self) -> None:
+        if self.reading and self._poll is not None and self.client is not None:
+            self._poll.unregister(self.client.fileno())
+        self.reading = False
+
+    def send(self, frame: bytes) -> None:
+        """A frame from the line, as much of it as the socket takes now."""
+        if self.client is None:
+            return
+        try:
+            sent = self.client.send(frame)
+        except (BlockingIOError, InterruptedError):
+            sent = 0
+        except OSError:
+            self.drop()
+            return
+        self._counters.raw_bytes_out += sent
+        self._counters.raw_bytes_dropped += len(frame) - sent
+
+    def drop(self) -> None:
+        if self.client is not None:
+            self._unpoll()
+            self.client.close()
+            self.client = None
+            log.info("raw client %s disconnected", self.peer)
+
+    def close(self) -> None:
+        self.drop()
+        for sock in self.listeners.values():
+            sock.close()

@@ -1,0 +1,52 @@
+"""What the running transparent-mode daemon reports through the control socket (the commands
+every mode shares are in mbgw.ops.status)."""
+import logging
+import time
+
+from mbgw.ops.status import DaemonStatus
+
+log = logging.getLogger("mbgw.control")
+
+
+class TransparentStatus(DaemonStatus):
+    """Transparent mode: the frame settings, the counters, the raw client, the table."""
+    mode = "transparent"
+
+    def __init__(self, cfg, line, counters, table_figures, raw) -> None:
+        super().__init__(cfg, counters, None, line.trace)
+        self._line = line
+        self._table_figures = table_figures
+        self._raw = raw
+
+    def figures(self) -> dict:
+        """The mode's own part: the settings in force, the raw port."""
+        t = self.cfg.transparent
+        raw = self._raw
+        return {"eof": t.eof, "eof_char": t.eof_char,
+                "eof_timeout_ms": t.eof_timeout_for(self.cfg.serial),
+                "rx_address": t.rx_address, "rx_size": t.rx_size,
+                "tx_address": t.tx_address, "tx_size": t.tx_size, "crc": t.crc,
+                "trigger": t.trigger, "silence_ms": t.silence_ms,
+                "raw_port": None if raw is None else raw.port,
+                "raw_client": None if raw is None or raw.client is None else raw.peer}
+
+    def status(self, request: dict) -> dict:
+        data = self._common()
+        data["serial"]["state"] = "up" if self._line.up else "down"
+        return {**data, "transparent": self.figures(), "counters": self._counters.snapshot(),
+                "counters_since": self._reset_at, "table": self._table_figures()}
+
+    def reset(self, request: dict) -> dict:
+        self._counters.reset()
+        self._reset_at = time.time()
+        log.info("counters reset by the operator (uid %s)", request.get("uid"))
+        return {"ok": True}
+
+    def summary(self) -> str:
+        c = self._counters
+        return (f"transparent mode: line {'up' if self._line.up else 'down'}, "
+                f"{c.frames_stored} frames stored, {c.frames_sent} sent")
+
+    def close(self, request: dict) -> dict:
+        return {"error": "clients close: not available in transparent mode (mbgw status "
+                         "shows the table's clients and the raw client)"}
