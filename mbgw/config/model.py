@@ -247,7 +247,7 @@ class TlsConfig:
     def __post_init__(self) -> None:
         low, high = PORT_RANGE
         if not low <= self.port <= high:
-            raise ConfigError(f"tls-port {self.port}: out of range {low}..{high}")
+            raise ConfigError(f"tls.port {self.port}: out of range {low}..{high}")
         if self.cert is not None:
             missing = [name for name in ("key", "ca") if getattr(self, name) is None]
             if missing:
@@ -405,7 +405,7 @@ class TransparentConfig:
                 ("eof-timeout", self.eof_timeout_ms, EOF_TIMEOUT_RANGE),
                 ("rx-size", self.rx_size, FRAME_SIZE_RANGE),
                 ("tx-size", self.tx_size, FRAME_SIZE_RANGE),
-                ("interframe-silence", self.silence_ms, INTERFRAME_SILENCE_RANGE)):
+                ("transparent.silence", self.silence_ms, INTERFRAME_SILENCE_RANGE)):
             if not low <= value <= high:
                 raise ConfigError(f"{name} {value}: out of range {low}..{high}")
         for name, address, size, (low, high) in (
