@@ -244,11 +244,17 @@ class SlaveConfig:
     demotion: Demotion = field(default_factory=Demotion)
     shortcut: bool = True          # an idle line's request goes on it from C (a hidden switch)
     table: TableConfig = field(default_factory=TableConfig)
+    scenarios: tuple = ()          # ScenarioConfig (mbgw.config.scenario), [[scenario]]
 
     def __post_init__(self) -> None:
         if len(self.authip) > MAX_AUTHIP:
             raise ConfigError(f"authip: at most {MAX_AUTHIP} addresses, got {len(self.authip)}")
         object.__setattr__(self, "authip", tuple(parse_ip("authip", a) for a in self.authip))
+
+    @property
+    def table_on(self) -> bool:
+        """The exchange table runs: asked for, or a scenario needs it."""
+        return self.table.enabled or bool(self.scenarios)
 
 
 def parse_ip(option: str, text: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address:

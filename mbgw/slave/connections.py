@@ -41,6 +41,11 @@ class Connections:
         self._adopted.append(client)
         os.eventfd_write(self._wake_fd, 1)
 
+    def poll_also(self, fd: int) -> None:
+        """Line thread: fd wakes wait() too (the scenario engine's eventfd; its owner reads
+        it)."""
+        self._poll.register(fd, _IN)
+
     def wait(self, timeout_ms: int, serial_fd: int = -1, take=None) -> bool:
         """Line thread: wait up to timeout_ms (-1: no limit, 0: not at all) for a client, the
         wake-up eventfd or input on serial_fd, and serve the clients that are ready.  True

@@ -6,10 +6,18 @@ reopened when it is back (mbgw.line.supervisor), and reported once per change of
 With the exchange table on, the thread holds the gate (a lock) at all times except around
 its blocking serial calls, and the table reader (mbgw.slave.table_reader) serves the clients
 meanwhile; every reply is then written by Python under the gate (no forward from C, no
-shortcut), so no two threads ever write one socket."""
+shortcut), so no two threads ever write one socket.
+
+The serial scenarios (an mbgw.scenarios engine, use_scenarios) run here too, under the same
+rules: the scenario queue takes turns with the clients in the scheduler's ring, each run is a
+SerialMaster transaction with the scenario's retries, and the idle wait ends when the next
+scenario is due or the engine's eventfd says a change made one pending.  Other threads reach
+the engine through call_on_line (enable, test), so only this thread touches it."""
 import errno
 import logging
 import time
+from collections import deque
+from concurrent.futures import Future
 
 from mbgw.config.model import SlaveConfig
 from mbgw.errors import LineTimeout, SerialError
@@ -30,6 +38,7 @@ from mbgw.slave.scheduler import (
     OUTCOME_LINE_DOWN,
     OUTCOME_REPLY,
     OUTCOME_TIMEOUT,
+    SCENARIO_TURN,
     Job,
     Scheduler,
 )
@@ -41,6 +50,10 @@ wire = logging.getLogger("mbgw.wire")
 
 # Serial settings that need the port opened again; the others apply to the next transaction.
 REOPEN_SETTINGS = ("device", "baudrate", "format", "interface", "rtsdelays")
+# How often the scenario engine looks at its data's age (stale-after) while the line waits.
+SCENARIO_TICK_S = 0.1
+# A scenario's run that failed without a reply (the engine's error kinds).
+ERROR_TIMEOUT = "timeout"
 
 
 class LineWorker(LineThread[SlaveConfig]):
@@ -60,6 +73,10 @@ class LineWorker(LineThread[SlaveConfig]):
         self._gate = Gate()                  # see the module's docstring
         self._reader: TableReader | None = None     # while the table is on
         self._master: SerialMaster | None = self._master_on(line)
+        self._scenarios = None             # the serial scenarios' engine, if any
+        self._scenario_tick = 0.0          # when the engine looks at its data's age next
+        self._due_s: float | None = None   # until the next scenario is due (None: none is)
+        self._calls: deque[tuple] = deque()    # (fn, future) from other threads
 
     def _master_on(self, line: SerialLine, previous: SerialMaster | None = None) -> SerialMaster:
         cfg = self._cfg
@@ -70,7 +87,7 @@ class LineWorker(LineThread[SlaveConfig]):
         # Not with the table on: C would write a reply to a client the table reader may be
         # answering at the same time.
         self._shortcut = cfg.shortcut and cfg.serial.protocol == "rtu" and \
-            line.libmodbus_sends and not cfg.serial.nocheck and not cfg.table.enabled
+            line.libmodbus_sends and not cfg.serial.nocheck and not cfg.table_on
         if self._shortcut:
             line.port.shortcut_rules(pdu.LIBMODBUS_FRAMED, line.char_ns,
                                      cfg.serial.stout_ms * 1_000_000, cfg.slaveid, self._down)
@@ -124,15 +141,24 @@ class LineWorker(LineThread[SlaveConfig]):
     def _configure(self, old: SlaveConfig, reopen: bool) -> None:
         if self._cfg.demotion != old.demotion:
             self.devices.set_rule(self._cfg.demotion)
-        if self._cfg.table.enabled != old.table.enabled:
+        if self._cfg.table_on != old.table_on:
             self._stop_reader()
             self._start_reader()
+        if self._scenarios is not None and self._cfg.scenarios != old.scenarios:
+            self._scenarios.reconfigure(serial_scenarios(self._cfg))
         if not reopen and self._master is not None and self._line is not None:
             self._master = self._master_on(self._line, self._master)
 
     def _turn(self) -> None:
+        if self._calls:
+            self._run_calls()
+        if self._scenarios is not None:
+            self._scenarios_due(self._scenarios)
         job = self._scheduler.take()
-        if job is None:
+        if job is SCENARIO_TURN:
+            self._run_scenario(self._scenarios)
+            self._connections.wait(0)      # what the clients sent meanwhile
+        elif job is None:
             self._idle()
             job, self._taken = self._taken, None
             if job is not None:
@@ -143,6 +169,10 @@ class LineWorker(LineThread[SlaveConfig]):
 
     def _while_down(self, timeout_s: float) -> None:
         self._reject_waiting()             # requests are refused at once meanwhile
+        if self._calls:
+            self._run_calls()
+        if self._scenarios is not None:    # none runs, but their data ages
+            self._tick(self._scenarios, time.monotonic())
         self._connections.wait(int(timeout_s * 1000))
 
     def _finish(self) -> None:
@@ -154,7 +184,7 @@ class LineWorker(LineThread[SlaveConfig]):
 
     def _start_reader(self) -> None:
         table = self._server.table
-        if self._cfg.table.enabled and table is not None:
+        if self._cfg.table_on and table is not None:
             self._reader = TableReader(self._gate, self._connections, self._scheduler.wake_fd,
                                        self._server.read_meanwhile, table.responder())
             self._reader.start()
@@ -257,7 +287,7 @@ class LineWorker(LineThread[SlaveConfig]):
         port = self._master.framing.port
         take = self._take if self._shortcut else None
         try:
-            if self._connections.wait(self.idle_ms, port.fd, take):
+            if self._connections.wait(self._idle_timeout_ms(), port.fd, take):
                 # one frame without a request: whatever comes until the line is quiet again
                 unsolicited = port.wait_quiet(time.monotonic_ns(), self._cfg.serial.t35_us)
                 self._counters.unsolicited_frames += 1
@@ -265,6 +295,19 @@ class LineWorker(LineThread[SlaveConfig]):
                 self._counters.bytes_received += unsolicited
         except SerialError as err:
             self._lost(err)
+
+    def _idle_timeout_ms(self) -> int:
+        """With scenarios, the idle wait ends in time for the next one, and at least every
+        SCENARIO_TICK_S (their data ages).  poll() counts whole ms: it stops short and the
+        last fraction is slept (well under a ms of the clients' time)."""
+        if self._scenarios is None:
+            return self.idle_ms
+        due = SCENARIO_TICK_S if self._due_s is None else min(self._due_s, SCENARIO_TICK_S)
+        if due < 0.001:
+            time.sleep(due)
+            return 0
+        due_ms = int(due * 1000)
+        return due_ms if self.idle_ms < 0 else min(due_ms, self.idle_ms)
 
     def _take(self, client: Client) -> list | None:
         """The shortcut for a request that finds the line idle: C reads the client and, when
@@ -298,6 +341,91 @@ class LineWorker(LineThread[SlaveConfig]):
     def _reject_waiting(self) -> None:
         """While the port is down, nothing waits: every queued request is refused at once."""
         while (job := self._scheduler.take()) is not None:
+            if job is SCENARIO_TURN:       # none runs while the line is down
+                continue
             self._counters.line_down_rejects += 1
             job.outcome = OUTCOME_LINE_DOWN
             self._deliver(job, self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE))
+
+    # --- the serial scenarios ---
+
+    def use_scenarios(self, engine) -> None:
+        """Run engine's scenarios on this line (called once, before start())."""
+        self._scenarios = engine
+        self._connections.poll_also(engine.wake_fd)
+
+    def call_on_line(self, fn) -> Future:
+        """From another thread: fn() runs on the line thread between two transactions (it
+        may use the scenario engine); the future has its result."""
+        future: Future = Future()
+        self._calls.append((fn, future))
+        self._wake()
+        return future
+
+    def _run_calls(self) -> None:
+        while self._calls:
+            fn, future = self._calls.popleft()
+            try:
+                future.set_result(fn())
+            except Exception as err:    # the caller's to report
+                future.set_exception(err)
+
+    def _scenarios_due(self, engine) -> None:
+        """The scenario queue gets a turn while a scenario is due."""
+        now = time.monotonic()
+        self._tick(engine, now)
+        self._due_s = due = engine.due_in(now)
+        if due == 0:
+            self._scheduler.scenario_due(time.monotonic_ns())
+
+    def _tick(self, engine, now: float) -> None:
+        if now >= self._scenario_tick:
+            self._scenario_tick = now + SCENARIO_TICK_S
+            engine.tick(now)
+
+    def _run_scenario(self, engine) -> None:
+        run = engine.next(time.monotonic())
+        if run is None:
+            return
+        scenario = run.scenario
+        reply, error, retries = self.exchange(scenario.slave, run.pdu, scenario.retries)
+        engine.done(run, reply, error, retries)
+
+    def exchange(self, slave: int, request: bytes, retries: int) -> tuple:
+        """One scenario's request PDU to slave (0: broadcast) with its retries: (reply PDU
+        or None, None or the engine's error kind, the retries made).  A reply that did not
+        answer the request (another function, another size) is returned for the engine to
+        name; none at all is a timeout.  Line thread only (a scenario test comes through
+        call_on_line)."""
+        master = self._master
+        if master is None:
+            return None, ERROR_TIMEOUT, 0
+        device = self.devices.get(slave)
+        retried = device.retries
+        master.mismatch = None
+        try:
+            reply = self._on_line(master, bytes((slave,)) + request, retries)
+        except LineTimeout:
+            reply = master.mismatch
+            return reply, None if reply is not None else ERROR_TIMEOUT, device.retries - retried
+        except SerialError as err:
+            self._lost(err)
+            return None, ERROR_TIMEOUT, device.retries - retried
+        return reply, None, device.retries - retried
+
+    def _on_line(self, master: SerialMaster, adu: bytes, retries: int) -> bytes | None:
+        """master.transact for a scenario, without the gate (the table reader serves the
+        clients meanwhile); the requests it kept for the line are routed after."""
+        if self._reader is None:
+            return master.transact(adu, NO_FORWARD, False, retries)
+        self._gate.release()
+        try:
+            return master.transact(adu, NO_FORWARD, False, retries)
+        finally:
+            self._gate.take()
+            self._server.take_kept()
+
+
+def serial_scenarios(cfg: SlaveConfig) -> tuple:
+    """The scenarios this line runs."""
+    return tuple(s for s in cfg.scenarios if s.kind == "serial")
