@@ -18,7 +18,8 @@ from mbgw.ops.service import (
     start_metrics,
     watchdog_interval,
 )
-from mbgw.slave.line_thread import LineWorker
+from mbgw.scenarios.engine import Scenarios
+from mbgw.slave.line_thread import LineWorker, serial_scenarios
 from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
 from mbgw.slave.status import SlaveStatus
@@ -48,6 +49,8 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     worker: LineWorker
     server = TcpServer(cfg, scheduler, counters, lambda: worker.up, devices, tables.table)
     worker = LineWorker(cfg, line, scheduler, server, counters, devices)
+    scenarios = Scenarios(serial_scenarios(cfg), tables.table, "serial")
+    worker.use_scenarios(scenarios)      # the line thread's from now on (call_on_line)
     stop = asyncio.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(signum, stop.set)
@@ -64,7 +67,8 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
         raise
     worker.idle_ms = idle_ms(watchdog_interval())
     worker.start()
-    status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses, tables)
+    status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses, tables,
+                         scenarios)
     control = await start_control(cfg.control, status.commands())
     s = cfg.serial
     log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s",
@@ -87,6 +91,7 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     worker.stop()
     await asyncio.to_thread(worker.join)
     tables.save()
+    scenarios.close()
     scheduler.close()
     log_stopped(counters)
 

@@ -28,6 +28,7 @@ from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.protocol import mbap, pdu
+from mbgw.scenarios.exchange import TIMEOUT
 from mbgw.slave.client import Client
 from mbgw.slave.connections import Connections
 from mbgw.slave.scheduler import (
@@ -50,10 +51,6 @@ wire = logging.getLogger("mbgw.wire")
 
 # Serial settings that need the port opened again; the others apply to the next transaction.
 REOPEN_SETTINGS = ("device", "baudrate", "format", "interface", "rtsdelays")
-# How often the scenario engine looks at its data's age (stale-after) while the line waits.
-SCENARIO_TICK_S = 0.1
-# A scenario's run that failed without a reply (the engine's error kinds).
-ERROR_TIMEOUT = "timeout"
 
 
 class LineWorker(LineThread[SlaveConfig]):
@@ -73,8 +70,8 @@ class LineWorker(LineThread[SlaveConfig]):
         self._gate = Gate()                  # see the module's docstring
         self._reader: TableReader | None = None     # while the table is on
         self._master: SerialMaster | None = self._master_on(line)
-        self._scenarios = None             # the serial scenarios' engine, if any
-        self._scenario_tick = 0.0          # when the engine looks at its data's age next
+        self._engine = None                # the serial scenarios' engine (use_scenarios)
+        self._scenarios = None             # the engine while it has scenarios to run
         self._due_s: float | None = None   # until the next scenario is due (None: none is)
         self._calls: deque[tuple] = deque()    # (fn, future) from other threads
 
@@ -144,8 +141,11 @@ class LineWorker(LineThread[SlaveConfig]):
         if self._cfg.table_on != old.table_on:
             self._stop_reader()
             self._start_reader()
-        if self._scenarios is not None and self._cfg.scenarios != old.scenarios:
-            self._scenarios.reconfigure(serial_scenarios(self._cfg))
+        if self._engine is not None and self._cfg.scenarios != old.scenarios:
+            scenarios = serial_scenarios(self._cfg)
+            self._engine.reconfigure(scenarios)
+            self._scenarios = self._engine if scenarios else None
+            self._due_s = None
         if not reopen and self._master is not None and self._line is not None:
             self._master = self._master_on(self._line, self._master)
 
@@ -171,8 +171,8 @@ class LineWorker(LineThread[SlaveConfig]):
         self._reject_waiting()             # requests are refused at once meanwhile
         if self._calls:
             self._run_calls()
-        if self._scenarios is not None:    # none runs, but their data ages
-            self._tick(self._scenarios, time.monotonic())
+        if self._scenarios is not None:    # none runs, but their data ages (stale-after)
+            self._scenarios.tick(time.monotonic())
         self._connections.wait(int(timeout_s * 1000))
 
     def _finish(self) -> None:
@@ -264,7 +264,8 @@ class LineWorker(LineThread[SlaveConfig]):
         """The serial master found the reply (sent: the bytes of it already forwarded, or
         -1): it goes to the client before the books."""
         job, self._serving = self._serving, None
-        assert job is not None
+        if job is None:        # a scenario's run: its reply is the runner's
+            return
         job.outcome = OUTCOME_EXCEPTION if reply[0] & pdu.EXCEPTION_FLAG else OUTCOME_REPLY
         if self._reader is None:
             self._deliver(job, reply, sent)
@@ -297,12 +298,12 @@ class LineWorker(LineThread[SlaveConfig]):
             self._lost(err)
 
     def _idle_timeout_ms(self) -> int:
-        """With scenarios, the idle wait ends in time for the next one, and at least every
-        SCENARIO_TICK_S (their data ages).  poll() counts whole ms: it stops short and the
-        last fraction is slept (well under a ms of the clients' time)."""
-        if self._scenarios is None:
+        """The idle wait ends in time for the next scenario (or stale-after check).  poll()
+        counts whole ms: it stops short and the last fraction is slept (well under a ms of
+        the clients' time)."""
+        due = self._due_s
+        if self._scenarios is None or due is None:
             return self.idle_ms
-        due = SCENARIO_TICK_S if self._due_s is None else min(self._due_s, SCENARIO_TICK_S)
         if due < 0.001:
             time.sleep(due)
             return 0
@@ -350,8 +351,10 @@ class LineWorker(LineThread[SlaveConfig]):
     # --- the serial scenarios ---
 
     def use_scenarios(self, engine) -> None:
-        """Run engine's scenarios on this line (called once, before start())."""
-        self._scenarios = engine
+        """Run engine's scenarios on this line, and those of the settings to come (called
+        once, before start())."""
+        self._engine = engine
+        self._scenarios = engine if serial_scenarios(self._cfg) else None
         self._connections.poll_also(engine.wake_fd)
 
     def call_on_line(self, fn) -> Future:
@@ -371,24 +374,22 @@ class LineWorker(LineThread[SlaveConfig]):
                 future.set_exception(err)
 
     def _scenarios_due(self, engine) -> None:
-        """The scenario queue gets a turn while a scenario is due."""
-        now = time.monotonic()
-        self._tick(engine, now)
-        self._due_s = due = engine.due_in(now)
+        """The scenario queue gets a turn while a scenario is due (the engine also takes the
+        table's changes and marks stale data here)."""
+        self._due_s = due = engine.due_in(time.monotonic())
         if due == 0:
             self._scheduler.scenario_due(time.monotonic_ns())
-
-    def _tick(self, engine, now: float) -> None:
-        if now >= self._scenario_tick:
-            self._scenario_tick = now + SCENARIO_TICK_S
-            engine.tick(now)
 
     def _run_scenario(self, engine) -> None:
         run = engine.next(time.monotonic())
         if run is None:
             return
         scenario = run.scenario
-        reply, error, retries = self.exchange(scenario.slave, run.pdu, scenario.retries)
+        try:
+            reply, error, retries = self.exchange(scenario.slave, run.pdu, scenario.retries)
+        except Exception:   # a bug must cost one run, never the scenario's schedule
+            log.exception("internal error running scenario %s", scenario.name)
+            reply, error, retries = None, TIMEOUT, 0
         engine.done(run, reply, error, retries)
 
     def exchange(self, slave: int, request: bytes, retries: int) -> tuple:
@@ -399,7 +400,7 @@ class LineWorker(LineThread[SlaveConfig]):
         call_on_line)."""
         master = self._master
         if master is None:
-            return None, ERROR_TIMEOUT, 0
+            return None, TIMEOUT, 0
         device = self.devices.get(slave)
         retried = device.retries
         master.mismatch = None
@@ -407,10 +408,10 @@ class LineWorker(LineThread[SlaveConfig]):
             reply = self._on_line(master, bytes((slave,)) + request, retries)
         except LineTimeout:
             reply = master.mismatch
-            return reply, None if reply is not None else ERROR_TIMEOUT, device.retries - retried
+            return reply, None if reply is not None else TIMEOUT, device.retries - retried
         except SerialError as err:
             self._lost(err)
-            return None, ERROR_TIMEOUT, device.retries - retried
+            return None, TIMEOUT, device.retries - retried
         return reply, None, device.retries - retried
 
     def _on_line(self, master: SerialMaster, adu: bytes, retries: int) -> bytes | None:

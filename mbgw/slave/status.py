@@ -10,13 +10,14 @@ class SlaveStatus(DaemonStatus):
     mode = "slave"
 
     def __init__(self, cfg, server, worker, scheduler, counters, devices, addresses,
-                 tables=None) -> None:
+                 tables=None, scenarios=None) -> None:
         super().__init__(cfg, counters, devices, server.trace)
         self._tables = tables           # the exchange table (mbgw.slave.table_service)
         self._server = server
         self._worker = worker
         self._scheduler = scheduler
         self._addresses = addresses
+        self._scenarios = scenarios     # the serial scenarios' engine (mbgw.scenarios)
 
     def commands(self) -> dict:
         tables = self._tables
@@ -41,6 +42,8 @@ class SlaveStatus(DaemonStatus):
         return {
             **data, "listening": self._addresses,
             **({"table": table} if table is not None else {}),
+            **({"scenarios": self._scenarios.status()} if self._scenarios is not None
+               and self.cfg.scenarios else {}),
             "queue_depth": self._scheduler.depth,
             "clients": [{"id": c.id, "peer": c.peer, "connected_since": c.connected_at,
                          "requests": c.requests, "in_flight": c.in_flight,
