@@ -86,7 +86,7 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
                  silence, ascii_timeout, nocheck, slaveid, exception, authip, mdbport, bind,
                  max_connections, max_connections_per_ip, retries, turnaround, control,
                  metrics, log_level=None, shortcut=True, down_after=config.DEFAULT_DOWN_AFTER,
-                 probe_interval=config.DEFAULT_PROBE_INTERVAL_MS,
+                 probe_interval=config.DEFAULT_PROBE_INTERVAL_MS, scenarios=(),
                  **table_settings) -> config.SlaveConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
@@ -96,4 +96,4 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
         bind=bind, max_connections=max_connections,
         max_connections_per_ip=max_connections_per_ip, retries=retries,
         turnaround_ms=turnaround, control=control, metrics=metrics, shortcut=shortcut,
-        demotion=demotion(down_after, probe_interval), table=table))
+        demotion=demotion(down_after, probe_interval), table=table, scenarios=scenarios))
