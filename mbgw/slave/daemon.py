@@ -19,6 +19,7 @@ from mbgw.ops.service import (
     watchdog_interval,
 )
 from mbgw.scenarios.engine import Scenarios
+from mbgw.scenarios.report import scenarios_status
 from mbgw.slave.line_thread import LineWorker, serial_scenarios
 from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
@@ -40,6 +41,12 @@ def run_slave(cfg: SlaveConfig, reconfigure=None) -> None:
         line.close()
 
 
+def with_scenarios(collector, engines: dict):
+    """The /metrics collector, with the scenarios' families."""
+    collector.scenarios = lambda: scenarios_status(engines.values())
+    return collector
+
+
 async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfigure) -> None:
     loop = asyncio.get_running_loop()
     devices = DeviceTable(rule=HealthRule(cfg.demotion))
@@ -50,7 +57,8 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     server = TcpServer(cfg, scheduler, counters, lambda: worker.up, devices, tables.table)
     worker = LineWorker(cfg, line, scheduler, server, counters, devices)
     scenarios = Scenarios(serial_scenarios(cfg), tables.table, "serial")
-    worker.use_scenarios(scenarios)      # the line thread's from now on (call_on_line)
+    worker.use_scenarios(scenarios)      # run, and reconfigured, by the line thread
+    engines = {"serial": scenarios}
     stop = asyncio.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(signum, stop.set)
@@ -60,15 +68,16 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
         raise ListenError(cfg.mdbport, err) from None
     started = time.time()
     try:
-        metrics = start_metrics(cfg.metrics, lambda m: m.slave_collector(
-            counters, devices, scheduler, server, worker, started, tables.figures))
+        metrics = start_metrics(cfg.metrics, lambda m: with_scenarios(m.slave_collector(
+            counters, devices, scheduler, server, worker, started, tables.figures), engines))
     except MetricsListenError:
         server.close()
         raise
     worker.idle_ms = idle_ms(watchdog_interval())
     worker.start()
     status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses, tables,
-                         scenarios)
+                         engines)
+
     control = await start_control(cfg.control, status.commands())
     s = cfg.serial
     log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s",

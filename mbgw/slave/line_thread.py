@@ -11,13 +11,11 @@ shortcut), so no two threads ever write one socket.
 The serial scenarios (an mbgw.scenarios engine, use_scenarios) run here too, under the same
 rules: the scenario queue takes turns with the clients in the scheduler's ring, each run is a
 SerialMaster transaction with the scenario's retries, and the idle wait ends when the next
-scenario is due or the engine's eventfd says a change made one pending.  Other threads reach
-the engine through call_on_line (enable, test), so only this thread touches it."""
+scenario is due or the engine's eventfd says a change made one pending (or an operator's
+`scenario test` waits: it runs in the scenario queue's turn too)."""
 import errno
 import logging
 import time
-from collections import deque
-from concurrent.futures import Future
 
 from mbgw.config.model import SlaveConfig
 from mbgw.errors import LineTimeout, SerialError
@@ -73,7 +71,7 @@ class LineWorker(LineThread[SlaveConfig]):
         self._engine = None                # the serial scenarios' engine (use_scenarios)
         self._scenarios = None             # the engine while it has scenarios to run
         self._due_s: float | None = None   # until the next scenario is due (None: none is)
-        self._calls: deque[tuple] = deque()    # (fn, future) from other threads
+        self._engine_woken = False         # its eventfd was ready (a test, with no scenario)
 
     def _master_on(self, line: SerialLine, previous: SerialMaster | None = None) -> SerialMaster:
         cfg = self._cfg
@@ -150,13 +148,11 @@ class LineWorker(LineThread[SlaveConfig]):
             self._master = self._master_on(self._line, self._master)
 
     def _turn(self) -> None:
-        if self._calls:
-            self._run_calls()
-        if self._scenarios is not None:
-            self._scenarios_due(self._scenarios)
+        if self._scenarios is not None or self._engine_woken:
+            self._scenarios_due()
         job = self._scheduler.take()
         if job is SCENARIO_TURN:
-            self._run_scenario(self._scenarios)
+            self._run_scenario()
             self._connections.wait(0)      # what the clients sent meanwhile
         elif job is None:
             self._idle()
@@ -169,8 +165,6 @@ class LineWorker(LineThread[SlaveConfig]):
 
     def _while_down(self, timeout_s: float) -> None:
         self._reject_waiting()             # requests are refused at once meanwhile
-        if self._calls:
-            self._run_calls()
         if self._scenarios is not None:    # none runs, but their data ages (stale-after)
             self._scenarios.tick(time.monotonic())
         self._connections.wait(int(timeout_s * 1000))
@@ -355,32 +349,31 @@ class LineWorker(LineThread[SlaveConfig]):
         once, before start())."""
         self._engine = engine
         self._scenarios = engine if serial_scenarios(self._cfg) else None
-        self._connections.poll_also(engine.wake_fd)
+        self._connections.poll_also(engine.wake_fd, self._engine_ready)
 
-    def call_on_line(self, fn) -> Future:
-        """From another thread: fn() runs on the line thread between two transactions (it
-        may use the scenario engine); the future has its result."""
-        future: Future = Future()
-        self._calls.append((fn, future))
-        self._wake()
-        return future
+    def _engine_ready(self) -> None:
+        """The engine's eventfd is ready: looked at in the next turn even with no scenario
+        (an operator's test)."""
+        self._engine_woken = True
 
-    def _run_calls(self) -> None:
-        while self._calls:
-            fn, future = self._calls.popleft()
-            try:
-                future.set_result(fn())
-            except Exception as err:    # the caller's to report
-                future.set_exception(err)
-
-    def _scenarios_due(self, engine) -> None:
-        """The scenario queue gets a turn while a scenario is due (the engine also takes the
-        table's changes and marks stale data here)."""
+    def _scenarios_due(self) -> None:
+        """The scenario queue gets a turn while a scenario (or a test) is due; the engine
+        also takes the table's changes and marks stale data here."""
+        self._engine_woken = False
+        engine = self._engine
+        assert engine is not None
         self._due_s = due = engine.due_in(time.monotonic())
         if due == 0:
             self._scheduler.scenario_due(time.monotonic_ns())
 
-    def _run_scenario(self, engine) -> None:
+    def _run_scenario(self) -> None:
+        engine = self._engine
+        assert engine is not None
+        test = engine.take_test(time.monotonic())
+        if test is not None:
+            scenario = test.scenario
+            engine.test_done(test, *self.exchange(scenario.slave, test.pdu, scenario.retries))
+            return
         run = engine.next(time.monotonic())
         if run is None:
             return
@@ -396,8 +389,7 @@ class LineWorker(LineThread[SlaveConfig]):
         """One scenario's request PDU to slave (0: broadcast) with its retries: (reply PDU
         or None, None or the engine's error kind, the retries made).  A reply that did not
         answer the request (another function, another size) is returned for the engine to
-        name; none at all is a timeout.  Line thread only (a scenario test comes through
-        call_on_line)."""
+        name; none at all is a timeout.  Line thread only."""
         master = self._master
         if master is None:
             return None, TIMEOUT, 0

@@ -3,6 +3,8 @@ close (the commands both modes share are in mbgw.ops.status)."""
 import time
 
 from mbgw.ops.status import DaemonStatus
+from mbgw.scenarios.control import scenario_commands
+from mbgw.scenarios.report import scenarios_status
 
 
 class SlaveStatus(DaemonStatus):
@@ -10,18 +12,23 @@ class SlaveStatus(DaemonStatus):
     mode = "slave"
 
     def __init__(self, cfg, server, worker, scheduler, counters, devices, addresses,
-                 tables=None, scenarios=None) -> None:
+                 tables=None, engines=None) -> None:
         super().__init__(cfg, counters, devices, server.trace)
         self._tables = tables           # the exchange table (mbgw.slave.table_service)
         self._server = server
         self._worker = worker
         self._scheduler = scheduler
         self._addresses = addresses
-        self._scenarios = scenarios     # the serial scenarios' engine (mbgw.scenarios)
+        self._engines = engines or {}   # the scenarios' engines by kind (mbgw.scenarios)
 
     def commands(self) -> dict:
         tables = self._tables
-        return {**super().commands(), **(tables.commands() if tables is not None else {})}
+        return {**super().commands(), **(tables.commands() if tables is not None else {}),
+                **scenario_commands(self._engines, self.cfg.config_file)}
+
+    def scenarios(self) -> list[dict]:
+        """The status's "scenarios" rows (and /metrics')."""
+        return scenarios_status(self._engines.values())
 
     def reset(self, request: dict) -> dict:
         if self._tables is not None:
@@ -42,8 +49,7 @@ class SlaveStatus(DaemonStatus):
         return {
             **data, "listening": self._addresses,
             **({"table": table} if table is not None else {}),
-            **({"scenarios": self._scenarios.status()} if self._scenarios is not None
-               and self.cfg.scenarios else {}),
+            **({"scenarios": rows} if (rows := self.scenarios()) else {}),
             "queue_depth": self._scheduler.depth,
             "clients": [{"id": c.id, "peer": c.peer, "connected_since": c.connected_at,
                          "requests": c.requests, "in_flight": c.in_flight,

@@ -10,6 +10,7 @@ the serial address (2 silent, 7 the wrong function, 11 exception 02, 14 silent t
 requests, 16 one register short).  VPGate's messages are the issue's.  The table answers units
 247-254 (the default); unit 247, register R is table register R.
 """
+import json
 import os
 import signal
 import time
@@ -18,7 +19,7 @@ import pytest
 
 from tests.integration.test_faults import received
 from tests.modbus import Client, holding_reply, read_holding
-from tests.ops import status, wait_for, wait_for_log
+from tests.ops import mbgw, status, wait_for, wait_for_log
 
 pytestmark = pytest.mark.integration
 
@@ -258,6 +259,47 @@ def test_reload_adds_and_removes_scenarios_and_keeps_the_unchanged_ones(fault_li
     s = scenarios_by_name(status(gw))
     assert set(s) == {"kept", "new"}
     assert s["kept"]["runs"] > before["runs"]           # its counters went on
+
+
+def test_disable_stops_a_scenario_until_it_is_enabled_again(fault_line, gateway, client):
+    """`mbgw scenario disable NAME`: no more of its frames on the line (told from a marker
+    request sent after the command), the other goes on; enable: it runs again."""
+    record = fault_line()
+    gw, path = gateway([poll("a", 50, 3, 0, 1, 0), poll("b", 51, 3, 0, 1, 1)])
+    until(lambda: len(frames_to(record, 50)) >= 2, "a running")
+    done = mbgw("scenario", "disable", "a", "--control", gw.control)
+    assert done.returncode == 0, done.stderr
+    c = client(gw)
+    assert c.ask(52, read_holding(0, 1)) == holding_reply(0, 1)       # a marker frame
+    marker = len(received(record))
+    until(lambda: len(frames_to(record, 51)) >= len(frames_to(record, 50)) + 5, "b going on")
+    assert 50 not in [f[0] for _, f in received(record)[marker:]]
+    assert scenarios_by_name(status(gw))["a"]["state"] == "disabled"
+    assert 'enabled = false' not in path.read_text()                   # not --save
+    done = mbgw("scenario", "enable", "a", "--control", gw.control)
+    assert done.returncode == 0, done.stderr
+    count = len(frames_to(record, 50))
+    until(lambda: len(frames_to(record, 50)) > count, "a running again")
+
+
+def test_scenario_test_runs_once_on_the_line_and_changes_nothing(fault_line, gateway, client):
+    """`mbgw scenario test`, on a gateway with no scenario at all: the request goes on the
+    line once, the data is printed, the table is left alone."""
+    record = fault_line()
+    gw, _ = gateway([], enabled=True)
+    done = mbgw("scenario", "test", "slave=60", "function=3", "address=4", "quantity=2",
+                "table=80", "--json", "--control", gw.control)
+    assert done.returncode == 0, done.stderr
+    result = json.loads(done.stdout)
+    assert result["ok"] and result["data"] == [1004, 1005], result
+    assert frames_to(record, 60) == [bytes.fromhex("3c 03 0004 0002") +
+                                     frames_to(record, 60)[0][-2:]]
+    assert table_read(client(gw), 80, 2) == bytes.fromhex("03 04 0000 0000")
+    done = mbgw("scenario", "test", "slave=11", "function=3", "address=0", "quantity=1",
+                "table=0", "--json", "--control", gw.control)
+    result = json.loads(done.stdout)
+    assert not result["ok"]
+    assert result["message"] == "received illegal data address from slave (0x02)"
 
 
 # --- stale data ---
