@@ -26,7 +26,7 @@ from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.protocol import mbap, pdu
-from mbgw.scenarios.exchange import TIMEOUT
+from mbgw.scenarios.exchange import EXCEPTION_KINDS, TIMEOUT
 from mbgw.slave.client import Client
 from mbgw.slave.connections import Connections
 from mbgw.slave.scheduler import (
@@ -47,6 +47,8 @@ from mbgw.slave.transaction import SerialMaster
 log = logging.getLogger("mbgw.line")
 wire = logging.getLogger("mbgw.wire")
 
+# A scenario's run while the serial device is lost: the engine's error kind for 0x0A.
+PATH_UNAVAILABLE = EXCEPTION_KINDS[pdu.GATEWAY_PATH_UNAVAILABLE]
 # Serial settings that need the port opened again; the others apply to the next transaction.
 REOPEN_SETTINGS = ("device", "baudrate", "format", "interface", "rtsdelays")
 
@@ -95,12 +97,15 @@ class LineWorker(LineThread[SlaveConfig]):
     @property
     def turn_limit_s(self) -> float:
         """A transaction with its retries (each a quiet line, the longest request, stout, the
-        longest reply's end) and the pause after a broadcast."""
+        longest reply's end; a scenario's retries may be more than the line's) and the pause
+        after a broadcast."""
         cfg = self._cfg
         s = cfg.serial
         quiet_ms = max(s.t35_us / 1000, s.silence_ms) + sum(s.rtsdelays)
         attempt_s = (quiet_ms + s.stout_ms) / 1000 + 2 * longest_frame_s(s)
-        return (cfg.retries + 1) * attempt_s + cfg.turnaround_ms / 1000 + TURN_MARGIN_S
+        retries = max((sc.retries for sc in serial_scenarios(cfg)), default=cfg.retries)
+        return (max(retries, cfg.retries) + 1) * attempt_s + cfg.turnaround_ms / 1000 + \
+            TURN_MARGIN_S
 
     def _wake(self) -> None:
         self._scheduler.wake()
@@ -165,8 +170,8 @@ class LineWorker(LineThread[SlaveConfig]):
 
     def _while_down(self, timeout_s: float) -> None:
         self._reject_waiting()             # requests are refused at once meanwhile
-        if self._scenarios is not None:    # none runs, but their data ages (stale-after)
-            self._scenarios.tick(time.monotonic())
+        if self._engine is not None:
+            self._scenarios_while_down(self._engine)
         self._connections.wait(int(timeout_s * 1000))
 
     def _finish(self) -> None:
@@ -371,38 +376,41 @@ class LineWorker(LineThread[SlaveConfig]):
         assert engine is not None
         test = engine.take_test(time.monotonic())
         if test is not None:
-            scenario = test.scenario
-            engine.test_done(test, *self.exchange(scenario.slave, test.pdu, scenario.retries))
+            engine.test_done(test, *self._exchange(test.scenario, test.pdu))
             return
         run = engine.next(time.monotonic())
-        if run is None:
-            return
-        scenario = run.scenario
-        try:
-            reply, error, retries = self.exchange(scenario.slave, run.pdu, scenario.retries)
-        except Exception:   # a bug must cost one run, never the scenario's schedule
-            log.exception("internal error running scenario %s", scenario.name)
-            reply, error, retries = None, TIMEOUT, 0
-        engine.done(run, reply, error, retries)
+        if run is not None:
+            engine.done(run, *self._exchange(run.scenario, run.pdu))
 
-    def exchange(self, slave: int, request: bytes, retries: int) -> tuple:
-        """One scenario's request PDU to slave (0: broadcast) with its retries: (reply PDU
-        or None, None or the engine's error kind, the retries made).  A reply that did not
-        answer the request (another function, another size) is returned for the engine to
-        name; none at all is a timeout.  Line thread only."""
+    def _scenarios_while_down(self, engine) -> None:
+        """None runs, but the engine's eventfd is read, changes are taken and data ages
+        (stale-after); a test is answered at once."""
+        now = time.monotonic()
+        engine.due_in(now)
+        while (test := engine.take_test(now)) is not None:
+            engine.test_done(test, None, PATH_UNAVAILABLE)
+
+    def _exchange(self, scenario, request: bytes) -> tuple:
+        """One run of scenario (request: its PDU) on the line with its retries, address 0 a
+        broadcast: (reply PDU or None, None or the engine's error kind, the retries made).
+        A reply that did not answer the request (another function, another size) is
+        returned for the engine to name; none at all is a timeout."""
         master = self._master
         if master is None:
-            return None, TIMEOUT, 0
-        device = self.devices.get(slave)
+            return None, PATH_UNAVAILABLE, 0
+        device = self.devices.get(scenario.slave)
         retried = device.retries
         master.mismatch = None
         try:
-            reply = self._on_line(master, bytes((slave,)) + request, retries)
+            reply = self._on_line(master, bytes((scenario.slave,)) + request, scenario.retries)
         except LineTimeout:
             reply = master.mismatch
             return reply, None if reply is not None else TIMEOUT, device.retries - retried
         except SerialError as err:
             self._lost(err)
+            return None, PATH_UNAVAILABLE, device.retries - retried
+        except Exception:   # a bug must cost one run, never the scenario's schedule
+            log.exception("internal error running scenario %s", scenario.name)
             return None, TIMEOUT, device.retries - retried
         return reply, None, device.retries - retried
 
