@@ -314,3 +314,25 @@ def test_stale_data_answers_0x0b_until_the_device_answers_again(fault_line, gate
     assert table_read(c, 72, 1) == bytes.fromhex("03 02 0000")       # beside the range
     until(lambda: table_read(c, 70, 2) == holding_reply(0, 2), "fresh data again")
 
+
+
+# --- the device lost and back ---
+
+def test_a_change_made_while_the_device_is_lost_is_written_once_it_is_back(
+        pty_pair, pymodbus_line, gateway, client):
+    """Nothing runs while the device is lost (a scenario test says so at once); a change of
+    the data a change scenario writes is kept, and sent when the device is back."""
+    pymodbus_line(1, 2)
+    gw, _ = gateway([poll("keepalive", 1, 3, 0, 1, 0), on_change("out", 2, 6, 6, 60)])
+    c = client(gw)
+    wait_for_scenario(gw, "keepalive", lambda sc: sc["successes"] >= 1, "running")
+    pty_pair.stop()                             # the device disappears
+    wait_for_log(gw, "lost")
+    assert c.ask(TABLE_UNIT, bytes.fromhex("06 003c 0309"))[0] == 0x06      # table 60 = 777
+    done = mbgw("scenario", "test", "slave=1", "function=3", "address=0", "quantity=1",
+                "table=0", "--json", "--control", gw.control)
+    assert json.loads(done.stdout)["message"] == "gateway path unavailable (0x0A)", done.stdout
+    pty_pair.start()
+    pymodbus_line(1, 2)
+    until(lambda: c.ask(2, read_holding(6, 1)) == bytes.fromhex("03 02 0309"),
+          "the change written once the device is back")
