@@ -7,4 +7,15 @@ table and checks and stores its reply; `engine.Scenarios` is one runner's set (t
 line's in slave mode, the TCP runner's in every mode): schedule, results, state, counters,
 stale data; `report` and `control` are the operator's side (status, metrics, the control
 commands).  The settings are mbgw.config.scenario.
+
+A runner's loop (the serial line worker, the TCP runner):
+    poll(its own fds + engine.wake_fd, timeout = engine.due_in(now))
+    test = engine.take_test(now)        -> run test.pdu, engine.test_done(test, reply, err, n)
+    run = engine.next(now[, can_run])   -> run run.pdu for run.scenario (retries =
+                                           run.scenario.retries; slave 0: a broadcast, no
+                                           reply), engine.done(run, reply | None, err | None, n)
+The daemon: engines = {"serial": Scenarios(cfg.scenarios, table, "serial"), "tcp": ...};
+control commands += scenario_commands(engines, cfg.config_file); status["scenarios"] =
+scenarios_status(engines.values()); collector.scenarios = that same function; on reload
+engine.reconfigure(new.scenarios); the table is on when cfg.table_on.
 May import table, ops, protocol, config, errors."""
