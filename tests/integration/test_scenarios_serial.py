@@ -16,10 +16,13 @@ import signal
 import time
 
 import pytest
+from prometheus_client import parser
 
+from tests.harness import free_port
+from tests.integration.test_diagnostics import scrape
 from tests.integration.test_faults import received
 from tests.modbus import Client, holding_reply, read_holding
-from tests.ops import mbgw, status, wait_for, wait_for_log
+from tests.ops import mbgw, metric_families, metric_value, status, wait_for, wait_for_log
 
 pytestmark = pytest.mark.integration
 
@@ -36,10 +39,12 @@ def toml_value(value) -> str:
 
 
 def write_config(path, scenarios: list[dict], baudrate: int = 115200, stout: int = 100,
-                 **table) -> None:
+                 metrics: str | None = None, **table) -> None:
     """A configuration file with these [[scenario]] tables (keys as in the file)."""
     lines = ["[serial]", 'mode = "slave"', f"baudrate = {baudrate}", f"stout = {stout}",
              "[net]", "exception = true"]
+    if metrics:
+        lines += ["[general]", f'metrics = "{metrics}"']
     if table:
         lines += ["[table]"] + [f"{k} = {toml_value(v)}" for k, v in table.items()]
     for scenario in scenarios:
@@ -118,13 +123,20 @@ def test_two_devices_polled_into_the_table_are_read_in_one_request(pymodbus_line
                                                                   client):
     """README's example: two serial slaves' registers side by side in the table."""
     pymodbus_line(1, 2)
-    gw, _ = gateway([poll("boiler", 1, 3, 0, 10, 0), poll("meter", 2, 4, 5, 10, 10)])
+    port = free_port()
+    gw, _ = gateway([poll("boiler", 1, 3, 0, 10, 0), poll("meter", 2, 4, 5, 10, 10)],
+                    metrics=f"127.0.0.1:{port}")
     c = client(gw)
     want = holding_reply(0, 0)[:1] + bytes((40,)) + b"".join(
         v.to_bytes(2, "big") for v in [*range(100, 110), *range(1005, 1015)])
     until(lambda: table_read(c, 0, 20) == want, "both devices' data in the table")
     s = wait_for_scenario(gw, "meter", lambda sc: sc["state"] == "running", "meter running")
     assert s["message"] == "" and s["successes"] >= 1
+    families = metric_families(parser, scrape(port)[2])
+    assert metric_value(families, "mbgw_scenario_runs", "mbgw_scenario_runs_total",
+                        scenario="meter") >= s["runs"]
+    assert metric_value(families, "mbgw_scenario_state", scenario="boiler",
+                        state="running") == 1
 
 
 def test_a_value_is_copied_from_one_device_to_another_on_change(pymodbus_line, gateway,
