@@ -171,6 +171,19 @@ def test_the_same_value_again_sends_nothing_a_new_value_one_write(fault_line, ga
                                                        bytes.fromhex("06 0007 0006")]
 
 
+def test_a_broadcast_scenario_is_sent_to_address_0_and_awaits_no_reply(fault_line, gateway,
+                                                                       client):
+    """slave = 0: the write goes to every device, none answers, and that is success."""
+    record = fault_line()
+    gw, _ = gateway([on_change("all", 0, 6, 9, 310)])
+    c = client(gw)
+    assert c.ask(TABLE_UNIT, bytes.fromhex("06 0136 002a"))[0] == 0x06       # table 310 = 42
+    until(lambda: frames_to(record, 0), "the broadcast")
+    s = wait_for_scenario(gw, "all", lambda sc: sc["runs"] == 1, "run once")
+    assert (s["state"], s["successes"], s["errors"]) == ("running", 1, {}), s
+    assert [f[1:6] for f in frames_to(record, 0)] == [bytes.fromhex("06 0009 002a")]
+
+
 def test_pending_change_scenarios_go_between_the_cyclic_ones(fault_line, gateway, client):
     """Three cyclic scenarios that keep the line busy (address 2 never answers: each run
     lasts stout), then two change scenarios made pending by one table write: the first goes
