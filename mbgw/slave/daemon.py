@@ -18,6 +18,7 @@ from mbgw.ops.service import (
     start_metrics,
     watchdog_interval,
 )
+from mbgw.scenarios.control import scenario_commands
 from mbgw.scenarios.engine import Scenarios
 from mbgw.scenarios.report import scenarios_status
 from mbgw.slave.line_thread import LineWorker, serial_scenarios
@@ -75,10 +76,10 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
         raise
     worker.idle_ms = idle_ms(watchdog_interval())
     worker.start()
-    status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses, tables,
-                         engines)
-
-    control = await start_control(cfg.control, status.commands())
+    status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses, tables)
+    status.scenario_engines = engines
+    control = await start_control(cfg.control, {
+        **status.commands(), **scenario_commands(engines, cfg.config_file)})
     s = cfg.serial
     log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s",
              ", ".join(addresses), s.device, s.baudrate, s.format, s.protocol, s.interface,

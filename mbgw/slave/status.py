@@ -3,7 +3,6 @@ close (the commands both modes share are in mbgw.ops.status)."""
 import time
 
 from mbgw.ops.status import DaemonStatus
-from mbgw.scenarios.control import scenario_commands
 from mbgw.scenarios.report import scenarios_status
 
 
@@ -12,23 +11,18 @@ class SlaveStatus(DaemonStatus):
     mode = "slave"
 
     def __init__(self, cfg, server, worker, scheduler, counters, devices, addresses,
-                 tables=None, engines=None) -> None:
+                 tables=None) -> None:
         super().__init__(cfg, counters, devices, server.trace)
         self._tables = tables           # the exchange table (mbgw.slave.table_service)
         self._server = server
         self._worker = worker
         self._scheduler = scheduler
         self._addresses = addresses
-        self._engines = engines or {}   # the scenarios' engines by kind (mbgw.scenarios)
+        self.scenario_engines: dict = {}    # the scenarios' engines by kind (the daemon's)
 
     def commands(self) -> dict:
         tables = self._tables
-        return {**super().commands(), **(tables.commands() if tables is not None else {}),
-                **scenario_commands(self._engines, self.cfg.config_file)}
-
-    def scenarios(self) -> list[dict]:
-        """The status's "scenarios" rows (and /metrics')."""
-        return scenarios_status(self._engines.values())
+        return {**super().commands(), **(tables.commands() if tables is not None else {})}
 
     def reset(self, request: dict) -> dict:
         if self._tables is not None:
@@ -49,7 +43,6 @@ class SlaveStatus(DaemonStatus):
         return {
             **data, "listening": self._addresses,
             **({"table": table} if table is not None else {}),
-            **({"scenarios": rows} if (rows := self.scenarios()) else {}),
             "queue_depth": self._scheduler.depth,
             "clients": [{"id": c.id, "peer": c.peer, "connected_since": c.connected_at,
                          "requests": c.requests, "in_flight": c.in_flight,
@@ -59,6 +52,8 @@ class SlaveStatus(DaemonStatus):
             "counters_since": self._reset_at,
             "line_utilisation_pct": round(100 * busy_s / max(now - self._reset_at, 1e-9), 2),
             "devices": [d.snapshot() for d in self._devices.all()],
+            **({"scenarios": rows} if (rows := scenarios_status(self.scenario_engines.values()))
+               else {}),
         }
 
     def summary(self) -> str:
