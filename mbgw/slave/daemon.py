@@ -57,9 +57,9 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     worker: LineWorker
     server = TcpServer(cfg, scheduler, counters, lambda: worker.up, devices, tables.table)
     worker = LineWorker(cfg, line, scheduler, server, counters, devices)
-    scenarios = Scenarios(serial_scenarios(cfg), tables.table, "serial")
-    worker.use_scenarios(scenarios)      # run, and reconfigured, by the line thread
-    engines = {"serial": scenarios}
+    serial_engine = Scenarios(serial_scenarios(cfg), tables.table, "serial")
+    worker.use_scenarios(serial_engine)      # run, and reconfigured, by the line thread
+    engines: dict = {"serial": serial_engine}   # the scenarios' engines by kind
     stop = asyncio.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(signum, stop.set)
@@ -101,7 +101,7 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     worker.stop()
     await asyncio.to_thread(worker.join)
     tables.save()
-    scenarios.close()
+    serial_engine.close()
     scheduler.close()
     log_stopped(counters)
 
