@@ -1,4 +1,4 @@
-"""Master mode's network side: Modbus TCP connections to the remote servers.
+"""The pool of Modbus TCP connections to the remote servers (master mode, the TCP scenarios).
 
 One connection per server IP, at most `limit` open: opening one more first closes the least
 recently used (TCP guide 4.2.3: "close the oldest unused").  Requests go out in MBAP with a
@@ -11,11 +11,11 @@ protocol id other than 0, a length that does not fit) also closes the connection
 stream can no longer be trusted.  A connection the server has closed is found before the
 request is sent and reopened; connecting counts against the deadline.
 
-Everything runs on the serial line's thread: the master sends one request at a time, so a
-thread hop would only add latency.  The sockets are non-blocking and every wait is one
-poll() that the line's eventfd also wakes, so stopping never waits for tcpto (a wake for a
-new configuration does not interrupt the transaction: it is applied after it).  The status
-reads connections() from the asyncio thread.
+Everything runs on its owner's thread (master mode: the serial line's; the master sends one
+request at a time, so a thread hop would only add latency).  The sockets are non-blocking
+and every wait is one poll() that the owner's eventfd also wakes, so stopping never waits
+for tcpto (a wake for a new configuration does not interrupt the transaction: it is applied
+after it).  The status reads connections() from the asyncio thread.
 """
 import errno
 import logging
