@@ -42,6 +42,14 @@ class Interrupted(MbgwError):
     """The line's eventfd was signalled during a wait: the gateway is stopping."""
 
 
+class ConnectTimeout(GatewayTimeout):
+    """No connection to the server within the deadline."""
+
+
+class ConnectionLost(GatewayTimeout):
+    """The connection broke while the request was on it (to master mode, no answer)."""
+
+
 class Connection:
     __slots__ = ("host", "sock", "poller", "buf", "tid", "local", "connected_at",
                  "last_active", "requests", "units")
@@ -138,7 +146,7 @@ class UpstreamPool:
                 raise BadReply("invalid_frames", reason) from None
             self._wait(conn.poller, deadline_ns)
             if self._receive(conn) is False:
-                raise GatewayTimeout()
+                raise ConnectionLost()
 
     def send_all(self, hosts, unit: int, request: bytes, deadline_ns: int) -> int:
         """Send a request that gets no reply (a broadcast) to each host; returns how many it
@@ -202,7 +210,8 @@ class UpstreamPool:
             self._counters.connections_evicted += 1
             log.debug("server %s:%d: connection closed to make room for %s", oldest.host,
                       self._port, host)
-        sock = socket.socket(socket.AF_INET,
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET    # an IPv6 literal
+        sock = socket.socket(family,
                              socket.SOCK_STREAM | socket.SOCK_NONBLOCK | socket.SOCK_CLOEXEC)
         try:
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
@@ -216,7 +225,7 @@ class UpstreamPool:
                     self._wait(poller, deadline_ns)
                 except GatewayTimeout:
                     self._failed(host, "no connection within tcpto")
-                    raise
+                    raise ConnectTimeout() from None
                 code = sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
             if code:
                 self._failed(host, os.strerror(code))
@@ -286,7 +295,7 @@ class UpstreamPool:
             reason = "send buffer full"
         if sent != len(frame):
             self._lost(conn, reason)
-            raise GatewayTimeout()
+            raise ConnectionLost()
 
     def _receive(self, conn: Connection) -> bool | None:
         """Append what the socket holds to conn.buf: True.  None when nothing was waiting,
