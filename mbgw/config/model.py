@@ -226,6 +226,10 @@ class TableConfig:
                 raise ConfigError(f"{name} {value}: out of range {low}..{high}")
 
 
+TCPTO_RANGE = (1, 65535)
+DEFAULT_TCPTO_MS = 800          # ACKSYS "set net tcpto" default
+
+
 @dataclass(frozen=True)
 class SlaveConfig:
     """Slave mode: slaves on the serial line, Modbus TCP clients on the network."""
@@ -244,11 +248,19 @@ class SlaveConfig:
     demotion: Demotion = field(default_factory=Demotion)
     shortcut: bool = True          # an idle line's request goes on it from C (a hidden switch)
     table: TableConfig = field(default_factory=TableConfig)
+    tcpto_ms: int = DEFAULT_TCPTO_MS   # TCP scenarios: the time for a transaction with a server
 
     def __post_init__(self) -> None:
+        check_tcpto(self.tcpto_ms)
         if len(self.authip) > MAX_AUTHIP:
             raise ConfigError(f"authip: at most {MAX_AUTHIP} addresses, got {len(self.authip)}")
         object.__setattr__(self, "authip", tuple(parse_ip("authip", a) for a in self.authip))
+
+
+def check_tcpto(tcpto_ms: int) -> None:
+    low, high = TCPTO_RANGE
+    if not low <= tcpto_ms <= high:
+        raise ConfigError(f"tcpto {tcpto_ms}: out of range {low}..{high}")
 
 
 def parse_ip(option: str, text: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address:
@@ -267,9 +279,6 @@ import typing  # noqa: E402  (master mode's settings were added below slave mode
 if typing.TYPE_CHECKING:
     from mbgw.config.slaveid import SlaveIdTable
 
-TCPTO_RANGE = (1, 65535)
-DEFAULT_TCPTO_MS = 800          # ACKSYS "set net tcpto" default
-
 
 @dataclass(frozen=True)
 class MasterConfig:
@@ -286,9 +295,7 @@ class MasterConfig:
     table: TableConfig = field(default_factory=TableConfig)
 
     def __post_init__(self) -> None:
-        low, high = TCPTO_RANGE
-        if not low <= self.tcpto_ms <= high:
-            raise ConfigError(f"tcpto {self.tcpto_ms}: out of range {low}..{high}")
+        check_tcpto(self.tcpto_ms)
         if self.max_connections < 1:
             raise ConfigError(f"max-connections {self.max_connections}: at least 1")
         conflict = table_address_conflict(self.table.address, self.slaveid) \
