@@ -251,16 +251,12 @@ class SlaveConfig:
     tcpto_ms: int = DEFAULT_TCPTO_MS   # TCP scenarios: the time for a transaction with a server
 
     def __post_init__(self) -> None:
-        check_tcpto(self.tcpto_ms)
+        low, high = TCPTO_RANGE
+        if not low <= self.tcpto_ms <= high:
+            raise ConfigError(f"tcpto {self.tcpto_ms}: out of range {low}..{high}")
         if len(self.authip) > MAX_AUTHIP:
             raise ConfigError(f"authip: at most {MAX_AUTHIP} addresses, got {len(self.authip)}")
         object.__setattr__(self, "authip", tuple(parse_ip("authip", a) for a in self.authip))
-
-
-def check_tcpto(tcpto_ms: int) -> None:
-    low, high = TCPTO_RANGE
-    if not low <= tcpto_ms <= high:
-        raise ConfigError(f"tcpto {tcpto_ms}: out of range {low}..{high}")
 
 
 def parse_ip(option: str, text: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address:
@@ -295,7 +291,9 @@ class MasterConfig:
     table: TableConfig = field(default_factory=TableConfig)
 
     def __post_init__(self) -> None:
-        check_tcpto(self.tcpto_ms)
+        low, high = TCPTO_RANGE
+        if not low <= self.tcpto_ms <= high:
+            raise ConfigError(f"tcpto {self.tcpto_ms}: out of range {low}..{high}")
         if self.max_connections < 1:
             raise ConfigError(f"max-connections {self.max_connections}: at least 1")
         conflict = table_address_conflict(self.table.address, self.slaveid) \

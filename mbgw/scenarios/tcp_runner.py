@@ -44,9 +44,9 @@ TICK_S = 0.1                    # the engine's periodic work (stale data) at lea
 
 # the engine's error kinds (mbgw.scenarios.exchange.ERROR_MESSAGES)
 TIMEOUT = "timeout"
-CONNECTION_LOST = "connection_lost"
-CONNECTION_REFUSED = "connection_refused"
-UNEXPECTED_DATA = "unexpected_data"
+CONNECTION_LOST = "connection-lost"
+CONNECTION_REFUSED = "connection-refused"
+UNEXPECTED_DATA = "unexpected-data"
 
 
 def split_server(server: str) -> tuple[str, int]:
