@@ -3,7 +3,7 @@
 
 One poll() loop: it sleeps until the engine's next scenario is due (`due_in`) or a change in
 the table made one pending (the engine's `wake_fd`), or the runner's own eventfd (stop, work
-handed over by another thread: reconfigure, enable, test).  A run is one request to its
+handed over by another thread: reconfigure, test).  A run is one request to its
 server, with `tcpto` as the deadline (connecting included), retried after a timeout or a lost
 connection (the scenario's `retries`); its reply, or the kind of failure, goes to
 `engine.done`.  Requests go out one at a time (the pool's way), so a server has at most one
@@ -11,8 +11,8 @@ in flight.  A server that refuses the connection (or cannot be reached in `tcpto
 tried again before its backoff has passed (doubling from BACKOFF_FIRST_S to BACKOFF_MAX_S,
 reset by a reply); its scenarios fail at once meanwhile with the failure that started it.
 The pool keeps one connection per server address and port (one pool per port), reopened
-when the server closes it.  Everything on the engine happens on this thread; other threads
-hand work over with `call`.
+when the server closes it.  The engine is thread-safe: status and enable come from other
+threads directly; a test runs on this thread between two runs (`call`).
 """
 import concurrent.futures
 import logging
@@ -40,7 +40,6 @@ DEFAULT_PORT = 502
 MAX_CONNECTIONS = 100           # one per server: at most 100 TCP scenarios
 BACKOFF_FIRST_S = 0.25
 BACKOFF_MAX_S = 5.0
-TICK_S = 0.1                    # the engine's periodic work (stale data) at least this often
 
 # the engine's error kinds (mbgw.scenarios.exchange.ERROR_MESSAGES)
 TIMEOUT = "timeout"
@@ -134,7 +133,6 @@ class TcpRunner:
             while not self._stopping:
                 self._take_calls()
                 now = self._clock()
-                self.engine.tick(now)
                 run = self.engine.next(now)
                 if run is not None:
                     self._execute(run)
@@ -149,9 +147,10 @@ class TcpRunner:
         self._fail_calls()
 
     def _sleep_ms(self, now: float) -> int:
+        """Until the next run is due (due_in also marks what has gone stale); -1: none is
+        planned, the engine's wake_fd or the runner's own eventfd will wake the poll."""
         due = self.engine.due_in(now)
-        wait = TICK_S if due is None else min(due, TICK_S)
-        return max(0, math.ceil(wait * 1000))
+        return -1 if due is None else max(0, math.ceil(due * 1000))
 
     def _take_calls(self) -> None:
         with self._lock:
@@ -225,3 +224,60 @@ class TcpRunner:
             pool.stopping = self._stopping
             self._pools[port] = pool
         return pool
+
+
+def tcp_scenarios(configs) -> tuple:
+    return tuple(sc for sc in configs if sc.kind == "tcp")
+
+
+class TcpScenarios:
+    """A daemon's TCP scenarios (slave and master mode alike): their engine and runner while
+    the configuration has any; started, reconfigured and stopped from the asyncio thread."""
+
+    def __init__(self, table) -> None:
+        self.table = table
+        self.runner: TcpRunner | None = None
+
+    def start(self, configs, tcpto_ms: int) -> None:
+        configs = tcp_scenarios(configs)
+        if configs:
+            from mbgw.scenarios.engine import Scenarios
+            self.runner = TcpRunner(Scenarios(configs, self.table, "tcp"), tcpto_ms)
+            self.runner.start()
+            log.info("%d TCP scenarios, tcpto %d ms", len(configs), tcpto_ms)
+
+    def reconfigure(self, configs, tcpto_ms: int) -> None:
+        """New settings (SIGHUP): the runner started, given its new scenarios, or stopped."""
+        configs = tcp_scenarios(configs)
+        if self.runner is None:
+            self.start(configs, tcpto_ms)
+        elif not configs:
+            self.stop()
+            log.info("no TCP scenarios any more")
+        else:
+            self.runner.reconfigure(configs, tcpto_ms)
+
+    def stop(self) -> None:
+        runner, self.runner = self.runner, None
+        if runner is not None:
+            runner.stop()
+            runner.join()
+            runner.engine.close()
+
+    def status(self) -> list[dict]:
+        runner = self.runner
+        return [] if runner is None else runner.engine.status()
+
+    def enable(self, name: str, on: bool) -> bool:
+        """False when there is no TCP scenario of that name."""
+        runner = self.runner
+        return runner is not None and runner.engine.enable(name, on)
+
+    def test(self, sc, timeout: float | None = None) -> dict | None:
+        """`mbgw scenario test`: sc run once between the runner's own runs (the engine's
+        test); None when no runner is there."""
+        runner = self.runner
+        if runner is None:
+            return None
+        return runner.call(lambda: runner.engine.test(
+            sc, lambda pdu: runner.exchange(sc, pdu))).result(timeout)

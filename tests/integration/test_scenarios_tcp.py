@@ -62,9 +62,6 @@ class StandInEngine:
         with self._lock:
             return self._runs.pop(0) if self._runs else None
 
-    def tick(self, now) -> None:
-        pass
-
     def reconfigure(self, configs) -> None:
         pass
 
