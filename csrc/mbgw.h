@@ -299,6 +299,11 @@ void mbgw_table_set_flag(mbgw_table *t, int flag, int on);
 void mbgw_table_watch_down(mbgw_table *t, const uint8_t *down);
 
 /* Counts the writes that changed a value in 0x0800-0x7FFF (the outputs and the free zone). */
+/* Registers [first, first + count) stale (on) or current: a read (FC 1-4, FC 23's read part)
+ * touching a stale register answers exception 0x0B, "gateway target failed to respond" (a
+ * scenario's data too old to serve).  -EINVAL beyond the table. */
+int mbgw_table_set_stale(mbgw_table *t, int first, int count, int on);
+
 uint64_t mbgw_table_persist_generation(mbgw_table *t);
 
 /* by_function[fc * 3 + MBGW_TABLE_*] (256 * 3), by_exception[code] (16): since the last

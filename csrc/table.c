@@ -29,6 +29,7 @@
 #define ILLEGAL_FUNCTION 0x01
 #define ILLEGAL_ADDRESS 0x02
 #define ILLEGAL_VALUE 0x03
+#define TARGET_FAILED 0x0B    /* a stale register: its scenario's device does not answer */
 
 #define COIL_ON 0xFF00
 
@@ -45,6 +46,8 @@ struct watch {
 struct mbgw_table {
     uint16_t reg[REGISTERS];
     uint8_t watched[REGISTERS / 8];   /* registers inside some watch: the only ones looked up */
+    uint8_t stale[REGISTERS / 8];     /* registers whose scenario's data is too old to serve */
+    unsigned stale_count;             /* 0: no read looks at the bitmap */
     struct watch watches[MBGW_TABLE_WATCHES];
     pthread_mutex_t lock;
     uint32_t functions;
@@ -162,6 +165,22 @@ static int status_byte(const mbgw_table *t)
     return status;
 }
 
+static int is_stale(const mbgw_table *t, unsigned address)
+{
+    return t->stale[address >> 3] >> (address & 7) & 1;
+}
+
+/* Registers [first, end) hold a stale value (a read touching one answers 0x0B). */
+static int any_stale(const mbgw_table *t, unsigned first, unsigned end)
+{
+    if (t->stale_count == 0)
+        return 0;
+    for (unsigned a = first; a < end; a++)
+        if (is_stale(t, a))
+            return 1;
+    return 0;
+}
+
 /* --- the functions: each checks the request, then answers it into rsp; a positive result
  * is the reply's length, a negative one an exception code --- */
 
@@ -184,6 +203,8 @@ static int read_bits(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp)
         return -ILLEGAL_VALUE;
     if (beyond(address, quantity))
         return -ILLEGAL_ADDRESS;
+    if (any_stale(t, address >> 4, ((address + quantity - 1) >> 4) + 1))
+        return -TARGET_FAILED;
     unsigned bytes = (quantity + 7) / 8;
     rsp[1] = (uint8_t)bytes;
     memset(rsp + 2, 0, bytes);
@@ -201,6 +222,8 @@ static int read_registers(mbgw_table *t, const uint8_t *req, int len, uint8_t *r
         return -ILLEGAL_VALUE;
     if (beyond(address, quantity))
         return -ILLEGAL_ADDRESS;
+    if (any_stale(t, address, address + quantity))
+        return -TARGET_FAILED;
     rsp[1] = (uint8_t)(2 * quantity);
     load_registers(t, address, quantity, rsp + 2);
     return 2 + 2 * (int)quantity;
@@ -281,6 +304,8 @@ static int read_write_registers(mbgw_table *t, const uint8_t *req, int len, uint
     if (beyond(read_address, read_quantity) || beyond(write_address, write_quantity) ||
         touches_config(write_address, write_quantity))
         return -ILLEGAL_ADDRESS;
+    if (any_stale(t, read_address, read_address + read_quantity))
+        return -TARGET_FAILED;
     store_registers(t, write_address, write_quantity, req + 10);
     rsp[1] = (uint8_t)(2 * read_quantity);
     load_registers(t, read_address, read_quantity, rsp + 2);
@@ -436,6 +461,21 @@ void mbgw_table_watch_down(mbgw_table *t, const uint8_t *down)
     pthread_mutex_lock(&t->lock);
     t->down = down;
     pthread_mutex_unlock(&t->lock);
+}
+
+int mbgw_table_set_stale(mbgw_table *t, int first, int count, int on)
+{
+    if (out_of_range(first, count))
+        return -EINVAL;
+    pthread_mutex_lock(&t->lock);
+    for (unsigned a = (unsigned)first; a < (unsigned)(first + count); a++) {
+        if (is_stale(t, a) == !!on)
+            continue;
+        t->stale[a >> 3] ^= (uint8_t)(1u << (a & 7));
+        t->stale_count += on ? 1u : (unsigned)-1;
+    }
+    pthread_mutex_unlock(&t->lock);
+    return 0;
 }
 
 uint64_t mbgw_table_persist_generation(mbgw_table *t)

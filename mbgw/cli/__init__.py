@@ -4,7 +4,7 @@ this package, and its modules never import its __init__."""
 import click
 
 from mbgw import __version__
-from mbgw.cli import config, diag, table
+from mbgw.cli import config, diag, scenarios, table
 from mbgw.cli.master import master
 from mbgw.cli.slave import slave
 
@@ -20,3 +20,4 @@ main.add_command(master)
 config.register(main)   # run, check-config, config; --config on the mode commands
 diag.register(main)     # status, clients, stats, trace
 table.register(main)    # table read, table write
+scenarios.register(main)  # scenarios, scenario enable|disable|test

@@ -9,6 +9,8 @@ import click
 from mbgw.cli.options import Failure
 from mbgw.config import edit as config_set
 from mbgw.config import file as cf
+from mbgw.config import scenario as scenario_config
+from mbgw.config import scenario_text
 from mbgw.config import schema as ck
 from mbgw.config import text as config_text
 from mbgw.config.toml_text import dump_value, set_line, write_atomic
@@ -26,6 +28,7 @@ def register(root: click.Group) -> None:
         command = root.commands.get(mode)
         if command is not None and not any(p.name == "config" for p in command.params):
             command.params.append(_mode_config_option())
+            command.params.append(_scenarios_option())
     for command in (run, check_config, config):
         root.add_command(command)
 
@@ -66,6 +69,21 @@ def _mode_config_option() -> click.Option:
              f"it exists; also $MBGW_CONFIG].")
 
 
+class _GivenValue(click.ParamType):
+    """A value the configuration file hands over already checked (the scenarios)."""
+    name = "given"
+
+    def convert(self, value, param, ctx):
+        return value
+
+
+def _scenarios_option() -> click.Option:
+    """The file's [[scenario]] tables (ScenarioConfig), through click's default_map like the
+    other keys' values: hidden, no command-line form."""
+    return click.Option(["--scenarios", cf.SCENARIOS_PARAM], type=_GivenValue(), default=(),
+                        hidden=True)
+
+
 def _apply_file(ctx: click.Context, param: click.Parameter, value) -> None:
     """Eager: runs before the other options take their values, and gives them the file's
     values as defaults (click's default_map), so the command line wins over the file."""
@@ -81,6 +99,12 @@ def _apply_file(ctx: click.Context, param: click.Parameter, value) -> None:
     ctx.default_map = {**settings.default_map(schema, ctx.command.name or ""),
                        **(ctx.default_map or {})}
     ctx.meta[META_FILE] = Path(value)
+
+
+def config_file(ctx: click.Context | None = None) -> Path | None:
+    """The configuration file the running mode command took values from, or None."""
+    ctx = ctx or click.get_current_context()
+    return ctx.meta.get(META_FILE)
 
 
 def reloader(ctx: click.Context | None = None):
@@ -220,13 +244,14 @@ def config() -> None:
 
 @config.command("show")
 @_file_options
-@click.argument("group", required=False, type=click.Choice(ck.GROUPS))
+@click.argument("group", required=False, type=click.Choice([*ck.GROUPS, cf.SCENARIO_KEY]))
 @click.argument("param", required=False)
 @click.pass_context
 def show(ctx, config_path: Path, instance: str | None, group: str | None,
          param: str | None) -> None:
     """Show the settings in effect (the file's, else the built-in defaults): all, one GROUP
-    (serial, net, general, table), or one PARAM, like the guide's `show serial stout`."""
+    (serial, net, general, table), or one PARAM, like the guide's `show serial stout`;
+    `show scenario [NAME]`: the scenarios."""
     path = _path(ctx, config_path, instance)
     schema = _schema(ctx)
     if path.exists():
@@ -235,6 +260,9 @@ def show(ctx, config_path: Path, instance: str | None, group: str | None,
     else:
         click.echo(f"mbgw: {path} does not exist: built-in defaults", err=True)
         settings = cf.Settings(path, schema.default_mode, {})
+    if group == cf.SCENARIO_KEY:
+        _show_scenarios(settings, param)
+        return
     if param is not None:
         name = param.lower()
         if group is None or name not in schema.group_keys(group):
@@ -251,6 +279,22 @@ def show(ctx, config_path: Path, instance: str | None, group: str | None,
         for name in names:
             for line in config_set.show_lines(schema, settings, name):
                 click.echo(f"{name:<{SHOW_WIDTH}} {line}")
+    if group is None and settings.scenarios:
+        _show_scenarios(settings, None)
+
+
+def _show_scenarios(settings: cf.Settings, name: str | None) -> None:
+    shown = [sc for sc in settings.scenarios if name is None or sc.name == name]
+    if name is not None and not shown:
+        names = ", ".join(sc.name for sc in settings.scenarios)
+        raise click.BadParameter(f"no scenario {name!r} in {settings.path}"
+                                 + (f" (scenarios: {names})" if names else ""),
+                                 param_hint="NAME")
+    for number, sc in enumerate(shown):
+        if number:
+            click.echo()
+        for line in scenario_text.block(sc.fields()):
+            click.echo(line)
 
 
 def _change(ctx, path: Path, words, change) -> None:
@@ -392,3 +436,88 @@ def default(ctx, config_path: Path, instance: str | None) -> None:
     click.echo(f"{path}: factory defaults written")
     _say_how_to_apply(path)
 
+
+
+# --- mbgw config scenario add|remove ----------------------------------------------------------
+
+@config.group("scenario")
+def config_scenario() -> None:
+    """Add and remove the [[scenario]] tables of the configuration file: requests the gateway
+    sends on its own (see mbgw.toml(5), SCENARIOS).  Checked like the file; the running
+    service takes them on `systemctl reload mbgw`."""
+
+
+@config_scenario.command("add")
+@_file_options
+@click.argument("name")
+@click.argument("keys", nargs=-1, required=True, metavar="KEY=VALUE...")
+@click.pass_context
+def scenario_add(ctx, config_path: Path, instance: str | None, name: str, keys: tuple) -> None:
+    """Add scenario NAME, e.g.
+
+    \b
+      mbgw config scenario add boiler-temps slave=45 function=3 address=1000 quantity=10 \\
+          table=0 cycle=3000
+      mbgw config scenario add valve server=192.168.10.45 function=5 address=7 \\
+          table=100.0 trigger=change
+    """
+    path = _path(ctx, config_path, instance)
+    words = ["scenario", "add", name, *keys, *_file_words(ctx, path)]
+
+    def change(text: str, data: dict) -> str:
+        fields = scenario_text.parse_words(keys)
+        if "name" in fields:
+            raise ConfigError("name: give it once, as NAME, not as a KEY=VALUE")
+        scenario = scenario_config.parse_scenario({"name": name, **fields}, f"scenario {name}")
+        if any(e.get("name") == name for e in data.get(cf.SCENARIO_KEY, [])
+               if isinstance(e, dict)):
+            raise ConfigError(f"scenario {name}: already there (mbgw config scenario remove "
+                              f"{name} first)")
+        return scenario_text.add(text, scenario.fields())
+    _edit_scenarios(ctx, path, words, change, f"scenario {name} added")
+
+
+@config_scenario.command("remove")
+@_file_options
+@click.argument("name")
+@click.pass_context
+def scenario_remove(ctx, config_path: Path, instance: str | None, name: str) -> None:
+    """Take scenario NAME out of the file."""
+    path = _path(ctx, config_path, instance)
+    words = ["scenario", "remove", name, *_file_words(ctx, path)]
+
+    def change(text: str, data: dict) -> str:
+        new_text = scenario_text.remove(text, name)
+        if new_text is None:
+            names = [e.get("name") for e in data.get(cf.SCENARIO_KEY, []) if isinstance(e, dict)]
+            raise ConfigError(f"no scenario {name!r}" +
+                              (f" (scenarios: {', '.join(map(str, names))})" if names else ""))
+        return new_text
+    _edit_scenarios(ctx, path, words, change, f"scenario {name} removed")
+
+
+def _edit_scenarios(ctx, path: Path, words, change, done: str) -> None:
+    """Read and check the file (or start from the factory file), new_text = change(text,
+    data), check the result as a whole, write it atomically."""
+    schema = _schema(ctx)
+    try:
+        text = cf.read_text(path)
+    except FileNotFoundError:
+        text = config_text.factory_text(schema)
+    except PermissionError:
+        raise _permission_failure(ctx, path, "read", words) from None
+    try:
+        data = cf.parse(path, text)
+        cf.check(schema, path, data)
+    except ConfigFileError as err:
+        raise Failure(f"{err}\nmbgw: fix the file first") from None
+    try:
+        new_text = change(text, data)
+        cf.check(schema, path, cf.parse(path, new_text))
+    except ConfigError as err:
+        message = str(err)
+        raise Failure(message if message.startswith(str(path)) else f"{path}: {message}") \
+            from None
+    _write(ctx, path, new_text, words)
+    click.echo(f"{path}: {done}")
+    _say_how_to_apply(path)

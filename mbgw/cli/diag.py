@@ -31,14 +31,16 @@ def _socket_path(control: str | None, instance: str | None) -> str:
     return ctl.instance_path(check_instance(instance))
 
 
-def _call(path: str, request: dict) -> dict:
+def _call(path: str, request: dict, timeout: float = 5.0) -> dict:
     try:
-        reply = ctl.call(path, request)
+        reply = ctl.call(path, request, timeout)
     except PermissionError:
         _fail(f"permission denied on {path}: run it as root or as a member of the service's "
               f"group (e.g. sudo mbgw {request['command']})")
     except (FileNotFoundError, ConnectionRefusedError):
         _fail(f"no mbgw daemon answers on {path} (is it running? --control PATH or -i NAME)")
+    except TimeoutError:
+        _fail(f"{path}: no reply within {timeout:g} s")
     except OSError as err:
         _fail(f"{path}: {err.strerror or err}")
     if "error" in reply:
@@ -46,10 +48,11 @@ def _call(path: str, request: dict) -> dict:
     return reply
 
 
-def ask(control: str | None, instance: str | None, request: dict) -> dict:
+def ask(control: str | None, instance: str | None, request: dict,
+        timeout: float = 5.0) -> dict:
     """Send one request to the daemon of --control/-i; its reply, or a Failure saying why
     there is none (or the daemon's error)."""
-    return _call(_socket_path(control, instance), request)
+    return _call(_socket_path(control, instance), request, timeout)
 
 
 def _fail(message: str):

@@ -77,7 +77,7 @@ def master_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                   silence, ascii_timeout, nocheck, slaveid, tcpto, mdbport, exception,
                   max_connections, control, metrics, log_level=None,
                   down_after=config.DEFAULT_DOWN_AFTER,
-                  probe_interval=config.DEFAULT_PROBE_INTERVAL_MS,
+                  probe_interval=config.DEFAULT_PROBE_INTERVAL_MS, scenarios=(),
                   **table_settings) -> config.MasterConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
@@ -88,4 +88,4 @@ def master_config(device, protocol, baudrate, line_format, interface, rtsdelays,
     return convert("'--tcpto'", lambda: config.MasterConfig(
         serial=serial, slaveid=slaveid, tcpto_ms=tcpto, mdbport=mdbport, exception=exception,
         max_connections=max_connections, control=control, metrics=metrics,
-        demotion=demotion(down_after, probe_interval), table=table))
+        demotion=demotion(down_after, probe_interval), table=table, scenarios=scenarios))

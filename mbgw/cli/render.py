@@ -37,6 +37,8 @@ def format_status(s: dict, now: float) -> str:
         lines += _slave_sections(s, now)
     if s.get("table") is not None:
         lines += ["", *_table_section(s["table"], s["mode"], now)]
+    if s.get("scenarios"):
+        lines += ["", *format_scenarios(s["scenarios"], now)]
     counters = s["counters"]
     lines += ["", f"counters since {_clock(s['counters_since'])}"]
     names = list(counters)
@@ -195,6 +197,30 @@ def _table_persist(persist: dict, now: float) -> str:
         figures.append(f"{name.replace('_', ' ')} {value}")
     return f"{persist.get('path', '-')}: {', '.join(figures)}" if figures else \
         str(persist.get("path", "-"))
+
+
+# --- the scenarios (mbgw status, mbgw scenarios) ---------------------------------------------
+
+def format_scenarios(rows: list[dict], now: float) -> list[str]:
+    """One line per scenario, then its error message when in error."""
+    if not rows:
+        return ["scenarios  none"]
+    lines = [f"scenarios ({len(rows)})",
+             f"  {'NAME':<16} {'STATE':<9} {'TARGET':<24} {'FC':>2} {'TRIGGER':<8} "
+             f"{'RUNS':>7} {'ERRORS':>6} {'RETRY':>5} {'OVERRUN':>7} {'LATENCY':>8}  "
+             f"{'DATA AGE':<9} LAST SUCCESS"]
+    for r in rows:
+        latency = "-" if r["last_latency_ms"] is None else f"{r['last_latency_ms']:.1f}ms"
+        age = "-" if r["data_age_s"] is None else _duration(r["data_age_s"])
+        if r.get("stale"):
+            age += " stale"
+        lines.append(f"  {r['name']:<16} {r['state']:<9} {r['target']:<24} "
+                     f"{r['function']:>2} {r['trigger']:<8} {r['runs']:>7} "
+                     f"{sum(r['errors'].values()):>6} {r['retries']:>5} {r['overruns']:>7} "
+                     f"{latency:>8}  {age:<9} {_ago(r['last_success'], now)}")
+        if r["state"] == "error" and r["message"]:
+            lines.append(f"    error: {r['message']}")
+    return lines
 
 
 # --- mbgw trace ----------------------------------------------------------------------------

@@ -1,9 +1,10 @@
 """Running a mode command's daemon, the same for both modes: the settings from the options,
 logging, SIGHUP applying the configuration file again, and a device or port that cannot be
 had turned into the command's failure."""
+import dataclasses
 from collections.abc import Callable
 
-from mbgw.cli.config import reloader
+from mbgw.cli.config import config_file, reloader
 from mbgw.cli.options import Failure
 from mbgw.errors import ConfigError, SerialError
 
@@ -15,7 +16,8 @@ def run_daemon(run: Callable, make_config: Callable, options: dict) -> None:
     from mbgw.ops import log
     from mbgw.ops.service import ListenError
 
-    cfg = make_config(**options)
+    path = config_file()
+    cfg = _from_file(make_config(**options), path)
     log.setup(options["log_level"])
     reload = reloader()
 
@@ -23,7 +25,7 @@ def run_daemon(run: Callable, make_config: Callable, options: dict) -> None:
         new = reload()
         new.pop("mode", None)
         log.setup(new["log_level"])
-        return make_config(**new)
+        return _from_file(make_config(**new), path)
 
     try:
         run(cfg, reconfigure if reload else None)
@@ -31,3 +33,7 @@ def run_daemon(run: Callable, make_config: Callable, options: dict) -> None:
         raise Failure(err.strerror or str(err)) from None
     except (ListenError, ConfigError) as err:
         raise Failure(str(err)) from None
+
+
+def _from_file(cfg, path):
+    return cfg if path is None else dataclasses.replace(cfg, config_file=str(path))

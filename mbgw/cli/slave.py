@@ -91,7 +91,8 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
                  max_connections, max_connections_per_ip, retries, turnaround, control,
                  metrics, log_level=None, shortcut=True, down_after=config.DEFAULT_DOWN_AFTER,
                  probe_interval=config.DEFAULT_PROBE_INTERVAL_MS,
-                 tcpto=config.DEFAULT_TCPTO_MS, **table_settings) -> config.SlaveConfig:
+                 tcpto=config.DEFAULT_TCPTO_MS, scenarios=(),
+                 **table_settings) -> config.SlaveConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
     table = table_config(**table_settings)
@@ -100,4 +101,5 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
         bind=bind, max_connections=max_connections,
         max_connections_per_ip=max_connections_per_ip, retries=retries,
         turnaround_ms=turnaround, control=control, metrics=metrics, shortcut=shortcut,
-        demotion=demotion(down_after, probe_interval), table=table, tcpto_ms=tcpto))
+        demotion=demotion(down_after, probe_interval), table=table, tcpto_ms=tcpto,
+        scenarios=scenarios))

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import click
 
+from mbgw.config.scenario import parse_scenarios
 from mbgw.config.schema import (
     DEFAULT_PATH,
     FACTORY_DEVICE,
@@ -32,6 +33,9 @@ from mbgw.config.schema import (
 from mbgw.config.values import check_across, check_value, to_click
 from mbgw.errors import ConfigFileError
 
+SCENARIO_KEY = "scenario"       # [[scenario]]: an array of tables, beside the groups
+SCENARIOS_PARAM = "scenarios"   # the mode commands' hidden parameter the file fills
+
 
 @dataclasses.dataclass(frozen=True)
 class Settings:
@@ -39,6 +43,7 @@ class Settings:
     path: Path
     mode: str
     values: dict               # key name -> value, for the keys present in the file
+    scenarios: tuple = ()      # the [[scenario]] tables, checked (ScenarioConfig)
 
     def default_map(self, schema: Schema, command_name: str) -> dict:
         """click's default_map for a mode command: its options the file sets.  The authip and
@@ -50,6 +55,8 @@ class Settings:
             if param is None or (name in MODE_TABLES and command_name != self.mode):
                 continue
             mapping[param.name] = to_click(name, param, value)
+        if self.scenarios:
+            mapping[SCENARIOS_PARAM] = self.scenarios
         return mapping
 
     def get(self, schema: Schema, name: str):
@@ -78,6 +85,8 @@ def check(schema: Schema, path: Path, data: dict) -> Settings:
     the problems found."""
     problems = []
     for name, content in data.items():
+        if name == SCENARIO_KEY:
+            continue
         if name in GROUPS:
             if not isinstance(content, dict):
                 problems.append(f"{name}: expected a group [{name}], not a value")
@@ -108,9 +117,11 @@ def check(schema: Schema, path: Path, data: dict) -> Settings:
                 values[name] = value
     if not problems:
         problems = check_across(schema, mode, values)
+    scenarios, scenario_problems = parse_scenarios(data.get(SCENARIO_KEY, []), mode)
+    problems += scenario_problems
     if problems:
         raise ConfigFileError(path, problems)
-    return Settings(Path(path), mode, values)
+    return Settings(Path(path), mode, values, scenarios)
 
 
 def _check_mode(schema: Schema, serial: dict, problems: list) -> str:

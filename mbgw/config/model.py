@@ -249,14 +249,29 @@ class SlaveConfig:
     shortcut: bool = True          # an idle line's request goes on it from C (a hidden switch)
     table: TableConfig = field(default_factory=TableConfig)
     tcpto_ms: int = DEFAULT_TCPTO_MS   # TCP scenarios: the time for a transaction with a server
+    scenarios: tuple = ()          # ScenarioConfig (mbgw.config.scenario), [[scenario]]
+    config_file: str | None = None  # the file the settings came from (scenario ... --save)
 
     def __post_init__(self) -> None:
+        _check_scenarios(self.scenarios, "slave")
         low, high = TCPTO_RANGE
         if not low <= self.tcpto_ms <= high:
             raise ConfigError(f"tcpto {self.tcpto_ms}: out of range {low}..{high}")
         if len(self.authip) > MAX_AUTHIP:
             raise ConfigError(f"authip: at most {MAX_AUTHIP} addresses, got {len(self.authip)}")
         object.__setattr__(self, "authip", tuple(parse_ip("authip", a) for a in self.authip))
+
+    @property
+    def table_on(self) -> bool:
+        """The exchange table runs: asked for, or a scenario needs it."""
+        return self.table.enabled or bool(self.scenarios)
+
+
+def _check_scenarios(scenarios, mode: str) -> None:
+    from mbgw.config.scenario import check_scenarios
+    problems = check_scenarios(scenarios, mode)
+    if problems:
+        raise ConfigError(problems[0])
 
 
 def parse_ip(option: str, text: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address:
@@ -289,8 +304,11 @@ class MasterConfig:
     metrics: str | None = None      # ADDR:PORT for Prometheus, None: off
     demotion: Demotion = field(default_factory=Demotion)
     table: TableConfig = field(default_factory=TableConfig)
+    scenarios: tuple = ()           # ScenarioConfig (mbgw.config.scenario): TCP ones only
+    config_file: str | None = None  # the file the settings came from (scenario ... --save)
 
     def __post_init__(self) -> None:
+        _check_scenarios(self.scenarios, "master")
         low, high = TCPTO_RANGE
         if not low <= self.tcpto_ms <= high:
             raise ConfigError(f"tcpto {self.tcpto_ms}: out of range {low}..{high}")
@@ -300,6 +318,11 @@ class MasterConfig:
             if self.table.enabled else None
         if conflict:
             raise ConfigError(f"table-address {self.table.address}: {conflict}")
+
+    @property
+    def table_on(self) -> bool:
+        """The exchange table runs: asked for, or a scenario needs it."""
+        return self.table.enabled or bool(self.scenarios)
 
     @property
     def tcpto_ns(self) -> int:

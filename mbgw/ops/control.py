@@ -116,6 +116,8 @@ class ControlServer:
             handler = self._commands.get(name)
             try:
                 reply = handler(request) if handler else {"error": f"unknown command {name!r}"}
+                if asyncio.iscoroutine(reply):   # a command that waits (scenario-test)
+                    reply = await reply
             except Exception:   # a bug must cost one command, and say so, not a silent EOF
                 log.exception("control command %r failed", name)
                 reply = {"error": f"internal error in {name} (see the daemon's log)"}

@@ -134,13 +134,14 @@ class DaemonCollector:
     the daemon serves the exchange table, its status dict (mbgw.table.report.table_status)."""
 
     def __init__(self, counters, devices, started: float, mode: str, gauges,
-                 table=None) -> None:
+                 table=None, scenarios=None) -> None:
         self._counters = counters
         self._devices = devices
         self._started = started
         self._mode = mode
         self._gauges = gauges
         self._table = table
+        self.scenarios = scenarios      # () -> the status's "scenarios" rows, or None
 
     def collect(self):
         yield from self._daemon()
@@ -154,6 +155,8 @@ class DaemonCollector:
         status = self._table() if self._table is not None else None
         if status is not None:
             yield from table_families(status)
+        if self.scenarios is not None:
+            yield from scenario_families(self.scenarios())
 
     def _daemon(self):
         info = GaugeMetricFamily("mbgw_info", "mbgw's version and mode (always 1).",
@@ -275,6 +278,41 @@ def table_families(status: dict):
         for kind, key in _TABLE_SERIAL_ERRORS.items():
             errors.add_metric([kind], serial.get(key, 0))
         yield errors
+
+
+SCENARIO_STATES = ("starting", "running", "error", "disabled")
+
+
+def scenario_families(rows: list[dict]):
+    """The scenarios' families from the status's "scenarios" rows (mbgw.scenarios.report)."""
+    runs = CounterMetricFamily("mbgw_scenario_runs", "Runs of each scenario (requests sent, "
+                               "retries not counted).", labels=["scenario"])
+    errors = CounterMetricFamily("mbgw_scenario_errors", "Failed runs of each scenario, by "
+                                 "kind (timeout, illegal-address, unexpected-data, "
+                                 "connection-lost, ...).", labels=["scenario", "kind"])
+    retries = CounterMetricFamily("mbgw_scenario_retries", "Requests of each scenario "
+                                  "repeated after no valid reply.", labels=["scenario"])
+    overruns = CounterMetricFamily("mbgw_scenario_overruns", "Periods a cyclic scenario "
+                                   "missed: it ran later than one whole period.",
+                                   labels=["scenario"])
+    age = GaugeMetricFamily("mbgw_scenario_data_age_seconds", "Seconds since a read "
+                            "scenario last stored good data (absent before the first).",
+                            labels=["scenario"])
+    state = GaugeMetricFamily("mbgw_scenario_state", "1 for each scenario's state (starting, "
+                              "running, error, disabled), 0 for the others.",
+                              labels=["scenario", "state"])
+    for row in rows:
+        name = row["name"]
+        runs.add_metric([name], row["runs"])
+        for kind, n in row["errors"].items():
+            errors.add_metric([name, kind], n)
+        retries.add_metric([name], row["retries"])
+        overruns.add_metric([name], row["overruns"])
+        if row.get("data_age_s") is not None:
+            age.add_metric([name], row["data_age_s"])
+        for each in SCENARIO_STATES:
+            state.add_metric([name, each], int(row["state"] == each))
+    yield from (runs, errors, retries, overruns, age, state)
 
 
 def slave_collector(counters, devices, scheduler, server, worker,

@@ -1,0 +1,11 @@
+"""Scenarios (issue 15, VPGate §3.5, §3.6.3): requests the gateway sends on its own to serial
+slaves and Modbus TCP servers, cyclically or when table data changes, keeping their data in
+the exchange table.
+
+`plan` orders the runs (VPGate's rules, pure); `exchange` builds a scenario's request from the
+table and checks and stores its reply; `engine.Scenarios` is one runner's set (the serial
+line's in slave mode, the TCP runner's in every mode): schedule, results, state, counters,
+stale data; `report` and `control` are the operator's side (status, metrics, the control
+commands); `tcp_runner` runs the TCP scenarios through mbgw.upstream's pool, in a thread of
+its own.  The settings are mbgw.config.scenario.
+May import table, upstream, line, ops, protocol, config, errors."""

@@ -161,6 +161,13 @@ class Table:
         if scenario_error is not None:
             lib.mbgw_table_set_flag(self._t, lib.MBGW_TABLE_SCENARIO_ERROR, int(scenario_error))
 
+    def set_stale(self, address: int, count: int, on: bool) -> None:
+        """Mark registers [address, address + count) stale (on) or current: a read (FC 1-4,
+        FC 23's read part) touching a stale register is answered 0x0B, "gateway target failed
+        to respond" (a scenario whose data is older than its stale-after)."""
+        _check_range(address, count, REGISTERS, "register")
+        lib.mbgw_table_set_stale(self._t, address, count, int(on))
+
     def watch_down(self, down: bytearray | None) -> None:
         """FC 7's bit 2: any of these 256 flags (HealthRule.down, by serial address) set,
         read by C at each FC 7; None: no device is ever down."""

@@ -43,6 +43,11 @@ def values(path) -> dict:
     return tomllib.loads(path.read_text())
 
 
+def without_scenarios(options: dict) -> dict:
+    """The options but the file's [[scenario]] tables when it has none."""
+    return {k: v for k, v in options.items() if not (k == "scenarios" and v == ())}
+
+
 def recorder() -> tuple[click.Group, list]:
     """A group whose mode commands record the options they are called with (and the
     reloader each would use on SIGHUP, in the group's `reloaders`)."""
@@ -57,8 +62,9 @@ def recorder() -> tuple[click.Group, list]:
                       default=9600)
         @click.option("--authip", multiple=True)
         def command(**options):
-            calls.append((name, options))
-            reloaders.append(cli_config.reloader())
+            calls.append((name, without_scenarios(options)))
+            reload = cli_config.reloader()
+            reloaders.append(reload and (lambda: without_scenarios(reload())))
         return command
 
     group = click.Group("mbgw", commands={"slave": mode_command("slave"),

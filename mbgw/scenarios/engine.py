@@ -1,0 +1,382 @@
+"""A runner's scenarios (the serial line's, or the TCP runner's): their schedule, their runs'
+results in the table, their state and counters.  The runner asks `next(now)` for a run, sends
+its PDU, and hands the reply (or the error) to `done`; it sleeps at most `due_in(now)` and
+also wakes on `wake_fd` (a change scenario's data changed).  Thread-safe: the runner's thread
+runs scenarios, the control and status threads read and enable them."""
+import logging
+import os
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, replace
+
+from mbgw.config.scenario import ScenarioConfig
+from mbgw.scenarios import exchange
+from mbgw.scenarios.plan import Planner
+
+log = logging.getLogger("mbgw.scenarios")
+
+STARTING, RUNNING, ERROR, DISABLED = "starting", "running", "error", "disabled"
+STATES = (STARTING, RUNNING, ERROR, DISABLED)
+
+# FC 7's flag is one per table, and a table has up to two runners' Scenarios: the ids of
+# those with a scenario in error, by table.
+_IN_ERROR: dict[int, set[int]] = {}
+_IN_ERROR_LOCK = threading.Lock()
+
+
+DEFAULT_TEST_WAIT_S = 60.0     # how long `scenario test` waits for its runner
+
+
+@dataclass
+class Run:
+    scenario: ScenarioConfig
+    pdu: bytes
+    started: float
+
+
+class TestRun(Run):
+    """A `scenario test` run: the runner does it like a Run (take_test, test_done), between
+    its own runs; the operator's thread waits for `result`."""
+    __test__ = False        # not a pytest class
+
+    def __init__(self, scenario: ScenarioConfig, pdu: bytes, started: float) -> None:
+        super().__init__(scenario, pdu, started)
+        self.finished = threading.Event()
+        self.result: dict | None = None
+
+
+class _State:
+    """One scenario's state and counters (fresh when it is added or changed)."""
+
+    def __init__(self, scenario: ScenarioConfig, now: float) -> None:
+        self.scenario = scenario
+        self.state = STARTING if scenario.enabled else DISABLED
+        self.message = ""
+        self.runs = 0
+        self.successes = 0
+        self.errors: dict[str, int] = {}
+        self.retries = 0
+        self.last_success_wall: float | None = None   # time.time()
+        self.last_latency_s: float | None = None
+        self.data_time: float | None = None            # the clock's time of the last good read
+        self.since = now                               # when it started (the age before data)
+        self.overruns = 0
+        self.watch: int | None = None                  # the table watch of a change scenario
+        self.stale = False
+
+    def data_age(self, now: float) -> float | None:
+        return None if self.data_time is None else now - self.data_time
+
+
+def _same_but_enabled(a: ScenarioConfig, b: ScenarioConfig) -> bool:
+    return replace(a, enabled=True) == replace(b, enabled=True)
+
+
+class Scenarios:
+    """The scenarios of one kind ("serial" or "tcp") of `configs`, run on one runner."""
+
+    def __init__(self, configs: Iterable[ScenarioConfig], table, kind: str,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.kind = kind
+        self.table = table
+        self.clock = clock
+        self.wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        self._lock = threading.RLock()
+        self._states: dict[str, _State] = {}
+        now = clock()
+        self._planner = Planner((), now)
+        self._flag = False                  # FC 7's "a scenario is in error", as last set
+        self._tests: deque[TestRun] = deque()
+        self.reconfigure(configs)
+
+    # --- the runner's side ---
+
+    def due_in(self, now: float) -> float | None:
+        """Seconds until the next run is due, 0 if one is, None if none is planned; also
+        takes the table's changes and updates what is stale."""
+        with self._lock:
+            self._take_changes()
+            self.tick(now)
+            if self._tests:
+                return 0.0
+            due = self._planner.due_in(now)
+            stale_due = self._next_stale_check(now)
+            if stale_due is not None and (due is None or stale_due < due):
+                return stale_due
+            return due
+
+    def next(self, now: float, can_run: Callable[[ScenarioConfig], bool] | None = None
+             ) -> Run | None:
+        """The run to do now, its PDU built from the table now; None if none is due.
+        can_run: see Planner.take."""
+        with self._lock:
+            self._take_changes()
+            scenario = self._planner.take(now, can_run)
+            if scenario is None:
+                return None
+            self._states[scenario.name].overruns += self._planner.last_missed
+            return Run(scenario, exchange.request_pdu(scenario, self.table), now)
+
+    def done(self, run: Run, reply_pdu: bytes | None, error_kind: str | None,
+             retries: int = 0) -> exchange.Result:
+        """A run ended: the reply (None for a broadcast, or after error_kind: timeout,
+        connection-lost, ...) checked and its data stored; state and counters updated."""
+        now = self.clock()
+        with self._lock:
+            sc = run.scenario
+            if error_kind is not None:
+                result = exchange.Result(error_kind)
+            elif reply_pdu is None:
+                result = exchange.OK if sc.broadcast else exchange.Result(exchange.TIMEOUT)
+            else:
+                result = exchange.apply_reply(sc, self.table, reply_pdu, run.pdu)
+            self._planner.finished(sc.name, now)
+            state = self._states.get(sc.name)
+            if state is None or state.scenario != sc:
+                return result          # removed or changed while it ran: counts nothing
+            self._record(state, result, retries, now - run.started, now)
+            return result
+
+    def tick(self, now: float) -> None:
+        """Mark stale the read ranges whose data is older than their stale-after, current
+        again the others."""
+        with self._lock:
+            for state in self._states.values():
+                sc = state.scenario
+                if sc.stale_after_ms and state.state != DISABLED:
+                    since = state.data_time if state.data_time is not None else state.since
+                    self._set_stale(state, now - since >= sc.stale_after_ms / 1000)
+
+    # --- the operator's side ---
+
+    def enable(self, name: str, on: bool) -> bool:
+        """Enable or disable a scenario until the next reload; False when there is none of
+        that name."""
+        with self._lock:
+            state = self._states.get(name)
+            if state is None:
+                return False
+            if on == (state.state != DISABLED):
+                return True
+            now = self.clock()
+            if on:
+                state.state, state.message, state.since = STARTING, "", now
+                self._planner.add(state.scenario, now)
+            else:
+                self._leave_error(state)
+                state.state, state.message = DISABLED, ""
+                self._planner.remove(name)
+                self._set_stale(state, False)
+            log.info("scenario %s %s", name, "enabled" if on else "disabled")
+            return True
+
+    def reconfigure(self, configs: Iterable[ScenarioConfig]) -> None:
+        """Take a new list (this runner's kind of it): unchanged scenarios keep their
+        counters and schedule, changed ones restart at "starting" with fresh counters."""
+        wanted = {sc.name: sc for sc in configs if sc.kind == self.kind}
+        now = self.clock()
+        with self._lock:
+            for name in [n for n in self._states if n not in wanted]:
+                self._drop(self._states.pop(name))
+            for name, sc in wanted.items():
+                old = self._states.get(name)
+                if old is not None and _same_but_enabled(old.scenario, sc):
+                    old.scenario = sc
+                    self._planner.replace(sc)
+                    self.enable(name, sc.enabled)
+                    continue
+                if old is not None:
+                    self._drop(old)
+                self._states[name] = state = _State(sc, now)
+                self._watch(state)
+                if sc.enabled:
+                    self._planner.add(sc, now)
+            self._states = {name: self._states[name] for name in wanted}
+            self._update_flag()
+
+    def names(self) -> list[str]:
+        with self._lock:
+            return list(self._states)
+
+    def get(self, name: str) -> ScenarioConfig | None:
+        with self._lock:
+            state = self._states.get(name)
+            return None if state is None else state.scenario
+
+    def status(self) -> list[dict]:
+        """Each scenario's state and counters, in the configuration's order."""
+        now = self.clock()
+        with self._lock:
+            return [self._status(state, now) for state in self._states.values()]
+
+    def request_test(self, sc: ScenarioConfig, wait_s: float = DEFAULT_TEST_WAIT_S) -> dict:
+        """From any thread but the runner's: have the runner run `sc` once (take_test,
+        test_done) and wait for its result (test_result's dict)."""
+        with self._lock:
+            test = TestRun(sc, exchange.request_pdu(sc, self.table), 0.0)
+            self._tests.append(test)
+        os.eventfd_write(self.wake_fd, 1)
+        if not test.finished.wait(wait_s):
+            with self._lock:
+                if test in self._tests:
+                    self._tests.remove(test)
+            return {"error": f"the {self.kind} scenarios' runner did not run the test within "
+                             f"{wait_s:g} s"}
+        assert test.result is not None
+        return test.result
+
+    def take_test(self, now: float) -> TestRun | None:
+        """The runner's side of request_test: a test to run now, or None."""
+        with self._lock:
+            if not self._tests:
+                return None
+            test = self._tests.popleft()
+            test.started = now
+            return test
+
+    def test_done(self, test: TestRun, reply_pdu: bytes | None, error_kind: str | None,
+                  retries: int = 0) -> None:
+        test.result = self.test_result(test.scenario, test.pdu, reply_pdu, error_kind, retries,
+                                       self.clock() - test.started)
+        test.finished.set()
+
+    def test(self, sc: ScenarioConfig, run_fn: Callable[[bytes], tuple]) -> dict:
+        """Run `sc` once (it need not be configured): run_fn(pdu) -> (reply_pdu | None,
+        error_kind | None, retries), called by the runner between its own runs.  A read's
+        data is returned, not stored; nothing is counted."""
+        with self._lock:
+            pdu = exchange.request_pdu(sc, self.table)
+        started = self.clock()
+        reply, error_kind, retries = run_fn(pdu)
+        return self.test_result(sc, pdu, reply, error_kind, retries, self.clock() - started)
+
+    def test_result(self, sc: ScenarioConfig, pdu: bytes, reply: bytes | None,
+                    error_kind: str | None, retries: int, latency_s: float) -> dict:
+        """What `mbgw scenario test` prints, from a run the runner did."""
+        if error_kind is not None:
+            result = exchange.Result(error_kind)
+        elif reply is None:
+            result = exchange.OK if sc.broadcast else exchange.Result(exchange.TIMEOUT)
+        else:
+            result = exchange.check_reply(sc, pdu, bytes(reply))
+        return {"scenario": sc.fields(), "ok": result.ok, "kind": result.kind,
+                "message": result.message(sc.kind == "tcp"), "data": result.data,
+                "request": pdu.hex(" "), "reply": None if reply is None else bytes(reply).hex(" "),
+                "retries": retries, "latency_ms": round(latency_s * 1000, 3)}
+
+    def close(self) -> None:
+        with self._lock:
+            for state in self._states.values():
+                self._drop(state)
+            self._states.clear()
+            self._update_flag()
+        os.close(self.wake_fd)
+
+    # --- inside, the lock held ---
+
+    def _record(self, state: _State, result: exchange.Result, retries: int,
+                latency: float, now: float) -> None:
+        state.runs += 1
+        state.retries += retries
+        if result.ok:
+            state.successes += 1
+            state.last_success_wall = time.time()
+            state.last_latency_s = latency
+            if state.scenario.reads:
+                state.data_time = now
+                self._set_stale(state, False)
+            if state.state != DISABLED:
+                self._leave_error(state)
+                state.state, state.message = RUNNING, ""
+            return
+        state.errors[result.kind or ""] = state.errors.get(result.kind or "", 0) + 1
+        if state.state == DISABLED:
+            return
+        message = result.message(state.scenario.kind == "tcp")
+        if state.state != ERROR or state.message != message:
+            log.warning("scenario %s (%s): %s", state.scenario.name, state.scenario.target,
+                        message)
+        state.state, state.message = ERROR, message
+        self._update_flag()
+
+    def _leave_error(self, state: _State) -> None:
+        if state.state == ERROR:
+            log.info("scenario %s (%s): running again", state.scenario.name,
+                     state.scenario.target)
+            state.state = RUNNING
+            self._update_flag()
+
+    def _update_flag(self) -> None:
+        """FC 7's bit 1: some scenario of this runner is in error (set on a change only)."""
+        flag = any(s.state == ERROR for s in self._states.values())
+        if flag == self._flag:
+            return
+        self._flag = flag
+        with _IN_ERROR_LOCK:
+            engines = _IN_ERROR.setdefault(id(self.table), set())
+            (engines.add if flag else engines.discard)(id(self))
+            self.table.set_flags(scenario_error=bool(engines))
+
+    def _set_stale(self, state: _State, on: bool) -> None:
+        if state.stale == on:
+            return
+        state.stale = on
+        read = state.scenario.read_range()
+        if read is not None:
+            self.table.set_stale(read[0], read[1], on)
+        if on:
+            log.warning("scenario %s: data older than %d ms: reads of table %d+%d answer 0x0B",
+                        state.scenario.name, state.scenario.stale_after_ms,
+                        *(read or (0, 0)))
+
+    def _next_stale_check(self, now: float) -> float | None:
+        soonest = None
+        for state in self._states.values():
+            sc = state.scenario
+            if sc.stale_after_ms and not state.stale and state.state != DISABLED:
+                since = state.data_time if state.data_time is not None else state.since
+                due = max(0.0, since + sc.stale_after_ms / 1000 - now)
+                soonest = due if soonest is None else min(soonest, due)
+        return soonest
+
+    def _watch(self, state: _State) -> None:
+        if state.scenario.on_change:
+            first, count = state.scenario.write_range() or (0, 0)
+            state.watch = self.table.watch(first, count, self.wake_fd)
+
+    def _drop(self, state: _State) -> None:
+        if state.watch is not None:
+            self.table.unwatch(state.watch)
+            state.watch = None
+        self._set_stale(state, False)
+        self._planner.remove(state.scenario.name)
+
+    def _take_changes(self) -> None:
+        try:
+            os.eventfd_read(self.wake_fd)
+        except BlockingIOError:
+            return
+        for state in self._states.values():
+            if state.watch is not None:
+                count = (state.scenario.write_range() or (0, 1))[1]
+                if self.table.take_change(state.watch, count) is not None \
+                        and state.state != DISABLED:
+                    self._planner.changed(state.scenario.name)
+
+    def _status(self, state: _State, now: float) -> dict:
+        sc = state.scenario
+        age = state.data_age(now)
+        return {
+            "name": sc.name, "kind": sc.kind, "target": sc.target, "function": sc.function,
+            "trigger": "change" if sc.on_change else f"{sc.cycle_ms} ms",
+            "state": state.state, "message": state.message, "runs": state.runs,
+            "successes": state.successes, "errors": dict(state.errors),
+            "retries": state.retries, "overruns": state.overruns,
+            "last_success": state.last_success_wall,
+            "last_latency_ms": None if state.last_latency_s is None
+            else round(state.last_latency_s * 1000, 3),
+            "data_age_s": None if age is None else round(age, 3),
+            "stale": state.stale,
+        }
