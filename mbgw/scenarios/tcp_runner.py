@@ -1,18 +1,18 @@
 """The TCP scenarios' runner: a thread of its own that runs the engine's TCP scenarios
 (`Scenarios` of kind "tcp") through an UpstreamPool, in every mode.
 
-One poll() loop: it sleeps until the engine's next scenario is due (`due_in`) or a change in
-the table made one pending (the engine's `wake_fd`), or the runner's own eventfd (stop, work
-handed over by another thread: reconfigure, test).  A run is one request to its
-server, with `tcpto` as the deadline (connecting included), retried after a timeout or a lost
-connection (the scenario's `retries`); its reply, or the kind of failure, goes to
-`engine.done`.  Requests go out one at a time (the pool's way), so a server has at most one
-in flight.  A server that refuses the connection (or cannot be reached in `tcpto`) is not
-tried again before its backoff has passed (doubling from BACKOFF_FIRST_S to BACKOFF_MAX_S,
-reset by a reply); its scenarios fail at once meanwhile with the failure that started it.
-The pool keeps one connection per server address and port (one pool per port), reopened
-when the server closes it.  The engine is thread-safe: status and enable come from other
-threads directly; a test runs on this thread between two runs (`call`).
+One poll() loop: it sleeps until the engine's next scenario is due (`due_in`), or a change in
+the table made one pending or `scenario test` asks for a run (the engine's `wake_fd`), or the
+runner's own eventfd rings (stop, a reload).  A run is one request to its server, with
+`tcpto` as the deadline (connecting included), retried after a timeout or a lost connection
+(the scenario's `retries`); its reply, or the kind of failure, goes to `engine.done` (a
+test's to `engine.test_done`).  Requests go out one at a time (the pool's way), so a server
+has at most one in flight.  A server that refuses the connection (or cannot be reached in
+`tcpto`) is not tried again before its backoff has passed (doubling from BACKOFF_FIRST_S to
+BACKOFF_MAX_S, reset by a reply); its scenarios fail at once meanwhile with the failure that
+started it.  The pool keeps one connection per server address and port (one pool per
+port), reopened when the server closes it.  The engine is thread-safe: status and enable
+come from other threads directly.
 """
 import concurrent.futures
 import logging
@@ -26,6 +26,8 @@ from typing import Any
 
 from mbgw.errors import BadReply, GatewayTimeout, NoRoute
 from mbgw.ops.counters import MasterCounters
+from mbgw.scenarios.engine import Scenarios
+from mbgw.scenarios.report import scenarios_status
 from mbgw.upstream.pool import (
     ConnectionLost,
     ConnectTimeout,
@@ -133,13 +135,16 @@ class TcpRunner:
             while not self._stopping:
                 self._take_calls()
                 now = self._clock()
+                test = self.engine.take_test(now)
+                if test is not None:
+                    self.engine.test_done(test, *self.exchange(test.scenario, test.pdu))
+                    continue
                 run = self.engine.next(now)
                 if run is not None:
                     self._execute(run)
                     continue
                 poller.poll(self._sleep_ms(now))
-                drain(self._wake_fd)
-                drain(self.engine.wake_fd)
+                drain(self._wake_fd)       # the engine takes its wake_fd's signal itself
         except Interrupted:
             pass
         except Exception:
@@ -226,24 +231,33 @@ class TcpRunner:
         return pool
 
 
+def with_scenarios(collector, engines: dict):
+    """The daemon's metrics collector with the scenarios' families (their status rows)."""
+    collector.scenarios = lambda: scenarios_status(engines.values())
+    return collector
+
+
 def tcp_scenarios(configs) -> tuple:
     return tuple(sc for sc in configs if sc.kind == "tcp")
 
 
 class TcpScenarios:
     """A daemon's TCP scenarios (slave and master mode alike): their engine and runner while
-    the configuration has any; started, reconfigured and stopped from the asyncio thread."""
+    the configuration has any, `engines["tcp"]` meanwhile (the dict the control commands and
+    the status read); started, reconfigured and stopped from the asyncio thread."""
 
-    def __init__(self, table) -> None:
+    def __init__(self, table, engines: dict) -> None:
         self.table = table
+        self.engines = engines
         self.runner: TcpRunner | None = None
 
     def start(self, configs, tcpto_ms: int) -> None:
         configs = tcp_scenarios(configs)
         if configs:
-            from mbgw.scenarios.engine import Scenarios
-            self.runner = TcpRunner(Scenarios(configs, self.table, "tcp"), tcpto_ms)
+            engine = Scenarios(configs, self.table, "tcp")
+            self.runner = TcpRunner(engine, tcpto_ms)
             self.runner.start()
+            self.engines["tcp"] = engine
             log.info("%d TCP scenarios, tcpto %d ms", len(configs), tcpto_ms)
 
     def reconfigure(self, configs, tcpto_ms: int) -> None:
@@ -255,29 +269,12 @@ class TcpScenarios:
             self.stop()
             log.info("no TCP scenarios any more")
         else:
-            self.runner.reconfigure(configs, tcpto_ms)
+            self.runner.reconfigure(configs, tcpto_ms).result()
 
     def stop(self) -> None:
         runner, self.runner = self.runner, None
         if runner is not None:
+            self.engines.pop("tcp", None)
             runner.stop()
             runner.join()
             runner.engine.close()
-
-    def status(self) -> list[dict]:
-        runner = self.runner
-        return [] if runner is None else runner.engine.status()
-
-    def enable(self, name: str, on: bool) -> bool:
-        """False when there is no TCP scenario of that name."""
-        runner = self.runner
-        return runner is not None and runner.engine.enable(name, on)
-
-    def test(self, sc, timeout: float | None = None) -> dict | None:
-        """`mbgw scenario test`: sc run once between the runner's own runs (the engine's
-        test); None when no runner is there."""
-        runner = self.runner
-        if runner is None:
-            return None
-        return runner.call(lambda: runner.engine.test(
-            sc, lambda pdu: runner.exchange(sc, pdu))).result(timeout)

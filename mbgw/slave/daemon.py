@@ -18,6 +18,8 @@ from mbgw.ops.service import (
     start_metrics,
     watchdog_interval,
 )
+from mbgw.scenarios.control import scenario_commands
+from mbgw.scenarios.tcp_runner import TcpScenarios, with_scenarios
 from mbgw.slave.line_thread import LineWorker
 from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
@@ -56,16 +58,19 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     except OSError as err:
         raise ListenError(cfg.mdbport, err) from None
     started = time.time()
+    engines: dict = {}         # the scenarios' engines by kind, while they run
     try:
-        metrics = start_metrics(cfg.metrics, lambda m: m.slave_collector(
-            counters, devices, scheduler, server, worker, started, tables.figures))
+        metrics = start_metrics(cfg.metrics, lambda m: with_scenarios(m.slave_collector(
+            counters, devices, scheduler, server, worker, started, tables.figures), engines))
     except MetricsListenError:
         server.close()
         raise
     worker.idle_ms = idle_ms(watchdog_interval())
     worker.start()
     status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses, tables)
-    control = await start_control(cfg.control, status.commands())
+    status.scenario_engines = engines
+    control = await start_control(cfg.control, {
+        **status.commands(), **scenario_commands(engines, cfg.config_file)})
     s = cfg.serial
     log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s",
              ", ".join(addresses), s.device, s.baudrate, s.format, s.protocol, s.interface,
@@ -75,13 +80,20 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     if s.nocheck:
         log.warning("nocheck is on: serial replies are forwarded unchecked (a debugging mode)")
 
+    scenarios = TcpScenarios(tables.table, engines)
+    scenarios.start(cfg.scenarios, cfg.tcpto_ms)
+
     async def apply(new: SlaveConfig) -> None:
         tables.reconfigure(new)
         await server.reconfigure(new)
         worker.reconfigure(new)
+        await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms)
 
     kept = asyncio.ensure_future(tables.keep())
-    await serve_until_stopped(stop, status, worker, reconfigure, apply, control, metrics)
+    try:
+        await serve_until_stopped(stop, status, worker, reconfigure, apply, control, metrics)
+    finally:
+        await asyncio.to_thread(scenarios.stop)
     kept.cancel()
     server.close()
     worker.stop()

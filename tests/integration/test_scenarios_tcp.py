@@ -6,8 +6,10 @@ the runs the test queues and records what the runner reports for each (reply, er
 retries); the requests are checked on the wire, as the server saw them."""
 import os
 import queue
+import signal
 import struct
 import threading
+import time
 from dataclasses import dataclass
 
 import pytest
@@ -19,7 +21,10 @@ from mbgw.scenarios.tcp_runner import (
     TcpRunner,
     split_server,
 )
+from mbgw.upstream.pool import drain
 from tests.harness import Peer, free_port
+from tests.modbus import Client
+from tests.ops import status, wait_for_log
 from tests.peers.scripted_tcp_server import ScriptedServer
 
 pytestmark = pytest.mark.integration
@@ -55,10 +60,14 @@ class StandInEngine:
             self._runs.append(Run(scenario, pdu))
         os.eventfd_write(self.wake_fd, 1)
 
+    def take_test(self, now):
+        return None
+
     def due_in(self, now):
         return 0 if self._runs else None
 
     def next(self, now):
+        drain(self.wake_fd)
         with self._lock:
             return self._runs.pop(0) if self._runs else None
 
@@ -203,3 +212,164 @@ def test_work_handed_over_runs_on_the_runner_thread(runner):
     assert names == "mbgw-scenarios-tcp"
 
 
+
+
+# --- in the daemons: the data lands in the table, read back over the table's TCP side -------
+
+SERVER = "127.0.8.1"            # pymodbus: holding registers of unit u: 8, 1, u, 103..
+FREE = 0x1000                   # the table's free zone
+TABLE_UNIT = 247                # slave mode: a unit of the table (direct messaging)
+FAST_TCPTO_MS = 300
+CONDITION_S = 15.0
+
+
+def scenario_toml(name: str, server: str, **keys) -> str:
+    lines = [f'[[scenario]]\nname = "{name}"\nserver = "{server}"']
+    for key, value in keys.items():
+        text = f'"{value}"' if isinstance(value, str) else str(value).lower() \
+            if isinstance(value, bool) else str(value)
+        lines.append(f"{key.replace('_', '-')} = {text}")
+    return "\n".join(lines) + "\n"
+
+
+def read_table(port: int, unit: int, address: int, count: int) -> list[int] | bytes:
+    """FC 3 over the table's TCP side: the registers, or the exception PDU."""
+    client = Client(port)
+    try:
+        reply = client.ask(unit, struct.pack(">BHH", 3, address, count))
+    finally:
+        client.close()
+    if reply[0] & 0x80:
+        return reply
+    return list(struct.unpack(f">{count}H", reply[2:]))
+
+
+def write_table(port: int, unit: int, address: int, *values: int) -> None:
+    client = Client(port)
+    try:
+        pdu = struct.pack(f">BHHB{len(values)}H", 16, address, len(values), 2 * len(values),
+                          *values)
+        assert client.ask(unit, pdu) == pdu[:5]
+    finally:
+        client.close()
+
+
+def until(condition, what: str):
+    """condition()'s value once it is true (the daemon works on its own: polled)."""
+    deadline = time.monotonic() + CONDITION_S
+    while not (value := condition()):
+        assert time.monotonic() < deadline, f"never {what}"
+        time.sleep(0.02)
+    return value
+
+
+def scenario_status(gw, name: str) -> dict:
+    return next(s for s in status(gw)["scenarios"] if s["name"] == name)
+
+
+@pytest.fixture
+def master_with(tmp_path, start_master):
+    """master_with(scenarios_toml, tcpto) -> (gateway, table port): `mbgw master` with an
+    empty slaveid table and the table served on a free port, from a file."""
+    def start(scenarios: str, tcpto: int = FAST_TCPTO_MS):
+        table_port = free_port()
+        path = tmp_path / "mbgw.toml"
+        path.write_text(f'[serial]\nmode = "master"\nbaudrate = 19200\n\n[net]\n'
+                        f'tcpto = {tcpto}\n\n[table]\nenabled = true\nport = {table_port}\n\n'
+                        + scenarios)
+        return start_master("--config", str(path)), table_port, path
+    return start
+
+
+@pytest.fixture
+def slave_with(tmp_path, pty_pair, start_gateway):
+    """slave_with(scenarios_toml) -> gateway: `mbgw slave` with the table (units 247-254)
+    and these scenarios, from a file; nothing on its serial line."""
+    def start(scenarios: str, tcpto: int = FAST_TCPTO_MS):
+        path = tmp_path / "mbgw.toml"
+        path.write_text(f'[serial]\nbaudrate = 19200\n\n[net]\ntcpto = {tcpto}\n\n'
+                        f'[table]\nenabled = true\n\n' + scenarios)
+        return start_gateway(pty_pair.gateway, "--config", str(path)), path
+    return start
+
+
+def test_master_mode_polls_pymodbus_into_the_table(servers_at, master_with):
+    port, _ = servers_at(SERVER)
+    gw, table_port, _ = master_with(scenario_toml(
+        "boiler", f"{SERVER}:{port}", unit=5, function=3, address=0, quantity=3, table=FREE,
+        cycle=100))
+    until(lambda: read_table(table_port, 1, FREE, 3) == [8, 1, 5], "the data in the table")
+    s = until(lambda: (s := scenario_status(gw, "boiler"))["successes"] and s, "a success")
+    assert s["state"] == "running" and s["kind"] == "tcp"
+
+
+def test_slave_mode_polls_and_writes_on_change(slave_with, scripted):
+    server = scripted(values=(0x0102,))
+    gw, _ = slave_with(
+        scenario_toml("poll", server.server, unit=9, function=3, address=4, quantity=2,
+                      table=FREE, cycle=100)
+        + scenario_toml("push", server.server, unit=9, function=16, address=20, quantity=2,
+                        table=FREE + 0x10, trigger="change"))
+    until(lambda: read_table(gw.port, TABLE_UNIT, FREE, 2) == [0x0102, 0x0102], "read data")
+    assert (9, bytes([3, 0, 4, 0, 2])) in server.wait_requests(1)
+
+    def writes():
+        return [pdu for _, pdu in server.requests if pdu[0] == 16]
+
+    write_table(gw.port, TABLE_UNIT, FREE + 0x10, 7, 8)
+    until(lambda: writes(), "a write on change")
+    write_table(gw.port, TABLE_UNIT, FREE + 0x10, 7, 8)          # the same values: no write
+    write_table(gw.port, TABLE_UNIT, FREE + 0x10, 7, 9)          # a new value: one write
+    until(lambda: len(writes()) >= 2, "the second write")
+    assert writes() == [bytes([16, 0, 20, 0, 2, 4, 0, 7, 0, 8]),
+                        bytes([16, 0, 20, 0, 2, 4, 0, 7, 0, 9])]
+
+
+# VPGate's messages (§8.2), a TCP scenario's peer called a server
+@pytest.mark.parametrize("action, message", [
+    ("wrong-function", "received unexpected function in answer"),
+    ("wrong-quantity", "received unexpected data/quantity in answer"),
+    (("exception", 2), "received illegal data address from server (0x02)"),
+    (("exception", 0x0B), "gateway target failed to respond (0x0B)"),
+    ("silent", "timeout, no answer from server after retrying"),
+    ("close", "TCP connection lost"),
+])
+def test_a_failing_server_puts_the_scenario_in_error_then_it_recovers(
+        slave_with, scripted, action, message):
+    server = scripted()
+    server.default = action
+    gw, _ = slave_with(scenario_toml("flaky", server.server, function=3, address=0,
+                                     quantity=2, table=FREE, cycle=100))
+    until(lambda: scenario_status(gw, "flaky")["message"] == message, message)
+    server.default = "ok"
+    s = until(lambda: (s := scenario_status(gw, "flaky"))["state"] == "running" and s,
+              "recovery")
+    assert s["successes"] >= 1
+    assert read_table(gw.port, TABLE_UNIT, FREE, 2) == [0x1234, 0x1234]
+
+
+def test_a_refused_server_then_its_return(slave_with, scripted):
+    port = free_port()
+    gw, _ = slave_with(scenario_toml("later", f"127.0.0.1:{port}", function=3, address=0,
+                                     quantity=1, table=FREE, cycle=100))
+    until(lambda: scenario_status(gw, "later")["message"] == "connection refused", "refused")
+    server = scripted(values=(42,), port=port)
+    until(lambda: read_table(gw.port, TABLE_UNIT, FREE, 1) == [42], "the data after recovery")
+    assert scenario_status(gw, "later")["state"] == "running"
+    assert server.connections == 1
+
+
+def test_reload_starts_and_stops_the_tcp_scenarios(slave_with, scripted):
+    server = scripted(values=(5,))
+    gw, path = slave_with("")
+    text = path.read_text()
+    path.write_text(text + scenario_toml("added", server.server, function=3, address=0,
+                                         quantity=1, table=FREE, cycle=100))
+    os.kill(gw.proc.pid, signal.SIGHUP)
+    until(lambda: read_table(gw.port, TABLE_UNIT, FREE, 1) == [5], "the added scenario's data")
+    path.write_text(text)
+    os.kill(gw.proc.pid, signal.SIGHUP)
+    wait_for_log(gw, "no TCP scenarios any more")        # the runner has ended
+    until(lambda: server.disconnections, "the connection closed")
+    write_table(gw.port, TABLE_UNIT, FREE, 0)             # a round trip through the gateway
+    assert server.connections == 1

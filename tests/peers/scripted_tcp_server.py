@@ -6,7 +6,7 @@ from the spec, never by mbgw's code.
 Actions: "ok" (FC 3: `count` registers holding `values`; FC 6/16: the echo), "silent" (no
 answer), "close" (the connection closed without answer), "wrong-function" (an FC 4 reply),
 "wrong-quantity" (one register fewer), ("exception", code).  With the script used up, every
-request is answered "ok"."""
+request is answered as `default` says ("ok" unless the test sets another)."""
 import socket
 import struct
 import threading
@@ -17,8 +17,10 @@ class ScriptedServer:
     def __init__(self, values=(0x1234,), script=(), port: int = 0) -> None:
         self.values = list(values)
         self.script: deque = deque(script)
+        self.default = "ok"
         self.requests: list[tuple[int, bytes]] = []
         self.connections = 0
+        self.disconnections = 0          # by the client
         self.seen = threading.Condition()
         self._listener = socket.create_server(("127.0.0.1", port))
         self.port = self._listener.getsockname()[1]
@@ -66,13 +68,14 @@ class ScriptedServer:
             except OSError:
                 return
             if not chunk:
+                self.disconnections += 1
                 return
             buf += chunk
             while len(buf) >= 6 and len(buf) >= 6 + struct.unpack(">H", buf[4:6])[0]:
                 length = struct.unpack(">H", buf[4:6])[0]
                 tid, unit, pdu = struct.unpack(">H", buf[:2])[0], buf[6], buf[7:6 + length]
                 buf = buf[6 + length:]
-                action = self.script.popleft() if self.script else "ok"
+                action = self.script.popleft() if self.script else self.default
                 with self.seen:
                     self.requests.append((unit, pdu))
                     self.seen.notify_all()
