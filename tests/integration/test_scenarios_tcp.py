@@ -4,6 +4,7 @@ server and a scripted misbehaving one (tests/peers/scripted_tcp_server.py).
 The runner's contract with the engine is checked here with a stand-in engine that hands out
 the runs the test queues and records what the runner reports for each (reply, error kind,
 retries); the requests are checked on the wire, as the server saw them."""
+import json
 import os
 import queue
 import signal
@@ -24,7 +25,7 @@ from mbgw.scenarios.tcp_runner import (
 from mbgw.upstream.pool import drain
 from tests.harness import Peer, free_port
 from tests.modbus import Client
-from tests.ops import status, wait_for_log
+from tests.ops import mbgw, status, wait_for_log
 from tests.peers.scripted_tcp_server import ScriptedServer
 
 pytestmark = pytest.mark.integration
@@ -373,3 +374,34 @@ def test_reload_starts_and_stops_the_tcp_scenarios(slave_with, scripted):
     until(lambda: server.disconnections, "the connection closed")
     write_table(gw.port, TABLE_UNIT, FREE, 0)             # a round trip through the gateway
     assert server.connections == 1
+
+
+def test_scenario_test_and_disable_in_master_mode(servers_at, master_with, scripted):
+    """`mbgw scenario test` runs once on the TCP runner (its data printed, not stored);
+    `mbgw scenario disable` stops a scenario's runs until enabled again."""
+    port, _ = servers_at(SERVER)
+    server = scripted(values=(3,))
+    gw, table_port, _ = master_with(scenario_toml(
+        "ticker", server.server, function=3, address=0, quantity=1, table=FREE, cycle=100))
+    result = mbgw("scenario", "test", f"server={SERVER}:{port}", "unit=6", "function=3",
+                  "address=0", "quantity=3", f"table={FREE + 0x20}", "cycle=1000", "--json",
+                  "--control", gw.control)
+    assert result.returncode == 0, result.stderr
+    reply = json.loads(result.stdout)
+    assert reply["ok"] and reply["data"] == [8, 1, 6], reply
+    assert read_table(table_port, 1, FREE + 0x20, 3) == [0, 0, 0]     # not stored
+
+    until(lambda: read_table(table_port, 1, FREE, 1) == [3], "the cyclic data")
+    result = mbgw("scenario", "disable", "ticker", "--control", gw.control)
+    assert result.returncode == 0, result.stderr
+    assert scenario_status(gw, "ticker")["state"] == "disabled"
+    seen = len(server.requests)
+    server.values = [4]
+    result = mbgw("scenario", "test", f"server={server.server}", "function=3", "address=0",
+                  "quantity=1", f"table={FREE}", "cycle=1000", "--json", "--control", gw.control)
+    assert json.loads(result.stdout)["data"] == [4]
+    assert len(server.requests) == seen + 1            # the test's, no run of ticker's
+    assert read_table(table_port, 1, FREE, 1) == [3]
+    result = mbgw("scenario", "enable", "ticker", "--control", gw.control)
+    assert result.returncode == 0, result.stderr
+    until(lambda: read_table(table_port, 1, FREE, 1) == [4], "the runs again")
