@@ -299,6 +299,11 @@ void mbgw_table_set_flag(mbgw_table *t, int flag, int on);
 void mbgw_table_watch_down(mbgw_table *t, const uint8_t *down);
 
 /* Counts the writes that changed a value in 0x0800-0x7FFF (the outputs and the free zone). */
+/* count bits from bit address `bit` (bit B: bit B % 16 of register B / 16), packed as in a
+ * Modbus PDU (the first in the least significant bit of packed[0]), under the lock (the
+ * other bits of the registers kept); -EINVAL beyond the table's 65,536 bits. */
+int mbgw_table_write_bits(mbgw_table *t, int bit, int count, const uint8_t *packed);
+
 /* Registers [first, first + count) stale (on) or current: a read (FC 1-4, FC 23's read part)
  * touching a stale register answers exception 0x0B, "gateway target failed to respond" (a
  * scenario's data too old to serve).  -EINVAL beyond the table. */

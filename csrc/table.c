@@ -463,6 +463,19 @@ void mbgw_table_watch_down(mbgw_table *t, const uint8_t *down)
     pthread_mutex_unlock(&t->lock);
 }
 
+int mbgw_table_write_bits(mbgw_table *t, int bit, int count, const uint8_t *packed)
+{
+    if (bit < 0 || count < 0 || bit + count > REGISTERS)
+        return -EINVAL;
+    int changed = 0;
+    pthread_mutex_lock(&t->lock);
+    for (int i = 0; i < count; i++)
+        set_bit(t, (unsigned)(bit + i), packed[i / 8] >> (i % 8) & 1, &changed);
+    t->generation += (uint64_t)changed;
+    pthread_mutex_unlock(&t->lock);
+    return 0;
+}
+
 int mbgw_table_set_stale(mbgw_table *t, int first, int count, int on)
 {
     if (out_of_range(first, count))

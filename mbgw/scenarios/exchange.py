@@ -52,6 +52,7 @@ class Result:
     kind: str | None = None              # None: ok
     code: int | None = None
     data: list[int] = field(default_factory=list)   # what a read returned (registers or bits)
+    packed: bytes = b""                  # a bit read's bytes as the reply packed them
 
     @property
     def ok(self) -> bool:
@@ -111,7 +112,7 @@ def check_reply(sc: ScenarioConfig, request: bytes, reply: bytes) -> Result:
         size = (sc.quantity + 7) // 8
         if len(reply) != 2 + size or reply[1] != size:
             return Result(UNEXPECTED_DATA)
-        return Result(data=unpack_bits(reply[2:], sc.quantity))
+        return Result(data=unpack_bits(reply[2:], sc.quantity), packed=reply[2:])
     if fc in (3, 4, 23):
         if len(reply) != 2 + 2 * sc.quantity or reply[1] != 2 * sc.quantity:
             return Result(UNEXPECTED_DATA)
@@ -122,18 +123,13 @@ def check_reply(sc: ScenarioConfig, request: bytes, reply: bytes) -> Result:
     return OK
 
 
-def store(sc: ScenarioConfig, table, data: list[int]) -> None:
-    """A read's data into the table: registers, or bits into register bits."""
-    if not sc.bits:
-        table.write(sc.table, data)
-        return
-    first = sc.table // 16
-    registers = table.read(first, (sc.table + len(data) - 1) // 16 - first + 1)
-    for i, bit in enumerate(data):
-        b = sc.table + i
-        mask = 1 << (b % 16)
-        registers[b // 16 - first] = registers[b // 16 - first] & ~mask | (mask if bit else 0)
-    table.write(first, registers)
+def store(sc: ScenarioConfig, table, result: Result) -> None:
+    """A read's data into the table: registers, or bits into register bits (under the
+    table's lock, the registers' other bits kept)."""
+    if sc.bits:
+        table.write_bits(sc.table, result.packed, sc.quantity)
+    else:
+        table.write(sc.table, result.data)
 
 
 def apply_reply(sc: ScenarioConfig, table, reply_pdu: bytes,
@@ -145,5 +141,5 @@ def apply_reply(sc: ScenarioConfig, table, reply_pdu: bytes,
         request = request_pdu(sc, table)
     result = check_reply(sc, request, bytes(reply_pdu))
     if result.ok and sc.reads:
-        store(sc, table, result.data)
+        store(sc, table, result)
     return result

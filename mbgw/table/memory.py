@@ -139,6 +139,17 @@ class Table:
                              f"zone (0x8000-0xFFFF) is read-only")
         lib.mbgw_table_write(self._t, address, len(values), ffi.new("uint16_t[]", values))
 
+    def write_bits(self, address: int, packed, count: int) -> None:
+        """Write count bits from bit address (bit B: bit B % 16 of register B // 16), packed
+        as in a Modbus PDU (first bit in the least significant bit of the first byte), under
+        the table's lock: the other bits of those registers are kept, whoever writes them."""
+        _check_range(address, count, BITS, "bit")
+        if len(packed) < (count + 7) // 8:
+            raise TableError(f"bit {address}+{count}: {len(packed)} bytes of bits is too few")
+        if (address + count - 1) // 16 >= CONFIG_ZONE.start:
+            raise TableError("the configuration zone (0x8000-0xFFFF) is read-only")
+        lib.mbgw_table_write_bits(self._t, address, count, _c_bytes(packed))
+
     def set_config(self, address: int, values: Iterable[int]) -> None:
         """Fill the configuration zone (what identity computes); raises TableError outside it."""
         values = list(values)

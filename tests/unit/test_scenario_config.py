@@ -178,3 +178,14 @@ def test_at_most_100_of_a_kind():
     many = [parse_scenario(fields(name=f"s{i}"), "s") for i in range(101)]
     assert check_scenarios(many, "slave") == ["scenario: 101 serial scenarios, at most 100"]
     assert check_scenarios(many[:100], "slave") == []
+
+
+def test_the_manual_lists_every_key_in_order():
+    import re
+
+    from mbgw.config.scenario import KEYS
+    from tests.harness import CHECKOUT
+    page = (CHECKOUT / "docs" / "mbgw.toml.5").read_text()
+    section = page.split("\n.SH SCENARIOS\n", 1)[1].split("\n.SH ", 1)[0]
+    listed = [k.replace("\\-", "-") for k in re.findall(r"^\.TP\n\.B (\S+)$", section, re.M)]
+    assert listed == list(KEYS)

@@ -132,3 +132,17 @@ def test_tcp_messages_say_server():
     assert exchange.error_message("timeout", tcp=True) == \
         "timeout, no answer from server after retrying"
     assert exchange.error_message("connection-lost", tcp=True) == "TCP connection lost"
+
+
+def test_write_bits_keeps_the_other_bits_and_tells_watchers(table):
+    import os
+    fd = os.eventfd(0, os.EFD_NONBLOCK)
+    watch = table.watch(3, 1, fd)
+    table.write(3, [0xF00F])
+    table.take_change(watch, 1)
+    table.write_bits(3 * 16 + 4, b"\x05", 4)          # bits 4..7 of register 3 = 1,0,1,0
+    assert table.read(3) == [0xF05F]
+    assert table.take_change(watch, 1) == [0xF05F]
+    table.write_bits(3 * 16 + 4, b"\x05", 4)          # the same: no change
+    assert table.take_change(watch, 1) is None
+    os.close(fd)
