@@ -24,6 +24,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from mbgw.config.scenario import split_server
 from mbgw.errors import BadReply, GatewayTimeout, NoRoute
 from mbgw.ops.counters import MasterCounters
 from mbgw.scenarios.engine import Scenarios
@@ -38,7 +39,6 @@ from mbgw.upstream.pool import (
 
 log = logging.getLogger("mbgw.scenarios")
 
-DEFAULT_PORT = 502
 MAX_CONNECTIONS = 100           # one per server: at most 100 TCP scenarios
 BACKOFF_FIRST_S = 0.25
 BACKOFF_MAX_S = 5.0
@@ -48,17 +48,6 @@ TIMEOUT = "timeout"
 CONNECTION_LOST = "connection-lost"
 CONNECTION_REFUSED = "connection-refused"
 UNEXPECTED_DATA = "unexpected-data"
-
-
-def split_server(server: str) -> tuple[str, int]:
-    """"host:port", "[v6]:port", "host" or "[v6]" -> (host, port)."""
-    if server.startswith("["):
-        host, _, rest = server[1:].partition("]")
-        return host, int(rest[1:]) if rest.startswith(":") else DEFAULT_PORT
-    if server.count(":") == 1:
-        host, port = server.split(":")
-        return host, int(port)
-    return server, DEFAULT_PORT          # a name, an IPv4 literal, a bare IPv6 literal
 
 
 class Backoff:
@@ -135,6 +124,7 @@ class TcpRunner:
             while not self._stopping:
                 self._take_calls()
                 now = self._clock()
+                self.engine.tick(now)          # stale data, also while runs follow each other
                 test = self.engine.take_test(now)
                 if test is not None:
                     self.engine.test_done(test, *self.exchange(test.scenario, test.pdu))

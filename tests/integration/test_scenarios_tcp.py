@@ -20,7 +20,6 @@ from mbgw.scenarios.tcp_runner import (
     CONNECTION_REFUSED,
     TIMEOUT,
     TcpRunner,
-    split_server,
 )
 from mbgw.upstream.pool import drain
 from tests.harness import Peer, free_port
@@ -61,6 +60,9 @@ class StandInEngine:
             self._runs.append(Run(scenario, pdu))
         os.eventfd_write(self.wake_fd, 1)
 
+    def tick(self, now) -> None:
+        pass
+
     def take_test(self, now):
         return None
 
@@ -97,8 +99,8 @@ def runner():
 def scripted():
     servers = []
 
-    def start(*script, values=(0x1234,), port=0) -> ScriptedServer:
-        server = ScriptedServer(values, script, port)
+    def start(*script, values=(0x1234,), port=0, host="127.0.0.1") -> ScriptedServer:
+        server = ScriptedServer(values, script, port, host)
         servers.append(server)
         return server
     yield start
@@ -108,14 +110,6 @@ def scripted():
 
 def registers(*values: int) -> bytes:
     return bytes([3, 2 * len(values)]) + struct.pack(f">{len(values)}H", *values)
-
-
-def test_server_addresses_split_into_host_and_port():
-    assert split_server("10.0.0.1:1502") == ("10.0.0.1", 1502)
-    assert split_server("10.0.0.1") == ("10.0.0.1", 502)
-    assert split_server("[::1]:1502") == ("::1", 1502)
-    assert split_server("[::1]") == ("::1", 502)
-    assert split_server("plc.example:503") == ("plc.example", 503)
 
 
 def test_a_read_from_pymodbus_server_comes_back_to_the_engine(runner):
@@ -145,6 +139,12 @@ def test_each_failure_has_its_kind_and_the_wire_saw_each_request(runner, scripte
     assert results[5] == (None, CONNECTION_LOST, 0)
     assert results[6] == (registers(9, 9, 9), None, 0)
     assert server.wait_requests(7) == [(3, READ_3)] * 7
+
+
+def test_an_ipv6_server(runner, scripted):
+    server = scripted(values=(6,), host="::1")
+    runner.engine.queue(Scenario(f"[::1]:{server.port}"))
+    assert runner.engine.result() == (registers(6, 6, 6), None, 0)
 
 
 def test_retries_after_a_timeout_and_a_lost_connection(runner, scripted):
@@ -405,3 +405,17 @@ def test_scenario_test_and_disable_in_master_mode(servers_at, master_with, scrip
     result = mbgw("scenario", "enable", "ticker", "--control", gw.control)
     assert result.returncode == 0, result.stderr
     until(lambda: read_table(table_port, 1, FREE, 1) == [4], "the runs again")
+
+
+def test_stale_data_is_refused_over_tcp_until_the_server_answers_again(slave_with, scripted):
+    server = scripted(values=(11,))
+    gw, _ = slave_with(scenario_toml("fresh", server.server, function=3, address=0,
+                                     quantity=2, table=FREE, cycle=100, stale_after=500,
+                                     retries=0))
+    until(lambda: read_table(gw.port, TABLE_UNIT, FREE, 2) == [11, 11], "the data")
+    server.default = "silent"
+    until(lambda: read_table(gw.port, TABLE_UNIT, FREE, 2) == bytes([0x83, 0x0B]),
+          "0x0B for stale data")
+    assert read_table(gw.port, TABLE_UNIT, FREE + 2, 1) == [0]     # the register after: served
+    server.default = "ok"
+    until(lambda: read_table(gw.port, TABLE_UNIT, FREE, 2) == [11, 11], "fresh data again")

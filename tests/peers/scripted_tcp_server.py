@@ -1,5 +1,5 @@
 """A misbehaving Modbus TCP server, scripted by the test: a thread with one listening socket
-on 127.0.0.1 that answers each request as the next action of its script says, and records
+(127.0.0.1 unless told) that answers each request as the next action of its script says, and records
 every request it saw (unit id, PDU) for the test to check the wire.  Replies are built here
 from the spec, never by mbgw's code.
 
@@ -14,7 +14,8 @@ from collections import deque
 
 
 class ScriptedServer:
-    def __init__(self, values=(0x1234,), script=(), port: int = 0) -> None:
+    def __init__(self, values=(0x1234,), script=(), port: int = 0,
+                 host: str = "127.0.0.1") -> None:
         self.values = list(values)
         self.script: deque = deque(script)
         self.default = "ok"
@@ -22,7 +23,9 @@ class ScriptedServer:
         self.connections = 0
         self.disconnections = 0          # by the client
         self.seen = threading.Condition()
-        self._listener = socket.create_server(("127.0.0.1", port))
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        self._listener = socket.create_server((host, port), family=family)
+        self.host = host
         self.port = self._listener.getsockname()[1]
         self._stopping = False
         self._thread = threading.Thread(target=self._serve, daemon=True)
@@ -30,13 +33,13 @@ class ScriptedServer:
 
     @property
     def server(self) -> str:
-        return f"127.0.0.1:{self.port}"
+        return f"[{self.host}]:{self.port}" if ":" in self.host else f"{self.host}:{self.port}"
 
     def stop(self) -> None:
         """Stop listening (a new connection is then refused) and close the one open."""
         self._stopping = True
         try:
-            socket.create_connection(("127.0.0.1", self.port), timeout=1).close()
+            socket.create_connection((self.host, self.port), timeout=1).close()
         except OSError:
             pass
         self._thread.join(5)
