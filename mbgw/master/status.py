@@ -30,7 +30,8 @@ class MasterStatus(DaemonStatus):
             "counters_since": self._reset_at,
             "devices": [d.snapshot() for d in self._devices.all()],
             "table": self._tables.figures(self._slave.table_counters.snapshot()),
-            "scenarios": scenarios_status(self.scenario_engines.values()),
+            **({"scenarios": rows} if (rows := scenarios_status(self.scenario_engines.values()))
+               else {}),
         }
 
     def commands(self) -> dict:

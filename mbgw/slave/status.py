@@ -52,7 +52,8 @@ class SlaveStatus(DaemonStatus):
             "counters_since": self._reset_at,
             "line_utilisation_pct": round(100 * busy_s / max(now - self._reset_at, 1e-9), 2),
             "devices": [d.snapshot() for d in self._devices.all()],
-            "scenarios": scenarios_status(self.scenario_engines.values()),
+            **({"scenarios": rows} if (rows := scenarios_status(self.scenario_engines.values()))
+               else {}),
         }
 
     def summary(self) -> str:

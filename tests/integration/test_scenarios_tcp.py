@@ -11,9 +11,11 @@ import signal
 import struct
 import threading
 import time
+import urllib.request
 from dataclasses import dataclass
 
 import pytest
+from prometheus_client import parser
 
 from mbgw.scenarios.tcp_runner import (
     CONNECTION_LOST,
@@ -24,7 +26,7 @@ from mbgw.scenarios.tcp_runner import (
 from mbgw.upstream.pool import drain
 from tests.harness import Peer, free_port
 from tests.modbus import Client
-from tests.ops import mbgw, status, wait_for_log
+from tests.ops import mbgw, metric_families, metric_value, status, wait_for_log
 from tests.peers.scripted_tcp_server import ScriptedServer
 
 pytestmark = pytest.mark.integration
@@ -272,13 +274,13 @@ def scenario_status(gw, name: str) -> dict:
 def master_with(tmp_path, start_master):
     """master_with(scenarios_toml, tcpto) -> (gateway, table port): `mbgw master` with an
     empty slaveid table and the table served on a free port, from a file."""
-    def start(scenarios: str, tcpto: int = FAST_TCPTO_MS):
+    def start(scenarios: str, *options: str, tcpto: int = FAST_TCPTO_MS):
         table_port = free_port()
         path = tmp_path / "mbgw.toml"
         path.write_text(f'[serial]\nmode = "master"\nbaudrate = 19200\n\n[net]\n'
                         f'tcpto = {tcpto}\n\n[table]\nenabled = true\nport = {table_port}\n\n'
                         + scenarios)
-        return start_master("--config", str(path)), table_port, path
+        return start_master("--config", str(path), *options), table_port, path
     return start
 
 
@@ -296,12 +298,19 @@ def slave_with(tmp_path, pty_pair, start_gateway):
 
 def test_master_mode_polls_pymodbus_into_the_table(servers_at, master_with):
     port, _ = servers_at(SERVER)
+    metrics_port = free_port()
     gw, table_port, _ = master_with(scenario_toml(
         "boiler", f"{SERVER}:{port}", unit=5, function=3, address=0, quantity=3, table=FREE,
-        cycle=100))
+        cycle=100), "--metrics", f"127.0.0.1:{metrics_port}")
     until(lambda: read_table(table_port, 1, FREE, 3) == [8, 1, 5], "the data in the table")
     s = until(lambda: (s := scenario_status(gw, "boiler"))["successes"] and s, "a success")
     assert s["state"] == "running" and s["kind"] == "tcp"
+    with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics", timeout=5) as r:
+        families = metric_families(parser, r.read().decode())
+    assert metric_value(families, "mbgw_scenario_runs", "mbgw_scenario_runs_total",
+                        scenario="boiler") >= 1
+    assert metric_value(families, "mbgw_scenario_state", state="running",
+                        scenario="boiler") == 1
 
 
 def test_slave_mode_polls_and_writes_on_change(slave_with, scripted):
