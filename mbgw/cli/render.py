@@ -107,7 +107,7 @@ def _master_sections(s: dict, now: float) -> list[str]:
         f"servers    port {up['port']}, tcpto {up['tcpto_ms']} ms, exception "
         f"{'on' if up['exception'] else 'off'}, at most {up['max_connections']} connections",
     ]
-    table = s.get("table", {})
+    table = s.get("table") or {}
     table_address = table.get("address") if table.get("enabled") else None
     routes = [r["route"] for r in s["slaveid"]] or [
         f"empty: only the table's address {table_address} is answered" if table_address
