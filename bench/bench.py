@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """mbgw throughput, latency and line-gap benchmark.  Prints figures, never pass/fail.
 
-    .venv/bin/python bench/bench.py [--quick] [--socat] [--fairness | --table]
+    .venv/bin/python bench/bench.py [--quick] [--socat] [--fairness | --table | --scenarios]
 
 For each line -- 19200 baud, 115200 baud, and a full-speed pty -- a simulated RTU slave
 (bench/simline.c, compiled at run time) answers FC03 reads of 10 registers (8-byte request,
@@ -22,7 +22,8 @@ request, so the gaps are seen from the line's side, not from the gateway's.
 
 --fairness measures instead a dead unit beside closed-loop clients (issue 13: their share of
 the line, their slowest request) and the per-client spread of transactions.  --table measures
-instead the exchange table as a Modbus TCP server (bench/table.py).  See README.md.
+instead the exchange table as a Modbus TCP server (bench/table.py); --scenarios the serial
+scenarios (bench/scenarios.py).  See README.md.
 """
 import argparse
 import math
@@ -812,7 +813,15 @@ def main() -> None:
                     help="instead of the runs above: the exchange table as a Modbus TCP server "
                     "beside libmodbus's and pymodbus's (bench/table.py; about 130 s; "
                     "--quick: 40 s)")
+    ap.add_argument("--scenarios", action="store_true",
+                    help="instead of the runs above: 100 serial scenarios saturating the line, "
+                    "a client beside them, one scenario's period (bench/scenarios.py; about "
+                    "70 s; --quick: 25 s)")
     args = ap.parse_args()
+    if args.scenarios:
+        import scenarios  # bench/scenarios.py, beside this script
+        scenarios.run(args.quick)
+        return
     if args.table:
         import table  # bench/table.py, beside this script
         table.run(args.quick)

@@ -19,8 +19,9 @@ from mbgw.ops.service import (
     watchdog_interval,
 )
 from mbgw.scenarios.control import scenario_commands
+from mbgw.scenarios.engine import Scenarios
 from mbgw.scenarios.tcp_runner import TcpScenarios, with_scenarios
-from mbgw.slave.line_thread import LineWorker
+from mbgw.slave.line_thread import LineWorker, serial_scenarios
 from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
 from mbgw.slave.status import SlaveStatus
@@ -50,6 +51,9 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     worker: LineWorker
     server = TcpServer(cfg, scheduler, counters, lambda: worker.up, devices, tables.table)
     worker = LineWorker(cfg, line, scheduler, server, counters, devices)
+    serial_engine = Scenarios(serial_scenarios(cfg), tables.table, "serial")
+    worker.use_scenarios(serial_engine)      # run, and reconfigured, by the line thread
+    engines: dict = {"serial": serial_engine}   # the scenarios' engines by kind
     stop = asyncio.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(signum, stop.set)
@@ -58,7 +62,6 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     except OSError as err:
         raise ListenError(cfg.mdbport, err) from None
     started = time.time()
-    engines: dict = {}         # the scenarios' engines by kind, while they run
     try:
         metrics = start_metrics(cfg.metrics, lambda m: with_scenarios(m.slave_collector(
             counters, devices, scheduler, server, worker, started, tables.figures), engines))
@@ -99,6 +102,7 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     worker.stop()
     await asyncio.to_thread(worker.join)
     tables.save()
+    serial_engine.close()
     scheduler.close()
     log_stopped(counters)
 
