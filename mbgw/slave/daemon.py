@@ -20,7 +20,7 @@ from mbgw.ops.service import (
 )
 from mbgw.scenarios.control import scenario_commands
 from mbgw.scenarios.engine import Scenarios
-from mbgw.scenarios.report import scenarios_status
+from mbgw.scenarios.tcp_runner import TcpScenarios, with_scenarios
 from mbgw.slave.line_thread import LineWorker, serial_scenarios
 from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
@@ -40,12 +40,6 @@ def run_slave(cfg: SlaveConfig, reconfigure=None) -> None:
         asyncio.run(_serve(cfg, line, counters, reconfigure))
     finally:
         line.close()
-
-
-def with_scenarios(collector, engines: dict):
-    """The /metrics collector, with the scenarios' families."""
-    collector.scenarios = lambda: scenarios_status(engines.values())
-    return collector
 
 
 async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfigure) -> None:
@@ -91,13 +85,20 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     if s.nocheck:
         log.warning("nocheck is on: serial replies are forwarded unchecked (a debugging mode)")
 
+    scenarios = TcpScenarios(tables.table, engines)
+    scenarios.start(cfg.scenarios, cfg.tcpto_ms)
+
     async def apply(new: SlaveConfig) -> None:
         tables.reconfigure(new)
         await server.reconfigure(new)
         worker.reconfigure(new)
+        await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms)
 
     kept = asyncio.ensure_future(tables.keep())
-    await serve_until_stopped(stop, status, worker, reconfigure, apply, control, metrics)
+    try:
+        await serve_until_stopped(stop, status, worker, reconfigure, apply, control, metrics)
+    finally:
+        await asyncio.to_thread(scenarios.stop)
     kept.cancel()
     server.close()
     worker.stop()
