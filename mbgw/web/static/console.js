@@ -1,0 +1,780 @@
+// The mbgw web console: one page, hash routes, plain JS over the JSON API (/api/...).
+// Every value from the gateway is inserted as text (textContent / createTextNode), never as
+// markup: a client's address, a scenario's name or a trace payload cannot inject anything.
+"use strict";
+
+const POLL_MS = 1000;            // live pages refresh once a second
+const TRACE_ROWS = 500;          // rows the Traffic page keeps on screen
+const TRACE_KEPT = 20000;        // events kept for the pcap download (the oldest go first)
+
+const session = { role: null, csrf: null };
+let current = null;              // the page shown: {refresh, leave}
+let timer = null;
+
+// ---- DOM helpers -------------------------------------------------------------------------
+
+// el("td", {class: "num", text: 42}, child...): an element; "text" is set as textContent,
+// on* entries are listeners, booleans are properties (disabled, checked), the rest attributes.
+function el(tag, props, ...children) {
+  const node = document.createElement(tag);
+  for (const [name, value] of Object.entries(props || {})) {
+    if (value === undefined || value === null) continue;
+    if (name === "text") node.textContent = String(value);
+    else if (name.startsWith("on")) node.addEventListener(name.slice(2), value);
+    else if (typeof value === "boolean" || name === "value") node[name] = value;
+    else node.setAttribute(name, String(value));
+  }
+  for (const child of children) {
+    if (child === null || child === undefined) continue;
+    node.append(child instanceof Node ? child : document.createTextNode(String(child)));
+  }
+  return node;
+}
+
+function $(id) { return document.getElementById(id); }
+
+function clear(node) { while (node.firstChild) node.removeChild(node.firstChild); return node; }
+
+// An admin's control: disabled for the user role (the API refuses it anyway).
+function adminControl(node) {
+  if (session.role !== "admin") {
+    node.disabled = true;
+    node.title = "admin only";
+  }
+  node.classList.add("admin-only");
+  return node;
+}
+
+function show(value) {
+  if (value === null || value === undefined) return "—";
+  if (Array.isArray(value)) return value.map(show).join(", ");
+  if (typeof value === "object") return JSON.stringify(value);
+  return String(value);
+}
+
+function localTime(unix) {
+  if (typeof unix !== "number") return "—";
+  return new Date(unix * 1000).toLocaleString();
+}
+
+function clock(unix) {
+  const d = new Date(unix * 1000);
+  const pad = (n, w) => String(n).padStart(w || 2, "0");
+  return `${pad(d.getHours())}:${pad(d.getMinutes())}:${pad(d.getSeconds())}.` +
+         pad(d.getMilliseconds(), 3);
+}
+
+function ago(unix) {
+  if (typeof unix !== "number") return "—";
+  return duration(Math.max(0, Date.now() / 1000 - unix)) + " ago";
+}
+
+function duration(seconds) {
+  if (typeof seconds !== "number") return "—";
+  const s = Math.floor(seconds);
+  const days = Math.floor(s / 86400);
+  const hms = [Math.floor(s / 3600) % 24, Math.floor(s / 60) % 60, s % 60]
+    .map((n) => String(n).padStart(2, "0")).join(":");
+  return days ? `${days} d ${hms}` : hms;
+}
+
+// "12", "0x1F" or "1fh": a number, or NaN.
+function parseNumber(text) {
+  const t = String(text).trim().toLowerCase();
+  if (/^0x[0-9a-f]+$/.test(t)) return parseInt(t.slice(2), 16);
+  if (/^[0-9a-f]+h$/.test(t)) return parseInt(t.slice(0, -1), 16);
+  if (/^[0-9]+$/.test(t)) return parseInt(t, 10);
+  return NaN;
+}
+
+function hex4(n) { return "0x" + n.toString(16).toUpperCase().padStart(4, "0"); }
+
+function listOf(data, key) {
+  if (Array.isArray(data)) return data;
+  return (data && Array.isArray(data[key])) ? data[key] : [];
+}
+
+// ---- the API -----------------------------------------------------------------------------
+
+// {ok, status, data}; data.error says why when not ok.  A 401 (session gone) shows the login.
+async function api(method, path, body) {
+  const headers = { "Accept": "application/json" };
+  const options = { method, headers, credentials: "same-origin" };
+  if (body !== undefined) {
+    headers["Content-Type"] = "application/json";
+    options.body = JSON.stringify(body);
+  }
+  if (method !== "GET" && session.csrf) headers["X-CSRF-Token"] = session.csrf;
+  let response;
+  try {
+    response = await fetch(path, options);
+  } catch (err) {
+    return { ok: false, status: 0, data: { error: "the gateway does not answer" } };
+  }
+  let data = null;
+  if ((response.headers.get("Content-Type") || "").includes("json")) {
+    data = await response.json().catch(() => null);
+  }
+  if (!response.ok && !(data && data.error)) {
+    data = { ...(data || {}), error: `${response.status} ${response.statusText}` };
+  }
+  if (response.status === 401 && path !== "/api/login" && session.role) {
+    showLogin("The session has expired: log in again.");
+  }
+  return { ok: response.ok, status: response.status, data: data || {} };
+}
+
+function refusal(result) {
+  if (result.status === 403 && session.role !== "admin") {
+    return `refused: ${result.data.error} (the user role only reads)`;
+  }
+  return result.data.error;
+}
+
+// ---- log in / out ------------------------------------------------------------------------
+
+function showLogin(message) {
+  session.role = session.csrf = null;
+  leavePage();
+  $("nav").hidden = $("who").hidden = $("page").hidden = true;
+  $("login-page").hidden = false;
+  $("login-error").textContent = message || "";
+  $("login-password").value = "";
+  $("login-password").focus();
+}
+
+function loggedIn(data) {
+  session.role = data.role;
+  session.csrf = data.csrf;
+  document.body.dataset.role = data.role;
+  $("login-page").hidden = true;
+  $("nav").hidden = $("who").hidden = $("page").hidden = false;
+  $("role").textContent = data.role;
+  route();
+}
+
+async function logIn(event) {
+  event.preventDefault();
+  const result = await api("POST", "/api/login",
+    { user: $("login-user").value, password: $("login-password").value });
+  if (result.ok) {
+    loggedIn(result.data);
+  } else {
+    $("login-password").value = "";
+    $("login-error").textContent = result.status === 429
+      ? `Too many attempts: wait a minute. (${result.data.error})`
+      : result.status === 401 ? "Wrong user or password." : result.data.error;
+  }
+}
+
+async function logOut() {
+  await api("POST", "/api/logout");
+  showLogin("Logged out.");
+}
+
+// ---- pages -------------------------------------------------------------------------------
+
+const pages = {
+  overview: { title: "Overview", build: overviewPage },
+  clients: { title: "Clients", build: clientsPage },
+  devices: { title: "Devices", build: devicesPage },
+  scenarios: { title: "Scenarios", build: scenariosPage },
+  table: { title: "Exchange table", build: tablePage },
+  stats: { title: "Statistics", build: statsPage },
+  traffic: { title: "Traffic", build: trafficPage },
+  config: { title: "Configuration", build: configPage },
+};
+
+function leavePage() {
+  if (timer !== null) clearInterval(timer);
+  timer = null;
+  if (current && current.leave) current.leave();
+  current = null;
+}
+
+function route() {
+  if (!session.role) return;
+  const name = location.hash.slice(1) in pages ? location.hash.slice(1) : "overview";
+  leavePage();
+  for (const link of document.querySelectorAll("nav a")) {
+    link.classList.toggle("current", link.getAttribute("href") === "#" + name);
+  }
+  $("page-title").textContent = pages[name].title;
+  $("page-error").textContent = "";
+  const body = clear($("page-body"));
+  body.dataset.page = name;
+  current = pages[name].build(body);
+  if (current.refresh) {
+    let busy = false;
+    const tick = async () => {
+      if (busy) return;
+      busy = true;
+      try { await current.refresh(); } finally { busy = false; }
+    };
+    tick();
+    if (current.live !== false) timer = setInterval(tick, POLL_MS);
+  }
+}
+
+// GET a page's data; on failure the page's error line says why (and the page keeps its last).
+async function load(path) {
+  const result = await api("GET", path);
+  $("page-error").textContent = result.ok ? "" : result.data.error;
+  return result.ok ? result.data : null;
+}
+
+// A table whose rows are kept by key across refreshes (a button being clicked stays the same
+// element).  columns: [{label, get(item) -> value, cls(item) -> class, num, render(td, item,
+// isNew)}].
+function liveTable(id, columns, key) {
+  const rows = new Map();
+  const tbody = el("tbody");
+  const table = el("table", { id }, el("thead", {}, el("tr", {},
+    ...columns.map((c) => el("th", { text: c.label })))), tbody);
+  const empty = el("p", { class: "empty", text: "none" });
+  function update(items) {
+    const seen = new Set();
+    for (const item of items) {
+      const k = String(key(item));
+      seen.add(k);
+      let tr = rows.get(k);
+      const isNew = !tr;
+      if (isNew) {
+        tr = el("tr", { "data-key": k }, ...columns.map(() => el("td")));
+        rows.set(k, tr);
+      }
+      columns.forEach((c, i) => {
+        const td = tr.children[i];
+        if (c.render) c.render(td, item, isNew);
+        else td.textContent = show(c.get(item));
+        td.className = [c.num ? "num" : "", c.cls ? c.cls(item) : ""].join(" ").trim();
+      });
+      tbody.append(tr);             // in the order given (moves an existing row)
+    }
+    for (const [k, tr] of rows) {
+      if (!seen.has(k)) { tr.remove(); rows.delete(k); }
+    }
+    empty.hidden = items.length > 0;
+  }
+  return { element: el("div", {}, table, empty), update };
+}
+
+// Rows [name, value] as a two-column table (rebuilt: nothing in it is clicked).
+function factsTable(id, rows) {
+  return el("table", { id }, el("tbody", {}, ...rows.map(([name, value]) =>
+    el("tr", { "data-name": name }, el("th", { text: name }),
+       el("td", { class: typeof value === "number" ? "num" : "", text: show(value) })))));
+}
+
+// Every leaf of a JSON document, with its dotted path.
+function leaves(value, prefix, out) {
+  if (value !== null && typeof value === "object" && !Array.isArray(value)) {
+    for (const [k, v] of Object.entries(value)) leaves(v, prefix ? `${prefix}.${k}` : k, out);
+  } else if (Array.isArray(value) && value.some((v) => v !== null && typeof v === "object")) {
+    value.forEach((v, i) => leaves(v, `${prefix}.${i}`, out));
+  } else {
+    out.push([prefix, value]);
+  }
+  return out;
+}
+
+// ---- Overview ----------------------------------------------------------------------------
+
+const ERROR_COUNTERS = ["timeouts", "crc_errors", "invalid_frames", "gateway_exceptions",
+  "echo_errors", "unreachable", "wrong_unit", "wrong_function", "frame_errors", "overruns"];
+const ACTIVITY_COUNTERS = ["requests", "replies", "frames_stored", "frames_sent",
+  "bytes_received"];
+
+function sum(counters, names) {
+  return names.reduce((total, n) => total + (typeof counters[n] === "number" ? counters[n] : 0), 0);
+}
+
+function led(id, label) {
+  const value = el("span", { class: "value" });
+  const node = el("div", { class: "led", id }, el("span", { class: "lamp" }), label, value);
+  return {
+    node,
+    set(colour, text) {
+      node.className = "led" + (colour ? " on-" + colour : "");
+      node.dataset.state = colour || "off";
+      value.textContent = text;
+    },
+  };
+}
+
+function listening(status) {
+  const out = [];
+  if (Array.isArray(status.listening)) out.push(...status.listening.map(show));
+  if (status.upstream && status.upstream.port) out.push(`Modbus TCP servers on port ${status.upstream.port}`);
+  const table = status.table || {};
+  if (table.tcp && table.tcp.port) out.push(`table :${table.tcp.port}`);
+  const t = status.transparent || {};
+  if (t.raw_port) out.push(`raw :${t.raw_port}`);
+  if (status.web && status.web.listen) out.push(`web ${show(status.web.listen)}`);
+  return out.length ? out.join(", ") : "—";
+}
+
+function overviewPage(body) {
+  const facts = el("div");
+  const panelLeds = {
+    line: led("led-line", "Line"),
+    activity: led("led-activity", "Activity"),
+    errors: led("led-errors", "Errors"),
+    scenarios: led("led-scenarios", "Scenario errors"),
+    devices: led("led-devices", "Devices down"),
+  };
+  body.append(el("div", { class: "panel", id: "front-panel" },
+    ...Object.values(panelLeds).map((l) => l.node)), el("h2", { text: "Gateway" }), facts);
+  let previous = null;
+  return {
+    async refresh() {
+      const s = await load("/api/status");
+      if (!s) return;
+      const serial = s.serial || {};
+      const counters = s.counters || {};
+      clear(facts).append(factsTable("overview-facts", [
+        ["Mode", s.mode], ["Version", s.version],
+        ["Serial device", `${show(serial.device)} ${show(serial.protocol)} ` +
+          `${show(serial.baudrate)} ${show(serial.format)} ${show(serial.interface)}`],
+        ["Line state", serial.state], ["Uptime", duration(s.uptime_s)],
+        ["Started", localTime(s.started)],
+        ["Line utilisation", typeof s.line_utilisation_pct === "number"
+          ? `${s.line_utilisation_pct} %` : "—"],
+        ["Listening", listening(s)],
+        ["Counters since", localTime(s.counters_since)],
+      ]));
+      const activity = sum(counters, ACTIVITY_COUNTERS);
+      const errors = sum(counters, ERROR_COUNTERS);
+      const scenarioErrors = (s.scenarios || []).filter((sc) => sc.state === "error");
+      const down = (s.devices || []).filter((d) => d.health === "down");
+      panelLeds.line.set(serial.state === "up" ? "green" : "red", show(serial.state));
+      panelLeds.activity.set(previous && activity > previous.activity ? "green" : "",
+        `${activity}`);
+      panelLeds.errors.set(previous && errors > previous.errors ? "red" : errors ? "amber" : "",
+        `${errors}`);
+      panelLeds.scenarios.set(scenarioErrors.length ? "red" : "",
+        scenarioErrors.length ? scenarioErrors.map((sc) => sc.name).join(", ") : "0");
+      panelLeds.devices.set(down.length ? "red" : "",
+        down.length ? down.map((d) => d.address).join(", ") : "0");
+      previous = { activity, errors };
+    },
+  };
+}
+
+// ---- Clients -----------------------------------------------------------------------------
+
+function clientsPage(body) {
+  const message = el("p", { id: "clients-message" });
+  const table = liveTable("clients-table", [
+    { label: "ID", get: (c) => c.id, num: true },
+    { label: "Address", get: (c) => c.peer, cls: () => "peer" },
+    { label: "Listener", get: (c) => c.listener },
+    { label: "Role", get: (c) => c.role },
+    { label: "Connected since", get: (c) => localTime(c.connected_since) },
+    { label: "Requests", get: (c) => c.requests, num: true },
+    { label: "In flight", get: (c) => c.in_flight, num: true },
+    { label: "Last activity", get: (c) => ago(c.last_activity) },
+    { label: "", render: (td, c, isNew) => {
+      if (!isNew) return;
+      td.append(adminControl(el("button", { type: "button", class: "close-client",
+        text: "Close", onclick: () => closeClient(c.id, message) })));
+    } },
+  ], (c) => c.id);
+  body.append(message, table.element);
+  return {
+    async refresh() {
+      const data = await load("/api/clients");
+      if (data) table.update(listOf(data, "clients"));
+    },
+  };
+}
+
+async function closeClient(id, message) {
+  const result = await api("POST", `/api/clients/${encodeURIComponent(id)}/close`);
+  message.className = result.ok ? "ok" : "error";
+  message.textContent = result.ok ? `client ${id} closed` : refusal(result);
+}
+
+// ---- Devices -----------------------------------------------------------------------------
+
+const DEVICE_FIXED = ["address", "health", "health_since", "last_success",
+  "consecutive_failures", "latency_sum_ms", "upstream"];
+
+function devicesPage(body) {
+  const holder = el("div");
+  body.append(holder);
+  return {
+    async refresh() {
+      const data = await load("/api/devices");
+      if (!data) return;
+      const devices = listOf(data, "devices");
+      const counts = devices.length
+        ? Object.keys(devices[0]).filter((k) => !DEVICE_FIXED.includes(k) &&
+            typeof devices[0][k] === "number") : [];
+      const head = ["Address", "Health", "Since", "Last success", "Failures in a row",
+        ...counts, "Exceptions", "Upstream"];
+      clear(holder).append(devices.length ? el("table", { id: "devices-table" },
+        el("thead", {}, el("tr", {}, ...head.map((h) => el("th", { text: h })))),
+        el("tbody", {}, ...devices.map((d) => el("tr", { "data-address": d.address },
+          el("td", { class: "num", text: d.address }),
+          el("td", { class: `health-${d.health}`, text: show(d.health) }),
+          el("td", { text: localTime(d.health_since) }),
+          el("td", { text: localTime(d.last_success) }),
+          el("td", { class: "num", text: show(d.consecutive_failures) }),
+          ...counts.map((k) => el("td", { class: "num", text: show(d[k]) })),
+          el("td", { text: show(d.exceptions) }),
+          el("td", { text: d.upstream ? `${d.upstream.host} unit ${d.upstream.unit}` : "—" })))))
+        : el("p", { text: "No device has been asked yet." }));
+    },
+  };
+}
+
+// ---- Scenarios ---------------------------------------------------------------------------
+
+function errorCount(errors) {
+  if (!errors || typeof errors !== "object") return show(errors);
+  const total = Object.values(errors).reduce((a, b) => a + b, 0);
+  return total ? `${total} ${JSON.stringify(errors)}` : "0";
+}
+
+function scenariosPage(body) {
+  const message = el("p", { id: "scenarios-message" });
+  const save = adminControl(el("input", { type: "checkbox", id: "scenario-save" }));
+  const table = liveTable("scenarios-table", [
+    { label: "Name", get: (s) => s.name, cls: () => "name" },
+    { label: "Kind", get: (s) => s.kind },
+    { label: "Target", get: (s) => s.target },
+    { label: "Function", get: (s) => s.function, num: true },
+    { label: "Trigger", get: (s) => s.trigger },
+    { label: "State", render: (td, s) => {
+      clear(td).append(el("span", { class: `state state-${s.state}`, text: s.state }));
+    } },
+    { label: "Message", get: (s) => s.message || "", cls: () => "message" },
+    { label: "Runs", get: (s) => s.runs, num: true },
+    { label: "Successes", get: (s) => s.successes, num: true },
+    { label: "Errors", get: (s) => errorCount(s.errors) },
+    { label: "Last success", get: (s) => localTime(s.last_success) },
+    { label: "Data age", get: (s) => typeof s.data_age_s === "number"
+      ? `${s.data_age_s.toFixed(1)} s${s.stale ? " (stale)" : ""}` : "—" },
+    { label: "", render: (td, s, isNew) => {
+      if (isNew) {
+        td.append(
+          adminControl(el("button", { type: "button", class: "enable", text: "Enable",
+            onclick: () => enableScenario(s.name, true, save.checked, message) })), " ",
+          adminControl(el("button", { type: "button", class: "disable", text: "Disable",
+            onclick: () => enableScenario(s.name, false, save.checked, message) })));
+      }
+    } },
+  ], (s) => `${s.kind}/${s.name}`);
+  const fields = el("textarea", { id: "scenario-test-fields", rows: 6, cols: 50,
+    placeholder: "slave = 1\nfunction = 3\naddress = 0\nquantity = 2\ntable = 100" });
+  const result = el("pre", { id: "scenario-test-result" });
+  const testButton = adminControl(el("button", { type: "button", id: "scenario-test",
+    text: "Run the test", onclick: () => testScenario(fields.value, result) }));
+  body.append(message,
+    el("p", {}, el("label", {}, save, " enable / disable also in the configuration file")),
+    table.element,
+    el("h2", { text: "Test a scenario" }),
+    el("p", { text: "One KEY = VALUE per line, as in a [[scenario]] table of the file." }),
+    fields, el("div", { class: "controls" }, testButton), result);
+  return {
+    async refresh() {
+      const data = await load("/api/scenarios");
+      if (data) table.update(listOf(data, "scenarios"));
+    },
+  };
+}
+
+async function enableScenario(name, on, save, message) {
+  const result = await api("POST",
+    `/api/scenarios/${encodeURIComponent(name)}/${on ? "enable" : "disable"}`, { save });
+  message.className = result.ok ? "ok" : "error";
+  message.textContent = result.ok ? `scenario ${name} ${on ? "enabled" : "disabled"}`
+    : refusal(result);
+}
+
+// "KEY = VALUE" lines: an object; a VALUE that reads as JSON (a number, true, [1, 2], "text")
+// is that, else the text.
+function fieldsOf(text) {
+  const fields = {};
+  for (const line of text.split("\n")) {
+    const t = line.trim();
+    if (!t || t.startsWith("#")) continue;
+    const at = t.indexOf("=");
+    if (at < 1) throw new Error(`${t}: expected KEY = VALUE`);
+    const value = t.slice(at + 1).trim();
+    try { fields[t.slice(0, at).trim()] = JSON.parse(value); } catch (e) {
+      fields[t.slice(0, at).trim()] = value;
+    }
+  }
+  return fields;
+}
+
+async function testScenario(text, out) {
+  let fields;
+  try { fields = fieldsOf(text); } catch (err) { out.textContent = err.message; return; }
+  out.textContent = "testing…";
+  const result = await api("POST", "/api/scenarios/test", fields);
+  out.className = result.ok && !result.data.error ? "" : "error";
+  out.textContent = result.ok ? JSON.stringify(result.data, null, 2) : refusal(result);
+}
+
+// ---- Exchange table ----------------------------------------------------------------------
+
+function ascii(value) {
+  return [value >> 8, value & 0xff]
+    .map((b) => (b >= 0x20 && b < 0x7f ? String.fromCharCode(b) : ".")).join("");
+}
+
+function tablePage(body) {
+  const address = el("input", { id: "table-address", value: "0", size: 8 });
+  const count = el("input", { id: "table-count", value: "16", size: 5 });
+  const view = el("select", { id: "table-view" },
+    ...["registers", "bits", "hex", "ascii"].map((v) => el("option", { value: v, text: v })));
+  const radix = el("select", { id: "table-radix" },
+    el("option", { value: "dec", text: "addresses in decimal" }),
+    el("option", { value: "hex", text: "addresses in hex" }));
+  const grid = el("div", { id: "table-values" });
+  const writeAddress = adminControl(el("input", { id: "table-write-address", size: 8 }));
+  const writeValues = adminControl(el("input", { id: "table-write-values", size: 30,
+    placeholder: "1, 2, 0x10" }));
+  const writeResult = el("span", { id: "table-write-result" });
+  const writeButton = adminControl(el("button", { type: "button", id: "table-write",
+    text: "Write", onclick: () => writeTable() }));
+  body.append(
+    el("form", { class: "inline", onsubmit: (e) => { e.preventDefault(); page.refresh(); } },
+      el("label", {}, "Address ", address), el("label", {}, "Count ", count), view, radix,
+      el("button", { type: "submit", text: "Show" })),
+    grid,
+    el("h2", { text: "Write registers" }),
+    el("form", { class: "inline", onsubmit: (e) => { e.preventDefault(); writeTable(); } },
+      el("label", {}, "Address ", writeAddress), el("label", {}, "Values ", writeValues),
+      writeButton, writeResult));
+
+  async function writeTable() {
+    const at = parseNumber(writeAddress.value);
+    const values = writeValues.value.split(/[\s,]+/).filter(Boolean).map(parseNumber);
+    if (Number.isNaN(at) || !values.length || values.some(Number.isNaN)) {
+      writeResult.className = "field-error";
+      writeResult.textContent = "an address and values, in decimal or 0x hex";
+      return;
+    }
+    const result = await api("POST", "/api/table", { address: at, values });
+    writeResult.className = result.ok ? "ok" : "field-error";
+    writeResult.textContent = result.ok ? `written ${values.length} from ${hex4(at)}`
+      : refusal(result);
+    page.refresh();
+  }
+
+  const page = {
+    async refresh() {
+      const at = parseNumber(address.value);
+      const n = parseNumber(count.value);
+      if (Number.isNaN(at) || Number.isNaN(n)) {
+        $("page-error").textContent = "address and count: decimal, or hex as 0x1F";
+        return;
+      }
+      const bits = view.value === "bits";
+      const data = await load(`/api/table?address=${at}&count=${n}&bits=${bits ? 1 : 0}`);
+      if (!data) return;
+      const start = typeof data.address === "number" ? data.address : at;
+      const label = (a) => radix.value === "hex" ? hex4(a) : String(a);
+      const format = { registers: String, bits: String, hex: hex4, ascii }[view.value];
+      clear(grid).append(el("table", { id: "table-grid" },
+        el("thead", {}, el("tr", {}, el("th", { text: "Address" }),
+          el("th", { text: view.value }))),
+        el("tbody", {}, ...(data.values || []).map((v, i) => el("tr",
+          { "data-address": start + i }, el("th", { text: label(start + i) }),
+          el("td", { class: "value mono", text: format(v) }))))));
+    },
+  };
+  return page;
+}
+
+// ---- Statistics --------------------------------------------------------------------------
+
+function statsPage(body) {
+  const message = el("p", { id: "stats-message" });
+  const holder = el("div");
+  body.append(el("div", { class: "controls" }, adminControl(el("button", {
+    type: "button", id: "stats-reset", text: "Reset the counters", onclick: async () => {
+      const result = await api("POST", "/api/stats/reset");
+      message.className = result.ok ? "ok" : "error";
+      message.textContent = result.ok ? "counters reset" : refusal(result);
+    } })), message), holder);
+  return {
+    async refresh() {
+      const data = await load("/api/stats");
+      if (data) clear(holder).append(factsTable("stats-table", leaves(data, "", [])));
+    },
+  };
+}
+
+// ---- Traffic -----------------------------------------------------------------------------
+
+function trafficPage(body) {
+  const shown = [];                 // the events shown, for the pcap
+  let paused = false;
+  let skipped = 0;
+  const tbody = el("tbody");
+  const info = el("span", { id: "trace-info" });
+  const pause = el("button", { type: "button", id: "trace-pause", text: "Pause" });
+  const download = el("button", { type: "button", id: "trace-pcap",
+    text: "Download the pcap of what was shown" });
+  const clearButton = el("button", { type: "button", id: "trace-clear", text: "Clear" });
+  const columns = ["Time", "Direction", "Client", "Unit", "Function", "Length", "PDU",
+    "Outcome", "Latency ms"];
+  body.append(el("div", { class: "controls" }, pause, clearButton, download, info),
+    el("table", { id: "trace-table" }, el("thead", {}, el("tr", {},
+      ...columns.map((c) => el("th", { text: c })))), tbody));
+
+  const say = () => {
+    info.textContent = `${shown.length} events shown` +
+      (paused ? `, paused (${skipped} not shown)` : "");
+  };
+  pause.addEventListener("click", () => {
+    paused = !paused;
+    pause.textContent = paused ? "Resume" : "Pause";
+    say();
+  });
+  clearButton.addEventListener("click", () => { shown.length = 0; clear(tbody); say(); });
+  download.addEventListener("click", () => downloadPcap(shown));
+
+  const source = new EventSource("/api/trace");
+  source.onmessage = (message) => {
+    let event;
+    try { event = JSON.parse(message.data); } catch (e) { return; }
+    if (!event || !event.direction) return;         // the stream's header
+    if (paused) { skipped += 1; say(); return; }
+    shown.push(event);
+    if (shown.length > TRACE_KEPT) shown.shift();
+    tbody.prepend(el("tr", { class: "trace-event" },
+      el("td", { text: typeof event.time === "number" ? clock(event.time) : show(event.time) }),
+      el("td", { text: show(event.direction) }),
+      el("td", { class: "peer", text: show(event.server || event.peer || event.client) }),
+      el("td", { class: "num", text: show(event.unit) }),
+      el("td", { class: "num", text: show(event.function) }),
+      el("td", { class: "num", text: show(event.length) }),
+      el("td", { class: "pdu mono", text: show(event.pdu) }),
+      el("td", { text: show(event.outcome) }),
+      el("td", { class: "num", text: show(event.latency_ms) })));
+    while (tbody.children.length > TRACE_ROWS) tbody.lastChild.remove();
+    say();
+  };
+  source.onerror = () => {
+    $("page-error").textContent = source.readyState === EventSource.CLOSED
+      ? "the trace stream ended" : "the trace stream is reconnecting…";
+  };
+  source.onopen = () => { $("page-error").textContent = ""; };
+  say();
+  return { leave() { source.close(); } };
+}
+
+async function downloadPcap(events) {
+  const response = await fetch("/api/trace/pcap", {
+    method: "POST", credentials: "same-origin",
+    headers: { "Content-Type": "application/json", "X-CSRF-Token": session.csrf || "" },
+    body: JSON.stringify({ events }),
+  }).catch(() => null);
+  if (!response || !response.ok) {
+    $("page-error").textContent = "pcap: " + (response ? `${response.status} ${response.statusText}`
+      : "the gateway does not answer");
+    return;
+  }
+  const url = URL.createObjectURL(await response.blob());
+  const link = el("a", { href: url, download: "mbgw-trace.pcap" });
+  document.body.append(link);
+  link.click();
+  link.remove();
+  setTimeout(() => URL.revokeObjectURL(url), 10000);
+}
+
+// ---- Configuration -----------------------------------------------------------------------
+
+// {group: {key: value}} from GET /api/config (a value may be {"value": ...}).
+function configGroups(data) {
+  const groups = data && typeof data.groups === "object" ? data.groups : data;
+  return Object.entries(groups || {}).filter(([, keys]) =>
+    keys && typeof keys === "object" && !Array.isArray(keys));
+}
+
+function configValue(value) {
+  if (value !== null && typeof value === "object" && !Array.isArray(value) && "value" in value) {
+    return configValue(value.value);
+  }
+  return Array.isArray(value) ? value.join(" ") : value === null ? "" : String(value);
+}
+
+function configPage(body) {
+  const holder = el("div", { id: "config-groups" });
+  const fileInput = adminControl(el("input", { type: "file", id: "config-upload-file",
+    accept: ".toml,text/plain" }));
+  const uploadResult = el("pre", { id: "config-upload-result" });
+  body.append(
+    el("div", { class: "controls" },
+      el("a", { href: "/api/config/file", download: "mbgw.toml", id: "config-download",
+        text: "Download the configuration file" }),
+      fileInput,
+      adminControl(el("button", { type: "button", id: "config-upload", text: "Upload and apply",
+        onclick: () => uploadConfig(fileInput, uploadResult, reload) }))),
+    uploadResult, holder);
+
+  async function reload() {
+    const data = await load("/api/config");
+    if (!data) return;
+    clear(holder);
+    for (const [group, keys] of configGroups(data)) {
+      holder.append(el("fieldset", { "data-group": group }, el("legend", { text: `[${group}]` }),
+        ...Object.entries(keys).map(([key, value]) => configRow(group, key, value))));
+    }
+  }
+  reload();
+  return { refresh: null };
+}
+
+function configRow(group, key, value) {
+  const field = `${group}.${key}`;
+  const input = adminControl(el("input", { id: `cfg-${group}-${key}`, "data-field": field,
+    value: configValue(value) }));
+  const note = el("span", { class: "field-error", "data-error-for": field });
+  const apply = async () => {
+    const result = await api("POST", "/api/config", { group, key, value: input.value });
+    note.className = result.ok ? "ok" : "field-error";
+    note.textContent = result.ok ? "applied" : refusal(result);
+    if (!result.ok && result.data.field && result.data.field !== field) {
+      note.textContent += ` (${result.data.field})`;
+    }
+  };
+  return el("div", { class: "config-row" },
+    el("label", { for: input.id, text: key }), input,
+    adminControl(el("button", { type: "button", class: "config-save", text: "Set",
+      onclick: apply })),
+    note);
+}
+
+async function uploadConfig(input, out, reload) {
+  const file = input.files && input.files[0];
+  if (!file) { out.className = "error"; out.textContent = "choose a file first"; return; }
+  const result = await api("POST", "/api/config/file", { text: await file.text() });
+  out.className = result.ok ? "ok" : "error";
+  if (result.ok) {
+    out.textContent = "written and applied";
+    reload();
+  } else {
+    const problems = result.data.problems;
+    out.textContent = Array.isArray(problems) ? problems.map(show).join("\n") : refusal(result);
+  }
+}
+
+// ---- start -------------------------------------------------------------------------------
+
+async function start() {
+  $("login-form").addEventListener("submit", logIn);
+  $("logout").addEventListener("click", logOut);
+  window.addEventListener("hashchange", route);
+  const result = await api("GET", "/api/session");
+  if (result.ok) loggedIn(result.data);
+  else showLogin("");
+}
+
+document.addEventListener("DOMContentLoaded", start);
