@@ -8,6 +8,8 @@ import asyncio
 import json
 import os
 import shutil
+import subprocess
+import sys
 import threading
 from pathlib import Path
 
@@ -15,12 +17,15 @@ import pytest
 
 webdriver = pytest.importorskip("selenium.webdriver")
 from aiohttp import web  # noqa: E402
+from pymodbus.client import ModbusTcpClient  # noqa: E402
 from selenium.webdriver.chrome.service import Service  # noqa: E402
 from selenium.webdriver.common.by import By  # noqa: E402
 from selenium.webdriver.support import expected_conditions as EC  # noqa: E402
-from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
+from selenium.webdriver.support.ui import Select, WebDriverWait  # noqa: E402
 
-from tests.harness import free_port  # noqa: E402
+from tests.harness import Gateway, Peer, PtyPair, free_port  # noqa: E402
+from tests.modbus import Client, read_holding  # noqa: E402
+from tests.ops import status, wait_for, wait_for_log  # noqa: E402
 
 pytestmark = pytest.mark.integration
 
@@ -107,7 +112,7 @@ def hostile_app() -> web.Application:
     for path in documents:
         app.router.add_get(path, document)
     app.router.add_get("/", page)
-    app.router.add_get("/{name}", page)
+    app.router.add_get("/static/{name}", page)
     return app
 
 
@@ -152,3 +157,188 @@ def test_values_with_markup_are_shown_as_text(browser, hostile_console):
     wait(browser, text_in("#trace-table td.pdu", HOSTILE))
     assert browser.find_element(By.CSS_SELECTOR, "#trace-table td.peer").text == HOSTILE
     assert_nothing_injected(browser)
+
+
+# ---- a real gateway with its console -----------------------------------------------------
+
+PASSWORDS = {"admin": "admin secret 1", "user": "user secret 2"}
+TABLE_UNIT = 247                 # the exchange table's first unit (the default 247-254)
+SCENARIO = "boiler"
+GREEN, GREY = "rgba(46, 157, 58, 1)", "rgba(158, 158, 158, 1)"
+
+
+class Console:
+    """`mbgw slave` with its console on, a pymodbus RTU slave on its line polled by one
+    scenario, and the configuration file it started from."""
+
+    def __init__(self, directory: Path) -> None:
+        self.pty = PtyPair(directory)
+        self.peer = Peer("pymodbus_slave.py", self.pty.device, "1", "--silent-unknown")
+        self.path = directory / "mbgw.toml"
+        web_port = free_port()
+        self.path.write_text("\n".join([
+            "[serial]", 'mode = "slave"', "baudrate = 115200", "stout = 100",
+            "[web]", f'listen = "127.0.0.1:{web_port}"',
+            "[[scenario]]", f'name = "{SCENARIO}"', "slave = 1", "function = 3",
+            "address = 0", "quantity = 2", "table = 0", "cycle = 200"]) + "\n")
+        for role, password in PASSWORDS.items():
+            done = subprocess.run([sys.executable, "-m", "mbgw", "config", "password", role,
+                                   "--stdin", "--config", str(self.path)],
+                                  input=password + "\n", capture_output=True, text=True)
+            assert done.returncode == 0, done.stderr
+        self.gw = Gateway(directory, self.pty.gateway, "--config", str(self.path))
+        self.url = f"http://127.0.0.1:{web_port}/"
+
+    def stop(self) -> None:
+        self.gw.stop()
+        self.peer.stop()
+        self.pty.stop()
+
+
+@pytest.fixture(scope="module")
+def console(tmp_path_factory):
+    running = Console(tmp_path_factory.mktemp("web"))
+    yield running
+    running.stop()
+
+
+def log_in(driver, console: Console, role: str, password: str | None = None) -> None:
+    """A fresh session of role on the Overview (a wrong password: the login page stays)."""
+    driver.get(console.url)
+    driver.delete_all_cookies()
+    driver.get(console.url + "#overview")
+    wait(driver, EC.visibility_of_element_located((By.ID, "login-form")))
+    Select(driver.find_element(By.ID, "login-user")).select_by_value(role)
+    driver.find_element(By.ID, "login-password").send_keys(
+        PASSWORDS[role] if password is None else password)
+    driver.find_element(By.ID, "login-submit").click()
+    if password is None:
+        wait(driver, text_in("#role", role))
+
+
+def go(driver, page: str) -> None:
+    driver.find_element(By.CSS_SELECTOR, f'nav a[href="#{page}"]').click()
+    wait(driver, EC.presence_of_element_located(
+        (By.CSS_SELECTOR, f'#page-body[data-page="{page}"]')))
+
+
+def scenario_state(driver, name: str):
+    """(the state shown, its background colour) of a scenario's row, once it is shown."""
+    row = f'#scenarios-table tr[data-key="serial/{name}"]'
+    badge = wait(driver, found(f"{row} span.state"))
+    return badge.text, badge.value_of_css_property("background-color")
+
+
+def test_a_wrong_password_is_refused(browser, console):
+    log_in(browser, console, "admin", "not the password")
+    wait(browser, text_in("#login-error", "Wrong user or password"))
+    assert not browser.find_element(By.ID, "nav").is_displayed()
+    assert "web login failed for 'admin'" in wait_for_log(console.gw, "web login failed")
+
+
+def test_the_overview_shows_the_line_and_the_front_panel(browser, console):
+    log_in(browser, console, "admin")
+    wait(browser, text_in('#overview-facts tr[data-name="Mode"] td', "slave"))
+    wait(browser, text_in('#overview-facts tr[data-name="Line state"] td', "up"))
+    assert browser.find_element(By.ID, "led-line").get_attribute("data-state") == "green"
+    shot = os.environ.get("MBGW_CONSOLE_SCREENSHOT")    # docs/console-overview.png is made so
+    if shot:
+        wait(browser, lambda d: d.find_element(By.ID, "led-activity")
+             .get_attribute("data-state") == "green")
+        browser.save_screenshot(shot)
+
+
+def test_a_client_appears_and_the_admin_closes_it(browser, console):
+    log_in(browser, console, "admin")
+    go(browser, "clients")
+    modbus = Client(console.gw.port)
+    try:
+        modbus.ask(TABLE_UNIT, read_holding(0, 1))
+        here = "127.0.0.1:%d" % modbus.sock.getsockname()[1]
+        row = wait(browser, lambda d: [r for r in d.find_elements(
+            By.CSS_SELECTOR, "#clients-table tbody tr") if here in r.text])[0]
+        row.find_element(By.CSS_SELECTOR, "button.close-client").click()
+        wait(browser, EC.staleness_of(row))
+        modbus.sock.settimeout(WAIT_S)
+        assert modbus.sock.recv(1) == b""            # the gateway closed the connection
+    finally:
+        modbus.close()
+
+
+def test_a_disabled_scenario_turns_grey_and_green_again(browser, console):
+    log_in(browser, console, "admin")
+    go(browser, "scenarios")
+    wait(browser, lambda d: scenario_state(d, SCENARIO) == ("running", GREEN))
+    row = browser.find_element(By.CSS_SELECTOR,
+                               f'#scenarios-table tr[data-key="serial/{SCENARIO}"]')
+    row.find_element(By.CSS_SELECTOR, "button.disable").click()
+    wait(browser, lambda d: scenario_state(d, SCENARIO) == ("disabled", GREY))
+    assert scenarios(status(console.gw))[SCENARIO]["state"] == "disabled"
+    row.find_element(By.CSS_SELECTOR, "button.enable").click()
+    wait(browser, lambda d: scenario_state(d, SCENARIO) == ("running", GREEN))
+
+
+def test_a_register_written_in_the_browser_is_read_by_a_modbus_client(browser, console):
+    log_in(browser, console, "admin")
+    go(browser, "table")
+    browser.find_element(By.ID, "table-write-address").send_keys("0x100")
+    browser.find_element(By.ID, "table-write-values").send_keys("0x1234, 7")
+    browser.find_element(By.ID, "table-write").click()
+    wait(browser, text_in("#table-write-result", "written 2 from 0x0100"))
+    with ModbusTcpClient("127.0.0.1", port=console.gw.port) as modbus:
+        assert modbus.read_holding_registers(0x100, count=2, device_id=TABLE_UNIT).registers \
+            == [0x1234, 7]
+    address = browser.find_element(By.ID, "table-address")
+    address.clear()
+    address.send_keys("256")
+    Select(browser.find_element(By.ID, "table-view")).select_by_value("hex")
+    wait(browser, text_in('#table-grid tr[data-address="256"] td.value', "0x1234"))
+
+
+def test_a_bad_setting_is_refused_next_to_its_field_and_a_good_one_applied(browser, console):
+    log_in(browser, console, "admin")
+    go(browser, "config")
+    before = console.path.read_bytes()
+    field = wait(browser, found('input[data-field="serial.stout"]'))
+    field.clear()
+    field.send_keys("soon")
+    field.find_element(By.XPATH, "following-sibling::button").click()
+    wait(browser, text_in('[data-error-for="serial.stout"]', "stout"))
+    assert console.path.read_bytes() == before
+    field.clear()
+    field.send_keys("150")
+    field.find_element(By.XPATH, "following-sibling::button").click()
+    wait(browser, text_in('[data-error-for="serial.stout"]', "applied"))
+    assert "stout = 150" in console.path.read_text()
+    wait_for(console.gw, lambda s: s["serial"]["stout_ms"] == 150, "the new stout in force")
+
+
+def test_the_user_role_changes_nothing(browser, console):
+    log_in(browser, console, "user")
+    for page, control in (("clients", None), ("scenarios", "button.disable"),
+                          ("table", "#table-write"), ("stats", "#stats-reset"),
+                          ("config", "button.config-save")):
+        go(browser, page)
+        if control:
+            assert not wait(browser, found(control)).is_enabled()
+    # the page's own controls forced open: the gateway refuses, and the page says so
+    go(browser, "table")
+    browser.execute_script("for (const e of document.querySelectorAll('.admin-only'))"
+                           " e.disabled = false;")
+    browser.find_element(By.ID, "table-write-address").send_keys("0x101")
+    browser.find_element(By.ID, "table-write-values").send_keys("99")
+    browser.find_element(By.ID, "table-write").click()
+    wait(browser, text_in("#table-write-result", "refused"))
+    go(browser, "scenarios")
+    browser.execute_script("for (const e of document.querySelectorAll('.admin-only'))"
+                           " e.disabled = false;")
+    wait(browser, found("button.disable")).click()
+    wait(browser, text_in("#scenarios-message", "refused"))
+    assert scenarios(status(console.gw))[SCENARIO]["state"] != "disabled"
+    with ModbusTcpClient("127.0.0.1", port=console.gw.port) as modbus:
+        assert modbus.read_holding_registers(0x101, count=1, device_id=TABLE_UNIT).registers \
+            == [0]
+
+
+def scenarios(s: dict) -> dict:
+    return {sc["name"]: sc for sc in s.get("scenarios", [])}

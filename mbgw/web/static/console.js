@@ -100,7 +100,10 @@ function listOf(data, key) {
 async function api(method, path, body) {
   const headers = { "Accept": "application/json" };
   const options = { method, headers, credentials: "same-origin" };
-  if (body !== undefined) {
+  if (typeof body === "string") {                // a file's text, as it is
+    headers["Content-Type"] = "text/plain; charset=utf-8";
+    options.body = body;
+  } else if (body !== undefined) {
     headers["Content-Type"] = "application/json";
     options.body = JSON.stringify(body);
   }
@@ -194,7 +197,8 @@ function leavePage() {
 
 function route() {
   if (!session.role) return;
-  const name = location.hash.slice(1) in pages ? location.hash.slice(1) : "overview";
+  const wanted = location.hash.slice(1);
+  const name = Object.hasOwn(pages, wanted) ? wanted : "overview";
   leavePage();
   for (const link of document.querySelectorAll("nav a")) {
     link.classList.toggle("current", link.getAttribute("href") === "#" + name);
@@ -670,18 +674,8 @@ function trafficPage(body) {
   return { leave() { source.close(); } };
 }
 
-async function downloadPcap(events) {
-  const response = await fetch("/api/trace/pcap", {
-    method: "POST", credentials: "same-origin",
-    headers: { "Content-Type": "application/json", "X-CSRF-Token": session.csrf || "" },
-    body: JSON.stringify({ events }),
-  }).catch(() => null);
-  if (!response || !response.ok) {
-    $("page-error").textContent = "pcap: " + (response ? `${response.status} ${response.statusText}`
-      : "the gateway does not answer");
-    return;
-  }
-  const url = URL.createObjectURL(await response.blob());
+function downloadPcap(events) {
+  const url = URL.createObjectURL(pcapOf(events));          // pcap.js
   const link = el("a", { href: url, download: "mbgw-trace.pcap" });
   document.body.append(link);
   link.click();
@@ -712,8 +706,8 @@ function configPage(body) {
   const uploadResult = el("pre", { id: "config-upload-result" });
   body.append(
     el("div", { class: "controls" },
-      el("a", { href: "/api/config/file", download: "mbgw.toml", id: "config-download",
-        text: "Download the configuration file" }),
+      session.role === "admin" ? el("a", { href: "/api/config/file", id: "config-download",
+        text: "Download the configuration file" }) : null,
       fileInput,
       adminControl(el("button", { type: "button", id: "config-upload", text: "Upload and apply",
         onclick: () => uploadConfig(fileInput, uploadResult, reload) }))),
@@ -755,7 +749,7 @@ function configRow(group, key, value) {
 async function uploadConfig(input, out, reload) {
   const file = input.files && input.files[0];
   if (!file) { out.className = "error"; out.textContent = "choose a file first"; return; }
-  const result = await api("POST", "/api/config/file", { text: await file.text() });
+  const result = await api("POST", "/api/config/file", await file.text());
   out.className = result.ok ? "ok" : "error";
   if (result.ok) {
     out.textContent = "written and applied";
