@@ -25,7 +25,7 @@ from selenium.webdriver.support.ui import Select, WebDriverWait  # noqa: E402
 
 from tests.harness import Gateway, Peer, PtyPair, free_port  # noqa: E402
 from tests.modbus import Client, read_holding  # noqa: E402
-from tests.ops import status, wait_for, wait_for_log  # noqa: E402
+from tests.ops import status, tracing, tshark_warnings, wait_for, wait_for_log  # noqa: E402
 
 pytestmark = pytest.mark.integration
 
@@ -338,6 +338,30 @@ def test_the_user_role_changes_nothing(browser, console):
     with ModbusTcpClient("127.0.0.1", port=console.gw.port) as modbus:
         assert modbus.read_holding_registers(0x101, count=1, device_id=TABLE_UNIT).registers \
             == [0]
+
+
+def test_the_pcap_of_the_shown_trace_is_the_one_mbgw_trace_writes(browser, console, tmp_path):
+    log_in(browser, console, "admin")
+    browser.execute_cdp_cmd("Page.setDownloadBehavior",
+                            {"behavior": "allow", "downloadPath": str(tmp_path)})
+    go(browser, "traffic")
+    wait(browser, found('#trace-info[data-stream="open"]'))
+    reference = tmp_path / "reference.pcap"
+    with tracing(console.gw, reference, 6) as (trace, _):
+        modbus = Client(console.gw.port)
+        try:
+            for first in range(3):
+                modbus.ask(TABLE_UNIT, read_holding(first, 2))
+        finally:
+            modbus.close()
+        assert trace.wait(WAIT_S) == 0
+    wait(browser, text_in("#trace-info", "6 events shown"))
+    browser.find_element(By.ID, "trace-pcap").click()
+    pcap = tmp_path / "mbgw-trace.pcap"
+    wait(browser, lambda d: pcap.exists() and pcap.stat().st_size > 24)
+    assert pcap.read_bytes() == reference.read_bytes()
+    checked = tshark_warnings(pcap, console.gw.port)
+    assert checked.returncode == 0 and checked.stdout == "", checked
 
 
 def scenarios(s: dict) -> dict:

@@ -378,7 +378,7 @@ function clientsPage(body) {
     { label: "Requests", get: (c) => c.requests, num: true },
     { label: "In flight", get: (c) => c.in_flight, num: true },
     { label: "Last activity", get: (c) => ago(c.last_activity) },
-    { label: "", render: (td, c, isNew) => {
+    { label: "", cls: () => "actions", render: (td, c, isNew) => {
       if (!isNew) return;
       td.append(adminControl(el("button", { type: "button", class: "close-client",
         text: "Close", onclick: () => closeClient(c.id, message) })));
@@ -460,7 +460,7 @@ function scenariosPage(body) {
     { label: "Last success", get: (s) => localTime(s.last_success) },
     { label: "Data age", get: (s) => typeof s.data_age_s === "number"
       ? `${s.data_age_s.toFixed(1)} s${s.stale ? " (stale)" : ""}` : "—" },
-    { label: "", render: (td, s, isNew) => {
+    { label: "", cls: () => "actions", render: (td, s, isNew) => {
       if (isNew) {
         td.append(
           adminControl(el("button", { type: "button", class: "enable", text: "Enable",
@@ -669,7 +669,10 @@ function trafficPage(body) {
     $("page-error").textContent = source.readyState === EventSource.CLOSED
       ? "the trace stream ended" : "the trace stream is reconnecting…";
   };
-  source.onopen = () => { $("page-error").textContent = ""; };
+  source.onopen = () => {
+    $("page-error").textContent = "";
+    info.dataset.stream = "open";
+  };
   say();
   return { leave() { source.close(); } };
 }
@@ -717,6 +720,7 @@ function configPage(body) {
     const data = await load("/api/config");
     if (!data) return;
     clear(holder);
+    if (data.file) holder.append(el("p", { id: "config-file", text: `${data.file} (${data.mode} mode)` }));
     for (const [group, keys] of configGroups(data)) {
       holder.append(el("fieldset", { "data-group": group }, el("legend", { text: `[${group}]` }),
         ...Object.entries(keys).map(([key, value]) => configRow(group, key, value))));
