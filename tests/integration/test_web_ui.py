@@ -163,13 +163,15 @@ def test_values_with_markup_are_shown_as_text(browser, hostile_console):
 
 PASSWORDS = {"admin": "admin secret 1", "user": "user secret 2"}
 TABLE_UNIT = 247                 # the exchange table's first unit (the default 247-254)
-SCENARIO = "boiler"
-GREEN, GREY = "rgba(46, 157, 58, 1)", "rgba(158, 158, 158, 1)"
+SCENARIO = "boiler"             # polls the pymodbus slave: running
+LOST = "meter"                  # polls an address nothing answers: in error
+GREEN, GREY, RED = "rgba(46, 157, 58, 1)", "rgba(158, 158, 158, 1)", "rgba(211, 47, 47, 1)"
 
 
 class Console:
     """`mbgw slave` with its console on, a pymodbus RTU slave on its line polled by one
-    scenario, and the configuration file it started from."""
+    scenario (another polls an address nothing answers), and the configuration file it
+    started from."""
 
     def __init__(self, directory: Path) -> None:
         self.pty = PtyPair(directory)
@@ -180,7 +182,9 @@ class Console:
             "[serial]", 'mode = "slave"', "baudrate = 115200", "stout = 100",
             "[web]", f'listen = "127.0.0.1:{web_port}"',
             "[[scenario]]", f'name = "{SCENARIO}"', "slave = 1", "function = 3",
-            "address = 0", "quantity = 2", "table = 0", "cycle = 200"]) + "\n")
+            "address = 0", "quantity = 2", "table = 0", "cycle = 200",
+            "[[scenario]]", f'name = "{LOST}"', "slave = 9", "function = 3",
+            "address = 0", "quantity = 2", "table = 10", "cycle = 1000"]) + "\n")
         for role, password in PASSWORDS.items():
             done = subprocess.run([sys.executable, "-m", "mbgw", "config", "password", role,
                                    "--stdin", "--config", str(self.path)],
@@ -242,9 +246,11 @@ def test_the_overview_shows_the_line_and_the_front_panel(browser, console):
     wait(browser, text_in('#overview-facts tr[data-name="Line state"] td', "up"))
     assert browser.find_element(By.ID, "led-line").get_attribute("data-state") == "green"
     shot = os.environ.get("MBGW_CONSOLE_SCREENSHOT")    # docs/console-overview.png is made so
+    wait(browser, text_in("#overview-wrong", f"Scenario {LOST} is in error"))
+    assert browser.find_element(By.ID, "led-scenarios").get_attribute("data-state") == "red"
     if shot:
-        wait(browser, lambda d: d.find_element(By.ID, "led-activity")
-             .get_attribute("data-state") == "green")
+        wait(browser, lambda d: d.find_element(By.ID, "led-devices")
+             .get_attribute("data-state") == "red")
         browser.save_screenshot(shot)
 
 
@@ -269,6 +275,11 @@ def test_a_disabled_scenario_turns_grey_and_green_again(browser, console):
     log_in(browser, console, "admin")
     go(browser, "scenarios")
     wait(browser, lambda d: scenario_state(d, SCENARIO) == ("running", GREEN))
+    wait(browser, lambda d: scenario_state(d, LOST) == ("error", RED))
+    message = scenarios(status(console.gw))[LOST]["message"]
+    assert message and browser.find_element(
+        By.CSS_SELECTOR, f'#scenarios-table tr[data-key="serial/{LOST}"] td.message').text \
+        == message
     row = browser.find_element(By.CSS_SELECTOR,
                                f'#scenarios-table tr[data-key="serial/{SCENARIO}"]')
     row.find_element(By.CSS_SELECTOR, "button.disable").click()
@@ -325,7 +336,7 @@ def test_the_user_role_changes_nothing(browser, console):
     go(browser, "table")
     browser.execute_script("for (const e of document.querySelectorAll('.admin-only'))"
                            " e.disabled = false;")
-    browser.find_element(By.ID, "table-write-address").send_keys("0x101")
+    browser.find_element(By.ID, "table-write-address").send_keys("0x200")
     browser.find_element(By.ID, "table-write-values").send_keys("99")
     browser.find_element(By.ID, "table-write").click()
     wait(browser, text_in("#table-write-result", "refused"))
@@ -336,7 +347,7 @@ def test_the_user_role_changes_nothing(browser, console):
     wait(browser, text_in("#scenarios-message", "refused"))
     assert scenarios(status(console.gw))[SCENARIO]["state"] != "disabled"
     with ModbusTcpClient("127.0.0.1", port=console.gw.port) as modbus:
-        assert modbus.read_holding_registers(0x101, count=1, device_id=TABLE_UNIT).registers \
+        assert modbus.read_holding_registers(0x200, count=1, device_id=TABLE_UNIT).registers \
             == [0]
 
 

@@ -309,7 +309,9 @@ function led(id, label) {
 function listening(status) {
   const out = [];
   if (Array.isArray(status.listening)) out.push(...status.listening.map(show));
-  if (status.upstream && status.upstream.port) out.push(`Modbus TCP servers on port ${status.upstream.port}`);
+  if (status.upstream && status.upstream.port) {
+    out.push(`Modbus TCP servers on port ${status.upstream.port}`);
+  }
   const table = status.table || {};
   if (table.tcp && table.tcp.port) out.push(`table :${table.tcp.port}`);
   const t = status.transparent || {};
@@ -327,8 +329,11 @@ function overviewPage(body) {
     scenarios: led("led-scenarios", "Scenario errors"),
     devices: led("led-devices", "Devices down"),
   };
+  const wrong = el("ul", { id: "overview-wrong" });
   body.append(el("div", { class: "panel", id: "front-panel" },
-    ...Object.values(panelLeds).map((l) => l.node)), el("h2", { text: "Gateway" }), facts);
+    ...Object.values(panelLeds).map((l) => l.node)),
+    el("h2", { text: "What is wrong, since when" }), wrong,
+    el("h2", { text: "Gateway" }), facts);
   let previous = null;
   return {
     async refresh() {
@@ -345,8 +350,15 @@ function overviewPage(body) {
         ["Line utilisation", typeof s.line_utilisation_pct === "number"
           ? `${s.line_utilisation_pct} %` : "—"],
         ["Listening", listening(s)],
+        ...(Array.isArray(s.clients) ? [["Clients", String(s.clients.length)]] : []),
+        ["Devices", tally(s.devices || [], "health")],
+        ["Scenarios", tally(s.scenarios || [], "state")],
         ["Counters since", localTime(s.counters_since)],
       ]));
+      const problems = troubles(s);
+      clear(wrong).append(...(problems.length ? problems.map((p) => el("li", { text: p }))
+        : [el("li", { class: "ok", text: "Nothing: the line is up, every device answers, " +
+          "every scenario runs." })]));
       const activity = sum(counters, ACTIVITY_COUNTERS);
       const errors = sum(counters, ERROR_COUNTERS);
       const scenarioErrors = (s.scenarios || []).filter((sc) => sc.state === "error");
@@ -363,6 +375,40 @@ function overviewPage(body) {
       previous = { activity, errors };
     },
   };
+}
+
+// "2 up, 1 down": how many items have each value of a field.
+function tally(items, field) {
+  if (!items.length) return "none";
+  const counts = new Map();
+  for (const item of items) counts.set(item[field], (counts.get(item[field]) || 0) + 1);
+  return [...counts].map(([value, n]) => `${n} ${value}`).join(", ");
+}
+
+// What an operator must look at, each with since when.
+function troubles(s) {
+  const out = [];
+  const serial = s.serial || {};
+  if (serial.state && serial.state !== "up") {
+    out.push(`The serial line ${show(serial.device)} is ${serial.state}.`);
+  }
+  for (const d of s.devices || []) {
+    if (d.health !== "up") {
+      out.push(`Device ${d.address} is ${d.health} since ${localTime(d.health_since)}` +
+        (typeof d.last_success === "number" ? ` (last answer ${localTime(d.last_success)}).`
+          : " (it never answered)."));
+    }
+  }
+  for (const sc of s.scenarios || []) {
+    if (sc.state === "error") {
+      out.push(`Scenario ${sc.name} is in error: ${sc.message || "?"}` +
+        (typeof sc.last_success === "number" ? ` (last success ${localTime(sc.last_success)}).`
+          : " (never succeeded)."));
+    } else if (sc.stale) {
+      out.push(`Scenario ${sc.name}'s data is stale (${show(sc.data_age_s)} s old).`);
+    }
+  }
+  return out;
 }
 
 // ---- Clients -----------------------------------------------------------------------------
@@ -720,7 +766,9 @@ function configPage(body) {
     const data = await load("/api/config");
     if (!data) return;
     clear(holder);
-    if (data.file) holder.append(el("p", { id: "config-file", text: `${data.file} (${data.mode} mode)` }));
+    if (data.file) {
+      holder.append(el("p", { id: "config-file", text: `${data.file} (${data.mode} mode)` }));
+    }
     for (const [group, keys] of configGroups(data)) {
       holder.append(el("fieldset", { "data-group": group }, el("legend", { text: `[${group}]` }),
         ...Object.entries(keys).map(([key, value]) => configRow(group, key, value))));
