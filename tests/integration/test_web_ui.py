@@ -240,6 +240,22 @@ def test_a_wrong_password_is_refused(browser, console):
     assert "web login failed for 'admin'" in wait_for_log(console.gw, "web login failed")
 
 
+def test_a_session_gone_brings_back_the_login_and_log_out_ends_it(browser, console):
+    log_in(browser, console, "admin")
+    wait(browser, text_in('#overview-facts tr[data-name="Mode"] td', "slave"))
+    browser.delete_cookie("mbgw_session")                # as when it expires
+    wait(browser, text_in("#login-error", "The session has expired"))
+    assert not browser.find_element(By.ID, "nav").is_displayed()
+    log_in(browser, console, "user")
+    cookie = browser.get_cookie("mbgw_session")
+    browser.find_element(By.ID, "logout").click()
+    wait(browser, text_in("#login-error", "Logged out"))
+    browser.add_cookie({"name": cookie["name"], "value": cookie["value"]})
+    browser.refresh()                                    # the server ended the session too
+    wait(browser, EC.visibility_of_element_located((By.ID, "login-form")))
+    assert not browser.find_element(By.ID, "nav").is_displayed()
+
+
 def test_the_overview_shows_the_line_and_the_front_panel(browser, console):
     log_in(browser, console, "admin")
     wait(browser, text_in('#overview-facts tr[data-name="Mode"] td', "slave"))
