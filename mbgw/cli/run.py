@@ -17,6 +17,7 @@ def run_daemon(run: Callable, make_config: Callable, options: dict) -> None:
     from mbgw.ops.service import ListenError
 
     path = config_file()
+    _hand_keys_to_web_console()
     cfg = _from_file(_with_web(make_config, options), path)
     log.setup(options["log_level"])
     reload = reloader()
@@ -33,6 +34,19 @@ def run_daemon(run: Callable, make_config: Callable, options: dict) -> None:
         raise Failure(err.strerror or str(err)) from None
     except (ListenError, ConfigError) as err:
         raise Failure(str(err)) from None
+
+
+def _hand_keys_to_web_console() -> None:
+    """The console edits the file with the keys of these mode commands (web never imports
+    cli)."""
+    import click
+
+    from mbgw.web.config_api import use_commands
+    ctx = click.get_current_context()
+    root = ctx.find_root().command
+    if isinstance(root, click.Group):
+        use_commands(root, [name for name in ctx.params if ctx.get_parameter_source(name) in (
+            click.core.ParameterSource.COMMANDLINE, click.core.ParameterSource.ENVIRONMENT)])
 
 
 def _with_web(make_config: Callable, options: dict):

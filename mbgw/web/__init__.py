@@ -1,4 +1,6 @@
-"""The web console, served by the daemon itself on its asyncio loop (aiohttp): `server`
+"""The web console, served by the daemon itself on its asyncio loop (aiohttp): `hooks` (what
+a daemon hands it: its control commands, trace hub, file, reload), `console` (the daemon's
+handle: aiohttp imported only when [web] listen is on), `server`
 (`start_web`: the site, started, restarted on a reload that changes [web], closed at stop),
 `api` (the JSON API under /api: status, clients, devices, scenarios, table, stats, trace,
 config), `auth` (logins, sessions, CSRF tokens, the login rate limit), `passwords` (the

@@ -21,7 +21,7 @@ ALLOWED = {
     "slave": {"line", "table", "scenarios", "upstream", "ops", "protocol", "config", "errors",
               "firewall", "web"},
     "master": {"line", "table", "scenarios", "upstream", "ops", "protocol", "config", "errors",
-               "firewall"},
+               "firewall", "web"},
     "transparent": {"line", "table", "scenarios", "upstream", "ops", "protocol", "config",
                     "errors", "firewall", "web"},
     "web": {"ops", "table", "scenarios", "config", "protocol", "errors"},
