@@ -5,6 +5,7 @@ against the wire: the Modbus client's bytes, the frames the peer saw, the file o
 The fault peer's registers i hold 1000 + i; the table answers unit 247."""
 import http.cookiejar
 import json
+import signal
 import subprocess
 import sys
 import time
@@ -397,3 +398,62 @@ def test_master_and_transparent_mode_serve_the_console(mode, tmp_path, pty_pair,
     assert code == 400 and "not available" in reply["error"]
     assert web.ok("GET", "/api/scenarios") == {"scenarios": []} or mode == "master"
     assert gw.stop() == 0
+
+
+# --- HTTPS, reload ---------------------------------------------------------------------------
+
+def self_signed(directory) -> tuple[str, str]:
+    cert, key = directory / "web.pem", directory / "web.key"
+    done = subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes",
+                           "-keyout", str(key), "-out", str(cert), "-days", "2", "-subj",
+                           "/CN=localhost", "-addext", "subjectAltName=IP:127.0.0.1"],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+    return str(cert), str(key)
+
+
+def test_https_with_a_self_signed_certificate_and_a_secure_cookie(console, tmp_path):
+    import ssl
+    cert, key = self_signed(tmp_path)
+    gw, path, web, _ = console()
+    assert web.ok("POST", "/api/login", {"user": "admin", "password": ADMIN_PASSWORD})
+    port = web.base.rsplit(":", 1)[1]
+    text = path.read_text().replace("[web]\n", f'[web]\ncert = "{cert}"\nkey = "{key}"\n', 1)
+    assert web.call("POST", "/api/config/file", raw=text.encode(),
+                    csrf=False)[0] == 403                     # without the CSRF token
+    web = admin(web)
+    assert web.call("POST", "/api/config/file", raw=text.encode())[0] == 200
+    secure = Web(f"https://127.0.0.1:{port}", ssl.create_default_context(cafile=cert))
+    until(lambda: _serves(secure), "HTTPS after the reload")
+    code, reply, headers = secure.call("POST", "/api/login",
+                                       {"user": "admin", "password": ADMIN_PASSWORD})
+    assert code == 200 and "Secure" in headers["Set-Cookie"]
+    secure.csrf = reply["csrf"]
+    assert secure.ok("GET", "/api/status")["mode"] == "slave"
+    with pytest.raises((urllib.error.URLError, ConnectionError)):      # plain HTTP is gone
+        urllib.request.urlopen(web.base + "/api/session", timeout=5)
+    assert "web console on https://127.0.0.1:" in gw.log()
+
+
+def _serves(web: Web) -> bool:
+    try:
+        return web.get("/api/session")[0] == 401
+    except (urllib.error.URLError, ConnectionError):
+        return False
+
+
+def test_a_reload_moves_the_console_and_new_passwords_end_the_sessions(console, tmp_path):
+    gw, path, web, _ = console()
+    admin(web)
+    port = free_port()
+    assert web.ok("POST", "/api/config", {"group": "web", "key": "listen",
+                                          "value": f"127.0.0.1:{port}"})
+    moved = Web(f"http://127.0.0.1:{port}")
+    until(lambda: _serves(moved), "the console on its new port")
+    assert not _serves(web)
+    admin(moved)
+    set_passwords(path, ("admin", "another-secret"))
+    gw.proc.send_signal(signal.SIGHUP)
+    until(lambda: moved.get("/api/session")[0] == 401, "the session ended")
+    assert moved.login("admin", ADMIN_PASSWORD) == 401
+    assert moved.login("admin", "another-secret") == 200
