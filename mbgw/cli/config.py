@@ -299,9 +299,10 @@ def _show_scenarios(settings: cf.Settings, name: str | None) -> None:
             click.echo(line)
 
 
-def _change(ctx, path: Path, words, change) -> None:
+def _change(ctx, path: Path, words, change, shown: bool = True) -> None:
     """Read the file (or start from the factory file), make `change(schema, settings, data)`
-    -> {key: value}, check the whole result, write it atomically, say what changed."""
+    -> {key: value}, check the whole result, write it atomically, say what changed (its
+    value too when `shown`)."""
     schema = _schema(ctx)
     try:
         text = cf.read_text(path)
@@ -333,6 +334,8 @@ def _change(ctx, path: Path, words, change) -> None:
         label = schema.label(name) if name == ck.MODE_KEY or name in schema.keys else name
         if value is config_set.REMOVE:
             click.echo(f"{path}: {label} back to its default")
+        elif not shown:
+            click.echo(f"{path}: {label} set")
         else:
             click.echo(f"{path}: {label} = {dump_value(value)}")
     if text != new_text:
@@ -425,6 +428,38 @@ def _parse(path: Path, text: str) -> dict:
         return cf.parse(path, text)
     except ConfigFileError as err:
         raise Failure(str(err)) from None
+
+
+@config.command("password")
+@_file_options
+@click.argument("role", type=click.Choice(["admin", "user"]))
+@click.option("--stdin", "from_stdin", is_flag=True,
+              help="Read the password from the first line of standard input (scripts, tests).")
+@click.pass_context
+def password(ctx, config_path: Path, instance: str | None, role: str, from_stdin: bool) -> None:
+    """Set the web console's password of ROLE (admin: changes; user: reads), prompted twice;
+    the file keeps its salted scrypt hash (web.admin-password, web.user-password), which
+    `config show` never shows."""
+    from mbgw.web.passwords import hash_password
+    path = _path(ctx, config_path, instance)
+    text = _read_password(from_stdin)
+    try:
+        stored = hash_password(text)
+    except ConfigError as err:
+        raise Failure(str(err)) from None
+    _change(ctx, path, ["password", role, *_file_words(ctx, path)],
+            lambda schema, settings, data: {f"{role}-password": stored}, shown=False)
+
+
+def _read_password(from_stdin: bool) -> str:
+    import getpass
+    import sys
+    if from_stdin:
+        return sys.stdin.readline().rstrip("\r\n")
+    first = getpass.getpass("New password: ")
+    if getpass.getpass("Again: ") != first:
+        raise Failure("the passwords differ; nothing written")
+    return first
 
 
 @config.command("default")

@@ -4,7 +4,7 @@ import click
 
 from mbgw.config import model as config
 from mbgw.config.firewall import FirewallConfig
-from mbgw.config.schema import SerialOption, TableOption, TlsOption
+from mbgw.config.schema import SerialOption, TableOption, TlsOption, WebOption
 from mbgw.errors import ConfigError
 
 
@@ -237,6 +237,56 @@ class _FirewallRules(click.ParamType):
                   "(mbgw.toml(5))", param, ctx)
 
 
+def _parse_listen(value):
+    if value is not None:
+        from mbgw.web.address import parse_listen
+        parse_listen(value)
+    return value
+
+
+def _password_hash(label: str):
+    def parse(value):
+        if value is not None:
+            from mbgw.web.passwords import check_hash
+            check_hash(value, label)
+        return value
+    return parse
+
+
+# The web console ([web] keys): on with --web; the password hashes are file keys only.
+web_options = stack(
+    click.option("--web", "web_listen", cls=WebOption, key="web", file_key="listen",
+                 metavar="ADDR:PORT", default=None, callback=parser(_parse_listen),
+                 help="Serve the web console on http(s)://ADDR:PORT/ ([IPV6]:PORT; :PORT for "
+                      "every address); needs an admin password (mbgw config password admin) "
+                      "[default: off]."),
+    click.option("--web-cert", cls=WebOption, key="web-cert", file_key="cert", metavar="PATH",
+                 default=None, callback=_tls_file(_check_cert),
+                 help="The web console's certificate (PEM): HTTPS, with --web-key."),
+    click.option("--web-key", cls=WebOption, key="web-key", file_key="key", metavar="PATH",
+                 default=None, callback=_tls_file(_check_key),
+                 help="The web console certificate's private key (PEM, unencrypted)."),
+    click.option("--web-admin-password", cls=WebOption, key="admin-password", secret=True,
+                 hidden=True, default=None,
+                 callback=parser(_password_hash("web.admin-password")),
+                 help="The admin's password hash (set by mbgw config password admin)."),
+    click.option("--web-user-password", cls=WebOption, key="user-password", secret=True,
+                 hidden=True, default=None,
+                 callback=parser(_password_hash("web.user-password")),
+                 help="The user's password hash (set by mbgw config password user)."),
+)
+WEB_PARAMS = ("web_listen", "web_cert", "web_key", "web_admin_password", "web_user_password")
+
+
+def web_config(options: dict) -> config.WebConfig:
+    """WebConfig from the click values; takes them out of `options` (the mode's own
+    function does not know them)."""
+    web = {name: options.pop(name, None) for name in WEB_PARAMS}
+    return convert("'--web'", lambda: config.WebConfig(
+        listen=web["web_listen"], cert=web["web_cert"], key=web["web_key"],
+        admin_password=web["web_admin_password"], user_password=web["web_user_password"]))
+
+
 daemon_options = stack(
     click.option("--control", metavar="PATH", default=None,
                  help="Control socket for mbgw status/trace [default: "
@@ -248,6 +298,7 @@ daemon_options = stack(
     click.option("--log-level", type=LOG_LEVELS, default="info", show_default=True),
     click.option("--firewall", type=_FirewallRules(), default=None, hidden=True,
                  help="The configuration file's [[rule]] tables and [firewall] group."),
+    web_options,
 )
 
 

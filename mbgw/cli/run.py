@@ -5,7 +5,7 @@ import dataclasses
 from collections.abc import Callable
 
 from mbgw.cli.config import config_file, reloader
-from mbgw.cli.options import Failure
+from mbgw.cli.options import Failure, web_config
 from mbgw.errors import ConfigError, SerialError
 
 
@@ -17,7 +17,8 @@ def run_daemon(run: Callable, make_config: Callable, options: dict) -> None:
     from mbgw.ops.service import ListenError
 
     path = config_file()
-    cfg = _from_file(make_config(**options), path)
+    _hand_keys_to_web_console()
+    cfg = _from_file(_with_web(make_config, options), path)
     log.setup(options["log_level"])
     reload = reloader()
 
@@ -25,7 +26,7 @@ def run_daemon(run: Callable, make_config: Callable, options: dict) -> None:
         new = reload()
         new.pop("mode", None)
         log.setup(new["log_level"])
-        return _from_file(make_config(**new), path)
+        return _from_file(_with_web(make_config, new), path)
 
     try:
         run(cfg, reconfigure if reload else None)
@@ -33,6 +34,26 @@ def run_daemon(run: Callable, make_config: Callable, options: dict) -> None:
         raise Failure(err.strerror or str(err)) from None
     except (ListenError, ConfigError) as err:
         raise Failure(str(err)) from None
+
+
+def _hand_keys_to_web_console() -> None:
+    """The console edits the file with the keys of these mode commands (web never imports
+    cli)."""
+    import click
+
+    from mbgw.web.config_api import use_commands
+    ctx = click.get_current_context()
+    root = ctx.find_root().command
+    if isinstance(root, click.Group):
+        use_commands(root, [name for name in ctx.params if ctx.get_parameter_source(name) in (
+            click.core.ParameterSource.COMMANDLINE, click.core.ParameterSource.ENVIRONMENT)])
+
+
+def _with_web(make_config: Callable, options: dict):
+    """The mode's settings with [web]: the console's options are the same in every mode."""
+    options = dict(options)
+    web = web_config(options)
+    return dataclasses.replace(make_config(**options), web=web)
 
 
 def _from_file(cfg, path):

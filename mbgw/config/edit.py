@@ -16,6 +16,7 @@ from mbgw.config.schema import (
     PROTOCOL_WORDS,
     Key,
     Schema,
+    is_secret,
 )
 from mbgw.config.slaveid import SlaveIdTable
 from mbgw.config.values import Problem, element_kinds, process
@@ -160,6 +161,8 @@ def show_lines(schema: Schema, settings: Settings, name: str) -> list[str]:
     """A key's effective value as `mbgw config show` prints it, in the guide's words: one
     line per table entry, on/off for a flag."""
     value = settings.get(schema, name)
+    if name in schema.keys and any(map(is_secret, schema.keys[name].params.values())):
+        return ["(set)" if value else "(not set)"]
     if name == "authip" and isinstance(value, list):
         return [f"{i} {a}" for i, a in enumerate(value, 1) if a != NO_ADDRESS] \
             or ["(empty: any client may connect)"]

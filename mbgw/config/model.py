@@ -267,6 +267,33 @@ class TlsConfig:
         return self.cert is not None
 
 
+# The web console (mbgw/web): off until [web] listen is given, and then only with an admin
+# password; the passwords are salted scrypt hashes that `mbgw config password` writes.
+WEB_EXAMPLE_LISTEN = "127.0.0.1:8080"      # what the factory file shows, commented out
+
+
+@dataclass(frozen=True)
+class WebConfig:
+    """The web console: where it listens, HTTPS, the two roles' password hashes."""
+    listen: str | None = None          # ADDR:PORT; None: off
+    cert: str | None = None            # HTTPS: the certificate (PEM) ...
+    key: str | None = None             # ... and its private key (PEM)
+    admin_password: str | None = None  # scrypt$N$r$p$salt$hash
+    user_password: str | None = None
+
+    def __post_init__(self) -> None:
+        if (self.cert is None) != (self.key is None):
+            raise ConfigError("web-cert and web-key go together: HTTPS needs the certificate "
+                              "and its private key")
+        if self.listen is not None and self.admin_password is None:
+            raise ConfigError(f"web {self.listen}: the web console needs an admin password; "
+                              f"set one with: mbgw config password admin")
+
+    @property
+    def https(self) -> bool:
+        return self.cert is not None
+
+
 @dataclass(frozen=True)
 class SlaveConfig:
     """Slave mode: slaves on the serial line, Modbus TCP clients on the network."""
@@ -290,6 +317,7 @@ class SlaveConfig:
     scenarios: tuple = ()          # ScenarioConfig (mbgw.config.scenario), [[scenario]]
     config_file: str | None = None  # the file the settings came from (scenario ... --save)
     tls: TlsConfig = field(default_factory=TlsConfig)
+    web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "slave")
@@ -351,6 +379,7 @@ class MasterConfig:
     firewall: "FirewallConfig | None" = None   # the table server's; None: all allowed
     scenarios: tuple = ()           # ScenarioConfig (mbgw.config.scenario): TCP ones only
     config_file: str | None = None  # the file the settings came from (scenario ... --save)
+    web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "master")
@@ -455,6 +484,7 @@ class TransparentModeConfig:
     firewall: "FirewallConfig | None" = None   # on mdbport's requests; None: all allowed
     scenarios: tuple = ()           # ScenarioConfig (mbgw.config.scenario): TCP ones only
     config_file: str | None = None  # the file the settings came from (scenario ... --save)
+    web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
 
     @property
     def table_on(self) -> bool:

@@ -14,7 +14,7 @@ MODES = ("slave", "master", "transparent")  # "set serial mode slave|master|tran
 MODE_KEY = "mode"                          # in [serial]; selects the command `mbgw run` starts
 PROTOCOL_KEY = "protocol"                  # "set serial mode rtu|ascii" sets it
 PROTOCOL_WORDS = ("rtu", "ascii")
-GROUPS = ("serial", "net", "general", "table", "tls", "transparent")
+GROUPS = ("serial", "net", "general", "table", "tls", "transparent", "web")
 # [serial]: the options of class SerialOption (both modes' line settings) and the slave mode's
 # line behaviour below; [net]: the guide's "set net ..." commands and
 # our network options; [general]: the rest (logging, control socket, metrics, ...); [table]:
@@ -79,7 +79,10 @@ class Schema:
         return FACTORY_MODE if FACTORY_MODE in self.modes else self.modes[0]
 
     def group_keys(self, group: str) -> list[str]:
-        names = [k.name for k in self.keys.values() if k.group == group]
+        """The keys of a group as the file and `config show` list them: the secrets (password
+        hashes) never."""
+        names = [k.name for k in self.keys.values() if k.group == group
+                 and not any(is_secret(p) for p in k.params.values())]
         return [MODE_KEY, *names] if group == "serial" else names
 
     def find(self, group: str, file_name: str) -> Key | None:
@@ -131,8 +134,8 @@ def file_key(param: click.Parameter) -> str:
 def option_key(param: click.Parameter) -> str | None:
     """The configuration key of a command option: its long flag without the dashes (a
     TableOption's own key)."""
-    if not isinstance(param, click.Option) or not param.expose_value or param.hidden \
-            or param.name in OWN_OPTIONS:
+    if not isinstance(param, click.Option) or not param.expose_value \
+            or (param.hidden and not is_secret(param)) or param.name in OWN_OPTIONS:
         return None
     if isinstance(param, (TableOption, TransparentOption)):
         return param.key
@@ -160,6 +163,21 @@ class TableOption(click.Option):
 class TlsOption(TableOption):
     """An option of Modbus/TCP Security (--tls-cert, ...): its key is `key` in [tls]."""
     group = "tls"
+
+
+class WebOption(TableOption):
+    """An option of the web console (--web, --web-cert, ...): its key is `key` in [web].
+    secret: a password hash, a key of the file only (a hidden option), never shown."""
+    group = "web"
+
+    def __init__(self, *args, secret: bool = False, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.secret = secret
+
+
+def is_secret(param: click.Parameter | None) -> bool:
+    """A key `mbgw config show` and the web console never show (the password hashes)."""
+    return bool(getattr(param, "secret", False))
 
 
 class TransparentOption(click.Option):

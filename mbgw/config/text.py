@@ -5,6 +5,7 @@ import textwrap
 import click
 
 from mbgw.config.edit import REMOVE
+from mbgw.config.model import WEB_EXAMPLE_LISTEN
 from mbgw.config.schema import (
     AUTHIP_ENTRIES,
     FACTORY_DEVICE,
@@ -15,6 +16,8 @@ from mbgw.config.schema import (
     default_value,
 )
 from mbgw.config.toml_text import dump_value, set_line
+
+WEB_LISTEN_KEY = "web"          # [web] listen, the option --web
 
 
 def default_line(schema: Schema, name: str, mode: str) -> str:
@@ -81,6 +84,8 @@ def factory_text(schema: Schema) -> str:
                 out.append(f"{MODE_KEY} = {dump_value(mode)}")
             elif name == "device":
                 out.append(f"device = {dump_value(FACTORY_DEVICE)}")
+            elif name == WEB_LISTEN_KEY:        # how to turn the console on, for this host
+                out.append(f"# {schema.file_name(name)} = {dump_value(WEB_EXAMPLE_LISTEN)}")
             else:
                 out.append(default_line(schema, name, mode))
     return "\n".join(out) + "\n"

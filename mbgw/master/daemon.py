@@ -23,6 +23,8 @@ from mbgw.ops.service import (
 )
 from mbgw.scenarios.control import scenario_commands
 from mbgw.scenarios.tcp_runner import TcpScenarios, with_scenarios
+from mbgw.web.console import start_console
+from mbgw.web.hooks import WebHooks, sighup_reload
 
 log = logging.getLogger("mbgw")
 TICK_S = 1.0        # how often the table's file is looked at (it is saved per its interval)
@@ -89,8 +91,10 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
     slave.start()
     status = MasterStatus(cfg, slave, counters, tables)
     status.scenario_engines = engines
-    control = await start_control(cfg.control, {
-        **status.commands(), **scenario_commands(engines, cfg.config_file)})
+    commands = {**status.commands(), **scenario_commands(engines, cfg.config_file)}
+    control = await start_control(cfg.control, commands)
+    console = await start_console(cfg.web, WebHooks(commands, status.trace_hub,
+                                                    cfg.config_file, sighup_reload))
     s = cfg.serial
     log.info("master mode: serial %s %d %s %s %s; servers' port %d, tcpto %d ms, exception %s, "
              "at most %d connections; slaveid %s", s.device, s.baudrate, s.format, s.protocol,
@@ -103,6 +107,7 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
     scenarios.start(cfg.scenarios, cfg.tcpto_ms)
 
     async def apply(new: MasterConfig) -> None:
+        await console.reconfigure(new.web)
         _log_slaveid(new)
         tables.reconfigure(new)
         slave.reconfigure(new)
@@ -112,6 +117,7 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
     try:
         await serve_until_stopped(stop, status, slave, reconfigure, apply, control, metrics)
     finally:
+        await console.close()
         await asyncio.to_thread(scenarios.stop)
     ticking.cancel()
     slave.stop()

@@ -26,6 +26,11 @@ class DaemonStatus:
         self._started_mono = time.monotonic()
         self._reset_at = self._started
 
+    @property
+    def trace_hub(self):
+        """The hub the trace streams subscribe to (the control socket's, the web console's)."""
+        return self._trace
+
     def commands(self) -> dict:
         return {"status": self.status, "close": self.close, "reset": self.reset,
                 "trace": self.trace}

@@ -26,6 +26,8 @@ from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
 from mbgw.slave.status import SlaveStatus
 from mbgw.slave.table_service import TableService
+from mbgw.web.console import start_console
+from mbgw.web.hooks import WebHooks, sighup_reload
 
 log = logging.getLogger("mbgw")
 
@@ -74,8 +76,10 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     worker.start()
     status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses, tables)
     status.scenario_engines = engines
-    control = await start_control(cfg.control, {
-        **status.commands(), **scenario_commands(engines, cfg.config_file)})
+    commands = {**status.commands(), **scenario_commands(engines, cfg.config_file)}
+    control = await start_control(cfg.control, commands)
+    console = await start_console(cfg.web, WebHooks(commands, status.trace_hub,
+                                                    cfg.config_file, sighup_reload))
     s = cfg.serial
     log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s",
              ", ".join(addresses), s.device, s.baudrate, s.format, s.protocol, s.interface,
@@ -89,6 +93,7 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     scenarios.start(cfg.scenarios, cfg.tcpto_ms)
 
     async def apply(new: SlaveConfig) -> None:
+        await console.reconfigure(new.web)
         tables.reconfigure(new)
         await server.reconfigure(new)
         worker.reconfigure(new)
@@ -98,6 +103,7 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     try:
         await serve_until_stopped(stop, status, worker, reconfigure, apply, control, metrics)
     finally:
+        await console.close()
         await asyncio.to_thread(scenarios.stop)
     kept.cancel()
     server.close()

@@ -27,6 +27,8 @@ from mbgw.transparent.counters import TransparentCounters
 from mbgw.transparent.line_thread import FrameLine
 from mbgw.transparent.raw import RawPort, access_check
 from mbgw.transparent.status import TransparentStatus
+from mbgw.web.console import start_console
+from mbgw.web.hooks import WebHooks, sighup_reload
 
 log = logging.getLogger("mbgw")
 
@@ -93,7 +95,10 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
         frames, status.figures, started, table_figures))
     frames.idle_ms = idle_ms(watchdog_interval())
     frames.start()
-    control = await start_control(cfg.control, {**status.commands(), **table_commands(table)})
+    commands = {**status.commands(), **table_commands(table)}
+    control = await start_control(cfg.control, commands)
+    console = await start_console(cfg.web, WebHooks(commands, status.trace_hub,
+                                                    cfg.config_file, sighup_reload))
     s, t = cfg.serial, cfg.transparent
     log.info("transparent mode: serial %s %d %s %s; eof %s, eof-timeout %d ms, rx %d+%d bytes, "
              "tx %d+%d bytes, crc %s, trigger %s, silence %d ms; table on %s%s",
@@ -106,6 +111,7 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
         log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
 
     async def apply(new: TransparentModeConfig) -> None:
+        await console.reconfigure(new.web)
         old = status.cfg
         identity.fill(table, new, "transparent")
         for name in ("mdbport", "bind", "authip"):
@@ -118,6 +124,7 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
         frames.reconfigure(new)
 
     await serve_until_stopped(stop, status, frames, reconfigure, apply, control, metrics)
+    await console.close()
     frames.stop()
     await asyncio.to_thread(frames.join)
     log_stopped(counters)

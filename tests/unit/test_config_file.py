@@ -49,7 +49,7 @@ def problems(schema, tmp_path, text: str) -> str:
 def test_every_long_option_of_both_modes_is_a_key(schema):
     """...but the hidden ones, switches for diagnosis that no configuration file keeps; a
     table option is its own key in [table] (--table-units is table.units)."""
-    own_keys = (config_keys.TableOption, config_keys.TransparentOption)
+    own_keys = (config_keys.TableOption, config_keys.TransparentOption)   # [web] too
     params = [p for mode in ("slave", "master", "transparent") for p in main.commands[mode].params
               if isinstance(p, click.Option) and not p.hidden]
     options = {o[2:] for p in params if not isinstance(p, own_keys)
@@ -62,9 +62,13 @@ def test_every_long_option_of_both_modes_is_a_key(schema):
                            "tx-address", "tx-size", "crc", "trigger", "interframe-silence",
                            "raw-port"}
     assert all(schema.keys[k].group == "transparent" for k in transparent)
-    tls = {p.key for p in params if isinstance(p, config_keys.TlsOption)}
+    tls = {p.key for p in params if type(p) is config_keys.TlsOption}
     assert tls == {"tls-port", "cert", "key", "ca"}
-    assert set(schema.keys) == (options - {"config"}) | table | transparent | tls
+    web = {p.key for mode in ("slave", "master", "transparent")
+           for p in main.commands[mode].params if isinstance(p, config_keys.WebOption)}
+    assert web == {"web", "web-cert", "web-key", "admin-password", "user-password"}
+    assert all(schema.keys[k].group == "web" for k in web)
+    assert set(schema.keys) == (options - {"config"}) | table | transparent | tls | web
     # in the file, a key's name may be another group's too: [tls] port, [transparent] silence
     assert schema.label("tls-port") == "tls.port" and schema.find("tls", "port").name == \
         "tls-port"
@@ -124,6 +128,8 @@ def test_factory_file_is_valid_and_lists_every_key(schema, tmp_path):
     assert options["device"] == config_keys.FACTORY_DEVICE and options["stout"] == 600
     lines = text.splitlines()
     for name in map(schema.file_name, schema.keys):
+        if name.endswith("-password"):      # secrets: never listed, set by config password
+            continue
         assert any(line.startswith((f"{name} =", f"# {name} =")) for line in lines), name
 
 
@@ -176,7 +182,7 @@ def test_tables_belong_to_their_mode(schema, tmp_path):
     ("[net]\nmax_connections = 3\n", "did you mean net.max-connections?"),
     ("[serial]\nfoo = 1\n", "serial.foo: unknown key"),
     ("[seral]\nstout = 700\n", "[seral]: unknown group (groups: serial, net, general, table, "
-                               "tls, transparent); did you mean [serial]?"),
+                               "tls, transparent, web); did you mean [serial]?"),
     ("[net]\nstout = 700\n", "net.stout: belongs in [serial] (serial.stout)"),
     ("stout = 700\n", "stout: outside any group; put it under [serial]"),
     ("mode = 'slave'\n", "mode: outside any group; put it under [serial]"),

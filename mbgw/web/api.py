@@ -1,0 +1,297 @@
+"""The JSON API under /api: every page's data and action.  Each handler reads or acts
+through the daemon's control commands (the same dicts `mbgw status`, `mbgw table` and `mbgw
+scenario` get) and its trace hub; none of it runs on the line thread.  The session, CSRF and
+role checks are the server's middleware (mbgw.web.server)."""
+import asyncio
+import json
+import logging
+from pathlib import Path
+
+from aiohttp import web
+
+from mbgw.web import config_api
+from mbgw.web.auth import COOKIE, ROLES
+from mbgw.web.passwords import verify
+
+log = logging.getLogger("mbgw.web")
+
+KEEPALIVE_S = 15.0                 # an SSE comment this often while nothing happens
+GONE_CHECK_S = 1.0                 # aiohttp 3.8 does not end a handler whose client has gone
+MAX_JSON = 64 * 1024
+
+
+def routes() -> list:
+    return [
+        web.post("/api/login", login), web.post("/api/logout", logout),
+        web.get("/api/session", session),
+        web.get("/api/status", status), web.get("/api/clients", clients),
+        web.post(r"/api/clients/{id:\d+}/close", close_client),
+        web.get("/api/devices", devices),
+        web.get("/api/scenarios", scenarios),
+        web.post("/api/scenarios/test", test_scenario),
+        web.post("/api/scenarios/{name}/{action:enable|disable}", enable_scenario),
+        web.get("/api/table", table_read), web.post("/api/table", table_write),
+        web.get("/api/stats", stats), web.post("/api/stats/reset", stats_reset),
+        web.get("/api/trace", trace),
+        web.get("/api/config", config_show), web.post("/api/config", config_set),
+        web.get("/api/config/file", config_download),
+        web.post("/api/config/file", config_upload),
+    ]
+
+
+def who(request: web.Request) -> str:
+    """The operator as the logs name them (the control commands' "uid")."""
+    session = request.get("session")
+    return f"web {session.role if session else '-'}@{request.remote}"
+
+
+def error(status: int, message: str, **more) -> web.Response:
+    return web.json_response({"error": message, **more}, status=status)
+
+
+async def body(request: web.Request) -> dict:
+    """The request's JSON object; a 400 response is raised when it is not one."""
+    try:
+        data = json.loads(await request.text() or "{}")
+    except ValueError:
+        raise web.HTTPBadRequest(text=json.dumps({"error": "the body is not valid JSON"}),
+                                 content_type="application/json") from None
+    if not isinstance(data, dict):
+        raise web.HTTPBadRequest(text=json.dumps({"error": "the body must be a JSON object"}),
+                                 content_type="application/json")
+    return data
+
+
+async def command(request: web.Request, name: str, args: dict | None = None):
+    """A control command's reply dict; None when this mode has no such command."""
+    handler = request.app["hooks"].commands.get(name)
+    if handler is None:
+        return None
+    reply = handler({**(args or {}), "uid": who(request)})
+    return await reply if asyncio.iscoroutine(reply) else reply
+
+
+def answer(reply: dict | None, missing: str) -> web.Response:
+    """A command's reply: 200, or 400 with its error; 404 when the mode lacks it."""
+    if reply is None:
+        return error(404, missing)
+    if "error" in reply:
+        return error(400, reply["error"])
+    return web.json_response(reply)
+
+
+# --- login -----------------------------------------------------------------------------------
+
+async def login(request: web.Request) -> web.Response:
+    server = request.app["server"]
+    address = request.remote or "?"
+    wait = server.limit.retry_after(address)
+    if wait:
+        log.warning("web login from %s refused: too many failed logins, %d s to wait",
+                    address, wait)
+        return web.json_response({"error": f"too many failed logins: try again in {wait} s"},
+                                 status=429, headers={"Retry-After": str(wait)})
+    data = await body(request)
+    role, password = data.get("user"), data.get("password")
+    stored = server.passwords.get(role) if role in ROLES else None
+    ok = isinstance(password, str) and stored is not None and \
+        await asyncio.to_thread(verify, password, stored)
+    if not ok:
+        server.limit.failed(address)
+        log.warning("web login failed for %r from %s", role, address)
+        return error(401, "wrong user or password")
+    server.limit.succeeded(address)
+    token, new = server.sessions.open(role)
+    log.info("web login: %s from %s", role, address)
+    response = web.json_response({"role": new.role, "csrf": new.csrf})
+    response.set_cookie(COOKIE, token, httponly=True, samesite="Strict", path="/",
+                        secure=server.https or None)
+    return response
+
+
+async def logout(request: web.Request) -> web.Response:
+    request.app["server"].sessions.close(request.cookies.get(COOKIE))
+    response = web.json_response({"ok": True})
+    response.del_cookie(COOKIE, path="/")
+    return response
+
+
+async def session(request: web.Request) -> web.Response:
+    s = request["session"]
+    return web.json_response({"role": s.role, "csrf": s.csrf})
+
+
+# --- what the daemon reports -----------------------------------------------------------------
+
+async def status(request: web.Request) -> web.Response:
+    return web.json_response(await command(request, "status"))
+
+
+async def clients(request: web.Request) -> web.Response:
+    reply = await command(request, "status")
+    return web.json_response({"clients": reply.get("clients", [])})
+
+
+async def close_client(request: web.Request) -> web.Response:
+    reply = await command(request, "close", {"client": int(request.match_info["id"])})
+    if reply and str(reply.get("error", "")).startswith("no client"):
+        return error(404, reply["error"])
+    return answer(reply, "no clients to close in this mode")
+
+
+async def devices(request: web.Request) -> web.Response:
+    reply = await command(request, "status")
+    return web.json_response({"devices": reply.get("devices", [])})
+
+
+async def stats(request: web.Request) -> web.Response:
+    reply = await command(request, "status")
+    return web.json_response({name: reply[name] for name in
+                              ("counters", "counters_since", "line_utilisation_pct", "devices",
+                               "table", "firewall", "scenarios") if name in reply})
+
+
+async def stats_reset(request: web.Request) -> web.Response:
+    return answer(await command(request, "reset"), "no counters")
+
+
+# --- scenarios -------------------------------------------------------------------------------
+
+async def scenarios(request: web.Request) -> web.Response:
+    reply = await command(request, "scenarios")
+    return web.json_response(reply if reply is not None else {"scenarios": []})
+
+
+async def enable_scenario(request: web.Request) -> web.Response:
+    data = await body(request)
+    name = f"scenario-{request.match_info['action']}"
+    return answer(await command(request, name, {"name": request.match_info["name"],
+                                                "save": data.get("save", False) is True}),
+                  "no scenarios in this mode")
+
+
+async def test_scenario(request: web.Request) -> web.Response:
+    return answer(await command(request, "scenario-test", {"fields": await body(request)}),
+                  "no scenarios in this mode")
+
+
+# --- the exchange table ----------------------------------------------------------------------
+
+async def table_read(request: web.Request) -> web.Response:
+    query = request.query
+    try:
+        args = {"address": int(query["address"], 0), "count": int(query.get("count", "1"), 0),
+                "bits": query.get("bits", "0") in ("1", "true")}
+    except KeyError:
+        return error(400, "table: 'address' missing")
+    except ValueError as err:
+        return error(400, f"table: {err}")
+    return answer(await command(request, "table-read", args),
+                  "the exchange table is off in this daemon")
+
+
+async def table_write(request: web.Request) -> web.Response:
+    data = await body(request)
+    return answer(await command(request, "table-write", {"address": data.get("address"),
+                                                         "values": data.get("values")}),
+                  "the exchange table is off in this daemon")
+
+
+# --- live traffic ----------------------------------------------------------------------------
+
+async def trace(request: web.Request) -> web.StreamResponse:
+    """Server-sent events: one trace event (mbgw.ops.trace) per `data:` line; a comment
+    first, and every KEEPALIVE_S while nothing happens."""
+    hub = request.app["hooks"].trace
+    response = web.StreamResponse(headers={"Content-Type": "text/event-stream",
+                                           "Cache-Control": "no-store"})
+    await response.prepare(request)
+    queue = hub.subscribe()
+    log.info("web trace started (%s)", who(request))
+    quiet = 0.0
+    try:
+        await response.write(b": trace\n\n")
+        while _connected(request):
+            try:
+                event = await asyncio.wait_for(queue.get(), GONE_CHECK_S)
+            except asyncio.TimeoutError:
+                quiet += GONE_CHECK_S
+                if quiet >= KEEPALIVE_S:
+                    await response.write(b": keep-alive\n\n")
+                    quiet = 0.0
+                continue
+            quiet = 0.0
+            await response.write(b"data: " + json.dumps(event).encode() + b"\n\n")
+    except ConnectionError:
+        pass
+    finally:
+        dropped = hub.unsubscribe(queue)
+        log.info("web trace ended (%s)%s", who(request),
+                 f"; {dropped} events dropped for a slow reader" if dropped else "")
+    return response
+
+
+def _connected(request: web.Request) -> bool:
+    transport = request.transport
+    return transport is not None and not transport.is_closing()
+
+
+# --- the configuration file ------------------------------------------------------------------
+
+def _config_path(request: web.Request) -> Path:
+    path = request.app["hooks"].config_file
+    if path is None:
+        raise web.HTTPNotFound(text=json.dumps(
+            {"error": "this daemon's settings came from the command line: no configuration "
+                      "file to show or change"}), content_type="application/json")
+    return Path(path)
+
+
+def _refused(err: config_api.ConfigRefused) -> web.Response:
+    return error(400, str(err), field=err.field, problems=err.problems)
+
+
+async def config_show(request: web.Request) -> web.Response:
+    try:
+        return web.json_response(config_api.show(_config_path(request)))
+    except config_api.ConfigRefused as err:
+        return _refused(err)
+
+
+async def config_set(request: web.Request) -> web.Response:
+    data = await body(request)
+    group, key, value = data.get("group"), data.get("key"), data.get("value")
+    if not isinstance(group, str) or not isinstance(key, str) or value is None:
+        return error(400, 'expected {"group", "key", "value"}')
+    try:
+        changed = config_api.set_value(_config_path(request), group, key, value)
+    except config_api.ConfigRefused as err:
+        return _refused(err)
+    log.info("configuration changed from the web console (%s): %s", who(request),
+             ", ".join(changed))
+    request.app["hooks"].reload()
+    return web.json_response({"ok": True, "changed": changed, "reloading": True})
+
+
+async def config_download(request: web.Request) -> web.Response:
+    path = _config_path(request)
+    try:
+        text = config_api.read_file(path)
+    except config_api.ConfigRefused as err:
+        return _refused(err)
+    return web.Response(text=text, content_type="application/toml", headers={
+        "Content-Disposition": f'attachment; filename="{path.name}"'})
+
+
+async def config_upload(request: web.Request) -> web.Response:
+    path = _config_path(request)
+    try:
+        text = await request.text()
+        mode = config_api.upload(path, text)
+    except UnicodeDecodeError:
+        return error(400, "the file is not UTF-8")
+    except config_api.ConfigRefused as err:
+        return _refused(err)
+    log.info("configuration file replaced from the web console (%s)", who(request))
+    request.app["hooks"].reload()
+    return web.json_response({"ok": True, "mode": mode, "reloading": True})

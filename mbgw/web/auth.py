@@ -1,0 +1,95 @@
+"""Who may use the console: the two roles' logins, sessions (a cookie naming one, expiring
+when idle and at an absolute age), each session's CSRF token, and the login rate limit per
+client address."""
+import collections
+import dataclasses
+import logging
+import os
+import secrets
+import time
+
+log = logging.getLogger("mbgw.web")
+
+ROLES = ("admin", "user")
+COOKIE = "mbgw_session"
+CSRF_HEADER = "X-CSRF-Token"
+IDLE_S = 30 * 60                  # a session unused this long is over
+ABSOLUTE_S = 12 * 3600            # and any session this old
+IDLE_ENV = "MBGW_WEB_IDLE_S"      # tests shorten the idle time (not a setting: no key, no option)
+FAILURES_PER_WINDOW = 5           # failed logins from one address within LOGIN_WINDOW_S ...
+LOGIN_WINDOW_S = 60.0             # ... after which its attempts are refused (429) until it passes
+MAX_SESSIONS = 1000               # the oldest goes first: logins cannot grow memory for ever
+
+
+@dataclasses.dataclass
+class Session:
+    role: str
+    csrf: str
+    created: float
+    used: float
+
+
+class Sessions:
+    def __init__(self) -> None:
+        self._sessions: dict[str, Session] = {}
+        self.idle_s = float(os.environ.get(IDLE_ENV) or IDLE_S)
+        self.absolute_s = ABSOLUTE_S
+
+    def open(self, role: str) -> tuple[str, Session]:
+        if len(self._sessions) >= MAX_SESSIONS:
+            del self._sessions[next(iter(self._sessions))]
+        now = time.monotonic()
+        token = secrets.token_urlsafe(32)
+        session = Session(role, secrets.token_urlsafe(32), now, now)
+        self._sessions[token] = session
+        return token, session
+
+    def get(self, token: str | None) -> Session | None:
+        """The live session of a cookie (its idle time starts again), None when there is
+        none or it has expired (then it is forgotten)."""
+        session = self._sessions.get(token) if token else None
+        if token is None or session is None:
+            return None
+        now = time.monotonic()
+        if now - session.used > self.idle_s or now - session.created > self.absolute_s:
+            del self._sessions[token]
+            return None
+        session.used = now
+        return session
+
+    def close(self, token: str | None) -> None:
+        self._sessions.pop(token or "", None)
+
+    def clear(self) -> None:
+        self._sessions.clear()
+
+
+class LoginLimit:
+    """At most FAILURES_PER_WINDOW failed logins per address within LOGIN_WINDOW_S."""
+
+    def __init__(self) -> None:
+        self._failures: dict[str, collections.deque] = {}
+
+    def retry_after(self, address: str) -> int:
+        """Seconds until `address` may try again; 0: now."""
+        failures = self._recent(address)
+        if len(failures) < FAILURES_PER_WINDOW:
+            return 0
+        return max(1, int(failures[0] + LOGIN_WINDOW_S - time.monotonic()) + 1)
+
+    def failed(self, address: str) -> None:
+        self._failures[address] = self._recent(address)
+        self._failures[address].append(time.monotonic())
+
+    def succeeded(self, address: str) -> None:
+        self._failures.pop(address, None)
+
+    def _recent(self, address: str) -> collections.deque:
+        """The address's failures within the window (addresses with none are forgotten)."""
+        failures = self._failures.get(address, collections.deque())
+        limit = time.monotonic() - LOGIN_WINDOW_S
+        while failures and failures[0] < limit:
+            failures.popleft()
+        if not failures:
+            self._failures.pop(address, None)
+        return failures

@@ -1,0 +1,155 @@
+"""The configuration file from the console: read as `mbgw config show` shows it, one key set
+with the same checks as `mbgw config set`, the whole file downloaded and uploaded (checked as
+`mbgw check-config` does).  A change is written atomically, or not at all.
+
+The keys come from the mode commands (mbgw.config.schema), which the CLI hands over with
+use_commands() when it starts a daemon: web never imports cli."""
+import shlex
+import tomllib
+from pathlib import Path
+
+import click
+
+from mbgw.config import edit as config_set
+from mbgw.config import file as cf
+from mbgw.config import text as config_text
+from mbgw.config.schema import GROUPS, MODE_KEY, MODES, Schema, is_secret
+from mbgw.config.toml_text import write_atomic
+from mbgw.errors import ConfigError, ConfigFileError
+
+MAX_FILE = 256 * 1024
+
+_root: click.Group | None = None
+_given: frozenset = frozenset()
+
+
+def use_commands(root: click.Group, given=()) -> None:
+    """The click group whose mode commands define the keys (mbgw.cli.main), and the
+    parameters the daemon's command line gave (the file need not have them: a reload keeps
+    them)."""
+    global _root, _given
+    _root, _given = root, frozenset(given)
+
+
+class ConfigRefused(Exception):
+    """A change that was not made: why, the key ("group.key", or None) and the problems."""
+
+    def __init__(self, message: str, field: str | None = None, problems=()) -> None:
+        super().__init__(message)
+        self.field = field
+        self.problems = list(problems)
+
+
+def schema() -> Schema:
+    if _root is None:
+        raise ConfigRefused("the configuration's keys are unknown to this daemon")
+    return Schema(_root)
+
+
+def show(path: Path) -> dict:
+    """{"file", "mode", "groups": {group: {key: {"value", "lines"}}}}: the effective value
+    (the file's, else the default) as TOML gives it, and as `config show` prints it."""
+    keys = schema()
+    settings = _load(keys, path)
+    groups: dict = {}
+    for group in GROUPS:
+        for name in keys.group_keys(group):
+            groups.setdefault(group, {})[keys.file_name(name)] = {
+                "value": settings.get(keys, name),
+                "lines": config_set.show_lines(keys, settings, name)}
+    return {"file": str(path), "mode": settings.mode, "groups": groups}
+
+
+def set_value(path: Path, group: str, key: str, value) -> dict:
+    """`mbgw config set GROUP KEY VALUE...`: value a string of words (or a list of them, or a
+    number or a flag); raises ConfigRefused naming the field.  The changes written."""
+    field = f"{group}.{key}"
+    keys = schema()
+    words = _words(value, field)
+    found = keys.find(group, key) if group in GROUPS else None
+    if found is not None and any(map(is_secret, found.params.values())):
+        raise ConfigRefused(f"{field}: set it with mbgw config password", field)
+    if group == "serial" and key == MODE_KEY and words and words[0].lower() in MODES \
+            and words[0].lower() != _load(keys, path).mode:
+        raise ConfigRefused(f"{field}: changing the mode needs a restart: use mbgw config set "
+                            f"serial mode ... and systemctl restart mbgw", field)
+    text = _read(path)
+    try:
+        data = cf.parse(path, text)
+        settings = cf.check(keys, path, data)
+    except ConfigFileError as err:
+        raise ConfigRefused("the file has problems: fix it first", None, err.problems) \
+            from None
+    try:
+        changes = config_set.changes_for_set(keys, settings, group, key, words)
+        new_data = config_set.apply_changes(data, keys, changes)
+        cf.resolve(keys, cf.check(keys, path, new_data), given=_given)
+    except ConfigFileError as err:
+        raise ConfigRefused("; ".join(err.problems), field, err.problems) from None
+    except ConfigError as err:
+        raise ConfigRefused(str(err), field) from None
+    new_text = config_text.edit(text, keys, changes.get(MODE_KEY, settings.mode), changes)
+    if tomllib.loads(new_text) != new_data:
+        raise ConfigRefused("could not edit the file in place; nothing written", field)
+    _write(path, new_text)
+    return {keys.label(name): (None if v is config_set.REMOVE else v)
+            for name, v in changes.items() if name not in keys.keys
+            or not any(map(is_secret, keys.keys[name].params.values()))}
+
+
+def read_file(path: Path) -> str:
+    return _read(path)
+
+
+def upload(path: Path, text: str) -> str:
+    """Replace the file by `text` when it passes check-config's checks; its mode."""
+    keys = schema()
+    if len(text.encode()) > MAX_FILE:
+        raise ConfigRefused(f"the file is over {MAX_FILE // 1024} KiB")
+    try:
+        settings = cf.check(keys, path, cf.parse(path, text))
+        cf.resolve(keys, settings, given=_given)
+    except ConfigFileError as err:
+        raise ConfigRefused(f"{len(err.problems)} problem(s); nothing written", None,
+                            err.problems) from None
+    _write(path, text)
+    return settings.mode
+
+
+def _words(value, field: str) -> list[str]:
+    if isinstance(value, bool):
+        return ["on" if value else "off"]
+    if isinstance(value, int):
+        return [str(value)]
+    if isinstance(value, str):
+        try:
+            return shlex.split(value)
+        except ValueError as err:
+            raise ConfigRefused(f"{field}: {err}", field) from None
+    if isinstance(value, list) and all(isinstance(w, (str, int)) for w in value):
+        return [str(w) for w in value]
+    raise ConfigRefused(f"{field}: the value must be a string of words, a number or a flag",
+                        field)
+
+
+def _load(keys: Schema, path: Path) -> cf.Settings:
+    try:
+        return cf.load(keys, path)
+    except ConfigFileError as err:
+        raise ConfigRefused("the file has problems", None, err.problems) from None
+    except OSError as err:
+        raise ConfigRefused(f"cannot read {path}: {err.strerror or err}") from None
+
+
+def _read(path: Path) -> str:
+    try:
+        return cf.read_text(path)
+    except OSError as err:
+        raise ConfigRefused(f"cannot read {path}: {err.strerror or err}") from None
+
+
+def _write(path: Path, text: str) -> None:
+    try:
+        write_atomic(path, text)
+    except OSError as err:
+        raise ConfigRefused(f"cannot write {path}: {err.strerror or err}") from None

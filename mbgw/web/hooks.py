@@ -1,0 +1,28 @@
+"""What a daemon hands the web console (WebHooks), as it does the control socket."""
+import asyncio
+import dataclasses
+import os
+import signal
+from collections.abc import Callable
+
+from mbgw.ops.service import ListenError
+
+
+@dataclasses.dataclass
+class WebHooks:
+    """What a daemon hands the console, as it does the control socket."""
+    commands: dict                 # the control commands: name -> callable(request) -> reply
+    trace: object                  # the trace hub (mbgw.ops.trace.TraceHub)
+    config_file: str | None        # the configuration file, None: settings from the command line
+    reload: Callable[[], None]     # apply the file again: the SIGHUP path
+
+
+class WebListenError(ListenError):
+    def __init__(self, address: str, err: OSError) -> None:
+        reason = os.strerror(err.errno) if err.errno else str(err)
+        Exception.__init__(self, f"--web {address}: cannot listen there: {reason}")
+
+
+def sighup_reload() -> None:
+    """hooks.reload for a daemon: the SIGHUP path, as `systemctl reload mbgw` takes it."""
+    asyncio.get_running_loop().call_soon(os.kill, os.getpid(), signal.SIGHUP)
