@@ -45,6 +45,7 @@ def browser():
     for flag in ("--headless=new", "--disable-gpu", "--disable-dev-shm-usage",
                  "--window-size=1280,900"):
         options.add_argument(flag)
+    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})    # script errors
     if os.geteuid() == 0:
         options.add_argument("--no-sandbox")       # chromium refuses to run as root without
     driver = webdriver.Chrome(service=Service(DRIVER), options=options)
@@ -389,6 +390,26 @@ def test_the_pcap_of_the_shown_trace_is_the_one_mbgw_trace_writes(browser, conso
     assert pcap.read_bytes() == reference.read_bytes()
     checked = tshark_warnings(pcap, console.gw.port)
     assert checked.returncode == 0 and checked.stdout == "", checked
+
+
+def test_devices_statistics_and_a_scenario_test_from_the_browser(browser, console):
+    log_in(browser, console, "admin")
+    browser.get_log("browser")                           # only this test's entries below
+    go(browser, "devices")
+    wait(browser, found('#devices-table tr[data-address="1"] td.health-up'))
+    wait(browser, found('#devices-table tr[data-address="9"] td.health-down'))
+    go(browser, "stats")
+    wait(browser, found('#stats-table tr[data-name="counters.requests"]'))
+    go(browser, "scenarios")
+    browser.find_element(By.ID, "scenario-test-fields").send_keys(
+        "slave = 1\nfunction = 3\naddress = 0\nquantity = 2\ntable = 100")
+    browser.find_element(By.ID, "scenario-test").click()
+    shown = wait(browser, text_in("#scenario-test-result", '"ok"')) and \
+        browser.find_element(By.ID, "scenario-test-result").text
+    result = json.loads(shown)
+    assert result["ok"] is True and result["data"] == [100, 101], result
+    errors = [e for e in browser.get_log("browser") if e.get("source") == "javascript"]
+    assert errors == []
 
 
 def scenarios(s: dict) -> dict:
