@@ -12,6 +12,7 @@ import subprocess
 import sys
 import threading
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -169,6 +170,13 @@ LOST = "meter"                  # polls an address nothing answers: in error
 GREEN, GREY, RED = "rgba(46, 157, 58, 1)", "rgba(158, 158, 158, 1)", "rgba(211, 47, 47, 1)"
 
 
+def set_password(path: Path, role: str) -> None:
+    done = subprocess.run([sys.executable, "-m", "mbgw", "config", "password", role, "--stdin",
+                           "--config", str(path)],
+                          input=PASSWORDS[role] + "\n", capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+
+
 class Console:
     """`mbgw slave` with its console on, a pymodbus RTU slave on its line polled by one
     scenario (another polls an address nothing answers), and the configuration file it
@@ -186,11 +194,8 @@ class Console:
             "address = 0", "quantity = 2", "table = 0", "cycle = 200",
             "[[scenario]]", f'name = "{LOST}"', "slave = 9", "function = 3",
             "address = 0", "quantity = 2", "table = 10", "cycle = 1000"]) + "\n")
-        for role, password in PASSWORDS.items():
-            done = subprocess.run([sys.executable, "-m", "mbgw", "config", "password", role,
-                                   "--stdin", "--config", str(self.path)],
-                                  input=password + "\n", capture_output=True, text=True)
-            assert done.returncode == 0, done.stderr
+        for role in PASSWORDS:
+            set_password(self.path, role)
         self.gw = Gateway(directory, self.pty.gateway, "--config", str(self.path))
         self.url = f"http://127.0.0.1:{web_port}/"
 
@@ -207,7 +212,7 @@ def console(tmp_path_factory):
     running.stop()
 
 
-def log_in(driver, console: Console, role: str, password: str | None = None) -> None:
+def log_in(driver, console, role: str, password: str | None = None) -> None:
     """A fresh session of role on the Overview (a wrong password: the login page stays)."""
     driver.get(console.url)
     driver.delete_all_cookies()
@@ -410,6 +415,38 @@ def test_devices_statistics_and_a_scenario_test_from_the_browser(browser, consol
     assert result["ok"] is True and result["data"] == [100, 101], result
     errors = [e for e in browser.get_log("browser") if e.get("source") == "javascript"]
     assert errors == []
+
+
+PAGE_LOADED = {"clients": "#clients-table", "devices": "#devices-table, #no-devices",
+               "scenarios": "#scenarios-table", "table": "#table-grid",
+               "stats": "#stats-table", "traffic": '#trace-info[data-stream="open"]',
+               "config": "#config-groups fieldset"}
+
+
+@pytest.mark.parametrize("mode", ["master", "transparent"])
+def test_every_page_works_in_master_and_transparent_mode(browser, mode, tmp_path):
+    path = tmp_path / "mbgw.toml"
+    web_port = free_port()
+    path.write_text(f'[serial]\nmode = "{mode}"\n[web]\nlisten = "127.0.0.1:{web_port}"\n')
+    set_password(path, "admin")
+    pty = PtyPair(tmp_path)
+    options = ["--table", "--table-port", str(free_port())] if mode == "master" else \
+        ["--bind", "127.0.0.1", "--mdbport", str(free_port())]
+    gw = Gateway(tmp_path, pty.gateway, "--baudrate", "19200", "--config", str(path),
+                 *options, mode=mode, listen=False)
+    try:
+        log_in(browser, SimpleNamespace(url=f"http://127.0.0.1:{web_port}/"), "admin")
+        browser.get_log("browser")
+        wait(browser, text_in('#overview-facts tr[data-name="Mode"] td', mode))
+        for page, loaded in PAGE_LOADED.items():
+            go(browser, page)
+            wait(browser, found(loaded))
+            assert browser.find_element(By.ID, "page-error").text == "", page
+        errors = [e for e in browser.get_log("browser") if e.get("source") == "javascript"]
+        assert errors == []
+    finally:
+        gw.stop()
+        pty.stop()
 
 
 def scenarios(s: dict) -> dict:

@@ -462,7 +462,7 @@ function devicesPage(body) {
         ? Object.keys(devices[0]).filter((k) => !DEVICE_FIXED.includes(k) &&
             typeof devices[0][k] === "number") : [];
       const head = ["Address", "Health", "Since", "Last success", "Failures in a row",
-        ...counts, "Exceptions", "Upstream"];
+        ...counts.map((k) => k.replace(/_/g, " ")), "Exceptions", "Upstream"];
       clear(holder).append(devices.length ? el("table", { id: "devices-table" },
         el("thead", {}, el("tr", {}, ...head.map((h) => el("th", { text: h })))),
         el("tbody", {}, ...devices.map((d) => el("tr", { "data-address": d.address },
@@ -474,7 +474,7 @@ function devicesPage(body) {
           ...counts.map((k) => el("td", { class: "num", text: show(d[k]) })),
           el("td", { text: show(d.exceptions) }),
           el("td", { text: d.upstream ? `${d.upstream.host} unit ${d.upstream.unit}` : "—" })))))
-        : el("p", { text: "No device has been asked yet." }));
+        : el("p", { id: "no-devices", text: "No device has been asked yet." }));
     },
   };
 }
