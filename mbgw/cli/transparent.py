@@ -29,6 +29,10 @@ def _option(flag: str, key: str, **kwargs):
                    "unit 0 is a broadcast write).")
 @click.option("--bind", metavar="ADDR", default=None,
               help="Listen on this address only [default: all, IPv4 and IPv6].")
+@click.option("--tcpto", type=click.IntRange(*config.TCPTO_RANGE),
+              default=config.DEFAULT_TCPTO_MS, show_default=True, metavar="MS",
+              help="TCP scenarios: the time for a transaction with a server, connecting "
+                   "included.")
 @_option("--eof", "eof", type=click.Choice(config.EOF_KINDS), default=_DEFAULTS.eof,
          help="How a frame ends: an end character (nul, space, lf, cr, crlf, lfcr; char: "
               "--eof-char), length (the first byte counts the bytes after it) or timeout "
@@ -78,8 +82,8 @@ def transparent_config(device, protocol, baudrate, line_format, interface, rtsde
                        silence, ascii_timeout, nocheck, authip, mdbport, bind, eof, eof_char,
                        eof_timeout, rx_address, rx_size, tx_address, tx_size, crc, trigger,
                        interframe_silence, raw_port, control, metrics,
-                       log_level=None, firewall=None,
-                       scenarios=()) -> config.TransparentModeConfig:
+                       log_level=None, firewall=None, scenarios=(),
+                       tcpto=config.DEFAULT_TCPTO_MS) -> config.TransparentModeConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
     frames = convert("'--rx-address' / '--tx-address'", lambda: config.TransparentConfig(
@@ -88,4 +92,5 @@ def transparent_config(device, protocol, baudrate, line_format, interface, rtsde
         silence_ms=interframe_silence, raw_port=raw_port))
     return convert("'--authip'", lambda: config.TransparentModeConfig(
         serial=serial, transparent=frames, authip=authip, mdbport=mdbport, bind=bind,
-        control=control, metrics=metrics, firewall=firewall, scenarios=scenarios))
+        control=control, metrics=metrics, firewall=firewall, scenarios=scenarios,
+        tcpto_ms=tcpto))

@@ -455,6 +455,7 @@ class TransparentModeConfig:
     firewall: "FirewallConfig | None" = None   # on mdbport's requests; None: all allowed
     scenarios: tuple = ()           # ScenarioConfig (mbgw.config.scenario): TCP ones only
     config_file: str | None = None  # the file the settings came from (scenario ... --save)
+    tcpto_ms: int = DEFAULT_TCPTO_MS   # TCP scenarios: the time for a transaction with a server
 
     @property
     def table_on(self) -> bool:

@@ -18,6 +18,8 @@ from mbgw.ops.service import (
     start_metrics,
     watchdog_interval,
 )
+from mbgw.scenarios.control import scenario_commands
+from mbgw.scenarios.tcp_runner import TcpScenarios, with_scenarios
 from mbgw.table import identity
 from mbgw.table.control import table_commands
 from mbgw.table.memory import Table
@@ -89,11 +91,15 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
         return table_status(table, cfg.table, None, None, server.figures())
 
     status = TransparentStatus(cfg, frames, counters, table_figures, raw)
-    metrics = start_metrics(cfg.metrics, lambda m: m.transparent_collector(
-        frames, status.figures, started, table_figures))
+    engines: dict = {}         # the TCP scenarios' engine, while they run
+    status.scenario_engines = engines
+    metrics = start_metrics(cfg.metrics, lambda m: with_scenarios(m.transparent_collector(
+        frames, status.figures, started, table_figures), engines))
     frames.idle_ms = idle_ms(watchdog_interval())
     frames.start()
-    control = await start_control(cfg.control, {**status.commands(), **table_commands(table)})
+    control = await start_control(cfg.control, {
+        **status.commands(), **table_commands(table),
+        **scenario_commands(engines, cfg.config_file)})
     s, t = cfg.serial, cfg.transparent
     log.info("transparent mode: serial %s %d %s %s; eof %s, eof-timeout %d ms, rx %d+%d bytes, "
              "tx %d+%d bytes, crc %s, trigger %s, silence %d ms; table on %s%s",
@@ -104,6 +110,8 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
              f"; raw port {raw.port}" if raw is not None else "")
     if metrics is not None:
         log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
+    scenarios = TcpScenarios(table, engines)
+    scenarios.start(cfg.scenarios, cfg.tcpto_ms)
 
     async def apply(new: TransparentModeConfig) -> None:
         old = status.cfg
@@ -116,8 +124,12 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
         if new.firewall != old.firewall:
             server.set_firewall(server.firewall.renewed(new.firewall))
         frames.reconfigure(new)
+        await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms)
 
-    await serve_until_stopped(stop, status, frames, reconfigure, apply, control, metrics)
+    try:
+        await serve_until_stopped(stop, status, frames, reconfigure, apply, control, metrics)
+    finally:
+        await asyncio.to_thread(scenarios.stop)
     frames.stop()
     await asyncio.to_thread(frames.join)
     log_stopped(counters)
