@@ -10,7 +10,7 @@ import time
 from mbgw.config.model import MasterConfig, TableConfig, TlsConfig
 from mbgw.errors import ConfigError
 from mbgw.firewall.guard import Firewall
-from mbgw.ops.tls import server_context
+from mbgw.ops.tls import role_of, server_context
 from mbgw.table import identity
 from mbgw.table.control import table_commands
 from mbgw.table.memory import Table
@@ -53,7 +53,7 @@ class TableService:
         tls = self.tls
         context = server_context(tls) if tls.enabled else None
         self.server = TableServer(self.table, port, firewall=self.firewall, tls=context,
-                                  tls_port=tls.port)
+                                  tls_port=tls.port, role_of=role_of)
         self.server.start()
         log.info("exchange table served on %s (at most %d clients)",
                  ", ".join(self.server.addresses), MAX_CONNECTIONS)

@@ -34,7 +34,6 @@ import time
 from typing import cast
 
 from mbgw.firewall.guard import Firewall, Guard
-from mbgw.ops.tls import role_of
 from mbgw.protocol import mbap
 
 log = logging.getLogger("mbgw.table")
@@ -136,17 +135,19 @@ class TableServer(threading.Thread):
 
     def __init__(self, table, port: int | None, bind: str | None = None,
                  firewall: Firewall | None = None, allows=None,
-                 tls: ssl.SSLContext | None = None, tls_port: int | None = None) -> None:
+                 tls: ssl.SSLContext | None = None, tls_port: int | None = None,
+                 role_of=None) -> None:
         """Listens at once: raises TableListenError when it cannot.  allows(host): whether a
         peer may connect (None: anyone; transparent mode's authip).  port None: no plain
         listener; tls: the TLS listener's context (mbgw.ops.tls.server_context) on
-        tls_port."""
+        tls_port; role_of(der): the role in a client's certificate (mbgw.ops.tls.role_of)."""
         super().__init__(name="mbgw-table", daemon=True)
         self._table = table
         self.port = port
         self._allows = allows
         self._listeners = listen(port, bind) if port is not None else []
         self._tls = tls
+        self._role_of = role_of or (lambda der: None)
         self.tls_port = tls_port if tls is not None else None
         try:
             self._tls_listeners = listen(self.tls_port, bind, "tls-port") \
@@ -351,7 +352,7 @@ class TableServer(threading.Thread):
         self._end_handshake(handshake)
         sock, address = handshake.sock, handshake.address
         try:
-            role = role_of(sock.getpeercert(binary_form=True))
+            role = self._role_of(sock.getpeercert(binary_form=True))
         except (OSError, ValueError):       # the peer has gone meanwhile
             sock.close()
             return

@@ -19,7 +19,7 @@ from mbgw.ops.service import (
     start_metrics,
     watchdog_interval,
 )
-from mbgw.ops.tls import server_context
+from mbgw.ops.tls import role_of, server_context
 from mbgw.table import identity
 from mbgw.table.control import table_commands
 from mbgw.table.memory import Table
@@ -62,7 +62,8 @@ def run_transparent(cfg: TransparentModeConfig, reconfigure=None) -> None:
     context = server_context(cfg.tls) if cfg.tls.enabled else None     # ConfigError
     try:
         server = TableServer(table, cfg.mdbport or None, cfg.bind, Firewall(cfg.firewall),
-                             allows=allows, tls=context, tls_port=cfg.tls.port)
+                             allows=allows, tls=context, tls_port=cfg.tls.port,
+                             role_of=role_of)
     except OSError as err:
         option, port = ("tls-port", cfg.tls.port) if "tls-port" in str(err) else \
             ("mdbport", cfg.mdbport)
