@@ -434,21 +434,22 @@ class TableServer(threading.Thread):
         if new_tls is not None:
             self._tls, tls_listeners = new_tls
             if tls_listeners is not None:
-                self._tls_listeners = self._relisten(self._tls_listeners, tls_listeners)
+                old, self._tls_listeners = self._tls_listeners, tls_listeners
+                self._relisten(old, tls_listeners)
             else:
                 log.info("table server: TLS certificate loaded for new connections")
         if new is not None:
-            self._listeners = self._relisten(self._listeners, new)
+            old, self._listeners = self._listeners, new
+            self._relisten(old, new)
         return self._listening()
 
-    def _relisten(self, old: list[socket.socket], new: list[socket.socket]) -> list:
+    def _relisten(self, old: list[socket.socket], new: list[socket.socket]) -> None:
         for sock in old:
             self._poll.unregister(sock.fileno())
             sock.close()
         for sock in new:
             self._poll.register(sock.fileno(), _IN)
         log.info("table server: listening on %s", ", ".join(self.addresses) or "no port")
-        return new
 
     # --- requests ---
 

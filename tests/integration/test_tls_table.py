@@ -198,6 +198,9 @@ def test_reload_loads_a_renewed_certificate_for_new_connections_only(tmp_path, s
     try:
         assert client.read_holding_registers(FREE, count=1, device_id=1).registers == [0]
         renewed, renewed_key = ca.issue("server2", server=True)
+        renewed_cert, renewed_key_copy = (tmp_path / "renewed.pem", tmp_path / "renewed.key")
+        renewed_cert.write_bytes(renewed.read_bytes())
+        renewed_key_copy.write_bytes(renewed_key.read_bytes())
         os.replace(renewed, cert)
         os.replace(renewed_key, key)
         os.kill(gw.proc.pid, signal.SIGHUP)
@@ -212,6 +215,22 @@ def test_reload_loads_a_renewed_certificate_for_new_connections_only(tmp_path, s
     os.replace(expired_key, key)
     os.kill(gw.proc.pid, signal.SIGHUP)
     wait_for_log(gw, f"{cert}: expired on 2021-01-01 00:00:00 UTC")
+    # the renewed one again, on another port: the TLS listener moves, the plain one stays
+    os.replace(renewed_cert, cert)
+    os.replace(renewed_key_copy, key)
+    new_port = free_port()
+    path.write_text(path.read_text().replace(f"tls-port = {tls_port}", f"tls-port = {new_port}"))
+    os.kill(gw.proc.pid, signal.SIGHUP)
+    wait_for_log(gw, f"0.0.0.0:{new_port} (TLS)")
+    client = tls_client(new_port, context)
+    try:
+        assert client.read_holding_registers(FREE, count=1, device_id=1).registers == [0]
+    finally:
+        client.close()
+    with pytest.raises(ConnectionRefusedError):
+        socket.create_connection(("127.0.0.1", tls_port), timeout=REPLY_S)
+    with socket.create_connection(("127.0.0.1", port)) as plain:
+        assert read_free(plain)[:2] == b"\x03\x04"
 
 
 def test_transparent_mode_tls_only_with_mdbport_0(pty_pair, start_gateway, pki):
