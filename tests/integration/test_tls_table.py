@@ -5,6 +5,8 @@ import os
 import signal
 import socket
 import struct
+import subprocess
+import sys
 import time
 
 import pytest
@@ -80,6 +82,9 @@ def test_master_mode_table_port_over_tls_beside_plain_clients(master, pki):
         tcp = table_tcp(gw)
         assert tcp["tls_port"] == tls_port and tcp["connections"] == 1
         assert f"0.0.0.0:{tls_port} (TLS)" in gw.log()
+        shown = subprocess.run([sys.executable, "-m", "mbgw", "status", "--control",
+                                gw.control], check=True, capture_output=True, text=True)
+        assert f"TLS on port {tls_port}: 0 handshakes under way, 0 refused" in shown.stdout
     finally:
         client.close()
 
