@@ -251,3 +251,25 @@ def test_transparent_mode_tls_only_with_mdbport_0(pty_pair, start_gateway, pki):
     finally:
         client.close()
     assert "cannot listen" not in gw.log()
+
+
+@pytest.mark.parametrize("mode", ["master", "transparent"])
+def test_an_expired_server_certificate_is_refused_at_start(pty, pki, mode):
+    ca = pki[0]
+    cert, key = ca.issue("server", server=True, start="20200101000000Z",
+                         end="20210101000000Z")
+    done = subprocess.run([sys.executable, "-m", "mbgw", mode, "--device", pty,
+                           *(["--table"] if mode == "master" else []),
+                           "--tls-cert", str(cert), "--tls-key", str(key),
+                           "--tls-ca", str(ca.cert)], capture_output=True, text=True,
+                          timeout=30)
+    assert done.returncode != 0
+    assert f"{cert}: expired on 2021-01-01 00:00:00 UTC" in done.stderr
+
+
+def test_transparent_mdbport_0_needs_tls(pty):
+    done = subprocess.run([sys.executable, "-m", "mbgw", "transparent", "--device", pty,
+                           "--mdbport", "0"], capture_output=True, text=True, timeout=30)
+    assert done.returncode != 0
+    assert "'--mdbport': 0 turns plain Modbus TCP off: it needs TLS (--tls-cert)" in \
+        done.stderr
