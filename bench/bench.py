@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """mbgw throughput, latency and line-gap benchmark.  Prints figures, never pass/fail.
 
-    .venv/bin/python bench/bench.py [--quick] [--socat] [--fairness | --table | --tls]
+    .venv/bin/python bench/bench.py [--quick] [--socat] [--fairness | --table | --tls |
+                                     --scenarios]
 
 For each line -- 19200 baud, 115200 baud, and a full-speed pty -- a simulated RTU slave
 (bench/simline.c, compiled at run time) answers FC03 reads of 10 registers (8-byte request,
@@ -22,7 +23,8 @@ request, so the gaps are seen from the line's side, not from the gateway's.
 
 --fairness measures instead a dead unit beside closed-loop clients (issue 13: their share of
 the line, their slowest request) and the per-client spread of transactions.  --table measures
-instead the exchange table as a Modbus TCP server (bench/table.py).  See README.md.
+instead the exchange table as a Modbus TCP server (bench/table.py); --scenarios the serial
+scenarios (bench/scenarios.py).  See README.md.
 """
 import argparse
 import math
@@ -815,10 +817,18 @@ def main() -> None:
     ap.add_argument("--tls", action="store_true",
                     help="instead of the runs above: Modbus/TCP Security's handshakes/s and "
                     "latency added per request over plain TCP (bench/tls.py; about 25 s)")
+    ap.add_argument("--scenarios", action="store_true",
+                    help="instead of the runs above: 100 serial scenarios saturating the line, "
+                    "a client beside them, one scenario's period (bench/scenarios.py; about "
+                    "70 s; --quick: 25 s)")
     args = ap.parse_args()
     if args.tls:
         import tls  # bench/tls.py, beside this script
         tls.run(args.quick)
+        return
+    if args.scenarios:
+        import scenarios  # bench/scenarios.py, beside this script
+        scenarios.run(args.quick)
         return
     if args.table:
         import table  # bench/table.py, beside this script

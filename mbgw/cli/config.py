@@ -265,9 +265,11 @@ def show(ctx, config_path: Path, instance: str | None, group: str | None,
         return
     if param is not None:
         name = param.lower()
-        if group is None or name not in schema.group_keys(group):
+        key = schema.find(group, name) if group else None
+        if key is None and not (group == "serial" and name == ck.MODE_KEY):
             raise click.BadParameter(f"{group}.{param}: unknown{schema.hint(name)}",
                                      param_hint="PARAM")
+        name = key.name if key is not None else name
         for line in config_set.show_lines(schema, settings, name):
             click.echo(line)
         return
@@ -278,7 +280,7 @@ def show(ctx, config_path: Path, instance: str | None, group: str | None,
         click.echo(f"[{shown}]")
         for name in names:
             for line in config_set.show_lines(schema, settings, name):
-                click.echo(f"{name:<{SHOW_WIDTH}} {line}")
+                click.echo(f"{schema.file_name(name):<{SHOW_WIDTH}} {line}")
     if group is None and settings.scenarios:
         _show_scenarios(settings, None)
 
@@ -399,9 +401,9 @@ def _unset(ctx, path: Path, words, group: str, param: str) -> None:
         return
     serial_data = data.get("serial")
     serial = serial_data if isinstance(serial_data, dict) else {}
-    known = param in schema.keys and schema.keys[param].group == group
-    commented = config_text.default_line(schema, param, str(serial.get(ck.MODE_KEY, ""))) \
-        if known else None
+    known = schema.find(group, param)
+    commented = config_text.default_line(schema, known.name,
+                                         str(serial.get(ck.MODE_KEY, ""))) if known else None
     new_text = set_line(text, group, param, None, commented)
     new_data = _parse(path, new_text)
     if param in new_data.get(group, {}):

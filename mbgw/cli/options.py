@@ -199,8 +199,7 @@ def _check_ca(path):
 
 # Modbus/TCP Security ([tls] keys): TLS is on when a certificate is given.
 tls_options = stack(
-    # key tls-port, not port: a key's name is unique across the groups ([table] has port)
-    click.option("--tls-port", cls=TlsOption, key="tls-port",
+    click.option("--tls-port", cls=TlsOption, key="tls-port", file_key="port",
                  type=click.IntRange(*config.PORT_RANGE),
                  default=config.DEFAULT_TLS_PORT, show_default=True,
                  help="Modbus/TCP Security (TLS) port, with --tls-cert."),

@@ -60,6 +60,10 @@ def _parse_units(value) -> tuple[int, ...]:
               default=config.SlaveConfig.turnaround_ms,
               show_default=True, metavar="MS",
               help="Pause on the line after a broadcast (unit 0), before the next request.")
+@click.option("--tcpto", type=click.IntRange(*config.TCPTO_RANGE),
+              default=config.SlaveConfig.tcpto_ms, show_default=True, metavar="MS",
+              help="TCP scenarios: the time for a transaction with a server, connecting "
+                   "included.")
 @demotion_options
 @table_switch
 @click.option("--direct/--no-direct", "table_direct", cls=TableOption, key="direct",
@@ -91,6 +95,7 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
                  metrics, log_level=None, shortcut=True, down_after=config.DEFAULT_DOWN_AFTER,
                  probe_interval=config.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
                  tls_port=config.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
+                 tcpto=config.DEFAULT_TCPTO_MS,
                  **table_settings) -> config.SlaveConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
@@ -104,5 +109,5 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
         bind=bind, max_connections=max_connections,
         max_connections_per_ip=max_connections_per_ip, retries=retries,
         turnaround_ms=turnaround, control=control, metrics=metrics, shortcut=shortcut,
-        demotion=demotion(down_after, probe_interval), table=table,
+        demotion=demotion(down_after, probe_interval), table=table, tcpto_ms=tcpto,
         firewall=firewall, scenarios=scenarios, tls=tls))

@@ -32,12 +32,14 @@ def changes_for_set(schema: Schema, settings: Settings, group: str, name: str,
     name = name.lower()
     if group == "serial" and name == MODE_KEY:
         return _set_mode(schema, settings, words)
-    key = schema.keys.get(name)
+    key = schema.find(group, name)
     if key is None:
+        elsewhere = schema.keys.get(name)
+        if elsewhere is not None and elsewhere.file_name == name:
+            raise ConfigError(f"{group}.{name}: belongs in [{elsewhere.group}]: mbgw config "
+                              f"set {elsewhere.group} {name} ...")
         raise ConfigError(f"{group}.{name}: unknown key{schema.hint(name)}")
-    if key.group != group:
-        raise ConfigError(f"{group}.{name}: belongs in [{key.group}]: mbgw config set "
-                          f"{key.group} {name} ...")
+    name = key.name
     if not words:
         raise ConfigError(f"{key.label}: expected a value")
     param = key.params[key.mode_for(settings.mode)]
@@ -145,12 +147,12 @@ def apply_changes(data: dict, schema: Schema, changes: dict) -> dict:
     """The parsed file with the changes made (a new dict)."""
     new = {k: dict(v) if isinstance(v, dict) else v for k, v in data.items()}
     for name, value in changes.items():
-        group = schema.label(name).split(".")[0]
+        group, written = schema.place(name)
         content = new.setdefault(group, {})
         if value is REMOVE:
-            content.pop(name, None)
+            content.pop(written, None)
         else:
-            content[name] = value
+            content[written] = value
     return new
 
 

@@ -111,14 +111,15 @@ def check(schema: Schema, path: Path, data: dict) -> Settings:
             label = f"{group}.{name}"
             if group == "serial" and name == MODE_KEY:
                 continue
-            key = schema.keys.get(name)
-            if key is None:
-                problems.append(f"{label}: unknown key{schema.hint(name)}")
-            elif key.group != group:
-                problems.append(f"{label}: belongs in [{key.group}] ({key.label})")
-            else:
+            key = schema.find(group, name)
+            elsewhere = schema.keys.get(name)
+            if key is not None:
                 problems += check_value(schema, key, mode, value)
-                values[name] = value
+                values[key.name] = value
+            elif elsewhere is not None and elsewhere.file_name == name:
+                problems.append(f"{label}: belongs in [{elsewhere.group}] ({elsewhere.label})")
+            else:
+                problems.append(f"{label}: unknown key{schema.hint(name)}")
     rules, firewall_problems = fw.from_file(data)
     problems += firewall_problems
     if not problems:

@@ -227,6 +227,10 @@ class TableConfig:
                 raise ConfigError(f"{name} {value}: out of range {low}..{high}")
 
 
+TCPTO_RANGE = (1, 65535)
+DEFAULT_TCPTO_MS = 800          # ACKSYS "set net tcpto" default
+
+
 # Modbus/TCP Security: TLS on its own port beside (or, slave mode's mdbport 0, instead of)
 # plain Modbus TCP; the client's role is in its certificate's extension ROLE_OID.
 DEFAULT_TLS_PORT = 802
@@ -247,7 +251,7 @@ class TlsConfig:
     def __post_init__(self) -> None:
         low, high = PORT_RANGE
         if not low <= self.port <= high:
-            raise ConfigError(f"tls-port {self.port}: out of range {low}..{high}")
+            raise ConfigError(f"tls.port {self.port}: out of range {low}..{high}")
         if self.cert is not None:
             missing = [name for name in ("key", "ca") if getattr(self, name) is None]
             if missing:
@@ -282,6 +286,7 @@ class SlaveConfig:
     shortcut: bool = True          # an idle line's request goes on it from C (a hidden switch)
     table: TableConfig = field(default_factory=TableConfig)
     firewall: "FirewallConfig | None" = None   # [[rule]] tables; None: every request allowed
+    tcpto_ms: int = DEFAULT_TCPTO_MS   # TCP scenarios: the time for a transaction with a server
     scenarios: tuple = ()          # ScenarioConfig (mbgw.config.scenario), [[scenario]]
     config_file: str | None = None  # the file the settings came from (scenario ... --save)
     tls: TlsConfig = field(default_factory=TlsConfig)
@@ -290,6 +295,9 @@ class SlaveConfig:
         _check_scenarios(self.scenarios, "slave")
         if self.mdbport == 0 and not self.tls.enabled:
             raise ConfigError("mdbport 0 turns plain Modbus TCP off: it needs TLS (tls-cert)")
+        low, high = TCPTO_RANGE
+        if not low <= self.tcpto_ms <= high:
+            raise ConfigError(f"tcpto {self.tcpto_ms}: out of range {low}..{high}")
         if len(self.authip) > MAX_AUTHIP:
             raise ConfigError(f"authip: at most {MAX_AUTHIP} addresses, got {len(self.authip)}")
         object.__setattr__(self, "authip", tuple(parse_ip("authip", a) for a in self.authip))
@@ -325,9 +333,6 @@ if typing.TYPE_CHECKING:
     from mbgw.config.slaveid import SlaveIdTable
 if TYPE_CHECKING:    # config.firewall reads this module's number lists
     from mbgw.config.firewall import FirewallConfig
-
-TCPTO_RANGE = (1, 65535)
-DEFAULT_TCPTO_MS = 800          # ACKSYS "set net tcpto" default
 
 
 @dataclass(frozen=True)
@@ -406,7 +411,7 @@ class TransparentConfig:
                 ("eof-timeout", self.eof_timeout_ms, EOF_TIMEOUT_RANGE),
                 ("rx-size", self.rx_size, FRAME_SIZE_RANGE),
                 ("tx-size", self.tx_size, FRAME_SIZE_RANGE),
-                ("interframe-silence", self.silence_ms, INTERFRAME_SILENCE_RANGE)):
+                ("transparent.silence", self.silence_ms, INTERFRAME_SILENCE_RANGE)):
             if not low <= value <= high:
                 raise ConfigError(f"{name} {value}: out of range {low}..{high}")
         for name, address, size, (low, high) in (

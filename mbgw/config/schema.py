@@ -35,6 +35,11 @@ class Key:
     name: str                  # the ACKSYS spelling: the option's long flag without "--"
     group: str
     params: dict               # mode -> its click.Option (one per mode command that has it)
+    file_name: str = ""        # as written under [group]: the name, unless it is another
+                               # group's already ([tls] port is --tls-port)
+
+    def __post_init__(self) -> None:
+        self.file_name = self.file_name or self.name
 
     def mode_for(self, mode: str) -> str:
         """The mode whose option checks this key: the file's mode when it has the key."""
@@ -42,7 +47,7 @@ class Key:
 
     @property
     def label(self) -> str:
-        return f"{self.group}.{self.name}"
+        return f"{self.group}.{self.file_name}"
 
 
 class Schema:
@@ -61,11 +66,13 @@ class Schema:
                 name = option_key(param)
                 if name is not None:
                     group = key_group(name, param)
-                    found.setdefault(name, Key(name, group, {})).params[mode] = param
+                    found.setdefault(name, Key(name, group, {}, file_key(param))) \
+                        .params[mode] = param
                     if found[name].group != group:
                         raise RuntimeError(f"key {name} is in [{found[name].group}] and "
                                            f"[{group}]")
         self.keys = {k.name: k for g in GROUPS for k in found.values() if k.group == g}
+        self._in_file = {(k.group, k.file_name): k for k in self.keys.values()}
 
     @property
     def default_mode(self) -> str:
@@ -75,14 +82,30 @@ class Schema:
         names = [k.name for k in self.keys.values() if k.group == group]
         return [MODE_KEY, *names] if group == "serial" else names
 
+    def find(self, group: str, file_name: str) -> Key | None:
+        """The key written file_name under [group]."""
+        return self._in_file.get((group, file_name))
+
+    def place(self, name: str) -> tuple[str, str]:
+        """(group, name in the file) of a key."""
+        if name == MODE_KEY:
+            return "serial", MODE_KEY
+        key = self.keys[name]
+        return key.group, key.file_name
+
+    def file_name(self, name: str) -> str:
+        return self.place(name)[1]
+
     def label(self, name: str) -> str:
-        return f"serial.{MODE_KEY}" if name == MODE_KEY else self.keys[name].label
+        return ".".join(self.place(name))
 
     def hint(self, name: str) -> str:
         """'; did you mean net.authip?' for a misspelt key, else ''."""
-        names = [MODE_KEY, *self.keys]
-        match = difflib.get_close_matches(name.lower(), names, n=1, cutoff=0.6)
-        return f"; did you mean {self.label(match[0])}?" if match else ""
+        labels = {f"{MODE_KEY}": f"serial.{MODE_KEY}"}
+        for key in reversed(self.keys.values()):
+            labels[key.file_name] = key.label
+        match = difflib.get_close_matches(name.lower(), list(labels), n=1, cutoff=0.6)
+        return f"; did you mean {labels[match[0]]}?" if match else ""
 
     def key_of_param(self, param: click.Parameter) -> Key | None:
         name = option_key(param)
@@ -97,6 +120,12 @@ def key_group(name: str, param: click.Parameter) -> str:
     if name in NET_KEYS:
         return "net"
     return "serial" if name in LINE_KEYS or isinstance(param, SerialOption) else "general"
+
+
+def file_key(param: click.Parameter) -> str:
+    """The name a grouped option's key has in the file, when its own name would be another
+    group's key's ("" when it is the same)."""
+    return getattr(param, "file_key", None) or ""
 
 
 def option_key(param: click.Parameter) -> str | None:
@@ -122,9 +151,10 @@ class TableOption(click.Option):
 
     group = "table"
 
-    def __init__(self, *args, key: str, **kwargs) -> None:
+    def __init__(self, *args, key: str, file_key: str | None = None, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.key = key
+        self.file_key = file_key
 
 
 class TlsOption(TableOption):
@@ -136,9 +166,10 @@ class TransparentOption(click.Option):
     """An option of transparent mode (--eof, --rx-address, ...): its key is `key` in
     [transparent]."""
 
-    def __init__(self, *args, key: str, **kwargs) -> None:
+    def __init__(self, *args, key: str, file_key: str | None = None, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.key = key
+        self.file_key = file_key
 
 
 def is_unset(value) -> bool:

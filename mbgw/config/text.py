@@ -20,7 +20,8 @@ from mbgw.config.toml_text import dump_value, set_line
 def default_line(schema: Schema, name: str, mode: str) -> str:
     """The commented-out line showing a key's built-in default."""
     value = default_value(schema, name, mode)
-    return f"# {name} =" if value is None else f"# {name} = {dump_value(value)}"
+    written = schema.file_name(name)
+    return f"# {written} =" if value is None else f"# {written} = {dump_value(value)}"
 
 
 _NOTES = {
@@ -88,11 +89,11 @@ def factory_text(schema: Schema) -> str:
 def edit(text: str, schema: Schema, mode: str, changes: dict) -> str:
     """Apply {key: value or REMOVE} to the file text (see set_line)."""
     for name, value in changes.items():
-        group = schema.label(name).split(".")[0]
+        group, written = schema.place(name)
         if value is REMOVE:
-            text = set_line(text, group, name, None,
+            text = set_line(text, group, written, None,
                             None if name == MODE_KEY else default_line(schema, name, mode))
         else:
-            text = set_line(text, group, name, f"{name} = {dump_value(value)}")
+            text = set_line(text, group, written, f"{written} = {dump_value(value)}")
     return text
 

@@ -21,6 +21,8 @@ from mbgw.ops.service import (
     start_metrics,
     watchdog_interval,
 )
+from mbgw.scenarios.control import scenario_commands
+from mbgw.scenarios.tcp_runner import TcpScenarios, with_scenarios
 
 log = logging.getLogger("mbgw")
 TICK_S = 1.0        # how often the table's file is looked at (it is saved per its interval)
@@ -78,13 +80,17 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
     for signum in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(signum, stop.set)
     started = time.time()
-    metrics = start_metrics(cfg.metrics, lambda m: m.master_collector(
+    engines: dict = {}         # the scenarios' engine by kind, while it runs (TCP only here)
+    metrics = start_metrics(cfg.metrics, lambda m: with_scenarios(m.master_collector(
         counters, slave.devices, slave, started,
-        lambda: tables.figures(slave.table_counters.snapshot()), tables.firewall_report))
+        lambda: tables.figures(slave.table_counters.snapshot()), tables.firewall_report),
+        engines))
     slave.idle_ms = idle_ms(watchdog_interval())
     slave.start()
     status = MasterStatus(cfg, slave, counters, tables)
-    control = await start_control(cfg.control, status.commands())
+    status.scenario_engines = engines
+    control = await start_control(cfg.control, {
+        **status.commands(), **scenario_commands(engines, cfg.config_file)})
     s = cfg.serial
     log.info("master mode: serial %s %d %s %s %s; servers' port %d, tcpto %d ms, exception %s, "
              "at most %d connections; slaveid %s", s.device, s.baudrate, s.format, s.protocol,
@@ -93,14 +99,20 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
     if metrics is not None:
         log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
     _log_slaveid(cfg)
+    scenarios = TcpScenarios(tables.table, engines)
+    scenarios.start(cfg.scenarios, cfg.tcpto_ms)
 
     async def apply(new: MasterConfig) -> None:
         _log_slaveid(new)
         tables.reconfigure(new)
         slave.reconfigure(new)
+        await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms)
 
     ticking = asyncio.ensure_future(_tick(tables))
-    await serve_until_stopped(stop, status, slave, reconfigure, apply, control, metrics)
+    try:
+        await serve_until_stopped(stop, status, slave, reconfigure, apply, control, metrics)
+    finally:
+        await asyncio.to_thread(scenarios.stop)
     ticking.cancel()
     slave.stop()
     await asyncio.to_thread(slave.join)

@@ -55,12 +55,12 @@ from mbgw.master.trace import (
     OUTCOME_UNREACHABLE,
     MasterTracer,
 )
-from mbgw.master.upstream import Interrupted, UpstreamPool, drain
 from mbgw.ops.counters import MasterCounters, TableSlaveCounters
 from mbgw.ops.device_stats import MASTER_COUNTS, DeviceTable, HealthRule
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.ops.trace import TraceHub
 from mbgw.protocol import pdu
+from mbgw.upstream.pool import Interrupted, UpstreamPool, drain
 
 log = logging.getLogger("mbgw.line")
 wire = logging.getLogger("mbgw.wire")

@@ -1,6 +1,7 @@
 """What the running master-mode daemon reports through the control socket (the commands
 both modes share are in mbgw.ops.status)."""
 from mbgw.ops.status import DaemonStatus
+from mbgw.scenarios.report import scenarios_status
 
 
 class MasterStatus(DaemonStatus):
@@ -11,6 +12,7 @@ class MasterStatus(DaemonStatus):
         super().__init__(cfg, counters, slave.devices, slave.trace)
         self._slave = slave
         self._tables = tables
+        self.scenario_engines: dict = {}    # the scenarios' engines by kind (the daemon's)
 
     def status(self, request: dict) -> dict:
         cfg = self.cfg
@@ -29,6 +31,8 @@ class MasterStatus(DaemonStatus):
             "devices": [d.snapshot() for d in self._devices.all()],
             "table": self._tables.figures(self._slave.table_counters.snapshot()),
             **({"firewall": firewall} if (firewall := self._tables.firewall_report()) else {}),
+            **({"scenarios": rows} if (rows := scenarios_status(self.scenario_engines.values()))
+               else {}),
         }
 
     def commands(self) -> dict:

@@ -6,7 +6,8 @@ the exchange table.
 table and checks and stores its reply; `engine.Scenarios` is one runner's set (the serial
 line's in slave mode, the TCP runner's in every mode): schedule, results, state, counters,
 stale data; `report` and `control` are the operator's side (status, metrics, the control
-commands).  The settings are mbgw.config.scenario.
+commands); `tcp_runner` runs the TCP scenarios through mbgw.upstream's pool, in a thread of
+its own.  The settings are mbgw.config.scenario.
 
 A runner's loop (the serial line worker, the TCP runner):
     poll(its own fds + engine.wake_fd, timeout = engine.due_in(now))
@@ -18,4 +19,4 @@ The daemon: engines = {"serial": Scenarios(cfg.scenarios, table, "serial"), "tcp
 control commands += scenario_commands(engines, cfg.config_file); status["scenarios"] =
 scenarios_status(engines.values()); collector.scenarios = that same function; on reload
 engine.reconfigure(new.scenarios); the table is on when cfg.table_on.
-May import table, ops, protocol, config, errors."""
+May import table, upstream, line, ops, protocol, config, errors."""

@@ -164,6 +164,7 @@ class Scenarios:
             if on:
                 state.state, state.message, state.since = STARTING, "", now
                 self._planner.add(state.scenario, now)
+                os.eventfd_write(self.wake_fd, 1)     # a runner at rest looks again
             else:
                 self._leave_error(state)
                 state.state, state.message = DISABLED, ""

@@ -35,11 +35,18 @@ class Connections:
         self._events: dict[int, int] = {}          # what each client's fd is polled for
         self._adopted: deque[Client] = deque()     # from the asyncio thread, not yet polled
         self._reader = ClientReader(RECEIVE_SIZE)
+        self._also: dict = {}                      # fd -> on_ready (poll_also)
 
     def adopt(self, client: Client) -> None:
         """Asyncio thread: from now on the line thread serves client."""
         self._adopted.append(client)
         os.eventfd_write(self._wake_fd, 1)
+
+    def poll_also(self, fd: int, on_ready) -> None:
+        """Line thread: fd wakes wait() too, which then calls on_ready() (the scenario
+        engine's eventfd; its owner reads it)."""
+        self._poll.register(fd, _IN)
+        self._also[fd] = on_ready
 
     def wait(self, timeout_ms: int, serial_fd: int = -1, take=None) -> bool:
         """Line thread: wait up to timeout_ms (-1: no limit, 0: not at all) for a client, the
@@ -67,6 +74,8 @@ class Connections:
             else:
                 client = self._clients.get(fd)
                 if client is None:
+                    if fd in self._also:
+                        self._also[fd]()
                     continue
                 if take is not None and client.at_rest and client.guard is None:
                     self._serve(client, events, take)

@@ -18,7 +18,10 @@ from mbgw.ops.service import (
     start_metrics,
     watchdog_interval,
 )
-from mbgw.slave.line_thread import LineWorker
+from mbgw.scenarios.control import scenario_commands
+from mbgw.scenarios.engine import Scenarios
+from mbgw.scenarios.tcp_runner import TcpScenarios, with_scenarios
+from mbgw.slave.line_thread import LineWorker, serial_scenarios
 from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
 from mbgw.slave.status import SlaveStatus
@@ -48,6 +51,9 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     worker: LineWorker
     server = TcpServer(cfg, scheduler, counters, lambda: worker.up, devices, tables.table)
     worker = LineWorker(cfg, line, scheduler, server, counters, devices)
+    serial_engine = Scenarios(serial_scenarios(cfg), tables.table, "serial")
+    worker.use_scenarios(serial_engine)      # run, and reconfigured, by the line thread
+    engines: dict = {"serial": serial_engine}   # the scenarios' engines by kind
     stop = asyncio.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
         loop.add_signal_handler(signum, stop.set)
@@ -57,16 +63,19 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
         raise ListenError(cfg.mdbport, err) from None
     started = time.time()
     try:
-        metrics = start_metrics(cfg.metrics, lambda m: m.slave_collector(
+        metrics = start_metrics(cfg.metrics, lambda m: with_scenarios(m.slave_collector(
             counters, devices, scheduler, server, worker, started, tables.figures,
-            lambda: server.firewall.report() if server.firewall.configured else None))
+            lambda: server.firewall.report() if server.firewall.configured else None),
+            engines))
     except MetricsListenError:
         server.close()
         raise
     worker.idle_ms = idle_ms(watchdog_interval())
     worker.start()
     status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses, tables)
-    control = await start_control(cfg.control, status.commands())
+    status.scenario_engines = engines
+    control = await start_control(cfg.control, {
+        **status.commands(), **scenario_commands(engines, cfg.config_file)})
     s = cfg.serial
     log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s",
              ", ".join(addresses), s.device, s.baudrate, s.format, s.protocol, s.interface,
@@ -76,18 +85,26 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     if s.nocheck:
         log.warning("nocheck is on: serial replies are forwarded unchecked (a debugging mode)")
 
+    scenarios = TcpScenarios(tables.table, engines)
+    scenarios.start(cfg.scenarios, cfg.tcpto_ms)
+
     async def apply(new: SlaveConfig) -> None:
         tables.reconfigure(new)
         await server.reconfigure(new)
         worker.reconfigure(new)
+        await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms)
 
     kept = asyncio.ensure_future(tables.keep())
-    await serve_until_stopped(stop, status, worker, reconfigure, apply, control, metrics)
+    try:
+        await serve_until_stopped(stop, status, worker, reconfigure, apply, control, metrics)
+    finally:
+        await asyncio.to_thread(scenarios.stop)
     kept.cancel()
     server.close()
     worker.stop()
     await asyncio.to_thread(worker.join)
     tables.save()
+    serial_engine.close()
     scheduler.close()
     log_stopped(counters)
 

@@ -6,7 +6,13 @@ reopened when it is back (mbgw.line.supervisor), and reported once per change of
 With the exchange table on, the thread holds the gate (a lock) at all times except around
 its blocking serial calls, and the table reader (mbgw.slave.table_reader) serves the clients
 meanwhile; every reply is then written by Python under the gate (no forward from C, no
-shortcut), so no two threads ever write one socket."""
+shortcut), so no two threads ever write one socket.
+
+The serial scenarios (an mbgw.scenarios engine, use_scenarios) run here too, under the same
+rules: the scenario queue takes turns with the clients in the scheduler's ring, each run is a
+SerialMaster transaction with the scenario's retries, and the idle wait ends when the next
+scenario is due or the engine's eventfd says a change made one pending (or an operator's
+`scenario test` waits: it runs in the scenario queue's turn too)."""
 import errno
 import logging
 import time
@@ -20,6 +26,7 @@ from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.protocol import mbap, pdu
+from mbgw.scenarios.exchange import EXCEPTION_KINDS, TIMEOUT
 from mbgw.slave.client import Client
 from mbgw.slave.connections import Connections
 from mbgw.slave.scheduler import (
@@ -30,6 +37,7 @@ from mbgw.slave.scheduler import (
     OUTCOME_LINE_DOWN,
     OUTCOME_REPLY,
     OUTCOME_TIMEOUT,
+    SCENARIO_TURN,
     Job,
     Scheduler,
 )
@@ -39,6 +47,8 @@ from mbgw.slave.transaction import SerialMaster
 log = logging.getLogger("mbgw.line")
 wire = logging.getLogger("mbgw.wire")
 
+# A scenario's run while the serial device is lost: the engine's error kind for 0x0A.
+PATH_UNAVAILABLE = EXCEPTION_KINDS[pdu.GATEWAY_PATH_UNAVAILABLE]
 # Serial settings that need the port opened again; the others apply to the next transaction.
 REOPEN_SETTINGS = ("device", "baudrate", "format", "interface", "rtsdelays")
 
@@ -60,6 +70,10 @@ class LineWorker(LineThread[SlaveConfig]):
         self._gate = Gate()                  # see the module's docstring
         self._reader: TableReader | None = None     # while the table is on
         self._master: SerialMaster | None = self._master_on(line)
+        self._engine = None                # the serial scenarios' engine (use_scenarios)
+        self._scenarios = None             # the engine while it has scenarios to run
+        self._due_s: float | None = None   # until the next scenario is due (None: none is)
+        self._engine_woken = False         # its eventfd was ready (a test, with no scenario)
 
     def _master_on(self, line: SerialLine, previous: SerialMaster | None = None) -> SerialMaster:
         cfg = self._cfg
@@ -70,7 +84,7 @@ class LineWorker(LineThread[SlaveConfig]):
         # Not with the table on: C would write a reply to a client the table reader may be
         # answering at the same time.
         self._shortcut = cfg.shortcut and cfg.serial.protocol == "rtu" and \
-            line.libmodbus_sends and not cfg.serial.nocheck and not cfg.table.enabled
+            line.libmodbus_sends and not cfg.serial.nocheck and not cfg.table_on
         if self._shortcut:
             line.port.shortcut_rules(pdu.LIBMODBUS_FRAMED, line.char_ns,
                                      cfg.serial.stout_ms * 1_000_000, cfg.slaveid, self._down)
@@ -83,12 +97,15 @@ class LineWorker(LineThread[SlaveConfig]):
     @property
     def turn_limit_s(self) -> float:
         """A transaction with its retries (each a quiet line, the longest request, stout, the
-        longest reply's end) and the pause after a broadcast."""
+        longest reply's end; a scenario's retries may be more than the line's) and the pause
+        after a broadcast."""
         cfg = self._cfg
         s = cfg.serial
         quiet_ms = max(s.t35_us / 1000, s.silence_ms) + sum(s.rtsdelays)
         attempt_s = (quiet_ms + s.stout_ms) / 1000 + 2 * longest_frame_s(s)
-        return (cfg.retries + 1) * attempt_s + cfg.turnaround_ms / 1000 + TURN_MARGIN_S
+        retries = max((sc.retries for sc in serial_scenarios(cfg)), default=cfg.retries)
+        return (max(retries, cfg.retries) + 1) * attempt_s + cfg.turnaround_ms / 1000 + \
+            TURN_MARGIN_S
 
     def _wake(self) -> None:
         self._scheduler.wake()
@@ -124,15 +141,25 @@ class LineWorker(LineThread[SlaveConfig]):
     def _configure(self, old: SlaveConfig, reopen: bool) -> None:
         if self._cfg.demotion != old.demotion:
             self.devices.set_rule(self._cfg.demotion)
-        if self._cfg.table.enabled != old.table.enabled:
+        if self._cfg.table_on != old.table_on:
             self._stop_reader()
             self._start_reader()
+        if self._engine is not None and self._cfg.scenarios != old.scenarios:
+            scenarios = serial_scenarios(self._cfg)
+            self._engine.reconfigure(scenarios)
+            self._scenarios = self._engine if scenarios else None
+            self._due_s = None
         if not reopen and self._master is not None and self._line is not None:
             self._master = self._master_on(self._line, self._master)
 
     def _turn(self) -> None:
+        if self._scenarios is not None or self._engine_woken:
+            self._scenarios_due()
         job = self._scheduler.take()
-        if job is None:
+        if job is SCENARIO_TURN:
+            self._run_scenario()
+            self._connections.wait(0)      # what the clients sent meanwhile
+        elif job is None:
             self._idle()
             job, self._taken = self._taken, None
             if job is not None:
@@ -143,6 +170,8 @@ class LineWorker(LineThread[SlaveConfig]):
 
     def _while_down(self, timeout_s: float) -> None:
         self._reject_waiting()             # requests are refused at once meanwhile
+        if self._engine is not None:
+            self._scenarios_while_down(self._engine)
         self._connections.wait(int(timeout_s * 1000))
 
     def _finish(self) -> None:
@@ -154,7 +183,7 @@ class LineWorker(LineThread[SlaveConfig]):
 
     def _start_reader(self) -> None:
         table = self._server.table
-        if self._cfg.table.enabled and table is not None:
+        if self._cfg.table_on and table is not None:
             self._reader = TableReader(self._gate, self._connections, self._scheduler.wake_fd,
                                        self._server.read_meanwhile, table.responder())
             self._reader.start()
@@ -234,7 +263,8 @@ class LineWorker(LineThread[SlaveConfig]):
         """The serial master found the reply (sent: the bytes of it already forwarded, or
         -1): it goes to the client before the books."""
         job, self._serving = self._serving, None
-        assert job is not None
+        if job is None:        # a scenario's run: its reply is the runner's
+            return
         job.outcome = OUTCOME_EXCEPTION if reply[0] & pdu.EXCEPTION_FLAG else OUTCOME_REPLY
         if self._reader is None:
             self._deliver(job, reply, sent)
@@ -257,7 +287,7 @@ class LineWorker(LineThread[SlaveConfig]):
         port = self._master.framing.port
         take = self._take if self._shortcut else None
         try:
-            if self._connections.wait(self.idle_ms, port.fd, take):
+            if self._connections.wait(self._idle_timeout_ms(), port.fd, take):
                 # one frame without a request: whatever comes until the line is quiet again
                 unsolicited = port.wait_quiet(time.monotonic_ns(), self._cfg.serial.t35_us)
                 self._counters.unsolicited_frames += 1
@@ -265,6 +295,19 @@ class LineWorker(LineThread[SlaveConfig]):
                 self._counters.bytes_received += unsolicited
         except SerialError as err:
             self._lost(err)
+
+    def _idle_timeout_ms(self) -> int:
+        """The idle wait ends in time for the next scenario (or stale-after check).  poll()
+        counts whole ms: it stops short and the last fraction is slept (well under a ms of
+        the clients' time)."""
+        due = self._due_s
+        if self._scenarios is None or due is None:
+            return self.idle_ms
+        if due < 0.001:
+            time.sleep(due)
+            return 0
+        due_ms = int(due * 1000)
+        return due_ms if self.idle_ms < 0 else min(due_ms, self.idle_ms)
 
     def _take(self, client: Client) -> list | None:
         """The shortcut for a request that finds the line idle: C reads the client and, when
@@ -298,6 +341,92 @@ class LineWorker(LineThread[SlaveConfig]):
     def _reject_waiting(self) -> None:
         """While the port is down, nothing waits: every queued request is refused at once."""
         while (job := self._scheduler.take()) is not None:
+            if job is SCENARIO_TURN:       # none runs while the line is down
+                continue
             self._counters.line_down_rejects += 1
             job.outcome = OUTCOME_LINE_DOWN
             self._deliver(job, self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE))
+
+    # --- the serial scenarios ---
+
+    def use_scenarios(self, engine) -> None:
+        """Run engine's scenarios on this line, and those of the settings to come (called
+        once, before start())."""
+        self._engine = engine
+        self._scenarios = engine if serial_scenarios(self._cfg) else None
+        self._connections.poll_also(engine.wake_fd, self._engine_ready)
+
+    def _engine_ready(self) -> None:
+        """The engine's eventfd is ready: looked at in the next turn even with no scenario
+        (an operator's test)."""
+        self._engine_woken = True
+
+    def _scenarios_due(self) -> None:
+        """The scenario queue gets a turn while a scenario (or a test) is due; the engine
+        also takes the table's changes and marks stale data here."""
+        self._engine_woken = False
+        engine = self._engine
+        assert engine is not None
+        self._due_s = due = engine.due_in(time.monotonic())
+        if due == 0:
+            self._scheduler.scenario_due(time.monotonic_ns())
+
+    def _run_scenario(self) -> None:
+        engine = self._engine
+        assert engine is not None
+        test = engine.take_test(time.monotonic())
+        if test is not None:
+            engine.test_done(test, *self._exchange(test.scenario, test.pdu))
+            return
+        run = engine.next(time.monotonic())
+        if run is not None:
+            engine.done(run, *self._exchange(run.scenario, run.pdu))
+
+    def _scenarios_while_down(self, engine) -> None:
+        """None runs, but the engine's eventfd is read, changes are taken and data ages
+        (stale-after); a test is answered at once."""
+        now = time.monotonic()
+        engine.due_in(now)
+        while (test := engine.take_test(now)) is not None:
+            engine.test_done(test, None, PATH_UNAVAILABLE)
+
+    def _exchange(self, scenario, request: bytes) -> tuple:
+        """One run of scenario (request: its PDU) on the line with its retries, address 0 a
+        broadcast: (reply PDU or None, None or the engine's error kind, the retries made).
+        A reply that did not answer the request (another function, another size) is
+        returned for the engine to name; none at all is a timeout."""
+        master = self._master
+        if master is None:
+            return None, PATH_UNAVAILABLE, 0
+        device = self.devices.get(scenario.slave)
+        retried = device.retries
+        master.mismatch = None
+        try:
+            reply = self._on_line(master, bytes((scenario.slave,)) + request, scenario.retries)
+        except LineTimeout:
+            reply = master.mismatch
+            return reply, None if reply is not None else TIMEOUT, device.retries - retried
+        except SerialError as err:
+            self._lost(err)
+            return None, PATH_UNAVAILABLE, device.retries - retried
+        except Exception:   # a bug must cost one run, never the scenario's schedule
+            log.exception("internal error running scenario %s", scenario.name)
+            return None, TIMEOUT, device.retries - retried
+        return reply, None, device.retries - retried
+
+    def _on_line(self, master: SerialMaster, adu: bytes, retries: int) -> bytes | None:
+        """master.transact for a scenario, without the gate (the table reader serves the
+        clients meanwhile); the requests it kept for the line are routed after."""
+        if self._reader is None:
+            return master.transact(adu, NO_FORWARD, False, retries)
+        self._gate.release()
+        try:
+            return master.transact(adu, NO_FORWARD, False, retries)
+        finally:
+            self._gate.take()
+            self._server.take_kept()
+
+
+def serial_scenarios(cfg: SlaveConfig) -> tuple:
+    """The scenarios this line runs."""
+    return tuple(s for s in cfg.scenarios if s.kind == "serial")

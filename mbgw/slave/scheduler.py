@@ -11,6 +11,11 @@ after it, and besides the transaction on the line when it came, each waits for a
 transaction of each other waiting client.  Only the
 line thread submits and takes; other threads wake it through wake_fd (a new connection, new
 settings, stopping).
+
+The serial scenarios (mbgw.scenarios) take turns in the same ring as one more client: while
+one of them is due, the scenario queue has a turn (SCENARIO_TURN), begun when it fell due or,
+after a scenario ran and another is due, when the line comes to take a job again -- so the
+line is shared fairly between the scenario queue and each client.
 """
 import os
 import time
@@ -36,6 +41,9 @@ OUTCOME_EXCEPTION = "device exception"
 OUTCOME_TIMEOUT = "timeout"
 OUTCOME_LINE_DOWN = "line down"
 OUTCOME_DEVICE_DOWN = "device down"    # refused: its address is down, and it is no probe
+# What take() returns for the scenario queue's turn: the line thread runs the scenario due.
+SCENARIO_TURN = Job(None, 0, 0, b"")
+
 OUTCOME_BROADCAST = "broadcast"
 OUTCOME_UNROUTABLE = "unroutable"
 OUTCOME_ERROR = "internal error"
@@ -57,6 +65,7 @@ class Scheduler:
         self._ring: deque[Queue] = deque()      # turns, by turn_ns
         self._continuing: Queue | None = None   # its job is on the line, more wait behind it
         self.depth = 0              # jobs waiting, for status and metrics
+        self._scenarios = Queue()   # the scenario queue's turn, while one is due
         self.wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
 
     def submit(self, queue: Queue, job: Job) -> None:
@@ -77,12 +86,24 @@ class Scheduler:
             return None
         queue = self._ring.popleft()
         job = queue.jobs.popleft()
+        if job is SCENARIO_TURN:
+            queue.scheduled = False
+            return job
         self.depth -= 1
         if queue.jobs:
             self._continuing = queue
         else:
             queue.scheduled = False
         return job
+
+    def scenario_due(self, turn_ns: int) -> None:
+        """A scenario is due (since turn_ns at the latest): the scenario queue gets a turn
+        unless it has one."""
+        queue = self._scenarios
+        if not queue.scheduled:
+            queue.scheduled = True
+            queue.jobs.append(SCENARIO_TURN)
+            self._line_up(queue, turn_ns)
 
     def discard(self, queue: Queue) -> None:
         """Forget a client's pending jobs (it disconnected)."""

@@ -574,10 +574,10 @@ class Handshake:
 
 
 def table_units(cfg: SlaveConfig) -> bytes:
-    """256 flags, by unit id: the units the exchange table answers (none while it is off;
-    every one, unit 0 the broadcast, with direct messaging off)."""
+    """256 flags, by unit id: the units the exchange table answers (none while it is off --
+    scenarios turn it on; every one, unit 0 the broadcast, with direct messaging off)."""
     table = cfg.table
-    if not table.enabled:
+    if not cfg.table_on:
         return bytes(256)
     if not table.direct:
         return bytes((1,)) * 256

@@ -3,6 +3,7 @@ close (the commands both modes share are in mbgw.ops.status)."""
 import time
 
 from mbgw.ops.status import DaemonStatus
+from mbgw.scenarios.report import scenarios_status
 
 
 class SlaveStatus(DaemonStatus):
@@ -17,6 +18,7 @@ class SlaveStatus(DaemonStatus):
         self._worker = worker
         self._scheduler = scheduler
         self._addresses = addresses
+        self.scenario_engines: dict = {}    # the scenarios' engines by kind (the daemon's)
 
     def commands(self) -> dict:
         tables = self._tables
@@ -57,6 +59,8 @@ class SlaveStatus(DaemonStatus):
             "counters_since": self._reset_at,
             "line_utilisation_pct": round(100 * busy_s / max(now - self._reset_at, 1e-9), 2),
             "devices": [d.snapshot() for d in self._devices.all()],
+            **({"scenarios": rows} if (rows := scenarios_status(self.scenario_engines.values()))
+               else {}),
         }
 
     def summary(self) -> str:

@@ -39,7 +39,7 @@ class TableService:
     def _persist(self, settings: SlaveConfig) -> None:
         """Keep the table in the file the settings name (loaded now), if any."""
         cfg = settings.table
-        if not (cfg.enabled and cfg.persist):
+        if not (settings.table_on and cfg.persist):
             self.persistence = None
             return
         self.persistence = Persistence(self.table, cfg.persist, cfg.persist_interval_s)
@@ -50,8 +50,8 @@ class TableService:
         one is written.  The functions and the units are TcpServer's."""
         old, self.settings = self.settings, settings
         identity.fill(self.table, settings, "slave")
-        if (settings.table.enabled, settings.table.persist, settings.table.persist_interval_s) \
-                != (old.table.enabled, old.table.persist, old.table.persist_interval_s):
+        if (settings.table_on, settings.table.persist, settings.table.persist_interval_s) \
+                != (old.table_on, old.table.persist, old.table.persist_interval_s):
             self.save()
             try:
                 self._persist(settings)
@@ -76,7 +76,7 @@ class TableService:
         """The operator's table-read and table-write, while the table is on."""
         def when_on(command):
             def serve(request: dict) -> dict:
-                if not self.cfg.enabled:
+                if not self.settings.table_on:
                     return {"error": "the exchange table is off (--table, [table] enabled)"}
                 return command(request)
             return serve
@@ -84,7 +84,7 @@ class TableService:
 
     def figures(self) -> dict | None:
         """The status's "table" section (mbgw.table.report), None while the table is off."""
-        if not self.cfg.enabled:
+        if not self.settings.table_on:
             return None
         persist = None if self.persistence is None else {"path": str(self.persistence.path)}
         return table_status(self.table, self.cfg, persist=persist)

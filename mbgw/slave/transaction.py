@@ -38,6 +38,9 @@ class SerialMaster:
         self._deadline = 0          # of the reply to the request last sent
         # on_reply(reply PDU, bytes of it forwarded or -1): called before the reply is booked
         self.on_reply: Callable[[bytes, int], None] | None = None
+        # The last reply dropped for not answering its request (another function, another
+        # size), for a scenario to tell why it failed; its runner clears it.
+        self.mismatch: bytes | None = None
 
     def keep_line_state(self, previous: "SerialMaster") -> None:
         """Taking over the line from previous (new settings): the silence it owes the line
@@ -51,10 +54,12 @@ class SerialMaster:
         """The line must stay silent until then."""
         return self._quiet_from_ns + self._quiet_us * 1000
 
-    def transact(self, adu: bytes, forward=NO_FORWARD, taken: bool = False) -> bytes | None:
+    def transact(self, adu: bytes, forward=NO_FORWARD, taken: bool = False,
+                 retries: int = -1) -> bytes | None:
         """Send adu (address + PDU) and return the reply PDU; None for a broadcast.
         forward: where the reply may go straight from the C receive (framing.NO_FORWARD);
-        taken: the port has exchanged adu already (native.Port.take_request).
+        taken: the port has exchanged adu already (native.Port.take_request); retries: this
+        transaction's own (a scenario's), -1 for the line's.
         Raises LineTimeout when no valid reply came, SerialError when the port failed."""
         device = self.devices.get(adu[0])
         device.transactions += 1
@@ -66,7 +71,7 @@ class SerialMaster:
             self._quiet_us = self._turnaround_us
             return None
         started = 0
-        for attempt in range(self._retries + 1):
+        for attempt in range((self._retries if retries < 0 else retries) + 1):
             if attempt:
                 self._count(device, "retries")
                 taken = False
@@ -165,7 +170,10 @@ class SerialMaster:
                 self._count(device, "late_replies")
                 continue
             if not reply_matches(adu[1:], frame[1:]):
-                self._count(device, "late_replies" if self._timed_out is device
-                            else "wrong_function")
+                if self._timed_out is device:
+                    self._count(device, "late_replies")
+                else:
+                    self._count(device, "wrong_function")
+                    self.mismatch = frame[1:]
                 continue
             return got

@@ -196,7 +196,7 @@ def test_reload_loads_a_renewed_certificate_for_new_connections_only(
     path = tmp_path / "mbgw.toml"
     port = free_port()
     config_set(path, "serial", "baudrate", "19200")
-    config_set(path, "tls", "tls-port", str(port))
+    config_set(path, "tls", "port", str(port))
     config_set(path, "tls", "cert", str(cert))
     config_set(path, "tls", "key", str(key))
     config_set(path, "tls", "ca", str(ca.cert))
@@ -274,7 +274,7 @@ def test_the_firewall_applies_the_role_in_the_certificate(tmp_path, pty_pair, re
     record = recording_peer("fault_slave.py")
     port = free_port()
     path = tmp_path / "mbgw.toml"
-    path.write_text(f'[serial]\nbaudrate = 19200\n[tls]\ntls-port = {port}\ncert = "{cert}"\n'
+    path.write_text(f'[serial]\nbaudrate = 19200\n[tls]\nport = {port}\ncert = "{cert}"\n'
                     f'key = "{key}"\nca = "{ca.cert}"\n'
                     '[[rule]]\nrole = "operator"\nlistener = "tls"\nread-only = true\n')
     gw = start_gateway(pty_pair.gateway, "--config", str(path))

@@ -21,6 +21,7 @@ holds 1000 + i.  Behaviour by the request's address:
       --garbage-pause-ms 0 the garbage and the reply in one write (noise right before it)
   14  silent to its first --mute-first (3) requests, then the reply (a device that recovers)
   15  --garbage only, never the reply (noise alone)
+  16  FC03/04: one register fewer than asked (a wrong quantity)
 
 The reply: FC03/04 the registers, FC06 the echo, FC 108 the vendor reply (any address),
 anything else exception 01.
@@ -131,6 +132,8 @@ class Slave:
                 self.later(0, reply)
         elif address == 15:
             self.later(0, self.garbage)
+        elif address == 16 and pdu[0] in (0x03, 0x04) and reply[2] > 2:
+            self.later(0, adu(16, bytes((pdu[0], reply[2] - 2)) + reply[3:-4]))
         else:
             self.later(0, reply)
 

@@ -383,3 +383,24 @@ def test_no_reloader_without_a_file(tmp_path, monkeypatch):
     result = mbgw("slave", "--device", "/dev/ttyS1", root=group, MBGW_CONFIG=None)
     assert result.exit_code == 0, result.output
     assert group.reloaders == [None]
+
+
+def test_a_key_named_as_another_groups_key_is_set_shown_and_unset_in_its_own_group(conf):
+    """[transparent] silence is not [serial] silence, [tls] port not [table] port."""
+    assert mbgw("config", "set", "serial", "mode", "transparent", "--config", conf).exit_code \
+        == 0
+    for group, value in (("transparent", "20"), ("tls", "8802"), ("serial", "7")):
+        result = mbgw("config", "set", group, ("port" if group == "tls" else "silence"), value,
+                      "--config", conf)
+        assert result.exit_code == 0, result.output
+    data = values(conf)
+    assert (data["transparent"]["silence"], data["tls"]["port"], data["serial"]["silence"]) \
+        == (20, 8802, 7)
+    assert "port" not in data.get("table", {})
+    shown = mbgw("config", "show", "transparent", "silence", "--config", conf)
+    assert shown.output.strip() == "20"
+    assert "silence" in mbgw("config", "show", "transparent", "--config", conf).output
+    result = mbgw("config", "unset", "transparent", "silence", "--config", conf)
+    assert result.exit_code == 0, result.output
+    data = values(conf)
+    assert "silence" not in data["transparent"] and data["serial"]["silence"] == 7

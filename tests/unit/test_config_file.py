@@ -65,6 +65,11 @@ def test_every_long_option_of_both_modes_is_a_key(schema):
     tls = {p.key for p in params if isinstance(p, config_keys.TlsOption)}
     assert tls == {"tls-port", "cert", "key", "ca"}
     assert set(schema.keys) == (options - {"config"}) | table | transparent | tls
+    # in the file, a key's name may be another group's too: [tls] port, [transparent] silence
+    assert schema.label("tls-port") == "tls.port" and schema.find("tls", "port").name == \
+        "tls-port"
+    assert schema.find("transparent", "silence").name == "interframe-silence"
+    assert schema.find("serial", "silence").name == "silence"
     assert "shortcut" not in schema.keys
 
 
@@ -118,7 +123,7 @@ def test_factory_file_is_valid_and_lists_every_key(schema, tmp_path):
     options = cf.resolve(schema, settings)
     assert options["device"] == config_keys.FACTORY_DEVICE and options["stout"] == 600
     lines = text.splitlines()
-    for name in schema.keys:
+    for name in map(schema.file_name, schema.keys):
         assert any(line.startswith((f"{name} =", f"# {name} =")) for line in lines), name
 
 

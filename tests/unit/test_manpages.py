@@ -48,13 +48,14 @@ def test_the_firewall_tables_list_their_keys():
         assert tuple(ENTRIES[table]) == keys, table
 
 
-KEYS = [(group, name) for group in GROUPS for name in SCHEMA.group_keys(group)]
+KEYS = [(group, SCHEMA.file_name(name)) for group in GROUPS for name in SCHEMA.group_keys(group)]
 
 
 def test_every_group_lists_its_keys_in_the_factory_files_order():
     assert list(ENTRIES) == [*GROUPS, *FIREWALL_TABLES]
     for group in GROUPS:
-        assert list(ENTRIES[group]) == SCHEMA.group_keys(group), group
+        assert list(ENTRIES[group]) == list(map(SCHEMA.file_name, SCHEMA.group_keys(group))), \
+            group
 
 
 @pytest.mark.parametrize("group, name", KEYS)
@@ -64,9 +65,9 @@ def test_each_key_states_its_default_range_choices_and_modes(group, name):
         assert f'Default \\fB"{SCHEMA.default_mode}"\\fR' in text
         assert all(f"\\fB{mode}\\fR" in text for mode in MODES)
         return
-    key = SCHEMA.keys[name]
+    key = SCHEMA.find(group, name)
     for mode, param in key.params.items():
-        default = default_value(SCHEMA, name, mode)
+        default = default_value(SCHEMA, key.name, mode)
         if default is None:
             assert text.startswith("Not set by default"), (name, text)
         else:

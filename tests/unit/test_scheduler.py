@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from mbgw.slave.scheduler import Job, Queue, Scheduler
+from mbgw.slave.scheduler import SCENARIO_TURN, Job, Queue, Scheduler
 
 
 @pytest.fixture
@@ -33,7 +33,7 @@ def _submit(scheduler: Scheduler, queue: Queue, client: str, count: int) -> None
 def _drain(scheduler: Scheduler) -> list[tuple[str, int]]:
     taken = []
     while (job := scheduler.take()) is not None:
-        taken.append((job.client, job.tid))
+        taken.append(("scenario", 0) if job is SCENARIO_TURN else (job.client, job.tid))
     return taken
 
 
@@ -174,3 +174,47 @@ def test_wake_always_signals(scheduler):
     scheduler.wake()
     assert _woken(scheduler)
     assert not _woken(scheduler)
+
+
+# --- the scenario queue: one more participant of the ring (issue 15) ---
+
+def test_the_scenario_queue_takes_its_turn_among_the_clients(scheduler):
+    a, b = Queue(), Queue()
+    scheduler.submit(a, _job("a", 0, 100))
+    scheduler.scenario_due(200)
+    scheduler.submit(b, _job("b", 0, 300))
+    assert _drain(scheduler) == [("a", 0), ("scenario", 0), ("b", 0)]
+
+
+def test_a_due_scenario_queue_has_one_turn_however_often_it_is_told(scheduler):
+    scheduler.scenario_due(100)
+    scheduler.scenario_due(200)
+    assert _drain(scheduler) == [("scenario", 0)]
+    assert scheduler.depth == 0
+
+
+def test_scenarios_always_due_and_busy_clients_alternate(scheduler):
+    """The line thread tells the scheduler a scenario is due before each take: neither the
+    scenario list nor a pipelining client starves the other."""
+    busy = Queue()
+    _submit(scheduler, busy, "busy", 3)
+    taken = []
+    for _ in range(6):
+        scheduler.scenario_due(time.monotonic_ns())
+        job = scheduler.take()
+        taken.append("scenario" if job is SCENARIO_TURN else job.client)
+    assert taken == ["busy", "scenario", "busy", "scenario", "busy", "scenario"]
+
+
+def test_each_client_is_served_once_between_two_scenario_runs(scheduler):
+    queues = {name: Queue() for name in "abc"}
+    for n in range(2):
+        for name, queue in queues.items():
+            scheduler.submit(queue, _job(name, n, 10 * n + ord(name)))
+    scheduler.scenario_due(0)
+    taken = [scheduler.take()]
+    for _ in range(7):
+        scheduler.scenario_due(time.monotonic_ns())
+        taken.append(scheduler.take())
+    names = ["s" if job is SCENARIO_TURN else job.client for job in taken]
+    assert names == ["s", "a", "b", "c", "s", "a", "b", "c"]

@@ -1,4 +1,4 @@
-"""Master mode's network side: Modbus TCP connections to the remote servers.
+"""The pool of Modbus TCP connections to the remote servers (master mode, the TCP scenarios).
 
 One connection per server IP, at most `limit` open: opening one more first closes the least
 recently used (TCP guide 4.2.3: "close the oldest unused").  Requests go out in MBAP with a
@@ -11,11 +11,11 @@ protocol id other than 0, a length that does not fit) also closes the connection
 stream can no longer be trusted.  A connection the server has closed is found before the
 request is sent and reopened; connecting counts against the deadline.
 
-Everything runs on the serial line's thread: the master sends one request at a time, so a
-thread hop would only add latency.  The sockets are non-blocking and every wait is one
-poll() that the line's eventfd also wakes, so stopping never waits for tcpto (a wake for a
-new configuration does not interrupt the transaction: it is applied after it).  The status
-reads connections() from the asyncio thread.
+Everything runs on its owner's thread (master mode: the serial line's; the master sends one
+request at a time, so a thread hop would only add latency).  The sockets are non-blocking
+and every wait is one poll() that the owner's eventfd also wakes, so stopping never waits
+for tcpto (a wake for a new configuration does not interrupt the transaction: it is applied
+after it).  The status reads connections() from the asyncio thread.
 """
 import errno
 import logging
@@ -40,6 +40,14 @@ TID_MASK = 0xFFFF
 
 class Interrupted(MbgwError):
     """The line's eventfd was signalled during a wait: the gateway is stopping."""
+
+
+class ConnectTimeout(GatewayTimeout):
+    """No connection to the server within the deadline."""
+
+
+class ConnectionLost(GatewayTimeout):
+    """The connection broke while the request was on it (to master mode, no answer)."""
 
 
 class Connection:
@@ -138,7 +146,7 @@ class UpstreamPool:
                 raise BadReply("invalid_frames", reason) from None
             self._wait(conn.poller, deadline_ns)
             if self._receive(conn) is False:
-                raise GatewayTimeout()
+                raise ConnectionLost()
 
     def send_all(self, hosts, unit: int, request: bytes, deadline_ns: int) -> int:
         """Send a request that gets no reply (a broadcast) to each host; returns how many it
@@ -202,7 +210,8 @@ class UpstreamPool:
             self._counters.connections_evicted += 1
             log.debug("server %s:%d: connection closed to make room for %s", oldest.host,
                       self._port, host)
-        sock = socket.socket(socket.AF_INET,
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET    # an IPv6 literal
+        sock = socket.socket(family,
                              socket.SOCK_STREAM | socket.SOCK_NONBLOCK | socket.SOCK_CLOEXEC)
         try:
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
@@ -216,7 +225,7 @@ class UpstreamPool:
                     self._wait(poller, deadline_ns)
                 except GatewayTimeout:
                     self._failed(host, "no connection within tcpto")
-                    raise
+                    raise ConnectTimeout() from None
                 code = sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
             if code:
                 self._failed(host, os.strerror(code))
@@ -286,7 +295,7 @@ class UpstreamPool:
             reason = "send buffer full"
         if sent != len(frame):
             self._lost(conn, reason)
-            raise GatewayTimeout()
+            raise ConnectionLost()
 
     def _receive(self, conn: Connection) -> bool | None:
         """Append what the socket holds to conn.buf: True.  None when nothing was waiting,
