@@ -171,7 +171,7 @@ def test_the_firewall_applies_the_role_in_the_certificate(tmp_path, start_master
     port, tls_port = free_port(), free_port()
     path = tmp_path / "mbgw.toml"
     path.write_text(f'[table]\nenabled = true\naddress = 0\nport = {port}\n'
-                    f'[tls]\ntls-port = {tls_port}\ncert = "{cert}"\nkey = "{key}"\n'
+                    f'[tls]\nport = {tls_port}\ncert = "{cert}"\nkey = "{key}"\n'
                     f'ca = "{ca.cert}"\n'
                     '[[rule]]\nrole = "operator"\nlistener = "tls"\nread-only = true\n')
     start_master("--config", str(path))
@@ -194,7 +194,7 @@ def test_reload_loads_a_renewed_certificate_for_new_connections_only(tmp_path, s
     port, tls_port = free_port(), free_port()
     path = tmp_path / "mbgw.toml"
     path.write_text(f'[table]\nenabled = true\naddress = 0\nport = {port}\n'
-                    f'[tls]\ntls-port = {tls_port}\ncert = "{cert}"\nkey = "{key}"\n'
+                    f'[tls]\nport = {tls_port}\ncert = "{cert}"\nkey = "{key}"\n'
                     f'ca = "{ca.cert}"\n')
     gw = start_master("--config", str(path))
     context = client_context(ca, ca.issue("op", role="operator"))
@@ -224,7 +224,8 @@ def test_reload_loads_a_renewed_certificate_for_new_connections_only(tmp_path, s
     os.replace(renewed_cert, cert)
     os.replace(renewed_key_copy, key)
     new_port = free_port()
-    path.write_text(path.read_text().replace(f"tls-port = {tls_port}", f"tls-port = {new_port}"))
+    path.write_text(path.read_text().replace(f"[tls]\nport = {tls_port}\n",
+                                             f"[tls]\nport = {new_port}\n"))
     os.kill(gw.proc.pid, signal.SIGHUP)
     wait_for_log(gw, f"0.0.0.0:{new_port} (TLS)")
     client = tls_client(new_port, context)
