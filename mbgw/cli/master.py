@@ -15,6 +15,8 @@ from mbgw.cli.options import (
     table_config,
     table_options,
     table_switch,
+    tls_config,
+    tls_options,
 )
 from mbgw.cli.run import run_daemon
 from mbgw.config import model as config
@@ -60,6 +62,7 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
               default=config.TableConfig.port, show_default=True,
               help="With --table: the TCP port where Modbus TCP clients reach the table.")
 @table_options
+@tls_options
 @daemon_options
 @click.pass_context
 def master(ctx, **options) -> None:
@@ -78,10 +81,12 @@ def master_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                   max_connections, control, metrics, log_level=None,
                   down_after=config.DEFAULT_DOWN_AFTER,
                   probe_interval=config.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
+                  tls_port=config.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
                   **table_settings) -> config.MasterConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
     table = table_config(**table_settings)
+    tls = tls_config(tls_port, tls_cert, tls_key, tls_ca)
     conflict = config.table_address_conflict(table.address, slaveid) if table.enabled else None
     if conflict:
         raise click.BadParameter(conflict, param_hint="'--table-address' / '--slaveid'")
@@ -89,4 +94,4 @@ def master_config(device, protocol, baudrate, line_format, interface, rtsdelays,
         serial=serial, slaveid=slaveid, tcpto_ms=tcpto, mdbport=mdbport, exception=exception,
         max_connections=max_connections, control=control, metrics=metrics,
         demotion=demotion(down_after, probe_interval), table=table,
-        firewall=firewall, scenarios=scenarios))
+        firewall=firewall, scenarios=scenarios, tls=tls))

@@ -351,6 +351,7 @@ class MasterConfig:
     firewall: "FirewallConfig | None" = None   # the table server's; None: all allowed
     scenarios: tuple = ()           # ScenarioConfig (mbgw.config.scenario): TCP ones only
     config_file: str | None = None  # the file the settings came from (scenario ... --save)
+    tls: TlsConfig = field(default_factory=TlsConfig)    # on the table's server
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "master")
@@ -456,12 +457,15 @@ class TransparentModeConfig:
     scenarios: tuple = ()           # ScenarioConfig (mbgw.config.scenario): TCP ones only
     config_file: str | None = None  # the file the settings came from (scenario ... --save)
     tcpto_ms: int = DEFAULT_TCPTO_MS   # TCP scenarios: the time for a transaction with a server
+    tls: TlsConfig = field(default_factory=TlsConfig)    # on the table's server
 
     @property
     def table_on(self) -> bool:
         return True
 
     def __post_init__(self) -> None:
+        if self.mdbport == 0 and not self.tls.enabled:
+            raise ConfigError("mdbport 0 turns plain Modbus TCP off: it needs TLS (tls-cert)")
         if len(self.authip) > MAX_AUTHIP:
             raise ConfigError(f"authip: at most {MAX_AUTHIP} addresses, got {len(self.authip)}")
         object.__setattr__(self, "authip", tuple(parse_ip("authip", a) for a in self.authip))

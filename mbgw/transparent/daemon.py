@@ -7,6 +7,7 @@ import signal
 import time
 
 from mbgw.config.model import TransparentModeConfig
+from mbgw.errors import ConfigError
 from mbgw.firewall.guard import Firewall
 from mbgw.line.port import SerialLine
 from mbgw.ops.service import (
@@ -18,6 +19,7 @@ from mbgw.ops.service import (
     start_metrics,
     watchdog_interval,
 )
+from mbgw.ops.tls import role_of, server_context
 from mbgw.scenarios.control import scenario_commands
 from mbgw.scenarios.tcp_runner import TcpScenarios, with_scenarios
 from mbgw.table import identity
@@ -59,11 +61,15 @@ def run_transparent(cfg: TransparentModeConfig, reconfigure=None) -> None:
     table = Table(cfg.table.functions)
     identity.fill(table, cfg, "transparent")
     allows = access_check(cfg.authip)
+    context = server_context(cfg.tls) if cfg.tls.enabled else None     # ConfigError
     try:
-        server = TableServer(table, cfg.mdbport, cfg.bind, Firewall(cfg.firewall),
-                             allows=allows)
+        server = TableServer(table, cfg.mdbport or None, cfg.bind, Firewall(cfg.firewall),
+                             allows=allows, tls=context, tls_port=cfg.tls.port,
+                             role_of=role_of)
     except OSError as err:
-        raise TransparentListenFailure("mdbport", cfg.mdbport, err) from None
+        option, port = ("tls-port", cfg.tls.port) if "tls-port" in str(err) else \
+            ("mdbport", cfg.mdbport)
+        raise TransparentListenFailure(option, port, err) from None
     raw = _raw_port(cfg, allows, counters)
     line = SerialLine(cfg.serial, counters)
     try:
@@ -77,6 +83,16 @@ def run_transparent(cfg: TransparentModeConfig, reconfigure=None) -> None:
     finally:
         server.stop()
         server.join()
+
+
+def _retls(server: TableServer, new: TransparentModeConfig) -> None:
+    """New TLS settings or renewed files, for new connections; those open keep theirs.  Ones
+    that cannot be loaded leave TLS as it was."""
+    try:
+        server.set_tls(server_context(new.tls) if new.tls.enabled else None, new.tls.port,
+                       new.bind)
+    except (ConfigError, TableListenError) as err:
+        log.error("TLS settings not applied, the running ones stay: %s", err)
 
 
 async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table: Table,
@@ -123,6 +139,8 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
             log.warning("raw-port changed: the new setting takes effect at restart")
         if new.firewall != old.firewall:
             server.set_firewall(server.firewall.renewed(new.firewall))
+        if new.tls != old.tls:
+            _retls(server, new)
         frames.reconfigure(new)
         await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms)
 
