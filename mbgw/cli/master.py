@@ -15,6 +15,8 @@ from mbgw.cli.options import (
     table_config,
     table_options,
     table_switch,
+    upstream_tls_config,
+    upstream_tls_options,
 )
 from mbgw.cli.run import run_daemon
 from mbgw.config import model as config
@@ -47,6 +49,7 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
               default=config.MasterConfig.max_connections, show_default=True,
               help="Connections kept open to servers; one more closes the least recently "
                    "used.")
+@upstream_tls_options
 @demotion_options
 @table_switch
 @click.option("--table-address", cls=TableOption, key="address",
@@ -81,12 +84,14 @@ def master_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                   **table_settings) -> config.MasterConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
+    upstream_tls = upstream_tls_config(table_settings)
     table = table_config(**table_settings)
     conflict = config.table_address_conflict(table.address, slaveid) if table.enabled else None
     if conflict:
         raise click.BadParameter(conflict, param_hint="'--table-address' / '--slaveid'")
     return convert("'--tcpto'", lambda: config.MasterConfig(
         serial=serial, slaveid=slaveid, tcpto_ms=tcpto, mdbport=mdbport, exception=exception,
+        upstream_tls=upstream_tls,
         max_connections=max_connections, control=control, metrics=metrics,
         demotion=demotion(down_after, probe_interval), table=table,
         firewall=firewall, scenarios=scenarios))
