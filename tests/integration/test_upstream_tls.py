@@ -17,11 +17,17 @@ from tests.integration.master_rig import (
     wait_for_log,
 )
 from tests.integration.test_scenarios_tcp import (
+    FREE,
     READ_3,
+    TABLE_UNIT,
     TCPTO_MS,
     Scenario,
     StandInEngine,
+    read_table,
     registers,
+    scenario_status,
+    scenario_toml,
+    until,
 )
 from tests.pki import Authority
 
@@ -118,3 +124,32 @@ def test_a_tcp_scenario_over_tls(pki, tls_servers, tls_runner):
     assert tls_runner.engine.result() == (None, TLS_REFUSED, 0)
     tls_runner.engine.queue(Scenario(f"{TLS_HOST}:{port}", unit=3, tls=True), READ_3)
     assert tls_runner.engine.result() == (registers(8, 1, 3), None, 0)
+
+
+@pytest.fixture
+def slave_with(tmp_path, pty_pair, start_gateway):
+    """slave_with(file text) -> gateway: `mbgw slave` with the table, from a file."""
+    def start(text: str):
+        path = tmp_path / "mbgw.toml"
+        path.write_text(f'[serial]\nbaudrate = 19200\n\n[net]\ntcpto = {TCPTO_MS}\n\n'
+                        f'[table]\nenabled = true\n\n' + text)
+        return start_gateway(pty_pair.gateway, "--config", str(path))
+    return start
+
+
+def test_slave_mode_runs_tls_scenarios_from_the_file(pki, tls_servers, slave_with):
+    ca, other, (cert, key) = pki
+    port = tls_servers(ca, ca, TLS_HOST)
+    impostor = tls_servers(other, ca, "127.0.8.2")
+    keys = dict(function=3, address=0, quantity=3, cycle=100, tls=True)
+    gw = slave_with(
+        scenario_toml("secure", f"{TLS_HOST}:{port}", unit=5, table=FREE, **keys)
+        + scenario_toml("impostor", f"127.0.8.2:{impostor}", table=FREE + 8, **keys)
+        + f'\n[tls]\nclient-cert = "{cert}"\nclient-key = "{key}"\nserver-ca = "{ca.cert}"\n')
+    until(lambda: read_table(gw.port, TABLE_UNIT, FREE, 3) == [8, 1, 5], "the data in the table")
+    secure = until(lambda: (s := scenario_status(gw, "secure"))["successes"] and s, "a success")
+    assert secure["state"] == "running" and secure["target"].endswith("unit 5 TLS")
+    refused = until(lambda: (s := scenario_status(gw, "impostor"))["state"] == "error" and s,
+                    "the impostor's error")
+    assert refused["message"] == "connection refused: TLS handshake failed"
+    assert read_table(gw.port, TABLE_UNIT, FREE + 8, 3) == [0, 0, 0]
