@@ -28,13 +28,14 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
 
 @click.command()
 @serial_options
-@click.option("--slaveid", "slaveid", multiple=True, metavar='"FS LS FR M IP"',
+@click.option("--slaveid", "slaveid", multiple=True, metavar='"FS LS FR M IP [tls]"',
               callback=parser(SlaveIdTable.parse),
               help="Serial addresses FS..LS go to the server at IP, as unit id FR + (address "
                    "- FS), or 0xFF when FR is 0; M=1 adds (address - FS) to the IP's last "
                    f"byte too.  Repeat for up to {MAX_RANGES} ranges; a line whose FS lies in "
                    "a range already defined replaces it (other overlaps are refused); FS=0 "
-                   "clears the table.")
+                   "clears the table.  A 6th word tls reaches the range's servers over TLS "
+                   "(--tls-client-cert).")
 @click.option("--tcpto", type=click.IntRange(*config.TCPTO_RANGE),
               default=config.MasterConfig.tcpto_ms, show_default=True, metavar="MS",
               help="Time for a transaction with a server, connecting included, 1..65535 ms.")
