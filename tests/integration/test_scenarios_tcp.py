@@ -40,6 +40,8 @@ class Scenario:
     server: str
     unit: int = 1
     retries: int = 0
+    tls: bool = False
+    name: str = "stand-in"
 
 
 @dataclass

@@ -63,7 +63,8 @@ def test_every_long_option_of_both_modes_is_a_key(schema):
                            "raw-port"}
     assert all(schema.keys[k].group == "transparent" for k in transparent)
     tls = {p.key for p in params if isinstance(p, config_keys.TlsOption)}
-    assert tls == {"tls-port", "cert", "key", "ca"}
+    assert tls == {"tls-port", "cert", "key", "ca", "client-cert", "client-key", "server-ca",
+                   "server-port"}
     assert set(schema.keys) == (options - {"config"}) | table | transparent | tls
     # in the file, a key's name may be another group's too: [tls] port, [transparent] silence
     assert schema.label("tls-port") == "tls.port" and schema.find("tls", "port").name == \
