@@ -821,7 +821,14 @@ def main() -> None:
                     help="instead of the runs above: 100 serial scenarios saturating the line, "
                     "a client beside them, one scenario's period (bench/scenarios.py; about "
                     "70 s; --quick: 25 s)")
+    ap.add_argument("--web", action="store_true",
+                    help="instead of the runs above: a client's latency with a browser on the "
+                    "web console's Traffic page and without (bench/web.py; about 40 s)")
     args = ap.parse_args()
+    if args.web:
+        import web  # bench/web.py, beside this script
+        web.run(args.quick)
+        return
     if args.tls:
         import tls  # bench/tls.py, beside this script
         tls.run(args.quick)

@@ -6,6 +6,9 @@
 # (mbpoll).  The package is purged at the end, on failure too.
 # Usage: scripts/smoke-installed.sh [mbgw.deb]     (needs scripts/setup.sh's .venv for pymodbus)
 set -euo pipefail
+# Not grep -q after a pipe: it stops at the first match, the writer then dies of SIGPIPE, and
+# pipefail fails the step (a longer man page did so).  grep without -q reads everything.
+contains() { grep "$@" >/dev/null; }
 repo=$(cd "$(dirname "$0")/.." && pwd)
 deb=$(realpath "${1:-$repo/mbgw.deb}")
 peer_python=$repo/.venv/bin/python
@@ -22,7 +25,7 @@ cleanup() {
     local rc=$?
     for pid in "${pids[@]}"; do kill "$pid" 2>/dev/null || true; done
     wait 2>/dev/null || true
-    if dpkg-query -W -f '${Status}' mbgw 2>/dev/null | grep -q installed; then
+    if dpkg-query -W -f '${Status}' mbgw 2>/dev/null | contains installed; then
         apt-get purge -y -qq mbgw >/dev/null || rc=1
     fi
     rm -rf "$work"
@@ -50,29 +53,29 @@ say "the package"
 [ "$(head -1 /usr/bin/mbgw)" = "#!/usr/bin/python3" ] || fail "/usr/bin/mbgw: not Debian's python3"
 version=$(dpkg-query -W -f '${Version}' mbgw)
 [ "$(mbgw --version)" = "mbgw, version $version" ] || fail "mbgw --version: $(mbgw --version)"
-mbgw slave --help | grep -q -- "--stout" || fail "mbgw slave --help"
-mbgw master --help | grep -q -- "--tcpto" || fail "mbgw master --help"
-mbgw status -h | grep -q -- "--instance NAME" || fail "mbgw status -h"
+mbgw slave --help | contains -- "--stout" || fail "mbgw slave --help"
+mbgw master --help | contains -- "--tcpto" || fail "mbgw master --help"
+mbgw status -h | contains -- "--instance NAME" || fail "mbgw status -h"
 out=$(mbgw status -i ttySMOKE 2>&1) && fail "mbgw status -i: a daemon answered"
 grep -q "/run/mbgw/ttySMOKE/mbgw.sock" <<<"$out" || fail "mbgw status -i: $out"
 (cd / && /usr/bin/python3 -I -c 'import mbgw._ffi') || fail "the C core mbgw._ffi does not import"
-dpkg-query -W -f '${Depends}' mbgw | grep -q python3-prometheus-client \
+dpkg-query -W -f '${Depends}' mbgw | contains python3-prometheus-client \
     || fail "mbgw does not depend on python3-prometheus-client (--metrics)"
-dpkg-query -W -f '${Conffiles}\n' mbgw | grep -q "^ /etc/mbgw/mbgw.toml " \
+dpkg-query -W -f '${Conffiles}\n' mbgw | contains "^ /etc/mbgw/mbgw.toml " \
     || fail "/etc/mbgw/mbgw.toml is not a conffile"
 [ "$(stat -c %a /etc/mbgw/mbgw.toml)" = 644 ] || fail "/etc/mbgw/mbgw.toml: mode"
 mbgw check-config /etc/mbgw/mbgw.toml
 # dialout is the units' grant (SupplementaryGroups=), for the service only
-! id -nG mbgw | grep -qw dialout || fail "user mbgw is in dialout: the units grant it"
+! id -nG mbgw | contains -w dialout || fail "user mbgw is in dialout: the units grant it"
 [ "$(getent passwd mbgw | cut -d: -f7)" = /usr/sbin/nologin ] || fail "user mbgw has a shell"
 runuser -u mbgw -- /usr/bin/mbgw check-config /etc/mbgw/mbgw.toml >/dev/null \
     || fail "the service user cannot read its configuration"
-zcat /usr/share/man/man1/mbgw.1.gz | grep -q 'mbgw config set' || fail "man page: no commands"
+zcat /usr/share/man/man1/mbgw.1.gz | contains 'mbgw config set' || fail "man page: no commands"
 for section in FILES ENVIRONMENT "EXIT STATUS" SIGNALS EXAMPLES "SEE ALSO"; do
-    zcat /usr/share/man/man1/mbgw.1.gz | grep -q "^\.SH \"\?$section\"\?$" \
+    zcat /usr/share/man/man1/mbgw.1.gz | contains "^\.SH \"\?$section\"\?$" \
         || fail "mbgw(1): no $section"
 done
-zcat /usr/share/man/man5/mbgw.toml.5.gz | grep -qF '.SH "[general]"' || fail "mbgw.toml(5)"
+zcat /usr/share/man/man5/mbgw.toml.5.gz | contains -F '.SH "[general]"' || fail "mbgw.toml(5)"
 for page in /usr/share/man/man1/mbgw.1.gz /usr/share/man/man5/mbgw.toml.5.gz; do
     out=$(LC_ALL=C.UTF-8 MANWIDTH=80 man --warnings -l "$page" 2>&1 >/dev/null) \
         || fail "man -l $page: $out"

@@ -15,6 +15,10 @@ from mbgw.cli.options import (
     table_config,
     table_options,
     table_switch,
+    tls_config,
+    tls_options,
+    upstream_tls_config,
+    upstream_tls_options,
 )
 from mbgw.cli.run import run_daemon
 from mbgw.config import model as config
@@ -26,13 +30,14 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
 
 @click.command()
 @serial_options
-@click.option("--slaveid", "slaveid", multiple=True, metavar='"FS LS FR M IP"',
+@click.option("--slaveid", "slaveid", multiple=True, metavar='"FS LS FR M IP [tls]"',
               callback=parser(SlaveIdTable.parse),
               help="Serial addresses FS..LS go to the server at IP, as unit id FR + (address "
                    "- FS), or 0xFF when FR is 0; M=1 adds (address - FS) to the IP's last "
                    f"byte too.  Repeat for up to {MAX_RANGES} ranges; a line whose FS lies in "
                    "a range already defined replaces it (other overlaps are refused); FS=0 "
-                   "clears the table.")
+                   "clears the table.  A 6th word tls reaches the range's servers over TLS "
+                   "(--tls-client-cert).")
 @click.option("--tcpto", type=click.IntRange(*config.TCPTO_RANGE),
               default=config.MasterConfig.tcpto_ms, show_default=True, metavar="MS",
               help="Time for a transaction with a server, connecting included, 1..65535 ms.")
@@ -47,6 +52,7 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
               default=config.MasterConfig.max_connections, show_default=True,
               help="Connections kept open to servers; one more closes the least recently "
                    "used.")
+@upstream_tls_options
 @demotion_options
 @table_switch
 @click.option("--table-address", cls=TableOption, key="address",
@@ -60,6 +66,7 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
               default=config.TableConfig.port, show_default=True,
               help="With --table: the TCP port where Modbus TCP clients reach the table.")
 @table_options
+@tls_options
 @daemon_options
 @click.pass_context
 def master(ctx, **options) -> None:
@@ -78,15 +85,19 @@ def master_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                   max_connections, control, metrics, log_level=None,
                   down_after=config.DEFAULT_DOWN_AFTER,
                   probe_interval=config.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
+                  tls_port=config.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
                   **table_settings) -> config.MasterConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
+    upstream_tls = upstream_tls_config(table_settings)
     table = table_config(**table_settings)
+    tls = tls_config(tls_port, tls_cert, tls_key, tls_ca)
     conflict = config.table_address_conflict(table.address, slaveid) if table.enabled else None
     if conflict:
         raise click.BadParameter(conflict, param_hint="'--table-address' / '--slaveid'")
     return convert("'--tcpto'", lambda: config.MasterConfig(
         serial=serial, slaveid=slaveid, tcpto_ms=tcpto, mdbport=mdbport, exception=exception,
+        upstream_tls=upstream_tls,
         max_connections=max_connections, control=control, metrics=metrics,
         demotion=demotion(down_after, probe_interval), table=table,
-        firewall=firewall, scenarios=scenarios))
+        firewall=firewall, scenarios=scenarios, tls=tls))

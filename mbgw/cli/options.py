@@ -182,19 +182,19 @@ def _tls_file(check):
     return callback
 
 
-def _check_cert(path):
+def _check_cert(path, option="tls-cert"):
     from mbgw.ops.tls import check_certificate
-    check_certificate(path)
+    check_certificate(path, option)
 
 
-def _check_key(path):
+def _check_key(path, option="tls-key"):
     from mbgw.ops.tls import check_key
-    check_key(path)
+    check_key(path, option)
 
 
-def _check_ca(path):
+def _check_ca(path, option="tls-ca"):
     from mbgw.ops.tls import check_ca
-    check_ca(path)
+    check_ca(path, option)
 
 
 # Modbus/TCP Security ([tls] keys): TLS is on when a certificate is given.
@@ -222,6 +222,45 @@ def tls_config(tls_port, tls_cert, tls_key, tls_ca) -> config.TlsConfig:
     return convert("'--tls-cert'", lambda: config.TlsConfig(
         port=tls_port, cert=tls_cert, key=tls_key, ca=tls_ca,
         files=file_stamps(tls_cert, tls_key, tls_ca)))
+
+
+def _client_file(check, option):
+    return _tls_file(lambda path: check(path, option))
+
+
+# TLS to remote servers (master mode's `tls` slaveid ranges, `tls` TCP scenarios): [tls] keys.
+upstream_tls_options = stack(
+    click.option("--tls-client-cert", cls=TlsOption, key="client-cert", metavar="PATH",
+                 default=None, callback=_client_file(_check_cert, "tls-client-cert"),
+                 help="mbgw's certificate (PEM) for servers reached over TLS (a slaveid range's "
+                      "or a TCP scenario's `tls`)."),
+    click.option("--tls-client-key", cls=TlsOption, key="client-key", metavar="PATH",
+                 default=None, callback=_client_file(_check_key, "tls-client-key"),
+                 help="The client certificate's private key (PEM, unencrypted)."),
+    click.option("--tls-server-ca", cls=TlsOption, key="server-ca", metavar="PATH",
+                 default=None, callback=_client_file(_check_ca, "tls-server-ca"),
+                 help="CA certificate(s) (PEM) that the servers' certificates must chain to."),
+    click.option("--tls-server-port", cls=TlsOption, key="server-port",
+                 type=click.IntRange(*config.PORT_RANGE),
+                 default=config.DEFAULT_TLS_PORT, show_default=True,
+                 help="Master mode: the TLS port of the servers of `tls` slaveid ranges."),
+)
+
+
+def upstream_tls_config(settings: dict) -> config.UpstreamTlsConfig:
+    """UpstreamTlsConfig from the click values, taken out of settings."""
+    return _upstream_tls_config(**{name: settings.pop(name) for name in (
+        "tls_client_cert", "tls_client_key", "tls_server_ca", "tls_server_port")
+        if name in settings})
+
+
+def _upstream_tls_config(tls_client_cert=None, tls_client_key=None, tls_server_ca=None,
+                         tls_server_port=config.DEFAULT_TLS_PORT) -> config.UpstreamTlsConfig:
+    from mbgw.ops.tls import file_stamps
+    return convert("'--tls-client-cert'", lambda: config.UpstreamTlsConfig(
+        client_cert=tls_client_cert, client_key=tls_client_key, server_ca=tls_server_ca,
+        server_port=tls_server_port,
+        files=file_stamps(tls_client_cert, tls_client_key, tls_server_ca)))
 
 
 # The operator's tools, the same in both modes: control socket, metrics, log level.

@@ -200,6 +200,10 @@ def _table_section(t: dict, mode: str, now: float) -> list[str]:
                      f"{tcp.get('connections_accepted', 0)} accepted, "
                      f"{tcp.get('connections_refused_limit', 0)} refused (limit), "
                      f"{tcp.get('connections_bad_header', 0)} closed (bad header)")
+        if tcp.get("tls_port") is not None:
+            lines.append(f"  TLS on port {tcp['tls_port']}: "
+                         f"{tcp.get('tls_handshakes', 0)} handshakes under way, "
+                         f"{tcp.get('connections_refused_tls', 0)} refused")
     persist = t.get("persist")
     if persist is not None:
         lines.append(f"  persist {_table_persist(persist, now)}")

@@ -14,6 +14,8 @@ from mbgw.cli.options import (
     table_switch,
     tls_config,
     tls_options,
+    upstream_tls_config,
+    upstream_tls_options,
 )
 from mbgw.cli.run import run_daemon
 from mbgw.config import model as config
@@ -79,6 +81,7 @@ def _parse_units(value) -> tuple[int, ...]:
                    "247-254 or 1,5,200-210 (1..255).")
 @table_options
 @tls_options
+@upstream_tls_options
 @daemon_options
 @click.option("--shortcut/--no-shortcut", default=config.SlaveConfig.shortcut, hidden=True,
               help="Put a request that finds the line idle on it from C (for diagnosis).")
@@ -99,6 +102,7 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
                  **table_settings) -> config.SlaveConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
+    upstream_tls = upstream_tls_config(table_settings)
     table = table_config(**table_settings)
     tls = tls_config(tls_port, tls_cert, tls_key, tls_ca)
     if mdbport == 0 and not tls.enabled:
@@ -106,6 +110,7 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
                                  param_hint="'--mdbport'")
     return convert("'--authip'", lambda: config.SlaveConfig(
         serial=serial, slaveid=slaveid, exception=exception, authip=authip, mdbport=mdbport,
+        upstream_tls=upstream_tls,
         bind=bind, max_connections=max_connections,
         max_connections_per_ip=max_connections_per_ip, retries=retries,
         turnaround_ms=turnaround, control=control, metrics=metrics, shortcut=shortcut,

@@ -2,7 +2,15 @@
 that speaks no Modbus, through the exchange table served on mdbport (VPGate 3.8)."""
 import click
 
-from mbgw.cli.options import convert, daemon_options, parser, serial_config, serial_options
+from mbgw.cli.options import (
+    convert,
+    daemon_options,
+    parser,
+    serial_config,
+    serial_options,
+    tls_config,
+    tls_options,
+)
 from mbgw.cli.run import run_daemon
 from mbgw.config import model as config
 from mbgw.config.schema import TransparentOption
@@ -23,12 +31,16 @@ def _option(flag: str, key: str, **kwargs):
 @click.option("--authip", multiple=True, metavar="IP", callback=parser(_parse_authip),
               help="Client address allowed to connect to mdbport and raw-port (repeat, at "
                    "most 8; none: anyone).")
-@click.option("--mdbport", type=click.IntRange(*config.PORT_RANGE),
+@click.option("--mdbport", type=click.IntRange(*config.MDBPORT_RANGE),
               default=config.DEFAULT_MDBPORT, show_default=True,
               help="Modbus TCP port where clients reach the exchange table (every unit id; "
-                   "unit 0 is a broadcast write).")
+                   "unit 0 is a broadcast write); 0: TLS only (--tls-cert).")
 @click.option("--bind", metavar="ADDR", default=None,
               help="Listen on this address only [default: all, IPv4 and IPv6].")
+@click.option("--tcpto", type=click.IntRange(*config.TCPTO_RANGE),
+              default=config.DEFAULT_TCPTO_MS, show_default=True, metavar="MS",
+              help="TCP scenarios: the time for a transaction with a server, connecting "
+                   "included.")
 @_option("--eof", "eof", type=click.Choice(config.EOF_KINDS), default=_DEFAULTS.eof,
          help="How a frame ends: an end character (nul, space, lf, cr, crlf, lfcr; char: "
               "--eof-char), length (the first byte counts the bytes after it) or timeout "
@@ -65,6 +77,7 @@ def _option(flag: str, key: str, **kwargs):
 @_option("--raw-port", "raw-port", type=click.IntRange(*config.PORT_RANGE), default=None,
          help="TCP port giving one client the line as a byte stream (a second is refused) "
               "[default: off].")
+@tls_options
 @daemon_options
 def transparent(**options) -> None:
     """Transparent mode: Modbus TCP clients exchange raw frames with a serial device through
@@ -78,14 +91,21 @@ def transparent_config(device, protocol, baudrate, line_format, interface, rtsde
                        silence, ascii_timeout, nocheck, authip, mdbport, bind, eof, eof_char,
                        eof_timeout, rx_address, rx_size, tx_address, tx_size, crc, trigger,
                        interframe_silence, raw_port, control, metrics,
-                       log_level=None, firewall=None,
-                       scenarios=()) -> config.TransparentModeConfig:
+                       log_level=None, firewall=None, scenarios=(),
+                       tcpto=config.DEFAULT_TCPTO_MS, tls_port=config.DEFAULT_TLS_PORT,
+                       tls_cert=None, tls_key=None,
+                       tls_ca=None) -> config.TransparentModeConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
     frames = convert("'--rx-address' / '--tx-address'", lambda: config.TransparentConfig(
         eof=eof, eof_char=eof_char, eof_timeout_ms=eof_timeout, rx_address=rx_address,
         rx_size=rx_size, tx_address=tx_address, tx_size=tx_size, crc=crc, trigger=trigger,
         silence_ms=interframe_silence, raw_port=raw_port))
+    tls = tls_config(tls_port, tls_cert, tls_key, tls_ca)
+    if mdbport == 0 and not tls.enabled:
+        raise click.BadParameter("0 turns plain Modbus TCP off: it needs TLS (--tls-cert)",
+                                 param_hint="'--mdbport'")
     return convert("'--authip'", lambda: config.TransparentModeConfig(
         serial=serial, transparent=frames, authip=authip, mdbport=mdbport, bind=bind,
-        control=control, metrics=metrics, firewall=firewall, scenarios=scenarios))
+        control=control, metrics=metrics, firewall=firewall, scenarios=scenarios,
+        tcpto_ms=tcpto, tls=tls))

@@ -295,6 +295,48 @@ class WebConfig:
 
 
 @dataclass(frozen=True)
+class UpstreamTlsConfig:
+    """TLS to the remote Modbus TCP servers (master mode's `tls` slaveid ranges, `tls` TCP
+    scenarios): mbgw's client certificate and key, the CA the servers' certificates must chain
+    to, and the servers' TLS port (master mode)."""
+    client_cert: str | None = None
+    client_key: str | None = None
+    server_ca: str | None = None
+    server_port: int = DEFAULT_TLS_PORT
+    files: tuple = ()              # (path, mtime_ns, size): a renewed file is a change
+
+    def __post_init__(self) -> None:
+        low, high = PORT_RANGE
+        if not low <= self.server_port <= high:
+            raise ConfigError(f"tls.server-port {self.server_port}: out of range {low}..{high}")
+        given = [n for n in ("client-cert", "client-key", "server-ca")
+                 if getattr(self, n.replace("-", "_")) is not None]
+        if given and len(given) < 3:
+            missing = [f"tls-{n}" for n in ("client-cert", "client-key", "server-ca")
+                       if n not in given]
+            raise ConfigError(f"tls-{given[0]} given without {' and '.join(missing)}: TLS to "
+                              f"servers needs mbgw's certificate, its key and the servers' CA")
+
+    @property
+    def enabled(self) -> bool:
+        return self.client_cert is not None
+
+
+def check_upstream_tls(upstream: UpstreamTlsConfig, scenarios, slaveid=None) -> None:
+    """A `tls` slaveid range or TCP scenario needs the client certificate."""
+    if upstream.enabled:
+        return
+    for sc in scenarios:
+        if getattr(sc, "tls", False):
+            raise ConfigError(f"scenario {sc.name}: tls needs tls-client-cert, tls-client-key "
+                              f"and tls-server-ca")
+    for r in getattr(slaveid, "ranges", ()):
+        if r.tls:
+            raise ConfigError(f"slaveid {r.line()!r}: tls needs tls-client-cert, "
+                              f"tls-client-key and tls-server-ca")
+
+
+@dataclass(frozen=True)
 class SlaveConfig:
     """Slave mode: slaves on the serial line, Modbus TCP clients on the network."""
     serial: SerialConfig
@@ -317,10 +359,12 @@ class SlaveConfig:
     scenarios: tuple = ()          # ScenarioConfig (mbgw.config.scenario), [[scenario]]
     config_file: str | None = None  # the file the settings came from (scenario ... --save)
     tls: TlsConfig = field(default_factory=TlsConfig)
+    upstream_tls: UpstreamTlsConfig = field(default_factory=UpstreamTlsConfig)
     web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "slave")
+        check_upstream_tls(self.upstream_tls, self.scenarios)
         if self.mdbport == 0 and not self.tls.enabled:
             raise ConfigError("mdbport 0 turns plain Modbus TCP off: it needs TLS (tls-cert)")
         low, high = TCPTO_RANGE
@@ -376,13 +420,16 @@ class MasterConfig:
     metrics: str | None = None      # ADDR:PORT for Prometheus, None: off
     demotion: Demotion = field(default_factory=Demotion)
     table: TableConfig = field(default_factory=TableConfig)
+    upstream_tls: UpstreamTlsConfig = field(default_factory=UpstreamTlsConfig)
     firewall: "FirewallConfig | None" = None   # the table server's; None: all allowed
     scenarios: tuple = ()           # ScenarioConfig (mbgw.config.scenario): TCP ones only
     config_file: str | None = None  # the file the settings came from (scenario ... --save)
+    tls: TlsConfig = field(default_factory=TlsConfig)    # on the table's server
     web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "master")
+        check_upstream_tls(self.upstream_tls, self.scenarios, self.slaveid)
         low, high = TCPTO_RANGE
         if not low <= self.tcpto_ms <= high:
             raise ConfigError(f"tcpto {self.tcpto_ms}: out of range {low}..{high}")
@@ -484,6 +531,8 @@ class TransparentModeConfig:
     firewall: "FirewallConfig | None" = None   # on mdbport's requests; None: all allowed
     scenarios: tuple = ()           # ScenarioConfig (mbgw.config.scenario): TCP ones only
     config_file: str | None = None  # the file the settings came from (scenario ... --save)
+    tcpto_ms: int = DEFAULT_TCPTO_MS   # TCP scenarios: the time for a transaction with a server
+    tls: TlsConfig = field(default_factory=TlsConfig)    # on the table's server
     web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
 
     @property
@@ -491,6 +540,8 @@ class TransparentModeConfig:
         return True
 
     def __post_init__(self) -> None:
+        if self.mdbport == 0 and not self.tls.enabled:
+            raise ConfigError("mdbport 0 turns plain Modbus TCP off: it needs TLS (tls-cert)")
         if len(self.authip) > MAX_AUTHIP:
             raise ConfigError(f"authip: at most {MAX_AUTHIP} addresses, got {len(self.authip)}")
         object.__setattr__(self, "authip", tuple(parse_ip("authip", a) for a in self.authip))

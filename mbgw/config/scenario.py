@@ -29,13 +29,14 @@ STALE_AFTER_RANGE = (0, 3_600_000)  # ms; 0: off
 SLAVE_RANGE = (0, 247)             # 0: broadcast, writes only
 UNIT_RANGE = (0, 255)
 DEFAULT_SERVER_PORT = 502
+DEFAULT_TLS_SERVER_PORT = 802      # Modbus/TCP Security
 TRIGGER_CHANGE = "change"
 REGISTERS = 0x10000
 BITS = 0x10000                     # table bit B: bit B % 16 of register B // 16
 CONFIG_ZONE_FIRST = 0x8000         # read-only: a read scenario cannot store there
 KEYS = ("name", "slave", "server", "unit", "function", "address", "quantity", "table",
         "read-address", "read-quantity", "read-table", "write-address", "write-quantity",
-        "write-table", "cycle", "trigger", "retries", "stale-after", "enabled")
+        "write-table", "cycle", "trigger", "retries", "stale-after", "enabled", "tls")
 
 
 @dataclass(frozen=True)
@@ -56,6 +57,7 @@ class ScenarioConfig:
     retries: int = DEFAULT_RETRIES
     stale_after_ms: int = 0
     enabled: bool = True
+    tls: bool = False              # TCP scenario: over Modbus/TCP Security
 
     @property
     def kind(self) -> str:
@@ -81,7 +83,7 @@ class ScenarioConfig:
     def target(self) -> str:
         """Where it goes, for status: "slave 45" or "host:502 unit 1"."""
         return f"slave {self.slave}" if self.slave is not None else \
-            f"{self.server} unit {self.unit}"
+            f"{self.server} unit {self.unit}{' TLS' if self.tls else ''}"
 
     def table_ranges(self) -> list[tuple[int, int, str]]:
         """(first register, count, "read" | "write"): the table registers it stores into
@@ -116,6 +118,8 @@ class ScenarioConfig:
         else:
             out["server"] = self.server
             out["unit"] = self.unit
+            if self.tls:
+                out["tls"] = True
         out["function"] = self.function
         prefix = "read-" if self.function == 23 else ""
         out[f"{prefix}address"] = bit_text(self.address) if self.bits else self.address
@@ -202,13 +206,13 @@ def _number(value, bits: bool) -> int | None:
         return None
 
 
-def parse_server(text: str) -> str:
+def parse_server(text: str, default_port: int = DEFAULT_SERVER_PORT) -> str:
     """"host", "host:port", "[v6]:port" or a bare IPv6 address -> "host:port" ("[v6]:port")."""
-    host, port = split_server(text)
+    host, port = split_server(text, default_port)
     return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
 
 
-def split_server(text: str) -> tuple[str, int]:
+def split_server(text: str, default_port: int = DEFAULT_SERVER_PORT) -> tuple[str, int]:
     """(host, port) of a scenario's server; ConfigError when it is not one."""
     text = text.strip()
     port_text = None
@@ -224,7 +228,7 @@ def split_server(text: str) -> tuple[str, int]:
     if not host or not re.fullmatch(r"[A-Za-z0-9._:%-]+", host):
         raise ConfigError(f"{text!r}: expected an IP address or a host name, then :port")
     if port_text is None:
-        return host, DEFAULT_SERVER_PORT
+        return host, default_port
     if not port_text.isdigit() or not 1 <= int(port_text) <= 65535:
         raise ConfigError(f"{text!r}: port {port_text!r} out of range 1..65535")
     return host, int(port_text)
@@ -247,7 +251,7 @@ def parse_scenario(fields: dict, where: str) -> ScenarioConfig:
     if function not in FUNCTIONS:
         raise f.error("function", fields["function"],
                       f"expected one of {', '.join(map(str, FUNCTIONS))}")
-    slave, server, unit = _target(f, function)
+    slave, server, unit, tls = _target(f, function)
     address, quantity, table = _read_or_only_part(f, function)
     write = _write_part(f) if function == 23 else (None, None, None)
     cycle_ms, on_change = _trigger(f, function)
@@ -260,10 +264,10 @@ def parse_scenario(fields: dict, where: str) -> ScenarioConfig:
         slave=slave, server=server, unit=unit, cycle_ms=cycle_ms, on_change=on_change,
         write_address=write[0], write_quantity=write[1], write_table=write[2],
         retries=f.integer("retries", *RETRIES_RANGE, default=DEFAULT_RETRIES),
-        stale_after_ms=stale_after, enabled=f.boolean("enabled", True))
+        stale_after_ms=stale_after, enabled=f.boolean("enabled", True), tls=tls)
 
 
-def _target(f: _Fields, function: int) -> tuple[int | None, str | None, int]:
+def _target(f: _Fields, function: int) -> tuple[int | None, str | None, int, bool]:
     if f.has("slave") == f.has("server"):
         raise ConfigError(f"{f.label}: give slave (a serial scenario) or server (a TCP "
                           f"scenario)" + (", not both" if f.has("slave") else ""))
@@ -271,19 +275,22 @@ def _target(f: _Fields, function: int) -> tuple[int | None, str | None, int]:
         if f.has("unit"):
             raise ConfigError(f"{f.label}: unit: only for a TCP scenario (server); a serial "
                               f"scenario's address is slave")
+        if f.has("tls"):
+            raise ConfigError(f"{f.label}: tls: only for a TCP scenario (server)")
         slave = f.integer("slave", *SLAVE_RANGE)
         if slave == 0 and function not in (5, 6, 15, 16):
             raise f.error("slave", 0, "the broadcast address takes writes only "
                                       "(function 5, 6, 15 or 16)")
-        return slave, None, 1
+        return slave, None, 1, False
+    tls = f.boolean("tls", False)
     value = f.fields["server"]
     if not isinstance(value, str):
         raise f.error("server", value, "expected \"host:port\"")
     try:
-        server = parse_server(value)
+        server = parse_server(value, DEFAULT_TLS_SERVER_PORT if tls else DEFAULT_SERVER_PORT)
     except ConfigError as err:
         raise ConfigError(f"{f.label}: server {err}") from None
-    return None, server, f.integer("unit", *UNIT_RANGE, default=1)
+    return None, server, f.integer("unit", *UNIT_RANGE, default=1), tls
 
 
 def _read_or_only_part(f: _Fields, function: int) -> tuple[int, int, int]:

@@ -6,7 +6,8 @@ MASTER mode"): serial addresses fs..ls go to ip; the unit id sent is fr + (addre
 0xFF when fr is 0; with m = 1 the last byte of ip grows with (address - fs) too.  A line
 whose fs falls inside a range already defined replaces the oldest such range; fs = 0 clears
 the table; at most 8 ranges.  A range that would overlap another is refused: the guide
-does not say which would serve the addresses they share.
+does not say which would serve the addresses they share.  An optional 6th word `tls` (ours,
+not ACKSYS's) has the range's servers reached over Modbus/TCP Security.
 """
 import ipaddress
 from dataclasses import dataclass
@@ -27,10 +28,12 @@ class SlaveRange:
     remote_first: int           # fr: unit id of `first`; 0: every unit id is 0xFF
     variable_ip: bool           # m = 1: the IP's last byte follows the address
     ip: ipaddress.IPv4Address
+    tls: bool = False           # `tls`: its servers are reached over TLS
 
     @classmethod
     def parse(cls, text: str) -> "SlaveRange | None":
-        """'fs ls fr m ip' -> a range; None for a line that clears the table (fs = 0)."""
+        """'fs ls fr m ip [tls]' -> a range; None for a line that clears the table
+        (fs = 0)."""
         words = text.split()
         try:
             numbers = [int(w) for w in words[:4]]
@@ -38,19 +41,20 @@ class SlaveRange:
             numbers = []
         if numbers[:1] == [0]:
             return None
-        if len(words) != 5 or len(numbers) != 4:
-            raise ConfigError(f"slaveid {text!r}: expected 'FS LS FR M IP', e.g. "
-                              f"'1 8 1 0 192.168.0.30'")
+        tls = len(words) == 6 and words[5].lower() == "tls"
+        if len(words) != 5 + tls or len(numbers) != 4:
+            raise ConfigError(f"slaveid {text!r}: expected 'FS LS FR M IP' or 'FS LS FR M IP "
+                              f"tls', e.g. '1 8 1 0 192.168.0.30'")
         first, last, remote_first, mode = numbers
         try:
             ip = ipaddress.IPv4Address(words[4])
         except ValueError:
             raise ConfigError(f"slaveid {text!r}: {words[4]!r} is not an IPv4 address") from None
-        return cls.checked(text, first, last, remote_first, mode, ip)
+        return cls.checked(text, first, last, remote_first, mode, ip, tls)
 
     @classmethod
     def checked(cls, text: str, first: int, last: int, remote_first: int, mode: int,
-                ip: ipaddress.IPv4Address) -> "SlaveRange":
+                ip: ipaddress.IPv4Address, tls: bool = False) -> "SlaveRange":
         def bad(reason: str) -> ConfigError:
             return ConfigError(f"slaveid {text!r}: {reason}")
 
@@ -68,14 +72,15 @@ class SlaveRange:
             raise bad(f"{ip} cannot be a server's address")
         if mode and (int(ip) & 0xFF) + span > 0xFF:
             raise bad(f"{ip} + {span} runs past the last byte of the address")
-        return cls(first, last, remote_first, bool(mode), ip)
+        return cls(first, last, remote_first, bool(mode), ip, tls)
 
     def overlaps(self, other: "SlaveRange") -> bool:
         return self.first <= other.last and other.first <= self.last
 
     def line(self) -> str:
-        """The range as parse() reads it: 'fs ls fr m ip'."""
-        return f"{self.first} {self.last} {self.remote_first} {int(self.variable_ip)} {self.ip}"
+        """The range as parse() reads it: 'fs ls fr m ip [tls]'."""
+        return f"{self.first} {self.last} {self.remote_first} {int(self.variable_ip)} " \
+               f"{self.ip}{' tls' if self.tls else ''}"
 
     def route(self, address: int) -> tuple[str, int]:
         """(server IP, unit id) for a serial address of this range."""
@@ -88,7 +93,7 @@ class SlaveRange:
         first_ip, first_unit = self.route(self.first)
         ips = f"{first_ip}..{last_ip}" if first_ip != last_ip else first_ip
         units = f"{first_unit}..{last_unit}" if first_unit != last_unit else f"{first_unit}"
-        return f"{self.first}..{self.last} -> {ips} unit {units}"
+        return f"{self.first}..{self.last} -> {ips} unit {units}{' (TLS)' if self.tls else ''}"
 
 
 class SlaveIdTable:
@@ -117,6 +122,20 @@ class SlaveIdTable:
                 routes[address] = r.route(address)
         self._routes = tuple(routes)
         self.destinations = tuple(dict.fromkeys(route[0] for route in routes if route))
+        self.tls_hosts = self._tls_hosts()
+
+    def _tls_hosts(self) -> frozenset[str]:
+        """The servers reached over TLS; one server is reached one way only."""
+        tls: dict[str, SlaveRange] = {}
+        plain: dict[str, SlaveRange] = {}
+        for r in self.ranges:
+            for address in range(r.first, r.last + 1):
+                (tls if r.tls else plain)[r.route(address)[0]] = r
+        for host in tls.keys() & plain.keys():
+            raise ConfigError(f"slaveid: server {host} is reached over TLS by the range "
+                              f"{tls[host].first}..{tls[host].last} and without by the range "
+                              f"{plain[host].first}..{plain[host].last}")
+        return frozenset(tls)
 
     @classmethod
     def parse(cls, lines: Iterable[str]) -> "SlaveIdTable":

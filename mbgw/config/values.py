@@ -173,7 +173,22 @@ def _check_slaveid_table(command, param, value, label) -> list[str]:
 
 def check_across(schema: Schema, mode: str, values: dict) -> list[str]:
     """What only keys together can get wrong, once each is right: in master mode, the
-    table's serial address inside a slaveid range."""
+    table's serial address inside a slaveid range; a `tls` range without the client
+    certificate (the files that go together are checked at start, as the server's)."""
+    return _upstream_tls_problems(schema, mode, values) + \
+        _table_address_problems(schema, mode, values)
+
+
+def _upstream_tls_problems(schema: Schema, mode: str, values: dict) -> list[str]:
+    if "client-cert" not in schema.keys:
+        return []
+    if values.get("client-cert") or mode != "master" or not values.get("slaveid"):
+        return []
+    return [f"net.slaveid: the range {r.line()!r} needs tls.client-cert, tls.client-key and "
+            f"tls.server-ca" for r in SlaveIdTable.parse(values["slaveid"]).ranges if r.tls]
+
+
+def _table_address_problems(schema: Schema, mode: str, values: dict) -> list[str]:
     if mode != "master" or not {"enabled", "address", "slaveid"} <= set(schema.keys):
         return []
 

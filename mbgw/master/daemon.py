@@ -104,14 +104,15 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
         log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
     _log_slaveid(cfg)
     scenarios = TcpScenarios(tables.table, engines)
-    scenarios.start(cfg.scenarios, cfg.tcpto_ms)
+    scenarios.start(cfg.scenarios, cfg.tcpto_ms, cfg.upstream_tls)
 
     async def apply(new: MasterConfig) -> None:
         await console.reconfigure(new.web)
         _log_slaveid(new)
         tables.reconfigure(new)
         slave.reconfigure(new)
-        await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms)
+        await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms,
+                                new.upstream_tls)
 
     ticking = asyncio.ensure_future(_tick(tables))
     try:

@@ -29,12 +29,14 @@ import dataclasses
 import logging
 import os
 import select
+import ssl
 import time
 
 from mbgw.config.model import MasterConfig
 from mbgw.errors import (
     BadReply,
     ChecksumError,
+    ConfigError,
     FrameError,
     GatewayTimeout,
     LineTimeout,
@@ -58,6 +60,7 @@ from mbgw.master.trace import (
 from mbgw.ops.counters import MasterCounters, TableSlaveCounters
 from mbgw.ops.device_stats import MASTER_COUNTS, DeviceTable, HealthRule
 from mbgw.ops.exception_reply import gateway_exception
+from mbgw.ops.tls import client_context
 from mbgw.ops.trace import TraceHub
 from mbgw.protocol import pdu
 from mbgw.upstream.pool import Interrupted, UpstreamPool, drain
@@ -92,6 +95,8 @@ class SerialSlave(LineThread[MasterConfig]):
         self._tracer = MasterTracer(self.trace)
         self.wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         self._pool = UpstreamPool(cfg.mdbport, cfg.max_connections, counters, self.wake_fd)
+        self._tls_context: ssl.SSLContext | None = None
+        self._use_tls(None, cfg)
         self._reply_to = b""       # the last frame for another slave: its reply may come next
         self._bad_reply_logged: dict[tuple[int, str], float] = {}   # (address, kind): when
         self.table = table
@@ -154,6 +159,10 @@ class SerialSlave(LineThread[MasterConfig]):
         self._table = cfg.slaveid
         self._tcpto_ns = cfg.tcpto_ns
         self._pool.reconfigure(cfg.mdbport, cfg.max_connections)
+        try:
+            self._use_tls(old, cfg)
+        except ConfigError as err:
+            log.error("TLS to servers: %s: the previous certificates stay in use", err)
         if self.table is not None:
             address = table_address(cfg)
             if address != self._table_address:
@@ -163,6 +172,16 @@ class SerialSlave(LineThread[MasterConfig]):
             self.devices.set_rule(cfg.demotion)
         if reopen:
             self._reply_to = b""
+
+    def _use_tls(self, old: MasterConfig | None, cfg: MasterConfig) -> None:
+        """The `tls` ranges' servers reached over TLS; a client context made again when the
+        files changed.  Raises ConfigError."""
+        upstream = cfg.upstream_tls
+        if not (upstream.enabled and cfg.slaveid.tls_hosts):
+            self._tls_context = None
+        elif self._tls_context is None or old is None or old.upstream_tls != upstream:
+            self._tls_context = client_context(upstream)
+        self._pool.set_tls(self._tls_context, upstream.server_port, cfg.slaveid.tls_hosts)
 
     def _turn(self) -> None:
         try:
@@ -294,7 +313,7 @@ class SerialSlave(LineThread[MasterConfig]):
             wire.debug("line rx %s -> %s unit %d", adu.hex(" "), host, unit)
         tracing = self.trace.active
         if tracing:
-            server, sent = f"{host}:{self._pool.port}", []
+            server, sent = self._pool.server(host), []
 
             def on_sent(conn, tid: int) -> None:
                 sent.append((conn, tid))
@@ -358,7 +377,7 @@ class SerialSlave(LineThread[MasterConfig]):
                 stats.abandoned += 1
                 outcome += ", abandoned: the master moved on"
         if self.trace.active:
-            self._tracer.outcome(adu, f"{host}:{self._pool.port}", None, unit, None, outcome,
+            self._tracer.outcome(adu, self._pool.server(host), None, unit, None, outcome,
                                  None)
 
     def _bad_reply(self, stats, host: str, unit: int, err: BadReply) -> None:
@@ -369,9 +388,9 @@ class SerialSlave(LineThread[MasterConfig]):
         if now - self._bad_reply_logged.get(key, -BAD_REPLY_LOG_INTERVAL_S) >= \
                 BAD_REPLY_LOG_INTERVAL_S:
             self._bad_reply_logged[key] = now
-            log.warning("device %d: the reply of server %s:%d unit %d does not answer the "
+            log.warning("device %d: the reply of server %s unit %d does not answer the "
                         "request (%s): dropped (replies of this kind for this address are "
-                        "logged at most once a minute)", stats.address, host, self._pool.port,
+                        "logged at most once a minute)", stats.address, self._pool.server(host),
                         unit, err)
         stats.failed()
 
@@ -393,9 +412,8 @@ class SerialSlave(LineThread[MasterConfig]):
     def _broadcast(self, adu: bytes) -> None:
         destinations = self._table.destinations
         if self.trace.active:
-            port = self._pool.port
             self._pool.on_sent = lambda conn, tid: self._tracer.request(
-                adu, f"{conn.host}:{port}", conn, tid, pdu.BROADCAST)
+                adu, f"{conn.host}:{conn.port}", conn, tid, pdu.BROADCAST)
         try:
             reached = self._pool.send_all(destinations, pdu.BROADCAST, adu[1:],
                                           time.monotonic_ns() + self._tcpto_ns)

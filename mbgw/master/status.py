@@ -24,7 +24,8 @@ class MasterStatus(DaemonStatus):
                          "exception": cfg.exception, "max_connections": cfg.max_connections,
                          "connections": self._slave.connections()},
             "slaveid": [{"first": r.first, "last": r.last, "remote_first": r.remote_first,
-                         "variable_ip": r.variable_ip, "ip": str(r.ip), "route": str(r)}
+                         "variable_ip": r.variable_ip, "ip": str(r.ip), "tls": r.tls,
+                         "route": str(r)}
                         for r in cfg.slaveid.ranges],
             "counters": self._counters.snapshot(),
             "counters_since": self._reset_at,

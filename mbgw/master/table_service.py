@@ -1,13 +1,16 @@
 """Master mode's exchange table beside the line: the table itself (the line thread's
 serial slave answers from it, mbgw.master.line_thread), its Modbus TCP server on
-`table-port` (mbgw.table.server, a thread of its own) while the table is on, its file
+`table-port` (mbgw.table.server, a thread of its own; with TLS on `tls-port` too) while
+the table is on, its file
 (`table-persist`, mbgw.table.persist: loaded at start, saved by tick() and at stop), and the
 settings a reload changes.  Asyncio thread, but for the server's own thread."""
 import logging
 import time
 
-from mbgw.config.model import MasterConfig, TableConfig
+from mbgw.config.model import MasterConfig, TableConfig, TlsConfig
+from mbgw.errors import ConfigError
 from mbgw.firewall.guard import Firewall
+from mbgw.ops.tls import role_of, server_context
 from mbgw.table import identity
 from mbgw.table.control import table_commands
 from mbgw.table.memory import Table
@@ -25,6 +28,7 @@ class TableService:
         identity.fill(self.table, settings, "master")
         self.server: TableServer | None = None
         self.firewall = Firewall(settings.firewall)     # on the TCP server's requests
+        self.tls = settings.tls
         self._commands = table_commands(self.table)
         self.persistence: Persistence | None = None
         if cfg.enabled and cfg.persist:
@@ -45,7 +49,11 @@ class TableService:
             self.persistence.maybe_save(time.monotonic())
 
     def _start_server(self, port: int) -> None:
-        self.server = TableServer(self.table, port, firewall=self.firewall)
+        """Raises TableListenError, ConfigError (the TLS files)."""
+        tls = self.tls
+        context = server_context(tls) if tls.enabled else None
+        self.server = TableServer(self.table, port, firewall=self.firewall, tls=context,
+                                  tls_port=tls.port, role_of=role_of)
         self.server.start()
         log.info("exchange table served on %s (at most %d clients)",
                  ", ".join(self.server.addresses), MAX_CONNECTIONS)
@@ -75,6 +83,8 @@ class TableService:
             self.firewall = firewall
             if self.server is not None:
                 self.server.set_firewall(firewall)
+        old_tls = self.tls
+        self.tls = settings.tls
         try:
             if not new.enabled:
                 self._stop_server()
@@ -84,6 +94,22 @@ class TableService:
                 self.server.move(new.port)
         except TableListenError as err:
             log.error("%s; the table's TCP server is left as it was", err.strerror)
+        except ConfigError as err:
+            log.error("TLS settings not applied, the table's TCP server is not started: %s",
+                      err)
+        if self.server is not None and settings.tls != old_tls:
+            self._retls(settings.tls, old_tls)
+
+    def _retls(self, new: TlsConfig, old: TlsConfig) -> None:
+        """New TLS settings or renewed files: for new connections, those open keep theirs.
+        Ones that cannot be loaded leave TLS as it was."""
+        assert self.server is not None
+        try:
+            context = server_context(new) if new.enabled else None
+            self.server.set_tls(context, new.port)
+        except (ConfigError, TableListenError) as err:
+            log.error("TLS settings not applied, the running ones stay: %s", err)
+            self.tls = old
 
     def _repersist(self, old: TableConfig, new: TableConfig) -> None:
         keeping = self.persistence is not None and new.enabled and new.persist == old.persist

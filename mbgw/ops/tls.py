@@ -1,5 +1,6 @@
 """Modbus/TCP Security for the Modbus TCP servers: the server's TLS context (TLS 1.2 and 1.3
-only, the client's certificate required and checked against the CA), the checks of the
+only, the client's certificate required and checked against the CA), the client context of
+the connections to remote servers (`client_context`), the checks of the
 certificate files (at start, reload and `mbgw check-config`), and a client's role, read from
 its certificate's extension ROLE_OID (a UTF8String) with python3-cryptography."""
 import datetime
@@ -9,7 +10,7 @@ import ssl
 from cryptography import x509
 from cryptography.hazmat.primitives.serialization import load_pem_private_key
 
-from mbgw.config.model import ROLE_OID, TlsConfig
+from mbgw.config.model import ROLE_OID, TlsConfig, UpstreamTlsConfig
 from mbgw.errors import ConfigError
 
 _ROLE = x509.ObjectIdentifier(ROLE_OID)
@@ -40,19 +41,19 @@ def check_certificate(path: str, option: str = "tls-cert",
     return cert
 
 
-def check_key(path: str) -> None:
+def check_key(path: str, option: str = "tls-key") -> None:
     try:
-        load_pem_private_key(_read("tls-key", path), password=None)
+        load_pem_private_key(_read(option, path), password=None)
     except (ValueError, TypeError) as err:
-        raise ConfigError(f"tls-key {path}: not an unencrypted PEM private key ({err})") \
+        raise ConfigError(f"{option} {path}: not an unencrypted PEM private key ({err})") \
             from None
 
 
-def check_ca(path: str) -> None:
+def check_ca(path: str, option: str = "tls-ca") -> None:
     try:
-        x509.load_pem_x509_certificate(_read("tls-ca", path))
+        x509.load_pem_x509_certificate(_read(option, path))
     except ValueError as err:
-        raise ConfigError(f"tls-ca {path}: not a PEM certificate ({err})") from None
+        raise ConfigError(f"{option} {path}: not a PEM certificate ({err})") from None
 
 
 def file_stamps(*paths: str | None) -> tuple:
@@ -87,6 +88,32 @@ def server_context(cfg: TlsConfig) -> ssl.SSLContext:
         context.load_verify_locations(cfg.ca)
     except (ssl.SSLError, OSError) as err:
         raise ConfigError(f"tls-ca {cfg.ca}: cannot be used ({err})") from None
+    return context
+
+
+def client_context(cfg: UpstreamTlsConfig) -> ssl.SSLContext:
+    """The context of the connections to remote servers over TLS: TLS 1.2/1.3, the server's
+    certificate checked against server-ca (not its name: servers are addressed by IP, as in
+    the slaveid ranges), mbgw's client certificate presented.  Raises ConfigError."""
+    assert cfg.client_cert is not None and cfg.client_key is not None \
+        and cfg.server_ca is not None
+    check_certificate(cfg.client_cert, "tls-client-cert")
+    check_key(cfg.client_key, "tls-client-key")
+    check_ca(cfg.server_ca, "tls-server-ca")
+    context = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+    context.minimum_version = ssl.TLSVersion.TLSv1_2
+    context.maximum_version = ssl.TLSVersion.TLSv1_3
+    context.check_hostname = False
+    context.verify_mode = ssl.CERT_REQUIRED
+    try:
+        context.load_cert_chain(cfg.client_cert, cfg.client_key)
+    except (ssl.SSLError, OSError) as err:
+        raise ConfigError(f"tls-client-key {cfg.client_key}: does not go with "
+                          f"tls-client-cert {cfg.client_cert} ({err})") from None
+    try:
+        context.load_verify_locations(cfg.server_ca)
+    except (ssl.SSLError, OSError) as err:
+        raise ConfigError(f"tls-server-ca {cfg.server_ca}: cannot be used ({err})") from None
     return context
 
 

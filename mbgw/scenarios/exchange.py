@@ -16,6 +16,7 @@ UNEXPECTED_FUNCTION = "unexpected-function"
 UNEXPECTED_DATA = "unexpected-data"
 CONNECTION_LOST = "connection-lost"
 CONNECTION_REFUSED = "connection-refused"
+TLS_REFUSED = "tls-refused"
 EXCEPTION_KINDS = {0x01: "illegal-function", 0x02: "illegal-address", 0x03: "illegal-value",
                    0x04: "device-failure", 0x06: "busy", 0x0A: "path-unavailable",
                    0x0B: "target-failed"}
@@ -34,6 +35,7 @@ ERROR_MESSAGES = {
     UNEXPECTED_DATA: "received unexpected data/quantity in answer",
     CONNECTION_LOST: "TCP connection lost",
     CONNECTION_REFUSED: "connection refused",
+    TLS_REFUSED: "connection refused: TLS handshake failed",
 }
 ERROR_KINDS = tuple(ERROR_MESSAGES)
 

@@ -11,27 +11,32 @@ has at most one in flight.  A server that refuses the connection (or cannot be r
 `tcpto`) is not tried again before its backoff has passed (doubling from BACKOFF_FIRST_S to
 BACKOFF_MAX_S, reset by a reply); its scenarios fail at once meanwhile with the failure that
 started it.  The pool keeps one connection per server address and port (one pool per
-port), reopened when the server closes it.  The engine is thread-safe: status and enable
-come from other threads directly.
+port), reopened when the server closes it; `tls` scenarios' servers have pools of their own,
+over TLS with the client context made from [tls]'s client-cert, client-key and server-ca.
+The engine is thread-safe: status and enable come from other threads directly.
 """
 import concurrent.futures
 import logging
 import math
 import os
 import select
+import ssl
 import threading
 import time
 from collections.abc import Callable
 from typing import Any
 
+from mbgw.config.model import UpstreamTlsConfig
 from mbgw.config.scenario import split_server
-from mbgw.errors import BadReply, GatewayTimeout, NoRoute
+from mbgw.errors import BadReply, ConfigError, GatewayTimeout, NoRoute
 from mbgw.ops.counters import MasterCounters
+from mbgw.ops.tls import client_context
 from mbgw.scenarios.engine import Scenarios
 from mbgw.scenarios.report import scenarios_status
 from mbgw.upstream.pool import (
     ConnectionLost,
     ConnectTimeout,
+    HandshakeFailed,
     Interrupted,
     UpstreamPool,
     drain,
@@ -48,6 +53,7 @@ TIMEOUT = "timeout"
 CONNECTION_LOST = "connection-lost"
 CONNECTION_REFUSED = "connection-refused"
 UNEXPECTED_DATA = "unexpected-data"
+TLS_REFUSED = "tls-refused"     # the handshake failed, or the TLS files cannot be used
 
 
 class Backoff:
@@ -65,13 +71,16 @@ class Backoff:
 
 
 class TcpRunner:
-    def __init__(self, engine, tcpto_ms: int, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, engine, tcpto_ms: int, clock: Callable[[], float] = time.monotonic,
+                 tls: UpstreamTlsConfig | None = None) -> None:
         self.engine = engine
         self._tcpto_ns = tcpto_ms * 1_000_000
+        self._tls = tls or UpstreamTlsConfig()
+        self._tls_context: ssl.SSLContext | None = None
         self._clock = clock
         self._wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         self.counters = MasterCounters()        # the pools' connection figures
-        self._pools: dict[int, UpstreamPool] = {}
+        self._pools: dict[tuple[int, bool], UpstreamPool] = {}   # by (port, tls)
         self._backoff: dict[tuple[str, int], Backoff] = {}
         self._calls: list[tuple[Callable[[], Any], concurrent.futures.Future]] = []
         self._lock = threading.Lock()
@@ -103,10 +112,15 @@ class TcpRunner:
         os.eventfd_write(self._wake_fd, 1)
         return future
 
-    def reconfigure(self, configs, tcpto_ms: int) -> concurrent.futures.Future:
-        """New scenarios and tcpto (SIGHUP), applied between two runs."""
+    def reconfigure(self, configs, tcpto_ms: int,
+                    tls: UpstreamTlsConfig | None = None) -> concurrent.futures.Future:
+        """New scenarios, tcpto and TLS files (SIGHUP), applied between two runs."""
         def apply() -> None:
             self._tcpto_ns = tcpto_ms * 1_000_000
+            if tls is not None and tls != self._tls:
+                self._tls, self._tls_context = tls, None
+                for key in [k for k in self._pools if k[1]]:
+                    self._pools.pop(key).close()
             self.engine.reconfigure(configs)
             self._backoff.clear()
         return self.call(apply)
@@ -173,12 +187,18 @@ class TcpRunner:
         backoff = self._backoff.get((host, port))
         if backoff is not None and self._clock() < backoff.until:
             return None, backoff.kind, 0
-        pool = self._pool(port)
+        try:
+            pool = self._pool(port, scenario.tls)
+        except ConfigError as err:
+            log.error("scenario %s: %s", scenario.name, err)
+            return None, self._unreachable(host, port, TLS_REFUSED), 0
         retries = 0
         while True:
             try:
                 reply = pool.transact(host, scenario.unit, pdu,
                                       time.monotonic_ns() + self._tcpto_ns)
+            except HandshakeFailed:
+                return None, self._unreachable(host, port, TLS_REFUSED), retries
             except NoRoute:
                 return None, self._unreachable(host, port, CONNECTION_REFUSED), retries
             except ConnectTimeout:
@@ -212,12 +232,17 @@ class TcpRunner:
         backoff.failed(kind, self._clock())
         return kind
 
-    def _pool(self, port: int) -> UpstreamPool:
-        pool = self._pools.get(port)
+    def _pool(self, port: int, tls: bool) -> UpstreamPool:
+        """Raises ConfigError when the TLS files cannot be used."""
+        pool = self._pools.get((port, tls))
         if pool is None:
             pool = UpstreamPool(port, MAX_CONNECTIONS, self.counters, self._wake_fd)
+            if tls:
+                if self._tls_context is None:
+                    self._tls_context = client_context(self._tls)
+                pool.set_tls(self._tls_context, port, None)
             pool.stopping = self._stopping
-            self._pools[port] = pool
+            self._pools[(port, tls)] = pool
         return pool
 
 
@@ -241,25 +266,25 @@ class TcpScenarios:
         self.engines = engines
         self.runner: TcpRunner | None = None
 
-    def start(self, configs, tcpto_ms: int) -> None:
+    def start(self, configs, tcpto_ms: int, tls: UpstreamTlsConfig | None = None) -> None:
         configs = tcp_scenarios(configs)
         if configs:
             engine = Scenarios(configs, self.table, "tcp")
-            self.runner = TcpRunner(engine, tcpto_ms)
+            self.runner = TcpRunner(engine, tcpto_ms, tls=tls)
             self.runner.start()
             self.engines["tcp"] = engine
             log.info("%d TCP scenarios, tcpto %d ms", len(configs), tcpto_ms)
 
-    def reconfigure(self, configs, tcpto_ms: int) -> None:
+    def reconfigure(self, configs, tcpto_ms: int, tls: UpstreamTlsConfig | None = None) -> None:
         """New settings (SIGHUP): the runner started, given its new scenarios, or stopped."""
         configs = tcp_scenarios(configs)
         if self.runner is None:
-            self.start(configs, tcpto_ms)
+            self.start(configs, tcpto_ms, tls)
         elif not configs:
             self.stop()
             log.info("no TCP scenarios any more")
         else:
-            self.runner.reconfigure(configs, tcpto_ms).result()
+            self.runner.reconfigure(configs, tcpto_ms, tls).result()
 
     def stop(self) -> None:
         runner, self.runner = self.runner, None

@@ -90,14 +90,15 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
         log.warning("nocheck is on: serial replies are forwarded unchecked (a debugging mode)")
 
     scenarios = TcpScenarios(tables.table, engines)
-    scenarios.start(cfg.scenarios, cfg.tcpto_ms)
+    scenarios.start(cfg.scenarios, cfg.tcpto_ms, cfg.upstream_tls)
 
     async def apply(new: SlaveConfig) -> None:
         await console.reconfigure(new.web)
         tables.reconfigure(new)
         await server.reconfigure(new)
         worker.reconfigure(new)
-        await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms)
+        await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms,
+                                new.upstream_tls)
 
     kept = asyncio.ensure_future(tables.keep())
     try:

@@ -13,14 +13,25 @@ reaches the table.  A client that does not read its replies is not read either
 until the socket has taken them (TCP back-pressure).  At most MAX_CONNECTIONS clients: the
 next one is refused (closed at once, counted, logged at most once a minute).  Nothing is
 logged per request.
+
+Modbus/TCP Security (a TLS context given): a TLS listener on `tls_port` beside the plain one
+(port None: TLS only).  Each handshake is a state in the same poll loop, stepped when its
+socket is ready, never blocking the loop or the plain clients: at most MAX_HANDSHAKES at once,
+each with HANDSHAKE_TIMEOUT_S to finish; a refusal is counted and logged at most once a minute.
+A TLS client is then served like a plain one through its SSLSocket (its role from the
+certificate, for the firewall), and the bytes SSL has decrypted but poll() cannot see
+(pending()) are read before the loop waits again.  set_tls() gives new connections a renewed
+context; those open keep theirs.
 """
 import errno
 import logging
 import os
 import select
 import socket
+import ssl
 import threading
 import time
+from typing import cast
 
 from mbgw.firewall.guard import Firewall, Guard
 from mbgw.protocol import mbap
@@ -32,6 +43,10 @@ RECEIVE_SIZE = 4096           # one read: 15 requests of 260 bytes, 341 reads of
 LISTEN_BACKLOG = 16
 REFUSAL_LOG_INTERVAL_S = 60.0
 BROADCAST_UNIT = 0
+# TLS handshakes under way at once, and how long one may take: a flood of connections that
+# never finish (or garbage) costs the loop one wake-up each and no more.
+MAX_HANDSHAKES = 64
+HANDSHAKE_TIMEOUT_S = 10.0
 
 _IN = select.POLLIN
 _OUT = select.POLLOUT
@@ -45,19 +60,20 @@ _UNIT_AT = _HEADER_LEN - 1
 class TableListenError(OSError):
     """table-port cannot be listened on; the message names the port and why."""
 
-    def __init__(self, port: int, err: OSError) -> None:
+    def __init__(self, port: int, err: OSError, option: str = "table-port") -> None:
         reason = os.strerror(err.errno) if err.errno else str(err)
-        super().__init__(err.errno, f"table-port {port}: cannot listen there: {reason}")
+        super().__init__(err.errno, f"{option} {port}: cannot listen there: {reason}")
 
 
-def listen(port: int, bind: str | None = None) -> list[socket.socket]:
+def listen(port: int, bind: str | None = None,
+           option: str = "table-port") -> list[socket.socket]:
     """Listening sockets on bind (None: every interface, IPv4 and IPv6) and port.  Raises
-    TableListenError."""
+    TableListenError naming option."""
     try:
         infos = socket.getaddrinfo(bind, port, socket.AF_UNSPEC, socket.SOCK_STREAM, 0,
                                    socket.AI_PASSIVE)
     except socket.gaierror as err:
-        raise TableListenError(port, OSError(0, str(err))) from None
+        raise TableListenError(port, OSError(0, str(err)), option) from None
     sockets: list[socket.socket] = []
     try:
         for family, kind, proto, _, address in dict.fromkeys(infos):
@@ -72,7 +88,7 @@ def listen(port: int, bind: str | None = None) -> list[socket.socket]:
     except OSError as err:
         for sock in sockets:
             sock.close()
-        raise TableListenError(port, err) from None
+        raise TableListenError(port, err, option) from None
     return sockets
 
 
@@ -83,12 +99,14 @@ def _name(address) -> str:
 
 class _Connection:
     __slots__ = ("sock", "fd", "peer", "partial", "held", "connected_at", "requests", "host",
-                 "role", "listener", "guard", "firewall_refused")
+                 "role", "listener", "guard", "firewall_refused", "tls")
 
-    def __init__(self, sock: socket.socket, peer: str, host: str = "") -> None:
+    def __init__(self, sock: socket.socket, peer: str, host: str = "",
+                 role: str | None = None, tls: bool = False) -> None:
         self.host = host
-        self.role: str | None = None        # the firewall's view of it (TLS sets a role)
-        self.listener = "plain"
+        self.role = role                    # the firewall's view of it (TLS sets a role)
+        self.tls = tls                      # sock is an SSLSocket
+        self.listener = "tls" if tls else "plain"
         self.guard: Guard | None = None
         self.firewall_refused = 0
         self.sock = sock
@@ -100,19 +118,48 @@ class _Connection:
         self.requests = 0
 
 
+class _Handshake:
+    """A TLS client whose handshake is under way."""
+    __slots__ = ("sock", "fd", "address", "deadline")
+
+    def __init__(self, sock: ssl.SSLSocket, address, deadline: float) -> None:
+        self.sock = sock
+        self.fd = sock.fileno()
+        self.address = address
+        self.deadline = deadline
+
+
 class TableServer(threading.Thread):
     """The table served on `port`; start() it, stop() and join() it.  figures() and
     connections() may be called from any thread."""
 
-    def __init__(self, table, port: int, bind: str | None = None,
-                 firewall: Firewall | None = None, allows=None) -> None:
+    def __init__(self, table, port: int | None, bind: str | None = None,
+                 firewall: Firewall | None = None, allows=None,
+                 tls: ssl.SSLContext | None = None, tls_port: int | None = None,
+                 role_of=None) -> None:
         """Listens at once: raises TableListenError when it cannot.  allows(host): whether a
-        peer may connect (None: anyone; transparent mode's authip)."""
+        peer may connect (None: anyone; transparent mode's authip).  port None: no plain
+        listener; tls: the TLS listener's context (mbgw.ops.tls.server_context) on
+        tls_port; role_of(der): the role in a client's certificate (mbgw.ops.tls.role_of)."""
         super().__init__(name="mbgw-table", daemon=True)
         self._table = table
         self.port = port
         self._allows = allows
-        self._listeners = listen(port, bind)
+        self._listeners = listen(port, bind) if port is not None else []
+        self._tls = tls
+        self._role_of = role_of or (lambda der: None)
+        self.tls_port = tls_port if tls is not None else None
+        try:
+            self._tls_listeners = listen(self.tls_port, bind, "tls-port") \
+                if self.tls_port is not None else []
+        except TableListenError:
+            for sock in self._listeners:
+                sock.close()
+            raise
+        self._new_tls: tuple | None = None
+        self._handshakes: dict[int, _Handshake] = {}     # by fd
+        self._tls_refused_logged = -REFUSAL_LOG_INTERVAL_S
+        self._answer = None
         self._wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         self._stopping = False
         self._new_listeners: list[socket.socket] | None = None
@@ -129,10 +176,12 @@ class TableServer(threading.Thread):
         self.refused_limit = 0
         self.bad_header = 0
         self.refused_authip = 0
+        self.refused_tls = 0
 
     @property
     def addresses(self) -> list[str]:
-        return [_name(s.getsockname()) for s in self._listeners]
+        return [_name(s.getsockname()) for s in self._listeners] + \
+            [f"{_name(s.getsockname())} (TLS)" for s in self._tls_listeners]
 
     def figures(self) -> dict:
         """The TCP server's counters, as the status reports them."""
@@ -141,14 +190,18 @@ class TableServer(threading.Thread):
                 "connections_accepted": self.accepted,
                 "connections_refused_limit": self.refused_limit,
                 "connections_bad_header": self.bad_header,
-                "connections_refused_authip": self.refused_authip}
+                "connections_refused_authip": self.refused_authip,
+                "tls_port": self.tls_port, "tls_handshakes": len(self._handshakes),
+                "connections_refused_tls": self.refused_tls}
 
     def connections(self) -> list[dict]:
-        return [{"peer": c.peer, "connected": c.connected_at, "requests": c.requests}
+        return [{"peer": c.peer, "connected": c.connected_at, "requests": c.requests,
+                 "listener": c.listener, "role": c.role}
                 for c in list(self._clients.values())]
 
     def reset_counts(self) -> None:
         self.accepted = self.refused_limit = self.bad_header = self.refused_authip = 0
+        self.refused_tls = 0
 
     def set_firewall(self, firewall: Firewall) -> None:
         """New rules (another thread): the server's thread guards its clients by them."""
@@ -169,6 +222,20 @@ class TableServer(threading.Thread):
         self.port = port
         os.eventfd_write(self._wake_fd, 1)
 
+    def set_tls(self, context: ssl.SSLContext | None, port: int,
+                bind: str | None = None) -> None:
+        """New TLS settings or renewed files (another thread): context (None: TLS off) is for
+        new connections, those open keep theirs; listening moves when the port changes.
+        Raises TableListenError, and then nothing changes."""
+        new_port = port if context is not None else None
+        listeners = None                    # the same ones
+        if new_port != self.tls_port:
+            listeners = listen(port, bind, "tls-port") if new_port is not None else []
+        with self._lock:
+            self._new_tls = (context, listeners)
+        self.tls_port = new_port
+        os.eventfd_write(self._wake_fd, 1)
+
     def stop(self) -> None:
         self._stopping = True
         os.eventfd_write(self._wake_fd, 1)
@@ -176,21 +243,26 @@ class TableServer(threading.Thread):
     def run(self) -> None:
         poll = self._poll
         poll.register(self._wake_fd, _IN)
-        for sock in self._listeners:
+        for sock in self._listeners + self._tls_listeners:
             poll.register(sock.fileno(), _IN)
-        listeners = {s.fileno(): s for s in self._listeners}
+        listeners = self._listening()
         clients = self._clients
-        answer = self._table.responder().answer_mbap
+        handshakes = self._handshakes
+        self._answer = answer = self._table.responder().answer_mbap
         try:
             while not self._stopping:
-                for fd, events in poll.poll():
+                for fd, events in poll.poll(self._handshake_wait_ms()):
                     client = clients.get(fd)
                     if client is not None:
                         self._serve(client, events, answer)
+                    elif fd in handshakes:
+                        self._shake(handshakes[fd])
                     elif fd in listeners:
-                        self._accept(listeners[fd])
+                        self._accept(*listeners[fd])
                     elif fd == self._wake_fd:
-                        listeners = self._woken(listeners)
+                        listeners = self._woken()
+                if handshakes:
+                    self._expire_handshakes()
         except Exception:
             log.exception("table server: internal error; TCP clients no longer reach the table")
         finally:
@@ -198,7 +270,12 @@ class TableServer(threading.Thread):
 
     # --- connections ---
 
-    def _accept(self, listener: socket.socket) -> None:
+    def _listening(self) -> dict:
+        """(listener, whether TLS) by fd."""
+        return {**{s.fileno(): (s, False) for s in self._listeners},
+                **{s.fileno(): (s, True) for s in self._tls_listeners}}
+
+    def _accept(self, listener: socket.socket, tls: bool) -> None:
         try:
             sock, address = listener.accept()
         except (BlockingIOError, InterruptedError, ConnectionAbortedError):
@@ -211,20 +288,111 @@ class TableServer(threading.Thread):
             self.refused_authip += 1
             log.warning("table client %s refused: not in authip", _name(address))
             return
-        if len(self._clients) >= MAX_CONNECTIONS:
-            sock.close()
-            self.refused_limit += 1
-            self._log_refusal(address)
+        if not self._room_for(sock, address):
             return
         sock.setblocking(False)
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
-        client = _Connection(sock, _name(address), address[0])
+        if tls:
+            self._start_handshake(sock, address)
+        else:
+            self._adopt(_Connection(sock, _name(address), address[0]))
+
+    def _room_for(self, sock: socket.socket, address) -> bool:
+        if len(self._clients) < MAX_CONNECTIONS:
+            return True
+        sock.close()
+        self.refused_limit += 1
+        self._log_refusal(address)
+        return False
+
+    def _adopt(self, client: _Connection) -> None:
+        client.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        client.sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
         client.guard = self.firewall.guard(client.host, client.role, client.listener)
         self._clients[client.fd] = client
         self._poll.register(client.fd, _IN)
         self.accepted += 1
-        log.debug("table client %s connected", client.peer)
+        log.debug("table client %s connected%s", client.peer,
+                  f" (TLS, role {client.role})" if client.tls else "")
+
+    # --- Modbus/TCP Security: the handshake, a state of the poll loop ---
+
+    def _start_handshake(self, sock: socket.socket, address) -> None:
+        context = self._tls
+        if context is None or len(self._handshakes) >= MAX_HANDSHAKES:
+            sock.close()
+            self._tls_refused(address, f"{MAX_HANDSHAKES} TLS handshakes under way already")
+            return
+        try:
+            tls = context.wrap_socket(sock, server_side=True, do_handshake_on_connect=False)
+        except OSError as err:
+            sock.close()
+            self._tls_refused(address, f"TLS failed ({err.strerror or err})")
+            return
+        handshake = _Handshake(tls, address, time.monotonic() + HANDSHAKE_TIMEOUT_S)
+        self._handshakes[handshake.fd] = handshake
+        self._poll.register(handshake.fd, _IN)
+        self._shake(handshake)
+
+    def _shake(self, handshake: _Handshake) -> None:
+        """One step of a client's handshake; the next when its socket is ready for it."""
+        try:
+            handshake.sock.do_handshake()
+        except ssl.SSLWantReadError:
+            self._poll.modify(handshake.fd, _IN)
+            return
+        except ssl.SSLWantWriteError:
+            self._poll.modify(handshake.fd, _OUT)
+            return
+        except ssl.SSLError as err:
+            self._handshake_failed(handshake, f"TLS handshake refused ({err.reason or err})")
+            return
+        except OSError as err:
+            self._handshake_failed(handshake, f"TLS handshake failed ({err.strerror or err})")
+            return
+        self._end_handshake(handshake)
+        sock, address = handshake.sock, handshake.address
+        try:
+            role = self._role_of(sock.getpeercert(binary_form=True))
+        except (OSError, ValueError):       # the peer has gone meanwhile
+            sock.close()
+            return
+        if not self._room_for(sock, address):
+            return
+        client = _Connection(sock, _name(address), address[0], role, tls=True)
+        self._adopt(client)
+        if sock.pending():                  # a request came with the handshake's end
+            self._receive(client, self._answer)
+
+    def _end_handshake(self, handshake: _Handshake) -> None:
+        del self._handshakes[handshake.fd]
+        self._poll.unregister(handshake.fd)
+
+    def _handshake_failed(self, handshake: _Handshake, reason: str) -> None:
+        self._end_handshake(handshake)
+        handshake.sock.close()
+        self._tls_refused(handshake.address, reason)
+
+    def _handshake_wait_ms(self) -> int | None:
+        """poll()'s timeout: until the first handshake's deadline (None: none under way)."""
+        if not self._handshakes:
+            return None
+        first = min(h.deadline for h in self._handshakes.values())
+        return max(0, int((first - time.monotonic()) * 1000) + 1)
+
+    def _expire_handshakes(self) -> None:
+        now = time.monotonic()
+        for handshake in [h for h in self._handshakes.values() if h.deadline <= now]:
+            self._handshake_failed(handshake,
+                                   f"no TLS handshake within {HANDSHAKE_TIMEOUT_S:g} s")
+
+    def _tls_refused(self, address, reason: str) -> None:
+        """Counted; logged at most once a minute."""
+        self.refused_tls += 1
+        now = time.monotonic()
+        if now - self._tls_refused_logged >= REFUSAL_LOG_INTERVAL_S:
+            self._tls_refused_logged = now
+            log.warning("table client %s refused: %s (further TLS refusals are logged at "
+                        "most once a minute)", _name(address), reason)
 
     def _log_refusal(self, address) -> None:
         now = time.monotonic()
@@ -243,11 +411,14 @@ class TableServer(threading.Thread):
     def _close_all(self) -> None:
         for client in list(self._clients.values()):
             self._close(client)
-        for sock in self._listeners:
+        for handshake in list(self._handshakes.values()):
+            self._end_handshake(handshake)
+            handshake.sock.close()
+        for sock in self._listeners + self._tls_listeners:
             sock.close()
         os.close(self._wake_fd)
 
-    def _woken(self, listeners: dict) -> dict:
+    def _woken(self) -> dict:
         try:
             os.eventfd_read(self._wake_fd)
         except BlockingIOError:
@@ -255,20 +426,30 @@ class TableServer(threading.Thread):
         with self._lock:
             new, self._new_listeners = self._new_listeners, None
             firewall, self._new_firewall = self._new_firewall, None
+            new_tls, self._new_tls = self._new_tls, None
         if firewall is not None:
             self.firewall = firewall
             for client in self._clients.values():
                 client.guard = firewall.guard(client.host, client.role, client.listener)
-        if new is None:
-            return listeners
-        for fd, sock in listeners.items():
-            self._poll.unregister(fd)
+        if new_tls is not None:
+            self._tls, tls_listeners = new_tls
+            if tls_listeners is not None:
+                old, self._tls_listeners = self._tls_listeners, tls_listeners
+                self._relisten(old, tls_listeners)
+            else:
+                log.info("table server: TLS certificate loaded for new connections")
+        if new is not None:
+            old, self._listeners = self._listeners, new
+            self._relisten(old, new)
+        return self._listening()
+
+    def _relisten(self, old: list[socket.socket], new: list[socket.socket]) -> None:
+        for sock in old:
+            self._poll.unregister(sock.fileno())
             sock.close()
-        self._listeners = new
         for sock in new:
             self._poll.register(sock.fileno(), _IN)
-        log.info("table server: listening on %s", ", ".join(self.addresses))
-        return {s.fileno(): s for s in new}
+        log.info("table server: listening on %s", ", ".join(self.addresses) or "no port")
 
     # --- requests ---
 
@@ -276,11 +457,19 @@ class TableServer(threading.Thread):
         if events & _OUT:
             if not self._flush(client):
                 return
-        if not events & (_IN | select.POLLHUP | select.POLLERR):
-            return
+        if events & (_IN | select.POLLHUP | select.POLLERR) or client.tls:
+            self._receive(client, answer)
+        # what SSL has decrypted already, poll() does not see: read before waiting again
+        while client.tls and not client.held and client.fd in self._clients \
+                and cast(ssl.SSLSocket, client.sock).pending():
+            self._receive(client, answer)
+
+    def _receive(self, client: _Connection, answer) -> None:
+        """One read of the client's requests, answered."""
         try:
             n = client.sock.recv_into(self._input)
-        except (BlockingIOError, InterruptedError):
+        except (BlockingIOError, InterruptedError, ssl.SSLWantReadError,
+                ssl.SSLWantWriteError):
             return
         except OSError:
             self._close(client)
@@ -354,7 +543,8 @@ class TableServer(threading.Thread):
             return
         try:
             sent = client.sock.send(data)
-        except (BlockingIOError, InterruptedError):
+        except (BlockingIOError, InterruptedError, ssl.SSLWantWriteError,
+                ssl.SSLWantReadError):
             sent = 0
         except OSError as err:
             if err.errno not in (errno.EPIPE, errno.ECONNRESET):
@@ -368,7 +558,8 @@ class TableServer(threading.Thread):
         """Send held replies; True once none are left (the client is read again)."""
         try:
             sent = client.sock.send(client.held)
-        except (BlockingIOError, InterruptedError):
+        except (BlockingIOError, InterruptedError, ssl.SSLWantWriteError,
+                ssl.SSLWantReadError):
             return False
         except OSError:
             self._close(client)

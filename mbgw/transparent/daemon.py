@@ -7,6 +7,7 @@ import signal
 import time
 
 from mbgw.config.model import TransparentModeConfig
+from mbgw.errors import ConfigError
 from mbgw.firewall.guard import Firewall
 from mbgw.line.port import SerialLine
 from mbgw.ops.service import (
@@ -18,6 +19,9 @@ from mbgw.ops.service import (
     start_metrics,
     watchdog_interval,
 )
+from mbgw.ops.tls import role_of, server_context
+from mbgw.scenarios.control import scenario_commands
+from mbgw.scenarios.tcp_runner import TcpScenarios, with_scenarios
 from mbgw.table import identity
 from mbgw.table.control import table_commands
 from mbgw.table.memory import Table
@@ -59,11 +63,15 @@ def run_transparent(cfg: TransparentModeConfig, reconfigure=None) -> None:
     table = Table(cfg.table.functions)
     identity.fill(table, cfg, "transparent")
     allows = access_check(cfg.authip)
+    context = server_context(cfg.tls) if cfg.tls.enabled else None     # ConfigError
     try:
-        server = TableServer(table, cfg.mdbport, cfg.bind, Firewall(cfg.firewall),
-                             allows=allows)
+        server = TableServer(table, cfg.mdbport or None, cfg.bind, Firewall(cfg.firewall),
+                             allows=allows, tls=context, tls_port=cfg.tls.port,
+                             role_of=role_of)
     except OSError as err:
-        raise TransparentListenFailure("mdbport", cfg.mdbport, err) from None
+        option, port = ("tls-port", cfg.tls.port) if "tls-port" in str(err) else \
+            ("mdbport", cfg.mdbport)
+        raise TransparentListenFailure(option, port, err) from None
     raw = _raw_port(cfg, allows, counters)
     line = SerialLine(cfg.serial, counters)
     try:
@@ -79,6 +87,16 @@ def run_transparent(cfg: TransparentModeConfig, reconfigure=None) -> None:
         server.join()
 
 
+def _retls(server: TableServer, new: TransparentModeConfig) -> None:
+    """New TLS settings or renewed files, for new connections; those open keep theirs.  Ones
+    that cannot be loaded leave TLS as it was."""
+    try:
+        server.set_tls(server_context(new.tls) if new.tls.enabled else None, new.tls.port,
+                       new.bind)
+    except (ConfigError, TableListenError) as err:
+        log.error("TLS settings not applied, the running ones stay: %s", err)
+
+
 async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table: Table,
                  server: TableServer, raw: RawPort | None, reconfigure) -> None:
     loop = asyncio.get_running_loop()
@@ -91,11 +109,14 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
         return table_status(table, cfg.table, None, None, server.figures())
 
     status = TransparentStatus(cfg, frames, counters, table_figures, raw)
-    metrics = start_metrics(cfg.metrics, lambda m: m.transparent_collector(
-        frames, status.figures, started, table_figures))
+    engines: dict = {}         # the TCP scenarios' engine, while they run
+    status.scenario_engines = engines
+    metrics = start_metrics(cfg.metrics, lambda m: with_scenarios(m.transparent_collector(
+        frames, status.figures, started, table_figures), engines))
     frames.idle_ms = idle_ms(watchdog_interval())
     frames.start()
-    commands = {**status.commands(), **table_commands(table)}
+    commands = {**status.commands(), **table_commands(table),
+                **scenario_commands(engines, cfg.config_file)}
     control = await start_control(cfg.control, commands)
     console = await start_console(cfg.web, WebHooks(commands, status.trace_hub,
                                                     cfg.config_file, sighup_reload))
@@ -109,6 +130,8 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
              f"; raw port {raw.port}" if raw is not None else "")
     if metrics is not None:
         log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
+    scenarios = TcpScenarios(table, engines)
+    scenarios.start(cfg.scenarios, cfg.tcpto_ms)
 
     async def apply(new: TransparentModeConfig) -> None:
         await console.reconfigure(new.web)
@@ -121,10 +144,16 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
             log.warning("raw-port changed: the new setting takes effect at restart")
         if new.firewall != old.firewall:
             server.set_firewall(server.firewall.renewed(new.firewall))
+        if new.tls != old.tls:
+            _retls(server, new)
         frames.reconfigure(new)
+        await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms)
 
-    await serve_until_stopped(stop, status, frames, reconfigure, apply, control, metrics)
-    await console.close()
+    try:
+        await serve_until_stopped(stop, status, frames, reconfigure, apply, control, metrics)
+    finally:
+        await console.close()
+        await asyncio.to_thread(scenarios.stop)
     frames.stop()
     await asyncio.to_thread(frames.join)
     log_stopped(counters)

@@ -4,6 +4,7 @@ import logging
 import time
 
 from mbgw.ops.status import DaemonStatus
+from mbgw.scenarios.report import scenarios_status
 
 log = logging.getLogger("mbgw.control")
 
@@ -17,6 +18,7 @@ class TransparentStatus(DaemonStatus):
         self._line = line
         self._table_figures = table_figures
         self._raw = raw
+        self.scenario_engines: dict = {}    # the TCP scenarios' engine (the daemon's)
 
     def figures(self) -> dict:
         """The mode's own part: the settings in force, the raw port."""
@@ -33,8 +35,10 @@ class TransparentStatus(DaemonStatus):
     def status(self, request: dict) -> dict:
         data = self._common()
         data["serial"]["state"] = "up" if self._line.up else "down"
+        rows = scenarios_status(self.scenario_engines.values())
         return {**data, "transparent": self.figures(), "counters": self._counters.snapshot(),
-                "counters_since": self._reset_at, "table": self._table_figures()}
+                "counters_since": self._reset_at, "table": self._table_figures(),
+                **({"scenarios": rows} if rows else {})}
 
     def reset(self, request: dict) -> dict:
         self._counters.reset()

@@ -11,6 +11,11 @@ protocol id other than 0, a length that does not fit) also closes the connection
 stream can no longer be trusted.  A connection the server has closed is found before the
 request is sent and reopened; connecting counts against the deadline.
 
+Servers given to set_tls are reached over TLS (Modbus/TCP Security) on its port: the
+handshake is stepped in the same non-blocking polls, within the same deadline; a failed one
+(a server certificate that does not chain to the CA, our certificate refused) is
+HandshakeFailed, a NoRoute.
+
 Everything runs on its owner's thread (master mode: the serial line's; the master sends one
 request at a time, so a thread hop would only add latency).  The sockets are non-blocking
 and every wait is one poll() that the owner's eventfd also wakes, so stopping never waits
@@ -22,6 +27,7 @@ import logging
 import os
 import select
 import socket
+import ssl
 import time
 from collections import OrderedDict
 from collections.abc import Callable
@@ -50,12 +56,18 @@ class ConnectionLost(GatewayTimeout):
     """The connection broke while the request was on it (to master mode, no answer)."""
 
 
+class HandshakeFailed(NoRoute):
+    """The TLS handshake with the server failed: no connection (to master mode, 0x0A)."""
+
+
 class Connection:
-    __slots__ = ("host", "sock", "poller", "buf", "tid", "local", "connected_at",
+    __slots__ = ("host", "port", "tls", "sock", "poller", "buf", "tid", "local", "connected_at",
                  "last_active", "requests", "units")
 
-    def __init__(self, host: str, sock: socket.socket, poller) -> None:
+    def __init__(self, host: str, port: int, sock: socket.socket, poller) -> None:
         self.host = host
+        self.port = port
+        self.tls = isinstance(sock, ssl.SSLSocket)
         self.sock = sock
         self.poller = poller
         self.buf = bytearray()
@@ -80,6 +92,9 @@ class UpstreamPool:
         self._wake_fd = wake_fd
         self._open: OrderedDict[str, Connection] = OrderedDict()   # least recently used first
         self._failing: set[str] = set()     # servers whose last connection attempt failed
+        self._tls: ssl.SSLContext | None = None
+        self._tls_port = 0
+        self._tls_hosts: frozenset[str] | None = frozenset()   # None: every server
         self._chunk = bytearray(RECV_SIZE)
         self._view = memoryview(self._chunk)
         self.stopping = False     # set before the eventfd is signalled to stop
@@ -89,6 +104,22 @@ class UpstreamPool:
     @property
     def port(self) -> int:
         return self._port
+
+    def set_tls(self, context: ssl.SSLContext | None, port: int,
+                hosts: frozenset[str] | None) -> None:
+        """Reach hosts (None: every server) over TLS on port with context.  Another setting
+        closes every connection (on the owner's thread, between transactions)."""
+        if (context, port, hosts) != (self._tls, self._tls_port, self._tls_hosts):
+            self.close()
+            self._failing.clear()
+            self._tls, self._tls_port, self._tls_hosts = context, port, hosts
+
+    def _uses_tls(self, host: str) -> bool:
+        return self._tls is not None and (self._tls_hosts is None or host in self._tls_hosts)
+
+    def server(self, host: str) -> str:
+        """"host:port" as the pool reaches it (TLS servers on their port)."""
+        return f"{host}:{self._tls_port if self._uses_tls(host) else self._port}"
 
     def reconfigure(self, port: int, limit: int) -> None:
         """New settings, on the line's thread between transactions: another port closes
@@ -114,7 +145,7 @@ class UpstreamPool:
         else:
             return []
         now, mono = time.time(), time.monotonic()
-        return [{"server": f"{c.host}:{self._port}", "local": c.local,
+        return [{"server": f"{c.host}:{c.port}", "tls": c.tls, "local": c.local,
                  "connected_since": c.connected_at, "requests": c.requests,
                  "units": sorted(c.units), "last_activity": now - (mono - c.last_active)}
                 for c in conns]
@@ -209,8 +240,10 @@ class UpstreamPool:
             oldest.sock.close()
             self._counters.connections_evicted += 1
             log.debug("server %s:%d: connection closed to make room for %s", oldest.host,
-                      self._port, host)
+                      oldest.port, host)
         family = socket.AF_INET6 if ":" in host else socket.AF_INET    # an IPv6 literal
+        tls = self._uses_tls(host)
+        port = self._tls_port if tls else self._port
         sock = socket.socket(family,
                              socket.SOCK_STREAM | socket.SOCK_NONBLOCK | socket.SOCK_CLOEXEC)
         try:
@@ -219,7 +252,7 @@ class UpstreamPool:
             poller = select.poll()
             poller.register(sock, select.POLLOUT)
             poller.register(self._wake_fd, select.POLLIN)
-            code = sock.connect_ex((host, self._port))
+            code = sock.connect_ex((host, port))
             if code == errno.EINPROGRESS:
                 try:
                     self._wait(poller, deadline_ns)
@@ -229,26 +262,50 @@ class UpstreamPool:
                 code = sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
             if code:
                 self._failed(host, os.strerror(code))
-                raise NoRoute(f"{host}:{self._port}: {os.strerror(code)}")
+                raise NoRoute(f"{host}:{port}: {os.strerror(code)}")
+            if tls:
+                assert self._tls is not None
+                sock = self._tls.wrap_socket(sock, do_handshake_on_connect=False)
+                self._handshake(host, sock, poller, deadline_ns)
             poller.modify(sock, select.POLLIN)
         except BaseException:
             sock.close()
             raise
-        conn = Connection(host, sock, poller)
+        conn = Connection(host, port, sock, poller)
         self._open[host] = conn
         self._counters.connections_opened += 1
         if host in self._failing:
             self._failing.discard(host)
-            log.info("server %s:%d reachable again", host, self._port)
+            log.info("server %s:%d reachable again", host, port)
         else:
-            log.debug("server %s:%d connected", host, self._port)
+            log.debug("server %s:%d connected%s", host, port, " (TLS)" if tls else "")
         return conn
+
+    def _handshake(self, host: str, sock: ssl.SSLSocket, poller, deadline_ns: int) -> None:
+        """The TLS handshake, stepped as the socket is ready, within deadline_ns."""
+        while True:
+            try:
+                sock.do_handshake()
+                return
+            except ssl.SSLWantReadError:
+                poller.modify(sock, select.POLLIN)
+            except ssl.SSLWantWriteError:
+                poller.modify(sock, select.POLLOUT)
+            except (ssl.SSLError, OSError) as err:
+                reason = f"TLS handshake failed: {_tls_reason(err)}"
+                self._failed(host, reason)
+                raise HandshakeFailed(f"{self.server(host)}: {reason}") from None
+            try:
+                self._wait(poller, deadline_ns)
+            except GatewayTimeout:
+                self._failed(host, "no TLS handshake within tcpto")
+                raise ConnectTimeout() from None
 
     def _failed(self, host: str, reason: str) -> None:
         """Report a failed connection attempt once, until the server is reachable again."""
         if host not in self._failing:
             self._failing.add(host)
-            log.warning("server %s:%d unreachable: %s", host, self._port, reason)
+            log.warning("server %s unreachable: %s", self.server(host), reason)
 
     def _close(self, conn: Connection) -> None:
         conn.sock.close()
@@ -258,13 +315,13 @@ class UpstreamPool:
     def _lost(self, conn: Connection, reason: str) -> None:
         self._close(conn)
         self._counters.connections_lost += 1
-        log.debug("server %s:%d: connection lost: %s", conn.host, self._port, reason)
+        log.debug("server %s:%d: connection lost: %s", conn.host, conn.port, reason)
 
     def _bad_header(self, conn: Connection, reason: str) -> None:
         """The stream cannot be trusted past a bad header: the next request opens another."""
         self._close(conn)
         self._counters.connections_bad_header += 1
-        log.debug("server %s:%d: connection closed: %s", conn.host, self._port, reason)
+        log.debug("server %s:%d: connection closed: %s", conn.host, conn.port, reason)
 
     def _still_open(self, conn: Connection) -> bool:
         """Read what came while the connection was idle (late replies, dropped) without
@@ -299,10 +356,18 @@ class UpstreamPool:
 
     def _receive(self, conn: Connection) -> bool | None:
         """Append what the socket holds to conn.buf: True.  None when nothing was waiting,
-        False when the connection was closed or broken (it is then dropped)."""
+        False when the connection was closed or broken (it is then dropped).  A TLS
+        connection's records are read whole: poll() does not see what SSL holds decrypted."""
+        got = self._receive_once(conn)
+        while got and conn.tls and conn.sock.pending():   # type: ignore[attr-defined]
+            if (more := self._receive_once(conn)) is not True:
+                return False if more is False else got
+        return got
+
+    def _receive_once(self, conn: Connection) -> bool | None:
         try:
             n = conn.sock.recv_into(self._chunk)
-        except BlockingIOError:
+        except (BlockingIOError, ssl.SSLWantReadError, ssl.SSLWantWriteError):
             return None
         except OSError as err:
             self._lost(conn, err.strerror or str(err))
@@ -339,3 +404,11 @@ def drain(fd: int) -> None:
         os.eventfd_read(fd)
     except BlockingIOError:
         pass
+
+
+def _tls_reason(err: Exception) -> str:
+    """What OpenSSL said, e.g. "certificate verify failed: unable to get local issuer
+    certificate"."""
+    if isinstance(err, ssl.SSLCertVerificationError):
+        return f"the server's certificate: {err.verify_message}"
+    return getattr(err, "reason", None) or str(err)

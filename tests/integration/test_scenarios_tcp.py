@@ -40,6 +40,8 @@ class Scenario:
     server: str
     unit: int = 1
     retries: int = 0
+    tls: bool = False
+    name: str = "stand-in"
 
 
 @dataclass
@@ -428,3 +430,28 @@ def test_stale_data_is_refused_over_tcp_until_the_server_answers_again(slave_wit
     assert read_table(gw.port, TABLE_UNIT, FREE + 2, 1) == [0]     # the register after: served
     server.default = "ok"
     until(lambda: read_table(gw.port, TABLE_UNIT, FREE, 2) == [11, 11], "fresh data again")
+
+
+def test_transparent_mode_runs_tcp_scenarios_beside_its_frames(tmp_path, pty_pair,
+                                                               start_gateway, servers_at):
+    """Issue 16: TCP scenarios run in transparent mode too, into the table its clients read;
+    a serial scenario there is refused, naming it."""
+    port, _ = servers_at(SERVER)
+    path = tmp_path / "mbgw.toml"
+    path.write_text(f'[serial]\nmode = "transparent"\nbaudrate = 19200\n\n[net]\ntcpto = '
+                    f'{FAST_TCPTO_MS}\n\n' + scenario_toml(
+                        "meter", f"{SERVER}:{port}", unit=6, function=3, address=0,
+                        quantity=3, table=FREE, cycle=100))
+    gw = start_gateway(pty_pair.gateway, "--config", str(path), mode="transparent")
+    until(lambda: read_table(gw.port, 1, FREE, 3) == [8, 1, 6], "the data in the table")
+    assert until(lambda: scenario_status(gw, "meter")["successes"], "a success")
+    shown = mbgw("scenarios", "--control", gw.control)
+    assert shown.returncode == 0 and "meter" in shown.stdout
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[serial]\nmode = "transparent"\n\n[[scenario]]\nname = "local"\nslave = 3\n'
+                   'function = 3\naddress = 0\nquantity = 1\ntable = 0\ncycle = 1000\n')
+    checked = mbgw("check-config", str(bad))
+    assert checked.returncode != 0
+    assert "scenario local: slave: transparent mode's line carries raw frames" in \
+        checked.stdout + checked.stderr

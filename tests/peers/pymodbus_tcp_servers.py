@@ -2,7 +2,7 @@
 port (the whole of 127/8 is loopback, so master mode's per-address IPs can be tested for real).
 
 usage: pymodbus_tcp_servers.py PORT HOST... [--silent HOST...] [--slow-ms MS]
-                                                         (all HOSTs are IPv4 literals)
+                                [--tls CERT KEY CA]     (all HOSTs are IPv4 literals)
 Every server has unit ids UNITS (0 is a broadcast, executed on each of them).  The holding
 registers of unit u on host a.b.c.d: 0 -> c, 1 -> d, 2 -> u, 3..9 -> 103..109 (writable);
 reading from 10 on gets exception 02 (illegal data address).
@@ -10,6 +10,9 @@ reading from 10 on gets exception 02 (illegal data address).
 --silent HOST   that server accepts connections but never answers.
 --slow-ms MS    the answer to a read from holding register 9 is sent MS ms late (the whole
                 process stalls meanwhile; requests that came in the meantime are served after).
+--tls CERT KEY CA   Modbus/TCP Security: pymodbus's TLS server (TLS 1.2/1.3), with the
+                certificate CERT and its KEY, the client's certificate required and checked
+                against CA.
 
 Prints READY when every server listens, then "CONNECT HOST" / "DISCONNECT HOST" for each
 connection made and lost.
@@ -18,10 +21,11 @@ import argparse
 import asyncio
 import ipaddress
 import logging
+import ssl
 import time
 
 from pymodbus.datastore import ModbusDeviceContext, ModbusSequentialDataBlock, ModbusServerContext
-from pymodbus.server import ModbusTcpServer
+from pymodbus.server import ModbusTcpServer, ModbusTlsServer
 
 UNITS = (*range(1, 41), 0xFF)
 SIZE = 10
@@ -41,6 +45,7 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("hosts", nargs="+", type=ipaddress.IPv4Address)
     parser.add_argument("--silent", nargs="*", default=[], type=ipaddress.IPv4Address)
     parser.add_argument("--slow-ms", type=int, default=0)
+    parser.add_argument("--tls", nargs=3, metavar=("CERT", "KEY", "CA"))
     return parser.parse_args()
 
 
@@ -65,6 +70,15 @@ def tracers(host: str, silent: bool, slow_s: float):
     return on_connect, on_pdu
 
 
+def tls_context(cert: str, key: str, ca: str) -> ssl.SSLContext:
+    context = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+    context.minimum_version = ssl.TLSVersion.TLSv1_2
+    context.verify_mode = ssl.CERT_REQUIRED
+    context.load_cert_chain(cert, key)
+    context.load_verify_locations(ca)
+    return context
+
+
 async def main() -> None:
     args = parse_args()
     logging.getLogger("pymodbus").setLevel(logging.ERROR)    # no deprecation chatter
@@ -72,9 +86,14 @@ async def main() -> None:
     for host in args.hosts:
         context = ModbusServerContext(devices={u: device(host, u) for u in UNITS})
         on_connect, on_pdu = tracers(str(host), host in args.silent, args.slow_ms / 1000)
-        server = ModbusTcpServer(context, address=(str(host), args.port),
-                                 broadcast_enable=True, trace_connect=on_connect,
-                                 trace_pdu=on_pdu)
+        if args.tls:
+            server = ModbusTlsServer(context, address=(str(host), args.port),
+                                     sslctx=tls_context(*args.tls), broadcast_enable=True,
+                                     trace_connect=on_connect, trace_pdu=on_pdu)
+        else:
+            server = ModbusTcpServer(context, address=(str(host), args.port),
+                                     broadcast_enable=True, trace_connect=on_connect,
+                                     trace_pdu=on_pdu)
         await server.serve_forever(background=True)
         servers.append(server)
     print("READY", flush=True)
