@@ -6,5 +6,6 @@ handle: aiohttp imported only when [web] listen is on), `server`
 config), `auth` (logins, sessions, CSRF tokens, the login rate limit), `passwords` (the
 scrypt hashes `mbgw config password` writes), `config_api` (the configuration file read,
 edited and uploaded with the same checks as `mbgw config set` and check-config), `static/`
-(the pages).  It reads through the same hooks as the control socket (the daemon hands it its
+(the pages: one page app, index.html, console.js, pcap.js, console.css; every value set as
+text).  It reads through the same hooks as the control socket (the daemon hands it its
 control commands and trace hub) and is never on the line thread's path."""
