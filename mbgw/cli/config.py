@@ -430,6 +430,9 @@ def _parse(path: Path, text: str) -> dict:
         raise Failure(str(err)) from None
 
 
+SERVICE_GROUP = "mbgw"       # the service's user and group (debian/mbgw.sysusers)
+
+
 @config.command("password")
 @_file_options
 @click.argument("role", type=click.Choice(["admin", "user"]))
@@ -449,6 +452,26 @@ def password(ctx, config_path: Path, instance: str | None, role: str, from_stdin
         raise Failure(str(err)) from None
     _change(ctx, path, ["password", role, *_file_words(ctx, path)],
             lambda schema, settings, data: {f"{role}-password": stored}, shown=False)
+    _keep_from_others(path)
+
+
+def _keep_from_others(path: Path) -> None:
+    """A file with password hashes is not for every local user: no access for others; its
+    group becomes the service's (mbgw, which reads it) when root sets the password."""
+    import grp
+    import os
+    import stat
+    try:
+        group = grp.getgrnam(SERVICE_GROUP).gr_gid if os.geteuid() == 0 else None
+    except KeyError:
+        group = None
+    try:
+        if group is not None:
+            os.chown(path, -1, group)
+        os.chmod(path, stat.S_IMODE(os.stat(path).st_mode) & ~0o007 | 0o040 * (group is not None))
+    except OSError as err:
+        raise Failure(f"{path}: the hash is written, but the file could not be closed to "
+                      f"other users: {err.strerror}") from None
 
 
 def _read_password(from_stdin: bool) -> str:

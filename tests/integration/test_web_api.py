@@ -372,6 +372,7 @@ def test_config_password_stores_a_salted_hash_that_config_show_never_shows(tmp_p
     hashes = [line.split('"')[1] for line in text.splitlines() if "-password = " in line]
     assert len(hashes) == 2 and hashes[0] != hashes[1]            # salted
     assert all(h.startswith("scrypt$16384$8$1$") for h in hashes) and ADMIN_PASSWORD not in text
+    assert path.stat().st_mode & 0o007 == 0                      # not for other local users
     shown = subprocess.run([sys.executable, "-m", "mbgw", "config", "show", "--config",
                             str(path)], capture_output=True, text=True, cwd=CHECKOUT)
     assert "scrypt" not in shown.stdout and "password" not in shown.stdout
