@@ -75,20 +75,8 @@ def server_context(cfg: TlsConfig) -> ssl.SSLContext:
     check_certificate(cfg.cert)
     check_key(cfg.key)
     check_ca(cfg.ca)
-    context = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
-    context.minimum_version = ssl.TLSVersion.TLSv1_2
-    context.maximum_version = ssl.TLSVersion.TLSv1_3
-    context.verify_mode = ssl.CERT_REQUIRED
-    try:
-        context.load_cert_chain(cfg.cert, cfg.key)
-    except (ssl.SSLError, OSError) as err:
-        raise ConfigError(f"tls-key {cfg.key}: does not go with tls-cert {cfg.cert} "
-                          f"({err})") from None
-    try:
-        context.load_verify_locations(cfg.ca)
-    except (ssl.SSLError, OSError) as err:
-        raise ConfigError(f"tls-ca {cfg.ca}: cannot be used ({err})") from None
-    return context
+    return _context(ssl.PROTOCOL_TLS_SERVER, ("tls-cert", cfg.cert), ("tls-key", cfg.key),
+                    ("tls-ca", cfg.ca))
 
 
 def client_context(cfg: UpstreamTlsConfig) -> ssl.SSLContext:
@@ -100,21 +88,46 @@ def client_context(cfg: UpstreamTlsConfig) -> ssl.SSLContext:
     check_certificate(cfg.client_cert, "tls-client-cert")
     check_key(cfg.client_key, "tls-client-key")
     check_ca(cfg.server_ca, "tls-server-ca")
-    context = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+    return _context(ssl.PROTOCOL_TLS_CLIENT, ("tls-client-cert", cfg.client_cert),
+                    ("tls-client-key", cfg.client_key), ("tls-server-ca", cfg.server_ca))
+
+
+def _context(protocol: int, cert: tuple[str, str], key: tuple[str, str],
+             ca: tuple[str, str]) -> ssl.SSLContext:
+    """TLS 1.2 or 1.3, the peer's certificate required and checked against ca, ours (cert,
+    key) shown; each (option, path).  Raises ConfigError naming the option."""
+    context = ssl.SSLContext(protocol)
     context.minimum_version = ssl.TLSVersion.TLSv1_2
     context.maximum_version = ssl.TLSVersion.TLSv1_3
-    context.check_hostname = False
+    if protocol == ssl.PROTOCOL_TLS_CLIENT:
+        context.check_hostname = False
     context.verify_mode = ssl.CERT_REQUIRED
     try:
-        context.load_cert_chain(cfg.client_cert, cfg.client_key)
+        context.load_cert_chain(cert[1], key[1])
     except (ssl.SSLError, OSError) as err:
-        raise ConfigError(f"tls-client-key {cfg.client_key}: does not go with "
-                          f"tls-client-cert {cfg.client_cert} ({err})") from None
+        raise ConfigError(f"{key[0]} {key[1]}: does not go with {cert[0]} {cert[1]} "
+                          f"({err})") from None
     try:
-        context.load_verify_locations(cfg.server_ca)
+        context.load_verify_locations(ca[1])
     except (ssl.SSLError, OSError) as err:
-        raise ConfigError(f"tls-server-ca {cfg.server_ca}: cannot be used ({err})") from None
+        raise ConfigError(f"{ca[0]} {ca[1]}: cannot be used ({err})") from None
     return context
+
+
+def handshake_step(sock: ssl.SSLSocket) -> tuple[str, str]:
+    """One step of a non-blocking server handshake: ("done", ""), ("read", "") or
+    ("write", "") (wait for the socket, then step again), or ("failed", why)."""
+    try:
+        sock.do_handshake()
+    except ssl.SSLWantReadError:
+        return "read", ""
+    except ssl.SSLWantWriteError:
+        return "write", ""
+    except ssl.SSLError as err:
+        return "failed", f"TLS handshake refused ({err.reason or err})"
+    except OSError as err:
+        return "failed", f"TLS handshake failed ({err.strerror or err})"
+    return "done", ""
 
 
 def role_of(der: bytes | None) -> str | None:

@@ -30,7 +30,7 @@ from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.ops.service import ListenError
-from mbgw.ops.tls import role_of, server_context
+from mbgw.ops.tls import handshake_step, role_of, server_context
 from mbgw.ops.trace import TraceHub
 from mbgw.protocol import mbap, pdu
 from mbgw.slave.acl import AccessList
@@ -243,24 +243,14 @@ class TcpServer:
 
     def _shake(self, handshake: "Handshake") -> None:
         """One step of a client's handshake; the next when its socket is ready for it."""
-        loop = self._loop
-        assert loop is not None
-        try:
-            handshake.sock.do_handshake()
-        except ssl.SSLWantReadError:
-            self._wait_for(handshake, read=True)
-            return
-        except ssl.SSLWantWriteError:
-            self._wait_for(handshake, read=False)
-            return
-        except ssl.SSLError as err:
-            self._handshake_failed(handshake, f"TLS handshake refused ({err.reason or err})")
-            return
-        except OSError as err:
-            self._handshake_failed(handshake, f"TLS handshake failed ({err.strerror or err})")
-            return
-        self._end_handshake(handshake)
-        self._admit_tls(handshake)
+        step, why = handshake_step(handshake.sock)
+        if step in ("read", "write"):
+            self._wait_for(handshake, read=step == "read")
+        elif step == "failed":
+            self._handshake_failed(handshake, why)
+        else:
+            self._end_handshake(handshake)
+            self._admit_tls(handshake)
 
     def _wait_for(self, handshake: "Handshake", read: bool) -> None:
         loop = self._loop
