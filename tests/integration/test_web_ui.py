@@ -15,14 +15,14 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
-
-webdriver = pytest.importorskip("selenium.webdriver")
-from aiohttp import web  # noqa: E402
-from pymodbus.client import ModbusTcpClient  # noqa: E402
-from selenium.webdriver.chrome.service import Service  # noqa: E402
-from selenium.webdriver.common.by import By  # noqa: E402
-from selenium.webdriver.support import expected_conditions as EC  # noqa: E402
-from selenium.webdriver.support.ui import Select, WebDriverWait  # noqa: E402
+from aiohttp import web
+from pymodbus.client import ModbusTcpClient
+from selenium import webdriver
+from selenium.common.exceptions import StaleElementReferenceException
+from selenium.webdriver.chrome.service import Service
+from selenium.webdriver.common.by import By
+from selenium.webdriver.support import expected_conditions as EC
+from selenium.webdriver.support.ui import Select, WebDriverWait
 
 from tests.harness import Gateway, Peer, PtyPair, free_port  # noqa: E402
 from tests.modbus import Client, read_holding  # noqa: E402
@@ -39,8 +39,7 @@ DRIVER = shutil.which("chromedriver")
 
 @pytest.fixture(scope="module")
 def browser():
-    if not (CHROMIUM and DRIVER):
-        pytest.skip("chromium and chromium-driver are not installed (scripts/setup.sh)")
+    assert CHROMIUM and DRIVER, "chromium and chromium-driver: scripts/setup.sh installs them"
     options = webdriver.ChromeOptions()
     options.binary_location = CHROMIUM
     for flag in ("--headless=new", "--disable-gpu", "--disable-dev-shm-usage",
@@ -55,7 +54,10 @@ def browser():
 
 
 def wait(driver, condition, timeout: float = WAIT_S):
-    return WebDriverWait(driver, timeout).until(condition)
+    """condition's value once true; an element the page's refresh replaced while it was read
+    (stale) means: look again."""
+    return WebDriverWait(driver, timeout,
+                         ignored_exceptions=(StaleElementReferenceException,)).until(condition)
 
 
 def text_in(selector: str, text: str):
