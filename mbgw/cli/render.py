@@ -79,6 +79,23 @@ def _exceptions(d: dict) -> str:
     return exceptions or "-"
 
 
+def _demotion(s: dict) -> str:
+    """The rule that puts an address down, for the devices' heading."""
+    rule = s.get("demotion")
+    if not rule:
+        return ""
+    if not rule["down_after"]:
+        return ": never down (down-after 0)"
+    return (f": down after {rule['down_after']} failures in a row, then a probe every "
+            f"{rule['probe_interval_ms']} ms (doubling while it fails)")
+
+
+def _next_probe(d: dict) -> list[str]:
+    """The line under a device that is down: when a request may go to it as a probe."""
+    wait = d.get("next_probe_in_s")
+    return [] if wait is None else [f"        next probe in {wait:.1f} s"]
+
+
 def _health(d: dict, now: float) -> str:
     return (f"  {d['address']:>4}  {d['health']:<8} {_ago(d['health_since'], now):<12} "
             f"{_ago(d['last_success'], now):<14} {d['consecutive_failures']:>5} "
@@ -122,7 +139,7 @@ def _slave_sections(s: dict, now: float) -> list[str]:
             lines.append(f"  {c['id']:>4}  {c['peer']:<24} {_clock(c['connected_since'])}  "
                          f"{c['requests']:>8}  {c['in_flight']:>9}  "
                          f"{_ago(c['last_activity'], now)}{_tls_role(c)}")
-    lines += ["", f"devices ({len(s['devices'])})"]
+    lines += ["", f"devices ({len(s['devices'])}){_demotion(s)}"]
     if s["devices"]:
         lines.append(f"{_HEALTH_COLUMNS} {'CRC':>5} {'OTHER':>5}  EXCEPTIONS")
         for d in s["devices"]:
@@ -130,6 +147,7 @@ def _slave_sections(s: dict, now: float) -> list[str]:
                 d["late_replies"]
             lines.append(f"{_health(d, now)} {d['crc_errors']:>5} {other:>5}  "
                          f"{_exceptions(d)}")
+            lines += _next_probe(d)
     return lines
 
 
@@ -155,7 +173,7 @@ def _master_sections(s: dict, now: float) -> list[str]:
             lines.append(f"  {c['server']:<21} {c['local']:<21} "
                          f"{_clock(c['connected_since'])}  {c['requests']:>8}  {units:<12} "
                          f"{_ago(c['last_activity'], now)}{_tls_role(c)}")
-    lines += ["", f"devices ({len(s['devices'])})"]
+    lines += ["", f"devices ({len(s['devices'])}){_demotion(s)}"]
     if s["devices"]:
         lines.append(f"{_HEALTH_COLUMNS} {'UNREACH':>7} {'INVALID':>7} {'ABANDON':>7}  "
                      f"{'SERVER':<15} {'UNIT':>4}  EXCEPTIONS")
@@ -165,6 +183,7 @@ def _master_sections(s: dict, now: float) -> list[str]:
             invalid = d["wrong_unit"] + d["wrong_function"] + d["invalid_frames"]
             lines.append(f"{_health(d, now)} {d['unreachable']:>7} {invalid:>7} "
                          f"{d['abandoned']:>7}  {host:<15} {unit:>4}  {_exceptions(d)}")
+            lines += _next_probe(d)
     return lines
 
 

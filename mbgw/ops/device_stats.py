@@ -194,7 +194,9 @@ class DeviceStats:
                                 for c, n in sorted(self.gateway_exceptions.items())},
             latency_buckets_ms=dict(zip([*map(str, LATENCY_BUCKETS_MS), "+Inf"],
                                         self.latency_buckets, strict=True)),
-            latency_sum_ms=round(self.latency_sum_ms, 3))
+            latency_sum_ms=round(self.latency_sum_ms, 3),
+            next_probe_in_s=round(max(0.0, self.probe_at - time.monotonic()), 3)
+            if self.health == DOWN else None)
         return data
 
 

@@ -48,7 +48,11 @@ class DaemonStatus:
     def _common(self) -> dict:
         """What every mode's status starts with."""
         s = self.cfg.serial
+        demotion = getattr(self.cfg, "demotion", None)
         return {"mode": self.mode, "version": __version__, "pid": os.getpid(),
+                **({"demotion": {"down_after": demotion.down_after,
+                                 "probe_interval_ms": demotion.probe_interval_ms}}
+                   if demotion is not None else {}),
                 "started": self._started,
                 "uptime_s": round(time.monotonic() - self._started_mono, 3),
                 "serial": {"device": s.device, "protocol": s.protocol, "baudrate": s.baudrate,

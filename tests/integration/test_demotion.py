@@ -129,7 +129,14 @@ def test_a_silent_address_is_refused_at_once_probed_at_the_interval_and_back_on_
     for _ in range(DOWN_AFTER):
         assert asker.ask(MUTED) == refusal
     assert len(on_line(record, MUTED)) == DOWN_AFTER
-    assert devices(status(gw))[MUTED]["health"] == "down"
+    s = status(gw)
+    assert devices(s)[MUTED]["health"] == "down"
+    # the operator sees the rule and when the next probe may go
+    assert s["demotion"] == {"down_after": DOWN_AFTER, "probe_interval_ms": INTERVAL_MS}
+    assert 0 <= devices(s)[MUTED]["next_probe_in_s"] <= INTERVAL_S
+    shown = mbgw("status", "--control", gw.control).stdout
+    assert f"down after {DOWN_AFTER} failures in a row, then a probe every {INTERVAL_MS} ms" \
+        in shown and "        next probe in " in shown
 
     # down: refused at once, and nothing goes on the line (this request finds the line idle
     # since long: with the shortcut on, C reads it, and must hand it back) -- unless the
