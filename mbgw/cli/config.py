@@ -299,11 +299,9 @@ def _show_scenarios(settings: cf.Settings, name: str | None) -> None:
             click.echo(line)
 
 
-def _change(ctx, path: Path, words, change, shown: bool = True) -> None:
-    """Read the file (or start from the factory file), make `change(schema, settings, data)`
-    -> {key: value}, check the whole result, write it atomically, say what changed (its
-    value too when `shown`)."""
-    schema = _schema(ctx)
+def _read_checked(ctx, schema: ck.Schema, path: Path, words) -> tuple[str, dict, cf.Settings]:
+    """The file's text, its data and its checked settings (the factory file's when there is
+    none yet); a file that does not pass its check stops the edit."""
     try:
         text = cf.read_text(path)
     except FileNotFoundError:
@@ -312,11 +310,22 @@ def _change(ctx, path: Path, words, change, shown: bool = True) -> None:
         raise _permission_failure(ctx, path, "read", words) from None
     try:
         data = cf.parse(path, text)
-        settings = cf.check(schema, path, data)
+        return text, data, cf.check(schema, path, data)
     except ConfigFileError as err:
+        group = ctx.parent
+        while group.parent is not None and group.command is not config:
+            group = group.parent
         raise Failure(f"{err}\nmbgw: fix the file first (or start again: "
-                      f"{_command_line(ctx.parent, 'default', *_file_words(ctx, path))})") \
+                      f"{_command_line(group, 'default', *_file_words(ctx, path))})") \
             from None
+
+
+def _change(ctx, path: Path, words, change, shown: bool = True) -> None:
+    """Read the file (or start from the factory file), make `change(schema, settings, data)`
+    -> {key: value}, check the whole result, write it atomically, say what changed (its
+    value too when `shown`)."""
+    schema = _schema(ctx)
+    text, data, settings = _read_checked(ctx, schema, path, words)
     try:
         changes = change(schema, settings, data)
         new_data = config_set.apply_changes(data, schema, changes)
@@ -563,17 +572,7 @@ def _edit_scenarios(ctx, path: Path, words, change, done: str) -> None:
     """Read and check the file (or start from the factory file), new_text = change(text,
     data), check the result as a whole, write it atomically."""
     schema = _schema(ctx)
-    try:
-        text = cf.read_text(path)
-    except FileNotFoundError:
-        text = config_text.factory_text(schema)
-    except PermissionError:
-        raise _permission_failure(ctx, path, "read", words) from None
-    try:
-        data = cf.parse(path, text)
-        cf.check(schema, path, data)
-    except ConfigFileError as err:
-        raise Failure(f"{err}\nmbgw: fix the file first") from None
+    text, data, _ = _read_checked(ctx, schema, path, words)
     try:
         new_text = change(text, data)
         cf.check(schema, path, cf.parse(path, new_text))
