@@ -1,63 +1,18 @@
-/* The exchange table: 65,536 registers that Modbus clients, a serial master and the
- * operator read and write, and the Modbus server that answers a request PDU from it.
- * Modbus Application Protocol V1.1b3, sections 6 (functions) and 7 (exceptions).  Each
- * request runs whole under the table's mutex, so no reader ever sees half of a write; the
- * counters are plain arrays in the table, so answering allocates nothing. */
+/* The exchange table's memory: 65,536 registers that Modbus clients, a serial master and the
+ * operator read and write, under one mutex (csrc/table_answer.c answers a Modbus request
+ * whole under it, so no reader ever sees half of a write); the operator's and persistence's
+ * access, FC 7's flags, stale ranges, the watches of changed values and the counters, plain
+ * arrays in the table, so answering allocates nothing. */
 #include <errno.h>
 #include <pthread.h>
-#include <unistd.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "internal.h"
 #include "mbgw.h"
-
-#define REGISTERS 65536
-#define OUTPUTS_FIRST 0x0800   /* outputs, then the free zone: what persistence keeps */
-#define CONFIG_FIRST 0x8000    /* the configuration zone: read-only to Modbus and the operator */
-#define FUNCTIONS_KNOWN (1u << 1 | 1u << 2 | 1u << 3 | 1u << 4 | 1u << 5 | 1u << 6 | \
-                         1u << 7 | 1u << 15 | 1u << 16 | 1u << 23)
-
-/* The Modbus limits of a quantity (section 6). */
-#define READ_BITS_MAX 2000
-#define WRITE_BITS_MAX 1968
-#define READ_REGS_MAX 125
-#define WRITE_REGS_MAX 123
-#define RW_WRITE_REGS_MAX 121
-
-#define ILLEGAL_FUNCTION 0x01
-#define ILLEGAL_ADDRESS 0x02
-#define ILLEGAL_VALUE 0x03
-#define TARGET_FAILED 0x0B    /* a stale register: its scenario's device does not answer */
-
-#define COIL_ON 0xFF00
-
-#define OUTCOMES 3 /* MBGW_TABLE_ANSWERED, _EXCEPTION, _BROADCAST */
-
-/* A range whose changes someone waits for: scenarios sent on change, transparent mode's tx
- * area.  The flag is set, and the eventfd written once, by the first change after a take. */
-struct watch {
-    unsigned first, end;        /* end == 0: the slot is free */
-    int fd;
-    int changed;
-};
-
-struct mbgw_table {
-    uint16_t reg[REGISTERS];
-    uint8_t watched[REGISTERS / 8];   /* registers inside some watch: the only ones looked up */
-    uint8_t stale[REGISTERS / 8];     /* registers whose scenario's data is too old to serve */
-    unsigned stale_count;             /* 0: no read looks at the bitmap */
-    struct watch watches[MBGW_TABLE_WATCHES];
-    pthread_mutex_t lock;
-    uint32_t functions;
-    int line_down;
-    int scenario_error;
-    const volatile uint8_t *down;   /* 256 flags owned by the caller, or NULL */
-    uint64_t generation;
-    uint64_t by_function[256][OUTCOMES];
-    uint64_t by_exception[16];
-};
+#include "table.h"
 
 mbgw_table *mbgw_table_new(void)
 {
@@ -84,12 +39,12 @@ void mbgw_table_set_functions(mbgw_table *t, uint32_t mask)
     pthread_mutex_unlock(&t->lock);
 }
 
-static unsigned be16(const uint8_t *p)
+unsigned be16(const uint8_t *p)
 {
     return (unsigned)p[0] << 8 | p[1];
 }
 
-static void put16(uint8_t *p, unsigned v)
+void put16(uint8_t *p, unsigned v)
 {
     p[0] = (uint8_t)(v >> 8);
     p[1] = (uint8_t)v;
@@ -127,7 +82,7 @@ static void set_register(mbgw_table *t, unsigned address, uint16_t value, int *c
     }
 }
 
-static void store_registers(mbgw_table *t, unsigned address, unsigned count,
+void store_registers(mbgw_table *t, unsigned address, unsigned count,
                             const uint8_t *be)
 {
     int changed = 0;
@@ -136,26 +91,26 @@ static void store_registers(mbgw_table *t, unsigned address, unsigned count,
     t->generation += (uint64_t)changed;
 }
 
-static void load_registers(const mbgw_table *t, unsigned address, unsigned count, uint8_t *be)
+void load_registers(const mbgw_table *t, unsigned address, unsigned count, uint8_t *be)
 {
     for (unsigned i = 0; i < count; i++)
         put16(be + 2 * i, t->reg[address + i]);
 }
 
 /* Bit B is bit B % 16 (0 = least significant) of register B / 16. */
-static int get_bit(const mbgw_table *t, unsigned bit)
+int get_bit(const mbgw_table *t, unsigned bit)
 {
     return t->reg[bit >> 4] >> (bit & 15) & 1;
 }
 
-static void set_bit(mbgw_table *t, unsigned bit, int on, int *changed)
+void set_bit(mbgw_table *t, unsigned bit, int on, int *changed)
 {
     uint16_t mask = (uint16_t)(1u << (bit & 15));
     uint16_t old = t->reg[bit >> 4];
     set_register(t, bit >> 4, on ? (uint16_t)(old | mask) : (uint16_t)(old & ~mask), changed);
 }
 
-static int status_byte(const mbgw_table *t)
+int status_byte(const mbgw_table *t)
 {
     int status = (t->line_down ? 1 : 0) | (t->scenario_error ? 2 : 0);
     if (t->down)
@@ -171,7 +126,7 @@ static int is_stale(const mbgw_table *t, unsigned address)
 }
 
 /* Registers [first, end) hold a stale value (a read touching one answers 0x0B). */
-static int any_stale(const mbgw_table *t, unsigned first, unsigned end)
+int any_stale(const mbgw_table *t, unsigned first, unsigned end)
 {
     if (t->stale_count == 0)
         return 0;
@@ -179,222 +134,6 @@ static int any_stale(const mbgw_table *t, unsigned first, unsigned end)
         if (is_stale(t, a))
             return 1;
     return 0;
-}
-
-/* --- the functions: each checks the request, then answers it into rsp; a positive result
- * is the reply's length, a negative one an exception code --- */
-
-static int beyond(unsigned address, unsigned quantity)
-{
-    return address + quantity > REGISTERS;
-}
-
-static int touches_config(unsigned address, unsigned quantity)
-{
-    return address + quantity > CONFIG_FIRST;
-}
-
-static int read_bits(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp)
-{
-    if (len != 5)
-        return -ILLEGAL_VALUE;
-    unsigned address = be16(req + 1), quantity = be16(req + 3);
-    if (quantity < 1 || quantity > READ_BITS_MAX)
-        return -ILLEGAL_VALUE;
-    if (beyond(address, quantity))
-        return -ILLEGAL_ADDRESS;
-    if (any_stale(t, address >> 4, ((address + quantity - 1) >> 4) + 1))
-        return -TARGET_FAILED;
-    unsigned bytes = (quantity + 7) / 8;
-    rsp[1] = (uint8_t)bytes;
-    memset(rsp + 2, 0, bytes);
-    for (unsigned i = 0; i < quantity; i++)
-        rsp[2 + i / 8] |= (uint8_t)(get_bit(t, address + i) << (i % 8));
-    return 2 + (int)bytes;
-}
-
-static int read_registers(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp)
-{
-    if (len != 5)
-        return -ILLEGAL_VALUE;
-    unsigned address = be16(req + 1), quantity = be16(req + 3);
-    if (quantity < 1 || quantity > READ_REGS_MAX)
-        return -ILLEGAL_VALUE;
-    if (beyond(address, quantity))
-        return -ILLEGAL_ADDRESS;
-    if (any_stale(t, address, address + quantity))
-        return -TARGET_FAILED;
-    rsp[1] = (uint8_t)(2 * quantity);
-    load_registers(t, address, quantity, rsp + 2);
-    return 2 + 2 * (int)quantity;
-}
-
-static int echo(const uint8_t *req, uint8_t *rsp)
-{
-    memcpy(rsp + 1, req + 1, 4);
-    return 5;
-}
-
-static int write_bit(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp)
-{
-    if (len != 5)
-        return -ILLEGAL_VALUE;
-    unsigned value = be16(req + 3);
-    if (value != 0 && value != COIL_ON)
-        return -ILLEGAL_VALUE;
-    int changed = 0;
-    set_bit(t, be16(req + 1), value == COIL_ON, &changed);
-    t->generation += (uint64_t)changed;
-    return echo(req, rsp);
-}
-
-static int write_register(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp)
-{
-    if (len != 5)
-        return -ILLEGAL_VALUE;
-    unsigned address = be16(req + 1);
-    if (touches_config(address, 1))
-        return -ILLEGAL_ADDRESS;
-    store_registers(t, address, 1, req + 3);
-    return echo(req, rsp);
-}
-
-static int write_bits(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp)
-{
-    if (len < 6)
-        return -ILLEGAL_VALUE;
-    unsigned address = be16(req + 1), quantity = be16(req + 3), bytes = req[5];
-    if (quantity < 1 || quantity > WRITE_BITS_MAX || bytes != (quantity + 7) / 8 ||
-        (unsigned)len != 6 + bytes)
-        return -ILLEGAL_VALUE;
-    if (beyond(address, quantity))
-        return -ILLEGAL_ADDRESS;
-    int changed = 0;
-    for (unsigned i = 0; i < quantity; i++)
-        set_bit(t, address + i, req[6 + i / 8] >> (i % 8) & 1, &changed);
-    t->generation += (uint64_t)changed;
-    return echo(req, rsp);
-}
-
-static int write_registers(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp)
-{
-    if (len < 6)
-        return -ILLEGAL_VALUE;
-    unsigned address = be16(req + 1), quantity = be16(req + 3), bytes = req[5];
-    if (quantity < 1 || quantity > WRITE_REGS_MAX || bytes != 2 * quantity ||
-        (unsigned)len != 6 + bytes)
-        return -ILLEGAL_VALUE;
-    if (beyond(address, quantity) || touches_config(address, quantity))
-        return -ILLEGAL_ADDRESS;
-    store_registers(t, address, quantity, req + 6);
-    return echo(req, rsp);
-}
-
-/* FC 23: the write first, then the read (section 6.17), under the one lock. */
-static int read_write_registers(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp)
-{
-    if (len < 10)
-        return -ILLEGAL_VALUE;
-    unsigned read_address = be16(req + 1), read_quantity = be16(req + 3);
-    unsigned write_address = be16(req + 5), write_quantity = be16(req + 7), bytes = req[9];
-    if (read_quantity < 1 || read_quantity > READ_REGS_MAX || write_quantity < 1 ||
-        write_quantity > RW_WRITE_REGS_MAX || bytes != 2 * write_quantity ||
-        (unsigned)len != 10 + bytes)
-        return -ILLEGAL_VALUE;
-    if (beyond(read_address, read_quantity) || beyond(write_address, write_quantity) ||
-        touches_config(write_address, write_quantity))
-        return -ILLEGAL_ADDRESS;
-    if (any_stale(t, read_address, read_address + read_quantity))
-        return -TARGET_FAILED;
-    store_registers(t, write_address, write_quantity, req + 10);
-    rsp[1] = (uint8_t)(2 * read_quantity);
-    load_registers(t, read_address, read_quantity, rsp + 2);
-    return 2 + 2 * (int)read_quantity;
-}
-
-static int exception_status(mbgw_table *t, int len, uint8_t *rsp)
-{
-    if (len != 1)
-        return -ILLEGAL_VALUE;
-    rsp[1] = (uint8_t)status_byte(t);
-    return 2;
-}
-
-static int serve(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp)
-{
-    uint8_t fc = req[0];
-    if (fc >= 32 || !(t->functions >> fc & 1))
-        return -ILLEGAL_FUNCTION;
-    rsp[0] = fc;
-    switch (fc) {
-    case 0x01:
-    case 0x02:
-        return read_bits(t, req, len, rsp);
-    case 0x03:
-    case 0x04:
-        return read_registers(t, req, len, rsp);
-    case 0x05:
-        return write_bit(t, req, len, rsp);
-    case 0x06:
-        return write_register(t, req, len, rsp);
-    case 0x07:
-        return exception_status(t, len, rsp);
-    case 0x0F:
-        return write_bits(t, req, len, rsp);
-    case 0x10:
-        return write_registers(t, req, len, rsp);
-    default: /* 0x17, the last one FUNCTIONS_KNOWN holds */
-        return read_write_registers(t, req, len, rsp);
-    }
-}
-
-static int writes(uint8_t fc)
-{
-    return fc == 0x05 || fc == 0x06 || fc == 0x0F || fc == 0x10 || fc == 0x17;
-}
-
-int mbgw_table_answer(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp, int broadcast)
-{
-    if (len < 1)
-        return 0;
-    uint8_t fc = req[0];
-    /* A broadcast's reply is built in a scratch buffer and dropped: reads are ignored. */
-    uint8_t scratch[MBGW_PDU_MAX];
-    pthread_mutex_lock(&t->lock);
-    if (broadcast) {
-        if (writes(fc))
-            serve(t, req, len, scratch);
-        t->by_function[fc][MBGW_TABLE_BROADCAST]++;
-        pthread_mutex_unlock(&t->lock);
-        return 0;
-    }
-    int n = serve(t, req, len, rsp);
-    if (n < 0) {
-        rsp[0] = (uint8_t)(fc | 0x80);
-        rsp[1] = (uint8_t)-n;
-        n = 2;
-        t->by_function[fc][MBGW_TABLE_EXCEPTION]++;
-        t->by_exception[rsp[1]]++;
-    } else {
-        t->by_function[fc][MBGW_TABLE_ANSWERED]++;
-    }
-    pthread_mutex_unlock(&t->lock);
-    return n;
-}
-
-int mbgw_table_answer_mbap(mbgw_table *t, const uint8_t *adu, int len, uint8_t *rsp,
-                           int broadcast)
-{
-    if (len < MBAP_LEN + 1 || be16(adu + 2) != 0 || (int)be16(adu + 4) != len - MBAP_HEAD_LEN)
-        return -EBADMSG;
-    int n = mbgw_table_answer(t, adu + MBAP_LEN, len - MBAP_LEN, rsp + MBAP_LEN, broadcast);
-    if (n == 0)
-        return 0;
-    memcpy(rsp, adu, 2);  /* the transaction id */
-    put16(rsp + 2, 0);
-    put16(rsp + 4, (unsigned)n + 1);
-    rsp[6] = adu[6];      /* the unit id */
-    return MBAP_LEN + n;
 }
 
 /* --- the operator's and persistence's access --- */
