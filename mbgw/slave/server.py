@@ -30,12 +30,13 @@ from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.ops.service import ListenError
-from mbgw.ops.tls import handshake_step, role_of, server_context
+from mbgw.ops.tls import role_of, server_context
 from mbgw.ops.trace import TraceHub
 from mbgw.protocol import mbap, pdu
 from mbgw.slave.acl import AccessList
 from mbgw.slave.client import PEER_GONE, Client, TlsClient
 from mbgw.slave.connections import Connections
+from mbgw.slave.handshakes import MAX_HANDSHAKES, Handshakes
 from mbgw.slave.scheduler import (
     OUTCOME_DEVICE_DOWN,
     OUTCOME_LINE_DOWN,
@@ -52,8 +53,6 @@ OUTCOME_FIREWALL = "firewall"    # refused by the firewall (0x01)
 LISTEN_BACKLOG = 100
 # TLS handshakes under way at once, and how long one may take: a flood of connections that
 # never finish (or garbage) costs the asyncio thread one wake-up each and no more.
-MAX_HANDSHAKES = 64
-HANDSHAKE_TIMEOUT_S = 10.0
 
 
 class TcpServer:
@@ -74,7 +73,7 @@ class TcpServer:
         self._listeners: list[socket.socket] = []
         self._tls_listeners: list[socket.socket] = []
         self._tls = server_context(cfg.tls) if cfg.tls.enabled else None   # ConfigError
-        self._handshakes: dict[int, Handshake] = {}     # by fd
+        self._handshakes: Handshakes | None = None     # once the loop runs
         self._loop: asyncio.AbstractEventLoop | None = None
         self.trace = TraceHub()
         self.connections = Connections(scheduler.wake_fd, self.request, self._closed, counters)
@@ -90,6 +89,7 @@ class TcpServer:
     async def start(self) -> list[str]:
         """Listen; returns the listening addresses.  Raises OSError."""
         self._loop = asyncio.get_running_loop()
+        self._handshakes = Handshakes(self._loop, self._admit_tls, self._tls_refused)
         self._listen_plain()
         try:
             self._listen_tls()
@@ -186,9 +186,8 @@ class TcpServer:
     def close(self) -> None:
         self._stop_listening()
         self._stop_listening(tls=True)
-        for handshake in list(self._handshakes.values()):
-            self._end_handshake(handshake)
-            handshake.sock.close()
+        if self._handshakes is not None:
+            self._handshakes.close()
         for client in list(self.clients):
             self._drop(client)
 
@@ -203,14 +202,19 @@ class TcpServer:
         sock.setblocking(False)
         client = Client(sock, address[0], format_address(address),
                         format_address(sock.getsockname()))
+        self._welcome(client)
+
+    def _welcome(self, client: Client) -> None:
+        """An accepted client admitted (within the limits) and handed to the line thread, or
+        closed."""
         if not self.admit(client, client.host):
-            sock.close()
+            client.sock.close()
             return
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
+        client.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        client.sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
         self.connections.adopt(client)
 
-    # --- Modbus/TCP Security: the handshake, non-blocking, in the asyncio thread ---
+    # --- Modbus/TCP Security: accepted here, the handshake in mbgw.slave.handshakes ---
 
     def _accept_tls(self, listener: socket.socket) -> None:
         try:
@@ -226,61 +230,21 @@ class TcpServer:
             self._log_refusal(host, "not in authip")
             sock.close()
             return
-        if len(self._handshakes) >= MAX_HANDSHAKES or self._tls is None:
+        handshakes = self._handshakes
+        assert handshakes is not None
+        if handshakes.full or self._tls is None:
             self.counters.connections_refused_tls += 1
             self._log_refusal(host, f"{MAX_HANDSHAKES} TLS handshakes under way already")
             sock.close()
             return
         sock.setblocking(False)
-        tls = self._tls.wrap_socket(sock, server_side=True, do_handshake_on_connect=False)
-        assert self._loop is not None
-        handshake = Handshake(tls, address)
-        handshake.timer = self._loop.call_later(HANDSHAKE_TIMEOUT_S, self._handshake_failed,
-                                                handshake, "no handshake within "
-                                                f"{HANDSHAKE_TIMEOUT_S:g} s")
-        self._handshakes[handshake.fd] = handshake
-        self._shake(handshake)
+        handshakes.start(self._tls, sock, address)
 
-    def _shake(self, handshake: "Handshake") -> None:
-        """One step of a client's handshake; the next when its socket is ready for it."""
-        step, why = handshake_step(handshake.sock)
-        if step in ("read", "write"):
-            self._wait_for(handshake, read=step == "read")
-        elif step == "failed":
-            self._handshake_failed(handshake, why)
-        else:
-            self._end_handshake(handshake)
-            self._admit_tls(handshake)
-
-    def _wait_for(self, handshake: "Handshake", read: bool) -> None:
-        loop = self._loop
-        assert loop is not None
-        if handshake.waiting_read is not read:
-            if handshake.waiting_read is not None:
-                (loop.remove_reader if handshake.waiting_read else loop.remove_writer)(
-                    handshake.fd)
-            (loop.add_reader if read else loop.add_writer)(handshake.fd, self._shake,
-                                                           handshake)
-            handshake.waiting_read = read
-
-    def _end_handshake(self, handshake: "Handshake") -> None:
-        loop = self._loop
-        self._handshakes.pop(handshake.fd, None)
-        if handshake.timer is not None:
-            handshake.timer.cancel()
-        if loop is not None and handshake.waiting_read is not None:
-            (loop.remove_reader if handshake.waiting_read else loop.remove_writer)(
-                handshake.fd)
-            handshake.waiting_read = None
-
-    def _handshake_failed(self, handshake: "Handshake", reason: str) -> None:
-        self._end_handshake(handshake)
-        handshake.sock.close()
+    def _tls_refused(self, host: str, reason: str) -> None:
         self.counters.connections_refused_tls += 1
-        self._log_refusal(handshake.address[0], reason)
+        self._log_refusal(host, reason)
 
-    def _admit_tls(self, handshake: "Handshake") -> None:
-        sock, address = handshake.sock, handshake.address
+    def _admit_tls(self, sock: ssl.SSLSocket, address) -> None:
         try:
             role = role_of(sock.getpeercert(binary_form=True))
             client = TlsClient(sock, address[0], format_address(address),
@@ -288,13 +252,8 @@ class TcpServer:
         except OSError:                 # the peer has gone meanwhile
             sock.close()
             return
-        if not self.admit(client, client.host):
-            sock.close()
-            return
         log.debug("client %s: TLS %s, role %s", client.peer, sock.version(), role)
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
-        self.connections.adopt(client)
+        self._welcome(client)
 
     def admit(self, client: Client, host: str) -> bool:
         if not self._acl.allows(host):
@@ -549,18 +508,6 @@ class TcpServer:
                 "function": data[0], "length": len(data) if direction != "no reply" else 0,
                 "pdu": data.hex() if direction != "no reply" else "", "outcome": outcome,
                 "latency_ms": latency_ms}
-
-
-class Handshake:
-    """A TLS connection whose handshake is under way (asyncio thread)."""
-    __slots__ = ("sock", "fd", "address", "timer", "waiting_read")
-
-    def __init__(self, sock: ssl.SSLSocket, address) -> None:
-        self.sock = sock
-        self.fd = sock.fileno()
-        self.address = address
-        self.timer: asyncio.TimerHandle | None = None
-        self.waiting_read: bool | None = None    # which readiness it waits for, if any
 
 
 def table_units(cfg: SlaveConfig) -> bytes:

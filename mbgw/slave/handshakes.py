@@ -1,0 +1,87 @@
+"""Slave mode's TLS handshakes (Modbus/TCP Security), non-blocking on the asyncio loop: each
+accepted TLS connection steps through its handshake as its socket gets ready, at most
+MAX_HANDSHAKES at once and each within HANDSHAKE_TIMEOUT_S, so a flood or garbage on the
+TLS port costs one wake-up a step and never the line thread or a plain client."""
+import asyncio
+import ssl
+
+from mbgw.ops.tls import handshake_step
+
+MAX_HANDSHAKES = 64
+HANDSHAKE_TIMEOUT_S = 10.0
+
+
+class Handshake:
+    """A TLS connection whose handshake is under way."""
+    __slots__ = ("sock", "fd", "address", "timer", "waiting_read")
+
+    def __init__(self, sock: ssl.SSLSocket, address) -> None:
+        self.sock = sock
+        self.fd = sock.fileno()
+        self.address = address
+        self.timer: asyncio.TimerHandle | None = None
+        self.waiting_read: bool | None = None    # which readiness it waits for, if any
+
+
+class Handshakes:
+    def __init__(self, loop: asyncio.AbstractEventLoop, on_done, on_failed) -> None:
+        """on_done(sock, address): the handshake is over; on_failed(host, reason): refused
+        (the socket is closed)."""
+        self._loop = loop
+        self._on_done = on_done
+        self._on_failed = on_failed
+        self._under_way: dict[int, Handshake] = {}     # by fd
+
+    @property
+    def full(self) -> bool:
+        return len(self._under_way) >= MAX_HANDSHAKES
+
+    def start(self, context: ssl.SSLContext, sock, address) -> None:
+        """Shake hands with an accepted, non-blocking socket."""
+        tls = context.wrap_socket(sock, server_side=True, do_handshake_on_connect=False)
+        handshake = Handshake(tls, address)
+        handshake.timer = self._loop.call_later(
+            HANDSHAKE_TIMEOUT_S, self._failed, handshake,
+            f"no handshake within {HANDSHAKE_TIMEOUT_S:g} s")
+        self._under_way[handshake.fd] = handshake
+        self._step(handshake)
+
+    def close(self) -> None:
+        for handshake in list(self._under_way.values()):
+            self._end(handshake)
+            handshake.sock.close()
+
+    def _step(self, handshake: Handshake) -> None:
+        """One step of a client's handshake; the next when its socket is ready for it."""
+        step, why = handshake_step(handshake.sock)
+        if step in ("read", "write"):
+            self._wait_for(handshake, read=step == "read")
+        elif step == "failed":
+            self._failed(handshake, why)
+        else:
+            self._end(handshake)
+            self._on_done(handshake.sock, handshake.address)
+
+    def _wait_for(self, handshake: Handshake, read: bool) -> None:
+        loop = self._loop
+        if handshake.waiting_read is not read:
+            if handshake.waiting_read is not None:
+                (loop.remove_reader if handshake.waiting_read else loop.remove_writer)(
+                    handshake.fd)
+            (loop.add_reader if read else loop.add_writer)(handshake.fd, self._step,
+                                                           handshake)
+            handshake.waiting_read = read
+
+    def _end(self, handshake: Handshake) -> None:
+        self._under_way.pop(handshake.fd, None)
+        if handshake.timer is not None:
+            handshake.timer.cancel()
+        if handshake.waiting_read is not None:
+            (self._loop.remove_reader if handshake.waiting_read else self._loop.remove_writer)(
+                handshake.fd)
+            handshake.waiting_read = None
+
+    def _failed(self, handshake: Handshake, reason: str) -> None:
+        self._end(handshake)
+        handshake.sock.close()
+        self._on_failed(handshake.address[0], reason)
