@@ -39,7 +39,7 @@ def parser(parse):
 
 def _parse_metrics(value):
     if value is not None:
-        from mbgw.ops.metrics import parse_address
+        from mbgw.ops.metrics_server import parse_address
         parse_address(value)
     return value
 

@@ -14,7 +14,8 @@ from prometheus_client.core import CounterMetricFamily
 from mbgw.errors import ConfigError
 from mbgw.ops.counters import MASTER_NAMES, NAMES, Counters, MasterCounters
 from mbgw.ops.device_stats import MASTER_COUNTS, DeviceTable
-from mbgw.ops.metrics import MetricsServer, master_collector, parse_address, slave_collector
+from mbgw.ops.metrics import master_collector, slave_collector
+from mbgw.ops.metrics_server import MetricsServer, parse_address
 
 
 @pytest.mark.parametrize("text, expected", [
