@@ -178,13 +178,30 @@ def _say_how_to_apply(path: Path) -> None:
         click.echo(f"apply it with: systemctl reload mbgw@{path.stem}")
 
 
-def _write(ctx, path: Path, text: str, words) -> None:
+def _write(ctx, path: Path, text: str, words, what: str) -> None:
+    """Write the file; what: the change, for the journal's audit event."""
     try:
         write_atomic(path, text)
     except PermissionError:
         raise _permission_failure(ctx, path, "write", words) from None
     except OSError as err:
         raise Failure(f"cannot write {path}: {err.strerror or err}") from None
+    _audit(ctx, path, what)
+
+
+def _audit(ctx, path: Path, what: str) -> None:
+    """A change of the file as an audit event in the journal (journald adds the sender's
+    _UID, _PID and _COMM itself); nothing on a machine without one."""
+    import os
+
+    from mbgw.audit import Kind
+    from mbgw.ops.log import journal_event
+    user = f"uid {os.getuid()}"
+    if os.environ.get("SUDO_UID"):
+        user += f" (sudo from uid {os.environ['SUDO_UID']})"
+    journal_event("mbgw.config", Kind.CONFIG_CHANGED,
+                  f"configuration changed by {ctx.command_path} ({user}): {path}: {what}",
+                  source="cli", user=user, keys=what, file=str(path))
 
 
 # --- mbgw run, mbgw check-config ----------------------------------------------------------------
@@ -338,9 +355,11 @@ def _change(ctx, path: Path, words, change, shown: bool = True) -> None:
     new_text = config_text.edit(text, schema, new_mode, changes)
     if tomllib.loads(new_text) != new_data:          # the editor's own check
         raise Failure(f"{path}: could not edit the file in place; nothing written")
-    _write(ctx, path, new_text, words)
+    labels = {name: schema.label(name) if name == ck.MODE_KEY or name in schema.keys else name
+              for name in changes}
+    _write(ctx, path, new_text, words, ", ".join(labels.values()))
     for name, value in changes.items():
-        label = schema.label(name) if name == ck.MODE_KEY or name in schema.keys else name
+        label = labels[name]
         if value is config_set.REMOVE:
             click.echo(f"{path}: {label} back to its default")
         elif not shown:
@@ -424,6 +443,7 @@ def _unset(ctx, path: Path, words, group: str, param: str) -> None:
         write_atomic(path, new_text)
     except PermissionError:
         raise _permission_failure(ctx, path, "write", words) from None
+    _audit(ctx, path, f"{group}.{param}")
     click.echo(f"{path}: {group}.{param} back to its default")
     try:
         cf.check(schema, path, new_data)
@@ -501,7 +521,8 @@ def default(ctx, config_path: Path, instance: str | None) -> None:
     """Write the factory defaults: the guide's `set default`.  Every key is listed with its
     help, commented out at its built-in default; the device is /dev/ttyUSB0."""
     path = _path(ctx, config_path, instance)
-    _write(ctx, path, config_text.factory_text(_schema(ctx)), _file_words(ctx, path))
+    _write(ctx, path, config_text.factory_text(_schema(ctx)), _file_words(ctx, path),
+           "factory defaults")
     click.echo(f"{path}: factory defaults written")
     _say_how_to_apply(path)
 
@@ -580,6 +601,6 @@ def _edit_scenarios(ctx, path: Path, words, change, done: str) -> None:
         message = str(err)
         raise Failure(message if message.startswith(str(path)) else f"{path}: {message}") \
             from None
-    _write(ctx, path, new_text, words)
+    _write(ctx, path, new_text, words, done)
     click.echo(f"{path}: {done}")
     _say_how_to_apply(path)

@@ -22,6 +22,7 @@ import socket
 import ssl
 import time
 
+from mbgw.audit import Kind, event
 from mbgw.config.model import ACTIVE_WINDOW_S, SlaveConfig
 from mbgw.errors import ConfigError
 from mbgw.firewall.guard import Firewall
@@ -137,7 +138,8 @@ class TcpServer:
             self.table.set_functions(cfg.table.functions)
         for client in list(self.clients):
             if not self._acl.allows(client.host):
-                log.info("client %s closed: no longer allowed by authip", client.peer)
+                event(log, Kind.CLIENT_CLOSED, "client %s closed: no longer allowed by authip",
+                      client.peer, client=client.peer, reason="not in authip")
                 self._drop(client)
         if cfg.tls != old.tls or cfg.bind != old.bind:
             self._retls(old)
@@ -234,7 +236,8 @@ class TcpServer:
         assert handshakes is not None
         if handshakes.full or self._tls is None:
             self.counters.connections_refused_tls += 1
-            self._log_refusal(host, f"{MAX_HANDSHAKES} TLS handshakes under way already")
+            self._log_refusal(host, f"{MAX_HANDSHAKES} TLS handshakes under way already",
+                              Kind.TLS_REFUSED)
             sock.close()
             return
         sock.setblocking(False)
@@ -242,7 +245,7 @@ class TcpServer:
 
     def _tls_refused(self, host: str, reason: str) -> None:
         self.counters.connections_refused_tls += 1
-        self._log_refusal(host, reason)
+        self._log_refusal(host, reason, Kind.TLS_REFUSED)
 
     def _admit_tls(self, sock: ssl.SSLSocket, address) -> None:
         try:
@@ -284,9 +287,10 @@ class TcpServer:
         idle = [c for c, events in live.items() if not (c.busy or events & select.POLLIN)]
         victim = eviction_victim(idle, time.monotonic())
         if victim is None:
-            log.warning("client %s refused: all %d connections are busy (a request in the "
-                        "gateway, or one within the last %d s)", newcomer.peer, len(live),
-                        ACTIVE_WINDOW_S)
+            event(log, Kind.CONNECTION_REFUSED, "client %s refused: all %d connections are busy "
+                  "(a request in the gateway, or one within the last %d s)", newcomer.peer,
+                  len(live), ACTIVE_WINDOW_S, client=newcomer.peer,
+                  reason="max-connections, every client busy")
             return False
         log.info("client %s closed to make room for %s", victim.peer, newcomer.peer)
         self.counters.connections_evicted += 1
@@ -305,11 +309,13 @@ class TcpServer:
                 live[client] = events
         return live
 
-    def close_client(self, client_id: int) -> bool:
-        """Force-close a client connection (operator's command)."""
+    def close_client(self, client_id: int, user=None) -> bool:
+        """Force-close a client connection (operator's command; user: who, as the control
+        command's "uid" names them)."""
         for client in self.clients:
             if client.id == client_id:
-                log.info("client %s closed by the operator", client.peer)
+                event(log, Kind.CLIENT_CLOSED, "client %s closed by the operator (uid %s)",
+                      client.peer, user, client=client.peer, user=user)
                 self._drop(client)
                 return True
         return False
@@ -324,12 +330,13 @@ class TcpServer:
             self.clients.remove(client)
             log.debug("client %s disconnected", client.peer)
 
-    def _log_refusal(self, host: str, reason: str) -> None:
+    def _log_refusal(self, host: str, reason: str,
+                     kind: Kind = Kind.CONNECTION_REFUSED) -> None:
         now = time.monotonic()
         if now - self._refusals.get(host, -REFUSAL_LOG_INTERVAL_S) >= REFUSAL_LOG_INTERVAL_S:
             self._refusals[host] = now
-            log.warning("connection from %s refused: %s (further refusals of this address "
-                        "are logged at most once a minute)", host, reason)
+            event(log, kind, "connection from %s refused: %s (further refusals of this address "
+                  "are logged at most once a minute)", host, reason, client=host, reason=reason)
 
     # --- the line thread: requests in, outcomes out ---
 

@@ -1,0 +1,79 @@
+"""Audit events end to end with `--log-format json`: a real gateway (slave mode over a socat
+pty, tests/peers/fault_slave.py on the line), real clients (pymodbus, a plain socket), and
+the gateway's stderr read back as one JSON object a line.  The record names the event by its
+MESSAGE_ID and its fields name the client (with the port pymodbus connected from), the unit,
+the function and the rule."""
+import json
+import socket
+
+import pytest
+from pymodbus.client import ModbusTcpClient
+
+from mbgw.audit import Kind
+from tests.ops import wait_for_log
+
+pytestmark = pytest.mark.integration
+
+REPLY_S = 3.0
+RULES = """
+[firewall]
+default = "deny"
+
+[[rule]]                    # 1: unit 1 reads only
+client = "127.0.0.0/8"
+units = "1"
+read-only = true
+"""
+
+
+def records(gw) -> list[dict]:
+    """Every line the gateway wrote, each a JSON object."""
+    return [json.loads(line) for line in gw.log().splitlines()]
+
+
+def events(gw, kind: Kind) -> list[dict]:
+    return [r for r in records(gw) if r.get("MESSAGE_ID") == kind.message_id]
+
+
+@pytest.fixture
+def gateway(tmp_path, pty_pair, recording_peer, start_gateway):
+    def start(config: str, *options: str):
+        recording_peer("fault_slave.py")
+        path = tmp_path / "mbgw.toml"
+        path.write_text('[serial]\nbaudrate = 19200\n' + config)
+        return start_gateway(pty_pair.gateway, "--config", str(path), "--log-format", "json",
+                             *options)
+    return start
+
+
+def test_a_firewall_refusal_of_a_pymodbus_client_is_a_json_record_with_its_id(gateway):
+    gw = gateway(RULES)
+    c = ModbusTcpClient("127.0.0.1", port=gw.port, timeout=REPLY_S, retries=0)
+    assert c.connect()
+    try:
+        assert c.read_holding_registers(0, count=2, device_id=1).registers == [1000, 1001]
+        assert c.write_register(5, 7, device_id=1).exception_code == 1      # on the wire
+        local_port = c.socket.getsockname()[1]
+    finally:
+        c.close()
+    wait_for_log(gw, '"MBGW_EVENT": "firewall-refused"')
+    (refused,) = events(gw, Kind.FIREWALL_REFUSED)
+    assert refused["MESSAGE"].startswith(
+        f"mbgw.firewall: firewall: refused client 127.0.0.1:{local_port} (role none) unit 1 "
+        f"function 6")
+    assert refused["PRIORITY"] == "4" and refused["SYSLOG_IDENTIFIER"] == "mbgw"
+    assert (refused["MBGW_CLIENT"], refused["MBGW_UNIT"], refused["MBGW_FUNCTION"],
+            refused["MBGW_RULE"]) == (f"127.0.0.1:{local_port}", "1", "6", "1")
+    assert "MBGW_ROLE" not in refused
+    assert any(r["MESSAGE"].startswith("mbgw: ") and "MESSAGE_ID" not in r
+               for r in records(gw))                    # the other lines: JSON as well
+
+
+def test_a_client_authip_refuses_is_a_connection_refused_record(gateway):
+    gw = gateway("[net]\nauthip = [\"192.0.2.7\"]\n")
+    with socket.create_connection(("127.0.0.1", gw.port), timeout=REPLY_S) as sock:
+        assert sock.recv(1) == b""                      # closed before a byte is read
+    wait_for_log(gw, '"MBGW_EVENT": "connection-refused"')
+    (refused,) = events(gw, Kind.CONNECTION_REFUSED)
+    assert (refused["MBGW_CLIENT"], refused["MBGW_REASON"]) == ("127.0.0.1", "not in authip")
+    assert refused["MESSAGE"].startswith("mbgw.tcp: connection from 127.0.0.1 refused")
