@@ -15,9 +15,10 @@ $SUDO apt-get build-dep -y -qq ./
 # systemd for systemd-analyze (scripts/smoke-installed.sh), and tshark (decodes the pcap of
 # mbgw trace; its debconf question on non-root capture takes the default, no, unasked), and
 # openssl (the TLS tests make their certificates with it), and chromium with its driver (the web
-# console's browser tests drive it through selenium)
+# console's browser tests drive it through selenium), and AFL++ with clang's sanitizer runtime
+# (scripts/fuzz.sh: afl-clang-fast with AddressSanitizer)
 $SUDO apt-get install -y -qq --no-install-recommends python3-venv socat mbpoll lintian systemd \
-    tshark openssl chromium chromium-driver
+    tshark openssl chromium chromium-driver afl++ libclang-rt-14-dev
 
 # Debian's own python3, the interpreter the .deb runs on (never a pyenv shim).
 /usr/bin/python3 -m venv .venv
