@@ -261,22 +261,37 @@ def config() -> None:
 
 @config.command("show")
 @_file_options
+@click.option("--security", is_flag=True,
+              help="The security settings in force instead: listeners (address, port, plain "
+                   "or TLS, limits), TLS versions and suites, CRL, authip, the firewall, the "
+                   "web console (which passwords are set, never their hashes), the control "
+                   "socket, and who may read the file.")
+@click.option("--json", "as_json", is_flag=True, help="With --security: as a JSON document.")
 @click.argument("group", required=False, type=click.Choice([*ck.GROUPS, cf.SCENARIO_KEY]))
 @click.argument("param", required=False)
 @click.pass_context
-def show(ctx, config_path: Path, instance: str | None, group: str | None,
-         param: str | None) -> None:
+def show(ctx, config_path: Path, instance: str | None, security: bool, as_json: bool,
+         group: str | None, param: str | None) -> None:
     """Show the settings in effect (the file's, else the built-in defaults): all, one GROUP
     (serial, net, general, table), or one PARAM, like the guide's `show serial stout`;
-    `show scenario [NAME]`: the scenarios."""
+    `show scenario [NAME]`: the scenarios; `show --security [--json]`: the security
+    settings in force."""
+    if as_json and not security:
+        raise click.UsageError("--json goes with --security")
+    if security and group is not None:
+        raise click.UsageError("--security shows them all: give no GROUP")
     path = _path(ctx, config_path, instance)
     schema = _schema(ctx)
     if path.exists():
         settings = _load(ctx, schema, path, [*filter(None, (group, param)),
+                                             *(["--security"] if security else []),
                                              *_file_words(ctx, path)])
     else:
         click.echo(f"mbgw: {path} does not exist: built-in defaults", err=True)
         settings = cf.Settings(path, schema.default_mode, {})
+    if security:
+        _show_security(schema, settings, as_json)
+        return
     if group == cf.SCENARIO_KEY:
         _show_scenarios(settings, param)
         return
@@ -300,6 +315,18 @@ def show(ctx, config_path: Path, instance: str | None, group: str | None,
                 click.echo(f"{schema.file_name(name):<{SHOW_WIDTH}} {line}")
     if group is None and settings.scenarios:
         _show_scenarios(settings, None)
+
+
+def _show_security(schema: ck.Schema, settings: cf.Settings, as_json: bool) -> None:
+    import json
+
+    from mbgw.cli import security
+    found = security.report(schema, settings)
+    if as_json:
+        click.echo(json.dumps(found, indent=2))
+    else:
+        for line in security.text(found):
+            click.echo(line)
 
 
 def _show_scenarios(settings: cf.Settings, name: str | None) -> None:
