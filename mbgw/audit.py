@@ -42,6 +42,12 @@ def event(logger: logging.Logger, kind: Kind, message: str, *args, **fields) -> 
                    extra={RECORD_ATTRIBUTE: (kind, fields)})
 
 
+def operator(uid) -> str | None:
+    """MBGW_USER of a control command's "uid": "uid 0" from the control socket, "web
+    admin@ADDRESS" from the web console as it is."""
+    return f"uid {uid}" if isinstance(uid, int) else uid
+
+
 def of(record: logging.LogRecord) -> tuple[Kind, dict] | None:
     """The kind and fields of a record that is an audit event, else None."""
     return getattr(record, RECORD_ATTRIBUTE, None)

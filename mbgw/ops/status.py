@@ -8,7 +8,7 @@ import os
 import time
 
 from mbgw import __version__
-from mbgw.audit import Kind, event
+from mbgw.audit import Kind, event, operator
 
 log = logging.getLogger("mbgw.control")
 
@@ -68,7 +68,7 @@ class DaemonStatus:
         self._devices.reset()
         self._reset_at = time.time()
         event(log, Kind.COUNTERS_RESET, "counters reset by the operator (uid %s)",
-              request.get("uid"), user=request.get("uid"))
+              request.get("uid"), user=operator(request.get("uid")))
         return {"ok": True}
 
     async def trace(self, request: dict, reader: asyncio.StreamReader,

@@ -22,7 +22,7 @@ import socket
 import ssl
 import time
 
-from mbgw.audit import Kind, event
+from mbgw.audit import Kind, event, operator
 from mbgw.config.model import ACTIVE_WINDOW_S, SlaveConfig
 from mbgw.errors import ConfigError
 from mbgw.firewall.guard import Firewall
@@ -315,7 +315,7 @@ class TcpServer:
         for client in self.clients:
             if client.id == client_id:
                 event(log, Kind.CLIENT_CLOSED, "client %s closed by the operator (uid %s)",
-                      client.peer, user, client=client.peer, user=user)
+                      client.peer, user, client=client.peer, user=operator(user))
                 self._drop(client)
                 return True
         return False

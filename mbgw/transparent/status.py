@@ -3,7 +3,7 @@ every mode shares are in mbgw.ops.status)."""
 import logging
 import time
 
-from mbgw.audit import Kind, event
+from mbgw.audit import Kind, event, operator
 from mbgw.ops.status import DaemonStatus
 from mbgw.scenarios.report import scenarios_status
 
@@ -45,7 +45,7 @@ class TransparentStatus(DaemonStatus):
         self._counters.reset()
         self._reset_at = time.time()
         event(log, Kind.COUNTERS_RESET, "counters reset by the operator (uid %s)",
-              request.get("uid"), user=request.get("uid"))
+              request.get("uid"), user=operator(request.get("uid")))
         return {"ok": True}
 
     def summary(self) -> str:

@@ -4,13 +4,15 @@ the gateway's stderr read back as one JSON object a line.  The record names the 
 MESSAGE_ID and its fields name the client (with the port pymodbus connected from), the unit,
 the function and the rule."""
 import json
+import os
+import signal
 import socket
 
 import pytest
 from pymodbus.client import ModbusTcpClient
 
 from mbgw.audit import Kind
-from tests.ops import wait_for_log
+from tests.ops import mbgw, status, wait_for_log
 
 pytestmark = pytest.mark.integration
 
@@ -77,3 +79,28 @@ def test_a_client_authip_refuses_is_a_connection_refused_record(gateway):
     (refused,) = events(gw, Kind.CONNECTION_REFUSED)
     assert (refused["MBGW_CLIENT"], refused["MBGW_REASON"]) == ("127.0.0.1", "not in authip")
     assert refused["MESSAGE"].startswith("mbgw.tcp: connection from 127.0.0.1 refused")
+
+
+def test_the_operators_actions_and_a_reload_are_records_that_name_who(gateway):
+    gw = gateway("")
+    with socket.create_connection(("127.0.0.1", gw.port), timeout=REPLY_S) as sock:
+        local = f"127.0.0.1:{sock.getsockname()[1]}"
+        (client,) = [c for c in status(gw)["clients"] if c["peer"] == local]
+        assert mbgw("clients", "close", str(client["id"]), "--control",
+                    gw.control).returncode == 0
+        assert sock.recv(1) == b""                      # closed on the wire
+    assert mbgw("stats", "reset", "--control", gw.control).returncode == 0
+    wait_for_log(gw, '"MBGW_EVENT": "counters-reset"')
+    (closed,) = events(gw, Kind.CLIENT_CLOSED)
+    assert (closed["MBGW_CLIENT"], closed["MBGW_USER"]) == (local, f"uid {os.getuid()}")
+    (reset,) = events(gw, Kind.COUNTERS_RESET)
+    assert reset["MBGW_USER"] == f"uid {os.getuid()}" and reset["PRIORITY"] == "6"
+
+    path = gw.args[gw.args.index("--config") + 1]
+    with open(path, "a") as file:
+        file.write("[net]\nexception = true\n")
+    os.kill(gw.proc.pid, signal.SIGHUP)
+    wait_for_log(gw, '"MBGW_EVENT": "config-changed"')
+    (changed,) = events(gw, Kind.CONFIG_CHANGED)
+    assert (changed["MBGW_SOURCE"], changed["MBGW_KEYS"]) == ("sighup", "exception")
+    assert changed["MESSAGE"] == "mbgw: configuration reloaded: exception changed"
