@@ -1,8 +1,9 @@
 """Audit events end to end with `--log-format json`: a real gateway (slave mode over a socat
-pty, tests/peers/fault_slave.py on the line), real clients (pymodbus, a plain socket), and
-the gateway's stderr read back as one JSON object a line.  The record names the event by its
-MESSAGE_ID and its fields name the client (with the port pymodbus connected from), the unit,
-the function and the rule."""
+pty, tests/peers/fault_slave.py on the line), real clients (pymodbus plain and TLS, a plain
+socket, the web console over HTTP, `mbgw clients close`/`stats reset`, SIGHUP), and the
+gateway's stderr read back as one JSON object a line.  Each record names its event by its
+MESSAGE_ID, and its fields name the client (with the port it connected from), the user, the
+unit, the function, the rule and the reason; what the client saw is checked on the wire."""
 import json
 import os
 import signal
@@ -12,7 +13,12 @@ import pytest
 from pymodbus.client import ModbusTcpClient
 
 from mbgw.audit import Kind
+from tests.harness import free_port
+from tests.integration.test_scenarios_serial import write_config
+from tests.integration.test_tls import client_context, read, tls_client, tls_options
+from tests.integration.test_web_api import Web, listen_on, set_passwords
 from tests.ops import mbgw, status, wait_for_log
+from tests.pki import Authority
 
 pytestmark = pytest.mark.integration
 
@@ -104,3 +110,42 @@ def test_the_operators_actions_and_a_reload_are_records_that_name_who(gateway):
     (changed,) = events(gw, Kind.CONFIG_CHANGED)
     assert (changed["MBGW_SOURCE"], changed["MBGW_KEYS"]) == ("sighup", "exception")
     assert changed["MESSAGE"] == "mbgw: configuration reloaded: exception changed"
+
+
+def test_web_logins_and_a_change_from_the_console_are_records_with_the_user(
+        tmp_path, pty_pair, recording_peer, start_gateway):
+    recording_peer("fault_slave.py")
+    path = tmp_path / "mbgw.toml"
+    write_config(path, [], baudrate=19200)
+    set_passwords(path, ("admin", "admin-secret-1"))
+    web = Web(f"http://127.0.0.1:{listen_on(path)}")
+    gw = start_gateway(pty_pair.gateway, "--config", str(path), "--log-format", "json")
+    assert web.login("admin", "wrong") == 401
+    assert web.login("admin", "admin-secret-1") == 200
+    assert web.ok("POST", "/api/config", {"group": "serial", "key": "stout", "value": 700})
+    wait_for_log(gw, '"MBGW_SOURCE": "sighup"')         # the console's change, applied
+    (failed,) = events(gw, Kind.LOGIN_FAILED)
+    assert (failed["MBGW_CLIENT"], failed["MBGW_USER"], failed["MBGW_REASON"],
+            failed["PRIORITY"]) == ("127.0.0.1", "admin", "wrong user or password", "4")
+    (ok,) = events(gw, Kind.LOGIN_OK)
+    assert (ok["MBGW_CLIENT"], ok["MBGW_USER"], ok["PRIORITY"]) == ("127.0.0.1", "admin", "6")
+    by_web, by_reload = events(gw, Kind.CONFIG_CHANGED)
+    assert (by_web["MBGW_SOURCE"], by_web["MBGW_USER"], by_web["MBGW_KEYS"]) == \
+        ("web", "web admin@127.0.0.1", "serial.stout")
+    assert by_reload["MBGW_SOURCE"] == "sighup" and "stout" in by_reload["MBGW_KEYS"]
+
+
+def test_a_tls_client_without_a_certificate_is_a_tls_refused_record(gateway, tmp_path):
+    ca = Authority(tmp_path)
+    port = free_port()
+    gw = gateway("", *tls_options(ca, ca.issue("server", server=True), port))
+    client = tls_client(port, client_context(ca))       # pymodbus, no client certificate
+    try:
+        assert read(client) is None
+    finally:
+        client.close()
+    wait_for_log(gw, '"MBGW_EVENT": "tls-refused"')
+    (refused,) = events(gw, Kind.TLS_REFUSED)
+    assert refused["MBGW_CLIENT"] == "127.0.0.1"
+    assert refused["MBGW_REASON"] == "TLS handshake refused (PEER_DID_NOT_RETURN_A_CERTIFICATE)"
+    assert refused["MESSAGE"].startswith("mbgw.tcp: connection from 127.0.0.1 refused: ")
