@@ -12,7 +12,7 @@
 # also built with plain cc and AddressSanitizer as TARGET-replay, and the corpus replayed
 # first, so a regression in a kept input fails even before AFL++ starts.
 # FUZZ_UPDATE_CORPUS=1: after the runs, the corpus becomes afl-cmin's minimum of the corpus
-# and what AFL++ found (commit fuzz/corpus/ afterwards).
+# and what AFL++ found (named by their SHA-1), plus the named seeds (commit fuzz/corpus/).
 set -eu
 cd "$(dirname "$0")/.."
 
@@ -85,8 +85,17 @@ for target in $targets; do
         AFL_QUIET=1 afl-cmin -i "$out/$target-all" -o "$out/$target-min" -- "$out/$target" \
             > /dev/null
         rm -rf "$out/$target-all" "fuzz/corpus/$target"
-        mv "$out/$target-min" "fuzz/corpus/$target"
+        mkdir "fuzz/corpus/$target"
+        for kept in "$out/$target-min"/*; do       # AFL++'s names hold ':' and vary
+            name=$(basename "$kept")
+            case $name in id:*) name=$(sha1sum < "$kept" | cut -c1-16) ;; esac
+            mv "$kept" "fuzz/corpus/$target/$name"
+        done
+        rm -rf "$out/$target-min"
     fi
 done
+if [ "${FUZZ_UPDATE_CORPUS:-0}" = 1 ]; then
+    python3 fuzz/seeds.py                       # the named seeds stay whatever afl-cmin kept
+fi
 [ "$failed" = 0 ] || { echo "fuzz: crashes or hangs found (above)" >&2; exit 1; }
 echo "fuzz: no crash, no hang"
