@@ -119,8 +119,8 @@ def setup(level: str, log_format: str = "text") -> None:
         stream.setFormatter(logging.Formatter(
             "%(asctime)s %(levelname)s %(name)s: %(message)s"))
     root = logging.getLogger("mbgw")
-    for old in root.handlers:
-        old.close()
+    # The old handler is not closed: a thread may be in its emit(); its journal socket
+    # closes once nothing holds it any more.
     root.handlers[:] = [handler]
     root.setLevel(level.upper())
     root.propagate = False
