@@ -19,7 +19,7 @@ from mbgw.transparent.frames import MAX_FRAME, Receiver, Rules, from_registers, 
 PDUS = st.binary(min_size=1, max_size=253)
 ADUS = st.builds(lambda address, body: bytes([address]) + body,
                  st.integers(0, 255), PDUS)
-settings.register_profile("mbgw", deadline=None, max_examples=200)
+settings.register_profile("mbgw", deadline=None)     # a loaded machine is no failure
 settings.load_profile("mbgw")
 
 
