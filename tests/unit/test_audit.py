@@ -22,7 +22,10 @@ from mbgw.audit import Kind
 from mbgw.ops import log
 from tests.harness import CHECKOUT
 
-H2M = Path(CHECKOUT) / "debian" / "mbgw.h2m"
+# mbgw(1)'s hand-written part; the package build's test run has it beside tests/ (pybuild
+# copies debian/pybuild.testfiles' entries by their base name)
+H2M = next(p for p in (Path(CHECKOUT) / "debian" / "mbgw.h2m", Path(CHECKOUT) / "mbgw.h2m")
+           if p.exists())
 
 
 def decode(datagram: bytes) -> dict[str, str]:
