@@ -184,7 +184,11 @@ def text(r: dict) -> list[str]:
         lines.append(f"           CRL {t['crl'] or '(none: revoked certificates are not refused)'}")
     else:
         lines.append("tls        off")
-    lines.append("authip     " + (", ".join(r["authip"]) or "(empty: any client may connect)"))
+    if r["mode"] == "master":
+        lines.append("authip     (not in master mode: the table's clients are not filtered by "
+                     "address; the firewall applies)")
+    else:
+        lines.append("authip     " + (", ".join(r["authip"]) or "(empty: any client may connect)"))
     fw = r["firewall"]
     lines.append(f"firewall   default {fw['default']}, {len(fw['rules'])} rules")
     for rule in fw["rules"]:

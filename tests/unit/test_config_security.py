@@ -101,3 +101,19 @@ def test_a_file_whose_certificate_cannot_be_used_is_refused_naming_the_key(secur
 def test_json_needs_security():
     result = mbgw("config", "show", "--json", "--config", "/dev/null")
     assert result.exit_code == 2 and "--json goes with --security" in result.output
+
+
+def test_master_mode_lists_the_tables_server_and_an_open_metrics_endpoint(tmp_path):
+    path = tmp_path / "mbgw.toml"
+    for words in (("serial", "mode", "master"), ("table", "enabled", "on"),
+                  ("table", "port", "5020"), ("general", "metrics", "127.0.0.1:9502")):
+        assert mbgw("config", "set", *words, "--config", path).exit_code == 0
+    report = json.loads(mbgw("config", "show", "--security", "--json", "--config",
+                             path).output)
+    assert report["listeners"] == [
+        {"name": "table", "address": "all addresses (IPv4 and IPv6)", "port": 5020,
+         "transport": "plain", "max_connections": 32, "authip": "any client"},
+        {"name": "metrics", "listen": "127.0.0.1:9502", "transport": "http",
+         "authentication": "none"}]
+    text = mbgw("config", "show", "--security", "--config", path).output
+    assert "authip     (not in master mode" in text and "tls        off" in text
