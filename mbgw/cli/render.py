@@ -116,6 +116,9 @@ def _firewall_section(f: dict) -> list[str]:
         lines.append(f"  {rule['selects']:<56} {rule['refused']:>8} refused")
     lines.append(f"  {'no rule (default ' + f['default'] + ')':<56} "
                  f"{f['refused_default']:>8} refused")
+    if f.get("require_role"):
+        lines.append(f"  {'TLS client without a role (require-role)':<56} "
+                     f"{f['refused_no_role']:>8} refused")
     for client in f["clients"]:
         if client["refused"]:
             lines.append(f"  client {client['peer']} (role {client['role'] or 'none'}): "
