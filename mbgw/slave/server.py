@@ -240,6 +240,7 @@ class TcpServer:
             sock.close()
             return
         sock.setblocking(False)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)   # no Nagle in the flights
         handshakes.start(self._tls, sock, address)
 
     def _tls_refused(self, host: str, reason: str) -> None:
@@ -413,8 +414,8 @@ class TcpServer:
 
     def _refused_by_firewall(self, client: Client, guard, tid: int, unit: int,
                              request: bytes, received_ns: int) -> None:
-        """A request the client's rule does not allow: 0x01 (nothing for a broadcast); it
-        reaches neither the line nor the table."""
+        """A request the client's rule does not allow: 0x01 (a broadcast's too: it was not
+        done); it reaches neither the line nor the table."""
         self.counters.requests += 1
         client.firewall_refused += 1
         tracing = self.trace.active
@@ -426,9 +427,6 @@ class TcpServer:
         if tracing:
             self.traced(client, tid, unit, request[0], reply, OUTCOME_FIREWALL,
                         received_ns or client.arrived_ns)
-
-    def _is_broadcast(self, unit: int) -> bool:
-        return unit == pdu.BROADCAST and bool(self._table_units[unit] or not self._cfg.slaveid)
 
     def taken(self, client: Client, tid: int, unit: int, request: bytes,
               received_ns: int) -> Job | None:

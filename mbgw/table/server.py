@@ -340,6 +340,7 @@ class TableServer(threading.Thread):
             return
         sock.setblocking(False)
         if tls:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)   # no Nagle in the flights
             self._start_handshake(sock, address)
         else:
             self._adopt(_Connection(sock, _name(address), address[0]))
