@@ -29,6 +29,9 @@ _UTF8STRING = 0x0C
 # the Secure SunSpec Modbus profile's devices (ECDSA, P-256 certificates)
 TLS12_CIPHERS = ("ECDHE+AESGCM:ECDHE+CHACHA20:ECDHE-ECDSA-AES128-CCM:ECDHE-ECDSA-AES256-CCM:"
                  "ECDHE-ECDSA-AES128-CCM8:!aNULL")
+# towards servers (devices mbgw does not choose): the same first, then what Python offers by
+# default besides (CBC with SHA-2, never SHA-1), so an older server still answers
+UPSTREAM_TLS12_CIPHERS = TLS12_CIPHERS + ":ECDH+AES:DHE+AES:!aNULL:!eNULL:!aDSS:!SHA1"
 # TLS 1.3: OpenSSL's three, and TLS_AES_128_CCM_SHA256 (OpenSSL leaves it out by default)
 TLS13_SUITES = ("TLS_AES_256_GCM_SHA384:TLS_CHACHA20_POLY1305_SHA256:TLS_AES_128_GCM_SHA256:"
                 "TLS_AES_128_CCM_SHA256")
@@ -163,7 +166,8 @@ def _context(protocol: int, cert: tuple[str, str], key: tuple[str, str],
     context.minimum_version = ssl.TLSVersion.TLSv1_2
     context.maximum_version = ssl.TLSVersion.TLSv1_3
     context.options |= ssl.OP_NO_RENEGOTIATION | ssl.OP_NO_COMPRESSION
-    context.set_ciphers(TLS12_CIPHERS)
+    context.set_ciphers(TLS12_CIPHERS if protocol == ssl.PROTOCOL_TLS_SERVER
+                        else UPSTREAM_TLS12_CIPHERS)
     _set_tls13_suites(context, TLS13_SUITES)
     if protocol == ssl.PROTOCOL_TLS_CLIENT:
         context.check_hostname = False
