@@ -93,7 +93,7 @@ def _flags(numbers, size: int) -> bytearray:
         return bytearray(bytes((_ALLOWED,)) * size)
     flags = bytearray(size)
     for number in numbers:
-        flags[number] = 1
+        flags[number] = _ALLOWED
     return flags
 
 
