@@ -225,7 +225,8 @@ def _table_section(t: dict, mode: str, now: float) -> list[str]:
         if tcp.get("tls_port") is not None:
             lines.append(f"  TLS on port {tcp['tls_port']}: "
                          f"{tcp.get('tls_handshakes', 0)} handshakes under way, "
-                         f"{tcp.get('connections_refused_tls', 0)} refused")
+                         f"{tcp.get('connections_refused_tls', 0)} refused, "
+                         f"{tcp.get('connections_tls_probes', 0)} closed before a byte")
     persist = t.get("persist")
     if persist is not None:
         lines.append(f"  persist {_table_persist(persist, now)}")
