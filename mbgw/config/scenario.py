@@ -374,13 +374,22 @@ def _trigger(f: _Fields, function: int) -> tuple[int | None, bool]:
 
 def check_scenarios(scenarios, mode: str) -> list[str]:
     """What is wrong with a mode's list of scenarios as a whole: duplicate names, more than
-    MAX_PER_KIND of a kind, serial scenarios in master or transparent mode."""
+    MAX_PER_KIND of a kind, serial scenarios in master or transparent mode, one TLS server
+    pinned two ways."""
     problems = []
     seen: set[str] = set()
+    pinned: dict[str, ScenarioConfig] = {}
     for sc in scenarios:
         if sc.name in seen:
             problems.append(f"scenario {sc.name}: name used twice")
         seen.add(sc.name)
+        if sc.tls and sc.server is not None:
+            host = split_server(sc.server)[0]
+            other = pinned.setdefault(host, sc)
+            if other.fingerprint != sc.fingerprint:
+                problems.append(f"scenario {sc.name}: fingerprint: server {host} is pinned "
+                                f"otherwise by scenario {other.name} (one certificate per "
+                                f"server)")
     for kind in ("serial", "tcp"):
         count = sum(1 for sc in scenarios if sc.kind == kind)
         if count > MAX_PER_KIND:

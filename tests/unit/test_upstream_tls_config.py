@@ -167,3 +167,15 @@ def test_config_set_a_tls_range_and_the_client_files(tmp_path, ca):
     done = mbgw("config", "set", "tls", "client-cert", str(ca.cert.parent / "none.pem"),
                 "--config", conf)
     assert done.returncode != 0 and "tls.client-cert" in done.stdout + done.stderr
+
+
+def test_scenarios_that_reach_one_server_pin_it_alike():
+    from mbgw.config.scenario import check_scenarios
+    one = scenario(tls=True, fingerprint=PIN)
+    other = parse_scenario({**one.fields(), "name": "other", "server": "10.0.0.5:8802",
+                            "fingerprint": "00" * 32}, "other")
+    assert check_scenarios([one, other], "slave") == [
+        "scenario other: fingerprint: server 10.0.0.5 is pinned otherwise by scenario remote "
+        "(one certificate per server)"]
+    same = parse_scenario({**one.fields(), "name": "same"}, "same")
+    assert check_scenarios([one, same], "slave") == []
