@@ -147,8 +147,9 @@ def server_context(cfg: TlsConfig) -> ssl.SSLContext:
 
 def client_context(cfg: UpstreamTlsConfig) -> ssl.SSLContext:
     """The context of the connections to remote servers over TLS: TLS 1.2/1.3, the server's
-    certificate checked against server-ca (not its name: servers are addressed by IP, as in
-    the slaveid ranges), mbgw's client certificate presented.  Raises ConfigError."""
+    certificate checked against server-ca (its name or pin by the pool after the handshake,
+    server_mismatch: OpenSSL's check_hostname would need one context per pin), mbgw's client
+    certificate presented.  Raises ConfigError."""
     assert cfg.client_cert is not None and cfg.client_key is not None \
         and cfg.server_ca is not None
     check_certificate(cfg.client_cert, "tls-client-cert")

@@ -13,8 +13,8 @@ request is sent and reopened; connecting counts against the deadline.
 
 Servers given to set_tls are reached over TLS (Modbus/TCP Security) on its port: the
 handshake is stepped in the same non-blocking polls, within the same deadline; a failed one
-(a server certificate that does not chain to the CA, our certificate refused) is
-HandshakeFailed, a NoRoute.
+(a server certificate that does not chain to the CA, that is not for the address dialled
+nor the one pinned, our certificate refused) is HandshakeFailed, a NoRoute.
 
 Everything runs on its owner's thread (master mode: the serial line's; the master sends one
 request at a time, so a thread hop would only add latency).  The sockets are non-blocking
