@@ -214,6 +214,18 @@ def _check_ca(path, option="tls-ca"):
     check_ca(path, option)
 
 
+def _crl_callback(ctx, param, value):
+    """The CRL readable, and signed by a CA of tls-ca (when that option came first; the mode's
+    settings check it again)."""
+    if value is not None:
+        from mbgw.ops.tls import check_crl, check_crl_issuer
+        convert("'--tls-crl'", lambda: check_crl(value))
+        ca = ctx.params.get("tls_ca")
+        if ca is not None:
+            convert("'--tls-crl'", lambda: check_crl_issuer(value, ca))
+    return value
+
+
 # Modbus/TCP Security ([tls] keys): TLS is on when a certificate is given.
 tls_options = stack(
     click.option("--tls-port", cls=TlsOption, key="tls-port", file_key="port",
@@ -231,14 +243,25 @@ tls_options = stack(
                  callback=_tls_file(_check_ca),
                  help="CA certificate(s) (PEM) that client certificates must chain to; the "
                       "client's role is its certificate's extension %s." % config.ROLE_OID),
+    click.option("--tls-require-role/--no-tls-require-role", cls=TlsOption,
+                 key="require-role", default=config.TlsConfig.require_role, show_default=True,
+                 help="Refuse every request (exception 0x01) of a TLS client whose "
+                      "certificate has no role; the session stays open."),
+    click.option("--tls-crl", cls=TlsOption, key="crl", metavar="PATH", default=None,
+                 callback=_crl_callback,
+                 help="Revoked client certificates (PEM CRL of the CA): a revoked client is "
+                      "refused in the handshake; reloaded with SIGHUP [default: none]."),
 )
 
 
-def tls_config(tls_port, tls_cert, tls_key, tls_ca) -> config.TlsConfig:
-    from mbgw.ops.tls import file_stamps
+def tls_config(tls_port, tls_cert, tls_key, tls_ca, tls_require_role=True,
+               tls_crl=None) -> config.TlsConfig:
+    from mbgw.ops.tls import check_crl_issuer, file_stamps
+    if tls_crl is not None and tls_ca is not None:
+        convert("'--tls-crl'", lambda: check_crl_issuer(tls_crl, tls_ca))
     return convert("'--tls-cert'", lambda: config.TlsConfig(
-        port=tls_port, cert=tls_cert, key=tls_key, ca=tls_ca,
-        files=file_stamps(tls_cert, tls_key, tls_ca)))
+        port=tls_port, cert=tls_cert, key=tls_key, ca=tls_ca, require_role=tls_require_role,
+        crl=tls_crl, files=file_stamps(tls_cert, tls_key, tls_ca, tls_crl)))
 
 
 def _client_file(check, option):
