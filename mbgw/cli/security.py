@@ -82,13 +82,15 @@ def _tls(get) -> dict:
     files are read as the daemon reads them: an error says why they would be refused)."""
     from mbgw.config.model import TlsConfig
     from mbgw.ops.tls import server_context
-    cert, key, ca = get("cert"), get("key"), get("ca")
-    out: dict = {"enabled": cert is not None, "cert": cert, "key": key, "ca": ca,
-                 "crl": get("crl"), "client_certificate": "required" if cert else None}
+    cert, key, ca, crl = get("cert"), get("key"), get("ca"), get("crl")
+    out: dict = {"enabled": cert is not None, "cert": cert, "key": key, "ca": ca, "crl": crl,
+                 "client_certificate": "required" if cert else None,
+                 "require_role": bool(get("require-role")) if cert else None}
     if cert is None:
         return out
     try:
-        context = server_context(TlsConfig(port=get("tls-port"), cert=cert, key=key, ca=ca))
+        context = server_context(TlsConfig(port=get("tls-port"), cert=cert, key=key, ca=ca,
+                                           require_role=bool(get("require-role")), crl=crl))
     except ConfigError as err:
         return {**out, "error": str(err)}
     versions = [v for v in (ssl.TLSVersion.TLSv1_2, ssl.TLSVersion.TLSv1_3)
@@ -175,7 +177,9 @@ def text(r: dict) -> list[str]:
     t = r["tls"]
     if t["enabled"]:
         lines.append(f"tls        cert {t['cert']}, key {t['key']}, client CA {t['ca']}; "
-                     f"client certificate required")
+                     f"client certificate required"
+                     + ("; a certificate without a role may do nothing" if t["require_role"]
+                        else ""))
         if "error" in t:
             lines.append(f"           refused as it stands: {t['error']}")
         else:
