@@ -36,7 +36,8 @@ BITS = 0x10000                     # table bit B: bit B % 16 of register B // 16
 CONFIG_ZONE_FIRST = 0x8000         # read-only: a read scenario cannot store there
 KEYS = ("name", "slave", "server", "unit", "function", "address", "quantity", "table",
         "read-address", "read-quantity", "read-table", "write-address", "write-quantity",
-        "write-table", "cycle", "trigger", "retries", "stale-after", "enabled", "tls")
+        "write-table", "cycle", "trigger", "retries", "stale-after", "enabled", "tls",
+        "send-unwritten")
 
 
 @dataclass(frozen=True)
@@ -58,6 +59,7 @@ class ScenarioConfig:
     stale_after_ms: int = 0
     enabled: bool = True
     tls: bool = False              # TCP scenario: over Modbus/TCP Security
+    send_unwritten: bool = False   # a write: send table registers nobody has written yet
 
     @property
     def kind(self) -> str:
@@ -138,6 +140,8 @@ class ScenarioConfig:
             out["stale-after"] = self.stale_after_ms
         if not self.enabled:
             out["enabled"] = False
+        if self.send_unwritten:
+            out["send-unwritten"] = True
         return out
 
 
@@ -259,12 +263,17 @@ def parse_scenario(fields: dict, where: str) -> ScenarioConfig:
     if stale_after and function not in READS:
         raise f.error("stale-after", fields["stale-after"],
                       "only a read scenario's data can be stale")
+    send_unwritten = f.boolean("send-unwritten", False)
+    if send_unwritten and function not in WRITES:
+        raise f.error("send-unwritten", fields["send-unwritten"],
+                      "only a write sends table data")
     return ScenarioConfig(
         name=name, function=function, address=address, quantity=quantity, table=table,
         slave=slave, server=server, unit=unit, cycle_ms=cycle_ms, on_change=on_change,
         write_address=write[0], write_quantity=write[1], write_table=write[2],
         retries=f.integer("retries", *RETRIES_RANGE, default=DEFAULT_RETRIES),
-        stale_after_ms=stale_after, enabled=f.boolean("enabled", True), tls=tls)
+        stale_after_ms=stale_after, enabled=f.boolean("enabled", True), tls=tls,
+        send_unwritten=send_unwritten)
 
 
 def _target(f: _Fields, function: int) -> tuple[int | None, str | None, int, bool]:

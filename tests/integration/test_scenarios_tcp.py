@@ -48,6 +48,7 @@ class Scenario:
 class Run:
     scenario: Scenario
     pdu: bytes
+    probe: bool = False
 
 
 class StandInEngine:
