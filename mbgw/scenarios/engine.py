@@ -106,6 +106,7 @@ class Scenarios:
         self._flag = False                  # FC 7's "a scenario is in error", as last set
         self._tests: deque[TestRun] = deque()
         self.health: Health | None = None    # the runner's demotion; None: every run is sent
+        self._owed: set[str] = set()     # change scenarios skipped, their device down
         self.reconfigure(configs)
 
     # --- the runner's side ---
@@ -143,6 +144,8 @@ class Scenarios:
                 probe = health is not None and health.down(scenario)
                 if probe and health is not None and not health.admit(scenario, now):
                     self._planner.finished(scenario.name, now)
+                    if scenario.on_change:
+                        self._owed.add(scenario.name)
                     self._record(state, exchange.Result(health.down_kind), 0, 0.0, now)
                     continue
                 return Run(scenario, exchange.request_pdu(scenario, self.table), now, probe)
@@ -419,6 +422,8 @@ class Scenarios:
         self._planner.remove(state.scenario.name)
 
     def _take_changes(self) -> None:
+        if self._owed:
+            self._repay()
         try:
             os.eventfd_read(self.wake_fd)
         except BlockingIOError:
@@ -429,6 +434,17 @@ class Scenarios:
                 if self.table.take_change(state.watch, count) is not None \
                         and state.state != DISABLED:
                     self._planner.changed(state.scenario.name)
+
+    def _repay(self) -> None:
+        """A change scenario skipped while its device was down is pending again once the
+        device is not (its data as it is then)."""
+        for name in list(self._owed):
+            state = self._states.get(name)
+            if state is None or state.state == DISABLED:
+                self._owed.discard(name)
+            elif self.health is None or not self.health.down(state.scenario):
+                self._owed.discard(name)
+                self._planner.changed(name)
 
     def _status(self, state: _State, now: float) -> dict:
         sc = state.scenario
