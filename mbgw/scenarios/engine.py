@@ -86,6 +86,10 @@ class _State:
         return None if self.data_time is None else now - self.data_time
 
 
+def _waiting_message(unwritten: int) -> str:
+    return f"{exchange.WAITING}: table register {unwritten} not written since start"
+
+
 def _same_but_enabled(a: ScenarioConfig, b: ScenarioConfig) -> bool:
     return replace(a, enabled=True) == replace(b, enabled=True)
 
@@ -252,7 +256,7 @@ class Scenarios:
         with self._lock:
             unwritten = self._unwritten(sc)
             if unwritten is not None:
-                return {"error": f"{self._waiting_message(sc, unwritten)}: nothing sent "
+                return {"error": f"{_waiting_message(unwritten)}: nothing sent "
                                  f"(send-unwritten=true sends it all the same)"}
             test = TestRun(sc, exchange.request_pdu(sc, self.table), 0.0)
             self._tests.append(test)
@@ -401,13 +405,10 @@ class Scenarios:
         first, count = sc.write_range() or (0, 0)
         return self.table.unwritten(first, count)
 
-    @staticmethod
-    def _waiting_message(sc: ScenarioConfig, unwritten: int) -> str:
-        return f"{exchange.WAITING}: table register {unwritten} not written since start"
-
     def _wait_for_data(self, state: _State, unwritten: int) -> None:
-        """A write not sent: state starting, and why (logged when it begins to wait)."""
-        message = self._waiting_message(state.scenario, unwritten)
+        """A write not sent: its message says why (logged when it begins to wait); its state
+        stays (starting: nothing it sends was written before, so it never ran)."""
+        message = _waiting_message(unwritten)
         if not state.message.startswith(exchange.WAITING):
             log.info("scenario %s (%s): %s; it is sent once a client (or a read, or the "
                      "table file) has written it", state.scenario.name, state.scenario.target,
