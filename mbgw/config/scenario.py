@@ -265,8 +265,8 @@ def parse_scenario(fields: dict, where: str) -> ScenarioConfig:
                       "only a read scenario's data can be stale")
     send_unwritten = f.boolean("send-unwritten", False)
     if send_unwritten and function not in WRITES:
-        raise f.error("send-unwritten", fields["send-unwritten"],
-                      "only a write sends table data")
+        raise ConfigError(f"{f.label}: send-unwritten: only a write sends table data "
+                          f"(function 5, 6, 15, 16 or 23)")
     return ScenarioConfig(
         name=name, function=function, address=address, quantity=quantity, table=table,
         slave=slave, server=server, unit=unit, cycle_ms=cycle_ms, on_change=on_change,

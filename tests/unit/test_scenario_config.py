@@ -110,8 +110,8 @@ def test_key_values_as_strings():
     ({"stale-after": -1}, "scenario boiler: stale-after -1: out of range"),
     ({"function": 16, "stale-after": 500}, "scenario boiler: stale-after 500: only a read"),
     ({"enabled": "maybe"}, "scenario boiler: enabled 'maybe': expected true or false"),
-    ({"send-unwritten": True}, "scenario boiler: send-unwritten True: only a write sends "
-                               "table data"),
+    ({"send-unwritten": True}, "scenario boiler: send-unwritten: only a write sends table "
+                               "data (function 5, 6, 15, 16 or 23)"),
     ({"function": 16, "send-unwritten": "sometimes"}, "scenario boiler: send-unwritten "
                                                       "'sometimes': expected true or false"),
     ({"colour": 1}, "scenario boiler: colour: unknown key"),
