@@ -275,7 +275,9 @@ def format_scenarios(rows: list[dict], now: float) -> list[str]:
                      f"{sum(r['errors'].values()):>6} {r['retries']:>5} {r['overruns']:>7} "
                      f"{latency:>8}  {age:<9} {_ago(r['last_success'], now)}")
         if r["message"]:
-            lines.append(f"    {'error: ' if r['state'] == 'error' else ''}{r['message']}")
+            probe = r.get("next_probe_in_s")
+            lines.append(f"    {'error: ' if r['state'] == 'error' else ''}{r['message']}" +
+                         ("" if probe is None else f", next probe in {probe:.1f} s"))
     return lines
 
 

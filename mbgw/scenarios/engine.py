@@ -43,6 +43,8 @@ class Health(Protocol):
 
     def admit(self, sc: ScenarioConfig, now: float) -> bool: ...
 
+    def next_probe_in(self, sc: ScenarioConfig) -> float | None: ...
+
 
 @dataclass
 class Run:
@@ -461,4 +463,16 @@ class Scenarios:
             else round(state.last_latency_s * 1000, 3),
             "data_age_s": None if age is None else round(age, 3),
             "stale": state.stale,
+            "next_probe_in_s": self._next_probe_in(state),
         }
+
+    def _next_probe_in(self, state: _State) -> float | None:
+        """While its runs are skipped (its device down): seconds until one may go as the
+        probe."""
+        health = self.health
+        if health is None or state.state != ERROR or \
+                state.message != exchange.error_message(health.down_kind,
+                                                        state.scenario.kind == "tcp"):
+            return None
+        wait = health.next_probe_in(state.scenario)
+        return None if wait is None else round(wait, 3)

@@ -4,6 +4,8 @@ host and port) is down, its runs are skipped, but for the probe the rule lets th
 (`admit`).  A serial scenario shares the line's DeviceTable, so a client's request and a
 scenario's run are one device's probes; a TCP server's health is the TCP runner's, judged by
 the same HealthRule (down-after, probe-interval)."""
+import time
+
 from mbgw.config.scenario import ScenarioConfig, split_server
 from mbgw.ops.device_stats import DOWN, DeviceStats, DeviceTable, HealthRule
 from mbgw.scenarios.exchange import DEVICE_DOWN, SERVER_DOWN
@@ -23,6 +25,14 @@ class SerialHealth:
         """Whether a run of sc goes on the line at now: the probe of a device that is down
         (DeviceStats.admit, which also counts a refusal as demoted_rejects)."""
         return sc.slave is None or self.devices.get(sc.slave).admit(now)
+
+    def next_probe_in(self, sc: ScenarioConfig) -> float | None:
+        """For the status (any thread): a device that is down exists already, so nothing is
+        created here."""
+        if not self.down(sc):
+            return None
+        assert sc.slave is not None
+        return _probe_in(self.devices.get(sc.slave))
 
 
 class ServerHealth:
@@ -52,8 +62,17 @@ class ServerHealth:
     def admit(self, sc: ScenarioConfig, now: float) -> bool:
         return self._of(sc).admit(now)
 
+    def next_probe_in(self, sc: ScenarioConfig) -> float | None:
+        assert sc.server is not None
+        stats = self._servers.get(split_server(sc.server))
+        return None if stats is None or stats.health != DOWN else _probe_in(stats)
+
     def rejudge(self, now: float) -> None:
         """New settings (a reload): every server judged again by them."""
         for stats in self._servers.values():
             stats.rejudge()
             stats.reprobe(now)
+
+
+def _probe_in(stats: DeviceStats) -> float:
+    return max(0.0, stats.probe_at - time.monotonic())

@@ -25,7 +25,7 @@ from tests.integration.test_scenarios_serial import (
 )
 from tests.integration.test_scenarios_tcp import scenario_status, scenario_toml
 from tests.modbus import holding_reply, read_holding
-from tests.ops import devices, status, wait_for, wait_for_log
+from tests.ops import devices, mbgw, status, wait_for, wait_for_log
 from tests.peers.scripted_tcp_server import ScriptedServer
 
 pytestmark = pytest.mark.integration
@@ -90,7 +90,9 @@ def test_an_absent_slaves_scenario_leaves_the_line_to_the_others_but_for_probes(
     wait_for(gw, lambda s: devices(s).get(ABSENT, {}).get("health") == "down", "down")
     s = wait_for_scenario(gw, "absent", lambda sc: sc["message"] == "device down",
                           "the scenario says its device is down")
-    assert s["state"] == "error"
+    assert s["state"] == "error" and s["next_probe_in_s"] is not None, s
+    shown = mbgw("scenarios", "--control", gw.control).stdout
+    assert "error: device down, next probe in " in shown, shown
     meter = scenarios_by_name(status(gw))["meter"]
     c = client(gw)
     for n in range(10):

@@ -4,9 +4,11 @@ send-unwritten), and a run for a device that is down but for its probe (the demo
 mbgw.ops.device_stats, through mbgw.scenarios.health).  A real exchange table, the real
 DeviceTable, a virtual clock for the schedule."""
 import logging
+import re
 
 import pytest
 
+from mbgw.cli.render import format_scenarios
 from mbgw.config.model import Demotion
 from mbgw.config.scenario import parse_scenario
 from mbgw.ops.device_stats import DOWN, DeviceTable, HealthRule
@@ -142,7 +144,10 @@ def test_a_down_device_gets_no_run_but_the_probe(table, clock):
     s = status(e, "poll")
     assert (s["state"], s["message"], s["errors"], s["runs"]) == \
         ("error", "device down", {"device-down": 1}, 1)
+    assert 0 < s["next_probe_in_s"] <= 1.0 and status(e, "other")["next_probe_in_s"] is None
     assert line.get(5).demoted_rejects == 1
+    shown = format_scenarios(e.status(), 0)
+    assert re.fullmatch(r"    error: device down, next probe in [01]\.\d s", shown[3]), shown
     clock.now += 1                                   # past the probe's time
     run = e.next(clock.now)
     assert run.scenario.name == "poll" and run.probe              # the probe goes
@@ -161,6 +166,7 @@ def test_a_down_device_gets_no_run_but_the_probe(table, clock):
     e.done(runs["poll"], H("03 04 0001 0002"), None)
     e.done(runs["other"], H("03 04 0001 0002"), None)
     assert (status(e, "poll")["state"], status(e, "poll")["message"]) == ("running", "")
+    assert status(e, "poll")["next_probe_in_s"] is None
     clock.now += 1
     assert {r.scenario.name: r.probe for r in iter(lambda: e.next(clock.now), None)} == \
         {"poll": False, "other": False}
@@ -193,4 +199,5 @@ def test_a_tcp_server_is_judged_by_the_same_rule(table, clock):
     assert server.health == DOWN and server.name == "scenario server 127.0.0.1:1502"
     e.next(server.probe_at - 0.1)
     assert status(e, "remote")["message"] == "server down"
+    assert 0 < status(e, "remote")["next_probe_in_s"] <= 0.5
     assert health.of("::1", 502).name == "scenario server [::1]:502"
