@@ -1,5 +1,7 @@
 """What the mode commands share: the serial line's options, the operator's tools, turning a
 configuration error into a usage error, and the one way a command fails."""
+from collections.abc import Callable
+
 import click
 
 from mbgw.config import model as config
@@ -20,6 +22,12 @@ class Failure(click.ClickException):
             click.echo(f"mbgw: {line}", file=file, err=file is None)
 
 
+class ModeCommand(click.Command):
+    """A mode command (slave, master, transparent): make_config(**params) builds the
+    settings its daemon starts with (mbgw.cli.checks)."""
+    make_config: Callable | None = None
+
+
 LOG_LEVELS = click.Choice(["debug", "info", "warning", "error"], case_sensitive=False)
 
 
@@ -35,6 +43,16 @@ def parser(parse):
     def callback(ctx, param, value):
         return convert(f"'{param.opts[0]}'", lambda: parse(value))
     return callback
+
+
+def parse_bind(value):
+    """--bind: an IP address (the listeners bind it as given, scope id included)."""
+    if value is not None:
+        try:
+            config.parse_ip("bind", value)
+        except ConfigError:
+            raise ConfigError(f"{value!r} is not an IP address") from None
+    return value
 
 
 def _parse_metrics(value):

@@ -361,7 +361,7 @@ def test_the_console_refuses_to_start_without_an_admin_password(tmp_path, pty_pa
                            str(tmp_path / "c.sock")],
                           capture_output=True, text=True, timeout=30, cwd=CHECKOUT)
     assert done.returncode == 2
-    assert "needs an admin password" in done.stderr and "mbgw config password admin" in \
+    assert "no admin password set" in done.stderr and "mbgw config password admin" in \
         done.stderr
 
 
