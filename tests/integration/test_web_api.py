@@ -263,10 +263,13 @@ def test_a_setting_is_checked_like_config_set_and_applied_with_a_reload(console)
     code, reply, _ = web.post("/api/config", {"group": "web", "key": "admin-password",
                                               "value": "x"})
     assert code == 400 and reply["field"] == "web.admin-password"
-    assert web.ok("POST", "/api/config", {"group": "serial", "key": "stout", "value": 700}) \
-        == {"ok": True, "changed": {"serial.stout": 700}, "reloading": True}
+    reply = web.ok("POST", "/api/config", {"group": "serial", "key": "stout", "value": 700})
+    assert reply["ok"] is True and reply["changed"] == {"serial.stout": 700}
+    assert reply["reload"]["status"] == "applied"
+    assert reply["reload"]["message"] == "configuration reloaded: serial.stout_ms changed"
     assert "stout = 700" in path.read_text()
-    until(lambda: status(gw)["serial"]["stout_ms"] == 700, "reloaded")
+    assert status(gw)["serial"]["stout_ms"] == 700          # in force when answered
+    assert gw.log().count("configuration reloaded: serial.stout_ms changed") == 1
     assert "configuration changed from the web console (web admin@127.0.0.1): serial.stout" \
         in gw.log()
 
