@@ -93,6 +93,10 @@ BAD_FILES = [
     ("the table's file a directory",
      lambda p: DEVICE + f'[table]\nenabled = true\npersist = "{p["dir"]}"\n',
      "table.persist", "is a directory"),
+    ("a TLS scenario without the client certificate",
+     lambda p: DEVICE + '[[scenario]]\nname = "remote"\nserver = "10.0.0.5"\nfunction = 3\n'
+     "address = 0\nquantity = 2\ntable = 0\ncycle = 1000\ntls = true\n",
+     "scenario remote", "tls needs tls-client-cert"),
     ("master: a client key that does not match its certificate",
      lambda p: DEVICE + 'mode = "master"\n'
      f'[tls]\nclient-cert = "{p["cert"]}"\nclient-key = "{p["other_key"]}"\n'
@@ -147,6 +151,13 @@ def test_a_good_file_passes_with_its_files_and_addresses(tmp_path, pki):
     result = mbgw("check-config", path)
     assert result.exit_code == 0, result.output
     assert result.output == f"{path}: ok (slave mode)\n"
+
+
+def test_one_port_on_two_addresses_is_two_listeners(tmp_path):
+    path = tmp_path / "mbgw.toml"
+    path.write_text(DEVICE + '[net]\nbind = "127.0.0.1"\nmdbport = 1502\n'
+                    '[general]\nmetrics = "127.0.0.2:1502"\n')
+    assert mbgw("check-config", path).exit_code == 0
 
 
 def test_a_port_another_program_holds_is_no_configuration_problem(tmp_path):
