@@ -1,5 +1,6 @@
 """What the mode commands share: the serial line's options, the operator's tools, turning a
 configuration error into a usage error, and the one way a command fails."""
+import os
 from collections.abc import Callable
 
 import click
@@ -172,7 +173,8 @@ table_options = stack(
     click.option("--table-persist", cls=TableOption, key="persist", metavar="PATH",
                  default=config.TableConfig.persist, callback=parser(_parse_persist),
                  help="Keep the outputs and the free zone (0x0800-0x7FFF) in this file "
-                      "across restarts, written atomically [default: not kept]."),
+                      "across restarts, written atomically; off: not kept [default: "
+                      "$STATE_DIRECTORY/table under the units, else not kept]."),
     click.option("--table-persist-interval", cls=TableOption, key="persist-interval",
                  type=click.IntRange(*config.PERSIST_INTERVAL_RANGE),
                  default=config.DEFAULT_PERSIST_INTERVAL_S, show_default=True, metavar="S",
@@ -181,13 +183,27 @@ table_options = stack(
 )
 
 
+PERSIST_OFF = "off"
+PERSIST_FILE = "table"       # the default file's name in the state directory
+
+
+def persist_path(value: str | None) -> str | None:
+    """The table's file: the one given; none for "off"; when none is given, `table` in the
+    state directory systemd gives the units (StateDirectory=, $STATE_DIRECTORY), else none
+    (mbgw run by hand does not write somewhere it was not told to)."""
+    if value is not None:
+        return None if value == PERSIST_OFF else value
+    state = os.environ.get("STATE_DIRECTORY", "").split(":")[0]
+    return os.path.join(state, PERSIST_FILE) if state else None
+
+
 def table_config(**settings) -> config.TableConfig:
     """TableConfig from the click values (table_enabled, table_functions, ...)."""
     fields = {"enabled": "table_enabled", "direct": "table_direct", "units": "table_units",
               "functions": "table_functions", "address": "table_address",
-              "port": "table_port", "persist": "table_persist",
-              "persist_interval_s": "table_persist_interval"}
+              "port": "table_port", "persist_interval_s": "table_persist_interval"}
     return convert("'--table'", lambda: config.TableConfig(
+        persist=persist_path(settings.get("table_persist")),
         **{f: settings[o] for f, o in fields.items() if settings.get(o) is not None}))
 
 

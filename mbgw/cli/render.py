@@ -226,6 +226,9 @@ def _table_section(t: dict, mode: str, now: float) -> list[str]:
     persist = t.get("persist")
     if persist is not None:
         lines.append(f"  persist {_table_persist(persist, now)}")
+        if persist.get("failing"):
+            lines.append(f"  persist FAILING since {_ago(persist.get('failing_since'), now)}: "
+                         f"{persist['failing']} (changes since the last save are not kept)")
     return lines
 
 
@@ -246,10 +249,12 @@ def _table_persist(persist: dict, now: float) -> str:
     """'PATH: last save 3.0s ago, saves 4, ...': every figure the persistence reports."""
     figures = []
     for name, value in persist.items():
-        if name == "path":
+        if name in ("path", "failing", "failing_since"):
             continue
         if name.startswith("last_"):
             value = _ago(value, now)
+        if name == "interval_s":
+            name, value = "every", f"{value:g}s"
         figures.append(f"{name.replace('_', ' ')} {value}")
     return f"{persist.get('path', '-')}: {', '.join(figures)}" if figures else \
         str(persist.get("path", "-"))

@@ -154,8 +154,7 @@ class TableService:
         if not cfg.enabled:
             return None
         persistence = self.persistence
-        persist = None if persistence is None else {
-            "path": str(persistence.path), "interval_s": persistence.interval_s}
+        persist = None if persistence is None else persistence.report()
         server = self.server
         return table_status(self.table, cfg, serial, persist,
                             server.figures() if server is not None else None)
