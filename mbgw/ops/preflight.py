@@ -86,16 +86,13 @@ def distinct_ports(cfg) -> list[str]:
 
 
 def table_file(cfg) -> list[str]:
-    """[table] persist: its directory there (else no save ever succeeds), the file, when it
-    exists, a file that can be read (else the start refuses it)."""
+    """[table] persist: when it exists, a file that can be read (else the start refuses it).
+    A directory not there yet is no refusal: the daemon runs on, reports the failing saves
+    and saves once it is there."""
     table = getattr(cfg, "table", None)
     if table is None or not table.persist or not getattr(cfg, "table_on", False):
         return []
     path = Path(table.persist)
-    directory = path.parent
-    if not directory.is_dir():
-        return [f"table.persist: {str(path)!r}: its directory {str(directory)!r} does not "
-                f"exist"]
     if path.is_dir():
         return [f"table.persist: {str(path)!r} is a directory, not a file"]
     if path.exists() and not os.access(path, os.R_OK):

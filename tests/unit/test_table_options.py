@@ -144,18 +144,18 @@ def test_set_then_show_table(conf):
     for words, said in [(("enabled", "on"), "table.enabled = true"),
                         (("units", "1,5", "200-210"), 'table.units = "1,5,200-210"'),
                         (("functions", "3,4,16"), 'table.functions = "3,4,16"'),
-                        (("persist", "/tmp/mbgw-t"), 'table.persist = "/tmp/mbgw-t"')]:
+                        (("persist", "/var/lib/mbgw/t"), 'table.persist = "/var/lib/mbgw/t"')]:
         result = mbgw("config", "set", "table", *words, "--config", conf)
         assert result.exit_code == 0, result.output
         assert f"{conf}: {said}\n" in result.output
     assert tomllib.loads(conf.read_text())["table"] == {
         "enabled": True, "units": "1,5,200-210", "functions": "3,4,16",
-        "persist": "/tmp/mbgw-t"}
+        "persist": "/var/lib/mbgw/t"}
     assert mbgw("config", "show", "table", "units", "--config", conf).output == "1,5,200-210\n"
     shown = mbgw("config", "show", "table", "--config", conf).output
     assert shown.startswith("[table]\n")
     for line in ("enabled          on", "direct           on", "units            1,5,200-210",
-                 "functions        3,4,16", "persist          /tmp/mbgw-t",
+                 "functions        3,4,16", "persist          /var/lib/mbgw/t",
                  "persist-interval 10", "address          0", "port             502"):
         assert f"\n{line}\n" in shown, line
     assert "[table]" in mbgw("config", "show", "--config", conf).output
