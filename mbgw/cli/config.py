@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from mbgw.cli import checks
-from mbgw.cli.options import Failure
+from mbgw.cli.options import EX_CONFIG, META_FILE, Failure
 from mbgw.config import edit as config_set
 from mbgw.config import file as cf
 from mbgw.config import scenario as scenario_config
@@ -18,9 +18,7 @@ from mbgw.config.toml_text import dump_value, set_line, write_atomic
 from mbgw.errors import ConfigError, ConfigFileError
 
 SHOW_WIDTH = 16                    # the key column of `mbgw config show`
-META_FILE = "mbgw.config_file"     # ctx.meta: the file the running mode command took values from
 META_MODE_FROM_FILE = "mbgw.mode_from_file"   # ctx.meta: `mbgw run` took the mode from it
-EX_CONFIG = 78                     # sysexits.h; the units do not restart on it
 
 
 def register(root: click.Group) -> None:

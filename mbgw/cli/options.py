@@ -23,10 +23,30 @@ class Failure(click.ClickException):
             click.echo(f"mbgw: {line}", file=file, err=file is None)
 
 
+EX_CONFIG = 78                     # sysexits.h; the units do not restart on it
+META_FILE = "mbgw.config_file"     # ctx.meta: the file the running mode command took values from
+
+
 class ModeCommand(click.Command):
     """A mode command (slave, master, transparent): make_config(**params) builds the
-    settings its daemon starts with (mbgw.cli.checks)."""
+    settings its daemon starts with (mbgw.cli.checks).  A value from its configuration file
+    that a check of the options refuses (the CRL and the CA, checked together) is the file's
+    problem: EX_CONFIG, naming the file and the key, not a usage error."""
     make_config: Callable | None = None
+
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        try:
+            return super().parse_args(ctx, args)
+        except click.BadParameter as err:
+            path, param, root = ctx.meta.get(META_FILE), err.param, ctx.find_root().command
+            if path is None or param is None or param.name is None or \
+                    ctx.get_parameter_source(param.name) \
+                    is not click.core.ParameterSource.DEFAULT_MAP:
+                raise
+            from mbgw.config.schema import Schema
+            key = Schema(root).key_of_param(param) if isinstance(root, click.Group) else None
+            label = key.label if key is not None else param.name
+            raise Failure(f"{path}: {label}: {err.message}", EX_CONFIG) from None
 
 
 LOG_LEVELS = click.Choice(["debug", "info", "warning", "error"], case_sensitive=False)
@@ -231,6 +251,18 @@ def _check_ca(path, option="tls-ca"):
     check_ca(path, option)
 
 
+def _crl_callback(ctx, param, value):
+    """The CRL readable, and signed by a CA of tls-ca (when that option came first; the mode's
+    settings check it again)."""
+    if value is not None:
+        from mbgw.ops.tls import check_crl, check_crl_issuer
+        convert("'--tls-crl'", lambda: check_crl(value))
+        ca = ctx.params.get("tls_ca")
+        if ca is not None:
+            convert("'--tls-crl'", lambda: check_crl_issuer(value, ca))
+    return value
+
+
 # Modbus/TCP Security ([tls] keys): TLS is on when a certificate is given.
 tls_options = stack(
     click.option("--tls-port", cls=TlsOption, key="tls-port", file_key="port",
@@ -248,14 +280,25 @@ tls_options = stack(
                  callback=_tls_file(_check_ca),
                  help="CA certificate(s) (PEM) that client certificates must chain to; the "
                       "client's role is its certificate's extension %s." % config.ROLE_OID),
+    click.option("--tls-require-role/--no-tls-require-role", cls=TlsOption,
+                 key="require-role", default=config.TlsConfig.require_role, show_default=True,
+                 help="Refuse every request (exception 0x01) of a TLS client whose "
+                      "certificate has no role; the session stays open."),
+    click.option("--tls-crl", cls=TlsOption, key="crl", metavar="PATH", default=None,
+                 callback=_crl_callback,
+                 help="Revoked client certificates (PEM CRL of the CA): a revoked client is "
+                      "refused in the handshake; reloaded with SIGHUP [default: none]."),
 )
 
 
-def tls_config(tls_port, tls_cert, tls_key, tls_ca) -> config.TlsConfig:
-    from mbgw.ops.tls import file_stamps
+def tls_config(tls_port, tls_cert, tls_key, tls_ca, tls_require_role=True,
+               tls_crl=None) -> config.TlsConfig:
+    from mbgw.ops.tls import check_crl_issuer, file_stamps
+    if tls_crl is not None and tls_ca is not None:
+        convert("'--tls-crl'", lambda: check_crl_issuer(tls_crl, tls_ca))
     return convert("'--tls-cert'", lambda: config.TlsConfig(
-        port=tls_port, cert=tls_cert, key=tls_key, ca=tls_ca,
-        files=file_stamps(tls_cert, tls_key, tls_ca)))
+        port=tls_port, cert=tls_cert, key=tls_key, ca=tls_ca, require_role=tls_require_role,
+        crl=tls_crl, files=file_stamps(tls_cert, tls_key, tls_ca, tls_crl)))
 
 
 def _client_file(check, option):

@@ -116,6 +116,9 @@ def _firewall_section(f: dict) -> list[str]:
         lines.append(f"  {rule['selects']:<56} {rule['refused']:>8} refused")
     lines.append(f"  {'no rule (default ' + f['default'] + ')':<56} "
                  f"{f['refused_default']:>8} refused")
+    if f.get("require_role"):
+        lines.append(f"  {'TLS client without a role (require-role)':<56} "
+                     f"{f['refused_no_role']:>8} refused")
     for client in f["clients"]:
         if client["refused"]:
             lines.append(f"  client {client['peer']} (role {client['role'] or 'none'}): "
@@ -222,7 +225,8 @@ def _table_section(t: dict, mode: str, now: float) -> list[str]:
         if tcp.get("tls_port") is not None:
             lines.append(f"  TLS on port {tcp['tls_port']}: "
                          f"{tcp.get('tls_handshakes', 0)} handshakes under way, "
-                         f"{tcp.get('connections_refused_tls', 0)} refused")
+                         f"{tcp.get('connections_refused_tls', 0)} refused, "
+                         f"{tcp.get('connections_tls_probes', 0)} closed before a byte")
     persist = t.get("persist")
     if persist is not None:
         lines.append(f"  persist {_table_persist(persist, now)}")

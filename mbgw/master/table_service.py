@@ -28,7 +28,8 @@ class TableService:
         self.table = Table(cfg.functions)
         identity.fill(self.table, settings, "master")
         self.server: TableServer | None = None
-        self.firewall = Firewall(settings.firewall)     # on the TCP server's requests
+        # on the TCP server's requests
+        self.firewall = Firewall(settings.firewall, settings.tls.roles_required)
         self.tls = settings.tls
         self._commands = table_commands(self.table)
         self.persistence: Persistence | None = None
@@ -79,7 +80,8 @@ class TableService:
         self._repersist(old, new, report)
         if new.functions != old.functions:
             self.table.set_functions(new.functions)
-        firewall = self.firewall.renewed(settings.firewall)
+        firewall = self.firewall.renewed(settings.firewall,
+                                          settings.tls.roles_required)
         if firewall is not self.firewall:
             self.firewall = firewall
             if self.server is not None:

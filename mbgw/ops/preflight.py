@@ -10,6 +10,7 @@ TransparentModeConfig) and giving its problems, each naming the file's key first
 not a problem of the settings: the start fails on it (exit status 1) and systemd tries again."""
 import ipaddress
 import os
+import re
 import socket
 from collections.abc import Callable
 from pathlib import Path
@@ -31,8 +32,16 @@ def _refused(check: Callable[[], object]) -> list[str]:
     try:
         check()
     except ConfigError as err:
-        return [str(err)]
+        return [_keyed(str(err))]
     return []
+
+
+_OPTION_FIRST = re.compile(r"^(tls|web)[-.]([a-z-]+) ")    # "tls-crl /x: ...", "tls.cert /x: ..."
+
+
+def _keyed(message: str) -> str:
+    """The file's key first, as every problem names it: "tls.crl: /x: ..."."""
+    return _OPTION_FIRST.sub(lambda m: f"{m[1]}.{m[2]}: ", message, count=1)
 
 
 def tls_files(cfg) -> list[str]:

@@ -27,8 +27,9 @@ def pki(tmp_path_factory):
     _, other_key = ca.issue("other", server=True)
     junk = directory / "junk.pem"
     junk.write_text("not a certificate\n")
+    foreign_crl = Authority(directory, "other").crl(directory / "other.crl")
     return {"ca": ca.cert, "cert": cert, "key": key, "other_key": other_key, "junk": junk,
-            "dir": directory}
+            "dir": directory, "foreign_crl": foreign_crl}
 
 
 def _tls(cert, key, ca) -> str:
@@ -61,6 +62,9 @@ BAD_FILES = [
     ("a CA file that is no certificate",
      lambda p: DEVICE + _tls(p["cert"], p["key"], p["junk"]),
      "tls.ca", "not a PEM certificate"),
+    ("a CRL another CA signed",
+     lambda p: DEVICE + _tls(p["cert"], p["key"], p["ca"]) + f'crl = "{p["foreign_crl"]}"\n',
+     "tls.crl", "not signed by a CA of tls-ca"),
     ("a tls certificate without its key and CA",
      lambda p: DEVICE + f'[tls]\ncert = "{p["cert"]}"\n',
      "tls.cert", "without tls-key and tls-ca"),
