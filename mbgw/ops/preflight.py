@@ -49,7 +49,7 @@ def tls_files(cfg) -> list[str]:
     tls = getattr(cfg, "tls", None)
     if tls is None or not tls.enabled or not _tls_served(cfg):
         return []
-    return _refused(lambda: server_context(tls))
+    return _refused(lambda: server_context(tls, log_expiry=False))
 
 
 def client_tls_files(cfg) -> list[str]:

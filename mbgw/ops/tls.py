@@ -126,8 +126,9 @@ def file_stamps(*paths: str | None) -> tuple:
     return tuple(stamps)
 
 
-def server_context(cfg: TlsConfig) -> ssl.SSLContext:
-    """The context of the TLS listener: the files checked, then loaded.  Raises ConfigError."""
+def server_context(cfg: TlsConfig, log_expiry: bool = True) -> ssl.SSLContext:
+    """The context of the TLS listener: the files checked, then loaded.  Raises ConfigError.
+    log_expiry=False: a check only (mbgw.ops.preflight), which leaves the log to the start."""
     assert cfg.cert is not None and cfg.key is not None and cfg.ca is not None
     check_certificate(cfg.cert, "tls.cert")
     check_key(cfg.key, "tls.key")
@@ -141,7 +142,8 @@ def server_context(cfg: TlsConfig) -> ssl.SSLContext:
         except (ssl.SSLError, OSError) as err:
             raise ConfigError(f"tls-crl {cfg.crl}: cannot be used ({err})") from None
         context.verify_flags |= ssl.VERIFY_CRL_CHECK_LEAF
-        _crl_expiry(cfg.crl)
+        if log_expiry:
+            _crl_expiry(cfg.crl)
     return context
 
 
