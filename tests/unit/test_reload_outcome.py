@@ -127,3 +127,16 @@ def test_without_a_file_a_reload_is_refused():
     r.apply = None
     outcome = asyncio.run(r.run())
     assert outcome.status == "refused" and "command line" in outcome.reason
+
+
+def test_a_bug_while_applying_is_an_outcome_too(caplog):
+    """The console's request gets an answer, the log says it (with the traceback), and the
+    running configuration stays the old one, so that the next reload tries it all again."""
+    async def apply(new, report):
+        raise RuntimeError("boom")
+    r, holder, _ = reloads(lambda: Settings(stout=700), apply)
+    outcome = asyncio.run(r.run())
+    assert outcome.status == "partly applied" and outcome.changed == ()
+    assert "failed while applying (RuntimeError('boom'))" in outcome.message()
+    assert holder.cfg == Settings()
+    assert any(r.exc_info for r in caplog.records)
