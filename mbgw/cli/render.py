@@ -267,7 +267,7 @@ def _table_persist(persist: dict, now: float) -> str:
 # --- the scenarios (mbgw status, mbgw scenarios) ---------------------------------------------
 
 def format_scenarios(rows: list[dict], now: float) -> list[str]:
-    """One line per scenario, then its error message when in error."""
+    """One line per scenario, then its message (an error's, or why it waits)."""
     if not rows:
         return ["scenarios  none"]
     lines = [f"scenarios ({len(rows)})",
@@ -283,8 +283,10 @@ def format_scenarios(rows: list[dict], now: float) -> list[str]:
                      f"{r['function']:>2} {r['trigger']:<8} {r['runs']:>7} "
                      f"{sum(r['errors'].values()):>6} {r['retries']:>5} {r['overruns']:>7} "
                      f"{latency:>8}  {age:<9} {_ago(r['last_success'], now)}")
-        if r["state"] == "error" and r["message"]:
-            lines.append(f"    error: {r['message']}")
+        if r["message"]:
+            probe = r.get("next_probe_in_s")
+            lines.append(f"    {'error: ' if r['state'] == 'error' else ''}{r['message']}" +
+                         ("" if probe is None else f", next probe in {probe:.1f} s"))
     return lines
 
 
