@@ -35,10 +35,13 @@ class Kind(enum.Enum):
         return self.name.lower().replace("_", "-")
 
 
-def event(logger: logging.Logger, kind: Kind, message: str, *args, **fields) -> None:
-    """Log message % args on logger at kind's level, with kind's id and these fields."""
-    if logger.isEnabledFor(kind.level):
-        logger.log(kind.level, message, *args, stacklevel=2,
+def event(logger: logging.Logger, kind: Kind, message: str, *args, level: int | None = None,
+          **fields) -> None:
+    """Log message % args on logger at kind's level (or level), with kind's id and these
+    fields."""
+    level = kind.level if level is None else level
+    if logger.isEnabledFor(level):
+        logger.log(level, message, *args, stacklevel=2,
                    extra={RECORD_ATTRIBUTE: (kind, fields)})
 
 

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import click
 
-from mbgw.cli.options import Failure
+from mbgw.cli import checks
+from mbgw.cli.options import EX_CONFIG, META_FILE, Failure
 from mbgw.config import edit as config_set
 from mbgw.config import file as cf
 from mbgw.config import scenario as scenario_config
@@ -17,9 +18,7 @@ from mbgw.config.toml_text import dump_value, set_line, write_atomic
 from mbgw.errors import ConfigError, ConfigFileError
 
 SHOW_WIDTH = 16                    # the key column of `mbgw config show`
-META_FILE = "mbgw.config_file"     # ctx.meta: the file the running mode command took values from
 META_MODE_FROM_FILE = "mbgw.mode_from_file"   # ctx.meta: `mbgw run` took the mode from it
-EX_CONFIG = 78                     # sysexits.h; the units do not restart on it
 
 
 def register(root: click.Group) -> None:
@@ -33,7 +32,7 @@ def register(root: click.Group) -> None:
         root.add_command(command)
 
 
-def _schema(ctx: click.Context) -> ck.Schema:
+def schema_of(ctx: click.Context) -> ck.Schema:
     root = ctx.find_root().command
     if not isinstance(root, click.Group) or not any(m in root.commands for m in ck.MODES):
         root = click.Group(commands=[ctx.command])
@@ -44,9 +43,9 @@ def _command_line(ctx: click.Context, *words) -> str:
     return shlex.join([*ctx.command_path.split(), *map(str, words)])
 
 
-def _permission_failure(ctx, path, doing: str, words) -> Failure:
+def _permission_failure(ctx, path, doing: str, words, exit_code: int = 1) -> Failure:
     return Failure(f"cannot {doing} {path}: permission denied; run it as root: "
-                   f"sudo {_command_line(ctx, *words)}")
+                   f"sudo {_command_line(ctx, *words)}", exit_code)
 
 
 def _load(ctx: click.Context, schema: ck.Schema, path: Path, words=(),
@@ -54,7 +53,7 @@ def _load(ctx: click.Context, schema: ck.Schema, path: Path, words=(),
     try:
         return cf.load(schema, path)
     except PermissionError:
-        raise _permission_failure(ctx, path, "read", words) from None
+        raise _permission_failure(ctx, path, "read", words, exit_code) from None
     except ConfigFileError as err:
         raise Failure(str(err), exit_code) from None
 
@@ -94,7 +93,7 @@ def _apply_file(ctx: click.Context, param: click.Parameter, value) -> None:
         if not ck.DEFAULT_PATH.exists():
             return
         value = ck.DEFAULT_PATH
-    schema = _schema(ctx)
+    schema = schema_of(ctx)
     settings = _load(ctx, schema, Path(value), exit_code=EX_CONFIG)
     ctx.default_map = {**settings.default_map(schema, ctx.command.name or ""),
                        **(ctx.default_map or {})}
@@ -120,7 +119,7 @@ def reloader(ctx: click.Context | None = None):
     if path is None:
         return None
     mode = ctx.command.name
-    root = _schema(ctx).root
+    root = schema_of(ctx).root
     kept = {name: ctx.params[name] for name in ctx.params
             if ctx.get_parameter_source(name) in (click.core.ParameterSource.COMMANDLINE,
                                                   click.core.ParameterSource.ENVIRONMENT)}
@@ -216,7 +215,7 @@ def run(ctx: click.Context, config_path: Path, instance: str | None, args) -> No
     runs.  Options after the file options are the mode command's and win over the file,
     e.g. `mbgw run --log-level debug`.  Exit status 78 when the file is wrong."""
     path = _path(ctx, config_path, instance)
-    schema = _schema(ctx)
+    schema = schema_of(ctx)
     settings = _load(ctx, schema, path, exit_code=EX_CONFIG)
     command = schema.commands[settings.mode]
     ctx.meta[META_FILE] = path                  # shared with the mode command's context
@@ -236,16 +235,18 @@ def run(ctx: click.Context, config_path: Path, instance: str | None, args) -> No
 @click.pass_context
 def check_config(ctx: click.Context, file: Path | None) -> None:
     """Check a configuration file without starting anything: every key known, every value
-    accepted as on the command line, what its mode requires present.  FILE defaults to
-    $MBGW_CONFIG, else /etc/mbgw/mbgw.toml."""
+    accepted as on the command line, what its mode requires present, the keys that go
+    together, the files it names (certificates and their keys, the table's file) and the
+    addresses it listens on: whatever `mbgw run` would refuse.  Exit status 78 when the file
+    is wrong.  FILE defaults to $MBGW_CONFIG, else /etc/mbgw/mbgw.toml."""
     import os
     path = file or Path(os.environ.get("MBGW_CONFIG") or ck.DEFAULT_PATH)
-    schema = _schema(ctx)
-    settings = _load(ctx, schema, path, [path])
+    schema = schema_of(ctx)
+    settings = _load(ctx, schema, path, [path], exit_code=EX_CONFIG)
     try:
-        cf.resolve(schema, settings)
+        checks.check_file(schema, settings)
     except ConfigFileError as err:
-        raise Failure(str(err)) from None
+        raise Failure(str(err), EX_CONFIG) from None
     click.echo(f"{path}: ok ({settings.mode} mode)")
 
 
@@ -281,7 +282,7 @@ def show(ctx, config_path: Path, instance: str | None, security: bool, as_json: 
     if security and group is not None:
         raise click.UsageError("--security shows them all: give no GROUP")
     path = _path(ctx, config_path, instance)
-    schema = _schema(ctx)
+    schema = schema_of(ctx)
     if path.exists():
         settings = _load(ctx, schema, path, [*filter(None, (group, param)),
                                              *(["--security"] if security else []),
@@ -368,16 +369,14 @@ def _change(ctx, path: Path, words, change, shown: bool = True) -> None:
     """Read the file (or start from the factory file), make `change(schema, settings, data)`
     -> {key: value}, check the whole result, write it atomically, say what changed (its
     value too when `shown`)."""
-    schema = _schema(ctx)
+    schema = schema_of(ctx)
     text, data, settings = _read_checked(ctx, schema, path, words)
     try:
         changes = change(schema, settings, data)
         new_data = config_set.apply_changes(data, schema, changes)
-        cf.check(schema, path, new_data)
+        pending = _start_check(schema, path, new_data)
     except ConfigError as err:
-        message = str(err)
-        raise Failure(message if message.startswith(str(path)) else f"{path}: {message}") \
-            from None
+        raise _refused(path, err) from None
     new_mode = changes.get(ck.MODE_KEY, settings.mode)
     new_text = config_text.edit(text, schema, new_mode, changes)
     if tomllib.loads(new_text) != new_data:          # the editor's own check
@@ -393,8 +392,33 @@ def _change(ctx, path: Path, words, change, shown: bool = True) -> None:
             click.echo(f"{path}: {label} set")
         else:
             click.echo(f"{path}: {label} = {dump_value(value)}")
-    if text != new_text:
+    _warn_pending(path, pending)
+    if text != new_text and not pending:
         _say_how_to_apply(path)
+
+
+def _start_check(schema: ck.Schema, path: Path, data: dict) -> list[str]:
+    """The checks of the file and of `mbgw run` (mbgw.cli.checks) on an edit's result:
+    raises ConfigError on a problem the edit must not write; the keys that do not go
+    together yet (another `set` mends them)."""
+    wrong, pending = checks.refusals(schema, cf.check(schema, path, data))
+    if wrong:
+        raise ConfigFileError(path, [*wrong, "nothing written"])
+    return pending
+
+
+def _refused(path: Path, err: ConfigError) -> Failure:
+    message = str(err)
+    return Failure(message if message.startswith(str(path)) else f"{path}: {message}")
+
+
+def _warn_pending(path: Path, pending: list[str]) -> None:
+    """Written, but the service would not start it, nor take it on a reload, yet."""
+    for problem in pending:
+        click.echo(f"mbgw: warning: {path}: {problem}", err=True)
+    if pending:
+        click.echo(f"mbgw: warning: {path}: mbgw run and systemctl reload refuse the file "
+                   f"until this is set; mbgw check-config checks it", err=True)
 
 
 @config.command("set")
@@ -443,7 +467,7 @@ def unset(ctx, config_path: Path, instance: str | None, group: str, param: str) 
 
 def _unset(ctx, path: Path, words, group: str, param: str) -> None:
     """Works on the text, even when the key is unknown (a typo) or its value is bad."""
-    schema = _schema(ctx)
+    schema = schema_of(ctx)
     try:
         text = cf.read_text(path)
     except FileNotFoundError:
@@ -473,7 +497,9 @@ def _unset(ctx, path: Path, words, group: str, param: str) -> None:
     _audit(ctx, path, f"{group}.{param}")
     click.echo(f"{path}: {group}.{param} back to its default")
     try:
-        cf.check(schema, path, new_data)
+        wrong, pending = checks.refusals(schema, cf.check(schema, path, new_data))
+        if wrong or pending:
+            raise ConfigFileError(path, [*wrong, *pending])
     except ConfigFileError as err:
         raise Failure(f"{err}\n(the file still has these problems)") from None
     _say_how_to_apply(path)
@@ -548,7 +574,7 @@ def default(ctx, config_path: Path, instance: str | None) -> None:
     """Write the factory defaults: the guide's `set default`.  Every key is listed with its
     help, commented out at its built-in default; the device is /dev/ttyUSB0."""
     path = _path(ctx, config_path, instance)
-    _write(ctx, path, config_text.factory_text(_schema(ctx)), _file_words(ctx, path),
+    _write(ctx, path, config_text.factory_text(schema_of(ctx)), _file_words(ctx, path),
            "factory defaults")
     click.echo(f"{path}: factory defaults written")
     _say_how_to_apply(path)
@@ -620,15 +646,15 @@ def scenario_remove(ctx, config_path: Path, instance: str | None, name: str) -> 
 def _edit_scenarios(ctx, path: Path, words, change, done: str) -> None:
     """Read and check the file (or start from the factory file), new_text = change(text,
     data), check the result as a whole, write it atomically."""
-    schema = _schema(ctx)
+    schema = schema_of(ctx)
     text, data, _ = _read_checked(ctx, schema, path, words)
     try:
         new_text = change(text, data)
-        cf.check(schema, path, cf.parse(path, new_text))
+        pending = _start_check(schema, path, cf.parse(path, new_text))
     except ConfigError as err:
-        message = str(err)
-        raise Failure(message if message.startswith(str(path)) else f"{path}: {message}") \
-            from None
+        raise _refused(path, err) from None
     _write(ctx, path, new_text, words, done)
     click.echo(f"{path}: {done}")
-    _say_how_to_apply(path)
+    _warn_pending(path, pending)
+    if not pending:
+        _say_how_to_apply(path)

@@ -2,10 +2,12 @@
 import click
 
 from mbgw.cli.options import (
+    ModeCommand,
     convert,
     daemon_options,
     demotion,
     demotion_options,
+    parse_bind,
     parser,
     serial_config,
     serial_options,
@@ -30,7 +32,7 @@ def _parse_units(value) -> tuple[int, ...]:
     return config.parse_number_list("table-units", value, 1, 255)
 
 
-@click.command()
+@click.command(cls=ModeCommand)
 @serial_options
 @click.option("--slaveid", type=click.IntRange(*config.SLAVEID_RANGE),
               default=config.SlaveConfig.slaveid, show_default=True,
@@ -44,8 +46,8 @@ def _parse_units(value) -> tuple[int, ...]:
 @click.option("--mdbport", type=click.IntRange(*config.MDBPORT_RANGE),
               default=config.SlaveConfig.mdbport, show_default=True,
               help="Modbus TCP port to listen on (0: none, Modbus/TCP Security only).")
-@click.option("--bind", metavar="ADDR", default=None,
-              help="Listen on this address only [default: all, IPv4 and IPv6].")
+@click.option("--bind", metavar="ADDR", default=None, callback=parser(parse_bind),
+              help="Listen on this IP address only [default: all, IPv4 and IPv6].")
 @click.option("--max-connections", type=click.IntRange(*config.MAX_CONNECTIONS_RANGE),
               default=config.SlaveConfig.max_connections, show_default=True,
               help="Simultaneous TCP clients (closed ones do not count); a newcomer closes an "
@@ -117,3 +119,6 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
         turnaround_ms=turnaround, control=control, metrics=metrics, shortcut=shortcut,
         demotion=demotion(down_after, probe_interval), table=table, tcpto_ms=tcpto,
         firewall=firewall, scenarios=scenarios, tls=tls))
+
+
+slave.make_config = slave_config

@@ -293,8 +293,8 @@ class WebConfig:
             raise ConfigError("web-cert and web-key go together: HTTPS needs the certificate "
                               "and its private key")
         if self.listen is not None and self.admin_password is None:
-            raise ConfigError(f"web {self.listen}: the web console needs an admin password; "
-                              f"set one with: mbgw config password admin")
+            raise ConfigError("no admin password set: the web console needs one (mbgw config "
+                              "password admin)")
 
     @property
     def https(self) -> bool:

@@ -8,6 +8,7 @@ from mbgw.config.model import SlaveConfig
 from mbgw.line.port import SerialLine
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable, HealthRule
+from mbgw.ops.reload import ReloadReport, Reloads
 from mbgw.ops.service import (
     ListenError,
     MetricsListenError,
@@ -27,7 +28,7 @@ from mbgw.slave.server import TcpServer
 from mbgw.slave.status import SlaveStatus
 from mbgw.slave.table_service import TableService
 from mbgw.web.console import start_console
-from mbgw.web.hooks import WebHooks, sighup_reload
+from mbgw.web.hooks import WebHooks
 
 log = logging.getLogger("mbgw")
 
@@ -78,8 +79,9 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     status.scenario_engines = engines
     commands = {**status.commands(), **scenario_commands(engines, cfg.config_file)}
     control = await start_control(cfg.control, commands)
+    reloads = Reloads(status, reconfigure)
     console = await start_console(cfg.web, WebHooks(commands, status.trace_hub,
-                                                    cfg.config_file, sighup_reload))
+                                                    cfg.config_file, reloads.run))
     s = cfg.serial
     log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s",
              ", ".join(addresses), s.device, s.baudrate, s.format, s.protocol, s.interface,
@@ -92,17 +94,18 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     scenarios = TcpScenarios(tables.table, engines, devices.rule)
     scenarios.start(cfg.scenarios, cfg.tcpto_ms, cfg.upstream_tls)
 
-    async def apply(new: SlaveConfig) -> None:
-        await console.reconfigure(new.web)
-        tables.reconfigure(new)
-        await server.reconfigure(new)
+    async def apply(new: SlaveConfig, report: ReloadReport) -> None:
+        await console.reconfigure(new.web, report)
+        tables.reconfigure(new, report)
+        await server.reconfigure(new, report)
         worker.reconfigure(new)
         await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms,
                                 new.upstream_tls)
+    reloads.apply = apply
 
     kept = asyncio.ensure_future(tables.keep())
     try:
-        await serve_until_stopped(stop, status, worker, reconfigure, apply, control, metrics)
+        await serve_until_stopped(stop, status, worker, reloads, control, metrics)
     finally:
         await console.close()
         await asyncio.to_thread(scenarios.stop)

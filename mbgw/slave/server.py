@@ -30,6 +30,7 @@ from mbgw.line import clients
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
 from mbgw.ops.exception_reply import gateway_exception
+from mbgw.ops.reload import ReloadReport
 from mbgw.ops.service import ListenError
 from mbgw.ops.tls import role_of, server_context
 from mbgw.ops.trace import TraceHub
@@ -130,8 +131,10 @@ class TcpServer:
             sock.close()
         listeners.clear()
 
-    async def reconfigure(self, cfg: SlaveConfig) -> None:
-        """Apply new settings; connections they do not concern stay open."""
+    async def reconfigure(self, cfg: SlaveConfig, report: ReloadReport) -> None:
+        """Apply new settings; connections they do not concern stay open.  What cannot be
+        applied (a port another program holds, TLS files that do not load) stays as it was,
+        told to the report."""
         old, self._cfg = self._cfg, cfg
         self._acl = AccessList(cfg.authip)
         self._guard_clients(self.firewall.renewed(cfg.firewall, cfg.tls.roles_required))
@@ -144,39 +147,56 @@ class TcpServer:
                       client.peer, client=client.peer, reason="not in authip")
                 self._drop(client)
         if cfg.tls != old.tls or cfg.bind != old.bind:
-            self._retls(old)
+            self._retls(old, report)
         if (cfg.mdbport, cfg.bind) != (old.mdbport, old.bind):
             self._stop_listening()
             try:
                 self._listen_plain()
             except OSError as err:
-                log.error("cannot listen on port %d (%s): staying on port %d", cfg.mdbport,
-                          err.strerror, old.mdbport)
+                where = f"{cfg.bind or '*'} port {cfg.mdbport}"
+                for setting in ("mdbport", "bind"):
+                    if getattr(cfg, setting) != getattr(old, setting):
+                        report.refuse(setting, f"cannot listen on {where} ({err.strerror}): "
+                                               f"still on port {old.mdbport}")
                 self._cfg = dataclasses.replace(self._cfg, mdbport=old.mdbport, bind=old.bind)
                 self._listen_plain()
             log.info("now listening on %s", ", ".join(self.addresses()))
 
-    def _retls(self, old: SlaveConfig) -> None:
+    def _retls(self, old: SlaveConfig, report: ReloadReport) -> None:
         """New TLS settings or renewed files: the new context is for new connections; those
-        open keep theirs.  One that cannot be loaded leaves TLS as it was."""
+        open keep theirs.  One that cannot be loaded, or a port that cannot be listened on,
+        leaves TLS as it was."""
         new = self._cfg.tls
         try:
             context = server_context(new) if new.enabled else None
         except ConfigError as err:
-            log.error("TLS settings not applied, the running ones stay: %s", err)
+            report.refuse("tls", f"{err}; the running TLS settings stay")
             self._cfg = dataclasses.replace(self._cfg, tls=old.tls)
             return
-        self._tls = context
         if (new.port, new.enabled, self._cfg.bind) == (old.tls.port, old.tls.enabled, old.bind):
+            self._tls = context
             log.info("TLS: certificate %s loaded for new connections", new.cert)
             return
         self._stop_listening(tls=True)
+        running, self._tls = self._tls, context
         try:
             self._listen_tls()
         except OSError as err:
-            log.error("cannot listen on tls-port %d (%s)", new.port, err.strerror)
+            report.refuse("tls", f"cannot listen on tls-port {new.port} ({err.strerror}); "
+                                 f"the running TLS settings stay")
+            self._cfg = dataclasses.replace(self._cfg, tls=old.tls)
+            self._tls = running
+            self._listen_tls_again(old)
             return
         log.info("now listening on %s", ", ".join(self.addresses()))
+
+    def _listen_tls_again(self, old: SlaveConfig) -> None:
+        """Back on the running tls-port, after the new one failed."""
+        try:
+            self._listen_tls()
+        except OSError as err:
+            log.error("TLS: cannot listen on tls-port %d again (%s): no TLS listener",
+                      old.tls.port, err.strerror)
 
     def _guard_clients(self, firewall: Firewall) -> None:
         """The rules again for every client (a reload): a client whose rule has not changed

@@ -273,8 +273,7 @@ async def config_set(request: web.Request) -> web.Response:
     event(log, Kind.CONFIG_CHANGED, "configuration changed from the web console (%s): %s",
           who(request), ", ".join(changed), source="web", user=who(request),
           keys=", ".join(changed))
-    request.app["hooks"].reload()
-    return web.json_response({"ok": True, "changed": changed, "reloading": True})
+    return await _reloaded(request, {"changed": changed})
 
 
 async def config_download(request: web.Request) -> web.Response:
@@ -298,5 +297,17 @@ async def config_upload(request: web.Request) -> web.Response:
         return _refused(err)
     event(log, Kind.CONFIG_CHANGED, "configuration file replaced from the web console (%s)",
           who(request), source="web", user=who(request), keys="the whole file")
-    request.app["hooks"].reload()
-    return web.json_response({"ok": True, "mode": mode, "reloading": True})
+    return await _reloaded(request, {"mode": mode})
+
+
+async def _reloaded(request: web.Request, done: dict) -> web.Response:
+    """The file is written: the daemon reloads it (as SIGHUP does), and the answer is the
+    reload's outcome, as the log says it.  200 only when every change is in force; 409 when
+    the file is written but the daemon refused it or put part of it in force (the running
+    configuration then differs from the file)."""
+    # shielded: a client that goes away (aiohttp cancels its handler) stops no reload
+    outcome = await asyncio.shield(asyncio.ensure_future(request.app["hooks"].reload()))
+    reply = {**done, "written": True, "reload": outcome.as_dict()}
+    if outcome.applied:
+        return web.json_response({"ok": True, **reply})
+    return error(409, f"written, but {outcome.message()}", **reply)

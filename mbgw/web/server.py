@@ -1,6 +1,8 @@
 """The web console's HTTP server on the daemon's asyncio loop (aiohttp): the site started,
 restarted when a reload changes [web], closed at stop; the session, CSRF and role checks
 every request passes; the static pages."""
+import asyncio
+import dataclasses
 import logging
 import ssl
 from pathlib import Path
@@ -8,6 +10,7 @@ from pathlib import Path
 from aiohttp import web
 
 from mbgw.config.model import WebConfig
+from mbgw.ops.reload import ReloadReport
 from mbgw.web import api
 from mbgw.web.address import parse_listen
 from mbgw.web.auth import COOKIE, CSRF_HEADER, LoginLimit, Sessions
@@ -33,6 +36,7 @@ class WebServer:
         self.limit = LoginLimit()
         self.names: list[str] = []
         self._runner: web.AppRunner | None = None
+        self._retiring: set[asyncio.Task] = set()     # sites closing after a move
 
     @property
     def https(self) -> bool:
@@ -62,9 +66,11 @@ class WebServer:
         scheme = "https" if cfg.https else "http"
         log.info("web console on %s", ", ".join(f"{scheme}://{n}/" for n in self.names))
 
-    async def reconfigure(self, cfg: WebConfig) -> None:
+    async def reconfigure(self, cfg: WebConfig, report: ReloadReport | None = None) -> None:
         """A reload: new passwords end the sessions; a new address or certificate restarts
-        the site (a failure to listen is logged, the gateway runs on without a console)."""
+        the site.  The requests under way are still answered (the one that asked for the
+        reload waits for its outcome); a new address that cannot be listened on goes to the
+        report, and the console stays where it was."""
         if cfg == self.cfg:
             return
         if (cfg.admin_password, cfg.user_password) != (self.cfg.admin_password,
@@ -74,18 +80,55 @@ class WebServer:
         if (cfg.listen, cfg.cert, cfg.key) == (self.cfg.listen, self.cfg.cert, self.cfg.key):
             self.cfg = cfg
             return
-        await self.close()
+        old, running = self.cfg, self._runner
+        self._stop_listening()
         try:
             await self.start(cfg)
         except (WebListenError, OSError, ssl.SSLError) as err:
-            log.error("web console off: %s", err)
+            why = await self._back_to(old, f"web console off: {err}", err)
+            self.cfg = self.cfg if self._runner is not None \
+                else dataclasses.replace(cfg, listen=None)      # off: the next reload tries
+            if report is None:
+                log.error("%s", why)
+            else:
+                report.refuse("web", why)
+        self._retire(running)
         if cfg.listen is None:
             log.info("web console off")
+
+    async def _back_to(self, old: WebConfig, why: str, err: Exception) -> str:
+        """The console where it was, after a new address failed; why it is not moved."""
+        if old.listen is None:
+            return why
+        try:
+            await self.start(old)
+        except (WebListenError, OSError, ssl.SSLError):
+            return why
+        return f"{err}; the console stays on {old.listen}"
+
+    def _stop_listening(self) -> None:
+        """Accept no more connections; the open ones are served until the runner retires."""
+        if self._runner is not None:
+            for site in self._runner.sites:
+                server = getattr(site, "_server", None)
+                if server is not None:
+                    server.close()
+            self._runner, self.names = None, []
+
+    def _retire(self, runner: web.AppRunner | None) -> None:
+        """A site that no longer listens closed in the background: its requests under way
+        (SHUTDOWN_S at most) end first."""
+        if runner is not None:
+            task = asyncio.ensure_future(runner.cleanup())
+            self._retiring.add(task)
+            task.add_done_callback(self._retiring.discard)
 
     async def close(self) -> None:
         if self._runner is not None:
             runner, self._runner, self.names = self._runner, None, []
             await runner.cleanup()
+        if self._retiring:
+            await asyncio.gather(*self._retiring, return_exceptions=True)
 
     def _app(self) -> web.Application:
         app = web.Application(middlewares=[_guard], client_max_size=1024 * 1024)

@@ -8,6 +8,7 @@ import asyncio
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import threading
@@ -349,6 +350,29 @@ def test_a_bad_setting_is_refused_next_to_its_field_and_a_good_one_applied(brows
     wait(browser, text_in('[data-error-for="serial.stout"]', "applied"))
     assert "stout = 150" in console.path.read_text()
     wait_for(console.gw, lambda s: s["serial"]["stout_ms"] == 150, "the new stout in force")
+
+
+def test_an_upload_shows_what_the_daemon_did_with_it(browser, console, tmp_path):
+    """The page waits for the reload and shows its outcome, the daemon's own log line: here
+    a metrics address, which takes effect at restart."""
+    log_in(browser, console, "admin")
+    go(browser, "config")
+    before = console.path.read_text()
+    upload = tmp_path / "mbgw.toml"
+    upload.write_text(before.replace("[web]\n", f'[general]\nmetrics = "127.0.0.1:{free_port()}"'
+                                                 "\n[web]\n", 1))
+    try:
+        wait(browser, found("#config-upload-file")).send_keys(str(upload))
+        browser.find_element(By.ID, "config-upload").click()
+        line = ("configuration reloaded: nothing changed; not applied: metrics: takes effect "
+                "at restart (systemctl restart mbgw)")
+        wait(browser, text_in("#config-upload-result", f"written, but {line}"))
+        assert console.gw.log().count(line) == 1
+        assert console.path.read_text() == upload.read_text()
+    finally:
+        console.path.write_text(before)
+        os.kill(console.gw.proc.pid, signal.SIGHUP)
+        wait_for_log(console.gw, "configuration reloaded: nothing changed\n")
 
 
 def test_the_user_role_changes_nothing(browser, console):

@@ -86,7 +86,7 @@ def test_check_config_lists_the_problems_naming_file_and_key(tmp_path):
     path = tmp_path / "bad.toml"
     path.write_text('[serial]\ndevice = "/dev/ttyS0"\nstuot = 700\nbaudrate = 0\n')
     result = mbgw("check-config", path)
-    assert result.exit_code == 1
+    assert result.exit_code == 78
     assert f"mbgw: {path}: serial.stuot: unknown key; did you mean serial.stout?" in result.output
     assert f"mbgw: {path}: serial.baudrate: 0 is not in the range" in result.output
 
@@ -95,13 +95,13 @@ def test_check_config_needs_what_the_mode_requires(tmp_path):
     path = tmp_path / "nodevice.toml"
     path.write_text("[serial]\nstout = 700\n")
     result = mbgw("check-config", path)
-    assert result.exit_code == 1
+    assert result.exit_code == 78
     assert "serial.device: missing; slave mode needs it" in result.output
 
 
 def test_check_config_missing_file(tmp_path):
     result = mbgw("check-config", tmp_path / "none.toml")
-    assert result.exit_code == 1
+    assert result.exit_code == 78
     assert "no such file (create it with: mbgw config default --config" in result.output
 
 

@@ -170,7 +170,7 @@ def test_file_scenarios_reach_the_mode_config(tmp_path):
 
 def test_file_serial_scenario_in_master_mode(tmp_path):
     done = check_config(tmp_path, FILE.format(mode='mode = "master"'))
-    assert done.returncode == 1
+    assert done.returncode == 78
     assert "scenario boiler: slave: a serial scenario needs the line's master role" \
         in done.stderr
 
@@ -179,7 +179,7 @@ def test_file_problems_listed_with_their_scenario(tmp_path):
     text = FILE.format(mode="").replace("quantity = 10", "quantity = 200") \
         .replace('"remote"', '"boiler"')
     done = check_config(tmp_path, text)
-    assert done.returncode == 1
+    assert done.returncode == 78
     assert "scenario boiler: quantity 200: out of range 1..125" in done.stderr
     text = FILE.format(mode="").replace('"remote"', '"boiler"')
     assert "scenario boiler: name used twice" in check_config(tmp_path, text).stderr
