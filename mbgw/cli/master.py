@@ -81,16 +81,15 @@ def master(ctx, **options) -> None:
     run_daemon(run_master, master_config, options)
 
 
-def master_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout,
-                  silence, ascii_timeout, nocheck, slaveid, tcpto, mdbport, exception,
-                  max_connections, control, metrics, log_level=None,
+def master_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout, silence,
+                  ascii_timeout, nocheck, dtr, rts, cts, xonxoff, slaveid, tcpto, mdbport,
+                  exception, max_connections, control, metrics, log_level=None,
                   down_after=config.DEFAULT_DOWN_AFTER,
                   probe_interval=config.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
                   tls_port=config.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
-                  tls_require_role=True, tls_crl=None,
-                  **table_settings) -> config.MasterConfig:
+                  tls_require_role=True, tls_crl=None, **table_settings) -> config.MasterConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
-                            stout, silence, ascii_timeout, nocheck)
+                            stout, silence, ascii_timeout, nocheck, dtr, rts, cts, xonxoff)
     upstream_tls = upstream_tls_config(table_settings)
     table = table_config(**table_settings)
     tls = tls_config(tls_port, tls_cert, tls_key, tls_ca, tls_require_role, tls_crl)

@@ -108,14 +108,31 @@ serial_options = stack(
     click.option("--interface", cls=SerialOption, default=str(config.Interface()),
                  show_default=True,
                  callback=parser(config.Interface.parse), metavar="KIND",
-                 help="rs232, rs422, 'rs485 noecho' or 'rs485 echo' (the transceiver "
-                      "hears its own frames; they are dropped)."),
+                 help="rs232; 'rs422 master' (or rs422), 'rs422 slave' (the transmitter on "
+                      "only while sending, for multidrop); 'rs485 noecho' (or rs485) or "
+                      "'rs485 echo' (the transceiver hears its own frames; they are dropped). "
+                      "4wires is rs422, 2wires rs485."),
     click.option("--rtsdelays", cls=SerialOption,
                  type=(click.IntRange(*config.RTSDELAY_RANGE),
                        click.IntRange(*config.RTSDELAY_RANGE)),
                  default=config.SerialConfig.rtsdelays, show_default=True, metavar="BEFORE AFTER",
-                 help="RS-485: ms between raising RTS and the first byte, and between the "
-                      "last byte and dropping RTS, 0..255."),
+                 help="RS-485, an RS-422 slave or --rts modem: ms between raising RTS and "
+                      "the first byte, and between the last byte and dropping RTS, 0..255."),
+    click.option("--dtr", cls=SerialOption, type=click.Choice(config.DTR_MODES),
+                 default=config.SerialConfig.dtr, show_default=True,
+                 help="RS-232 DTR held high or low (a modem's on-line line)."),
+    click.option("--rts", cls=SerialOption, type=click.Choice(config.RTS_MODES),
+                 default=config.SerialConfig.rts, show_default=True,
+                 help="RS-232 RTS: held high or low; flow: RTS/CTS flow control (with --cts "
+                      "flow); modem: raised for each frame with --rtsdelays around it, a "
+                      "radio modem's push-to-talk."),
+    click.option("--cts", cls=SerialOption, type=click.Choice(config.CTS_MODES),
+                 default=config.SerialConfig.cts, show_default=True,
+                 help="RS-232 CTS: ignored, or flow: send only while CTS is up (with --rts "
+                      "flow)."),
+    click.option("--xonxoff", cls=SerialOption, type=click.Choice(config.XONXOFF_MODES),
+                 default=config.SerialConfig.xonxoff, show_default=True,
+                 help="XON/XOFF software flow control on the line: use or ignore."),
     click.option("--stout", cls=SerialOption, type=click.IntRange(*config.STOUT_RANGE),
                  default=config.DEFAULT_STOUT_MS, show_default=True, metavar="MS",
                  help="Time from the end of a request to the end of its answer, 1..65535 ms."),
@@ -424,8 +441,14 @@ daemon_options = stack(
 
 
 def serial_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout,
-                   silence, ascii_timeout, nocheck) -> config.SerialConfig:
-    return convert("'--baudrate'", lambda: config.SerialConfig(
-        device=device, protocol=protocol, baudrate=baudrate, format=line_format,
-        interface=interface, rtsdelays=tuple(rtsdelays), stout_ms=stout, silence_ms=silence,
-        ascii_timeout_ms=ascii_timeout, nocheck=nocheck))
+                   silence, ascii_timeout, nocheck, dtr="high", rts="high", cts="ignore",
+                   xonxoff="ignore") -> config.SerialConfig:
+    try:
+        return config.SerialConfig(
+            device=device, protocol=protocol, baudrate=baudrate, format=line_format,
+            interface=interface, rtsdelays=tuple(rtsdelays), stout_ms=stout,
+            silence_ms=silence, ascii_timeout_ms=ascii_timeout, nocheck=nocheck, dtr=dtr,
+            rts=rts, cts=cts, xonxoff=xonxoff)
+    except ConfigError as err:
+        option = str(err).split(" ", 1)[0]     # the message opens with the setting's name
+        raise click.BadParameter(str(err), param_hint=f"'--{option}'") from None

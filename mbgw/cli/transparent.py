@@ -90,15 +90,14 @@ def transparent(**options) -> None:
 
 
 def transparent_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout,
-                       silence, ascii_timeout, nocheck, authip, mdbport, bind, eof, eof_char,
-                       eof_timeout, rx_address, rx_size, tx_address, tx_size, crc, trigger,
-                       interframe_silence, raw_port, control, metrics,
-                       log_level=None, firewall=None, scenarios=(),
-                       tcpto=config.DEFAULT_TCPTO_MS, tls_port=config.DEFAULT_TLS_PORT,
-                       tls_cert=None, tls_key=None, tls_ca=None, tls_require_role=True,
-                       tls_crl=None) -> config.TransparentModeConfig:
+                       silence, ascii_timeout, nocheck, dtr, rts, cts, xonxoff, authip, mdbport,
+                       bind, eof, eof_char, eof_timeout, rx_address, rx_size, tx_address, tx_size,
+                       crc, trigger, interframe_silence, raw_port, control, metrics,
+                       log_level=None, firewall=None, scenarios=(), tcpto=config.DEFAULT_TCPTO_MS,
+                       tls_port=config.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
+                       tls_require_role=True, tls_crl=None) -> config.TransparentModeConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
-                            stout, silence, ascii_timeout, nocheck)
+                            stout, silence, ascii_timeout, nocheck, dtr, rts, cts, xonxoff)
     frames = convert("'--rx-address' / '--tx-address'", lambda: config.TransparentConfig(
         eof=eof, eof_char=eof_char, eof_timeout_ms=eof_timeout, rx_address=rx_address,
         rx_size=rx_size, tx_address=tx_address, tx_size=tx_size, crc=crc, trigger=trigger,

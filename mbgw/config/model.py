@@ -21,6 +21,12 @@ STOUT_RANGE = (1, 65535)
 DEFAULT_STOUT_MS = 600
 # the other bounds of the options (the click options read these)
 RTSDELAY_RANGE = (0, 255)
+# RS-232 control lines (the guide's `set serial dtr|rts|cts|xonxoff`); "modem" RTS is raised
+# for each frame, rtsdelays around it: a radio modem's push-to-talk.
+DTR_MODES = ("high", "low")
+RTS_MODES = ("high", "low", "flow", "modem")
+CTS_MODES = ("ignore", "flow")
+XONXOFF_MODES = ("ignore", "use")
 SILENCE_RANGE = (0, 65535)
 ASCII_TIMEOUT_RANGE = (1, 65535)
 SLAVEID_RANGE = (0, 247)
@@ -70,23 +76,40 @@ class LineFormat:
         return f"{self.data_bits}{self.parity}{self.stop_bits}"
 
 
+INTERFACE_SYNONYMS = {"2wires": "rs485", "4wires": "rs422"}   # the guide: "synonyms"
+INTERFACE_OPTIONS = {"rs485": ("echo", "noecho"), "rs422": ("master", "slave")}
+
+
 @dataclass(frozen=True)
 class Interface:
-    """The electrical interface: rs232, rs422, or rs485 with or without its own echo."""
+    """The electrical interface: rs232; rs422 (4wires) as a master, whose transmitter is always
+    on, or a multidrop slave, whose transmitter is on only while it sends; rs485 (2wires) with
+    or without its own echo."""
     kind: str = "rs232"
     echo: bool = False
+    slave: bool = False
 
     @classmethod
     def parse(cls, text: str) -> "Interface":
         words = text.lower().split()
+        if words:
+            words[0] = INTERFACE_SYNONYMS.get(words[0], words[0])
         if not words or words[0] not in INTERFACES or len(words) > 2 or (
-                len(words) == 2 and (words[0] != "rs485" or words[1] not in ("echo", "noecho"))):
-            raise ConfigError(f"interface {text!r}: expected rs232, rs422, rs485, "
-                              f"'rs485 echo' or 'rs485 noecho'")
-        return cls(words[0], len(words) == 2 and words[1] == "echo")
+                len(words) == 2 and words[1] not in INTERFACE_OPTIONS.get(words[0], ())):
+            raise ConfigError(f"interface {text!r}: expected rs232, rs422 (or 4wires) master "
+                              f"or slave, rs485 (or 2wires) echo or noecho")
+        option = words[1] if len(words) == 2 else ""
+        return cls(words[0], option == "echo", option == "slave")
+
+    @property
+    def drives_rts(self) -> bool:
+        """RTS switches the transmitter on for each frame (RS-485, an RS-422 slave)."""
+        return self.kind == "rs485" or self.slave
 
     def __str__(self) -> str:
-        return f"{self.kind} echo" if self.echo else self.kind
+        if self.echo:
+            return f"{self.kind} echo"
+        return f"{self.kind} slave" if self.slave else self.kind
 
 
 @dataclass(frozen=True)
@@ -115,6 +138,10 @@ class SerialConfig:
     interface: Interface = field(default_factory=Interface)
     rtsdelays: tuple[int, int] = (0, 0)
     ascii_timeout_ms: int = DEFAULT_ASCII_TIMEOUT_MS
+    dtr: str = "high"
+    rts: str = "high"
+    cts: str = "ignore"
+    xonxoff: str = "ignore"
 
     def __post_init__(self) -> None:
         low, high = BAUDRATE_RANGE
@@ -122,6 +149,31 @@ class SerialConfig:
             raise ConfigError(f"baudrate {self.baudrate}: out of range {low}..{high}")
         if self.protocol not in PROTOCOLS:
             raise ConfigError(f"protocol {self.protocol!r}: expected rtu or ascii")
+        for name, value, modes in (("dtr", self.dtr, DTR_MODES), ("rts", self.rts, RTS_MODES),
+                                   ("cts", self.cts, CTS_MODES),
+                                   ("xonxoff", self.xonxoff, XONXOFF_MODES)):
+            if value not in modes:
+                raise ConfigError(f"{name} {value!r}: expected {' or '.join(modes)}")
+        if (self.rts == "flow") != (self.cts == "flow"):
+            raise ConfigError(f"rts {self.rts} with cts {self.cts}: RTS/CTS flow control is "
+                              f"both or neither (Linux's CRTSCTS): set rts flow and cts flow")
+        if self.interface.drives_rts and self.rts != "high":
+            raise ConfigError(f"rts {self.rts}: interface {self.interface} drives its "
+                              f"transmitter with RTS; rts applies to rs232 and rs422 master")
+
+    @property
+    def wiring(self) -> str:
+        """The interface and the control lines that differ from their defaults, as logs and
+        status show them: "rs232, rts modem, xonxoff use"."""
+        changed = [f"{name} {value}" for name, value, default in (
+            ("dtr", self.dtr, "high"), ("rts", self.rts, "high"), ("cts", self.cts, "ignore"),
+            ("xonxoff", self.xonxoff, "ignore")) if value != default]
+        return ", ".join((str(self.interface), *changed))
+
+    @property
+    def rts_ptt(self) -> bool:
+        """mbgw raises RTS for each frame itself: RS-232 push-to-talk (rts modem)."""
+        return self.rts == "modem"
 
     @property
     def libmodbus_baudrate(self) -> bool:

@@ -57,7 +57,7 @@ class DaemonStatus:
                 "started": self._started,
                 "uptime_s": round(time.monotonic() - self._started_mono, 3),
                 "serial": {"device": s.device, "protocol": s.protocol, "baudrate": s.baudrate,
-                           "format": str(s.format), "interface": str(s.interface)}}
+                           "format": str(s.format), "interface": s.wiring}}
 
     def trace_header(self) -> dict:
         """The first line of a trace stream."""

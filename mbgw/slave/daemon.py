@@ -84,7 +84,7 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
                                                     cfg.config_file, reloads.run))
     s = cfg.serial
     log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s",
-             ", ".join(addresses), s.device, s.baudrate, s.format, s.protocol, s.interface,
+             ", ".join(addresses), s.device, s.baudrate, s.format, s.protocol, s.wiring,
              s.stout_ms, ", nocheck" if s.nocheck else "")
     if metrics is not None:
         log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))

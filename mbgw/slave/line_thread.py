@@ -52,7 +52,8 @@ wire = logging.getLogger("mbgw.wire")
 # A scenario's run while the serial device is lost: the engine's error kind for 0x0A.
 PATH_UNAVAILABLE = EXCEPTION_KINDS[pdu.GATEWAY_PATH_UNAVAILABLE]
 # Serial settings that need the port opened again; the others apply to the next transaction.
-REOPEN_SETTINGS = ("device", "baudrate", "format", "interface", "rtsdelays")
+REOPEN_SETTINGS = ("device", "baudrate", "format", "interface", "rtsdelays", "dtr", "rts",
+                   "cts", "xonxoff")
 
 
 class LineWorker(LineThread[SlaveConfig]):

@@ -107,6 +107,28 @@ def test_check_config_missing_file(tmp_path):
 
 # --- config set / show / unset / default ---------------------------------------------------
 
+@pytest.mark.parametrize("words, written", [
+    (["interface", "2wires", "echo"], "rs485 echo"),
+    (["interface", "4wires", "slave"], "rs422 slave"),
+    (["interface", "rs422", "master"], "rs422"),
+    (["dtr", "low"], "low"),
+    (["xonxoff", "use"], "use"),
+])
+def test_set_takes_the_guides_line_words(conf, words, written):
+    result = mbgw("config", "set", "serial", *words, "--config", conf)
+    assert result.exit_code == 0, result.output
+    assert values(conf)["serial"][words[0]] == written
+
+
+def test_set_rts_flow_warns_until_cts_flow_is_set_too(conf):
+    result = mbgw("config", "set", "serial", "rts", "flow", "--config", conf)
+    assert result.exit_code == 0, result.output
+    assert "warning" in result.output and "serial.rts: rts flow with cts ignore" in result.output
+    assert mbgw("check-config", conf).exit_code == 78
+    result = mbgw("config", "set", "serial", "cts", "flow", "--config", conf)
+    assert result.exit_code == 0 and "warning" not in result.output, result.output
+    assert mbgw("check-config", conf).exit_code == 0
+
 def test_set_writes_the_value_and_show_reads_it_back(conf):
     result = mbgw("config", "set", "serial", "stout", "700", "--config", conf)
     assert result.exit_code == 0, result.output
