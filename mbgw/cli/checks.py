@@ -10,6 +10,7 @@ import click
 
 from mbgw.cli.options import ModeCommand, web_config
 from mbgw.config import file as cf
+from mbgw.config.model import DEFAULT_LOCATION
 from mbgw.config.schema import Schema
 from mbgw.errors import ConfigError, ConfigFileError
 from mbgw.ops import preflight
@@ -25,7 +26,8 @@ def build(make_config, params: dict):
     options = dict(params)
     options.pop("log_format", None)       # how the daemon logs, not a mode's setting
     web = web_config(options)
-    return dataclasses.replace(make_config(**options), web=web)
+    location = options.pop("location", DEFAULT_LOCATION)
+    return dataclasses.replace(make_config(**options), web=web, location=location)
 
 
 def problems(schema: Schema, command: click.Command, params: dict,

@@ -421,6 +421,10 @@ def web_config(options: dict) -> config.WebConfig:
 
 
 daemon_options = stack(
+    click.option("--location", default=config.DEFAULT_LOCATION, show_default=True,
+                 metavar="TEXT", callback=parser(config.parse_location),
+                 help="Where the gateway is, up to %d ASCII characters: shown by mbgw status, "
+                      "the web console and the table's configuration zone." % config.LOCATION_MAX),
     click.option("--control", metavar="PATH", default=None,
                  help="Control socket for mbgw status/trace [default: "
                       "$RUNTIME_DIRECTORY/mbgw.sock or /run/mbgw/mbgw.sock]."),

@@ -197,6 +197,22 @@ class SerialConfig:
         return math.ceil(3.5 * self.format.char_bits * 1_000_000 / self.baudrate)
 
 
+# The guide's `set location`: a description of the device, shown in status, the console and
+# the table's configuration zone.
+DEFAULT_LOCATION = "Unknown location"
+LOCATION_MAX = 30                              # "30 bytes max"
+
+
+def parse_location(text: str) -> str:
+    if len(text) > LOCATION_MAX:
+        raise ConfigError(f"location {text!r}: at most {LOCATION_MAX} characters, got "
+                          f"{len(text)}")
+    if not (text.isascii() and text.isprintable()):
+        raise ConfigError(f"location {text!r}: printable ASCII only (it is written in the "
+                          f"table's configuration zone)")
+    return text
+
+
 # The exchange table (mbgw/table): VPGate's register memory, served to both sides.
 TABLE_FUNCTIONS = (1, 2, 3, 4, 5, 6, 7, 15, 16, 23)
 DEFAULT_TABLE_UNITS = tuple(range(247, 255))   # slave mode, direct messaging on
@@ -421,6 +437,7 @@ class SlaveConfig:
     tls: TlsConfig = field(default_factory=TlsConfig)
     upstream_tls: UpstreamTlsConfig = field(default_factory=UpstreamTlsConfig)
     web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
+    location: str = DEFAULT_LOCATION   # [general] location, the guide's set location
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "slave")
@@ -486,6 +503,7 @@ class MasterConfig:
     config_file: str | None = None  # the file the settings came from (scenario ... --save)
     tls: TlsConfig = field(default_factory=TlsConfig)    # on the table's server
     web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
+    location: str = DEFAULT_LOCATION   # [general] location, the guide's set location
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "master")
@@ -594,6 +612,7 @@ class TransparentModeConfig:
     tcpto_ms: int = DEFAULT_TCPTO_MS   # TCP scenarios: the time for a transaction with a server
     tls: TlsConfig = field(default_factory=TlsConfig)    # on the table's server
     web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
+    location: str = DEFAULT_LOCATION   # [general] location, the guide's set location
 
     @property
     def table_on(self) -> bool:

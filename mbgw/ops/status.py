@@ -51,6 +51,7 @@ class DaemonStatus:
         s = self.cfg.serial
         demotion = getattr(self.cfg, "demotion", None)
         return {"mode": self.mode, "version": __version__, "pid": os.getpid(),
+                "location": self.cfg.location,
                 **({"demotion": {"down_after": demotion.down_after,
                                  "probe_interval_ms": demotion.probe_interval_ms}}
                    if demotion is not None else {}),

@@ -426,3 +426,35 @@ def test_a_key_named_as_another_groups_key_is_set_shown_and_unset_in_its_own_gro
     assert result.exit_code == 0, result.output
     data = values(conf)
     assert "silence" not in data["transparent"] and data["serial"]["silence"] == 7
+
+
+def test_net_metric_is_refused_with_its_reason_by_set_and_in_the_file(conf, tmp_path):
+    result = mbgw("config", "set", "net", "metric", "10", "--config", conf)
+    assert result.exit_code == 1, result.output
+    assert "net.metric: not supported: the guide's gateway hop count is a route metric" \
+        in result.output, result.output
+    hand_edited = tmp_path / "metric.toml"
+    hand_edited.write_text(conf.read_text() + "\n[net]\nmetric = 10\n"
+                           if "[net]" not in conf.read_text()
+                           else conf.read_text().replace("[net]\n", "[net]\nmetric = 10\n", 1))
+    result = mbgw("check-config", hand_edited)
+    assert result.exit_code == 78, result.output
+    assert "net.metric: not supported" in result.output and "CAP_NET_ADMIN" in result.output
+
+
+@pytest.mark.parametrize("words, expected", [
+    (["x" * 31], "general.location: location 'xxxxxxxxxxxxxxxxxxxxxxxxxxxxxxx': at most 30"),
+    (["Pumpe", "Ölraum"], "general.location: location 'Pumpe Ölraum': printable ASCII only"),
+])
+def test_location_is_refused_beyond_the_guides_30_ascii_bytes(conf, words, expected):
+    result = mbgw("config", "set", "general", "location", *words, "--config", conf)
+    assert result.exit_code == 1, result.output
+    assert expected in result.output, result.output
+
+
+def test_location_set_and_shown_in_the_guides_words(conf):
+    result = mbgw("config", "set", "general", "location", "Pump", "house", "3", "--config", conf)
+    assert result.exit_code == 0, result.output
+    assert values(conf)["general"]["location"] == "Pump house 3"
+    assert mbgw("config", "show", "general", "location", "--config", conf).output == \
+        "Pump house 3\n"

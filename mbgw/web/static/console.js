@@ -342,7 +342,7 @@ function overviewPage(body) {
       const serial = s.serial || {};
       const counters = s.counters || {};
       clear(facts).append(factsTable("overview-facts", [
-        ["Mode", s.mode], ["Version", s.version],
+        ["Location", s.location], ["Mode", s.mode], ["Version", s.version],
         ["Serial device", `${show(serial.device)} ${show(serial.protocol)} ` +
           `${show(serial.baudrate)} ${show(serial.format)} ${show(serial.interface)}`],
         ["Line state", serial.state], ["Uptime", duration(s.uptime_s)],
