@@ -10,6 +10,7 @@ from mbgw.cli.options import (
     daemon_options,
     demotion,
     demotion_options,
+    interframe_option,
     parser,
     serial_config,
     serial_options,
@@ -31,6 +32,7 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
 
 @click.command(cls=ModeCommand)
 @serial_options
+@interframe_option
 @click.option("--slaveid", "slaveid", multiple=True, metavar='"FS LS FR M IP [tls]"',
               callback=parser(SlaveIdTable.parse),
               help="Serial addresses FS..LS go to the server at IP, as unit id FR + (address "
@@ -82,14 +84,15 @@ def master(ctx, **options) -> None:
 
 
 def master_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout, silence,
-                  ascii_timeout, nocheck, dtr, rts, cts, xonxoff, slaveid, tcpto, mdbport,
-                  exception, max_connections, control, metrics, log_level=None,
+                  ascii_timeout, nocheck, dtr, rts, cts, xonxoff, interframe_silence, slaveid,
+                  tcpto, mdbport, exception, max_connections, control, metrics, log_level=None,
                   down_after=config.DEFAULT_DOWN_AFTER,
                   probe_interval=config.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
                   tls_port=config.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
                   tls_require_role=True, tls_crl=None, **table_settings) -> config.MasterConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
-                            stout, silence, ascii_timeout, nocheck, dtr, rts, cts, xonxoff)
+                            stout, silence, ascii_timeout, nocheck, dtr, rts, cts, xonxoff,
+                            interframe_silence)
     upstream_tls = upstream_tls_config(table_settings)
     table = table_config(**table_settings)
     tls = tls_config(tls_port, tls_cert, tls_key, tls_ca, tls_require_role, tls_crl)

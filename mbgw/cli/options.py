@@ -444,15 +444,24 @@ daemon_options = stack(
 )
 
 
+# Slave and master modes' (transparent mode's is its own, [transparent] silence).
+interframe_option = click.option(
+    "--interframe-silence", cls=SerialOption, type=click.IntRange(*config.INTERFRAME_SILENCE_RANGE),
+    default=config.SerialConfig.interframe_ms, show_default=True, metavar="MS",
+    help="VPGate's interframe silence: ms, beyond t3.5, that the line stays quiet after a "
+         "frame before mbgw sends (slave mode: the next request after a reply; master mode: "
+         "its answer after a request), 0..65535.")
+
+
 def serial_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout,
                    silence, ascii_timeout, nocheck, dtr="high", rts="high", cts="ignore",
-                   xonxoff="ignore") -> config.SerialConfig:
+                   xonxoff="ignore", interframe_silence=0) -> config.SerialConfig:
     try:
         return config.SerialConfig(
             device=device, protocol=protocol, baudrate=baudrate, format=line_format,
             interface=interface, rtsdelays=tuple(rtsdelays), stout_ms=stout,
             silence_ms=silence, ascii_timeout_ms=ascii_timeout, nocheck=nocheck, dtr=dtr,
-            rts=rts, cts=cts, xonxoff=xonxoff)
+            rts=rts, cts=cts, xonxoff=xonxoff, interframe_ms=interframe_silence)
     except ConfigError as err:
         option = str(err).split(" ", 1)[0]     # the message opens with the setting's name
         raise click.BadParameter(str(err), param_hint=f"'--{option}'") from None

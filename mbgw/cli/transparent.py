@@ -72,7 +72,7 @@ def _option(flag: str, key: str, **kwargs):
 @_option("--trigger/--no-trigger", "trigger", default=_DEFAULTS.trigger,
          help="The areas' first byte is a frame counter: raised for each frame stored; a new "
               "value in the tx area sends its frame, other changes send nothing.")
-@_option("--interframe-silence", "interframe-silence", file_key="silence",
+@_option("--interframe-silence", "transparent-silence", file_key="silence",
          type=click.IntRange(*config.INTERFRAME_SILENCE_RANGE),
          default=_DEFAULTS.silence_ms, metavar="MS",
          help="After a frame was received, wait this long before sending, 0..65535 ms.")

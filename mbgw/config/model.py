@@ -28,13 +28,14 @@ RTS_MODES = ("high", "low", "flow", "modem")
 CTS_MODES = ("ignore", "flow")
 XONXOFF_MODES = ("ignore", "use")
 SILENCE_RANGE = (0, 65535)
+INTERFRAME_SILENCE_RANGE = (0, 65535)  # ms beyond t3.5 (VPGate's "Interframe silence")
 ASCII_TIMEOUT_RANGE = (1, 65535)
 SLAVEID_RANGE = (0, 247)
 PORT_RANGE = (1, 65535)
 MDBPORT_RANGE = (0, 65535)      # slave mode: 0 is no plain Modbus TCP (TLS only)
 MAX_CONNECTIONS_RANGE = (1, 1000)
 MAX_CONNECTIONS_PER_IP_RANGE = (0, 1000)
-RETRIES_RANGE = (0, 10)
+RETRIES_RANGE = (0, 65535)     # as VPGate allows
 TURNAROUND_RANGE = (0, 65535)
 DEFAULT_MDBPORT = 502
 DEFAULT_MAX_CONNECTIONS = 5
@@ -142,8 +143,13 @@ class SerialConfig:
     rts: str = "high"
     cts: str = "ignore"
     xonxoff: str = "ignore"
+    interframe_ms: int = 0         # VPGate: the line quiet this much beyond t3.5 before we send
 
     def __post_init__(self) -> None:
+        low, high = INTERFRAME_SILENCE_RANGE
+        if not low <= self.interframe_ms <= high:
+            raise ConfigError(f"interframe-silence {self.interframe_ms}: out of range "
+                              f"{low}..{high}")
         low, high = BAUDRATE_RANGE
         if not low <= self.baudrate <= high:
             raise ConfigError(f"baudrate {self.baudrate}: out of range {low}..{high}")
@@ -538,7 +544,6 @@ EOF_TIMEOUT_RANGE = (0, 65535)         # ms; 0: the serial line's end-of-frame s
 RX_ADDRESS_RANGE = (0, 2047)           # the inputs zone
 TX_ADDRESS_RANGE = (2048, 4095)        # the outputs zone
 FRAME_SIZE_RANGE = (1, 250)            # bytes, two to a register
-INTERFRAME_SILENCE_RANGE = (0, 65535)  # ms
 
 
 @dataclass(frozen=True)

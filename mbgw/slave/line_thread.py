@@ -104,7 +104,7 @@ class LineWorker(LineThread[SlaveConfig]):
         after a broadcast."""
         cfg = self._cfg
         s = cfg.serial
-        quiet_ms = max(s.t35_us / 1000, s.silence_ms) + sum(s.rtsdelays)
+        quiet_ms = max(s.t35_us / 1000, s.silence_ms) + sum(s.rtsdelays) + s.interframe_ms
         attempt_s = (quiet_ms + s.stout_ms) / 1000 + 2 * longest_frame_s(s)
         retries = max((sc.retries for sc in serial_scenarios(cfg)), default=cfg.retries)
         return (max(retries, cfg.retries) + 1) * attempt_s + cfg.turnaround_ms / 1000 + \

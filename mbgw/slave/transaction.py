@@ -1,9 +1,10 @@
 """One transaction on the serial line, as its master (slave mode).
 
-A request goes out only after the line has been quiet for t3.5 (or the turnaround delay after
-a broadcast).  Every frame that is not the reply -- bad CRC or LRC, another address, another
-function, a size the request did not ask for -- is counted and dropped, and we keep listening
-until stout has passed, as the spec's master does (Serial Line V1.02, 2.4.1).
+A request goes out only after the line has been quiet for t3.5 and the interframe silence
+(VPGate's, 0 by default), or the turnaround delay after a broadcast.  Every frame that is not
+the reply -- bad CRC or LRC, another address, another function, a size the request did not
+ask for -- is counted and dropped, and we keep listening until stout has passed, as the
+spec's master does (Serial Line V1.02, 2.4.1).
 """
 import logging
 import time
@@ -33,6 +34,7 @@ class SerialMaster:
         self._nocheck = cfg.nocheck
         self._stout_ns = cfg.stout_ms * 1_000_000
         self._turnaround_us = turnaround_ms * 1000
+        self._interframe_us = cfg.interframe_ms * 1000
         self._quiet_from_ns = 0
         self._quiet_us = 0
         self._deadline = 0          # of the reply to the request last sent
@@ -122,7 +124,7 @@ class SerialMaster:
     def _sent(self, end_ns: int) -> None:
         """The request's last byte leaves the line at end_ns."""
         self._quiet_from_ns = end_ns
-        self._quiet_us = self.framing.inter_frame_us
+        self._quiet_us = self.framing.inter_frame_us + self._interframe_us
         self._deadline = end_ns + self._stout_ns
 
     def _receive(self, adu: bytes, device: DeviceStats, forward, exchange: bool,

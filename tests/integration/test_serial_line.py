@@ -19,6 +19,7 @@ import struct
 import subprocess
 import sys
 import termios
+import time
 
 import pytest
 from pymodbus.client import ModbusTcpClient
@@ -31,7 +32,7 @@ from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
 from mbgw.slave.transaction import SerialMaster
 from tests.harness import READY_TIMEOUT_S, stop_counters
-from tests.modbus import holding_reply, read_holding, rtu
+from tests.modbus import holding_reply, mbap, read_holding, rtu
 from tests.peers import paced_slave
 
 pytestmark = pytest.mark.integration
@@ -611,3 +612,27 @@ def test_the_guides_2wires_echo_drops_the_echo(paced, gateway, client):
     gw = gateway("--interface", "2wires echo", "--exception")
     assert client(gw).ask(3, read_holding(0, 2)) == holding_reply(0, 2)   # echo, then reply
     assert "8n1 rtu rs485 echo," in gw.log(), gw.log()
+
+
+# --- VPGate's interframe silence (slave mode) -------------------------------------------------
+
+INTERFRAME_MS = 300
+
+
+def test_the_interframe_silence_holds_the_next_request_after_a_reply(pty_pair, gateway, client):
+    """The next request goes out no sooner than the silence after the reply was written (a
+    lower bound: load only makes it later)."""
+    fd = _line_end(pty_pair.device)
+    try:
+        gw = gateway("--interframe-silence", str(INTERFRAME_MS))
+        c = client(gw)
+        c.send(mbap(1, 1, read_holding(0, 1)), mbap(2, 1, read_holding(1, 1)))
+        reply = rtu(1, bytes((0x03, 2, 0x12, 0x34)))
+        assert _serve_one(fd, reply) == rtu(1, read_holding(0, 1))
+        replied = time.monotonic()
+        assert _serve_one(fd, reply) == rtu(1, read_holding(1, 1))
+        assert time.monotonic() - replied >= INTERFRAME_MS / 1000
+        assert [c.recv(), c.recv()] == [(1, 1, bytes((0x03, 2, 0x12, 0x34))),
+                                        (2, 1, bytes((0x03, 2, 0x12, 0x34)))]
+    finally:
+        os.close(fd)

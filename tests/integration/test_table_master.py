@@ -16,6 +16,7 @@ import signal
 import socket
 import struct
 import subprocess
+import time
 
 import pytest
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
@@ -443,3 +444,29 @@ def test_table_transactions_are_traced_with_outcome_table(table_master, line, tm
     assert rows[:3] == [["request", "10", "table", "-", "-", "0x06", "5"],
                         ["reply", "10", "table", "-", "-", "0x06", "5", "table"],
                         ["request", "0", "table", "-", "-", "0x06", "5"]]
+
+
+INTERFRAME_MS = 300
+
+
+def test_the_interframe_silence_delays_the_answer_to_the_serial_master(table_master, line):
+    """VPGate's interframe silence, master mode: the table's answer and a routed one come no
+    sooner than it after the request (a lower bound: load only makes it later)."""
+    gw, _ = table_master("--interframe-silence", str(INTERFRAME_MS))
+    for request, reply in ((read_holding(TABLE, CONFIG, 2), bytes.fromhex("0a 03 04 6d62 6777")),
+                           (read_holding(2), holding_reply(2, *identity(SERVER, 2)))):
+        os.write(line, rtu(request))
+        written = time.monotonic()
+        assert recv(line, len(rtu(reply))) == rtu(reply)
+        assert time.monotonic() - written >= INTERFRAME_MS / 1000
+
+
+def test_the_master_moving_on_during_the_interframe_silence_abandons_the_answer(table_master,
+                                                                                 line):
+    gw, _ = table_master("--interframe-silence", "2000")
+    os.write(line, rtu(read_holding(TABLE, CONFIG, 2)))
+    wait_for(gw, lambda s: s["table"]["serial"]["requests"] == 1, "the first request taken")
+    os.write(line, rtu(read_holding(TABLE, CONFIG, 1)))     # the master moved on
+    expected = rtu(bytes.fromhex("0a 03 02 6d62"))
+    assert recv(line, len(expected), timeout=REPLY_S + 2) == expected   # the second's only
+    assert status(gw)["counters"]["abandoned"] == 1
