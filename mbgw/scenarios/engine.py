@@ -297,6 +297,15 @@ class Scenarios:
         reply, error_kind, retries = run_fn(pdu)
         return self.test_result(sc, pdu, reply, error_kind, retries, self.clock() - started)
 
+    def retrying(self, sc: ScenarioConfig) -> None:
+        """A run of sc got no answer and is sent again: its message says so until the run
+        ends (VPGate's "Slave not responding, retrying...")."""
+        with self._lock:
+            state = self._states.get(sc.name)
+            if state is not None and state.scenario is sc and state.state != DISABLED:
+                state.message = exchange.RETRYING.replace("slave", "server") \
+                    if sc.kind == "tcp" else exchange.RETRYING
+
     def test_result(self, sc: ScenarioConfig, pdu: bytes, reply: bytes | None,
                     error_kind: str | None, retries: int, latency_s: float) -> dict:
         """What `mbgw scenario test` prints, from a run the runner did."""

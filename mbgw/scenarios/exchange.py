@@ -41,6 +41,7 @@ ERROR_MESSAGES = {
     DEVICE_DOWN: "device down",
     SERVER_DOWN: "server down",
 }
+RETRYING = "slave not responding, retrying..."   # VPGate 8.2, while a run retries
 WAITING = "waiting for data"       # a write whose table registers nobody has written yet
 ERROR_KINDS = tuple(ERROR_MESSAGES)
 

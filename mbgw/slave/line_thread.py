@@ -384,7 +384,8 @@ class LineWorker(LineThread[SlaveConfig]):
             return
         run = engine.next(time.monotonic())
         if run is not None:
-            engine.done(run, *self._exchange(run.scenario, run.pdu))
+            engine.done(run, *self._exchange(run.scenario, run.pdu,
+                                             lambda: engine.retrying(run.scenario)))
 
     def _scenarios_while_down(self, engine) -> None:
         """None runs, but the engine's eventfd is read, changes are taken and data ages
@@ -394,7 +395,7 @@ class LineWorker(LineThread[SlaveConfig]):
         while (test := engine.take_test(now)) is not None:
             engine.test_done(test, None, PATH_UNAVAILABLE)
 
-    def _exchange(self, scenario, request: bytes) -> tuple:
+    def _exchange(self, scenario, request: bytes, on_retry=None) -> tuple:
         """One run of scenario (request: its PDU) on the line with its retries, address 0 a
         broadcast: (reply PDU or None, None or the engine's error kind, the retries made).
         A reply that did not answer the request (another function, another size) is
@@ -405,6 +406,7 @@ class LineWorker(LineThread[SlaveConfig]):
         device = self.devices.get(scenario.slave)
         retried = device.retries
         master.mismatch = None
+        master.on_retry = on_retry
         try:
             reply = self._on_line(master, bytes((scenario.slave,)) + request, scenario.retries)
         except LineTimeout:
@@ -416,6 +418,8 @@ class LineWorker(LineThread[SlaveConfig]):
         except Exception:   # a bug must cost one run, never the scenario's schedule
             log.exception("internal error running scenario %s", scenario.name)
             return None, TIMEOUT, device.retries - retried
+        finally:
+            master.on_retry = None
         return reply, None, device.retries - retried
 
     def _on_line(self, master: SerialMaster, adu: bytes, retries: int) -> bytes | None:

@@ -43,6 +43,8 @@ class SerialMaster:
         # The last reply dropped for not answering its request (another function, another
         # size), for a scenario to tell why it failed; its runner clears it.
         self.mismatch: bytes | None = None
+        # on_retry(): called before each repeat of a request (a scenario's status says so)
+        self.on_retry: Callable[[], None] | None = None
 
     def keep_line_state(self, previous: "SerialMaster") -> None:
         """Taking over the line from previous (new settings): the silence it owes the line
@@ -77,6 +79,8 @@ class SerialMaster:
             if attempt:
                 self._count(device, "retries")
                 taken = False
+                if self.on_retry is not None:
+                    self.on_retry()
             if not taken:
                 self._await_quiet(adu)
             elif wire.isEnabledFor(logging.DEBUG):

@@ -12,7 +12,9 @@ requests, 16 one register short).  VPGate's messages are the issue's.  The table
 """
 import json
 import os
+import select
 import signal
+import termios
 import time
 
 import pytest
@@ -21,7 +23,7 @@ from prometheus_client import parser
 from tests.harness import free_port
 from tests.integration.test_diagnostics import scrape
 from tests.integration.test_faults import received
-from tests.modbus import Client, holding_reply, read_holding
+from tests.modbus import Client, holding_reply, read_holding, rtu
 from tests.ops import mbgw, metric_families, metric_value, status, wait_for, wait_for_log
 
 pytestmark = pytest.mark.integration
@@ -368,3 +370,41 @@ def test_a_change_made_while_the_device_is_lost_is_written_once_it_is_back(
     pymodbus_line(1, 2)
     until(lambda: c.ask(2, read_holding(6, 1)) == bytes.fromhex("03 02 0309"),
           "the change written once the device is back")
+
+
+# --- VPGate's "Slave not responding, retrying..." while a run retries -------------------------
+
+def _request_on(fd: int, length: int = 8) -> bytes:
+    data = b""
+    while len(data) < length:
+        ready, _, _ = select.select([fd], [], [], WAIT_S)
+        assert ready, f"no request on the line, got {data.hex(' ')!r}"
+        data += os.read(fd, length - len(data))
+    return data
+
+
+def test_a_run_that_retries_says_slave_not_responding_retrying(pty_pair, gateway):
+    """The device (this test, on the line) lets the first request go unanswered: the retry is
+    on the wire, the scenario says VPGate's "retrying"; answered, the message goes."""
+    fd = os.open(pty_pair.device, os.O_RDWR | os.O_NOCTTY)
+    try:
+        attrs = termios.tcgetattr(fd)
+        attrs[0] = attrs[1] = attrs[3] = 0
+        termios.tcsetattr(fd, termios.TCSANOW, attrs)
+        gw, _ = gateway([poll("pump", 5, 3, 0, 1, 100, cycle=65535, retries=2)],
+                        stout=300, serial=NEVER_DOWN)
+        request = rtu(5, read_holding(0, 1))
+        assert _request_on(fd) == request               # unanswered
+        assert _request_on(fd) == request               # its retry
+        s = wait_for_scenario(gw, "pump", lambda sc: sc["message"] != "", "a message")
+        assert s["message"] == "slave not responding, retrying...", s
+        os.write(fd, rtu(5, bytes((0x03, 2, 0x00, 0x2A))))
+        s = wait_for_scenario(gw, "pump", lambda sc: sc["runs"] == 1, "the run done")
+        assert (s["state"], s["message"], s["retries"]) == ("running", "", 1), s
+        c = Client(gw.port)
+        try:
+            assert c.ask(TABLE_UNIT, read_holding(100, 1)) == bytes((0x03, 2, 0x00, 0x2A))
+        finally:
+            c.close()
+    finally:
+        os.close(fd)
