@@ -11,6 +11,7 @@ from mbgw.cli.options import (
     demotion,
     demotion_options,
     interframe_option,
+    parse_serial_functions,
     parser,
     serial_config,
     serial_options,
@@ -64,6 +65,11 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
               help="With --table: mbgw answers requests for serial address N (1..247) from "
                    "the table, as a serial slave; no --slaveid range may hold N.  0: the "
                    "table is reached only on --table-port.")
+@click.option("--table-serial-functions", cls=TableOption, key="serial-functions",
+              default=None, callback=parser(parse_serial_functions), metavar="LIST",
+              help="Function codes the table's serial slave answers (--table-address), a list "
+                   "of its own (VPGate 3.7) [default: --table-functions, which is then the "
+                   "TCP clients' list only].")
 @click.option("--table-port", cls=TableOption, key="port",
               type=click.IntRange(*config.PORT_RANGE),
               default=config.TableConfig.port, show_default=True,

@@ -186,13 +186,17 @@ table_switch = click.option(
          "serial address --table-address, and TCP clients on --table-port.")
 
 
-def _parse_functions(value) -> tuple[int, ...]:
-    functions = config.parse_number_list("table-functions", value, 1, 255)
+def _parse_functions(value, option: str = "table-functions") -> tuple[int, ...]:
+    functions = config.parse_number_list(option, value, 1, 255)
     others = [str(f) for f in functions if f not in config.TABLE_FUNCTIONS]
     if others:
-        raise ConfigError(f"table-functions {value!r}: {', '.join(others)}: the table "
+        raise ConfigError(f"{option} {value!r}: {', '.join(others)}: the table "
                           f"answers only {', '.join(map(str, config.TABLE_FUNCTIONS))}")
     return functions
+
+
+def parse_serial_functions(value) -> tuple[int, ...] | None:
+    return None if value is None else _parse_functions(value, "table-serial-functions")
 
 
 def _parse_persist(value):
@@ -237,7 +241,8 @@ def persist_path(value: str | None) -> str | None:
 def table_config(**settings) -> config.TableConfig:
     """TableConfig from the click values (table_enabled, table_functions, ...)."""
     fields = {"enabled": "table_enabled", "direct": "table_direct", "units": "table_units",
-              "functions": "table_functions", "address": "table_address",
+              "functions": "table_functions", "serial_functions": "table_serial_functions",
+              "address": "table_address",
               "port": "table_port", "persist_interval_s": "table_persist_interval"}
     return convert("'--table'", lambda: config.TableConfig(
         persist=persist_path(settings.get("table_persist")),

@@ -279,6 +279,7 @@ class TableConfig:
     direct: bool = True            # slave mode: units outside `units` go to the line
     units: tuple[int, ...] = DEFAULT_TABLE_UNITS
     functions: tuple[int, ...] = TABLE_FUNCTIONS
+    serial_functions: tuple[int, ...] | None = None   # master mode's serial slave; None: functions
     address: int = 0               # master mode: the serial address mbgw answers as (0: none)
     port: int = DEFAULT_TABLE_PORT
     persist: str | None = None     # file keeping the outputs and the free zone; None: not kept
@@ -289,10 +290,12 @@ class TableConfig:
             if not 1 <= unit <= 255:
                 raise ConfigError(f"table-units {unit}: out of range 1..255 (unit 0 is the "
                                   f"broadcast)")
-        for function in self.functions:
-            if function not in TABLE_FUNCTIONS:
-                raise ConfigError(f"table-functions {function}: the table answers only "
-                                  f"{', '.join(map(str, TABLE_FUNCTIONS))}")
+        for name, functions in (("table-functions", self.functions),
+                                ("table-serial-functions", self.serial_functions or ())):
+            for function in functions:
+                if function not in TABLE_FUNCTIONS:
+                    raise ConfigError(f"{name} {function}: the table answers only "
+                                      f"{', '.join(map(str, TABLE_FUNCTIONS))}")
         for name, value, (low, high) in (
                 ("table-address", self.address, TABLE_ADDRESS_RANGE),
                 ("table-port", self.port, PORT_RANGE),

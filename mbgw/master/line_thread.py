@@ -78,6 +78,11 @@ def _line_settings(serial):
     return dataclasses.replace(serial, **UNUSED_SETTINGS, **ANSWER_SETTINGS)
 
 
+def serial_functions(cfg: MasterConfig) -> tuple[int, ...]:
+    """What the table's serial slave answers: its own list, else the table's."""
+    return cfg.table.serial_functions or cfg.table.functions
+
+
 def table_address(cfg: MasterConfig) -> int:
     """The serial address the table answers as; 0: none."""
     return cfg.table.address if cfg.table.enabled else 0
@@ -107,7 +112,7 @@ class SerialSlave(LineThread[MasterConfig]):
         self._table_address = table_address(cfg) if table is not None else 0
         self._rejected = -1     # the address of the frame a receive has just rejected
         if table is not None:
-            self._responder = table.responder()
+            self._responder = table.responder(serial_functions(cfg))
             table.watch_down(self._down)
         self._attach(line)
 
@@ -167,6 +172,7 @@ class SerialSlave(LineThread[MasterConfig]):
         except ConfigError as err:
             log.error("TLS to servers: %s: the previous certificates stay in use", err)
         if self.table is not None:
+            self._responder = self.table.responder(serial_functions(cfg))
             address = table_address(cfg)
             if address != self._table_address:
                 self.table_counters.reset()     # a new slave (VPGate 8.5)

@@ -25,7 +25,8 @@ log = logging.getLogger("mbgw.table")
 class TableService:
     def __init__(self, settings: MasterConfig) -> None:
         self.cfg = cfg = settings.table
-        self.table = Table(cfg.functions)
+        self.table = Table()
+        self.table.set_functions(cfg.functions, cfg.serial_functions)
         identity.fill(self.table, settings, "master")
         self.server: TableServer | None = None
         # on the TCP server's requests
@@ -78,8 +79,8 @@ class TableService:
         old, self.cfg = self.cfg, new
         identity.fill(self.table, settings, "master")
         self._repersist(old, new, report)
-        if new.functions != old.functions:
-            self.table.set_functions(new.functions)
+        if (new.functions, new.serial_functions) != (old.functions, old.serial_functions):
+            self.table.set_functions(new.functions, new.serial_functions)
         firewall = self.firewall.renewed(settings.firewall,
                                           settings.tls.roles_required)
         if firewall is not self.firewall:

@@ -470,3 +470,23 @@ def test_the_master_moving_on_during_the_interframe_silence_abandons_the_answer(
     expected = rtu(bytes.fromhex("0a 03 02 6d62"))
     assert recv(line, len(expected), timeout=REPLY_S + 2) == expected   # the second's only
     assert status(gw)["counters"]["abandoned"] == 1
+
+
+def test_the_serial_slave_and_the_tcp_clients_have_function_lists_of_their_own(table_master,
+                                                                              line, tcp):
+    """VPGate 3.7: the serial master may write (6) what the TCP clients may only read (3, 4);
+    each side's refusal is 0x01 and changes nothing."""
+    gw, port = table_master("--table-functions", "3,4", "--table-serial-functions", "3,6")
+    sock = tcp(port)
+    os.write(line, rtu(bytes.fromhex("0a 06 1000 beef")))
+    expected = rtu(bytes.fromhex("0a 06 1000 beef"))
+    assert recv(line, len(expected)) == expected
+    assert ask_tcp(sock, 1, 1, bytes.fromhex("06 1000 0001")) == bytes.fromhex("86 01")
+    assert ask_tcp(sock, 2, 1, bytes.fromhex("03 1000 0001")) == bytes.fromhex("03 02 beef")
+    os.write(line, rtu(bytes.fromhex("0a 04 1000 0001")))
+    expected = rtu(bytes.fromhex("0a 84 01"))
+    assert recv(line, len(expected)) == expected
+    os.write(line, rtu(read_holding(TABLE, FREE, 1)))
+    expected = rtu(bytes.fromhex("0a 03 02 beef"))
+    assert recv(line, len(expected)) == expected
+    assert table_status(gw)["serial"]["requests"] == 3
