@@ -57,7 +57,7 @@ def _transparent_sections(s: dict) -> list[str]:
     eof = f"char 0x{t['eof_char']:02x}" if t["eof"] == "char" else t["eof"]
     raw = "off" if t["raw_port"] is None else \
         f"port {t['raw_port']}, client {t['raw_client'] or 'none'}"
-    return [f"{_line(s['serial'])}: line {s['serial']['state']}",
+    return [f"{_line(s['serial'])}: line {_state(s['serial'])}",
             f"frames     eof {eof}, eof-timeout {t['eof_timeout_ms']} ms, crc "
             f"{'on' if t['crc'] else 'off'}, trigger {'on' if t['trigger'] else 'off'}, "
             f"silence {t['silence_ms']} ms",
@@ -69,6 +69,13 @@ def _transparent_sections(s: dict) -> list[str]:
 def _line(serial: dict) -> str:
     return (f"serial     {serial['device']} {serial['baudrate']} {serial['format']} "
             f"{serial['protocol']} {serial['interface']}")
+
+
+def _state(serial: dict) -> str:
+    """The line's state; "waiting": nothing at the device's path yet."""
+    if serial["state"] == "waiting":
+        return "down, waiting for the device to appear"
+    return serial["state"]
 
 
 def _exceptions(d: dict) -> str:
@@ -127,7 +134,7 @@ def _slave_sections(s: dict, now: float) -> list[str]:
     serial = s["serial"]
     lines = [
         f"listening  {', '.join(s['listening'])}",
-        f"{_line(serial)}, stout {serial['stout_ms']} ms: line {serial['state']}, "
+        f"{_line(serial)}, stout {serial['stout_ms']} ms: line {_state(serial)}, "
         f"queue {s['queue_depth']}, utilisation {s['line_utilisation_pct']:.1f} %",
         "",
         f"clients ({len(s['clients'])})",
@@ -154,7 +161,7 @@ def _slave_sections(s: dict, now: float) -> list[str]:
 def _master_sections(s: dict, now: float) -> list[str]:
     up = s["upstream"]
     lines = [
-        f"{_line(s['serial'])}: line {s['serial']['state']}",
+        f"{_line(s['serial'])}: line {_state(s['serial'])}",
         f"servers    port {up['port']}, tcpto {up['tcpto_ms']} ms, exception "
         f"{'on' if up['exception'] else 'off'}, at most {up['max_connections']} connections",
     ]

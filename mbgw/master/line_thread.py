@@ -82,7 +82,7 @@ def table_address(cfg: MasterConfig) -> int:
 
 
 class SerialSlave(LineThread[MasterConfig]):
-    def __init__(self, cfg: MasterConfig, line: SerialLine, counters: MasterCounters,
+    def __init__(self, cfg: MasterConfig, line: SerialLine | None, counters: MasterCounters,
                  table=None) -> None:
         """table: the exchange table (mbgw.table.memory.Table), None in a gateway without."""
         super().__init__(cfg, line)
@@ -106,7 +106,10 @@ class SerialSlave(LineThread[MasterConfig]):
         if table is not None:
             self._responder = table.responder()
             table.watch_down(self._down)
-        self._attach(line)
+        if line is not None:
+            self._attach(line)
+        else:
+            self._detach()
 
     @property
     def turn_limit_s(self) -> float:

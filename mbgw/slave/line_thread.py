@@ -54,7 +54,7 @@ REOPEN_SETTINGS = ("device", "baudrate", "format", "interface", "rtsdelays")
 
 
 class LineWorker(LineThread[SlaveConfig]):
-    def __init__(self, cfg: SlaveConfig, line: SerialLine, scheduler: Scheduler,
+    def __init__(self, cfg: SlaveConfig, line: SerialLine | None, scheduler: Scheduler,
                  server, counters: Counters, devices: DeviceTable) -> None:
         super().__init__(cfg, line)
         self._scheduler = scheduler
@@ -69,12 +69,14 @@ class LineWorker(LineThread[SlaveConfig]):
         self._serving: Job | None = None     # until its outcome has been delivered
         self._gate = Gate()                  # see the module's docstring
         self._reader: TableReader | None = None     # while the table is on
-        self._master: SerialMaster | None = self._master_on(line)
+        self._master: SerialMaster | None = self._master_on(line) if line else None
         self._engine = None                # the serial scenarios' engine (use_scenarios)
         self._scenarios = None             # the engine while it has scenarios to run
         self._due_s: float | None = None   # until the next scenario is due (None: none is)
         self._engine_woken = False         # its eventfd was ready (a test, with no scenario)
         self._timed_out: dict[int, Job] = {}   # by address: the job whose late reply may come
+        if line is None:
+            self._line_state(down=True)
 
     def _master_on(self, line: SerialLine, previous: SerialMaster | None = None) -> SerialMaster:
         cfg = self._cfg
