@@ -309,7 +309,8 @@ def format_event(e: dict) -> str:
     if e.get("mode") == "master":
         tid = "-" if e["tid"] is None else e["tid"]
         unit = "-" if e["unit"] is None else e["unit"]
-        where = f"{e['address']:>4} {e['server'] or '-':<21}"
+        address = "-" if e["address"] is None else e["address"]
+        where = f"{address:>4} {e['server'] or '-':<21}"
     else:
         tid, unit, where = e["tid"], e["unit"], f"{e['peer']:<24}"
     return (f"{stamp:<15} {e['direction']:<9} {where} {tid:>5} {unit:>4} "

@@ -267,20 +267,28 @@ def test_the_trace_shows_the_servers_reply_and_what_became_of_it(gateway, server
 
 
 def test_a_late_reply_is_dropped_by_its_transaction_id_while_the_next_request_waits(
-        gateway, server, line):
+        gateway, server, line, tmp_path):
     """The server answers A (2 registers at 0) 300 ms after it came, tcpto being 200 ms; the
     master gets 0x0B and asks B (2 registers at 50: a reply of the same size), which the
     server answers 150 ms after it came.  A's late reply arrives on the connection while B
-    waits: it carries A's transaction id, so it is dropped and counted, and the master gets
-    B's own registers."""
+    waits: it carries A's transaction id, so it is dropped, counted and traced, and the
+    master gets B's own registers."""
     gw = gateway("--exception", "--tcpto", "200")
     server.delays.extend((0.3, 0.15))
-    ask(line, read_holding(ADDRESS, start=0, count=2), expected=bytes.fromhex("06 83 0b"))
-    ask(line, read_holding(ADDRESS, start=50, count=2),
-        expected=holding_reply(ADDRESS, *struct.unpack(">2H", registers(UNIT, 50, 2))))
+    with tracing(gw, tmp_path / "trace.pcap", count=5) as (trace, _):
+        ask(line, read_holding(ADDRESS, start=0, count=2), expected=bytes.fromhex("06 83 0b"))
+        ask(line, read_holding(ADDRESS, start=50, count=2),
+            expected=holding_reply(ADDRESS, *struct.unpack(">2H", registers(UNIT, 50, 2))))
+        out, err = trace.communicate(timeout=10)
+    assert trace.returncode == 0, err
     (tid_a, _, _), (tid_b, _, _) = server.requests
     assert tid_a != tid_b
     assert [tid for tid, _ in server.sent] == [tid_a, tid_b]
     assert server.arrivals[1] < server.sent[0][1]          # A's late reply came while B waited
+    events = [text.split(None, 8)[1:] for text in out.decode().splitlines()]
+    server_name = f"{HOST}:{server.port}"
+    assert [e[0] for e in events] == ["request", "no", "request", "late", "reply"]   # no reply
+    assert events[3] == ["late", str(ADDRESS), server_name, str(tid_a), str(UNIT), "0x03", "6",
+                         "late reply, dropped"]
     c = stop_counters(gw)
     assert (c["late_replies"], c["timeouts"], c["replies"]) == (1, 1, 2)
