@@ -160,11 +160,11 @@ class SerialMaster:
         self.late_open.discard(address)
 
     def _late_reply(self, frame: bytes) -> bool:
-        """frame (address + PDU, or only the address) is a late reply its address's window
-        waits for: counted, and the window closes when every try has had its own."""
-        address = frame[0]
-        if not self._late_pending[address]:
+        """frame (address + PDU) is a late reply its address's window waits for: counted,
+        and the window closes when every try has had its own."""
+        if not frame or not self._late_pending[frame[0]]:
             return False
+        address = frame[0]
         self._count(self.devices.get(address), "late_replies")
         self._late_pending[address] -= 1
         if not self._late_pending[address]:
