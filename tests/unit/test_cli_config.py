@@ -298,6 +298,22 @@ def test_run_starts_the_mode_the_file_selects(tmp_path):
                                  "authip": ()})]
 
 
+def test_a_path_that_can_never_be_a_serial_device_is_refused_by_set_check_and_run(conf,
+                                                                                 tmp_path):
+    before = conf.read_text()
+    result = mbgw("config", "set", "serial", "device", str(tmp_path), "--config", conf)
+    assert result.exit_code == 1 and f"device {tmp_path}: a directory" in result.output
+    assert conf.read_text() == before
+    conf.write_text(before.replace('device = "/dev/ttyUSB0"', f'device = "{tmp_path}"'))
+    assert f'device = "{tmp_path}"' in conf.read_text()
+    result = mbgw("check-config", conf)
+    assert result.exit_code != 0 and f"serial.device: device {tmp_path}: a directory, not a " \
+        f"serial device" in result.output
+    result = mbgw("run", "--config", conf)
+    assert result.exit_code == cli_config.EX_CONFIG
+    assert f"serial.device: device {tmp_path}: a directory" in result.output
+
+
 def test_run_without_a_device_names_the_key(tmp_path):
     group, calls = recorder()
     path = tmp_path / "f.toml"
