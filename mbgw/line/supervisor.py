@@ -136,8 +136,7 @@ class LineThread(threading.Thread, Generic[Settings]):
         if line is None:
             self._reopening = Reopening(cfg.serial.device, pause=False)
             self._reopening.absent = True
-            log.warning("serial device %s is not there: waiting for it (requests that need "
-                        "the line are refused meanwhile)", cfg.serial.device)
+            log.warning("serial device %s is not there: waiting for it", cfg.serial.device)
         # For systemd's watchdog: the monotonic time the loop last turned, and the longest
         # the thread may wait while nothing happens (-1: no limit; set before start()).
         self.heartbeat = time.monotonic()
