@@ -524,8 +524,9 @@ def config_scenario() -> None:
 def scenario_add(ctx, config_path: Path, instance: str | None, name: str, keys: tuple) -> None:
     """Add scenario NAME with the keys of a [[scenario]] table: slave (serial) or server
     and unit (TCP), function, address, quantity, table, cycle (ms) or trigger=change, and
-    retries, stale-after, enabled; function 23: read-address, read-quantity, read-table,
-    write-address, write-quantity, write-table.  See mbgw.toml(5), SCENARIOS.  E.g.
+    retries, stale-after, enabled, send-unwritten; function 23: read-address,
+    read-quantity, read-table, write-address, write-quantity, write-table.  See
+    mbgw.toml(5), SCENARIOS.  E.g.
 
     \b
       mbgw config scenario add boiler-temps slave=45 function=3 address=1000 quantity=10 \\

@@ -10,9 +10,10 @@ shortcut), so no two threads ever write one socket.
 
 The serial scenarios (an mbgw.scenarios engine, use_scenarios) run here too, under the same
 rules: the scenario queue takes turns with the clients in the scheduler's ring, each run is a
-SerialMaster transaction with the scenario's retries, and the idle wait ends when the next
-scenario is due or the engine's eventfd says a change made one pending (or an operator's
-`scenario test` waits: it runs in the scenario queue's turn too)."""
+SerialMaster transaction with the scenario's retries, a device that is down gets no run but
+its probe (the same DeviceStats.admit as the clients' requests), and the idle wait ends when
+the next scenario is due or the engine's eventfd says a change made one pending (or an
+operator's `scenario test` waits: it runs in the scenario queue's turn too)."""
 import errno
 import logging
 import time
@@ -27,6 +28,7 @@ from mbgw.ops.device_stats import DeviceTable
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.protocol import mbap, pdu
 from mbgw.scenarios.exchange import EXCEPTION_KINDS, TIMEOUT
+from mbgw.scenarios.health import SerialHealth
 from mbgw.slave.client import Client
 from mbgw.slave.connections import Connections
 from mbgw.slave.scheduler import (
@@ -371,6 +373,7 @@ class LineWorker(LineThread[SlaveConfig]):
         """Run engine's scenarios on this line, and those of the settings to come (called
         once, before start())."""
         self._engine = engine
+        engine.health = SerialHealth(self.devices)    # the demotion of direct requests
         self._scenarios = engine if serial_scenarios(self._cfg) else None
         self._connections.poll_also(engine.wake_fd, self._engine_ready)
 

@@ -66,7 +66,8 @@ def run_transparent(cfg: TransparentModeConfig, reconfigure=None) -> None:
     allows = access_check(cfg.authip)
     context = server_context(cfg.tls) if cfg.tls.enabled else None     # ConfigError
     try:
-        server = TableServer(table, cfg.mdbport or None, cfg.bind, Firewall(cfg.firewall),
+        server = TableServer(table, cfg.mdbport or None, cfg.bind,
+                             Firewall(cfg.firewall, cfg.tls.roles_required),
                              allows=allows, tls=context, tls_port=cfg.tls.port,
                              role_of=role_of)
     except OSError as err:
@@ -144,8 +145,8 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
                 log.warning("%s changed: the new setting takes effect at restart", name)
         if new.transparent.raw_port != old.transparent.raw_port:
             log.warning("raw-port changed: the new setting takes effect at restart")
-        if new.firewall != old.firewall:
-            server.set_firewall(server.firewall.renewed(new.firewall))
+        if (new.firewall, new.tls.roles_required) != (old.firewall, old.tls.roles_required):
+            server.set_firewall(server.firewall.renewed(new.firewall, new.tls.roles_required))
         if new.tls != old.tls:
             _retls(server, new)
         frames.reconfigure(new)

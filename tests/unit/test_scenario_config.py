@@ -55,6 +55,14 @@ def test_change_trigger_and_fc23():
     assert parse_scenario(sc.fields(), "s") == sc
 
 
+def test_send_unwritten_is_a_writes_key_and_round_trips():
+    sc = parse_scenario(fields(function=16, quantity=2, **{"send-unwritten": "on"}), "s")
+    assert sc.send_unwritten and sc.fields()["send-unwritten"] is True
+    assert parse_scenario(sc.fields(), "s") == sc
+    plain = parse_scenario(fields(function=16, quantity=2), "s")
+    assert not plain.send_unwritten and "send-unwritten" not in plain.fields()
+
+
 def test_key_values_as_strings():
     """`mbgw config scenario add NAME KEY=VALUE` and `scenario test` give strings."""
     sc = parse_scenario({"name": "w", "slave": "0", "function": "6", "address": "0x10",
@@ -102,6 +110,10 @@ def test_key_values_as_strings():
     ({"stale-after": -1}, "scenario boiler: stale-after -1: out of range"),
     ({"function": 16, "stale-after": 500}, "scenario boiler: stale-after 500: only a read"),
     ({"enabled": "maybe"}, "scenario boiler: enabled 'maybe': expected true or false"),
+    ({"send-unwritten": True}, "scenario boiler: send-unwritten: only a write sends table "
+                               "data (function 5, 6, 15, 16 or 23)"),
+    ({"function": 16, "send-unwritten": "sometimes"}, "scenario boiler: send-unwritten "
+                                                      "'sometimes': expected true or false"),
     ({"colour": 1}, "scenario boiler: colour: unknown key"),
     ({"function": 23}, "scenario boiler: address: not for function 23 (write read-address"),
     ({"write-table": 1}, "scenario boiler: write-table: not for function 3"),
