@@ -178,13 +178,30 @@ def _say_how_to_apply(path: Path) -> None:
         click.echo(f"apply it with: systemctl reload mbgw@{path.stem}")
 
 
-def _write(ctx, path: Path, text: str, words) -> None:
+def _write(ctx, path: Path, text: str, words, what: str) -> None:
+    """Write the file; what: the change, for the journal's audit event."""
     try:
         write_atomic(path, text)
     except PermissionError:
         raise _permission_failure(ctx, path, "write", words) from None
     except OSError as err:
         raise Failure(f"cannot write {path}: {err.strerror or err}") from None
+    _audit(ctx, path, what)
+
+
+def _audit(ctx, path: Path, what: str) -> None:
+    """A change of the file as an audit event in the journal (journald adds the sender's
+    _UID, _PID and _COMM itself); nothing on a machine without one."""
+    import os
+
+    from mbgw.audit import Kind
+    from mbgw.ops.log import journal_event
+    user = f"uid {os.getuid()}"
+    if os.environ.get("SUDO_UID"):
+        user += f" (sudo from uid {os.environ['SUDO_UID']})"
+    journal_event("mbgw.config", Kind.CONFIG_CHANGED,
+                  f"configuration changed by {ctx.command_path} ({user}): {path}: {what}",
+                  source="cli", user=user, keys=what, file=str(path))
 
 
 # --- mbgw run, mbgw check-config ----------------------------------------------------------------
@@ -244,22 +261,37 @@ def config() -> None:
 
 @config.command("show")
 @_file_options
+@click.option("--security", is_flag=True,
+              help="The security settings in force instead: listeners (address, port, plain "
+                   "or TLS, limits), TLS versions and suites, CRL, authip, the firewall, the "
+                   "web console (which passwords are set, never their hashes), the control "
+                   "socket, and who may read the file.")
+@click.option("--json", "as_json", is_flag=True, help="With --security: as a JSON document.")
 @click.argument("group", required=False, type=click.Choice([*ck.GROUPS, cf.SCENARIO_KEY]))
 @click.argument("param", required=False)
 @click.pass_context
-def show(ctx, config_path: Path, instance: str | None, group: str | None,
-         param: str | None) -> None:
+def show(ctx, config_path: Path, instance: str | None, security: bool, as_json: bool,
+         group: str | None, param: str | None) -> None:
     """Show the settings in effect (the file's, else the built-in defaults): all, one GROUP
     (serial, net, general, table), or one PARAM, like the guide's `show serial stout`;
-    `show scenario [NAME]`: the scenarios."""
+    `show scenario [NAME]`: the scenarios; `show --security [--json]`: the security
+    settings in force."""
+    if as_json and not security:
+        raise click.UsageError("--json goes with --security")
+    if security and group is not None:
+        raise click.UsageError("--security shows them all: give no GROUP")
     path = _path(ctx, config_path, instance)
     schema = _schema(ctx)
     if path.exists():
         settings = _load(ctx, schema, path, [*filter(None, (group, param)),
+                                             *(["--security"] if security else []),
                                              *_file_words(ctx, path)])
     else:
         click.echo(f"mbgw: {path} does not exist: built-in defaults", err=True)
         settings = cf.Settings(path, schema.default_mode, {})
+    if security:
+        _show_security(schema, settings, as_json)
+        return
     if group == cf.SCENARIO_KEY:
         _show_scenarios(settings, param)
         return
@@ -283,6 +315,18 @@ def show(ctx, config_path: Path, instance: str | None, group: str | None,
                 click.echo(f"{schema.file_name(name):<{SHOW_WIDTH}} {line}")
     if group is None and settings.scenarios:
         _show_scenarios(settings, None)
+
+
+def _show_security(schema: ck.Schema, settings: cf.Settings, as_json: bool) -> None:
+    import json
+
+    from mbgw.cli import security
+    found = security.report(schema, settings)
+    if as_json:
+        click.echo(json.dumps(found, indent=2))
+    else:
+        for line in security.text(found):
+            click.echo(line)
 
 
 def _show_scenarios(settings: cf.Settings, name: str | None) -> None:
@@ -338,9 +382,11 @@ def _change(ctx, path: Path, words, change, shown: bool = True) -> None:
     new_text = config_text.edit(text, schema, new_mode, changes)
     if tomllib.loads(new_text) != new_data:          # the editor's own check
         raise Failure(f"{path}: could not edit the file in place; nothing written")
-    _write(ctx, path, new_text, words)
+    labels = {name: schema.label(name) if name == ck.MODE_KEY or name in schema.keys else name
+              for name in changes}
+    _write(ctx, path, new_text, words, ", ".join(labels.values()))
     for name, value in changes.items():
-        label = schema.label(name) if name == ck.MODE_KEY or name in schema.keys else name
+        label = labels[name]
         if value is config_set.REMOVE:
             click.echo(f"{path}: {label} back to its default")
         elif not shown:
@@ -424,6 +470,7 @@ def _unset(ctx, path: Path, words, group: str, param: str) -> None:
         write_atomic(path, new_text)
     except PermissionError:
         raise _permission_failure(ctx, path, "write", words) from None
+    _audit(ctx, path, f"{group}.{param}")
     click.echo(f"{path}: {group}.{param} back to its default")
     try:
         cf.check(schema, path, new_data)
@@ -501,7 +548,8 @@ def default(ctx, config_path: Path, instance: str | None) -> None:
     """Write the factory defaults: the guide's `set default`.  Every key is listed with its
     help, commented out at its built-in default; the device is /dev/ttyUSB0."""
     path = _path(ctx, config_path, instance)
-    _write(ctx, path, config_text.factory_text(_schema(ctx)), _file_words(ctx, path))
+    _write(ctx, path, config_text.factory_text(_schema(ctx)), _file_words(ctx, path),
+           "factory defaults")
     click.echo(f"{path}: factory defaults written")
     _say_how_to_apply(path)
 
@@ -581,6 +629,6 @@ def _edit_scenarios(ctx, path: Path, words, change, done: str) -> None:
         message = str(err)
         raise Failure(message if message.startswith(str(path)) else f"{path}: {message}") \
             from None
-    _write(ctx, path, new_text, words)
+    _write(ctx, path, new_text, words, done)
     click.echo(f"{path}: {done}")
     _say_how_to_apply(path)

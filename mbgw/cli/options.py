@@ -385,6 +385,11 @@ daemon_options = stack(
                  help="Serve Prometheus metrics on http://ADDR:PORT/metrics ([IPV6]:PORT; "
                       ":PORT for every address) [default: off]."),
     click.option("--log-level", type=LOG_LEVELS, default="info", show_default=True),
+    click.option("--log-format", type=click.Choice(["text", "json"]), default="text",
+                 show_default=True,
+                 help="text: lines for people (under systemd: journal records with the "
+                      "audit events' MESSAGE_ID and fields); json: one JSON object per line on "
+                      "stderr with the same fields."),
     click.option("--firewall", type=_FirewallRules(), default=None, hidden=True,
                  help="The configuration file's [[rule]] tables and [firewall] group."),
     web_options,

@@ -18,14 +18,16 @@ def run_daemon(run: Callable, make_config: Callable, options: dict) -> None:
 
     path = config_file()
     _hand_keys_to_web_console()
+    options = dict(options)
+    log_format = options.pop("log_format", "text")
     cfg = _from_file(_with_web(make_config, options), path)
-    log.setup(options["log_level"])
+    log.setup(options["log_level"], log_format)
     reload = reloader()
 
     def reconfigure():
         new = reload()
         new.pop("mode", None)
-        log.setup(new["log_level"])
+        log.setup(new["log_level"], new.pop("log_format", "text"))
         return _from_file(_with_web(make_config, new), path)
 
     try:

@@ -11,6 +11,7 @@ import struct
 import time
 from typing import TYPE_CHECKING
 
+from mbgw.audit import Kind, event
 from mbgw.ops.control import ControlServer, default_path
 
 if TYPE_CHECKING:
@@ -213,5 +214,6 @@ async def _reloaded(cfg, reconfigure, apply):
         log.warning("%s: changes need a restart (systemctl restart mbgw)", ", ".join(kept))
         new = dataclasses.replace(new, **{name: getattr(cfg, name) for name in kept})
     await apply(new)
-    log.info("configuration reloaded: %s changed", ", ".join(changed))
+    event(log, Kind.CONFIG_CHANGED, "configuration reloaded: %s changed", ", ".join(changed),
+          source="sighup", keys=", ".join(changed))
     return new

@@ -22,6 +22,7 @@ import socket
 import ssl
 import time
 
+from mbgw.audit import Kind, event, operator
 from mbgw.config.model import ACTIVE_WINDOW_S, SlaveConfig
 from mbgw.errors import ConfigError
 from mbgw.firewall.guard import Firewall
@@ -140,7 +141,8 @@ class TcpServer:
             self.table.set_functions(cfg.table.functions)
         for client in list(self.clients):
             if not self._acl.allows(client.host):
-                log.info("client %s closed: no longer allowed by authip", client.peer)
+                event(log, Kind.CLIENT_CLOSED, "client %s closed: no longer allowed by authip",
+                      client.peer, client=client.peer, reason="not in authip")
                 self._drop(client)
         if cfg.tls != old.tls or cfg.bind != old.bind:
             self._retls(old)
@@ -237,7 +239,8 @@ class TcpServer:
         assert handshakes is not None
         if handshakes.full or self._tls is None:
             self.counters.connections_refused_tls += 1
-            self._log_refusal(host, f"{MAX_HANDSHAKES} TLS handshakes under way already")
+            self._log_refusal(host, f"{MAX_HANDSHAKES} TLS handshakes under way already",
+                              Kind.TLS_REFUSED)
             sock.close()
             return
         sock.setblocking(False)
@@ -246,7 +249,7 @@ class TcpServer:
 
     def _tls_refused(self, host: str, reason: str) -> None:
         self.counters.connections_refused_tls += 1
-        self._log_refusal(host, reason)
+        self._log_refusal(host, reason, Kind.TLS_REFUSED)
 
     def _tls_probe(self, host: str) -> None:
         """A connection to the TLS port closed or reset before its first byte (a health
@@ -294,9 +297,10 @@ class TcpServer:
         idle = [c for c, events in live.items() if not (c.busy or events & select.POLLIN)]
         victim = eviction_victim(idle, time.monotonic())
         if victim is None:
-            log.warning("client %s refused: all %d connections are busy (a request in the "
-                        "gateway, or one within the last %d s)", newcomer.peer, len(live),
-                        ACTIVE_WINDOW_S)
+            event(log, Kind.CONNECTION_REFUSED, "client %s refused: all %d connections are busy "
+                  "(a request in the gateway, or one within the last %d s)", newcomer.peer,
+                  len(live), ACTIVE_WINDOW_S, client=newcomer.peer,
+                  reason="max-connections, every client busy")
             return False
         log.info("client %s closed to make room for %s", victim.peer, newcomer.peer)
         self.counters.connections_evicted += 1
@@ -315,11 +319,13 @@ class TcpServer:
                 live[client] = events
         return live
 
-    def close_client(self, client_id: int) -> bool:
-        """Force-close a client connection (operator's command)."""
+    def close_client(self, client_id: int, user=None) -> bool:
+        """Force-close a client connection (operator's command; user: who, as the control
+        command's "uid" names them)."""
         for client in self.clients:
             if client.id == client_id:
-                log.info("client %s closed by the operator", client.peer)
+                event(log, Kind.CLIENT_CLOSED, "client %s closed by the operator (uid %s)",
+                      client.peer, user, client=client.peer, user=operator(user))
                 self._drop(client)
                 return True
         return False
@@ -334,7 +340,8 @@ class TcpServer:
             self.clients.remove(client)
             log.debug("client %s disconnected", client.peer)
 
-    def _log_refusal(self, host: str, reason: str) -> None:
+    def _log_refusal(self, host: str, reason: str,
+                     kind: Kind = Kind.CONNECTION_REFUSED) -> None:
         """Logged at most once a minute per address and reason: a refusal of one kind never
         hides another kind from the same address."""
         now = time.monotonic()
@@ -344,8 +351,9 @@ class TcpServer:
                 for key in [k for k, t in refusals.items() if now - t >= REFUSAL_LOG_INTERVAL_S]:
                     del refusals[key]
             refusals[(host, reason)] = now
-            log.warning("connection from %s refused: %s (further refusals of this address for "
-                        "this reason are logged at most once a minute)", host, reason)
+            event(log, kind, "connection from %s refused: %s (further refusals of this address "
+                  "for this reason are logged at most once a minute)", host, reason,
+                  client=host, reason=reason)
 
     # --- the line thread: requests in, outcomes out ---
 

@@ -73,6 +73,6 @@ class SlaveStatus(DaemonStatus):
         client_id = request.get("client")
         if not isinstance(client_id, int):
             return {"error": "close needs a client id"}
-        if self._server.close_client(client_id):
+        if self._server.close_client(client_id, request.get("uid")):
             return {"ok": True}
         return {"error": f"no client {client_id}"}

@@ -33,6 +33,7 @@ import threading
 import time
 from typing import cast
 
+from mbgw.audit import Kind, event
 from mbgw.firewall.guard import Firewall, Guard
 from mbgw.protocol import mbap
 
@@ -334,7 +335,8 @@ class TableServer(threading.Thread):
         if self._allows is not None and not self._allows(address[0]):
             sock.close()
             self.refused_authip += 1
-            log.warning("table client %s refused: not in authip", _name(address))
+            event(log, Kind.CONNECTION_REFUSED, "table client %s refused: not in authip",
+                  _name(address), client=_name(address), reason="not in authip")
             return
         if not self._room_for(sock, address):
             return
@@ -449,17 +451,18 @@ class TableServer(threading.Thread):
                 for old in [k for k, t in logged.items() if now - t >= REFUSAL_LOG_INTERVAL_S]:
                     del logged[old]
             logged[key] = now
-            log.warning("table client %s refused: %s (further TLS refusals of this address "
-                        "for this reason are logged at most once a minute)", _name(address),
-                        reason)
+            event(log, Kind.TLS_REFUSED, "table client %s refused: %s (further TLS refusals of "
+                  "this address for this reason are logged at most once a minute)",
+                  _name(address), reason, client=_name(address), reason=reason)
 
     def _log_refusal(self, address) -> None:
         now = time.monotonic()
         if now - self._refused_logged >= REFUSAL_LOG_INTERVAL_S:
             self._refused_logged = now
-            log.warning("table client %s refused: %d table clients are connected, the most "
-                        "there may be (further refusals are logged at most once a minute)",
-                        _name(address), MAX_CONNECTIONS)
+            event(log, Kind.CONNECTION_REFUSED, "table client %s refused: %d table clients are "
+                  "connected, the most there may be (further refusals are logged at most once "
+                  "a minute)", _name(address), MAX_CONNECTIONS, client=_name(address),
+                  reason="too many table clients")
 
     def _close(self, client: _Connection) -> None:
         del self._clients[client.fd]

@@ -6,6 +6,7 @@ import logging
 import select
 import socket
 
+from mbgw.audit import Kind, event
 from mbgw.transparent.counters import TransparentCounters
 
 log = logging.getLogger("mbgw.transparent")
@@ -83,7 +84,8 @@ class RawPort:
             return
         sock.close()
         self._counters.raw_refused += 1
-        log.warning("raw client %s refused: %s", peer, reason)
+        event(log, Kind.CONNECTION_REFUSED, "raw client %s refused: %s", peer, reason,
+              client=peer, reason=reason)
 
     def receive(self) -> bytes | None:
         """What the client sent: None for nothing now, b"" when it will send no more (then

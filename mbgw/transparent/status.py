@@ -3,6 +3,7 @@ every mode shares are in mbgw.ops.status)."""
 import logging
 import time
 
+from mbgw.audit import Kind, event, operator
 from mbgw.ops.status import DaemonStatus
 from mbgw.scenarios.report import scenarios_status
 
@@ -43,7 +44,8 @@ class TransparentStatus(DaemonStatus):
     def reset(self, request: dict) -> dict:
         self._counters.reset()
         self._reset_at = time.time()
-        log.info("counters reset by the operator (uid %s)", request.get("uid"))
+        event(log, Kind.COUNTERS_RESET, "counters reset by the operator (uid %s)",
+              request.get("uid"), user=operator(request.get("uid")))
         return {"ok": True}
 
     def summary(self) -> str:

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from aiohttp import web
 
+from mbgw.audit import Kind, event
 from mbgw.web import config_api
 from mbgw.web.auth import COOKIE, ROLES
 from mbgw.web.passwords import verify
@@ -87,8 +88,8 @@ async def login(request: web.Request) -> web.Response:
     address = request.remote or "?"
     wait = server.limit.retry_after(address)
     if wait:
-        log.warning("web login from %s refused: too many failed logins, %d s to wait",
-                    address, wait)
+        event(log, Kind.LOGIN_FAILED, "web login from %s refused: too many failed logins, %d s "
+              "to wait", address, wait, client=address, reason="too many failed logins")
         return web.json_response({"error": f"too many failed logins: try again in {wait} s"},
                                  status=429, headers={"Retry-After": str(wait)})
     data = await body(request)
@@ -98,11 +99,13 @@ async def login(request: web.Request) -> web.Response:
         await asyncio.to_thread(verify, password, stored)
     if not ok:
         server.limit.failed(address)
-        log.warning("web login failed for %r from %s", role, address)
+        event(log, Kind.LOGIN_FAILED, "web login failed for %r from %s", role, address,
+              client=address, user=role, reason="wrong user or password")
         return error(401, "wrong user or password")
     server.limit.succeeded(address)
     token, new = server.sessions.open(role)
-    log.info("web login: %s from %s", role, address)
+    event(log, Kind.LOGIN_OK, "web login: %s from %s", role, address, client=address,
+          user=role)
     response = web.json_response({"role": new.role, "csrf": new.csrf})
     response.set_cookie(COOKIE, token, httponly=True, samesite="Strict", path="/",
                         secure=server.https or None)
@@ -267,8 +270,9 @@ async def config_set(request: web.Request) -> web.Response:
         changed = config_api.set_value(_config_path(request), group, key, value)
     except config_api.ConfigRefused as err:
         return _refused(err)
-    log.info("configuration changed from the web console (%s): %s", who(request),
-             ", ".join(changed))
+    event(log, Kind.CONFIG_CHANGED, "configuration changed from the web console (%s): %s",
+          who(request), ", ".join(changed), source="web", user=who(request),
+          keys=", ".join(changed))
     request.app["hooks"].reload()
     return web.json_response({"ok": True, "changed": changed, "reloading": True})
 
@@ -292,6 +296,7 @@ async def config_upload(request: web.Request) -> web.Response:
         return error(400, "the file is not UTF-8")
     except config_api.ConfigRefused as err:
         return _refused(err)
-    log.info("configuration file replaced from the web console (%s)", who(request))
+    event(log, Kind.CONFIG_CHANGED, "configuration file replaced from the web console (%s)",
+          who(request), source="web", user=who(request), keys="the whole file")
     request.app["hooks"].reload()
     return web.json_response({"ok": True, "mode": mode, "reloading": True})
