@@ -27,7 +27,7 @@ from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.protocol import mbap, pdu
-from mbgw.scenarios.exchange import EXCEPTION_KINDS, TIMEOUT
+from mbgw.scenarios.exchange import EXCEPTION_KINDS, FRAME_WITHOUT_REQUEST, TIMEOUT
 from mbgw.scenarios.health import SerialHealth
 from mbgw.slave.client import Client
 from mbgw.slave.connections import Connections
@@ -422,14 +422,17 @@ class LineWorker(LineThread[SlaveConfig]):
         if master is None:
             return None, PATH_UNAVAILABLE, 0
         device = self.devices.get(scenario.slave)
-        retried = device.retries
+        retried, foreign = device.retries, _foreign_frames(device)
         master.mismatch = None
         master.on_retry = on_retry
         try:
             reply = self._on_line(master, bytes((scenario.slave,)) + request, scenario.retries)
         except LineTimeout:
             reply = master.mismatch
-            return reply, None if reply is not None else TIMEOUT, device.retries - retried
+            if reply is None:       # VPGate 8.2: another master's frames came instead
+                kind = FRAME_WITHOUT_REQUEST if _foreign_frames(device) > foreign else TIMEOUT
+                return None, kind, device.retries - retried
+            return reply, None, device.retries - retried
         except SerialError as err:
             self._lost(err)
             return None, PATH_UNAVAILABLE, device.retries - retried
@@ -451,6 +454,12 @@ class LineWorker(LineThread[SlaveConfig]):
         finally:
             self._gate.take()
             self._server.take_kept()
+
+
+def _foreign_frames(device) -> int:
+    """Whole frames heard while waiting for device's reply that were not replies: another
+    address's, or a request's shape (another master's request read as a reply)."""
+    return device.wrong_unit + device.invalid_frames
 
 
 def serial_scenarios(cfg: SlaveConfig) -> tuple:

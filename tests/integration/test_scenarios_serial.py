@@ -408,3 +408,24 @@ def test_a_run_that_retries_says_slave_not_responding_retrying(pty_pair, gateway
             c.close()
     finally:
         os.close(fd)
+
+
+def test_another_masters_frame_instead_of_the_reply_is_frame_received_without_request(
+        pty_pair, gateway):
+    """VPGate 8.2: when another master talks on the line (here a request to address 9 where
+    the reply of slave 5 should be), the run fails "frame received without request", not with
+    a plain timeout."""
+    fd = os.open(pty_pair.device, os.O_RDWR | os.O_NOCTTY)
+    try:
+        attrs = termios.tcgetattr(fd)
+        attrs[0] = attrs[1] = attrs[3] = 0
+        termios.tcsetattr(fd, termios.TCSANOW, attrs)
+        gw, _ = gateway([poll("pump", 5, 3, 0, 1, 100, cycle=65535, retries=0)],
+                        stout=300, serial=NEVER_DOWN)
+        assert _request_on(fd) == rtu(5, read_holding(0, 1))
+        os.write(fd, rtu(9, read_holding(0, 1)))        # the other master's request
+        s = wait_for_scenario(gw, "pump", lambda sc: sc["runs"] == 1, "the run done")
+        assert (s["state"], s["message"]) == ("error", "frame received without request"), s
+        assert s["errors"] == {"frame-without-request": 1}, s
+    finally:
+        os.close(fd)
