@@ -231,16 +231,21 @@ def run(ctx: click.Context, config_path: Path, instance: str | None, args) -> No
 
 
 @click.command("check-config")
+@_file_options
 @click.argument("file", required=False, type=click.Path(dir_okay=False, path_type=Path))
 @click.pass_context
-def check_config(ctx: click.Context, file: Path | None) -> None:
+def check_config(ctx: click.Context, config_path: Path, instance: str | None,
+                 file: Path | None) -> None:
     """Check a configuration file without starting anything: every key known, every value
     accepted as on the command line, what its mode requires present, the keys that go
     together, the files it names (certificates and their keys, the table's file) and the
     addresses it listens on: whatever `mbgw run` would refuse.  Exit status 78 when the file
-    is wrong.  FILE defaults to $MBGW_CONFIG, else /etc/mbgw/mbgw.toml."""
-    import os
-    path = file or Path(os.environ.get("MBGW_CONFIG") or ck.DEFAULT_PATH)
+    is wrong.  FILE (or --config FILE, or -i NAME) defaults to $MBGW_CONFIG, else
+    /etc/mbgw/mbgw.toml."""
+    if file is not None and (instance is not None or ctx.get_parameter_source("config_path")
+                             == click.core.ParameterSource.COMMANDLINE):
+        raise click.UsageError("give FILE, --config FILE or -i NAME: one of them")
+    path = file or _path(ctx, config_path, instance)
     schema = schema_of(ctx)
     settings = _load(ctx, schema, path, [path], exit_code=EX_CONFIG)
     try:

@@ -43,13 +43,62 @@ def format_status(s: dict, now: float) -> str:
         lines += ["", *_firewall_section(s["firewall"])]
     if s.get("scenarios"):
         lines += ["", *format_scenarios(s["scenarios"], now)]
+    lines += ["", *_counters_section(s)]
+    return "\n".join(lines)
+
+
+STATS_KEYS = ("counters", "counters_since", "line_utilisation_pct", "line_load_pct")
+
+
+def format_counters(s: dict) -> str:
+    """`mbgw stats`: the counters, and the line's load where the mode measures it."""
+    load = _load(s)
+    return "\n".join([*([f"line       {load}"] if load else []), *_counters_section(s)])
+
+
+def _counters_section(s: dict) -> list[str]:
     counters = s["counters"]
-    lines += ["", f"counters since {_clock(s['counters_since'])}"]
+    lines = [f"counters since {_clock(s['counters_since'])}"]
     names = list(counters)
     for i in range(0, len(names), 3):
         lines.append("  " + "".join(f"{n:<28}{counters[n]:>10}   " for n in names[i:i + 3])
                      .rstrip())
-    return "\n".join(lines)
+    return lines
+
+
+def _load(s: dict) -> str:
+    """'load 12.0 % (10 s), 8.1 % (1 min), 7.9 % on average since ...', or ''."""
+    if "line_utilisation_pct" not in s:
+        return ""
+    load = s.get("line_load_pct") or {}
+    recent = ", ".join(f"{load[w]:.1f} % ({w})" for w in ("10s", "1min") if w in load)
+    return (f"load {recent + ', ' if recent else ''}{s['line_utilisation_pct']:.1f} % on "
+            f"average since {_clock(s['counters_since'])}")
+
+
+def format_clients(s: dict, now: float) -> str:
+    """`mbgw clients`: the mode's TCP clients."""
+    if s["mode"] == "slave":
+        return "\n".join(_clients_section(s, now))
+    if s["mode"] == "transparent":
+        raw = s["transparent"]
+        if raw["raw_port"] is None:
+            return "raw        off (transparent mode has no other Modbus TCP clients)"
+        return f"raw        port {raw['raw_port']}, client {raw['raw_client'] or 'none'}"
+    return ("master mode: no Modbus TCP clients; its connections go to the servers "
+            f"(mbgw status lists them: {len(s['upstream']['connections'])} now)")
+
+
+def _clients_section(s: dict, now: float) -> list[str]:
+    lines = [f"clients ({len(s['clients'])})"]
+    if s["clients"]:
+        lines.append(f"  {'ID':>4}  {'PEER':<24} {'CONNECTED':<19}  {'REQUESTS':>8}  "
+                     f"{'IN FLIGHT':>9}  LAST ACTIVITY")
+        for c in s["clients"]:
+            lines.append(f"  {c['id']:>4}  {c['peer']:<24} {_clock(c['connected_since'])}  "
+                         f"{c['requests']:>8}  {c['in_flight']:>9}  "
+                         f"{_ago(c['last_activity'], now)}{_tls_role(c)}")
+    return lines
 
 
 def _transparent_sections(s: dict) -> list[str]:
@@ -131,17 +180,11 @@ def _slave_sections(s: dict, now: float) -> list[str]:
     lines = [
         f"listening  {', '.join(s['listening'])}",
         f"{_line(serial)}, stout {serial['stout_ms']} ms: line {serial['state']}, "
-        f"queue {s['queue_depth']}, utilisation {s['line_utilisation_pct']:.1f} %",
+        f"queue {s['queue_depth']}",
+        f"           {_load(s)}",
         "",
-        f"clients ({len(s['clients'])})",
+        *_clients_section(s, now),
     ]
-    if s["clients"]:
-        lines.append(f"  {'ID':>4}  {'PEER':<24} {'CONNECTED':<19}  {'REQUESTS':>8}  "
-                     f"{'IN FLIGHT':>9}  LAST ACTIVITY")
-        for c in s["clients"]:
-            lines.append(f"  {c['id']:>4}  {c['peer']:<24} {_clock(c['connected_since'])}  "
-                         f"{c['requests']:>8}  {c['in_flight']:>9}  "
-                         f"{_ago(c['last_activity'], now)}{_tls_role(c)}")
     lines += ["", f"devices ({len(s['devices'])}){_demotion(s)}"]
     if s["devices"]:
         lines.append(f"{_HEALTH_COLUMNS} {'CRC':>5} {'OTHER':>5}  EXCEPTIONS")

@@ -67,15 +67,15 @@ class DaemonStatus:
         self._counters.reset()
         self._devices.reset()
         self._reset_at = time.time()
-        event(log, Kind.COUNTERS_RESET, "counters reset by the operator (uid %s)",
-              request.get("uid"), user=operator(request.get("uid")))
+        event(log, Kind.COUNTERS_RESET, "counters reset by the operator (%s)",
+              operator(request.get("uid")), user=operator(request.get("uid")))
         return {"ok": True}
 
     async def trace(self, request: dict, reader: asyncio.StreamReader,
                     writer: asyncio.StreamWriter) -> None:
         hub = self._trace
         queue = hub.subscribe()
-        log.info("trace started (uid %s)", request.get("uid"))
+        log.info("trace started (%s)", operator(request.get("uid")))
         gone = asyncio.ensure_future(reader.read())   # the client closing ends the trace
         try:
             writer.write(json.dumps(self.trace_header()).encode() + b"\n")

@@ -8,6 +8,7 @@ from mbgw.config.model import SlaveConfig
 from mbgw.line.port import SerialLine
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable, HealthRule
+from mbgw.ops.load import LineLoad
 from mbgw.ops.reload import ReloadReport, Reloads
 from mbgw.ops.service import (
     ListenError,
@@ -65,9 +66,10 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     except OSError as err:
         raise ListenError(cfg.mdbport, err) from None
     started = time.time()
+    load = LineLoad(lambda: counters.line_busy_ns)
     try:
         metrics = start_metrics(cfg.metrics, lambda m: with_scenarios(m.slave_collector(
-            counters, devices, scheduler, server, worker, started, tables.figures,
+            counters, devices, scheduler, server, worker, started, tables.figures, load,
             lambda: server.firewall.report() if server.firewall.configured else None),
             engines))
     except MetricsListenError:
@@ -75,7 +77,8 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
         raise
     worker.idle_ms = idle_ms(watchdog_interval())
     worker.start()
-    status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses, tables)
+    status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses, tables,
+                         load)
     status.scenario_engines = engines
     commands = {**status.commands(), **scenario_commands(engines, cfg.config_file)}
     control = await start_control(cfg.control, commands)
@@ -104,12 +107,14 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     reloads.apply = apply
 
     kept = asyncio.ensure_future(tables.keep())
+    sampled = asyncio.ensure_future(load.keep())
     try:
         await serve_until_stopped(stop, status, worker, reloads, control, metrics)
     finally:
         await console.close()
         await asyncio.to_thread(scenarios.stop)
     kept.cancel()
+    sampled.cancel()
     server.close()
     worker.stop()
     await asyncio.to_thread(worker.join)

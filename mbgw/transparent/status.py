@@ -44,8 +44,8 @@ class TransparentStatus(DaemonStatus):
     def reset(self, request: dict) -> dict:
         self._counters.reset()
         self._reset_at = time.time()
-        event(log, Kind.COUNTERS_RESET, "counters reset by the operator (uid %s)",
-              request.get("uid"), user=operator(request.get("uid")))
+        event(log, Kind.COUNTERS_RESET, "counters reset by the operator (%s)",
+              operator(request.get("uid")), user=operator(request.get("uid")))
         return {"ok": True}
 
     def summary(self) -> str:

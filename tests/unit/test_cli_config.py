@@ -105,6 +105,20 @@ def test_check_config_missing_file(tmp_path):
     assert "no such file (create it with: mbgw config default --config" in result.output
 
 
+def test_check_config_takes_the_file_options_of_every_command(conf, monkeypatch):
+    result = mbgw("check-config", "--config", conf)
+    assert (result.exit_code, result.output) == (0, f"{conf}: ok (slave mode)\n")
+    monkeypatch.setattr(config_keys, "CONFIG_DIR", conf.parent)
+    instance = conf.parent / "ttyUSB1.toml"
+    instance.write_text(conf.read_text())
+    result = mbgw("check-config", "-i", "ttyUSB1")
+    assert (result.exit_code, result.output) == (0, f"{instance}: ok (slave mode)\n")
+    result = mbgw("check-config", "--instance", "ttyUSB1", "--config", conf)
+    assert result.exit_code == 2 and "give --config or --instance, not both" in result.output
+    result = mbgw("check-config", conf, "--config", conf)
+    assert result.exit_code == 2 and "give FILE, --config FILE or -i NAME" in result.output
+
+
 # --- config set / show / unset / default ---------------------------------------------------
 
 def test_set_writes_the_value_and_show_reads_it_back(conf):

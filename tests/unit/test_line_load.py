@@ -1,0 +1,45 @@
+"""The line's load now (mbgw.ops.load): the busy share of the last 10 s and the last minute,
+from the busy-time counter sampled once a second, never above 100 %."""
+from mbgw.ops.load import LineLoad, average_percent
+
+
+class Line:
+    def __init__(self) -> None:
+        self.now = 1000.0
+        self.busy_ns = 0
+
+    def run(self, seconds: int, busy_share: float, load: LineLoad) -> None:
+        for _ in range(seconds):
+            self.now += 1
+            self.busy_ns += int(busy_share * 1e9)
+            load.sample()
+
+
+def test_the_windows_follow_the_load_while_the_average_lags():
+    line = Line()
+    load = LineLoad(lambda: line.busy_ns, clock=lambda: line.now)
+    load.sample()
+    line.run(60, 0.1, load)
+    assert load.percent() == {"10s": 10.0, "1min": 10.0}
+    line.run(10, 0.9, load)
+    shares = load.percent()
+    assert shares["10s"] == 90.0 and 20.0 < shares["1min"] < 30.0
+
+
+def test_a_transaction_counted_whole_at_its_end_never_shows_over_100():
+    line = Line()
+    load = LineLoad(lambda: line.busy_ns, clock=lambda: line.now)
+    load.sample()
+    line.now += 2
+    line.busy_ns += 5 * 10**9          # a long transaction, begun before the window
+    assert load.percent() == {"10s": 100.0, "1min": 100.0}
+    assert average_percent(5 * 10**9, 2.0) == 100.0 and average_percent(10**9, 4.0) == 25.0
+
+
+def test_a_reset_of_the_counters_starts_the_windows_again():
+    line = Line()
+    load = LineLoad(lambda: line.busy_ns, clock=lambda: line.now)
+    line.run(20, 0.5, load)
+    line.busy_ns = 0
+    line.run(5, 0.2, load)
+    assert load.percent()["10s"] == 20.0
