@@ -252,6 +252,8 @@ def check_config(ctx: click.Context, config_path: Path, instance: str | None,
         checks.check_file(schema, settings)
     except ConfigFileError as err:
         raise Failure(str(err), EX_CONFIG) from None
+    for warning in scenario_config.overlaps(settings.scenarios):
+        click.echo(f"mbgw: warning: {path}: {warning}", err=True)
     click.echo(f"{path}: ok ({settings.mode} mode)")
 
 
@@ -413,8 +415,9 @@ def _start_check(schema: ck.Schema, path: Path, data: dict) -> list[str]:
 
 
 def _refused(path: Path, err: ConfigError) -> Failure:
-    message = str(err)
-    return Failure(message if message.startswith(str(path)) else f"{path}: {message}")
+    lines = str(err).splitlines()
+    return Failure("\n".join(line if line.startswith(str(path)) else f"{path}: {line}"
+                             for line in lines))
 
 
 def _warn_pending(path: Path, pending: list[str]) -> None:
@@ -660,6 +663,9 @@ def _edit_scenarios(ctx, path: Path, words, change, done: str) -> None:
         raise _refused(path, err) from None
     _write(ctx, path, new_text, words, done)
     click.echo(f"{path}: {done}")
+    scenarios = cf.check(schema, path, cf.parse(path, new_text)).scenarios
+    for warning in scenario_config.overlaps(scenarios):
+        click.echo(f"mbgw: warning: {path}: {warning}", err=True)
     _warn_pending(path, pending)
     if not pending:
         _say_how_to_apply(path)

@@ -38,7 +38,10 @@ def format_status(s: dict, now: float) -> str:
     else:
         lines += _slave_sections(s, now)
     if s.get("table") is not None:
-        lines += ["", *_table_section(s["table"], s["mode"], now)]
+        lines += ["", *_table_section(s["table"], s["mode"], now, bool(s.get("scenarios")))]
+    elif s.get("scenarios"):
+        lines += ["", "table      on (scenarios): no Modbus client reaches it (table.enabled "
+                      "off)"]
     if s.get("firewall") is not None:
         lines += ["", *_firewall_section(s["firewall"])]
     if s.get("scenarios"):
@@ -84,7 +87,7 @@ def format_clients(s: dict, now: float) -> str:
         raw = s["transparent"]
         if raw["raw_port"] is None:
             return "raw        off (transparent mode has no other Modbus TCP clients)"
-        return f"raw        port {raw['raw_port']}, client {raw['raw_client'] or 'none'}"
+        return f"raw        port {raw['raw_port']}, {_raw_client(raw)}"
     return ("master mode: no Modbus TCP clients; its connections go to the servers "
             f"(mbgw status lists them: {len(s['upstream']['connections'])} now)")
 
@@ -104,8 +107,7 @@ def _clients_section(s: dict, now: float) -> list[str]:
 def _transparent_sections(s: dict) -> list[str]:
     t = s["transparent"]
     eof = f"char 0x{t['eof_char']:02x}" if t["eof"] == "char" else t["eof"]
-    raw = "off" if t["raw_port"] is None else \
-        f"port {t['raw_port']}, client {t['raw_client'] or 'none'}"
+    raw = "off" if t["raw_port"] is None else f"port {t['raw_port']}, {_raw_client(t)}"
     return [f"{_line(s['serial'])}: line {s['serial']['state']}",
             f"frames     eof {eof}, eof-timeout {t['eof_timeout_ms']} ms, crc "
             f"{'on' if t['crc'] else 'off'}, trigger {'on' if t['trigger'] else 'off'}, "
@@ -115,9 +117,18 @@ def _transparent_sections(s: dict) -> list[str]:
             f"raw        {raw}"]
 
 
+def _raw_client(t: dict) -> str:
+    if not t["raw_client"]:
+        return "client none"
+    return f"client {t['raw_client']}" + ("" if t.get("raw_client_sending", True) else
+                                          " (done sending: it gets the frames until it goes "
+                                          "or another client comes)")
+
+
 def _line(serial: dict) -> str:
+    protocol = f"{serial['protocol']} " if "protocol" in serial else ""   # none: transparent
     return (f"serial     {serial['device']} {serial['baudrate']} {serial['format']} "
-            f"{serial['protocol']} {serial['interface']}")
+            f"{protocol}{serial['interface']}")
 
 
 def _exceptions(d: dict) -> str:
@@ -236,12 +247,14 @@ def _master_sections(s: dict, now: float) -> list[str]:
 _TABLE_OUTCOMES = ("answered", "exception", "broadcast")
 
 
-def _table_section(t: dict, mode: str, now: float) -> list[str]:
+def _table_section(t: dict, mode: str, now: float, scenarios: bool = False) -> list[str]:
     """The exchange table: what reaches it, requests by function, exceptions sent, master
-    mode's serial slave, the persistence."""
-    if t.get("enabled") is False:
+    mode's serial slave, the persistence.  Off (table.enabled), it still runs for the
+    scenarios when there are any."""
+    if t.get("enabled") is False and not scenarios:
         return ["table      off"]
-    lines = [f"table      {_table_reach(t, mode)}"]
+    lines = [f"table      {_table_reach(t, mode)}" if t.get("enabled") is not False else
+             "table      on (scenarios): no Modbus client reaches it (table.enabled off)"]
     rows = [(fc, row) for fc, row in t.get("requests", {}).items() if any(row.values())]
     if rows:
         lines.append(f"  {'FC':>4}  " + "  ".join(f"{o.upper():>9}" for o in _TABLE_OUTCOMES))

@@ -15,6 +15,7 @@ from mbgw.ops.service import (
     MetricsListenError,
     idle_ms,
     log_stopped,
+    origin,
     serve_until_stopped,
     start_control,
     start_metrics,
@@ -86,9 +87,9 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     console = await start_console(cfg.web, WebHooks(commands, status.trace_hub,
                                                     cfg.config_file, reloads.run))
     s = cfg.serial
-    log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s",
+    log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s%s",
              ", ".join(addresses), s.device, s.baudrate, s.format, s.protocol, s.interface,
-             s.stout_ms, ", nocheck" if s.nocheck else "")
+             s.stout_ms, ", nocheck" if s.nocheck else "", origin(cfg))
     if metrics is not None:
         log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
     if s.nocheck:

@@ -351,7 +351,8 @@ function overviewPage(body) {
       const counters = s.counters || {};
       clear(facts).append(factsTable("overview-facts", [
         ["Mode", s.mode], ["Version", s.version],
-        ["Serial device", `${show(serial.device)} ${show(serial.protocol)} ` +
+        ["Serial device", `${show(serial.device)} ` +
+          `${serial.protocol === undefined ? "" : serial.protocol + " "}` +
           `${show(serial.baudrate)} ${show(serial.format)} ${show(serial.interface)}`],
         ["Line state", serial.state], ["Uptime", duration(s.uptime_s)],
         ["Started", localTime(s.started)],
