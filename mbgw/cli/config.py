@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from mbgw.cli import checks
-from mbgw.cli.options import EX_CONFIG, META_FILE, Failure
+from mbgw.cli.options import EX_CONFIG, META_FILE, Failure, ModeCommand
 from mbgw.config import edit as config_set
 from mbgw.config import file as cf
 from mbgw.config import scenario as scenario_config
@@ -23,6 +23,7 @@ META_MODE_FROM_FILE = "mbgw.mode_from_file"   # ctx.meta: `mbgw run` took the mo
 
 def register(root: click.Group) -> None:
     """Add the commands to `root`, and a --config FILE option to its mode commands."""
+    ModeCommand.file_values = staticmethod(_file_values)
     for mode in ck.MODES:
         command = root.commands.get(mode)
         if command is not None and not any(p.name == "config" for p in command.params):
@@ -98,6 +99,24 @@ def _apply_file(ctx: click.Context, param: click.Parameter, value) -> None:
     ctx.default_map = {**settings.default_map(schema, ctx.command.name or ""),
                        **(ctx.default_map or {})}
     ctx.meta[META_FILE] = Path(value)
+
+
+def _file_values(ctx: click.Context) -> tuple[Path, dict] | None:
+    """For -h: the file a mode command takes its values from (--config, else $MBGW_CONFIG,
+    else the default file when it exists) and its values; None when there is none, or when
+    it cannot be read (the command itself says why)."""
+    path = ctx.meta.get(META_FILE)
+    if path is not None and ctx.default_map:
+        return path, ctx.default_map
+    import os
+    path = Path(os.environ.get("MBGW_CONFIG") or ck.DEFAULT_PATH)
+    if not path.exists():
+        return None
+    try:
+        settings = cf.load(schema_of(ctx), path)
+    except (OSError, ConfigFileError):
+        return None
+    return path, settings.default_map(schema_of(ctx), ctx.command.name or "")
 
 
 def config_file(ctx: click.Context | None = None) -> Path | None:

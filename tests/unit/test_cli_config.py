@@ -418,3 +418,18 @@ def test_a_key_named_as_another_groups_key_is_set_shown_and_unset_in_its_own_gro
     assert result.exit_code == 0, result.output
     data = values(conf)
     assert "silence" not in data["transparent"] and data["serial"]["silence"] == 7
+
+
+def test_help_shows_the_built_in_defaults_and_what_the_file_in_use_sets(tmp_path):
+    path = tmp_path / "site.toml"
+    path.write_text('[serial]\ndevice = "/dev/ttyS5"\nstout = 600\n[net]\nmdbport = 1602\n')
+    for args, env in ((["slave", "-h"], {"MBGW_CONFIG": str(path)}),
+                      (["slave", "--config", path, "-h"], {})):
+        result = mbgw(*args, **env)
+        assert result.exit_code == 0, result.output
+        text = "".join(result.output.split())      # unwrapped (a long path is cut anywhere)
+        assert f"[default:502;0<=x<=65535][{path}sets1602]" in text, result.output
+        assert f"[required][{path}sets/dev/ttyS5]" in text, result.output
+        assert "[default:600;1<=x<=65535][" not in text     # the file sets the default
+    result = mbgw("slave", "-h")
+    assert "sets" not in result.output or not config_keys.DEFAULT_PATH.exists()
