@@ -107,7 +107,7 @@ def _file_values(ctx: click.Context) -> tuple[Path, dict] | None:
     it cannot be read (the command itself says why)."""
     path = ctx.meta.get(META_FILE)
     if path is not None and ctx.default_map:
-        return path, ctx.default_map
+        return path, dict(ctx.default_map)
     import os
     path = Path(os.environ.get("MBGW_CONFIG") or ck.DEFAULT_PATH)
     if not path.exists():

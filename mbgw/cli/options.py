@@ -39,7 +39,8 @@ class ModeCommand(click.Command):
     def format_options(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
         """The built-in defaults (not the file's, which click's default_map would show), and
         beside each the value the file in use sets instead."""
-        found = type(self).file_values(ctx) if type(self).file_values else None
+        file_values = getattr(type(self), "file_values", None)
+        found = file_values(ctx) if file_values is not None else None
         saved, ctx.default_map = ctx.default_map, None
         try:
             rows = []

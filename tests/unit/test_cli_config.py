@@ -433,3 +433,15 @@ def test_help_shows_the_built_in_defaults_and_what_the_file_in_use_sets(tmp_path
         assert "[default:600;1<=x<=65535][" not in text     # the file sets the default
     result = mbgw("slave", "-h")
     assert "sets" not in result.output or not config_keys.DEFAULT_PATH.exists()
+
+
+def test_hints_name_the_file_in_use(tmp_path):
+    path = tmp_path / "site.toml"
+    path.write_text('[serial]\ndevice = "/dev/null"\n[web]\nlisten = "127.0.0.1:8080"\n')
+    result = mbgw("check-config", path)
+    assert result.exit_code == 78
+    assert f"(mbgw config password admin --config {path})" in result.output, result.output
+    path.write_text("[serial]\nstout = 700\n")
+    result = mbgw("check-config", "--config", path)
+    assert f"(e.g. mbgw config set serial device /dev/ttyUSB0 --config {path})" \
+        in result.output, result.output
