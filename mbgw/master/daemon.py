@@ -21,6 +21,7 @@ from mbgw.ops.service import (
     serve_until_stopped,
     start_control,
     start_metrics,
+    warn_of_overlaps,
     watchdog_interval,
 )
 from mbgw.scenarios.control import scenario_commands
@@ -103,6 +104,7 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
              "at most %d connections; slaveid %s%s", s.device, s.baudrate, s.format, s.protocol,
              s.interface, cfg.mdbport, cfg.tcpto_ms, "on" if cfg.exception else "off",
              cfg.max_connections, cfg.slaveid, origin(cfg))
+    warn_of_overlaps(cfg)
     if metrics is not None:
         log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
     _log_slaveid(cfg)

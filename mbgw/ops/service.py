@@ -171,6 +171,14 @@ def origin(cfg) -> str:
             f"scenarios {', '.join(names) if names else 'none'}")
 
 
+def warn_of_overlaps(cfg) -> None:
+    """Two read scenarios storing into the same table registers: logged at start, as
+    check-config warns of it."""
+    from mbgw.config.scenario import overlaps
+    for warning in overlaps(getattr(cfg, "scenarios", ())):
+        log.warning("%s", warning)
+
+
 def log_stopped(counters) -> None:
     log.info("stopped; counters: %s",
              " ".join(f"{k}={v}" for k, v in counters.snapshot().items()))

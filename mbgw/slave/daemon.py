@@ -19,6 +19,7 @@ from mbgw.ops.service import (
     serve_until_stopped,
     start_control,
     start_metrics,
+    warn_of_overlaps,
     watchdog_interval,
 )
 from mbgw.scenarios.control import scenario_commands
@@ -90,6 +91,7 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s%s",
              ", ".join(addresses), s.device, s.baudrate, s.format, s.protocol, s.interface,
              s.stout_ms, ", nocheck" if s.nocheck else "", origin(cfg))
+    warn_of_overlaps(cfg)
     if metrics is not None:
         log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
     if s.nocheck:

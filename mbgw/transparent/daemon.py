@@ -19,6 +19,7 @@ from mbgw.ops.service import (
     serve_until_stopped,
     start_control,
     start_metrics,
+    warn_of_overlaps,
     watchdog_interval,
 )
 from mbgw.ops.tls import role_of, server_context
@@ -132,6 +133,7 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
              t.tx_address, t.tx_size, "on" if t.crc else "off", "on" if t.trigger else "off",
              t.silence_ms, ", ".join(server.addresses),
              f"; raw port {raw.port}" if raw is not None else "", origin(cfg))
+    warn_of_overlaps(cfg)
     if metrics is not None:
         log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
     scenarios = TcpScenarios(table, engines)

@@ -382,8 +382,10 @@ def test_the_table_the_scenarios_serve_is_shown_on_and_the_start_names_file_and_
     """table.enabled off, but scenarios run: status and config show say the table is on for
     them; the start-up line names the file, the table and the scenarios."""
     fault_line()
-    gw, path = gateway([poll("a", 50, 3, 0, 1, 0), poll("b", 51, 3, 0, 1, 1)])
+    gw, path = gateway([poll("a", 50, 3, 0, 2, 0), poll("b", 51, 3, 0, 1, 1)])
     wait_for_scenario(gw, "b", lambda sc: sc["runs"] > 0, "b running")
+    assert "WARNING mbgw: scenario b: stores into table registers 1, as scenario a does: " \
+           "each overwrites the other's data" in gw.log(), gw.log()
     shown = mbgw("status", "--control", gw.control)
     assert "table      on (scenarios): no Modbus client reaches it" in shown.stdout, shown.stdout
     assert "table      off" not in shown.stdout
