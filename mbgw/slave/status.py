@@ -59,7 +59,7 @@ class SlaveStatus(DaemonStatus):
                         for c in self._server.clients],
             "counters": counters,
             "counters_since": self._reset_at,
-            "line_utilisation_pct": average_percent(busy_ns, now - self._reset_at),
+            "line_utilisation_pct": average_percent(busy_ns, mono - self._reset_mono),
             "line_load_pct": self.load.percent(),
             "devices": [d.snapshot() for d in self._devices.all()],
             **({"scenarios": rows} if (rows := scenarios_status(self.scenario_engines.values()))

@@ -45,7 +45,7 @@ class TransparentStatus(DaemonStatus):
 
     def reset(self, request: dict) -> dict:
         self._counters.reset()
-        self._reset_at = time.time()
+        self._reset_at, self._reset_mono = time.time(), time.monotonic()
         event(log, Kind.COUNTERS_RESET, "counters reset by the operator (%s)",
               operator(request.get("uid")), user=operator(request.get("uid")))
         return {"ok": True}

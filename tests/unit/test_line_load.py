@@ -43,3 +43,26 @@ def test_a_reset_of_the_counters_starts_the_windows_again():
     line.busy_ns = 0
     line.run(5, 0.2, load)
     assert load.percent()["10s"] == 20.0
+
+
+def test_the_average_is_measured_on_the_monotonic_clock(monkeypatch):
+    """A gateway without a battery clock steps its wall clock back at boot (NTP): the
+    average since the reset must not jump over 100 % then."""
+    import time
+    from types import SimpleNamespace
+
+    from mbgw.config.model import SerialConfig, SlaveConfig
+    from mbgw.ops.counters import Counters
+    from mbgw.ops.device_stats import DeviceTable
+    from mbgw.slave.status import SlaveStatus
+
+    counters = Counters()
+    server = SimpleNamespace(trace=None, clients=[],
+                             firewall=SimpleNamespace(configured=False))
+    status = SlaveStatus(SlaveConfig(SerialConfig("/dev/null")), server, SimpleNamespace(up=True),
+                         SimpleNamespace(depth=0), counters, DeviceTable(), [])
+    wall, mono = time.time(), time.monotonic()
+    counters.line_busy_ns = 5 * 10**9
+    monkeypatch.setattr(time, "time", lambda: wall - 3600)        # stepped back an hour
+    monkeypatch.setattr(time, "monotonic", lambda: mono + 20)
+    assert status.status({})["line_utilisation_pct"] == 25.0
