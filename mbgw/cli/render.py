@@ -108,7 +108,7 @@ def _transparent_sections(s: dict) -> list[str]:
     t = s["transparent"]
     eof = f"char 0x{t['eof_char']:02x}" if t["eof"] == "char" else t["eof"]
     raw = "off" if t["raw_port"] is None else f"port {t['raw_port']}, {_raw_client(t)}"
-    return [f"{_line(s['serial'])}: line {s['serial']['state']}",
+    return [f"{_line(s['serial'])}: line {_state(s['serial'])}",
             f"frames     eof {eof}, eof-timeout {t['eof_timeout_ms']} ms, crc "
             f"{'on' if t['crc'] else 'off'}, trigger {'on' if t['trigger'] else 'off'}, "
             f"silence {t['silence_ms']} ms",
@@ -129,6 +129,13 @@ def _line(serial: dict) -> str:
     protocol = f"{serial['protocol']} " if "protocol" in serial else ""   # none: transparent
     return (f"serial     {serial['device']} {serial['baudrate']} {serial['format']} "
             f"{protocol}{serial['interface']}")
+
+
+def _state(serial: dict) -> str:
+    """The line's state; "waiting": nothing at the device's path yet."""
+    if serial["state"] == "waiting":
+        return "down, waiting for the device to appear"
+    return serial["state"]
 
 
 def _exceptions(d: dict) -> str:
@@ -190,7 +197,7 @@ def _slave_sections(s: dict, now: float) -> list[str]:
     serial = s["serial"]
     lines = [
         f"listening  {', '.join(s['listening'])}",
-        f"{_line(serial)}, stout {serial['stout_ms']} ms: line {serial['state']}, "
+        f"{_line(serial)}, stout {serial['stout_ms']} ms: line {_state(serial)}, "
         f"queue {s['queue_depth']}",
         f"           {_load(s)}",
         "",
@@ -211,7 +218,7 @@ def _slave_sections(s: dict, now: float) -> list[str]:
 def _master_sections(s: dict, now: float) -> list[str]:
     up = s["upstream"]
     lines = [
-        f"{_line(s['serial'])}: line {s['serial']['state']}",
+        f"{_line(s['serial'])}: line {_state(s['serial'])}",
         f"servers    port {up['port']}, tcpto {up['tcpto_ms']} ms, exception "
         f"{'on' if up['exception'] else 'off'}, at most {up['max_connections']} connections",
     ]
@@ -369,7 +376,8 @@ def format_event(e: dict) -> str:
     if e.get("mode") == "master":
         tid = "-" if e["tid"] is None else e["tid"]
         unit = "-" if e["unit"] is None else e["unit"]
-        where = f"{e['address']:>4} {e['server'] or '-':<21}"
+        address = "-" if e["address"] is None else e["address"]
+        where = f"{address:>4} {e['server'] or '-':<21}"
     else:
         tid, unit, where = e["tid"], e["unit"], f"{e['peer']:<24}"
     return (f"{stamp:<15} {e['direction']:<9} {where} {tid:>5} {unit:>4} "

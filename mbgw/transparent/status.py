@@ -36,7 +36,7 @@ class TransparentStatus(DaemonStatus):
 
     def status(self, request: dict) -> dict:
         data = self._common()
-        data["serial"]["state"] = "up" if self._line.up else "down"
+        data["serial"]["state"] = self._line.state
         del data["serial"]["protocol"]     # frames pass as they are: no Modbus framing here
         rows = scenarios_status(self.scenario_engines.values())
         return {**data, "transparent": self.figures(), "counters": self._counters.snapshot(),

@@ -59,7 +59,8 @@ def test_the_average_is_measured_on_the_monotonic_clock(monkeypatch):
     counters = Counters()
     server = SimpleNamespace(trace=None, clients=[],
                              firewall=SimpleNamespace(configured=False))
-    status = SlaveStatus(SlaveConfig(SerialConfig("/dev/null")), server, SimpleNamespace(up=True),
+    status = SlaveStatus(SlaveConfig(SerialConfig("/dev/null")), server,
+                         SimpleNamespace(up=True, state="up"),
                          SimpleNamespace(depth=0), counters, DeviceTable(), [])
     wall, mono = time.time(), time.monotonic()
     counters.line_busy_ns = 5 * 10**9
