@@ -313,8 +313,13 @@ web_options = stack(
                  hidden=True, default=None,
                  callback=parser(_password_hash("web.user-password")),
                  help="The user's password hash (set by mbgw config password user)."),
+    click.option("--web-https-only/--no-web-https-only", cls=WebOption, key="web-https-only",
+                 file_key="https-only", default=config.WebConfig.https_only, show_default=True,
+                 help="With --web-cert: a plain HTTP request on the console's port is "
+                      "redirected to HTTPS, and every answer sets Strict-Transport-Security."),
 )
-WEB_PARAMS = ("web_listen", "web_cert", "web_key", "web_admin_password", "web_user_password")
+WEB_PARAMS = ("web_listen", "web_cert", "web_key", "web_admin_password", "web_user_password",
+              "web_https_only")
 
 
 def web_config(options: dict) -> config.WebConfig:
@@ -323,10 +328,17 @@ def web_config(options: dict) -> config.WebConfig:
     web = {name: options.pop(name, None) for name in WEB_PARAMS}
     return convert("'--web'", lambda: config.WebConfig(
         listen=web["web_listen"], cert=web["web_cert"], key=web["web_key"],
-        admin_password=web["web_admin_password"], user_password=web["web_user_password"]))
+        admin_password=web["web_admin_password"], user_password=web["web_user_password"],
+        https_only=bool(web["web_https_only"])))
 
 
 daemon_options = stack(
+    click.option("--request-timeout", type=click.IntRange(*config.REQUEST_TIMEOUT_RANGE),
+                 default=config.DEFAULT_REQUEST_TIMEOUT_MS, show_default=True, metavar="MS",
+                 help="A request begun (a Modbus request's first byte, a TLS handshake, an "
+                      "HTTP request) must be whole within MS, or its connection is closed; "
+                      "a connection that has sent no whole request is the first a newcomer "
+                      "replaces.  %d..%d ms." % config.REQUEST_TIMEOUT_RANGE),
     click.option("--control", metavar="PATH", default=None,
                  help="Control socket for mbgw status/trace [default: "
                       "$RUNTIME_DIRECTORY/mbgw.sock or /run/mbgw/mbgw.sock]."),

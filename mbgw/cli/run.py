@@ -50,10 +50,13 @@ def _hand_keys_to_web_console() -> None:
 
 
 def _with_web(make_config: Callable, options: dict):
-    """The mode's settings with [web]: the console's options are the same in every mode."""
+    """The mode's settings with [web] and [net] request-timeout: the options every mode has
+    alike."""
     options = dict(options)
     web = web_config(options)
-    return dataclasses.replace(make_config(**options), web=web)
+    request_timeout = options.pop("request_timeout")
+    return dataclasses.replace(make_config(**options), web=web,
+                               request_timeout_ms=request_timeout)
 
 
 def _from_file(cfg, path):

@@ -45,6 +45,10 @@ DEFAULT_DOWN_AFTER = 3
 PROBE_INTERVAL_RANGE = (100, 65535)
 DEFAULT_PROBE_INTERVAL_MS = 5000
 PROBE_BACKOFF_MAX_MS = 60000
+# A request (a Modbus request, a TLS handshake, an HTTP request's headers) must be whole this
+# long after its first byte, or its connection is closed ([net] request-timeout, ms).
+REQUEST_TIMEOUT_RANGE = (100, 60000)
+DEFAULT_REQUEST_TIMEOUT_MS = 2000
 
 
 @dataclass(frozen=True)
@@ -280,11 +284,14 @@ class WebConfig:
     key: str | None = None             # ... and its private key (PEM)
     admin_password: str | None = None  # scrypt$N$r$p$salt$hash
     user_password: str | None = None
+    https_only: bool = False           # plain HTTP redirected to HTTPS, HSTS set
 
     def __post_init__(self) -> None:
         if (self.cert is None) != (self.key is None):
             raise ConfigError("web-cert and web-key go together: HTTPS needs the certificate "
                               "and its private key")
+        if self.https_only and self.cert is None:
+            raise ConfigError("web.https-only needs HTTPS: give web.cert and web.key")
         if self.listen is not None and self.admin_password is None:
             raise ConfigError(f"web {self.listen}: the web console needs an admin password; "
                               f"set one with: mbgw config password admin")
@@ -361,6 +368,7 @@ class SlaveConfig:
     tls: TlsConfig = field(default_factory=TlsConfig)
     upstream_tls: UpstreamTlsConfig = field(default_factory=UpstreamTlsConfig)
     web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
+    request_timeout_ms: int = DEFAULT_REQUEST_TIMEOUT_MS   # [net] request-timeout
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "slave")
@@ -426,6 +434,7 @@ class MasterConfig:
     config_file: str | None = None  # the file the settings came from (scenario ... --save)
     tls: TlsConfig = field(default_factory=TlsConfig)    # on the table's server
     web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
+    request_timeout_ms: int = DEFAULT_REQUEST_TIMEOUT_MS   # [net] request-timeout
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "master")
@@ -534,6 +543,7 @@ class TransparentModeConfig:
     tcpto_ms: int = DEFAULT_TCPTO_MS   # TCP scenarios: the time for a transaction with a server
     tls: TlsConfig = field(default_factory=TlsConfig)    # on the table's server
     web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
+    request_timeout_ms: int = DEFAULT_REQUEST_TIMEOUT_MS   # [net] request-timeout
 
     @property
     def table_on(self) -> bool:

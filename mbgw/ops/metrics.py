@@ -43,6 +43,8 @@ _COUNTER_HELP = {
     "connections_bad_header": "Modbus TCP connections closed for a bad MBAP header.",
     "connections_refused_tls": "Modbus/TCP Security connections refused in the TLS handshake "
                                "(no valid client certificate, garbage, too slow, too many).",
+    "connections_timed_out": "Modbus TCP connections closed because a request begun was not "
+                             "whole within request-timeout, or none came within a minute.",
 }
 
 _DEVICE_HELP = {

@@ -1,0 +1,110 @@
+"""Slave mode under denial-of-service attempts: connections that dribble a request, that say
+nothing, that pipeline far more than the gateway holds for a client.  The serial side is
+pymodbus 3.16.1's RTU server on a socat pty (tests/peers/pymodbus_slave.py, slave 17)."""
+import socket
+import threading
+import time
+
+import pytest
+
+from tests.integration.test_connections import (
+    READ_3,
+    REPLY_3,
+    Sockets,
+    assert_closed,
+    assert_served,
+)
+from tests.modbus import mbap as adu
+from tests.modbus import recv_adu
+from tests.ops import wait_for
+
+pytestmark = pytest.mark.integration
+
+SERVED_WITHIN_S = 2.0         # a legitimate newcomer beside a slowloris: a functional bound
+
+
+@pytest.fixture
+def rtu(pty_pair, start_peer):
+    start_peer("pymodbus_slave.py", pty_pair.device, "17", "--silent-unknown")
+    return pty_pair
+
+
+@pytest.fixture
+def sockets():
+    opened = Sockets()
+    yield opened
+    for sock in opened:
+        sock.close()
+
+
+class Dribbler(threading.Thread):
+    """Sends the next byte of a request on every connection, one a second, until stopped."""
+
+    def __init__(self, connections: list[socket.socket]) -> None:
+        super().__init__(daemon=True)
+        self.connections = connections
+        self.stopping = threading.Event()
+
+    def run(self) -> None:
+        request = adu(1, 17, READ_3)
+        for byte in range(len(request)):
+            for sock in self.connections:
+                try:
+                    sock.send(request[byte:byte + 1])
+                except OSError:
+                    pass                # closed by the gateway: that is its right
+            if self.stopping.wait(1.0):
+                return
+
+
+def test_a_slowloris_does_not_lock_a_newcomer_out(rtu, start_gateway, sockets):
+    gw = start_gateway(rtu.gateway, "--baudrate", "19200")      # max-connections 5
+    slow = [sockets.connect(gw.port) for _ in range(50)]
+    dribbler = Dribbler(slow)
+    dribbler.start()
+    try:
+        time.sleep(1.5)         # the attack under way: every slot holds a dribbler
+        newcomer = sockets.connect(gw.port)
+        newcomer.settimeout(SERVED_WITHIN_S)
+        started = time.monotonic()
+        assert_served(newcomer)
+        assert time.monotonic() - started < SERVED_WITHIN_S
+        assert_served(newcomer, tid=2)      # and it stays: it is polling
+    finally:
+        dribbler.stopping.set()
+        dribbler.join()
+
+
+def test_a_request_not_whole_within_request_timeout_closes_its_connection(
+        rtu, start_gateway, sockets):
+    gw = start_gateway(rtu.gateway, "--baudrate", "19200", "--request-timeout", "300")
+    poller = sockets.connect(gw.port)
+    assert_served(poller)
+    dribbler = sockets.connect(gw.port)
+    dribbler.sendall(adu(1, 17, READ_3)[:7])
+    assert_closed(dribbler, within=3.0)
+    s = wait_for(gw, lambda s: s["counters"]["connections_timed_out"] == 1, "counted")
+    assert len(s["clients"]) == 1
+    assert_served(poller, tid=2)
+    assert "a request not whole within request-timeout (300 ms)" in gw.log()
+
+
+def test_pipelined_requests_beyond_sixteen_wait_in_the_socket(rtu, start_gateway, sockets):
+    gw = start_gateway(rtu.gateway, "--baudrate", "19200")
+    sock = sockets.connect(gw.port)
+    count = 340
+    sock.sendall(b"".join(adu(tid, 17, READ_3) for tid in range(count)))
+    in_flight = []
+
+    def watch() -> None:
+        while len(in_flight) < 2000:
+            s = wait_for(gw, lambda s: True, "status")
+            in_flight.extend(c["in_flight"] for c in s["clients"])
+            if s["counters"]["replies"] >= count:
+                return
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    for tid in range(count):        # every one answered, in order, on the wire
+        assert recv_adu(sock, 5.0) == adu(tid, 17, REPLY_3)
+    watcher.join(10)
+    assert in_flight and max(in_flight) <= 16
