@@ -55,6 +55,7 @@ def _with_web(make_config: Callable, options: dict):
     options = dict(options)
     web = web_config(options)
     request_timeout = options.pop("request_timeout")
+    web = dataclasses.replace(web, request_timeout_ms=request_timeout)
     return dataclasses.replace(make_config(**options), web=web,
                                request_timeout_ms=request_timeout)
 

@@ -285,6 +285,7 @@ class WebConfig:
     admin_password: str | None = None  # scrypt$N$r$p$salt$hash
     user_password: str | None = None
     https_only: bool = False           # plain HTTP redirected to HTTPS, HSTS set
+    request_timeout_ms: int = DEFAULT_REQUEST_TIMEOUT_MS   # [net] request-timeout's
 
     def __post_init__(self) -> None:
         if (self.cert is None) != (self.key is None):

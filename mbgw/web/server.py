@@ -1,6 +1,7 @@
 """The web console's HTTP server on the daemon's asyncio loop (aiohttp): the site started,
 restarted when a reload changes [web], closed at stop; the session, CSRF and role checks
-every request passes; the static pages."""
+every request passes; the bounds of a request's body; the static pages.  Its connections are
+admitted and timed by mbgw.web.gate."""
 import logging
 import ssl
 from pathlib import Path
@@ -8,9 +9,11 @@ from pathlib import Path
 from aiohttp import web
 
 from mbgw.config.model import WebConfig
+from mbgw.ops.limits import WarnLimit
 from mbgw.web import api
 from mbgw.web.address import parse_listen
 from mbgw.web.auth import COOKIE, CSRF_HEADER, LoginLimit, Sessions
+from mbgw.web.gate import Gate
 from mbgw.web.hooks import WebHooks, WebListenError
 
 log = logging.getLogger("mbgw.web")
@@ -20,6 +23,9 @@ SHUTDOWN_S = 1.0                # open requests (a trace stream) get this long a
 OPEN_PATHS = frozenset({"/api/login"})          # no session needed
 ANY_ROLE_POSTS = frozenset({"/api/logout"})     # state-changing, but not the gateway's state
 ADMIN_READS = frozenset({"/api/config/file"})   # the file holds the password hashes
+MAX_BODY = 1_000_000            # a request's body; more is refused (413) before it is read
+LOGIN_BODY = 4096               # a login's: who needs more is not logging in
+HSTS = "max-age=31536000"       # https-only: a year
 HEADERS = {"X-Content-Type-Options": "nosniff", "X-Frame-Options": "DENY",
            "Referrer-Policy": "no-referrer",
            "Content-Security-Policy": "default-src 'self'; frame-ancestors 'none'"}
@@ -31,8 +37,10 @@ class WebServer:
         self.cfg = WebConfig()
         self.sessions = Sessions()
         self.limit = LoginLimit()
+        self.warn = WarnLimit(log)
         self.names: list[str] = []
         self._runner: web.AppRunner | None = None
+        self.gate: Gate | None = None
 
     @property
     def https(self) -> bool:
@@ -48,17 +56,16 @@ class WebServer:
         if cfg.listen is None:
             return
         host, port = parse_listen(cfg.listen)
+        context = _ssl_context(cfg)
         runner = web.AppRunner(self._app(), access_log=None)
         await runner.setup()
-        site = web.TCPSite(runner, host, port, ssl_context=_ssl_context(cfg),
-                           shutdown_timeout=SHUTDOWN_S)
+        gate = Gate(runner, context, cfg.https_only, cfg.request_timeout_ms / 1000)
         try:
-            await site.start()
+            self.names = gate.listen(host, port)
         except OSError as err:
             await runner.cleanup()
             raise WebListenError(cfg.listen, err) from None
-        self._runner = runner
-        self.names = _names(runner)
+        self._runner, self.gate = runner, gate
         scheme = "https" if cfg.https else "http"
         log.info("web console on %s", ", ".join(f"{scheme}://{n}/" for n in self.names))
 
@@ -71,8 +78,11 @@ class WebServer:
                                                         self.cfg.user_password):
             self.sessions.clear()
             log.info("web console: passwords changed, sessions ended")
-        if (cfg.listen, cfg.cert, cfg.key) == (self.cfg.listen, self.cfg.cert, self.cfg.key):
+        if (cfg.listen, cfg.cert, cfg.key, cfg.https_only) == \
+                (self.cfg.listen, self.cfg.cert, self.cfg.key, self.cfg.https_only):
             self.cfg = cfg
+            if self.gate is not None:
+                self.gate.timeout_s = cfg.request_timeout_ms / 1000
             return
         await self.close()
         try:
@@ -85,10 +95,13 @@ class WebServer:
     async def close(self) -> None:
         if self._runner is not None:
             runner, self._runner, self.names = self._runner, None, []
+            if self.gate is not None:
+                await self.gate.close(SHUTDOWN_S)
+                self.gate = None
             await runner.cleanup()
 
     def _app(self) -> web.Application:
-        app = web.Application(middlewares=[_guard], client_max_size=1024 * 1024)
+        app = web.Application(middlewares=[_track, _guard], client_max_size=MAX_BODY)
         app["server"] = self
         app["hooks"] = self.hooks
         app.add_routes(api.routes())
@@ -103,6 +116,24 @@ async def start_web(cfg: WebConfig, hooks: WebHooks) -> WebServer:
     server = WebServer(hooks)
     await server.start(cfg)
     return server
+
+
+@web.middleware
+async def _track(request: web.Request, handler):
+    """The gate knows which connections have a request under way (never closed for room), and
+    a body over its bound is refused before a byte of it is read."""
+    server: WebServer = request.app["server"]
+    gate = server.gate
+    if gate is not None:
+        gate.began(request.protocol)
+    try:
+        limit = LOGIN_BODY if request.path == "/api/login" else MAX_BODY
+        if request.content_length is not None and request.content_length > limit:
+            return api.error(413, f"the body is over {limit} bytes")
+        return await handler(request)
+    finally:
+        if gate is not None:
+            gate.ended(request.protocol)
 
 
 @web.middleware
@@ -130,6 +161,8 @@ async def _guard(request: web.Request, handler):
 
 async def _headers(request: web.Request, response: web.StreamResponse) -> None:
     response.headers.update(HEADERS)
+    if request.app["server"].cfg.https_only:
+        response.headers["Strict-Transport-Security"] = HSTS
     if request.path.startswith("/api/"):
         response.headers.setdefault("Cache-Control", "no-store")
 
@@ -146,12 +179,3 @@ def _ssl_context(cfg: WebConfig) -> ssl.SSLContext | None:
     context.load_cert_chain(cfg.cert, cfg.key)
     return context
 
-
-def _names(runner: web.AppRunner) -> list[str]:
-    names = []
-    for site in runner.sites:
-        server = getattr(site, "_server", None)
-        for sock in getattr(server, "sockets", None) or ():
-            host, port = sock.getsockname()[:2]
-            names.append(f"[{host}]:{port}" if ":" in host else f"{host}:{port}")
-    return names
