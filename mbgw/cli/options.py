@@ -140,8 +140,8 @@ def _parse_functions(value) -> tuple[int, ...]:
 
 
 def _parse_persist(value):
-    if value is not None and not str(value).strip():
-        raise ConfigError("table-persist: empty; expected a file path")
+    if value is not None:
+        config.check_persist_path(str(value))
     return value
 
 
@@ -154,7 +154,9 @@ table_options = stack(
     click.option("--table-persist", cls=TableOption, key="persist", metavar="PATH",
                  default=config.TableConfig.persist, callback=parser(_parse_persist),
                  help="Keep the outputs and the free zone (0x0800-0x7FFF) in this file "
-                      "across restarts, written atomically [default: not kept]."),
+                      "across restarts, written atomically; a regular file in the state "
+                      "directory ($STATE_DIRECTORY, else %s) [default: not kept]."
+                      % config.DEFAULT_STATE_DIRECTORY),
     click.option("--table-persist-interval", cls=TableOption, key="persist-interval",
                  type=click.IntRange(*config.PERSIST_INTERVAL_RANGE),
                  default=config.DEFAULT_PERSIST_INTERVAL_S, show_default=True, metavar="S",

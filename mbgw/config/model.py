@@ -2,7 +2,9 @@
 bound is stated here once."""
 import ipaddress
 import math
+import os
 import re
+import stat
 from dataclasses import dataclass, field
 
 from mbgw.errors import ConfigError
@@ -156,6 +158,40 @@ TABLE_ADDRESS_RANGE = (0, 247)                 # master mode; 0: the line has no
 DEFAULT_TABLE_PORT = 502                       # master mode: TCP clients reach the table here
 PERSIST_INTERVAL_RANGE = (1, 86400)            # s
 DEFAULT_PERSIST_INTERVAL_S = 10
+# table-persist lives in the service's state directory, nowhere else (a console admin must not
+# choose where the daemon writes)
+DEFAULT_STATE_DIRECTORY = "/var/lib/mbgw"
+
+
+def state_directory() -> str:
+    """systemd's StateDirectory when it set one ($STATE_DIRECTORY), else /var/lib/mbgw."""
+    return (os.environ.get("STATE_DIRECTORY") or DEFAULT_STATE_DIRECTORY).split(":")[0]
+
+
+def check_persist_path(text: str) -> str:
+    """table-persist's file: an absolute path inside the state directory (links and ..
+    resolved), a regular file if it exists (never a link, a device or a FIFO).  Raises
+    ConfigError naming the key and why."""
+    if not text.strip():
+        raise ConfigError("table-persist: empty; expected a file path")
+    directory = os.path.realpath(state_directory())
+    if not os.path.isabs(text):
+        raise ConfigError(f"table-persist {text!r}: not an absolute path; the file must be "
+                          f"in {directory}")
+    where = os.path.join(os.path.realpath(os.path.dirname(text)), os.path.basename(text))
+    if os.path.commonpath([where, directory]) != directory or where == directory:
+        raise ConfigError(f"table-persist {text!r}: outside the state directory {directory} "
+                          f"($STATE_DIRECTORY): mbgw keeps the table nowhere else")
+    try:
+        mode = os.lstat(where).st_mode
+    except FileNotFoundError:
+        return text
+    except OSError as err:
+        raise ConfigError(f"table-persist {text!r}: {err.strerror}") from None
+    if not stat.S_ISREG(mode):
+        raise ConfigError(f"table-persist {text!r}: not a regular file (a link, a directory, "
+                          f"a device or a FIFO is never the table's file)")
+    return text
 
 
 def parse_number_list(option: str, text: str, low: int, high: int) -> tuple[int, ...]:

@@ -8,6 +8,14 @@ from tests.integration.test_master import BAUD
 from tests.modbus import Client
 
 
+@pytest.fixture(autouse=True)
+def state_directory(tmp_path, monkeypatch):
+    """The daemons' state directory ($STATE_DIRECTORY, as systemd sets it): the test's own,
+    where table-persist files may be."""
+    monkeypatch.setenv("STATE_DIRECTORY", str(tmp_path))
+    return tmp_path
+
+
 @pytest.fixture
 def recording_peer(pty_pair, start_peer, tmp_path):
     """recording_peer(script, *options) -> the path of the record a scripted slave from

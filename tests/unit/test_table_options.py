@@ -44,10 +44,10 @@ def test_slave_defaults_leave_the_table_off():
 
 def test_slave_options_build_the_table():
     table = config_of("slave", "--table", "--no-direct", "--table-units", "1,5,200-202",
-                      "--table-functions", "3,4,6,16", "--table-persist", "/var/lib/t",
+                      "--table-functions", "3,4,6,16", "--table-persist", "/var/lib/mbgw/t",
                       "--table-persist-interval", "60").table
     assert table == TableConfig(enabled=True, direct=False, units=(1, 5, 200, 201, 202),
-                                functions=(3, 4, 6, 16), persist="/var/lib/t",
+                                functions=(3, 4, 6, 16), persist="/var/lib/mbgw/t",
                                 persist_interval_s=60)
 
 
