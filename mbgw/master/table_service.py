@@ -29,6 +29,7 @@ class TableService:
         self.server: TableServer | None = None
         self.firewall = Firewall(settings.firewall)     # on the TCP server's requests
         self.tls = settings.tls
+        self.request_timeout_s = settings.request_timeout_ms / 1000
         self._commands = table_commands(self.table)
         self.persistence: Persistence | None = None
         if cfg.enabled and cfg.persist:
@@ -54,6 +55,7 @@ class TableService:
         context = server_context(tls) if tls.enabled else None
         self.server = TableServer(self.table, port, firewall=self.firewall, tls=context,
                                   tls_port=tls.port, role_of=role_of)
+        self.server.request_timeout_s = self.request_timeout_s
         self.server.start()
         log.info("exchange table served on %s (at most %d clients)",
                  ", ".join(self.server.addresses), MAX_CONNECTIONS)
@@ -85,6 +87,9 @@ class TableService:
                 self.server.set_firewall(firewall)
         old_tls = self.tls
         self.tls = settings.tls
+        self.request_timeout_s = settings.request_timeout_ms / 1000
+        if self.server is not None:
+            self.server.request_timeout_s = self.request_timeout_s
         try:
             if not new.enabled:
                 self._stop_server()

@@ -68,6 +68,7 @@ def run_transparent(cfg: TransparentModeConfig, reconfigure=None) -> None:
         server = TableServer(table, cfg.mdbport or None, cfg.bind, Firewall(cfg.firewall),
                              allows=allows, tls=context, tls_port=cfg.tls.port,
                              role_of=role_of)
+        server.request_timeout_s = cfg.request_timeout_ms / 1000
     except OSError as err:
         option, port = ("tls-port", cfg.tls.port) if "tls-port" in str(err) else \
             ("mdbport", cfg.mdbport)
@@ -144,6 +145,7 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
             log.warning("raw-port changed: the new setting takes effect at restart")
         if new.firewall != old.firewall:
             server.set_firewall(server.firewall.renewed(new.firewall))
+        server.request_timeout_s = new.request_timeout_ms / 1000
         if new.tls != old.tls:
             _retls(server, new)
         frames.reconfigure(new)

@@ -15,7 +15,7 @@ ALLOWED = {
     "config": {"protocol", "errors"},
     "ops": {"protocol", "config", "errors"},
     "firewall": {"protocol", "config", "errors"},
-    "table": {"protocol", "config", "errors", "_ffi", "firewall"},
+    "table": {"protocol", "config", "errors", "_ffi", "firewall", "ops"},
     "upstream": {"line", "ops", "protocol", "config", "errors"},
     "scenarios": {"table", "upstream", "line", "ops", "protocol", "config", "errors"},
     "slave": {"line", "table", "scenarios", "upstream", "ops", "protocol", "config", "errors",
