@@ -1,12 +1,17 @@
 """Slave mode under denial-of-service attempts: connections that dribble a request, that say
 nothing, that pipeline far more than the gateway holds for a client.  The serial side is
 pymodbus 3.16.1's RTU server on a socat pty (tests/peers/pymodbus_slave.py, slave 17)."""
+import json
+import os
 import socket
 import threading
 import time
 
 import pytest
 
+from mbgw.ops import control
+from mbgw.ops.metrics_server import PER_ADDRESS
+from tests import harness
 from tests.integration.test_connections import (
     READ_3,
     REPLY_3,
@@ -16,7 +21,7 @@ from tests.integration.test_connections import (
 )
 from tests.modbus import mbap as adu
 from tests.modbus import recv_adu
-from tests.ops import wait_for
+from tests.ops import wait_for, wait_for_log
 
 pytestmark = pytest.mark.integration
 
@@ -108,3 +113,43 @@ def test_pipelined_requests_beyond_sixteen_wait_in_the_socket(rtu, start_gateway
         assert recv_adu(sock, 5.0) == adu(tid, 17, REPLY_3)
     watcher.join(10)
     assert in_flight and max(in_flight) <= 16
+
+
+def threads(pid: int) -> int:
+    return len(os.listdir(f"/proc/{pid}/task"))
+
+
+def rss_kib(pid: int) -> int:
+    for line in open(f"/proc/{pid}/status"):
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    raise AssertionError("no VmRSS")
+
+
+def test_idle_metrics_connections_are_capped_and_another_address_is_scraped(
+        rtu, start_gateway, sockets):
+    port = harness.free_port()
+    gw = start_gateway(rtu.gateway, "--baudrate", "19200", "--metrics", f"127.0.0.1:{port}")
+    before = threads(gw.proc.pid)
+    idle = [sockets.connect(port) for _ in range(40)]       # never send a request
+    for sock in idle[PER_ADDRESS:PER_ADDRESS + 5]:
+        assert_closed(sock, within=3.0)                     # over the address's share
+    assert threads(gw.proc.pid) <= before + PER_ADDRESS
+    scrape = sockets.connect(port, source="127.0.0.2")
+    scrape.sendall(b"GET /metrics HTTP/1.0\r\n\r\n")
+    assert scrape.recv(100).startswith(b"HTTP/1.0 200 ")
+
+
+def test_what_a_trace_client_sends_is_dropped_not_kept(rtu, start_gateway):
+    gw = start_gateway(rtu.gateway, "--baudrate", "19200")
+    trace = control.connect(gw.control)
+    trace.sendall(b'{"command": "trace"}\n')
+    assert json.loads(trace.makefile().readline())       # the header: the trace runs
+    before = rss_kib(gw.proc.pid)
+    junk = b"x" * 65536
+    for _ in range(320):                                  # 20 MiB the daemon must not keep
+        trace.sendall(junk)
+    wait_for(gw, lambda s: True, "status after the junk")
+    assert rss_kib(gw.proc.pid) - before < 8 * 1024
+    trace.close()
+    wait_for_log(gw, "trace ended")
