@@ -1,4 +1,5 @@
 import os
+import resource
 import socket
 
 import pytest
@@ -14,6 +15,15 @@ def state_directory(tmp_path, monkeypatch):
     where table-persist files may be."""
     monkeypatch.setenv("STATE_DIRECTORY", str(tmp_path))
     return tmp_path
+
+
+@pytest.fixture
+def many_fds():
+    """The test process may hold thousands of sockets (RLIMIT_NOFILE raised meanwhile)."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    resource.setrlimit(resource.RLIMIT_NOFILE, (min(hard, 8192), hard))
+    yield
+    resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
 
 
 @pytest.fixture

@@ -153,3 +153,43 @@ def test_what_a_trace_client_sends_is_dropped_not_kept(rtu, start_gateway):
     assert rss_kib(gw.proc.pid) - before < 8 * 1024
     trace.close()
     wait_for_log(gw, "trace ended")
+
+
+def fds(pid: int) -> int:
+    return len(os.listdir(f"/proc/{pid}/fd"))
+
+
+@pytest.mark.usefixtures("many_fds")
+def test_connect_close_cycles_and_half_open_connections_leave_nothing_behind(
+        rtu, start_gateway, sockets):
+    gw = start_gateway(rtu.gateway, "--baudrate", "19200", "--request-timeout", "500")
+    poller = sockets.connect(gw.port)
+    assert_served(poller)
+    pid = gw.proc.pid
+    fds_before, rss_before = fds(pid), rss_kib(pid)
+    for n in range(5000):
+        sock = socket.create_connection(("127.0.0.1", gw.port))
+        if n % 2:
+            sock.sendall(adu(n, 17, READ_3)[:5])       # a request begun, never ended
+        sock.close()
+    half_open = []
+    for _ in range(1000):                               # begun and left: no FIN, no more bytes
+        sock = socket.socket()
+        sock.setblocking(False)
+        try:
+            sock.connect(("127.0.0.1", gw.port))
+        except BlockingIOError:
+            pass
+        half_open.append(sock)
+    try:
+        assert_served(poller, tid=2)                    # the line's client is served meanwhile
+        wait_for(gw, lambda s: len(s["clients"]) <= 5, "the connections gone")
+        assert fds(pid) <= fds_before + 5               # the limit's worth at most
+        assert rss_kib(pid) - rss_before < 8 * 1024
+    finally:
+        for sock in half_open:
+            sock.close()
+    wait_for(gw, lambda s: [c["peer"] for c in s["clients"]] ==
+             ["127.0.0.1:%d" % poller.getsockname()[1]], "the poller alone again")
+    assert fds(pid) <= fds_before
+    assert_served(poller, tid=3)

@@ -4,7 +4,6 @@ fault peer on the line, as in test_web_api; checked on the wire and in the log."
 import concurrent.futures
 import http.client
 import json
-import resource
 import socket
 import ssl
 import threading
@@ -14,7 +13,7 @@ import pytest
 
 from tests.harness import free_port
 from tests.integration.test_scenarios_serial import write_config
-from tests.integration.test_tls import tls_options
+from tests.integration.test_tls import client_context, tls_options
 from tests.integration.test_web_api import (
     ADMIN_PASSWORD,
     USER_PASSWORD,
@@ -24,7 +23,7 @@ from tests.integration.test_web_api import (
     self_signed,
     set_passwords,
 )
-from tests.modbus import Client, holding_reply, read_holding
+from tests.modbus import Client, holding_reply, mbap, read_holding
 from tests.pki import Authority
 
 pytestmark = pytest.mark.integration
@@ -38,7 +37,7 @@ def console(tmp_path, pty_pair, start_gateway, recording_peer):
     def start(web_extra: str = "", args=()):
         recording_peer("fault_slave.py")
         path = tmp_path / "mbgw.toml"
-        write_config(path, [], enabled=True)
+        write_config(path, [], stout=1000, enabled=True)    # the peer may be slow under load
         set_passwords(path, ("admin", ADMIN_PASSWORD), ("user", USER_PASSWORD))
         port = listen_on(path)
         path.write_text(path.read_text().replace("[web]\n", "[web]\n" + web_extra, 1))
@@ -181,17 +180,9 @@ def idle_connections(port: int, count: int) -> list[socket.socket]:
     return opened
 
 
-@pytest.fixture
-def many_fds():
-    """The test process may hold thousands of sockets."""
-    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
-    resource.setrlimit(resource.RLIMIT_NOFILE, (min(hard, 8192), hard))
-    yield
-    resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
-
-
+@pytest.mark.usefixtures("many_fds")
 def test_idle_connections_by_the_thousand_cost_nothing_and_modbus_is_served(
-        console, tmp_path, many_fds):
+        console, tmp_path):
     ca = Authority(tmp_path)
     tls_port = free_port()
     gw, web = console(args=tls_options(ca, ca.issue("server", server=True), tls_port))
@@ -213,6 +204,12 @@ def test_idle_connections_by_the_thousand_cost_nothing_and_modbus_is_served(
         new_lines = gw.log().splitlines()[log_before:]
         assert len(new_lines) <= 12, "\n".join(new_lines)
         assert web.login("admin", ADMIN_PASSWORD) == 200    # the console still serves
+        # a certificate holder from another address shakes hands beside the idle ones
+        raw = socket.create_connection(("127.0.0.1", tls_port), timeout=5,
+                                       source_address=("127.0.0.2", 0))
+        with client_context(ca, ca.issue("op", role="operator")).wrap_socket(raw) as tls:
+            tls.sendall(mbap(1, 1, read_holding(0, 2)))
+            assert tls.recv(100) == mbap(1, 1, holding_reply(0, 2))
     finally:
         for sock in held:
             sock.close()
