@@ -16,6 +16,7 @@ import signal
 import socket
 import struct
 import subprocess
+import time
 
 import pytest
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
@@ -381,6 +382,45 @@ def test_one_address_has_a_share_and_silent_clients_make_room(table_master, tcp)
     assert (figures["connections_evicted"], figures["connections_refused_limit"]) == (1, 1)
     other = tcp(port, "127.0.0.2")                  # another address has room
     assert ask_tcp(other, 1, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+
+
+@pytest.mark.usefixtures("many_fds")
+def test_idle_connections_to_the_table_port_cost_nothing_and_a_poller_is_served(
+        table_master, tcp):
+    gw, port = table_master()
+    poller = tcp(port, "127.0.0.2")
+    assert ask_tcp(poller, 1, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+    pid = gw.proc.pid
+    fds_before, cpu_before = len(os.listdir(f"/proc/{pid}/fd")), cpu_s(pid)
+    log_before = len(gw.log().splitlines())
+    idle = []
+    for _ in range(50):             # never a byte: each replaces the oldest silent one
+        sock = socket.socket()
+        sock.setblocking(False)
+        try:
+            sock.connect(("127.0.0.1", port))
+        except BlockingIOError:
+            pass
+        idle.append(sock)
+    try:
+        deadline = time.monotonic() + 3.0
+        tid = 2
+        while time.monotonic() < deadline:
+            assert ask_tcp(poller, tid, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+            tid += 1
+            time.sleep(0.05)
+        assert len(os.listdir(f"/proc/{pid}/fd")) <= fds_before + 8    # the address's share
+        assert cpu_s(pid) - cpu_before < 1.5                             # of 3 s: no spinning
+        assert len(gw.log().splitlines()) - log_before <= 2
+    finally:
+        for sock in idle:
+            sock.close()
+
+
+def cpu_s(pid: int) -> float:
+    """The process's user and system time so far (/proc/PID/stat utime + stime)."""
+    fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def test_a_table_request_not_whole_within_request_timeout_closes_its_connection(
