@@ -294,6 +294,15 @@ def _password_hash(label: str):
     return parse
 
 
+def _needs_web_cert(ctx, param, value):
+    """https-only without a certificate is refused here, so at start, reload and check-config
+    alike (--web-cert is declared, so parsed, before it)."""
+    if value and ctx.params.get("web_cert") is None:
+        raise click.BadParameter("needs HTTPS: give --web-cert and --web-key (web.cert and "
+                                 "web.key)", param_hint="'--web-https-only'")
+    return value
+
+
 # The web console ([web] keys): on with --web; the password hashes are file keys only.
 web_options = stack(
     click.option("--web", "web_listen", cls=WebOption, key="web", file_key="listen",
@@ -317,6 +326,7 @@ web_options = stack(
                  help="The user's password hash (set by mbgw config password user)."),
     click.option("--web-https-only/--no-web-https-only", cls=WebOption, key="web-https-only",
                  file_key="https-only", default=config.WebConfig.https_only, show_default=True,
+                 callback=_needs_web_cert,
                  help="With --web-cert: a plain HTTP request on the console's port is "
                       "redirected to HTTPS, and every answer sets Strict-Transport-Security."),
 )

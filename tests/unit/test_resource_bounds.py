@@ -150,3 +150,10 @@ def test_accept_failures_rest_the_listener_and_are_logged_once(caplog):
     messages = [r.getMessage() for r in caplog.records]
     assert len(messages) == 2
     assert "Too many open files" in messages[0] and "1000 accept() failed" in messages[1]
+
+
+def test_check_config_refuses_https_only_without_a_certificate(tmp_path):
+    path = tmp_path / "mbgw.toml"
+    path.write_text('[serial]\ndevice = "/dev/ttyS0"\n[web]\nhttps-only = true\n')
+    result = mbgw("check-config", path)
+    assert result.exit_code == 1 and "web.https-only: needs HTTPS" in result.output
