@@ -18,6 +18,8 @@ log = logging.getLogger("mbgw.web")
 KEEPALIVE_S = 15.0                 # an SSE comment this often while nothing happens
 GONE_CHECK_S = 1.0                 # aiohttp 3.8 does not end a handler whose client has gone
 MAX_NESTING = 32                  # arrays and objects in one another in a JSON body, at most
+MAX_BODY = 1_000_000              # a request's body; more is refused (413)
+LOGIN_BODY = 4096                 # a login's: who needs more is not logging in
 
 
 def routes() -> list:
@@ -49,16 +51,29 @@ def error(status: int, message: str, **more) -> web.Response:
     return web.json_response({"error": message, **more}, status=status)
 
 
+def body_limit(request: web.Request) -> int:
+    return LOGIN_BODY if request.path == "/api/login" else MAX_BODY
+
+
 async def read(request: web.Request) -> bytes:
-    """The request's body, whole within request-timeout (408 raised else); aiohttp raises 413
-    over the app's client_max_size."""
+    """The request's body, whole within request-timeout (408 raised else) and within its
+    bound (413 raised as soon as it is over, a chunked body included)."""
     timeout_s = request.app["server"].cfg.request_timeout_ms / 1000
     try:
-        return await asyncio.wait_for(request.read(), timeout_s)
+        return await asyncio.wait_for(_bounded(request, body_limit(request)), timeout_s)
     except asyncio.TimeoutError:
         raise web.HTTPRequestTimeout(text=json.dumps(
             {"error": f"the body did not come whole within {timeout_s:g} s"}),
             content_type="application/json") from None
+
+
+async def _bounded(request: web.Request, limit: int) -> bytes:
+    data = bytearray()
+    while chunk := await request.content.read(65536):
+        data += chunk
+        if len(data) > limit:
+            raise web.HTTPRequestEntityTooLarge(max_size=limit, actual_size=len(data))
+    return bytes(data)
 
 
 async def body(request: web.Request) -> dict:

@@ -23,8 +23,6 @@ SHUTDOWN_S = 1.0                # open requests (a trace stream) get this long a
 OPEN_PATHS = frozenset({"/api/login"})          # no session needed
 ANY_ROLE_POSTS = frozenset({"/api/logout"})     # state-changing, but not the gateway's state
 ADMIN_READS = frozenset({"/api/config/file"})   # the file holds the password hashes
-MAX_BODY = 1_000_000            # a request's body; more is refused (413) before it is read
-LOGIN_BODY = 4096               # a login's: who needs more is not logging in
 HSTS = "max-age=31536000"       # https-only: a year
 HEADERS = {"X-Content-Type-Options": "nosniff", "X-Frame-Options": "DENY",
            "Referrer-Policy": "no-referrer",
@@ -101,7 +99,7 @@ class WebServer:
             await runner.cleanup()
 
     def _app(self) -> web.Application:
-        app = web.Application(middlewares=[_track, _guard], client_max_size=MAX_BODY)
+        app = web.Application(middlewares=[_track, _guard], client_max_size=api.MAX_BODY)
         app["server"] = self
         app["hooks"] = self.hooks
         app.add_routes(api.routes())
@@ -127,7 +125,7 @@ async def _track(request: web.Request, handler):
     if gate is not None:
         gate.began(request.protocol)
     try:
-        limit = LOGIN_BODY if request.path == "/api/login" else MAX_BODY
+        limit = api.body_limit(request)
         if request.content_length is not None and request.content_length > limit:
             return api.error(413, f"the body is over {limit} bytes")
         return await handler(request)

@@ -93,6 +93,13 @@ def test_a_body_over_its_bound_is_refused_with_413_before_it_is_read(console):
                  b"Content-Length: 1000000\r\n\r\n")
     assert conn.recv(100).startswith(b"HTTP/1.1 413 ")
     conn.close()
+    # a chunked one, which says no length: refused once it is over, not read to the end
+    conn = socket.create_connection(("127.0.0.1", port), timeout=5)
+    conn.sendall(b"POST /api/login HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n"
+                 b"Transfer-Encoding: chunked\r\n\r\n" + b"%x\r\n" % 5000 + b" " * 5000
+                 + b"\r\n")
+    assert conn.recv(100).startswith(b"HTTP/1.1 413 ")
+    conn.close()
     web = admin(web)
     code, reply, _ = web.call("POST", "/api/table", raw=b"{" + b" " * 1_000_001 + b"}")
     assert code == 413, reply
