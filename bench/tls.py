@@ -10,6 +10,10 @@ openssl as in tests/pki.py: EC P-256, TLS 1.3), pymodbus's RTU slave 17 on a soc
   * handshakes/s: one client connecting, shaking hands (its certificate checked, its role
     read) and closing, one after the other, for the window; and the median handshake (connect
     to handshake done, at the client);
+  * a poll per connection, full and resumed handshakes (issue 23): a client that connects,
+    reads 10 registers of the table and closes, one after the other, in TLS 1.2 and 1.3, with
+    a full handshake each time and with the session of the connection before (tickets):
+    connections per second and the median connection (connect to reply read);
   * latency added per request: one client in a closed loop of FC03 reads of 10 registers,
     plain and TLS in turns (rounds of each, one after the other, so a drift of the host weighs
     on both alike), for unit 247 (answered from the table: no serial line, so the difference
@@ -86,6 +90,26 @@ def handshakes(port: int, context: ssl.SSLContext, seconds: float) -> tuple[floa
     return len(times) / elapsed, pct(times, 50)
 
 
+def polls(port: int, context: ssl.SSLContext, seconds: float,
+          resume: bool) -> tuple[float, float, int]:
+    """(connections per second, median connection in us, how many resumed): each connects,
+    reads 10 registers of the table and closes; resume: with the session of the one before."""
+    times, resumed, session = [], 0, None
+    start = time.monotonic()
+    while time.monotonic() - start < seconds:
+        began = time.monotonic_ns()
+        with socket.create_connection(("127.0.0.1", port)) as raw:
+            raw.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            with context.wrap_socket(raw, session=session if resume else None) as sock:
+                sock.sendall(request(len(times), TABLE_UNIT))
+                read_reply(sock)
+                times.append(time.monotonic_ns() - began)
+                resumed += sock.session_reused
+                session = sock.session
+    elapsed = time.monotonic() - start
+    return len(times) / elapsed, pct(times, 50), resumed
+
+
 def run(quick: bool) -> None:
     rounds, window = (3, 0.5) if quick else (6, 1.5)
     with tempfile.TemporaryDirectory(prefix="mbgw-bench-tls-") as name:
@@ -108,6 +132,16 @@ def run(quick: bool) -> None:
                   f"{rounds} rounds of {window} s per row")
             rate, median = handshakes(tls_port, context, window * rounds / 2)
             print(f"handshakes: {rate:.0f}/s, one at a time; median {median:.0f} us")
+            print(f"{'a poll per connection':<24}{'full/s':>8}{'p50 us':>8}"
+                  f"{'resumed/s':>11}{'p50 us':>8}")
+            for version in (ssl.TLSVersion.TLSv1_2, ssl.TLSVersion.TLSv1_3):
+                context.maximum_version = version
+                full = polls(tls_port, context, window * rounds / 4, resume=False)
+                again = polls(tls_port, context, window * rounds / 4, resume=True)
+                assert again[2] >= again[0] * window * rounds / 4 - 2, "sessions not resumed"
+                print(f"{version.name:<24}{full[0]:>8.0f}{full[1]:>8.0f}{again[0]:>11.0f}"
+                      f"{again[1]:>8.0f}")
+            context.maximum_version = ssl.TLSVersion.TLSv1_3
             plain = socket.create_connection(("127.0.0.1", gw.port))
             plain.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             secure = context.wrap_socket(socket.create_connection(("127.0.0.1", tls_port)))

@@ -14,10 +14,13 @@ $SUDO apt-get build-dep -y -qq ./
 # What the tests use besides: socat (pty pairs), mbpoll (a real Modbus client), lintian,
 # systemd for systemd-analyze (scripts/smoke-installed.sh), and tshark (decodes the pcap of
 # mbgw trace; its debconf question on non-root capture takes the default, no, unasked), and
-# openssl (the TLS tests make their certificates with it), and chromium with its driver (the web
-# console's browser tests drive it through selenium)
+# openssl (the TLS tests make their certificates with it), sslscan (what port 802 offers), and
+# chromium with its driver (the web console's browser tests drive it through selenium), and
+# systemd-container and mmdebstrap (scripts/container-test.sh boots the package under systemd
+# in a Debian 12 container; without recommends: libnss-mymachines would edit the host's
+# nsswitch.conf)
 $SUDO apt-get install -y -qq --no-install-recommends python3-venv socat mbpoll lintian systemd \
-    tshark openssl chromium chromium-driver
+    tshark openssl sslscan chromium chromium-driver systemd-container mmdebstrap
 
 # Debian's own python3, the interpreter the .deb runs on (never a pyenv shim).
 /usr/bin/python3 -m venv .venv

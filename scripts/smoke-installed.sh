@@ -64,6 +64,9 @@ dpkg-query -W -f '${Depends}' mbgw | contains python3-prometheus-client \
 dpkg-query -W -f '${Conffiles}\n' mbgw | contains "^ /etc/mbgw/mbgw.toml " \
     || fail "/etc/mbgw/mbgw.toml is not a conffile"
 [ "$(stat -c %a /etc/mbgw/mbgw.toml)" = 644 ] || fail "/etc/mbgw/mbgw.toml: mode"
+# the service replaces its files there (a temporary file, then a rename): group mbgw writes
+[ "$(stat -c '%U:%G %a' /etc/mbgw)" = "root:mbgw 2775" ] \
+    || fail "/etc/mbgw: $(stat -c '%U:%G %a' /etc/mbgw), not root:mbgw 2775"
 mbgw check-config /etc/mbgw/mbgw.toml
 # dialout is the units' grant (SupplementaryGroups=), for the service only
 ! id -nG mbgw | contains -w dialout || fail "user mbgw is in dialout: the units grant it"
@@ -94,7 +97,8 @@ for unit in /lib/systemd/system/mbgw.service /lib/systemd/system/mbgw@.service \
 done
 for unit in mbgw.service mbgw@.service; do
     for setting in WatchdogSec=30s ProtectProc=invisible ProcSubset=pid \
-                   "SystemCallFilter=~@privileged @resources" SupplementaryGroups=dialout; do
+                   "SystemCallFilter=~@privileged @resources" SupplementaryGroups=dialout \
+                   ProtectSystem=strict ReadWritePaths=/etc/mbgw StateDirectoryMode=0750; do
         grep -qx -- "$setting" "/lib/systemd/system/$unit" || fail "$unit: no $setting"
     done
 done
@@ -188,3 +192,4 @@ stop_gateway run
 say "purge"
 apt-get purge -y -qq mbgw >/dev/null
 [ ! -e /usr/bin/mbgw ] && [ ! -e /etc/mbgw/mbgw.toml ] || fail "purge left files"
+! dpkg-statoverride --list /etc/mbgw >/dev/null || fail "purge left the statoverride of /etc/mbgw"

@@ -86,12 +86,13 @@ def master_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                   down_after=config.DEFAULT_DOWN_AFTER,
                   probe_interval=config.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
                   tls_port=config.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
+                  tls_require_role=True, tls_crl=None,
                   **table_settings) -> config.MasterConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
     upstream_tls = upstream_tls_config(table_settings)
     table = table_config(**table_settings)
-    tls = tls_config(tls_port, tls_cert, tls_key, tls_ca)
+    tls = tls_config(tls_port, tls_cert, tls_key, tls_ca, tls_require_role, tls_crl)
     conflict = config.table_address_conflict(table.address, slaveid) if table.enabled else None
     if conflict:
         raise click.BadParameter(conflict, param_hint="'--table-address' / '--slaveid'")

@@ -1,5 +1,7 @@
 """What the mode commands share: the serial line's options, the operator's tools, turning a
 configuration error into a usage error, and the one way a command fails."""
+import os
+
 import click
 
 from mbgw.config import model as config
@@ -140,7 +142,7 @@ def _parse_functions(value) -> tuple[int, ...]:
 
 
 def _parse_persist(value):
-    if value is not None:
+    if value is not None and value != PERSIST_OFF:
         config.check_persist_path(str(value))
     return value
 
@@ -155,7 +157,8 @@ table_options = stack(
                  default=config.TableConfig.persist, callback=parser(_parse_persist),
                  help="Keep the outputs and the free zone (0x0800-0x7FFF) in this file "
                       "across restarts, written atomically; a regular file in the state "
-                      "directory ($STATE_DIRECTORY, else %s) [default: not kept]."
+                      "directory ($STATE_DIRECTORY, else %s); off: not kept [default: "
+                      "$STATE_DIRECTORY/table under the units, else not kept]."
                       % config.DEFAULT_STATE_DIRECTORY),
     click.option("--table-persist-interval", cls=TableOption, key="persist-interval",
                  type=click.IntRange(*config.PERSIST_INTERVAL_RANGE),
@@ -165,13 +168,27 @@ table_options = stack(
 )
 
 
+PERSIST_OFF = "off"
+PERSIST_FILE = "table"       # the default file's name in the state directory
+
+
+def persist_path(value: str | None) -> str | None:
+    """The table's file: the one given; none for "off"; when none is given, `table` in the
+    state directory systemd gives the units (StateDirectory=, $STATE_DIRECTORY), else none
+    (mbgw run by hand does not write somewhere it was not told to)."""
+    if value is not None:
+        return None if value == PERSIST_OFF else value
+    state = os.environ.get("STATE_DIRECTORY", "").split(":")[0]
+    return os.path.join(state, PERSIST_FILE) if state else None
+
+
 def table_config(**settings) -> config.TableConfig:
     """TableConfig from the click values (table_enabled, table_functions, ...)."""
     fields = {"enabled": "table_enabled", "direct": "table_direct", "units": "table_units",
               "functions": "table_functions", "address": "table_address",
-              "port": "table_port", "persist": "table_persist",
-              "persist_interval_s": "table_persist_interval"}
+              "port": "table_port", "persist_interval_s": "table_persist_interval"}
     return convert("'--table'", lambda: config.TableConfig(
+        persist=persist_path(settings.get("table_persist")),
         **{f: settings[o] for f, o in fields.items() if settings.get(o) is not None}))
 
 
@@ -199,6 +216,18 @@ def _check_ca(path, option="tls-ca"):
     check_ca(path, option)
 
 
+def _crl_callback(ctx, param, value):
+    """The CRL readable, and signed by a CA of tls-ca (when that option came first; the mode's
+    settings check it again)."""
+    if value is not None:
+        from mbgw.ops.tls import check_crl, check_crl_issuer
+        convert("'--tls-crl'", lambda: check_crl(value))
+        ca = ctx.params.get("tls_ca")
+        if ca is not None:
+            convert("'--tls-crl'", lambda: check_crl_issuer(value, ca))
+    return value
+
+
 # Modbus/TCP Security ([tls] keys): TLS is on when a certificate is given.
 tls_options = stack(
     click.option("--tls-port", cls=TlsOption, key="tls-port", file_key="port",
@@ -216,14 +245,25 @@ tls_options = stack(
                  callback=_tls_file(_check_ca),
                  help="CA certificate(s) (PEM) that client certificates must chain to; the "
                       "client's role is its certificate's extension %s." % config.ROLE_OID),
+    click.option("--tls-require-role/--no-tls-require-role", cls=TlsOption,
+                 key="require-role", default=config.TlsConfig.require_role, show_default=True,
+                 help="Refuse every request (exception 0x01) of a TLS client whose "
+                      "certificate has no role; the session stays open."),
+    click.option("--tls-crl", cls=TlsOption, key="crl", metavar="PATH", default=None,
+                 callback=_crl_callback,
+                 help="Revoked client certificates (PEM CRL of the CA): a revoked client is "
+                      "refused in the handshake; reloaded with SIGHUP [default: none]."),
 )
 
 
-def tls_config(tls_port, tls_cert, tls_key, tls_ca) -> config.TlsConfig:
-    from mbgw.ops.tls import file_stamps
+def tls_config(tls_port, tls_cert, tls_key, tls_ca, tls_require_role=True,
+               tls_crl=None) -> config.TlsConfig:
+    from mbgw.ops.tls import check_crl_issuer, file_stamps
+    if tls_crl is not None and tls_ca is not None:
+        convert("'--tls-crl'", lambda: check_crl_issuer(tls_crl, tls_ca))
     return convert("'--tls-cert'", lambda: config.TlsConfig(
-        port=tls_port, cert=tls_cert, key=tls_key, ca=tls_ca,
-        files=file_stamps(tls_cert, tls_key, tls_ca)))
+        port=tls_port, cert=tls_cert, key=tls_key, ca=tls_ca, require_role=tls_require_role,
+        crl=tls_crl, files=file_stamps(tls_cert, tls_key, tls_ca, tls_crl)))
 
 
 def _client_file(check, option):

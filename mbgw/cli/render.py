@@ -116,6 +116,9 @@ def _firewall_section(f: dict) -> list[str]:
         lines.append(f"  {rule['selects']:<56} {rule['refused']:>8} refused")
     lines.append(f"  {'no rule (default ' + f['default'] + ')':<56} "
                  f"{f['refused_default']:>8} refused")
+    if f.get("require_role"):
+        lines.append(f"  {'TLS client without a role (require-role)':<56} "
+                     f"{f['refused_no_role']:>8} refused")
     for client in f["clients"]:
         if client["refused"]:
             lines.append(f"  client {client['peer']} (role {client['role'] or 'none'}): "
@@ -222,10 +225,14 @@ def _table_section(t: dict, mode: str, now: float) -> list[str]:
         if tcp.get("tls_port") is not None:
             lines.append(f"  TLS on port {tcp['tls_port']}: "
                          f"{tcp.get('tls_handshakes', 0)} handshakes under way, "
-                         f"{tcp.get('connections_refused_tls', 0)} refused")
+                         f"{tcp.get('connections_refused_tls', 0)} refused, "
+                         f"{tcp.get('connections_tls_probes', 0)} closed before a byte")
     persist = t.get("persist")
     if persist is not None:
         lines.append(f"  persist {_table_persist(persist, now)}")
+        if persist.get("failing"):
+            lines.append(f"  persist FAILING since {_ago(persist.get('failing_since'), now)}: "
+                         f"{persist['failing']} (changes since the last save are not kept)")
     return lines
 
 
@@ -246,10 +253,12 @@ def _table_persist(persist: dict, now: float) -> str:
     """'PATH: last save 3.0s ago, saves 4, ...': every figure the persistence reports."""
     figures = []
     for name, value in persist.items():
-        if name == "path":
+        if name in ("path", "failing", "failing_since"):
             continue
         if name.startswith("last_"):
             value = _ago(value, now)
+        if name == "interval_s":
+            name, value = "every", f"{value:g}s"
         figures.append(f"{name.replace('_', ' ')} {value}")
     return f"{persist.get('path', '-')}: {', '.join(figures)}" if figures else \
         str(persist.get("path", "-"))

@@ -98,13 +98,14 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
                  metrics, log_level=None, shortcut=True, down_after=config.DEFAULT_DOWN_AFTER,
                  probe_interval=config.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
                  tls_port=config.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
+                 tls_require_role=True, tls_crl=None,
                  tcpto=config.DEFAULT_TCPTO_MS,
                  **table_settings) -> config.SlaveConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
     upstream_tls = upstream_tls_config(table_settings)
     table = table_config(**table_settings)
-    tls = tls_config(tls_port, tls_cert, tls_key, tls_ca)
+    tls = tls_config(tls_port, tls_cert, tls_key, tls_ca, tls_require_role, tls_crl)
     if mdbport == 0 and not tls.enabled:
         raise click.BadParameter("0 turns plain Modbus TCP off: it needs TLS (--tls-cert)",
                                  param_hint="'--mdbport'")

@@ -93,15 +93,15 @@ def transparent_config(device, protocol, baudrate, line_format, interface, rtsde
                        interframe_silence, raw_port, control, metrics,
                        log_level=None, firewall=None, scenarios=(),
                        tcpto=config.DEFAULT_TCPTO_MS, tls_port=config.DEFAULT_TLS_PORT,
-                       tls_cert=None, tls_key=None,
-                       tls_ca=None) -> config.TransparentModeConfig:
+                       tls_cert=None, tls_key=None, tls_ca=None, tls_require_role=True,
+                       tls_crl=None) -> config.TransparentModeConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
     frames = convert("'--rx-address' / '--tx-address'", lambda: config.TransparentConfig(
         eof=eof, eof_char=eof_char, eof_timeout_ms=eof_timeout, rx_address=rx_address,
         rx_size=rx_size, tx_address=tx_address, tx_size=tx_size, crc=crc, trigger=trigger,
         silence_ms=interframe_silence, raw_port=raw_port))
-    tls = tls_config(tls_port, tls_cert, tls_key, tls_ca)
+    tls = tls_config(tls_port, tls_cert, tls_key, tls_ca, tls_require_role, tls_crl)
     if mdbport == 0 and not tls.enabled:
         raise click.BadParameter("0 turns plain Modbus TCP off: it needs TLS (--tls-cert)",
                                  param_hint="'--mdbport'")

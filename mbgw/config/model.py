@@ -284,6 +284,8 @@ class TlsConfig:
     cert: str | None = None        # the server's certificate (PEM)
     key: str | None = None         # its private key (PEM)
     ca: str | None = None          # the CA that client certificates must chain to (PEM)
+    require_role: bool = True      # a client certificate without a role may do nothing
+    crl: str | None = None         # revoked client certificates (PEM CRL)
     # (path, mtime_ns, size) of each file when read, so that a renewed file is a change that
     # a reload applies; the settings never name it
     files: tuple = ()
@@ -298,13 +300,18 @@ class TlsConfig:
                 raise ConfigError(f"tls-cert given without "
                                   f"{' and '.join('tls-' + m for m in missing)}: TLS needs the "
                                   f"server's key and the CA of the clients' certificates")
-        elif self.key is not None or self.ca is not None:
-            raise ConfigError("tls-key/tls-ca given without tls-cert: TLS is on only with a "
-                              "server certificate")
+        elif self.key is not None or self.ca is not None or self.crl is not None:
+            raise ConfigError("tls-key/tls-ca/tls-crl given without tls-cert: TLS is on only "
+                              "with a server certificate")
 
     @property
     def enabled(self) -> bool:
         return self.cert is not None
+
+    @property
+    def roles_required(self) -> bool:
+        """Whether a TLS client whose certificate has no role is refused every request."""
+        return self.enabled and self.require_role
 
 
 # The web console (mbgw/web): off until [web] listen is given, and then only with an admin
@@ -364,6 +371,7 @@ class UpstreamTlsConfig:
     @property
     def enabled(self) -> bool:
         return self.client_cert is not None
+
 
 
 def check_upstream_tls(upstream: UpstreamTlsConfig, scenarios, slaveid=None) -> None:

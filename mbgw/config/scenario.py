@@ -6,6 +6,7 @@ the scenario and the key)."""
 import re
 from dataclasses import dataclass
 
+from mbgw.config.slaveid import parse_fingerprint
 from mbgw.errors import ConfigError
 
 NAME_PATTERN = re.compile(r"[A-Za-z0-9_-]{1,64}")
@@ -36,7 +37,8 @@ BITS = 0x10000                     # table bit B: bit B % 16 of register B // 16
 CONFIG_ZONE_FIRST = 0x8000         # read-only: a read scenario cannot store there
 KEYS = ("name", "slave", "server", "unit", "function", "address", "quantity", "table",
         "read-address", "read-quantity", "read-table", "write-address", "write-quantity",
-        "write-table", "cycle", "trigger", "retries", "stale-after", "enabled", "tls")
+        "write-table", "cycle", "trigger", "retries", "stale-after", "enabled", "tls",
+        "fingerprint")
 
 
 @dataclass(frozen=True)
@@ -58,6 +60,7 @@ class ScenarioConfig:
     stale_after_ms: int = 0
     enabled: bool = True
     tls: bool = False              # TCP scenario: over Modbus/TCP Security
+    fingerprint: bytes | None = None   # tls: the server certificate's SHA-256, pinned
 
     @property
     def kind(self) -> str:
@@ -120,6 +123,8 @@ class ScenarioConfig:
             out["unit"] = self.unit
             if self.tls:
                 out["tls"] = True
+            if self.fingerprint:
+                out["fingerprint"] = self.fingerprint.hex(":").upper()
         out["function"] = self.function
         prefix = "read-" if self.function == 23 else ""
         out[f"{prefix}address"] = bit_text(self.address) if self.bits else self.address
@@ -264,7 +269,20 @@ def parse_scenario(fields: dict, where: str) -> ScenarioConfig:
         slave=slave, server=server, unit=unit, cycle_ms=cycle_ms, on_change=on_change,
         write_address=write[0], write_quantity=write[1], write_table=write[2],
         retries=f.integer("retries", *RETRIES_RANGE, default=DEFAULT_RETRIES),
-        stale_after_ms=stale_after, enabled=f.boolean("enabled", True), tls=tls)
+        stale_after_ms=stale_after, enabled=f.boolean("enabled", True), tls=tls,
+        fingerprint=_fingerprint(f, tls))
+
+
+def _fingerprint(f: "_Fields", tls: bool) -> bytes | None:
+    if not f.has("fingerprint"):
+        return None
+    value = f.fields["fingerprint"]
+    if not tls:
+        raise ConfigError(f"{f.label}: fingerprint: only with tls = true")
+    if not isinstance(value, str):
+        raise f.error("fingerprint", value, "expected the server certificate's SHA-256 "
+                                            "fingerprint in hex")
+    return parse_fingerprint(f"{f.label}", value)
 
 
 def _target(f: _Fields, function: int) -> tuple[int | None, str | None, int, bool]:
@@ -356,13 +374,22 @@ def _trigger(f: _Fields, function: int) -> tuple[int | None, bool]:
 
 def check_scenarios(scenarios, mode: str) -> list[str]:
     """What is wrong with a mode's list of scenarios as a whole: duplicate names, more than
-    MAX_PER_KIND of a kind, serial scenarios in master or transparent mode."""
+    MAX_PER_KIND of a kind, serial scenarios in master or transparent mode, one TLS server
+    pinned two ways."""
     problems = []
     seen: set[str] = set()
+    pinned: dict[str, ScenarioConfig] = {}
     for sc in scenarios:
         if sc.name in seen:
             problems.append(f"scenario {sc.name}: name used twice")
         seen.add(sc.name)
+        if sc.tls and sc.server is not None:
+            host = split_server(sc.server)[0]
+            other = pinned.setdefault(host, sc)
+            if other.fingerprint != sc.fingerprint:
+                problems.append(f"scenario {sc.name}: fingerprint: server {host} is pinned "
+                                f"otherwise by scenario {other.name} (one certificate per "
+                                f"server)")
     for kind in ("serial", "tcp"):
         count = sum(1 for sc in scenarios if sc.kind == kind)
         if count > MAX_PER_KIND:

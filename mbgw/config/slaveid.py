@@ -21,6 +21,26 @@ NO_UNIT_ID = 0xFF       # TCP guide 4.4.1.2: the unit id "useless" to a device o
 MAX_UNIT_ID = 0xFF
 
 
+def parse_fingerprint(label: str, text: str) -> bytes:
+    """A server certificate's SHA-256 fingerprint, pinned: 64 hex digits, colons between the
+    bytes allowed (as `openssl x509 -noout -fingerprint -sha256` prints it), "sha256:" or
+    "sha256 Fingerprint=" before them too.  Raises ConfigError naming label."""
+    digits = text.strip()
+    for prefix in ("sha256 fingerprint=", "sha256:", "sha256="):
+        if digits.lower().startswith(prefix):
+            digits = digits[len(prefix):]
+    digits = digits.replace(":", "")
+    try:
+        value = bytes.fromhex(digits)
+    except ValueError:
+        value = b""
+    if len(value) != 32:
+        raise ConfigError(f"{label}: fingerprint {text!r}: expected the certificate's SHA-256 "
+                          f"fingerprint, 32 bytes in hex (openssl x509 -noout -fingerprint "
+                          f"-sha256 prints it)")
+    return value
+
+
 @dataclass(frozen=True)
 class SlaveRange:
     first: int                  # fs: first serial address
@@ -29,11 +49,12 @@ class SlaveRange:
     variable_ip: bool           # m = 1: the IP's last byte follows the address
     ip: ipaddress.IPv4Address
     tls: bool = False           # `tls`: its servers are reached over TLS
+    fingerprint: bytes | None = None   # pinned SHA-256 of the servers' certificate (tls)
 
     @classmethod
     def parse(cls, text: str) -> "SlaveRange | None":
-        """'fs ls fr m ip [tls]' -> a range; None for a line that clears the table
-        (fs = 0)."""
+        """'fs ls fr m ip [tls [fingerprint]]' -> a range; None for a line that clears the
+        table (fs = 0)."""
         words = text.split()
         try:
             numbers = [int(w) for w in words[:4]]
@@ -41,20 +62,24 @@ class SlaveRange:
             numbers = []
         if numbers[:1] == [0]:
             return None
-        tls = len(words) == 6 and words[5].lower() == "tls"
-        if len(words) != 5 + tls or len(numbers) != 4:
-            raise ConfigError(f"slaveid {text!r}: expected 'FS LS FR M IP' or 'FS LS FR M IP "
-                              f"tls', e.g. '1 8 1 0 192.168.0.30'")
+        tls = len(words) in (6, 7) and words[5].lower() == "tls"
+        if len(words) not in ((5, 6, 7) if tls else (5,)) or len(numbers) != 4:
+            raise ConfigError(f"slaveid {text!r}: expected 'FS LS FR M IP', 'FS LS FR M IP "
+                              f"tls' or 'FS LS FR M IP tls FINGERPRINT', e.g. "
+                              f"'1 8 1 0 192.168.0.30'")
+        fingerprint = parse_fingerprint(f"slaveid {text!r}", words[6]) \
+            if len(words) == 7 else None
         first, last, remote_first, mode = numbers
         try:
             ip = ipaddress.IPv4Address(words[4])
         except ValueError:
             raise ConfigError(f"slaveid {text!r}: {words[4]!r} is not an IPv4 address") from None
-        return cls.checked(text, first, last, remote_first, mode, ip, tls)
+        return cls.checked(text, first, last, remote_first, mode, ip, tls, fingerprint)
 
     @classmethod
     def checked(cls, text: str, first: int, last: int, remote_first: int, mode: int,
-                ip: ipaddress.IPv4Address, tls: bool = False) -> "SlaveRange":
+                ip: ipaddress.IPv4Address, tls: bool = False,
+                fingerprint: bytes | None = None) -> "SlaveRange":
         def bad(reason: str) -> ConfigError:
             return ConfigError(f"slaveid {text!r}: {reason}")
 
@@ -72,15 +97,16 @@ class SlaveRange:
             raise bad(f"{ip} cannot be a server's address")
         if mode and (int(ip) & 0xFF) + span > 0xFF:
             raise bad(f"{ip} + {span} runs past the last byte of the address")
-        return cls(first, last, remote_first, bool(mode), ip, tls)
+        return cls(first, last, remote_first, bool(mode), ip, tls, fingerprint)
 
     def overlaps(self, other: "SlaveRange") -> bool:
         return self.first <= other.last and other.first <= self.last
 
     def line(self) -> str:
-        """The range as parse() reads it: 'fs ls fr m ip [tls]'."""
+        """The range as parse() reads it: 'fs ls fr m ip [tls [fingerprint]]'."""
+        pin = f" {self.fingerprint.hex(':').upper()}" if self.fingerprint else ""
         return f"{self.first} {self.last} {self.remote_first} {int(self.variable_ip)} " \
-               f"{self.ip}{' tls' if self.tls else ''}"
+               f"{self.ip}{' tls' if self.tls else ''}{pin}"
 
     def route(self, address: int) -> tuple[str, int]:
         """(server IP, unit id) for a serial address of this range."""
@@ -123,6 +149,9 @@ class SlaveIdTable:
         self._routes = tuple(routes)
         self.destinations = tuple(dict.fromkeys(route[0] for route in routes if route))
         self.tls_hosts = self._tls_hosts()
+        # the servers whose certificate is pinned (instead of matching their address)
+        self.pins = {r.route(a)[0]: r.fingerprint for r in self.ranges if r.fingerprint
+                     for a in range(r.first, r.last + 1)}
 
     def _tls_hosts(self) -> frozenset[str]:
         """The servers reached over TLS; one server is reached one way only."""

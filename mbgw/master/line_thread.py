@@ -181,7 +181,8 @@ class SerialSlave(LineThread[MasterConfig]):
             self._tls_context = None
         elif self._tls_context is None or old is None or old.upstream_tls != upstream:
             self._tls_context = client_context(upstream)
-        self._pool.set_tls(self._tls_context, upstream.server_port, cfg.slaveid.tls_hosts)
+        self._pool.set_tls(self._tls_context, upstream.server_port, cfg.slaveid.tls_hosts,
+                           cfg.slaveid.pins)
 
     def _turn(self) -> None:
         try:

@@ -27,7 +27,8 @@ class TableService:
         self.table = Table(cfg.functions)
         identity.fill(self.table, settings, "master")
         self.server: TableServer | None = None
-        self.firewall = Firewall(settings.firewall)     # on the TCP server's requests
+        # on the TCP server's requests
+        self.firewall = Firewall(settings.firewall, settings.tls.roles_required)
         self.tls = settings.tls
         self.request_timeout_s = settings.request_timeout_ms / 1000
         self._commands = table_commands(self.table)
@@ -80,7 +81,8 @@ class TableService:
         self._repersist(old, new)
         if new.functions != old.functions:
             self.table.set_functions(new.functions)
-        firewall = self.firewall.renewed(settings.firewall)
+        firewall = self.firewall.renewed(settings.firewall,
+                                          settings.tls.roles_required)
         if firewall is not self.firewall:
             self.firewall = firewall
             if self.server is not None:
@@ -159,8 +161,7 @@ class TableService:
         if not cfg.enabled:
             return None
         persistence = self.persistence
-        persist = None if persistence is None else {
-            "path": str(persistence.path), "interval_s": persistence.interval_s}
+        persist = None if persistence is None else persistence.report()
         server = self.server
         return table_status(self.table, cfg, serial, persist,
                             server.figures() if server is not None else None)

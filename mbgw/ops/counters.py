@@ -53,6 +53,7 @@ class Counters(_Counting):
     connections_evicted: int = 0
     connections_bad_header: int = 0
     connections_refused_tls: int = 0
+    connections_tls_probes: int = 0
     connections_timed_out: int = 0
 
 

@@ -43,6 +43,8 @@ _COUNTER_HELP = {
     "connections_bad_header": "Modbus TCP connections closed for a bad MBAP header.",
     "connections_refused_tls": "Modbus/TCP Security connections refused in the TLS handshake "
                                "(no valid client certificate, garbage, too slow, too many).",
+    "connections_tls_probes": "Connections to the TLS port closed or reset before their first "
+                              "byte (health checks); not refused handshakes.",
     "connections_timed_out": "Modbus TCP connections closed because a request begun was not "
                              "whole within request-timeout, or none came within a minute.",
 }
@@ -263,10 +265,13 @@ def firewall_family(status: dict) -> CounterMetricFamily:
     """Requests the firewall refused, by rule (its index in the file, or default)."""
     refused = CounterMetricFamily(
         "mbgw_firewall_refused", "Requests the firewall refused (exception 0x01), by the rule "
-        "that decided (its place among the [[rule]] tables, or default).", labels=["rule"])
+        "that decided (its place among the [[rule]] tables, default, or no-role: a TLS "
+        "client whose certificate has no role).", labels=["rule"])
     for rule in status["rules"]:
         refused.add_metric([str(rule["rule"])], rule["refused"])
     refused.add_metric(["default"], status["refused_default"])
+    if status.get("require_role"):
+        refused.add_metric(["no-role"], status["refused_no_role"])
     return refused
 
 

@@ -72,10 +72,13 @@ class Backoff:
 
 class TcpRunner:
     def __init__(self, engine, tcpto_ms: int, clock: Callable[[], float] = time.monotonic,
-                 tls: UpstreamTlsConfig | None = None) -> None:
+                 tls: UpstreamTlsConfig | None = None, pins: dict[str, bytes] | None = None) \
+            -> None:
+        """pins: the servers whose certificate is pinned (scenario_pins)."""
         self.engine = engine
         self._tcpto_ns = tcpto_ms * 1_000_000
         self._tls = tls or UpstreamTlsConfig()
+        self._pins = pins or {}
         self._tls_context: ssl.SSLContext | None = None
         self._clock = clock
         self._wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
@@ -117,8 +120,10 @@ class TcpRunner:
         """New scenarios, tcpto and TLS files (SIGHUP), applied between two runs."""
         def apply() -> None:
             self._tcpto_ns = tcpto_ms * 1_000_000
-            if tls is not None and tls != self._tls:
-                self._tls, self._tls_context = tls, None
+            pins = scenario_pins(configs)
+            if (tls is not None and tls != self._tls) or pins != self._pins:
+                self._tls, self._tls_context = tls or self._tls, None
+                self._pins = pins
                 for key in [k for k in self._pools if k[1]]:
                     self._pools.pop(key).close()
             self.engine.reconfigure(configs)
@@ -240,10 +245,16 @@ class TcpRunner:
             if tls:
                 if self._tls_context is None:
                     self._tls_context = client_context(self._tls)
-                pool.set_tls(self._tls_context, port, None)
+                pool.set_tls(self._tls_context, port, None, self._pins)
             pool.stopping = self._stopping
             self._pools[(port, tls)] = pool
         return pool
+
+
+def scenario_pins(configs) -> dict[str, bytes]:
+    """The pinned certificates of the TLS scenarios' servers, by host."""
+    return {split_server(sc.server)[0]: sc.fingerprint for sc in configs
+            if sc.tls and sc.fingerprint}
 
 
 def with_scenarios(collector, engines: dict):
@@ -270,7 +281,7 @@ class TcpScenarios:
         configs = tcp_scenarios(configs)
         if configs:
             engine = Scenarios(configs, self.table, "tcp")
-            self.runner = TcpRunner(engine, tcpto_ms, tls=tls)
+            self.runner = TcpRunner(engine, tcpto_ms, tls=tls, pins=scenario_pins(configs))
             self.runner.start()
             self.engines["tcp"] = engine
             log.info("%d TCP scenarios, tcpto %d ms", len(configs), tcpto_ms)

@@ -71,7 +71,7 @@ class TcpServer:
         self._devices = devices
         self._down = devices.rule.down   # the addresses that are down, by address
         self._acl = AccessList(cfg.authip)
-        self.firewall = Firewall(cfg.firewall)
+        self.firewall = Firewall(cfg.firewall, cfg.tls.roles_required)
         self.clients: list[Client] = []  # the asyncio thread's list, for admission and status
         self._warn = WarnLimit(log)
         self._evictions = WarnLimit(log, level=logging.INFO)
@@ -96,7 +96,8 @@ class TcpServer:
     async def start(self) -> list[str]:
         """Listen; returns the listening addresses.  Raises OSError."""
         self._loop = asyncio.get_running_loop()
-        self._handshakes = Handshakes(self._loop, self._admit_tls, self._tls_refused)
+        self._handshakes = Handshakes(self._loop, self._admit_tls, self._tls_refused,
+                                      self._tls_probe)
         self._handshakes.timeout_s = self._cfg.request_timeout_ms / 1000
         self._listen_plain()
         try:
@@ -142,7 +143,7 @@ class TcpServer:
         self._acl = AccessList(cfg.authip)
         if self._handshakes is not None:
             self._handshakes.timeout_s = cfg.request_timeout_ms / 1000
-        self._guard_clients(self.firewall.renewed(cfg.firewall))
+        self._guard_clients(self.firewall.renewed(cfg.firewall, cfg.tls.roles_required))
         self._table_units = table_units(cfg)
         if self.table is not None and cfg.table.functions != old.table.functions:
             self.table.set_functions(cfg.table.functions)
@@ -295,11 +296,18 @@ class TcpServer:
             sock.close()
             return
         sock.setblocking(False)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)   # no Nagle in the flights
         handshakes.start(self._tls, sock, address)
 
     def _tls_refused(self, host: str, reason: str) -> None:
         self.counters.connections_refused_tls += 1
         self._log_refusal(host, reason)
+
+    def _tls_probe(self, host: str) -> None:
+        """A connection to the TLS port closed or reset before its first byte (a health
+        check): counted, not a refused handshake."""
+        self.counters.connections_tls_probes += 1
+        log.debug("connection from %s to the TLS port closed before the handshake", host)
 
     def _admit_tls(self, sock: ssl.SSLSocket, address) -> None:
         try:
@@ -386,6 +394,8 @@ class TcpServer:
             log.debug("client %s disconnected", client.peer)
 
     def _log_refusal(self, host: str, reason: str) -> None:
+        """Logged at most once a minute per address and reason (with how many were left out):
+        a refusal of one kind never hides another kind from the same address."""
         self._warn.warn(host, reason, "connection from %s refused: %s", host, reason)
 
     # --- the line thread: requests in, outcomes out ---
@@ -456,23 +466,19 @@ class TcpServer:
 
     def _refused_by_firewall(self, client: Client, guard, tid: int, unit: int,
                              request: bytes, received_ns: int) -> None:
-        """A request the client's rule does not allow: 0x01 (nothing for a broadcast); it
-        reaches neither the line nor the table."""
+        """A request the client's rule does not allow: 0x01 (a broadcast's too: it was not
+        done); it reaches neither the line nor the table."""
         self.counters.requests += 1
         client.firewall_refused += 1
         tracing = self.trace.active
         if tracing:
             self.trace.emit_threadsafe(self._event("request", client, tid, unit, request, "",
                                                    None))
-        refusal = self.firewall.refused(guard, client.peer, client.role, unit, request)
-        reply = None if self._is_broadcast(unit) else refusal
+        reply = self.firewall.refused(guard, client.peer, client.role, unit, request)
         self._answer(client, tid, unit, reply)
         if tracing:
             self.traced(client, tid, unit, request[0], reply, OUTCOME_FIREWALL,
                         received_ns or client.arrived_ns)
-
-    def _is_broadcast(self, unit: int) -> bool:
-        return unit == pdu.BROADCAST and bool(self._table_units[unit] or not self._cfg.slaveid)
 
     def taken(self, client: Client, tid: int, unit: int, request: bytes,
               received_ns: int) -> Job | None:

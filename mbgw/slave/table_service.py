@@ -86,5 +86,5 @@ class TableService:
         """The status's "table" section (mbgw.table.report), None while the table is off."""
         if not self.settings.table_on:
             return None
-        persist = None if self.persistence is None else {"path": str(self.persistence.path)}
+        persist = None if self.persistence is None else self.persistence.report()
         return table_status(self.table, self.cfg, persist=persist)

@@ -106,7 +106,10 @@ class Persistence:
         self._saved = -1                          # the generation the file holds; -1 unknown
         self._path_good = False                   # path holds a whole file (may become .prev)
         self._next_at = 0.0                       # monotonic: no save before
-        self._failing = False                     # a write failed and was logged
+        self._failing: str | None = None          # why the last write failed (logged once)
+        self._failing_since: float | None = None  # Unix time of the first failure in a row
+        self._last_save: float | None = None      # Unix time of the last good write
+        self._saves = 0
 
     # --- start ---
 
@@ -178,17 +181,29 @@ class Persistence:
             self._keep_previous()
             _write_atomically(self.path, data)
         except OSError as e:
-            if not self._failing:
+            if self._failing is None:
                 log.error("table: cannot write %s (%s): tried again every %g s", self.path,
                           e.strerror or e, self.interval_s)
-                self._failing = True
+                self._failing_since = time.time()
+            self._failing = f"cannot write {self.path}: {e.strerror or e}"
             return False
-        if self._failing:
+        if self._failing is not None:
             log.info("table: %s written again", self.path)
-            self._failing = False
+            self._failing = self._failing_since = None
         self._saved = generation
         self._path_good = True
+        self._last_save = time.time()
+        self._saves += 1
         return True
+
+    def report(self) -> dict:
+        """The persistence's part of the status (`mbgw status`, the console): the file, the
+        interval, the last good write and, while writes fail, why and since when."""
+        report: dict = {"path": str(self.path), "interval_s": self.interval_s,
+                        "last_save": self._last_save, "saves": self._saves}
+        if self._failing is not None:
+            report.update(failing=self._failing, failing_since=self._failing_since)
+        return report
 
     def _keep_previous(self) -> None:
         """The good file becomes PATH.prev (a hard link, so that the file itself is never

@@ -16,7 +16,8 @@ table_status(table, settings, serial, persist) ->
                                                ("path", "last_save" (Unix time or null), ...)
      "tcp": {"port": n, "connections": n, "max_connections": n, "connections_accepted": n,
              "connections_refused_limit": n, "connections_bad_header": n,
-             "tls_port": n or null, "tls_handshakes": n, "connections_refused_tls": n}}
+             "tls_port": n or null, "tls_handshakes": n, "connections_refused_tls": n,
+             "connections_tls_probes": n}}
                                                master mode's table TCP server, when given
 """
 from mbgw.config.model import TableConfig, number_list_text

@@ -47,6 +47,7 @@ MAX_CONNECTIONS = 32          # table clients at once (upstream max-connections 
 RECEIVE_SIZE = 4096           # one read: 15 requests of 260 bytes, 341 reads of 12
 LISTEN_BACKLOG = 16
 REFUSAL_LOG_INTERVAL_S = 60.0
+REFUSALS_REMEMBERED = 1024    # (address, reason) pairs; those older than a minute go first
 BROADCAST_UNIT = 0
 # TLS handshakes under way at once, and how long one may take: a flood of connections that
 # never finish (or garbage) costs the loop one wake-up each and no more.
@@ -102,6 +103,48 @@ def listen(port: int, bind: str | None = None,
     return sockets
 
 
+def first_byte(sock: socket.socket) -> bool | None:
+    """Before a handshake: True once the client has sent a byte, None while it has not, False
+    when it closed or reset the connection first (a health check's connect and close)."""
+    try:
+        return bool(sock.recv(1, socket.MSG_PEEK))
+    except (BlockingIOError, InterruptedError):
+        return None
+    except OSError:
+        return False
+
+
+def start_handshake(context: ssl.SSLContext, sock: socket.socket) -> ssl.SSLSocket | str:
+    """The socket wrapped for a non-blocking server handshake, or why it cannot be."""
+    try:
+        return context.wrap_socket(sock, server_side=True, do_handshake_on_connect=False)
+    except OSError as err:
+        return f"TLS handshake failed ({_why(err)})"
+
+
+def handshake_step(sock: ssl.SSLSocket) -> tuple[str, str]:
+    """One step of a handshake: ("done"|"read"|"write", "") or ("failed", why)."""
+    try:
+        sock.do_handshake()
+    except ssl.SSLWantReadError:
+        return "read", ""
+    except ssl.SSLWantWriteError:
+        return "write", ""
+    except ssl.SSLCertVerificationError as err:
+        return "failed", f"TLS handshake refused (client certificate: {err.verify_message})"
+    except ssl.SSLError as err:
+        return "failed", f"TLS handshake refused ({_why(err)})"
+    except OSError as err:
+        return "failed", f"TLS handshake failed ({_why(err)})"
+    return "done", ""
+
+
+def _why(err: OSError) -> str:
+    if isinstance(err, ssl.SSLError):
+        return err.reason or str(err.args[1] if len(err.args) > 1 else err)
+    return err.strerror or str(err)
+
+
 def _name(address) -> str:
     host, port = address[:2]
     return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
@@ -132,14 +175,17 @@ class _Connection:
 
 
 class _Handshake:
-    """A TLS client whose handshake is under way."""
-    __slots__ = ("sock", "fd", "address", "deadline")
+    """A TLS client whose handshake is under way (sock: the plain socket until its first
+    byte)."""
+    __slots__ = ("sock", "fd", "address", "deadline", "context")
 
-    def __init__(self, sock: ssl.SSLSocket, address, deadline: float) -> None:
+    def __init__(self, sock: socket.socket, address, deadline: float,
+                 context: ssl.SSLContext) -> None:
         self.sock = sock
         self.fd = sock.fileno()
         self.address = address
         self.deadline = deadline
+        self.context = context
 
 
 class TableServer(threading.Thread):
@@ -171,7 +217,7 @@ class TableServer(threading.Thread):
             raise
         self._new_tls: tuple | None = None
         self._handshakes: dict[int, _Handshake] = {}     # by fd
-        self._tls_refused_logged = -REFUSAL_LOG_INTERVAL_S
+        self._tls_refused_logged: dict[tuple[str, str], float] = {}  # (address, reason)
         self._answer = None
         self._wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         self._stopping = False
@@ -196,6 +242,7 @@ class TableServer(threading.Thread):
         self._rest = AcceptRest(log, "table server")
         self._resting: dict[int, float] = {}       # a listener's fd -> when it listens again
         self._swept = 0.0
+        self.tls_probes = 0                # closed or reset before a byte: health checks
 
     @property
     def addresses(self) -> list[str]:
@@ -213,7 +260,8 @@ class TableServer(threading.Thread):
                 "tls_port": self.tls_port, "tls_handshakes": len(self._handshakes),
                 "connections_refused_tls": self.refused_tls,
                 "connections_timed_out": self.timed_out,
-                "connections_evicted": self.evicted}
+                "connections_evicted": self.evicted,
+                "connections_tls_probes": self.tls_probes}
 
     def connections(self) -> list[dict]:
         return [{"peer": c.peer, "connected": c.connected_at, "requests": c.requests,
@@ -222,7 +270,7 @@ class TableServer(threading.Thread):
 
     def reset_counts(self) -> None:
         self.accepted = self.refused_limit = self.bad_header = self.refused_authip = 0
-        self.refused_tls = self.timed_out = self.evicted = 0
+        self.refused_tls = self.timed_out = self.evicted = self.tls_probes = 0
 
     def set_firewall(self, firewall: Firewall) -> None:
         """New rules (another thread): the server's thread guards its clients by them."""
@@ -319,6 +367,7 @@ class TableServer(threading.Thread):
             return
         sock.setblocking(False)
         if tls:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)   # no Nagle in the flights
             self._start_handshake(sock, address)
         else:
             self._adopt(_Connection(sock, _name(address), address[0]))
@@ -397,35 +446,39 @@ class TableServer(threading.Thread):
                               if mine < HANDSHAKES_PER_ADDRESS else
                               f"{mine} TLS handshakes of this address under way already")
             return
-        try:
-            tls = context.wrap_socket(sock, server_side=True, do_handshake_on_connect=False)
-        except OSError as err:
-            sock.close()
-            self._tls_refused(address, f"TLS failed ({err.strerror or err})")
-            return
-        handshake = _Handshake(tls, address, time.monotonic() + self.request_timeout_s)
+        handshake = _Handshake(sock, address, time.monotonic() + self.request_timeout_s, context)
         self._handshakes[handshake.fd] = handshake
         self._poll.register(handshake.fd, _IN)
         self._shake(handshake)
 
     def _shake(self, handshake: _Handshake) -> None:
         """One step of a client's handshake; the next when its socket is ready for it."""
-        try:
-            handshake.sock.do_handshake()
-        except ssl.SSLWantReadError:
+        if not isinstance(handshake.sock, ssl.SSLSocket):
+            heard = first_byte(handshake.sock)
+            if heard is None:
+                return                      # polled for input already
+            if not heard:                   # a health check's connect and close
+                self._end_handshake(handshake)
+                handshake.sock.close()
+                self.tls_probes += 1
+                return
+            tls = start_handshake(handshake.context, handshake.sock)
+            if isinstance(tls, str):
+                self._handshake_failed(handshake, tls)
+                return
+            handshake.sock = tls
+        step, why = handshake_step(handshake.sock)
+        if step == "read":
             self._poll.modify(handshake.fd, _IN)
             return
-        except ssl.SSLWantWriteError:
+        if step == "write":
             self._poll.modify(handshake.fd, _OUT)
             return
-        except ssl.SSLError as err:
-            self._handshake_failed(handshake, f"TLS handshake refused ({err.reason or err})")
-            return
-        except OSError as err:
-            self._handshake_failed(handshake, f"TLS handshake failed ({err.strerror or err})")
+        if step == "failed":
+            self._handshake_failed(handshake, why)
             return
         self._end_handshake(handshake)
-        sock, address = handshake.sock, handshake.address
+        sock, address = cast(ssl.SSLSocket, handshake.sock), handshake.address
         try:
             role = self._role_of(sock.getpeercert(binary_form=True))
         except (OSError, ValueError):       # the peer has gone meanwhile
@@ -464,13 +517,19 @@ class TableServer(threading.Thread):
                                    f"no TLS handshake within {self.request_timeout_s:g} s")
 
     def _tls_refused(self, address, reason: str) -> None:
-        """Counted; logged at most once a minute."""
+        """Counted; logged at most once a minute per address and reason."""
         self.refused_tls += 1
         now = time.monotonic()
-        if now - self._tls_refused_logged >= REFUSAL_LOG_INTERVAL_S:
-            self._tls_refused_logged = now
-            log.warning("table client %s refused: %s (further TLS refusals are logged at "
-                        "most once a minute)", _name(address), reason)
+        logged = self._tls_refused_logged
+        key = (address[0], reason)
+        if now - logged.get(key, -REFUSAL_LOG_INTERVAL_S) >= REFUSAL_LOG_INTERVAL_S:
+            if len(logged) >= REFUSALS_REMEMBERED:
+                for old in [k for k, t in logged.items() if now - t >= REFUSAL_LOG_INTERVAL_S]:
+                    del logged[old]
+            logged[key] = now
+            log.warning("table client %s refused: %s (further TLS refusals of this address "
+                        "for this reason are logged at most once a minute)", _name(address),
+                        reason)
 
     def _close(self, client: _Connection) -> None:
         del self._clients[client.fd]
@@ -604,12 +663,11 @@ class TableServer(threading.Thread):
             client.partial_since = 0.0
 
     def _refused(self, client: _Connection, guard: Guard, frame, unit: int) -> bytes:
-        """The reply to a request the firewall refused: 0x01, nothing for a broadcast."""
+        """The reply to a request the firewall refused: 0x01, a broadcast's too (it was not
+        done)."""
         client.firewall_refused += 1
         refusal = self.firewall.refused(guard, client.peer, client.role, unit,
                                         frame[_HEADER_LEN:])
-        if unit == BROADCAST_UNIT:
-            return b""
         return mbap.frame(_HEADER.unpack_from(frame)[0], unit, refusal)
 
     def _send(self, client: _Connection, data) -> None:

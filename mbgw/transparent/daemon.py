@@ -65,7 +65,8 @@ def run_transparent(cfg: TransparentModeConfig, reconfigure=None) -> None:
     allows = access_check(cfg.authip)
     context = server_context(cfg.tls) if cfg.tls.enabled else None     # ConfigError
     try:
-        server = TableServer(table, cfg.mdbport or None, cfg.bind, Firewall(cfg.firewall),
+        server = TableServer(table, cfg.mdbport or None, cfg.bind,
+                             Firewall(cfg.firewall, cfg.tls.roles_required),
                              allows=allows, tls=context, tls_port=cfg.tls.port,
                              role_of=role_of)
         server.request_timeout_s = cfg.request_timeout_ms / 1000
@@ -143,8 +144,8 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
                 log.warning("%s changed: the new setting takes effect at restart", name)
         if new.transparent.raw_port != old.transparent.raw_port:
             log.warning("raw-port changed: the new setting takes effect at restart")
-        if new.firewall != old.firewall:
-            server.set_firewall(server.firewall.renewed(new.firewall))
+        if (new.firewall, new.tls.roles_required) != (old.firewall, old.tls.roles_required):
+            server.set_firewall(server.firewall.renewed(new.firewall, new.tls.roles_required))
         server.request_timeout_s = new.request_timeout_ms / 1000
         if new.tls != old.tls:
             _retls(server, new)

@@ -13,8 +13,8 @@ request is sent and reopened; connecting counts against the deadline.
 
 Servers given to set_tls are reached over TLS (Modbus/TCP Security) on its port: the
 handshake is stepped in the same non-blocking polls, within the same deadline; a failed one
-(a server certificate that does not chain to the CA, our certificate refused) is
-HandshakeFailed, a NoRoute.
+(a server certificate that does not chain to the CA, that is not for the address dialled
+nor the one pinned, our certificate refused) is HandshakeFailed, a NoRoute.
 
 Everything runs on its owner's thread (master mode: the serial line's; the master sends one
 request at a time, so a thread hop would only add latency).  The sockets are non-blocking
@@ -35,6 +35,7 @@ from collections.abc import Callable
 from mbgw.errors import BadReply, GatewayTimeout, MbgwError, NoRoute
 from mbgw.line import frames
 from mbgw.ops.counters import MasterCounters
+from mbgw.ops.tls import server_mismatch
 from mbgw.protocol import mbap
 
 log = logging.getLogger("mbgw.tcp")
@@ -95,6 +96,7 @@ class UpstreamPool:
         self._tls: ssl.SSLContext | None = None
         self._tls_port = 0
         self._tls_hosts: frozenset[str] | None = frozenset()   # None: every server
+        self._pins: dict[str, bytes] = {}   # servers whose certificate is pinned, by host
         self._chunk = bytearray(RECV_SIZE)
         self._view = memoryview(self._chunk)
         self.stopping = False     # set before the eventfd is signalled to stop
@@ -106,13 +108,17 @@ class UpstreamPool:
         return self._port
 
     def set_tls(self, context: ssl.SSLContext | None, port: int,
-                hosts: frozenset[str] | None) -> None:
-        """Reach hosts (None: every server) over TLS on port with context.  Another setting
-        closes every connection (on the owner's thread, between transactions)."""
-        if (context, port, hosts) != (self._tls, self._tls_port, self._tls_hosts):
+                hosts: frozenset[str] | None, pins: dict[str, bytes] | None = None) -> None:
+        """Reach hosts (None: every server) over TLS on port with context; a server's
+        certificate must be for the address dialled, or have the SHA-256 pins[host].  Another
+        setting closes every connection (on the owner's thread, between transactions)."""
+        pins = pins or {}
+        if (context, port, hosts, pins) != (self._tls, self._tls_port, self._tls_hosts,
+                                            self._pins):
             self.close()
             self._failing.clear()
             self._tls, self._tls_port, self._tls_hosts = context, port, hosts
+            self._pins = pins
 
     def _uses_tls(self, host: str) -> bool:
         return self._tls is not None and (self._tls_hosts is None or host in self._tls_hosts)
@@ -286,7 +292,12 @@ class UpstreamPool:
         while True:
             try:
                 sock.do_handshake()
-                return
+                why = server_mismatch(sock.getpeercert(binary_form=True), host,
+                                      self._pins.get(host))
+                if why is None:
+                    return
+                self._failed(host, why)
+                raise HandshakeFailed(f"{self.server(host)}: {why}")
             except ssl.SSLWantReadError:
                 poller.modify(sock, select.POLLIN)
             except ssl.SSLWantWriteError:

@@ -9,10 +9,10 @@ from tests.integration.test_master import BAUD
 from tests.modbus import Client
 
 
-@pytest.fixture(autouse=True)
+@pytest.fixture
 def state_directory(tmp_path, monkeypatch):
     """The daemons' state directory ($STATE_DIRECTORY, as systemd sets it): the test's own,
-    where table-persist files may be."""
+    where table-persist files may be (and the table's file goes by default)."""
     monkeypatch.setenv("STATE_DIRECTORY", str(tmp_path))
     return tmp_path
 

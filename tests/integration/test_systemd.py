@@ -16,6 +16,7 @@ import pytest
 from click.testing import CliRunner
 
 from mbgw.cli import main
+from mbgw.cli.options import persist_path
 from mbgw.ops import control
 from tests.harness import CHECKOUT
 from tests.integration.master_rig import ask, holding_reply, identity, read_holding
@@ -180,6 +181,25 @@ def test_instance_option_reaches_the_socket_its_unit_lays_out(monkeypatch):
     monkeypatch.setenv("RUNTIME_DIRECTORY", "/run/" + runtime.replace("%i", "ttyUSB1"))
     assert control.instance_path("ttyUSB1") == control.default_path()
     assert control.instance_path("ttyUSB1") == "/run/mbgw/ttyUSB1/mbgw.sock"
+
+
+@pytest.mark.parametrize("unit, instance, table_file", [
+    ("mbgw.service", None, "/var/lib/mbgw/table"),
+    ("mbgw@.service", "ttyUSB1", "/var/lib/mbgw/ttyUSB1/table")])
+def test_the_units_let_the_service_write_its_files_and_nothing_else(monkeypatch, unit,
+                                                                    instance, table_file):
+    """ProtectSystem=strict, but for its configuration directory (the console's Set and
+    Upload replace the file atomically: the directory) and its state directory, where
+    StateDirectory= makes systemd set STATE_DIRECTORY and the table's file goes by default."""
+    text = (CHECKOUT / "debian" / unit).read_text()
+    settings = re.findall(r"^(ProtectSystem|ReadWritePaths|StateDirectory)=(.*)$", text, re.M)
+    assert sorted(settings) == [("ProtectSystem", "strict"), ("ReadWritePaths", "/etc/mbgw"),
+                                ("StateDirectory", "mbgw/%i" if instance else "mbgw")]
+    state = dict(settings)["StateDirectory"].replace("%i", instance or "")
+    monkeypatch.setenv("STATE_DIRECTORY", f"/var/lib/{state}")
+    assert persist_path(None) == table_file
+    assert re.search(r"^ExecStart=/usr/bin/mbgw run --config /etc/mbgw/(mbgw|%i)\.toml$", text,
+                     re.M)
 
 
 def test_instance_option_talks_to_that_daemon(pty_pair, start_gateway, tmp_path, monkeypatch):

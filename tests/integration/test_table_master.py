@@ -454,6 +454,7 @@ def test_the_operator_reads_and_writes_the_table_the_serial_master_sees(table_ma
     assert "TCP server: 1 of 32 clients, 1 accepted" in shown.stdout
 
 
+@pytest.mark.usefixtures("state_directory")
 def test_outputs_and_free_zone_survive_a_restart(start_master, servers, tmp_path, line, tcp):
     path = tmp_path / "table.bin"
     port = free_port()
@@ -465,6 +466,9 @@ def test_outputs_and_free_zone_survive_a_restart(start_master, servers, tmp_path
     ask_tcp(sock, 2, 1, bytes.fromhex("06 7fff beef"))
     ask_tcp(sock, 3, 1, bytes.fromhex("06 0010 0001"))        # an input: not kept
     sock.close()
+    saved = wait_for(gw, lambda s: s["table"]["persist"]["saves"] == 1, "the first save")
+    assert saved["table"]["persist"]["path"] == str(path)
+    assert "failing" not in saved["table"]["persist"]
     assert gw.stop() == 0
     assert path.exists()
     start_master(*options)

@@ -23,7 +23,7 @@ from pymodbus.client import ModbusTcpClient
 from tests.integration.test_passthrough import read_line
 from tests.integration.test_reload import config_set, reload
 from tests.modbus import crc16, mbap, read_holding
-from tests.ops import mbgw, status, tracing
+from tests.ops import mbgw, status, tracing, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -307,6 +307,7 @@ def test_a_reload_turns_the_table_on_moves_its_units_and_turns_it_off_on_the_sam
 
 # --- the operator: configuration zone, table read/write, status, persistence ----------------
 
+@pytest.mark.usefixtures("state_directory")
 def test_the_operator_reads_and_writes_the_table_sees_its_figures_and_it_survives_a_restart(
         tmp_path, pty_pair, start_peer, start_gateway, client):
     start_peer("pymodbus_slave.py", pty_pair.device, str(LINE_UNIT), "--silent-unknown")
@@ -331,6 +332,35 @@ def test_the_operator_reads_and_writes_the_table_sees_its_figures_and_it_survive
     gw = start_gateway(pty_pair.gateway, *options)
     assert client(gw).ask(247, read_holding(0x0800, 2)) == bytes.fromhex("03 04 1234 5678")
     assert client(gw).ask(247, read_holding(0x1000, 1)) == bytes.fromhex("03 02 beef")
+
+
+@pytest.mark.usefixtures("state_directory")
+def test_status_shows_while_the_table_file_cannot_be_written(tmp_path, pty_pair, start_peer,
+                                                             start_gateway, client):
+    """The file's directory is missing (as /var/lib/mbgw was before the units had a state
+    directory): the daemon runs on, `mbgw status` says persistence is failing and why, and
+    once the directory is there the next save clears it."""
+    start_peer("pymodbus_slave.py", pty_pair.device, str(LINE_UNIT), "--silent-unknown")
+    directory = tmp_path / "state"
+    keep = directory / "table.bin"
+    gw = start_gateway(pty_pair.gateway, "--baudrate", "19200", "--table",
+                       "--table-persist", str(keep), "--table-persist-interval", "1")
+    assert client(gw).ask(247, bytes.fromhex("06 0800 0007")) == bytes.fromhex("06 0800 0007")
+    failing = wait_for(gw, lambda s: "failing" in s["table"]["persist"], "persist failing")
+    assert failing["table"]["persist"]["failing"] == \
+        f"cannot write {keep}: No such file or directory"
+    assert failing["table"]["persist"]["saves"] == 0
+    result = mbgw("status", "--control", gw.control)
+    assert result.returncode == 0, result.stderr
+    assert "  persist FAILING since " in result.stdout
+    assert f": cannot write {keep}: No such file or directory (changes since the last save " \
+        "are not kept)" in result.stdout
+    directory.mkdir()
+    wait_for(gw, lambda s: s["table"]["persist"]["saves"] == 1, "a save")
+    assert "failing" not in status(gw)["table"]["persist"]
+    assert "FAILING" not in mbgw("status", "--control", gw.control).stdout
+    assert gw.stop() == 0
+    assert keep.exists()
 
 
 def test_without_the_table_there_is_no_table_section_and_no_table_command(pty_pair,

@@ -141,7 +141,9 @@ def test_a_handshake_flood_and_garbage_do_not_stall_plain_table_clients(master, 
         finally:
             client.close()
         assert read_free(plain, 99)[:2] == b"\x03\x04"
-        assert gw.log().count("refused: ") == 1        # logged once a minute at most
+        log = gw.log()          # logged once a minute at most per address and reason
+        assert log.count("refused: TLS handshake refused") == 1, log
+        assert log.count("refused: 64 TLS handshakes under way already") == 1, log
     finally:
         for sock in idle + garbage:
             sock.close()
@@ -275,3 +277,26 @@ def test_transparent_mdbport_0_needs_tls(pty):
     assert done.returncode != 0
     assert "'--mdbport': 0 turns plain Modbus TCP off: it needs TLS (--tls-cert)" in \
         done.stderr
+
+
+def test_the_table_server_refuses_a_role_less_client_and_counts_a_probe(master, pki):
+    """Master mode's table over TLS: a certificate without a role gets 0x01 for every request
+    (a broadcast write's too), its session open, the table unchanged; a connect and reset
+    before a byte is a probe, counted, not a refused handshake, and no traceback."""
+    ca = pki[0]
+    gw, port, tls_port = master()
+    reset = socket.create_connection(("127.0.0.1", tls_port))
+    reset.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
+    reset.close()
+    socket.create_connection(("127.0.0.1", tls_port)).close()
+    with socket.create_connection(("127.0.0.1", tls_port)) as raw, \
+            client_context(ca, ca.issue("no-role")).wrap_socket(raw) as sock:
+        assert ask(sock, 1, 1, struct.pack(">BHH", 6, FREE, 5))[7:] == b"\x86\x01"
+        assert ask(sock, 2, 0, struct.pack(">BHH", 6, FREE, 5))[7:] == b"\x86\x01"
+        assert ask(sock, 3, 1, struct.pack(">BHH", 3, FREE, 1))[7:] == b"\x83\x01"
+    with socket.create_connection(("127.0.0.1", port)) as plain:
+        assert read_free(plain) == bytes.fromhex("03 04 0000 0000")
+    tcp = table_tcp(gw)
+    assert tcp["connections_tls_probes"] == 2 and tcp["connections_refused_tls"] == 0, tcp
+    assert status(gw)["firewall"]["refused_no_role"] == 3
+    assert "Traceback" not in gw.log() and "handshake" not in gw.log()

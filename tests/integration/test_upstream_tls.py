@@ -47,13 +47,16 @@ def pki(tmp_path):
 
 @pytest.fixture
 def tls_servers():
-    """tls_servers(authority, client_ca, *hosts) -> port: pymodbus TLS servers with a server
-    certificate from authority, requiring a client certificate from client_ca."""
+    """tls_servers(authority, client_ca, *hosts, names=None) -> port: pymodbus TLS servers
+    with a server certificate from authority for names (its subjectAltName; by default the
+    hosts' addresses), requiring a client certificate from client_ca."""
     started: list[Peer] = []
 
-    def start(authority: Authority, client_ca: Authority, *hosts: str) -> int:
+    def start(authority: Authority, client_ca: Authority, *hosts: str,
+              names: str | None = None) -> int:
         port = free_port()
-        cert, key = authority.issue(f"server{len(started)}", server=True)
+        cert, key = authority.issue(f"server{len(started)}", server=True,
+                                    names=names or ", ".join(f"IP:{h}" for h in hosts))
         started.append(Peer("pymodbus_tcp_servers.py", str(port), *hosts, "--tls", str(cert),
                             str(key), str(client_ca.cert)))
         return port
@@ -153,3 +156,49 @@ def test_slave_mode_runs_tls_scenarios_from_the_file(pki, tls_servers, slave_wit
                     "the impostor's error")
     assert refused["message"] == "connection refused: TLS handshake failed"
     assert read_table(gw.port, TABLE_UNIT, FREE + 8, 3) == [0, 0, 0]
+
+
+def fingerprint(authority: Authority, name: str) -> str:
+    """The SHA-256 fingerprint of a certificate tls_servers made, as openssl prints it."""
+    import subprocess
+    done = subprocess.run(["openssl", "x509", "-noout", "-fingerprint", "-sha256", "-in",
+                           str(authority.dir / f"{name}.pem")], capture_output=True, text=True,
+                          check=True)
+    return done.stdout.strip().split("=", 1)[1]
+
+
+def test_a_server_whose_certificate_is_for_another_address_is_refused_unless_pinned(
+        pki, tls_servers, start_master, line):
+    """Any certificate from the CA could impersonate any server: the address dialled must be
+    in its subjectAltName (IP or DNS), or its fingerprint pinned on the range."""
+    ca, _, client = pki
+    port = tls_servers(ca, ca, TLS_HOST, "127.0.8.3", names="IP:127.0.8.9, DNS:elsewhere")
+    pinned = fingerprint(ca, "server0")
+    gw = start_master("--slaveid", f"1 1 1 0 {TLS_HOST} tls", "--slaveid",
+                      f"2 2 1 0 127.0.8.3 tls {pinned}", "--exception",
+                      "--tls-server-port", str(port), *client_options(ca, client))
+    ask(line, read_holding(1), expected=bytes((1, 0x83, PATH_UNAVAILABLE)))
+    log = wait_for_log(gw, f"server {TLS_HOST}:{port} unreachable: the server's certificate is "
+                           f"not for {TLS_HOST}")
+    ask(line, read_holding(2), expected=holding_reply(2, *identity("127.0.8.3", 1)))
+    assert status(gw)["counters"]["unreachable"] == 1, log
+
+
+def test_a_pinned_fingerprint_that_does_not_match_is_refused(pki, tls_servers, start_master,
+                                                             line):
+    ca, _, client = pki
+    port = tls_servers(ca, ca, TLS_HOST)
+    wrong = ":".join(["AB"] * 32)
+    gw = start_master("--slaveid", f"1 1 1 0 {TLS_HOST} tls {wrong}", "--exception",
+                      "--tls-server-port", str(port), *client_options(ca, client))
+    ask(line, read_holding(1), expected=bytes((1, 0x83, PATH_UNAVAILABLE)))
+    wait_for_log(gw, "the server's certificate is not the one pinned")
+
+
+def test_a_tcp_scenario_checks_the_name_or_the_pin(pki, tls_servers, tls_runner):
+    ca, _, _ = pki
+    port = tls_servers(ca, ca, "127.0.0.1", names="DNS:localhost")
+    tls_runner.engine.queue(Scenario(f"127.0.0.1:{port}", unit=7, tls=True))
+    assert tls_runner.engine.result() == (None, TLS_REFUSED, 0)
+    tls_runner.engine.queue(Scenario(f"localhost:{port}", unit=7, tls=True))
+    assert tls_runner.engine.result() == (registers(0, 1, 7), None, 0)

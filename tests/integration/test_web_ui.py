@@ -81,7 +81,8 @@ def hostile_documents() -> dict:
     status = {"mode": "slave", "version": HOSTILE, "uptime_s": 5, "started": 1.7e9,
               "serial": {"device": HOSTILE, "state": "up"}, "listening": [HOSTILE],
               "counters": {"requests": 1}, "clients": [client], "scenarios": [scenario],
-              "devices": []}
+              "devices": [], "table": {"persist": {"path": HOSTILE, "failing": HOSTILE,
+                                                   "failing_since": 1.7e9}}}
     return {"/api/session": {"role": "admin", "csrf": "token"}, "/api/status": status,
             "/api/clients": {"clients": [client]}, "/api/scenarios": {"scenarios": [scenario]}}
 
@@ -146,6 +147,8 @@ def assert_nothing_injected(driver):
 def test_values_with_markup_are_shown_as_text(browser, hostile_console):
     browser.get(hostile_console + "#overview")
     wait(browser, text_in("#overview-facts", HOSTILE))          # version, device, listening
+    wait(browser, text_in("#overview-wrong", "The exchange table is not kept since "))
+    assert f": {HOSTILE}." in browser.find_element(By.ID, "overview-wrong").text
     assert_nothing_injected(browser)
 
     browser.get(hostile_console + "#clients")

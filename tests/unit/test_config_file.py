@@ -63,8 +63,8 @@ def test_every_long_option_of_both_modes_is_a_key(schema):
                            "raw-port"}
     assert all(schema.keys[k].group == "transparent" for k in transparent)
     tls = {p.key for p in params if type(p) is config_keys.TlsOption}
-    assert tls == {"tls-port", "cert", "key", "ca", "client-cert", "client-key", "server-ca",
-                   "server-port"}
+    assert tls == {"tls-port", "cert", "key", "ca", "require-role", "crl", "client-cert",
+                   "client-key", "server-ca", "server-port"}
     web = {p.key for mode in ("slave", "master", "transparent")
            for p in main.commands[mode].params if isinstance(p, config_keys.WebOption)}
     assert web == {"web", "web-cert", "web-key", "admin-password", "user-password",

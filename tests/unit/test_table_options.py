@@ -51,6 +51,25 @@ def test_slave_options_build_the_table():
                                 persist_interval_s=60)
 
 
+def test_under_a_unit_the_table_is_kept_in_its_state_directory_by_default(monkeypatch):
+    """systemd's StateDirectory= (mbgw.service: /var/lib/mbgw, mbgw@NAME: /var/lib/mbgw/NAME)
+    is where the table's file goes when none is given; `off` keeps none."""
+    monkeypatch.setenv("STATE_DIRECTORY", "/var/lib/mbgw/gw2")
+    for mode, options in (("slave", ()), ("master", SLAVEID)):
+        assert config_of(mode, *options, "--table").table.persist == "/var/lib/mbgw/gw2/table"
+        assert config_of(mode, *options, "--table-persist", "off").table.persist is None
+        assert config_of(mode, *options, "--table-persist", "/var/lib/mbgw/gw2/t") \
+            .table.persist == "/var/lib/mbgw/gw2/t"
+    monkeypatch.setenv("STATE_DIRECTORY", "/var/lib/a:/var/lib/b")
+    assert config_of("slave").table.persist == "/var/lib/a/table"
+
+
+def test_outside_a_unit_the_table_is_not_kept_unless_told(monkeypatch):
+    monkeypatch.delenv("STATE_DIRECTORY", raising=False)
+    assert config_of("slave", "--table").table.persist is None
+    assert config_of("slave", "--table-persist", "off").table.persist is None
+
+
 def test_master_options_build_the_table():
     table = config_of("master", *SLAVEID, "--table", "--table-address", "9",
                       "--table-port", "1502", "--table-functions", "1-7").table

@@ -173,6 +173,29 @@ def test_a_failing_write_is_logged_once_retried_and_never_raised(path, caplog):
     assert restarted(path)[0].read(0x0800) == [2]
 
 
+def test_the_report_says_what_was_saved_and_while_writes_fail_why(path):
+    table = Table()
+    persistence = Persistence(table, path, 10)
+    assert persistence.report() == {"path": str(path), "interval_s": 10, "last_save": None,
+                                    "saves": 0}
+    table.write(0x0800, [1])
+    assert persistence.save()
+    saved = persistence.report()
+    assert saved["saves"] == 1 and isinstance(saved["last_save"], float)
+    assert "failing" not in saved
+    blocker = path.with_name("table.bin.tmp")
+    blocker.mkdir()                                        # the temporary file cannot be made
+    table.write(0x0800, [2])
+    assert not persistence.save()
+    failing = persistence.report()
+    assert failing["failing"] == f"cannot write {path}: Is a directory"
+    assert failing["failing_since"] >= saved["last_save"]
+    assert (failing["saves"], failing["last_save"]) == (1, saved["last_save"])
+    blocker.rmdir()
+    assert persistence.save()
+    assert "failing" not in persistence.report() and persistence.report()["saves"] == 2
+
+
 def test_a_directory_that_is_gone_is_logged_once_and_retried(tmp_path, caplog):
     # (a read-only directory would not stop root, who runs the tests and the service)
     directory = tmp_path / "gone"

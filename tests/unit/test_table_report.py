@@ -120,6 +120,19 @@ def test_status_master_table_section_with_serial_slave_and_persist():
     assert "  serial slave: 9 requests, 1 invalid CRC, 2 invalid length, 0 failed sends" \
         in lines
     assert "  persist /var/lib/mbgw/t: last save 3.0s ago, saves 4" in lines
+    assert not any("FAILING" in line for line in lines)
+
+
+def test_status_says_when_the_table_file_cannot_be_written():
+    table = {"requests": requests(), "exceptions": {},
+             "persist": {"path": "/var/lib/mbgw/table", "interval_s": 10,
+                         "last_save": NOW - 90.0, "saves": 3,
+                         "failing": "cannot write /var/lib/mbgw/table: Read-only file system",
+                         "failing_since": NOW - 80.0}}
+    lines = _table_section(table, "slave", NOW)
+    assert "  persist /var/lib/mbgw/table: every 10s, last save 1m30s ago, saves 3" in lines
+    assert "  persist FAILING since 1m20s ago: cannot write /var/lib/mbgw/table: Read-only " \
+        "file system (changes since the last save are not kept)" in lines
 
 
 # --- /metrics --------------------------------------------------------------------------------

@@ -1,16 +1,19 @@
 """The settings of TLS to upstream servers: the `tls` word of a slaveid range, a TCP
 scenario's `tls`, the [tls] client keys and their checks (certificates made by openssl)."""
+import hashlib
 import ipaddress
 import subprocess
 import sys
 
 import pytest
+from cryptography import x509
+from cryptography.hazmat.primitives.serialization import Encoding
 
 from mbgw.config.model import MasterConfig, SerialConfig, UpstreamTlsConfig
 from mbgw.config.scenario import parse_scenario
-from mbgw.config.slaveid import SlaveIdTable, SlaveRange
+from mbgw.config.slaveid import SlaveIdTable, SlaveRange, parse_fingerprint
 from mbgw.errors import ConfigError
-from mbgw.ops.tls import client_context
+from mbgw.ops.tls import client_context, server_mismatch
 from tests.pki import Authority
 
 
@@ -21,8 +24,43 @@ def test_a_range_with_tls():
     assert SlaveRange.parse(r.line()) == r
     assert str(r) == "1..8 -> 192.168.0.30 unit 1..8 (TLS)"
     assert not SlaveRange.parse("1 8 1 0 192.168.0.30").tls
-    with pytest.raises(ConfigError, match="expected 'FS LS FR M IP' or 'FS LS FR M IP tls'"):
+    with pytest.raises(ConfigError, match="expected 'FS LS FR M IP', 'FS LS FR M IP tls'"):
         SlaveRange.parse("1 8 1 0 192.168.0.30 ssl")
+
+
+PIN = "sha256 Fingerprint=" + ":".join(f"{b:02X}" for b in range(32))
+
+
+def test_a_tls_range_pins_a_fingerprint_and_keeps_it_in_its_line():
+    r = SlaveRange.parse(f"1 4 1 1 10.0.0.1 tls {PIN.split('=')[1]}")
+    assert r.fingerprint == bytes(range(32))
+    assert SlaveRange.parse(r.line()) == r
+    assert SlaveIdTable([r]).pins == {f"10.0.0.{n}": bytes(range(32)) for n in (1, 2, 3, 4)}
+    assert parse_fingerprint("x", PIN) == parse_fingerprint("x", bytes(range(32)).hex()) \
+        == bytes(range(32))
+    for bad in ("AB:CD", "zz" * 32, "1 8 1 0 10.0.0.1 " + "00" * 32):
+        with pytest.raises(ConfigError, match="expected the certificate's SHA-256|expected 'FS"):
+            if bad.startswith("1 8"):
+                SlaveRange.parse(bad)            # a fingerprint without tls
+            else:
+                parse_fingerprint("slaveid", bad)
+
+
+def test_a_server_certificate_is_checked_against_the_address_dialled_or_the_pin(tmp_path):
+    ca = Authority(tmp_path)
+    cert, _ = ca.issue("server", server=True, names="IP:10.0.0.1, DNS:*.plant.example, "
+                                                   "DNS:gw.example")
+    der = x509.load_pem_x509_certificate(cert.read_bytes()).public_bytes(Encoding.DER)
+    assert server_mismatch(der, "10.0.0.1", None) is None
+    assert server_mismatch(der, "gw.example", None) is None
+    assert server_mismatch(der, "GW.example.", None) is None
+    assert server_mismatch(der, "meter.plant.example", None) is None
+    for host in ("10.0.0.2", "a.b.plant.example", "plant.example", "example", "gw"):
+        assert server_mismatch(der, host, None) == \
+            f"the server's certificate is not for {host}", host
+    assert server_mismatch(der, "10.0.0.9", hashlib.sha256(der).digest()) is None
+    assert "not the one pinned" in server_mismatch(der, "10.0.0.1", bytes(32))
+    assert server_mismatch(None, "10.0.0.1", None) == "the server showed no certificate"
 
 
 def test_the_table_knows_its_tls_servers_and_refuses_one_server_both_ways():
@@ -46,6 +84,16 @@ def test_a_tls_scenario_defaults_to_port_802():
     assert scenario().server == "10.0.0.5:502" and not scenario().tls
     assert sc.fields()["tls"] is True and "tls" not in scenario().fields()
     assert parse_scenario(sc.fields(), "again") == sc
+
+
+def test_a_tls_scenario_pins_a_fingerprint():
+    sc = scenario(tls=True, fingerprint=PIN)
+    assert sc.fingerprint == bytes(range(32))
+    assert parse_scenario(sc.fields(), "again") == sc
+    with pytest.raises(ConfigError, match="scenario remote: fingerprint: only with tls = true"):
+        scenario(fingerprint=PIN)
+    with pytest.raises(ConfigError, match="scenario remote: fingerprint 'AB': expected the "):
+        scenario(tls=True, fingerprint="AB")
 
 
 def test_tls_is_for_tcp_scenarios_only():
@@ -119,3 +167,15 @@ def test_config_set_a_tls_range_and_the_client_files(tmp_path, ca):
     done = mbgw("config", "set", "tls", "client-cert", str(ca.cert.parent / "none.pem"),
                 "--config", conf)
     assert done.returncode != 0 and "tls.client-cert" in done.stdout + done.stderr
+
+
+def test_scenarios_that_reach_one_server_pin_it_alike():
+    from mbgw.config.scenario import check_scenarios
+    one = scenario(tls=True, fingerprint=PIN)
+    other = parse_scenario({**one.fields(), "name": "other", "server": "10.0.0.5:8802",
+                            "fingerprint": "00" * 32}, "other")
+    assert check_scenarios([one, other], "slave") == [
+        "scenario other: fingerprint: server 10.0.0.5 is pinned otherwise by scenario remote "
+        "(one certificate per server)"]
+    same = parse_scenario({**one.fields(), "name": "same"}, "same")
+    assert check_scenarios([one, same], "slave") == []

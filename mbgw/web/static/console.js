@@ -408,6 +408,11 @@ function troubles(s) {
       out.push(`Scenario ${sc.name}'s data is stale (${show(sc.data_age_s)} s old).`);
     }
   }
+  const persist = (s.table || {}).persist || {};
+  if (persist.failing) {
+    out.push(`The exchange table is not kept since ${localTime(persist.failing_since)}: ` +
+      `${persist.failing}.`);
+  }
   return out;
 }
 
