@@ -143,7 +143,8 @@ def test_a_handshake_flood_and_garbage_do_not_stall_plain_table_clients(master, 
         assert read_free(plain, 99)[:2] == b"\x03\x04"
         log = gw.log()          # logged once a minute at most per address and reason
         assert log.count("refused: TLS handshake refused") == 1, log
-        assert log.count("refused: 64 TLS handshakes under way already") == 1, log
+        assert log.count(f"refused: {HANDSHAKES_PER_ADDRESS} TLS handshakes of this address "
+                         f"under way already") == 1, log
     finally:
         for sock in idle + garbage:
             sock.close()
