@@ -334,13 +334,30 @@ def _password_hash(label: str):
     return parse
 
 
+_HTTPS_ONLY = "mbgw.web-https-only"     # ctx.meta: https-only seen before --web-cert
+
+
 def _needs_web_cert(ctx, param, value):
-    """https-only without a certificate is refused here, so at start, reload and check-config
-    alike (--web-cert is declared, so parsed, before it)."""
-    if value and ctx.params.get("web_cert") is None:
-        raise click.BadParameter("needs HTTPS: give --web-cert and --web-key (web.cert and "
-                                 "web.key)", param_hint="'--web-https-only'")
+    """https-only without a certificate is refused in the options' callbacks, so at start,
+    reload and check-config alike; click may process either option first."""
+    if value:
+        if "web_cert" not in ctx.params:
+            ctx.meta[(_HTTPS_ONLY, id(ctx))] = True
+        elif ctx.params["web_cert"] is None:
+            _https_only_refused()
     return value
+
+
+def _web_cert(ctx, param, value):
+    value = _tls_file(_check_cert)(ctx, param, value)
+    if value is None and ctx.meta.pop((_HTTPS_ONLY, id(ctx)), False):
+        _https_only_refused()
+    return value
+
+
+def _https_only_refused():
+    raise click.BadParameter("needs HTTPS: give --web-cert and --web-key (web.cert and "
+                             "web.key)", param_hint="'--web-https-only'")
 
 
 # The web console ([web] keys): on with --web; the password hashes are file keys only.
@@ -351,7 +368,7 @@ web_options = stack(
                       "every address); needs an admin password (mbgw config password admin) "
                       "[default: off]."),
     click.option("--web-cert", cls=WebOption, key="web-cert", file_key="cert", metavar="PATH",
-                 default=None, callback=_tls_file(_check_cert),
+                 default=None, callback=_web_cert,
                  help="The web console's certificate (PEM): HTTPS, with --web-key."),
     click.option("--web-key", cls=WebOption, key="web-key", file_key="key", metavar="PATH",
                  default=None, callback=_tls_file(_check_key),

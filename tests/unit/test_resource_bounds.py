@@ -157,3 +157,16 @@ def test_check_config_refuses_https_only_without_a_certificate(tmp_path):
     path.write_text('[serial]\ndevice = "/dev/ttyS0"\n[web]\nhttps-only = true\n')
     result = mbgw("check-config", path)
     assert result.exit_code == 1 and "web.https-only: needs HTTPS" in result.output
+
+
+def test_check_config_accepts_https_only_with_a_certificate(tmp_path):
+    import subprocess
+    cert, key = tmp_path / "web.pem", tmp_path / "web.key"
+    subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout",
+                    str(key), "-out", str(cert), "-days", "2", "-subj", "/CN=localhost"],
+                   check=True, capture_output=True, timeout=60)
+    path = tmp_path / "mbgw.toml"
+    path.write_text(f'[serial]\ndevice = "/dev/ttyS0"\n[web]\nhttps-only = true\n'
+                    f'cert = "{cert}"\nkey = "{key}"\n')
+    result = mbgw("check-config", path)
+    assert result.exit_code == 0, result.output
