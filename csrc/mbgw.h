@@ -202,6 +202,7 @@ long mbgw_client_recv(int client_fd, uint8_t *buf, size_t cap, int64_t *arrived_
 struct mbgw_shortcut {
     const uint8_t *framed;     /* 256 flags: the function codes libmodbus frames */
     const uint8_t *down;       /* 256 flags: the serial addresses that are down (demoted) */
+    const int64_t *late_until; /* by address: the end of its late window (0: none) */
     int64_t quiet_until_ns;    /* the line must stay silent until then */
     int64_t char_ns;
     int64_t stout_ns;
@@ -219,7 +220,7 @@ struct mbgw_shortcut {
  * bytes) into in (mbgw_client_recv).  When that is exactly one Modbus TCP request with a
  * valid header, a function code marked in sc->framed, and a serial address
  * 1..MBGW_MAX_ADDRESS not marked in sc->down (the caller refuses those requests, or sends
- * one as the probe), and the line
+ * one as the probe) nor in its late window (sc->late_until), and the line
  * has been silent until sc->quiet_until_ns, the request goes on the line at once
  * (mbgw_exchange, its reply forwarded to client_fd, which then runs first, and in_flight
  * decremented as it is); the caller keeps the books.  Otherwise sc->result is
@@ -288,6 +289,12 @@ int mbgw_table_write(mbgw_table *t, int address, int count, const uint16_t *in);
 /* The configuration zone's content; registers outside 0x8000-0xFFFF: nothing written. */
 void mbgw_table_set_config(mbgw_table *t, int address, int count, const uint16_t *in);
 
+/* Every write marks its registers written (a bit write its register), whatever the value:
+ * Modbus requests, the operator's writes, scenario reads, persistence, the configuration
+ * zone.  The first register of [first, first + count) never written since the table was
+ * made, -1 when all were, -EINVAL beyond the table.  Write scenarios send only written data. */
+int mbgw_table_unwritten(mbgw_table *t, int first, int count);
+
 /* FC 7's status byte: bit 0 the serial line is down, bit 1 a scenario is in error, bit 2 a
  * device is down: down (256 flags by serial address, the caller's, NULL: none) is read at
  * each FC 7. */
@@ -321,11 +328,11 @@ void mbgw_table_reset_counts(mbgw_table *t);
 
 /* Watches: a change of a value in [first, first + count) sets the watch's flag and, if fd is an
  * eventfd (else -1), writes 1 to it once until the flag is taken (a write that stores the same
- * value changes nothing).  For scenarios sent on change and transparent mode's tx area.
+ * value changes nothing, but with first_writes a register's first write since start does).  For scenarios sent on change and transparent mode's tx area.
  * mbgw_table_watch returns the watch's id, -EINVAL for a bad range, -ENOSPC when all are in
  * use.  mbgw_table_take_change returns the flag and clears it, and copies the range's
  * registers to out (if not NULL) under the same lock, so no change is lost between the two. */
 #define MBGW_TABLE_WATCHES 512
-int mbgw_table_watch(mbgw_table *t, int first, int count, int fd);
+int mbgw_table_watch(mbgw_table *t, int first, int count, int fd, int first_writes);
 void mbgw_table_unwatch(mbgw_table *t, int id);
 int mbgw_table_take_change(mbgw_table *t, int id, uint16_t *out);

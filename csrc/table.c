@@ -57,11 +57,13 @@ static int persisted(unsigned address)
     return address >= OUTPUTS_FIRST && address < CONFIG_FIRST;
 }
 
-static void tell_watchers(mbgw_table *t, unsigned address)
+/* first_write: the register's value is the same, but it had never been written. */
+static void tell_watchers(mbgw_table *t, unsigned address, int first_write)
 {
     for (int i = 0; i < MBGW_TABLE_WATCHES; i++) {
         struct watch *w = &t->watches[i];
-        if (address >= w->first && address < w->end && !w->changed) {
+        if (address >= w->first && address < w->end && !w->changed &&
+            (!first_write || w->first_writes)) {
             w->changed = 1;
             if (w->fd >= 0) {
                 uint64_t one = 1;
@@ -72,13 +74,23 @@ static void tell_watchers(mbgw_table *t, unsigned address)
     }
 }
 
+static int bit_of(const uint8_t *map, unsigned address)
+{
+    return map[address >> 3] >> (address & 7) & 1;
+}
+
+/* Every write of a register comes here: Modbus, the operator, scenarios, persistence. */
 static void set_register(mbgw_table *t, unsigned address, uint16_t value, int *changed)
 {
+    int first_write = !bit_of(t->written, address);
+    t->written[address >> 3] |= (uint8_t)(1u << (address & 7));
     if (t->reg[address] != value) {
         t->reg[address] = value;
         *changed |= persisted(address);
-        if (t->watched[address >> 3] >> (address & 7) & 1)
-            tell_watchers(t, address);
+        if (bit_of(t->watched, address))
+            tell_watchers(t, address, 0);
+    } else if (first_write && bit_of(t->watched, address)) {
+        tell_watchers(t, address, 1);
     }
 }
 
@@ -122,7 +134,7 @@ int status_byte(const mbgw_table *t)
 
 static int is_stale(const mbgw_table *t, unsigned address)
 {
-    return t->stale[address >> 3] >> (address & 7) & 1;
+    return bit_of(t->stale, address);
 }
 
 /* Registers [first, end) hold a stale value (a read touching one answers 0x0B). */
@@ -174,7 +186,25 @@ void mbgw_table_set_config(mbgw_table *t, int address, int count, const uint16_t
         return;
     pthread_mutex_lock(&t->lock);
     memcpy(t->reg + address, in, (size_t)count * sizeof *in);
+    for (unsigned a = (unsigned)address; a < (unsigned)(address + count); a++)
+        t->written[a >> 3] |= (uint8_t)(1u << (a & 7));
     pthread_mutex_unlock(&t->lock);
+}
+
+int mbgw_table_unwritten(mbgw_table *t, int first, int count)
+{
+    if (out_of_range(first, count))
+        return -EINVAL;
+    int found = -1;
+    pthread_mutex_lock(&t->lock);
+    for (unsigned a = (unsigned)first; a < (unsigned)(first + count); a++) {
+        if (!bit_of(t->written, a)) {
+            found = (int)a;
+            break;
+        }
+    }
+    pthread_mutex_unlock(&t->lock);
+    return found;
 }
 
 void mbgw_table_set_flags(mbgw_table *t, int line_down, int scenario_error)
@@ -264,7 +294,7 @@ static void mark_watched(mbgw_table *t)
             t->watched[a >> 3] |= (uint8_t)(1u << (a & 7));
 }
 
-int mbgw_table_watch(mbgw_table *t, int first, int count, int fd)
+int mbgw_table_watch(mbgw_table *t, int first, int count, int fd, int first_writes)
 {
     if (out_of_range(first, count) || count == 0)
         return -EINVAL;
@@ -272,7 +302,8 @@ int mbgw_table_watch(mbgw_table *t, int first, int count, int fd)
     int id = -ENOSPC;
     for (int i = 0; i < MBGW_TABLE_WATCHES; i++) {
         if (t->watches[i].end == 0) {
-            t->watches[i] = (struct watch){(unsigned)first, (unsigned)(first + count), fd, 0};
+            t->watches[i] = (struct watch){(unsigned)first, (unsigned)(first + count), fd, 0,
+                                           first_writes};
             id = i;
             break;
         }
@@ -288,7 +319,7 @@ void mbgw_table_unwatch(mbgw_table *t, int id)
     if (id < 0 || id >= MBGW_TABLE_WATCHES)
         return;
     pthread_mutex_lock(&t->lock);
-    t->watches[id] = (struct watch){0, 0, -1, 0};
+    t->watches[id] = (struct watch){0, 0, -1, 0, 0};
     mark_watched(t);
     pthread_mutex_unlock(&t->lock);
 }

@@ -37,12 +37,14 @@ struct watch {
     unsigned first, end;        /* end == 0: the slot is free */
     int fd;
     int changed;
+    int first_writes;           /* a register's first write counts as a change, same value or not */
 };
 
 struct mbgw_table {
     uint16_t reg[REGISTERS];
     uint8_t watched[REGISTERS / 8];   /* registers inside some watch: the only ones looked up */
     uint8_t stale[REGISTERS / 8];     /* registers whose scenario's data is too old to serve */
+    uint8_t written[REGISTERS / 8];   /* registers written since start, by anyone */
     unsigned stale_count;             /* 0: no read looks at the bitmap */
     struct watch watches[MBGW_TABLE_WATCHES];
     pthread_mutex_t lock;

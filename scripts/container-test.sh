@@ -3,7 +3,8 @@
 # container booted with systemd (systemd-nspawn --boot, a rootfs made by mmdebstrap from Debian's
 # packages), then mbgw.service and mbgw@NAME started, reloaded, restarted and configured through
 # the web console as an operator would, each check on what really happened (the file on disk,
-# the registers read back over Modbus TCP by mbpoll, systemd's own view of the units).
+# the registers read back over Modbus TCP by mbpoll, systemd's own view of the units, the
+# journal's records and their audit fields).
 #
 # Usage: scripts/container-test.sh [mbgw.deb]          (root; systemd-container, mmdebstrap)
 # The rootfs is cached in $MBGW_CI_CACHE (/var/cache/mbgw-ci), keyed by the package's Depends,
@@ -171,6 +172,14 @@ done
 echo "$PASSWORD" | inside mbgw config password admin --stdin >/dev/null
 [ "$(inside stat -c '%U:%G %a' /etc/mbgw/mbgw.toml)" = "root:mbgw 640" ] \
     || fail "mbgw.toml with a password: $(inside stat -c '%U:%G %a' /etc/mbgw/mbgw.toml)"
+out=$(inside mbgw config show --security --json | inside python3 -c '
+import json, sys
+r = json.load(sys.stdin)
+f = r["file"]
+print(f["owner"], f["group"], f["mode"], f["others_can_read"], r["web"]["users"],
+      [(li["name"], li["port"]) for li in r["listeners"] if "port" in li])')
+[ "$out" = "root mbgw 0640 False ['admin'] [('modbus', 502)]" ] \
+    || fail "mbgw config show --security: $out"
 inside systemctl start mbgw || fail "systemctl start mbgw"
 
 show() { inside systemctl show -P "$2" "$1"; }
@@ -246,6 +255,31 @@ print(json.dumps(call("/api/config/file", text, csrf, raw=True)))') \
 inside grep -qx 'stout = 800' /etc/mbgw/mbgw.toml || fail "the uploaded file is not on disk: $out"
 wait_for "stout 800 applied" stout_is 800
 [ "$(show mbgw MainPID)" = "$pid" ] || fail "the console's changes restarted the daemon"
+
+# --- the journal: the daemon's lines are native records; the audit events carry their ids ------
+say "the journal: audit records of mbgw config set, the console's login and change, the reload"
+CONFIG_CHANGED=1ce6a4d2f3db44198e8f659af73c0a8f LOGIN_OK=9be3c857f46d4d9088c84b0c6933833a
+# journal_has MATCHES... CONDITION: journalctl -o json MATCHES has a record r for which the
+# python3 expression CONDITION holds
+journal_has() {
+    inside journalctl -o json --no-pager "${@:1:$#-1}" | inside python3 -c "
+import json, sys
+sys.exit(not any(${*: -1} for r in map(json.loads, sys.stdin)))"
+}
+wait_for "mbgw config set's record (root, from the CLI)" journal_has MESSAGE_ID=$CONFIG_CHANGED \
+    MBGW_SOURCE=cli 'r["MBGW_KEYS"] == "serial.device" and r["_UID"] == "0"
+        and r["MBGW_FILE"] == "/etc/mbgw/mbgw.toml" and r["SYSLOG_IDENTIFIER"] == "mbgw"'
+wait_for "the console's login record" journal_has MESSAGE_ID=$LOGIN_OK \
+    _SYSTEMD_UNIT=mbgw.service 'r["MBGW_USER"] == "admin" and r["MBGW_CLIENT"] == "127.0.0.1"
+        and r["PRIORITY"] == "6" and r["_TRANSPORT"] == "journal"'
+wait_for "the console's change record" journal_has MESSAGE_ID=$CONFIG_CHANGED \
+    _SYSTEMD_UNIT=mbgw.service 'r["MBGW_SOURCE"] == "web" and r["MBGW_KEYS"] == "serial.stout"
+        and r["MBGW_USER"] == "web admin@127.0.0.1"'
+wait_for "the reload's record" journal_has MESSAGE_ID=$CONFIG_CHANGED _SYSTEMD_UNIT=mbgw.service \
+    'r["MBGW_SOURCE"] == "sighup" and "stout" in r["MBGW_KEYS"]'
+journal_has _SYSTEMD_UNIT=mbgw.service _TRANSPORT=journal \
+    'r["MESSAGE"].startswith("mbgw: slave mode: listening on") and r["MBGW_LOGGER"] == "mbgw"' \
+    || fail "the daemon's lines are not native journal records"
 
 say "a wrong file is refused at reload, the running settings kept"
 inside cp -p /etc/mbgw/mbgw.toml /root/good.toml

@@ -18,9 +18,11 @@ $SUDO apt-get build-dep -y -qq ./
 # chromium with its driver (the web console's browser tests drive it through selenium), and
 # systemd-container and mmdebstrap (scripts/container-test.sh boots the package under systemd
 # in a Debian 12 container; without recommends: libnss-mymachines would edit the host's
-# nsswitch.conf)
+# nsswitch.conf), and AFL++ with clang's sanitizer runtime (scripts/fuzz.sh: afl-clang-fast
+# with AddressSanitizer)
 $SUDO apt-get install -y -qq --no-install-recommends python3-venv socat mbpoll lintian systemd \
-    tshark openssl sslscan chromium chromium-driver systemd-container mmdebstrap
+    tshark openssl sslscan chromium chromium-driver systemd-container mmdebstrap afl++ \
+    libclang-rt-14-dev
 
 # Debian's own python3, the interpreter the .deb runs on (never a pyenv shim).
 /usr/bin/python3 -m venv .venv

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import click
 
-from mbgw.cli.options import Failure
+from mbgw.cli import checks
+from mbgw.cli.options import EX_CONFIG, META_FILE, Failure
 from mbgw.config import edit as config_set
 from mbgw.config import file as cf
 from mbgw.config import scenario as scenario_config
@@ -17,9 +18,7 @@ from mbgw.config.toml_text import dump_value, set_line, write_atomic
 from mbgw.errors import ConfigError, ConfigFileError
 
 SHOW_WIDTH = 16                    # the key column of `mbgw config show`
-META_FILE = "mbgw.config_file"     # ctx.meta: the file the running mode command took values from
 META_MODE_FROM_FILE = "mbgw.mode_from_file"   # ctx.meta: `mbgw run` took the mode from it
-EX_CONFIG = 78                     # sysexits.h; the units do not restart on it
 
 
 def register(root: click.Group) -> None:
@@ -33,7 +32,7 @@ def register(root: click.Group) -> None:
         root.add_command(command)
 
 
-def _schema(ctx: click.Context) -> ck.Schema:
+def schema_of(ctx: click.Context) -> ck.Schema:
     root = ctx.find_root().command
     if not isinstance(root, click.Group) or not any(m in root.commands for m in ck.MODES):
         root = click.Group(commands=[ctx.command])
@@ -44,9 +43,9 @@ def _command_line(ctx: click.Context, *words) -> str:
     return shlex.join([*ctx.command_path.split(), *map(str, words)])
 
 
-def _permission_failure(ctx, path, doing: str, words) -> Failure:
+def _permission_failure(ctx, path, doing: str, words, exit_code: int = 1) -> Failure:
     return Failure(f"cannot {doing} {path}: permission denied; run it as root: "
-                   f"sudo {_command_line(ctx, *words)}")
+                   f"sudo {_command_line(ctx, *words)}", exit_code)
 
 
 def _load(ctx: click.Context, schema: ck.Schema, path: Path, words=(),
@@ -54,7 +53,7 @@ def _load(ctx: click.Context, schema: ck.Schema, path: Path, words=(),
     try:
         return cf.load(schema, path)
     except PermissionError:
-        raise _permission_failure(ctx, path, "read", words) from None
+        raise _permission_failure(ctx, path, "read", words, exit_code) from None
     except ConfigFileError as err:
         raise Failure(str(err), exit_code) from None
 
@@ -94,7 +93,7 @@ def _apply_file(ctx: click.Context, param: click.Parameter, value) -> None:
         if not ck.DEFAULT_PATH.exists():
             return
         value = ck.DEFAULT_PATH
-    schema = _schema(ctx)
+    schema = schema_of(ctx)
     settings = _load(ctx, schema, Path(value), exit_code=EX_CONFIG)
     ctx.default_map = {**settings.default_map(schema, ctx.command.name or ""),
                        **(ctx.default_map or {})}
@@ -120,7 +119,7 @@ def reloader(ctx: click.Context | None = None):
     if path is None:
         return None
     mode = ctx.command.name
-    root = _schema(ctx).root
+    root = schema_of(ctx).root
     kept = {name: ctx.params[name] for name in ctx.params
             if ctx.get_parameter_source(name) in (click.core.ParameterSource.COMMANDLINE,
                                                   click.core.ParameterSource.ENVIRONMENT)}
@@ -178,13 +177,30 @@ def _say_how_to_apply(path: Path) -> None:
         click.echo(f"apply it with: systemctl reload mbgw@{path.stem}")
 
 
-def _write(ctx, path: Path, text: str, words) -> None:
+def _write(ctx, path: Path, text: str, words, what: str) -> None:
+    """Write the file; what: the change, for the journal's audit event."""
     try:
         write_atomic(path, text)
     except PermissionError:
         raise _permission_failure(ctx, path, "write", words) from None
     except OSError as err:
         raise Failure(f"cannot write {path}: {err.strerror or err}") from None
+    _audit(ctx, path, what)
+
+
+def _audit(ctx, path: Path, what: str) -> None:
+    """A change of the file as an audit event in the journal (journald adds the sender's
+    _UID, _PID and _COMM itself); nothing on a machine without one."""
+    import os
+
+    from mbgw.audit import Kind
+    from mbgw.ops.log import journal_event
+    user = f"uid {os.getuid()}"
+    if os.environ.get("SUDO_UID"):
+        user += f" (sudo from uid {os.environ['SUDO_UID']})"
+    journal_event("mbgw.config", Kind.CONFIG_CHANGED,
+                  f"configuration changed by {ctx.command_path} ({user}): {path}: {what}",
+                  source="cli", user=user, keys=what, file=str(path))
 
 
 # --- mbgw run, mbgw check-config ----------------------------------------------------------------
@@ -199,7 +215,7 @@ def run(ctx: click.Context, config_path: Path, instance: str | None, args) -> No
     runs.  Options after the file options are the mode command's and win over the file,
     e.g. `mbgw run --log-level debug`.  Exit status 78 when the file is wrong."""
     path = _path(ctx, config_path, instance)
-    schema = _schema(ctx)
+    schema = schema_of(ctx)
     settings = _load(ctx, schema, path, exit_code=EX_CONFIG)
     command = schema.commands[settings.mode]
     ctx.meta[META_FILE] = path                  # shared with the mode command's context
@@ -219,16 +235,18 @@ def run(ctx: click.Context, config_path: Path, instance: str | None, args) -> No
 @click.pass_context
 def check_config(ctx: click.Context, file: Path | None) -> None:
     """Check a configuration file without starting anything: every key known, every value
-    accepted as on the command line, what its mode requires present.  FILE defaults to
-    $MBGW_CONFIG, else /etc/mbgw/mbgw.toml."""
+    accepted as on the command line, what its mode requires present, the keys that go
+    together, the files it names (certificates and their keys, the table's file) and the
+    addresses it listens on: whatever `mbgw run` would refuse.  Exit status 78 when the file
+    is wrong.  FILE defaults to $MBGW_CONFIG, else /etc/mbgw/mbgw.toml."""
     import os
     path = file or Path(os.environ.get("MBGW_CONFIG") or ck.DEFAULT_PATH)
-    schema = _schema(ctx)
-    settings = _load(ctx, schema, path, [path])
+    schema = schema_of(ctx)
+    settings = _load(ctx, schema, path, [path], exit_code=EX_CONFIG)
     try:
-        cf.resolve(schema, settings)
+        checks.check_file(schema, settings)
     except ConfigFileError as err:
-        raise Failure(str(err)) from None
+        raise Failure(str(err), EX_CONFIG) from None
     click.echo(f"{path}: ok ({settings.mode} mode)")
 
 
@@ -244,22 +262,37 @@ def config() -> None:
 
 @config.command("show")
 @_file_options
+@click.option("--security", is_flag=True,
+              help="The security settings in force instead: listeners (address, port, plain "
+                   "or TLS, limits), TLS versions and suites, CRL, authip, the firewall, the "
+                   "web console (which passwords are set, never their hashes), the control "
+                   "socket, and who may read the file.")
+@click.option("--json", "as_json", is_flag=True, help="With --security: as a JSON document.")
 @click.argument("group", required=False, type=click.Choice([*ck.GROUPS, cf.SCENARIO_KEY]))
 @click.argument("param", required=False)
 @click.pass_context
-def show(ctx, config_path: Path, instance: str | None, group: str | None,
-         param: str | None) -> None:
+def show(ctx, config_path: Path, instance: str | None, security: bool, as_json: bool,
+         group: str | None, param: str | None) -> None:
     """Show the settings in effect (the file's, else the built-in defaults): all, one GROUP
     (serial, net, general, table), or one PARAM, like the guide's `show serial stout`;
-    `show scenario [NAME]`: the scenarios."""
+    `show scenario [NAME]`: the scenarios; `show --security [--json]`: the security
+    settings in force."""
+    if as_json and not security:
+        raise click.UsageError("--json goes with --security")
+    if security and group is not None:
+        raise click.UsageError("--security shows them all: give no GROUP")
     path = _path(ctx, config_path, instance)
-    schema = _schema(ctx)
+    schema = schema_of(ctx)
     if path.exists():
         settings = _load(ctx, schema, path, [*filter(None, (group, param)),
+                                             *(["--security"] if security else []),
                                              *_file_words(ctx, path)])
     else:
         click.echo(f"mbgw: {path} does not exist: built-in defaults", err=True)
         settings = cf.Settings(path, schema.default_mode, {})
+    if security:
+        _show_security(schema, settings, as_json)
+        return
     if group == cf.SCENARIO_KEY:
         _show_scenarios(settings, param)
         return
@@ -283,6 +316,18 @@ def show(ctx, config_path: Path, instance: str | None, group: str | None,
                 click.echo(f"{schema.file_name(name):<{SHOW_WIDTH}} {line}")
     if group is None and settings.scenarios:
         _show_scenarios(settings, None)
+
+
+def _show_security(schema: ck.Schema, settings: cf.Settings, as_json: bool) -> None:
+    import json
+
+    from mbgw.cli import security
+    found = security.report(schema, settings)
+    if as_json:
+        click.echo(json.dumps(found, indent=2))
+    else:
+        for line in security.text(found):
+            click.echo(line)
 
 
 def _show_scenarios(settings: cf.Settings, name: str | None) -> None:
@@ -324,31 +369,56 @@ def _change(ctx, path: Path, words, change, shown: bool = True) -> None:
     """Read the file (or start from the factory file), make `change(schema, settings, data)`
     -> {key: value}, check the whole result, write it atomically, say what changed (its
     value too when `shown`)."""
-    schema = _schema(ctx)
+    schema = schema_of(ctx)
     text, data, settings = _read_checked(ctx, schema, path, words)
     try:
         changes = change(schema, settings, data)
         new_data = config_set.apply_changes(data, schema, changes)
-        cf.check(schema, path, new_data)
+        pending = _start_check(schema, path, new_data)
     except ConfigError as err:
-        message = str(err)
-        raise Failure(message if message.startswith(str(path)) else f"{path}: {message}") \
-            from None
+        raise _refused(path, err) from None
     new_mode = changes.get(ck.MODE_KEY, settings.mode)
     new_text = config_text.edit(text, schema, new_mode, changes)
     if tomllib.loads(new_text) != new_data:          # the editor's own check
         raise Failure(f"{path}: could not edit the file in place; nothing written")
-    _write(ctx, path, new_text, words)
+    labels = {name: schema.label(name) if name == ck.MODE_KEY or name in schema.keys else name
+              for name in changes}
+    _write(ctx, path, new_text, words, ", ".join(labels.values()))
     for name, value in changes.items():
-        label = schema.label(name) if name == ck.MODE_KEY or name in schema.keys else name
+        label = labels[name]
         if value is config_set.REMOVE:
             click.echo(f"{path}: {label} back to its default")
         elif not shown:
             click.echo(f"{path}: {label} set")
         else:
             click.echo(f"{path}: {label} = {dump_value(value)}")
-    if text != new_text:
+    _warn_pending(path, pending)
+    if text != new_text and not pending:
         _say_how_to_apply(path)
+
+
+def _start_check(schema: ck.Schema, path: Path, data: dict) -> list[str]:
+    """The checks of the file and of `mbgw run` (mbgw.cli.checks) on an edit's result:
+    raises ConfigError on a problem the edit must not write; the keys that do not go
+    together yet (another `set` mends them)."""
+    wrong, pending = checks.refusals(schema, cf.check(schema, path, data))
+    if wrong:
+        raise ConfigFileError(path, [*wrong, "nothing written"])
+    return pending
+
+
+def _refused(path: Path, err: ConfigError) -> Failure:
+    message = str(err)
+    return Failure(message if message.startswith(str(path)) else f"{path}: {message}")
+
+
+def _warn_pending(path: Path, pending: list[str]) -> None:
+    """Written, but the service would not start it, nor take it on a reload, yet."""
+    for problem in pending:
+        click.echo(f"mbgw: warning: {path}: {problem}", err=True)
+    if pending:
+        click.echo(f"mbgw: warning: {path}: mbgw run and systemctl reload refuse the file "
+                   f"until this is set; mbgw check-config checks it", err=True)
 
 
 @config.command("set")
@@ -397,7 +467,7 @@ def unset(ctx, config_path: Path, instance: str | None, group: str, param: str) 
 
 def _unset(ctx, path: Path, words, group: str, param: str) -> None:
     """Works on the text, even when the key is unknown (a typo) or its value is bad."""
-    schema = _schema(ctx)
+    schema = schema_of(ctx)
     try:
         text = cf.read_text(path)
     except FileNotFoundError:
@@ -424,9 +494,12 @@ def _unset(ctx, path: Path, words, group: str, param: str) -> None:
         write_atomic(path, new_text)
     except PermissionError:
         raise _permission_failure(ctx, path, "write", words) from None
+    _audit(ctx, path, f"{group}.{param}")
     click.echo(f"{path}: {group}.{param} back to its default")
     try:
-        cf.check(schema, path, new_data)
+        wrong, pending = checks.refusals(schema, cf.check(schema, path, new_data))
+        if wrong or pending:
+            raise ConfigFileError(path, [*wrong, *pending])
     except ConfigFileError as err:
         raise Failure(f"{err}\n(the file still has these problems)") from None
     _say_how_to_apply(path)
@@ -501,7 +574,8 @@ def default(ctx, config_path: Path, instance: str | None) -> None:
     """Write the factory defaults: the guide's `set default`.  Every key is listed with its
     help, commented out at its built-in default; the device is /dev/ttyUSB0."""
     path = _path(ctx, config_path, instance)
-    _write(ctx, path, config_text.factory_text(_schema(ctx)), _file_words(ctx, path))
+    _write(ctx, path, config_text.factory_text(schema_of(ctx)), _file_words(ctx, path),
+           "factory defaults")
     click.echo(f"{path}: factory defaults written")
     _say_how_to_apply(path)
 
@@ -524,8 +598,9 @@ def config_scenario() -> None:
 def scenario_add(ctx, config_path: Path, instance: str | None, name: str, keys: tuple) -> None:
     """Add scenario NAME with the keys of a [[scenario]] table: slave (serial) or server
     and unit (TCP), function, address, quantity, table, cycle (ms) or trigger=change, and
-    retries, stale-after, enabled; function 23: read-address, read-quantity, read-table,
-    write-address, write-quantity, write-table.  See mbgw.toml(5), SCENARIOS.  E.g.
+    retries, stale-after, enabled, send-unwritten; function 23: read-address,
+    read-quantity, read-table, write-address, write-quantity, write-table.  See
+    mbgw.toml(5), SCENARIOS.  E.g.
 
     \b
       mbgw config scenario add boiler-temps slave=45 function=3 address=1000 quantity=10 \\
@@ -571,15 +646,15 @@ def scenario_remove(ctx, config_path: Path, instance: str | None, name: str) -> 
 def _edit_scenarios(ctx, path: Path, words, change, done: str) -> None:
     """Read and check the file (or start from the factory file), new_text = change(text,
     data), check the result as a whole, write it atomically."""
-    schema = _schema(ctx)
+    schema = schema_of(ctx)
     text, data, _ = _read_checked(ctx, schema, path, words)
     try:
         new_text = change(text, data)
-        cf.check(schema, path, cf.parse(path, new_text))
+        pending = _start_check(schema, path, cf.parse(path, new_text))
     except ConfigError as err:
-        message = str(err)
-        raise Failure(message if message.startswith(str(path)) else f"{path}: {message}") \
-            from None
-    _write(ctx, path, new_text, words)
+        raise _refused(path, err) from None
+    _write(ctx, path, new_text, words, done)
     click.echo(f"{path}: {done}")
-    _say_how_to_apply(path)
+    _warn_pending(path, pending)
+    if not pending:
+        _say_how_to_apply(path)

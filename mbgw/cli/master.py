@@ -5,6 +5,7 @@ import click
 from click.core import ParameterSource
 
 from mbgw.cli.options import (
+    ModeCommand,
     convert,
     daemon_options,
     demotion,
@@ -28,7 +29,7 @@ from mbgw.config.slaveid import MAX_RANGES, SlaveIdTable
 SLAVE_MODE_ONLY = ("stout", "nocheck")
 
 
-@click.command()
+@click.command(cls=ModeCommand)
 @serial_options
 @click.option("--slaveid", "slaveid", multiple=True, metavar='"FS LS FR M IP [tls]"',
               callback=parser(SlaveIdTable.parse),
@@ -102,3 +103,6 @@ def master_config(device, protocol, baudrate, line_format, interface, rtsdelays,
         max_connections=max_connections, control=control, metrics=metrics,
         demotion=demotion(down_after, probe_interval), table=table,
         firewall=firewall, scenarios=scenarios, tls=tls))
+
+
+master.make_config = master_config

@@ -1,6 +1,7 @@
 """What the mode commands share: the serial line's options, the operator's tools, turning a
 configuration error into a usage error, and the one way a command fails."""
 import os
+from collections.abc import Callable
 
 import click
 
@@ -22,6 +23,32 @@ class Failure(click.ClickException):
             click.echo(f"mbgw: {line}", file=file, err=file is None)
 
 
+EX_CONFIG = 78                     # sysexits.h; the units do not restart on it
+META_FILE = "mbgw.config_file"     # ctx.meta: the file the running mode command took values from
+
+
+class ModeCommand(click.Command):
+    """A mode command (slave, master, transparent): make_config(**params) builds the
+    settings its daemon starts with (mbgw.cli.checks).  A value from its configuration file
+    that a check of the options refuses (the CRL and the CA, checked together) is the file's
+    problem: EX_CONFIG, naming the file and the key, not a usage error."""
+    make_config: Callable | None = None
+
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        try:
+            return super().parse_args(ctx, args)
+        except click.BadParameter as err:
+            path, param, root = ctx.meta.get(META_FILE), err.param, ctx.find_root().command
+            if path is None or param is None or param.name is None or \
+                    ctx.get_parameter_source(param.name) \
+                    is not click.core.ParameterSource.DEFAULT_MAP:
+                raise
+            from mbgw.config.schema import Schema
+            key = Schema(root).key_of_param(param) if isinstance(root, click.Group) else None
+            label = key.label if key is not None else param.name
+            raise Failure(f"{path}: {label}: {err.message}", EX_CONFIG) from None
+
+
 LOG_LEVELS = click.Choice(["debug", "info", "warning", "error"], case_sensitive=False)
 
 
@@ -39,11 +66,29 @@ def parser(parse):
     return callback
 
 
+def parse_bind(value):
+    """--bind: an IP address (the listeners bind it as given, scope id included)."""
+    if value is not None:
+        try:
+            config.parse_ip("bind", value)
+        except ConfigError:
+            raise ConfigError(f"{value!r} is not an IP address") from None
+    return value
+
+
 def _parse_metrics(value):
     if value is not None:
         from mbgw.ops.metrics_server import parse_address
         parse_address(value)
     return value
+
+
+def _check_device(path):
+    """A path that can never be a serial device is refused (start, reload, check-config)."""
+    from mbgw.config.device import device_problem
+    if path is not None and (problem := device_problem(path)):
+        raise ConfigError(problem)
+    return path
 
 
 def stack(*decorators):
@@ -56,7 +101,9 @@ def stack(*decorators):
 
 serial_options = stack(
     click.option("--device", cls=SerialOption, required=True, metavar="PATH",
-                 help="Serial device, e.g. /dev/ttyUSB0."),
+                 callback=parser(_check_device),
+                 help="Serial device, e.g. /dev/ttyUSB0; one that is not there yet is "
+                      "waited for."),
     click.option("--protocol", cls=SerialOption, type=click.Choice(config.PROTOCOLS),
                  default=config.SerialConfig.protocol, show_default=True,
                  help="Modbus framing on the serial line."),
@@ -416,6 +463,11 @@ daemon_options = stack(
                  help="Serve Prometheus metrics on http://ADDR:PORT/metrics ([IPV6]:PORT; "
                       ":PORT for every address) [default: off]."),
     click.option("--log-level", type=LOG_LEVELS, default="info", show_default=True),
+    click.option("--log-format", type=click.Choice(["text", "json"]), default="text",
+                 show_default=True,
+                 help="text: lines for people (under systemd: journal records with the "
+                      "audit events' MESSAGE_ID and fields); json: one JSON object per line on "
+                      "stderr with the same fields."),
     click.option("--firewall", type=_FirewallRules(), default=None, hidden=True,
                  help="The configuration file's [[rule]] tables and [firewall] group."),
     web_options,

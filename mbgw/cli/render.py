@@ -57,7 +57,7 @@ def _transparent_sections(s: dict) -> list[str]:
     eof = f"char 0x{t['eof_char']:02x}" if t["eof"] == "char" else t["eof"]
     raw = "off" if t["raw_port"] is None else \
         f"port {t['raw_port']}, client {t['raw_client'] or 'none'}"
-    return [f"{_line(s['serial'])}: line {s['serial']['state']}",
+    return [f"{_line(s['serial'])}: line {_state(s['serial'])}",
             f"frames     eof {eof}, eof-timeout {t['eof_timeout_ms']} ms, crc "
             f"{'on' if t['crc'] else 'off'}, trigger {'on' if t['trigger'] else 'off'}, "
             f"silence {t['silence_ms']} ms",
@@ -69,6 +69,13 @@ def _transparent_sections(s: dict) -> list[str]:
 def _line(serial: dict) -> str:
     return (f"serial     {serial['device']} {serial['baudrate']} {serial['format']} "
             f"{serial['protocol']} {serial['interface']}")
+
+
+def _state(serial: dict) -> str:
+    """The line's state; "waiting": nothing at the device's path yet."""
+    if serial["state"] == "waiting":
+        return "down, waiting for the device to appear"
+    return serial["state"]
 
 
 def _exceptions(d: dict) -> str:
@@ -130,7 +137,7 @@ def _slave_sections(s: dict, now: float) -> list[str]:
     serial = s["serial"]
     lines = [
         f"listening  {', '.join(s['listening'])}",
-        f"{_line(serial)}, stout {serial['stout_ms']} ms: line {serial['state']}, "
+        f"{_line(serial)}, stout {serial['stout_ms']} ms: line {_state(serial)}, "
         f"queue {s['queue_depth']}, utilisation {s['line_utilisation_pct']:.1f} %",
         "",
         f"clients ({len(s['clients'])})",
@@ -157,7 +164,7 @@ def _slave_sections(s: dict, now: float) -> list[str]:
 def _master_sections(s: dict, now: float) -> list[str]:
     up = s["upstream"]
     lines = [
-        f"{_line(s['serial'])}: line {s['serial']['state']}",
+        f"{_line(s['serial'])}: line {_state(s['serial'])}",
         f"servers    port {up['port']}, tcpto {up['tcpto_ms']} ms, exception "
         f"{'on' if up['exception'] else 'off'}, at most {up['max_connections']} connections",
     ]
@@ -267,7 +274,7 @@ def _table_persist(persist: dict, now: float) -> str:
 # --- the scenarios (mbgw status, mbgw scenarios) ---------------------------------------------
 
 def format_scenarios(rows: list[dict], now: float) -> list[str]:
-    """One line per scenario, then its error message when in error."""
+    """One line per scenario, then its message (an error's, or why it waits)."""
     if not rows:
         return ["scenarios  none"]
     lines = [f"scenarios ({len(rows)})",
@@ -283,8 +290,10 @@ def format_scenarios(rows: list[dict], now: float) -> list[str]:
                      f"{r['function']:>2} {r['trigger']:<8} {r['runs']:>7} "
                      f"{sum(r['errors'].values()):>6} {r['retries']:>5} {r['overruns']:>7} "
                      f"{latency:>8}  {age:<9} {_ago(r['last_success'], now)}")
-        if r["state"] == "error" and r["message"]:
-            lines.append(f"    error: {r['message']}")
+        if r["message"]:
+            probe = r.get("next_probe_in_s")
+            lines.append(f"    {'error: ' if r['state'] == 'error' else ''}{r['message']}" +
+                         ("" if probe is None else f", next probe in {probe:.1f} s"))
     return lines
 
 
@@ -311,7 +320,8 @@ def format_event(e: dict) -> str:
     if e.get("mode") == "master":
         tid = "-" if e["tid"] is None else e["tid"]
         unit = "-" if e["unit"] is None else e["unit"]
-        where = f"{e['address']:>4} {e['server'] or '-':<21}"
+        address = "-" if e["address"] is None else e["address"]
+        where = f"{address:>4} {e['server'] or '-':<21}"
     else:
         tid, unit, where = e["tid"], e["unit"], f"{e['peer']:<24}"
     return (f"{stamp:<15} {e['direction']:<9} {where} {tid:>5} {unit:>4} "

@@ -2,10 +2,12 @@
 import click
 
 from mbgw.cli.options import (
+    ModeCommand,
     convert,
     daemon_options,
     demotion,
     demotion_options,
+    parse_bind,
     parser,
     serial_config,
     serial_options,
@@ -30,7 +32,7 @@ def _parse_units(value) -> tuple[int, ...]:
     return config.parse_number_list("table-units", value, 1, 255)
 
 
-@click.command()
+@click.command(cls=ModeCommand)
 @serial_options
 @click.option("--slaveid", type=click.IntRange(*config.SLAVEID_RANGE),
               default=config.SlaveConfig.slaveid, show_default=True,
@@ -44,8 +46,8 @@ def _parse_units(value) -> tuple[int, ...]:
 @click.option("--mdbport", type=click.IntRange(*config.MDBPORT_RANGE),
               default=config.SlaveConfig.mdbport, show_default=True,
               help="Modbus TCP port to listen on (0: none, Modbus/TCP Security only).")
-@click.option("--bind", metavar="ADDR", default=None,
-              help="Listen on this address only [default: all, IPv4 and IPv6].")
+@click.option("--bind", metavar="ADDR", default=None, callback=parser(parse_bind),
+              help="Listen on this IP address only [default: all, IPv4 and IPv6].")
 @click.option("--max-connections", type=click.IntRange(*config.MAX_CONNECTIONS_RANGE),
               default=config.SlaveConfig.max_connections, show_default=True,
               help="Simultaneous TCP clients (closed ones do not count); a newcomer closes an "
@@ -58,6 +60,12 @@ def _parse_units(value) -> tuple[int, ...]:
 @click.option("--retries", type=click.IntRange(*config.RETRIES_RANGE),
               default=config.SlaveConfig.retries, show_default=True,
               help="Times a request is repeated after no valid reply.")
+@click.option("--late-window", type=click.IntRange(*config.LATE_WINDOW_RANGE), default=None,
+              metavar="MS",
+              help="After a request to a serial address timed out, its next request waits "
+                   "until the late reply has come (it is dropped) or the line has been quiet "
+                   "this long past the timeout; other addresses are served meanwhile.  0: no "
+                   "wait.  0..65535 ms [default: stout].")
 @click.option("--turnaround", type=click.IntRange(*config.TURNAROUND_RANGE),
               default=config.SlaveConfig.turnaround_ms,
               show_default=True, metavar="MS",
@@ -99,7 +107,7 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
                  probe_interval=config.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
                  tls_port=config.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
                  tls_require_role=True, tls_crl=None,
-                 tcpto=config.DEFAULT_TCPTO_MS,
+                 tcpto=config.DEFAULT_TCPTO_MS, late_window=None,
                  **table_settings) -> config.SlaveConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
@@ -114,6 +122,10 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
         upstream_tls=upstream_tls,
         bind=bind, max_connections=max_connections,
         max_connections_per_ip=max_connections_per_ip, retries=retries,
-        turnaround_ms=turnaround, control=control, metrics=metrics, shortcut=shortcut,
+        turnaround_ms=turnaround, late_window_ms=late_window, control=control,
+        metrics=metrics, shortcut=shortcut,
         demotion=demotion(down_after, probe_interval), table=table, tcpto_ms=tcpto,
         firewall=firewall, scenarios=scenarios, tls=tls))
+
+
+slave.make_config = slave_config

@@ -3,8 +3,10 @@ that speaks no Modbus, through the exchange table served on mdbport (VPGate 3.8)
 import click
 
 from mbgw.cli.options import (
+    ModeCommand,
     convert,
     daemon_options,
+    parse_bind,
     parser,
     serial_config,
     serial_options,
@@ -26,7 +28,7 @@ def _option(flag: str, key: str, **kwargs):
     return click.option(flag, cls=TransparentOption, key=key, show_default=True, **kwargs)
 
 
-@click.command()
+@click.command(cls=ModeCommand)
 @serial_options
 @click.option("--authip", multiple=True, metavar="IP", callback=parser(_parse_authip),
               help="Client address allowed to connect to mdbport and raw-port (repeat, at "
@@ -35,8 +37,8 @@ def _option(flag: str, key: str, **kwargs):
               default=config.DEFAULT_MDBPORT, show_default=True,
               help="Modbus TCP port where clients reach the exchange table (every unit id; "
                    "unit 0 is a broadcast write); 0: TLS only (--tls-cert).")
-@click.option("--bind", metavar="ADDR", default=None,
-              help="Listen on this address only [default: all, IPv4 and IPv6].")
+@click.option("--bind", metavar="ADDR", default=None, callback=parser(parse_bind),
+              help="Listen on this IP address only [default: all, IPv4 and IPv6].")
 @click.option("--tcpto", type=click.IntRange(*config.TCPTO_RANGE),
               default=config.DEFAULT_TCPTO_MS, show_default=True, metavar="MS",
               help="TCP scenarios: the time for a transaction with a server, connecting "
@@ -109,3 +111,6 @@ def transparent_config(device, protocol, baudrate, line_format, interface, rtsde
         serial=serial, transparent=frames, authip=authip, mdbport=mdbport, bind=bind,
         control=control, metrics=metrics, firewall=firewall, scenarios=scenarios,
         tcpto_ms=tcpto, tls=tls))
+
+
+transparent.make_config = transparent_config

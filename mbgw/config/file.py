@@ -197,8 +197,10 @@ def resolve(schema: Schema, settings: Settings, args=(), mode: str | None = None
     if any(p.required and p.name in given for p in command.params):
         command = copy.copy(command)
         command.params = [_optional(p) if p.name in given else p for p in command.params]
+    # the root's help options: click keeps the first context's on the command (-h, later)
+    helps = (schema.root.context_settings or {}).get("help_option_names", ["--help"])
     try:
-        ctx = command.make_context(mode, list(args),
+        ctx = command.make_context(mode, list(args), help_option_names=helps,
                                    default_map=settings.default_map(schema, mode))
     except click.ClickException as err:
         raise ConfigFileError(settings.path, [click_problem(schema, settings, err)]) from None

@@ -31,6 +31,9 @@ MDBPORT_RANGE = (0, 65535)      # slave mode: 0 is no plain Modbus TCP (TLS only
 MAX_CONNECTIONS_RANGE = (1, 1000)
 MAX_CONNECTIONS_PER_IP_RANGE = (0, 1000)
 RETRIES_RANGE = (0, 10)
+# After a timeout, an address's next request waits until its late reply has come or the line
+# has been quiet this long past the timeout (ms; 0: no wait).  Default: stout.
+LATE_WINDOW_RANGE = (0, 65535)
 TURNAROUND_RANGE = (0, 65535)
 DEFAULT_MDBPORT = 502
 DEFAULT_MAX_CONNECTIONS = 5
@@ -169,28 +172,30 @@ def state_directory() -> str:
 
 
 def check_persist_path(text: str) -> str:
-    """table-persist's file: an absolute path inside the state directory (links and ..
-    resolved), a regular file if it exists (never a link, a device or a FIFO).  Raises
-    ConfigError naming the key and why."""
+    """table-persist's file: an absolute path, a regular file if it exists (never a link, a
+    directory, a device or a FIFO), inside the state directory (links and .. resolved).
+    Raises ConfigError naming the key and why."""
     if not text.strip():
         raise ConfigError("table-persist: empty; expected a file path")
     directory = os.path.realpath(state_directory())
     if not os.path.isabs(text):
         raise ConfigError(f"table-persist {text!r}: not an absolute path; the file must be "
                           f"in {directory}")
+    try:
+        mode = os.lstat(text).st_mode
+    except FileNotFoundError:
+        mode = None
+    except OSError as err:
+        raise ConfigError(f"table-persist {text!r}: {err.strerror}") from None
+    if mode is not None and stat.S_ISDIR(mode):
+        raise ConfigError(f"table-persist {text!r}: is a directory, not a regular file")
+    if mode is not None and not stat.S_ISREG(mode):
+        raise ConfigError(f"table-persist {text!r}: not a regular file (a link, a device or a "
+                          f"FIFO is never the table's file)")
     where = os.path.join(os.path.realpath(os.path.dirname(text)), os.path.basename(text))
     if os.path.commonpath([where, directory]) != directory or where == directory:
         raise ConfigError(f"table-persist {text!r}: outside the state directory {directory} "
                           f"($STATE_DIRECTORY): mbgw keeps the table nowhere else")
-    try:
-        mode = os.lstat(where).st_mode
-    except FileNotFoundError:
-        return text
-    except OSError as err:
-        raise ConfigError(f"table-persist {text!r}: {err.strerror}") from None
-    if not stat.S_ISREG(mode):
-        raise ConfigError(f"table-persist {text!r}: not a regular file (a link, a directory, "
-                          f"a device or a FIFO is never the table's file)")
     return text
 
 
@@ -337,8 +342,8 @@ class WebConfig:
         if self.https_only and self.cert is None:
             raise ConfigError("web.https-only needs HTTPS: give web.cert and web.key")
         if self.listen is not None and self.admin_password is None:
-            raise ConfigError(f"web {self.listen}: the web console needs an admin password; "
-                              f"set one with: mbgw config password admin")
+            raise ConfigError("no admin password set: the web console needs one (mbgw config "
+                              "password admin)")
 
     @property
     def https(self) -> bool:
@@ -401,6 +406,7 @@ class SlaveConfig:
     max_connections_per_ip: int = 0    # 0: no limit per client address
     retries: int = 0
     turnaround_ms: int = DEFAULT_TURNAROUND_MS
+    late_window_ms: int | None = None  # None: stout
     control: str | None = None     # control socket path; None: the default one
     metrics: str | None = None     # ADDR:PORT for Prometheus, None: off
     demotion: Demotion = field(default_factory=Demotion)
@@ -426,6 +432,14 @@ class SlaveConfig:
         if len(self.authip) > MAX_AUTHIP:
             raise ConfigError(f"authip: at most {MAX_AUTHIP} addresses, got {len(self.authip)}")
         object.__setattr__(self, "authip", tuple(parse_ip("authip", a) for a in self.authip))
+        low, high = LATE_WINDOW_RANGE
+        if self.late_window_ms is not None and not low <= self.late_window_ms <= high:
+            raise ConfigError(f"late-window {self.late_window_ms}: out of range {low}..{high}")
+
+    @property
+    def late_window(self) -> int:
+        """The late window in ms: late-window, else stout."""
+        return self.serial.stout_ms if self.late_window_ms is None else self.late_window_ms
 
     @property
     def table_on(self) -> bool:

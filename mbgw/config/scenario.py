@@ -38,7 +38,7 @@ CONFIG_ZONE_FIRST = 0x8000         # read-only: a read scenario cannot store the
 KEYS = ("name", "slave", "server", "unit", "function", "address", "quantity", "table",
         "read-address", "read-quantity", "read-table", "write-address", "write-quantity",
         "write-table", "cycle", "trigger", "retries", "stale-after", "enabled", "tls",
-        "fingerprint")
+        "fingerprint", "send-unwritten")
 
 
 @dataclass(frozen=True)
@@ -61,6 +61,7 @@ class ScenarioConfig:
     enabled: bool = True
     tls: bool = False              # TCP scenario: over Modbus/TCP Security
     fingerprint: bytes | None = None   # tls: the server certificate's SHA-256, pinned
+    send_unwritten: bool = False   # a write: send table registers nobody has written yet
 
     @property
     def kind(self) -> str:
@@ -143,6 +144,8 @@ class ScenarioConfig:
             out["stale-after"] = self.stale_after_ms
         if not self.enabled:
             out["enabled"] = False
+        if self.send_unwritten:
+            out["send-unwritten"] = True
         return out
 
 
@@ -264,13 +267,17 @@ def parse_scenario(fields: dict, where: str) -> ScenarioConfig:
     if stale_after and function not in READS:
         raise f.error("stale-after", fields["stale-after"],
                       "only a read scenario's data can be stale")
+    send_unwritten = f.boolean("send-unwritten", False)
+    if send_unwritten and function not in WRITES:
+        raise ConfigError(f"{f.label}: send-unwritten: only a write sends table data "
+                          f"(function 5, 6, 15, 16 or 23)")
     return ScenarioConfig(
         name=name, function=function, address=address, quantity=quantity, table=table,
         slave=slave, server=server, unit=unit, cycle_ms=cycle_ms, on_change=on_change,
         write_address=write[0], write_quantity=write[1], write_table=write[2],
         retries=f.integer("retries", *RETRIES_RANGE, default=DEFAULT_RETRIES),
         stale_after_ms=stale_after, enabled=f.boolean("enabled", True), tls=tls,
-        fingerprint=_fingerprint(f, tls))
+        fingerprint=_fingerprint(f, tls), send_unwritten=send_unwritten)
 
 
 def _fingerprint(f: "_Fields", tls: bool) -> bytes | None:

@@ -4,6 +4,7 @@ import logging
 import struct
 import time
 
+from mbgw.audit import Kind, event
 from mbgw.config.firewall import FirewallConfig, Rule
 from mbgw.protocol import pdu
 
@@ -181,9 +182,10 @@ class Firewall:
             rule = guard.rule.describe() if guard.rule else _UNRULED[guard.label]
             more = f"; {guard.unlogged} more refused since the last report" \
                 if guard.unlogged else ""
-            log.warning("firewall: refused client %s (role %s) unit %d function %d: %s%s "
-                        "(logged at most once a minute per client)", peer, role or "none",
-                        unit, request[0], rule, more)
+            event(log, Kind.FIREWALL_REFUSED, "firewall: refused client %s (role %s) unit %d "
+                  "function %d: %s%s (logged at most once a minute per client)", peer,
+                  role or "none", unit, request[0], rule, more, client=peer, role=role,
+                  unit=unit, function=request[0], rule=label, reason=rule)
             guard.logged_at = now
             guard.unlogged = 0
         return pdu.exception_pdu(request[0], ILLEGAL_FUNCTION)

@@ -7,11 +7,12 @@ import signal
 import time
 
 from mbgw.config.model import MasterConfig
-from mbgw.line.port import SerialLine
+from mbgw.line.supervisor import open_at_start
 from mbgw.master.line_thread import SerialSlave, table_address
 from mbgw.master.status import MasterStatus
 from mbgw.master.table_service import TableService
 from mbgw.ops.counters import MasterCounters
+from mbgw.ops.reload import ReloadReport, Reloads
 from mbgw.ops.service import (
     ListenError,
     idle_ms,
@@ -24,7 +25,7 @@ from mbgw.ops.service import (
 from mbgw.scenarios.control import scenario_commands
 from mbgw.scenarios.tcp_runner import TcpScenarios, with_scenarios
 from mbgw.web.console import start_console
-from mbgw.web.hooks import WebHooks, sighup_reload
+from mbgw.web.hooks import WebHooks
 
 log = logging.getLogger("mbgw")
 TICK_S = 1.0        # how often the table's file is looked at (it is saved per its interval)
@@ -36,17 +37,19 @@ class TableListenFailure(ListenError):
 
 
 def run_master(cfg: MasterConfig, reconfigure=None) -> None:
-    """Raises SerialError when the device cannot be opened, MetricsListenError when the
+    """Raises SerialError when the device is there and cannot be opened (one that is not
+    there yet is waited for), MetricsListenError when the
     metrics address cannot be bound, TableListenFailure when table-port cannot; otherwise
     returns after SIGTERM or SIGINT.  reconfigure() gives the settings to apply on SIGHUP
     (None: there is no file to reload)."""
     counters = MasterCounters()
     tables = TableService(cfg)
-    line = SerialLine(cfg.serial)
+    line = open_at_start(cfg.serial)
     try:
         slave = SerialSlave(cfg, line, counters, tables.table)
     except BaseException:
-        line.close()
+        if line is not None:
+            line.close()
         raise
     try:
         try:
@@ -93,8 +96,9 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
     status.scenario_engines = engines
     commands = {**status.commands(), **scenario_commands(engines, cfg.config_file)}
     control = await start_control(cfg.control, commands)
+    reloads = Reloads(status, reconfigure)
     console = await start_console(cfg.web, WebHooks(commands, status.trace_hub,
-                                                    cfg.config_file, sighup_reload))
+                                                    cfg.config_file, reloads.run))
     s = cfg.serial
     log.info("master mode: serial %s %d %s %s %s; servers' port %d, tcpto %d ms, exception %s, "
              "at most %d connections; slaveid %s", s.device, s.baudrate, s.format, s.protocol,
@@ -103,20 +107,21 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
     if metrics is not None:
         log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
     _log_slaveid(cfg)
-    scenarios = TcpScenarios(tables.table, engines)
+    scenarios = TcpScenarios(tables.table, engines, slave.devices.rule)
     scenarios.start(cfg.scenarios, cfg.tcpto_ms, cfg.upstream_tls)
 
-    async def apply(new: MasterConfig) -> None:
-        await console.reconfigure(new.web)
+    async def apply(new: MasterConfig, report: ReloadReport) -> None:
+        await console.reconfigure(new.web, report)
         _log_slaveid(new)
-        tables.reconfigure(new)
+        tables.reconfigure(new, report)
         slave.reconfigure(new)
         await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms,
                                 new.upstream_tls)
+    reloads.apply = apply
 
     ticking = asyncio.ensure_future(_tick(tables))
     try:
-        await serve_until_stopped(stop, status, slave, reconfigure, apply, control, metrics)
+        await serve_until_stopped(stop, status, slave, reloads, control, metrics)
     finally:
         await console.close()
         await asyncio.to_thread(scenarios.stop)

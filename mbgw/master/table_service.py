@@ -10,6 +10,7 @@ import time
 from mbgw.config.model import MasterConfig, TableConfig, TlsConfig
 from mbgw.errors import ConfigError
 from mbgw.firewall.guard import Firewall
+from mbgw.ops.reload import ReloadReport
 from mbgw.ops.tls import role_of, server_context
 from mbgw.table import identity
 from mbgw.table.control import table_commands
@@ -71,14 +72,14 @@ class TableService:
             return serve
         return {name: when_on(command) for name, command in self._commands.items()}
 
-    def reconfigure(self, settings: MasterConfig) -> None:
+    def reconfigure(self, settings: MasterConfig, report: ReloadReport) -> None:
         """New settings (SIGHUP): functions and the configuration zone at once, the server
-        started, stopped or moved.  A port that cannot be listened on is logged, and the old
-        one kept."""
+        started, stopped or moved.  A port that cannot be listened on, TLS files that do not
+        load, go to the report, and what runs stays."""
         new = settings.table
         old, self.cfg = self.cfg, new
         identity.fill(self.table, settings, "master")
-        self._repersist(old, new)
+        self._repersist(old, new, report)
         if new.functions != old.functions:
             self.table.set_functions(new.functions)
         firewall = self.firewall.renewed(settings.firewall,
@@ -100,14 +101,14 @@ class TableService:
             elif new.port != self.server.port:
                 self.server.move(new.port)
         except TableListenError as err:
-            log.error("%s; the table's TCP server is left as it was", err.strerror)
+            report.refuse("table", f"{err.strerror}; the table's TCP server is left as it was")
         except ConfigError as err:
-            log.error("TLS settings not applied, the table's TCP server is not started: %s",
-                      err)
+            report.refuse("tls", f"{err}; the table's TCP server is not started")
+            self.tls = old_tls
         if self.server is not None and settings.tls != old_tls:
-            self._retls(settings.tls, old_tls)
+            self._retls(settings.tls, old_tls, report)
 
-    def _retls(self, new: TlsConfig, old: TlsConfig) -> None:
+    def _retls(self, new: TlsConfig, old: TlsConfig, report: ReloadReport) -> None:
         """New TLS settings or renewed files: for new connections, those open keep theirs.
         Ones that cannot be loaded leave TLS as it was."""
         assert self.server is not None
@@ -115,18 +116,17 @@ class TableService:
             context = server_context(new) if new.enabled else None
             self.server.set_tls(context, new.port)
         except (ConfigError, TableListenError) as err:
-            log.error("TLS settings not applied, the running ones stay: %s", err)
+            report.refuse("tls", f"{err}; the running TLS settings stay")
             self.tls = old
 
-    def _repersist(self, old: TableConfig, new: TableConfig) -> None:
+    def _repersist(self, old: TableConfig, new: TableConfig, report: ReloadReport) -> None:
         keeping = self.persistence is not None and new.enabled and new.persist == old.persist
         if keeping:
             assert self.persistence is not None
             self.persistence.interval_s = new.persist_interval_s
         elif (old.enabled and old.persist) != (new.enabled and new.persist):
-            log.warning("table-persist changed: the new setting takes effect at restart "
-                        "(the table is still kept in %s)",
-                        self.persistence.path if self.persistence else "no file")
+            report.refuse("table.persist", "takes effect at restart (the table is still kept "
+                          f"in {self.persistence.path if self.persistence else 'no file'})")
 
     def _stop_server(self) -> None:
         server, self.server = self.server, None

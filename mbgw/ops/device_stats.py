@@ -70,14 +70,15 @@ class DeviceStats:
     demoted_rejects: int
     unreachable: int
     abandoned: int
-    __slots__ = ALL_COUNTS + ("address", "counts", "rule", "upstream", "exceptions",
+    __slots__ = ALL_COUNTS + ("address", "name", "counts", "rule", "upstream", "exceptions",
                               "gateway_exceptions", "latency_buckets", "latency_sum_ms",
                               "last_success", "consecutive_failures", "recent_failures",
                               "health", "health_since", "probe_at", "probe_wait_s")
 
-    def __init__(self, address: int, counts: tuple = COUNTS,
-                 rule: HealthRule | None = None) -> None:
-        self.address = address
+    def __init__(self, address: int | None, counts: tuple = COUNTS,
+                 rule: HealthRule | None = None, name: str | None = None) -> None:
+        self.address = address         # None: not a serial address (a TCP scenario's server)
+        self.name = name or f"device {address}"     # in the log
         self.counts = counts           # the counters this mode keeps (COUNTS, MASTER_COUNTS)
         self.rule = rule if rule is not None else HealthRule()
         self.upstream: tuple[str, int] | None = None   # master mode: (server IP, unit id)
@@ -167,19 +168,20 @@ class DeviceStats:
     def _change(self, health: str) -> None:
         self.health = health
         self.health_since = time.time()
-        self.rule.down[self.address] = health == DOWN
+        if self.address is not None:
+            self.rule.down[self.address] = health == DOWN
         via = f" (server {self.upstream[0]} unit {self.upstream[1]})" if self.upstream else ""
         if health == DOWN:
             self._probe_from(time.monotonic())
-            log.warning("device %d is down: %d requests in a row without a valid reply%s; "
-                        "its requests are refused, but for %s", self.address,
+            log.warning("%s is down: %d requests in a row without a valid reply%s; "
+                        "its requests are refused, but for %s", self.name,
                         self.consecutive_failures, via, self.rule.describe())
         elif health == DEGRADED:
-            log.warning("device %d is degraded: %d of its last %d requests failed%s",
-                        self.address, bin(self.recent_failures).count("1"), RECENT_WINDOW,
+            log.warning("%s is degraded: %d of its last %d requests failed%s",
+                        self.name, bin(self.recent_failures).count("1"), RECENT_WINDOW,
                         via)
         else:
-            log.info("device %d is up: its last %d requests were answered%s", self.address,
+            log.info("%s is up: its last %d requests were answered%s", self.name,
                      RECENT_WINDOW, via)
 
     def snapshot(self) -> dict:

@@ -7,6 +7,8 @@ import errno
 import logging
 import time
 
+from mbgw.audit import Kind, event
+
 # accept() errors that say "not now" (the process or the system is out of something): the
 # listener rests, the backlog keeps the newcomers until it tries again
 RESOURCE_ERRORS = frozenset({errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM})
@@ -65,11 +67,12 @@ class WarnLimit:
         self._level = level
         self._last: dict[tuple[str, str], tuple[float, int]] = {}   # -> (when logged, left out)
 
-    def warn(self, host: str, reason: str, message: str, *args) -> bool:
-        """Log message % args unless (host, reason) was logged within the interval; True when
-        it was logged."""
+    def warn(self, host: str, why: str, message: str, *args, kind: Kind | None = None,
+             **fields) -> bool:
+        """Log message % args unless (host, why) was logged within the interval (an audit
+        event of kind, with fields, when one is given); True when it was logged."""
         now = time.monotonic()
-        key = (host, reason)
+        key = (host, why)
         last = self._last.get(key)
         if last is not None and now - last[0] < self._interval_s:
             self._last[key] = (last[0], last[1] + 1)
@@ -81,7 +84,10 @@ class WarnLimit:
         self._last[key] = (now, 0)
         more = f" ({left_out} more like it left out)" if left_out else \
             " (logged at most once a minute per address and reason)"
-        self._log.log(self._level, message + more, *args)
+        if kind is None:
+            self._log.log(self._level, message + more, *args)
+        else:
+            event(self._log, kind, message + more, *args, **fields)
         return True
 
 

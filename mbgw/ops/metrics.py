@@ -281,10 +281,12 @@ SCENARIO_STATES = ("starting", "running", "error", "disabled")
 def scenario_families(rows: list[dict]):
     """The scenarios' families from the status's "scenarios" rows (mbgw.scenarios.report)."""
     runs = CounterMetricFamily("mbgw_scenario_runs", "Runs of each scenario (requests sent, "
-                               "retries not counted).", labels=["scenario"])
+                               "retries not counted, and runs skipped while its device was "
+                               "down).", labels=["scenario"])
     errors = CounterMetricFamily("mbgw_scenario_errors", "Failed runs of each scenario, by "
                                  "kind (timeout, illegal-address, unexpected-data, "
-                                 "connection-lost, ...).", labels=["scenario", "kind"])
+                                 "connection-lost, device-down, ...).",
+                                 labels=["scenario", "kind"])
     retries = CounterMetricFamily("mbgw_scenario_retries", "Requests of each scenario "
                                   "repeated after no valid reply.", labels=["scenario"])
     overruns = CounterMetricFamily("mbgw_scenario_overruns", "Periods a cyclic scenario "

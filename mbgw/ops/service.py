@@ -1,11 +1,10 @@
 """What both modes' daemons share: systemd notification, the control socket and metrics
-endpoint started and closed, SIGHUP reload, the stop and its last log line."""
+endpoint started and closed, the stop and its last log line (the SIGHUP reload is
+mbgw.ops.reload's)."""
 import asyncio
-import dataclasses
 import logging
 import math
 import os
-import signal
 import socket
 import struct
 import time
@@ -15,6 +14,7 @@ from mbgw.ops.control import ControlServer, default_path
 
 if TYPE_CHECKING:
     from mbgw.ops.metrics_server import MetricsServer
+    from mbgw.ops.reload import Reloads
 
 log = logging.getLogger("mbgw")
 
@@ -103,13 +103,13 @@ async def start_control(path: str | None, commands: dict) -> ControlServer | Non
     return control
 
 
-async def serve_until_stopped(stop: asyncio.Event, holder, line, reconfigure, apply,
+async def serve_until_stopped(stop: asyncio.Event, holder, line, reloads: "Reloads",
                               control: ControlServer | None,
                               metrics: "MetricsServer | None") -> None:
-    """Ready: reload on SIGHUP (see reload_on_sighup), tell systemd, keep it told (see
+    """Ready: reload on SIGHUP (mbgw.ops.reload), tell systemd, keep it told (see
     tell_systemd), wait for `stop` (SIGTERM, SIGINT), then tell systemd and close the
     operator's tools; the mode closes its own objects after."""
-    reload_on_sighup(asyncio.get_running_loop(), holder, reconfigure, apply)
+    reloads.on_sighup(asyncio.get_running_loop())
     sd_notify("READY=1")
     told = asyncio.ensure_future(tell_systemd(line, holder.summary, watchdog_interval())) \
         if os.environ.get("NOTIFY_SOCKET") else None
@@ -164,54 +164,3 @@ def close_tools(control: ControlServer | None, metrics: "MetricsServer | None") 
 def log_stopped(counters) -> None:
     log.info("stopped; counters: %s",
              " ".join(f"{k}={v}" for k, v in counters.snapshot().items()))
-
-
-RESTART_SETTINGS = ("control", "metrics")
-GROUPED_SETTINGS = ("serial", "demotion")     # a change is named by the setting inside
-
-
-def reload_on_sighup(loop: asyncio.AbstractEventLoop, holder, reconfigure, apply) -> None:
-    """SIGHUP (systemctl reload) applies the configuration file again, in either mode.
-    holder.cfg is the running configuration, replaced when a reload is applied; reconfigure()
-    gives the file's settings (None: there is no file); `await apply(new)` puts them in
-    force in the mode's live objects."""
-    async def reload() -> None:
-        sd_notify("RELOADING=1")
-        try:
-            new = await _reloaded(holder.cfg, reconfigure, apply)
-        finally:
-            sd_notify("READY=1")
-        if new is not None:
-            holder.cfg = new
-
-    loop.add_signal_handler(signal.SIGHUP, lambda: asyncio.ensure_future(reload()))
-
-
-async def _reloaded(cfg, reconfigure, apply):
-    """Apply the configuration file again; the configuration now in force, or None when the
-    file cannot be applied (the reason is logged)."""
-    if reconfigure is None:
-        log.warning("SIGHUP: no configuration file to reload (settings came from the "
-                    "command line)")
-        return None
-    try:
-        new = reconfigure()
-    except Exception as err:      # a bad file must never stop a running gateway
-        reason = err.format_message() if hasattr(err, "format_message") else str(err)
-        log.error("reload refused, the running configuration stays: %s", reason)
-        return None
-    changed = [f"{group}.{f.name}" for group in GROUPED_SETTINGS if hasattr(new, group)
-               for f in dataclasses.fields(getattr(new, group))
-               if getattr(getattr(new, group), f.name) != getattr(getattr(cfg, group), f.name)]
-    changed += [f.name for f in dataclasses.fields(new) if f.name not in GROUPED_SETTINGS
-                and getattr(new, f.name) != getattr(cfg, f.name)]
-    if not changed:
-        log.info("configuration reloaded: nothing changed")
-        return cfg
-    kept = [name for name in RESTART_SETTINGS if name in changed]
-    if kept:
-        log.warning("%s: changes need a restart (systemctl restart mbgw)", ", ".join(kept))
-        new = dataclasses.replace(new, **{name: getattr(cfg, name) for name in kept})
-    await apply(new)
-    log.info("configuration reloaded: %s changed", ", ".join(changed))
-    return new

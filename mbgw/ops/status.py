@@ -8,6 +8,7 @@ import os
 import time
 
 from mbgw import __version__
+from mbgw.audit import Kind, event, operator
 
 log = logging.getLogger("mbgw.control")
 
@@ -66,7 +67,8 @@ class DaemonStatus:
         self._counters.reset()
         self._devices.reset()
         self._reset_at = time.time()
-        log.info("counters reset by the operator (uid %s)", request.get("uid"))
+        event(log, Kind.COUNTERS_RESET, "counters reset by the operator (uid %s)",
+              request.get("uid"), user=operator(request.get("uid")))
         return {"ok": True}
 
     async def trace(self, request: dict, reader: asyncio.StreamReader,

@@ -126,14 +126,15 @@ def file_stamps(*paths: str | None) -> tuple:
     return tuple(stamps)
 
 
-def server_context(cfg: TlsConfig) -> ssl.SSLContext:
-    """The context of the TLS listener: the files checked, then loaded.  Raises ConfigError."""
+def server_context(cfg: TlsConfig, log_expiry: bool = True) -> ssl.SSLContext:
+    """The context of the TLS listener: the files checked, then loaded.  Raises ConfigError.
+    log_expiry=False: a check only (mbgw.ops.preflight), which leaves the log to the start."""
     assert cfg.cert is not None and cfg.key is not None and cfg.ca is not None
-    check_certificate(cfg.cert)
-    check_key(cfg.key)
-    check_ca(cfg.ca)
-    context = _context(ssl.PROTOCOL_TLS_SERVER, ("tls-cert", cfg.cert), ("tls-key", cfg.key),
-                       ("tls-ca", cfg.ca))
+    check_certificate(cfg.cert, "tls.cert")
+    check_key(cfg.key, "tls.key")
+    check_ca(cfg.ca, "tls.ca")
+    context = _context(ssl.PROTOCOL_TLS_SERVER, ("tls.cert", cfg.cert), ("tls.key", cfg.key),
+                       ("tls.ca", cfg.ca))
     if cfg.crl is not None:
         check_crl_issuer(cfg.crl, cfg.ca)
         try:
@@ -141,7 +142,8 @@ def server_context(cfg: TlsConfig) -> ssl.SSLContext:
         except (ssl.SSLError, OSError) as err:
             raise ConfigError(f"tls-crl {cfg.crl}: cannot be used ({err})") from None
         context.verify_flags |= ssl.VERIFY_CRL_CHECK_LEAF
-        _crl_expiry(cfg.crl)
+        if log_expiry:
+            _crl_expiry(cfg.crl)
     return context
 
 
@@ -152,11 +154,11 @@ def client_context(cfg: UpstreamTlsConfig) -> ssl.SSLContext:
     certificate presented.  Raises ConfigError."""
     assert cfg.client_cert is not None and cfg.client_key is not None \
         and cfg.server_ca is not None
-    check_certificate(cfg.client_cert, "tls-client-cert")
-    check_key(cfg.client_key, "tls-client-key")
-    check_ca(cfg.server_ca, "tls-server-ca")
-    return _context(ssl.PROTOCOL_TLS_CLIENT, ("tls-client-cert", cfg.client_cert),
-                    ("tls-client-key", cfg.client_key), ("tls-server-ca", cfg.server_ca))
+    check_certificate(cfg.client_cert, "tls.client-cert")
+    check_key(cfg.client_key, "tls.client-key")
+    check_ca(cfg.server_ca, "tls.server-ca")
+    return _context(ssl.PROTOCOL_TLS_CLIENT, ("tls.client-cert", cfg.client_cert),
+                    ("tls.client-key", cfg.client_key), ("tls.server-ca", cfg.server_ca))
 
 
 def _context(protocol: int, cert: tuple[str, str], key: tuple[str, str],
@@ -173,16 +175,30 @@ def _context(protocol: int, cert: tuple[str, str], key: tuple[str, str],
     if protocol == ssl.PROTOCOL_TLS_CLIENT:
         context.check_hostname = False
     context.verify_mode = ssl.CERT_REQUIRED
-    try:
-        context.load_cert_chain(cert[1], key[1])
-    except (ssl.SSLError, OSError) as err:
-        raise ConfigError(f"{key[0]} {key[1]}: does not go with {cert[0]} {cert[1]} "
-                          f"({err})") from None
+    load_pair(context, cert, key)
     try:
         context.load_verify_locations(ca[1])
     except (ssl.SSLError, OSError) as err:
         raise ConfigError(f"{ca[0]} {ca[1]}: cannot be used ({err})") from None
     return context
+
+
+def load_pair(context: ssl.SSLContext, cert: tuple[str, str], key: tuple[str, str]) -> None:
+    """The certificate and its private key into context, each (key label, path).  Raises
+    ConfigError naming the key when the key does not go with the certificate."""
+    try:
+        context.load_cert_chain(cert[1], key[1])
+    except (ssl.SSLError, OSError) as err:
+        raise ConfigError(f"{key[0]}: {key[1]} does not match {cert[0]} {cert[1]} "
+                          f"({getattr(err, 'reason', None) or err})") from None
+
+
+def check_pair(cert: tuple[str, str], key: tuple[str, str]) -> None:
+    """A server certificate and its key (each (key label, path)) as an HTTPS server loads
+    them: each readable and well-formed, and going together.  Raises ConfigError."""
+    check_certificate(cert[1], cert[0])
+    check_key(key[1], key[0])
+    load_pair(ssl.create_default_context(ssl.Purpose.CLIENT_AUTH), cert, key)
 
 
 def _set_tls13_suites(context: ssl.SSLContext, suites: str) -> None:

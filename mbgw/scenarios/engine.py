@@ -2,7 +2,12 @@
 results in the table, their state and counters.  The runner asks `next(now)` for a run, sends
 its PDU, and hands the reply (or the error) to `done`; it sleeps at most `due_in(now)` and
 also wakes on `wake_fd` (a change scenario's data changed).  Thread-safe: the runner's thread
-runs scenarios, the control and status threads read and enable them."""
+runs scenarios, the control and status threads read and enable them.
+
+Two kinds of run never reach the runner: a write whose table registers nobody has written
+since start waits ("waiting for data", unless send-unwritten), and a run for a device or
+server that is down (the runner's `health`, mbgw.scenarios.health) is skipped, "device down",
+but for the probe the demotion rule lets through."""
 import logging
 import os
 import threading
@@ -10,6 +15,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
+from typing import Protocol
 
 from mbgw.config.scenario import ScenarioConfig
 from mbgw.scenarios import exchange
@@ -29,11 +35,23 @@ _IN_ERROR_LOCK = threading.Lock()
 DEFAULT_TEST_WAIT_S = 60.0     # how long `scenario test` waits for its runner
 
 
+class Health(Protocol):
+    """A runner's demotion (mbgw.scenarios.health)."""
+    down_kind: str                  # the error kind of a run skipped
+
+    def down(self, sc: ScenarioConfig) -> bool: ...
+
+    def admit(self, sc: ScenarioConfig, now: float) -> bool: ...
+
+    def next_probe_in(self, sc: ScenarioConfig) -> float | None: ...
+
+
 @dataclass
 class Run:
     scenario: ScenarioConfig
     pdu: bytes
     started: float
+    probe: bool = False        # its device (server) is down: this run is the probe
 
 
 class TestRun(Run):
@@ -70,6 +88,10 @@ class _State:
         return None if self.data_time is None else now - self.data_time
 
 
+def _waiting_message(unwritten: int) -> str:
+    return f"{exchange.WAITING}: table register {unwritten} not written since start"
+
+
 def _same_but_enabled(a: ScenarioConfig, b: ScenarioConfig) -> bool:
     return replace(a, enabled=True) == replace(b, enabled=True)
 
@@ -89,6 +111,8 @@ class Scenarios:
         self._planner = Planner((), now)
         self._flag = False                  # FC 7's "a scenario is in error", as last set
         self._tests: deque[TestRun] = deque()
+        self.health: Health | None = None    # the runner's demotion; None: every run is sent
+        self._owed: set[str] = set()     # change scenarios skipped, their device down
         self.reconfigure(configs)
 
     # --- the runner's side ---
@@ -109,15 +133,29 @@ class Scenarios:
 
     def next(self, now: float, can_run: Callable[[ScenarioConfig], bool] | None = None
              ) -> Run | None:
-        """The run to do now, its PDU built from the table now; None if none is due.
-        can_run: see Planner.take."""
+        """The run to do now, its PDU built from the table now; None if none is due.  Those
+        due that must not be sent (waiting for data, their device down and no probe due) are
+        booked and passed over.  can_run: see Planner.take."""
         with self._lock:
             self._take_changes()
-            scenario = self._planner.take(now, can_run)
-            if scenario is None:
-                return None
-            self._states[scenario.name].overruns += self._planner.last_missed
-            return Run(scenario, exchange.request_pdu(scenario, self.table), now)
+            while (scenario := self._planner.take(now, can_run)) is not None:
+                state = self._states[scenario.name]
+                state.overruns += self._planner.last_missed
+                unwritten = self._unwritten(scenario)
+                if unwritten is not None:
+                    self._planner.finished(scenario.name, now)
+                    self._wait_for_data(state, unwritten)
+                    continue
+                health = self.health
+                probe = health is not None and health.down(scenario)
+                if probe and health is not None and not health.admit(scenario, now):
+                    self._planner.finished(scenario.name, now)
+                    if scenario.on_change:
+                        self._owed.add(scenario.name)
+                    self._record(state, exchange.Result(health.down_kind), 0, 0.0, now)
+                    continue
+                return Run(scenario, exchange.request_pdu(scenario, self.table), now, probe)
+            return None
 
     def done(self, run: Run, reply_pdu: bytes | None, error_kind: str | None,
              retries: int = 0) -> exchange.Result:
@@ -136,7 +174,9 @@ class Scenarios:
             state = self._states.get(sc.name)
             if state is None or state.scenario != sc:
                 return result          # removed or changed while it ran: counts nothing
-            self._record(state, result, retries, now - run.started, now)
+            self._record(state, result, retries, now - run.started, now,
+                         still_down=run.probe and self.health is not None
+                         and self.health.down(sc))
             return result
 
     def tick(self, now: float) -> None:
@@ -216,6 +256,10 @@ class Scenarios:
         """From any thread but the runner's: have the runner run `sc` once (take_test,
         test_done) and wait for its result (test_result's dict)."""
         with self._lock:
+            unwritten = self._unwritten(sc)
+            if unwritten is not None:
+                return {"error": f"{_waiting_message(unwritten)}: nothing sent "
+                                 f"(send-unwritten=true sends it all the same)"}
             test = TestRun(sc, exchange.request_pdu(sc, self.table), 0.0)
             self._tests.append(test)
         os.eventfd_write(self.wake_fd, 1)
@@ -278,7 +322,9 @@ class Scenarios:
     # --- inside, the lock held ---
 
     def _record(self, state: _State, result: exchange.Result, retries: int,
-                latency: float, now: float) -> None:
+                latency: float, now: float, still_down: bool = False) -> None:
+        """still_down: the run was its device's probe, which failed: its message stays
+        "device down" (the probe's own error is counted)."""
         state.runs += 1
         state.retries += retries
         if result.ok:
@@ -295,7 +341,10 @@ class Scenarios:
         state.errors[result.kind or ""] = state.errors.get(result.kind or "", 0) + 1
         if state.state == DISABLED:
             return
-        message = result.message(state.scenario.kind == "tcp")
+        tcp = state.scenario.kind == "tcp"
+        message = result.message(tcp)
+        if still_down and self.health is not None:
+            message = exchange.error_message(self.health.down_kind, tcp)
         if state.state != ERROR or state.message != message:
             log.warning("scenario %s (%s): %s", state.scenario.name, state.scenario.target,
                         message)
@@ -343,9 +392,30 @@ class Scenarios:
         return soonest
 
     def _watch(self, state: _State) -> None:
-        if state.scenario.on_change:
-            first, count = state.scenario.write_range() or (0, 0)
-            state.watch = self.table.watch(first, count, self.wake_fd)
+        sc = state.scenario
+        if sc.on_change:
+            first, count = sc.write_range() or (0, 0)
+            # waiting for data: a first write is data even when it stores the table's value
+            state.watch = self.table.watch(first, count, self.wake_fd,
+                                           first_writes=not sc.send_unwritten)
+
+    def _unwritten(self, sc: ScenarioConfig) -> int | None:
+        """The first table register a write would send that nobody has written since start,
+        None when it may be sent (all written, a read, or send-unwritten)."""
+        if not sc.writes or sc.send_unwritten:
+            return None
+        first, count = sc.write_range() or (0, 0)
+        return self.table.unwritten(first, count)
+
+    def _wait_for_data(self, state: _State, unwritten: int) -> None:
+        """A write not sent: its message says why (logged when it begins to wait); its state
+        stays (starting: nothing it sends was written before, so it never ran)."""
+        message = _waiting_message(unwritten)
+        if not state.message.startswith(exchange.WAITING):
+            log.info("scenario %s (%s): %s; it is sent once a client (or a read, or the "
+                     "table file) has written it", state.scenario.name, state.scenario.target,
+                     message)
+        state.message = message
 
     def _drop(self, state: _State) -> None:
         if state.watch is not None:
@@ -355,6 +425,8 @@ class Scenarios:
         self._planner.remove(state.scenario.name)
 
     def _take_changes(self) -> None:
+        if self._owed:
+            self._repay()
         try:
             os.eventfd_read(self.wake_fd)
         except BlockingIOError:
@@ -365,6 +437,17 @@ class Scenarios:
                 if self.table.take_change(state.watch, count) is not None \
                         and state.state != DISABLED:
                     self._planner.changed(state.scenario.name)
+
+    def _repay(self) -> None:
+        """A change scenario skipped while its device was down is pending again once the
+        device is not (its data as it is then)."""
+        for name in list(self._owed):
+            state = self._states.get(name)
+            if state is None or state.state == DISABLED:
+                self._owed.discard(name)
+            elif self.health is None or not self.health.down(state.scenario):
+                self._owed.discard(name)
+                self._planner.changed(name)
 
     def _status(self, state: _State, now: float) -> dict:
         sc = state.scenario
@@ -380,4 +463,16 @@ class Scenarios:
             else round(state.last_latency_s * 1000, 3),
             "data_age_s": None if age is None else round(age, 3),
             "stale": state.stale,
+            "next_probe_in_s": self._next_probe_in(state),
         }
+
+    def _next_probe_in(self, state: _State) -> float | None:
+        """While its runs are skipped (its device down): seconds until one may go as the
+        probe."""
+        health = self.health
+        if health is None or state.state != ERROR or \
+                state.message != exchange.error_message(health.down_kind,
+                                                        state.scenario.kind == "tcp"):
+            return None
+        wait = health.next_probe_in(state.scenario)
+        return None if wait is None else round(wait, 3)

@@ -17,6 +17,8 @@ UNEXPECTED_DATA = "unexpected-data"
 CONNECTION_LOST = "connection-lost"
 CONNECTION_REFUSED = "connection-refused"
 TLS_REFUSED = "tls-refused"
+DEVICE_DOWN = "device-down"        # demotion: the run skipped, not sent
+SERVER_DOWN = "server-down"
 EXCEPTION_KINDS = {0x01: "illegal-function", 0x02: "illegal-address", 0x03: "illegal-value",
                    0x04: "device-failure", 0x06: "busy", 0x0A: "path-unavailable",
                    0x0B: "target-failed"}
@@ -36,7 +38,10 @@ ERROR_MESSAGES = {
     CONNECTION_LOST: "TCP connection lost",
     CONNECTION_REFUSED: "connection refused",
     TLS_REFUSED: "connection refused: TLS handshake failed",
+    DEVICE_DOWN: "device down",
+    SERVER_DOWN: "server down",
 }
+WAITING = "waiting for data"       # a write whose table registers nobody has written yet
 ERROR_KINDS = tuple(ERROR_MESSAGES)
 
 

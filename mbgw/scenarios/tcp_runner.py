@@ -10,10 +10,15 @@ test's to `engine.test_done`).  Requests go out one at a time (the pool's way), 
 has at most one in flight.  A server that refuses the connection (or cannot be reached in
 `tcpto`) is not tried again before its backoff has passed (doubling from BACKOFF_FIRST_S to
 BACKOFF_MAX_S, reset by a reply); its scenarios fail at once meanwhile with the failure that
-started it.  The pool keeps one connection per server address and port (one pool per
-port), reopened when the server closes it; `tls` scenarios' servers have pools of their own,
-over TLS with the client context made from [tls]'s client-cert, client-key and server-ca.
-The engine is thread-safe: status and enable come from other threads directly.
+started it.  A server whose dials fail (no reply within `tcpto`, unreachable, the
+connection lost) down-after times in a row is down by the demotion rule of the serial
+devices (mbgw.scenarios.health.ServerHealth): its scenarios' runs are skipped, "server
+down", but for one probe per probe-interval, which dials whatever the backoff says; a reply
+(an exception or a wrong one included) means it is there.  The pool keeps one connection per
+server address and port (one pool per port), reopened when the server closes it; `tls`
+scenarios' servers have pools of their own, over TLS with the client context made from
+[tls]'s client-cert, client-key and server-ca.  The engine is thread-safe: status and
+enable come from other threads directly.
 """
 import concurrent.futures
 import logging
@@ -30,8 +35,10 @@ from mbgw.config.model import UpstreamTlsConfig
 from mbgw.config.scenario import split_server
 from mbgw.errors import BadReply, ConfigError, GatewayTimeout, NoRoute
 from mbgw.ops.counters import MasterCounters
+from mbgw.ops.device_stats import DeviceStats, HealthRule
 from mbgw.ops.tls import client_context
 from mbgw.scenarios.engine import Scenarios
+from mbgw.scenarios.health import ServerHealth
 from mbgw.scenarios.report import scenarios_status
 from mbgw.upstream.pool import (
     ConnectionLost,
@@ -72,10 +79,12 @@ class Backoff:
 
 class TcpRunner:
     def __init__(self, engine, tcpto_ms: int, clock: Callable[[], float] = time.monotonic,
-                 tls: UpstreamTlsConfig | None = None, pins: dict[str, bytes] | None = None) \
-            -> None:
+                 tls: UpstreamTlsConfig | None = None, pins: dict[str, bytes] | None = None,
+                 rule: HealthRule | None = None) -> None:
         """pins: the servers whose certificate is pinned (scenario_pins)."""
         self.engine = engine
+        self.health = ServerHealth(rule)       # the servers' demotion, by the engine too
+        engine.health = self.health
         self._tcpto_ns = tcpto_ms * 1_000_000
         self._tls = tls or UpstreamTlsConfig()
         self._pins = pins or {}
@@ -128,6 +137,7 @@ class TcpRunner:
                     self._pools.pop(key).close()
             self.engine.reconfigure(configs)
             self._backoff.clear()
+            self.health.rejudge(time.monotonic())
         return self.call(apply)
 
     def connections(self) -> list[dict]:
@@ -182,21 +192,45 @@ class TcpRunner:
             future.set_exception(RuntimeError("the TCP scenarios' runner has stopped"))
 
     def _execute(self, run) -> None:
-        reply, kind, retries = self.exchange(run.scenario, run.pdu)
+        reply, kind, retries = self.exchange(run.scenario, run.pdu, run.probe)
         self.engine.done(run, reply, kind, retries)
 
-    def exchange(self, scenario, pdu: bytes) -> tuple[bytes | None, str | None, int]:
+    def exchange(self, scenario, pdu: bytes, probe: bool = False
+                 ) -> tuple[bytes | None, str | None, int]:
         """One run of the scenario's request: (reply PDU, None) or (None or the reply that
-        does not answer, error kind), and the retries made.  Raises Interrupted."""
+        does not answer, error kind), and the retries made; its outcome booked for the
+        server's health.  probe: the server is down and this is its probe, which dials even
+        within the backoff.  Raises Interrupted."""
         host, port = split_server(scenario.server)
         backoff = self._backoff.get((host, port))
-        if backoff is not None and self._clock() < backoff.until:
+        if not probe and backoff is not None and self._clock() < backoff.until:
             return None, backoff.kind, 0
         try:
             pool = self._pool(port, scenario.tls)
         except ConfigError as err:
             log.error("scenario %s: %s", scenario.name, err)
             return None, self._unreachable(host, port, TLS_REFUSED), 0
+        server = self.health.of(host, port)
+        server.transactions += 1
+        started = time.monotonic()
+        reply, kind, retries = self._dial(scenario, pool, host, port, pdu)
+        if kind in (None, UNEXPECTED_DATA):     # a reply came, whatever it said
+            exception = reply[1] if reply and reply[0] & 0x80 and len(reply) > 1 else None
+            server.answered((time.monotonic() - started) * 1000, exception)
+        else:
+            self._count_failure(server, kind)
+        return reply, kind, retries
+
+    @staticmethod
+    def _count_failure(server: DeviceStats, kind: str) -> None:
+        if kind == TIMEOUT:
+            server.timeouts += 1
+        else:
+            server.unreachable += 1
+        server.failed()
+
+    def _dial(self, scenario, pool: UpstreamPool, host: str, port: int, pdu: bytes
+              ) -> tuple[bytes | None, str | None, int]:
         retries = 0
         while True:
             try:
@@ -272,16 +306,18 @@ class TcpScenarios:
     the configuration has any, `engines["tcp"]` meanwhile (the dict the control commands and
     the status read); started, reconfigured and stopped from the asyncio thread."""
 
-    def __init__(self, table, engines: dict) -> None:
+    def __init__(self, table, engines: dict, rule: HealthRule | None = None) -> None:
         self.table = table
         self.engines = engines
+        self.rule = rule           # the mode's demotion settings (down-after, probe-interval)
         self.runner: TcpRunner | None = None
 
     def start(self, configs, tcpto_ms: int, tls: UpstreamTlsConfig | None = None) -> None:
         configs = tcp_scenarios(configs)
         if configs:
             engine = Scenarios(configs, self.table, "tcp")
-            self.runner = TcpRunner(engine, tcpto_ms, tls=tls, pins=scenario_pins(configs))
+            self.runner = TcpRunner(engine, tcpto_ms, tls=tls, pins=scenario_pins(configs),
+                                    rule=self.rule)
             self.runner.start()
             self.engines["tcp"] = engine
             log.info("%d TCP scenarios, tcpto %d ms", len(configs), tcpto_ms)

@@ -6,8 +6,10 @@ import time
 
 from mbgw.config.model import SlaveConfig
 from mbgw.line.port import SerialLine
+from mbgw.line.supervisor import open_at_start
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable, HealthRule
+from mbgw.ops.reload import ReloadReport, Reloads
 from mbgw.ops.service import (
     ListenError,
     MetricsListenError,
@@ -27,24 +29,27 @@ from mbgw.slave.server import TcpServer
 from mbgw.slave.status import SlaveStatus
 from mbgw.slave.table_service import TableService
 from mbgw.web.console import start_console
-from mbgw.web.hooks import WebHooks, sighup_reload
+from mbgw.web.hooks import WebHooks
 
 log = logging.getLogger("mbgw")
 
 
 def run_slave(cfg: SlaveConfig, reconfigure=None) -> None:
-    """Raises SerialError when the device cannot be opened, ListenError when mdbport cannot
-    be bound; otherwise returns after SIGTERM or SIGINT.  reconfigure() gives the settings
-    to apply on SIGHUP (None: there is no file to reload)."""
+    """Raises SerialError when the device is there and cannot be opened (one that is not there
+    yet is waited for), ListenError when mdbport cannot be bound; otherwise returns after
+    SIGTERM or SIGINT.  reconfigure() gives the settings to apply on SIGHUP (None: there is no
+    file to reload)."""
     counters = Counters()
-    line = SerialLine(cfg.serial, counters)
+    line = open_at_start(cfg.serial, counters)
     try:
         asyncio.run(_serve(cfg, line, counters, reconfigure))
     finally:
-        line.close()
+        if line is not None:
+            line.close()
 
 
-async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfigure) -> None:
+async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
+                 reconfigure) -> None:
     loop = asyncio.get_running_loop()
     devices = DeviceTable(rule=HealthRule(cfg.demotion))
     scheduler = Scheduler()
@@ -78,8 +83,9 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     status.scenario_engines = engines
     commands = {**status.commands(), **scenario_commands(engines, cfg.config_file)}
     control = await start_control(cfg.control, commands)
+    reloads = Reloads(status, reconfigure)
     console = await start_console(cfg.web, WebHooks(commands, status.trace_hub,
-                                                    cfg.config_file, sighup_reload))
+                                                    cfg.config_file, reloads.run))
     s = cfg.serial
     log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s",
              ", ".join(addresses), s.device, s.baudrate, s.format, s.protocol, s.interface,
@@ -89,20 +95,21 @@ async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfi
     if s.nocheck:
         log.warning("nocheck is on: serial replies are forwarded unchecked (a debugging mode)")
 
-    scenarios = TcpScenarios(tables.table, engines)
+    scenarios = TcpScenarios(tables.table, engines, devices.rule)
     scenarios.start(cfg.scenarios, cfg.tcpto_ms, cfg.upstream_tls)
 
-    async def apply(new: SlaveConfig) -> None:
-        await console.reconfigure(new.web)
-        tables.reconfigure(new)
-        await server.reconfigure(new)
+    async def apply(new: SlaveConfig, report: ReloadReport) -> None:
+        await console.reconfigure(new.web, report)
+        tables.reconfigure(new, report)
+        await server.reconfigure(new, report)
         worker.reconfigure(new)
         await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms,
                                 new.upstream_tls)
+    reloads.apply = apply
 
     kept = asyncio.ensure_future(tables.keep())
     try:
-        await serve_until_stopped(stop, status, worker, reconfigure, apply, control, metrics)
+        await serve_until_stopped(stop, status, worker, reloads, control, metrics)
     finally:
         await console.close()
         await asyncio.to_thread(scenarios.stop)

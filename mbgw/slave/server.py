@@ -25,6 +25,7 @@ import socket
 import ssl
 import time
 
+from mbgw.audit import Kind, event, operator
 from mbgw.config.model import ACTIVE_WINDOW_S, SlaveConfig
 from mbgw.errors import ConfigError
 from mbgw.firewall.guard import Firewall
@@ -33,6 +34,7 @@ from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.ops.limits import AcceptRest, WarnLimit, is_resource_error
+from mbgw.ops.reload import ReloadReport
 from mbgw.ops.service import ListenError
 from mbgw.ops.tls import role_of, server_context
 from mbgw.ops.trace import TraceHub
@@ -43,6 +45,7 @@ from mbgw.slave.connections import Connections
 from mbgw.slave.handshakes import HANDSHAKES_PER_ADDRESS, MAX_HANDSHAKES, Handshakes
 from mbgw.slave.scheduler import (
     OUTCOME_DEVICE_DOWN,
+    OUTCOME_LATE,
     OUTCOME_LINE_DOWN,
     OUTCOME_TABLE,
     OUTCOME_UNROUTABLE,
@@ -137,8 +140,10 @@ class TcpServer:
             sock.close()
         listeners.clear()
 
-    async def reconfigure(self, cfg: SlaveConfig) -> None:
-        """Apply new settings; connections they do not concern stay open."""
+    async def reconfigure(self, cfg: SlaveConfig, report: ReloadReport) -> None:
+        """Apply new settings; connections they do not concern stay open.  What cannot be
+        applied (a port another program holds, TLS files that do not load) stays as it was,
+        told to the report."""
         old, self._cfg = self._cfg, cfg
         self._acl = AccessList(cfg.authip)
         if self._handshakes is not None:
@@ -149,42 +154,60 @@ class TcpServer:
             self.table.set_functions(cfg.table.functions)
         for client in list(self.clients):
             if not self._acl.allows(client.host):
-                log.info("client %s closed: no longer allowed by authip", client.peer)
+                event(log, Kind.CLIENT_CLOSED, "client %s closed: no longer allowed by authip",
+                      client.peer, client=client.peer, reason="not in authip")
                 self._drop(client)
         if cfg.tls != old.tls or cfg.bind != old.bind:
-            self._retls(old)
+            self._retls(old, report)
         if (cfg.mdbport, cfg.bind) != (old.mdbport, old.bind):
             self._stop_listening()
             try:
                 self._listen_plain()
             except OSError as err:
-                log.error("cannot listen on port %d (%s): staying on port %d", cfg.mdbport,
-                          err.strerror, old.mdbport)
+                where = f"{cfg.bind or '*'} port {cfg.mdbport}"
+                for setting in ("mdbport", "bind"):
+                    if getattr(cfg, setting) != getattr(old, setting):
+                        report.refuse(setting, f"cannot listen on {where} ({err.strerror}): "
+                                               f"still on port {old.mdbport}")
                 self._cfg = dataclasses.replace(self._cfg, mdbport=old.mdbport, bind=old.bind)
                 self._listen_plain()
             log.info("now listening on %s", ", ".join(self.addresses()))
 
-    def _retls(self, old: SlaveConfig) -> None:
+    def _retls(self, old: SlaveConfig, report: ReloadReport) -> None:
         """New TLS settings or renewed files: the new context is for new connections; those
-        open keep theirs.  One that cannot be loaded leaves TLS as it was."""
+        open keep theirs.  One that cannot be loaded, or a port that cannot be listened on,
+        leaves TLS as it was."""
         new = self._cfg.tls
         try:
             context = server_context(new) if new.enabled else None
         except ConfigError as err:
-            log.error("TLS settings not applied, the running ones stay: %s", err)
+            report.refuse("tls", f"{err}; the running TLS settings stay")
             self._cfg = dataclasses.replace(self._cfg, tls=old.tls)
             return
-        self._tls = context
         if (new.port, new.enabled, self._cfg.bind) == (old.tls.port, old.tls.enabled, old.bind):
+            self._tls = context
             log.info("TLS: certificate %s loaded for new connections", new.cert)
             return
         self._stop_listening(tls=True)
+        running, self._tls = self._tls, context
         try:
             self._listen_tls()
         except OSError as err:
-            log.error("cannot listen on tls-port %d (%s)", new.port, err.strerror)
+            report.refuse("tls", f"cannot listen on tls-port {new.port} ({err.strerror}); "
+                                 f"the running TLS settings stay")
+            self._cfg = dataclasses.replace(self._cfg, tls=old.tls)
+            self._tls = running
+            self._listen_tls_again(old)
             return
         log.info("now listening on %s", ", ".join(self.addresses()))
+
+    def _listen_tls_again(self, old: SlaveConfig) -> None:
+        """Back on the running tls-port, after the new one failed."""
+        try:
+            self._listen_tls()
+        except OSError as err:
+            log.error("TLS: cannot listen on tls-port %d again (%s): no TLS listener",
+                      old.tls.port, err.strerror)
 
     def _guard_clients(self, firewall: Firewall) -> None:
         """The rules again for every client (a reload): a client whose rule has not changed
@@ -292,7 +315,8 @@ class TcpServer:
             self.counters.connections_refused_tls += 1
             self._log_refusal(host, f"{MAX_HANDSHAKES} TLS handshakes under way already"
                               if handshakes.full else
-                              f"{per_ip} TLS handshakes of this address under way already")
+                              f"{per_ip} TLS handshakes of this address under way already",
+                              Kind.TLS_REFUSED)
             sock.close()
             return
         sock.setblocking(False)
@@ -301,7 +325,7 @@ class TcpServer:
 
     def _tls_refused(self, host: str, reason: str) -> None:
         self.counters.connections_refused_tls += 1
-        self._log_refusal(host, reason)
+        self._log_refusal(host, reason, Kind.TLS_REFUSED)
 
     def _tls_probe(self, host: str) -> None:
         """A connection to the TLS port closed or reset before its first byte (a health
@@ -354,7 +378,9 @@ class TcpServer:
         if victim is None:
             self._warn.warn(newcomer.host, "busy", "client %s refused: all %d connections are "
                             "busy (a request in the gateway, or one within the last %d s)",
-                            newcomer.peer, len(live), ACTIVE_WINDOW_S)
+                            newcomer.peer, len(live), ACTIVE_WINDOW_S,
+                            kind=Kind.CONNECTION_REFUSED, client=newcomer.peer,
+                            reason="max-connections, every client busy")
             return False
         self._evictions.warn(victim.host, "evicted", "client %s closed to make room for %s",
                              victim.peer, newcomer.peer)
@@ -374,11 +400,13 @@ class TcpServer:
                 live[client] = events
         return live
 
-    def close_client(self, client_id: int) -> bool:
-        """Force-close a client connection (operator's command)."""
+    def close_client(self, client_id: int, user=None) -> bool:
+        """Force-close a client connection (operator's command; user: who, as the control
+        command's "uid" names them)."""
         for client in self.clients:
             if client.id == client_id:
-                log.info("client %s closed by the operator", client.peer)
+                event(log, Kind.CLIENT_CLOSED, "client %s closed by the operator (uid %s)",
+                      client.peer, user, client=client.peer, user=operator(user))
                 self._drop(client)
                 return True
         return False
@@ -393,10 +421,12 @@ class TcpServer:
             self.clients.remove(client)
             log.debug("client %s disconnected", client.peer)
 
-    def _log_refusal(self, host: str, reason: str) -> None:
+    def _log_refusal(self, host: str, reason: str,
+                     kind: Kind = Kind.CONNECTION_REFUSED) -> None:
         """Logged at most once a minute per address and reason (with how many were left out):
         a refusal of one kind never hides another kind from the same address."""
-        self._warn.warn(host, reason, "connection from %s refused: %s", host, reason)
+        self._warn.warn(host, reason, "connection from %s refused: %s", host, reason,
+                        kind=kind, client=host, reason=reason)
 
     # --- the line thread: requests in, outcomes out ---
 
@@ -552,6 +582,12 @@ class TcpServer:
         self._answer(client, tid, unit, reply)
         if self.trace.active:
             self.traced(client, tid, unit, request[0], reply, outcome, received_ns)
+
+    def traced_late(self, job: Job, reply: bytes) -> None:
+        """The late reply to job, which timed out, was dropped (while someone traces)."""
+        if self.trace.active:
+            self.trace.emit_threadsafe(self._event("late", job.client, job.tid, job.unit,
+                                                   reply, OUTCOME_LATE, None))
 
     def traced(self, client: Client, tid: int, unit: int, function: int, reply: bytes | None,
                outcome: str, received_ns: int) -> None:

@@ -39,7 +39,7 @@ class SlaveStatus(DaemonStatus):
         busy_s = counters.pop("line_busy_ns") / 1e9
         data = self._common()
         data["serial"].update(stout_ms=self.cfg.serial.stout_ms,
-                              state="up" if self._worker.up else "down")
+                              state=self._worker.state)
         table = self._tables.figures() if self._tables is not None else None
         firewall = self._server.firewall
         return {
@@ -73,6 +73,6 @@ class SlaveStatus(DaemonStatus):
         client_id = request.get("client")
         if not isinstance(client_id, int):
             return {"error": "close needs a client id"}
-        if self._server.close_client(client_id):
+        if self._server.close_client(client_id, request.get("uid")):
             return {"ok": True}
         return {"error": f"no client {client_id}"}

@@ -8,6 +8,7 @@ import time
 
 from mbgw.config.model import SlaveConfig
 from mbgw.ops.device_stats import DeviceTable
+from mbgw.ops.reload import ReloadReport
 from mbgw.table import identity
 from mbgw.table.control import table_commands
 from mbgw.table.memory import Table
@@ -45,9 +46,10 @@ class TableService:
         self.persistence = Persistence(self.table, cfg.persist, cfg.persist_interval_s)
         self.persistence.load()
 
-    def reconfigure(self, settings: SlaveConfig) -> None:
+    def reconfigure(self, settings: SlaveConfig, report: ReloadReport) -> None:
         """New settings (SIGHUP): the configuration zone; a new file is loaded after the old
-        one is written.  The functions and the units are TcpServer's."""
+        one is written (one that cannot be read goes to the report: the table is not kept).
+        The functions and the units are TcpServer's."""
         old, self.settings = self.settings, settings
         identity.fill(self.table, settings, "slave")
         if (settings.table_on, settings.table.persist, settings.table.persist_interval_s) \
@@ -56,7 +58,7 @@ class TableService:
             try:
                 self._persist(settings)
             except Exception as err:   # a reload never stops the gateway
-                log.error("table: %s; the table is not kept in a file", err)
+                report.refuse("table", f"{err}; the table is not kept in a file")
                 self.persistence = None
 
     async def keep(self) -> None:

@@ -159,6 +159,14 @@ class Table:
                              f"(0x8000-0xFFFF)")
         lib.mbgw_table_set_config(self._t, address, len(values), ffi.new("uint16_t[]", values))
 
+    def unwritten(self, address: int, count: int) -> int | None:
+        """The first register of [address, address + count) that nobody has written since the
+        table was made (a Modbus write, the operator, a scenario's read, the persistence
+        file, the configuration zone's content), None when all were written."""
+        _check_range(address, count, REGISTERS, "register")
+        first = lib.mbgw_table_unwritten(self._t, address, count)
+        return None if first < 0 else first
+
     def set_functions(self, functions: Iterable[int]) -> None:
         """The function codes answered; any other is exception 0x01."""
         lib.mbgw_table_set_functions(self._t, _function_mask(functions))
@@ -185,12 +193,14 @@ class Table:
         self._down = None if down is None else ffi.from_buffer("uint8_t[]", down)
         lib.mbgw_table_watch_down(self._t, ffi.NULL if down is None else self._down)
 
-    def watch(self, address: int, count: int, fd: int = -1) -> int:
+    def watch(self, address: int, count: int, fd: int = -1, first_writes: bool = False) -> int:
         """Watch [address, address + count) for changed values: the watch's id, for
         take_change.  fd: an eventfd written once when a change comes after a take (-1: none).
-        Raises TableError beyond the table or when every watch is in use."""
+        first_writes: a register's first write since start is a change even when it stores
+        the value the table held.  Raises TableError beyond the table or when every watch is
+        in use."""
         _check_range(address, count, REGISTERS, "register")
-        watch = lib.mbgw_table_watch(self._t, address, count, fd)
+        watch = lib.mbgw_table_watch(self._t, address, count, fd, int(first_writes))
         if watch < 0:
             raise TableError(f"no room for another watch of the table "
                              f"({WATCHES} in use)")

@@ -37,6 +37,7 @@ import threading
 import time
 from typing import cast
 
+from mbgw.audit import Kind, event
 from mbgw.firewall.guard import Firewall, Guard
 from mbgw.ops.limits import AcceptRest, WarnLimit, is_resource_error, share
 from mbgw.protocol import mbap
@@ -361,7 +362,8 @@ class TableServer(threading.Thread):
             sock.close()
             self.refused_authip += 1
             self._warn.warn(address[0], "authip", "table client %s refused: not in authip",
-                            _name(address))
+                            _name(address), kind=Kind.CONNECTION_REFUSED,
+                            client=_name(address), reason="not in authip")
             return
         if not self._room_for(sock, address):
             return
@@ -397,7 +399,9 @@ class TableServer(threading.Thread):
             return True
         sock.close()
         self.refused_limit += 1
-        self._warn.warn(host, "limit", "table client %s refused: %s", _name(address), why)
+        self._warn.warn(host, "limit", "table client %s refused: %s", _name(address), why,
+                        kind=Kind.CONNECTION_REFUSED, client=_name(address),
+                        reason="too many table clients")
         return False
 
     def _sweep(self) -> None:
@@ -527,9 +531,9 @@ class TableServer(threading.Thread):
                 for old in [k for k, t in logged.items() if now - t >= REFUSAL_LOG_INTERVAL_S]:
                     del logged[old]
             logged[key] = now
-            log.warning("table client %s refused: %s (further TLS refusals of this address "
-                        "for this reason are logged at most once a minute)", _name(address),
-                        reason)
+            event(log, Kind.TLS_REFUSED, "table client %s refused: %s (further TLS refusals of "
+                  "this address for this reason are logged at most once a minute)",
+                  _name(address), reason, client=_name(address), reason=reason)
 
     def _close(self, client: _Connection) -> None:
         del self._clients[client.fd]

@@ -9,7 +9,8 @@ import time
 from mbgw.config.model import TransparentModeConfig
 from mbgw.errors import ConfigError
 from mbgw.firewall.guard import Firewall
-from mbgw.line.port import SerialLine
+from mbgw.line.supervisor import open_at_start
+from mbgw.ops.reload import ReloadReport, Reloads
 from mbgw.ops.service import (
     ListenError,
     idle_ms,
@@ -32,7 +33,7 @@ from mbgw.transparent.line_thread import FrameLine
 from mbgw.transparent.raw import RawPort, access_check
 from mbgw.transparent.status import TransparentStatus
 from mbgw.web.console import start_console
-from mbgw.web.hooks import WebHooks, sighup_reload
+from mbgw.web.hooks import WebHooks
 
 log = logging.getLogger("mbgw")
 
@@ -56,7 +57,8 @@ def _raw_port(cfg: TransparentModeConfig, allows, counters) -> RawPort | None:
 
 
 def run_transparent(cfg: TransparentModeConfig, reconfigure=None) -> None:
-    """Raises SerialError when the device cannot be opened, ListenError when mdbport,
+    """Raises SerialError when the device is there and cannot be opened (one that is not
+    there yet is waited for), ListenError when mdbport,
     raw-port or the metrics address cannot be listened on; otherwise returns after SIGTERM or
     SIGINT.  reconfigure() gives the settings SIGHUP applies (None: no file)."""
     counters = TransparentCounters()
@@ -75,11 +77,12 @@ def run_transparent(cfg: TransparentModeConfig, reconfigure=None) -> None:
             ("mdbport", cfg.mdbport)
         raise TransparentListenFailure(option, port, err) from None
     raw = _raw_port(cfg, allows, counters)
-    line = SerialLine(cfg.serial, counters)
+    line = open_at_start(cfg.serial, counters)
     try:
         frames = FrameLine(cfg, line, table, raw, counters)
     except BaseException:
-        line.close()
+        if line is not None:
+            line.close()
         raise
     server.start()
     try:
@@ -89,14 +92,14 @@ def run_transparent(cfg: TransparentModeConfig, reconfigure=None) -> None:
         server.join()
 
 
-def _retls(server: TableServer, new: TransparentModeConfig) -> None:
+def _retls(server: TableServer, new: TransparentModeConfig, report: ReloadReport) -> None:
     """New TLS settings or renewed files, for new connections; those open keep theirs.  Ones
     that cannot be loaded leave TLS as it was."""
     try:
         server.set_tls(server_context(new.tls) if new.tls.enabled else None, new.tls.port,
                        new.bind)
     except (ConfigError, TableListenError) as err:
-        log.error("TLS settings not applied, the running ones stay: %s", err)
+        report.refuse("tls", f"{err}; the running TLS settings stay")
 
 
 async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table: Table,
@@ -120,8 +123,9 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
     commands = {**status.commands(), **table_commands(table),
                 **scenario_commands(engines, cfg.config_file)}
     control = await start_control(cfg.control, commands)
+    reloads = Reloads(status, reconfigure)
     console = await start_console(cfg.web, WebHooks(commands, status.trace_hub,
-                                                    cfg.config_file, sighup_reload))
+                                                    cfg.config_file, reloads.run))
     s, t = cfg.serial, cfg.transparent
     log.info("transparent mode: serial %s %d %s %s; eof %s, eof-timeout %d ms, rx %d+%d bytes, "
              "tx %d+%d bytes, crc %s, trigger %s, silence %d ms; table on %s%s",
@@ -135,25 +139,26 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
     scenarios = TcpScenarios(table, engines)
     scenarios.start(cfg.scenarios, cfg.tcpto_ms)
 
-    async def apply(new: TransparentModeConfig) -> None:
-        await console.reconfigure(new.web)
+    async def apply(new: TransparentModeConfig, report: ReloadReport) -> None:
+        await console.reconfigure(new.web, report)
         old = status.cfg
         identity.fill(table, new, "transparent")
         for name in ("mdbport", "bind", "authip"):
             if getattr(new, name) != getattr(old, name):
-                log.warning("%s changed: the new setting takes effect at restart", name)
+                report.at_restart(name)
         if new.transparent.raw_port != old.transparent.raw_port:
-            log.warning("raw-port changed: the new setting takes effect at restart")
+            report.at_restart("transparent.raw_port")
         if (new.firewall, new.tls.roles_required) != (old.firewall, old.tls.roles_required):
             server.set_firewall(server.firewall.renewed(new.firewall, new.tls.roles_required))
         server.request_timeout_s = new.request_timeout_ms / 1000
         if new.tls != old.tls:
-            _retls(server, new)
+            _retls(server, new, report)
         frames.reconfigure(new)
         await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms)
+    reloads.apply = apply
 
     try:
-        await serve_until_stopped(stop, status, frames, reconfigure, apply, control, metrics)
+        await serve_until_stopped(stop, status, frames, reloads, control, metrics)
     finally:
         await console.close()
         await asyncio.to_thread(scenarios.stop)

@@ -9,6 +9,7 @@ import select
 import socket
 import time
 
+from mbgw.audit import Kind
 from mbgw.ops.limits import AcceptRest, WarnLimit, is_resource_error
 from mbgw.transparent.counters import TransparentCounters
 
@@ -96,7 +97,8 @@ class RawPort:
             return
         sock.close()
         self._counters.raw_refused += 1
-        self._warn.warn(address[0], key, "raw client %s refused: %s", peer, reason)
+        self._warn.warn(address[0], key, "raw client %s refused: %s", peer, reason,
+                        kind=Kind.CONNECTION_REFUSED, client=peer, reason=reason)
 
     def wake_up(self, now: float) -> None:
         """The line thread's turn: listeners that have rested listen again."""

@@ -3,6 +3,7 @@ every mode shares are in mbgw.ops.status)."""
 import logging
 import time
 
+from mbgw.audit import Kind, event, operator
 from mbgw.ops.status import DaemonStatus
 from mbgw.scenarios.report import scenarios_status
 
@@ -34,7 +35,7 @@ class TransparentStatus(DaemonStatus):
 
     def status(self, request: dict) -> dict:
         data = self._common()
-        data["serial"]["state"] = "up" if self._line.up else "down"
+        data["serial"]["state"] = self._line.state
         rows = scenarios_status(self.scenario_engines.values())
         return {**data, "transparent": self.figures(), "counters": self._counters.snapshot(),
                 "counters_since": self._reset_at, "table": self._table_figures(),
@@ -43,7 +44,8 @@ class TransparentStatus(DaemonStatus):
     def reset(self, request: dict) -> dict:
         self._counters.reset()
         self._reset_at = time.time()
-        log.info("counters reset by the operator (uid %s)", request.get("uid"))
+        event(log, Kind.COUNTERS_RESET, "counters reset by the operator (uid %s)",
+              request.get("uid"), user=operator(request.get("uid")))
         return {"ok": True}
 
     def summary(self) -> str:

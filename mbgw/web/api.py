@@ -9,6 +9,7 @@ from pathlib import Path
 
 from aiohttp import web
 
+from mbgw.audit import Kind, event
 from mbgw.web import config_api
 from mbgw.web.auth import COOKIE, ROLES
 from mbgw.web.passwords import verify
@@ -129,7 +130,8 @@ async def login(request: web.Request) -> web.Response:
     wait = server.limit.attempt(address)       # counted before anything is awaited
     if wait:
         server.warn.warn(address, "login", "web login from %s refused: too many failed "
-                         "logins, %d s to wait", address, wait)
+                         "logins, %d s to wait", address, wait, kind=Kind.LOGIN_FAILED,
+                         client=address, reason="too many failed logins")
         return web.json_response({"error": f"too many failed logins: try again in {wait} s"},
                                  status=429, headers={"Retry-After": str(wait)})
     data = await body(request)
@@ -138,12 +140,14 @@ async def login(request: web.Request) -> web.Response:
     ok = isinstance(password, str) and stored is not None and \
         await asyncio.to_thread(verify, password, stored)
     if not ok:
-        log.warning("web login failed for %r from %s", role, address)
+        event(log, Kind.LOGIN_FAILED, "web login failed for %r from %s", role, address,
+              client=address, user=role, reason="wrong user or password")
         return error(401, "wrong user or password")
     server.limit.succeeded(address)
     server.sessions.close(request.cookies.get(COOKIE))     # a new session id, never the old
     token, new = server.sessions.open(role)
-    log.info("web login: %s from %s", role, address)
+    event(log, Kind.LOGIN_OK, "web login: %s from %s", role, address, client=address,
+          user=role)
     response = web.json_response({"role": new.role, "csrf": new.csrf})
     response.set_cookie(COOKIE, token, httponly=True, samesite="Strict", path="/",
                         secure=server.https or None)
@@ -308,10 +312,10 @@ async def config_set(request: web.Request) -> web.Response:
         changed = config_api.set_value(_config_path(request), group, key, value)
     except config_api.ConfigRefused as err:
         return _refused(err)
-    log.info("configuration changed from the web console (%s): %s", who(request),
-             ", ".join(changed))
-    request.app["hooks"].reload()
-    return web.json_response({"ok": True, "changed": changed, "reloading": True})
+    event(log, Kind.CONFIG_CHANGED, "configuration changed from the web console (%s): %s",
+          who(request), ", ".join(changed), source="web", user=who(request),
+          keys=", ".join(changed))
+    return await _reloaded(request, {"changed": changed})
 
 
 async def config_download(request: web.Request) -> web.Response:
@@ -333,6 +337,19 @@ async def config_upload(request: web.Request) -> web.Response:
         return error(400, "the file is not UTF-8")
     except config_api.ConfigRefused as err:
         return _refused(err)
-    log.info("configuration file replaced from the web console (%s)", who(request))
-    request.app["hooks"].reload()
-    return web.json_response({"ok": True, "mode": mode, "reloading": True})
+    event(log, Kind.CONFIG_CHANGED, "configuration file replaced from the web console (%s)",
+          who(request), source="web", user=who(request), keys="the whole file")
+    return await _reloaded(request, {"mode": mode})
+
+
+async def _reloaded(request: web.Request, done: dict) -> web.Response:
+    """The file is written: the daemon reloads it (as SIGHUP does), and the answer is the
+    reload's outcome, as the log says it.  200 only when every change is in force; 409 when
+    the file is written but the daemon refused it or put part of it in force (the running
+    configuration then differs from the file)."""
+    # shielded: a client that goes away (aiohttp cancels its handler) stops no reload
+    outcome = await asyncio.shield(asyncio.ensure_future(request.app["hooks"].reload()))
+    reply = {**done, "written": True, "reload": outcome.as_dict()}
+    if outcome.applied:
+        return web.json_response({"ok": True, **reply})
+    return error(409, f"written, but {outcome.message()}", **reply)

@@ -6,6 +6,7 @@ The keys come from the mode commands (mbgw.config.schema), which the CLI hands o
 use_commands() when it starts a daemon: web never imports cli."""
 import shlex
 import tomllib
+from collections.abc import Callable
 from pathlib import Path
 
 import click
@@ -21,14 +22,24 @@ MAX_FILE = 256 * 1024
 
 _root: click.Group | None = None
 _given: frozenset = frozenset()
+_check: Callable | None = None
 
 
-def use_commands(root: click.Group, given=()) -> None:
-    """The click group whose mode commands define the keys (mbgw.cli.main), and the
+def use_commands(root: click.Group, given=(), check: Callable | None = None) -> None:
+    """The click group whose mode commands define the keys (mbgw.cli.main), the
     parameters the daemon's command line gave (the file need not have them: a reload keeps
-    them)."""
-    global _root, _given
-    _root, _given = root, frozenset(given)
+    them), and check(schema, settings, given) -> settings: what `mbgw run` and check-config
+    check (mbgw.cli.checks.check_file; raises ConfigFileError)."""
+    global _root, _given, _check
+    _root, _given, _check = root, frozenset(given), check
+
+
+def _start_check(keys: Schema, settings: cf.Settings) -> None:
+    """Raises ConfigFileError when `mbgw run` (and so a reload) would refuse the file."""
+    if _check is not None:
+        _check(keys, settings, given=_given)
+    else:
+        cf.resolve(keys, settings, given=_given)
 
 
 class ConfigRefused(Exception):
@@ -83,7 +94,7 @@ def set_value(path: Path, group: str, key: str, value) -> dict:
     try:
         changes = config_set.changes_for_set(keys, settings, group, key, words)
         new_data = config_set.apply_changes(data, keys, changes)
-        cf.resolve(keys, cf.check(keys, path, new_data), given=_given)
+        _start_check(keys, cf.check(keys, path, new_data))
     except ConfigFileError as err:
         raise ConfigRefused("; ".join(err.problems), field, err.problems) from None
     except ConfigError as err:
@@ -108,7 +119,7 @@ def upload(path: Path, text: str) -> str:
         raise ConfigRefused(f"the file is over {MAX_FILE // 1024} KiB")
     try:
         settings = cf.check(keys, path, cf.parse(path, text))
-        cf.resolve(keys, settings, given=_given)
+        _start_check(keys, settings)
     except ConfigFileError as err:
         raise ConfigRefused(f"{len(err.problems)} problem(s); nothing written", None,
                             err.problems) from None

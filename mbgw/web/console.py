@@ -5,6 +5,7 @@ import ssl
 from typing import TYPE_CHECKING
 
 from mbgw.config.model import WebConfig
+from mbgw.ops.reload import ReloadReport
 from mbgw.web.hooks import WebHooks, WebListenError
 
 if TYPE_CHECKING:
@@ -25,16 +26,19 @@ class Console:
         from mbgw.web.server import start_web
         self.server = await start_web(cfg, self._hooks)
 
-    async def reconfigure(self, cfg: WebConfig) -> None:
-        """A reload's new [web] settings; a console that cannot start is logged, the gateway
-        runs on."""
+    async def reconfigure(self, cfg: WebConfig, report: ReloadReport | None = None) -> None:
+        """A reload's new [web] settings (None: the start's); a console that cannot start is
+        told to the reload's report (logged at start), the gateway runs on."""
         if self.server is not None:
-            await self.server.reconfigure(cfg)
+            await self.server.reconfigure(cfg, report)
             return
         try:
             await self.start(cfg)
         except (WebListenError, OSError, ssl.SSLError) as err:
-            log.error("web console off: %s", err)
+            if report is None:
+                log.error("web console off: %s", err)
+            else:
+                report.refuse("web", f"web console off: {err}")
 
     async def close(self) -> None:
         if self.server is not None:

@@ -100,7 +100,7 @@ class Gate:
                 sock.listen(LISTEN_BACKLOG)
                 sock.setblocking(False)
         except OSError:
-            self._stop_listening()
+            self.stop_listening()
             raise
         for sock in self._listeners:
             self._loop.add_reader(sock.fileno(), self._accept, sock)
@@ -110,7 +110,7 @@ class Gate:
             names.append(f"[{name}]:{bound}" if ":" in name else f"{name}:{bound}")
         return names
 
-    def _stop_listening(self) -> None:
+    def stop_listening(self) -> None:
         for sock in self._listeners:
             if sock.fileno() >= 0:
                 self._loop.remove_reader(sock.fileno())
@@ -118,7 +118,7 @@ class Gate:
         self._listeners = []
 
     async def close(self, timeout_s: float) -> None:
-        self._stop_listening()
+        self.stop_listening()
         for connection in list(self._connections):
             if connection.handler is None:
                 self._close(connection)

@@ -1,10 +1,9 @@
 """What a daemon hands the web console (WebHooks), as it does the control socket."""
-import asyncio
 import dataclasses
 import os
-import signal
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 
+from mbgw.ops.reload import Outcome
 from mbgw.ops.service import ListenError
 
 
@@ -14,15 +13,10 @@ class WebHooks:
     commands: dict                 # the control commands: name -> callable(request) -> reply
     trace: object                  # the trace hub (mbgw.ops.trace.TraceHub)
     config_file: str | None        # the configuration file, None: settings from the command line
-    reload: Callable[[], None]     # apply the file again: the SIGHUP path
+    reload: Callable[[], Awaitable[Outcome]]   # apply the file again: the SIGHUP path
 
 
 class WebListenError(ListenError):
     def __init__(self, address: str, err: OSError) -> None:
         reason = os.strerror(err.errno) if err.errno else str(err)
         Exception.__init__(self, f"--web {address}: cannot listen there: {reason}")
-
-
-def sighup_reload() -> None:
-    """hooks.reload for a daemon: the SIGHUP path, as `systemctl reload mbgw` takes it."""
-    asyncio.get_running_loop().call_soon(os.kill, os.getpid(), signal.SIGHUP)

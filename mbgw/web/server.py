@@ -2,6 +2,8 @@
 restarted when a reload changes [web], closed at stop; the session, CSRF and role checks
 every request passes; the bounds of a request's body; the static pages.  Its connections are
 admitted and timed by mbgw.web.gate."""
+import asyncio
+import dataclasses
 import logging
 import ssl
 from pathlib import Path
@@ -10,6 +12,7 @@ from aiohttp import web
 
 from mbgw.config.model import WebConfig
 from mbgw.ops.limits import WarnLimit
+from mbgw.ops.reload import ReloadReport
 from mbgw.web import api
 from mbgw.web.address import parse_listen
 from mbgw.web.auth import COOKIE, CSRF_HEADER, LoginLimit, Sessions
@@ -38,7 +41,8 @@ class WebServer:
         self.warn = WarnLimit(log)
         self.names: list[str] = []
         self._runner: web.AppRunner | None = None
-        self.gate: Gate | None = None
+        self.gate: Gate | None = None                 # the runner's connections
+        self._retiring: set[asyncio.Task] = set()     # sites closing after a move
 
     @property
     def https(self) -> bool:
@@ -67,9 +71,11 @@ class WebServer:
         scheme = "https" if cfg.https else "http"
         log.info("web console on %s", ", ".join(f"{scheme}://{n}/" for n in self.names))
 
-    async def reconfigure(self, cfg: WebConfig) -> None:
+    async def reconfigure(self, cfg: WebConfig, report: ReloadReport | None = None) -> None:
         """A reload: new passwords end the sessions; a new address or certificate restarts
-        the site (a failure to listen is logged, the gateway runs on without a console)."""
+        the site.  The requests under way are still answered (the one that asked for the
+        reload waits for its outcome); a new address that cannot be listened on goes to the
+        report, and the console stays where it was."""
         if cfg == self.cfg:
             return
         if (cfg.admin_password, cfg.user_password) != (self.cfg.admin_password,
@@ -82,21 +88,54 @@ class WebServer:
             if self.gate is not None:
                 self.gate.timeout_s = cfg.request_timeout_ms / 1000
             return
-        await self.close()
+        old, running = self.cfg, (self._runner, self.gate)
+        self._stop_listening()
         try:
             await self.start(cfg)
         except (WebListenError, OSError, ssl.SSLError) as err:
-            log.error("web console off: %s", err)
+            why = await self._back_to(old, f"web console off: {err}", err)
+            self.cfg = self.cfg if self._runner is not None \
+                else dataclasses.replace(cfg, listen=None)      # off: the next reload tries
+            if report is None:
+                log.error("%s", why)
+            else:
+                report.refuse("web", why)
+        self._retire(running)
         if cfg.listen is None:
             log.info("web console off")
 
+    async def _back_to(self, old: WebConfig, why: str, err: Exception) -> str:
+        """The console where it was, after a new address failed; why it is not moved."""
+        if old.listen is None:
+            return why
+        try:
+            await self.start(old)
+        except (WebListenError, OSError, ssl.SSLError):
+            return why
+        return f"{err}; the console stays on {old.listen}"
+
+    def _stop_listening(self) -> None:
+        """Accept no more connections; the open ones are served until the runner retires."""
+        if self.gate is not None:
+            self.gate.stop_listening()
+        self._runner, self.gate, self.names = None, None, []
+
+    def _retire(self, running: tuple) -> None:
+        """A site that no longer listens closed in the background: its requests under way
+        (SHUTDOWN_S at most) end first."""
+        runner, gate = running
+        if runner is not None:
+            task = asyncio.ensure_future(_cleanup(runner, gate))
+            self._retiring.add(task)
+            task.add_done_callback(self._retiring.discard)
+
     async def close(self) -> None:
         if self._runner is not None:
-            runner, self._runner, self.names = self._runner, None, []
-            if self.gate is not None:
-                await self.gate.close(SHUTDOWN_S)
-                self.gate = None
-            await runner.cleanup()
+            running = self._runner, self.gate
+            self._stop_listening()
+            await _cleanup(*running)
+        if self._retiring:
+            await asyncio.gather(*self._retiring, return_exceptions=True)
 
     def _app(self) -> web.Application:
         app = web.Application(middlewares=[_track, _guard], client_max_size=api.MAX_BODY)
@@ -106,6 +145,12 @@ class WebServer:
         app.add_routes([web.get("/", _index), web.static("/static", STATIC)])
         app.on_response_prepare.append(_headers)   # type: ignore[arg-type]  # aiohttp 3.8's stub
         return app
+
+
+async def _cleanup(runner: web.AppRunner, gate: Gate | None) -> None:
+    if gate is not None:
+        await gate.close(SHUTDOWN_S)
+    await runner.cleanup()
 
 
 async def start_web(cfg: WebConfig, hooks: WebHooks) -> WebServer:

@@ -111,3 +111,35 @@ def test_new_line_settings_reopen_the_line_and_clients_stay(setup):
     status = subprocess.run([sys.executable, "-m", "mbgw", "status", "--json", "--control",
                              gw.control], capture_output=True, text=True, check=True)
     assert '"baudrate": 38400' in status.stdout
+
+
+def test_a_port_another_program_holds_is_not_applied_said_once_and_tried_again(
+        tmp_path, pty_pair, start_peer, start_gateway):
+    """The one outcome of a reload that cannot move the listener: logged once, with what
+    and why, no "mdbport changed"; the gateway stays on its port (the wire says so), and the
+    next reload, with the port free, moves it."""
+    from tests.harness import free_port
+    start_peer("pymodbus_slave.py", pty_pair.device, "17", "--silent-unknown")
+    path = tmp_path / "mbgw.toml"
+    port, wanted = free_port(), free_port()
+    for words in (("serial", "baudrate", "19200"), ("net", "bind", "127.0.0.1"),
+                  ("net", "mdbport", str(port))):
+        config_set(path, *words)
+    gw = start_gateway(pty_pair.gateway, "--config", str(path), port=port, listen=False)
+    holder = socket.socket()
+    holder.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    holder.bind(("127.0.0.1", wanted))
+    holder.listen()
+    config_set(path, "net", "mdbport", str(wanted))
+    line = (f"configuration reloaded: nothing changed; not applied: mdbport: cannot listen "
+            f"on 127.0.0.1 port {wanted} (Address already in use): still on port {port}")
+    try:
+        reload(gw, line)
+        assert "mdbport changed" not in gw.log() and gw.log().count("configuration reloaded") == 1
+        with socket.create_connection(("127.0.0.1", port)) as client:
+            assert ask(client, 1, 17)[7:9] == b"\x03\x04"
+    finally:
+        holder.close()
+    reload(gw, "configuration reloaded: mdbport changed")
+    with socket.create_connection(("127.0.0.1", wanted)) as client:
+        assert ask(client, 2, 17)[7:9] == b"\x03\x04"

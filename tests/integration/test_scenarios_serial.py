@@ -28,6 +28,9 @@ pytestmark = pytest.mark.integration
 
 TABLE_UNIT = 247
 WAIT_S = 10.0               # for what the gateway does on its own (many scenario runs)
+# Tests of a scenario's own errors: its device is never demoted (tests/integration/
+# test_scenarios_demotion.py has demotion), so that every run goes on the line.
+NEVER_DOWN = {"down-after": 0}
 
 
 def toml_value(value) -> str:
@@ -39,9 +42,11 @@ def toml_value(value) -> str:
 
 
 def write_config(path, scenarios: list[dict], baudrate: int = 115200, stout: int = 100,
-                 metrics: str | None = None, **table) -> None:
-    """A configuration file with these [[scenario]] tables (keys as in the file)."""
+                 metrics: str | None = None, serial: dict | None = None, **table) -> None:
+    """A configuration file with these [[scenario]] tables (keys as in the file); serial:
+    more keys of [serial]."""
     lines = ["[serial]", 'mode = "slave"', f"baudrate = {baudrate}", f"stout = {stout}",
+             *(f"{k} = {toml_value(v)}" for k, v in (serial or {}).items()),
              "[net]", "exception = true"]
     if metrics:
         lines += ["[general]", f'metrics = "{metrics}"']
@@ -190,7 +195,8 @@ def test_pending_change_scenarios_go_between_the_cyclic_ones(fault_line, gateway
     right after the cyclic run in progress, the second after one more cyclic run."""
     record = fault_line()
     cyclic = [poll(f"c{n}", 2, 3, n, 1, 1000 + n, retries=0) for n in range(3)]
-    gw, _ = gateway([*cyclic, on_change("w1", 21, 6, 1, 400), on_change("w2", 22, 6, 2, 401)])
+    gw, _ = gateway([*cyclic, on_change("w1", 21, 6, 1, 400), on_change("w2", 22, 6, 2, 401)],
+                    serial=NEVER_DOWN)
     c = client(gw)
     until(lambda: len(frames_to(record, 2)) >= 3, "the cyclic scenarios running")
     triggered = time.monotonic()
@@ -216,7 +222,7 @@ def test_failing_devices_put_their_scenarios_in_error_with_vpgates_messages(faul
                                                                            gateway):
     record = fault_line()
     gw, _ = gateway([poll(name, slave, 3, 0, 4, 10 * n, cycle=200, retries=1)
-                     for n, (name, (slave, _)) in enumerate(ERRORS.items())])
+                     for n, (name, (slave, _)) in enumerate(ERRORS.items())], serial=NEVER_DOWN)
     for name, (_, message) in ERRORS.items():
         s = wait_for_scenario(gw, name, lambda sc: sc["runs"] >= 2, f"{name} run twice")
         assert (s["state"], s["message"]) == ("error", message), s
@@ -235,7 +241,7 @@ def test_failing_devices_put_their_scenarios_in_error_with_vpgates_messages(faul
 
 def test_a_scenario_recovers_when_its_device_answers_again(fault_line, gateway, client):
     record = fault_line("--mute-first", "3")
-    gw, _ = gateway([poll("late", 14, 3, 0, 2, 60, retries=0)])
+    gw, _ = gateway([poll("late", 14, 3, 0, 2, 60, retries=0)], serial=NEVER_DOWN)
     wait_for_scenario(gw, "late", lambda sc: sc["state"] == "error", "in error")
     s = wait_for_scenario(gw, "late", lambda sc: sc["state"] == "running", "running again")
     assert s["errors"] == {"timeout": 3} and s["successes"] >= 1
@@ -333,7 +339,8 @@ def test_stale_data_answers_0x0b_until_the_device_answers_again(fault_line, gate
     """Device 14 is silent to its first 8 requests: the scenario's range is stale (a TCP read
     touching it gets 0x0B, one beside it does not) until the device answers."""
     fault_line("--mute-first", "8")
-    gw, _ = gateway([poll("fresh", 14, 3, 0, 2, 70, retries=0, **{"stale-after": 300})])
+    gw, _ = gateway([poll("fresh", 14, 3, 0, 2, 70, retries=0, **{"stale-after": 300})],
+                    serial=NEVER_DOWN)
     c = client(gw)
     until(lambda: table_read(c, 71, 1) == bytes.fromhex("83 0b"), "stale data refused")
     assert table_read(c, 72, 1) == bytes.fromhex("03 02 0000")       # beside the range

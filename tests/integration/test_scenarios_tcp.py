@@ -48,6 +48,7 @@ class Scenario:
 class Run:
     scenario: Scenario
     pdu: bytes
+    probe: bool = False
 
 
 class StandInEngine:
@@ -288,11 +289,12 @@ def master_with(tmp_path, start_master):
 
 @pytest.fixture
 def slave_with(tmp_path, pty_pair, start_gateway):
-    """slave_with(scenarios_toml) -> gateway: `mbgw slave` with the table (units 247-254)
-    and these scenarios, from a file; nothing on its serial line."""
-    def start(scenarios: str, tcpto: int = FAST_TCPTO_MS):
+    """slave_with(scenarios_toml, serial=more [serial] lines) -> gateway: `mbgw slave` with
+    the table (units 247-254) and these scenarios, from a file; nothing on its serial
+    line."""
+    def start(scenarios: str, tcpto: int = FAST_TCPTO_MS, serial: str = ""):
         path = tmp_path / "mbgw.toml"
-        path.write_text(f'[serial]\nbaudrate = 19200\n\n[net]\ntcpto = {tcpto}\n\n'
+        path.write_text(f'[serial]\nbaudrate = 19200\n{serial}\n[net]\ntcpto = {tcpto}\n\n'
                         f'[table]\nenabled = true\n\n' + scenarios)
         return start_gateway(pty_pair.gateway, "--config", str(path)), path
     return start
@@ -351,7 +353,8 @@ def test_a_failing_server_puts_the_scenario_in_error_then_it_recovers(
     server = scripted()
     server.default = action
     gw, _ = slave_with(scenario_toml("flaky", server.server, function=3, address=0,
-                                     quantity=2, table=FREE, cycle=100))
+                                     quantity=2, table=FREE, cycle=100),
+                       serial="down-after = 0\n")     # every run dials: its own message
     until(lambda: scenario_status(gw, "flaky")["message"] == message, message)
     server.default = "ok"
     s = until(lambda: (s := scenario_status(gw, "flaky"))["state"] == "running" and s,

@@ -292,3 +292,51 @@ def test_the_firewall_applies_the_role_in_the_certificate(tmp_path, pty_pair, re
             if line.split(" ", 2)[1] == "rx"]
     assert [bytes.fromhex(s)[1:-2] for s in seen] == [bytes.fromhex("03 0005 0001"),
                                                       bytes.fromhex("06 0005 0007")]
+
+
+def test_a_tls_change_that_cannot_be_applied_is_said_once_and_truthfully(
+        tmp_path, pty_pair, start_peer, start_gateway, pki):
+    """Issue 22: "TLS settings not applied" then "configuration reloaded: tls changed" no
+    more.  A key that does not go with the certificate: the reload is refused, naming the key;
+    a tls-port another program holds: the rest is applied, TLS stays as it was.  Either way a
+    new connection still gets the running certificate."""
+    ca = pki[0]
+    start_peer("pymodbus_slave.py", pty_pair.device, str(UNIT), "--silent-unknown")
+    cert, key = ca.issue("server", server=True)
+    _, other_key = ca.issue("other", server=True)
+    path = tmp_path / "mbgw.toml"
+    port, held = free_port(), free_port()
+    for words in (("serial", "baudrate", "19200"), ("tls", "port", str(port)),
+                  ("tls", "cert", str(cert)), ("tls", "key", str(key)),
+                  ("tls", "ca", str(ca.cert))):
+        config_set(path, *words)
+    gw = start_gateway(pty_pair.gateway, "--config", str(path))
+    context = client_context(ca, ca.issue("op", role="operator"))
+    first = server_serial(port, context)
+    path.write_text(path.read_text().replace(str(key), str(other_key)))
+    os.kill(gw.proc.pid, signal.SIGHUP)
+    refused = (f"reload refused, the running configuration stays: {path}: tls.key: "
+               f"{other_key} does not match tls.cert {cert}")
+    wait_for_log(gw, refused)
+    path.write_text(path.read_text().replace(str(other_key), str(key))
+                    .replace(f"port = {port}", f"port = {held}")
+                    .replace("baudrate = 19200", "baudrate = 19200\nstout = 700"))
+    with socket.socket() as holder:
+        holder.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        holder.bind(("0.0.0.0", held))
+        holder.listen()
+        os.kill(gw.proc.pid, signal.SIGHUP)
+        partly = ("configuration reloaded: serial.stout_ms changed; not applied: tls: cannot "
+                  f"listen on tls-port {held} (Address already in use); the running TLS "
+                  "settings stay")
+        wait_for_log(gw, partly)
+    log = gw.log()
+    assert log.count("reload") == 2 and log.count(refused) == log.count(partly) == 1
+    assert "tls changed" not in log and "TLS settings not applied" not in log
+    assert status(gw)["serial"]["stout_ms"] == 700
+    assert server_serial(port, context) == first          # TLS as it was, on its port
+    client = tls_client(port, context)
+    try:
+        assert read(client) == [100, 101]
+    finally:
+        client.close()

@@ -131,10 +131,11 @@ def test_a_tcp_scenario_over_tls(pki, tls_servers, tls_runner):
 
 @pytest.fixture
 def slave_with(tmp_path, pty_pair, start_gateway):
-    """slave_with(file text) -> gateway: `mbgw slave` with the table, from a file."""
-    def start(text: str):
+    """slave_with(file text, serial=more [serial] lines) -> gateway: `mbgw slave` with the
+    table, from a file."""
+    def start(text: str, serial: str = ""):
         path = tmp_path / "mbgw.toml"
-        path.write_text(f'[serial]\nbaudrate = 19200\n\n[net]\ntcpto = {TCPTO_MS}\n\n'
+        path.write_text(f'[serial]\nbaudrate = 19200\n{serial}\n[net]\ntcpto = {TCPTO_MS}\n\n'
                         f'[table]\nenabled = true\n\n' + text)
         return start_gateway(pty_pair.gateway, "--config", str(path))
     return start
@@ -148,7 +149,8 @@ def test_slave_mode_runs_tls_scenarios_from_the_file(pki, tls_servers, slave_wit
     gw = slave_with(
         scenario_toml("secure", f"{TLS_HOST}:{port}", unit=5, table=FREE, **keys)
         + scenario_toml("impostor", f"127.0.8.2:{impostor}", table=FREE + 8, **keys)
-        + f'\n[tls]\nclient-cert = "{cert}"\nclient-key = "{key}"\nserver-ca = "{ca.cert}"\n')
+        + f'\n[tls]\nclient-cert = "{cert}"\nclient-key = "{key}"\nserver-ca = "{ca.cert}"\n',
+        serial="down-after = 0\n")     # the impostor keeps its own message, never "server down"
     until(lambda: read_table(gw.port, TABLE_UNIT, FREE, 3) == [8, 1, 5], "the data in the table")
     secure = until(lambda: (s := scenario_status(gw, "secure"))["successes"] and s, "a success")
     assert secure["state"] == "running" and secure["target"].endswith("unit 5 TLS")

@@ -6,6 +6,7 @@ The fault peer's registers i hold 1000 + i; the table answers unit 247."""
 import http.cookiejar
 import json
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -263,10 +264,13 @@ def test_a_setting_is_checked_like_config_set_and_applied_with_a_reload(console)
     code, reply, _ = web.post("/api/config", {"group": "web", "key": "admin-password",
                                               "value": "x"})
     assert code == 400 and reply["field"] == "web.admin-password"
-    assert web.ok("POST", "/api/config", {"group": "serial", "key": "stout", "value": 700}) \
-        == {"ok": True, "changed": {"serial.stout": 700}, "reloading": True}
+    reply = web.ok("POST", "/api/config", {"group": "serial", "key": "stout", "value": 700})
+    assert reply["ok"] is True and reply["changed"] == {"serial.stout": 700}
+    assert reply["reload"]["status"] == "applied"
+    assert reply["reload"]["message"] == "configuration reloaded: serial.stout_ms changed"
     assert "stout = 700" in path.read_text()
-    until(lambda: status(gw)["serial"]["stout_ms"] == 700, "reloaded")
+    assert status(gw)["serial"]["stout_ms"] == 700          # in force when answered
+    assert gw.log().count("configuration reloaded: serial.stout_ms changed") == 1
     assert "configuration changed from the web console (web admin@127.0.0.1): serial.stout" \
         in gw.log()
 
@@ -286,6 +290,50 @@ def test_the_file_is_downloaded_and_an_upload_is_checked_before_it_replaces_it(c
     assert web.call("POST", "/api/config/file", raw=good.encode())[0] == 200
     assert path.read_text() == good
     until(lambda: status(gw)["serial"]["stout_ms"] == 650, "reloaded")
+
+
+def test_the_answer_is_the_reloads_outcome_as_the_log_says_it(console):
+    """A file written whose reload put only part of it in force: 409, the outcome the daemon
+    logged (once), and the daemon does what it says: the new stout in force, no metrics
+    endpoint (it takes effect at restart)."""
+    gw, path, web, _ = console()
+    admin(web)
+    metrics = free_port()
+    text = path.read_text().replace("stout = 100", "stout = 250") \
+        + f'[general]\nmetrics = "127.0.0.1:{metrics}"\n'
+    code, reply, _ = web.call("POST", "/api/config/file", raw=text.encode())
+    assert code == 409 and reply["written"] is True and path.read_text() == text
+    outcome = reply["reload"]
+    assert outcome["status"] == "partly applied" and outcome["changed"] == ["serial.stout_ms"]
+    assert outcome["not_applied"] == {"metrics": "takes effect at restart (systemctl restart "
+                                                 "mbgw)"}
+    assert reply["error"] == f"written, but {outcome['message']}"
+    log = gw.log()
+    assert log.count(outcome["message"]) == 1 and log.count("configuration reloaded") == 1
+    assert status(gw)["serial"]["stout_ms"] == 250
+    with pytest.raises(ConnectionRefusedError):
+        socket.create_connection(("127.0.0.1", metrics), timeout=5).close()
+
+
+def test_what_the_start_would_refuse_is_never_written_nor_reloaded(console):
+    gw, path, web, _ = console()
+    admin(web)
+    before = path.read_text()
+    console_port = web.base.rsplit(":", 1)[1]
+    code, reply, _ = web.post("/api/config", {"group": "general", "key": "metrics",
+                                              "value": f":{console_port}"})
+    assert code == 400 and reply["field"] == "general.metrics"
+    assert f"general.metrics: port {console_port} is web.listen's already" in reply["error"]
+    code, reply, _ = web.post("/api/config", {"group": "net", "key": "bind",
+                                              "value": "999.0.0.1"})
+    assert code == 400 and "'999.0.0.1' is not an IP address" in reply["error"]
+    no_admin = "\n".join(line for line in before.splitlines()
+                         if not line.startswith("admin-password")) + "\n"
+    code, reply, _ = web.call("POST", "/api/config/file", raw=no_admin.encode())
+    assert code == 400 and any("web.listen: no admin password set" in p
+                               for p in reply["problems"])
+    assert path.read_text() == before
+    assert "reload" not in gw.log()
 
 
 # --- the user role, and what is refused ----------------------------------------------------
@@ -361,7 +409,7 @@ def test_the_console_refuses_to_start_without_an_admin_password(tmp_path, pty_pa
                            str(tmp_path / "c.sock")],
                           capture_output=True, text=True, timeout=30, cwd=CHECKOUT)
     assert done.returncode == 2
-    assert "needs an admin password" in done.stderr and "mbgw config password admin" in \
+    assert "no admin password set" in done.stderr and "mbgw config password admin" in \
         done.stderr
 
 

@@ -1,6 +1,6 @@
 """A real serial slave that is not our code: pymodbus's RTU server on a pty.
 
-usage: pymodbus_slave.py DEVICE [ADDRESS...] [--identity] [--silent-unknown]
+usage: pymodbus_slave.py DEVICE [ADDRESS...] [--identity] [--silent-unknown] [--record PATH]
                                                                  (default address 17)
 Holding registers 0..99 hold 100..199, input registers 0..99 hold 1000..1099,
 coils and discrete inputs alternate 1, 0 from address 0.  Broadcasts (address 0) are
@@ -10,9 +10,13 @@ executed on every address.  Prints READY when listening.
                   (report server id); without it pymodbus has no objects.
 --silent-unknown  stay silent for a request to an address this server does not have, as a real
                   line does (pymodbus 3.16.1 otherwise answers such a request with exception 0x04).
+--record PATH     every request pymodbus decoded, for any address, as a line
+                  "<time.monotonic()> rx <address, PDU in hex>" (as fault_slave.py records, but
+                  without the CRC), flushed at once: what the line carried, for the tests.
 """
 import argparse
 import asyncio
+import time
 
 from pymodbus.datastore import ModbusDeviceContext, ModbusSequentialDataBlock, ModbusServerContext
 from pymodbus.framer import FramerType
@@ -48,6 +52,7 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("addresses", nargs="*", type=int)
     parser.add_argument("--identity", action="store_true")
     parser.add_argument("--silent-unknown", action="store_true")
+    parser.add_argument("--record")
     return parser.parse_args()
 
 
@@ -56,9 +61,16 @@ async def main() -> None:
     addresses = args.addresses or [17]
     context = ModbusServerContext(devices={a: device() for a in addresses}, single=False)
 
-    def drop_unknown(sending: bool, pdu):
-        # A request dropped here is never executed nor answered (pymodbus's trace_pdu hook).
-        if sending or pdu.dev_id == 0 or pdu.dev_id in addresses:
+    record = open(args.record, "w", buffering=1) if args.record else None
+
+    def watch(sending: bool, pdu):
+        # pymodbus's trace_pdu hook: a request dropped here is never executed nor answered.
+        if sending:
+            return pdu
+        if record is not None:
+            frame = bytes((pdu.dev_id, pdu.function_code)) + pdu.encode()
+            record.write(f"{time.monotonic()} rx {frame.hex()}\n")
+        if not args.silent_unknown or pdu.dev_id == 0 or pdu.dev_id in addresses:
             return pdu
         return None
 
@@ -66,7 +78,7 @@ async def main() -> None:
         context, framer=FramerType.RTU, port=args.device, baudrate=19200,
         broadcast_enable=True,
         identity=ModbusDeviceIdentification(info=IDENTITY) if args.identity else None,
-        trace_pdu=drop_unknown if args.silent_unknown else None)
+        trace_pdu=watch if args.silent_unknown or record is not None else None)
     await server.serve_forever(background=True)
     print("READY", flush=True)
     await asyncio.Event().wait()

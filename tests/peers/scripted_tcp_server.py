@@ -1,7 +1,7 @@
 """A misbehaving Modbus TCP server, scripted by the test: a thread with one listening socket
 (127.0.0.1 unless told) that answers each request as the next action of its script says, and records
-every request it saw (unit id, PDU) for the test to check the wire.  Replies are built here
-from the spec, never by mbgw's code.
+every request it saw (unit id, PDU, and when) for the test to check the wire.  Replies are built
+here from the spec, never by mbgw's code.
 
 Actions: "ok" (FC 3: `count` registers holding `values`; FC 6/16: the echo), "silent" (no
 answer), "close" (the connection closed without answer), "wrong-function" (an FC 4 reply),
@@ -10,6 +10,7 @@ request is answered as `default` says ("ok" unless the test sets another)."""
 import socket
 import struct
 import threading
+import time
 from collections import deque
 
 
@@ -20,6 +21,7 @@ class ScriptedServer:
         self.script: deque = deque(script)
         self.default = "ok"
         self.requests: list[tuple[int, bytes]] = []
+        self.times: list[float] = []     # each request's arrival, time.monotonic()
         self.connections = 0
         self.disconnections = 0          # by the client
         self.seen = threading.Condition()
@@ -80,6 +82,7 @@ class ScriptedServer:
                 buf = buf[6 + length:]
                 action = self.script.popleft() if self.script else self.default
                 with self.seen:
+                    self.times.append(time.monotonic())
                     self.requests.append((unit, pdu))
                     self.seen.notify_all()
                 if action == "close":

@@ -55,6 +55,14 @@ def test_change_trigger_and_fc23():
     assert parse_scenario(sc.fields(), "s") == sc
 
 
+def test_send_unwritten_is_a_writes_key_and_round_trips():
+    sc = parse_scenario(fields(function=16, quantity=2, **{"send-unwritten": "on"}), "s")
+    assert sc.send_unwritten and sc.fields()["send-unwritten"] is True
+    assert parse_scenario(sc.fields(), "s") == sc
+    plain = parse_scenario(fields(function=16, quantity=2), "s")
+    assert not plain.send_unwritten and "send-unwritten" not in plain.fields()
+
+
 def test_key_values_as_strings():
     """`mbgw config scenario add NAME KEY=VALUE` and `scenario test` give strings."""
     sc = parse_scenario({"name": "w", "slave": "0", "function": "6", "address": "0x10",
@@ -102,6 +110,10 @@ def test_key_values_as_strings():
     ({"stale-after": -1}, "scenario boiler: stale-after -1: out of range"),
     ({"function": 16, "stale-after": 500}, "scenario boiler: stale-after 500: only a read"),
     ({"enabled": "maybe"}, "scenario boiler: enabled 'maybe': expected true or false"),
+    ({"send-unwritten": True}, "scenario boiler: send-unwritten: only a write sends table "
+                               "data (function 5, 6, 15, 16 or 23)"),
+    ({"function": 16, "send-unwritten": "sometimes"}, "scenario boiler: send-unwritten "
+                                                      "'sometimes': expected true or false"),
     ({"colour": 1}, "scenario boiler: colour: unknown key"),
     ({"function": 23}, "scenario boiler: address: not for function 23 (write read-address"),
     ({"write-table": 1}, "scenario boiler: write-table: not for function 3"),
@@ -158,7 +170,7 @@ def test_file_scenarios_reach_the_mode_config(tmp_path):
 
 def test_file_serial_scenario_in_master_mode(tmp_path):
     done = check_config(tmp_path, FILE.format(mode='mode = "master"'))
-    assert done.returncode == 1
+    assert done.returncode == 78
     assert "scenario boiler: slave: a serial scenario needs the line's master role" \
         in done.stderr
 
@@ -167,7 +179,7 @@ def test_file_problems_listed_with_their_scenario(tmp_path):
     text = FILE.format(mode="").replace("quantity = 10", "quantity = 200") \
         .replace('"remote"', '"boiler"')
     done = check_config(tmp_path, text)
-    assert done.returncode == 1
+    assert done.returncode == 78
     assert "scenario boiler: quantity 200: out of range 1..125" in done.stderr
     text = FILE.format(mode="").replace('"remote"', '"boiler"')
     assert "scenario boiler: name used twice" in check_config(tmp_path, text).stderr

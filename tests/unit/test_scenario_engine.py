@@ -82,7 +82,13 @@ def test_errors_logged_once_and_fc7_flag(table, clock, caplog):
 def test_change_trigger_through_the_table(table, clock):
     e = engine(table, clock, sc("w", function=16, table=10, cycle=None, trigger="change"))
     assert e.due_in(clock.now) is None
+    table.write(10, [0, 0])              # the table's values, but written for the first time
+    assert select.select([e.wake_fd], [], [], 0)[0]
+    run = e.next(clock.now)
+    assert run.pdu == H("10 00 00 00 02 04 00 00 00 00")
+    e.done(run, H("10 00 00 00 02"), None)
     table.write(10, [0, 0])                                    # the same values: no change
+    assert e.due_in(clock.now) is None
     assert not select.select([e.wake_fd], [], [], 0)[0]
     table.write(11, [5])
     assert select.select([e.wake_fd], [], [], 0)[0]

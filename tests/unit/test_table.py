@@ -539,3 +539,62 @@ def test_fc7_flags_are_set_one_at_a_time():
     assert table.answer(bytes.fromhex("07")) == bytes.fromhex("07 03")
     table.set_flags(line_down=False)
     assert table.answer(bytes.fromhex("07")) == bytes.fromhex("07 02")
+
+
+# --- written since start: what a write scenario may send ---
+
+def test_a_fresh_table_has_nothing_written(table):
+    assert table.unwritten(0, 1) == 0
+    assert table.unwritten(0x7FFF, 2) == 0x7FFF
+    with pytest.raises(TableError):
+        table.unwritten(0xFFFF, 2)
+
+
+@pytest.mark.parametrize("request_hex, written", [
+    ("05 0025 ff00", [2]),                       # bit 37: register 2, whatever else it holds
+    ("05 0025 0000", [2]),                       # a coil switched off is data too
+    ("06 0014 0000", [20]),                      # zero, the value the table held
+    ("0f 001f 0002 01 00", [1, 2]),              # bits 31, 32: registers 1 and 2
+    ("10 0014 0002 04 0000 0000", [20, 21]),
+    ("17 0000 0001 0014 0002 04 0000 0000", [20, 21]),   # FC 23: its write part only
+])
+def test_every_modbus_write_marks_its_registers_written_whatever_the_value(
+        table, request_hex, written):
+    table.answer(H(request_hex))
+    for register in range(0, 24):
+        assert (table.unwritten(register, 1) is None) == (register in written), register
+
+
+def test_a_broadcast_write_marks_written_and_a_refused_write_does_not(table):
+    table.answer(H("06 0014 0007"), broadcast=True)
+    assert table.unwritten(20, 1) is None
+    assert ask(table, "10 7fff 0002 04 0000 0000") == "90 02"     # into the configuration zone
+    assert table.unwritten(0x7FFF, 1) == 0x7FFF
+    assert ask(table, "10 0030 0002 03 0000 00") == "90 03"       # byte count wrong
+    assert table.unwritten(0x30, 2) == 0x30
+
+
+def test_operator_writes_bit_writes_and_the_configuration_zone_mark_written(table):
+    table.write(100, [0, 0])
+    table.write_bits(16 * 200 + 3, b"\x00", 1)
+    table.set_config(0x8000, [1, 2, 3])
+    assert table.unwritten(100, 2) is None
+    assert table.unwritten(200, 1) is None
+    assert table.unwritten(0x8000, 3) is None
+    assert table.unwritten(99, 4) == 99 and table.unwritten(100, 3) == 102
+    assert table.unwritten(0x8000, 4) == 0x8003
+
+
+def test_a_first_write_of_the_same_value_tells_a_first_writes_watch_only():
+    table = Table()
+    plain = table.watch(10, 2)
+    first = table.watch(10, 2, first_writes=True)
+    table.write(10, [0])                                   # the value the table held
+    assert table.take_change(plain, 2) is None
+    assert table.take_change(first, 2) == [0, 0]
+    table.write(10, [0])                                   # written before: no change
+    assert table.take_change(first, 2) is None
+    table.answer(H("06 000b 0000"))                        # register 11's first write
+    assert table.take_change(first, 2) == [0, 0]
+    table.write(11, [5])
+    assert table.take_change(plain, 2) == [0, 5] and table.take_change(first, 2) == [0, 5]

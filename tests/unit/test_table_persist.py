@@ -218,3 +218,13 @@ def test_a_file_that_cannot_be_read_stops_the_start(path):
     with pytest.raises(ConfigError, match="table-persist .*table.bin: cannot read it"):
         Persistence(Table(), path, 10).load()
     assert path.is_dir()
+
+
+def test_registers_restored_from_the_file_count_as_written(path):
+    table = filled([(0x0800, [0, 7])])
+    Persistence(table, path, 10).save()
+    restored, _ = restarted(path)
+    assert restored.unwritten(0x0800, 0x8000 - 0x0800) is None     # zeros included
+    assert restored.unwritten(0, 0x0800) == 0                       # the inputs: not kept
+    fresh, _ = restarted(path.with_name("none.bin"))
+    assert fresh.unwritten(0x0800, 1) == 0x0800

@@ -131,12 +131,12 @@ def test_the_client_context_checks_its_files(ca):
     context = client_context(UpstreamTlsConfig(str(cert), str(key), str(ca.cert)))
     assert context.check_hostname is False and context.verify_mode.name == "CERT_REQUIRED"
     old, _ = ca.issue("old", start="20200101000000Z", end="20210101000000Z")
-    with pytest.raises(ConfigError, match=f"tls-client-cert {old}: expired on 2021-01-01"):
+    with pytest.raises(ConfigError, match=f"tls.client-cert {old}: expired on 2021-01-01"):
         client_context(UpstreamTlsConfig(str(old), str(key), str(ca.cert)))
     _, other_key = ca.issue("other")
-    with pytest.raises(ConfigError, match=f"tls-client-key {other_key}: does not go with"):
+    with pytest.raises(ConfigError, match=f"tls.client-key: {other_key} does not match"):
         client_context(UpstreamTlsConfig(str(cert), str(other_key), str(ca.cert)))
-    with pytest.raises(ConfigError, match="tls-server-ca /nowhere.pem: cannot be read"):
+    with pytest.raises(ConfigError, match="tls.server-ca /nowhere.pem: cannot be read"):
         client_context(UpstreamTlsConfig(str(cert), str(key), "/nowhere.pem"))
 
 

@@ -788,7 +788,10 @@ function configRow(group, key, value) {
   const input = adminControl(el("input", { id: `cfg-${group}-${key}`, "data-field": field,
     value: configValue(value) }));
   const note = el("span", { class: "field-error", "data-error-for": field });
+  // the answer comes once the daemon has reloaded the file: applied, or what it did not do
   const apply = async () => {
+    note.className = "";
+    note.textContent = "applying...";
     const result = await api("POST", "/api/config", { group, key, value: input.value });
     note.className = result.ok ? "ok" : "field-error";
     note.textContent = result.ok ? "applied" : refusal(result);
@@ -806,15 +809,18 @@ function configRow(group, key, value) {
 async function uploadConfig(input, out, reload) {
   const file = input.files && input.files[0];
   if (!file) { out.className = "error"; out.textContent = "choose a file first"; return; }
+  out.className = "";
+  out.textContent = "checking, writing and applying...";
   const result = await api("POST", "/api/config/file", await file.text());
   out.className = result.ok ? "ok" : "error";
   if (result.ok) {
     out.textContent = "written and applied";
-    reload();
   } else {
     const problems = result.data.problems;
-    out.textContent = Array.isArray(problems) ? problems.map(show).join("\n") : refusal(result);
+    out.textContent = Array.isArray(problems) && problems.length
+      ? problems.map(show).join("\n") : refusal(result);
   }
+  if (result.data.written) reload();
 }
 
 // ---- start -------------------------------------------------------------------------------
