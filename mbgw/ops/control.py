@@ -127,7 +127,11 @@ class ControlServer:
                      uid: int) -> None:
         try:
             try:
-                request = parse_request(await _read_request(reader))
+                line = await _read_request(reader)
+                if not line:    # connected and closed: a second daemon's probe (start())
+                    log.debug("control connection closed without a request")
+                    return
+                request = parse_request(line)
             except BadRequest as err:
                 self._bad_requests.warn(str(err))
                 await _reply(writer, {"error": str(err)})

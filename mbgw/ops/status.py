@@ -25,7 +25,8 @@ class DaemonStatus:
         self._trace = trace
         self._started = time.time()
         self._started_mono = time.monotonic()
-        self._reset_at = self._started
+        self._reset_at = self._started              # shown: "counters since"
+        self._reset_mono = self._started_mono       # measured: a clock step changes nothing
 
     @property
     def trace_hub(self):
@@ -66,16 +67,16 @@ class DaemonStatus:
     def reset(self, request: dict) -> dict:
         self._counters.reset()
         self._devices.reset()
-        self._reset_at = time.time()
-        event(log, Kind.COUNTERS_RESET, "counters reset by the operator (uid %s)",
-              request.get("uid"), user=operator(request.get("uid")))
+        self._reset_at, self._reset_mono = time.time(), time.monotonic()
+        event(log, Kind.COUNTERS_RESET, "counters reset by the operator (%s)",
+              operator(request.get("uid")), user=operator(request.get("uid")))
         return {"ok": True}
 
     async def trace(self, request: dict, reader: asyncio.StreamReader,
                     writer: asyncio.StreamWriter) -> None:
         hub = self._trace
         queue = hub.subscribe()
-        log.info("trace started (uid %s)", request.get("uid"))
+        log.info("trace started (%s)", operator(request.get("uid")))
         gone = asyncio.ensure_future(until_closed(reader))   # the client closing ends it
         try:
             writer.write(json.dumps(self.trace_header()).encode() + b"\n")

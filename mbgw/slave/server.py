@@ -376,9 +376,9 @@ class TcpServer:
                 and (not events & select.POLLIN or slow(c, now))]
         victim = eviction_victim(idle, now)
         if victim is None:
-            self._warn.warn(newcomer.host, "busy", "client %s refused: all %d connections are "
-                            "busy (a request in the gateway, or one within the last %d s)",
-                            newcomer.peer, len(live), ACTIVE_WINDOW_S,
+            self._warn.warn(newcomer.host, "busy", "client %s refused: all %d connections of "
+                            "net.max-connections are busy (a request in the gateway, or one "
+                            "within the last %d s)", newcomer.peer, len(live), ACTIVE_WINDOW_S,
                             kind=Kind.CONNECTION_REFUSED, client=newcomer.peer,
                             reason="max-connections, every client busy")
             return False
@@ -405,8 +405,8 @@ class TcpServer:
         command's "uid" names them)."""
         for client in self.clients:
             if client.id == client_id:
-                event(log, Kind.CLIENT_CLOSED, "client %s closed by the operator (uid %s)",
-                      client.peer, user, client=client.peer, user=operator(user))
+                event(log, Kind.CLIENT_CLOSED, "client %s closed by the operator (%s)",
+                      client.peer, operator(user), client=client.peer, user=operator(user))
                 self._drop(client)
                 return True
         return False
