@@ -74,6 +74,12 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
               type=click.IntRange(*config.PORT_RANGE),
               default=config.TableConfig.port, show_default=True,
               help="With --table: the TCP port where Modbus TCP clients reach the table.")
+@click.option("--table-max-connections", cls=TableOption, key="table-max-connections",
+              file_key="max-connections", type=click.IntRange(*config.MAX_CONNECTIONS_RANGE),
+              default=config.DEFAULT_TABLE_MAX_CONNECTIONS, show_default=True, metavar="N",
+              help="With --table: TCP clients of the table at once (its TLS port's included); "
+                   "a newcomer beyond it takes the place of one that sent no request yet, or "
+                   "is refused.")
 @table_options
 @tls_options
 @daemon_options

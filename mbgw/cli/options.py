@@ -288,7 +288,8 @@ def table_config(**settings) -> config.TableConfig:
     fields = {"enabled": "table_enabled", "direct": "table_direct", "units": "table_units",
               "functions": "table_functions", "serial_functions": "table_serial_functions",
               "address": "table_address",
-              "port": "table_port", "persist_interval_s": "table_persist_interval"}
+              "port": "table_port", "persist_interval_s": "table_persist_interval",
+              "max_connections": "table_max_connections"}
     return convert("'--table'", lambda: config.TableConfig(
         persist=persist_path(settings.get("table_persist")),
         **{f: settings[o] for f, o in fields.items() if settings.get(o) is not None}))

@@ -233,6 +233,7 @@ TABLE_FUNCTIONS = (1, 2, 3, 4, 5, 6, 7, 15, 16, 23)
 DEFAULT_TABLE_UNITS = tuple(range(247, 255))   # slave mode, direct messaging on
 TABLE_ADDRESS_RANGE = (0, 247)                 # master mode; 0: the line has no table slave
 DEFAULT_TABLE_PORT = 502                       # master mode: TCP clients reach the table here
+DEFAULT_TABLE_MAX_CONNECTIONS = 32             # its clients at once (mbgw.table.server)
 PERSIST_INTERVAL_RANGE = (1, 86400)            # s
 DEFAULT_PERSIST_INTERVAL_S = 10
 # table-persist lives in the service's state directory, nowhere else (a console admin must not
@@ -327,6 +328,7 @@ class TableConfig:
     serial_functions: tuple[int, ...] | None = None   # master mode's serial slave; None: functions
     address: int = 0               # master mode: the serial address mbgw answers as (0: none)
     port: int = DEFAULT_TABLE_PORT
+    max_connections: int = DEFAULT_TABLE_MAX_CONNECTIONS   # master mode's table-port clients
     persist: str | None = None     # file keeping the outputs and the free zone; None: not kept
     persist_interval_s: int = DEFAULT_PERSIST_INTERVAL_S
 
@@ -344,6 +346,7 @@ class TableConfig:
         for name, value, (low, high) in (
                 ("table-address", self.address, TABLE_ADDRESS_RANGE),
                 ("table-port", self.port, PORT_RANGE),
+                ("table-max-connections", self.max_connections, MAX_CONNECTIONS_RANGE),
                 ("table-persist-interval", self.persist_interval_s, PERSIST_INTERVAL_RANGE)):
             if not low <= value <= high:
                 raise ConfigError(f"{name} {value}: out of range {low}..{high}")

@@ -560,3 +560,19 @@ def test_the_serial_slave_and_the_tcp_clients_have_function_lists_of_their_own(t
     expected = rtu(bytes.fromhex("0a 03 02 beef"))
     assert recv(line, len(expected)) == expected
     assert table_status(gw)["serial"]["requests"] == 3
+
+
+def test_the_table_servers_own_max_connections(table_master, tcp):
+    """[table] max-connections (not net.max-connections, the servers'): with 2, a third
+    polling client is refused, naming the key (one address may fill a cap this small)."""
+    gw, port = table_master("--table-max-connections", "2")
+    clients = [tcp(port) for _ in range(2)]
+    for tid, sock in enumerate(clients):
+        assert ask_tcp(sock, tid, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+    extra = tcp(port, "127.0.0.2")
+    assert extra.recv(16) == b""
+    tcp_figures = table_status(gw)["tcp"]
+    assert (tcp_figures["max_connections"], tcp_figures["connections_refused_limit"]) == (2, 1)
+    assert "2 table clients are connected, the most there may be (table.max-connections)" \
+        in gw.log()
+    assert "exchange table served on" in gw.log() and "(at most 2 clients)" in gw.log()

@@ -56,7 +56,7 @@ def test_every_long_option_of_both_modes_is_a_key(schema):
                for o in p.opts if o.startswith("--")}
     table = {p.key for p in params if type(p) is config_keys.TableOption}
     assert table == {"enabled", "direct", "units", "functions", "serial-functions", "address",
-                     "port", "persist", "persist-interval"}
+                     "port", "persist", "persist-interval", "table-max-connections"}
     transparent = {p.key for p in params if isinstance(p, config_keys.TransparentOption)}
     assert transparent == {"eof", "eof-char", "eof-timeout", "rx-address", "rx-size",
                            "tx-address", "tx-size", "crc", "trigger", "transparent-silence",
