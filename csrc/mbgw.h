@@ -108,6 +108,13 @@ int mbgw_tty_rs485(int fd, int before_ms, int after_ms, int rx_during_tx);
 /* 0 when the modem lines (RTS) can be driven on fd, else -errno. */
 int mbgw_rts_available(int fd);
 
+/* Set DTR and RTS high (1) or low (0), or leave them (-1); -errno when the tty has no
+ * modem control lines (a pty: -ENOTTY or -EINVAL). */
+int mbgw_tty_modem_lines(int fd, int dtr, int rts);
+
+/* RTS/CTS (CRTSCTS) and XON/XOFF (IXON, IXOFF) flow control on (1) or off (0). */
+int mbgw_tty_flow(int fd, int rtscts, int xonxoff);
+
 /* Call first in the thread that owns the line: its timers then fire on time. */
 int mbgw_line_thread_init(void);
 

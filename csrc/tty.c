@@ -2,7 +2,7 @@
  * libmodbus cannot make, RTS.  Those settings are any baud rate (termios2 + BOTHER;
  * libmodbus silently turns rates outside its table into 9600), mark and space parity
  * (CMSPAR; libmodbus refuses them), low-latency mode, and the kernel's RS-485 direction
- * control.  <asm/termbits.h> clashes with <termios.h>, hence this file of its own. */
+ * control, the RS-232 control lines and flow control.  <asm/termbits.h> clashes with <termios.h>, hence this file of its own. */
 #include <asm/ioctls.h>
 #include <asm/termbits.h>
 #include <errno.h>
@@ -134,6 +134,36 @@ int mbgw_rts_available(int fd)
 {
     int bits;
     return ioctl(fd, TIOCMGET, &bits) < 0 ? -errno : 0;
+}
+
+int mbgw_tty_modem_lines(int fd, int dtr, int rts)
+{
+    int set = (dtr == 1 ? TIOCM_DTR : 0) | (rts == 1 ? TIOCM_RTS : 0);
+    int clear = (dtr == 0 ? TIOCM_DTR : 0) | (rts == 0 ? TIOCM_RTS : 0);
+    if (set && ioctl(fd, TIOCMBIS, &set) < 0)
+        return -errno;
+    if (clear && ioctl(fd, TIOCMBIC, &clear) < 0)
+        return -errno;
+    return 0;
+}
+
+int mbgw_tty_flow(int fd, int rtscts, int xonxoff)
+{
+    struct termios2 tio;
+    if (ioctl(fd, TCGETS2, &tio) < 0)
+        return -errno;
+    tio.c_cflag &= ~(uint32_t)CRTSCTS;
+    tio.c_iflag &= ~(uint32_t)(IXON | IXOFF | IXANY);
+    if (rtscts)
+        tio.c_cflag |= CRTSCTS;
+    if (xonxoff) {
+        tio.c_iflag |= IXON | IXOFF;
+        tio.c_cc[VSTART] = 0x11;   /* libmodbus zeroes c_cc: the characters are ^Q and ^S */
+        tio.c_cc[VSTOP] = 0x13;
+    }
+    if (ioctl(fd, TCSETS2, &tio) < 0)
+        return -errno;
+    return 0;
 }
 
 int tty_set_rts(int fd, int on)

@@ -10,7 +10,7 @@ import click
 
 from mbgw.cli.options import ModeCommand, web_config
 from mbgw.config import file as cf
-from mbgw.config.model import DEFAULT_REQUEST_TIMEOUT_MS
+from mbgw.config.model import DEFAULT_LOCATION, DEFAULT_REQUEST_TIMEOUT_MS
 from mbgw.config.schema import Schema
 from mbgw.errors import ConfigError, ConfigFileError
 from mbgw.ops import preflight
@@ -27,9 +27,10 @@ def build(make_config, params: dict):
     options = dict(params)
     options.pop("log_format", None)       # how the daemon logs, not a mode's setting
     web = web_config(options)
+    location = options.pop("location", DEFAULT_LOCATION)
     request_timeout = options.pop("request_timeout", DEFAULT_REQUEST_TIMEOUT_MS)
     web = dataclasses.replace(web, request_timeout_ms=request_timeout)
-    return dataclasses.replace(make_config(**options), web=web,
+    return dataclasses.replace(make_config(**options), web=web, location=location,
                                request_timeout_ms=request_timeout)
 
 

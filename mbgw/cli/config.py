@@ -466,6 +466,7 @@ def set_(ctx, config_path: Path, instance: str | None, group: str, param: str,
       mbgw config set net authip 1 192.168.1.5 (entry 1..8; 0.0.0.0 clears it)
       mbgw config set net slaveid 1 8 1 0 192.168.0.30   (master: FS LS FR M IP; FS 0 clears)
       mbgw config set net exception on
+      mbgw config set general location Pump house 3   (the guide's set location)
     """
     path = _path(ctx, config_path, instance)
     words = [group, param, *values, *_file_words(ctx, path)]

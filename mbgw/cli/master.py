@@ -10,6 +10,8 @@ from mbgw.cli.options import (
     daemon_options,
     demotion,
     demotion_options,
+    interframe_option,
+    parse_serial_functions,
     parser,
     serial_config,
     serial_options,
@@ -31,6 +33,7 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
 
 @click.command(cls=ModeCommand)
 @serial_options
+@interframe_option
 @click.option("--slaveid", "slaveid", multiple=True, metavar='"FS LS FR M IP [tls]"',
               callback=parser(SlaveIdTable.parse),
               help="Serial addresses FS..LS go to the server at IP, as unit id FR + (address "
@@ -62,10 +65,21 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
               help="With --table: mbgw answers requests for serial address N (1..247) from "
                    "the table, as a serial slave; no --slaveid range may hold N.  0: the "
                    "table is reached only on --table-port.")
+@click.option("--table-serial-functions", cls=TableOption, key="serial-functions",
+              default=None, callback=parser(parse_serial_functions), metavar="LIST",
+              help="Function codes the table's serial slave answers (--table-address), a list "
+                   "of its own (VPGate 3.7) [default: --table-functions, which is then the "
+                   "TCP clients' list only].")
 @click.option("--table-port", cls=TableOption, key="port",
               type=click.IntRange(*config.PORT_RANGE),
               default=config.TableConfig.port, show_default=True,
               help="With --table: the TCP port where Modbus TCP clients reach the table.")
+@click.option("--table-max-connections", cls=TableOption, key="table-max-connections",
+              file_key="max-connections", type=click.IntRange(*config.MAX_CONNECTIONS_RANGE),
+              default=config.DEFAULT_TABLE_MAX_CONNECTIONS, show_default=True, metavar="N",
+              help="With --table: TCP clients of the table at once (its TLS port's included); "
+                   "a newcomer beyond it takes the place of one that sent no request yet, or "
+                   "is refused.")
 @table_options
 @tls_options
 @daemon_options
@@ -81,16 +95,16 @@ def master(ctx, **options) -> None:
     run_daemon(run_master, master_config, options)
 
 
-def master_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout,
-                  silence, ascii_timeout, nocheck, slaveid, tcpto, mdbport, exception,
-                  max_connections, control, metrics, log_level=None,
+def master_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout, silence,
+                  ascii_timeout, nocheck, dtr, rts, cts, xonxoff, interframe_silence, slaveid,
+                  tcpto, mdbport, exception, max_connections, control, metrics, log_level=None,
                   down_after=config.DEFAULT_DOWN_AFTER,
                   probe_interval=config.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
                   tls_port=config.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
-                  tls_require_role=True, tls_crl=None,
-                  **table_settings) -> config.MasterConfig:
+                  tls_require_role=True, tls_crl=None, **table_settings) -> config.MasterConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
-                            stout, silence, ascii_timeout, nocheck)
+                            stout, silence, ascii_timeout, nocheck, dtr, rts, cts, xonxoff,
+                            interframe_silence)
     upstream_tls = upstream_tls_config(table_settings)
     table = table_config(**table_settings)
     tls = tls_config(tls_port, tls_cert, tls_key, tls_ca, tls_require_role, tls_crl)

@@ -151,14 +151,31 @@ serial_options = stack(
     click.option("--interface", cls=SerialOption, default=str(config.Interface()),
                  show_default=True,
                  callback=parser(config.Interface.parse), metavar="KIND",
-                 help="rs232, rs422, 'rs485 noecho' or 'rs485 echo' (the transceiver "
-                      "hears its own frames; they are dropped)."),
+                 help="rs232; 'rs422 master' (or rs422), 'rs422 slave' (the transmitter on "
+                      "only while sending, for multidrop); 'rs485 noecho' (or rs485) or "
+                      "'rs485 echo' (the transceiver hears its own frames; they are dropped). "
+                      "4wires is rs422, 2wires rs485."),
     click.option("--rtsdelays", cls=SerialOption,
                  type=(click.IntRange(*config.RTSDELAY_RANGE),
                        click.IntRange(*config.RTSDELAY_RANGE)),
                  default=config.SerialConfig.rtsdelays, show_default=True, metavar="BEFORE AFTER",
-                 help="RS-485: ms between raising RTS and the first byte, and between the "
-                      "last byte and dropping RTS, 0..255."),
+                 help="RS-485, an RS-422 slave or --rts modem: ms between raising RTS and "
+                      "the first byte, and between the last byte and dropping RTS, 0..255."),
+    click.option("--dtr", cls=SerialOption, type=click.Choice(config.DTR_MODES),
+                 default=config.SerialConfig.dtr, show_default=True,
+                 help="RS-232 DTR held high or low (a modem's on-line line)."),
+    click.option("--rts", cls=SerialOption, type=click.Choice(config.RTS_MODES),
+                 default=config.SerialConfig.rts, show_default=True,
+                 help="RS-232 RTS: held high or low; flow: RTS/CTS flow control (with --cts "
+                      "flow); modem: raised for each frame with --rtsdelays around it, a "
+                      "radio modem's push-to-talk."),
+    click.option("--cts", cls=SerialOption, type=click.Choice(config.CTS_MODES),
+                 default=config.SerialConfig.cts, show_default=True,
+                 help="RS-232 CTS: ignored, or flow: send only while CTS is up (with --rts "
+                      "flow)."),
+    click.option("--xonxoff", cls=SerialOption, type=click.Choice(config.XONXOFF_MODES),
+                 default=config.SerialConfig.xonxoff, show_default=True,
+                 help="XON/XOFF software flow control on the line: use or ignore."),
     click.option("--stout", cls=SerialOption, type=click.IntRange(*config.STOUT_RANGE),
                  default=config.DEFAULT_STOUT_MS, show_default=True, metavar="MS",
                  help="Time from the end of a request to the end of its answer, 1..65535 ms."),
@@ -212,13 +229,17 @@ table_switch = click.option(
          "serial address --table-address, and TCP clients on --table-port.")
 
 
-def _parse_functions(value) -> tuple[int, ...]:
-    functions = config.parse_number_list("table-functions", value, 1, 255)
+def _parse_functions(value, option: str = "table-functions") -> tuple[int, ...]:
+    functions = config.parse_number_list(option, value, 1, 255)
     others = [str(f) for f in functions if f not in config.TABLE_FUNCTIONS]
     if others:
-        raise ConfigError(f"table-functions {value!r}: {', '.join(others)}: the table "
+        raise ConfigError(f"{option} {value!r}: {', '.join(others)}: the table "
                           f"answers only {', '.join(map(str, config.TABLE_FUNCTIONS))}")
     return functions
+
+
+def parse_serial_functions(value) -> tuple[int, ...] | None:
+    return None if value is None else _parse_functions(value, "table-serial-functions")
 
 
 def _parse_persist(value):
@@ -265,8 +286,10 @@ def persist_path(value: str | None) -> str | None:
 def table_config(**settings) -> config.TableConfig:
     """TableConfig from the click values (table_enabled, table_functions, ...)."""
     fields = {"enabled": "table_enabled", "direct": "table_direct", "units": "table_units",
-              "functions": "table_functions", "address": "table_address",
-              "port": "table_port", "persist_interval_s": "table_persist_interval"}
+              "functions": "table_functions", "serial_functions": "table_serial_functions",
+              "address": "table_address",
+              "port": "table_port", "persist_interval_s": "table_persist_interval",
+              "max_connections": "table_max_connections"}
     return convert("'--table'", lambda: config.TableConfig(
         persist=persist_path(settings.get("table_persist")),
         **{f: settings[o] for f, o in fields.items() if settings.get(o) is not None}))
@@ -488,6 +511,10 @@ daemon_options = stack(
                       "HTTP request) must be whole within MS, or its connection is closed; "
                       "a connection that has sent no whole request is the first a newcomer "
                       "replaces.  %d..%d ms." % config.REQUEST_TIMEOUT_RANGE),
+    click.option("--location", default=config.DEFAULT_LOCATION, show_default=True,
+                 metavar="TEXT", callback=parser(config.parse_location),
+                 help="Where the gateway is, up to %d ASCII characters: shown by mbgw status, "
+                      "the web console and the table's configuration zone." % config.LOCATION_MAX),
     click.option("--control", metavar="PATH", default=None,
                  help="Control socket for mbgw status/trace [default: "
                       "$RUNTIME_DIRECTORY/mbgw.sock or /run/mbgw/mbgw.sock]."),
@@ -507,9 +534,24 @@ daemon_options = stack(
 )
 
 
+# Slave and master modes' (transparent mode's is its own, [transparent] silence).
+interframe_option = click.option(
+    "--interframe-silence", cls=SerialOption, type=click.IntRange(*config.INTERFRAME_SILENCE_RANGE),
+    default=config.SerialConfig.interframe_ms, show_default=True, metavar="MS",
+    help="VPGate's interframe silence: ms, beyond t3.5, that the line stays quiet after a "
+         "frame before mbgw sends (slave mode: the next request after a reply; master mode: "
+         "its answer after a request), 0..65535.")
+
+
 def serial_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout,
-                   silence, ascii_timeout, nocheck) -> config.SerialConfig:
-    return convert("'--baudrate'", lambda: config.SerialConfig(
-        device=device, protocol=protocol, baudrate=baudrate, format=line_format,
-        interface=interface, rtsdelays=tuple(rtsdelays), stout_ms=stout, silence_ms=silence,
-        ascii_timeout_ms=ascii_timeout, nocheck=nocheck))
+                   silence, ascii_timeout, nocheck, dtr="high", rts="high", cts="ignore",
+                   xonxoff="ignore", interframe_silence=0) -> config.SerialConfig:
+    try:
+        return config.SerialConfig(
+            device=device, protocol=protocol, baudrate=baudrate, format=line_format,
+            interface=interface, rtsdelays=tuple(rtsdelays), stout_ms=stout,
+            silence_ms=silence, ascii_timeout_ms=ascii_timeout, nocheck=nocheck, dtr=dtr,
+            rts=rts, cts=cts, xonxoff=xonxoff, interframe_ms=interframe_silence)
+    except ConfigError as err:
+        option = str(err).split(" ", 1)[0]     # the message opens with the setting's name
+        raise click.BadParameter(str(err), param_hint=f"'--{option}'") from None

@@ -30,7 +30,7 @@ def _clock(moment: float) -> str:
 
 def format_status(s: dict, now: float) -> str:
     lines = [f"mbgw {s['version']}, {s['mode']} mode, pid {s['pid']}, "
-             f"up {_duration(s['uptime_s'])}"]
+             f"up {_duration(s['uptime_s'])}", f"location   {s.get('location', '-')}"]
     if s["mode"] == "master":
         lines += _master_sections(s, now)
     elif s["mode"] == "transparent":

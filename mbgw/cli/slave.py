@@ -7,6 +7,7 @@ from mbgw.cli.options import (
     daemon_options,
     demotion,
     demotion_options,
+    interframe_option,
     parse_bind,
     parser,
     serial_config,
@@ -34,6 +35,7 @@ def _parse_units(value) -> tuple[int, ...]:
 
 @click.command(cls=ModeCommand)
 @serial_options
+@interframe_option
 @click.option("--slaveid", type=click.IntRange(*config.SLAVEID_RANGE),
               default=config.SlaveConfig.slaveid, show_default=True,
               help="0: the TCP unit id is the serial address; 1..247: force this address.")
@@ -100,17 +102,19 @@ def slave(**options) -> None:
     run_daemon(run_slave, slave_config, options)
 
 
-def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout,
-                 silence, ascii_timeout, nocheck, slaveid, exception, authip, mdbport, bind,
-                 max_connections, max_connections_per_ip, retries, turnaround, control,
-                 metrics, log_level=None, shortcut=True, down_after=config.DEFAULT_DOWN_AFTER,
+def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout, silence,
+                 ascii_timeout, nocheck, dtr, rts, cts, xonxoff, interframe_silence, slaveid,
+                 exception, authip, mdbport, bind, max_connections, max_connections_per_ip,
+                 retries, turnaround, control, metrics, log_level=None, shortcut=True,
+                 down_after=config.DEFAULT_DOWN_AFTER,
                  probe_interval=config.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
                  tls_port=config.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
-                 tls_require_role=True, tls_crl=None,
-                 tcpto=config.DEFAULT_TCPTO_MS, late_window=None,
+                 tls_require_role=True, tls_crl=None, tcpto=config.DEFAULT_TCPTO_MS,
+                 late_window=None,
                  **table_settings) -> config.SlaveConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
-                            stout, silence, ascii_timeout, nocheck)
+                            stout, silence, ascii_timeout, nocheck, dtr, rts, cts, xonxoff,
+                            interframe_silence)
     upstream_tls = upstream_tls_config(table_settings)
     table = table_config(**table_settings)
     tls = tls_config(tls_port, tls_cert, tls_key, tls_ca, tls_require_role, tls_crl)

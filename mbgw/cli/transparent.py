@@ -72,7 +72,7 @@ def _option(flag: str, key: str, **kwargs):
 @_option("--trigger/--no-trigger", "trigger", default=_DEFAULTS.trigger,
          help="The areas' first byte is a frame counter: raised for each frame stored; a new "
               "value in the tx area sends its frame, other changes send nothing.")
-@_option("--interframe-silence", "interframe-silence", file_key="silence",
+@_option("--interframe-silence", "transparent-silence", file_key="silence",
          type=click.IntRange(*config.INTERFRAME_SILENCE_RANGE),
          default=_DEFAULTS.silence_ms, metavar="MS",
          help="After a frame was received, wait this long before sending, 0..65535 ms.")
@@ -90,15 +90,14 @@ def transparent(**options) -> None:
 
 
 def transparent_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout,
-                       silence, ascii_timeout, nocheck, authip, mdbport, bind, eof, eof_char,
-                       eof_timeout, rx_address, rx_size, tx_address, tx_size, crc, trigger,
-                       interframe_silence, raw_port, control, metrics,
-                       log_level=None, firewall=None, scenarios=(),
-                       tcpto=config.DEFAULT_TCPTO_MS, tls_port=config.DEFAULT_TLS_PORT,
-                       tls_cert=None, tls_key=None, tls_ca=None, tls_require_role=True,
-                       tls_crl=None) -> config.TransparentModeConfig:
+                       silence, ascii_timeout, nocheck, dtr, rts, cts, xonxoff, authip, mdbport,
+                       bind, eof, eof_char, eof_timeout, rx_address, rx_size, tx_address, tx_size,
+                       crc, trigger, interframe_silence, raw_port, control, metrics,
+                       log_level=None, firewall=None, scenarios=(), tcpto=config.DEFAULT_TCPTO_MS,
+                       tls_port=config.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
+                       tls_require_role=True, tls_crl=None) -> config.TransparentModeConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
-                            stout, silence, ascii_timeout, nocheck)
+                            stout, silence, ascii_timeout, nocheck, dtr, rts, cts, xonxoff)
     frames = convert("'--rx-address' / '--tx-address'", lambda: config.TransparentConfig(
         eof=eof, eof_char=eof_char, eof_timeout_ms=eof_timeout, rx_address=rx_address,
         rx_size=rx_size, tx_address=tx_address, tx_size=tx_size, crc=crc, trigger=trigger,

@@ -12,6 +12,7 @@ from mbgw.config.schema import (
     MODE_TABLES,
     MODES,
     NO_ADDRESS,
+    NOT_SUPPORTED,
     PROTOCOL_KEY,
     PROTOCOL_WORDS,
     Key,
@@ -39,6 +40,8 @@ def changes_for_set(schema: Schema, settings: Settings, group: str, name: str,
         if elsewhere is not None and elsewhere.file_name == name:
             raise ConfigError(f"{group}.{name}: belongs in [{elsewhere.group}]: mbgw config "
                               f"set {elsewhere.group} {name} ...")
+        if (group, name) in NOT_SUPPORTED:
+            raise ConfigError(f"{group}.{name}: {NOT_SUPPORTED[group, name]}")
         raise ConfigError(f"{group}.{name}: unknown key{schema.hint(name)}")
     name = key.name
     if not words:

@@ -27,6 +27,7 @@ from mbgw.config.schema import (
     MODE_KEY,
     MODE_TABLES,
     MODES,
+    NOT_SUPPORTED,
     PROTOCOL_WORDS,
     Schema,
     default_value,
@@ -139,6 +140,8 @@ def check(schema: Schema, path: Path, data: dict) -> Settings:
                 values[key.name] = value
             elif elsewhere is not None and elsewhere.file_name == name:
                 problems.append(f"{label}: belongs in [{elsewhere.group}] ({elsewhere.label})")
+            elif (group, name) in NOT_SUPPORTED:
+                problems.append(f"{label}: {NOT_SUPPORTED[group, name]}")
             else:
                 problems.append(f"{label}: unknown key{schema.hint(name)}")
     rules, firewall_problems = fw.from_file(data)

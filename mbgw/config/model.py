@@ -23,14 +23,21 @@ STOUT_RANGE = (1, 65535)
 DEFAULT_STOUT_MS = 600
 # the other bounds of the options (the click options read these)
 RTSDELAY_RANGE = (0, 255)
+# RS-232 control lines (the guide's `set serial dtr|rts|cts|xonxoff`); "modem" RTS is raised
+# for each frame, rtsdelays around it: a radio modem's push-to-talk.
+DTR_MODES = ("high", "low")
+RTS_MODES = ("high", "low", "flow", "modem")
+CTS_MODES = ("ignore", "flow")
+XONXOFF_MODES = ("ignore", "use")
 SILENCE_RANGE = (0, 65535)
+INTERFRAME_SILENCE_RANGE = (0, 65535)  # ms beyond t3.5 (VPGate's "Interframe silence")
 ASCII_TIMEOUT_RANGE = (1, 65535)
 SLAVEID_RANGE = (0, 247)
 PORT_RANGE = (1, 65535)
 MDBPORT_RANGE = (0, 65535)      # slave mode: 0 is no plain Modbus TCP (TLS only)
 MAX_CONNECTIONS_RANGE = (1, 1000)
 MAX_CONNECTIONS_PER_IP_RANGE = (0, 1000)
-RETRIES_RANGE = (0, 10)
+RETRIES_RANGE = (0, 65535)     # as VPGate allows
 # After a timeout, an address's next request waits until its late reply has come or the line
 # has been quiet this long past the timeout (ms; 0: no wait).  Default: stout.
 LATE_WINDOW_RANGE = (0, 65535)
@@ -79,23 +86,40 @@ class LineFormat:
         return f"{self.data_bits}{self.parity}{self.stop_bits}"
 
 
+INTERFACE_SYNONYMS = {"2wires": "rs485", "4wires": "rs422"}   # the guide: "synonyms"
+INTERFACE_OPTIONS = {"rs485": ("echo", "noecho"), "rs422": ("master", "slave")}
+
+
 @dataclass(frozen=True)
 class Interface:
-    """The electrical interface: rs232, rs422, or rs485 with or without its own echo."""
+    """The electrical interface: rs232; rs422 (4wires) as a master, whose transmitter is always
+    on, or a multidrop slave, whose transmitter is on only while it sends; rs485 (2wires) with
+    or without its own echo."""
     kind: str = "rs232"
     echo: bool = False
+    slave: bool = False
 
     @classmethod
     def parse(cls, text: str) -> "Interface":
         words = text.lower().split()
+        if words:
+            words[0] = INTERFACE_SYNONYMS.get(words[0], words[0])
         if not words or words[0] not in INTERFACES or len(words) > 2 or (
-                len(words) == 2 and (words[0] != "rs485" or words[1] not in ("echo", "noecho"))):
-            raise ConfigError(f"interface {text!r}: expected rs232, rs422, rs485, "
-                              f"'rs485 echo' or 'rs485 noecho'")
-        return cls(words[0], len(words) == 2 and words[1] == "echo")
+                len(words) == 2 and words[1] not in INTERFACE_OPTIONS.get(words[0], ())):
+            raise ConfigError(f"interface {text!r}: expected rs232, rs422 (or 4wires) master "
+                              f"or slave, rs485 (or 2wires) echo or noecho")
+        option = words[1] if len(words) == 2 else ""
+        return cls(words[0], option == "echo", option == "slave")
+
+    @property
+    def drives_rts(self) -> bool:
+        """RTS switches the transmitter on for each frame (RS-485, an RS-422 slave)."""
+        return self.kind == "rs485" or self.slave
 
     def __str__(self) -> str:
-        return f"{self.kind} echo" if self.echo else self.kind
+        if self.echo:
+            return f"{self.kind} echo"
+        return f"{self.kind} slave" if self.slave else self.kind
 
 
 @dataclass(frozen=True)
@@ -124,13 +148,47 @@ class SerialConfig:
     interface: Interface = field(default_factory=Interface)
     rtsdelays: tuple[int, int] = (0, 0)
     ascii_timeout_ms: int = DEFAULT_ASCII_TIMEOUT_MS
+    dtr: str = "high"
+    rts: str = "high"
+    cts: str = "ignore"
+    xonxoff: str = "ignore"
+    interframe_ms: int = 0         # VPGate: the line quiet this much beyond t3.5 before we send
 
     def __post_init__(self) -> None:
+        low, high = INTERFRAME_SILENCE_RANGE
+        if not low <= self.interframe_ms <= high:
+            raise ConfigError(f"interframe-silence {self.interframe_ms}: out of range "
+                              f"{low}..{high}")
         low, high = BAUDRATE_RANGE
         if not low <= self.baudrate <= high:
             raise ConfigError(f"baudrate {self.baudrate}: out of range {low}..{high}")
         if self.protocol not in PROTOCOLS:
             raise ConfigError(f"protocol {self.protocol!r}: expected rtu or ascii")
+        for name, value, modes in (("dtr", self.dtr, DTR_MODES), ("rts", self.rts, RTS_MODES),
+                                   ("cts", self.cts, CTS_MODES),
+                                   ("xonxoff", self.xonxoff, XONXOFF_MODES)):
+            if value not in modes:
+                raise ConfigError(f"{name} {value!r}: expected {' or '.join(modes)}")
+        if (self.rts == "flow") != (self.cts == "flow"):
+            raise ConfigError(f"rts {self.rts} with cts {self.cts}: RTS/CTS flow control is "
+                              f"both or neither (Linux's CRTSCTS): set rts flow and cts flow")
+        if self.interface.drives_rts and self.rts != "high":
+            raise ConfigError(f"rts {self.rts}: interface {self.interface} drives its "
+                              f"transmitter with RTS; rts applies to rs232 and rs422 master")
+
+    @property
+    def wiring(self) -> str:
+        """The interface and the control lines that differ from their defaults, as logs and
+        status show them: "rs232, rts modem, xonxoff use"."""
+        changed = [f"{name} {value}" for name, value, default in (
+            ("dtr", self.dtr, "high"), ("rts", self.rts, "high"), ("cts", self.cts, "ignore"),
+            ("xonxoff", self.xonxoff, "ignore")) if value != default]
+        return ", ".join((str(self.interface), *changed))
+
+    @property
+    def rts_ptt(self) -> bool:
+        """mbgw raises RTS for each frame itself: RS-232 push-to-talk (rts modem)."""
+        return self.rts == "modem"
 
     @property
     def libmodbus_baudrate(self) -> bool:
@@ -154,11 +212,28 @@ class SerialConfig:
         return math.ceil(3.5 * self.format.char_bits * 1_000_000 / self.baudrate)
 
 
+# The guide's `set location`: a description of the device, shown in status, the console and
+# the table's configuration zone.
+DEFAULT_LOCATION = "Unknown location"
+LOCATION_MAX = 30                              # "30 bytes max"
+
+
+def parse_location(text: str) -> str:
+    if len(text) > LOCATION_MAX:
+        raise ConfigError(f"location {text!r}: at most {LOCATION_MAX} characters, got "
+                          f"{len(text)}")
+    if not (text.isascii() and text.isprintable()):
+        raise ConfigError(f"location {text!r}: printable ASCII only (it is written in the "
+                          f"table's configuration zone)")
+    return text
+
+
 # The exchange table (mbgw/table): VPGate's register memory, served to both sides.
 TABLE_FUNCTIONS = (1, 2, 3, 4, 5, 6, 7, 15, 16, 23)
 DEFAULT_TABLE_UNITS = tuple(range(247, 255))   # slave mode, direct messaging on
 TABLE_ADDRESS_RANGE = (0, 247)                 # master mode; 0: the line has no table slave
 DEFAULT_TABLE_PORT = 502                       # master mode: TCP clients reach the table here
+DEFAULT_TABLE_MAX_CONNECTIONS = 32             # its clients at once (mbgw.table.server)
 PERSIST_INTERVAL_RANGE = (1, 86400)            # s
 DEFAULT_PERSIST_INTERVAL_S = 10
 # table-persist lives in the service's state directory, nowhere else (a console admin must not
@@ -250,8 +325,10 @@ class TableConfig:
     direct: bool = True            # slave mode: units outside `units` go to the line
     units: tuple[int, ...] = DEFAULT_TABLE_UNITS
     functions: tuple[int, ...] = TABLE_FUNCTIONS
+    serial_functions: tuple[int, ...] | None = None   # master mode's serial slave; None: functions
     address: int = 0               # master mode: the serial address mbgw answers as (0: none)
     port: int = DEFAULT_TABLE_PORT
+    max_connections: int = DEFAULT_TABLE_MAX_CONNECTIONS   # master mode's table-port clients
     persist: str | None = None     # file keeping the outputs and the free zone; None: not kept
     persist_interval_s: int = DEFAULT_PERSIST_INTERVAL_S
 
@@ -260,13 +337,16 @@ class TableConfig:
             if not 1 <= unit <= 255:
                 raise ConfigError(f"table-units {unit}: out of range 1..255 (unit 0 is the "
                                   f"broadcast)")
-        for function in self.functions:
-            if function not in TABLE_FUNCTIONS:
-                raise ConfigError(f"table-functions {function}: the table answers only "
-                                  f"{', '.join(map(str, TABLE_FUNCTIONS))}")
+        for name, functions in (("table-functions", self.functions),
+                                ("table-serial-functions", self.serial_functions or ())):
+            for function in functions:
+                if function not in TABLE_FUNCTIONS:
+                    raise ConfigError(f"{name} {function}: the table answers only "
+                                      f"{', '.join(map(str, TABLE_FUNCTIONS))}")
         for name, value, (low, high) in (
                 ("table-address", self.address, TABLE_ADDRESS_RANGE),
                 ("table-port", self.port, PORT_RANGE),
+                ("table-max-connections", self.max_connections, MAX_CONNECTIONS_RANGE),
                 ("table-persist-interval", self.persist_interval_s, PERSIST_INTERVAL_RANGE)):
             if not low <= value <= high:
                 raise ConfigError(f"{name} {value}: out of range {low}..{high}")
@@ -420,6 +500,7 @@ class SlaveConfig:
     upstream_tls: UpstreamTlsConfig = field(default_factory=UpstreamTlsConfig)
     web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
     request_timeout_ms: int = DEFAULT_REQUEST_TIMEOUT_MS   # [net] request-timeout
+    location: str = DEFAULT_LOCATION   # [general] location, the guide's set location
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "slave")
@@ -494,6 +575,7 @@ class MasterConfig:
     tls: TlsConfig = field(default_factory=TlsConfig)    # on the table's server
     web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
     request_timeout_ms: int = DEFAULT_REQUEST_TIMEOUT_MS   # [net] request-timeout
+    location: str = DEFAULT_LOCATION   # [general] location, the guide's set location
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "master")
@@ -528,7 +610,6 @@ EOF_TIMEOUT_RANGE = (0, 65535)         # ms; 0: the serial line's end-of-frame s
 RX_ADDRESS_RANGE = (0, 2047)           # the inputs zone
 TX_ADDRESS_RANGE = (2048, 4095)        # the outputs zone
 FRAME_SIZE_RANGE = (1, 250)            # bytes, two to a register
-INTERFRAME_SILENCE_RANGE = (0, 65535)  # ms
 
 
 @dataclass(frozen=True)
@@ -603,6 +684,7 @@ class TransparentModeConfig:
     tls: TlsConfig = field(default_factory=TlsConfig)    # on the table's server
     web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
     request_timeout_ms: int = DEFAULT_REQUEST_TIMEOUT_MS   # [net] request-timeout
+    location: str = DEFAULT_LOCATION   # [general] location, the guide's set location
 
     @property
     def table_on(self) -> bool:

@@ -20,8 +20,14 @@ GROUPS = ("serial", "net", "general", "table", "tls", "transparent", "web")
 # our network options; [general]: the rest (logging, control socket, metrics, ...); [table]:
 # the options of class TableOption, each under its own key (--table-units is table.units).
 LINE_KEYS = frozenset({"retries", "turnaround", "late-window"})
-NET_KEYS = frozenset({"slaveid", "authip", "mdbport", "tcpto", "exception", "metric", "bind",
+NET_KEYS = frozenset({"slaveid", "authip", "mdbport", "tcpto", "exception", "bind",
                       "max-connections", "max-connections-per-ip", "request-timeout"})
+# The guide's keys that mbgw refuses on purpose, and why (not "unknown key").
+NOT_SUPPORTED = {
+    ("net", "metric"): "not supported: the guide's gateway hop count is a route metric of the "
+                       "host (ip route ... metric N), which a daemon without CAP_NET_ADMIN "
+                       "cannot set; set it in the host's network configuration",
+}
 MODE_TABLES = ("authip", "slaveid")        # cleared when the mode changes (the guide says so)
 AUTHIP_ENTRIES = 8                         # "n: table entry index, from 1 to 8"
 NO_ADDRESS = "0.0.0.0"                     # "IP address 0.0.0.0 clears the entry"

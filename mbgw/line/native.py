@@ -173,6 +173,16 @@ class Port:
     def rts_available(self) -> bool:
         return lib.mbgw_rts_available(self.fd) == 0
 
+    def set_modem_lines(self, dtr: bool | None, rts: bool | None) -> bool:
+        """DTR and RTS high (True), low (False) or left (None); False when the tty has no
+        modem control lines."""
+        def level(value: bool | None) -> int:
+            return -1 if value is None else int(value)
+        return lib.mbgw_tty_modem_lines(self.fd, level(dtr), level(rts)) == 0
+
+    def set_flow(self, rtscts: bool, xonxoff: bool) -> None:
+        self._check(lib.mbgw_tty_flow(self.fd, rtscts, xonxoff), "set flow control")
+
     def set_byte_timeout(self, timeout_us: int) -> None:
         """The silence that ends a reply's frame (and a burst of noise) in receive_reply."""
         self._gap_us = timeout_us

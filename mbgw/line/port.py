@@ -52,9 +52,10 @@ class SerialLine:
                 port.set_format(fmt.data_bits, fmt.parity, fmt.stop_bits)
             port.set_low_latency()
             self.rts_control = False
-            if cfg.interface.kind == "rs485":
+            if cfg.interface.drives_rts:
                 before, after = cfg.rtsdelays
-                if port.set_rs485(before, after, cfg.interface.echo):
+                # a 4-wire slave hears the master's pair, not its own: no echo to read back
+                if port.set_rs485(before, after, cfg.interface.echo or cfg.interface.slave):
                     pass
                 elif port.rts_available():
                     self.rts_control = True
@@ -63,6 +64,7 @@ class SerialLine:
                 else:
                     log.warning("%s has neither kernel RS-485 mode nor an RTS line: the "
                                 "transceiver must switch direction by itself", cfg.device)
+            self._control_lines(port, cfg)
         except BaseException:
             port.close()
             raise
@@ -74,6 +76,22 @@ class SerialLine:
         # RTU frames go out through libmodbus unless mbgw drives RTS or reads the echo
         # back: both need the whole frame here
         self.libmodbus_sends = not (self.rts_control or self._echo)
+
+    def _control_lines(self, port: native.Port, cfg: "SerialConfig") -> None:
+        """RS-232: DTR and RTS held high or low, RTS as push-to-talk, flow control."""
+        if cfg.rts_ptt:
+            if port.rts_available():
+                self.rts_control = True
+            else:
+                log.warning("%s has no RTS line: rts modem cannot key the radio or modem",
+                            cfg.device)
+        dtr = None if cfg.dtr == "high" else False      # the kernel raises both on open
+        rts = {"low": False, "modem": False}.get(cfg.rts)
+        if (dtr is not None or rts is not None) and not port.set_modem_lines(dtr, rts):
+            log.warning("%s has no modem control lines: dtr %s, rts %s not applied",
+                        cfg.device, cfg.dtr, cfg.rts)
+        if cfg.rts == "flow" or cfg.xonxoff == "use":
+            port.set_flow(cfg.rts == "flow", cfg.xonxoff == "use")
 
     def close(self) -> None:
         self.port.close()

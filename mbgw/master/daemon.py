@@ -104,7 +104,7 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
     s = cfg.serial
     log.info("master mode: serial %s %d %s %s %s; servers' port %d, tcpto %d ms, exception %s, "
              "at most %d connections; slaveid %s%s", s.device, s.baudrate, s.format, s.protocol,
-             s.interface, cfg.mdbport, cfg.tcpto_ms, "on" if cfg.exception else "off",
+             s.wiring, cfg.mdbport, cfg.tcpto_ms, "on" if cfg.exception else "off",
              cfg.max_connections, cfg.slaveid, origin(cfg))
     warn_of_overlaps(cfg)
     if metrics is not None:

@@ -69,11 +69,18 @@ log = logging.getLogger("mbgw.line")
 wire = logging.getLogger("mbgw.wire")
 
 UNUSED_SETTINGS = {"stout_ms": 0, "nocheck": False}   # slave mode's: no reopen for them
+# read at each answer: no reopen either
+ANSWER_SETTINGS = {"interframe_ms": 0}
 BAD_REPLY_LOG_INTERVAL_S = 60.0
 
 
 def _line_settings(serial):
-    return dataclasses.replace(serial, **UNUSED_SETTINGS)
+    return dataclasses.replace(serial, **UNUSED_SETTINGS, **ANSWER_SETTINGS)
+
+
+def serial_functions(cfg: MasterConfig) -> tuple[int, ...]:
+    """What the table's serial slave answers: its own list, else the table's."""
+    return cfg.table.serial_functions or cfg.table.functions
 
 
 def table_address(cfg: MasterConfig) -> int:
@@ -99,13 +106,14 @@ class SerialSlave(LineThread[MasterConfig]):
         self._tls_context: ssl.SSLContext | None = None
         self._use_tls(None, cfg)
         self._reply_to = b""       # the last frame for another slave: its reply may come next
+        self._received_ns = 0       # when the request being answered was taken off the line
         self._bad_reply_logged: dict[tuple[int, str], float] = {}   # (address, kind): when
         self.table = table
         self.table_counters = TableSlaveCounters()
         self._table_address = table_address(cfg) if table is not None else 0
         self._rejected = -1     # the address of the frame a receive has just rejected
         if table is not None:
-            self._responder = table.responder()
+            self._responder = table.responder(serial_functions(cfg))
             table.watch_down(self._down)
         if line is not None:
             self._attach(line)
@@ -119,7 +127,7 @@ class SerialSlave(LineThread[MasterConfig]):
         cfg = self._cfg
         s = cfg.serial
         end_ms = s.ascii_timeout_ms if s.protocol == "ascii" else s.end_of_frame_us / 1000
-        return ((end_ms + sum(s.rtsdelays) + cfg.tcpto_ms) / 1000
+        return ((end_ms + sum(s.rtsdelays) + cfg.tcpto_ms + s.interframe_ms) / 1000
                 + 2 * longest_frame_s(s) + TURN_MARGIN_S)
 
     def _attach(self, line: SerialLine) -> None:
@@ -168,6 +176,7 @@ class SerialSlave(LineThread[MasterConfig]):
         except ConfigError as err:
             log.error("TLS to servers: %s: the previous certificates stay in use", err)
         if self.table is not None:
+            self._responder = self.table.responder(serial_functions(cfg))
             address = table_address(cfg)
             if address != self._table_address:
                 self.table_counters.reset()     # a new slave (VPGate 8.5)
@@ -226,6 +235,7 @@ class SerialSlave(LineThread[MasterConfig]):
             return
         if adu is None:
             return
+        self._received_ns = time.monotonic_ns()
         if len(adu) < 2:
             self._counters.invalid_frames += 1
             if self._table_address and adu and adu[0] == self._table_address:
@@ -405,8 +415,13 @@ class SerialSlave(LineThread[MasterConfig]):
         stats.failed()
 
     def _answer(self, address: int, answer, quiet_ms: int = 0) -> bool:
-        """Write the answer on the line once it has been quiet for quiet_ms, unless the
-        master has moved on (False)."""
+        """Write the answer on the line once it has been quiet for quiet_ms, and the
+        interframe silence has passed since the request was taken, unless the master has
+        moved on (False)."""
+        interframe_ns = self._cfg.serial.interframe_ms * 1_000_000
+        if interframe_ns:
+            left_ns = self._received_ns + interframe_ns - time.monotonic_ns()
+            quiet_ms = max(quiet_ms, -(-left_ns // 1_000_000))
         while (idle := self._port.idle_wait(self.wake_fd, quiet_ms)) != native.IDLE_TIMEOUT:
             if idle == native.IDLE_INPUT or self._stopping:
                 self._counters.abandoned += 1

@@ -17,7 +17,7 @@ from mbgw.table.control import table_commands
 from mbgw.table.memory import Table
 from mbgw.table.persist import Persistence
 from mbgw.table.report import table_status
-from mbgw.table.server import MAX_CONNECTIONS, TableListenError, TableServer
+from mbgw.table.server import TableListenError, TableServer
 
 log = logging.getLogger("mbgw.table")
 
@@ -25,7 +25,8 @@ log = logging.getLogger("mbgw.table")
 class TableService:
     def __init__(self, settings: MasterConfig) -> None:
         self.cfg = cfg = settings.table
-        self.table = Table(cfg.functions)
+        self.table = Table()
+        self.table.set_functions(cfg.functions, cfg.serial_functions)
         identity.fill(self.table, settings, "master")
         self.server: TableServer | None = None
         # on the TCP server's requests
@@ -56,11 +57,12 @@ class TableService:
         tls = self.tls
         context = server_context(tls) if tls.enabled else None
         self.server = TableServer(self.table, port, firewall=self.firewall, tls=context,
-                                  tls_port=tls.port, role_of=role_of)
+                                  tls_port=tls.port, role_of=role_of,
+                                  max_connections=self.cfg.max_connections)
         self.server.request_timeout_s = self.request_timeout_s
         self.server.start()
         log.info("exchange table served on %s (at most %d clients)",
-                 ", ".join(self.server.addresses), MAX_CONNECTIONS)
+                 ", ".join(self.server.addresses), self.cfg.max_connections)
 
     def commands(self) -> dict:
         """The operator's table-read and table-write, while the table is on."""
@@ -80,8 +82,8 @@ class TableService:
         old, self.cfg = self.cfg, new
         identity.fill(self.table, settings, "master")
         self._repersist(old, new, report)
-        if new.functions != old.functions:
-            self.table.set_functions(new.functions)
+        if (new.functions, new.serial_functions) != (old.functions, old.serial_functions):
+            self.table.set_functions(new.functions, new.serial_functions)
         firewall = self.firewall.renewed(settings.firewall,
                                           settings.tls.roles_required)
         if firewall is not self.firewall:
@@ -93,6 +95,7 @@ class TableService:
         self.request_timeout_s = settings.request_timeout_ms / 1000
         if self.server is not None:
             self.server.request_timeout_s = self.request_timeout_s
+            self.server.max_connections = new.max_connections
         try:
             if not new.enabled:
                 self._stop_server()

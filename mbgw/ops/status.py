@@ -52,13 +52,14 @@ class DaemonStatus:
         s = self.cfg.serial
         demotion = getattr(self.cfg, "demotion", None)
         return {"mode": self.mode, "version": __version__, "pid": os.getpid(),
+                "location": self.cfg.location,
                 **({"demotion": {"down_after": demotion.down_after,
                                  "probe_interval_ms": demotion.probe_interval_ms}}
                    if demotion is not None else {}),
                 "started": self._started,
                 "uptime_s": round(time.monotonic() - self._started_mono, 3),
                 "serial": {"device": s.device, "protocol": s.protocol, "baudrate": s.baudrate,
-                           "format": str(s.format), "interface": str(s.interface)}}
+                           "format": str(s.format), "interface": s.wiring}}
 
     def trace_header(self) -> dict:
         """The first line of a trace stream."""

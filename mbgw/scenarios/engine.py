@@ -72,6 +72,7 @@ class _State:
         self.scenario = scenario
         self.state = STARTING if scenario.enabled else DISABLED
         self.message = ""
+        self.retrying = False       # the run in progress is being sent again
         self.runs = 0
         self.successes = 0
         self.errors: dict[str, int] = {}
@@ -90,6 +91,14 @@ class _State:
 
 def _waiting_message(unwritten: int) -> str:
     return f"{exchange.WAITING}: table register {unwritten} not written since start"
+
+
+def _message(state: _State) -> str:
+    """What the status says: "retrying" while the run in progress is sent again."""
+    if not state.retrying:
+        return state.message
+    return exchange.RETRYING.replace("slave", "server") if state.scenario.kind == "tcp" \
+        else exchange.RETRYING
 
 
 def _same_but_enabled(a: ScenarioConfig, b: ScenarioConfig) -> bool:
@@ -203,10 +212,12 @@ class Scenarios:
             now = self.clock()
             if on:
                 state.state, state.message, state.since = STARTING, "", now
+                state.retrying = False
                 self._planner.add(state.scenario, now)
                 os.eventfd_write(self.wake_fd, 1)     # a runner at rest looks again
             else:
                 state.state, state.message = DISABLED, ""   # out of error, not "running again"
+                state.retrying = False
                 self._update_flag()
                 self._planner.remove(name)
                 self._set_stale(state, False)
@@ -297,6 +308,14 @@ class Scenarios:
         reply, error_kind, retries = run_fn(pdu)
         return self.test_result(sc, pdu, reply, error_kind, retries, self.clock() - started)
 
+    def retrying(self, sc: ScenarioConfig) -> None:
+        """A run of sc got no answer and is sent again: its message says so until the run
+        ends (VPGate's "Slave not responding, retrying...")."""
+        with self._lock:
+            state = self._states.get(sc.name)
+            if state is not None and state.scenario is sc and state.state != DISABLED:
+                state.retrying = True
+
     def test_result(self, sc: ScenarioConfig, pdu: bytes, reply: bytes | None,
                     error_kind: str | None, retries: int, latency_s: float) -> dict:
         """What `mbgw scenario test` prints, from a run the runner did."""
@@ -327,6 +346,7 @@ class Scenarios:
         "device down" (the probe's own error is counted)."""
         state.runs += 1
         state.retries += retries
+        state.retrying = False
         if result.ok:
             state.successes += 1
             state.last_success_wall = time.time()
@@ -455,7 +475,7 @@ class Scenarios:
         return {
             "name": sc.name, "kind": sc.kind, "target": sc.target, "function": sc.function,
             "trigger": "change" if sc.on_change else f"{sc.cycle_ms} ms",
-            "state": state.state, "message": state.message, "runs": state.runs,
+            "state": state.state, "message": _message(state), "runs": state.runs,
             "successes": state.successes, "errors": dict(state.errors),
             "retries": state.retries, "overruns": state.overruns,
             "last_success": state.last_success_wall,

@@ -19,6 +19,7 @@ CONNECTION_REFUSED = "connection-refused"
 TLS_REFUSED = "tls-refused"
 DEVICE_DOWN = "device-down"        # demotion: the run skipped, not sent
 SERVER_DOWN = "server-down"
+FRAME_WITHOUT_REQUEST = "frame-without-request"   # no reply, but another's frame: a 2nd master?
 EXCEPTION_KINDS = {0x01: "illegal-function", 0x02: "illegal-address", 0x03: "illegal-value",
                    0x04: "device-failure", 0x06: "busy", 0x0A: "path-unavailable",
                    0x0B: "target-failed"}
@@ -40,7 +41,9 @@ ERROR_MESSAGES = {
     TLS_REFUSED: "connection refused: TLS handshake failed",
     DEVICE_DOWN: "device down",
     SERVER_DOWN: "server down",
+    FRAME_WITHOUT_REQUEST: "frame received without request",
 }
+RETRYING = "slave not responding, retrying..."   # VPGate 8.2, while a run retries
 WAITING = "waiting for data"       # a write whose table registers nobody has written yet
 ERROR_KINDS = tuple(ERROR_MESSAGES)
 

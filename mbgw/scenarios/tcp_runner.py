@@ -192,15 +192,16 @@ class TcpRunner:
             future.set_exception(RuntimeError("the TCP scenarios' runner has stopped"))
 
     def _execute(self, run) -> None:
-        reply, kind, retries = self.exchange(run.scenario, run.pdu, run.probe)
+        reply, kind, retries = self.exchange(run.scenario, run.pdu, run.probe,
+                                             lambda: self.engine.retrying(run.scenario))
         self.engine.done(run, reply, kind, retries)
 
-    def exchange(self, scenario, pdu: bytes, probe: bool = False
+    def exchange(self, scenario, pdu: bytes, probe: bool = False, on_retry=None
                  ) -> tuple[bytes | None, str | None, int]:
         """One run of the scenario's request: (reply PDU, None) or (None or the reply that
         does not answer, error kind), and the retries made; its outcome booked for the
         server's health.  probe: the server is down and this is its probe, which dials even
-        within the backoff.  Raises Interrupted."""
+        within the backoff; on_retry() before each repeat.  Raises Interrupted."""
         host, port = split_server(scenario.server)
         backoff = self._backoff.get((host, port))
         if not probe and backoff is not None and self._clock() < backoff.until:
@@ -213,7 +214,7 @@ class TcpRunner:
         server = self.health.of(host, port)
         server.transactions += 1
         started = time.monotonic()
-        reply, kind, retries = self._dial(scenario, pool, host, port, pdu)
+        reply, kind, retries = self._dial(scenario, pool, host, port, pdu, on_retry)
         if kind in (None, UNEXPECTED_DATA):     # a reply came, whatever it said
             exception = reply[1] if reply and reply[0] & 0x80 and len(reply) > 1 else None
             server.answered((time.monotonic() - started) * 1000, exception)
@@ -229,8 +230,8 @@ class TcpRunner:
             server.unreachable += 1
         server.failed()
 
-    def _dial(self, scenario, pool: UpstreamPool, host: str, port: int, pdu: bytes
-              ) -> tuple[bytes | None, str | None, int]:
+    def _dial(self, scenario, pool: UpstreamPool, host: str, port: int, pdu: bytes,
+              on_retry=None) -> tuple[bytes | None, str | None, int]:
         retries = 0
         while True:
             try:
@@ -255,6 +256,8 @@ class TcpRunner:
             if retries >= scenario.retries:
                 return None, kind, retries
             retries += 1
+            if on_retry is not None:
+                on_retry()
 
     @staticmethod
     def _bad_reply(err: BadReply) -> tuple[bytes | None, str | None]:

@@ -93,7 +93,7 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
                                                     cfg.config_file, reloads.run))
     s = cfg.serial
     log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s%s",
-             ", ".join(addresses), s.device, s.baudrate, s.format, s.protocol, s.interface,
+             ", ".join(addresses), s.device, s.baudrate, s.format, s.protocol, s.wiring,
              s.stout_ms, ", nocheck" if s.nocheck else "", origin(cfg))
     warn_of_overlaps(cfg)
     if metrics is not None:

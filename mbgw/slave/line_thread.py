@@ -27,7 +27,7 @@ from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.protocol import mbap, pdu
-from mbgw.scenarios.exchange import EXCEPTION_KINDS, TIMEOUT
+from mbgw.scenarios.exchange import EXCEPTION_KINDS, FRAME_WITHOUT_REQUEST, TIMEOUT
 from mbgw.scenarios.health import SerialHealth
 from mbgw.slave.client import Client
 from mbgw.slave.connections import Connections
@@ -52,7 +52,8 @@ wire = logging.getLogger("mbgw.wire")
 # A scenario's run while the serial device is lost: the engine's error kind for 0x0A.
 PATH_UNAVAILABLE = EXCEPTION_KINDS[pdu.GATEWAY_PATH_UNAVAILABLE]
 # Serial settings that need the port opened again; the others apply to the next transaction.
-REOPEN_SETTINGS = ("device", "baudrate", "format", "interface", "rtsdelays")
+REOPEN_SETTINGS = ("device", "baudrate", "format", "interface", "rtsdelays", "dtr", "rts",
+                   "cts", "xonxoff")
 
 
 class LineWorker(LineThread[SlaveConfig]):
@@ -108,7 +109,7 @@ class LineWorker(LineThread[SlaveConfig]):
         after a broadcast."""
         cfg = self._cfg
         s = cfg.serial
-        quiet_ms = max(s.t35_us / 1000, s.silence_ms) + sum(s.rtsdelays)
+        quiet_ms = max(s.t35_us / 1000, s.silence_ms) + sum(s.rtsdelays) + s.interframe_ms
         attempt_s = (quiet_ms + s.stout_ms) / 1000 + 2 * longest_frame_s(s)
         retries = max((sc.retries for sc in serial_scenarios(cfg)), default=cfg.retries)
         return (max(retries, cfg.retries) + 1) * attempt_s + cfg.turnaround_ms / 1000 + \
@@ -401,7 +402,8 @@ class LineWorker(LineThread[SlaveConfig]):
             return
         run = engine.next(time.monotonic())
         if run is not None:
-            engine.done(run, *self._exchange(run.scenario, run.pdu))
+            engine.done(run, *self._exchange(run.scenario, run.pdu,
+                                             lambda: engine.retrying(run.scenario)))
 
     def _scenarios_while_down(self, engine) -> None:
         """None runs, but the engine's eventfd is read, changes are taken and data ages
@@ -411,7 +413,7 @@ class LineWorker(LineThread[SlaveConfig]):
         while (test := engine.take_test(now)) is not None:
             engine.test_done(test, None, PATH_UNAVAILABLE)
 
-    def _exchange(self, scenario, request: bytes) -> tuple:
+    def _exchange(self, scenario, request: bytes, on_retry=None) -> tuple:
         """One run of scenario (request: its PDU) on the line with its retries, address 0 a
         broadcast: (reply PDU or None, None or the engine's error kind, the retries made).
         A reply that did not answer the request (another function, another size) is
@@ -420,19 +422,25 @@ class LineWorker(LineThread[SlaveConfig]):
         if master is None:
             return None, PATH_UNAVAILABLE, 0
         device = self.devices.get(scenario.slave)
-        retried = device.retries
+        retried, foreign = device.retries, _foreign_frames(device)
         master.mismatch = None
+        master.on_retry = on_retry
         try:
             reply = self._on_line(master, bytes((scenario.slave,)) + request, scenario.retries)
         except LineTimeout:
             reply = master.mismatch
-            return reply, None if reply is not None else TIMEOUT, device.retries - retried
+            if reply is None:       # VPGate 8.2: another master's frames came instead
+                kind = FRAME_WITHOUT_REQUEST if _foreign_frames(device) > foreign else TIMEOUT
+                return None, kind, device.retries - retried
+            return reply, None, device.retries - retried
         except SerialError as err:
             self._lost(err)
             return None, PATH_UNAVAILABLE, device.retries - retried
         except Exception:   # a bug must cost one run, never the scenario's schedule
             log.exception("internal error running scenario %s", scenario.name)
             return None, TIMEOUT, device.retries - retried
+        finally:
+            master.on_retry = None
         return reply, None, device.retries - retried
 
     def _on_line(self, master: SerialMaster, adu: bytes, retries: int) -> bytes | None:
@@ -446,6 +454,12 @@ class LineWorker(LineThread[SlaveConfig]):
         finally:
             self._gate.take()
             self._server.take_kept()
+
+
+def _foreign_frames(device) -> int:
+    """Whole frames heard while waiting for device's reply that were not replies: another
+    address's, or a request's shape (another master's request read as a reply)."""
+    return device.wrong_unit + device.invalid_frames
 
 
 def serial_scenarios(cfg: SlaveConfig) -> tuple:

@@ -1,9 +1,10 @@
 """One transaction on the serial line, as its master (slave mode).
 
-A request goes out only after the line has been quiet for t3.5 (or the turnaround delay after
-a broadcast).  Every frame that is not the reply -- bad CRC or LRC, another address, another
-function, a size the request did not ask for -- is counted and dropped, and we keep listening
-until stout has passed, as the spec's master does (Serial Line V1.02, 2.4.1).
+A request goes out only after the line has been quiet for t3.5 and the interframe silence
+(VPGate's, 0 by default), or the turnaround delay after a broadcast.  Every frame that is not
+the reply -- bad CRC or LRC, another address, another function, a size the request did not
+ask for -- is counted and dropped, and we keep listening until stout has passed, as the
+spec's master does (Serial Line V1.02, 2.4.1).
 
 The late window.  A slave may answer after stout (a radio link, a slow device, a stout set
 too low), and its late answer looks just like the answer to the next request to the same
@@ -56,6 +57,7 @@ class SerialMaster:
         self._nocheck = cfg.nocheck
         self._stout_ns = cfg.stout_ms * 1_000_000
         self._turnaround_us = turnaround_ms * 1000
+        self._interframe_us = cfg.interframe_ms * 1000
         self._quiet_from_ns = 0
         self._quiet_us = 0
         self._deadline = 0          # of the reply to the request last sent
@@ -66,6 +68,8 @@ class SerialMaster:
         # The last reply dropped for not answering its request (another function, another
         # size), for a scenario to tell why it failed; its runner clears it.
         self.mismatch: bytes | None = None
+        # on_retry(): called before each repeat of a request (a scenario's status says so)
+        self.on_retry: Callable[[], None] | None = None
 
     def keep_line_state(self, previous: "SerialMaster") -> None:
         """Taking over the line from previous (new settings): the silence it owes the line
@@ -104,6 +108,8 @@ class SerialMaster:
             if attempt:
                 self._count(device, "retries")
                 taken = False
+                if self.on_retry is not None:
+                    self.on_retry()
             if not taken:
                 self._await_quiet(adu)
             elif wire.isEnabledFor(logging.DEBUG):
@@ -225,7 +231,7 @@ class SerialMaster:
     def _sent(self, end_ns: int) -> None:
         """The request's last byte leaves the line at end_ns."""
         self._quiet_from_ns = end_ns
-        self._quiet_us = self.framing.inter_frame_us
+        self._quiet_us = self.framing.inter_frame_us + self._interframe_us
         self._deadline = end_ns + self._stout_ns
 
     def _receive(self, adu: bytes, device: DeviceStats, forward, exchange: bool,

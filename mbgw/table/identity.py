@@ -20,6 +20,7 @@ VERSION_REGISTERS = 8          # 0x8020-0x8027
 MODES = {"slave": 1, "master": 2, "transparent": 3}      # 0x8028
 PROTOCOL_CODES = {name: code for code, name in enumerate(PROTOCOLS)}   # rtu 0, ascii 1
 UNIT_MASK_REGISTERS = 16       # 256 unit ids, one bit each
+LOCATION_REGISTERS = 15        # 0x8044-0x8052: the guide's 30 bytes
 
 
 def ascii_registers(text: str, registers: int) -> list[int]:
@@ -60,6 +61,7 @@ def zone(settings: "SlaveConfig | MasterConfig | TransparentModeConfig", mode: s
         int(table.direct) if mode == "slave" else 0,         # 0x8032
         *mask_registers(table.units, UNIT_MASK_REGISTERS),   # 0x8033-0x8042
         table.port if mode == "master" else 0,               # 0x8043
+        *ascii_registers(settings.location, LOCATION_REGISTERS),   # 0x8044-0x8052
     ]
 
 

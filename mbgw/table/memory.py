@@ -16,6 +16,7 @@ PDU_MAX = lib.MBGW_PDU_MAX
 WATCHES = lib.MBGW_TABLE_WATCHES       # watches of changed values, at most
 MBAP_MAX = lib.MBGW_MBAP_MAX
 EXCEPTION_CODES = 16
+ILLEGAL_FUNCTION = 0x01
 _OUTCOMES = ("answered", "exception", "broadcast")   # the C counters' order (MBGW_TABLE_*)
 
 
@@ -49,19 +50,35 @@ def _check_range(address: int, count: int, limit: int, what: str) -> None:
 class Responder:
     """Answers requests from one table in one thread, into a buffer of its own (260 bytes,
     allocated once): the reply a method returns is a view of it, valid until its next call.
-    One per thread that answers requests."""
+    One per thread that answers requests.  A serial slave's responder has its own function
+    list (`serial_functions`, VPGate 3.7); the others answer the table's `functions`."""
 
-    __slots__ = ("_table", "buffer", "reply")
+    __slots__ = ("_table", "buffer", "reply", "functions_mask")
 
-    def __init__(self, table: "Table") -> None:
+    def __init__(self, table: "Table", functions: Iterable[int] | None = None) -> None:
         self._table = table
         self.buffer = ffi.new("uint8_t[]", MBAP_MAX)
         self.reply = memoryview(ffi.buffer(self.buffer))
+        self.functions_mask = None if functions is None else _function_mask(functions)
+
+    def _refused(self, function: int) -> bool:
+        """A function the table answers (its mask is both lists) but not for this side."""
+        mask = self.functions_mask if self.functions_mask is not None \
+            else self._table.tcp_mask
+        return mask is not None and not (function < 32 and mask >> function & 1)
 
     def answer_mbap_into(self, frame, broadcast: bool = False) -> int:
         """Answer a whole Modbus TCP frame (MBAP header + PDU, bytes or a buffer): the reply's
         length in .reply (transaction id and unit id kept), 0 for none (broadcast), -EBADMSG
         for a header whose protocol id or length field is wrong."""
+        if len(frame) > 7 and self._refused(frame[7]) and frame[2] == frame[3] == 0 \
+                and frame[4] << 8 | frame[5] == len(frame) - 6:
+            if broadcast:
+                return 0
+            reply = self.reply
+            reply[0:4] = frame[0:4]
+            reply[4:9] = bytes((0, 3, frame[6], frame[7] | 0x80, ILLEGAL_FUNCTION))
+            return 9
         return lib.mbgw_table_answer_mbap(self._table._t, _c_bytes(frame), len(frame),
                                           self.buffer, broadcast)
 
@@ -73,6 +90,11 @@ class Responder:
     def answer_into(self, pdu, broadcast: bool = False) -> int:
         """Answer a request PDU (function code first): the reply PDU's length in .reply, 0
         for none (broadcast, or an empty PDU)."""
+        if len(pdu) and self._refused(pdu[0]):
+            if broadcast:
+                return 0
+            self.reply[0:2] = bytes((pdu[0] | 0x80, ILLEGAL_FUNCTION))
+            return 2
         return lib.mbgw_table_answer(self._table._t, _c_bytes(pdu), len(pdu),
                                      self.buffer, broadcast)
 
@@ -91,13 +113,15 @@ class Table:
             raise MemoryError("the exchange table")
         self._t = ffi.gc(t, lib.mbgw_table_free)
         self._down = None            # the flags C reads at each FC 7, kept alive here
+        self.tcp_mask: int | None = None   # with serial functions of their own: the others'
         self.set_functions(functions)
         self._own = Responder(self)
         self.reply_buffer = self._own.buffer
 
-    def responder(self) -> Responder:
-        """A responder with its own reply buffer, for one thread."""
-        return Responder(self)
+    def responder(self, functions: Iterable[int] | None = None) -> Responder:
+        """A responder with its own reply buffer, for one thread; functions: its own list,
+        which must be within the table's (set_functions)."""
+        return Responder(self, functions)
 
     def answer(self, pdu: bytes, broadcast: bool = False) -> bytes | None:
         """The reply PDU to a request PDU, None when there is none (a broadcast).  Allocates
@@ -167,9 +191,18 @@ class Table:
         first = lib.mbgw_table_unwritten(self._t, address, count)
         return None if first < 0 else first
 
-    def set_functions(self, functions: Iterable[int]) -> None:
-        """The function codes answered; any other is exception 0x01."""
-        lib.mbgw_table_set_functions(self._t, _function_mask(functions))
+    def set_functions(self, functions: Iterable[int],
+                      serial_functions: Iterable[int] | None = None) -> None:
+        """The function codes answered; any other is exception 0x01.  serial_functions:
+        master mode's serial slave's own list; the table then answers both lists, and a
+        responder without a list of its own (the TCP side's) only `functions`."""
+        mask = _function_mask(functions)
+        if serial_functions is None:
+            self.tcp_mask = None
+            lib.mbgw_table_set_functions(self._t, mask)
+        else:
+            lib.mbgw_table_set_functions(self._t, mask | _function_mask(serial_functions))
+            self.tcp_mask = mask
 
     def set_flags(self, line_down: bool | None = None,
                   scenario_error: bool | None = None) -> None:

@@ -44,7 +44,7 @@ from mbgw.protocol import mbap
 
 log = logging.getLogger("mbgw.table")
 
-MAX_CONNECTIONS = 32          # table clients at once (upstream max-connections is another limit)
+MAX_CONNECTIONS = 32          # table clients at once, by default ([table] max-connections)
 RECEIVE_SIZE = 4096           # one read: 15 requests of 260 bytes, 341 reads of 12
 LISTEN_BACKLOG = 16
 REFUSAL_LOG_INTERVAL_S = 60.0
@@ -196,7 +196,7 @@ class TableServer(threading.Thread):
     def __init__(self, table, port: int | None, bind: str | None = None,
                  firewall: Firewall | None = None, allows=None,
                  tls: ssl.SSLContext | None = None, tls_port: int | None = None,
-                 role_of=None) -> None:
+                 role_of=None, max_connections: int = MAX_CONNECTIONS) -> None:
         """Listens at once: raises TableListenError when it cannot.  allows(host): whether a
         peer may connect (None: anyone; transparent mode's authip).  port None: no plain
         listener; tls: the TLS listener's context (mbgw.ops.tls.server_context) on
@@ -204,6 +204,7 @@ class TableServer(threading.Thread):
         super().__init__(name="mbgw-table", daemon=True)
         self._table = table
         self.port = port
+        self.max_connections = max_connections     # another thread may set it (a reload)
         self._allows = allows
         self._listeners = listen(port, bind) if port is not None else []
         self._tls = tls
@@ -253,7 +254,7 @@ class TableServer(threading.Thread):
     def figures(self) -> dict:
         """The TCP server's counters, as the status reports them."""
         return {"port": self.port, "connections": len(self._clients),
-                "max_connections": MAX_CONNECTIONS,
+                "max_connections": self.max_connections,
                 "connections_accepted": self.accepted,
                 "connections_refused_limit": self.refused_limit,
                 "connections_bad_header": self.bad_header,
@@ -379,11 +380,14 @@ class TableServer(threading.Thread):
         sock is closed."""
         host = address[0]
         mine = [c for c in self._clients.values() if c.host == host]
-        if len(mine) >= PER_ADDRESS:
-            pool, why = mine, f"{PER_ADDRESS} table clients of this address are connected"
-        elif len(self._clients) >= MAX_CONNECTIONS:
+        limit = self.max_connections
+        per_address = min(limit, max(PER_ADDRESS, share(limit)))   # a small cap: one host's
+        if len(mine) >= per_address:
+            pool, why = mine, f"{per_address} table clients of this address are connected"
+        elif len(self._clients) >= limit:
             pool, why = list(self._clients.values()), \
-                f"{MAX_CONNECTIONS} table clients are connected, the most there may be"
+                f"{limit} table clients are connected, the most there may be " \
+                f"(table.max-connections)"
         else:
             return True
         now = time.monotonic()

@@ -131,7 +131,7 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
     s, t = cfg.serial, cfg.transparent
     log.info("transparent mode: serial %s %d %s %s; eof %s, eof-timeout %d ms, rx %d+%d bytes, "
              "tx %d+%d bytes, crc %s, trigger %s, silence %d ms; table on %s%s%s",
-             s.device, s.baudrate, s.format, s.interface, t.eof if t.eof != "char" else
+             s.device, s.baudrate, s.format, s.wiring, t.eof if t.eof != "char" else
              f"char 0x{t.eof_char:02x}", t.eof_timeout_for(s), t.rx_address, t.rx_size,
              t.tx_address, t.tx_size, "on" if t.crc else "off", "on" if t.trigger else "off",
              t.silence_ms, ", ".join(server.addresses),

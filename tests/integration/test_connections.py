@@ -366,7 +366,7 @@ BAD_OPTIONS = {
     "mdbport": ("--mdbport", "70000"),
     "max-connections": ("--max-connections", "0"),
     "max-connections-per-ip": ("--max-connections-per-ip", "-1"),
-    "retries": ("--retries", "11"),
+    "retries": ("--retries", "65536"),
     "log-level": ("--log-level", "chatty"),
 }
 

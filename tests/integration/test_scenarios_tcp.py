@@ -59,6 +59,7 @@ class StandInEngine:
         self._runs: list[Run] = []
         self._lock = threading.Lock()
         self.results: queue.Queue = queue.Queue()
+        self.retried: list = []         # the scenarios told "retrying", in order
 
     def queue(self, scenario: Scenario, pdu: bytes = READ_3) -> None:
         with self._lock:
@@ -84,6 +85,9 @@ class StandInEngine:
 
     def done(self, run, reply, kind, retries) -> None:
         self.results.put((reply, kind, retries))
+
+    def retrying(self, scenario) -> None:
+        self.retried.append(scenario)
 
     def result(self):
         return self.results.get(timeout=10)
@@ -154,9 +158,11 @@ def test_an_ipv6_server(runner, scripted):
 
 def test_retries_after_a_timeout_and_a_lost_connection(runner, scripted):
     server = scripted("silent", "close", "ok", values=(1, 2, 3))
-    runner.engine.queue(Scenario(server.server, retries=2))
+    scenario = Scenario(server.server, retries=2)
+    runner.engine.queue(scenario)
     assert runner.engine.result() == (registers(1, 2, 3), None, 2)
     assert server.wait_requests(3) == [(1, READ_3)] * 3
+    assert runner.engine.retried == [scenario, scenario]     # "server not responding, ..."
     runner.engine.queue(Scenario(server.server, retries=1), bytes([6, 0, 4, 0, 7]))
     assert runner.engine.result() == (bytes([6, 0, 4, 0, 7]), None, 0)
     server.script.extend(["silent", "silent"])

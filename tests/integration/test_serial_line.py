@@ -13,11 +13,13 @@ import fcntl
 import functools
 import os
 import re
+import select
 import socket
 import struct
 import subprocess
 import sys
 import termios
+import time
 
 import pytest
 from pymodbus.client import ModbusTcpClient
@@ -30,7 +32,7 @@ from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
 from mbgw.slave.transaction import SerialMaster
 from tests.harness import READY_TIMEOUT_S, stop_counters
-from tests.modbus import holding_reply, read_holding, rtu
+from tests.modbus import holding_reply, mbap, read_holding, rtu
 from tests.peers import paced_slave
 
 pytestmark = pytest.mark.integration
@@ -464,7 +466,8 @@ def _second_gateway(device: str, *options: str) -> subprocess.CompletedProcess:
     from tests.harness import free_port
     return subprocess.run([sys.executable, "-m", "mbgw", "slave", "--device", device,
                            "--bind", "127.0.0.1", "--mdbport", str(free_port()), *options],
-                          capture_output=True, text=True, timeout=READY_TIMEOUT_S)
+                          capture_output=True, text=True, timeout=READY_TIMEOUT_S,
+                          env={**os.environ, "MBGW_CONFIG": os.devnull})
 
 
 def test_second_gateway_on_the_same_line_fails_clearly(pty_pair, start_peer, gateway, client):
@@ -481,3 +484,155 @@ def test_second_gateway_leaves_the_first_ones_rate_alone(pty_pair, start_peer, g
     gateway("--baudrate", "7200")
     assert _second_gateway(pty_pair.gateway, "--baudrate", "9600").returncode == 1
     assert kernel_line(pty_pair.gateway)[1] == 7200
+
+
+# --- RS-232 control lines and flow control (the guide's dtr, rts, cts, xonxoff) --------------
+# A pty has termios but no modem lines (TIOCMGET/TIOCMBIS: ENOTTY): the flow control flags are
+# read back from the kernel and XON/XOFF is seen at work on the wire; DTR and RTS levels can
+# only be seen refused, and said so in the log.
+
+def kernel_flags(path: str) -> tuple[int, int]:
+    """(iflag, cflag) the kernel holds for the tty at path."""
+    fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    try:
+        fields = TERMIOS2.unpack(fcntl.ioctl(fd, TCGETS2, bytes(TERMIOS2.size)))
+    finally:
+        os.close(fd)
+    return fields[0], fields[2]
+
+
+def test_rts_cts_flow_control_reaches_the_kernel(pty_pair, start_peer, gateway, client):
+    start_peer("pymodbus_slave.py", pty_pair.device, "17")
+    gw = gateway("--rts", "flow", "--cts", "flow")
+    assert client(gw).ask(17, read_holding(0, 1)) == bytes((0x03, 2, 0, 100))
+    iflag, cflag = kernel_flags(pty_pair.gateway)
+    assert cflag & termios.CRTSCTS, oct(cflag)
+    assert not iflag & (termios.IXON | termios.IXOFF), oct(iflag)
+    assert "rs232, rts flow, cts flow" in gw.log()
+
+
+def test_without_flow_control_the_kernel_has_none(pty_pair, start_peer, gateway, client):
+    start_peer("pymodbus_slave.py", pty_pair.device, "17")
+    gw = gateway()
+    assert client(gw).ask(17, read_holding(0, 1)) == bytes((0x03, 2, 0, 100))
+    iflag, cflag = kernel_flags(pty_pair.gateway)
+    assert not cflag & termios.CRTSCTS and not iflag & (termios.IXON | termios.IXOFF)
+
+
+def test_rts_flow_without_cts_flow_is_refused_naming_both(pty_pair):
+    out = _second_gateway(pty_pair.gateway, "--rts", "flow")
+    assert out.returncode == 2, out.stdout + out.stderr
+    assert "rts flow with cts ignore" in out.stderr and "--rts" in out.stderr, out.stderr
+
+
+def test_rts_modem_is_refused_on_rs485(pty_pair):
+    out = _second_gateway(pty_pair.gateway, "--interface", "2wires", "--rts", "modem")
+    assert out.returncode == 2, out.stdout + out.stderr
+    assert "interface rs485 drives its transmitter with RTS" in out.stderr, out.stderr
+
+
+def _line_end(path: str) -> int:
+    fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
+    termios.tcsetattr(fd, termios.TCSANOW, _raw(termios.tcgetattr(fd)))
+    return fd
+
+
+def _raw(attrs: list) -> list:
+    attrs[0] = attrs[1] = attrs[3] = 0
+    return attrs
+
+
+def _serve_one(fd: int, reply: bytes) -> bytes:
+    """Read one 8-byte RTU request from the line, answer with reply; the request."""
+    request = b""
+    while len(request) < 8:
+        ready, _, _ = select.select([fd], [], [], REPLY_S)
+        assert ready, f"no request on the line, got {request.hex(' ')!r}"
+        request += os.read(fd, 8 - len(request))
+    os.write(fd, reply)
+    return request
+
+
+@pytest.mark.parametrize("xonxoff, answered", [("use", True), ("ignore", False)])
+def test_xonxoff_takes_an_xon_out_of_the_reply(pty_pair, gateway, client, xonxoff, answered):
+    """A modem's XON inside the reply: with xonxoff use the kernel takes it out of the line
+    and the reply is whole; without, it is a byte of the frame and spoils its CRC."""
+    fd = _line_end(pty_pair.device)
+    try:
+        gw = gateway("--xonxoff", xonxoff, "--exception", "--stout", str(STOUT_MS))
+        iflag, _ = kernel_flags(pty_pair.gateway)
+        assert bool(iflag & termios.IXON) == answered and bool(iflag & termios.IXOFF) == answered
+        c = client(gw)
+        c.send(struct.pack(">HHHB", 1, 0, 6, 1) + read_holding(0, 1))
+        reply = rtu(1, bytes((0x03, 2, 0x12, 0x34)))
+        request = _serve_one(fd, reply[:3] + b"\x11" + reply[3:])
+        assert request == rtu(1, read_holding(0, 1))
+        expected = bytes((0x03, 2, 0x12, 0x34)) if answered else bytes((0x83, TARGET_FAILED))
+        assert c.recv() == (1, 1, expected)
+    finally:
+        os.close(fd)
+
+
+def test_dtr_and_rts_levels_on_a_tty_without_modem_lines_are_reported(pty_pair, start_peer,
+                                                                       gateway, client):
+    start_peer("pymodbus_slave.py", pty_pair.device, "17")
+    gw = gateway("--dtr", "low", "--rts", "low")
+    assert client(gw).ask(17, read_holding(0, 1)) == bytes((0x03, 2, 0, 100))
+    assert f"{pty_pair.gateway} has no modem control lines: dtr low, rts low not applied" \
+        in gw.log(), gw.log()
+
+
+def test_rts_modem_on_a_tty_without_rts_says_the_radio_cannot_be_keyed(pty_pair, start_peer,
+                                                                        gateway, client):
+    start_peer("pymodbus_slave.py", pty_pair.device, "17")
+    gw = gateway("--rts", "modem", "--rtsdelays", "2", "1")
+    assert client(gw).ask(17, read_holding(0, 1)) == bytes((0x03, 2, 0, 100))
+    assert f"{pty_pair.gateway} has no RTS line: rts modem cannot key the radio" in gw.log()
+
+
+def test_default_lines_log_no_modem_warning(pty_pair, start_peer, gateway, client):
+    start_peer("pymodbus_slave.py", pty_pair.device, "17")
+    gw = gateway()
+    assert client(gw).ask(17, read_holding(0, 1)) == bytes((0x03, 2, 0, 100))
+    assert "modem control lines" not in gw.log()
+
+
+@pytest.mark.parametrize("words, shown", [("4wires slave", "rs422 slave"),
+                                          ("rs422 master", "rs422")])
+def test_the_guides_4wires_words_run_the_line(pty_pair, start_peer, gateway, client, words,
+                                              shown):
+    start_peer("pymodbus_slave.py", pty_pair.device, "17")
+    gw = gateway("--interface", words)
+    assert client(gw).ask(17, read_holding(0, 1)) == bytes((0x03, 2, 0, 100))
+    assert f"8n1 rtu {shown}," in gw.log(), gw.log()
+
+
+def test_the_guides_2wires_echo_drops_the_echo(paced, gateway, client):
+    paced()
+    gw = gateway("--interface", "2wires echo", "--exception")
+    assert client(gw).ask(3, read_holding(0, 2)) == holding_reply(0, 2)   # echo, then reply
+    assert "8n1 rtu rs485 echo," in gw.log(), gw.log()
+
+
+# --- VPGate's interframe silence (slave mode) -------------------------------------------------
+
+INTERFRAME_MS = 300
+
+
+def test_the_interframe_silence_holds_the_next_request_after_a_reply(pty_pair, gateway, client):
+    """The next request goes out no sooner than the silence after the reply was written (a
+    lower bound: load only makes it later)."""
+    fd = _line_end(pty_pair.device)
+    try:
+        gw = gateway("--interframe-silence", str(INTERFRAME_MS))
+        c = client(gw)
+        c.send(mbap(1, 1, read_holding(0, 1)), mbap(2, 1, read_holding(1, 1)))
+        reply = rtu(1, bytes((0x03, 2, 0x12, 0x34)))
+        assert _serve_one(fd, reply) == rtu(1, read_holding(0, 1))
+        replied = time.monotonic()
+        assert _serve_one(fd, reply) == rtu(1, read_holding(1, 1))
+        assert time.monotonic() - replied >= INTERFRAME_MS / 1000
+        assert [c.recv(), c.recv()] == [(1, 1, bytes((0x03, 2, 0x12, 0x34))),
+                                        (2, 1, bytes((0x03, 2, 0x12, 0x34)))]
+    finally:
+        os.close(fd)

@@ -514,3 +514,65 @@ def test_table_transactions_are_traced_with_outcome_table(table_master, line, tm
     assert rows[:3] == [["request", "10", "table", "-", "-", "0x06", "5"],
                         ["reply", "10", "table", "-", "-", "0x06", "5", "table"],
                         ["request", "0", "table", "-", "-", "0x06", "5"]]
+
+
+INTERFRAME_MS = 300
+
+
+def test_the_interframe_silence_delays_the_answer_to_the_serial_master(table_master, line):
+    """VPGate's interframe silence, master mode: the table's answer and a routed one come no
+    sooner than it after the request (a lower bound: load only makes it later)."""
+    gw, _ = table_master("--interframe-silence", str(INTERFRAME_MS))
+    for request, reply in ((read_holding(TABLE, CONFIG, 2), bytes.fromhex("0a 03 04 6d62 6777")),
+                           (read_holding(2), holding_reply(2, *identity(SERVER, 2)))):
+        os.write(line, rtu(request))
+        written = time.monotonic()
+        assert recv(line, len(rtu(reply))) == rtu(reply)
+        assert time.monotonic() - written >= INTERFRAME_MS / 1000
+
+
+def test_the_master_moving_on_during_the_interframe_silence_abandons_the_answer(table_master,
+                                                                                 line):
+    gw, _ = table_master("--interframe-silence", "2000")
+    os.write(line, rtu(read_holding(TABLE, CONFIG, 2)))
+    wait_for(gw, lambda s: s["table"]["serial"]["requests"] == 1, "the first request taken")
+    os.write(line, rtu(read_holding(TABLE, CONFIG, 1)))     # the master moved on
+    expected = rtu(bytes.fromhex("0a 03 02 6d62"))
+    assert recv(line, len(expected), timeout=REPLY_S + 2) == expected   # the second's only
+    assert status(gw)["counters"]["abandoned"] == 1
+
+
+def test_the_serial_slave_and_the_tcp_clients_have_function_lists_of_their_own(table_master,
+                                                                              line, tcp):
+    """VPGate 3.7: the serial master may write (6) what the TCP clients may only read (3, 4);
+    each side's refusal is 0x01 and changes nothing."""
+    gw, port = table_master("--table-functions", "3,4", "--table-serial-functions", "3,6")
+    sock = tcp(port)
+    os.write(line, rtu(bytes.fromhex("0a 06 1000 beef")))
+    expected = rtu(bytes.fromhex("0a 06 1000 beef"))
+    assert recv(line, len(expected)) == expected
+    assert ask_tcp(sock, 1, 1, bytes.fromhex("06 1000 0001")) == bytes.fromhex("86 01")
+    assert ask_tcp(sock, 2, 1, bytes.fromhex("03 1000 0001")) == bytes.fromhex("03 02 beef")
+    os.write(line, rtu(bytes.fromhex("0a 04 1000 0001")))
+    expected = rtu(bytes.fromhex("0a 84 01"))
+    assert recv(line, len(expected)) == expected
+    os.write(line, rtu(read_holding(TABLE, FREE, 1)))
+    expected = rtu(bytes.fromhex("0a 03 02 beef"))
+    assert recv(line, len(expected)) == expected
+    assert table_status(gw)["serial"]["requests"] == 3
+
+
+def test_the_table_servers_own_max_connections(table_master, tcp):
+    """[table] max-connections (not net.max-connections, the servers'): with 2, a third
+    polling client is refused, naming the key (one address may fill a cap this small)."""
+    gw, port = table_master("--table-max-connections", "2")
+    clients = [tcp(port) for _ in range(2)]
+    for tid, sock in enumerate(clients):
+        assert ask_tcp(sock, tid, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+    extra = tcp(port, "127.0.0.2")
+    assert extra.recv(16) == b""
+    tcp_figures = table_status(gw)["tcp"]
+    assert (tcp_figures["max_connections"], tcp_figures["connections_refused_limit"]) == (2, 1)
+    assert "2 table clients are connected, the most there may be (table.max-connections)" \
+        in gw.log()
+    assert "exchange table served on" in gw.log() and "(at most 2 clients)" in gw.log()

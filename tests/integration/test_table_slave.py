@@ -369,3 +369,24 @@ def test_without_the_table_there_is_no_table_section_and_no_table_command(pty_pa
     assert "table" not in status(gw)
     result = mbgw("table", "read", "0", "--control", gw.control)
     assert result.returncode != 0 and "exchange table is off" in result.stderr, result.stderr
+
+
+def test_the_location_is_in_status_and_the_zone_and_a_reload_changes_it(
+        tmp_path, pty_pair, start_peer, start_gateway, client):
+    """The guide's set location: shown by mbgw status, read at 0x8044 by a Modbus client."""
+    start_peer("pymodbus_slave.py", pty_pair.device, str(LINE_UNIT), "--silent-unknown")
+    path = tmp_path / "mbgw.toml"
+    for words in (("serial", "baudrate", "19200"), ("table", "enabled", "on"),
+                  ("general", "location", "Pump", "house", "3")):
+        config_set(path, *words)
+    gw = start_gateway(pty_pair.gateway, "--config", str(path))
+    c = client(gw)
+    assert c.ask(247, read_holding(0x8044, 7)) == \
+        bytes.fromhex("03 0e") + b"Pump house 3\0\0"
+    assert status(gw)["location"] == "Pump house 3"
+    shown = mbgw("status", "--control", gw.control)
+    assert "location   Pump house 3\n" in shown.stdout, shown.stdout
+    config_set(path, "general", "location", "Hall", "B")
+    reload(gw, "configuration reloaded: location changed")
+    assert c.ask(247, read_holding(0x8044, 3)) == bytes.fromhex("03 06") + b"Hall B"
+    assert status(gw)["location"] == "Hall B"

@@ -459,7 +459,8 @@ PAGE_LOADED = {"clients": "#clients-table", "devices": "#devices-table, #no-devi
 def test_every_page_works_in_master_and_transparent_mode(browser, mode, tmp_path):
     path = tmp_path / "mbgw.toml"
     web_port = free_port()
-    path.write_text(f'[serial]\nmode = "{mode}"\n[web]\nlisten = "127.0.0.1:{web_port}"\n')
+    path.write_text(f'[serial]\nmode = "{mode}"\n[general]\nlocation = "Pump house 3"\n'
+                    f'[web]\nlisten = "127.0.0.1:{web_port}"\n')
     set_password(path, "admin")
     pty = PtyPair(tmp_path)
     options = ["--table", "--table-port", str(free_port())] if mode == "master" else \
@@ -470,6 +471,7 @@ def test_every_page_works_in_master_and_transparent_mode(browser, mode, tmp_path
         log_in(browser, SimpleNamespace(url=f"http://127.0.0.1:{web_port}/"), "admin")
         browser.get_log("browser")
         wait(browser, text_in('#overview-facts tr[data-name="Mode"] td', mode))
+        wait(browser, text_in('#overview-facts tr[data-name="Location"] td', "Pump house 3"))
         device = browser.find_element(
             By.CSS_SELECTOR, '#overview-facts tr[data-name="Serial device"] td').text
         assert (" rtu " in device) == (mode == "master"), device  # transparent: no framing

@@ -58,7 +58,7 @@ def _usage_error(result, option: str, value: str) -> None:
     ("--max-connections", "0"),
     ("--max-connections-per-ip", "-1"),
     ("--max-connections-per-ip", "1001"),
-    ("--retries", "11"),
+    ("--retries", "65536"),
     ("--turnaround", "65536"),
     ("--late-window", "-1"),
     ("--late-window", "65536"),

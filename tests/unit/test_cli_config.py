@@ -121,6 +121,29 @@ def test_check_config_takes_the_file_options_of_every_command(conf, monkeypatch)
 
 # --- config set / show / unset / default ---------------------------------------------------
 
+@pytest.mark.parametrize("words, written", [
+    (["interface", "2wires", "echo"], "rs485 echo"),
+    (["interface", "4wires", "slave"], "rs422 slave"),
+    (["interface", "rs422", "master"], "rs422"),
+    (["dtr", "low"], "low"),
+    (["xonxoff", "use"], "use"),
+])
+def test_set_takes_the_guides_line_words(conf, words, written):
+    result = mbgw("config", "set", "serial", *words, "--config", conf)
+    assert result.exit_code == 0, result.output
+    assert values(conf)["serial"][words[0]] == written
+
+
+def test_set_rts_flow_warns_until_cts_flow_is_set_too(conf):
+    result = mbgw("config", "set", "serial", "rts", "flow", "--config", conf)
+    assert result.exit_code == 0, result.output
+    assert "warning" in result.output and "serial.rts: rts flow with cts ignore" in result.output
+    assert mbgw("check-config", conf).exit_code == 78
+    result = mbgw("config", "set", "serial", "cts", "flow", "--config", conf)
+    assert result.exit_code == 0 and "warning" not in result.output, result.output
+    assert mbgw("check-config", conf).exit_code == 0
+
+
 def test_set_writes_the_value_and_show_reads_it_back(conf):
     result = mbgw("config", "set", "serial", "stout", "700", "--config", conf)
     assert result.exit_code == 0, result.output
@@ -434,6 +457,38 @@ def test_a_key_named_as_another_groups_key_is_set_shown_and_unset_in_its_own_gro
     assert result.exit_code == 0, result.output
     data = values(conf)
     assert "silence" not in data["transparent"] and data["serial"]["silence"] == 7
+
+
+def test_net_metric_is_refused_with_its_reason_by_set_and_in_the_file(conf, tmp_path):
+    result = mbgw("config", "set", "net", "metric", "10", "--config", conf)
+    assert result.exit_code == 1, result.output
+    assert "net.metric: not supported: the guide's gateway hop count is a route metric" \
+        in result.output, result.output
+    hand_edited = tmp_path / "metric.toml"
+    hand_edited.write_text(conf.read_text() + "\n[net]\nmetric = 10\n"
+                           if "[net]" not in conf.read_text()
+                           else conf.read_text().replace("[net]\n", "[net]\nmetric = 10\n", 1))
+    result = mbgw("check-config", hand_edited)
+    assert result.exit_code == 78, result.output
+    assert "net.metric: not supported" in result.output and "CAP_NET_ADMIN" in result.output
+
+
+@pytest.mark.parametrize("words, expected", [
+    (["x" * 31], "general.location: location 'xxxxxxxxxxxxxxxxxxxxxxxxxxxxxxx': at most 30"),
+    (["Pumpe", "Ölraum"], "general.location: location 'Pumpe Ölraum': printable ASCII only"),
+])
+def test_location_is_refused_beyond_the_guides_30_ascii_bytes(conf, words, expected):
+    result = mbgw("config", "set", "general", "location", *words, "--config", conf)
+    assert result.exit_code == 1, result.output
+    assert expected in result.output, result.output
+
+
+def test_location_set_and_shown_in_the_guides_words(conf):
+    result = mbgw("config", "set", "general", "location", "Pump", "house", "3", "--config", conf)
+    assert result.exit_code == 0, result.output
+    assert values(conf)["general"]["location"] == "Pump house 3"
+    assert mbgw("config", "show", "general", "location", "--config", conf).output == \
+        "Pump house 3\n"
 
 
 def test_help_shows_the_built_in_defaults_and_what_the_file_in_use_sets(tmp_path):

@@ -171,6 +171,67 @@ def test_interface_parse_rejects_naming_the_value(text):
         Interface.parse(text)
 
 
+@pytest.mark.parametrize("text, expected", [
+    # the guide: "Keywords rs422 and 4wires are synonyms", "rs485 and 2wires are synonyms"
+    ("2wires", Interface("rs485")),
+    ("2wires echo", Interface("rs485", echo=True)),
+    ("2WIRES noecho", Interface("rs485")),
+    ("4wires", Interface("rs422")),
+    ("4wires master", Interface("rs422")),
+    ("rs422 master", Interface("rs422")),
+    ("rs422 slave", Interface("rs422", slave=True)),
+    ("4wires slave", Interface("rs422", slave=True)),
+])
+def test_interface_takes_the_guides_words(text, expected):
+    assert Interface.parse(text) == expected
+
+
+@pytest.mark.parametrize("interface, shown, drives_rts", [
+    (Interface("rs232"), "rs232", False), (Interface("rs422"), "rs422", False),
+    (Interface("rs422", slave=True), "rs422 slave", True),
+    (Interface("rs485"), "rs485", True), (Interface("rs485", echo=True), "rs485 echo", True),
+])
+def test_interface_prints_what_it_reads_back(interface, shown, drives_rts):
+    assert str(interface) == shown and Interface.parse(shown) == interface
+    assert interface.drives_rts is drives_rts
+
+
+@pytest.mark.parametrize("text", ["2wires master", "4wires echo", "rs485 slave", "rs232 master",
+                                  "3wires"])
+def test_interface_refuses_an_option_of_the_other_kind(text):
+    with pytest.raises(ConfigError, match="interface .*4wires.*2wires"):
+        Interface.parse(text)
+
+
+# --- RS-232 control lines ---
+
+def test_control_lines_default_to_the_guides_defaults():
+    cfg = SerialConfig("/dev/ttyS0")
+    assert (cfg.dtr, cfg.rts, cfg.cts, cfg.xonxoff) == ("high", "high", "ignore", "ignore")
+    assert cfg.wiring == "rs232" and not cfg.rts_ptt
+
+
+@pytest.mark.parametrize("settings, message", [
+    ({"rts": "flow"}, "rts flow with cts ignore: RTS/CTS flow control is both or neither"),
+    ({"cts": "flow"}, "rts high with cts flow"),
+    ({"rts": "modem", "interface": Interface("rs485")}, "rts modem: interface rs485 drives"),
+    ({"rts": "low", "interface": Interface("rs422", slave=True)}, "rts low: interface rs422 sl"),
+    ({"dtr": "modem"}, "dtr 'modem': expected high or low"),
+    ({"xonxoff": "on"}, "xonxoff 'on': expected ignore or use"),
+])
+def test_control_lines_refused_naming_the_setting(settings, message):
+    with pytest.raises(ConfigError, match=message):
+        SerialConfig("/dev/ttyS0", **settings)
+
+
+def test_control_lines_accepted_and_shown():
+    cfg = SerialConfig("/dev/ttyS0", dtr="low", rts="flow", cts="flow", xonxoff="use")
+    assert cfg.wiring == "rs232, dtr low, rts flow, cts flow, xonxoff use"
+    assert SerialConfig("/dev/ttyS0", rts="modem").rts_ptt
+    assert SerialConfig("/dev/ttyS0", interface=Interface("rs422"), rts="low").rts == "low"
+
+
+
 @pytest.mark.parametrize("text", ["rs232", "rs422", "rs485", "rs485 echo"])
 def test_interface_prints_as_it_parses(text):
     assert str(Interface.parse(text)) == text

@@ -55,11 +55,11 @@ def test_every_long_option_of_both_modes_is_a_key(schema):
     options = {o[2:] for p in params if not isinstance(p, own_keys)
                for o in p.opts if o.startswith("--")}
     table = {p.key for p in params if type(p) is config_keys.TableOption}
-    assert table == {"enabled", "direct", "units", "functions", "address", "port", "persist",
-                     "persist-interval"}
+    assert table == {"enabled", "direct", "units", "functions", "serial-functions", "address",
+                     "port", "persist", "persist-interval", "table-max-connections"}
     transparent = {p.key for p in params if isinstance(p, config_keys.TransparentOption)}
     assert transparent == {"eof", "eof-char", "eof-timeout", "rx-address", "rx-size",
-                           "tx-address", "tx-size", "crc", "trigger", "interframe-silence",
+                           "tx-address", "tx-size", "crc", "trigger", "transparent-silence",
                            "raw-port"}
     assert all(schema.keys[k].group == "transparent" for k in transparent)
     tls = {p.key for p in params if type(p) is config_keys.TlsOption}
@@ -74,7 +74,8 @@ def test_every_long_option_of_both_modes_is_a_key(schema):
     # in the file, a key's name may be another group's too: [tls] port, [transparent] silence
     assert schema.label("tls-port") == "tls.port" and schema.find("tls", "port").name == \
         "tls-port"
-    assert schema.find("transparent", "silence").name == "interframe-silence"
+    assert schema.find("transparent", "silence").name == "transparent-silence"
+    assert schema.find("serial", "interframe-silence").name == "interframe-silence"
     assert schema.find("serial", "silence").name == "silence"
     assert "shortcut" not in schema.keys
 

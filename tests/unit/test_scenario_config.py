@@ -106,7 +106,7 @@ def test_key_values_as_strings():
     ({"cycle": None, "trigger": "change"}, "scenario boiler: trigger 'change': only a write "
                                            "is sent on change; function 3"),
     ({"cycle": None, "trigger": "edge"}, "scenario boiler: trigger 'edge': expected \"change\""),
-    ({"retries": 11}, "scenario boiler: retries 11: out of range 0..10"),
+    ({"retries": 65536}, "scenario boiler: retries 65536: out of range 0..65535"),
     ({"stale-after": -1}, "scenario boiler: stale-after -1: out of range"),
     ({"function": 16, "stale-after": 500}, "scenario boiler: stale-after 500: only a read"),
     ({"enabled": "maybe"}, "scenario boiler: enabled 'maybe': expected true or false"),

@@ -171,3 +171,32 @@ def test_test_returns_data_without_storing(table, clock):
     assert table.read(5, 2) == [0, 0]
     result = e.test(sc("x"), lambda pdu: (None, "timeout", 2))
     assert result["message"] == "timeout, no answer from slave after retrying"
+
+
+def test_a_retrying_run_says_so_until_it_ends(table, clock):
+    """VPGate 8.2/8.3: "Slave not responding, retrying..." ("Server ..." for a TCP one)."""
+    e = engine(table, clock, sc("r"))
+    run = e.next(clock.now)
+    e.retrying(run.scenario)
+    assert status(e, "r")["message"] == "slave not responding, retrying..."
+    e.done(run, None, "timeout", retries=1)
+    assert (status(e, "r")["state"], status(e, "r")["message"]) == \
+        ("error", "timeout, no answer from slave after retrying")
+    clock.now += 1.0
+    run = e.next(clock.now)
+    e.retrying(run.scenario)
+    assert status(e, "r")["message"] == "slave not responding, retrying..."
+    e.done(run, H("03 04 00 07 00 08"), None, retries=1)
+    assert (status(e, "r")["state"], status(e, "r")["message"]) == ("running", "")
+    tcp = Scenarios([sc("t", slave=None, server="h")], table, "tcp", clock=clock)
+    run = tcp.next(clock.now)
+    tcp.retrying(run.scenario)
+    assert status(tcp, "t")["message"] == "server not responding, retrying..."
+
+
+def test_a_retry_of_a_scenario_replaced_meanwhile_leaves_the_new_one_alone(table, clock):
+    e = engine(table, clock, sc("r"))
+    run = e.next(clock.now)
+    e.reconfigure([sc("r", quantity=3)])
+    e.retrying(run.scenario)
+    assert status(e, "r")["message"] == ""

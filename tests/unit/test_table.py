@@ -158,6 +158,28 @@ def test_disabled_function_is_0x01_before_anything_else(table):
     assert ask(table, "03 00 00 00 01") == "03 02 00 00"
 
 
+def test_serial_functions_are_a_list_of_their_own(table):
+    """VPGate 3.7: the serial slave's list beside the TCP server's; each side refuses, 0x01,
+    what the other may do, and a refused write changes nothing."""
+    table.set_functions([3, 4], serial_functions=[3, 6, 16])
+    serial = table.responder([3, 6, 16])
+    tcp = table.responder()
+    assert bytes(serial.answer(bytes.fromhex("06 1000 beef"))).hex(" ") == "06 10 00 be ef"
+    assert bytes(tcp.answer(bytes.fromhex("06 1000 0001"))).hex(" ") == "86 01"
+    assert bytes(serial.answer(bytes.fromhex("04 0000 0001"))).hex(" ") == "84 01"
+    assert bytes(tcp.answer(bytes.fromhex("04 0000 0001"))).hex(" ") == "04 02 00 00"
+    # the MBAP path the TCP server takes: tid, protocol, length 3, unit kept
+    frame = bytes.fromhex("12 34 00 00 00 06 ff 06 1000 0002")
+    assert bytes(tcp.answer_mbap(frame)).hex(" ") == "12 34 00 00 00 03 ff 86 01"
+    assert tcp.answer_mbap(bytes.fromhex("12 34 00 00 00 06 00 06 1000 0002"), True) is None
+    assert table.read(0x1000) == [0xBEEF]
+    assert bytes(tcp.answer_mbap(bytes.fromhex("00 01 00 00 00 06 01 03 1000 0001"))).hex(
+        " ") == "00 01 00 00 00 05 01 03 02 be ef"
+    assert tcp.answer_mbap_into(bytes.fromhex("00 01 00 01 00 06 01 06 1000 0002")) < 0
+    table.set_functions([3, 4])                    # one list again: both sides answer it
+    assert bytes(tcp.answer(bytes.fromhex("04 0000 0001"))).hex(" ") == "04 02 00 00"
+
+
 def test_set_functions_refuses_what_the_table_cannot_answer(table):
     with pytest.raises(TableError, match="function 8"):
         table.set_functions([3, 8])

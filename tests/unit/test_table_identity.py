@@ -41,8 +41,22 @@ def test_slave_mode_defaults():
         *units,
         0,                                # no table port in slave mode
     ]
-    assert table.read(0x8044, 4) == [0] * 4
+    assert table.read(0x8044, 15) == UNKNOWN_LOCATION
+    assert table.read(0x8053, 4) == [0] * 4
     assert table.read(0xFFFF) == [0]
+
+
+UNKNOWN_LOCATION = [0x556E, 0x6B6E, 0x6F77, 0x6E20, 0x6C6F, 0x6361, 0x7469, 0x6F6E] + [0] * 7
+
+
+def test_location_fills_0x8044_with_its_30_characters():
+    """The guide's set location, 30 bytes max, in mbgw.toml(5)'s 0x8044-0x8052."""
+    text = b"Pump house 3, hall B, bay 12!!"
+    settings = SlaveConfig(serial=SerialConfig("/dev/ttyX"), location=text.decode())
+    table = Table()
+    identity.fill(table, settings, "slave")
+    assert table.read(0x8044, 15) == [text[i] << 8 | text[i + 1] for i in range(0, 30, 2)]
+    assert table.read(0x8053) == [0]
 
 
 def test_master_mode_settings():

@@ -350,7 +350,7 @@ function overviewPage(body) {
       const serial = s.serial || {};
       const counters = s.counters || {};
       clear(facts).append(factsTable("overview-facts", [
-        ["Mode", s.mode], ["Version", s.version],
+        ["Location", s.location], ["Mode", s.mode], ["Version", s.version],
         ["Serial device", `${show(serial.device)} ` +
           `${serial.protocol === undefined ? "" : serial.protocol + " "}` +
           `${show(serial.baudrate)} ${show(serial.format)} ${show(serial.interface)}`],
