@@ -28,7 +28,7 @@ pytestmark = pytest.mark.integration
 
 INTERVAL_S = 0.25                        # the gateway pings every WatchdogSec / 2
 WATCHDOG = {"WATCHDOG_USEC": str(int(INTERVAL_S * 2 * 1_000_000))}
-STOUT_MS = 100
+STOUT_MS = 1000                          # pymodbus's first answer, on a loaded host
 TCPTO_MS = 100
 SERVER = "127.0.7.1"
 NOTIFIED_S = 10.0                        # for a notification that is due
