@@ -9,6 +9,7 @@ import time
 
 from mbgw import __version__
 from mbgw.audit import Kind, event, operator
+from mbgw.ops.trace import filters as trace_filters
 
 log = logging.getLogger("mbgw.control")
 
@@ -74,8 +75,15 @@ class DaemonStatus:
     async def trace(self, request: dict, reader: asyncio.StreamReader,
                     writer: asyncio.StreamWriter) -> None:
         hub = self._trace
-        queue = hub.subscribe()
-        log.info("trace started (uid %s)", request.get("uid"))
+        try:
+            wanted = trace_filters(request.get("filters") or {})
+        except ValueError as err:
+            writer.write(json.dumps({"error": str(err)}).encode() + b"\n")
+            await writer.drain()
+            return
+        raw = bool(request.get("raw"))
+        queue = hub.subscribe(raw, wanted)
+        log.info("%strace started (uid %s)", "raw " if raw else "", request.get("uid"))
         gone = asyncio.ensure_future(reader.read())   # the client closing ends the trace
         try:
             writer.write(json.dumps(self.trace_header()).encode() + b"\n")

@@ -22,6 +22,7 @@ from mbgw.config.model import SlaveConfig
 from mbgw.errors import LineTimeout, SerialError
 from mbgw.line.framing import NO_FORWARD, framing_for
 from mbgw.line.port import SerialLine
+from mbgw.line.raw import RawMonitor
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
@@ -76,6 +77,10 @@ class LineWorker(LineThread[SlaveConfig]):
         self._scenarios = None             # the engine while it has scenarios to run
         self._due_s: float | None = None   # until the next scenario is due (None: none is)
         self._engine_woken = False         # its eventfd was ready (a test, with no scenario)
+        self._run_started = 0              # the scenario run traced last began (ns)
+        self._trace = server.trace
+        self._raw: RawMonitor | None = None     # since somebody first watched the raw line
+        self._trace.on_raw_watch = lambda on: self._wake()   # seen in the next turn
 
     def _master_on(self, line: SerialLine, previous: SerialMaster | None = None) -> SerialMaster:
         cfg = self._cfg
@@ -155,6 +160,29 @@ class LineWorker(LineThread[SlaveConfig]):
             self._master = self._master_on(self._line, self._master)
 
     def _turn(self) -> None:
+        watch = self._trace.raw_active
+        if watch or (self._raw is not None and self._raw.watching):
+            self._raw_turn(watch)
+        else:
+            self._line_turn()
+
+    def _raw_turn(self, watch: bool) -> None:
+        """A turn while somebody watches the raw line (or has): its bytes captured, then
+        handed to the trace hub as bursts."""
+        raw = self._raw
+        if raw is None:
+            raw = self._raw = RawMonitor(0, 0, 0)
+        if watch and not raw.watching:
+            s = self._cfg.serial
+            raw.configure(s.char_ns, s.t35_us, s.stout_ms, s.protocol == "ascii")
+        raw.watch(watch)
+        try:
+            self._line_turn()
+        finally:
+            for event in raw.take():
+                self._trace.emit_threadsafe(event)
+
+    def _line_turn(self) -> None:
         if self._scenarios is not None or self._engine_woken:
             self._scenarios_due()
         job = self._scheduler.take()
@@ -379,11 +407,39 @@ class LineWorker(LineThread[SlaveConfig]):
         assert engine is not None
         test = engine.take_test(time.monotonic())
         if test is not None:
-            engine.test_done(test, *self._exchange(test.scenario, test.pdu))
+            self._traced_run(test.scenario, test.pdu, None)
+            done = self._exchange(test.scenario, test.pdu)
+            engine.test_done(test, *done)
+            self._traced_run(test.scenario, test.pdu, done)
             return
         run = engine.next(time.monotonic())
         if run is not None:
-            engine.done(run, *self._exchange(run.scenario, run.pdu))
+            self._traced_run(run.scenario, run.pdu, None)
+            done = self._exchange(run.scenario, run.pdu)
+            result = engine.done(run, *done)
+            self._traced_run(run.scenario, run.pdu, done, result.kind)
+
+    def _traced_run(self, scenario, request: bytes, done: tuple | None,
+                    kind: str | None = None) -> None:
+        """A scenario's run in the trace: its request (done None), then its reply or none
+        (done: _exchange's), marked with the scenario's name."""
+        trace = self._trace
+        if not trace.active:
+            return
+        if done is None:
+            self._run_started = time.monotonic_ns()
+            trace.emit_threadsafe(scenario_event("request", scenario, request, ""))
+            return
+        reply, error, _ = done
+        kind = kind or error
+        latency_ms = (time.monotonic_ns() - self._run_started) / 1e6
+        if reply is None:
+            outcome = "broadcast" if scenario.slave == pdu.BROADCAST and kind is None \
+                else kind or TIMEOUT
+            event = scenario_event("no reply", scenario, request[:1], outcome, latency_ms)
+        else:
+            event = scenario_event("reply", scenario, bytes(reply), kind or "ok", latency_ms)
+        trace.emit_threadsafe(event)
 
     def _scenarios_while_down(self, engine) -> None:
         """None runs, but the engine's eventfd is read, changes are taken and data ages
@@ -428,6 +484,16 @@ class LineWorker(LineThread[SlaveConfig]):
         finally:
             self._gate.take()
             self._server.take_kept()
+
+
+def scenario_event(direction: str, scenario, data: bytes, outcome: str,
+                   latency_ms: float | None = None) -> dict:
+    """A trace event (mbgw.ops.trace) of a scenario's run."""
+    replied = direction != "no reply"
+    return {"time": time.time(), "direction": direction, "scenario": scenario.name,
+            "client": None, "tid": None, "unit": scenario.slave, "function": data[0],
+            "length": len(data) if replied else 0, "pdu": data.hex() if replied else "",
+            "outcome": outcome, "latency_ms": latency_ms, "line": "serial"}
 
 
 def serial_scenarios(cfg: SlaveConfig) -> tuple:

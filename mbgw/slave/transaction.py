@@ -71,6 +71,8 @@ class SerialMaster:
             self._quiet_us = self._turnaround_us
             return None
         started = 0
+        counters = self._counters
+        received = counters.bytes_received - counters.late_bytes   # before the request
         for attempt in range((self._retries if retries < 0 else retries) + 1):
             if attempt:
                 self._count(device, "retries")
@@ -98,7 +100,7 @@ class SerialMaster:
                 return reply
         self._counters.line_busy_ns += self._deadline - started
         self._count(device, "timeouts")
-        device.failed()
+        device.failed(counters.bytes_received - counters.late_bytes - received)
         self._timed_out = device
         raise LineTimeout()
 
