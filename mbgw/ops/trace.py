@@ -15,8 +15,9 @@ true, "time", "kind" (request, reply, noise, unsolicited), "bytes" (hex), "lengt
 has asked the line to capture them; nobody watching, the line captures nothing.
 
 Filters (a subscriber's, `filters()`): "unit", "client", "function", "scenario", "line"
-(the one line is "serial") and "errors" (errors only: a reply that is an exception, no reply,
-noise); raw events are filtered by line and errors only."""
+(the one line is "serial") and "errors" (errors only: an exception reply, a scenario's reply
+that did not answer its request, no reply but to a broadcast, noise); raw events are
+filtered by line and errors only."""
 import asyncio
 import logging
 from collections.abc import Callable
@@ -27,7 +28,6 @@ QUEUE_LIMIT = 10_000    # events a slow reader may lag behind before events are 
 LINES = ("serial",)     # the lines a --line filter may name
 FILTER_KEYS = ("unit", "client", "function", "scenario", "line", "errors")
 _NUMBERS = {"unit": (0, 255), "client": (1, 2**31), "function": (1, 127)}
-_OK = ("ok", "table", "", None)
 
 
 def filters(given: dict) -> dict:
@@ -65,9 +65,10 @@ def is_error(event: dict) -> bool:
         return event.get("kind") == "noise"
     direction = event.get("direction")
     if direction == "no reply":
-        return True
+        return event.get("outcome") != "broadcast"
     if direction == "reply":
-        return bool(event.get("function", 0) & 0x80) or event.get("outcome") not in _OK
+        return bool(event.get("function", 0) & 0x80) or \
+            (event.get("scenario") is not None and event.get("outcome") != "ok")
     return False
 
 
