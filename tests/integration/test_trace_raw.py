@@ -10,21 +10,12 @@ import pytest
 
 from tests.harness import _read_lines_until
 from tests.integration.test_faults import received
-from tests.modbus import holding_reply, read_holding
+from tests.modbus import crc16, holding_reply, read_holding
 from tests.ops import devices, status, wait_for, wait_for_log
 
 pytestmark = pytest.mark.integration
 
 GARBAGE = bytes.fromhex("55 aa 55")       # what the fault peer's address 15 sends
-
-
-def crc(frame: bytes) -> bytes:
-    value = 0xFFFF
-    for byte in frame:
-        value ^= byte
-        for _ in range(8):
-            value = (value >> 1) ^ 0xA001 if value & 1 else value >> 1
-    return value.to_bytes(2, "little")
 
 
 def sent_by_peer(record) -> list[bytes]:
@@ -103,7 +94,7 @@ def test_raw_trace_shows_request_reply_and_garbage_as_they_went_on_the_wire(
     to_peer = [frame for _, frame in received(record)]
     request_1 = bytes.fromhex("01 03 0000 0002")
     request_15 = bytes.fromhex("0f 03 0000 0001")
-    assert to_peer == [request_1 + crc(request_1), request_15 + crc(request_15)]
+    assert to_peer == [request_1 + crc16(request_1), request_15 + crc16(request_15)]
     assert [(kind, data) for _, kind, data in shown] == [
         ("request", to_peer[0]), ("reply", sent_by_peer(record)[0]),
         ("request", to_peer[1]), ("noise", GARBAGE)]

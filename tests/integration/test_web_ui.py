@@ -26,7 +26,7 @@ from selenium.webdriver.support import expected_conditions as EC
 from selenium.webdriver.support.ui import Select, WebDriverWait
 
 from tests.harness import Gateway, Peer, PtyPair, free_port  # noqa: E402
-from tests.modbus import Client, read_holding  # noqa: E402
+from tests.modbus import Client, crc16, read_holding  # noqa: E402
 from tests.ops import status, tracing, tshark_warnings, wait_for, wait_for_log  # noqa: E402
 
 pytestmark = pytest.mark.integration
@@ -408,8 +408,12 @@ def test_the_pcap_of_the_shown_trace_is_the_one_mbgw_trace_writes(browser, conso
                             {"behavior": "allow", "downloadPath": str(tmp_path)})
     go(browser, "traffic")
     wait(browser, found('#trace-info[data-stream="open"]'))
+    # the table's unit only: the scenarios' runs are traced too, but are no Modbus/TCP
+    browser.find_element(By.ID, "trace-unit").send_keys(str(TABLE_UNIT))
+    browser.find_element(By.ID, "trace-apply").click()
+    wait(browser, found('#trace-info[data-stream="open"]'))
     reference = tmp_path / "reference.pcap"
-    with tracing(console.gw, reference, 6) as (trace, _):
+    with tracing(console.gw, reference, 6, "--unit", str(TABLE_UNIT)) as (trace, _):
         modbus = Client(console.gw.port)
         try:
             for first in range(3):
@@ -424,6 +428,25 @@ def test_the_pcap_of_the_shown_trace_is_the_one_mbgw_trace_writes(browser, conso
     assert pcap.read_bytes() == reference.read_bytes()
     checked = tshark_warnings(pcap, console.gw.port)
     assert checked.returncode == 0 and checked.stdout == "", checked
+
+
+def test_the_traffic_page_shows_scenario_runs_and_the_raw_line(browser, console):
+    """The scenario's runs, marked with its name; then the raw line: the scenario's request
+    with its CRC (tests/modbus.py's own) and the pymodbus slave's reply, each marked."""
+    log_in(browser, console, "admin")
+    go(browser, "traffic")
+    wait(browser, text_in("#trace-table tbody", f"scenario {SCENARIO}"))
+    browser.find_element(By.ID, "trace-raw").click()
+    wait(browser, found('#trace-info[data-stream="open"]'))
+    wait(browser, found("#trace-table tbody tr.raw-reply"))
+    headings = [th.text for th in browser.find_elements(By.CSS_SELECTOR, "#trace-table th")]
+    assert headings == ["Time", "Gap µs", "Kind", "Length", "Bytes"]
+    rows = browser.find_elements(By.CSS_SELECTOR, "#trace-table tbody tr.raw-request")
+    request = bytes.fromhex(rows[-1].find_element(By.CSS_SELECTOR, "td.bytes").text)
+    assert request[:6] == bytes.fromhex("01 03 0000 0002"), request
+    assert crc16(request[:-2]) == request[-2:]
+    reply = browser.find_element(By.CSS_SELECTOR, "#trace-table tbody tr.raw-reply td.bytes")
+    assert bytes.fromhex(reply.text)[:3] == bytes.fromhex("01 03 04")
 
 
 def test_devices_statistics_and_a_scenario_test_from_the_browser(browser, console):

@@ -667,21 +667,37 @@ function statsPage(body) {
 
 // ---- Traffic -----------------------------------------------------------------------------
 
+// The decoded view (the clients' exchanges and the scenarios' runs) or the raw line (its
+// bursts in hex, mbgw trace --raw), and the filters of mbgw trace.
+const DECODED_COLUMNS = ["Time", "Direction", "Client", "Unit", "Function", "Length", "PDU",
+  "Outcome", "Latency ms"];
+const RAW_COLUMNS = ["Time", "Gap µs", "Kind", "Length", "Bytes"];
+const TRACE_FILTERS = [["unit", "Unit"], ["client", "Client"], ["function", "Function"],
+  ["scenario", "Scenario"]];
+
 function trafficPage(body) {
   const shown = [];                 // the events shown, for the pcap
   let paused = false;
   let skipped = 0;
+  let source = null;
   const tbody = el("tbody");
+  const headRow = el("tr");
   const info = el("span", { id: "trace-info" });
   const pause = el("button", { type: "button", id: "trace-pause", text: "Pause" });
   const download = el("button", { type: "button", id: "trace-pcap",
     text: "Download the pcap of what was shown" });
   const clearButton = el("button", { type: "button", id: "trace-clear", text: "Clear" });
-  const columns = ["Time", "Direction", "Client", "Unit", "Function", "Length", "PDU",
-    "Outcome", "Latency ms"];
+  const raw = el("input", { type: "checkbox", id: "trace-raw" });
+  const errors = el("input", { type: "checkbox", id: "trace-errors" });
+  const inputs = TRACE_FILTERS.map(([key]) =>
+    el("input", { type: "text", id: `trace-${key}`, size: "8", "data-key": key }));
+  const apply = el("button", { type: "button", id: "trace-apply", text: "Apply" });
   body.append(el("div", { class: "controls" }, pause, clearButton, download, info),
-    el("table", { id: "trace-table" }, el("thead", {}, el("tr", {},
-      ...columns.map((c) => el("th", { text: c })))), tbody));
+    el("div", { class: "controls" },
+      el("label", {}, raw, " raw line"),
+      ...TRACE_FILTERS.map(([, label], i) => el("label", {}, `${label} `, inputs[i])),
+      el("label", {}, errors, " errors only"), apply),
+    el("table", { id: "trace-table" }, el("thead", {}, headRow), tbody));
 
   const say = () => {
     info.textContent = `${shown.length} events shown` +
@@ -695,37 +711,65 @@ function trafficPage(body) {
   clearButton.addEventListener("click", () => { shown.length = 0; clear(tbody); say(); });
   download.addEventListener("click", () => downloadPcap(shown));
 
-  const source = new EventSource("/api/trace");
-  source.onmessage = (message) => {
-    let event;
-    try { event = JSON.parse(message.data); } catch (e) { return; }
-    if (!event || !event.direction) return;         // the stream's header
-    if (paused) { skipped += 1; say(); return; }
-    shown.push(event);
-    if (shown.length > TRACE_KEPT) shown.shift();
-    tbody.prepend(el("tr", { class: "trace-event" },
-      el("td", { text: typeof event.time === "number" ? clock(event.time) : show(event.time) }),
-      el("td", { text: show(event.direction) }),
-      el("td", { class: "peer", text: show(event.server || event.peer || event.client) }),
-      el("td", { class: "num", text: show(event.unit) }),
-      el("td", { class: "num", text: show(event.function) }),
-      el("td", { class: "num", text: show(event.length) }),
-      el("td", { class: "pdu mono", text: show(event.pdu) }),
-      el("td", { text: show(event.outcome) }),
-      el("td", { class: "num", text: show(event.latency_ms) })));
-    while (tbody.children.length > TRACE_ROWS) tbody.lastChild.remove();
+  const decodedRow = (event) => el("tr", { class: "trace-event" },
+    el("td", { text: typeof event.time === "number" ? clock(event.time) : show(event.time) }),
+    el("td", { text: show(event.direction) }),
+    el("td", { class: "peer", text: event.scenario != null ? `scenario ${event.scenario}`
+      : show(event.server || event.peer || event.client) }),
+    el("td", { class: "num", text: show(event.unit) }),
+    el("td", { class: "num", text: show(event.function) }),
+    el("td", { class: "num", text: show(event.length) }),
+    el("td", { class: "pdu mono", text: show(event.pdu) }),
+    el("td", { text: show(event.outcome) }),
+    el("td", { class: "num", text: show(event.latency_ms) }));
+  const rawRow = (event) => el("tr", { class: `trace-event raw-${event.kind}` },
+    el("td", { text: typeof event.time === "number" ? clock(event.time) : show(event.time) }),
+    el("td", { class: "num", text: show(event.gap_us) }),
+    el("td", { class: "kind", text: show(event.kind) }),
+    el("td", { class: "num", text: show(event.length) }),
+    el("td", { class: "bytes mono", text: show(event.bytes) }));
+
+  const start = () => {
+    if (source) source.close();
+    delete info.dataset.stream;
+    shown.length = 0;
+    clear(tbody);
+    clear(headRow).append(...(raw.checked ? RAW_COLUMNS : DECODED_COLUMNS)
+      .map((c) => el("th", { text: c })));
+    const query = new URLSearchParams();
+    if (raw.checked) query.set("raw", "1");
+    if (errors.checked) query.set("errors", "1");
+    for (const input of inputs) {
+      if (input.value.trim()) query.set(input.dataset.key, input.value.trim());
+    }
+    const isRaw = raw.checked;
+    source = new EventSource(`/api/trace?${query}`);
+    source.onmessage = (message) => {
+      let event;
+      try { event = JSON.parse(message.data); } catch (e) { return; }
+      if (!event || !(isRaw ? event.raw : event.direction)) return;   // the stream's header
+      if (paused) { skipped += 1; say(); return; }
+      shown.push(event);
+      if (shown.length > TRACE_KEPT) shown.shift();
+      tbody.prepend(isRaw ? rawRow(event) : decodedRow(event));
+      while (tbody.children.length > TRACE_ROWS) tbody.lastChild.remove();
+      say();
+    };
+    source.onerror = () => {
+      $("page-error").textContent = source.readyState === EventSource.CLOSED
+        ? "the trace stream ended (a filter refused?)" : "the trace stream is reconnecting…";
+    };
+    source.onopen = () => {
+      $("page-error").textContent = "";
+      info.dataset.stream = "open";
+    };
     say();
   };
-  source.onerror = () => {
-    $("page-error").textContent = source.readyState === EventSource.CLOSED
-      ? "the trace stream ended" : "the trace stream is reconnecting…";
-  };
-  source.onopen = () => {
-    $("page-error").textContent = "";
-    info.dataset.stream = "open";
-  };
-  say();
-  return { leave() { source.close(); } };
+  raw.addEventListener("change", start);
+  errors.addEventListener("change", start);
+  apply.addEventListener("click", start);
+  start();
+  return { leave() { if (source) source.close(); } };
 }
 
 function downloadPcap(events) {
