@@ -48,13 +48,17 @@ class RawMonitor:
         if self._capture is None:
             return []
         records, dropped = self._capture.take()
-        events = [self._event(sent, start, end, data)
-                  for sent, start, end, data in self._bursts(records)]
+        events = self.events(records)
         if dropped:
             events.append({"raw": True, "time": time.time(), "kind": "dropped",
                            "bytes": "", "length": dropped, "gap_us": None,
                            "line": "serial"})
         return events
+
+    def events(self, records: list[tuple[bool, int, bytes]]) -> list[dict]:
+        """The trace events of captured records (sent, time ns, bytes), in order."""
+        return [self._event(sent, start, end, data)
+                for sent, start, end, data in self._bursts(records)]
 
     def _bursts(self, records):
         """(sent, first byte ns, last byte ns, bytes) of each burst.  A write's time is when
