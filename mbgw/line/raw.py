@@ -15,17 +15,21 @@ class RawMonitor:
 
     def __init__(self, char_ns: int, quiet_us: int, stout_ms: int, ascii: bool = False) -> None:
         self._capture: Capture | None = None
+        self._answers = False
         self.configure(char_ns, quiet_us, stout_ms, ascii)
         self._last_end_ns: int | None = None
         self._request: bytes | None = None     # the last request, while its reply is awaited
         self._deadline_ns = 0
 
-    def configure(self, char_ns: int, quiet_us: int, stout_ms: int, ascii: bool = False
-                  ) -> None:
+    def configure(self, char_ns: int, quiet_us: int, stout_ms: int, ascii: bool = False,
+                  answers: bool = False) -> None:
+        """answers: mbgw is the line's slave (master mode): what it sends are replies, what
+        it receives requests (or noise)."""
         self._char_ns = char_ns
         self._quiet_ns = quiet_us * 1000
         self._stout_ns = stout_ms * 1_000_000
         self._ascii = ascii
+        self._answers = answers
 
     @property
     def watching(self) -> bool:
@@ -90,12 +94,14 @@ class RawMonitor:
         gap = None if self._last_end_ns is None else max(0, (start - self._last_end_ns) // 1000)
         self._last_end_ns = end
         data = bytes(burst)
-        if sent:
+        if self._answers:
+            kind = "reply" if sent else "request" if self._valid(data) else "noise"
+        elif sent:
             kind = "request"
             self._request = data
             self._deadline_ns = end + self._stout_ns
         elif self._request is not None and start <= self._deadline_ns:
-            if self._answers(self._request, data):
+            if self._replies(self._request, data):
                 kind = "reply"
                 self._request = None
             else:
@@ -106,13 +112,17 @@ class RawMonitor:
         return {"raw": True, "time": wall, "kind": kind, "bytes": data.hex(" "),
                 "length": len(data), "gap_us": gap, "line": "serial"}
 
-    def _answers(self, request: bytes, reply: bytes) -> bool:
+    def _replies(self, request: bytes, reply: bytes) -> bool:
         """A whole, valid frame from the request's address, of its function or its
         exception."""
         if self._ascii:
-            return reply[:1] == b":" and reply.endswith(b"\r\n") and \
-                reply[1:3].upper() == request[1:3].upper()
-        if len(reply) < 4 or reply[0] != request[0] or \
-                reply[1] & 0x7F != request[1] & 0x7F:
-            return False
-        return frames.crc16(reply[:-2]) == int.from_bytes(reply[-2:], "little")
+            return self._valid(reply) and reply[1:3].upper() == request[1:3].upper()
+        return len(reply) >= 4 and reply[0] == request[0] and \
+            reply[1] & 0x7F == request[1] & 0x7F and self._valid(reply)
+
+    def _valid(self, frame: bytes) -> bool:
+        """A whole frame, its CRC right (ASCII: ':' to CR LF)."""
+        if self._ascii:
+            return frame[:1] == b":" and frame.endswith(b"\r\n")
+        return len(frame) >= 4 and \
+            frames.crc16(frame[:-2]) == int.from_bytes(frame[-2:], "little")

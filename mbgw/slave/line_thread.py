@@ -22,7 +22,6 @@ from mbgw.config.model import SlaveConfig
 from mbgw.errors import LineTimeout, SerialError
 from mbgw.line.framing import NO_FORWARD, framing_for
 from mbgw.line.port import SerialLine
-from mbgw.line.raw import RawMonitor
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
@@ -79,8 +78,7 @@ class LineWorker(LineThread[SlaveConfig]):
         self._engine_woken = False         # its eventfd was ready (a test, with no scenario)
         self._run_started = 0              # the scenario run traced last began (ns)
         self._trace = server.trace
-        self._raw: RawMonitor | None = None     # since somebody first watched the raw line
-        self._trace.on_raw_watch = lambda on: self._wake()   # seen in the next turn
+        self.watch_raw(server.trace)
 
     def _master_on(self, line: SerialLine, previous: SerialMaster | None = None) -> SerialMaster:
         cfg = self._cfg
@@ -160,29 +158,6 @@ class LineWorker(LineThread[SlaveConfig]):
             self._master = self._master_on(self._line, self._master)
 
     def _turn(self) -> None:
-        watch = self._trace.raw_active
-        if watch or (self._raw is not None and self._raw.watching):
-            self._raw_turn(watch)
-        else:
-            self._line_turn()
-
-    def _raw_turn(self, watch: bool) -> None:
-        """A turn while somebody watches the raw line (or has): its bytes captured, then
-        handed to the trace hub as bursts."""
-        raw = self._raw
-        if raw is None:
-            raw = self._raw = RawMonitor(0, 0, 0)
-        if watch and not raw.watching:
-            s = self._cfg.serial
-            raw.configure(s.char_ns, s.t35_us, s.stout_ms, s.protocol == "ascii")
-        raw.watch(watch)
-        try:
-            self._line_turn()
-        finally:
-            for event in raw.take():
-                self._trace.emit_threadsafe(event)
-
-    def _line_turn(self) -> None:
         if self._scenarios is not None or self._engine_woken:
             self._scenarios_due()
         job = self._scheduler.take()
