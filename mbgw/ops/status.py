@@ -9,6 +9,7 @@ import time
 
 from mbgw import __version__
 from mbgw.audit import Kind, event, operator
+from mbgw.ops.trace import NO_RAW_VIEW
 from mbgw.ops.trace import filters as trace_filters
 
 log = logging.getLogger("mbgw.control")
@@ -82,6 +83,10 @@ class DaemonStatus:
             await writer.drain()
             return
         raw = bool(request.get("raw"))
+        if raw and hub.on_raw_watch is None:
+            writer.write(json.dumps({"error": NO_RAW_VIEW % self.mode}).encode() + b"\n")
+            await writer.drain()
+            return
         queue = hub.subscribe(raw, wanted)
         log.info("%strace started (uid %s)", "raw " if raw else "", request.get("uid"))
         gone = asyncio.ensure_future(reader.read())   # the client closing ends the trace

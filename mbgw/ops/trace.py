@@ -24,6 +24,9 @@ from collections.abc import Callable
 
 log = logging.getLogger("mbgw.trace")
 
+# A raw trace where the line has no capture (transparent mode reads the line itself).
+NO_RAW_VIEW = ("--raw: %s mode has no raw line view; mbgw trace shows each frame there in "
+               "hex as it went on the line")
 QUEUE_LIMIT = 10_000    # events a slow reader may lag behind before events are dropped for it
 LINES = ("serial",)     # the lines a --line filter may name
 FILTER_KEYS = ("unit", "client", "function", "scenario", "line", "errors")

@@ -10,7 +10,7 @@ from pathlib import Path
 from aiohttp import web
 
 from mbgw.audit import Kind, event
-from mbgw.ops.trace import FILTER_KEYS
+from mbgw.ops.trace import FILTER_KEYS, NO_RAW_VIEW
 from mbgw.ops.trace import filters as trace_filters
 from mbgw.web import config_api
 from mbgw.web.auth import COOKIE, ROLES
@@ -212,6 +212,8 @@ async def trace(request: web.Request) -> web.StreamResponse:
     raw = query.get("raw") in ("1", "true")
     try:
         wanted = trace_filters({key: query[key] for key in FILTER_KEYS if query.get(key)})
+        if raw and hub.on_raw_watch is None:
+            raise ValueError(NO_RAW_VIEW % "this")
     except ValueError as err:
         raise web.HTTPBadRequest(text=json.dumps({"error": str(err)}),
                                  content_type="application/json") from None

@@ -21,7 +21,7 @@ from pymodbus.client import ModbusTcpClient
 
 from tests.harness import free_port
 from tests.modbus import crc16
-from tests.ops import metric_families, metric_value, status, wait_for, wait_for_log
+from tests.ops import mbgw, metric_families, metric_value, status, wait_for, wait_for_log
 
 pytestmark = pytest.mark.integration
 
@@ -302,6 +302,14 @@ def test_counters_in_metrics_and_the_trace_shows_frames_in_hex(transparent):
     assert metric_value(families, "mbgw_transparent_frames_stored",
                         "mbgw_transparent_frames_stored_total") == 1
     assert metric_value(families, "mbgw_line_up") == 1
+
+
+def test_trace_raw_says_transparent_mode_shows_frames_in_hex_instead(transparent):
+    gw, _, _ = transparent("--eof", "cr")
+    done = mbgw("trace", "--raw", "--control", gw.control)
+    assert done.returncode == 1, done
+    assert done.stderr.strip() == "mbgw: --raw: transparent mode has no raw line view; mbgw " \
+        "trace shows each frame there in hex as it went on the line", done.stderr
 
 
 def test_reload_applies_new_frame_settings(transparent, tmp_path):
