@@ -152,9 +152,11 @@ int mbgw_take_request(modbus_t *ctx, int client_fd, int *in_flight, uint8_t *in,
         return (int)n; /* a bad header, or not exactly one request */
     uint8_t unit = in[6];
     uint8_t address = sc->slaveid ? sc->slaveid : unit;
-    /* a down address: Python refuses the request at once, or sends it as the probe */
+    /* a down address: Python refuses the request at once, or sends it as the probe; one in
+     * its late window waits in the queue (the late reply would look like its answer) */
+    int64_t now = now_ns();
     if (address < 1 || address > MBGW_MAX_ADDRESS || !sc->framed[in[7]] ||
-        sc->down[address] || now_ns() < sc->quiet_until_ns)
+        sc->down[address] || now < sc->quiet_until_ns || now < sc->late_until[address])
         return (int)n;
     uint8_t adu[MBGW_RTU_MAX_ADU];
     adu[0] = sc->address = address;

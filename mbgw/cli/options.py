@@ -83,6 +83,14 @@ def _parse_metrics(value):
     return value
 
 
+def _check_device(path):
+    """A path that can never be a serial device is refused (start, reload, check-config)."""
+    from mbgw.config.device import device_problem
+    if path is not None and (problem := device_problem(path)):
+        raise ConfigError(problem)
+    return path
+
+
 def stack(*decorators):
     def apply(function):
         for decorator in reversed(decorators):
@@ -93,7 +101,9 @@ def stack(*decorators):
 
 serial_options = stack(
     click.option("--device", cls=SerialOption, required=True, metavar="PATH",
-                 help="Serial device, e.g. /dev/ttyUSB0."),
+                 callback=parser(_check_device),
+                 help="Serial device, e.g. /dev/ttyUSB0; one that is not there yet is "
+                      "waited for."),
     click.option("--protocol", cls=SerialOption, type=click.Choice(config.PROTOCOLS),
                  default=config.SerialConfig.protocol, show_default=True,
                  help="Modbus framing on the serial line."),

@@ -57,7 +57,7 @@ def _transparent_sections(s: dict) -> list[str]:
     eof = f"char 0x{t['eof_char']:02x}" if t["eof"] == "char" else t["eof"]
     raw = "off" if t["raw_port"] is None else \
         f"port {t['raw_port']}, client {t['raw_client'] or 'none'}"
-    return [f"{_line(s['serial'])}: line {s['serial']['state']}",
+    return [f"{_line(s['serial'])}: line {_state(s['serial'])}",
             f"frames     eof {eof}, eof-timeout {t['eof_timeout_ms']} ms, crc "
             f"{'on' if t['crc'] else 'off'}, trigger {'on' if t['trigger'] else 'off'}, "
             f"silence {t['silence_ms']} ms",
@@ -69,6 +69,13 @@ def _transparent_sections(s: dict) -> list[str]:
 def _line(serial: dict) -> str:
     return (f"serial     {serial['device']} {serial['baudrate']} {serial['format']} "
             f"{serial['protocol']} {serial['interface']}")
+
+
+def _state(serial: dict) -> str:
+    """The line's state; "waiting": nothing at the device's path yet."""
+    if serial["state"] == "waiting":
+        return "down, waiting for the device to appear"
+    return serial["state"]
 
 
 def _exceptions(d: dict) -> str:
@@ -132,7 +139,7 @@ def _slave_sections(s: dict, now: float) -> list[str]:
     serial = s["serial"]
     lines = [
         f"listening  {', '.join(s['listening'])}",
-        f"{_line(serial)}, stout {serial['stout_ms']} ms: line {serial['state']}, "
+        f"{_line(serial)}, stout {serial['stout_ms']} ms: line {_state(serial)}, "
         f"queue {s['queue_depth']}, utilisation {s['line_utilisation_pct']:.1f} %",
         "",
         f"clients ({len(s['clients'])})",
@@ -159,7 +166,7 @@ def _slave_sections(s: dict, now: float) -> list[str]:
 def _master_sections(s: dict, now: float) -> list[str]:
     up = s["upstream"]
     lines = [
-        f"{_line(s['serial'])}: line {s['serial']['state']}",
+        f"{_line(s['serial'])}: line {_state(s['serial'])}",
         f"servers    port {up['port']}, tcpto {up['tcpto_ms']} ms, exception "
         f"{'on' if up['exception'] else 'off'}, at most {up['max_connections']} connections",
     ]
@@ -329,7 +336,8 @@ def format_event(e: dict) -> str:
     if e.get("mode") == "master":
         tid = "-" if e["tid"] is None else e["tid"]
         unit = "-" if e["unit"] is None else e["unit"]
-        where = f"{e['address']:>4} {e['server'] or '-':<21}"
+        address = "-" if e["address"] is None else e["address"]
+        where = f"{address:>4} {e['server'] or '-':<21}"
     elif e.get("scenario") is not None:
         tid, unit, where = "-", e["unit"], f"{'scenario ' + e['scenario']:<24}"
     else:

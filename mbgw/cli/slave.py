@@ -60,6 +60,12 @@ def _parse_units(value) -> tuple[int, ...]:
 @click.option("--retries", type=click.IntRange(*config.RETRIES_RANGE),
               default=config.SlaveConfig.retries, show_default=True,
               help="Times a request is repeated after no valid reply.")
+@click.option("--late-window", type=click.IntRange(*config.LATE_WINDOW_RANGE), default=None,
+              metavar="MS",
+              help="After a request to a serial address timed out, its next request waits "
+                   "until the late reply has come (it is dropped) or the line has been quiet "
+                   "this long past the timeout; other addresses are served meanwhile.  0: no "
+                   "wait.  0..65535 ms [default: stout].")
 @click.option("--turnaround", type=click.IntRange(*config.TURNAROUND_RANGE),
               default=config.SlaveConfig.turnaround_ms,
               show_default=True, metavar="MS",
@@ -101,7 +107,7 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
                  probe_interval=config.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
                  tls_port=config.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
                  tls_require_role=True, tls_crl=None,
-                 tcpto=config.DEFAULT_TCPTO_MS,
+                 tcpto=config.DEFAULT_TCPTO_MS, late_window=None,
                  **table_settings) -> config.SlaveConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck)
@@ -116,7 +122,8 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
         upstream_tls=upstream_tls,
         bind=bind, max_connections=max_connections,
         max_connections_per_ip=max_connections_per_ip, retries=retries,
-        turnaround_ms=turnaround, control=control, metrics=metrics, shortcut=shortcut,
+        turnaround_ms=turnaround, late_window_ms=late_window, control=control,
+        metrics=metrics, shortcut=shortcut,
         demotion=demotion(down_after, probe_interval), table=table, tcpto_ms=tcpto,
         firewall=firewall, scenarios=scenarios, tls=tls))
 

@@ -29,6 +29,9 @@ MDBPORT_RANGE = (0, 65535)      # slave mode: 0 is no plain Modbus TCP (TLS only
 MAX_CONNECTIONS_RANGE = (1, 1000)
 MAX_CONNECTIONS_PER_IP_RANGE = (0, 1000)
 RETRIES_RANGE = (0, 10)
+# After a timeout, an address's next request waits until its late reply has come or the line
+# has been quiet this long past the timeout (ms; 0: no wait).  Default: stout.
+LATE_WINDOW_RANGE = (0, 65535)
 TURNAROUND_RANGE = (0, 65535)
 DEFAULT_MDBPORT = 502
 DEFAULT_MAX_CONNECTIONS = 5
@@ -357,6 +360,7 @@ class SlaveConfig:
     max_connections_per_ip: int = 0    # 0: no limit per client address
     retries: int = 0
     turnaround_ms: int = DEFAULT_TURNAROUND_MS
+    late_window_ms: int | None = None  # None: stout
     control: str | None = None     # control socket path; None: the default one
     metrics: str | None = None     # ADDR:PORT for Prometheus, None: off
     demotion: Demotion = field(default_factory=Demotion)
@@ -381,6 +385,14 @@ class SlaveConfig:
         if len(self.authip) > MAX_AUTHIP:
             raise ConfigError(f"authip: at most {MAX_AUTHIP} addresses, got {len(self.authip)}")
         object.__setattr__(self, "authip", tuple(parse_ip("authip", a) for a in self.authip))
+        low, high = LATE_WINDOW_RANGE
+        if self.late_window_ms is not None and not low <= self.late_window_ms <= high:
+            raise ConfigError(f"late-window {self.late_window_ms}: out of range {low}..{high}")
+
+    @property
+    def late_window(self) -> int:
+        """The late window in ms: late-window, else stout."""
+        return self.serial.stout_ms if self.late_window_ms is None else self.late_window_ms
 
     @property
     def table_on(self) -> bool:

@@ -113,7 +113,7 @@ class AsciiFraming:
         except (ChecksumError, FrameError) as fault:
             return got._replace(frame=None, fault=fault)
         if decoded[0] != adu[0]:
-            return got._replace(frame=None, foreign_address=decoded[0])
+            return got._replace(frame=None, foreign_address=decoded[0], foreign=decoded)
         return got._replace(frame=decoded)
 
     def receive_unchecked(self, adu: bytes, deadline: int) -> Reception:

@@ -46,6 +46,7 @@ class Reception(NamedTuple):
     forwarded: int            # bytes of the reply its client's socket took (-1: not sent)
     request_end_ns: int       # exchange: when the request's last byte left (0: not sent here)
     last_byte_ns: int         # when the last byte read arrived (CLOCK_MONOTONIC)
+    foreign: bytes = b""      # the frame from another address (address + PDU), if one came
 
 
 class Take(NamedTuple):
@@ -100,6 +101,7 @@ class Port:
         self._shortcut = ffi.new("struct mbgw_shortcut *")
         self._framed = ffi.NULL
         self._down = ffi.NULL
+        self._late_until = ffi.NULL
         self._in = ffi.new("uint8_t[]", INPUT_SIZE)
         self.set_byte_timeout(0)
 
@@ -221,16 +223,19 @@ class Port:
         return self._exchanged(n, times, adu[0], self._sent[0], self._noise[0])
 
     def shortcut_rules(self, framed, char_ns: int, stout_ns: int, slaveid: int,
-                       down: bytearray) -> None:
+                       down: bytearray, late_until) -> None:
         """What take_request() needs: the function codes libmodbus frames, the line's
-        character time, stout, the forced serial address (0: none), and the addresses that
-        are down (256 flags, read by C as they are at each take, so kept up to date by the
-        owner: never resized)."""
+        character time, stout, the forced serial address (0: none), the addresses that
+        are down (256 flags) and the ends of their late windows (256 int64, an array "q");
+        C reads both as they are at each take, so the owner keeps them up to date, never
+        resized."""
         self._framed = ffi.new("uint8_t[256]", [code in framed for code in range(256)])
         self._down = ffi.from_buffer("uint8_t[]", down)
+        self._late_until = ffi.from_buffer("int64_t[]", late_until)
         sc = self._shortcut
         sc.framed = self._framed
         sc.down = self._down
+        sc.late_until = self._late_until
         sc.char_ns = char_ns
         sc.stout_ns = stout_ns
         sc.slaveid = slaveid
@@ -278,7 +283,8 @@ class Port:
             return Reception(None, fault, -1, 0, noise, -1, request_end_ns, last_byte_ns)
         frame = ffi.buffer(self._buf + REPLY_AT, n - CRC_LEN)[:]
         if frame[0] != address:
-            return Reception(None, None, frame[0], n, noise, -1, request_end_ns, last_byte_ns)
+            return Reception(None, None, frame[0], n, noise, -1, request_end_ns, last_byte_ns,
+                             frame)
         return Reception(frame, None, -1, n, noise, forwarded, request_end_ns, last_byte_ns)
 
     def read_reply(self, deadline_ns: int, gap_us: int) -> Reception:

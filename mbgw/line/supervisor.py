@@ -6,6 +6,10 @@ vanished pty is absent).  An absent path is only looked at: no open attempt, no 
 file that appears at the path is opened at once.  The file that has just failed, or that
 fails to open, is held back: it is tried again after a pause that doubles from
 BACKOFF_FIRST_S to BACKOFF_MAX_S, and its first failed open is logged once.
+
+A device that is not there when the gateway starts (a USB adapter not plugged in yet, its
+/dev/serial/by-id link not made yet) is waited for the same way (open_at_start): the gateway
+starts, listens and refuses what needs the line, and opens the device when it appears.
 """
 import errno
 import logging
@@ -39,6 +43,18 @@ def longest_frame_s(serial: "SerialConfig") -> float:
     return chars * serial.char_ns / 1e9
 
 
+def open_at_start(serial: "SerialConfig", counters=None) -> SerialLine | None:
+    """The line, opened; None when the device is not there (nothing at its path, or a link
+    to nothing): the line thread opens it when it appears.  Raises SerialError when it is
+    there and does not open (in use, not a tty, no permission)."""
+    try:
+        return SerialLine(serial, counters)
+    except SerialError:
+        if _file_at(serial.device) is None:
+            return None
+        raise
+
+
 def _file_at(path: str) -> tuple[int, int] | None:
     """The file the path leads to now (links followed), or None."""
     try:
@@ -58,6 +74,7 @@ class Reopening:
         self._open_at = 0.0
         self._backoff_s = BACKOFF_FIRST_S
         self._warned = False
+        self.absent = False         # nothing was at the path at the last look
         if pause:
             self._hold(_file_at(device))
 
@@ -65,6 +82,7 @@ class Reopening:
         """Call open_device() (it raises SerialError) if the device is there and not held
         back; returns what it returned, or None."""
         found = _file_at(self._device)
+        self.absent = found is None
         if found is None:
             self._held = None
             return None
@@ -116,13 +134,19 @@ class LineThread(threading.Thread, Generic[Settings]):
     thread, are taken between two turns; stop() is a flag and a wake-up; a bug costs one
     turn, never the thread.  A mode fills in the hooks below."""
 
-    def __init__(self, cfg: Settings, line: SerialLine) -> None:
+    def __init__(self, cfg: Settings, line: SerialLine | None) -> None:
+        """line: the device opened, or None when it is not there yet (open_at_start)."""
         super().__init__(name="mbgw-line", daemon=True)
         self._cfg = cfg
         self._stopping = False
         self._new_cfg: Settings | None = None
         self._reopening: Reopening | None = None     # while the device is down
         self._line: SerialLine | None = line
+        self._opened = line is not None     # the device has been open (its return is "back")
+        if line is None:
+            self._reopening = Reopening(cfg.serial.device, pause=False)
+            self._reopening.absent = True
+            log.warning("serial device %s is not there: waiting for it", cfg.serial.device)
         # For systemd's watchdog: the monotonic time the loop last turned, and the longest
         # the thread may wait while nothing happens (-1: no limit; set before start()).
         self.heartbeat = time.monotonic()
@@ -135,6 +159,15 @@ class LineThread(threading.Thread, Generic[Settings]):
     def up(self) -> bool:
         """The serial device is open (read by the asyncio thread)."""
         return self._line is not None
+
+    @property
+    def state(self) -> str:
+        """"up", "down" (lost, or there and not opening) or "waiting" (nothing at the
+        device's path: waiting for it to appear), for the status."""
+        if self._line is not None:
+            return "up"
+        reopening = self._reopening
+        return "waiting" if reopening is not None and reopening.absent else "down"
 
     def stop(self) -> None:
         self._stopping = True
@@ -235,7 +268,9 @@ class LineThread(threading.Thread, Generic[Settings]):
             self._reopening = None
             self._line = line
             self._attach(line)
-            log.info("serial device %s is back", self._cfg.serial.device)
+            log.info("serial device %s is %s", self._cfg.serial.device,
+                     "back" if self._opened else "there: opened")
+            self._opened = True
             return
 
     # --- what a mode fills in ---

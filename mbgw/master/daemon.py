@@ -7,7 +7,7 @@ import signal
 import time
 
 from mbgw.config.model import MasterConfig
-from mbgw.line.port import SerialLine
+from mbgw.line.supervisor import open_at_start
 from mbgw.master.line_thread import SerialSlave, table_address
 from mbgw.master.status import MasterStatus
 from mbgw.master.table_service import TableService
@@ -37,17 +37,19 @@ class TableListenFailure(ListenError):
 
 
 def run_master(cfg: MasterConfig, reconfigure=None) -> None:
-    """Raises SerialError when the device cannot be opened, MetricsListenError when the
+    """Raises SerialError when the device is there and cannot be opened (one that is not
+    there yet is waited for), MetricsListenError when the
     metrics address cannot be bound, TableListenFailure when table-port cannot; otherwise
     returns after SIGTERM or SIGINT.  reconfigure() gives the settings to apply on SIGHUP
     (None: there is no file to reload)."""
     counters = MasterCounters()
     tables = TableService(cfg)
-    line = SerialLine(cfg.serial)
+    line = open_at_start(cfg.serial)
     try:
         slave = SerialSlave(cfg, line, counters, tables.table)
     except BaseException:
-        line.close()
+        if line is not None:
+            line.close()
         raise
     try:
         try:

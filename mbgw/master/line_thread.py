@@ -82,7 +82,7 @@ def table_address(cfg: MasterConfig) -> int:
 
 
 class SerialSlave(LineThread[MasterConfig]):
-    def __init__(self, cfg: MasterConfig, line: SerialLine, counters: MasterCounters,
+    def __init__(self, cfg: MasterConfig, line: SerialLine | None, counters: MasterCounters,
                  table=None) -> None:
         """table: the exchange table (mbgw.table.memory.Table), None in a gateway without."""
         super().__init__(cfg, line)
@@ -96,6 +96,7 @@ class SerialSlave(LineThread[MasterConfig]):
         self._tracer = MasterTracer(self.trace)
         self.wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         self._pool = UpstreamPool(cfg.mdbport, cfg.max_connections, counters, self.wake_fd)
+        self._pool.on_late = self._late
         self._tls_context: ssl.SSLContext | None = None
         self._use_tls(None, cfg)
         self._reply_to = b""       # the last frame for another slave: its reply may come next
@@ -107,7 +108,10 @@ class SerialSlave(LineThread[MasterConfig]):
         if table is not None:
             self._responder = table.responder()
             table.watch_down(self._down)
-        self._attach(line)
+        if line is not None:
+            self._attach(line)
+        else:
+            self._detach()
 
     @property
     def turn_limit_s(self) -> float:
@@ -364,6 +368,11 @@ class SerialSlave(LineThread[MasterConfig]):
         if tracing:
             self._tracer.outcome(adu, server, sent[0] if sent else None, reply_unit, reply,
                                  outcome, None if reply is None else latency_ms)
+
+    def _late(self, conn, tid: int, unit: int, reply: bytes) -> None:
+        """The pool dropped a late reply (an earlier request's tid)."""
+        if self.trace.active:
+            self._tracer.late(self._pool.server(conn.host), conn, tid, unit, reply)
 
     def _refuse_as_down(self, adu: bytes, stats, host: str, unit: int) -> None:
         """The address is down and this is no probe: nothing goes to its server, the master

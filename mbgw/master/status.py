@@ -17,7 +17,7 @@ class MasterStatus(DaemonStatus):
     def status(self, request: dict) -> dict:
         cfg = self.cfg
         data = self._common()
-        data["serial"]["state"] = "up" if self._slave.up else "down"
+        data["serial"]["state"] = self._slave.state
         return {
             **data,
             "upstream": {"port": cfg.mdbport, "tcpto_ms": cfg.tcpto_ms,

@@ -4,7 +4,8 @@ thread only while someone traces.  Each request of the master that goes upstream
 server's frame) or "no reply" event with the outcome and what went back on the line; a frame
 for an address outside the slaveid table is one "ignored" event.  A request for the table
 address is a "request" event and a "reply" (or, for a broadcast, "no reply") event of server
-"table", outcome "table"."""
+"table", outcome "table".  A server's reply to an earlier request (late, after tcpto) is a
+"late" event, dropped: its serial address is the one its request had, when still known."""
 import time
 
 OUTCOME_REPLY = "reply"
@@ -15,14 +16,20 @@ OUTCOME_BAD_REPLY = "not the answer"       # the reply with our tid does not ans
 OUTCOME_IGNORED = "not in the slaveid table"
 OUTCOME_DEVICE_DOWN = "device down"        # refused at once: its address is down, no probe
 OUTCOME_TABLE = "table"                    # answered from the exchange table by mbgw itself
+OUTCOME_LATE = "late reply, dropped"       # a reply carrying an earlier request's tid
+ADDRESSES_KEPT = 256                       # requests whose serial address a late reply finds
 TABLE_SERVER = "table"
 
 
 class MasterTracer:
     def __init__(self, hub) -> None:
         self.hub = hub            # a TraceHub; .active tells whether anyone traces
+        self._addresses: dict[tuple[str, int], int] = {}    # (server, tid): serial address
 
     def request(self, adu: bytes, server: str, conn, tid: int, unit: int) -> None:
+        if len(self._addresses) >= ADDRESSES_KEPT:
+            self._addresses.clear()
+        self._addresses[server, tid] = adu[0]
         self.hub.emit_threadsafe(_event("request", adu[0], adu[1], server, conn, tid, unit,
                                         adu[1:], "", None))
 
@@ -52,12 +59,17 @@ class MasterTracer:
             emit(_event("reply", adu[0], reply[0], TABLE_SERVER, None, None, None, bytes(reply),
                         outcome, latency_ms))
 
+    def late(self, server: str, conn, tid: int, unit: int, reply: bytes) -> None:
+        """A server's reply to an earlier request, dropped."""
+        self.hub.emit_threadsafe(_event("late", self._addresses.get((server, tid)), reply[0],
+                                        server, conn, tid, unit, reply, OUTCOME_LATE, None))
+
     def ignored(self, adu: bytes) -> None:
         self.hub.emit_threadsafe(_event("ignored", adu[0], adu[1], None, None, None, None,
                                         adu[1:], OUTCOME_IGNORED, None))
 
 
-def _event(direction: str, address: int, function: int, server: str | None, conn,
+def _event(direction: str, address: int | None, function: int, server: str | None, conn,
            tid: int | None, unit: int | None, data: bytes, outcome: str,
            latency_ms: float | None) -> dict:
     return {"time": time.time(), "mode": "master", "direction": direction,

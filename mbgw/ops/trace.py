@@ -1,9 +1,10 @@
 """Live traffic for `mbgw trace`: events go to whoever subscribed over the control socket.
 With nobody tracing, the only cost on the transaction path is one attribute test.
 
-An event is a dict: "time", "direction" (request, reply, no reply; master mode also has
-ignored), "tid", "unit", "function", "length", "pdu" (hex), "outcome", "latency_ms", and the
-two ends of the Modbus/TCP exchange as mbgw.cli.pcap writes them: "peer" the client's address,
+An event is a dict: "time", "direction" (request, reply, no reply, late: a reply after its
+request timed out, dropped; master mode also has ignored), "tid", "unit", "function",
+"length", "pdu" (hex), "outcome", "latency_ms", and the two ends of the Modbus/TCP exchange
+as mbgw.cli.pcap writes them: "peer" the client's address,
 "local" the server's.  In slave mode those are the remote client and mbgw's listener (plus
 "client", its id); in master mode mbgw's own end of the upstream connection and the remote
 server (plus "mode": "master", "address": the serial address, "server": the server shown).

@@ -6,6 +6,7 @@ import time
 
 from mbgw.config.model import SlaveConfig
 from mbgw.line.port import SerialLine
+from mbgw.line.supervisor import open_at_start
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable, HealthRule
 from mbgw.ops.reload import ReloadReport, Reloads
@@ -34,18 +35,21 @@ log = logging.getLogger("mbgw")
 
 
 def run_slave(cfg: SlaveConfig, reconfigure=None) -> None:
-    """Raises SerialError when the device cannot be opened, ListenError when mdbport cannot
-    be bound; otherwise returns after SIGTERM or SIGINT.  reconfigure() gives the settings
-    to apply on SIGHUP (None: there is no file to reload)."""
+    """Raises SerialError when the device is there and cannot be opened (one that is not there
+    yet is waited for), ListenError when mdbport cannot be bound; otherwise returns after
+    SIGTERM or SIGINT.  reconfigure() gives the settings to apply on SIGHUP (None: there is no
+    file to reload)."""
     counters = Counters()
-    line = SerialLine(cfg.serial, counters)
+    line = open_at_start(cfg.serial, counters)
     try:
         asyncio.run(_serve(cfg, line, counters, reconfigure))
     finally:
-        line.close()
+        if line is not None:
+            line.close()
 
 
-async def _serve(cfg: SlaveConfig, line: SerialLine, counters: Counters, reconfigure) -> None:
+async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
+                 reconfigure) -> None:
     loop = asyncio.get_running_loop()
     devices = DeviceTable(rule=HealthRule(cfg.demotion))
     scheduler = Scheduler()

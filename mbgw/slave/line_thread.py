@@ -56,7 +56,7 @@ REOPEN_SETTINGS = ("device", "baudrate", "format", "interface", "rtsdelays")
 
 
 class LineWorker(LineThread[SlaveConfig]):
-    def __init__(self, cfg: SlaveConfig, line: SerialLine, scheduler: Scheduler,
+    def __init__(self, cfg: SlaveConfig, line: SerialLine | None, scheduler: Scheduler,
                  server, counters: Counters, devices: DeviceTable) -> None:
         super().__init__(cfg, line)
         self._scheduler = scheduler
@@ -71,20 +71,26 @@ class LineWorker(LineThread[SlaveConfig]):
         self._serving: Job | None = None     # until its outcome has been delivered
         self._gate = Gate()                  # see the module's docstring
         self._reader: TableReader | None = None     # while the table is on
-        self._master: SerialMaster | None = self._master_on(line)
+        self._master: SerialMaster | None = self._master_on(line) if line else None
         self._engine = None                # the serial scenarios' engine (use_scenarios)
         self._scenarios = None             # the engine while it has scenarios to run
         self._due_s: float | None = None   # until the next scenario is due (None: none is)
         self._engine_woken = False         # its eventfd was ready (a test, with no scenario)
+        self._timed_out: dict[int, Job] = {}   # by address: the job whose late reply may come
         self._run_started = 0              # the scenario run traced last began (ns)
         self._trace = server.trace
         self.watch_raw(server.trace)
+        if line is None:
+            self._line_state(down=True)
 
     def _master_on(self, line: SerialLine, previous: SerialMaster | None = None) -> SerialMaster:
         cfg = self._cfg
         master = SerialMaster(framing_for(line), cfg.serial, self._counters, self.devices,
-                              cfg.retries, cfg.turnaround_ms)
+                              cfg.retries, cfg.turnaround_ms, cfg.late_window)
         master.on_reply = self._reply_now
+        master.on_late = self._late
+        if previous is not None:
+            master.keep_line_state(previous)
         # The shortcut takes plain RTU requests, which libmodbus sends and frames.
         # Not with the table on: C would write a reply to a client the table reader may be
         # answering at the same time.
@@ -92,9 +98,8 @@ class LineWorker(LineThread[SlaveConfig]):
             line.libmodbus_sends and not cfg.serial.nocheck and not cfg.table_on
         if self._shortcut:
             line.port.shortcut_rules(pdu.LIBMODBUS_FRAMED, line.char_ns,
-                                     cfg.serial.stout_ms * 1_000_000, cfg.slaveid, self._down)
-        if previous is not None:
-            master.keep_line_state(previous)
+                                     cfg.serial.stout_ms * 1_000_000, cfg.slaveid, self._down,
+                                     master.late_until)
         return master
 
     # --- the line thread's hooks (mbgw.line.supervisor.LineThread) ---
@@ -160,7 +165,9 @@ class LineWorker(LineThread[SlaveConfig]):
     def _turn(self) -> None:
         if self._scenarios is not None or self._engine_woken:
             self._scenarios_due()
-        job = self._scheduler.take()
+        master = self._master
+        assert master is not None
+        job = self._scheduler.take(master.held if master.late_open else None)
         if job is SCENARIO_TURN:
             self._run_scenario()
             self._connections.wait(0)      # what the clients sent meanwhile
@@ -243,6 +250,9 @@ class LineWorker(LineThread[SlaveConfig]):
             log.exception("internal error serving %s", job.adu.hex(" "))
             job.outcome = OUTCOME_ERROR
             reply = self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE)
+        master = self._master
+        if master is not None and master.late_until[job.adu[0]]:
+            self._timed_out[job.adu[0]] = job       # a try timed out: its reply may come
         if self._serving is not None:
             self._serving = None
             try:
@@ -280,6 +290,12 @@ class LineWorker(LineThread[SlaveConfig]):
         finally:
             self._gate.release()
 
+    def _late(self, frame: bytes) -> None:
+        """A late reply (address + PDU) was dropped: traced with the request it answered."""
+        job = self._timed_out.get(frame[0])
+        if job is not None and job.client is not None:
+            self._server.traced_late(job, frame[1:])
+
     def _failure(self, job: Job, code: int) -> bytes | None:
         if job.adu[0] == pdu.BROADCAST:
             return None
@@ -293,26 +309,28 @@ class LineWorker(LineThread[SlaveConfig]):
         take = self._take if self._shortcut else None
         try:
             if self._connections.wait(self._idle_timeout_ms(), port.fd, take):
-                # one frame without a request: whatever comes until the line is quiet again
-                unsolicited = port.wait_quiet(time.monotonic_ns(), self._cfg.serial.t35_us)
-                self._counters.unsolicited_frames += 1
-                self._counters.unsolicited_bytes += unsolicited
-                self._counters.bytes_received += unsolicited
+                self._master.hear()     # a frame without a request: a late reply, or noise
         except SerialError as err:
             self._lost(err)
 
     def _idle_timeout_ms(self) -> int:
-        """The idle wait ends in time for the next scenario (or stale-after check).  poll()
+        """The idle wait ends in time for the next scenario (or stale-after check), and when
+        requests wait for a late window, when the first window ends (rounded up).  poll()
         counts whole ms: it stops short and the last fraction is slept (well under a ms of
         the clients' time)."""
+        idle_ms = self.idle_ms
+        if self._scheduler.depth and self._master is not None and self._master.late_open:
+            left_ns = self._master.next_window_end_ns() - time.monotonic_ns()
+            window_ms = max(0, -(-left_ns // 1_000_000))
+            idle_ms = window_ms if idle_ms < 0 else min(window_ms, idle_ms)
         due = self._due_s
         if self._scenarios is None or due is None:
-            return self.idle_ms
+            return idle_ms
         if due < 0.001:
             time.sleep(due)
             return 0
         due_ms = int(due * 1000)
-        return due_ms if self.idle_ms < 0 else min(due_ms, self.idle_ms)
+        return due_ms if idle_ms < 0 else min(due_ms, idle_ms)
 
     def _take(self, client: Client) -> list | None:
         """The shortcut for a request that finds the line idle: C reads the client and, when

@@ -16,6 +16,10 @@ The serial scenarios (mbgw.scenarios) take turns in the same ring as one more cl
 one of them is due, the scenario queue has a turn (SCENARIO_TURN), begun when it fell due or,
 after a scenario ran and another is due, when the line comes to take a job again -- so the
 line is shared fairly between the scenario queue and each client.
+
+A request to an address in its late window (mbgw.slave.transaction) is held: take() passes
+over that turn, which keeps its place, and takes the next turn whose request may go, so the
+line never idles while another address's request waits.
 """
 import os
 import time
@@ -41,6 +45,7 @@ OUTCOME_EXCEPTION = "device exception"
 OUTCOME_TIMEOUT = "timeout"
 OUTCOME_LINE_DOWN = "line down"
 OUTCOME_DEVICE_DOWN = "device down"    # refused: its address is down, and it is no probe
+OUTCOME_LATE = "late reply, dropped"   # a trace event: the reply to a request that timed out
 # What take() returns for the scenario queue's turn: the line thread runs the scenario due.
 SCENARIO_TURN = Job(None, 0, 0, b"")
 
@@ -76,15 +81,26 @@ class Scheduler:
             queue.scheduled = True
             self._line_up(queue, job.received_ns)
 
-    def take(self) -> Job | None:
-        """The job of the earliest turn; None if none waits.  The line is free: the client
-        served last, if it has more, lines up again now."""
+    def take(self, held=None) -> Job | None:
+        """The job of the earliest turn; None if none waits.  held(address): a request to
+        that address must wait, so its turn is passed over (None: none is held).  The line is
+        free: the client served last, if it has more, lines up again now."""
         if self._continuing is not None:
             self._line_up(self._continuing, time.monotonic_ns())
             self._continuing = None
-        if not self._ring:
+        ring = self._ring
+        if not ring:
             return None
-        queue = self._ring.popleft()
+        if held is None:
+            queue = ring.popleft()
+        else:
+            for queue in ring:
+                first = queue.jobs[0]
+                if first is SCENARIO_TURN or not held(first.adu[0]):
+                    break
+            else:
+                return None
+            ring.remove(queue)
         job = queue.jobs.popleft()
         if job is SCENARIO_TURN:
             queue.scheduled = False

@@ -41,6 +41,7 @@ from mbgw.slave.connections import Connections
 from mbgw.slave.handshakes import MAX_HANDSHAKES, Handshakes
 from mbgw.slave.scheduler import (
     OUTCOME_DEVICE_DOWN,
+    OUTCOME_LATE,
     OUTCOME_LINE_DOWN,
     OUTCOME_TABLE,
     OUTCOME_UNROUTABLE,
@@ -528,6 +529,12 @@ class TcpServer:
         self._answer(client, tid, unit, reply)
         if self.trace.active:
             self.traced(client, tid, unit, request[0], reply, outcome, received_ns)
+
+    def traced_late(self, job: Job, reply: bytes) -> None:
+        """The late reply to job, which timed out, was dropped (while someone traces)."""
+        if self.trace.active:
+            self.trace.emit_threadsafe(self._event("late", job.client, job.tid, job.unit,
+                                                   reply, OUTCOME_LATE, None))
 
     def traced(self, client: Client, tid: int, unit: int, function: int, reply: bytes | None,
                outcome: str, received_ns: int) -> None:

@@ -39,7 +39,7 @@ class SlaveStatus(DaemonStatus):
         busy_s = counters.pop("line_busy_ns") / 1e9
         data = self._common()
         data["serial"].update(stout_ms=self.cfg.serial.stout_ms,
-                              state="up" if self._worker.up else "down")
+                              state=self._worker.state)
         table = self._tables.figures() if self._tables is not None else None
         firewall = self._server.firewall
         return {

@@ -4,9 +4,20 @@ A request goes out only after the line has been quiet for t3.5 (or the turnaroun
 a broadcast).  Every frame that is not the reply -- bad CRC or LRC, another address, another
 function, a size the request did not ask for -- is counted and dropped, and we keep listening
 until stout has passed, as the spec's master does (Serial Line V1.02, 2.4.1).
+
+The late window.  A slave may answer after stout (a radio link, a slow device, a stout set
+too low), and its late answer looks just like the answer to the next request to the same
+address, a read of the same size above all.  So after a transaction in which a try timed
+out, the address has a late window: no request goes to it (held(); the scheduler serves
+other addresses meanwhile, the C shortcut reads late_until) until each try that timed out has
+had its late reply -- dropped and counted late_replies -- or the line has been quiet for
+late-window past the last try's deadline.  While no request to the address is on the line,
+any frame from it is such a late reply.  The retries of a request are the same request: they
+go at once, and a late reply to an earlier try that comes during a retry answers it.
 """
 import logging
 import time
+from array import array
 from collections.abc import Callable
 
 from mbgw.config.model import SerialConfig
@@ -14,20 +25,32 @@ from mbgw.errors import ChecksumError, LineTimeout
 from mbgw.line.frames import reply_matches
 from mbgw.line.framing import NO_FORWARD
 from mbgw.line.native import Reception
+from mbgw.line.supervisor import longest_frame_s
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceStats, DeviceTable
 from mbgw.protocol import pdu
 
 wire = logging.getLogger("mbgw.wire")
 
+# What hear() receives after: address 0 (broadcast), which no reply carries, so every frame
+# is another address's.
+LISTENING = b"\x00\x00"
+
 
 class SerialMaster:
     def __init__(self, framing, cfg: SerialConfig, counters: Counters, devices: DeviceTable,
-                 retries: int = 0, turnaround_ms: int = 100) -> None:
+                 retries: int = 0, turnaround_ms: int = 100, late_window_ms: int = 0) -> None:
         self.framing = framing
         self.devices = devices
         self._sent_ns = 0
-        self._timed_out: DeviceStats | None = None   # whose late reply may still come
+        self._late_window_ns = late_window_ms * 1_000_000
+        # a frame that has begun is whole within this (its longest, and the silence after)
+        self._frame_ns = int(longest_frame_s(cfg) * 1e9) + cfg.end_of_frame_us * 1000
+        # By address: when its late window ends (CLOCK_MONOTONIC ns, 0: none open; C's
+        # shortcut reads it in place), and the late replies it may still bring.
+        self.late_until = array("q", bytes(8 * 256))
+        self._late_pending = bytearray(256)
+        self.late_open: set[int] = set()        # the addresses with a window open
         self._counters = counters
         self._retries = retries
         self._nocheck = cfg.nocheck
@@ -38,16 +61,21 @@ class SerialMaster:
         self._deadline = 0          # of the reply to the request last sent
         # on_reply(reply PDU, bytes of it forwarded or -1): called before the reply is booked
         self.on_reply: Callable[[bytes, int], None] | None = None
+        # on_late(frame: address + PDU): a late reply was dropped (for the trace)
+        self.on_late: Callable[[bytes], None] | None = None
         # The last reply dropped for not answering its request (another function, another
         # size), for a scenario to tell why it failed; its runner clears it.
         self.mismatch: bytes | None = None
+        self._bad_bytes = 0         # in frames that were not the reply, this transaction
 
     def keep_line_state(self, previous: "SerialMaster") -> None:
         """Taking over the line from previous (new settings): the silence it owes the line
         and the late reply it may still see are owed and seen here too."""
         self._quiet_from_ns = previous._quiet_from_ns
         self._quiet_us = previous._quiet_us
-        self._timed_out = previous._timed_out
+        self.late_until = previous.late_until
+        self._late_pending = previous._late_pending
+        self.late_open = previous.late_open
 
     @property
     def quiet_until_ns(self) -> int:
@@ -70,9 +98,12 @@ class SerialMaster:
             device.broadcasts += 1
             self._quiet_us = self._turnaround_us
             return None
+        if self.late_until[adu[0]]:
+            self._await_late(adu[0])
         started = 0
         counters = self._counters
-        received = counters.bytes_received - counters.late_bytes   # before the request
+        noise = counters.noise_bytes      # from here on, bytes in no frame ...
+        self._bad_bytes = 0               # ... and in frames that were not the reply
         for attempt in range((self._retries if retries < 0 else retries) + 1):
             if attempt:
                 self._count(device, "retries")
@@ -95,14 +126,88 @@ class SerialMaster:
                 if exception is not None:
                     self._counters.device_exceptions += 1
                 device.answered((ended - self._sent_ns) / 1e6, exception)
-                if self._timed_out is device:
-                    self._timed_out = None
+                if attempt:         # the tries before may still answer
+                    self._open_window(adu[0], attempt)
                 return reply
         self._counters.line_busy_ns += self._deadline - started
         self._count(device, "timeouts")
-        device.failed(counters.bytes_received - counters.late_bytes - received)
-        self._timed_out = device
+        device.failed(counters.noise_bytes - noise + self._bad_bytes)
+        self._open_window(adu[0], attempt + 1)
         raise LineTimeout()
+
+    # --- the late window (see the module's docstring) ---
+
+    def held(self, address: int) -> bool:
+        """A request to address must wait: its late window is open."""
+        until = self.late_until[address]
+        if not until:
+            return False
+        if time.monotonic_ns() < until:
+            return True
+        self._close_window(address)
+        return False
+
+    def next_window_end_ns(self) -> int:
+        """When the first late window open ends (0: none is)."""
+        return min((self.late_until[a] for a in self.late_open), default=0)
+
+    def _open_window(self, address: int, tries: int) -> None:
+        if not self._late_window_ns:
+            return
+        self.late_until[address] = self._deadline + self._late_window_ns
+        self._late_pending[address] = min(tries, 255)
+        self.late_open.add(address)
+
+    def _close_window(self, address: int) -> None:
+        self.late_until[address] = 0
+        self._late_pending[address] = 0
+        self.late_open.discard(address)
+
+    def _late_reply(self, frame: bytes) -> bool:
+        """frame (address + PDU) is a late reply its address's window waits for: counted,
+        and the window closes when every try has had its own."""
+        if not frame or not self._late_pending[frame[0]]:
+            return False
+        address = frame[0]
+        self._count(self.devices.get(address), "late_replies")
+        self._late_pending[address] -= 1
+        if not self._late_pending[address]:
+            self._close_window(address)
+        if self.on_late is not None:
+            self.on_late(frame)
+        return True
+
+    def _await_late(self, address: int) -> None:
+        """Listen until address's late window closes (a scenario's request, which the
+        scheduler cannot hold back)."""
+        while self.held(address):
+            self.hear(self.late_until[address])
+
+    def hear(self, deadline_ns: int = 0) -> None:
+        """A frame nobody asked for (the line is idle; deadline_ns: wait for its first byte
+        until then, else it has begun): a late reply that an address's window waits for
+        (counted late_replies, see _late_reply), or an unsolicited frame."""
+        framing = self.framing
+        counters = self._counters
+        deadline_ns = deadline_ns or time.monotonic_ns() + self._frame_ns
+        if self._nocheck:
+            got = framing.receive_unchecked(LISTENING, deadline_ns)
+        else:
+            got = framing.receive(LISTENING, deadline_ns)
+        if isinstance(got.fault, LineTimeout):
+            return
+        last = got.last_byte_ns
+        if got.fault is not None:
+            last = framing.resync(last)
+        self._quiet_from_ns = max(self._quiet_from_ns, last)
+        if self._nocheck or got.fault is not None:
+            counters.unsolicited_frames += 1
+            counters.unsolicited_bytes += got.length + got.noise
+            return
+        frame = got.frame if got.frame is not None else got.foreign
+        if not self._late_reply(frame):
+            counters.unsolicited_frames += 1
+            counters.unsolicited_bytes += got.length
 
     def _count(self, device: DeviceStats, name: str) -> None:
         setattr(self._counters, name, getattr(self._counters, name) + 1)
@@ -158,11 +263,9 @@ class SerialMaster:
             self._quiet_from_ns = max(self._quiet_from_ns, got.last_byte_ns)
             frame = got.frame
             if frame is None:
-                late = self._timed_out
-                if late is not None and got.foreign_address == late.address:
-                    self._count(late, "late_replies")     # the answer to its timed-out request
-                else:
+                if not self._late_reply(got.foreign):
                     self._count(device, "wrong_unit")
+                    self._bad_bytes += got.length
                 continue
             if self._nocheck:
                 return got if len(frame) > 1 else None
@@ -172,10 +275,8 @@ class SerialMaster:
                 self._count(device, "late_replies")
                 continue
             if not reply_matches(adu[1:], frame[1:]):
-                if self._timed_out is device:
-                    self._count(device, "late_replies")
-                else:
-                    self._count(device, "wrong_function")
-                    self.mismatch = frame[1:]
+                self._count(device, "wrong_function")
+                self._bad_bytes += got.length
+                self.mismatch = frame[1:]
                 continue
             return got

@@ -9,7 +9,7 @@ import time
 from mbgw.config.model import TransparentModeConfig
 from mbgw.errors import ConfigError
 from mbgw.firewall.guard import Firewall
-from mbgw.line.port import SerialLine
+from mbgw.line.supervisor import open_at_start
 from mbgw.ops.reload import ReloadReport, Reloads
 from mbgw.ops.service import (
     ListenError,
@@ -57,7 +57,8 @@ def _raw_port(cfg: TransparentModeConfig, allows, counters) -> RawPort | None:
 
 
 def run_transparent(cfg: TransparentModeConfig, reconfigure=None) -> None:
-    """Raises SerialError when the device cannot be opened, ListenError when mdbport,
+    """Raises SerialError when the device is there and cannot be opened (one that is not
+    there yet is waited for), ListenError when mdbport,
     raw-port or the metrics address cannot be listened on; otherwise returns after SIGTERM or
     SIGINT.  reconfigure() gives the settings SIGHUP applies (None: no file)."""
     counters = TransparentCounters()
@@ -75,11 +76,12 @@ def run_transparent(cfg: TransparentModeConfig, reconfigure=None) -> None:
             ("mdbport", cfg.mdbport)
         raise TransparentListenFailure(option, port, err) from None
     raw = _raw_port(cfg, allows, counters)
-    line = SerialLine(cfg.serial, counters)
+    line = open_at_start(cfg.serial, counters)
     try:
         frames = FrameLine(cfg, line, table, raw, counters)
     except BaseException:
-        line.close()
+        if line is not None:
+            line.close()
         raise
     server.start()
     try:

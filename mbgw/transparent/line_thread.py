@@ -35,7 +35,7 @@ def _drain(fd: int) -> None:
 
 
 class FrameLine(LineThread[TransparentModeConfig]):
-    def __init__(self, cfg: TransparentModeConfig, line: SerialLine, table,
+    def __init__(self, cfg: TransparentModeConfig, line: SerialLine | None, table,
                  raw: RawPort | None, counters: TransparentCounters) -> None:
         self.counters = counters
         super().__init__(cfg, line)
@@ -56,7 +56,10 @@ class FrameLine(LineThread[TransparentModeConfig]):
         self._rx_counter = 0
         self._watch = -1
         self._take_rules(cfg)
-        self._attach(line)
+        if line is not None:
+            self._attach(line)
+        else:
+            self._detach()
 
     # --- the settings ---
 

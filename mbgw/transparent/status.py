@@ -35,7 +35,7 @@ class TransparentStatus(DaemonStatus):
 
     def status(self, request: dict) -> dict:
         data = self._common()
-        data["serial"]["state"] = "up" if self._line.up else "down"
+        data["serial"]["state"] = self._line.state
         rows = scenarios_status(self.scenario_engines.values())
         return {**data, "transparent": self.figures(), "counters": self._counters.snapshot(),
                 "counters_since": self._reset_at, "table": self._table_figures(),

@@ -102,6 +102,8 @@ class UpstreamPool:
         self.stopping = False     # set before the eventfd is signalled to stop
         # (conn, tid) after each request went out; for the trace
         self.on_sent: Callable[[Connection, int], None] | None = None
+        # (conn, tid, unit, PDU) of a late reply, dropped; for the trace
+        self.on_late: Callable[[Connection, int, int, bytes], None] | None = None
 
     @property
     def port(self) -> int:
@@ -176,7 +178,7 @@ class UpstreamPool:
                                        reply.hex(" "))
                         self._check(conn, request, unit, reply_unit, reply)
                         return reply
-                    self._counters.late_replies += 1
+                    self._late(conn, reply_tid, reply_unit, reply)
             except mbap.BadHeader as err:
                 reason = f"bad MBAP header: {err}"
                 self._bad_header(conn, reason)
@@ -328,6 +330,12 @@ class UpstreamPool:
         self._counters.connections_lost += 1
         log.debug("server %s:%d: connection lost: %s", conn.host, conn.port, reason)
 
+    def _late(self, conn: Connection, tid: int, unit: int, reply: bytes) -> None:
+        """A reply to an earlier request (its transaction id): dropped, counted."""
+        self._counters.late_replies += 1
+        if self.on_late is not None:
+            self.on_late(conn, tid, unit, reply)
+
     def _bad_header(self, conn: Connection, reason: str) -> None:
         """The stream cannot be trusted past a bad header: the next request opens another."""
         self._close(conn)
@@ -339,8 +347,8 @@ class UpstreamPool:
         waiting; False when the server has closed it (it is then dropped)."""
         while got := self._receive(conn):
             try:
-                for _ in mbap.split_frames(conn.buf):
-                    self._counters.late_replies += 1
+                for reply_tid, reply_unit, reply in mbap.split_frames(conn.buf):
+                    self._late(conn, reply_tid, reply_unit, reply)
             except mbap.BadHeader as err:
                 self._bad_header(conn, f"bad MBAP header ({err})")
                 return False

@@ -380,12 +380,20 @@ def test_bad_option_exits_2_naming_it(option, value):
     assert out.stdout == ""
 
 
-def test_missing_device_exits_1_with_one_line(tmp_path):
-    device = str(tmp_path / "ttyNONE")
-    out = run_cli("--device", device, "--mdbport", str(harness.free_port()))
+def test_a_device_that_does_not_open_exits_1_with_one_line():
+    # there, but no tty (one that is not there is waited for: test_device_at_start.py)
+    out = run_cli("--device", "/dev/zero", "--mdbport", str(harness.free_port()))
     assert out.returncode == 1, out.stderr
     lines = out.stderr.strip().splitlines()
-    assert len(lines) == 1 and device in lines[0], out.stderr
+    assert len(lines) == 1 and "/dev/zero" in lines[0], out.stderr
+
+
+def test_a_path_that_can_never_be_a_serial_device_exits_2_naming_it(tmp_path):
+    regular = tmp_path / "ttyFILE"
+    regular.write_text("")
+    out = run_cli("--device", str(regular), "--mdbport", str(harness.free_port()))
+    assert out.returncode == 2, out.stderr
+    assert f"'--device': device {regular}: a regular file, not a serial device" in out.stderr
 
 
 def test_sigterm_stops_cleanly_when_the_notify_socket_is_gone(rtu, start_gateway):

@@ -165,11 +165,13 @@ def most_waited_through(matched: list[tuple[Sent, float]], heads) -> dict[int, i
 def rig(pty_pair, start_gateway, recording_peer, request):
     """(gateway, the slave's record): stout STOUT_MS, 0x0B for the silent unit at once, so
     its client asks again at once; demotion off, so that the silent unit stays on the line
-    (tests/integration/test_demotion.py has it on)."""
+    (tests/integration/test_demotion.py has it on); no late window, whose wait after a
+    timeout lets other units' requests go first on purpose (tests/integration/test_faults.py
+    has it)."""
     record = recording_peer("fault_slave.py")
     gw = start_gateway(pty_pair.gateway, "--baudrate", "19200", "--stout", str(STOUT_MS),
                        "--exception", "--max-connections", "40", "--down-after", "0",
-                       *request.param)
+                       "--late-window", "0", *request.param)
     return gw, record
 
 

@@ -20,7 +20,7 @@ import pytest
 
 from tests.harness import READY_TIMEOUT_S, free_port, stop, stop_counters
 from tests.modbus import holding_reply, mbap, read_holding, rtu
-from tests.ops import wait_for
+from tests.ops import tracing, wait_for
 from tests.peers import fault_slave
 
 pytestmark = pytest.mark.integration
@@ -128,8 +128,10 @@ def test_silent_slave_with_exception_gets_0x0b_after_stout(line, gateway, client
 @pytest.mark.parametrize("exception", [False, True])
 def test_late_reply_is_never_taken_for_the_next_requests_answer(line, gateway, client,
                                                                  exception):
-    """A (unit 3, 3 registers at 0) times out; B (unit 3, 5 registers at 10) goes out at once;
-    A's late reply lands while B waits (late 300 ms > stout 200 ms).  B must not get it."""
+    """A (unit 3, 3 registers at 0) times out; B (unit 3, 5 registers at 10) waits for unit 3's
+    late window: A's late reply (300 ms > stout 200 ms) comes into the idle line, is dropped
+    and counted, then B goes out.  B's own late reply comes after C's answer, into an idle
+    line: counted too, and never forwarded."""
     record = line("--late-ms", "300")
     gw = gateway(*(["--exception"] if exception else []))
     c = client(gw)
@@ -144,14 +146,13 @@ def test_late_reply_is_never_taken_for_the_next_requests_answer(line, gateway, c
     frames = received(record)
     assert [f for _, f in frames] == [rtu(3, read_holding(0, 3)), rtu(3, read_holding(10, 5)),
                                       rtu(1, read_holding(0, 2))]
-    # A's late reply really arrived while B was pending (the peer logged when it sent it)
-    sent = [float(row.split()[0]) for row in record.read_text().splitlines()
-            if row.split()[1] == "tx" and row.endswith(rtu(3, holding_reply(0, 3)).hex(" "))]
-    assert len(sent) == 1 and frames[1][0] < sent[0] < frames[2][0]
-    # A's reply, arriving during B's wait, is counted as unit 3's late reply
+    # A's late reply came before B went out (the peer logged when it sent it)
+    sent = sent_by_peer(record, rtu(3, holding_reply(0, 3)))
+    assert len(sent) == 1 and frames[0][0] < sent[0] < frames[1][0]
+    wait_for(gw, lambda s: s["counters"]["late_replies"] == 2, "B's late reply counted")
     assert_counters(gw, requests=3, replies=3 if exception else 1, timeouts=2,
-                    gateway_exceptions=2 if exception else 0, late_replies=1,
-                    unsolicited_frames=1, unsolicited_bytes=len(rtu(3, holding_reply(10, 5))))
+                    gateway_exceptions=2 if exception else 0, late_replies=2,
+                    unsolicited_frames=0, unsolicited_bytes=0)
 
 
 def test_late_reply_during_the_turnaround_counts_as_late_bytes(line, gateway, client):
@@ -568,3 +569,107 @@ def test_a_notify_socket_nobody_reads_does_not_keep_the_gateway_from_stopping(pt
     finally:
         stop(proc)
         notify.close()
+
+
+# --- the late window: a late reply never reaches the next request to its address ------------
+
+LATE_MS = 250           # the slave's unit 17 answers its first request 50 ms after stout
+
+
+def sent_by_peer(record, frame: bytes) -> list[float]:
+    """When the slave wrote frame (its record's tx lines)."""
+    return [float(row.split()[0]) for row in record.read_text().splitlines()
+            if row.split()[1] == "tx" and row.endswith(frame.hex(" "))]
+
+
+def peer_of(c) -> str:
+    """A client's address as the trace shows it."""
+    host, port = c.sock.getsockname()[:2]
+    return f"{host}:{port}"
+
+
+def wait_received(record, count: int) -> None:
+    """Until the slave has received count frames (its record is written as they come)."""
+    deadline = time.monotonic() + READY_TIMEOUT_S
+    while len(received(record)) < count:
+        assert time.monotonic() < deadline, record.read_text()
+        time.sleep(0.005)
+
+
+@pytest.mark.parametrize("exception", [False, True], ids=["silent", "exception"])
+def test_a_late_reply_never_reaches_another_clients_request_to_the_same_unit(
+        line, gateway, client, exception):
+    """A reads 2 registers at 0 of unit 17 and times out (the slave, busy, answers 250 ms after
+    the request, stout 200 ms).  B's read of 2 registers at 50 of unit 17 (a reply of the same
+    size) waits for unit 17's late window: A's late reply comes, is dropped and counted, and
+    only then B's request goes out; B gets its own registers (without the window, B's request
+    went out at A's timeout and got A's registers).  C's request to unit 1, queued behind B,
+    does not wait: it goes on the line right after A's timeout."""
+    record = line("--late-ms", str(LATE_MS))
+    gw = gateway(*(["--exception"] if exception else []))
+    a, b, c = client(gw), client(gw), client(gw)
+    a.send(mbap(1, 17, read_holding(0, 2)))
+    wait_received(record, 1)
+    b.send(mbap(2, 17, read_holding(50, 2)))
+    c.send(mbap(3, 1, read_holding(0, 1)))
+    assert c.recv() == (3, 1, holding_reply(0, 1))
+    assert b.recv() == (2, 17, holding_reply(50, 2))
+    assert a.recv(0.01 if not exception else None) == \
+        ((1, 17, b"\x83\x0b") if exception else None)
+    frames = received(record)
+    assert [f for _, f in frames] == [rtu(17, read_holding(0, 2)), rtu(1, read_holding(0, 1)),
+                                      rtu(17, read_holding(50, 2))]
+    late = sent_by_peer(record, rtu(17, holding_reply(0, 2)))
+    assert len(late) == 1 and frames[1][0] < late[0] < frames[2][0]
+    assert_counters(gw, requests=3, replies=3 if exception else 2, timeouts=1,
+                    gateway_exceptions=1 if exception else 0, late_replies=1)
+
+
+def test_a_retry_takes_the_late_reply_to_its_first_try_and_the_window_waits_for_its_own(
+        line, gateway, client, tmp_path):
+    """With --retries 1, A's first try times out and the retry goes at once: the first try's
+    late reply, coming during the retry, answers it (the same request, so the same answer).
+    The retry's own reply is still to come: unit 17's late window waits for it, so B's request
+    goes out only once it has come and been dropped (counted, and traced with A's request);
+    B gets its own registers."""
+    record = line("--late-ms", str(LATE_MS))
+    gw = gateway("--retries", "1")
+    a, b = client(gw), client(gw)
+    with tracing(gw, tmp_path / "trace.pcap", count=5) as (trace, _):
+        a.send(mbap(1, 17, read_holding(0, 2)))
+        assert a.recv() == (1, 17, holding_reply(0, 2))
+        b.send(mbap(2, 17, read_holding(50, 2)))
+        assert b.recv() == (2, 17, holding_reply(50, 2))
+        out, err = trace.communicate(timeout=10)
+    assert trace.returncode == 0, err
+    late = [line.split()[1:] for line in out.decode().splitlines() if " late " in line]
+    assert late == [["late", peer_of(a), "1", "17", "0x03", "6", "late", "reply,", "dropped"]]
+    frames = received(record)
+    assert [f for _, f in frames] == [rtu(17, read_holding(0, 2))] * 2 + \
+        [rtu(17, read_holding(50, 2))]
+    replies_to_a = sent_by_peer(record, rtu(17, holding_reply(0, 2)))
+    assert len(replies_to_a) == 2 and replies_to_a[1] < frames[2][0]
+    assert_counters(gw, requests=2, replies=2, retries=1, late_replies=1)
+
+
+def test_a_silent_units_window_ends_when_the_line_has_been_quiet_for_late_window(
+        line, gateway, client):
+    """Unit 2 never answers: after A's timeout, B's request to it waits until the line has been
+    quiet for --late-window (100 ms) past A's deadline, then goes; unit 1's request, sent
+    after B, does not wait."""
+    record = line()
+    gw = gateway("--late-window", "100")
+    a, b, c = client(gw), client(gw), client(gw)
+    a.send(mbap(1, 2, read_holding(0, 1)))
+    wait_received(record, 1)
+    b.send(mbap(2, 2, read_holding(0, 1)))
+    c.send(mbap(3, 1, read_holding(0, 1)))
+    assert c.recv() == (3, 1, holding_reply(0, 1))
+    wait_received(record, 3)
+    frames = received(record)
+    assert [f[0] for _, f in frames] == [2, 1, 2]
+    # B went out late-window (100 ms) after A's timeout, unit 1's request right at it (the
+    # slave dates each frame as it wakes up for it: a few ms of margin either way)
+    assert frames[2][0] - frames[0][0] > (STOUT_MS + 50) / 1000
+    assert frames[1][0] - frames[0][0] < (STOUT_MS + 50) / 1000
+    assert_counters(gw, requests=3, replies=1, timeouts=2)

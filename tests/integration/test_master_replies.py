@@ -81,10 +81,15 @@ CLOSES_CONNECTION = {"protocol-id", "length-longer", "length-shorter"}
 
 class ScriptedServer:
     """A Modbus TCP server on (host, port), in a thread; `faults` holds what the next replies
-    become (a FAULTS function each; b"" is no reply), the correct reply when empty."""
+    become (a FAULTS function each; b"" is no reply), the correct reply when empty; `delays`
+    how long the next replies wait (s; sent by a timer meanwhile, the server reading on),
+    none when empty; `sent` is (tid, time.monotonic()) for each reply sent."""
 
     def __init__(self, host: str, port: int) -> None:
         self.faults = collections.deque()
+        self.delays: collections.deque[float] = collections.deque()
+        self.sent: list[tuple[int, float]] = []
+        self._send_lock = threading.Lock()
         self.requests: list[tuple[int, int, bytes]] = []      # (tid, unit, PDU)
         self.arrivals: list[float] = []                       # time.monotonic() of each
         self.connections = 0
@@ -132,7 +137,20 @@ class ScriptedServer:
                     del buf[:6 + length]
                     self.arrivals.append(time.monotonic())
                     self.requests.append((tid, unit, pdu))
-                    sock.sendall(self._reply(tid, unit, pdu))
+                    reply = self._reply(tid, unit, pdu)
+                    delay = self.delays.popleft() if self.delays else 0
+                    if delay:
+                        threading.Timer(delay, self._send, (sock, tid, reply)).start()
+                    else:
+                        self._send(sock, tid, reply)
+
+    def _send(self, sock: socket.socket, tid: int, reply: bytes) -> None:
+        with self._send_lock:
+            try:
+                sock.sendall(reply)
+            except OSError:         # closed meanwhile (the test is over)
+                return
+            self.sent.append((tid, time.monotonic()))
 
     def _reply(self, tid: int, unit: int, pdu: bytes) -> bytes:
         function, start, count = struct.unpack(">BHH", pdu)
@@ -246,3 +264,31 @@ def test_the_trace_shows_the_servers_reply_and_what_became_of_it(gateway, server
     assert events[1][:7] == ["reply", "6", server_name, "1", str(OTHER_UNIT), "0x03", "8"]
     assert re.fullmatch(r"not the answer: unit id 70 instead of 6, answered 0x0b [\d.]+ ms",
                         events[1][7]), events[1]
+
+
+def test_a_late_reply_is_dropped_by_its_transaction_id_while_the_next_request_waits(
+        gateway, server, line, tmp_path):
+    """The server answers A (2 registers at 0) 300 ms after it came, tcpto being 200 ms; the
+    master gets 0x0B and asks B (2 registers at 50: a reply of the same size), which the
+    server answers 150 ms after it came.  A's late reply arrives on the connection while B
+    waits: it carries A's transaction id, so it is dropped, counted and traced, and the
+    master gets B's own registers."""
+    gw = gateway("--exception", "--tcpto", "200")
+    server.delays.extend((0.3, 0.15))
+    with tracing(gw, tmp_path / "trace.pcap", count=5) as (trace, _):
+        ask(line, read_holding(ADDRESS, start=0, count=2), expected=bytes.fromhex("06 83 0b"))
+        ask(line, read_holding(ADDRESS, start=50, count=2),
+            expected=holding_reply(ADDRESS, *struct.unpack(">2H", registers(UNIT, 50, 2))))
+        out, err = trace.communicate(timeout=10)
+    assert trace.returncode == 0, err
+    (tid_a, _, _), (tid_b, _, _) = server.requests
+    assert tid_a != tid_b
+    assert [tid for tid, _ in server.sent] == [tid_a, tid_b]
+    assert server.arrivals[1] < server.sent[0][1]          # A's late reply came while B waited
+    events = [text.split(None, 8)[1:] for text in out.decode().splitlines()]
+    server_name = f"{HOST}:{server.port}"
+    assert [e[0] for e in events] == ["request", "no", "request", "late", "reply"]   # no reply
+    assert events[3] == ["late", str(ADDRESS), server_name, str(tid_a), str(UNIT), "0x03", "6",
+                         "late reply, dropped"]
+    c = stop_counters(gw)
+    assert (c["late_replies"], c["timeouts"], c["replies"]) == (1, 1, 2)

@@ -8,6 +8,7 @@ import os
 import struct
 import threading
 import time
+from array import array
 
 import pytest
 
@@ -25,11 +26,13 @@ STOUT_NS = 1_000_000_000
 REQUEST = mbap(TID, UNIT, read_holding(0, 3))
 
 
-def make_port(device: str, slaveid: int = 0, down: bytearray | None = None) -> Port:
+def make_port(device: str, slaveid: int = 0, down: bytearray | None = None,
+              late_until: array | None = None) -> Port:
     port = Port(device, 19200, "n", 8, 1)
     port.set_byte_timeout(2000)
     port.shortcut_rules(pdu.LIBMODBUS_FRAMED, CHAR_NS, STOUT_NS, slaveid,
-                        bytearray(256) if down is None else down)
+                        bytearray(256) if down is None else down,
+                        array("q", bytes(8 * 256)) if late_until is None else late_until)
     return port
 
 
@@ -39,8 +42,9 @@ def line(pty_pair):
     ports = []
     slave = os.open(pty_pair.device, os.O_RDWR | os.O_NOCTTY)
 
-    def port(slaveid: int = 0, down: bytearray | None = None) -> Port:
-        ports.append(make_port(pty_pair.gateway, slaveid, down))
+    def port(slaveid: int = 0, down: bytearray | None = None,
+             late_until: array | None = None) -> Port:
+        ports.append(make_port(pty_pair.gateway, slaveid, down, late_until))
         return ports[-1]
     yield port, slave
     os.close(slave)
@@ -106,7 +110,8 @@ def test_slaveid_sets_the_serial_address_and_the_client_keeps_its_unit(line, soc
 def test_no_reply_leaves_the_client_without_one(line, socket_ends):
     make, slave = line
     port = make()
-    port.shortcut_rules(pdu.LIBMODBUS_FRAMED, CHAR_NS, 50_000_000, 0, bytearray(256))
+    port.shortcut_rules(pdu.LIBMODBUS_FRAMED, CHAR_NS, 50_000_000, 0, bytearray(256),
+                        array("q", bytes(8 * 256)))
     ours, theirs = socket_ends
     theirs.sendall(REQUEST)
     assert port.take_request(ours.fileno(), 0).taken
@@ -160,6 +165,29 @@ def test_a_request_for_a_down_address_is_left_whole_to_the_caller(line, socket_e
     assert (take.status, take.taken, take.input) == (len(REQUEST), False, REQUEST)
     assert nothing_written(slave)
     down[UNIT] = 0
+    got = slave_answers(slave, UNIT, holding_reply(0, 3))
+    theirs.sendall(REQUEST)
+    assert port.take_request(ours.fileno(), 0).taken
+    assert got == [rtu(UNIT, read_holding(0, 3))]
+    assert theirs.recv(1024) == mbap(TID, UNIT, holding_reply(0, 3))
+
+
+def test_a_request_for_an_address_in_its_late_window_is_left_whole_to_the_caller(
+        line, socket_ends):
+    """The owner's late windows are read as they are at each take: a request for an address
+    whose window has not ended never reaches the line from C (the late reply would look like
+    its answer); once the window has ended (or is closed, 0) the request is taken."""
+    make, slave = line
+    late_until = array("q", bytes(8 * 256))
+    port = make(late_until=late_until)
+    ours, theirs = socket_ends
+    late_until[UNIT] = time.monotonic_ns() + 60_000_000_000
+    late_until[UNIT + 1] = 1        # another address's window does not hold this one
+    theirs.sendall(REQUEST)
+    take = port.take_request(ours.fileno(), 0)
+    assert (take.status, take.taken, take.input) == (len(REQUEST), False, REQUEST)
+    assert nothing_written(slave)
+    late_until[UNIT] = time.monotonic_ns()      # ended
     got = slave_answers(slave, UNIT, holding_reply(0, 3))
     theirs.sendall(REQUEST)
     assert port.take_request(ours.fileno(), 0).taken

@@ -22,6 +22,8 @@ holds 1000 + i.  Behaviour by the request's address:
   14  silent to its first --mute-first (3) requests, then the reply (a device that recovers)
   15  --garbage only, never the reply (noise alone)
   16  FC03/04: one register fewer than asked (a wrong quantity)
+  17  a slow device: its first request answered after --late-ms, a request that comes
+      meanwhile answered 5 ms after that (it was busy), later ones at once
 
 The reply: FC03/04 the registers, FC06 the echo, FC 108 the vendor reply (any address),
 anything else exception 01.
@@ -53,6 +55,7 @@ VENDOR_FC = 0x6C
 VENDOR_REPLY = bytes((VENDOR_FC,)) + bytes.fromhex("07 01 00 05") + bytes(range(0xA0, 0xA0 + 33))
 assert len(VENDOR_REPLY) == 38
 SILENCE_S = 0.003
+BUSY_GAP_S = 0.005      # address 17: a request that came while busy, answered this after
 PARTIAL_S = 0.050       # a length-known frame not completed within this is dropped
 
 
@@ -83,6 +86,7 @@ class Slave:
         self.pending: list[tuple[float, int, bytes]] = []     # (when, seq, bytes) to write
         self.seq = 0
         self.counts: dict[int, int] = {}
+        self.busy_until = 0.0       # address 17 answers its first request then
 
     def log(self, kind: str, when: float, data: bytes) -> None:
         if self.record:
@@ -132,6 +136,12 @@ class Slave:
                 self.later(0, reply)
         elif address == 15:
             self.later(0, self.garbage)
+        elif address == 17 and n == 1:
+            self.busy_until = time.monotonic() + self.late_s
+            self.later(self.late_s, reply)
+        elif address == 17:
+            busy = self.busy_until - time.monotonic()
+            self.later(busy + BUSY_GAP_S if busy > 0 else 0, reply)
         elif address == 16 and pdu[0] in (0x03, 0x04) and reply[2] > 2:
             self.later(0, adu(16, bytes((pdu[0], reply[2] - 2)) + reply[3:-4]))
         else:

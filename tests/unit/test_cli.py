@@ -60,6 +60,8 @@ def _usage_error(result, option: str, value: str) -> None:
     ("--max-connections-per-ip", "1001"),
     ("--retries", "11"),
     ("--turnaround", "65536"),
+    ("--late-window", "-1"),
+    ("--late-window", "65536"),
     ("--down-after", "-1"),
     ("--down-after", "101"),
     ("--probe-interval", "99"),
@@ -132,6 +134,7 @@ HELP_DEFAULTS = {
     "--max-connections-per-ip": "default: 0",
     "--retries": "default: 0",
     "--turnaround": "default: 100",
+    "--late-window": "default: stout",
     "--down-after": "default: 3",
     "--probe-interval": "default: 5000",
     "--log-level": "default: info",
@@ -152,12 +155,23 @@ def test_slave_help_lists_every_option_with_its_default():
 
 
 def test_device_that_cannot_be_opened_exits_1_with_one_line_naming_it():
-    result = _slave("--device", "/nonexistent/tty")
+    # there, but no tty (a device that is not there yet is waited for)
+    result = _slave("--device", "/dev/null")
     assert result.exit_code == 1, result.output
     lines = result.output.strip().splitlines()
     assert len(lines) == 1, result.output
-    assert "/nonexistent/tty" in lines[0]
+    assert "/dev/null" in lines[0]
     assert "Traceback" not in result.output
+
+
+@pytest.mark.parametrize("path, reason", [
+    ("/etc/hostname", "a regular file, not a serial device"),
+    ("/etc", "a directory, not a serial device"),
+    ("/etc/hostname/tty0", "/etc/hostname is not a directory"),
+    ("ttyUSB0", "not an absolute path"),
+])
+def test_a_path_that_can_never_be_a_serial_device_is_a_usage_error(path, reason):
+    _usage_error(_slave("--device", path), "'--device'", reason)
 
 
 def _command_paths(group: click.Group, path=()):

@@ -298,6 +298,22 @@ def test_run_starts_the_mode_the_file_selects(tmp_path):
                                  "authip": ()})]
 
 
+def test_a_path_that_can_never_be_a_serial_device_is_refused_by_set_check_and_run(conf,
+                                                                                 tmp_path):
+    before = conf.read_text()
+    result = mbgw("config", "set", "serial", "device", str(tmp_path), "--config", conf)
+    assert result.exit_code == 1 and f"device {tmp_path}: a directory" in result.output
+    assert conf.read_text() == before
+    conf.write_text(before.replace('device = "/dev/ttyUSB0"', f'device = "{tmp_path}"'))
+    assert f'device = "{tmp_path}"' in conf.read_text()
+    result = mbgw("check-config", conf)
+    assert result.exit_code != 0 and f"serial.device: device {tmp_path}: a directory, not a " \
+        f"serial device" in result.output
+    result = mbgw("run", "--config", conf)
+    assert result.exit_code == cli_config.EX_CONFIG
+    assert f"serial.device: device {tmp_path}: a directory" in result.output
+
+
 def test_run_without_a_device_names_the_key(tmp_path):
     group, calls = recorder()
     path = tmp_path / "f.toml"
@@ -308,18 +324,18 @@ def test_run_without_a_device_names_the_key(tmp_path):
 
 
 def test_run_reaches_the_real_slave_mode(conf):
-    """mbgw's own slave command gets the file's device (and fails to open it, here)."""
-    mbgw("config", "set", "serial", "device", "/nonexistent/ttyCFG", "--config", conf)
+    """mbgw's own slave command gets the file's device (and fails to open it, here: no tty)."""
+    mbgw("config", "set", "serial", "device", "/dev/zero", "--config", conf)
     result = mbgw("run", "--config", conf)
     assert result.exit_code == 1
-    assert "/nonexistent/ttyCFG" in result.output
+    assert "/dev/zero" in result.output
 
 
 def test_mode_command_option_wins_over_the_real_file(conf):
-    mbgw("config", "set", "serial", "device", "/nonexistent/ttyCFG", "--config", conf)
-    result = mbgw("slave", "--config", conf, "--device", "/nonexistent/ttyCLI")
+    mbgw("config", "set", "serial", "device", "/dev/zero", "--config", conf)
+    result = mbgw("slave", "--config", conf, "--device", "/dev/null")
     assert result.exit_code == 1
-    assert "/nonexistent/ttyCLI" in result.output and "ttyCFG" not in result.output
+    assert "/dev/null" in result.output and "/dev/zero" not in result.output
 
 
 def test_help_of_every_command_works():

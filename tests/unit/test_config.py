@@ -227,3 +227,12 @@ def test_slave_defaults_follow_the_acksys_commands():
 def test_demotion_settings_out_of_range_name_the_key(down_after, probe_interval_ms, named):
     with pytest.raises(ConfigError, match=named):
         Demotion(down_after, probe_interval_ms)
+
+
+def test_the_late_window_is_stout_unless_set():
+    serial = SerialConfig("/dev/ttyUSB0", stout_ms=300)
+    assert SlaveConfig(serial=serial).late_window == 300
+    assert SlaveConfig(serial=serial, late_window_ms=0).late_window == 0
+    assert SlaveConfig(serial=serial, late_window_ms=1000).late_window == 1000
+    with pytest.raises(ConfigError, match="late-window 65536: out of range 0..65535"):
+        SlaveConfig(serial=serial, late_window_ms=65536)

@@ -84,7 +84,7 @@ def test_every_long_option_of_both_modes_is_a_key(schema):
     ("interface", "serial"), ("rtsdelays", "serial"),
     ("slaveid", "net"), ("authip", "net"), ("mdbport", "net"), ("exception", "net"),
     ("bind", "net"), ("max-connections", "net"), ("max-connections-per-ip", "net"),
-    ("tcpto", "net"), ("retries", "serial"),
+    ("tcpto", "net"), ("retries", "serial"), ("late-window", "serial"),
     ("turnaround", "serial"), ("down-after", "serial"), ("probe-interval", "serial"),
     ("log-level", "general"),
 ])

@@ -218,3 +218,25 @@ def test_each_client_is_served_once_between_two_scenario_runs(scheduler):
         taken.append(scheduler.take())
     names = ["s" if job is SCENARIO_TURN else job.client for job in taken]
     assert names == ["s", "a", "b", "c", "s", "a", "b", "c"]
+
+
+def test_a_held_address_gives_way_and_keeps_its_turn(scheduler):
+    """A request to an address in its late window is passed over: the next turn whose request
+    may go is taken, and the held one, still first in the ring, goes once it is free; a
+    client's own later requests never overtake its held one (order within a client), and a
+    scenario's turn is never held here (its address is the run's, known later)."""
+    a, b, c = Queue(), Queue(), Queue()
+    scheduler.submit(a, Job("a", 1, 17, bytes((17, 3, 0, 0, 0, 2)), 10))
+    scheduler.submit(a, Job("a", 2, 1, bytes((1, 3, 0, 0, 0, 2)), 11))
+    scheduler.submit(b, Job("b", 1, 17, bytes((17, 3, 0, 50, 0, 2)), 20))
+    scheduler.submit(c, Job("c", 1, 1, bytes((1, 3, 0, 0, 0, 1)), 30))
+    scheduler.scenario_due(40)
+    held = {17}
+    taken = scheduler.take(held.__contains__)
+    assert (taken.client, taken.tid) == ("c", 1)
+    assert scheduler.take(held.__contains__) is SCENARIO_TURN
+    assert scheduler.take(held.__contains__) is None
+    assert scheduler.depth == 3
+    held.clear()
+    assert _drain(scheduler) == [("a", 1), ("b", 1), ("a", 2)]
+    assert scheduler.depth == 0
