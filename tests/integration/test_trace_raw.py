@@ -138,3 +138,17 @@ def test_a_device_that_answers_garbage_is_told_from_a_silent_one(fault_line, gw,
         "answers received but not valid (9 bytes): check baud rate, parity, address"
     assert devices(s)[2]["diagnosis"] is None
     assert devices(status(gw))[15]["health"] == "down"
+
+
+def test_a_slow_device_is_not_taken_for_one_at_the_wrong_baud_rate(fault_line, gw, client):
+    """Address 3 answers 150 ms late (stout 100): valid replies, too late; down, and no
+    "not valid" said of it."""
+    fault_line("--late-ms", "150")
+    c = client(gw)
+    for _ in range(3):
+        assert c.ask(3, read_holding(0, 1)) == bytes.fromhex("83 0b")
+    assert "not valid" not in [line for line in wait_for_log(gw, "device 3 is down")
+                               .splitlines() if "device 3 is down" in line][0]
+    s = wait_for(gw, lambda s: devices(s).get(3, {}).get("late_replies", 0) >= 2,
+                 "the late replies counted")
+    assert devices(s)[3]["diagnosis"] is None, devices(s)[3]
