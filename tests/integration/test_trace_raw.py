@@ -11,7 +11,7 @@ import pytest
 from tests.harness import _read_lines_until
 from tests.integration.test_faults import received
 from tests.modbus import crc16, holding_reply, read_holding
-from tests.ops import devices, status, wait_for, wait_for_log
+from tests.ops import devices, mbgw, status, wait_for, wait_for_log
 
 pytestmark = pytest.mark.integration
 
@@ -138,6 +138,12 @@ def test_a_device_that_answers_garbage_is_told_from_a_silent_one(fault_line, gw,
         "answers received but not valid (9 bytes): check baud rate, parity, address"
     assert devices(s)[2]["diagnosis"] is None
     assert devices(status(gw))[15]["health"] == "down"
+    shown = mbgw("status", "--control", gw.control).stdout.splitlines()
+    row = next(i for i, line in enumerate(shown) if line.split()[:2] == ["15", "down"])
+    assert shown[row + 1].strip() == "answers received but not valid (9 bytes): check baud " \
+        "rate, parity, address", shown
+    row = next(i for i, line in enumerate(shown) if line.split()[:2] == ["2", "down"])
+    assert shown[row + 1].strip().startswith("next probe in"), shown
 
 
 def test_a_slow_device_is_not_taken_for_one_at_the_wrong_baud_rate(fault_line, gw, client):
