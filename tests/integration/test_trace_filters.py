@@ -49,10 +49,11 @@ def test_scenario_runs_are_traced_with_their_name_and_filtered_by_it(gw, client,
     t = trace(gw, "--scenario", "meter")
     c = client(gw)
     assert c.ask(1, read_holding(0, 1)) == holding_reply(0, 1)   # not shown
-    lines = t.lines(5)[1:]
+    lines = t.lines(6)[1:]
     for line in lines:
         assert columns(line)[2] == "scenario:meter", lines
-    request, reply = columns(lines[0]), columns(lines[1])
+    first = next(i for i, line in enumerate(lines) if columns(line)[1] == "request")
+    request, reply = columns(lines[first]), columns(lines[first + 1])
     assert (request[1], request[3], request[4], request[5]) == ("request", "-", "1", "0x03")
     assert (reply[1], reply[4], reply[5], reply[7]) == ("reply", "1", "0x03", "ok"), lines
 
