@@ -356,6 +356,10 @@ class Capture:
         lib.mbgw_capture_set(ffi.NULL)
         self.on = False
 
+    def __del__(self) -> None:
+        if self.on:                    # C must not write into freed memory
+            self.stop()
+
     def take(self) -> tuple[list[tuple[bool, int, bytes]], int]:
         """What came since the last take: (sent, time ns, bytes) in order; and the bytes
         dropped for want of room."""

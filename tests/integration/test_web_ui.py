@@ -84,8 +84,11 @@ def hostile_documents() -> dict:
               "counters": {"requests": 1}, "clients": [client], "scenarios": [scenario],
               "devices": [], "table": {"persist": {"path": HOSTILE, "failing": HOSTILE,
                                                    "failing_since": 1.7e9}}}
+    device = {"address": 15, "health": "down", "health_since": 1.7e9, "last_success": None,
+              "consecutive_failures": 3, "transactions": 3, "diagnosis": HOSTILE}
     return {"/api/session": {"role": "admin", "csrf": "token"}, "/api/status": status,
-            "/api/clients": {"clients": [client]}, "/api/scenarios": {"scenarios": [scenario]}}
+            "/api/clients": {"clients": [client]}, "/api/scenarios": {"scenarios": [scenario]},
+            "/api/devices": {"devices": [device]}}
 
 
 TRACE_EVENT = {"time": 1.7e9, "direction": "request", "client": 7, "peer": HOSTILE,
@@ -159,6 +162,11 @@ def test_values_with_markup_are_shown_as_text(browser, hostile_console):
     browser.get(hostile_console + "#scenarios")
     wait(browser, text_in("#scenarios-table td.name", HOSTILE))
     assert browser.find_element(By.CSS_SELECTOR, "#scenarios-table td.message").text == HOSTILE
+    assert_nothing_injected(browser)
+
+    browser.get(hostile_console + "#devices")              # why a device fails, under it
+    wait(browser, text_in('#devices-table tr[data-address="15"] td.health-down .diagnosis',
+                          HOSTILE))
     assert_nothing_injected(browser)
 
     browser.get(hostile_console + "#traffic")

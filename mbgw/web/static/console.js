@@ -453,7 +453,7 @@ async function closeClient(id, message) {
 // ---- Devices -----------------------------------------------------------------------------
 
 const DEVICE_FIXED = ["address", "health", "health_since", "last_success",
-  "consecutive_failures", "latency_sum_ms", "upstream"];
+  "consecutive_failures", "latency_sum_ms", "upstream", "diagnosis"];
 
 function devicesPage(body) {
   const holder = el("div");
@@ -472,7 +472,8 @@ function devicesPage(body) {
         el("thead", {}, el("tr", {}, ...head.map((h) => el("th", { text: h })))),
         el("tbody", {}, ...devices.map((d) => el("tr", { "data-address": d.address },
           el("td", { class: "num", text: d.address }),
-          el("td", { class: `health-${d.health}`, text: show(d.health) }),
+          el("td", { class: `health-${d.health}` }, show(d.health),
+            d.diagnosis ? el("div", { class: "diagnosis", text: d.diagnosis }) : null),
           el("td", { text: localTime(d.health_since) }),
           el("td", { text: localTime(d.last_success) }),
           el("td", { class: "num", text: show(d.consecutive_failures) }),
