@@ -51,7 +51,7 @@ def check_file(schema: Schema, settings: cf.Settings, given=()):
     params = cf.resolve(schema, settings, given=given)
     cfg, found = problems(schema, schema.commands[settings.mode], params)
     if found:
-        raise ConfigFileError(settings.path, found)
+        raise ConfigFileError(settings.path, [cf.with_file(p, settings.path) for p in found])
     return cfg
 
 
@@ -83,4 +83,5 @@ def refusals(schema: Schema, settings: cf.Settings) -> tuple[list[str], list[str
     except ConfigFileError as err:
         return [], err.problems
     cfg, found = problems(schema, schema.commands[settings.mode], params)
+    found = [cf.with_file(p, settings.path) for p in found]
     return ([], found) if cfg is None else (found, [])

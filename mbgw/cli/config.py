@@ -7,7 +7,7 @@ from pathlib import Path
 import click
 
 from mbgw.cli import checks
-from mbgw.cli.options import EX_CONFIG, META_FILE, Failure
+from mbgw.cli.options import EX_CONFIG, META_FILE, Failure, ModeCommand
 from mbgw.config import edit as config_set
 from mbgw.config import file as cf
 from mbgw.config import scenario as scenario_config
@@ -23,6 +23,7 @@ META_MODE_FROM_FILE = "mbgw.mode_from_file"   # ctx.meta: `mbgw run` took the mo
 
 def register(root: click.Group) -> None:
     """Add the commands to `root`, and a --config FILE option to its mode commands."""
+    ModeCommand.file_values = staticmethod(_file_values)
     for mode in ck.MODES:
         command = root.commands.get(mode)
         if command is not None and not any(p.name == "config" for p in command.params):
@@ -98,6 +99,24 @@ def _apply_file(ctx: click.Context, param: click.Parameter, value) -> None:
     ctx.default_map = {**settings.default_map(schema, ctx.command.name or ""),
                        **(ctx.default_map or {})}
     ctx.meta[META_FILE] = Path(value)
+
+
+def _file_values(ctx: click.Context) -> tuple[Path, dict] | None:
+    """For -h: the file a mode command takes its values from (--config, else $MBGW_CONFIG,
+    else the default file when it exists) and its values; None when there is none, or when
+    it cannot be read (the command itself says why)."""
+    path = ctx.meta.get(META_FILE)
+    if path is not None and ctx.default_map:
+        return path, dict(ctx.default_map)
+    import os
+    path = Path(os.environ.get("MBGW_CONFIG") or ck.DEFAULT_PATH)
+    if not path.exists():
+        return None
+    try:
+        settings = cf.load(schema_of(ctx), path)
+    except (OSError, ConfigFileError):
+        return None
+    return path, settings.default_map(schema_of(ctx), ctx.command.name or "")
 
 
 def config_file(ctx: click.Context | None = None) -> Path | None:
@@ -231,22 +250,29 @@ def run(ctx: click.Context, config_path: Path, instance: str | None, args) -> No
 
 
 @click.command("check-config")
+@_file_options
 @click.argument("file", required=False, type=click.Path(dir_okay=False, path_type=Path))
 @click.pass_context
-def check_config(ctx: click.Context, file: Path | None) -> None:
+def check_config(ctx: click.Context, config_path: Path, instance: str | None,
+                 file: Path | None) -> None:
     """Check a configuration file without starting anything: every key known, every value
     accepted as on the command line, what its mode requires present, the keys that go
     together, the files it names (certificates and their keys, the table's file) and the
     addresses it listens on: whatever `mbgw run` would refuse.  Exit status 78 when the file
-    is wrong.  FILE defaults to $MBGW_CONFIG, else /etc/mbgw/mbgw.toml."""
-    import os
-    path = file or Path(os.environ.get("MBGW_CONFIG") or ck.DEFAULT_PATH)
+    is wrong.  FILE (or --config FILE, or -i NAME) defaults to $MBGW_CONFIG, else
+    /etc/mbgw/mbgw.toml."""
+    if file is not None and (instance is not None or ctx.get_parameter_source("config_path")
+                             == click.core.ParameterSource.COMMANDLINE):
+        raise click.UsageError("give FILE, --config FILE or -i NAME: one of them")
+    path = file or _path(ctx, config_path, instance)
     schema = schema_of(ctx)
     settings = _load(ctx, schema, path, [path], exit_code=EX_CONFIG)
     try:
         checks.check_file(schema, settings)
     except ConfigFileError as err:
         raise Failure(str(err), EX_CONFIG) from None
+    for warning in scenario_config.overlaps(settings.scenarios):
+        click.echo(f"mbgw: warning: {path}: {warning}", err=True)
     click.echo(f"{path}: ok ({settings.mode} mode)")
 
 
@@ -408,8 +434,9 @@ def _start_check(schema: ck.Schema, path: Path, data: dict) -> list[str]:
 
 
 def _refused(path: Path, err: ConfigError) -> Failure:
-    message = str(err)
-    return Failure(message if message.startswith(str(path)) else f"{path}: {message}")
+    lines = str(err).splitlines()
+    return Failure("\n".join(line if line.startswith(str(path)) else f"{path}: {line}"
+                             for line in lines))
 
 
 def _warn_pending(path: Path, pending: list[str]) -> None:
@@ -655,6 +682,9 @@ def _edit_scenarios(ctx, path: Path, words, change, done: str) -> None:
         raise _refused(path, err) from None
     _write(ctx, path, new_text, words, done)
     click.echo(f"{path}: {done}")
+    scenarios = cf.check(schema, path, cf.parse(path, new_text)).scenarios
+    for warning in scenario_config.overlaps(scenarios):
+        click.echo(f"mbgw: warning: {path}: {warning}", err=True)
     _warn_pending(path, pending)
     if not pending:
         _say_how_to_apply(path)

@@ -1,5 +1,5 @@
-"""Operator commands that talk to the running daemon: status, clients close, stats reset,
-trace.  Registered on the main group by mbgw.cli."""
+"""Operator commands that talk to the running daemon: status, clients [close], stats
+[reset], trace.  Registered on the main group by mbgw.cli."""
 import json
 import time
 
@@ -7,7 +7,16 @@ import click
 
 from mbgw.cli.config import check_instance
 from mbgw.cli.options import Failure
-from mbgw.cli.render import format_event, format_raw, format_status, raw_columns, trace_columns
+from mbgw.cli.render import (
+    STATS_KEYS,
+    format_clients,
+    format_counters,
+    format_event,
+    format_raw,
+    format_status,
+    raw_columns,
+    trace_columns,
+)
 from mbgw.ops import control as ctl
 from mbgw.ops.trace import LINES
 
@@ -56,6 +65,11 @@ def ask(control: str | None, instance: str | None, request: dict,
     return _call(_socket_path(control, instance), request, timeout)
 
 
+def _host(peer: str) -> str:
+    """The IP of a peer "IP:PORT" or "[IPv6]:PORT"."""
+    return peer.rsplit(":", 1)[0].strip("[]")
+
+
 def _fail(message: str):
     raise Failure(message)
 
@@ -72,21 +86,60 @@ def register(main: click.Group) -> None:
         else:
             click.echo(format_status(reply, time.time()))
 
-    @main.group()
-    def clients() -> None:
-        """The Modbus TCP clients of the running daemon (slave mode)."""
+    @main.group(invoke_without_command=True)
+    @control_option
+    @click.pass_context
+    def clients(ctx: click.Context, control: str | None, instance: str | None) -> None:
+        """The Modbus TCP clients of the running daemon: listed without a subcommand;
+        `clients close` closes them."""
+        if ctx.invoked_subcommand is None:
+            click.echo(format_clients(_call(_socket_path(control, instance),
+                                            {"command": "status"}), time.time()))
 
     @clients.command("close")
-    @click.argument("client_id", type=int, metavar="ID")
+    @click.argument("which", required=False, metavar="ID|ADDRESS")
+    @click.option("--all", "close_all", is_flag=True, help="Close every client.")
     @control_option
-    def close(client_id: int, control: str | None, instance: str | None) -> None:
-        """Force-close client ID (the ID column of mbgw status)."""
-        _call(_socket_path(control, instance), {"command": "close", "client": client_id})
-        click.echo(f"client {client_id} closed")
+    def close(which: str | None, close_all: bool, control: str | None,
+              instance: str | None) -> None:
+        """Force-close a client: its ID (the ID column of mbgw clients), its address
+        IP:PORT, or an IP (every client from it); --all: every client."""
+        if (which is None) == (not close_all):
+            raise click.UsageError("give an ID, an ADDRESS or --all (one of them)")
+        path = _socket_path(control, instance)
+        if which is not None and which.isdigit():
+            _call(path, {"command": "close", "client": int(which)})
+            click.echo(f"client {which} closed")
+            return
+        listed = _call(path, {"command": "status"})
+        if "clients" not in listed:
+            _call(path, {"command": "close", "client": 0})    # the mode's own refusal
+        chosen = [c for c in listed["clients"]
+                  if close_all or which in (c["peer"], _host(c["peer"]))]
+        if which is not None and not chosen:
+            peers = ", ".join(c["peer"] for c in listed["clients"]) or "none"
+            _fail(f"no client at {which} (clients: {peers})")
+        for c in chosen:
+            _call(path, {"command": "close", "client": c["id"]})
+            click.echo(f"client {c['id']} ({c['peer']}) closed")
+        if not chosen:
+            click.echo("no clients")
 
-    @main.group()
-    def stats() -> None:
-        """The running daemon's counters."""
+    @main.group(invoke_without_command=True)
+    @click.option("--json", "as_json", is_flag=True, help="Print the counters as JSON.")
+    @control_option
+    @click.pass_context
+    def stats(ctx: click.Context, as_json: bool, control: str | None,
+              instance: str | None) -> None:
+        """The running daemon's counters: shown without a subcommand; `stats reset` zeroes
+        them."""
+        if ctx.invoked_subcommand is not None:
+            return
+        reply = _call(_socket_path(control, instance), {"command": "status"})
+        if as_json:
+            click.echo(json.dumps({k: reply[k] for k in STATS_KEYS if k in reply}, indent=2))
+        else:
+            click.echo(format_counters(reply))
 
     @stats.command("reset")
     @control_option

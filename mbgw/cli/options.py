@@ -33,6 +33,31 @@ class ModeCommand(click.Command):
     that a check of the options refuses (the CRL and the CA, checked together) is the file's
     problem: EX_CONFIG, naming the file and the key, not a usage error."""
     make_config: Callable | None = None
+    # (the file in use, its values by parameter name) for -h, or None (mbgw.cli.config)
+    file_values: Callable[[click.Context], tuple[object, dict] | None] | None = None
+
+    def format_options(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        """The built-in defaults (not the file's, which click's default_map would show), and
+        beside each the value the file in use sets instead."""
+        file_values = getattr(type(self), "file_values", None)
+        found = file_values(ctx) if file_values is not None else None
+        saved, ctx.default_map = ctx.default_map, None
+        try:
+            rows = []
+            for param in self.get_params(ctx):
+                record = param.get_help_record(ctx)
+                if record is None or isinstance(param, click.Argument):
+                    continue
+                if found is not None and param.name in found[1]:
+                    shown = _shown(found[1][param.name])
+                    if shown != _shown(param.default):
+                        record = (record[0], f"{record[1]}  [{found[0]} sets {shown}]")
+                rows.append(record)
+        finally:
+            ctx.default_map = saved
+        if rows:
+            with formatter.section("Options"):
+                formatter.write_dl(rows)
 
     def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
         try:
@@ -47,6 +72,14 @@ class ModeCommand(click.Command):
             key = Schema(root).key_of_param(param) if isinstance(root, click.Group) else None
             label = key.label if key is not None else param.name
             raise Failure(f"{path}: {label}: {err.message}", EX_CONFIG) from None
+
+
+def _shown(value) -> str:
+    if isinstance(value, bool):
+        return "on" if value else "off"
+    if isinstance(value, list | tuple):
+        return " ".join(map(_shown, value)) or "(empty)"
+    return str(value)
 
 
 LOG_LEVELS = click.Choice(["debug", "info", "warning", "error"], case_sensitive=False)

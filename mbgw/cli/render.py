@@ -38,25 +38,76 @@ def format_status(s: dict, now: float) -> str:
     else:
         lines += _slave_sections(s, now)
     if s.get("table") is not None:
-        lines += ["", *_table_section(s["table"], s["mode"], now)]
+        lines += ["", *_table_section(s["table"], s["mode"], now, bool(s.get("scenarios")))]
+    elif s.get("scenarios"):
+        lines += ["", "table      on (scenarios): no Modbus client reaches it (table.enabled "
+                      "off)"]
     if s.get("firewall") is not None:
         lines += ["", *_firewall_section(s["firewall"])]
     if s.get("scenarios"):
         lines += ["", *format_scenarios(s["scenarios"], now)]
+    lines += ["", *_counters_section(s)]
+    return "\n".join(lines)
+
+
+STATS_KEYS = ("counters", "counters_since", "line_utilisation_pct", "line_load_pct")
+
+
+def format_counters(s: dict) -> str:
+    """`mbgw stats`: the counters, and the line's load where the mode measures it."""
+    load = _load(s)
+    return "\n".join([*([f"line       {load}"] if load else []), *_counters_section(s)])
+
+
+def _counters_section(s: dict) -> list[str]:
     counters = s["counters"]
-    lines += ["", f"counters since {_clock(s['counters_since'])}"]
+    lines = [f"counters since {_clock(s['counters_since'])}"]
     names = list(counters)
     for i in range(0, len(names), 3):
         lines.append("  " + "".join(f"{n:<28}{counters[n]:>10}   " for n in names[i:i + 3])
                      .rstrip())
-    return "\n".join(lines)
+    return lines
+
+
+def _load(s: dict) -> str:
+    """'load 12.0 % (10 s), 8.1 % (1 min), 7.9 % on average since ...', or ''."""
+    if "line_utilisation_pct" not in s:
+        return ""
+    load = s.get("line_load_pct") or {}
+    recent = ", ".join(f"{load[w]:.1f} % ({w})" for w in ("10s", "1min") if w in load)
+    return (f"load {recent + ', ' if recent else ''}{s['line_utilisation_pct']:.1f} % on "
+            f"average since {_clock(s['counters_since'])}")
+
+
+def format_clients(s: dict, now: float) -> str:
+    """`mbgw clients`: the mode's TCP clients."""
+    if s["mode"] == "slave":
+        return "\n".join(_clients_section(s, now))
+    if s["mode"] == "transparent":
+        raw = s["transparent"]
+        if raw["raw_port"] is None:
+            return "raw        off (transparent mode has no other Modbus TCP clients)"
+        return f"raw        port {raw['raw_port']}, {_raw_client(raw)}"
+    return ("master mode: no Modbus TCP clients; its connections go to the servers "
+            f"(mbgw status lists them: {len(s['upstream']['connections'])} now)")
+
+
+def _clients_section(s: dict, now: float) -> list[str]:
+    lines = [f"clients ({len(s['clients'])})"]
+    if s["clients"]:
+        lines.append(f"  {'ID':>4}  {'PEER':<24} {'CONNECTED':<19}  {'REQUESTS':>8}  "
+                     f"{'IN FLIGHT':>9}  LAST ACTIVITY")
+        for c in s["clients"]:
+            lines.append(f"  {c['id']:>4}  {c['peer']:<24} {_clock(c['connected_since'])}  "
+                         f"{c['requests']:>8}  {c['in_flight']:>9}  "
+                         f"{_ago(c['last_activity'], now)}{_tls_role(c)}")
+    return lines
 
 
 def _transparent_sections(s: dict) -> list[str]:
     t = s["transparent"]
     eof = f"char 0x{t['eof_char']:02x}" if t["eof"] == "char" else t["eof"]
-    raw = "off" if t["raw_port"] is None else \
-        f"port {t['raw_port']}, client {t['raw_client'] or 'none'}"
+    raw = "off" if t["raw_port"] is None else f"port {t['raw_port']}, {_raw_client(t)}"
     return [f"{_line(s['serial'])}: line {_state(s['serial'])}",
             f"frames     eof {eof}, eof-timeout {t['eof_timeout_ms']} ms, crc "
             f"{'on' if t['crc'] else 'off'}, trigger {'on' if t['trigger'] else 'off'}, "
@@ -66,9 +117,18 @@ def _transparent_sections(s: dict) -> list[str]:
             f"raw        {raw}"]
 
 
+def _raw_client(t: dict) -> str:
+    if not t["raw_client"]:
+        return "client none"
+    return f"client {t['raw_client']}" + ("" if t.get("raw_client_sending", True) else
+                                          " (done sending: it gets the frames until it goes "
+                                          "or another client comes)")
+
+
 def _line(serial: dict) -> str:
+    protocol = f"{serial['protocol']} " if "protocol" in serial else ""   # none: transparent
     return (f"serial     {serial['device']} {serial['baudrate']} {serial['format']} "
-            f"{serial['protocol']} {serial['interface']}")
+            f"{protocol}{serial['interface']}")
 
 
 def _state(serial: dict) -> str:
@@ -140,17 +200,11 @@ def _slave_sections(s: dict, now: float) -> list[str]:
     lines = [
         f"listening  {', '.join(s['listening'])}",
         f"{_line(serial)}, stout {serial['stout_ms']} ms: line {_state(serial)}, "
-        f"queue {s['queue_depth']}, utilisation {s['line_utilisation_pct']:.1f} %",
+        f"queue {s['queue_depth']}",
+        f"           {_load(s)}",
         "",
-        f"clients ({len(s['clients'])})",
+        *_clients_section(s, now),
     ]
-    if s["clients"]:
-        lines.append(f"  {'ID':>4}  {'PEER':<24} {'CONNECTED':<19}  {'REQUESTS':>8}  "
-                     f"{'IN FLIGHT':>9}  LAST ACTIVITY")
-        for c in s["clients"]:
-            lines.append(f"  {c['id']:>4}  {c['peer']:<24} {_clock(c['connected_since'])}  "
-                         f"{c['requests']:>8}  {c['in_flight']:>9}  "
-                         f"{_ago(c['last_activity'], now)}{_tls_role(c)}")
     lines += ["", f"devices ({len(s['devices'])}){_demotion(s)}"]
     if s["devices"]:
         lines.append(f"{_HEALTH_COLUMNS} {'CRC':>5} {'OTHER':>5}  EXCEPTIONS")
@@ -202,12 +256,14 @@ def _master_sections(s: dict, now: float) -> list[str]:
 _TABLE_OUTCOMES = ("answered", "exception", "broadcast")
 
 
-def _table_section(t: dict, mode: str, now: float) -> list[str]:
+def _table_section(t: dict, mode: str, now: float, scenarios: bool = False) -> list[str]:
     """The exchange table: what reaches it, requests by function, exceptions sent, master
-    mode's serial slave, the persistence."""
-    if t.get("enabled") is False:
+    mode's serial slave, the persistence.  Off (table.enabled), it still runs for the
+    scenarios when there are any."""
+    if t.get("enabled") is False and not scenarios:
         return ["table      off"]
-    lines = [f"table      {_table_reach(t, mode)}"]
+    lines = [f"table      {_table_reach(t, mode)}" if t.get("enabled") is not False else
+             "table      on (scenarios): no Modbus client reaches it (table.enabled off)"]
     rows = [(fc, row) for fc, row in t.get("requests", {}).items() if any(row.values())]
     if rows:
         lines.append(f"  {'FC':>4}  " + "  ".join(f"{o.upper():>9}" for o in _TABLE_OUTCOMES))

@@ -157,6 +157,9 @@ def apply_changes(data: dict, schema: Schema, changes: dict) -> dict:
     return new
 
 
+TABLE_SWITCH = "table.enabled"
+
+
 def show_lines(schema: Schema, settings: Settings, name: str) -> list[str]:
     """A key's effective value as `mbgw config show` prints it, in the guide's words: one
     line per table entry, on/off for a flag."""
@@ -172,6 +175,8 @@ def show_lines(schema: Schema, settings: Settings, name: str) -> list[str]:
         return [" ".join(map(str, v)) if isinstance(v, list) else str(v) for v in value] \
             or ["(empty)"]
     if isinstance(value, bool):
+        if not value and settings.scenarios and schema.label(name) == TABLE_SWITCH:
+            return ["on (scenarios)"]       # they need it: it runs, for them alone
         return ["on" if value else "off"]
     if isinstance(value, list):
         return [" ".join(map(str, value))]

@@ -12,6 +12,7 @@ syntax, mbgw.config.edit), which edits the text in place so that comments surviv
 import copy
 import dataclasses
 import difflib
+import re
 import tomllib
 from pathlib import Path
 
@@ -155,9 +156,8 @@ def load(schema: Schema, path: Path) -> Settings:
     try:
         text = read_text(path)
     except FileNotFoundError:
-        raise ConfigFileError(path, ["no such file (create it with: mbgw config default"
-                                     + ("" if Path(path) == DEFAULT_PATH else f" --config {path}")
-                                     + ")"]) from None
+        raise ConfigFileError(path, [f"no such file (create it with: mbgw config default"
+                                     f"{file_words(path)})"]) from None
     except PermissionError:
         raise
     except OSError as err:
@@ -193,6 +193,19 @@ def _optional(param: click.Parameter) -> click.Parameter:
     return param
 
 
+def file_words(path) -> str:
+    """' --config PATH' for a hint's command, or '' for the default file."""
+    return "" if Path(path) == DEFAULT_PATH else f" --config {path}"
+
+
+def with_file(problem: str, path) -> str:
+    """A problem whose hint names a `mbgw config password` command, for the file in use."""
+    return _PASSWORD_HINT.sub(lambda m: m.group(0) + file_words(path), problem)
+
+
+_PASSWORD_HINT = re.compile(r"mbgw config password( (admin|user))?(?=\)|$)")
+
+
 def click_problem(schema: Schema, settings: Settings, err: click.ClickException) -> str:
     param = getattr(err, "param", None)
     key = schema.key_of_param(param) if param is not None else None
@@ -200,7 +213,8 @@ def click_problem(schema: Schema, settings: Settings, err: click.ClickException)
         return err.format_message()
     if isinstance(err, click.MissingParameter):
         return (f"{key.label}: missing; {settings.mode} mode needs it (e.g. mbgw config set "
-                f"{key.group} {key.name} {FACTORY_DEVICE if key.name == 'device' else '...'})")
+                f"{key.group} {key.name} {FACTORY_DEVICE if key.name == 'device' else '...'}"
+                f"{file_words(settings.path)})")
     return f"{key.label}: {err.message}"
 
 

@@ -242,42 +242,89 @@ def split_server(text: str, default_port: int = DEFAULT_SERVER_PORT) -> tuple[st
     return host, int(port_text)
 
 
-def parse_scenario(fields: dict, where: str) -> ScenarioConfig:
+class ScenarioError(ConfigError):
+    """Every problem of one scenario, each naming it and the key; str(): one a line."""
+
+    def __init__(self, problems: list[str]) -> None:
+        self.problems = list(problems)
+        super().__init__("\n".join(self.problems))
+
+
+def parse_scenario(fields: dict, where: str, label: str | None = None) -> ScenarioConfig:
     """One `[[scenario]]` table (TOML values, or the strings of KEY=VALUE words) as a
     ScenarioConfig.  `where` names it in errors until its name is known (e.g. "scenario 3");
-    raises ConfigError naming the scenario and the key."""
+    label: how errors name it, "scenario NAME" by default.  Raises ScenarioError with every
+    problem found, each naming the scenario and the key."""
     name = fields.get("name")
     if not isinstance(name, str) or not NAME_PATTERN.fullmatch(name):
         why = "missing" if name is None else \
             f"{name!r}: expected 1 to 64 letters, digits, - or _"
-        raise ConfigError(f"{where}: name: {why}")
-    f = _Fields(fields, f"scenario {name}")
-    unknown = [k for k in fields if k not in KEYS]
-    if unknown:
-        raise ConfigError(f"{f.label}: {unknown[0]}: unknown key (keys: {', '.join(KEYS)})")
-    function = f.integer("function", 0, 255)
-    if function not in FUNCTIONS:
-        raise f.error("function", fields["function"],
-                      f"expected one of {', '.join(map(str, FUNCTIONS))}")
-    slave, server, unit, tls = _target(f, function)
-    address, quantity, table = _read_or_only_part(f, function)
-    write = _write_part(f) if function == 23 else (None, None, None)
-    cycle_ms, on_change = _trigger(f, function)
-    stale_after = f.integer("stale-after", *STALE_AFTER_RANGE, default=0)
-    if stale_after and function not in READS:
-        raise f.error("stale-after", fields["stale-after"],
-                      "only a read scenario's data can be stale")
-    send_unwritten = f.boolean("send-unwritten", False)
-    if send_unwritten and function not in WRITES:
-        raise ConfigError(f"{f.label}: send-unwritten: only a write sends table data "
-                          f"(function 5, 6, 15, 16 or 23)")
+        raise ScenarioError([f"{where}: name: {why}"])
+    f = _Fields(fields, label or f"scenario {name}")
+    problems = [f"{f.label}: {k}: unknown key{_close_key(k)}" for k in fields if k not in KEYS]
+
+    def checked(check, default=None):
+        try:
+            return check()
+        except ConfigError as err:
+            problems.append(str(err))
+            return default
+
+    function = checked(lambda: _function(f))
+    target = checked(lambda: _target(f, 6 if function is None else function))
+    retries = checked(lambda: f.integer("retries", *RETRIES_RANGE, default=DEFAULT_RETRIES))
+    enabled = checked(lambda: f.boolean("enabled", True))
+    if function is None:
+        checked(lambda: _trigger(f, 6))
+        raise ScenarioError(problems)
+    read = checked(lambda: _read_or_only_part(f, function))
+    write = checked(lambda: _write_part(f)) if function == 23 else (None, None, None)
+    trigger = checked(lambda: _trigger(f, function))
+    stale_after = checked(lambda: _stale_after(f, function))
+    send_unwritten = checked(lambda: _send_unwritten(f, function))
+    fingerprint = checked(lambda: _fingerprint(f, target[3])) if target else None
+    if problems:
+        raise ScenarioError(problems)
+    slave, server, unit, tls = target
+    address, quantity, table = read
+    cycle_ms, on_change = trigger
     return ScenarioConfig(
         name=name, function=function, address=address, quantity=quantity, table=table,
         slave=slave, server=server, unit=unit, cycle_ms=cycle_ms, on_change=on_change,
         write_address=write[0], write_quantity=write[1], write_table=write[2],
-        retries=f.integer("retries", *RETRIES_RANGE, default=DEFAULT_RETRIES),
-        stale_after_ms=stale_after, enabled=f.boolean("enabled", True), tls=tls,
-        fingerprint=_fingerprint(f, tls), send_unwritten=send_unwritten)
+        retries=retries, stale_after_ms=stale_after, enabled=enabled, tls=tls,
+        fingerprint=fingerprint, send_unwritten=send_unwritten)
+
+
+def _close_key(key: str) -> str:
+    """'; did you mean address?' for adress, else the list of keys."""
+    import difflib
+    close = difflib.get_close_matches(key, KEYS, n=1)
+    return f"; did you mean {close[0]}?" if close else f" (keys: {', '.join(KEYS)})"
+
+
+def _function(f: "_Fields") -> int:
+    function = f.integer("function", 0, 255)
+    if function not in FUNCTIONS:
+        raise f.error("function", f.fields["function"],
+                      f"expected one of {', '.join(map(str, FUNCTIONS))}")
+    return function
+
+
+def _stale_after(f: "_Fields", function: int) -> int:
+    stale_after = f.integer("stale-after", *STALE_AFTER_RANGE, default=0)
+    if stale_after and function not in READS:
+        raise f.error("stale-after", f.fields["stale-after"],
+                      "only a read scenario's data can be stale")
+    return stale_after
+
+
+def _send_unwritten(f: "_Fields", function: int) -> bool:
+    send_unwritten = f.boolean("send-unwritten", False)
+    if send_unwritten and function not in WRITES:
+        raise ConfigError(f"{f.label}: send-unwritten: only a write sends table data "
+                          f"(function 5, 6, 15, 16 or 23)")
+    return send_unwritten
 
 
 def _fingerprint(f: "_Fields", tls: bool) -> bytes | None:
@@ -384,12 +431,15 @@ def check_scenarios(scenarios, mode: str) -> list[str]:
     MAX_PER_KIND of a kind, serial scenarios in master or transparent mode, one TLS server
     pinned two ways."""
     problems = []
-    seen: set[str] = set()
+    where: dict[str, list[int]] = {}
+    for number, sc in enumerate(scenarios, 1):
+        where.setdefault(sc.name, []).append(number)
+    for name, numbers in where.items():
+        if len(numbers) > 1:
+            problems.append(f"scenario {name}: name used by {len(numbers)} scenarios (the "
+                            f"{_ordinals(numbers)} [[scenario]] tables); each needs its own")
     pinned: dict[str, ScenarioConfig] = {}
     for sc in scenarios:
-        if sc.name in seen:
-            problems.append(f"scenario {sc.name}: name used twice")
-        seen.add(sc.name)
         if sc.tls and sc.server is not None:
             host = split_server(sc.server)[0]
             other = pinned.setdefault(host, sc)
@@ -412,17 +462,42 @@ def check_scenarios(scenarios, mode: str) -> list[str]:
     return problems
 
 
+def overlaps(scenarios) -> list[str]:
+    """Warnings: two read scenarios that store into the same table registers (the later
+    read overwrites the other's data)."""
+    reads = [(sc, sc.read_range()) for sc in scenarios if sc.reads and sc.enabled]
+    found = []
+    for i, (one, (first, count)) in enumerate(reads):
+        for other, (first2, count2) in reads[i + 1:]:
+            low, high = max(first, first2), min(first + count, first2 + count2) - 1
+            if low <= high:
+                shared = f"{low}" if low == high else f"{low}-{high}"
+                found.append(f"scenario {other.name}: stores into table registers {shared}, "
+                             f"as scenario {one.name} does: each overwrites the other's data")
+    return found
+
+
+def _ordinals(numbers: list[int]) -> str:
+    words = [f"{n}{'th' if 10 <= n % 100 <= 20 else {1: 'st', 2: 'nd', 3: 'rd'}.get(n % 10, 'th')}"
+             for n in numbers]
+    return words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1]
+
+
 def parse_scenarios(entries, mode: str) -> tuple[tuple[ScenarioConfig, ...], list[str]]:
     """The file's `scenario` array: the scenarios, and every problem found (each naming its
-    scenario and key)."""
+    scenario and key; the Nth [[scenario]] table when two have the same name)."""
     if not isinstance(entries, list) or not all(isinstance(e, dict) for e in entries):
         return (), ["scenario: expected [[scenario]] tables"]
+    names = [e.get("name") for e in entries]
     scenarios, problems = [], []
     for number, entry in enumerate(entries, 1):
+        name = entry.get("name")
+        label = f"scenario {name} (the {_ordinals([number])} [[scenario]] table)" \
+            if isinstance(name, str) and names.count(name) > 1 else None
         try:
-            scenarios.append(parse_scenario(entry, f"scenario {number}"))
-        except ConfigError as err:
-            problems.append(str(err))
+            scenarios.append(parse_scenario(entry, f"scenario {number}", label))
+        except ScenarioError as err:
+            problems += err.problems
     if not problems:
         problems = check_scenarios(scenarios, mode)
     return tuple(scenarios), problems

@@ -17,9 +17,11 @@ from mbgw.ops.service import (
     ListenError,
     idle_ms,
     log_stopped,
+    origin,
     serve_until_stopped,
     start_control,
     start_metrics,
+    warn_of_overlaps,
     watchdog_interval,
 )
 from mbgw.scenarios.control import scenario_commands
@@ -101,9 +103,10 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
                                                     cfg.config_file, reloads.run))
     s = cfg.serial
     log.info("master mode: serial %s %d %s %s %s; servers' port %d, tcpto %d ms, exception %s, "
-             "at most %d connections; slaveid %s", s.device, s.baudrate, s.format, s.protocol,
+             "at most %d connections; slaveid %s%s", s.device, s.baudrate, s.format, s.protocol,
              s.interface, cfg.mdbport, cfg.tcpto_ms, "on" if cfg.exception else "off",
-             cfg.max_connections, cfg.slaveid)
+             cfg.max_connections, cfg.slaveid, origin(cfg))
+    warn_of_overlaps(cfg)
     if metrics is not None:
         log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
     _log_slaveid(cfg)

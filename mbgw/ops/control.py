@@ -103,7 +103,11 @@ class ControlServer:
     async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         try:
             try:
-                request = parse_request(await _read_request(reader))
+                line = await _read_request(reader)
+                if not line:    # connected and closed: a second daemon's probe (start())
+                    log.debug("control connection closed without a request")
+                    return
+                request = parse_request(line)
             except BadRequest as err:
                 self._bad_requests.warn(str(err))
                 await _reply(writer, {"error": str(err)})

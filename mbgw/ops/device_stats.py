@@ -184,6 +184,10 @@ class DeviceStats:
                         self.consecutive_failures, via,
                         f" ({self.diagnosis})" if self.diagnosis else "",
                         self.rule.describe())
+        elif health == DEGRADED and self.last_success is None:
+            failures = self.consecutive_failures
+            log.warning("%s is degraded: it has not answered yet (%d request%s without a valid "
+                        "reply)%s", self.name, failures, "" if failures == 1 else "s", via)
         elif health == DEGRADED:
             log.warning("%s is degraded: %d of its last %d requests failed%s",
                         self.name, bin(self.recent_failures).count("1"), RECENT_WINDOW,

@@ -311,13 +311,25 @@ def scenario_families(rows: list[dict]):
 
 
 def slave_collector(counters, devices, scheduler, server, worker,
-                    started: float, table=None, firewall=None) -> DaemonCollector:
-    """Slave mode's metrics; table(): the exchange table's status dict, when it is on."""
+                    started: float, table=None, load=None, firewall=None) -> DaemonCollector:
+    """Slave mode's metrics; table(): the exchange table's status dict, when it is on; load:
+    the line's load (mbgw.ops.load.LineLoad)."""
     return DaemonCollector(counters, devices, started, "slave", lambda: [
         ("mbgw_line_up", "1 while the serial device is open and usable.", int(worker.up)),
+        *_load_gauges(load),
         ("mbgw_queue_depth", "Requests waiting for the serial line.", scheduler.depth),
         ("mbgw_clients_connected", "Modbus TCP clients connected.", len(server.clients))],
         table, firewall)
+
+
+def _load_gauges(load) -> list[tuple[str, str, float]]:
+    if load is None:
+        return []
+    shares = load.percent()
+    return [("mbgw_line_load_10s_percent", "Share of the last 10 s the serial line carried "
+             "a transaction, 0..100.", shares["10s"]),
+            ("mbgw_line_load_1min_percent", "Share of the last minute the serial line "
+             "carried a transaction, 0..100.", shares["1min"])]
 
 
 def master_collector(counters, devices, slave, started: float,

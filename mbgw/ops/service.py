@@ -161,6 +161,24 @@ def close_tools(control: ControlServer | None, metrics: "MetricsServer | None") 
         metrics.close()
 
 
+def origin(cfg) -> str:
+    """The start-up line's end: the file the settings came from, the table, the scenarios."""
+    names = [sc.name for sc in getattr(cfg, "scenarios", ())]
+    table = "" if getattr(cfg, "transparent", None) is not None else \
+        "; table on" if cfg.table.enabled else \
+        "; table on (scenarios)" if cfg.table_on else "; table off"
+    return (f"; configuration {cfg.config_file or 'none (command line)'}{table}; "
+            f"scenarios {', '.join(names) if names else 'none'}")
+
+
+def warn_of_overlaps(cfg) -> None:
+    """Two read scenarios storing into the same table registers: logged at start, as
+    check-config warns of it."""
+    from mbgw.config.scenario import overlaps
+    for warning in overlaps(getattr(cfg, "scenarios", ())):
+        log.warning("%s", warning)
+
+
 def log_stopped(counters) -> None:
     log.info("stopped; counters: %s",
              " ".join(f"{k}={v}" for k, v in counters.snapshot().items()))

@@ -27,7 +27,8 @@ class DaemonStatus:
         self._trace = trace
         self._started = time.time()
         self._started_mono = time.monotonic()
-        self._reset_at = self._started
+        self._reset_at = self._started              # shown: "counters since"
+        self._reset_mono = self._started_mono       # measured: a clock step changes nothing
 
     @property
     def trace_hub(self):
@@ -68,9 +69,9 @@ class DaemonStatus:
     def reset(self, request: dict) -> dict:
         self._counters.reset()
         self._devices.reset()
-        self._reset_at = time.time()
-        event(log, Kind.COUNTERS_RESET, "counters reset by the operator (uid %s)",
-              request.get("uid"), user=operator(request.get("uid")))
+        self._reset_at, self._reset_mono = time.time(), time.monotonic()
+        event(log, Kind.COUNTERS_RESET, "counters reset by the operator (%s)",
+              operator(request.get("uid")), user=operator(request.get("uid")))
         return {"ok": True}
 
     async def trace(self, request: dict, reader: asyncio.StreamReader,
@@ -88,7 +89,7 @@ class DaemonStatus:
             await writer.drain()
             return
         queue = hub.subscribe(raw, wanted)
-        log.info("%strace started (uid %s)", "raw " if raw else "", request.get("uid"))
+        log.info("%strace started (%s)", "raw " if raw else "", operator(request.get("uid")))
         gone = asyncio.ensure_future(reader.read())   # the client closing ends the trace
         try:
             writer.write(json.dumps(self.trace_header()).encode() + b"\n")

@@ -8,6 +8,7 @@ import logging
 from collections.abc import Callable
 from pathlib import Path
 
+from mbgw.audit import operator
 from mbgw.config import scenario_text
 from mbgw.config.scenario import parse_scenario
 from mbgw.config.toml_text import write_atomic
@@ -45,8 +46,8 @@ def scenario_commands(engines: dict, cfg_path: str | Path | None
             return {"error": f"this daemon has no runner for {sc.kind} scenarios" +
                     (" (serial scenarios run in slave mode only)" if sc.kind == "serial"
                      else "")}
-        log.info("scenario test %s (%s) asked by uid %s", sc.name, sc.target,
-                 request.get("uid"))
+        log.info("scenario test %s (%s) asked by %s", sc.name, sc.target,
+                 operator(request.get("uid")))
         return await asyncio.to_thread(engine.request_test, sc)
 
     return {"scenarios": status, "scenario-enable": enable, "scenario-disable": disable,
@@ -60,7 +61,18 @@ def _test_scenario(request: dict):
     fields = {"name": TEST_NAME, **fields}
     if "cycle" not in fields and "trigger" not in fields:
         fields["cycle"] = 1000          # a test runs once: its trigger does not matter
+    if _function_of(fields) in (1, 2, 3, 4) and "table" not in fields:
+        fields["table"] = 0             # a test's read is printed, never stored
+    if _function_of(fields) == 23 and "read-table" not in fields:
+        fields["read-table"] = 0
     return parse_scenario(fields, "scenario")
+
+
+def _function_of(fields: dict) -> int | None:
+    try:
+        return int(str(fields.get("function")), 0)
+    except ValueError:
+        return None
 
 
 def _enable(engines: dict, cfg_path, request: dict, on: bool) -> dict:
@@ -78,8 +90,9 @@ def _enable(engines: dict, cfg_path, request: dict, on: bool) -> dict:
         if problem:
             return {"error": problem}
     found[0].enable(name, on)
-    log.info("scenario %s %s by uid %s%s", name, "enabled" if on else "disabled",
-             request.get("uid"), f", saved in {cfg_path}" if save else " until the next reload")
+    log.info("scenario %s %s by %s%s", name, "enabled" if on else "disabled",
+             operator(request.get("uid")),
+             f", saved in {cfg_path}" if save else " until the next reload")
     return {"ok": True, "name": name, "enabled": on, "saved": save}
 
 

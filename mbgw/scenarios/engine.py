@@ -216,8 +216,8 @@ class Scenarios:
                 self._planner.add(state.scenario, now)
                 os.eventfd_write(self.wake_fd, 1)     # a runner at rest looks again
             else:
-                self._leave_error(state)
-                state.state, state.message = DISABLED, ""
+                state.state, state.message = DISABLED, ""   # out of error, not "running again"
+                self._update_flag()
                 self._planner.remove(name)
                 self._set_stale(state, False)
             log.info("scenario %s %s", name, "enabled" if on else "disabled")

@@ -9,15 +9,18 @@ from mbgw.line.port import SerialLine
 from mbgw.line.supervisor import open_at_start
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable, HealthRule
+from mbgw.ops.load import LineLoad
 from mbgw.ops.reload import ReloadReport, Reloads
 from mbgw.ops.service import (
     ListenError,
     MetricsListenError,
     idle_ms,
     log_stopped,
+    origin,
     serve_until_stopped,
     start_control,
     start_metrics,
+    warn_of_overlaps,
     watchdog_interval,
 )
 from mbgw.scenarios.control import scenario_commands
@@ -69,9 +72,10 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
     except OSError as err:
         raise ListenError(cfg.mdbport, err) from None
     started = time.time()
+    load = LineLoad(lambda: counters.line_busy_ns)
     try:
         metrics = start_metrics(cfg.metrics, lambda m: with_scenarios(m.slave_collector(
-            counters, devices, scheduler, server, worker, started, tables.figures,
+            counters, devices, scheduler, server, worker, started, tables.figures, load,
             lambda: server.firewall.report() if server.firewall.configured else None),
             engines))
     except MetricsListenError:
@@ -79,7 +83,8 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
         raise
     worker.idle_ms = idle_ms(watchdog_interval())
     worker.start()
-    status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses, tables)
+    status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses, tables,
+                         load)
     status.scenario_engines = engines
     commands = {**status.commands(), **scenario_commands(engines, cfg.config_file)}
     control = await start_control(cfg.control, commands)
@@ -87,9 +92,10 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
     console = await start_console(cfg.web, WebHooks(commands, status.trace_hub,
                                                     cfg.config_file, reloads.run))
     s = cfg.serial
-    log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s",
+    log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s%s",
              ", ".join(addresses), s.device, s.baudrate, s.format, s.protocol, s.interface,
-             s.stout_ms, ", nocheck" if s.nocheck else "")
+             s.stout_ms, ", nocheck" if s.nocheck else "", origin(cfg))
+    warn_of_overlaps(cfg)
     if metrics is not None:
         log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
     if s.nocheck:
@@ -108,12 +114,14 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
     reloads.apply = apply
 
     kept = asyncio.ensure_future(tables.keep())
+    sampled = asyncio.ensure_future(load.keep())
     try:
         await serve_until_stopped(stop, status, worker, reloads, control, metrics)
     finally:
         await console.close()
         await asyncio.to_thread(scenarios.stop)
     kept.cancel()
+    sampled.cancel()
     server.close()
     worker.stop()
     await asyncio.to_thread(worker.join)

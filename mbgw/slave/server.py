@@ -317,8 +317,9 @@ class TcpServer:
         idle = [c for c, events in live.items() if not (c.busy or events & select.POLLIN)]
         victim = eviction_victim(idle, time.monotonic())
         if victim is None:
-            event(log, Kind.CONNECTION_REFUSED, "client %s refused: all %d connections are busy "
-                  "(a request in the gateway, or one within the last %d s)", newcomer.peer,
+            event(log, Kind.CONNECTION_REFUSED, "client %s refused: all %d connections of "
+                  "net.max-connections are busy (a request in the gateway, or one within the "
+                  "last %d s)", newcomer.peer,
                   len(live), ACTIVE_WINDOW_S, client=newcomer.peer,
                   reason="max-connections, every client busy")
             return False
@@ -344,8 +345,8 @@ class TcpServer:
         command's "uid" names them)."""
         for client in self.clients:
             if client.id == client_id:
-                event(log, Kind.CLIENT_CLOSED, "client %s closed by the operator (uid %s)",
-                      client.peer, user, client=client.peer, user=operator(user))
+                event(log, Kind.CLIENT_CLOSED, "client %s closed by the operator (%s)",
+                      client.peer, operator(user), client=client.peer, user=operator(user))
                 self._drop(client)
                 return True
         return False

@@ -2,6 +2,7 @@
 close (the commands both modes share are in mbgw.ops.status)."""
 import time
 
+from mbgw.ops.load import LineLoad, average_percent
 from mbgw.ops.status import DaemonStatus
 from mbgw.scenarios.report import scenarios_status
 
@@ -11,8 +12,9 @@ class SlaveStatus(DaemonStatus):
     mode = "slave"
 
     def __init__(self, cfg, server, worker, scheduler, counters, devices, addresses,
-                 tables=None) -> None:
+                 tables=None, load: LineLoad | None = None) -> None:
         super().__init__(cfg, counters, devices, server.trace)
+        self.load = load or LineLoad(lambda: counters.line_busy_ns)   # the line's load now
         self._tables = tables           # the exchange table (mbgw.slave.table_service)
         self._server = server
         self._worker = worker
@@ -36,7 +38,7 @@ class SlaveStatus(DaemonStatus):
     def status(self, request: dict) -> dict:
         now, mono = time.time(), time.monotonic()
         counters = self._counters.snapshot()
-        busy_s = counters.pop("line_busy_ns") / 1e9
+        busy_ns = counters.pop("line_busy_ns")
         data = self._common()
         data["serial"].update(stout_ms=self.cfg.serial.stout_ms,
                               state=self._worker.state)
@@ -57,7 +59,8 @@ class SlaveStatus(DaemonStatus):
                         for c in self._server.clients],
             "counters": counters,
             "counters_since": self._reset_at,
-            "line_utilisation_pct": round(100 * busy_s / max(now - self._reset_at, 1e-9), 2),
+            "line_utilisation_pct": average_percent(busy_ns, mono - self._reset_mono),
+            "line_load_pct": self.load.percent(),
             "devices": [d.snapshot() for d in self._devices.all()],
             **({"scenarios": rows} if (rows := scenarios_status(self.scenario_engines.values()))
                else {}),

@@ -5,6 +5,7 @@
 import logging
 from collections.abc import Callable
 
+from mbgw.audit import operator
 from mbgw.table.memory import BITS, CONFIG_ZONE, REGISTERS
 
 log = logging.getLogger("mbgw.table")
@@ -86,6 +87,6 @@ def _write(table, request: dict) -> dict:
         raise BadTableRequest(f"table: register 0x{max(address, CONFIG_ZONE.start):04X} is in "
                               f"the configuration zone 0x8000-0xFFFF, which is read-only")
     table.write(address, values)
-    log.info("table: registers 0x%04X..0x%04X written by the operator (uid %s)", address, last,
-             request.get("uid"))
+    log.info("table: registers 0x%04X..0x%04X written by the operator (%s)", address, last,
+             operator(request.get("uid")))
     return {"ok": True, "address": address, "count": len(values)}

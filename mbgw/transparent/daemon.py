@@ -15,9 +15,11 @@ from mbgw.ops.service import (
     ListenError,
     idle_ms,
     log_stopped,
+    origin,
     serve_until_stopped,
     start_control,
     start_metrics,
+    warn_of_overlaps,
     watchdog_interval,
 )
 from mbgw.ops.tls import role_of, server_context
@@ -127,12 +129,13 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
                                                     cfg.config_file, reloads.run))
     s, t = cfg.serial, cfg.transparent
     log.info("transparent mode: serial %s %d %s %s; eof %s, eof-timeout %d ms, rx %d+%d bytes, "
-             "tx %d+%d bytes, crc %s, trigger %s, silence %d ms; table on %s%s",
+             "tx %d+%d bytes, crc %s, trigger %s, silence %d ms; table on %s%s%s",
              s.device, s.baudrate, s.format, s.interface, t.eof if t.eof != "char" else
              f"char 0x{t.eof_char:02x}", t.eof_timeout_for(s), t.rx_address, t.rx_size,
              t.tx_address, t.tx_size, "on" if t.crc else "off", "on" if t.trigger else "off",
              t.silence_ms, ", ".join(server.addresses),
-             f"; raw port {raw.port}" if raw is not None else "")
+             f"; raw port {raw.port}" if raw is not None else "", origin(cfg))
+    warn_of_overlaps(cfg)
     if metrics is not None:
         log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
     scenarios = TcpScenarios(table, engines)

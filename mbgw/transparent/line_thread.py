@@ -142,7 +142,10 @@ class FrameLine(LineThread[TransparentModeConfig]):
         elif raw is not None and fd in raw.listeners:
             raw.accept(fd)
         elif raw is not None and raw.is_client(fd):
-            self._read_raw(raw)
+            if raw.reading:
+                self._read_raw(raw)
+            else:
+                raw.ended()
 
     # --- receiving ---
 

@@ -54,7 +54,7 @@ class RawPort:
             poll.register(fd, select.POLLIN)
 
     def is_client(self, fd: int) -> bool:
-        return self.reading and self.client is not None and fd == self.client.fileno()
+        return self.client is not None and fd == self.client.fileno()
 
     @property
     def port(self) -> int:
@@ -100,12 +100,18 @@ class RawPort:
             self.drop()
             return b""
         if not data:
-            self._unpoll()
+            self._stop_reading()
         return data
 
-    def _unpoll(self) -> None:
+    def ended(self) -> None:
+        """poll() says the client that was done sending is gone (its reset: it had closed,
+        and a frame reached it): noticed now, not when a newcomer comes."""
+        self.drop()
+
+    def _stop_reading(self) -> None:
+        """Done sending: poll it only for its end (no events asked: POLLERR, POLLHUP)."""
         if self.reading and self._poll is not None and self.client is not None:
-            self._poll.unregister(self.client.fileno())
+            self._poll.modify(self.client.fileno(), 0)
         self.reading = False
 
     def send(self, frame: bytes) -> None:
@@ -124,7 +130,9 @@ class RawPort:
 
     def drop(self) -> None:
         if self.client is not None:
-            self._unpoll()
+            if self._poll is not None:
+                self._poll.unregister(self.client.fileno())
+            self.reading = False
             self.client.close()
             self.client = None
             log.info("raw client %s disconnected", self.peer)

@@ -31,11 +31,13 @@ class TransparentStatus(DaemonStatus):
                 "tx_address": t.tx_address, "tx_size": t.tx_size, "crc": t.crc,
                 "trigger": t.trigger, "silence_ms": t.silence_ms,
                 "raw_port": None if raw is None else raw.port,
-                "raw_client": None if raw is None or raw.client is None else raw.peer}
+                "raw_client": None if raw is None or raw.client is None else raw.peer,
+                "raw_client_sending": raw is not None and raw.reading}
 
     def status(self, request: dict) -> dict:
         data = self._common()
         data["serial"]["state"] = self._line.state
+        del data["serial"]["protocol"]     # frames pass as they are: no Modbus framing here
         rows = scenarios_status(self.scenario_engines.values())
         return {**data, "transparent": self.figures(), "counters": self._counters.snapshot(),
                 "counters_since": self._reset_at, "table": self._table_figures(),
@@ -43,9 +45,9 @@ class TransparentStatus(DaemonStatus):
 
     def reset(self, request: dict) -> dict:
         self._counters.reset()
-        self._reset_at = time.time()
-        event(log, Kind.COUNTERS_RESET, "counters reset by the operator (uid %s)",
-              request.get("uid"), user=operator(request.get("uid")))
+        self._reset_at, self._reset_mono = time.time(), time.monotonic()
+        event(log, Kind.COUNTERS_RESET, "counters reset by the operator (%s)",
+              operator(request.get("uid")), user=operator(request.get("uid")))
         return {"ok": True}
 
     def summary(self) -> str:

@@ -152,7 +152,8 @@ async def devices(request: web.Request) -> web.Response:
 async def stats(request: web.Request) -> web.Response:
     reply = await command(request, "status")
     return web.json_response({name: reply[name] for name in
-                              ("counters", "counters_since", "line_utilisation_pct", "devices",
+                              ("counters", "counters_since", "line_utilisation_pct",
+                               "line_load_pct", "devices",
                                "table", "firewall", "scenarios") if name in reply})
 
 

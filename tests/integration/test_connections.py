@@ -106,7 +106,7 @@ def test_a_newcomer_cannot_close_a_polling_client(rtu, start_gateway, sockets):
     assert_served(poller)
     assert_closed(sockets.connect(gw.port))
     assert_served(poller, tid=2)
-    assert "connections are busy" in gw.log()
+    assert "all 1 connections of net.max-connections are busy" in gw.log()
     assert "closed to make room" not in gw.log()
 
 

@@ -71,3 +71,16 @@ def test_a_silent_client_does_not_stop_others(gateway):
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as idle:
         idle.connect(gateway.control)        # says nothing
         assert control.call(gateway.control, {"command": "status"})["mode"] == "slave"
+
+
+def test_a_second_daemon_probing_the_socket_is_not_a_bad_request(gateway):
+    """A second daemon started on the same control socket connects to see whether it is in
+    use, and closes: the first logs no bad request, and the second is told it is in use."""
+    import asyncio
+    import errno
+    second = control.ControlServer(gateway.control, {})
+    with pytest.raises(OSError) as refused:
+        asyncio.run(second.start())
+    assert refused.value.errno == errno.EADDRINUSE
+    assert control.call(gateway.control, {"command": "status"})["mode"] == "slave"
+    assert "bad request" not in gateway.log(), gateway.log()

@@ -268,6 +268,52 @@ def test_clients_close_closes_that_client_only(rig, client):
         (4, 4, 2)
 
 
+def test_clients_lists_and_closes_by_address_and_all(rig, client):
+    gw = rig()
+    a, b, c = client(gw), client(gw), client(gw)
+    for tid, each in enumerate((a, b, c), 1):
+        served(each, tid)
+    listed = mbgw("clients", "--control", gw.control)
+    assert listed.returncode == 0, listed.stderr
+    assert "clients (3)" in listed.stdout
+    assert all(peer_of(each) in listed.stdout for each in (a, b, c))
+
+    closed = mbgw("clients", "close", peer_of(a), "--control", gw.control)
+    assert closed.returncode == 0, closed.stderr
+    a.sock.settimeout(3.0)
+    assert a.sock.recv(100) == b""                      # EOF on the wire
+    served(b, 4)
+    unknown = mbgw("clients", "close", "192.0.2.1:502", "--control", gw.control)
+    assert unknown.returncode == 1 and "no client at 192.0.2.1:502" in unknown.stderr
+
+    everyone = mbgw("clients", "close", "--all", "--control", gw.control)
+    assert everyone.returncode == 0, everyone.stderr
+    for each in (b, c):
+        each.sock.settimeout(3.0)
+        assert each.sock.recv(100) == b""
+    assert status(gw)["clients"] == []
+    neither = mbgw("clients", "close", "--control", gw.control)
+    assert neither.returncode == 2 and "give an ID, an ADDRESS or --all" in neither.stderr
+
+
+def test_stats_shows_the_counters_and_the_line_load(rig, client):
+    gw = rig()
+    c = client(gw)
+    served(c, 1)
+    served(c, 2)
+    shown = mbgw("stats", "--control", gw.control)
+    assert shown.returncode == 0, shown.stderr
+    assert re.search(r"\brequests\s+2\b", shown.stdout) and \
+        re.search(r"\breplies\s+2\b", shown.stdout), shown.stdout
+    assert re.search(r"load [\d.]+ % \(10s\), [\d.]+ % \(1min\), [\d.]+ % on average",
+                     shown.stdout), shown.stdout
+    figures = json.loads(mbgw("stats", "--json", "--control", gw.control).stdout)
+    assert figures["counters"]["requests"] == 2
+    assert set(figures["line_load_pct"]) == {"10s", "1min"}
+    assert all(0 <= v <= 100 for v in figures["line_load_pct"].values())
+    assert 0 <= figures["line_utilisation_pct"] <= 100
+
+
 def test_stats_reset_zeroes_the_counters_and_is_logged(rig, client):
     gw = rig("--exception")
     c = client(gw)

@@ -326,6 +326,13 @@ def test_scenario_test_runs_once_on_the_line_and_changes_nothing(fault_line, gat
     assert frames_to(record, 60) == [bytes.fromhex("3c 03 0004 0002") +
                                      frames_to(record, 60)[0][-2:]]
     assert table_read(client(gw), 80, 2) == bytes.fromhex("03 04 0000 0000")
+    # a read needs no table: its data is printed, not stored
+    done = mbgw("scenario", "test", "slave=61", "function=3", "address=7", "quantity=1",
+                "--control", gw.control)
+    assert done.returncode == 0, done.stderr
+    assert "data     (1 from 7)\n   1007" in done.stdout, done.stdout
+    assert frames_to(record, 61)[0][:6] == bytes.fromhex("3d 03 0007 0001")
+    assert table_read(client(gw), 0, 1) == bytes.fromhex("03 02 0000")
     done = mbgw("scenario", "test", "slave=11", "function=3", "address=0", "quantity=1",
                 "table=0", "--json", "--control", gw.control)
     result = json.loads(done.stdout)
@@ -371,3 +378,21 @@ def test_a_change_made_while_the_device_is_lost_is_written_once_it_is_back(
     pymodbus_line(1, 2)
     until(lambda: c.ask(2, read_holding(6, 1)) == bytes.fromhex("03 02 0309"),
           "the change written once the device is back")
+
+
+def test_the_table_the_scenarios_serve_is_shown_on_and_the_start_names_file_and_scenarios(
+        fault_line, gateway, client):
+    """table.enabled off, but scenarios run: status and config show say the table is on for
+    them; the start-up line names the file, the table and the scenarios."""
+    fault_line()
+    gw, path = gateway([poll("a", 50, 3, 0, 2, 0), poll("b", 51, 3, 0, 1, 1)])
+    wait_for_scenario(gw, "b", lambda sc: sc["runs"] > 0, "b running")
+    assert "WARNING mbgw: scenario b: stores into table registers 1, as scenario a does: " \
+           "each overwrites the other's data" in gw.log(), gw.log()
+    shown = mbgw("status", "--control", gw.control)
+    assert "table      on (scenarios): no Modbus client reaches it" in shown.stdout, shown.stdout
+    assert "table      off" not in shown.stdout
+    config = mbgw("config", "show", "table", "--config", str(path))
+    assert config.returncode == 0, config.stderr
+    assert "enabled          on (scenarios)" in config.stdout, config.stdout
+    assert f"; configuration {path}; table on (scenarios); scenarios a, b" in gw.log()

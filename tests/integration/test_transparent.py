@@ -7,6 +7,7 @@ pymodbus.  Every expected register content and wire frame is built by the test f
 "Nothing sent" is checked by order: a frame that must be sent follows the one that must not,
 and the device's next bytes must be it."""
 import os
+import re
 import select
 import signal
 import socket
@@ -266,6 +267,26 @@ def test_raw_port_streams_both_ways_one_client_at_a_time(transparent):
     assert third.recv(64) == b"14.0kg\r"
     third.close()
     raw.close()
+
+
+def test_a_raw_client_that_closed_is_noticed_without_a_newcomer(transparent):
+    """A client that closed looks, to the gateway, like one done sending (socat -t) until a
+    frame reaches it and it answers with a reset: then it is gone from the status at once,
+    not when the next client comes.  The status names the line without a Modbus framing."""
+    raw_port = free_port()
+    gw, device, _ = transparent("--eof", "cr", "--raw-port", str(raw_port))
+    raw = socket.create_connection(("127.0.0.1", raw_port), timeout=REPLY_S)
+    peer = "%s:%d" % raw.getsockname()[:2]
+    wait_for(gw, lambda s: s["transparent"]["raw_client"] == peer, "the raw client")
+    shown = mbgw("status", "--control", gw.control).stdout
+    assert f"raw        port {raw_port}, client {peer}\n" in shown + "\n", shown
+    assert re.search(r"^serial     \S+ \d+ 8n1 rs232: line up$", shown, re.M), shown
+    raw.close()
+    wait_for(gw, lambda s: not s["transparent"]["raw_client_sending"], "its end of sending")
+    assert "done sending" in mbgw("clients", "--control", gw.control).stdout
+    device.send(b"12.5kg\r")                     # reaches the closed client: a reset back
+    wait_for(gw, lambda s: s["transparent"]["raw_client"] is None, "the closed client gone")
+    wait_for_log(gw, f"raw client {peer} disconnected")
 
 
 def test_authip_applies_to_the_table_and_the_raw_port(transparent):

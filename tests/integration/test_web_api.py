@@ -200,6 +200,8 @@ def test_scenarios_are_listed_disabled_enabled_and_tested(console):
     until(lambda: len(frames_to(record, 51)) >= len(frames_to(record, 50)) + 3, "b going on")
     assert len(frames_to(record, 50)) <= count + 1           # one may have been on its way
     assert "enabled = false" not in path.read_text()
+    assert "scenario a disabled by web admin@127.0.0.1 until the next reload" in gw.log()
+    assert "by uid web" not in gw.log()
     assert web.ok("POST", "/api/scenarios/a/enable", {})["ok"]
     until(lambda: len(frames_to(record, 50)) > count + 1, "a running again")
     assert web.post("/api/scenarios/nope/enable")[0] == 400

@@ -280,6 +280,9 @@ def test_the_overview_shows_the_line_and_the_front_panel(browser, console):
     log_in(browser, console, "admin")
     wait(browser, text_in('#overview-facts tr[data-name="Mode"] td', "slave"))
     wait(browser, text_in('#overview-facts tr[data-name="Line state"] td', "up"))
+    wait(browser, text_in('#overview-facts tr[data-name="Line load"] td', "% (1 min), "))
+    assert " on average" in browser.find_element(
+        By.CSS_SELECTOR, '#overview-facts tr[data-name="Line load"] td').text
     assert browser.find_element(By.ID, "led-line").get_attribute("data-state") == "green"
     shot = os.environ.get("MBGW_CONSOLE_SCREENSHOT")    # docs/console-overview.png is made so
     wait(browser, text_in("#overview-wrong", f"Scenario {LOST} is in error"))
@@ -498,6 +501,9 @@ def test_every_page_works_in_master_and_transparent_mode(browser, mode, tmp_path
         log_in(browser, SimpleNamespace(url=f"http://127.0.0.1:{web_port}/"), "admin")
         browser.get_log("browser")
         wait(browser, text_in('#overview-facts tr[data-name="Mode"] td', mode))
+        device = browser.find_element(
+            By.CSS_SELECTOR, '#overview-facts tr[data-name="Serial device"] td').text
+        assert (" rtu " in device) == (mode == "master"), device  # transparent: no framing
         for page, loaded in PAGE_LOADED.items():
             go(browser, page)
             wait(browser, found(loaded))

@@ -194,7 +194,9 @@ def test_every_command_takes_dash_h_for_help():
 
 
 @pytest.mark.parametrize("command", [["status"], ["trace"], ["clients", "close", "1"],
-                                     ["stats", "reset"]])
+                                     ["clients"], ["clients", "close", "--all"],
+                                     ["clients", "close", "10.0.0.1:502"], ["stats"],
+                                     ["stats", "--json"], ["stats", "reset"]])
 def test_diagnostics_reach_a_service_instance_by_name(command):
     """-i NAME: the socket of mbgw@NAME (its RuntimeDirectory=mbgw/%i), like `run -i NAME`
     takes /etc/mbgw/NAME.toml; no daemon runs here, so the command names the path."""

@@ -105,6 +105,20 @@ def test_check_config_missing_file(tmp_path):
     assert "no such file (create it with: mbgw config default --config" in result.output
 
 
+def test_check_config_takes_the_file_options_of_every_command(conf, monkeypatch):
+    result = mbgw("check-config", "--config", conf)
+    assert (result.exit_code, result.output) == (0, f"{conf}: ok (slave mode)\n")
+    monkeypatch.setattr(config_keys, "CONFIG_DIR", conf.parent)
+    instance = conf.parent / "ttyUSB1.toml"
+    instance.write_text(conf.read_text())
+    result = mbgw("check-config", "-i", "ttyUSB1")
+    assert (result.exit_code, result.output) == (0, f"{instance}: ok (slave mode)\n")
+    result = mbgw("check-config", "--instance", "ttyUSB1", "--config", conf)
+    assert result.exit_code == 2 and "give --config or --instance, not both" in result.output
+    result = mbgw("check-config", conf, "--config", conf)
+    assert result.exit_code == 2 and "give FILE, --config FILE or -i NAME" in result.output
+
+
 # --- config set / show / unset / default ---------------------------------------------------
 
 def test_set_writes_the_value_and_show_reads_it_back(conf):
@@ -420,3 +434,30 @@ def test_a_key_named_as_another_groups_key_is_set_shown_and_unset_in_its_own_gro
     assert result.exit_code == 0, result.output
     data = values(conf)
     assert "silence" not in data["transparent"] and data["serial"]["silence"] == 7
+
+
+def test_help_shows_the_built_in_defaults_and_what_the_file_in_use_sets(tmp_path):
+    path = tmp_path / "site.toml"
+    path.write_text('[serial]\ndevice = "/dev/ttyS5"\nstout = 600\n[net]\nmdbport = 1602\n')
+    for args, env in ((["slave", "-h"], {"MBGW_CONFIG": str(path)}),
+                      (["slave", "--config", path, "-h"], {})):
+        result = mbgw(*args, **env)
+        assert result.exit_code == 0, result.output
+        text = "".join(result.output.split())      # unwrapped (a long path is cut anywhere)
+        assert f"[default:502;0<=x<=65535][{path}sets1602]" in text, result.output
+        assert f"[required][{path}sets/dev/ttyS5]" in text, result.output
+        assert "[default:600;1<=x<=65535][" not in text     # the file sets the default
+    result = mbgw("slave", "-h")
+    assert "sets" not in result.output or not config_keys.DEFAULT_PATH.exists()
+
+
+def test_hints_name_the_file_in_use(tmp_path):
+    path = tmp_path / "site.toml"
+    path.write_text('[serial]\ndevice = "/dev/null"\n[web]\nlisten = "127.0.0.1:8080"\n')
+    result = mbgw("check-config", path)
+    assert result.exit_code == 78
+    assert f"(mbgw config password admin --config {path})" in result.output, result.output
+    path.write_text("[serial]\nstout = 700\n")
+    result = mbgw("check-config", "--config", path)
+    assert f"(e.g. mbgw config set serial device /dev/ttyUSB0 --config {path})" \
+        in result.output, result.output

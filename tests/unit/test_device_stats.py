@@ -76,8 +76,9 @@ def test_health_goes_degraded_down_degraded_up_and_logs_each_change_once(clock, 
     clock.now += 1
     d.failed()
     assert (d.health, d.consecutive_failures, d.health_since) == ("degraded", 1, clock.now)
-    assert health_log() == [
-        ("WARNING", "device 7 is degraded: 1 of its last 20 requests failed")]
+    assert health_log() == [   # not "1 of its last 20 requests failed": it never answered
+        ("WARNING", "device 7 is degraded: it has not answered yet (1 request without a valid "
+                    "reply)")]
     d.failed()
     assert (d.health, d.consecutive_failures) == ("degraded", 2)
     assert len(health_log()) == 1                     # no news: not logged again
@@ -120,7 +121,7 @@ def test_failures_that_are_not_consecutive_never_make_a_device_down(clock, healt
         d.answered(1.0, None)
     assert d.health == "degraded" and d.consecutive_failures == 0
     assert [m for _, m in health_log()] == [
-        "device 12 is degraded: 1 of its last 20 requests failed"]
+        "device 12 is degraded: it has not answered yet (1 request without a valid reply)"]
 
 
 def test_an_exception_reply_is_an_answer(clock):
@@ -319,7 +320,7 @@ def test_down_after_0_never_demotes(clock, health_log):
         d.failed()
     assert (d.health, d.consecutive_failures, d.demoted_rejects) == ("degraded", 50, 0)
     assert [m for _, m in health_log()] == [
-        "device 2 is degraded: 1 of its last 20 requests failed"]
+        "device 2 is degraded: it has not answered yet (1 request without a valid reply)"]
 
 
 def test_new_settings_judge_every_device_again_and_log_only_the_changes(clock, health_log):
@@ -346,3 +347,11 @@ def test_new_settings_judge_every_device_again_and_log_only_the_changes(clock, h
     assert (a.health, table.rule.down[1]) == ("degraded", 0)
     assert [m.split(":")[0] for _, m in health_log()[logged:]] == [
         "device 1 is down", "device 1 is degraded"]
+
+
+def test_a_device_that_answered_once_is_degraded_by_its_window(clock, health_log):
+    d = DeviceStats(4)
+    d.answered(2.0, None)
+    d.failed()
+    assert [m for _, m in health_log()] == [
+        "device 4 is degraded: 1 of its last 20 requests failed"]

@@ -180,9 +180,35 @@ def test_file_problems_listed_with_their_scenario(tmp_path):
         .replace('"remote"', '"boiler"')
     done = check_config(tmp_path, text)
     assert done.returncode == 78
-    assert "scenario boiler: quantity 200: out of range 1..125" in done.stderr
+    # two named boiler: the problem says which
+    assert "scenario boiler (the 1st [[scenario]] table): quantity 200: out of range 1..125" \
+        in done.stderr
     text = FILE.format(mode="").replace('"remote"', '"boiler"')
-    assert "scenario boiler: name used twice" in check_config(tmp_path, text).stderr
+    assert "scenario boiler: name used by 2 scenarios (the 1st and 2nd [[scenario]] tables)" \
+        in check_config(tmp_path, text).stderr
+
+
+def test_every_problem_of_a_scenario_is_reported_at_once(tmp_path):
+    text = FILE.format(mode="").replace("quantity = 10", "quantity = 200") \
+        .replace("cycle = 3000", "cycle = 5").replace("address = 1000", "adress = 1000")
+    done = check_config(tmp_path, text)
+    assert done.returncode == 78
+    problems = [line.split(": ", 2)[2] for line in done.stderr.splitlines()]
+    assert problems == ["scenario boiler: adress: unknown key; did you mean address?",
+                        "scenario boiler: address: missing",
+                        "scenario boiler: cycle 5: out of range 100..65535"], done.stderr
+
+
+def test_check_config_warns_of_reads_storing_into_the_same_registers(tmp_path):
+    second = FILE.format(mode="").split("[[scenario]]")[1].replace('"boiler"', '"boiler2"') \
+        .replace("table = 0", "table = 8")
+    done = check_config(tmp_path, FILE.format(mode="") + "[[scenario]]" + second)
+    assert done.returncode == 0, done.stderr
+    assert ": scenario boiler2: stores into table registers 8-9, as scenario boiler " \
+           "does: each overwrites the other's data" in done.stderr
+    assert done.stderr.startswith("mbgw: warning: ")
+    done = check_config(tmp_path, FILE.format(mode=""))
+    assert "warning" not in done.stderr
 
 
 def test_at_most_100_of_a_kind():

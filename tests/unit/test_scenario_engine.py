@@ -137,6 +137,18 @@ def test_enable_disable(table, clock):
     assert status(e, "r")["state"] == "disabled"
 
 
+def test_disabling_a_scenario_in_error_does_not_log_it_running_again(table, clock, caplog):
+    caplog.set_level(logging.INFO, "mbgw.scenarios")
+    e = engine(table, clock, sc("r"))
+    e.done(e.next(clock.now), None, "timeout", retries=0)
+    assert status(e, "r")["state"] == "error" and table.answer(H("07")) == H("07 02")
+    assert e.enable("r", False)
+    assert status(e, "r")["state"] == "disabled" and table.answer(H("07")) == H("07 00")
+    messages = [r.getMessage() for r in caplog.records]
+    assert messages[-1] == "scenario r disabled"
+    assert not any("running again" in m for m in messages), messages
+
+
 def test_reload_keeps_unchanged_and_restarts_changed(table, clock):
     e = engine(table, clock, sc("a"), sc("b"), sc("c"))
     for _ in range(3):

@@ -199,3 +199,17 @@ def test_metrics_read_the_live_table_at_each_scrape():
     second = {(s.labels["function"], s.labels["outcome"]): s.value
               for s in families(collector)["mbgw_table_requests"].samples}
     assert (first[("4", "answered")], second[("4", "answered")]) == (1, 2)
+
+
+def test_status_table_off_but_serving_the_scenarios_says_so():
+    scenario = {"name": "boiler", "state": "running", "target": "slave 45", "function": 3,
+                "trigger": "3000ms", "runs": 1, "errors": {}, "retries": 0, "overruns": 0,
+                "last_latency_ms": 5.0, "data_age_s": 1.0, "last_success": NOW, "message": ""}
+    status = slave_status(table_status(Table(), TableConfig(enabled=False)))
+    status["scenarios"] = [scenario]
+    text = format_status(status, NOW)
+    assert "\ntable      on (scenarios): no Modbus client reaches it (table.enabled off)\n" \
+        in text and "table      off" not in text
+    master = slave_status(None)       # master mode reports no table while it is off
+    master["scenarios"] = [scenario]
+    assert "\ntable      on (scenarios)" in format_status(master, NOW)

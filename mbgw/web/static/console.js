@@ -78,6 +78,14 @@ function duration(seconds) {
   return days ? `${days} d ${hms}` : hms;
 }
 
+// "12.0 % (10 s), 8.1 % (1 min), 7.9 % on average": the line's load now and since the reset.
+function lineLoad(s) {
+  const load = s.line_load_pct || {};
+  const now = [["10s", "10 s"], ["1min", "1 min"]].filter(([k]) => typeof load[k] === "number")
+    .map(([k, label]) => `${load[k]} % (${label}), `).join("");
+  return `${now}${s.line_utilisation_pct} % on average`;
+}
+
 // "12", "0x1F" or "1fh": a number, or NaN.
 function parseNumber(text) {
   const t = String(text).trim().toLowerCase();
@@ -343,12 +351,13 @@ function overviewPage(body) {
       const counters = s.counters || {};
       clear(facts).append(factsTable("overview-facts", [
         ["Mode", s.mode], ["Version", s.version],
-        ["Serial device", `${show(serial.device)} ${show(serial.protocol)} ` +
+        ["Serial device", `${show(serial.device)} ` +
+          `${serial.protocol === undefined ? "" : serial.protocol + " "}` +
           `${show(serial.baudrate)} ${show(serial.format)} ${show(serial.interface)}`],
         ["Line state", serial.state], ["Uptime", duration(s.uptime_s)],
         ["Started", localTime(s.started)],
-        ["Line utilisation", typeof s.line_utilisation_pct === "number"
-          ? `${s.line_utilisation_pct} %` : "—"],
+        ["Line load", typeof s.line_utilisation_pct === "number"
+          ? lineLoad(s) : "—"],
         ["Listening", listening(s)],
         ...(Array.isArray(s.clients) ? [["Clients", String(s.clients.length)]] : []),
         ["Devices", tally(s.devices || [], "health")],
