@@ -169,7 +169,8 @@ def register(main: click.Group) -> None:
     @click.option("--line", type=click.Choice(LINES), default=None,
                   help="Only this line's traffic (one line today: serial).")
     @click.option("--errors", is_flag=True,
-                  help="Errors only: exception replies, no reply, noise on the line.")
+                  help="Errors only: exception replies, no reply, late replies, noise on "
+                       "the line.")
     @click.option("--count", type=click.IntRange(1), default=None,
                   help="Stop after this many events [default: until Ctrl-C].")
     @control_option

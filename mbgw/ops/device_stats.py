@@ -182,7 +182,7 @@ class DeviceStats:
             log.warning("%s is down: %d requests in a row without a valid reply%s%s; "
                         "its requests are refused, but for %s", self.name,
                         self.consecutive_failures, via,
-                        f" ({self.diagnosis})" if self.diagnosis else "",
+                        f"; {self.diagnosis}" if self.diagnosis else "",
                         self.rule.describe())
         elif health == DEGRADED and self.last_success is None:
             failures = self.consecutive_failures

@@ -17,7 +17,7 @@ has asked the line to capture them; nobody watching, the line captures nothing.
 
 Filters (a subscriber's, `filters()`): "unit", "client", "function", "scenario", "line"
 (the one line is "serial") and "errors" (errors only: an exception reply, a scenario's reply
-that did not answer its request, no reply but to a broadcast, noise); raw events are
+that did not answer its request, no reply but to a broadcast, a late reply, noise); raw events are
 filtered by line and errors only."""
 import asyncio
 import logging
@@ -68,6 +68,8 @@ def is_error(event: dict) -> bool:
     if event.get("raw"):
         return event.get("kind") == "noise"
     direction = event.get("direction")
+    if direction == "late":
+        return True
     if direction == "no reply":
         return event.get("outcome") != "broadcast"
     if direction == "reply":

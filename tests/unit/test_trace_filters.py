@@ -10,6 +10,8 @@ RUN = {"direction": "reply", "scenario": "meter", "client": None, "unit": 1, "fu
        "outcome": "ok"}
 RUN_FAILED = {"direction": "no reply", "scenario": "meter", "client": None, "unit": 1,
               "function": 3, "outcome": "timeout"}
+LATE = {"direction": "late", "client": 3, "unit": 11, "function": 3,
+        "outcome": "late reply, dropped"}
 NOISE = {"raw": True, "kind": "noise", "line": "serial"}
 REPLY_BURST = {"raw": True, "kind": "reply", "line": "serial"}
 
@@ -39,9 +41,11 @@ def test_filters_keep_what_is_set():
     ({"function": 3}, [REQUEST, EXCEPTION, RUN, RUN_FAILED, NOISE, REPLY_BURST]),
     ({"client": 3}, [REQUEST, EXCEPTION, NOISE, REPLY_BURST]),
     ({"scenario": "meter"}, [RUN, RUN_FAILED, NOISE, REPLY_BURST]),
-    ({"errors": True}, [EXCEPTION, RUN_FAILED, NOISE]),
+    ({"errors": True}, [EXCEPTION, RUN_FAILED, NOISE, LATE]),
     ({"line": "serial"}, [REQUEST, EXCEPTION, RUN, RUN_FAILED, NOISE, REPLY_BURST]),
 ])
 def test_which_events_pass(wanted, passing):
     events = [REQUEST, EXCEPTION, RUN, RUN_FAILED, NOISE, REPLY_BURST]
+    if wanted.get("errors"):
+        events.append(LATE)
     assert [e for e in events if matches(e, wanted)] == passing
