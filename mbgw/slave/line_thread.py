@@ -29,6 +29,7 @@ from mbgw.ops.exception_reply import gateway_exception
 from mbgw.protocol import mbap, pdu
 from mbgw.scenarios.exchange import EXCEPTION_KINDS, TIMEOUT
 from mbgw.scenarios.health import SerialHealth
+from mbgw.scenarios.report import trace_event
 from mbgw.slave.client import Client
 from mbgw.slave.connections import Connections
 from mbgw.slave.scheduler import (
@@ -421,7 +422,7 @@ class LineWorker(LineThread[SlaveConfig]):
             return
         if done is None:
             self._run_started = time.monotonic_ns()
-            trace.emit_threadsafe(scenario_event("request", scenario, request, ""))
+            trace.emit_threadsafe(trace_event("request", scenario, request, ""))
             return
         reply, error, _ = done
         kind = kind or error
@@ -429,9 +430,9 @@ class LineWorker(LineThread[SlaveConfig]):
         if reply is None:
             outcome = "broadcast" if scenario.slave == pdu.BROADCAST and kind is None \
                 else kind or TIMEOUT
-            event = scenario_event("no reply", scenario, request[:1], outcome, latency_ms)
+            event = trace_event("no reply", scenario, request[:1], outcome, latency_ms)
         else:
-            event = scenario_event("reply", scenario, bytes(reply), kind or "ok", latency_ms)
+            event = trace_event("reply", scenario, bytes(reply), kind or "ok", latency_ms)
         trace.emit_threadsafe(event)
 
     def _scenarios_while_down(self, engine) -> None:
@@ -477,16 +478,6 @@ class LineWorker(LineThread[SlaveConfig]):
         finally:
             self._gate.take()
             self._server.take_kept()
-
-
-def scenario_event(direction: str, scenario, data: bytes, outcome: str,
-                   latency_ms: float | None = None) -> dict:
-    """A trace event (mbgw.ops.trace) of a scenario's run."""
-    replied = direction != "no reply"
-    return {"time": time.time(), "direction": direction, "scenario": scenario.name,
-            "client": None, "tid": None, "unit": scenario.slave, "function": data[0],
-            "length": len(data) if replied else 0, "pdu": data.hex() if replied else "",
-            "outcome": outcome, "latency_ms": latency_ms, "line": "serial"}
 
 
 def serial_scenarios(cfg: SlaveConfig) -> tuple:
