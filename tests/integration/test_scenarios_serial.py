@@ -162,8 +162,10 @@ def test_a_value_is_copied_from_one_device_to_another_on_change(pymodbus_line, g
 # --- the change trigger and the insertion order, from the frames the peer saw ---
 
 def test_the_same_value_again_sends_nothing_a_new_value_one_write(fault_line, gateway, client):
+    """stout 1 s: a reply slowed by a loaded host must not make a write sent again (a retry,
+    or an unanswered write owed) and count twice."""
     record = fault_line()
-    gw, _ = gateway([on_change("out", 20, 6, 7, 300)])
+    gw, _ = gateway([on_change("out", 20, 6, 7, 300)], stout=1000)
     c = client(gw)
     for value in (5, 5, 6):
         assert c.ask(TABLE_UNIT, bytes.fromhex(f"06 012c {value:04x}"))[0] == 0x06
