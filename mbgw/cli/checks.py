@@ -10,6 +10,7 @@ import click
 
 from mbgw.cli.options import ModeCommand, web_config
 from mbgw.config import file as cf
+from mbgw.config.model import DEFAULT_REQUEST_TIMEOUT_MS
 from mbgw.config.schema import Schema
 from mbgw.errors import ConfigError, ConfigFileError
 from mbgw.ops import preflight
@@ -20,12 +21,16 @@ _FLAG = re.compile(r"--[a-z][a-z-]*")
 
 
 def build(make_config, params: dict):
-    """make_config(**params) with the [web] settings, which every mode shares.  Raises
+    """make_config(**params) with the [web] settings and [net] request-timeout, which every
+    mode shares.  Raises
     click.BadParameter (naming the option) when the values do not go together."""
     options = dict(params)
     options.pop("log_format", None)       # how the daemon logs, not a mode's setting
     web = web_config(options)
-    return dataclasses.replace(make_config(**options), web=web)
+    request_timeout = options.pop("request_timeout", DEFAULT_REQUEST_TIMEOUT_MS)
+    web = dataclasses.replace(web, request_timeout_ms=request_timeout)
+    return dataclasses.replace(make_config(**options), web=web,
+                               request_timeout_ms=request_timeout)
 
 
 def problems(schema: Schema, command: click.Command, params: dict,

@@ -222,8 +222,8 @@ def _parse_functions(value) -> tuple[int, ...]:
 
 
 def _parse_persist(value):
-    if value is not None and not str(value).strip():
-        raise ConfigError("table-persist: empty; expected a file path")
+    if value is not None and value != PERSIST_OFF:
+        config.check_persist_path(str(value))
     return value
 
 
@@ -236,8 +236,10 @@ table_options = stack(
     click.option("--table-persist", cls=TableOption, key="persist", metavar="PATH",
                  default=config.TableConfig.persist, callback=parser(_parse_persist),
                  help="Keep the outputs and the free zone (0x0800-0x7FFF) in this file "
-                      "across restarts, written atomically; off: not kept [default: "
-                      "$STATE_DIRECTORY/table under the units, else not kept]."),
+                      "across restarts, written atomically; a regular file in the state "
+                      "directory ($STATE_DIRECTORY, else %s); off: not kept [default: "
+                      "$STATE_DIRECTORY/table under the units, else not kept]."
+                      % config.DEFAULT_STATE_DIRECTORY),
     click.option("--table-persist-interval", cls=TableOption, key="persist-interval",
                  type=click.IntRange(*config.PERSIST_INTERVAL_RANGE),
                  default=config.DEFAULT_PERSIST_INTERVAL_S, show_default=True, metavar="S",
@@ -412,6 +414,32 @@ def _password_hash(label: str):
     return parse
 
 
+_HTTPS_ONLY = "mbgw.web-https-only"     # ctx.meta: https-only seen before --web-cert
+
+
+def _needs_web_cert(ctx, param, value):
+    """https-only without a certificate is refused in the options' callbacks, so at start,
+    reload and check-config alike; click may process either option first."""
+    if value:
+        if "web_cert" not in ctx.params:
+            ctx.meta[(_HTTPS_ONLY, id(ctx))] = True
+        elif ctx.params["web_cert"] is None:
+            _https_only_refused()
+    return value
+
+
+def _web_cert(ctx, param, value):
+    value = _tls_file(_check_cert)(ctx, param, value)
+    if value is None and ctx.meta.pop((_HTTPS_ONLY, id(ctx)), False):
+        _https_only_refused()
+    return value
+
+
+def _https_only_refused():
+    raise click.BadParameter("needs HTTPS: give --web-cert and --web-key (web.cert and "
+                             "web.key)", param_hint="'--web-https-only'")
+
+
 # The web console ([web] keys): on with --web; the password hashes are file keys only.
 web_options = stack(
     click.option("--web", "web_listen", cls=WebOption, key="web", file_key="listen",
@@ -420,7 +448,7 @@ web_options = stack(
                       "every address); needs an admin password (mbgw config password admin) "
                       "[default: off]."),
     click.option("--web-cert", cls=WebOption, key="web-cert", file_key="cert", metavar="PATH",
-                 default=None, callback=_tls_file(_check_cert),
+                 default=None, callback=_web_cert,
                  help="The web console's certificate (PEM): HTTPS, with --web-key."),
     click.option("--web-key", cls=WebOption, key="web-key", file_key="key", metavar="PATH",
                  default=None, callback=_tls_file(_check_key),
@@ -433,8 +461,14 @@ web_options = stack(
                  hidden=True, default=None,
                  callback=parser(_password_hash("web.user-password")),
                  help="The user's password hash (set by mbgw config password user)."),
+    click.option("--web-https-only/--no-web-https-only", cls=WebOption, key="web-https-only",
+                 file_key="https-only", default=config.WebConfig.https_only, show_default=True,
+                 callback=_needs_web_cert,
+                 help="With --web-cert: a plain HTTP request on the console's port is "
+                      "redirected to HTTPS, and every answer sets Strict-Transport-Security."),
 )
-WEB_PARAMS = ("web_listen", "web_cert", "web_key", "web_admin_password", "web_user_password")
+WEB_PARAMS = ("web_listen", "web_cert", "web_key", "web_admin_password", "web_user_password",
+              "web_https_only")
 
 
 def web_config(options: dict) -> config.WebConfig:
@@ -443,10 +477,17 @@ def web_config(options: dict) -> config.WebConfig:
     web = {name: options.pop(name, None) for name in WEB_PARAMS}
     return convert("'--web'", lambda: config.WebConfig(
         listen=web["web_listen"], cert=web["web_cert"], key=web["web_key"],
-        admin_password=web["web_admin_password"], user_password=web["web_user_password"]))
+        admin_password=web["web_admin_password"], user_password=web["web_user_password"],
+        https_only=bool(web["web_https_only"])))
 
 
 daemon_options = stack(
+    click.option("--request-timeout", type=click.IntRange(*config.REQUEST_TIMEOUT_RANGE),
+                 default=config.DEFAULT_REQUEST_TIMEOUT_MS, show_default=True, metavar="MS",
+                 help="A request begun (a Modbus request's first byte, a TLS handshake, an "
+                      "HTTP request) must be whole within MS, or its connection is closed; "
+                      "a connection that has sent no whole request is the first a newcomer "
+                      "replaces.  %d..%d ms." % config.REQUEST_TIMEOUT_RANGE),
     click.option("--control", metavar="PATH", default=None,
                  help="Control socket for mbgw status/trace [default: "
                       "$RUNTIME_DIRECTORY/mbgw.sock or /run/mbgw/mbgw.sock]."),

@@ -78,11 +78,31 @@ def read_text(path: Path) -> str:
     return Path(path).read_text(encoding="utf-8")
 
 
+MAX_NESTING = 8         # arrays and tables in one another: the deepest key needs 3
+
+
 def parse(path: Path, text: str) -> dict:
     try:
-        return tomllib.loads(text)
+        data = tomllib.loads(text)
+        if nesting(data) > MAX_NESTING:
+            raise RecursionError
     except tomllib.TOMLDecodeError as err:
         raise ConfigFileError(path, [f"not valid TOML: {err}"]) from None
+    except RecursionError:
+        raise ConfigFileError(path, [f"arrays or tables nested more than {MAX_NESTING} deep: "
+                                     f"no key of mbgw's is"]) from None
+    return data
+
+
+def nesting(value) -> int:
+    """How deep arrays and tables are in one another in value (a scalar: 0)."""
+    depth, level = 0, [value]
+    while True:
+        containers = [v for v in level if isinstance(v, (list, dict))]
+        if not containers:
+            return depth
+        depth += 1
+        level = [v for c in containers for v in (c.values() if isinstance(c, dict) else c)]
 
 
 def check(schema: Schema, path: Path, data: dict) -> Settings:

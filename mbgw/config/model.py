@@ -2,7 +2,9 @@
 bound is stated here once."""
 import ipaddress
 import math
+import os
 import re
+import stat
 from dataclasses import dataclass, field
 
 from mbgw.errors import ConfigError
@@ -48,6 +50,10 @@ DEFAULT_DOWN_AFTER = 3
 PROBE_INTERVAL_RANGE = (100, 65535)
 DEFAULT_PROBE_INTERVAL_MS = 5000
 PROBE_BACKOFF_MAX_MS = 60000
+# A request (a Modbus request, a TLS handshake, an HTTP request's headers) must be whole this
+# long after its first byte, or its connection is closed ([net] request-timeout, ms).
+REQUEST_TIMEOUT_RANGE = (100, 60000)
+DEFAULT_REQUEST_TIMEOUT_MS = 2000
 
 
 @dataclass(frozen=True)
@@ -155,6 +161,42 @@ TABLE_ADDRESS_RANGE = (0, 247)                 # master mode; 0: the line has no
 DEFAULT_TABLE_PORT = 502                       # master mode: TCP clients reach the table here
 PERSIST_INTERVAL_RANGE = (1, 86400)            # s
 DEFAULT_PERSIST_INTERVAL_S = 10
+# table-persist lives in the service's state directory, nowhere else (a console admin must not
+# choose where the daemon writes)
+DEFAULT_STATE_DIRECTORY = "/var/lib/mbgw"
+
+
+def state_directory() -> str:
+    """systemd's StateDirectory when it set one ($STATE_DIRECTORY), else /var/lib/mbgw."""
+    return (os.environ.get("STATE_DIRECTORY") or DEFAULT_STATE_DIRECTORY).split(":")[0]
+
+
+def check_persist_path(text: str) -> str:
+    """table-persist's file: an absolute path, a regular file if it exists (never a link, a
+    directory, a device or a FIFO), inside the state directory (links and .. resolved).
+    Raises ConfigError naming the key and why."""
+    if not text.strip():
+        raise ConfigError("table-persist: empty; expected a file path")
+    directory = os.path.realpath(state_directory())
+    if not os.path.isabs(text):
+        raise ConfigError(f"table-persist {text!r}: not an absolute path; the file must be "
+                          f"in {directory}")
+    try:
+        mode = os.lstat(text).st_mode
+    except FileNotFoundError:
+        mode = None
+    except OSError as err:
+        raise ConfigError(f"table-persist {text!r}: {err.strerror}") from None
+    if mode is not None and stat.S_ISDIR(mode):
+        raise ConfigError(f"table-persist {text!r}: is a directory, not a regular file")
+    if mode is not None and not stat.S_ISREG(mode):
+        raise ConfigError(f"table-persist {text!r}: not a regular file (a link, a device or a "
+                          f"FIFO is never the table's file)")
+    where = os.path.join(os.path.realpath(os.path.dirname(text)), os.path.basename(text))
+    if os.path.commonpath([where, directory]) != directory or where == directory:
+        raise ConfigError(f"table-persist {text!r}: outside the state directory {directory} "
+                          f"($STATE_DIRECTORY): mbgw keeps the table nowhere else")
+    return text
 
 
 def parse_number_list(option: str, text: str, low: int, high: int) -> tuple[int, ...]:
@@ -290,11 +332,15 @@ class WebConfig:
     key: str | None = None             # ... and its private key (PEM)
     admin_password: str | None = None  # scrypt$N$r$p$salt$hash
     user_password: str | None = None
+    https_only: bool = False           # plain HTTP redirected to HTTPS, HSTS set
+    request_timeout_ms: int = DEFAULT_REQUEST_TIMEOUT_MS   # [net] request-timeout's
 
     def __post_init__(self) -> None:
         if (self.cert is None) != (self.key is None):
             raise ConfigError("web-cert and web-key go together: HTTPS needs the certificate "
                               "and its private key")
+        if self.https_only and self.cert is None:
+            raise ConfigError("web.https-only needs HTTPS: give web.cert and web.key")
         if self.listen is not None and self.admin_password is None:
             raise ConfigError("no admin password set: the web console needs one (mbgw config "
                               "password admin)")
@@ -373,6 +419,7 @@ class SlaveConfig:
     tls: TlsConfig = field(default_factory=TlsConfig)
     upstream_tls: UpstreamTlsConfig = field(default_factory=UpstreamTlsConfig)
     web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
+    request_timeout_ms: int = DEFAULT_REQUEST_TIMEOUT_MS   # [net] request-timeout
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "slave")
@@ -446,6 +493,7 @@ class MasterConfig:
     config_file: str | None = None  # the file the settings came from (scenario ... --save)
     tls: TlsConfig = field(default_factory=TlsConfig)    # on the table's server
     web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
+    request_timeout_ms: int = DEFAULT_REQUEST_TIMEOUT_MS   # [net] request-timeout
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "master")
@@ -554,6 +602,7 @@ class TransparentModeConfig:
     tcpto_ms: int = DEFAULT_TCPTO_MS   # TCP scenarios: the time for a transaction with a server
     tls: TlsConfig = field(default_factory=TlsConfig)    # on the table's server
     web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
+    request_timeout_ms: int = DEFAULT_REQUEST_TIMEOUT_MS   # [net] request-timeout
 
     @property
     def table_on(self) -> bool:

@@ -21,7 +21,7 @@ GROUPS = ("serial", "net", "general", "table", "tls", "transparent", "web")
 # the options of class TableOption, each under its own key (--table-units is table.units).
 LINE_KEYS = frozenset({"retries", "turnaround", "late-window"})
 NET_KEYS = frozenset({"slaveid", "authip", "mdbport", "tcpto", "exception", "metric", "bind",
-                      "max-connections", "max-connections-per-ip"})
+                      "max-connections", "max-connections-per-ip", "request-timeout"})
 MODE_TABLES = ("authip", "slaveid")        # cleared when the mode changes (the guide says so)
 AUTHIP_ENTRIES = 8                         # "n: table entry index, from 1 to 8"
 NO_ADDRESS = "0.0.0.0"                     # "IP address 0.0.0.0 clears the entry"

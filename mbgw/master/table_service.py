@@ -31,6 +31,7 @@ class TableService:
         # on the TCP server's requests
         self.firewall = Firewall(settings.firewall, settings.tls.roles_required)
         self.tls = settings.tls
+        self.request_timeout_s = settings.request_timeout_ms / 1000
         self._commands = table_commands(self.table)
         self.persistence: Persistence | None = None
         if cfg.enabled and cfg.persist:
@@ -56,6 +57,7 @@ class TableService:
         context = server_context(tls) if tls.enabled else None
         self.server = TableServer(self.table, port, firewall=self.firewall, tls=context,
                                   tls_port=tls.port, role_of=role_of)
+        self.server.request_timeout_s = self.request_timeout_s
         self.server.start()
         log.info("exchange table served on %s (at most %d clients)",
                  ", ".join(self.server.addresses), MAX_CONNECTIONS)
@@ -88,6 +90,9 @@ class TableService:
                 self.server.set_firewall(firewall)
         old_tls = self.tls
         self.tls = settings.tls
+        self.request_timeout_s = settings.request_timeout_ms / 1000
+        if self.server is not None:
+            self.server.request_timeout_s = self.request_timeout_s
         try:
             if not new.enabled:
                 self._stop_server()

@@ -11,12 +11,16 @@ import socket
 import struct
 import time
 
+from mbgw.ops.limits import WarnLimit, share
+
 log = logging.getLogger("mbgw.control")
 
 DEFAULT_DIR = "/run/mbgw"
 MAX_REQUEST = 64 * 1024          # one request line; status replies are far larger than any request
 REQUEST_TIMEOUT_S = 10.0         # a client that connects and says nothing is not kept
 BAD_REQUEST_LOG_INTERVAL_S = 60.0
+MAX_CONNECTIONS = 32             # at once (a trace is one for as long as it runs) ...
+PER_USER = share(MAX_CONNECTIONS)    # ... of which one uid holds at most this many
 
 
 class BadRequest(Exception):
@@ -77,6 +81,8 @@ class ControlServer:
         self._commands = commands      # name -> callable(request dict) -> reply dict
         self._server: asyncio.base_events.Server | None = None
         self._bad_requests = BadRequestLog()
+        self._open: dict[int, int] = {}        # connections by uid
+        self._warn = WarnLimit(log)
 
     async def start(self) -> None:
         directory = os.path.dirname(self.path) or "."
@@ -101,6 +107,24 @@ class ControlServer:
                 pass
 
     async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        uid = _peer_uid(writer)
+        held = self._open.get(uid, 0)
+        if held >= PER_USER or sum(self._open.values()) >= MAX_CONNECTIONS:
+            self._warn.warn(str(uid), "full", "control socket: a connection of uid %s refused: "
+                            "%d open (at most %d, %d a user)", uid, sum(self._open.values()),
+                            MAX_CONNECTIONS, PER_USER)
+            writer.close()
+            return
+        self._open[uid] = held + 1
+        try:
+            await self._serve(reader, writer, uid)
+        finally:
+            self._open[uid] -= 1
+            if not self._open[uid]:
+                del self._open[uid]
+
+    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter,
+                     uid: int) -> None:
         try:
             try:
                 line = await _read_request(reader)
@@ -113,7 +137,7 @@ class ControlServer:
                 await _reply(writer, {"error": str(err)})
                 return
             name = request["command"]
-            request["uid"] = _peer_uid(writer)
+            request["uid"] = uid
             if name == "trace":
                 await self._commands["trace"](request, reader, writer)
                 return

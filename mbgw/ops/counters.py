@@ -54,6 +54,7 @@ class Counters(_Counting):
     connections_bad_header: int = 0
     connections_refused_tls: int = 0
     connections_tls_probes: int = 0
+    connections_timed_out: int = 0
 
 
 @dataclass(slots=True)

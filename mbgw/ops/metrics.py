@@ -45,6 +45,8 @@ _COUNTER_HELP = {
                                "(no valid client certificate, garbage, too slow, too many).",
     "connections_tls_probes": "Connections to the TLS port closed or reset before their first "
                               "byte (health checks); not refused handshakes.",
+    "connections_timed_out": "Modbus TCP connections closed because a request begun was not "
+                             "whole within request-timeout, or none came within a minute.",
 }
 
 _DEVICE_HELP = {

@@ -3,22 +3,28 @@
 prometheus_client (Debian's python3-prometheus-client) does the exposition: its WSGI app is
 served by wsgiref on one server per listening address, each in a daemon thread with a thread
 per scrape: a client that is slow or vanishes costs its own connection (and thread) only,
-until its read deadline.
+until its read deadline.  At most MAX_SCRAPES connections at once, PER_ADDRESS of them from
+one address (more are closed at once, logged once a minute per address); an accept() out of
+descriptors rests the listener.
 """
 import logging
 import socket
 import socketserver
 import sys
 import threading
+import time
 from wsgiref.simple_server import WSGIRequestHandler, WSGIServer
 
 from prometheus_client import CollectorRegistry, make_wsgi_app
 
 from mbgw.errors import ConfigError
+from mbgw.ops.limits import AcceptRest, WarnLimit, is_resource_error, share
 
 log = logging.getLogger("mbgw.metrics")
 
 IO_TIMEOUT_S = 10.0             # the longest a scrape's socket waits to read or write
+MAX_SCRAPES = 16                # connections at once (a thread each) ...
+PER_ADDRESS = share(MAX_SCRAPES)    # ... of which one address holds at most this many
 
 
 def parse_address(text: str) -> tuple[str | None, int]:
@@ -135,6 +141,10 @@ class _HttpServer(socketserver.ThreadingMixIn, WSGIServer):
 
     def __init__(self, family: int, sockaddr: tuple, app) -> None:
         self.address_family = family
+        self._lock = threading.Lock()
+        self._open: dict[str, int] = {}         # connections by client address
+        self._warn = WarnLimit(log)
+        self._rest = AcceptRest(log, "metrics")
         super().__init__(sockaddr, _Handler, bind_and_activate=False)
         try:
             if family == socket.AF_INET6:   # [::] beside 0.0.0.0, as asyncio does
@@ -152,6 +162,41 @@ class _HttpServer(socketserver.ThreadingMixIn, WSGIServer):
         host, self.server_port = self.server_address[:2]
         self.server_name = str(host)
         self.setup_environ()
+
+    def get_request(self):
+        try:
+            accepted = super().get_request()
+        except OSError as err:      # out of descriptors: rest, rather than spin in select()
+            if is_resource_error(err):
+                time.sleep(self._rest.failed(err))
+            raise
+        self._rest.accepted()
+        return accepted
+
+    def process_request(self, request, client_address) -> None:
+        host = client_address[0]
+        with self._lock:
+            held = self._open.get(host, 0)
+            full = held >= PER_ADDRESS or sum(self._open.values()) >= MAX_SCRAPES
+            if not full:
+                self._open[host] = held + 1
+        if full:
+            self._warn.warn(host, "full", "metrics: connection from %s refused: %d scrapes "
+                            "under way (at most %d, %d an address)", host,
+                            sum(self._open.values()), MAX_SCRAPES, PER_ADDRESS)
+            self.shutdown_request(request)
+            return
+        super().process_request(request, client_address)
+
+    def process_request_thread(self, request, client_address) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            with self._lock:
+                host = client_address[0]
+                self._open[host] -= 1
+                if not self._open[host]:
+                    del self._open[host]
 
     def handle_error(self, request, client_address) -> None:
         log.debug("metrics client %s: %s", client_address[0], sys.exception())

@@ -90,7 +90,7 @@ class DaemonStatus:
             return
         queue = hub.subscribe(raw, wanted)
         log.info("%strace started (%s)", "raw " if raw else "", operator(request.get("uid")))
-        gone = asyncio.ensure_future(reader.read())   # the client closing ends the trace
+        gone = asyncio.ensure_future(until_closed(reader))   # the client closing ends it
         try:
             writer.write(json.dumps(self.trace_header()).encode() + b"\n")
             while not gone.done():
@@ -108,3 +108,10 @@ class DaemonStatus:
             dropped = hub.unsubscribe(queue)
             log.info("trace ended%s", f"; {dropped} events dropped for a slow reader"
                      if dropped else "")
+
+
+async def until_closed(reader: asyncio.StreamReader) -> None:
+    """Until the client closes its end; what it sends meanwhile is read and dropped, never
+    kept."""
+    while await reader.read(4096):
+        pass

@@ -28,5 +28,13 @@ def split_frames(buf: bytearray):
         yield tid, unit, pdu
 
 
+def whole_frame(buf: bytearray) -> bool:
+    """Whether buf begins with a whole frame (or a bad header, which split_frames raises)."""
+    if len(buf) < HEADER_LEN:
+        return False
+    _, protocol, length, _ = HEADER.unpack_from(buf)
+    return protocol != 0 or not MIN_LENGTH <= length <= MAX_LENGTH or len(buf) >= 6 + length
+
+
 def frame(tid: int, unit: int, pdu: bytes) -> bytes:
     return HEADER.pack(tid, 0, len(pdu) + 1, unit) + pdu

@@ -44,7 +44,11 @@ class Client:
         self.flight = clients.counter()
         self.requests = 0
         self.connected_at = time.time()
-        self.last_active = time.monotonic()
+        self.last_active = self.opened = time.monotonic()
+        # since when (monotonic s) the request begun in _buf has been waiting for the rest of
+        # its bytes; 0.0: none begun (the asyncio thread closes it after request-timeout)
+        self.partial_since = 0.0
+        self.held = False           # whole requests kept in _buf: 16 in the gateway already
         self.closed = False
         # When the requests last framed arrived (CLOCK_MONOTONIC ns), for the line's order;
         # never before resumed_ns: when the client was last read again after back-pressure.
@@ -75,7 +79,7 @@ class Client:
         once the connection has ended.  Raises mbap.BadHeader."""
         n = reader.read(self.fd)
         if n == -errno.EAGAIN:
-            return []
+            return self.received(b"", self.arrived_ns) if self.held else []
         if n <= 0:
             return None
         return self.received(reader.data[:n], reader.arrived_ns)
@@ -104,11 +108,22 @@ class Client:
 
     def received(self, data, arrived_ns: int) -> list:
         """What was read from the connection (it arrived at arrived_ns), framed as receive()
-        does."""
-        self._buf += data
+        does: as many whole requests as the client may have in the gateway (MAX_IN_FLIGHT),
+        the others kept in the buffer (held) until it has room again, so that pipelining
+        meets back-pressure however many requests one read brings."""
+        buf = self._buf
+        buf += data
         self.arrived_ns = max(arrived_ns, self.resumed_ns)
-        self.last_active = time.monotonic()
-        return list(mbap.split_frames(self._buf))
+        now = time.monotonic()
+        self.last_active = now
+        frames = list(itertools.islice(mbap.split_frames(buf),
+                                       max(0, MAX_IN_FLIGHT - self.in_flight)))
+        self.held = mbap.whole_frame(buf)
+        if not buf or self.held:
+            self.partial_since = 0.0
+        elif frames or not self.partial_since:
+            self.partial_since = now
+        return frames
 
     def send(self, frame: bytes) -> None:
         """Onto the socket now, or behind the replies it could not take yet."""
@@ -179,7 +194,7 @@ class TlsClient(Client):
             while data and sock.pending():
                 data += sock.recv(sock.pending())
         except (ssl.SSLWantReadError, ssl.SSLWantWriteError):
-            return []
+            return self.received(b"", self.arrived_ns) if self.held else []
         except OSError:                 # ssl.SSLError included: the connection is over
             return None
         if not data:

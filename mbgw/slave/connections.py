@@ -14,6 +14,7 @@ import time
 from collections import deque
 
 from mbgw.line.clients import ClientReader
+from mbgw.ops.limits import WarnLimit
 from mbgw.protocol import mbap
 from mbgw.slave.client import RECEIVE_SIZE, Client
 
@@ -36,6 +37,8 @@ class Connections:
         self._adopted: deque[Client] = deque()     # from the asyncio thread, not yet polled
         self._reader = ClientReader(RECEIVE_SIZE)
         self._also: dict = {}                      # fd -> on_ready (poll_also)
+        self._again: list[Client] = []   # whole requests held, room again: served unpolled
+        self._warn = WarnLimit(log)
 
     def adopt(self, client: Client) -> None:
         """Asyncio thread: from now on the line thread serves client."""
@@ -58,11 +61,14 @@ class Connections:
         self._update()
         if serial_fd >= 0:
             self._poll.register(serial_fd, _IN)
+        again = self._again
         try:
-            ready = self._poll.poll(timeout_ms)
+            ready = self._poll.poll(0 if again else timeout_ms)
         finally:
             if serial_fd >= 0:
                 self._poll.unregister(serial_fd)
+        if again:
+            ready = self._with_held(ready, again)
         serial = False
         if len(ready) != 1:
             take = None         # input on the line (it is not quiet), or several ready
@@ -83,6 +89,13 @@ class Connections:
                 else:
                     self._serve(client, events)
         return serial
+
+    def _with_held(self, ready: list, again: list[Client]) -> list:
+        """ready, and the clients whose held requests may go on now (as if they had input)."""
+        polled = {fd for fd, _ in ready}
+        ready = ready + [(c.fd, _IN) for c in again if c.fd not in polled]
+        again.clear()
+        return ready
 
     # --- the table reader (mbgw.slave.table_reader), under the line worker's gate ---
 
@@ -126,7 +139,10 @@ class Connections:
         the gateway or a backlog of replies it does not read.  What a client held back so
         sent meanwhile is in the line's order from when it is read again."""
         for fd, client in self._clients.items():
-            wanted = (_IN if client.readable else 0) | (_OUT if client.output_waiting else 0)
+            readable = client.readable
+            if readable and client.held:
+                self._again.append(client)
+            wanted = (_IN if readable else 0) | (_OUT if client.output_waiting else 0)
             if wanted == self._events[fd]:
                 continue
             if wanted & ~self._events[fd] & _IN:
@@ -149,8 +165,8 @@ class Connections:
             frames = client.receive(self._reader) if take is None else take(client)
         except mbap.BadHeader as err:
             self._counters.connections_bad_header += 1
-            log.warning("client %s: bad MBAP header (%s); closing the connection",
-                        client.peer, err)
+            self._warn.warn(client.host, "bad header", "client %s: bad MBAP header (%s); "
+                            "closing the connection", client.peer, err)
             self._close(client)
             return
         if frames is None:

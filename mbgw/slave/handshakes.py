@@ -11,7 +11,8 @@ import ssl
 from mbgw.ops.tls import first_byte, handshake_step, start_handshake
 
 MAX_HANDSHAKES = 64
-HANDSHAKE_TIMEOUT_S = 10.0
+HANDSHAKES_PER_ADDRESS = MAX_HANDSHAKES // 8    # one address cannot fill the slots
+HANDSHAKE_TIMEOUT_S = 10.0                      # the server sets request-timeout
 
 
 class Handshake:
@@ -37,17 +38,22 @@ class Handshakes:
         self._on_failed = on_failed
         self._on_probe = on_probe
         self._under_way: dict[int, Handshake] = {}     # by fd
+        self.timeout_s = HANDSHAKE_TIMEOUT_S
 
     @property
     def full(self) -> bool:
         return len(self._under_way) >= MAX_HANDSHAKES
 
+    def from_host(self, host: str) -> int:
+        """Handshakes under way with host."""
+        return sum(1 for h in self._under_way.values() if h.address[0] == host)
+
     def start(self, context: ssl.SSLContext, sock: socket.socket, address) -> None:
         """Shake hands with an accepted, non-blocking socket."""
         handshake = Handshake(sock, address, context)
         handshake.timer = self._loop.call_later(
-            HANDSHAKE_TIMEOUT_S, self._failed, handshake,
-            f"no handshake within {HANDSHAKE_TIMEOUT_S:g} s")
+            self.timeout_s, self._failed, handshake,
+            f"no handshake within {self.timeout_s:g} s")
         self._under_way[handshake.fd] = handshake
         self._step(handshake)
 

@@ -4,7 +4,10 @@ The asyncio thread listens and admits.  authip is checked as soon as a connectio
 accepted, before any byte is read.  The limits count live connections: one whose peer has
 closed or reset it is forgotten first, even before the line thread has read its end.  A
 newcomer over max_connections_per_ip is refused; over max_connections it takes the place of
-an idle client (eviction_victim), or is refused when none may go.  An admitted connection
+an idle client (eviction_victim), or is refused when none may go.  A request begun and not
+whole within request-timeout, or no request within FIRST_REQUEST_S, closes its connection
+(_sweep).  An accept() that fails for want of descriptors rests the listener (AcceptRest):
+it never spins.  An admitted connection
 then belongs to the line thread
 (mbgw.slave.connections), which calls request() for each frame it reads and finished() with each
 outcome: one thread carries a transaction from the client's bytes to the reply.
@@ -30,6 +33,7 @@ from mbgw.line import clients
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
 from mbgw.ops.exception_reply import gateway_exception
+from mbgw.ops.limits import AcceptRest, WarnLimit, is_resource_error
 from mbgw.ops.reload import ReloadReport
 from mbgw.ops.service import ListenError
 from mbgw.ops.tls import role_of, server_context
@@ -38,7 +42,7 @@ from mbgw.protocol import mbap, pdu
 from mbgw.slave.acl import AccessList
 from mbgw.slave.client import PEER_GONE, Client, TlsClient
 from mbgw.slave.connections import Connections
-from mbgw.slave.handshakes import MAX_HANDSHAKES, Handshakes
+from mbgw.slave.handshakes import HANDSHAKES_PER_ADDRESS, MAX_HANDSHAKES, Handshakes
 from mbgw.slave.scheduler import (
     OUTCOME_DEVICE_DOWN,
     OUTCOME_LATE,
@@ -51,12 +55,11 @@ from mbgw.slave.scheduler import (
 
 log = logging.getLogger("mbgw.tcp")
 
-REFUSAL_LOG_INTERVAL_S = 60.0
-REFUSALS_REMEMBERED = 1024       # (address, reason) pairs; those older than a minute go first
 OUTCOME_FIREWALL = "firewall"    # refused by the firewall (0x01)
 LISTEN_BACKLOG = 100
-# TLS handshakes under way at once, and how long one may take: a flood of connections that
-# never finish (or garbage) costs the asyncio thread one wake-up each and no more.
+FIRST_REQUEST_S = 60.0           # a connection that sent no whole request this long is closed
+SLOW_REQUEST_S = 0.5             # a request begun this long ago and not whole: a slow client
+SWEEP_S = 0.25                   # how often the clients' deadlines are looked at
 
 
 class TcpServer:
@@ -73,7 +76,10 @@ class TcpServer:
         self._acl = AccessList(cfg.authip)
         self.firewall = Firewall(cfg.firewall, cfg.tls.roles_required)
         self.clients: list[Client] = []  # the asyncio thread's list, for admission and status
-        self._refusals: dict[tuple[str, str], float] = {}    # by (address, reason)
+        self._warn = WarnLimit(log)
+        self._evictions = WarnLimit(log, level=logging.INFO)
+        self._accept_rest = AcceptRest(log, "Modbus TCP")
+        self._sweeper: asyncio.TimerHandle | None = None
         self._listeners: list[socket.socket] = []
         self._tls_listeners: list[socket.socket] = []
         self._tls = server_context(cfg.tls) if cfg.tls.enabled else None   # ConfigError
@@ -95,12 +101,14 @@ class TcpServer:
         self._loop = asyncio.get_running_loop()
         self._handshakes = Handshakes(self._loop, self._admit_tls, self._tls_refused,
                                       self._tls_probe)
+        self._handshakes.timeout_s = self._cfg.request_timeout_ms / 1000
         self._listen_plain()
         try:
             self._listen_tls()
         except OSError as err:
             self._stop_listening()
             raise ListenError(self._cfg.tls.port, err) from None
+        self._sweeper = self._loop.call_later(SWEEP_S, self._sweep)
         return self.addresses()
 
     def _listen_plain(self) -> None:
@@ -138,6 +146,8 @@ class TcpServer:
         told to the report."""
         old, self._cfg = self._cfg, cfg
         self._acl = AccessList(cfg.authip)
+        if self._handshakes is not None:
+            self._handshakes.timeout_s = cfg.request_timeout_ms / 1000
         self._guard_clients(self.firewall.renewed(cfg.firewall, cfg.tls.roles_required))
         self._table_units = table_units(cfg)
         if self.table is not None and cfg.table.functions != old.table.functions:
@@ -209,6 +219,8 @@ class TcpServer:
             client.guard = firewall.guard(client.host, client.role, client.listener)
 
     def close(self) -> None:
+        if self._sweeper is not None:
+            self._sweeper.cancel()
         self._stop_listening()
         self._stop_listening(tls=True)
         if self._handshakes is not None:
@@ -217,17 +229,62 @@ class TcpServer:
             self._drop(client)
 
     def _accept(self, listener: socket.socket) -> None:
-        try:
-            sock, address = listener.accept()
-        except (BlockingIOError, InterruptedError, ConnectionAbortedError):
-            return
-        except OSError as err:          # out of file descriptors, say: the next one may do
-            log.warning("cannot accept a connection: %s", err.strerror)
+        sock, address = self._accepted(listener, self._accept)
+        if sock is None:
             return
         sock.setblocking(False)
         client = Client(sock, address[0], format_address(address),
                         format_address(sock.getsockname()))
         self._welcome(client)
+
+    def _accepted(self, listener: socket.socket, handler) -> tuple:
+        """(socket, address) of a newcomer on listener, or (None, None): none waits, or the
+        process is out of descriptors or memory, and then the listener rests (it would be
+        readable at once again: the loop would spin)."""
+        try:
+            accepted = listener.accept()
+        except (BlockingIOError, InterruptedError, ConnectionAbortedError):
+            return None, None
+        except OSError as err:
+            if is_resource_error(err):
+                self._rest(listener, handler, err)
+            else:
+                log.debug("cannot accept a connection: %s", err.strerror or err)
+            return None, None
+        self._accept_rest.accepted()
+        return accepted
+
+    def _rest(self, listener: socket.socket, handler, err: OSError) -> None:
+        loop = self._loop
+        assert loop is not None
+        loop.remove_reader(listener.fileno())
+        loop.call_later(self._accept_rest.failed(err), self._resume, listener, handler)
+
+    def _resume(self, listener: socket.socket, handler) -> None:
+        if self._loop is not None and (listener in self._listeners
+                                       or listener in self._tls_listeners):
+            self._loop.add_reader(listener.fileno(), handler, listener)
+
+    def _sweep(self) -> None:
+        """Close the connections whose request has been begun for longer than request-timeout,
+        and those that have sent no whole request for FIRST_REQUEST_S."""
+        assert self._loop is not None
+        self._sweeper = self._loop.call_later(SWEEP_S, self._sweep)
+        now = time.monotonic()
+        limit_s = self._cfg.request_timeout_ms / 1000
+        for client in list(self.clients):
+            since = client.partial_since
+            if since and now - since > limit_s:
+                reason = f"a request not whole within request-timeout " \
+                         f"({self._cfg.request_timeout_ms} ms)"
+            elif not client.requests and now - client.opened > FIRST_REQUEST_S:
+                reason = f"no request within {FIRST_REQUEST_S:g} s"
+            else:
+                continue
+            self.counters.connections_timed_out += 1
+            self._warn.warn(client.host, "timeout", "client %s closed: %s", client.peer,
+                            reason)
+            self._drop(client)
 
     def _welcome(self, client: Client) -> None:
         """An accepted client admitted (within the limits) and handed to the line thread, or
@@ -242,12 +299,8 @@ class TcpServer:
     # --- Modbus/TCP Security: accepted here, the handshake in mbgw.slave.handshakes ---
 
     def _accept_tls(self, listener: socket.socket) -> None:
-        try:
-            sock, address = listener.accept()
-        except (BlockingIOError, InterruptedError, ConnectionAbortedError):
-            return
-        except OSError as err:
-            log.warning("cannot accept a connection: %s", err.strerror)
+        sock, address = self._accepted(listener, self._accept_tls)
+        if sock is None:
             return
         host = address[0]
         if not self._acl.allows(host):          # before any byte is read
@@ -257,9 +310,12 @@ class TcpServer:
             return
         handshakes = self._handshakes
         assert handshakes is not None
-        if handshakes.full or self._tls is None:
+        per_ip = min(HANDSHAKES_PER_ADDRESS, self._cfg.max_connections_per_ip or MAX_HANDSHAKES)
+        if handshakes.full or self._tls is None or handshakes.from_host(host) >= per_ip:
             self.counters.connections_refused_tls += 1
-            self._log_refusal(host, f"{MAX_HANDSHAKES} TLS handshakes under way already",
+            self._log_refusal(host, f"{MAX_HANDSHAKES} TLS handshakes under way already"
+                              if handshakes.full else
+                              f"{per_ip} TLS handshakes of this address under way already",
                               Kind.TLS_REFUSED)
             sock.close()
             return
@@ -314,16 +370,20 @@ class TcpServer:
         live = self._live(self.clients)
         if len(live) < self._cfg.max_connections:
             return True
-        idle = [c for c, events in live.items() if not (c.busy or events & select.POLLIN)]
-        victim = eviction_victim(idle, time.monotonic())
+        now = time.monotonic()
+        idle = [c for c, events in live.items()
+                if not (c.in_flight or c.output_waiting)
+                and (not events & select.POLLIN or slow(c, now))]
+        victim = eviction_victim(idle, now)
         if victim is None:
-            event(log, Kind.CONNECTION_REFUSED, "client %s refused: all %d connections of "
-                  "net.max-connections are busy (a request in the gateway, or one within the "
-                  "last %d s)", newcomer.peer,
-                  len(live), ACTIVE_WINDOW_S, client=newcomer.peer,
-                  reason="max-connections, every client busy")
+            self._warn.warn(newcomer.host, "busy", "client %s refused: all %d connections of "
+                            "net.max-connections are busy (a request in the gateway, or one "
+                            "within the last %d s)", newcomer.peer, len(live), ACTIVE_WINDOW_S,
+                            kind=Kind.CONNECTION_REFUSED, client=newcomer.peer,
+                            reason="max-connections, every client busy")
             return False
-        log.info("client %s closed to make room for %s", victim.peer, newcomer.peer)
+        self._evictions.warn(victim.host, "evicted", "client %s closed to make room for %s",
+                             victim.peer, newcomer.peer)
         self.counters.connections_evicted += 1
         self._drop(victim)
         return True
@@ -363,18 +423,10 @@ class TcpServer:
 
     def _log_refusal(self, host: str, reason: str,
                      kind: Kind = Kind.CONNECTION_REFUSED) -> None:
-        """Logged at most once a minute per address and reason: a refusal of one kind never
-        hides another kind from the same address."""
-        now = time.monotonic()
-        refusals = self._refusals
-        if now - refusals.get((host, reason), -REFUSAL_LOG_INTERVAL_S) >= REFUSAL_LOG_INTERVAL_S:
-            if len(refusals) >= REFUSALS_REMEMBERED:
-                for key in [k for k, t in refusals.items() if now - t >= REFUSAL_LOG_INTERVAL_S]:
-                    del refusals[key]
-            refusals[(host, reason)] = now
-            event(log, kind, "connection from %s refused: %s (further refusals of this address "
-                  "for this reason are logged at most once a minute)", host, reason,
-                  client=host, reason=reason)
+        """Logged at most once a minute per address and reason (with how many were left out):
+        a refusal of one kind never hides another kind from the same address."""
+        self._warn.warn(host, reason, "connection from %s refused: %s", host, reason,
+                        kind=kind, client=host, reason=reason)
 
     # --- the line thread: requests in, outcomes out ---
 
@@ -571,12 +623,19 @@ def table_units(cfg: SlaveConfig) -> bytes:
     return bytes(flags)
 
 
+def slow(client: Client, now: float) -> bool:
+    """A request begun SLOW_REQUEST_S ago or more and still not whole."""
+    return bool(client.partial_since) and now - client.partial_since >= SLOW_REQUEST_S
+
+
 def eviction_victim(idle: list[Client], now: float) -> Client | None:
-    """The idle client a newcomer takes the place of: of those that never sent a request, the
-    least recently active; else the least recently active of those quiet for ACTIVE_WINDOW_S;
-    None when every one is polling."""
+    """The client with nothing in the gateway that a newcomer takes the place of: of those
+    that never sent a whole request (silent, or dribbling one), the least recently active;
+    else of those slow with a request, the least recently active; else the least recently
+    active of those quiet for ACTIVE_WINDOW_S; None when every one is polling."""
     silent = [c for c in idle if not c.requests]
-    quiet = silent or [c for c in idle if now - c.last_active >= ACTIVE_WINDOW_S]
+    quiet = silent or [c for c in idle if slow(c, now)] or \
+        [c for c in idle if not c.busy and now - c.last_active >= ACTIVE_WINDOW_S]
     return min(quiet, key=lambda c: c.last_active, default=None)
 
 

@@ -2,9 +2,13 @@
 (mbgw.toml(5), PERSISTENCE).  The daemons call load() at start, maybe_save(now) from their
 periodic tick and save() at stop; no thread of its own.  A write never leaves a half file
 (temporary file, fsync, rename, directory fsync), the previous copy stays as PATH.prev, and a
-damaged file is renamed aside, never read and never made the previous copy."""
+damaged file is renamed aside, never read and never made the previous copy.  The file is
+opened without following a link and must be a regular file (fstat), so that a link, a
+device or a FIFO swapped in is neither read (it could hang or never end) nor written
+through."""
 import logging
 import os
+import stat
 import struct
 import time
 import zlib
@@ -57,11 +61,29 @@ def _fsync_dir(directory: Path) -> None:
         os.close(fd)
 
 
+_NO_SURPRISES = os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC
+
+
+def read_regular(path: Path, limit: int) -> bytes:
+    """At most limit bytes of path, a regular file opened without following a link (a FIFO
+    would not hang it: non-blocking).  Raises FileNotFoundError, or OSError (ELOOP for a link,
+    EINVAL for anything but a regular file)."""
+    fd = os.open(path, os.O_RDONLY | _NO_SURPRISES)
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise OSError(22, "not a regular file")
+        return os.read(fd, limit)
+    finally:
+        os.close(fd)
+
+
 def _write_atomically(path: Path, data: bytes) -> None:
     """path holds data whole, or (on an OSError) is as it was."""
     tmp = path.with_name(path.name + ".tmp")
     try:
-        with open(tmp, "wb") as out:
+        tmp.unlink(missing_ok=True)     # whatever was put there: a new file of our own
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | _NO_SURPRISES, 0o600)
+        with os.fdopen(fd, "wb") as out:
             out.write(data)
             out.flush()
             os.fsync(out.fileno())
@@ -114,11 +136,12 @@ class Persistence:
 
     def _read(self, path: Path) -> list[int] | None:
         try:
-            data = path.read_bytes()
+            data = read_regular(path, SIZE + 1)
         except FileNotFoundError:
             return None
         except OSError as e:     # not to be written over unread: the gateway does not start
-            raise ConfigError(f"table-persist {path}: cannot read it ({e.strerror})") from None
+            raise ConfigError(f"table-persist {path}: cannot read it ({e.strerror}; it must "
+                              f"be a regular file, not a link)") from None
         try:
             return decode(data)
         except Damaged as e:
@@ -190,10 +213,10 @@ class Persistence:
         link = self.prev.with_name(self.prev.name + ".tmp")
         link.unlink(missing_ok=True)
         try:
-            os.link(self.path, link)
+            os.link(self.path, link, follow_symlinks=False)
         except FileNotFoundError:
             return
         except OSError:            # a file system without hard links: a copy
-            _write_atomically(self.prev, self.path.read_bytes())
+            _write_atomically(self.prev, read_regular(self.path, SIZE + 1))
             return
         os.replace(link, self.prev)

@@ -10,9 +10,13 @@ done, nothing is sent back.  A protocol id other than 0 or a length outside 2..2
 that connection only (counted).  The firewall (mbgw.firewall) compiles each client's rule
 when it connects (again at a reload); a request its rule refuses gets 0x01 and never
 reaches the table.  A client that does not read its replies is not read either
-until the socket has taken them (TCP back-pressure).  At most MAX_CONNECTIONS clients: the
-next one is refused (closed at once, counted, logged at most once a minute).  Nothing is
-logged per request.
+until the socket has taken them (TCP back-pressure).  At most MAX_CONNECTIONS clients, a
+share of them (mbgw.ops.limits.share) from one address: a newcomer over either takes the
+place of a client that never sent a whole request or is slow with one, else it is refused
+(closed at once, counted, logged at most once a minute per address).  A request begun must be
+whole within request_timeout_s, a first request must come within FIRST_REQUEST_S, or the
+connection is closed (counted).  An accept() that fails for want of descriptors rests the
+listener (it never spins).  Nothing is logged per request.
 
 Modbus/TCP Security (a TLS context given): a TLS listener on `tls_port` beside the plain one
 (port None: TLS only).  Each handshake is a state in the same poll loop, stepped when its
@@ -35,6 +39,7 @@ from typing import cast
 
 from mbgw.audit import Kind, event
 from mbgw.firewall.guard import Firewall, Guard
+from mbgw.ops.limits import AcceptRest, WarnLimit, is_resource_error, share
 from mbgw.protocol import mbap
 
 log = logging.getLogger("mbgw.table")
@@ -48,7 +53,12 @@ BROADCAST_UNIT = 0
 # TLS handshakes under way at once, and how long one may take: a flood of connections that
 # never finish (or garbage) costs the loop one wake-up each and no more.
 MAX_HANDSHAKES = 64
-HANDSHAKE_TIMEOUT_S = 10.0
+HANDSHAKE_TIMEOUT_S = 10.0          # until the daemon sets request_timeout_s
+PER_ADDRESS = share(MAX_CONNECTIONS)
+HANDSHAKES_PER_ADDRESS = share(MAX_HANDSHAKES) // 2
+FIRST_REQUEST_S = 60.0              # a client that sent no whole request this long is closed
+SLOW_REQUEST_S = 0.5                # a request begun this long ago and not whole: slow
+SWEEP_S = 0.25                      # how often the deadlines are looked at, with clients
 
 _IN = select.POLLIN
 _OUT = select.POLLOUT
@@ -143,7 +153,8 @@ def _name(address) -> str:
 
 class _Connection:
     __slots__ = ("sock", "fd", "peer", "partial", "held", "connected_at", "requests", "host",
-                 "role", "listener", "guard", "firewall_refused", "tls")
+                 "role", "listener", "guard", "firewall_refused", "tls", "opened",
+                 "partial_since")
 
     def __init__(self, sock: socket.socket, peer: str, host: str = "",
                  role: str | None = None, tls: bool = False) -> None:
@@ -159,6 +170,8 @@ class _Connection:
         self.partial = bytearray()      # the start of a frame the next read completes
         self.held = bytearray()         # replies the socket has not taken yet
         self.connected_at = time.time()
+        self.opened = time.monotonic()
+        self.partial_since = 0.0        # monotonic: when the frame in partial began
         self.requests = 0
 
 
@@ -218,12 +231,18 @@ class TableServer(threading.Thread):
         self._input = bytearray(RECEIVE_SIZE)
         self._input_view = memoryview(self._input)
         self._replies = bytearray()        # the replies of one read, sent together
-        self._refused_logged = -REFUSAL_LOG_INTERVAL_S
         self.accepted = 0
         self.refused_limit = 0
         self.bad_header = 0
         self.refused_authip = 0
         self.refused_tls = 0
+        self.timed_out = 0
+        self.evicted = 0
+        self.request_timeout_s = HANDSHAKE_TIMEOUT_S     # set by the daemon (request-timeout)
+        self._warn = WarnLimit(log)
+        self._rest = AcceptRest(log, "table server")
+        self._resting: dict[int, float] = {}       # a listener's fd -> when it listens again
+        self._swept = 0.0
         self.tls_probes = 0                # closed or reset before a byte: health checks
 
     @property
@@ -241,6 +260,8 @@ class TableServer(threading.Thread):
                 "connections_refused_authip": self.refused_authip,
                 "tls_port": self.tls_port, "tls_handshakes": len(self._handshakes),
                 "connections_refused_tls": self.refused_tls,
+                "connections_timed_out": self.timed_out,
+                "connections_evicted": self.evicted,
                 "connections_tls_probes": self.tls_probes}
 
     def connections(self) -> list[dict]:
@@ -250,7 +271,7 @@ class TableServer(threading.Thread):
 
     def reset_counts(self) -> None:
         self.accepted = self.refused_limit = self.bad_header = self.refused_authip = 0
-        self.refused_tls = self.tls_probes = 0
+        self.refused_tls = self.timed_out = self.evicted = self.tls_probes = 0
 
     def set_firewall(self, firewall: Firewall) -> None:
         """New rules (another thread): the server's thread guards its clients by them."""
@@ -300,7 +321,7 @@ class TableServer(threading.Thread):
         self._answer = answer = self._table.responder().answer_mbap
         try:
             while not self._stopping:
-                for fd, events in poll.poll(self._handshake_wait_ms()):
+                for fd, events in poll.poll(self._wait_ms()):
                     client = clients.get(fd)
                     if client is not None:
                         self._serve(client, events, answer)
@@ -312,6 +333,8 @@ class TableServer(threading.Thread):
                         listeners = self._woken()
                 if handshakes:
                     self._expire_handshakes()
+                if clients or self._resting:
+                    self._sweep()
         except Exception:
             log.exception("table server: internal error; TCP clients no longer reach the table")
         finally:
@@ -329,14 +352,18 @@ class TableServer(threading.Thread):
             sock, address = listener.accept()
         except (BlockingIOError, InterruptedError, ConnectionAbortedError):
             return
-        except OSError as err:          # out of file descriptors, say: the next one may do
-            log.warning("table server: cannot accept a connection: %s", err.strerror)
+        except OSError as err:
+            if is_resource_error(err):      # it would be ready again at once: it rests
+                self._poll.unregister(listener.fileno())
+                self._resting[listener.fileno()] = time.monotonic() + self._rest.failed(err)
             return
+        self._rest.accepted()
         if self._allows is not None and not self._allows(address[0]):
             sock.close()
             self.refused_authip += 1
-            event(log, Kind.CONNECTION_REFUSED, "table client %s refused: not in authip",
-                  _name(address), client=_name(address), reason="not in authip")
+            self._warn.warn(address[0], "authip", "table client %s refused: not in authip",
+                            _name(address), kind=Kind.CONNECTION_REFUSED,
+                            client=_name(address), reason="not in authip")
             return
         if not self._room_for(sock, address):
             return
@@ -348,12 +375,58 @@ class TableServer(threading.Thread):
             self._adopt(_Connection(sock, _name(address), address[0]))
 
     def _room_for(self, sock: socket.socket, address) -> bool:
-        if len(self._clients) < MAX_CONNECTIONS:
+        """Whether a newcomer fits (a silent or slow client closed for it if need be); else
+        sock is closed."""
+        host = address[0]
+        mine = [c for c in self._clients.values() if c.host == host]
+        if len(mine) >= PER_ADDRESS:
+            pool, why = mine, f"{PER_ADDRESS} table clients of this address are connected"
+        elif len(self._clients) >= MAX_CONNECTIONS:
+            pool, why = list(self._clients.values()), \
+                f"{MAX_CONNECTIONS} table clients are connected, the most there may be"
+        else:
+            return True
+        now = time.monotonic()
+        victims = [c for c in pool if not c.requests and not c.held] or \
+            [c for c in pool if c.partial_since and now - c.partial_since >= SLOW_REQUEST_S
+             and not c.held]
+        if victims:
+            victim = min(victims, key=lambda c: c.opened)
+            self.evicted += 1
+            log.debug("table client %s closed to make room for %s", victim.peer,
+                      _name(address))
+            self._close(victim)
             return True
         sock.close()
         self.refused_limit += 1
-        self._log_refusal(address)
+        self._warn.warn(host, "limit", "table client %s refused: %s", _name(address), why,
+                        kind=Kind.CONNECTION_REFUSED, client=_name(address),
+                        reason="too many table clients")
         return False
+
+    def _sweep(self) -> None:
+        """Close the clients whose request is late (request_timeout_s after its first byte)
+        or that sent none for FIRST_REQUEST_S; listeners that have rested listen again."""
+        now = time.monotonic()
+        if now - self._swept < SWEEP_S:
+            return
+        self._swept = now
+        for fd, until in list(self._resting.items()):
+            if now >= until:
+                del self._resting[fd]
+                self._poll.register(fd, _IN)
+        limit = self.request_timeout_s
+        for client in list(self._clients.values()):
+            if client.partial_since and now - client.partial_since > limit:
+                reason = f"a request not whole within request-timeout ({limit * 1000:.0f} ms)"
+            elif not client.requests and now - client.opened > FIRST_REQUEST_S:
+                reason = f"no request within {FIRST_REQUEST_S:g} s"
+            else:
+                continue
+            self.timed_out += 1
+            self._warn.warn(client.host, "timeout", "table client %s closed: %s", client.peer,
+                            reason)
+            self._close(client)
 
     def _adopt(self, client: _Connection) -> None:
         client.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
@@ -369,11 +442,15 @@ class TableServer(threading.Thread):
 
     def _start_handshake(self, sock: socket.socket, address) -> None:
         context = self._tls
-        if context is None or len(self._handshakes) >= MAX_HANDSHAKES:
+        mine = sum(1 for h in self._handshakes.values() if h.address[0] == address[0])
+        if context is None or len(self._handshakes) >= MAX_HANDSHAKES \
+                or mine >= HANDSHAKES_PER_ADDRESS:
             sock.close()
-            self._tls_refused(address, f"{MAX_HANDSHAKES} TLS handshakes under way already")
+            self._tls_refused(address, f"{MAX_HANDSHAKES} TLS handshakes under way already"
+                              if mine < HANDSHAKES_PER_ADDRESS else
+                              f"{mine} TLS handshakes of this address under way already")
             return
-        handshake = _Handshake(sock, address, time.monotonic() + HANDSHAKE_TIMEOUT_S, context)
+        handshake = _Handshake(sock, address, time.monotonic() + self.request_timeout_s, context)
         self._handshakes[handshake.fd] = handshake
         self._poll.register(handshake.fd, _IN)
         self._shake(handshake)
@@ -427,18 +504,21 @@ class TableServer(threading.Thread):
         handshake.sock.close()
         self._tls_refused(handshake.address, reason)
 
-    def _handshake_wait_ms(self) -> int | None:
-        """poll()'s timeout: until the first handshake's deadline (None: none under way)."""
+    def _wait_ms(self) -> int | None:
+        """poll()'s timeout: until the first handshake's deadline, and at most SWEEP_S while
+        clients have deadlines or a listener rests (None: nothing to wait for)."""
+        wait = int(SWEEP_S * 1000) + 1 if self._clients or self._resting else None
         if not self._handshakes:
-            return None
+            return wait
         first = min(h.deadline for h in self._handshakes.values())
-        return max(0, int((first - time.monotonic()) * 1000) + 1)
+        first_ms = max(0, int((first - time.monotonic()) * 1000) + 1)
+        return first_ms if wait is None else min(wait, first_ms)
 
     def _expire_handshakes(self) -> None:
         now = time.monotonic()
         for handshake in [h for h in self._handshakes.values() if h.deadline <= now]:
             self._handshake_failed(handshake,
-                                   f"no TLS handshake within {HANDSHAKE_TIMEOUT_S:g} s")
+                                   f"no TLS handshake within {self.request_timeout_s:g} s")
 
     def _tls_refused(self, address, reason: str) -> None:
         """Counted; logged at most once a minute per address and reason."""
@@ -455,15 +535,6 @@ class TableServer(threading.Thread):
                   "this address for this reason are logged at most once a minute)",
                   _name(address), reason, client=_name(address), reason=reason)
 
-    def _log_refusal(self, address) -> None:
-        now = time.monotonic()
-        if now - self._refused_logged >= REFUSAL_LOG_INTERVAL_S:
-            self._refused_logged = now
-            event(log, Kind.CONNECTION_REFUSED, "table client %s refused: %d table clients are "
-                  "connected, the most there may be (further refusals are logged at most once "
-                  "a minute)", _name(address), MAX_CONNECTIONS, client=_name(address),
-                  reason="too many table clients")
-
     def _close(self, client: _Connection) -> None:
         del self._clients[client.fd]
         self._poll.unregister(client.fd)
@@ -478,6 +549,7 @@ class TableServer(threading.Thread):
             handshake.sock.close()
         for sock in self._listeners + self._tls_listeners:
             sock.close()
+        self._resting.clear()
         os.close(self._wake_fd)
 
     def _woken(self) -> dict:
@@ -507,7 +579,8 @@ class TableServer(threading.Thread):
 
     def _relisten(self, old: list[socket.socket], new: list[socket.socket]) -> None:
         for sock in old:
-            self._poll.unregister(sock.fileno())
+            if self._resting.pop(sock.fileno(), None) is None:
+                self._poll.unregister(sock.fileno())
             sock.close()
         for sock in new:
             self._poll.register(sock.fileno(), _IN)
@@ -550,8 +623,8 @@ class TableServer(threading.Thread):
             self._answer_all(client, view, len(view), answer)
         except mbap.BadHeader as err:
             self.bad_header += 1
-            log.warning("table client %s: bad MBAP header (%s); closing the connection",
-                        client.peer, err)
+            self._warn.warn(client.host, "bad header", "table client %s: bad MBAP header (%s); "
+                            "closing the connection", client.peer, err)
             self._close(client)
 
     def _answer_all(self, client: _Connection, view: memoryview, n: int, answer) -> None:
@@ -587,7 +660,11 @@ class TableServer(threading.Thread):
                 self._send(client, replies)
                 replies.clear()
         if at < n:
+            if not client.partial_since or at:
+                client.partial_since = time.monotonic()
             client.partial += view[at:n]
+        else:
+            client.partial_since = 0.0
 
     def _refused(self, client: _Connection, guard: Guard, frame, unit: int) -> bytes:
         """The reply to a request the firewall refused: 0x01, a broadcast's too (it was not

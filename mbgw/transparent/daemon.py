@@ -73,6 +73,7 @@ def run_transparent(cfg: TransparentModeConfig, reconfigure=None) -> None:
                              Firewall(cfg.firewall, cfg.tls.roles_required),
                              allows=allows, tls=context, tls_port=cfg.tls.port,
                              role_of=role_of)
+        server.request_timeout_s = cfg.request_timeout_ms / 1000
     except OSError as err:
         option, port = ("tls-port", cfg.tls.port) if "tls-port" in str(err) else \
             ("mdbport", cfg.mdbport)
@@ -152,6 +153,7 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
             report.at_restart("transparent.raw_port")
         if (new.firewall, new.tls.roles_required) != (old.firewall, old.tls.roles_required):
             server.set_firewall(server.firewall.renewed(new.firewall, new.tls.roles_required))
+        server.request_timeout_s = new.request_timeout_ms / 1000
         if new.tls != old.tls:
             _retls(server, new, report)
         frames.reconfigure(new)

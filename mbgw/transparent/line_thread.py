@@ -114,11 +114,15 @@ class FrameLine(LineThread[TransparentModeConfig]):
             self._line_quiet()
         if self._outgoing and now >= self._quiet_from + self._cfg.transparent.silence_ms / 1000:
             self._send_all()
+        if self._raw is not None and self._raw.resting_until is not None:
+            self._raw.wake_up(now)
 
     def _while_down(self, timeout_s: float) -> None:
         for fd, events in self._poll.poll(int(timeout_s * 1000)):
             self._ready(fd, events)
         self._outgoing.clear()          # nothing waits for a line that is not there
+        if self._raw is not None and self._raw.resting_until is not None:
+            self._raw.wake_up(time.monotonic())
 
     def _timeout_ms(self) -> int:
         deadlines = []
@@ -126,6 +130,8 @@ class FrameLine(LineThread[TransparentModeConfig]):
             deadlines.append(self._frame_deadline)
         if self._outgoing:
             deadlines.append(self._quiet_from + self._cfg.transparent.silence_ms / 1000)
+        if self._raw is not None and self._raw.resting_until is not None:
+            deadlines.append(self._raw.resting_until)
         if not deadlines:
             return self.idle_ms
         return max(0, math.ceil((min(deadlines) - time.monotonic()) * 1000))

@@ -1,12 +1,16 @@
 """`raw-port`: one TCP client at a time gets the line as a byte stream (as ser2net gives it):
 what it sends goes to the line, the frames the line brings go to it.  Served by the line
-thread's poll(); a second client is refused with a log line; authip applies."""
+thread's poll(); a second client is refused (logged once a minute per address); authip
+applies.  An accept() that fails for want of descriptors rests the listener (it never
+spins): resting_until, which the line thread's poll() timeout serves."""
 import ipaddress
 import logging
 import select
 import socket
+import time
 
-from mbgw.audit import Kind, event
+from mbgw.audit import Kind
+from mbgw.ops.limits import AcceptRest, WarnLimit, is_resource_error
 from mbgw.transparent.counters import TransparentCounters
 
 log = logging.getLogger("mbgw.transparent")
@@ -46,6 +50,10 @@ class RawPort:
         self.peer = ""
         self.reading = False            # the client may still send (no EOF from it yet)
         self._counters = counters
+        self._warn = WarnLimit(log)
+        self._rest = AcceptRest(log, "raw port")
+        self._resting: list[int] = []       # listeners' fds out of the poll meanwhile
+        self.resting_until: float | None = None
 
     def attach(self, poll: select.poll) -> None:
         """Be served by this poll: the listeners and the client while it sends are in it."""
@@ -64,13 +72,18 @@ class RawPort:
         """A new client on listener fd, unless it is refused."""
         try:
             sock, address = self.listeners[fd].accept()
-        except OSError:
+        except OSError as err:
+            if is_resource_error(err) and self._poll is not None:
+                self._poll.unregister(fd)
+                self._resting.append(fd)
+                self.resting_until = time.monotonic() + self._rest.failed(err)
             return
+        self._rest.accepted()
         peer = _name(address)
         if not self.allows(address[0]):
-            reason = "not in authip"
+            key, reason = "authip", "not in authip"
         elif self.client is not None and self.reading:
-            reason = f"{self.peer} has the raw port (one client at a time)"
+            key, reason = "busy", f"{self.peer} has the raw port (one client at a time)"
         else:
             if self.client is not None:
                 log.info("raw client %s, done sending, gives way to %s", self.peer, peer)
@@ -84,8 +97,17 @@ class RawPort:
             return
         sock.close()
         self._counters.raw_refused += 1
-        event(log, Kind.CONNECTION_REFUSED, "raw client %s refused: %s", peer, reason,
-              client=peer, reason=reason)
+        self._warn.warn(address[0], key, "raw client %s refused: %s", peer, reason,
+                        kind=Kind.CONNECTION_REFUSED, client=peer, reason=reason)
+
+    def wake_up(self, now: float) -> None:
+        """The line thread's turn: listeners that have rested listen again."""
+        if self.resting_until is not None and now >= self.resting_until:
+            self.resting_until = None
+            assert self._poll is not None
+            for fd in self._resting:
+                self._poll.register(fd, select.POLLIN)
+            self._resting.clear()
 
     def receive(self) -> bytes | None:
         """What the client sent: None for nothing now, b"" when it will send no more (then

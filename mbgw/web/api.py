@@ -20,7 +20,9 @@ log = logging.getLogger("mbgw.web")
 
 KEEPALIVE_S = 15.0                 # an SSE comment this often while nothing happens
 GONE_CHECK_S = 1.0                 # aiohttp 3.8 does not end a handler whose client has gone
-MAX_JSON = 64 * 1024
+MAX_NESTING = 32                  # arrays and objects in one another in a JSON body, at most
+MAX_BODY = 1_000_000              # a request's body; more is refused (413)
+LOGIN_BODY = 4096                 # a login's: who needs more is not logging in
 
 
 def routes() -> list:
@@ -52,17 +54,56 @@ def error(status: int, message: str, **more) -> web.Response:
     return web.json_response({"error": message, **more}, status=status)
 
 
+def body_limit(request: web.Request) -> int:
+    return LOGIN_BODY if request.path == "/api/login" else MAX_BODY
+
+
+async def read(request: web.Request) -> bytes:
+    """The request's body, whole within request-timeout (408 raised else) and within its
+    bound (413 raised as soon as it is over, a chunked body included)."""
+    timeout_s = request.app["server"].cfg.request_timeout_ms / 1000
+    try:
+        return await asyncio.wait_for(_bounded(request, body_limit(request)), timeout_s)
+    except asyncio.TimeoutError:
+        raise web.HTTPRequestTimeout(text=json.dumps(
+            {"error": f"the body did not come whole within {timeout_s:g} s"}),
+            content_type="application/json") from None
+
+
+async def _bounded(request: web.Request, limit: int) -> bytes:
+    data = bytearray()
+    while chunk := await request.content.read(65536):
+        data += chunk
+        if len(data) > limit:
+            raise web.HTTPRequestEntityTooLarge(max_size=limit, actual_size=len(data))
+    return bytes(data)
+
+
 async def body(request: web.Request) -> dict:
     """The request's JSON object; a 400 response is raised when it is not one."""
     try:
-        data = json.loads(await request.text() or "{}")
-    except ValueError:
-        raise web.HTTPBadRequest(text=json.dumps({"error": "the body is not valid JSON"}),
-                                 content_type="application/json") from None
+        data = json.loads((await read(request)).decode() or "{}")
+        if nesting(data) > MAX_NESTING:
+            raise ValueError
+    except (ValueError, RecursionError):
+        raise web.HTTPBadRequest(text=json.dumps(
+            {"error": f"the body is not valid JSON (nested {MAX_NESTING} deep at most)"}),
+            content_type="application/json") from None
     if not isinstance(data, dict):
         raise web.HTTPBadRequest(text=json.dumps({"error": "the body must be a JSON object"}),
                                  content_type="application/json")
     return data
+
+
+def nesting(value) -> int:
+    """How deep arrays and objects are in one another in value (a scalar: 0)."""
+    depth, level = 0, [value]
+    while True:
+        containers = [v for v in level if isinstance(v, (list, dict))]
+        if not containers:
+            return depth
+        depth += 1
+        level = [v for c in containers for v in (c.values() if isinstance(c, dict) else c)]
 
 
 async def command(request: web.Request, name: str, args: dict | None = None):
@@ -88,10 +129,11 @@ def answer(reply: dict | None, missing: str) -> web.Response:
 async def login(request: web.Request) -> web.Response:
     server = request.app["server"]
     address = request.remote or "?"
-    wait = server.limit.retry_after(address)
+    wait = server.limit.attempt(address)       # counted before anything is awaited
     if wait:
-        event(log, Kind.LOGIN_FAILED, "web login from %s refused: too many failed logins, %d s "
-              "to wait", address, wait, client=address, reason="too many failed logins")
+        server.warn.warn(address, "login", "web login from %s refused: too many failed "
+                         "logins, %d s to wait", address, wait, kind=Kind.LOGIN_FAILED,
+                         client=address, reason="too many failed logins")
         return web.json_response({"error": f"too many failed logins: try again in {wait} s"},
                                  status=429, headers={"Retry-After": str(wait)})
     data = await body(request)
@@ -100,11 +142,11 @@ async def login(request: web.Request) -> web.Response:
     ok = isinstance(password, str) and stored is not None and \
         await asyncio.to_thread(verify, password, stored)
     if not ok:
-        server.limit.failed(address)
         event(log, Kind.LOGIN_FAILED, "web login failed for %r from %s", role, address,
               client=address, user=role, reason="wrong user or password")
         return error(401, "wrong user or password")
     server.limit.succeeded(address)
+    server.sessions.close(request.cookies.get(COOKIE))     # a new session id, never the old
     token, new = server.sessions.open(role)
     event(log, Kind.LOGIN_OK, "web login: %s from %s", role, address, client=address,
           user=role)
@@ -301,7 +343,7 @@ async def config_download(request: web.Request) -> web.Response:
 async def config_upload(request: web.Request) -> web.Response:
     path = _config_path(request)
     try:
-        text = await request.text()
+        text = (await read(request)).decode()
         mode = config_api.upload(path, text)
     except UnicodeDecodeError:
         return error(400, "the file is not UTF-8")

@@ -18,7 +18,8 @@ ABSOLUTE_S = 12 * 3600            # and any session this old
 IDLE_ENV = "MBGW_WEB_IDLE_S"      # tests shorten the idle time (not a setting: no key, no option)
 FAILURES_PER_WINDOW = 5           # failed logins from one address within LOGIN_WINDOW_S ...
 LOGIN_WINDOW_S = 60.0             # ... after which its attempts are refused (429) until it passes
-MAX_SESSIONS = 1000               # the oldest goes first: logins cannot grow memory for ever
+SESSIONS_PER_ROLE = 32            # a role's oldest goes first: logins cannot grow memory for
+                                  # ever, nor one role's end another's sessions
 
 
 @dataclasses.dataclass
@@ -36,8 +37,11 @@ class Sessions:
         self.absolute_s = ABSOLUTE_S
 
     def open(self, role: str) -> tuple[str, Session]:
-        if len(self._sessions) >= MAX_SESSIONS:
-            del self._sessions[next(iter(self._sessions))]
+        """A new session of role (a new token: a login never keeps the one it came with); at
+        SESSIONS_PER_ROLE, that role's oldest ends."""
+        mine = [token for token, s in self._sessions.items() if s.role == role]
+        if len(mine) >= SESSIONS_PER_ROLE:
+            del self._sessions[mine[0]]
         now = time.monotonic()
         token = secrets.token_urlsafe(32)
         session = Session(role, secrets.token_urlsafe(32), now, now)
@@ -65,23 +69,26 @@ class Sessions:
 
 
 class LoginLimit:
-    """At most FAILURES_PER_WINDOW failed logins per address within LOGIN_WINDOW_S."""
+    """At most FAILURES_PER_WINDOW failed logins per address within LOGIN_WINDOW_S.  An attempt
+    counts as a failure from the moment it is let in, before its password is checked (which
+    takes time, during which others come): so many attempts at once are refused as surely
+    as many in a row."""
 
     def __init__(self) -> None:
         self._failures: dict[str, collections.deque] = {}
 
-    def retry_after(self, address: str) -> int:
-        """Seconds until `address` may try again; 0: now."""
+    def attempt(self, address: str) -> int:
+        """Let an attempt from address in, counted as failed until succeeded(): 0; else the
+        seconds until address may try again."""
         failures = self._recent(address)
-        if len(failures) < FAILURES_PER_WINDOW:
-            return 0
-        return max(1, int(failures[0] + LOGIN_WINDOW_S - time.monotonic()) + 1)
-
-    def failed(self, address: str) -> None:
-        self._failures[address] = self._recent(address)
-        self._failures[address].append(time.monotonic())
+        if len(failures) >= FAILURES_PER_WINDOW:
+            return max(1, int(failures[0] + LOGIN_WINDOW_S - time.monotonic()) + 1)
+        failures.append(time.monotonic())
+        self._failures[address] = failures
+        return 0
 
     def succeeded(self, address: str) -> None:
+        """The attempt let in last was right: it no longer counts, nor do the earlier ones."""
         self._failures.pop(address, None)
 
     def _recent(self, address: str) -> collections.deque:

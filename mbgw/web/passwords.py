@@ -11,7 +11,7 @@ SCHEME = "scrypt"
 N, R, P = 2 ** 14, 8, 1            # 16 MiB, ~50 ms: a login costs time, a guess costs more
 SALT_BYTES = 16
 HASH_BYTES = 32
-MIN_LENGTH = 8
+MIN_LENGTH = 10
 
 
 def hash_password(password: str) -> str:

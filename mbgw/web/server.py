@@ -1,6 +1,7 @@
 """The web console's HTTP server on the daemon's asyncio loop (aiohttp): the site started,
 restarted when a reload changes [web], closed at stop; the session, CSRF and role checks
-every request passes; the static pages."""
+every request passes; the bounds of a request's body; the static pages.  Its connections are
+admitted and timed by mbgw.web.gate."""
 import asyncio
 import dataclasses
 import logging
@@ -10,10 +11,12 @@ from pathlib import Path
 from aiohttp import web
 
 from mbgw.config.model import WebConfig
+from mbgw.ops.limits import WarnLimit
 from mbgw.ops.reload import ReloadReport
 from mbgw.web import api
 from mbgw.web.address import parse_listen
 from mbgw.web.auth import COOKIE, CSRF_HEADER, LoginLimit, Sessions
+from mbgw.web.gate import Gate
 from mbgw.web.hooks import WebHooks, WebListenError
 
 log = logging.getLogger("mbgw.web")
@@ -23,6 +26,7 @@ SHUTDOWN_S = 1.0                # open requests (a trace stream) get this long a
 OPEN_PATHS = frozenset({"/api/login"})          # no session needed
 ANY_ROLE_POSTS = frozenset({"/api/logout"})     # state-changing, but not the gateway's state
 ADMIN_READS = frozenset({"/api/config/file"})   # the file holds the password hashes
+HSTS = "max-age=31536000"       # https-only: a year
 HEADERS = {"X-Content-Type-Options": "nosniff", "X-Frame-Options": "DENY",
            "Referrer-Policy": "no-referrer",
            "Content-Security-Policy": "default-src 'self'; frame-ancestors 'none'"}
@@ -34,8 +38,10 @@ class WebServer:
         self.cfg = WebConfig()
         self.sessions = Sessions()
         self.limit = LoginLimit()
+        self.warn = WarnLimit(log)
         self.names: list[str] = []
         self._runner: web.AppRunner | None = None
+        self.gate: Gate | None = None                 # the runner's connections
         self._retiring: set[asyncio.Task] = set()     # sites closing after a move
 
     @property
@@ -52,17 +58,16 @@ class WebServer:
         if cfg.listen is None:
             return
         host, port = parse_listen(cfg.listen)
+        context = _ssl_context(cfg)
         runner = web.AppRunner(self._app(), access_log=None)
         await runner.setup()
-        site = web.TCPSite(runner, host, port, ssl_context=_ssl_context(cfg),
-                           shutdown_timeout=SHUTDOWN_S)
+        gate = Gate(runner, context, cfg.https_only, cfg.request_timeout_ms / 1000)
         try:
-            await site.start()
+            self.names = gate.listen(host, port)
         except OSError as err:
             await runner.cleanup()
             raise WebListenError(cfg.listen, err) from None
-        self._runner = runner
-        self.names = _names(runner)
+        self._runner, self.gate = runner, gate
         scheme = "https" if cfg.https else "http"
         log.info("web console on %s", ", ".join(f"{scheme}://{n}/" for n in self.names))
 
@@ -77,10 +82,13 @@ class WebServer:
                                                         self.cfg.user_password):
             self.sessions.clear()
             log.info("web console: passwords changed, sessions ended")
-        if (cfg.listen, cfg.cert, cfg.key) == (self.cfg.listen, self.cfg.cert, self.cfg.key):
+        if (cfg.listen, cfg.cert, cfg.key, cfg.https_only) == \
+                (self.cfg.listen, self.cfg.cert, self.cfg.key, self.cfg.https_only):
             self.cfg = cfg
+            if self.gate is not None:
+                self.gate.timeout_s = cfg.request_timeout_ms / 1000
             return
-        old, running = self.cfg, self._runner
+        old, running = self.cfg, (self._runner, self.gate)
         self._stop_listening()
         try:
             await self.start(cfg)
@@ -108,30 +116,29 @@ class WebServer:
 
     def _stop_listening(self) -> None:
         """Accept no more connections; the open ones are served until the runner retires."""
-        if self._runner is not None:
-            for site in self._runner.sites:
-                server = getattr(site, "_server", None)
-                if server is not None:
-                    server.close()
-            self._runner, self.names = None, []
+        if self.gate is not None:
+            self.gate.stop_listening()
+        self._runner, self.gate, self.names = None, None, []
 
-    def _retire(self, runner: web.AppRunner | None) -> None:
+    def _retire(self, running: tuple) -> None:
         """A site that no longer listens closed in the background: its requests under way
         (SHUTDOWN_S at most) end first."""
+        runner, gate = running
         if runner is not None:
-            task = asyncio.ensure_future(runner.cleanup())
+            task = asyncio.ensure_future(_cleanup(runner, gate))
             self._retiring.add(task)
             task.add_done_callback(self._retiring.discard)
 
     async def close(self) -> None:
         if self._runner is not None:
-            runner, self._runner, self.names = self._runner, None, []
-            await runner.cleanup()
+            running = self._runner, self.gate
+            self._stop_listening()
+            await _cleanup(*running)
         if self._retiring:
             await asyncio.gather(*self._retiring, return_exceptions=True)
 
     def _app(self) -> web.Application:
-        app = web.Application(middlewares=[_guard], client_max_size=1024 * 1024)
+        app = web.Application(middlewares=[_track, _guard], client_max_size=api.MAX_BODY)
         app["server"] = self
         app["hooks"] = self.hooks
         app.add_routes(api.routes())
@@ -140,12 +147,36 @@ class WebServer:
         return app
 
 
+async def _cleanup(runner: web.AppRunner, gate: Gate | None) -> None:
+    if gate is not None:
+        await gate.close(SHUTDOWN_S)
+    await runner.cleanup()
+
+
 async def start_web(cfg: WebConfig, hooks: WebHooks) -> WebServer:
     """The console (idle while [web] listen is off, so that a reload can turn it on);
     raises WebListenError when it cannot listen."""
     server = WebServer(hooks)
     await server.start(cfg)
     return server
+
+
+@web.middleware
+async def _track(request: web.Request, handler):
+    """The gate knows which connections have a request under way (never closed for room), and
+    a body over its bound is refused before a byte of it is read."""
+    server: WebServer = request.app["server"]
+    gate = server.gate
+    if gate is not None:
+        gate.began(request.protocol)
+    try:
+        limit = api.body_limit(request)
+        if request.content_length is not None and request.content_length > limit:
+            return api.error(413, f"the body is over {limit} bytes")
+        return await handler(request)
+    finally:
+        if gate is not None:
+            gate.ended(request.protocol)
 
 
 @web.middleware
@@ -173,6 +204,8 @@ async def _guard(request: web.Request, handler):
 
 async def _headers(request: web.Request, response: web.StreamResponse) -> None:
     response.headers.update(HEADERS)
+    if request.app["server"].cfg.https_only:
+        response.headers["Strict-Transport-Security"] = HSTS
     if request.path.startswith("/api/"):
         response.headers.setdefault("Cache-Control", "no-store")
 
@@ -189,12 +222,3 @@ def _ssl_context(cfg: WebConfig) -> ssl.SSLContext | None:
     context.load_cert_chain(cfg.cert, cfg.key)
     return context
 
-
-def _names(runner: web.AppRunner) -> list[str]:
-    names = []
-    for site in runner.sites:
-        server = getattr(site, "_server", None)
-        for sock in getattr(server, "sockets", None) or ():
-            host, port = sock.getsockname()[:2]
-            names.append(f"[{host}]:{port}" if ":" in host else f"{host}:{port}")
-    return names

@@ -1,4 +1,5 @@
 import os
+import resource
 import socket
 
 import pytest
@@ -6,6 +7,23 @@ import pytest
 from tests.harness import Gateway, Peer, free_port
 from tests.integration.test_master import BAUD
 from tests.modbus import Client
+
+
+@pytest.fixture
+def state_directory(tmp_path, monkeypatch):
+    """The daemons' state directory ($STATE_DIRECTORY, as systemd sets it): the test's own,
+    where table-persist files may be (and the table's file goes by default)."""
+    monkeypatch.setenv("STATE_DIRECTORY", str(tmp_path))
+    return tmp_path
+
+
+@pytest.fixture
+def many_fds():
+    """The test process may hold thousands of sockets (RLIMIT_NOFILE raised meanwhile)."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    resource.setrlimit(resource.RLIMIT_NOFILE, (min(hard, 8192), hard))
+    yield
+    resource.setrlimit(resource.RLIMIT_NOFILE, (soft, hard))
 
 
 @pytest.fixture

@@ -16,6 +16,7 @@ import signal
 import socket
 import struct
 import subprocess
+import time
 
 import pytest
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
@@ -82,11 +83,13 @@ def serial_client(pty_pair):
 
 @pytest.fixture
 def tcp():
-    """tcp(port) -> a connected raw socket to 127.0.0.1:port; closed after the test."""
+    """tcp(port, source=None) -> a connected raw socket to 127.0.0.1:port (from the loopback
+    address source); closed after the test."""
     socks = []
 
-    def connect(port: int) -> socket.socket:
-        sock = socket.create_connection(("127.0.0.1", port), timeout=REPLY_S)
+    def connect(port: int, source: str | None = None) -> socket.socket:
+        sock = socket.create_connection(("127.0.0.1", port), timeout=REPLY_S,
+                                        source_address=(source, 0) if source else None)
         socks.append(sock)
         return sock
 
@@ -354,15 +357,82 @@ def test_fc7_tells_a_device_that_is_down(table_master, line, tcp):
     assert recv(line, len(expected)) == expected
 
 
-def test_more_than_32_tcp_clients_are_refused(table_master, tcp):
+def test_more_than_32_polling_tcp_clients_are_refused(table_master, tcp):
     gw, port = table_master()
-    clients = [tcp(port) for _ in range(32)]
+    clients = [tcp(port, f"127.0.0.{1 + n // 8}") for n in range(32)]     # 8 an address
     for tid, sock in enumerate(clients):
         assert ask_tcp(sock, tid, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
-    extra = tcp(port)
+    extra = tcp(port, "127.0.0.9")
     assert extra.recv(16) == b""
     assert table_status(gw)["tcp"]["connections_refused_limit"] == 1
-    assert "table client 127.0.0.1" in gw.log() and "refused" in gw.log()
+    assert "table client 127.0.0.9" in gw.log() and "refused" in gw.log()
+
+
+def test_one_address_has_a_share_and_silent_clients_make_room(table_master, tcp):
+    gw, port = table_master()
+    silent = [tcp(port) for _ in range(8)]          # the address's share, and none polls
+    newcomer = tcp(port)                            # takes the place of the oldest silent one
+    assert ask_tcp(newcomer, 1, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+    assert silent[0].recv(16) == b""
+    for tid, sock in enumerate(silent[1:]):
+        assert ask_tcp(sock, tid, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+    extra = tcp(port)                               # every one polls now: refused
+    assert extra.recv(16) == b""
+    figures = table_status(gw)["tcp"]
+    assert (figures["connections_evicted"], figures["connections_refused_limit"]) == (1, 1)
+    other = tcp(port, "127.0.0.2")                  # another address has room
+    assert ask_tcp(other, 1, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+
+
+@pytest.mark.usefixtures("many_fds")
+def test_idle_connections_to_the_table_port_cost_nothing_and_a_poller_is_served(
+        table_master, tcp):
+    gw, port = table_master()
+    poller = tcp(port, "127.0.0.2")
+    assert ask_tcp(poller, 1, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+    pid = gw.proc.pid
+    fds_before, cpu_before = len(os.listdir(f"/proc/{pid}/fd")), cpu_s(pid)
+    log_before = len(gw.log().splitlines())
+    idle = []
+    for _ in range(50):             # never a byte: each replaces the oldest silent one
+        sock = socket.socket()
+        sock.setblocking(False)
+        try:
+            sock.connect(("127.0.0.1", port))
+        except BlockingIOError:
+            pass
+        idle.append(sock)
+    try:
+        deadline = time.monotonic() + 3.0
+        tid = 2
+        while time.monotonic() < deadline:
+            assert ask_tcp(poller, tid, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+            tid += 1
+            time.sleep(0.05)
+        assert len(os.listdir(f"/proc/{pid}/fd")) <= fds_before + 8    # the address's share
+        assert cpu_s(pid) - cpu_before < 1.5                             # of 3 s: no spinning
+        assert len(gw.log().splitlines()) - log_before <= 2
+    finally:
+        for sock in idle:
+            sock.close()
+
+
+def cpu_s(pid: int) -> float:
+    """The process's user and system time so far (/proc/PID/stat utime + stime)."""
+    fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def test_a_table_request_not_whole_within_request_timeout_closes_its_connection(
+        table_master, tcp):
+    gw, port = table_master("--request-timeout", "300")
+    poller, dribbler = tcp(port), tcp(port)
+    assert ask_tcp(poller, 1, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+    dribbler.sendall(bytes.fromhex("0001 0000 0002"))       # a header, and no more
+    dribbler.settimeout(3.0)
+    assert dribbler.recv(16) == b""
+    assert table_status(gw)["tcp"]["connections_timed_out"] == 1
+    assert ask_tcp(poller, 2, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
 
 
 # ---- the operator, persistence, reload ----
@@ -384,6 +454,7 @@ def test_the_operator_reads_and_writes_the_table_the_serial_master_sees(table_ma
     assert "TCP server: 1 of 32 clients, 1 accepted" in shown.stdout
 
 
+@pytest.mark.usefixtures("state_directory")
 def test_outputs_and_free_zone_survive_a_restart(start_master, servers, tmp_path, line, tcp):
     path = tmp_path / "table.bin"
     port = free_port()

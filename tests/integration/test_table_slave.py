@@ -307,6 +307,7 @@ def test_a_reload_turns_the_table_on_moves_its_units_and_turns_it_off_on_the_sam
 
 # --- the operator: configuration zone, table read/write, status, persistence ----------------
 
+@pytest.mark.usefixtures("state_directory")
 def test_the_operator_reads_and_writes_the_table_sees_its_figures_and_it_survives_a_restart(
         tmp_path, pty_pair, start_peer, start_gateway, client):
     start_peer("pymodbus_slave.py", pty_pair.device, str(LINE_UNIT), "--silent-unknown")
@@ -333,6 +334,7 @@ def test_the_operator_reads_and_writes_the_table_sees_its_figures_and_it_survive
     assert client(gw).ask(247, read_holding(0x1000, 1)) == bytes.fromhex("03 02 beef")
 
 
+@pytest.mark.usefixtures("state_directory")
 def test_status_shows_while_the_table_file_cannot_be_written(tmp_path, pty_pair, start_peer,
                                                              start_gateway, client):
     """The file's directory is missing (as /var/lib/mbgw was before the units had a state

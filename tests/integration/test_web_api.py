@@ -449,9 +449,10 @@ def test_config_password_stores_a_salted_hash_that_config_show_never_shows(tmp_p
                             str(path)], capture_output=True, text=True, cwd=CHECKOUT)
     assert "scrypt" not in shown.stdout and "password" not in shown.stdout
     short = subprocess.run([sys.executable, "-m", "mbgw", "config", "password", "admin",
-                            "--stdin", "--config", str(path)], input="short\n",
+                            "--stdin", "--config", str(path)], input="nine-char\n",
                            capture_output=True, text=True, cwd=CHECKOUT)
-    assert short.returncode == 1 and "too short" in short.stderr and path.read_text() == text
+    assert short.returncode == 1 and "at least 10 characters" in short.stderr
+    assert path.read_text() == text
 
 
 @pytest.mark.parametrize("mode", ["master", "transparent"])

@@ -11,15 +11,18 @@ import pytest
 
 from mbgw.config.model import ACTIVE_WINDOW_S
 from mbgw.slave.client import PEER_GONE, Client
-from mbgw.slave.server import eviction_victim
+from mbgw.slave.server import SLOW_REQUEST_S, eviction_victim
 from tests.modbus import mbap, read_holding
 
 NOW = 1000.0
 
 
-def idle(name: str, requests: int, quiet_s: float) -> SimpleNamespace:
-    """An idle client's figures, as eviction_victim reads them."""
-    return SimpleNamespace(name=name, requests=requests, last_active=NOW - quiet_s)
+def idle(name: str, requests: int, quiet_s: float, partial_s: float = 0.0) -> SimpleNamespace:
+    """An idle client's figures, as eviction_victim reads them; partial_s: how long a request
+    it has begun has been waiting for its other bytes."""
+    return SimpleNamespace(name=name, requests=requests, last_active=NOW - quiet_s,
+                           partial_since=NOW - partial_s if partial_s else 0.0,
+                           busy=bool(partial_s))
 
 
 def victim(*clients) -> str | None:
@@ -33,6 +36,20 @@ def test_one_that_never_sent_a_request_goes_first_even_before_a_long_quiet_one()
 
 def test_of_those_that_never_sent_a_request_the_least_recently_active_goes():
     assert victim(idle("new", 0, 0.1), idle("older", 0, 2.0), idle("poller", 9, 0)) == "older"
+
+
+def test_one_dribbling_its_first_request_goes_first_even_while_active():
+    assert victim(idle("quiet", 5, 10 * ACTIVE_WINDOW_S),
+                  idle("dribbler", 0, 0.0, partial_s=0.1)) == "dribbler"
+
+
+def test_a_poller_slow_with_a_request_goes_before_a_quiet_one():
+    assert victim(idle("quiet", 5, 10 * ACTIVE_WINDOW_S),
+                  idle("slow", 5, 0.0, partial_s=SLOW_REQUEST_S)) == "slow"
+
+
+def test_a_poller_whose_request_is_under_way_is_never_chosen():
+    assert victim(idle("sending", 5, ACTIVE_WINDOW_S + 1, partial_s=0.01)) is None
 
 
 def test_a_client_active_within_the_window_is_never_chosen():

@@ -67,7 +67,8 @@ def test_every_long_option_of_both_modes_is_a_key(schema):
                    "client-key", "server-ca", "server-port"}
     web = {p.key for mode in ("slave", "master", "transparent")
            for p in main.commands[mode].params if isinstance(p, config_keys.WebOption)}
-    assert web == {"web", "web-cert", "web-key", "admin-password", "user-password"}
+    assert web == {"web", "web-cert", "web-key", "admin-password", "user-password",
+                   "web-https-only"}
     assert all(schema.keys[k].group == "web" for k in web)
     assert set(schema.keys) == (options - {"config"}) | table | transparent | tls | web
     # in the file, a key's name may be another group's too: [tls] port, [transparent] silence

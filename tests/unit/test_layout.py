@@ -17,7 +17,7 @@ ALLOWED = {
     "config": {"protocol", "errors", "audit"},
     "ops": {"protocol", "config", "errors", "audit"},
     "firewall": {"protocol", "config", "errors", "audit"},
-    "table": {"protocol", "config", "errors", "audit", "_ffi", "firewall"},
+    "table": {"protocol", "config", "errors", "audit", "_ffi", "firewall", "ops"},
     "upstream": {"line", "ops", "protocol", "config", "errors", "audit"},
     "scenarios": {"table", "upstream", "line", "ops", "protocol", "config", "errors", "audit"},
     "slave": {"line", "table", "scenarios", "upstream", "ops", "protocol", "config", "errors",

@@ -142,7 +142,8 @@ def test_what_run_refuses_check_config_refuses_first_naming_the_key(bad_file):
         assert why in result.output.split(f"{key}: ", 1)[1].splitlines()[0], result.output
 
 
-def test_a_good_file_passes_with_its_files_and_addresses(tmp_path, pki):
+def test_a_good_file_passes_with_its_files_and_addresses(tmp_path, pki, monkeypatch):
+    monkeypatch.setenv("STATE_DIRECTORY", str(tmp_path))    # where the table's file may be
     path = tmp_path / "mbgw.toml"
     path.write_text(DEVICE + _tls(pki["cert"], pki["key"], pki["ca"])
                     + f'[web]\nlisten = "localhost:8080"\nadmin-password = "{HASH}"\n'
@@ -154,9 +155,10 @@ def test_a_good_file_passes_with_its_files_and_addresses(tmp_path, pki):
     assert result.output == f"{path}: ok (slave mode)\n"
 
 
-def test_a_table_file_whose_directory_is_not_there_yet_is_no_refusal(tmp_path):
+def test_a_table_file_whose_directory_is_not_there_yet_is_no_refusal(tmp_path, monkeypatch):
     """The daemon runs on, reports the failing saves and saves once the directory is there
     (tests/integration/test_table_slave.py)."""
+    monkeypatch.setenv("STATE_DIRECTORY", str(tmp_path))
     path = tmp_path / "mbgw.toml"
     path.write_text(DEVICE + f'[table]\nenabled = true\npersist = "{tmp_path}/none/t"\n')
     assert mbgw("check-config", path).exit_code == 0

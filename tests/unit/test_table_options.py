@@ -44,10 +44,10 @@ def test_slave_defaults_leave_the_table_off():
 
 def test_slave_options_build_the_table():
     table = config_of("slave", "--table", "--no-direct", "--table-units", "1,5,200-202",
-                      "--table-functions", "3,4,6,16", "--table-persist", "/var/lib/t",
+                      "--table-functions", "3,4,6,16", "--table-persist", "/var/lib/mbgw/t",
                       "--table-persist-interval", "60").table
     assert table == TableConfig(enabled=True, direct=False, units=(1, 5, 200, 201, 202),
-                                functions=(3, 4, 6, 16), persist="/var/lib/t",
+                                functions=(3, 4, 6, 16), persist="/var/lib/mbgw/t",
                                 persist_interval_s=60)
 
 
@@ -58,7 +58,8 @@ def test_under_a_unit_the_table_is_kept_in_its_state_directory_by_default(monkey
     for mode, options in (("slave", ()), ("master", SLAVEID)):
         assert config_of(mode, *options, "--table").table.persist == "/var/lib/mbgw/gw2/table"
         assert config_of(mode, *options, "--table-persist", "off").table.persist is None
-        assert config_of(mode, *options, "--table-persist", "/t").table.persist == "/t"
+        assert config_of(mode, *options, "--table-persist", "/var/lib/mbgw/gw2/t") \
+            .table.persist == "/var/lib/mbgw/gw2/t"
     monkeypatch.setenv("STATE_DIRECTORY", "/var/lib/a:/var/lib/b")
     assert config_of("slave").table.persist == "/var/lib/a/table"
 
