@@ -126,7 +126,7 @@ int mbgw_exchange(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_le
 {
     *sent = -1;
     *noise = 0;
-    if (modbus_send_raw_request(ctx, req, (int)req_len) < 0) {
+    if (mbgw_send_rtu(ctx, req, req_len) < 0) {
         times[0] = -1;
         times[1] = now_ns();
         return -errno;

@@ -26,6 +26,11 @@ static inline int64_t now_ns(void)
     return (int64_t)ts.tv_sec * 1000000000 + ts.tv_nsec;
 }
 
+/* --- capture.c --- */
+
+/* Append what went on the line (MBGW_CAPTURE_RX or _TX) to the capture, if one is set. */
+void capture_note(int direction, const uint8_t *bytes, size_t len);
+
 /* --- line.c --- */
 
 /* Wait for input until until_ns (CLOCK_MONOTONIC).  1 readable, 0 timed out, -errno on

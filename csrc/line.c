@@ -40,8 +40,10 @@ long read_some(int fd, uint8_t *buf, size_t cap)
 {
     for (;;) {
         ssize_t n = read(fd, buf, cap);
-        if (n > 0)
+        if (n > 0) {
+            capture_note(MBGW_CAPTURE_RX, buf, (size_t)n);
             return n;
+        }
         if (n == 0)
             return -EIO;                        /* end of file on a tty: hung up */
         if (errno == EINTR)
@@ -258,6 +260,7 @@ int mbgw_write_frame(int fd, const uint8_t *buf, size_t len, int rts_control,
     while (done < len) {
         ssize_t n = write(fd, buf + done, len - done);
         if (n > 0) {
+            capture_note(MBGW_CAPTURE_TX, buf + done, (size_t)n);
             done += (size_t)n;
             continue;
         }

@@ -343,3 +343,22 @@ void mbgw_table_reset_counts(mbgw_table *t);
 int mbgw_table_watch(mbgw_table *t, int first, int count, int fd, int first_writes);
 void mbgw_table_unwatch(mbgw_table *t, int id);
 int mbgw_table_take_change(mbgw_table *t, int id, uint16_t *out);
+
+/* The raw line monitor (capture.c): while set, every byte read from or written to the serial
+ * line is appended to buf as records: direction (1 byte), time (int64 CLOCK_MONOTONIC ns),
+ * length (uint16), the bytes, both numbers in the machine's order.  Bytes that do not fit
+ * are counted in dropped.  Set and drained by the line's thread only; NULL: off. */
+#define MBGW_CAPTURE_RX 0
+#define MBGW_CAPTURE_TX 1
+#define MBGW_CAPTURE_HEAD 11
+struct mbgw_capture {
+    uint8_t *buf;
+    size_t cap;
+    size_t len;
+    uint64_t dropped;
+};
+void mbgw_capture_set(struct mbgw_capture *c);
+
+/* modbus_send_raw_request (libmodbus appends the CRC), noted in the capture.  0, or -1 with
+ * errno set. */
+int mbgw_send_rtu(struct _modbus *ctx, const uint8_t *adu, size_t len);

@@ -85,12 +85,12 @@ def metric_value(families: dict, metric: str, sample: str | None = None, **label
 
 
 @contextlib.contextmanager
-def tracing(gw, pcap, count: int):
-    """`mbgw trace --pcap PCAP --count COUNT` on gw's control socket: yields (the process, its
-    first line), the column header, which comes once the daemon has taken the subscription.
-    Killed on the way out if still running."""
+def tracing(gw, pcap, count: int, *options: str):
+    """`mbgw trace --pcap PCAP --count COUNT OPTIONS` on gw's control socket: yields (the
+    process, its first line), the column header, which comes once the daemon has taken the
+    subscription.  Killed on the way out if still running."""
     trace = subprocess.Popen([sys.executable, "-m", "mbgw", "trace", "--pcap", str(pcap),
-                              "--count", str(count), "--control", gw.control],
+                              "--count", str(count), *options, "--control", gw.control],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     try:
         yield trace, _read_lines_until(trace, trace.stdout, lambda ls: len(ls) >= 1, 10)

@@ -12,10 +12,13 @@ from mbgw.cli.render import (
     format_clients,
     format_counters,
     format_event,
+    format_raw,
     format_status,
+    raw_columns,
     trace_columns,
 )
 from mbgw.ops import control as ctl
+from mbgw.ops.trace import LINES
 
 
 def control_option(function):
@@ -148,15 +151,43 @@ def register(main: click.Group) -> None:
     @main.command()
     @click.option("--pcap", "pcap_file", type=click.File("wb"), default=None, metavar="FILE",
                   help="Also write the traffic to FILE as a Modbus/TCP pcap capture "
-                       "(Wireshark, tshark; '-' for standard output).")
+                       "(Wireshark, tshark; '-' for standard output): the TCP clients' "
+                       "requests and replies; scenario runs and the raw line are not in it.")
+    @click.option("--raw", is_flag=True,
+                  help="Show the serial line's raw bytes instead: every burst sent and "
+                       "received in hex, the silence before it (us), and what it was "
+                       "(request, reply, noise, unsolicited).  The daemon captures them "
+                       "only while someone watches.")
+    @click.option("--unit", type=click.IntRange(0, 255), default=None,
+                  help="Only this unit id (serial address).")
+    @click.option("--client", "client_id", type=click.IntRange(1), default=None,
+                  metavar="ID", help="Only this client (the ID column of mbgw status).")
+    @click.option("--function", type=click.IntRange(1, 127), default=None, metavar="FC",
+                  help="Only this function code (its exception replies included).")
+    @click.option("--scenario", default=None, metavar="NAME",
+                  help="Only this scenario's runs.")
+    @click.option("--line", type=click.Choice(LINES), default=None,
+                  help="Only this line's traffic (one line today: serial).")
+    @click.option("--errors", is_flag=True,
+                  help="Errors only: exception replies, no reply, late replies, noise on "
+                       "the line.")
     @click.option("--count", type=click.IntRange(1), default=None,
                   help="Stop after this many events [default: until Ctrl-C].")
     @control_option
-    def trace(pcap_file, count: int | None, control: str | None,
-              instance: str | None) -> None:
-        """Live, decoded view of the traffic through the running daemon."""
+    def trace(pcap_file, raw: bool, unit: int | None, client_id: int | None,
+              function: int | None, scenario: str | None, line: str | None, errors: bool,
+              count: int | None, control: str | None, instance: str | None) -> None:
+        """Live, decoded view of the traffic through the running daemon: the TCP clients'
+        requests and the scenarios' runs (marked with the scenario's name)."""
         from mbgw.cli.pcap import PcapWriter
 
+        if raw and pcap_file:
+            raise click.UsageError("--pcap writes Modbus/TCP frames: not with --raw")
+        if raw and (unit is not None or client_id is not None or function is not None or
+                    scenario is not None):
+            raise click.UsageError("--raw shows bytes: it takes --line and --errors only")
+        wanted = {"unit": unit, "client": client_id, "function": function,
+                  "scenario": scenario, "line": line, "errors": errors}
         path = _socket_path(control, instance)
         try:
             sock = ctl.connect(path, timeout=None)
@@ -170,16 +201,21 @@ def register(main: click.Group) -> None:
         echo = (lambda text: click.echo(text, err=True)) if pcap_file and \
             pcap_file.name == "<stdout>" else click.echo
         seen = 0
+        request = {"command": "trace", "raw": raw,
+                   "filters": {k: v for k, v in wanted.items() if v not in (None, False)}}
         with sock, sock.makefile("rb") as events:
-            sock.sendall(b'{"command": "trace"}\n')
+            sock.sendall(json.dumps(request).encode() + b"\n")
             header = json.loads(events.readline() or b"{}")     # {"mode": ..., ...}
-            echo(trace_columns(header.get("mode", "slave")))
+            if "error" in header:
+                _fail(header["error"])
+            echo(raw_columns() if raw else trace_columns(header.get("mode", "slave")))
             try:
-                for line in events:
-                    event = json.loads(line)
-                    echo(format_event(event))
+                for line_text in events:
+                    event = json.loads(line_text)
+                    echo(format_raw(event) if raw else format_event(event))
                     if writer is not None and event.get("mode") != "transparent":
-                        writer.write_event(event)     # raw frames are not Modbus/TCP
+                        writer.write_event(event)     # raw frames are not Modbus/TCP; a
+                        #                               scenario's run has no TCP ends
                     seen += 1
                     if count is not None and seen >= count:
                         break

@@ -158,9 +158,11 @@ def _demotion(s: dict) -> str:
 
 
 def _next_probe(d: dict) -> list[str]:
-    """The line under a device that is down: when a request may go to it as a probe."""
+    """The lines under a device that fails: why, when bytes came but no valid reply; when a
+    request may go to it as a probe, while it is down."""
+    lines = [f"        {d['diagnosis']}"] if d.get("diagnosis") else []
     wait = d.get("next_probe_in_s")
-    return [] if wait is None else [f"        next probe in {wait:.1f} s"]
+    return lines if wait is None else lines + [f"        next probe in {wait:.1f} s"]
 
 
 def _health(d: dict, now: float) -> str:
@@ -365,6 +367,20 @@ def trace_columns(mode: str) -> str:
             f"{'FC':>4} {'LEN':>4}  OUTCOME")
 
 
+def raw_columns() -> str:
+    return f"{'TIME':<15} {'GAP us':>9}  {'KIND':<11} {'LEN':>4}  BYTES (hex)"
+
+
+def format_raw(e: dict) -> str:
+    """A burst on the line (mbgw.line.raw), or the bytes the capture had no room for."""
+    stamp = time.strftime("%H:%M:%S", time.localtime(e["time"])) + \
+        f".{int(e['time'] * 1000) % 1000:03d}"
+    if e["kind"] == "dropped":
+        return f"{stamp:<15} {'':>9}  {'dropped':<11} {e['length']:>4}  (not captured)"
+    gap = "-" if e.get("gap_us") is None else str(e["gap_us"])
+    return f"{stamp:<15} {gap:>9}  {e['kind']:<11} {e['length']:>4}  {e['bytes']}"
+
+
 def format_event(e: dict) -> str:
     stamp = time.strftime("%H:%M:%S", time.localtime(e["time"])) + \
         f".{int(e['time'] * 1000) % 1000:03d}"
@@ -378,6 +394,8 @@ def format_event(e: dict) -> str:
         unit = "-" if e["unit"] is None else e["unit"]
         address = "-" if e["address"] is None else e["address"]
         where = f"{address:>4} {e['server'] or '-':<21}"
+    elif e.get("scenario") is not None:
+        tid, unit, where = "-", e["unit"], f"{'scenario ' + e['scenario']:<24}"
     else:
         tid, unit, where = e["tid"], e["unit"], f"{e['peer']:<24}"
     return (f"{stamp:<15} {e['direction']:<9} {where} {tid:>5} {unit:>4} "

@@ -8,6 +8,7 @@ never stalls the asyncio thread.
 """
 import errno
 import os
+import struct
 from typing import NamedTuple
 
 from mbgw._ffi import ffi, lib
@@ -24,6 +25,7 @@ IDLE_INPUT = lib.MBGW_IDLE_INPUT
 IDLE_TIMEOUT = lib.MBGW_IDLE_TIMEOUT
 INPUT_SIZE = 4096       # what take_request() reads from a client at most
 CRC_LEN = 2
+_RECORD = struct.Struct("=BqH")     # a capture record's head: direction, time, length
 
 _LIBMODBUS_ERRORS = {
     lib.EMBBADCRC: "invalid CRC",
@@ -192,7 +194,7 @@ class Port:
 
     def send_rtu(self, adu: bytes) -> None:
         """Send address + PDU; libmodbus appends the CRC."""
-        if lib.modbus_send_raw_request(self._ctx, adu, len(adu)) < 0:
+        if lib.mbgw_send_rtu(self._ctx, adu, len(adu)) < 0:
             raise self._fail(ffi.errno, "write")
 
     def write(self, frame: bytes, rts_control: bool = False, before_us: int = 0,
@@ -341,3 +343,46 @@ class Port:
         """The first byte (the address, unless noise) of the frame read_request() has just
         rejected (ChecksumError, FrameError)."""
         return self._buf[0]
+
+
+class Capture:
+    """The raw line monitor's buffer (csrc/capture.c): while started, C appends every byte
+    the line reads or writes; take() drains it, on the line's thread."""
+    SIZE = 1 << 16
+
+    def __init__(self) -> None:
+        self._buf = ffi.new("uint8_t[]", self.SIZE)
+        self._c = ffi.new("struct mbgw_capture *")
+        self._c.buf = self._buf
+        self._c.cap = self.SIZE
+        self.on = False
+
+    def start(self) -> None:
+        self._c.len = 0
+        lib.mbgw_capture_set(self._c)
+        self.on = True
+
+    def stop(self) -> None:
+        lib.mbgw_capture_set(ffi.NULL)
+        self.on = False
+
+    def __del__(self) -> None:
+        if self.on:                    # C must not write into freed memory
+            self.stop()
+
+    def take(self) -> tuple[list[tuple[bool, int, bytes]], int]:
+        """What came since the last take: (sent, time ns, bytes) in order; and the bytes
+        dropped for want of room."""
+        c = self._c
+        data = ffi.buffer(self._buf, c.len)[:]
+        dropped = c.dropped
+        c.len = 0
+        c.dropped = 0
+        records = []
+        at = 0
+        while at < len(data):
+            direction, t, n = _RECORD.unpack_from(data, at)
+            at += _RECORD.size
+            records.append((direction == lib.MBGW_CAPTURE_TX, t, data[at:at + n]))
+            at += n
+        return records, dropped

@@ -16,11 +16,13 @@ import logging
 import os
 import threading
 import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Generic, Protocol, TypeVar
 
 from mbgw.errors import SerialError
 from mbgw.line import frames, native
 from mbgw.line.port import SerialLine
+from mbgw.line.raw import RawMonitor
 
 if TYPE_CHECKING:      # the settings' type only: the line never reads the configuration files
     from mbgw.config.model import SerialConfig
@@ -117,6 +119,14 @@ class _Settings(Protocol):
 Settings = TypeVar("Settings", bound=_Settings)
 
 
+class RawHub(Protocol):
+    """What a line thread needs of the trace hub (mbgw.ops.trace.TraceHub) for its raw view."""
+    raw_active: bool
+    on_raw_watch: Callable[[bool], None] | None
+
+    def emit_threadsafe(self, event: dict) -> None: ...
+
+
 class LineThread(threading.Thread, Generic[Settings]):
     """What a line thread is in either mode: it serves one turn at a time (`_turn`) while the
     device is open; when the device is lost it closes it and opens it again when it is back
@@ -141,6 +151,9 @@ class LineThread(threading.Thread, Generic[Settings]):
         # the thread may wait while nothing happens (-1: no limit; set before start()).
         self.heartbeat = time.monotonic()
         self.idle_ms = -1
+        self._raw_hub: RawHub | None = None     # whose raw subscribers watch the line
+        self._raw_monitor: RawMonitor | None = None     # since somebody first watched it
+        self._answers = False                   # mbgw is the line's slave (master mode)
 
     @property
     def up(self) -> bool:
@@ -182,13 +195,43 @@ class LineThread(threading.Thread, Generic[Settings]):
                     self._reopen()
                     continue
                 try:
-                    self._turn()
+                    hub, raw = self._raw_hub, self._raw_monitor
+                    if hub is not None and (hub.raw_active or
+                                            (raw is not None and raw.watching)):
+                        self._watched_turn(hub)
+                    else:
+                        self._turn()
                 except SerialError as err:
                     self._lost(err)
                 except Exception:   # a bug must cost one turn, never the line
                     log.exception("internal error")
         finally:
             self._finish()
+
+    def watch_raw(self, hub: "RawHub", answers: bool = False) -> None:
+        """Let hub's raw subscribers (`mbgw trace --raw`) watch this line (before start());
+        answers: mbgw is the slave on the line (master mode), not its master."""
+        self._raw_hub = hub
+        self._answers = answers
+        hub.on_raw_watch = lambda on: self._wake()      # the next turn looks
+
+    def _watched_turn(self, hub: "RawHub") -> None:
+        """A turn while somebody watches the raw line (or did until now): the C capture set
+        for it, its bytes handed to the hub as bursts after it."""
+        raw = self._raw_monitor
+        if raw is None:
+            raw = self._raw_monitor = RawMonitor(0, 0, 0)
+        watch = hub.raw_active
+        if watch and not raw.watching and self._line is not None:
+            s = self._line.cfg
+            raw.configure(s.char_ns, s.t35_us, s.stout_ms, s.protocol == "ascii",
+                          self._answers)
+        raw.watch(watch)
+        try:
+            self._turn()
+        finally:
+            for event in raw.take():
+                hub.emit_threadsafe(event)
 
     def close_line(self) -> None:
         if self._line is not None:

@@ -99,6 +99,7 @@ class SerialSlave(LineThread[MasterConfig]):
         self.devices = DeviceTable(MASTER_COUNTS, HealthRule(cfg.demotion))
         self._down = self.devices.rule.down    # the addresses that are down, by address
         self.trace = TraceHub()
+        self.watch_raw(self.trace, answers=True)
         self._tracer = MasterTracer(self.trace)
         self.wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         self._pool = UpstreamPool(cfg.mdbport, cfg.max_connections, counters, self.wake_fd)

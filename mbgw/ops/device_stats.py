@@ -73,7 +73,8 @@ class DeviceStats:
     __slots__ = ALL_COUNTS + ("address", "name", "counts", "rule", "upstream", "exceptions",
                               "gateway_exceptions", "latency_buckets", "latency_sum_ms",
                               "last_success", "consecutive_failures", "recent_failures",
-                              "health", "health_since", "probe_at", "probe_wait_s")
+                              "health", "health_since", "probe_at", "probe_wait_s",
+                              "invalid_bytes")
 
     def __init__(self, address: int | None, counts: tuple = COUNTS,
                  rule: HealthRule | None = None, name: str | None = None) -> None:
@@ -87,6 +88,8 @@ class DeviceStats:
         self.reset_counts()
         self.last_success: float | None = None
         self.consecutive_failures = 0
+        # the bytes received since the last valid reply, in no valid reply (slave mode)
+        self.invalid_bytes = 0
         self.recent_failures = 0                      # bit i: the i-th latest outcome failed
         self.health = UP
         self.health_since = time.time()
@@ -117,10 +120,13 @@ class DeviceStats:
         self.latency_buckets[bucket] += 1
         self.last_success = time.time()
         self.consecutive_failures = 0
+        self.invalid_bytes = 0
         self._judge(False)
 
-    def failed(self) -> None:
+    def failed(self, invalid_bytes: int = 0) -> None:
+        """A request without a valid reply; invalid_bytes: what came all the same."""
         self.consecutive_failures += 1
+        self.invalid_bytes += invalid_bytes
         if self.health == DOWN:        # a probe failed: the next waits twice as long
             self.probe_wait_s = min(2 * self.probe_wait_s, self.rule.probe_max_s)
             self.probe_at = time.monotonic() + self.probe_wait_s
@@ -173,9 +179,11 @@ class DeviceStats:
         via = f" (server {self.upstream[0]} unit {self.upstream[1]})" if self.upstream else ""
         if health == DOWN:
             self._probe_from(time.monotonic())
-            log.warning("%s is down: %d requests in a row without a valid reply%s; "
+            log.warning("%s is down: %d requests in a row without a valid reply%s%s; "
                         "its requests are refused, but for %s", self.name,
-                        self.consecutive_failures, via, self.rule.describe())
+                        self.consecutive_failures, via,
+                        f"; {self.diagnosis}" if self.diagnosis else "",
+                        self.rule.describe())
         elif health == DEGRADED and self.last_success is None:
             failures = self.consecutive_failures
             log.warning("%s is degraded: it has not answered yet (%d request%s without a valid "
@@ -188,6 +196,15 @@ class DeviceStats:
             log.info("%s is up: its last %d requests were answered%s", self.name,
                      RECENT_WINDOW, via)
 
+    @property
+    def diagnosis(self) -> str | None:
+        """Why its requests fail when bytes came that made no valid reply: the line's
+        settings rather than a dead device."""
+        if not self.consecutive_failures or not self.invalid_bytes:
+            return None
+        return (f"answers received but not valid ({self.invalid_bytes} bytes): check baud "
+                f"rate, parity, address")
+
     def snapshot(self) -> dict:
         data = {name: getattr(self, name) for name in self.counts}
         if self.upstream is not None:
@@ -195,6 +212,7 @@ class DeviceStats:
         data.update(
             address=self.address, health=self.health, health_since=self.health_since,
             last_success=self.last_success, consecutive_failures=self.consecutive_failures,
+            diagnosis=self.diagnosis,
             exceptions={f"0x{c:02x}": n for c, n in sorted(self.exceptions.items())},
             gateway_exceptions={f"0x{c:02x}": n
                                 for c, n in sorted(self.gateway_exceptions.items())},

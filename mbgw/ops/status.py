@@ -9,6 +9,8 @@ import time
 
 from mbgw import __version__
 from mbgw.audit import Kind, event, operator
+from mbgw.ops.trace import NO_RAW_VIEW
+from mbgw.ops.trace import filters as trace_filters
 
 log = logging.getLogger("mbgw.control")
 
@@ -76,8 +78,19 @@ class DaemonStatus:
     async def trace(self, request: dict, reader: asyncio.StreamReader,
                     writer: asyncio.StreamWriter) -> None:
         hub = self._trace
-        queue = hub.subscribe()
-        log.info("trace started (%s)", operator(request.get("uid")))
+        try:
+            wanted = trace_filters(request.get("filters") or {})
+        except ValueError as err:
+            writer.write(json.dumps({"error": str(err)}).encode() + b"\n")
+            await writer.drain()
+            return
+        raw = bool(request.get("raw"))
+        if raw and hub.on_raw_watch is None:
+            writer.write(json.dumps({"error": NO_RAW_VIEW % self.mode}).encode() + b"\n")
+            await writer.drain()
+            return
+        queue = hub.subscribe(raw, wanted)
+        log.info("%strace started (%s)", "raw " if raw else "", operator(request.get("uid")))
         gone = asyncio.ensure_future(until_closed(reader))   # the client closing ends it
         try:
             writer.write(json.dumps(self.trace_header()).encode() + b"\n")

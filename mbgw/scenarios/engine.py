@@ -7,7 +7,12 @@ runs scenarios, the control and status threads read and enable them.
 Two kinds of run never reach the runner: a write whose table registers nobody has written
 since start waits ("waiting for data", unless send-unwritten), and a run for a device or
 server that is down (the runner's `health`, mbgw.scenarios.health) is skipped, "device down",
-but for the probe the demotion rule lets through."""
+but for the probe the demotion rule lets through.
+
+A change write is owed until its device has had it: one skipped (its device down) or sent
+and never answered (a timeout, the line lost) is pending again as soon as its device is not
+down, with the table's data then; demotion spaces the attempts to a device that stays
+silent."""
 import logging
 import os
 import threading
@@ -31,6 +36,9 @@ STATES = (STARTING, RUNNING, ERROR, DISABLED)
 _IN_ERROR: dict[int, set[int]] = {}
 _IN_ERROR_LOCK = threading.Lock()
 
+
+# A run that got no reply: its device may never have had the write.
+UNANSWERED = (exchange.TIMEOUT, exchange.EXCEPTION_KINDS[0x0A])
 
 DEFAULT_TEST_WAIT_S = 60.0     # how long `scenario test` waits for its runner
 
@@ -121,7 +129,7 @@ class Scenarios:
         self._flag = False                  # FC 7's "a scenario is in error", as last set
         self._tests: deque[TestRun] = deque()
         self.health: Health | None = None    # the runner's demotion; None: every run is sent
-        self._owed: set[str] = set()     # change scenarios skipped, their device down
+        self._owed: set[str] = set()     # change scenarios skipped or unanswered
         self.reconfigure(configs)
 
     # --- the runner's side ---
@@ -183,6 +191,8 @@ class Scenarios:
             state = self._states.get(sc.name)
             if state is None or state.scenario != sc:
                 return result          # removed or changed while it ran: counts nothing
+            if sc.on_change and reply_pdu is None and result.kind in UNANSWERED:
+                self._owed.add(sc.name)
             self._record(state, result, retries, now - run.started, now,
                          still_down=run.probe and self.health is not None
                          and self.health.down(sc))
@@ -459,8 +469,8 @@ class Scenarios:
                     self._planner.changed(state.scenario.name)
 
     def _repay(self) -> None:
-        """A change scenario skipped while its device was down is pending again once the
-        device is not (its data as it is then)."""
+        """A change scenario skipped while its device was down, or not answered, is pending
+        again once the device is not down (its data as it is then)."""
         for name in list(self._owed):
             state = self._states.get(name)
             if state is None or state.state == DISABLED:

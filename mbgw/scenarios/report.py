@@ -12,9 +12,11 @@ scenarios_status(engines) -> [
      "data_age_s": s since the last good read | null, "stale": bool,
      "next_probe_in_s": s until its probe while its device (server) is down | null}, ...]
 in the configuration's order, serial ones first."""
+import time
+
 from mbgw.scenarios.engine import STATES, Scenarios
 
-__all__ = ["STATES", "scenarios_status"]
+__all__ = ["STATES", "scenarios_status", "trace_event"]
 
 
 def scenarios_status(engines) -> list[dict]:
@@ -25,3 +27,16 @@ def scenarios_status(engines) -> list[dict]:
         if isinstance(engine, Scenarios):
             rows += engine.status()
     return rows
+
+
+def trace_event(direction: str, scenario, data: bytes, outcome: str,
+                latency_ms: float | None = None) -> dict:
+    """A trace event (mbgw.ops.trace) of a scenario's run: its request, its reply or "no
+    reply"; marked with its name, on the serial line or (a TCP scenario) none."""
+    replied = direction != "no reply"
+    tcp = scenario.kind == "tcp"
+    return {"time": time.time(), "direction": direction, "scenario": scenario.name,
+            "client": None, "tid": None, "unit": scenario.unit if tcp else scenario.slave,
+            "server": scenario.server if tcp else None, "function": data[0],
+            "length": len(data) if replied else 0, "pdu": data.hex() if replied else "",
+            "outcome": outcome, "latency_ms": latency_ms, "line": None if tcp else "serial"}

@@ -21,6 +21,7 @@ scenarios' servers have pools of their own, over TLS with the client context mad
 enable come from other threads directly.
 """
 import concurrent.futures
+import functools
 import logging
 import math
 import os
@@ -39,7 +40,7 @@ from mbgw.ops.device_stats import DeviceStats, HealthRule
 from mbgw.ops.tls import client_context
 from mbgw.scenarios.engine import Scenarios
 from mbgw.scenarios.health import ServerHealth
-from mbgw.scenarios.report import scenarios_status
+from mbgw.scenarios.report import scenarios_status, trace_event
 from mbgw.upstream.pool import (
     ConnectionLost,
     ConnectTimeout,
@@ -83,6 +84,7 @@ class TcpRunner:
                  rule: HealthRule | None = None) -> None:
         """pins: the servers whose certificate is pinned (scenario_pins)."""
         self.engine = engine
+        self.trace = None       # the daemon's trace hub (mbgw.ops.trace), for its runs
         self.health = ServerHealth(rule)       # the servers' demotion, by the engine too
         engine.health = self.health
         self._tcpto_ns = tcpto_ms * 1_000_000
@@ -192,9 +194,23 @@ class TcpRunner:
             future.set_exception(RuntimeError("the TCP scenarios' runner has stopped"))
 
     def _execute(self, run) -> None:
-        reply, kind, retries = self.exchange(run.scenario, run.pdu, run.probe,
-                                             lambda: self.engine.retrying(run.scenario))
-        self.engine.done(run, reply, kind, retries)
+        trace = self.trace
+        retrying = functools.partial(self.engine.retrying, run.scenario)
+        if trace is None or not trace.active:
+            reply, kind, retries = self.exchange(run.scenario, run.pdu, run.probe, retrying)
+            self.engine.done(run, reply, kind, retries)
+            return
+        started = time.monotonic_ns()
+        trace.emit_threadsafe(trace_event("request", run.scenario, run.pdu, ""))
+        reply, kind, retries = self.exchange(run.scenario, run.pdu, run.probe, retrying)
+        result = self.engine.done(run, reply, kind, retries)
+        latency_ms = (time.monotonic_ns() - started) / 1e6
+        outcome = "ok" if result.ok else result.kind or ""
+        if reply is None:
+            event = trace_event("no reply", run.scenario, run.pdu[:1], outcome, latency_ms)
+        else:
+            event = trace_event("reply", run.scenario, bytes(reply), outcome, latency_ms)
+        trace.emit_threadsafe(event)
 
     def exchange(self, scenario, pdu: bytes, probe: bool = False, on_retry=None
                  ) -> tuple[bytes | None, str | None, int]:
@@ -309,10 +325,12 @@ class TcpScenarios:
     the configuration has any, `engines["tcp"]` meanwhile (the dict the control commands and
     the status read); started, reconfigured and stopped from the asyncio thread."""
 
-    def __init__(self, table, engines: dict, rule: HealthRule | None = None) -> None:
+    def __init__(self, table, engines: dict, rule: HealthRule | None = None,
+                 trace=None) -> None:
         self.table = table
         self.engines = engines
         self.rule = rule           # the mode's demotion settings (down-after, probe-interval)
+        self.trace = trace         # the daemon's trace hub: the runs are traced
         self.runner: TcpRunner | None = None
 
     def start(self, configs, tcpto_ms: int, tls: UpstreamTlsConfig | None = None) -> None:
@@ -321,6 +339,7 @@ class TcpScenarios:
             engine = Scenarios(configs, self.table, "tcp")
             self.runner = TcpRunner(engine, tcpto_ms, tls=tls, pins=scenario_pins(configs),
                                     rule=self.rule)
+            self.runner.trace = self.trace
             self.runner.start()
             self.engines["tcp"] = engine
             log.info("%d TCP scenarios, tcpto %d ms", len(configs), tcpto_ms)

@@ -101,7 +101,7 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
     if s.nocheck:
         log.warning("nocheck is on: serial replies are forwarded unchecked (a debugging mode)")
 
-    scenarios = TcpScenarios(tables.table, engines, devices.rule)
+    scenarios = TcpScenarios(tables.table, engines, devices.rule, server.trace)
     scenarios.start(cfg.scenarios, cfg.tcpto_ms, cfg.upstream_tls)
 
     async def apply(new: SlaveConfig, report: ReloadReport) -> None:

@@ -29,6 +29,7 @@ from mbgw.ops.exception_reply import gateway_exception
 from mbgw.protocol import mbap, pdu
 from mbgw.scenarios.exchange import EXCEPTION_KINDS, FRAME_WITHOUT_REQUEST, TIMEOUT
 from mbgw.scenarios.health import SerialHealth
+from mbgw.scenarios.report import trace_event
 from mbgw.slave.client import Client
 from mbgw.slave.connections import Connections
 from mbgw.slave.scheduler import (
@@ -78,6 +79,9 @@ class LineWorker(LineThread[SlaveConfig]):
         self._due_s: float | None = None   # until the next scenario is due (None: none is)
         self._engine_woken = False         # its eventfd was ready (a test, with no scenario)
         self._timed_out: dict[int, Job] = {}   # by address: the job whose late reply may come
+        self._run_started = 0              # the scenario run traced last began (ns)
+        self._trace = server.trace
+        self.watch_raw(server.trace)
         if line is None:
             self._line_state(down=True)
 
@@ -398,12 +402,40 @@ class LineWorker(LineThread[SlaveConfig]):
         assert engine is not None
         test = engine.take_test(time.monotonic())
         if test is not None:
-            engine.test_done(test, *self._exchange(test.scenario, test.pdu))
+            self._traced_run(test.scenario, test.pdu, None)
+            done = self._exchange(test.scenario, test.pdu)
+            engine.test_done(test, *done)
+            self._traced_run(test.scenario, test.pdu, done)
             return
         run = engine.next(time.monotonic())
         if run is not None:
-            engine.done(run, *self._exchange(run.scenario, run.pdu,
-                                             lambda: engine.retrying(run.scenario)))
+            self._traced_run(run.scenario, run.pdu, None)
+            done = self._exchange(run.scenario, run.pdu,
+                                  lambda: engine.retrying(run.scenario))
+            result = engine.done(run, *done)
+            self._traced_run(run.scenario, run.pdu, done, result.kind)
+
+    def _traced_run(self, scenario, request: bytes, done: tuple | None,
+                    kind: str | None = None) -> None:
+        """A scenario's run in the trace: its request (done None), then its reply or none
+        (done: _exchange's), marked with the scenario's name."""
+        trace = self._trace
+        if not trace.active:
+            return
+        if done is None:
+            self._run_started = time.monotonic_ns()
+            trace.emit_threadsafe(trace_event("request", scenario, request, ""))
+            return
+        reply, error, _ = done
+        kind = kind or error
+        latency_ms = (time.monotonic_ns() - self._run_started) / 1e6
+        if reply is None:
+            outcome = "broadcast" if scenario.slave == pdu.BROADCAST and kind is None \
+                else kind or TIMEOUT
+            event = trace_event("no reply", scenario, request[:1], outcome, latency_ms)
+        else:
+            event = trace_event("reply", scenario, bytes(reply), kind or "ok", latency_ms)
+        trace.emit_threadsafe(event)
 
     def _scenarios_while_down(self, engine) -> None:
         """None runs, but the engine's eventfd is read, changes are taken and data ages

@@ -70,6 +70,7 @@ class SerialMaster:
         self.mismatch: bytes | None = None
         # on_retry(): called before each repeat of a request (a scenario's status says so)
         self.on_retry: Callable[[], None] | None = None
+        self._bad_bytes = 0         # in frames that were not the reply, this transaction
 
     def keep_line_state(self, previous: "SerialMaster") -> None:
         """Taking over the line from previous (new settings): the silence it owes the line
@@ -104,6 +105,9 @@ class SerialMaster:
         if self.late_until[adu[0]]:
             self._await_late(adu[0])
         started = 0
+        counters = self._counters
+        noise = counters.noise_bytes      # from here on, bytes in no frame ...
+        self._bad_bytes = 0               # ... and in frames that were not the reply
         for attempt in range((self._retries if retries < 0 else retries) + 1):
             if attempt:
                 self._count(device, "retries")
@@ -133,7 +137,7 @@ class SerialMaster:
                 return reply
         self._counters.line_busy_ns += self._deadline - started
         self._count(device, "timeouts")
-        device.failed()
+        device.failed(counters.noise_bytes - noise + self._bad_bytes)
         self._open_window(adu[0], attempt + 1)
         raise LineTimeout()
 
@@ -267,6 +271,7 @@ class SerialMaster:
             if frame is None:
                 if not self._late_reply(got.foreign):
                     self._count(device, "wrong_unit")
+                    self._bad_bytes += got.length
                 continue
             if self._nocheck:
                 return got if len(frame) > 1 else None
@@ -277,6 +282,7 @@ class SerialMaster:
                 continue
             if not reply_matches(adu[1:], frame[1:]):
                 self._count(device, "wrong_function")
+                self._bad_bytes += got.length
                 self.mismatch = frame[1:]
                 continue
             return got

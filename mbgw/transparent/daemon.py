@@ -139,7 +139,7 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
     warn_of_overlaps(cfg)
     if metrics is not None:
         log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
-    scenarios = TcpScenarios(table, engines)
+    scenarios = TcpScenarios(table, engines, trace=status.trace_hub)
     scenarios.start(cfg.scenarios, cfg.tcpto_ms)
 
     async def apply(new: TransparentModeConfig, report: ReloadReport) -> None:

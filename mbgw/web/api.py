@@ -10,6 +10,8 @@ from pathlib import Path
 from aiohttp import web
 
 from mbgw.audit import Kind, event
+from mbgw.ops.trace import FILTER_KEYS, NO_RAW_VIEW
+from mbgw.ops.trace import filters as trace_filters
 from mbgw.web import config_api
 from mbgw.web.auth import COOKIE, ROLES
 from mbgw.web.passwords import verify
@@ -249,11 +251,20 @@ async def trace(request: web.Request) -> web.StreamResponse:
     """Server-sent events: one trace event (mbgw.ops.trace) per `data:` line; a comment
     first, and every KEEPALIVE_S while nothing happens."""
     hub = request.app["hooks"].trace
+    query = request.query
+    raw = query.get("raw") in ("1", "true")
+    try:
+        wanted = trace_filters({key: query[key] for key in FILTER_KEYS if query.get(key)})
+        if raw and hub.on_raw_watch is None:
+            raise ValueError(NO_RAW_VIEW % "this")
+    except ValueError as err:
+        raise web.HTTPBadRequest(text=json.dumps({"error": str(err)}),
+                                 content_type="application/json") from None
     response = web.StreamResponse(headers={"Content-Type": "text/event-stream",
                                            "Cache-Control": "no-store"})
     await response.prepare(request)
-    queue = hub.subscribe()
-    log.info("web trace started (%s)", who(request))
+    queue = hub.subscribe(raw, wanted)
+    log.info("web %strace started (%s)", "raw " if raw else "", who(request))
     quiet = 0.0
     try:
         await response.write(b": trace\n\n")

@@ -23,12 +23,14 @@ from tests.integration.master_rig import (
     mbgw,
     probed,
     read_holding,
+    recv,
     rtu,
     status,
     stop_counters,
     unanswered,
     wait_for,
 )
+from tests.integration.test_trace_raw import GARBAGE, Trace, bursts
 from tests.ops import devices, health_log, metric_families, metric_value, tracing, tshark_warnings
 
 pytestmark = pytest.mark.integration
@@ -340,3 +342,23 @@ def test_metrics_are_the_status_figures_for_prometheus(rig, line):
     assert exceptions == {("2", "0x02", "device"): 1, ("3", "0x0b", "gateway"): 1,
                           ("4", "0x0a", "gateway"): 1}
     assert value("mbgw_device_unreachable", "mbgw_device_unreachable_total", address=4) == 1
+
+
+def test_trace_raw_shows_the_masters_requests_our_replies_and_noise(rig, line):
+    """Master mode's raw line: what the serial master wrote (a request, then garbage) and
+    what mbgw answered, byte for byte as the test wrote and read them on the pty."""
+    gw, _ = rig()
+    trace = Trace(gw, "--raw")
+    try:
+        request = read_holding(1)
+        ask(line, request, expected=reply(1, SERVER, 1))
+        # garbage (a master at the wrong baud rate), the request right behind it: one burst,
+        # no valid frame as a whole, though mbgw finds the request at its end and answers
+        os.write(line, GARBAGE + rtu(request))
+        assert recv(line, len(rtu(reply(1, SERVER, 1)))) == rtu(reply(1, SERVER, 1))
+        shown = [(kind, data) for _, kind, data in bursts(trace.lines(5))]
+    finally:
+        trace.stop()
+    assert shown == [("request", rtu(request)), ("reply", rtu(reply(1, SERVER, 1))),
+                     ("noise", GARBAGE + rtu(request)),
+                     ("reply", rtu(reply(1, SERVER, 1)))], shown

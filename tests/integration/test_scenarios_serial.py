@@ -164,8 +164,10 @@ def test_a_value_is_copied_from_one_device_to_another_on_change(pymodbus_line, g
 # --- the change trigger and the insertion order, from the frames the peer saw ---
 
 def test_the_same_value_again_sends_nothing_a_new_value_one_write(fault_line, gateway, client):
+    """stout 1 s: a reply slowed by a loaded host must not make a write sent again (a retry,
+    or an unanswered write owed) and count twice."""
     record = fault_line()
-    gw, _ = gateway([on_change("out", 20, 6, 7, 300)])
+    gw, _ = gateway([on_change("out", 20, 6, 7, 300)], stout=1000)
     c = client(gw)
     for value in (5, 5, 6):
         assert c.ask(TABLE_UNIT, bytes.fromhex(f"06 012c {value:04x}"))[0] == 0x06
@@ -362,9 +364,12 @@ def test_stale_data_answers_0x0b_until_the_device_answers_again(fault_line, gate
 def test_a_change_made_while_the_device_is_lost_is_written_once_it_is_back(
         pty_pair, pymodbus_line, gateway, client):
     """Nothing runs while the device is lost (a scenario test says so at once); a change of
-    the data a change scenario writes is kept, and sent when the device is back."""
+    the data a change scenario writes is kept, and sent when the device is back.  The port
+    comes back before its peer does: the write is then sent and not answered, and stays owed
+    (the device demoted meanwhile: the probes of this test's reads, every probe-interval)."""
     pymodbus_line(1, 2)
-    gw, _ = gateway([poll("keepalive", 1, 3, 0, 1, 0), on_change("out", 2, 6, 6, 60)])
+    gw, _ = gateway([poll("keepalive", 1, 3, 0, 1, 0), on_change("out", 2, 6, 6, 60)],
+                    serial={"probe-interval": 200})
     c = client(gw)
     wait_for_scenario(gw, "keepalive", lambda sc: sc["successes"] >= 1, "running")
     pty_pair.stop()                             # the device disappears

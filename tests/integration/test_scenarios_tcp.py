@@ -25,6 +25,7 @@ from mbgw.scenarios.tcp_runner import (
 )
 from mbgw.upstream.pool import drain
 from tests.harness import Peer, free_port
+from tests.integration.test_trace_raw import Trace
 from tests.modbus import Client
 from tests.ops import mbgw, metric_families, metric_value, status, wait_for_log
 from tests.peers.scripted_tcp_server import ScriptedServer
@@ -343,6 +344,28 @@ def test_slave_mode_polls_and_writes_on_change(slave_with, scripted):
     until(lambda: len(writes()) >= 2, "the second write")
     assert writes() == [bytes([16, 0, 20, 0, 2, 4, 0, 7, 0, 8]),
                         bytes([16, 0, 20, 0, 2, 4, 0, 7, 0, 9])]
+
+
+def test_a_tcp_scenarios_runs_are_in_the_trace_with_its_name(slave_with, scripted):
+    """`mbgw trace --scenario poll`: the request the scripted server received and the reply
+    it sent, marked with the scenario's name; not on the serial line (--line serial)."""
+    server = scripted(values=(0x0102,))
+    gw, _ = slave_with(scenario_toml("poll", server.server, unit=9, function=3, address=4,
+                                     quantity=2, table=FREE, cycle=100))
+    trace = Trace(gw, "--scenario", "poll")
+    on_serial = Trace(gw, "--line", "serial", "--count", "1")
+    try:
+        lines = [line.replace("scenario poll", "scenario:poll").split()
+                 for line in trace.lines(5)[1:]]
+        first = next(i for i, line in enumerate(lines) if line[1] == "request")
+        request, reply = lines[first], lines[first + 1]
+        assert request[1:6] == ["request", "scenario:poll", "-", "9", "0x03"], lines
+        assert reply[1:6] + reply[7:8] == ["reply", "scenario:poll", "-", "9", "0x03", "ok"]
+        assert (9, bytes([3, 0, 4, 0, 2])) in server.requests
+        assert on_serial.proc.poll() is None       # nothing on the serial line to show
+    finally:
+        trace.stop()
+        on_serial.stop()
 
 
 # VPGate's messages (§8.2), a TCP scenario's peer called a server

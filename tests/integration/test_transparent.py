@@ -325,6 +325,14 @@ def test_counters_in_metrics_and_the_trace_shows_frames_in_hex(transparent):
     assert metric_value(families, "mbgw_line_up") == 1
 
 
+def test_trace_raw_says_transparent_mode_shows_frames_in_hex_instead(transparent):
+    gw, _, _ = transparent("--eof", "cr")
+    done = mbgw("trace", "--raw", "--control", gw.control)
+    assert done.returncode == 1, done
+    assert done.stderr.strip() == "mbgw: --raw: transparent mode has no raw line view; mbgw " \
+        "trace shows each frame there in hex as it went on the line", done.stderr
+
+
 def test_reload_applies_new_frame_settings(transparent, tmp_path):
     path = tmp_path / "mbgw.toml"
     path.write_text('[transparent]\neof = "cr"\nrx-size = 8\n')

@@ -251,6 +251,28 @@ def test_the_trace_streams_each_transaction_as_a_server_sent_event(console):
     assert "web trace ended" in wait_for_log(gw, "web trace ended")
 
 
+def test_the_trace_filters_by_unit_and_refuses_a_bad_filter(console):
+    gw, _, web, _ = console()
+    admin(web)
+    code, reply, _ = web.get("/api/trace?unit=300")
+    assert (code, reply) == (400, {"error": "trace: unit 300: expected 0..255"})
+    request = urllib.request.Request(web.base + "/api/trace?unit=1")
+    with web.opener.open(request, timeout=10) as stream:
+        assert stream.readline() == b": trace\n"
+        c = Client(gw.port)
+        try:
+            assert c.ask(11, read_holding(0, 1)) == bytes.fromhex("83 02")    # not shown
+            assert c.ask(1, read_holding(3, 2)) == holding_reply(3, 2)
+        finally:
+            c.close()
+        events = []
+        while len(events) < 2:
+            line = stream.readline().decode()
+            if line.startswith("data: "):
+                events.append(json.loads(line[6:]))
+    assert [(e["direction"], e["unit"]) for e in events] == [("request", 1), ("reply", 1)]
+
+
 def test_a_setting_is_checked_like_config_set_and_applied_with_a_reload(console):
     gw, path, web, _ = console()
     admin(web)

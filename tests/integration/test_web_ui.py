@@ -26,7 +26,7 @@ from selenium.webdriver.support import expected_conditions as EC
 from selenium.webdriver.support.ui import Select, WebDriverWait
 
 from tests.harness import Gateway, Peer, PtyPair, free_port  # noqa: E402
-from tests.modbus import Client, read_holding  # noqa: E402
+from tests.modbus import Client, crc16, read_holding  # noqa: E402
 from tests.ops import status, tracing, tshark_warnings, wait_for, wait_for_log  # noqa: E402
 
 pytestmark = pytest.mark.integration
@@ -84,8 +84,11 @@ def hostile_documents() -> dict:
               "counters": {"requests": 1}, "clients": [client], "scenarios": [scenario],
               "devices": [], "table": {"persist": {"path": HOSTILE, "failing": HOSTILE,
                                                    "failing_since": 1.7e9}}}
+    device = {"address": 15, "health": "down", "health_since": 1.7e9, "last_success": None,
+              "consecutive_failures": 3, "transactions": 3, "diagnosis": HOSTILE}
     return {"/api/session": {"role": "admin", "csrf": "token"}, "/api/status": status,
-            "/api/clients": {"clients": [client]}, "/api/scenarios": {"scenarios": [scenario]}}
+            "/api/clients": {"clients": [client]}, "/api/scenarios": {"scenarios": [scenario]},
+            "/api/devices": {"devices": [device]}}
 
 
 TRACE_EVENT = {"time": 1.7e9, "direction": "request", "client": 7, "peer": HOSTILE,
@@ -159,6 +162,11 @@ def test_values_with_markup_are_shown_as_text(browser, hostile_console):
     browser.get(hostile_console + "#scenarios")
     wait(browser, text_in("#scenarios-table td.name", HOSTILE))
     assert browser.find_element(By.CSS_SELECTOR, "#scenarios-table td.message").text == HOSTILE
+    assert_nothing_injected(browser)
+
+    browser.get(hostile_console + "#devices")              # why a device fails, under it
+    wait(browser, text_in('#devices-table tr[data-address="15"] td.health-down .diagnosis',
+                          HOSTILE))
     assert_nothing_injected(browser)
 
     browser.get(hostile_console + "#traffic")
@@ -411,8 +419,12 @@ def test_the_pcap_of_the_shown_trace_is_the_one_mbgw_trace_writes(browser, conso
                             {"behavior": "allow", "downloadPath": str(tmp_path)})
     go(browser, "traffic")
     wait(browser, found('#trace-info[data-stream="open"]'))
+    # the table's unit only: the scenarios' runs are traced too, but are no Modbus/TCP
+    browser.find_element(By.ID, "trace-unit").send_keys(str(TABLE_UNIT))
+    browser.find_element(By.ID, "trace-apply").click()
+    wait(browser, found('#trace-info[data-stream="open"]'))
     reference = tmp_path / "reference.pcap"
-    with tracing(console.gw, reference, 6) as (trace, _):
+    with tracing(console.gw, reference, 6, "--unit", str(TABLE_UNIT)) as (trace, _):
         modbus = Client(console.gw.port)
         try:
             for first in range(3):
@@ -427,6 +439,25 @@ def test_the_pcap_of_the_shown_trace_is_the_one_mbgw_trace_writes(browser, conso
     assert pcap.read_bytes() == reference.read_bytes()
     checked = tshark_warnings(pcap, console.gw.port)
     assert checked.returncode == 0 and checked.stdout == "", checked
+
+
+def test_the_traffic_page_shows_scenario_runs_and_the_raw_line(browser, console):
+    """The scenario's runs, marked with its name; then the raw line: the scenario's request
+    with its CRC (tests/modbus.py's own) and the pymodbus slave's reply, each marked."""
+    log_in(browser, console, "admin")
+    go(browser, "traffic")
+    wait(browser, text_in("#trace-table tbody", f"scenario {SCENARIO}"))
+    browser.find_element(By.ID, "trace-raw").click()
+    wait(browser, found('#trace-info[data-stream="open"]'))
+    wait(browser, found("#trace-table tbody tr.raw-reply"))
+    headings = [th.text for th in browser.find_elements(By.CSS_SELECTOR, "#trace-table th")]
+    assert headings == ["Time", "Gap µs", "Kind", "Length", "Bytes"]
+    rows = browser.find_elements(By.CSS_SELECTOR, "#trace-table tbody tr.raw-request td.bytes")
+    requests = [bytes.fromhex(row.text) for row in rows]      # the other scenario's too
+    request = bytes.fromhex("01 03 0000 0002")
+    assert request + crc16(request) in requests, requests
+    reply = browser.find_element(By.CSS_SELECTOR, "#trace-table tbody tr.raw-reply td.bytes")
+    assert bytes.fromhex(reply.text)[:3] == bytes.fromhex("01 03 04")
 
 
 def test_devices_statistics_and_a_scenario_test_from_the_browser(browser, console):

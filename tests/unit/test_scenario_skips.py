@@ -201,3 +201,36 @@ def test_a_tcp_server_is_judged_by_the_same_rule(table, clock):
     assert status(e, "remote")["message"] == "server down"
     assert 0 < status(e, "remote")["next_probe_in_s"] <= 0.5
     assert health.of("::1", 502).name == "scenario server [::1]:502"
+
+
+def test_a_change_write_not_answered_is_sent_again_until_its_device_is_down(table, clock):
+    """A timeout leaves the write owed: sent again at once (the table's data then) while the
+    device is up, not while it is down (its probe is a client's), again once it is back."""
+    line = devices(down_after=2, interval_ms=60000)
+    e = Scenarios([sc("copy", slave=5, function=6, quantity=None, cycle=None,
+                      trigger="change")], table, "serial", clock=clock)
+    e.health = SerialHealth(line)
+    table.write(20, [7])
+    run = e.next(clock.now)
+    assert run.pdu == H("06 0014 0007")
+    line.get(5).failed()
+    e.done(run, None, None)                         # no reply: a timeout
+    assert e.due_in(clock.now) == 0.0
+    table.write(20, [8])
+    run = e.next(clock.now)
+    assert run.pdu == H("06 0014 0008")             # the data as it is now
+    line.get(5).failed()                            # the device is down now
+    e.done(run, None, None)
+    assert e.due_in(clock.now) is None and e.next(clock.now) is None
+    line.get(5).answered(3.0, None)
+    assert e.next(clock.now).pdu == H("06 0014 0008")
+
+
+def test_a_change_write_answered_with_an_exception_is_not_sent_again(table, clock):
+    e = Scenarios([sc("copy", slave=5, function=6, quantity=None, cycle=None,
+                      trigger="change")], table, "serial", clock=clock)
+    e.health = SerialHealth(devices())
+    table.write(20, [7])
+    run = e.next(clock.now)
+    e.done(run, H("86 02"), None)
+    assert e.due_in(clock.now) is None and e.next(clock.now) is None

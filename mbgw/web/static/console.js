@@ -462,7 +462,7 @@ async function closeClient(id, message) {
 // ---- Devices -----------------------------------------------------------------------------
 
 const DEVICE_FIXED = ["address", "health", "health_since", "last_success",
-  "consecutive_failures", "latency_sum_ms", "upstream"];
+  "consecutive_failures", "latency_sum_ms", "upstream", "diagnosis"];
 
 function devicesPage(body) {
   const holder = el("div");
@@ -481,7 +481,8 @@ function devicesPage(body) {
         el("thead", {}, el("tr", {}, ...head.map((h) => el("th", { text: h })))),
         el("tbody", {}, ...devices.map((d) => el("tr", { "data-address": d.address },
           el("td", { class: "num", text: d.address }),
-          el("td", { class: `health-${d.health}`, text: show(d.health) }),
+          el("td", { class: `health-${d.health}` }, show(d.health),
+            d.diagnosis ? el("div", { class: "diagnosis", text: d.diagnosis }) : null),
           el("td", { text: localTime(d.health_since) }),
           el("td", { text: localTime(d.last_success) }),
           el("td", { class: "num", text: show(d.consecutive_failures) }),
@@ -676,21 +677,37 @@ function statsPage(body) {
 
 // ---- Traffic -----------------------------------------------------------------------------
 
+// The decoded view (the clients' exchanges and the scenarios' runs) or the raw line (its
+// bursts in hex, mbgw trace --raw), and the filters of mbgw trace.
+const DECODED_COLUMNS = ["Time", "Direction", "Client", "Unit", "Function", "Length", "PDU",
+  "Outcome", "Latency ms"];
+const RAW_COLUMNS = ["Time", "Gap µs", "Kind", "Length", "Bytes"];
+const TRACE_FILTERS = [["unit", "Unit"], ["client", "Client"], ["function", "Function"],
+  ["scenario", "Scenario"]];
+
 function trafficPage(body) {
   const shown = [];                 // the events shown, for the pcap
   let paused = false;
   let skipped = 0;
+  let source = null;
   const tbody = el("tbody");
+  const headRow = el("tr");
   const info = el("span", { id: "trace-info" });
   const pause = el("button", { type: "button", id: "trace-pause", text: "Pause" });
   const download = el("button", { type: "button", id: "trace-pcap",
     text: "Download the pcap of what was shown" });
   const clearButton = el("button", { type: "button", id: "trace-clear", text: "Clear" });
-  const columns = ["Time", "Direction", "Client", "Unit", "Function", "Length", "PDU",
-    "Outcome", "Latency ms"];
+  const raw = el("input", { type: "checkbox", id: "trace-raw" });
+  const errors = el("input", { type: "checkbox", id: "trace-errors" });
+  const inputs = TRACE_FILTERS.map(([key]) =>
+    el("input", { type: "text", id: `trace-${key}`, size: "8", "data-key": key }));
+  const apply = el("button", { type: "button", id: "trace-apply", text: "Apply" });
   body.append(el("div", { class: "controls" }, pause, clearButton, download, info),
-    el("table", { id: "trace-table" }, el("thead", {}, el("tr", {},
-      ...columns.map((c) => el("th", { text: c })))), tbody));
+    el("div", { class: "controls" },
+      el("label", {}, raw, " raw line"),
+      ...TRACE_FILTERS.map(([, label], i) => el("label", {}, `${label} `, inputs[i])),
+      el("label", {}, errors, " errors only"), apply),
+    el("table", { id: "trace-table" }, el("thead", {}, headRow), tbody));
 
   const say = () => {
     info.textContent = `${shown.length} events shown` +
@@ -704,37 +721,65 @@ function trafficPage(body) {
   clearButton.addEventListener("click", () => { shown.length = 0; clear(tbody); say(); });
   download.addEventListener("click", () => downloadPcap(shown));
 
-  const source = new EventSource("/api/trace");
-  source.onmessage = (message) => {
-    let event;
-    try { event = JSON.parse(message.data); } catch (e) { return; }
-    if (!event || !event.direction) return;         // the stream's header
-    if (paused) { skipped += 1; say(); return; }
-    shown.push(event);
-    if (shown.length > TRACE_KEPT) shown.shift();
-    tbody.prepend(el("tr", { class: "trace-event" },
-      el("td", { text: typeof event.time === "number" ? clock(event.time) : show(event.time) }),
-      el("td", { text: show(event.direction) }),
-      el("td", { class: "peer", text: show(event.server || event.peer || event.client) }),
-      el("td", { class: "num", text: show(event.unit) }),
-      el("td", { class: "num", text: show(event.function) }),
-      el("td", { class: "num", text: show(event.length) }),
-      el("td", { class: "pdu mono", text: show(event.pdu) }),
-      el("td", { text: show(event.outcome) }),
-      el("td", { class: "num", text: show(event.latency_ms) })));
-    while (tbody.children.length > TRACE_ROWS) tbody.lastChild.remove();
+  const decodedRow = (event) => el("tr", { class: "trace-event" },
+    el("td", { text: typeof event.time === "number" ? clock(event.time) : show(event.time) }),
+    el("td", { text: show(event.direction) }),
+    el("td", { class: "peer", text: event.scenario != null ? `scenario ${event.scenario}`
+      : show(event.server || event.peer || event.client) }),
+    el("td", { class: "num", text: show(event.unit) }),
+    el("td", { class: "num", text: show(event.function) }),
+    el("td", { class: "num", text: show(event.length) }),
+    el("td", { class: "pdu mono", text: show(event.pdu) }),
+    el("td", { text: show(event.outcome) }),
+    el("td", { class: "num", text: show(event.latency_ms) }));
+  const rawRow = (event) => el("tr", { class: `trace-event raw-${event.kind}` },
+    el("td", { text: typeof event.time === "number" ? clock(event.time) : show(event.time) }),
+    el("td", { class: "num", text: show(event.gap_us) }),
+    el("td", { class: "kind", text: show(event.kind) }),
+    el("td", { class: "num", text: show(event.length) }),
+    el("td", { class: "bytes mono", text: show(event.bytes) }));
+
+  const start = () => {
+    if (source) source.close();
+    delete info.dataset.stream;
+    shown.length = 0;
+    clear(tbody);
+    clear(headRow).append(...(raw.checked ? RAW_COLUMNS : DECODED_COLUMNS)
+      .map((c) => el("th", { text: c })));
+    const query = new URLSearchParams();
+    if (raw.checked) query.set("raw", "1");
+    if (errors.checked) query.set("errors", "1");
+    for (const input of inputs) {
+      if (input.value.trim()) query.set(input.dataset.key, input.value.trim());
+    }
+    const isRaw = raw.checked;
+    source = new EventSource(`/api/trace?${query}`);
+    source.onmessage = (message) => {
+      let event;
+      try { event = JSON.parse(message.data); } catch (e) { return; }
+      if (!event || !(isRaw ? event.raw : event.direction)) return;   // the stream's header
+      if (paused) { skipped += 1; say(); return; }
+      shown.push(event);
+      if (shown.length > TRACE_KEPT) shown.shift();
+      tbody.prepend(isRaw ? rawRow(event) : decodedRow(event));
+      while (tbody.children.length > TRACE_ROWS) tbody.lastChild.remove();
+      say();
+    };
+    source.onerror = () => {
+      $("page-error").textContent = source.readyState === EventSource.CLOSED
+        ? "the trace stream ended (a filter refused?)" : "the trace stream is reconnecting…";
+    };
+    source.onopen = () => {
+      $("page-error").textContent = "";
+      info.dataset.stream = "open";
+    };
     say();
   };
-  source.onerror = () => {
-    $("page-error").textContent = source.readyState === EventSource.CLOSED
-      ? "the trace stream ended" : "the trace stream is reconnecting…";
-  };
-  source.onopen = () => {
-    $("page-error").textContent = "";
-    info.dataset.stream = "open";
-  };
-  say();
-  return { leave() { source.close(); } };
+  raw.addEventListener("change", start);
+  errors.addEventListener("change", start);
+  apply.addEventListener("click", start);
+  start();
+  return { leave() { if (source) source.close(); } };
 }
 
 function downloadPcap(events) {
