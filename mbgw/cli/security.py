@@ -15,7 +15,6 @@ from mbgw.config import schema as ck
 from mbgw.errors import ConfigError
 from mbgw.ops.control import default_path as control_default_path
 from mbgw.slave.handshakes import MAX_HANDSHAKES
-from mbgw.table.server import MAX_CONNECTIONS as TABLE_MAX_CONNECTIONS
 
 ALL_ADDRESSES = "all addresses (IPv4 and IPv6)"
 
@@ -36,6 +35,7 @@ def _listeners(mode: str, get, tls: bool, authip: list) -> list[dict]:
     bind = get("bind") or ALL_ADDRESSES
     allowed = authip or "any client"
     out = []
+    table_limit = get("table-max-connections")
     if mode == "slave":
         limits = {"max_connections": get("max-connections"),
                   "max_connections_per_ip": get("max-connections-per-ip") or None}
@@ -49,21 +49,21 @@ def _listeners(mode: str, get, tls: bool, authip: list) -> list[dict]:
     elif mode == "master":
         if get("enabled"):
             out.append({"name": "table", "address": ALL_ADDRESSES, "port": get("port"),
-                        "transport": "plain", "max_connections": TABLE_MAX_CONNECTIONS,
+                        "transport": "plain", "max_connections": table_limit,
                         "authip": "any client"})
             if tls:
                 out.append({"name": "table-tls", "address": ALL_ADDRESSES,
                             "port": get("tls-port"), "transport": "tls",
-                            "max_connections": TABLE_MAX_CONNECTIONS,
+                            "max_connections": table_limit,
                             "authip": "any client"})
     else:
         if get("mdbport"):
             out.append({"name": "table", "address": bind, "port": get("mdbport"),
-                        "transport": "plain", "max_connections": TABLE_MAX_CONNECTIONS,
+                        "transport": "plain", "max_connections": table_limit,
                         "authip": allowed})
         if tls:
             out.append({"name": "table-tls", "address": bind, "port": get("tls-port"),
-                        "transport": "tls", "max_connections": TABLE_MAX_CONNECTIONS,
+                        "transport": "tls", "max_connections": table_limit,
                         "authip": allowed})
         if get("raw-port"):
             out.append({"name": "raw", "address": bind, "port": get("raw-port"),

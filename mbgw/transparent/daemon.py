@@ -72,7 +72,7 @@ def run_transparent(cfg: TransparentModeConfig, reconfigure=None) -> None:
         server = TableServer(table, cfg.mdbport or None, cfg.bind,
                              Firewall(cfg.firewall, cfg.tls.roles_required),
                              allows=allows, tls=context, tls_port=cfg.tls.port,
-                             role_of=role_of)
+                             role_of=role_of, max_connections=cfg.table.max_connections)
         server.request_timeout_s = cfg.request_timeout_ms / 1000
     except OSError as err:
         option, port = ("tls-port", cfg.tls.port) if "tls-port" in str(err) else \
@@ -154,6 +154,7 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
         if (new.firewall, new.tls.roles_required) != (old.firewall, old.tls.roles_required):
             server.set_firewall(server.firewall.renewed(new.firewall, new.tls.roles_required))
         server.request_timeout_s = new.request_timeout_ms / 1000
+        server.max_connections = new.table.max_connections
         if new.tls != old.tls:
             _retls(server, new, report)
         frames.reconfigure(new)

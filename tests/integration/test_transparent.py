@@ -337,3 +337,36 @@ def test_reload_applies_new_frame_settings(transparent, tmp_path):
     device.send(b"b\rc\n")
     counters(gw, frames_stored=2)
     assert read_area(client, RX, 8) == registers(b"b\rc\n", 8)
+
+
+def test_the_table_servers_max_connections_and_its_reload(transparent, tmp_path):
+    """[table] max-connections caps mdbport's clients in transparent mode too (a third
+    polling client is closed at once, naming the key); a reload raises it for the next."""
+    path = tmp_path / "mbgw.toml"
+    path.write_text("[table]\nmax-connections = 2\n")
+    gw, device, client = transparent("--config", str(path))
+    second = ModbusTcpClient("127.0.0.1", port=gw.port, timeout=REPLY_S)
+    try:
+        for polling in (client, second):
+            assert polling.connect()
+            read_area(polling, RX, 2)           # both have asked: neither makes room
+        extra = socket.create_connection(("127.0.0.1", gw.port), timeout=REPLY_S,
+                                         source_address=("127.0.0.2", 0))
+        with extra:
+            assert extra.recv(16) == b""
+        tcp = status(gw)["table"]["tcp"]
+        assert (tcp["max_connections"], tcp["connections_refused_limit"]) == (2, 1)
+        assert "(table.max-connections)" in gw.log()
+        path.write_text("[table]\nmax-connections = 3\n")
+        gw.proc.send_signal(signal.SIGHUP)
+        wait_for_log(gw, "configuration reloaded")
+        third = ModbusTcpClient("127.0.0.1", port=gw.port, timeout=REPLY_S,
+                                source_address=("127.0.0.2", 0))
+        try:
+            assert third.connect()
+            read_area(third, RX, 2)
+        finally:
+            third.close()
+        assert status(gw)["table"]["tcp"]["max_connections"] == 3
+    finally:
+        second.close()

@@ -117,3 +117,15 @@ def test_master_mode_lists_the_tables_server_and_an_open_metrics_endpoint(tmp_pa
          "authentication": "none"}]
     text = mbgw("config", "show", "--security", "--config", path).output
     assert "authip     (not in master mode" in text and "tls        off" in text
+
+
+def test_transparent_mode_lists_the_tables_server_with_its_own_max_connections(tmp_path):
+    path = tmp_path / "mbgw.toml"
+    for words in (("serial", "mode", "transparent"), ("net", "bind", "127.0.0.1"),
+                  ("table", "max-connections", "8")):
+        assert mbgw("config", "set", *words, "--config", path).exit_code == 0
+    report = json.loads(mbgw("config", "show", "--security", "--json", "--config",
+                             path).output)
+    assert report["listeners"][0] == {
+        "name": "table", "address": "127.0.0.1", "port": 502, "transport": "plain",
+        "max_connections": 8, "authip": "any client"}
