@@ -48,14 +48,13 @@ def _listeners(mode: str, get, tls: bool, authip: list) -> list[dict]:
                         "authip": allowed})
     elif mode == "master":
         if get("enabled"):
-            out.append({"name": "table", "address": ALL_ADDRESSES, "port": get("port"),
+            out.append({"name": "table", "address": bind, "port": get("port"),
                         "transport": "plain", "max_connections": table_limit,
-                        "authip": "any client"})
+                        "authip": allowed})
             if tls:
-                out.append({"name": "table-tls", "address": ALL_ADDRESSES,
+                out.append({"name": "table-tls", "address": bind,
                             "port": get("tls-port"), "transport": "tls",
-                            "max_connections": table_limit,
-                            "authip": "any client"})
+                            "max_connections": table_limit, "authip": allowed})
     else:
         if get("mdbport"):
             out.append({"name": "table", "address": bind, "port": get("mdbport"),
@@ -188,11 +187,7 @@ def text(r: dict) -> list[str]:
         lines.append(f"           CRL {t['crl'] or '(none: revoked certificates are not refused)'}")
     else:
         lines.append("tls        off")
-    if r["mode"] == "master":
-        lines.append("authip     (not in master mode: the table's clients are not filtered by "
-                     "address; the firewall applies)")
-    else:
-        lines.append("authip     " + (", ".join(r["authip"]) or "(empty: any client may connect)"))
+    lines.append("authip     " + (", ".join(r["authip"]) or "(empty: any client may connect)"))
     fw = r["firewall"]
     lines.append(f"firewall   default {fw['default']}, {len(fw['rules'])} rules")
     for rule in fw["rules"]:

@@ -576,3 +576,57 @@ def test_the_table_servers_own_max_connections(table_master, tcp):
     assert "2 table clients are connected, the most there may be (table.max-connections)" \
         in gw.log()
     assert "exchange table served on" in gw.log() and "(at most 2 clients)" in gw.log()
+
+
+def _write_master_config(path, servers, port: int, net: str) -> None:
+    path.write_text(f'[serial]\nmode = "master"\nbaudrate = {BAUD}\n\n'
+                    f'[net]\nmdbport = {servers[0]}\n{net}\n[table]\nenabled = true\n'
+                    f'address = {TABLE}\nport = {port}\n')
+
+
+def _closed_before_any_byte(sock: socket.socket) -> bool:
+    try:
+        return sock.recv(16) == b""
+    except ConnectionResetError:
+        return True
+
+
+def test_authip_refuses_the_table_clients_and_a_reload_closes_those_it_drops(
+        start_master, servers, tmp_path, tcp):
+    """net.authip filters the table server's clients in master mode: one from elsewhere is
+    closed before any byte; a reload that drops an address closes its open client."""
+    port, config = free_port(), tmp_path / "mbgw.toml"
+    _write_master_config(config, servers, port, 'authip = ["127.0.0.1"]\n')
+    gw = start_master("--config", str(config))
+    allowed = tcp(port)
+    assert ask_tcp(allowed, 1, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+    assert _closed_before_any_byte(tcp(port, "127.0.0.2"))
+    wait_for(gw, lambda s: s["table"]["tcp"]["connections_refused_authip"] == 1,
+             "the refusal counted")
+    _write_master_config(config, servers, port, 'authip = ["127.0.0.2"]\n')
+    gw.proc.send_signal(signal.SIGHUP)
+    assert _closed_before_any_byte(allowed)          # the reload closed it
+    assert "table client 127.0.0.1:" in gw.log() and "no longer allowed by authip" in gw.log()
+    assert ask_tcp(tcp(port, "127.0.0.2"), 2, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+
+
+def test_bind_serves_the_table_on_one_address_and_a_reload_moves_it(
+        start_master, servers, tmp_path, tcp):
+    """net.bind: the table server listens there only (127.0.0.1 is refused); a reload moves
+    it, the open clients staying."""
+    port, config = free_port(), tmp_path / "mbgw.toml"
+    _write_master_config(config, servers, port, 'bind = "127.0.0.2"\n')
+    gw = start_master("--config", str(config))
+    with pytest.raises(ConnectionRefusedError):
+        tcp(port)
+    kept = socket.create_connection(("127.0.0.2", port), timeout=REPLY_S)
+    with kept:
+        assert ask_tcp(kept, 1, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+        _write_master_config(config, servers, port, 'bind = "127.0.0.1"\n')
+        gw.proc.send_signal(signal.SIGHUP)
+        wait_for(gw, lambda s: "table server: listening on 127.0.0.1:" in gw.log(),
+                 "listening on the new address")
+        assert ask_tcp(tcp(port), 2, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+        with pytest.raises(ConnectionRefusedError):
+            socket.create_connection(("127.0.0.2", port), timeout=REPLY_S)
+        assert ask_tcp(kept, 3, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")

@@ -19,6 +19,7 @@ import urllib.request
 import prometheus_client.parser
 import pytest
 from pymodbus.client import ModbusTcpClient
+from pymodbus.exceptions import ConnectionException
 
 from tests.harness import free_port
 from tests.modbus import crc16
@@ -370,3 +371,27 @@ def test_the_table_servers_max_connections_and_its_reload(transparent, tmp_path)
         assert status(gw)["table"]["tcp"]["max_connections"] == 3
     finally:
         second.close()
+
+
+def test_a_reload_of_authip_closes_the_table_clients_it_no_longer_allows(transparent,
+                                                                         tmp_path):
+    path = tmp_path / "mbgw.toml"
+    path.write_text('[serial]\nmode = "transparent"\n[net]\nauthip = ["127.0.0.1"]\n')
+    gw, device, client = transparent("--config", str(path))
+    read_area(client, RX, 2)
+    refused = socket.create_connection(("127.0.0.1", gw.port), timeout=REPLY_S,
+                                       source_address=("127.0.0.2", 0))
+    with refused:
+        assert refused.recv(16) == b""
+    path.write_text('[serial]\nmode = "transparent"\n[net]\nauthip = ["127.0.0.2"]\n')
+    gw.proc.send_signal(signal.SIGHUP)
+    wait_for_log(gw, "no longer allowed by authip")
+    with pytest.raises(ConnectionException, match="closed"):        # its connection ended
+        client.read_holding_registers(RX, count=1)
+    allowed = ModbusTcpClient("127.0.0.1", port=gw.port, timeout=REPLY_S,
+                              source_address=("127.0.0.2", 0))
+    try:
+        assert allowed.connect()
+        read_area(allowed, RX, 2)
+    finally:
+        allowed.close()
