@@ -173,6 +173,15 @@ class TableService:
         server = self.server
         return self.firewall.report(server.firewall_clients() if server is not None else ())
 
+    def clients(self) -> list[dict]:
+        """The table server's clients (none while it is off)."""
+        server = self.server
+        return server.clients() if server is not None else []
+
+    def close_client(self, client_id: int, who: str) -> bool:
+        server = self.server
+        return server is not None and server.close_client(client_id, who)
+
     def reset_counts(self) -> None:
         self.firewall.reset_counts()
         self.table.reset_counts()

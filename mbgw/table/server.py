@@ -156,7 +156,7 @@ def _name(address) -> str:
 class _Connection:
     __slots__ = ("sock", "fd", "peer", "partial", "held", "connected_at", "requests", "host",
                  "role", "listener", "guard", "firewall_refused", "tls", "opened",
-                 "partial_since")
+                 "partial_since", "id", "last_active")
 
     def __init__(self, sock: socket.socket, peer: str, host: str = "",
                  role: str | None = None, tls: bool = False) -> None:
@@ -175,6 +175,8 @@ class _Connection:
         self.opened = time.monotonic()
         self.partial_since = 0.0        # monotonic: when the frame in partial began
         self.requests = 0
+        self.id = 0                     # the operator's handle (mbgw clients), set on adoption
+        self.last_active = self.opened  # monotonic: its last read
 
 
 class _Handshake:
@@ -211,6 +213,8 @@ class TableServer(threading.Thread):
         self._allows = allows
         self._new_allows: tuple | None = None      # (allows,) from set_access()
         self._new_bind: tuple | None = None        # (bind, queue of the outcome) from rebind()
+        self._to_close: list[tuple[int, str]] = []  # (client id, who) from close_client()
+        self._last_id = 0
         self._listeners = listen(port, bind) if port is not None else []
         self._tls = tls
         self._role_of = role_of or (lambda der: None)
@@ -274,6 +278,27 @@ class TableServer(threading.Thread):
         return [{"peer": c.peer, "connected": c.connected_at, "requests": c.requests,
                  "listener": c.listener, "role": c.role}
                 for c in list(self._clients.values())]
+
+    def clients(self) -> list[dict]:
+        """The clients as the status lists them (slave mode's shape: nothing is ever in
+        flight, the table answers at once)."""
+        now, mono = time.time(), time.monotonic()
+        return [{"id": c.id, "peer": c.peer, "connected_since": c.connected_at,
+                 "requests": c.requests, "in_flight": 0,
+                 "firewall_refused": c.firewall_refused,
+                 "last_activity": now - (mono - c.last_active),
+                 "listener": c.listener, "role": c.role}
+                for c in sorted(list(self._clients.values()), key=lambda c: c.id)]
+
+    def close_client(self, client_id: int, who: str) -> bool:
+        """Force-close a client (another thread: the operator's command; who: the operator
+        as the log names them); False when there is no such client."""
+        if not any(c.id == client_id for c in list(self._clients.values())):
+            return False
+        with self._lock:
+            self._to_close.append((client_id, who))
+        os.eventfd_write(self._wake_fd, 1)
+        return True
 
     def reset_counts(self) -> None:
         self.accepted = self.refused_limit = self.bad_header = self.refused_authip = 0
@@ -464,6 +489,8 @@ class TableServer(threading.Thread):
         self._clients[client.fd] = client
         self._poll.register(client.fd, _IN)
         self.accepted += 1
+        self._last_id += 1
+        client.id = self._last_id
         log.debug("table client %s connected%s", client.peer,
                   f" (TLS, role {client.role})" if client.tls else "")
 
@@ -592,6 +619,9 @@ class TableServer(threading.Thread):
             new_tls, self._new_tls = self._new_tls, None
             new_allows, self._new_allows = self._new_allows, None
             new_bind, self._new_bind = self._new_bind, None
+            to_close, self._to_close = self._to_close, []
+        for client_id, who in to_close:
+            self._close_by_operator(client_id, who)
         if new_allows is not None:
             self._reaccess(new_allows[0])
         if new_bind is not None:
@@ -611,6 +641,13 @@ class TableServer(threading.Thread):
             old, self._listeners = self._listeners, new
             self._relisten(old, new)
         return self._listening()
+
+    def _close_by_operator(self, client_id: int, who: str) -> None:
+        for client in list(self._clients.values()):
+            if client.id == client_id:
+                event(log, Kind.CLIENT_CLOSED, "table client %s closed by the operator (%s)",
+                      client.peer, who, client=client.peer, user=who)
+                self._close(client)
 
     def _reaccess(self, allows) -> None:
         self._allows = allows
@@ -690,6 +727,7 @@ class TableServer(threading.Thread):
         if n == 0:
             self._close(client)
             return
+        client.last_active = time.monotonic()
         if client.partial:
             client.partial += self._input_view[:n]
             data = bytes(client.partial)

@@ -123,7 +123,7 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
     def table_figures() -> dict:
         return table_status(table, cfg.table, None, None, server.figures())
 
-    status = TransparentStatus(cfg, frames, counters, table_figures, raw)
+    status = TransparentStatus(cfg, frames, counters, table_figures, raw, server)
     engines: dict = {}         # the TCP scenarios' engine, while they run
     status.scenario_engines = engines
     metrics = start_metrics(cfg.metrics, lambda m: with_scenarios(m.transparent_collector(

@@ -584,13 +584,6 @@ def _write_master_config(path, servers, port: int, net: str) -> None:
                     f'address = {TABLE}\nport = {port}\n')
 
 
-def _closed_before_any_byte(sock: socket.socket) -> bool:
-    try:
-        return sock.recv(16) == b""
-    except ConnectionResetError:
-        return True
-
-
 def test_authip_refuses_the_table_clients_and_a_reload_closes_those_it_drops(
         start_master, servers, tmp_path, tcp):
     """net.authip filters the table server's clients in master mode: one from elsewhere is
@@ -600,12 +593,12 @@ def test_authip_refuses_the_table_clients_and_a_reload_closes_those_it_drops(
     gw = start_master("--config", str(config))
     allowed = tcp(port)
     assert ask_tcp(allowed, 1, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
-    assert _closed_before_any_byte(tcp(port, "127.0.0.2"))
+    assert _closed(tcp(port, "127.0.0.2"))
     wait_for(gw, lambda s: s["table"]["tcp"]["connections_refused_authip"] == 1,
              "the refusal counted")
     _write_master_config(config, servers, port, 'authip = ["127.0.0.2"]\n')
     gw.proc.send_signal(signal.SIGHUP)
-    assert _closed_before_any_byte(allowed)          # the reload closed it
+    assert _closed(allowed)          # the reload closed it
     assert "table client 127.0.0.1:" in gw.log() and "no longer allowed by authip" in gw.log()
     assert ask_tcp(tcp(port, "127.0.0.2"), 2, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
 
@@ -630,3 +623,45 @@ def test_bind_serves_the_table_on_one_address_and_a_reload_moves_it(
         with pytest.raises(ConnectionRefusedError):
             socket.create_connection(("127.0.0.2", port), timeout=REPLY_S)
         assert ask_tcp(kept, 3, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+
+
+def test_the_table_clients_are_listed_and_closed_by_the_operator(table_master, tcp):
+    """mbgw clients lists the table server's clients (slave mode's columns); clients close
+    ID, IP:PORT and --all end their sockets, logged with the operator."""
+    gw, port = table_master()
+    first, second = tcp(port), tcp(port, "127.0.0.2")
+    for tid, sock in enumerate((first, second)):
+        assert ask_tcp(sock, tid, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+    listed = wait_for(gw, lambda s: [c["requests"] for c in s["clients"]] == [1, 1],
+                      "both clients listed")["clients"]
+    peers = [c["peer"] for c in listed]
+    assert peers == [_name(first.getsockname()), _name(second.getsockname())]
+    text = mbgw("clients", "--control", gw.control).stdout
+    assert text.startswith("table clients (2)") and peers[1] in text, text
+    assert "table clients (2)" in mbgw("status", "--control", gw.control).stdout
+
+    result = mbgw("clients", "close", str(listed[0]["id"]), "--control", gw.control)
+    assert result.returncode == 0, result.stderr
+    assert _closed(first)
+    assert "table client %s closed by the operator" % peers[0] in gw.log()
+    result = mbgw("clients", "close", peers[1], "--control", gw.control)
+    assert result.returncode == 0 and f"({peers[1]}) closed" in result.stdout, result.stderr
+    assert _closed(second)
+    third = tcp(port)
+    assert ask_tcp(third, 9, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+    result = mbgw("clients", "close", "--all", "--control", gw.control)
+    assert result.returncode == 0, result.stderr
+    assert _closed(third)
+    result = mbgw("clients", "close", "99", "--control", gw.control)
+    assert result.returncode == 1 and "no client 99" in result.stderr
+
+
+def _name(address) -> str:
+    return f"{address[0]}:{address[1]}"
+
+
+def _closed(sock: socket.socket) -> bool:
+    try:
+        return sock.recv(16) == b""
+    except ConnectionResetError:
+        return True

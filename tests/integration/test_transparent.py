@@ -395,3 +395,20 @@ def test_a_reload_of_authip_closes_the_table_clients_it_no_longer_allows(transpa
         read_area(allowed, RX, 2)
     finally:
         allowed.close()
+
+
+def test_the_table_clients_are_listed_and_closed_by_the_operator(transparent):
+    """mbgw clients lists mdbport's clients beside the raw port; clients close ends one."""
+    gw, device, client = transparent()
+    read_area(client, RX, 2)
+    listed = wait_for(gw, lambda s: len(s["clients"]) == 1 and s["clients"][0]["requests"],
+                      "the client listed")["clients"]
+    text = mbgw("clients", "--control", gw.control).stdout
+    assert text.startswith("table clients (1)") and listed[0]["peer"] in text, text
+    assert "raw        off" in text
+    assert "table clients (1)" in mbgw("status", "--control", gw.control).stdout
+    result = mbgw("clients", "close", listed[0]["peer"], "--control", gw.control)
+    assert result.returncode == 0, result.stderr
+    with pytest.raises(ConnectionException, match="closed"):        # its connection ended
+        client.read_holding_registers(RX, count=1)
+    assert f"table client {listed[0]['peer']} closed by the operator" in gw.log()
