@@ -202,7 +202,7 @@ class TableServer(threading.Thread):
                  tls: ssl.SSLContext | None = None, tls_port: int | None = None,
                  role_of=None, max_connections: int = MAX_CONNECTIONS) -> None:
         """Listens at once: raises TableListenError when it cannot.  allows(host): whether a
-        peer may connect (None: anyone; transparent mode's authip).  port None: no plain
+        peer may connect (None: anyone; authip, mbgw.ops.access).  port None: no plain
         listener; tls: the TLS listener's context (mbgw.ops.tls.server_context) on
         tls_port; role_of(der): the role in a client's certificate (mbgw.ops.tls.role_of)."""
         super().__init__(name="mbgw-table", daemon=True)
