@@ -665,3 +665,15 @@ def _closed(sock: socket.socket) -> bool:
         return sock.recv(16) == b""
     except ConnectionResetError:
         return True
+
+
+def test_a_bind_the_reload_cannot_listen_on_leaves_the_table_where_it_was(
+        start_master, servers, tmp_path, tcp):
+    port, config = free_port(), tmp_path / "mbgw.toml"
+    _write_master_config(config, servers, port, 'bind = "127.0.0.1"\n')
+    gw = start_master("--config", str(config))
+    _write_master_config(config, servers, port, 'bind = "192.0.2.1"\n')   # not this machine's
+    gw.proc.send_signal(signal.SIGHUP)
+    wait_for(gw, lambda s: "not applied: bind: table-port" in gw.log(), "the refusal logged")
+    assert f"the table is still served on 127.0.0.1:{port}" in gw.log()
+    assert ask_tcp(tcp(port), 1, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
