@@ -11,6 +11,8 @@ from mbgw.cli.options import (
     demotion,
     demotion_options,
     interframe_option,
+    parse_authip,
+    parse_bind,
     parse_serial_functions,
     parser,
     serial_config,
@@ -56,6 +58,12 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
               default=config.MasterConfig.max_connections, show_default=True,
               help="Connections kept open to servers; one more closes the least recently "
                    "used.")
+@click.option("--authip", multiple=True, metavar="IP", callback=parser(parse_authip),
+              help="Client address allowed to connect to the table's server (--table-port "
+                   "and the TLS port; repeat, at most 8; none: anyone).")
+@click.option("--bind", metavar="ADDR", default=None, callback=parser(parse_bind),
+              help="The table's server listens on this IP address only [default: all, IPv4 "
+                   "and IPv6].")
 @upstream_tls_options
 @demotion_options
 @table_switch
@@ -101,7 +109,8 @@ def master_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                   down_after=config.DEFAULT_DOWN_AFTER,
                   probe_interval=config.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
                   tls_port=config.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
-                  tls_require_role=True, tls_crl=None, **table_settings) -> config.MasterConfig:
+                  tls_require_role=True, tls_crl=None, authip=(), bind=None,
+                  **table_settings) -> config.MasterConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck, dtr, rts, cts, xonxoff,
                             interframe_silence)
@@ -116,7 +125,7 @@ def master_config(device, protocol, baudrate, line_format, interface, rtsdelays,
         upstream_tls=upstream_tls,
         max_connections=max_connections, control=control, metrics=metrics,
         demotion=demotion(down_after, probe_interval), table=table,
-        firewall=firewall, scenarios=scenarios, tls=tls))
+        firewall=firewall, scenarios=scenarios, tls=tls, authip=authip, bind=bind))
 
 
 master.make_config = master_config

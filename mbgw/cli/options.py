@@ -99,6 +99,11 @@ def parser(parse):
     return callback
 
 
+def parse_authip(values) -> tuple:
+    """--authip: IP addresses (an IPv4-mapped IPv6 one as its IPv4 address)."""
+    return tuple(str(config.parse_ip("authip", v)) for v in values)
+
+
 def parse_bind(value):
     """--bind: an IP address (the listeners bind it as given, scope id included)."""
     if value is not None:

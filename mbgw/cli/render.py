@@ -34,7 +34,7 @@ def format_status(s: dict, now: float) -> str:
     if s["mode"] == "master":
         lines += _master_sections(s, now)
     elif s["mode"] == "transparent":
-        lines += _transparent_sections(s)
+        lines += [*_transparent_sections(s), "", *_clients_section(s, now, "table clients")]
     else:
         lines += _slave_sections(s, now)
     if s.get("table") is not None:
@@ -85,15 +85,18 @@ def format_clients(s: dict, now: float) -> str:
         return "\n".join(_clients_section(s, now))
     if s["mode"] == "transparent":
         raw = s["transparent"]
-        if raw["raw_port"] is None:
-            return "raw        off (transparent mode has no other Modbus TCP clients)"
-        return f"raw        port {raw['raw_port']}, {_raw_client(raw)}"
-    return ("master mode: no Modbus TCP clients; its connections go to the servers "
-            f"(mbgw status lists them: {len(s['upstream']['connections'])} now)")
+        return "\n".join([*_clients_section(s, now, "table clients"), "",
+                          "raw        off" if raw["raw_port"] is None else
+                          f"raw        port {raw['raw_port']}, {_raw_client(raw)}"])
+    if s.get("table") is None:
+        return ("master mode: the exchange table is off, so no Modbus TCP clients; its "
+                f"connections go to the servers (mbgw status lists them: "
+                f"{len(s['upstream']['connections'])} now)")
+    return "\n".join(_clients_section(s, now, "table clients"))
 
 
-def _clients_section(s: dict, now: float) -> list[str]:
-    lines = [f"clients ({len(s['clients'])})"]
+def _clients_section(s: dict, now: float, title: str = "clients") -> list[str]:
+    lines = [f"{title} ({len(s['clients'])})"]
     if s["clients"]:
         lines.append(f"  {'ID':>4}  {'PEER':<24} {'CONNECTED':<19}  {'REQUESTS':>8}  "
                      f"{'IN FLIGHT':>9}  LAST ACTIVITY")
@@ -239,6 +242,8 @@ def _master_sections(s: dict, now: float) -> list[str]:
             lines.append(f"  {c['server']:<21} {c['local']:<21} "
                          f"{_clock(c['connected_since'])}  {c['requests']:>8}  {units:<12} "
                          f"{_ago(c['last_activity'], now)}{_tls_role(c)}")
+    if s.get("table") is not None:
+        lines += ["", *_clients_section(s, now, "table clients")]
     lines += ["", f"devices ({len(s['devices'])}){_demotion(s)}"]
     if s["devices"]:
         lines.append(f"{_HEALTH_COLUMNS} {'UNREACH':>7} {'INVALID':>7} {'ABANDON':>7}  "

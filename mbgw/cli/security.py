@@ -15,7 +15,6 @@ from mbgw.config import schema as ck
 from mbgw.errors import ConfigError
 from mbgw.ops.control import default_path as control_default_path
 from mbgw.slave.handshakes import MAX_HANDSHAKES
-from mbgw.table.server import MAX_CONNECTIONS as TABLE_MAX_CONNECTIONS
 
 ALL_ADDRESSES = "all addresses (IPv4 and IPv6)"
 
@@ -36,6 +35,7 @@ def _listeners(mode: str, get, tls: bool, authip: list) -> list[dict]:
     bind = get("bind") or ALL_ADDRESSES
     allowed = authip or "any client"
     out = []
+    table_limit = get("table-max-connections")
     if mode == "slave":
         limits = {"max_connections": get("max-connections"),
                   "max_connections_per_ip": get("max-connections-per-ip") or None}
@@ -48,22 +48,21 @@ def _listeners(mode: str, get, tls: bool, authip: list) -> list[dict]:
                         "authip": allowed})
     elif mode == "master":
         if get("enabled"):
-            out.append({"name": "table", "address": ALL_ADDRESSES, "port": get("port"),
-                        "transport": "plain", "max_connections": TABLE_MAX_CONNECTIONS,
-                        "authip": "any client"})
+            out.append({"name": "table", "address": bind, "port": get("port"),
+                        "transport": "plain", "max_connections": table_limit,
+                        "authip": allowed})
             if tls:
-                out.append({"name": "table-tls", "address": ALL_ADDRESSES,
+                out.append({"name": "table-tls", "address": bind,
                             "port": get("tls-port"), "transport": "tls",
-                            "max_connections": TABLE_MAX_CONNECTIONS,
-                            "authip": "any client"})
+                            "max_connections": table_limit, "authip": allowed})
     else:
         if get("mdbport"):
             out.append({"name": "table", "address": bind, "port": get("mdbport"),
-                        "transport": "plain", "max_connections": TABLE_MAX_CONNECTIONS,
+                        "transport": "plain", "max_connections": table_limit,
                         "authip": allowed})
         if tls:
             out.append({"name": "table-tls", "address": bind, "port": get("tls-port"),
-                        "transport": "tls", "max_connections": TABLE_MAX_CONNECTIONS,
+                        "transport": "tls", "max_connections": table_limit,
                         "authip": allowed})
         if get("raw-port"):
             out.append({"name": "raw", "address": bind, "port": get("raw-port"),
@@ -188,11 +187,7 @@ def text(r: dict) -> list[str]:
         lines.append(f"           CRL {t['crl'] or '(none: revoked certificates are not refused)'}")
     else:
         lines.append("tls        off")
-    if r["mode"] == "master":
-        lines.append("authip     (not in master mode: the table's clients are not filtered by "
-                     "address; the firewall applies)")
-    else:
-        lines.append("authip     " + (", ".join(r["authip"]) or "(empty: any client may connect)"))
+    lines.append("authip     " + (", ".join(r["authip"]) or "(empty: any client may connect)"))
     fw = r["firewall"]
     lines.append(f"firewall   default {fw['default']}, {len(fw['rules'])} rules")
     for rule in fw["rules"]:

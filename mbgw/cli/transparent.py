@@ -15,7 +15,7 @@ from mbgw.cli.options import (
 )
 from mbgw.cli.run import run_daemon
 from mbgw.config import model as config
-from mbgw.config.schema import TransparentOption
+from mbgw.config.schema import TableOption, TransparentOption
 
 _DEFAULTS = config.TransparentConfig()
 
@@ -79,6 +79,12 @@ def _option(flag: str, key: str, **kwargs):
 @_option("--raw-port", "raw-port", type=click.IntRange(*config.PORT_RANGE), default=None,
          help="TCP port giving one client the line as a byte stream (a second is refused) "
               "[default: off].")
+@click.option("--table-max-connections", cls=TableOption, key="table-max-connections",
+              file_key="max-connections", type=click.IntRange(*config.MAX_CONNECTIONS_RANGE),
+              default=config.DEFAULT_TABLE_MAX_CONNECTIONS, show_default=True, metavar="N",
+              help="TCP clients of the table at once (mdbport's and the TLS port's); a "
+                   "newcomer beyond it takes the place of one that sent no request yet, or is "
+                   "refused.")
 @tls_options
 @daemon_options
 def transparent(**options) -> None:
@@ -93,6 +99,7 @@ def transparent_config(device, protocol, baudrate, line_format, interface, rtsde
                        silence, ascii_timeout, nocheck, dtr, rts, cts, xonxoff, authip, mdbport,
                        bind, eof, eof_char, eof_timeout, rx_address, rx_size, tx_address, tx_size,
                        crc, trigger, interframe_silence, raw_port, control, metrics,
+                       table_max_connections=config.DEFAULT_TABLE_MAX_CONNECTIONS,
                        log_level=None, firewall=None, scenarios=(), tcpto=config.DEFAULT_TCPTO_MS,
                        tls_port=config.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
                        tls_require_role=True, tls_crl=None) -> config.TransparentModeConfig:
@@ -109,7 +116,8 @@ def transparent_config(device, protocol, baudrate, line_format, interface, rtsde
     return convert("'--authip'", lambda: config.TransparentModeConfig(
         serial=serial, transparent=frames, authip=authip, mdbport=mdbport, bind=bind,
         control=control, metrics=metrics, firewall=firewall, scenarios=scenarios,
-        tcpto_ms=tcpto, tls=tls))
+        tcpto_ms=tcpto, tls=tls, table=config.TableConfig(
+            enabled=True, direct=False, max_connections=table_max_connections)))
 
 
 transparent.make_config = transparent_config

@@ -576,9 +576,14 @@ class MasterConfig:
     web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
     request_timeout_ms: int = DEFAULT_REQUEST_TIMEOUT_MS   # [net] request-timeout
     location: str = DEFAULT_LOCATION   # [general] location, the guide's set location
+    authip: tuple = ()              # the table server's allowed clients; empty: anyone
+    bind: str | None = None         # the table server's one address; None: every one
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "master")
+        if len(self.authip) > MAX_AUTHIP:
+            raise ConfigError(f"authip: at most {MAX_AUTHIP} addresses, got {len(self.authip)}")
+        object.__setattr__(self, "authip", tuple(parse_ip("authip", a) for a in self.authip))
         check_upstream_tls(self.upstream_tls, self.scenarios, self.slaveid)
         low, high = TCPTO_RANGE
         if not low <= self.tcpto_ms <= high:

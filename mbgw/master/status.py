@@ -31,6 +31,7 @@ class MasterStatus(DaemonStatus):
             "counters_since": self._reset_at,
             "devices": [d.snapshot() for d in self._devices.all()],
             "table": self._tables.figures(self._slave.table_counters.snapshot()),
+            "clients": self._tables.clients(),
             **({"firewall": firewall} if (firewall := self._tables.firewall_report()) else {}),
             **({"scenarios": rows} if (rows := scenarios_status(self.scenario_engines.values()))
                else {}),
@@ -51,6 +52,8 @@ class MasterStatus(DaemonStatus):
                 f"{c.timeouts} timeouts")
 
     def close(self, request: dict) -> dict:
-        return {"error": "clients close: not available in master mode: this daemon has no "
-                         "Modbus TCP clients (its connections go to servers; mbgw status "
-                         "lists them)"}
+        """A client of the table's server (the connections to the servers are not clients)."""
+        if not self._tables.cfg.enabled:
+            return {"error": "clients close: master mode's only Modbus TCP clients are the "
+                             "exchange table's, and the table is off (--table)"}
+        return self.close_table_client(self._tables, request)

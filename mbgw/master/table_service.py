@@ -10,6 +10,7 @@ import time
 from mbgw.config.model import MasterConfig, TableConfig, TlsConfig
 from mbgw.errors import ConfigError
 from mbgw.firewall.guard import Firewall
+from mbgw.ops.access import access_check
 from mbgw.ops.reload import ReloadReport
 from mbgw.ops.tls import role_of, server_context
 from mbgw.table import identity
@@ -33,6 +34,7 @@ class TableService:
         self.firewall = Firewall(settings.firewall, settings.tls.roles_required)
         self.tls = settings.tls
         self.request_timeout_s = settings.request_timeout_ms / 1000
+        self.authip, self.bind = settings.authip, settings.bind
         self._commands = table_commands(self.table)
         self.persistence: Persistence | None = None
         if cfg.enabled and cfg.persist:
@@ -56,7 +58,8 @@ class TableService:
         """Raises TableListenError, ConfigError (the TLS files)."""
         tls = self.tls
         context = server_context(tls) if tls.enabled else None
-        self.server = TableServer(self.table, port, firewall=self.firewall, tls=context,
+        self.server = TableServer(self.table, port, self.bind, firewall=self.firewall,
+                                  allows=access_check(self.authip), tls=context,
                                   tls_port=tls.port, role_of=role_of,
                                   max_connections=self.cfg.max_connections)
         self.server.request_timeout_s = self.request_timeout_s
@@ -96,6 +99,7 @@ class TableService:
         if self.server is not None:
             self.server.request_timeout_s = self.request_timeout_s
             self.server.max_connections = new.max_connections
+        self._readdress(settings, report)
         try:
             if not new.enabled:
                 self._stop_server()
@@ -110,6 +114,24 @@ class TableService:
             self.tls = old_tls
         if self.server is not None and settings.tls != old_tls:
             self._retls(settings.tls, old_tls, report)
+
+    def _readdress(self, settings: MasterConfig, report: ReloadReport) -> None:
+        """authip and bind: the clients no longer allowed closed, the listeners moved (the
+        old address stays when the new one cannot be listened on)."""
+        server = self.server
+        if settings.authip != self.authip:
+            self.authip = settings.authip
+            if server is not None:
+                server.set_access(access_check(self.authip))
+        if settings.bind != self.bind:
+            if server is not None:
+                try:
+                    server.rebind(settings.bind)
+                except TableListenError as err:
+                    report.refuse("bind", f"{err.strerror}; the table is still served on "
+                                          f"{', '.join(server.addresses) or 'no port'}")
+                    return
+            self.bind = settings.bind
 
     def _retls(self, new: TlsConfig, old: TlsConfig, report: ReloadReport) -> None:
         """New TLS settings or renewed files: for new connections, those open keep theirs.
@@ -150,6 +172,15 @@ class TableService:
             return None
         server = self.server
         return self.firewall.report(server.firewall_clients() if server is not None else ())
+
+    def clients(self) -> list[dict]:
+        """The table server's clients (none while it is off)."""
+        server = self.server
+        return server.clients() if server is not None else []
+
+    def close_client(self, client_id: int, who: str) -> bool:
+        server = self.server
+        return server is not None and server.close_client(client_id, who)
 
     def reset_counts(self) -> None:
         self.firewall.reset_counts()

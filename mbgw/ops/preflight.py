@@ -124,11 +124,11 @@ def _listeners(cfg) -> list[tuple[str, str | None, int]]:
     master = isinstance(cfg, MasterConfig)
     if master:
         if cfg.table.enabled:
-            found.append(("table.port", None, cfg.table.port))
+            found.append(("table.port", bind, cfg.table.port))
     elif cfg.mdbport:
         found.append(("net.mdbport", bind, cfg.mdbport))
     if cfg.tls.enabled and _tls_served(cfg):
-        found.append(("tls.port", None if master else bind, cfg.tls.port))
+        found.append(("tls.port", bind, cfg.tls.port))
     transparent = getattr(cfg, "transparent", None)
     if transparent is not None and transparent.raw_port is not None:
         found.append(("transparent.raw-port", bind, transparent.raw_port))

@@ -45,6 +45,17 @@ class DaemonStatus:
     def close(self, request: dict) -> dict:
         raise NotImplementedError
 
+    @staticmethod
+    def close_table_client(server, request: dict) -> dict:
+        """close for the table server's clients (master and transparent modes); server: its
+        close_client(id, who)."""
+        client_id = request.get("client")
+        if not isinstance(client_id, int) or isinstance(client_id, bool):
+            return {"error": "close needs a client id"}
+        if server.close_client(client_id, operator(request.get("uid"))):
+            return {"ok": True}
+        return {"error": f"no client {client_id}"}
+
     def summary(self) -> str:
         """One line for `systemctl status` (sd_notify STATUS=)."""
         raise NotImplementedError

@@ -30,6 +30,7 @@ context; those open keep theirs.
 import errno
 import logging
 import os
+import queue
 import select
 import socket
 import ssl
@@ -48,6 +49,7 @@ MAX_CONNECTIONS = 32          # table clients at once, by default ([table] max-c
 RECEIVE_SIZE = 4096           # one read: 15 requests of 260 bytes, 341 reads of 12
 LISTEN_BACKLOG = 16
 REFUSAL_LOG_INTERVAL_S = 60.0
+REBIND_WAIT_S = 5.0           # a reload waits this long for the server's thread to rebind
 REFUSALS_REMEMBERED = 1024    # (address, reason) pairs; those older than a minute go first
 BROADCAST_UNIT = 0
 # TLS handshakes under way at once, and how long one may take: a flood of connections that
@@ -154,7 +156,7 @@ def _name(address) -> str:
 class _Connection:
     __slots__ = ("sock", "fd", "peer", "partial", "held", "connected_at", "requests", "host",
                  "role", "listener", "guard", "firewall_refused", "tls", "opened",
-                 "partial_since")
+                 "partial_since", "id", "last_active")
 
     def __init__(self, sock: socket.socket, peer: str, host: str = "",
                  role: str | None = None, tls: bool = False) -> None:
@@ -173,6 +175,8 @@ class _Connection:
         self.opened = time.monotonic()
         self.partial_since = 0.0        # monotonic: when the frame in partial began
         self.requests = 0
+        self.id = 0                     # the operator's handle (mbgw clients), set on adoption
+        self.last_active = self.opened  # monotonic: its last read
 
 
 class _Handshake:
@@ -198,14 +202,19 @@ class TableServer(threading.Thread):
                  tls: ssl.SSLContext | None = None, tls_port: int | None = None,
                  role_of=None, max_connections: int = MAX_CONNECTIONS) -> None:
         """Listens at once: raises TableListenError when it cannot.  allows(host): whether a
-        peer may connect (None: anyone; transparent mode's authip).  port None: no plain
+        peer may connect (None: anyone; authip, mbgw.ops.access).  port None: no plain
         listener; tls: the TLS listener's context (mbgw.ops.tls.server_context) on
         tls_port; role_of(der): the role in a client's certificate (mbgw.ops.tls.role_of)."""
         super().__init__(name="mbgw-table", daemon=True)
         self._table = table
         self.port = port
         self.max_connections = max_connections     # another thread may set it (a reload)
+        self.bind = bind
         self._allows = allows
+        self._new_allows: tuple | None = None      # (allows,) from set_access()
+        self._new_bind: tuple | None = None        # (bind, queue of the outcome) from rebind()
+        self._to_close: list[tuple[int, str]] = []  # (client id, who) from close_client()
+        self._last_id = 0
         self._listeners = listen(port, bind) if port is not None else []
         self._tls = tls
         self._role_of = role_of or (lambda der: None)
@@ -270,6 +279,27 @@ class TableServer(threading.Thread):
                  "listener": c.listener, "role": c.role}
                 for c in list(self._clients.values())]
 
+    def clients(self) -> list[dict]:
+        """The clients as the status lists them (slave mode's shape: nothing is ever in
+        flight, the table answers at once)."""
+        now, mono = time.time(), time.monotonic()
+        return [{"id": c.id, "peer": c.peer, "connected_since": c.connected_at,
+                 "requests": c.requests, "in_flight": 0,
+                 "firewall_refused": c.firewall_refused,
+                 "last_activity": now - (mono - c.last_active),
+                 "listener": c.listener, "role": c.role}
+                for c in sorted(list(self._clients.values()), key=lambda c: c.id)]
+
+    def close_client(self, client_id: int, who: str) -> bool:
+        """Force-close a client (another thread: the operator's command; who: the operator
+        as the log names them); False when there is no such client."""
+        if not any(c.id == client_id for c in list(self._clients.values())):
+            return False
+        with self._lock:
+            self._to_close.append((client_id, who))
+        os.eventfd_write(self._wake_fd, 1)
+        return True
+
     def reset_counts(self) -> None:
         self.accepted = self.refused_limit = self.bad_header = self.refused_authip = 0
         self.refused_tls = self.timed_out = self.evicted = self.tls_probes = 0
@@ -284,24 +314,44 @@ class TableServer(threading.Thread):
         """(peer, role, refused) of each client, for the firewall's status."""
         return [(c.peer, c.role, c.firewall_refused) for c in list(self._clients.values())]
 
-    def move(self, port: int, bind: str | None = None) -> None:
+    def set_access(self, allows) -> None:
+        """A new authip rule (another thread): the clients it no longer allows are closed."""
+        with self._lock:
+            self._new_allows = (allows,)
+        os.eventfd_write(self._wake_fd, 1)
+
+    def rebind(self, bind: str | None) -> None:
+        """Listen on bind instead, on the port and the TLS port (another thread; the clients
+        stay).  Raises TableListenError, and then the old address stays."""
+        outcome: queue.Queue = queue.Queue(maxsize=1)
+        with self._lock:
+            self._new_bind = (bind, outcome)
+        os.eventfd_write(self._wake_fd, 1)
+        try:
+            error = outcome.get(timeout=REBIND_WAIT_S)
+        except queue.Empty:
+            error = TableListenError(self.port or self.tls_port or 0,
+                                     OSError(0, "the table server does not answer"), "bind")
+        if error is not None:
+            raise error
+
+    def move(self, port: int) -> None:
         """Listen on port instead (called from another thread; the clients stay).  Raises
         TableListenError, and then the old port stays."""
-        listeners = listen(port, bind)
+        listeners = listen(port, self.bind)
         with self._lock:
             self._new_listeners = listeners
         self.port = port
         os.eventfd_write(self._wake_fd, 1)
 
-    def set_tls(self, context: ssl.SSLContext | None, port: int,
-                bind: str | None = None) -> None:
+    def set_tls(self, context: ssl.SSLContext | None, port: int) -> None:
         """New TLS settings or renewed files (another thread): context (None: TLS off) is for
         new connections, those open keep theirs; listening moves when the port changes.
         Raises TableListenError, and then nothing changes."""
         new_port = port if context is not None else None
         listeners = None                    # the same ones
         if new_port != self.tls_port:
-            listeners = listen(port, bind, "tls-port") if new_port is not None else []
+            listeners = listen(port, self.bind, "tls-port") if new_port is not None else []
         with self._lock:
             self._new_tls = (context, listeners)
         self.tls_port = new_port
@@ -439,6 +489,8 @@ class TableServer(threading.Thread):
         self._clients[client.fd] = client
         self._poll.register(client.fd, _IN)
         self.accepted += 1
+        self._last_id += 1
+        client.id = self._last_id
         log.debug("table client %s connected%s", client.peer,
                   f" (TLS, role {client.role})" if client.tls else "")
 
@@ -565,6 +617,15 @@ class TableServer(threading.Thread):
             new, self._new_listeners = self._new_listeners, None
             firewall, self._new_firewall = self._new_firewall, None
             new_tls, self._new_tls = self._new_tls, None
+            new_allows, self._new_allows = self._new_allows, None
+            new_bind, self._new_bind = self._new_bind, None
+            to_close, self._to_close = self._to_close, []
+        for client_id, who in to_close:
+            self._close_by_operator(client_id, who)
+        if new_allows is not None:
+            self._reaccess(new_allows[0])
+        if new_bind is not None:
+            self._rebind(*new_bind)
         if firewall is not None:
             self.firewall = firewall
             for client in self._clients.values():
@@ -581,14 +642,64 @@ class TableServer(threading.Thread):
             self._relisten(old, new)
         return self._listening()
 
-    def _relisten(self, old: list[socket.socket], new: list[socket.socket]) -> None:
+    def _close_by_operator(self, client_id: int, who: str) -> None:
+        for client in list(self._clients.values()):
+            if client.id == client_id:
+                event(log, Kind.CLIENT_CLOSED, "table client %s closed by the operator (%s)",
+                      client.peer, who, client=client.peer, user=who)
+                self._close(client)
+
+    def _reaccess(self, allows) -> None:
+        self._allows = allows
+        if allows is None:
+            return
+        for client in list(self._clients.values()):
+            if not allows(client.host):
+                event(log, Kind.CLIENT_CLOSED, "table client %s closed: no longer allowed by "
+                      "authip", client.peer, client=client.peer, reason="not in authip")
+                self._close(client)
+        for handshake in list(self._handshakes.values()):
+            if not allows(handshake.address[0]):
+                self._end_handshake(handshake)
+                handshake.sock.close()
+
+    def _rebind(self, bind: str | None, outcome: queue.Queue) -> None:
+        """Off the old address (the same port may not be listened on twice), on the new one;
+        back on the old one when the new one cannot be listened on."""
+        self._relisten(self._listeners + self._tls_listeners, [], quiet=True)
+        self._listeners = self._tls_listeners = []
+        try:
+            self._listeners, self._tls_listeners = self._listen_on(bind)
+            self.bind = bind
+            outcome.put(None)
+        except TableListenError as err:
+            outcome.put(err)
+            try:
+                self._listeners, self._tls_listeners = self._listen_on(self.bind)
+            except TableListenError as again:
+                log.error("table server: %s; no TCP client reaches the table", again.strerror)
+        self._relisten([], self._listeners + self._tls_listeners)
+
+    def _listen_on(self, bind: str | None) -> tuple[list, list]:
+        plain = listen(self.port, bind) if self.port is not None else []
+        try:
+            tls = listen(self.tls_port, bind, "tls-port") if self.tls_port is not None else []
+        except TableListenError:
+            for sock in plain:
+                sock.close()
+            raise
+        return plain, tls
+
+    def _relisten(self, old: list[socket.socket], new: list[socket.socket],
+                  quiet: bool = False) -> None:
         for sock in old:
             if self._resting.pop(sock.fileno(), None) is None:
                 self._poll.unregister(sock.fileno())
             sock.close()
         for sock in new:
             self._poll.register(sock.fileno(), _IN)
-        log.info("table server: listening on %s", ", ".join(self.addresses) or "no port")
+        if not quiet:
+            log.info("table server: listening on %s", ", ".join(self.addresses) or "no port")
 
     # --- requests ---
 
@@ -616,6 +727,7 @@ class TableServer(threading.Thread):
         if n == 0:
             self._close(client)
             return
+        client.last_active = time.monotonic()
         if client.partial:
             client.partial += self._input_view[:n]
             data = bytes(client.partial)

@@ -10,6 +10,7 @@ from mbgw.config.model import TransparentModeConfig
 from mbgw.errors import ConfigError
 from mbgw.firewall.guard import Firewall
 from mbgw.line.supervisor import open_at_start
+from mbgw.ops.access import access_check
 from mbgw.ops.reload import ReloadReport, Reloads
 from mbgw.ops.service import (
     ListenError,
@@ -32,7 +33,7 @@ from mbgw.table.report import table_status
 from mbgw.table.server import TableListenError, TableServer, listen
 from mbgw.transparent.counters import TransparentCounters
 from mbgw.transparent.line_thread import FrameLine
-from mbgw.transparent.raw import RawPort, access_check
+from mbgw.transparent.raw import RawPort
 from mbgw.transparent.status import TransparentStatus
 from mbgw.web.console import start_console
 from mbgw.web.hooks import WebHooks
@@ -72,7 +73,7 @@ def run_transparent(cfg: TransparentModeConfig, reconfigure=None) -> None:
         server = TableServer(table, cfg.mdbport or None, cfg.bind,
                              Firewall(cfg.firewall, cfg.tls.roles_required),
                              allows=allows, tls=context, tls_port=cfg.tls.port,
-                             role_of=role_of)
+                             role_of=role_of, max_connections=cfg.table.max_connections)
         server.request_timeout_s = cfg.request_timeout_ms / 1000
     except OSError as err:
         option, port = ("tls-port", cfg.tls.port) if "tls-port" in str(err) else \
@@ -98,10 +99,17 @@ def _retls(server: TableServer, new: TransparentModeConfig, report: ReloadReport
     """New TLS settings or renewed files, for new connections; those open keep theirs.  Ones
     that cannot be loaded leave TLS as it was."""
     try:
-        server.set_tls(server_context(new.tls) if new.tls.enabled else None, new.tls.port,
-                       new.bind)
+        server.set_tls(server_context(new.tls) if new.tls.enabled else None, new.tls.port)
     except (ConfigError, TableListenError) as err:
         report.refuse("tls", f"{err}; the running TLS settings stay")
+
+
+async def _rebind(server: TableServer, bind: str | None, report: ReloadReport) -> None:
+    try:
+        await asyncio.to_thread(server.rebind, bind)
+    except TableListenError as err:
+        report.refuse("bind", f"{err.strerror}; still listening on "
+                              f"{', '.join(server.addresses) or 'no port'}")
 
 
 async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table: Table,
@@ -115,7 +123,7 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
     def table_figures() -> dict:
         return table_status(table, cfg.table, None, None, server.figures())
 
-    status = TransparentStatus(cfg, frames, counters, table_figures, raw)
+    status = TransparentStatus(cfg, frames, counters, table_figures, raw, server)
     engines: dict = {}         # the TCP scenarios' engine, while they run
     status.scenario_engines = engines
     metrics = start_metrics(cfg.metrics, lambda m: with_scenarios(m.transparent_collector(
@@ -146,14 +154,24 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
         await console.reconfigure(new.web, report)
         old = status.cfg
         identity.fill(table, new, "transparent")
-        for name in ("mdbport", "bind", "authip"):
-            if getattr(new, name) != getattr(old, name):
-                report.at_restart(name)
+        if new.mdbport != old.mdbport:
+            report.at_restart("mdbport")
+        if new.authip != old.authip:
+            allows = access_check(new.authip)
+            server.set_access(allows)
+            if raw is not None:
+                raw.allows = allows             # for its next client
+        if new.bind != old.bind:
+            if raw is not None:                 # the raw port's listener stays where it is
+                report.at_restart("bind")
+            else:
+                await _rebind(server, new.bind, report)
         if new.transparent.raw_port != old.transparent.raw_port:
             report.at_restart("transparent.raw_port")
         if (new.firewall, new.tls.roles_required) != (old.firewall, old.tls.roles_required):
             server.set_firewall(server.firewall.renewed(new.firewall, new.tls.roles_required))
         server.request_timeout_s = new.request_timeout_ms / 1000
+        server.max_connections = new.table.max_connections
         if new.tls != old.tls:
             _retls(server, new, report)
         frames.reconfigure(new)

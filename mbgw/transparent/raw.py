@@ -3,7 +3,6 @@ what it sends goes to the line, the frames the line brings go to it.  Served by 
 thread's poll(); a second client is refused (logged once a minute per address); authip
 applies.  An accept() that fails for want of descriptors rests the listener (it never
 spins): resting_until, which the line thread's poll() timeout serves."""
-import ipaddress
 import logging
 import select
 import socket
@@ -16,21 +15,6 @@ from mbgw.transparent.counters import TransparentCounters
 log = logging.getLogger("mbgw.transparent")
 
 RECEIVE_SIZE = 4096
-
-
-def access_check(authip: tuple):
-    """allows(host): authip's rule (an empty list lets everyone in; IPv4-mapped IPv6 peers
-    count as their IPv4 address)."""
-    allowed = frozenset(authip)
-
-    def allows(host: str) -> bool:
-        if not allowed:
-            return True
-        address = ipaddress.ip_address(host.split("%", 1)[0])
-        if isinstance(address, ipaddress.IPv6Address) and address.ipv4_mapped:
-            address = address.ipv4_mapped
-        return address in allowed
-    return allows
 
 
 def _name(address) -> str:

@@ -14,8 +14,10 @@ class TransparentStatus(DaemonStatus):
     """Transparent mode: the frame settings, the counters, the raw client, the table."""
     mode = "transparent"
 
-    def __init__(self, cfg, line, counters, table_figures, raw) -> None:
+    def __init__(self, cfg, line, counters, table_figures, raw, server) -> None:
+        """server: the table's (mbgw.table.server.TableServer), whose clients are listed."""
         super().__init__(cfg, counters, None, line.trace)
+        self._server = server
         self._line = line
         self._table_figures = table_figures
         self._raw = raw
@@ -41,6 +43,7 @@ class TransparentStatus(DaemonStatus):
         rows = scenarios_status(self.scenario_engines.values())
         return {**data, "transparent": self.figures(), "counters": self._counters.snapshot(),
                 "counters_since": self._reset_at, "table": self._table_figures(),
+                "clients": self._server.clients(),
                 **({"scenarios": rows} if rows else {})}
 
     def reset(self, request: dict) -> dict:
@@ -56,5 +59,5 @@ class TransparentStatus(DaemonStatus):
                 f"{c.frames_stored} frames stored, {c.frames_sent} sent")
 
     def close(self, request: dict) -> dict:
-        return {"error": "clients close: not available in transparent mode (mbgw status "
-                         "shows the table's clients and the raw client)"}
+        """A client of the table's server on mdbport (not the raw port's)."""
+        return self.close_table_client(self._server, request)

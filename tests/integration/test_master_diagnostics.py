@@ -161,11 +161,13 @@ def test_status_figures_match_the_traffic(rig, line):
     assert stop_counters(gw) == s["counters"]
 
 
-def test_clients_close_says_master_mode_has_none(rig):
+def test_clients_close_says_master_mode_has_none_while_the_table_is_off(rig):
     gw, _ = rig()
     result = mbgw("clients", "close", "1", "--control", gw.control)
     assert result.returncode == 1 and result.stdout == ""
-    assert "mbgw: clients close: not available in master mode" in result.stderr, result.stderr
+    assert "mbgw: clients close: master mode's only Modbus TCP clients are the exchange " \
+        "table's, and the table is off" in result.stderr, result.stderr
+    assert "the exchange table is off" in mbgw("clients", "--control", gw.control).stdout
 
 
 def test_stats_reset_zeroes_the_counters_and_keeps_the_state(rig, line):

@@ -576,3 +576,104 @@ def test_the_table_servers_own_max_connections(table_master, tcp):
     assert "2 table clients are connected, the most there may be (table.max-connections)" \
         in gw.log()
     assert "exchange table served on" in gw.log() and "(at most 2 clients)" in gw.log()
+
+
+def _write_master_config(path, servers, port: int, net: str) -> None:
+    path.write_text(f'[serial]\nmode = "master"\nbaudrate = {BAUD}\n\n'
+                    f'[net]\nmdbport = {servers[0]}\n{net}\n[table]\nenabled = true\n'
+                    f'address = {TABLE}\nport = {port}\n')
+
+
+def test_authip_refuses_the_table_clients_and_a_reload_closes_those_it_drops(
+        start_master, servers, tmp_path, tcp):
+    """net.authip filters the table server's clients in master mode: one from elsewhere is
+    closed before any byte; a reload that drops an address closes its open client."""
+    port, config = free_port(), tmp_path / "mbgw.toml"
+    _write_master_config(config, servers, port, 'authip = ["127.0.0.1"]\n')
+    gw = start_master("--config", str(config))
+    allowed = tcp(port)
+    assert ask_tcp(allowed, 1, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+    assert _closed(tcp(port, "127.0.0.2"))
+    wait_for(gw, lambda s: s["table"]["tcp"]["connections_refused_authip"] == 1,
+             "the refusal counted")
+    _write_master_config(config, servers, port, 'authip = ["127.0.0.2"]\n')
+    gw.proc.send_signal(signal.SIGHUP)
+    assert _closed(allowed)          # the reload closed it
+    assert "table client 127.0.0.1:" in gw.log() and "no longer allowed by authip" in gw.log()
+    assert ask_tcp(tcp(port, "127.0.0.2"), 2, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+
+
+def test_bind_serves_the_table_on_one_address_and_a_reload_moves_it(
+        start_master, servers, tmp_path, tcp):
+    """net.bind: the table server listens there only (127.0.0.1 is refused); a reload moves
+    it, the open clients staying."""
+    port, config = free_port(), tmp_path / "mbgw.toml"
+    _write_master_config(config, servers, port, 'bind = "127.0.0.2"\n')
+    gw = start_master("--config", str(config))
+    with pytest.raises(ConnectionRefusedError):
+        tcp(port)
+    kept = socket.create_connection(("127.0.0.2", port), timeout=REPLY_S)
+    with kept:
+        assert ask_tcp(kept, 1, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+        _write_master_config(config, servers, port, 'bind = "127.0.0.1"\n')
+        gw.proc.send_signal(signal.SIGHUP)
+        wait_for(gw, lambda s: "table server: listening on 127.0.0.1:" in gw.log(),
+                 "listening on the new address")
+        assert ask_tcp(tcp(port), 2, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+        with pytest.raises(ConnectionRefusedError):
+            socket.create_connection(("127.0.0.2", port), timeout=REPLY_S)
+        assert ask_tcp(kept, 3, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+
+
+def test_the_table_clients_are_listed_and_closed_by_the_operator(table_master, tcp):
+    """mbgw clients lists the table server's clients (slave mode's columns); clients close
+    ID, IP:PORT and --all end their sockets, logged with the operator."""
+    gw, port = table_master()
+    first, second = tcp(port), tcp(port, "127.0.0.2")
+    for tid, sock in enumerate((first, second)):
+        assert ask_tcp(sock, tid, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+    listed = wait_for(gw, lambda s: [c["requests"] for c in s["clients"]] == [1, 1],
+                      "both clients listed")["clients"]
+    peers = [c["peer"] for c in listed]
+    assert peers == [_name(first.getsockname()), _name(second.getsockname())]
+    text = mbgw("clients", "--control", gw.control).stdout
+    assert text.startswith("table clients (2)") and peers[1] in text, text
+    assert "table clients (2)" in mbgw("status", "--control", gw.control).stdout
+
+    result = mbgw("clients", "close", str(listed[0]["id"]), "--control", gw.control)
+    assert result.returncode == 0, result.stderr
+    assert _closed(first)
+    assert "table client %s closed by the operator" % peers[0] in gw.log()
+    result = mbgw("clients", "close", peers[1], "--control", gw.control)
+    assert result.returncode == 0 and f"({peers[1]}) closed" in result.stdout, result.stderr
+    assert _closed(second)
+    third = tcp(port)
+    assert ask_tcp(third, 9, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")
+    result = mbgw("clients", "close", "--all", "--control", gw.control)
+    assert result.returncode == 0, result.stderr
+    assert _closed(third)
+    result = mbgw("clients", "close", "99", "--control", gw.control)
+    assert result.returncode == 1 and "no client 99" in result.stderr
+
+
+def _name(address) -> str:
+    return f"{address[0]}:{address[1]}"
+
+
+def _closed(sock: socket.socket) -> bool:
+    try:
+        return sock.recv(16) == b""
+    except ConnectionResetError:
+        return True
+
+
+def test_a_bind_the_reload_cannot_listen_on_leaves_the_table_where_it_was(
+        start_master, servers, tmp_path, tcp):
+    port, config = free_port(), tmp_path / "mbgw.toml"
+    _write_master_config(config, servers, port, 'bind = "127.0.0.1"\n')
+    gw = start_master("--config", str(config))
+    _write_master_config(config, servers, port, 'bind = "192.0.2.1"\n')   # not this machine's
+    gw.proc.send_signal(signal.SIGHUP)
+    wait_for(gw, lambda s: "not applied: bind: table-port" in gw.log(), "the refusal logged")
+    assert f"the table is still served on 127.0.0.1:{port}" in gw.log()
+    assert ask_tcp(tcp(port), 1, 1, bytes.fromhex("07")) == bytes.fromhex("07 00")

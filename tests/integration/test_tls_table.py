@@ -301,3 +301,12 @@ def test_the_table_server_refuses_a_role_less_client_and_counts_a_probe(master, 
     assert tcp["connections_tls_probes"] == 2 and tcp["connections_refused_tls"] == 0, tcp
     assert status(gw)["firewall"]["refused_no_role"] == 3
     assert "Traceback" not in gw.log() and "handshake" not in gw.log()
+
+
+def test_master_modes_bind_holds_the_tls_port_too(master):
+    gw, port, tls_port = master("--bind", "127.0.0.2")
+    for listening in (port, tls_port):
+        with pytest.raises(ConnectionRefusedError):
+            socket.create_connection(("127.0.0.1", listening), timeout=REPLY_S)
+        socket.create_connection(("127.0.0.2", listening), timeout=REPLY_S).close()
+    assert f"127.0.0.2:{tls_port} (TLS)" in gw.log()

@@ -19,6 +19,7 @@ import urllib.request
 import prometheus_client.parser
 import pytest
 from pymodbus.client import ModbusTcpClient
+from pymodbus.exceptions import ConnectionException
 
 from tests.harness import free_port
 from tests.modbus import crc16
@@ -345,3 +346,77 @@ def test_reload_applies_new_frame_settings(transparent, tmp_path):
     device.send(b"b\rc\n")
     counters(gw, frames_stored=2)
     assert read_area(client, RX, 8) == registers(b"b\rc\n", 8)
+
+
+def test_the_table_servers_max_connections_and_its_reload(transparent, tmp_path):
+    """[table] max-connections caps mdbport's clients in transparent mode too (a third
+    polling client is closed at once, naming the key); a reload raises it for the next."""
+    path = tmp_path / "mbgw.toml"
+    path.write_text("[table]\nmax-connections = 2\n")
+    gw, device, client = transparent("--config", str(path))
+    second = ModbusTcpClient("127.0.0.1", port=gw.port, timeout=REPLY_S)
+    try:
+        for polling in (client, second):
+            assert polling.connect()
+            read_area(polling, RX, 2)           # both have asked: neither makes room
+        extra = socket.create_connection(("127.0.0.1", gw.port), timeout=REPLY_S,
+                                         source_address=("127.0.0.2", 0))
+        with extra:
+            assert extra.recv(16) == b""
+        tcp = status(gw)["table"]["tcp"]
+        assert (tcp["max_connections"], tcp["connections_refused_limit"]) == (2, 1)
+        assert "(table.max-connections)" in gw.log()
+        path.write_text("[table]\nmax-connections = 3\n")
+        gw.proc.send_signal(signal.SIGHUP)
+        wait_for_log(gw, "configuration reloaded")
+        third = ModbusTcpClient("127.0.0.1", port=gw.port, timeout=REPLY_S,
+                                source_address=("127.0.0.2", 0))
+        try:
+            assert third.connect()
+            read_area(third, RX, 2)
+        finally:
+            third.close()
+        assert status(gw)["table"]["tcp"]["max_connections"] == 3
+    finally:
+        second.close()
+
+
+def test_a_reload_of_authip_closes_the_table_clients_it_no_longer_allows(transparent,
+                                                                         tmp_path):
+    path = tmp_path / "mbgw.toml"
+    path.write_text('[serial]\nmode = "transparent"\n[net]\nauthip = ["127.0.0.1"]\n')
+    gw, device, client = transparent("--config", str(path))
+    read_area(client, RX, 2)
+    refused = socket.create_connection(("127.0.0.1", gw.port), timeout=REPLY_S,
+                                       source_address=("127.0.0.2", 0))
+    with refused:
+        assert refused.recv(16) == b""
+    path.write_text('[serial]\nmode = "transparent"\n[net]\nauthip = ["127.0.0.2"]\n')
+    gw.proc.send_signal(signal.SIGHUP)
+    wait_for_log(gw, "no longer allowed by authip")
+    with pytest.raises(ConnectionException, match="closed"):        # its connection ended
+        client.read_holding_registers(RX, count=1)
+    allowed = ModbusTcpClient("127.0.0.1", port=gw.port, timeout=REPLY_S,
+                              source_address=("127.0.0.2", 0))
+    try:
+        assert allowed.connect()
+        read_area(allowed, RX, 2)
+    finally:
+        allowed.close()
+
+
+def test_the_table_clients_are_listed_and_closed_by_the_operator(transparent):
+    """mbgw clients lists mdbport's clients beside the raw port; clients close ends one."""
+    gw, device, client = transparent()
+    read_area(client, RX, 2)
+    listed = wait_for(gw, lambda s: len(s["clients"]) == 1 and s["clients"][0]["requests"],
+                      "the client listed")["clients"]
+    text = mbgw("clients", "--control", gw.control).stdout
+    assert text.startswith("table clients (1)") and listed[0]["peer"] in text, text
+    assert "raw        off" in text
+    assert "table clients (1)" in mbgw("status", "--control", gw.control).stdout
+    result = mbgw("clients", "close", listed[0]["peer"], "--control", gw.control)
+    assert result.returncode == 0, result.stderr
+    with pytest.raises(ConnectionException, match="closed"):        # its connection ended
+        client.read_holding_registers(RX, count=1)
+    assert f"table client {listed[0]['peer']} closed by the operator" in gw.log()

@@ -461,15 +461,25 @@ def test_master_and_transparent_mode_serve_the_console(mode, tmp_path, pty_pair,
     set_passwords(path, ("admin", ADMIN_PASSWORD))
     port = listen_on(path)
     options = ["--baudrate", "19200", "--config", str(path)]
-    options += ["--table", "--table-port", str(free_port())] if mode == "master" else \
-        ["--bind", "127.0.0.1", "--mdbport", str(free_port())]
+    table_port = free_port()
+    options += ["--table", "--table-port", str(table_port)] if mode == "master" else \
+        ["--bind", "127.0.0.1", "--mdbport", str(table_port)]
     gw = start_gateway(pty_pair.gateway, *options, mode=mode, listen=False)
     web = admin(Web(f"http://127.0.0.1:{port}"))
     assert web.ok("GET", "/api/status")["mode"] == mode
     assert web.ok("POST", "/api/table", {"address": 4100, "values": [42]})
     assert web.ok("GET", "/api/table?address=4100")["values"] == [42]
-    code, reply, _ = web.post("/api/clients/1/close")
-    assert code == 400 and "not available" in reply["error"]
+    c = Client(table_port)          # the table server's clients are the Clients page's
+    try:
+        assert c.ask(1, read_holding(4100, 1)) == bytes.fromhex("03 02 002a")   # the 42
+        clients = web.ok("GET", "/api/clients")["clients"]
+        assert len(clients) == 1 and clients[0]["requests"] == 1
+        assert web.ok("POST", f"/api/clients/{clients[0]['id']}/close", {}) == {"ok": True}
+        c.sock.settimeout(5)
+        assert c.sock.recv(1) == b""                   # the gateway closed it
+        assert web.post(f"/api/clients/{clients[0]['id']}/close")[0] == 404
+    finally:
+        c.close()
     assert web.ok("GET", "/api/scenarios") == {"scenarios": []} or mode == "master"
     assert gw.stop() == 0
 

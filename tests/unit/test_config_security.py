@@ -116,4 +116,30 @@ def test_master_mode_lists_the_tables_server_and_an_open_metrics_endpoint(tmp_pa
         {"name": "metrics", "listen": "127.0.0.1:9502", "transport": "http",
          "authentication": "none"}]
     text = mbgw("config", "show", "--security", "--config", path).output
-    assert "authip     (not in master mode" in text and "tls        off" in text
+    assert "authip     (empty: any client may connect)" in text and "tls        off" in text
+
+
+def test_transparent_mode_lists_the_tables_server_with_its_own_max_connections(tmp_path):
+    path = tmp_path / "mbgw.toml"
+    for words in (("serial", "mode", "transparent"), ("net", "bind", "127.0.0.1"),
+                  ("table", "max-connections", "8")):
+        assert mbgw("config", "set", *words, "--config", path).exit_code == 0
+    report = json.loads(mbgw("config", "show", "--security", "--json", "--config",
+                             path).output)
+    assert report["listeners"][0] == {
+        "name": "table", "address": "127.0.0.1", "port": 502, "transport": "plain",
+        "max_connections": 8, "authip": "any client"}
+
+
+def test_master_mode_lists_the_table_servers_bind_and_authip(tmp_path):
+    path = tmp_path / "mbgw.toml"
+    for words in (("serial", "mode", "master"), ("table", "enabled", "on"),
+                  ("net", "bind", "127.0.0.1"), ("net", "authip", "1", "10.1.2.3")):
+        result = mbgw("config", "set", *words, "--config", path)
+        assert result.exit_code == 0, result.output
+    report = json.loads(mbgw("config", "show", "--security", "--json", "--config",
+                             path).output)
+    assert report["listeners"][0] == {
+        "name": "table", "address": "127.0.0.1", "port": 502, "transport": "plain",
+        "max_connections": 32, "authip": ["10.1.2.3"]}
+    assert mbgw("check-config", "--config", path).exit_code == 0

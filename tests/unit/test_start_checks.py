@@ -171,6 +171,20 @@ def test_one_port_on_two_addresses_is_two_listeners(tmp_path):
     assert mbgw("check-config", path).exit_code == 0
 
 
+
+def test_master_modes_table_port_on_its_bind_and_the_metrics_elsewhere_are_two(tmp_path):
+    """net.bind is the table server's address in master mode: the metrics may take the
+    port on another address, not on every one."""
+    path = tmp_path / "mbgw.toml"
+    text = DEVICE + 'mode = "master"\n[net]\nbind = "127.0.0.1"\n[table]\nenabled = true\n' \
+        'port = 1502\n[general]\nmetrics = "{}:1502"\n'
+    path.write_text(text.format("127.0.0.2"))
+    assert mbgw("check-config", path).exit_code == 0
+    path.write_text(text.format("0.0.0.0"))
+    result = mbgw("check-config", path)
+    assert result.exit_code == 78 and "port 1502 is table.port's already" in result.output
+
+
 def test_a_port_another_program_holds_is_no_configuration_problem(tmp_path):
     """A port in use is a fact of the moment: check-config passes it, the start fails with
     status 1 (systemd tries again), naming the port."""
