@@ -106,8 +106,10 @@ def test_an_absent_slaves_scenario_leaves_the_line_to_the_others_but_for_probes(
     sent = [when for when, frame in received(record) if frame[0] == ABSENT]
     failing = DOWN_AFTER * (1 + RETRIES)          # the runs that made it down, each retried
     assert_probes_only(sent[failing - 1], bursts(sent[failing:]))
-    s = scenarios_by_name(status(gw))["absent"]
-    assert s["message"] == "device down" and s["errors"]["device-down"] >= 1, s
+    # a probe that retries says so meanwhile ("slave not responding, retrying...")
+    s = wait_for_scenario(gw, "absent", lambda sc: sc["message"] == "device down",
+                          "the scenario says its device is down again after a probe")
+    assert s["errors"]["device-down"] >= 1, s
     assert gw.log().count("scenario absent (") == 2, gw.log()     # timeout, then down: once
 
 

@@ -84,9 +84,9 @@ def test_send_unwritten_sends_the_tables_zeros_from_the_start(line, client):
     assert client(gw).ask(SLAVE, read_holding(20, 2)) == bytes.fromhex("03 04 0000 0000")
 
 
-def test_registers_restored_from_the_table_file_count_as_written(tmp_path, line, client):
+def test_registers_restored_from_the_table_file_count_as_written(state_directory, line, client):
     """The table file holds 0x0800-0x7FFF: 7 and 0 at 0x0800 (the 0 written once, as data)."""
-    saved = tmp_path / "table.bin"
+    saved = state_directory / "table.bin"
     registers = [0] * (0x8000 - FIRST)
     registers[0] = 7
     saved.write_bytes(encode(registers))
