@@ -41,6 +41,7 @@ from typing import cast
 from mbgw.audit import Kind, event
 from mbgw.firewall.guard import Firewall, Guard
 from mbgw.ops.limits import AcceptRest, WarnLimit, is_resource_error, share
+from mbgw.ops.tls import first_byte, handshake_step, start_handshake
 from mbgw.protocol import mbap
 
 log = logging.getLogger("mbgw.table")
@@ -104,48 +105,6 @@ def listen(port: int, bind: str | None = None,
             sock.close()
         raise TableListenError(port, err, option) from None
     return sockets
-
-
-def first_byte(sock: socket.socket) -> bool | None:
-    """Before a handshake: True once the client has sent a byte, None while it has not, False
-    when it closed or reset the connection first (a health check's connect and close)."""
-    try:
-        return bool(sock.recv(1, socket.MSG_PEEK))
-    except (BlockingIOError, InterruptedError):
-        return None
-    except OSError:
-        return False
-
-
-def start_handshake(context: ssl.SSLContext, sock: socket.socket) -> ssl.SSLSocket | str:
-    """The socket wrapped for a non-blocking server handshake, or why it cannot be."""
-    try:
-        return context.wrap_socket(sock, server_side=True, do_handshake_on_connect=False)
-    except OSError as err:
-        return f"TLS handshake failed ({_why(err)})"
-
-
-def handshake_step(sock: ssl.SSLSocket) -> tuple[str, str]:
-    """One step of a handshake: ("done"|"read"|"write", "") or ("failed", why)."""
-    try:
-        sock.do_handshake()
-    except ssl.SSLWantReadError:
-        return "read", ""
-    except ssl.SSLWantWriteError:
-        return "write", ""
-    except ssl.SSLCertVerificationError as err:
-        return "failed", f"TLS handshake refused (client certificate: {err.verify_message})"
-    except ssl.SSLError as err:
-        return "failed", f"TLS handshake refused ({_why(err)})"
-    except OSError as err:
-        return "failed", f"TLS handshake failed ({_why(err)})"
-    return "done", ""
-
-
-def _why(err: OSError) -> str:
-    if isinstance(err, ssl.SSLError):
-        return err.reason or str(err.args[1] if len(err.args) > 1 else err)
-    return err.strerror or str(err)
 
 
 def _name(address) -> str:
