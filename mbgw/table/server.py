@@ -627,17 +627,18 @@ class TableServer(threading.Thread):
         back on the old one when the new one cannot be listened on."""
         self._relisten(self._listeners + self._tls_listeners, [], quiet=True)
         self._listeners = self._tls_listeners = []
+        error: TableListenError | None = None
         try:
             self._listeners, self._tls_listeners = self._listen_on(bind)
             self.bind = bind
-            outcome.put(None)
         except TableListenError as err:
-            outcome.put(err)
+            error = err
             try:
                 self._listeners, self._tls_listeners = self._listen_on(self.bind)
             except TableListenError as again:
                 log.error("table server: %s; no TCP client reaches the table", again.strerror)
         self._relisten([], self._listeners + self._tls_listeners)
+        outcome.put(error)      # once the listeners are whatever they stay: rebind() reports them
 
     def _listen_on(self, bind: str | None) -> tuple[list, list]:
         plain = listen(self.port, bind) if self.port is not None else []
