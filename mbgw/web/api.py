@@ -10,6 +10,7 @@ from pathlib import Path
 from aiohttp import web
 
 from mbgw.audit import Kind, event
+from mbgw.config.file import nesting
 from mbgw.ops.trace import FILTER_KEYS, NO_RAW_VIEW
 from mbgw.ops.trace import filters as trace_filters
 from mbgw.web import config_api
@@ -93,17 +94,6 @@ async def body(request: web.Request) -> dict:
         raise web.HTTPBadRequest(text=json.dumps({"error": "the body must be a JSON object"}),
                                  content_type="application/json")
     return data
-
-
-def nesting(value) -> int:
-    """How deep arrays and objects are in one another in value (a scalar: 0)."""
-    depth, level = 0, [value]
-    while True:
-        containers = [v for v in level if isinstance(v, (list, dict))]
-        if not containers:
-            return depth
-        depth += 1
-        level = [v for c in containers for v in (c.values() if isinstance(c, dict) else c)]
 
 
 async def command(request: web.Request, name: str, args: dict | None = None):
