@@ -501,6 +501,8 @@ class SlaveConfig:
     web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
     request_timeout_ms: int = DEFAULT_REQUEST_TIMEOUT_MS   # [net] request-timeout
     location: str = DEFAULT_LOCATION   # [general] location, the guide's set location
+    lines: tuple = ()              # LineConfig (mbgw.config.lines): [[line]], beside [serial]
+    routes: tuple = ()             # RouteConfig (mbgw.config.lines): [[route]]
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "slave")
@@ -578,6 +580,8 @@ class MasterConfig:
     location: str = DEFAULT_LOCATION   # [general] location, the guide's set location
     authip: tuple = ()              # the table server's allowed clients; empty: anyone
     bind: str | None = None         # the table server's one address; None: every one
+    lines: tuple = ()               # LineConfig (mbgw.config.lines): [[line]], beside [serial]
+    routes: tuple = ()              # RouteConfig (mbgw.config.lines): [[route]]
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "master")

@@ -1,0 +1,174 @@
+"""Lines, faces, routes and targets: the settings of a daemon with more than one line.
+
+A *face* is where requests come in: the Modbus TCP listeners (`TCP_FACE`) or a line in master
+mode (an outside master on it: its serial-slave face).  A *target* is where a request is
+answered: a line in slave mode (mbgw is the master on it), the exchange table, or a remote
+Modbus TCP server.  A *route* takes a face's units (serial addresses, on a serial face) to a
+target, each rewritten on the way (an offset, or one fixed address).
+
+`[serial]` is the first line, named `serial`; `[[line]]` tables add more, `[[route]]` tables
+the routes.  Without a route for a face, the face keeps today's routing (`implicit` routes).
+"""
+import re
+from dataclasses import dataclass, field
+
+from mbgw.config.model import Demotion, SerialConfig
+from mbgw.errors import ConfigError
+from mbgw.protocol import pdu
+
+PRIMARY_LINE = "serial"            # [serial]'s name; reserved for it
+TCP_FACE = ""                      # the face of the Modbus TCP listeners (plain and TLS)
+LINE_MODES = ("slave", "master")   # slave: mbgw masters the line; master: a master is on it
+NAME_PATTERN = re.compile(r"[a-z0-9][a-z0-9-]{0,31}")
+MAX_LINES = 32
+MAX_ROUTES = 256
+DEFAULT_SERVER_PORT = 502
+MAX_SERVER_UNIT = 255
+
+
+@dataclass(frozen=True)
+class LineConfig:
+    """One serial line: its port settings, who is master on it, its timing and demotion."""
+    name: str
+    serial: SerialConfig
+    mode: str = "slave"
+    retries: int = 0
+    demotion: Demotion = field(default_factory=Demotion)
+
+    def __post_init__(self) -> None:
+        if self.name != PRIMARY_LINE and not NAME_PATTERN.fullmatch(self.name):
+            raise ConfigError(f"line {self.name!r}: name: expected 1 to 32 of a-z, 0-9 and -, "
+                              f"beginning with a letter or digit")
+        if self.mode not in LINE_MODES:
+            raise ConfigError(f"line {self.name}.mode {self.mode!r}: expected slave (mbgw is "
+                              f"the master on the line) or master (a master is on it)")
+
+    @property
+    def is_target(self) -> bool:
+        return self.mode == "slave"
+
+    @property
+    def is_face(self) -> bool:
+        return self.mode == "master"
+
+
+@dataclass(frozen=True)
+class RouteConfig:
+    """A face's units to one target.  Exactly one of line, table, server is set."""
+    index: int                     # its place among the [[route]] tables, from 1 (0: implicit)
+    units: tuple[int, ...]
+    face: str = TCP_FACE           # `from`: a line in master mode; TCP_FACE: the listeners
+    line: str | None = None
+    table: bool = False
+    server: tuple[str, int] | None = None   # (host, port)
+    offset: int = 0
+    address: int | None = None     # one fixed address (ACKSYS's slaveid)
+    implicit: bool = False         # today's routing, shown as a route (slaveid, [table] units)
+
+    @property
+    def label(self) -> str:
+        return f"route {self.index}" if not self.implicit else "implicit route"
+
+    @property
+    def target(self) -> str:
+        """The target as status shows it: line NAME, table, server HOST:PORT."""
+        if self.line is not None:
+            return f"line {self.line}"
+        if self.table:
+            return "table"
+        assert self.server is not None
+        host, port = self.server
+        return f"server {'[' + host + ']' if ':' in host else host}:{port}"
+
+    def rewrite(self, unit: int) -> int:
+        """The unit or address the target is sent for unit."""
+        return self.address if self.address is not None else unit + self.offset
+
+
+def route_problems(lines: tuple[LineConfig, ...], routes: tuple[RouteConfig, ...]) -> list[str]:
+    """What check-config refuses in lines and routes, each naming its key."""
+    problems: list[str] = []
+    by_name: dict[str, LineConfig] = {}
+    by_device: dict[str, str] = {}
+    for line in lines:
+        if line.name in by_name:
+            problems.append(f"line {line.name}.name: two lines are named {line.name!r}")
+        by_name[line.name] = line
+        other = by_device.get(line.serial.device)
+        if other is not None:
+            problems.append(f"line {line.name}.device {line.serial.device}: line {other} "
+                            f"uses it already")
+        by_device.setdefault(line.serial.device, line.name)
+    taken: dict[tuple[str, int], RouteConfig] = {}
+    for route in routes:
+        label = route.label
+        targets = [n for n, given in (("line", route.line is not None), ("table", route.table),
+                                      ("server", route.server is not None)) if given]
+        if len(targets) != 1:
+            problems.append(f"{label}: give one target: line = NAME, table = true or server = "
+                            f"\"IP[:PORT]\"" + (f" (got {' and '.join(targets)})"
+                                                if targets else ""))
+            continue
+        if route.address is not None and route.offset:
+            problems.append(f"{label}.offset: offset and address exclude each other")
+        if route.face != TCP_FACE:
+            face = by_name.get(route.face)
+            if face is None:
+                problems.append(f"{label}.from {route.face!r}: no such line")
+            elif not face.is_face:
+                problems.append(f"{label}.from {route.face!r}: the line is in slave mode; from "
+                                f"names a line in master mode (a master on it)")
+        if route.line is not None:
+            target = by_name.get(route.line)
+            if target is None:
+                problems.append(f"{label}.line {route.line!r}: no such line")
+            elif not target.is_target:
+                problems.append(f"{label}.line {route.line!r}: the line is in master mode; a "
+                                f"route reaches a line in slave mode (mbgw the master on it)")
+            elif route.line == route.face:
+                problems.append(f"{label}.line {route.line!r}: a line cannot route to itself")
+        high = MAX_SERVER_UNIT if route.server is not None else pdu.MAX_SERIAL_ADDRESS
+        low = 0 if route.server is not None else 1
+        if route.line is not None or route.server is not None:
+            bad = [u for u in route.units if not low <= route.rewrite(u) <= high]
+            if bad:
+                problems.append(f"{label}.{'address' if route.address is not None else 'offset'}"
+                                f": unit {bad[0]} becomes {route.rewrite(bad[0])}, outside "
+                                f"{low}..{high}")
+        for unit in route.units:
+            other_route = taken.get((route.face, unit))
+            if other_route is not None:
+                problems.append(f"{label}.units: unit {unit} is routed by "
+                                f"{other_route.label} already")
+                break
+            taken[(route.face, unit)] = route
+    return problems
+
+
+def check_routes(lines: tuple[LineConfig, ...], routes: tuple[RouteConfig, ...]) -> None:
+    problems = route_problems(lines, routes)
+    if problems:
+        raise ConfigError(problems[0])
+
+
+class RouteMap:
+    """Each face's 256 units, each to its route (None: no route takes it).  Built once per
+    configuration; lookups are one list index, made on the request path."""
+
+    def __init__(self, routes: tuple[RouteConfig, ...]) -> None:
+        self.routes = routes
+        self._faces: dict[str, list[RouteConfig | None]] = {}
+        for route in routes:
+            units = self._faces.setdefault(route.face, [None] * 256)
+            for unit in route.units:
+                units[unit] = route
+
+    def faces(self) -> list[str]:
+        return list(self._faces)
+
+    def has_face(self, face: str) -> bool:
+        return face in self._faces
+
+    def units(self, face: str) -> list[RouteConfig | None]:
+        """face's routes by unit (every entry None when the face has none)."""
+        return self._faces.get(face) or [None] * 256
