@@ -10,10 +10,11 @@ from mbgw.cli import checks
 from mbgw.cli.options import EX_CONFIG, META_FILE, Failure, ModeCommand
 from mbgw.config import edit as config_set
 from mbgw.config import file as cf
+from mbgw.config import line_file, scenario_text
 from mbgw.config import scenario as scenario_config
-from mbgw.config import scenario_text
 from mbgw.config import schema as ck
 from mbgw.config import text as config_text
+from mbgw.config.lines import LINE_MODES
 from mbgw.config.toml_text import dump_value, set_line, write_atomic
 from mbgw.errors import ConfigError, ConfigFileError
 
@@ -29,6 +30,9 @@ def register(root: click.Group) -> None:
         if command is not None and not any(p.name == "config" for p in command.params):
             command.params.append(_mode_config_option())
             command.params.append(_scenarios_option())
+            if mode in LINE_MODES:
+                command.params += [_given_option(line_file.LINES_PARAM),
+                                   _given_option(line_file.ROUTES_PARAM)]
     for command in (run, check_config, config):
         root.add_command(command)
 
@@ -82,6 +86,11 @@ def _scenarios_option() -> click.Option:
     other keys' values: hidden, no command-line form."""
     return click.Option(["--scenarios", cf.SCENARIOS_PARAM], type=_GivenValue(), default=(),
                         hidden=True)
+
+
+def _given_option(name: str) -> click.Option:
+    """The file's [[line]] or [[route]] tables, handed over like the scenarios."""
+    return click.Option([f"--{name}", name], type=_GivenValue(), default=(), hidden=True)
 
 
 def _apply_file(ctx: click.Context, param: click.Parameter, value) -> None:
