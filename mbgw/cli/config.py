@@ -14,7 +14,8 @@ from mbgw.config import line_file, scenario_text
 from mbgw.config import scenario as scenario_config
 from mbgw.config import schema as ck
 from mbgw.config import text as config_text
-from mbgw.config.lines import LINE_MODES
+from mbgw.config.lines import LINE_MODES, TCP_FACE, implicit_routes
+from mbgw.config.model import number_list_text
 from mbgw.config.toml_text import dump_value, set_line, write_atomic
 from mbgw.errors import ConfigError, ConfigFileError
 
@@ -303,15 +304,17 @@ def config() -> None:
                    "web console (which passwords are set, never their hashes), the control "
                    "socket, and who may read the file.")
 @click.option("--json", "as_json", is_flag=True, help="With --security: as a JSON document.")
-@click.argument("group", required=False, type=click.Choice([*ck.GROUPS, cf.SCENARIO_KEY]))
+@click.argument("group", required=False, type=click.Choice(
+    [*ck.GROUPS, cf.SCENARIO_KEY, line_file.LINE_TABLE, line_file.ROUTE_TABLE]))
 @click.argument("param", required=False)
 @click.pass_context
 def show(ctx, config_path: Path, instance: str | None, security: bool, as_json: bool,
          group: str | None, param: str | None) -> None:
     """Show the settings in effect (the file's, else the built-in defaults): all, one GROUP
     (serial, net, general, table), or one PARAM, like the guide's `show serial stout`;
-    `show scenario [NAME]`: the scenarios; `show --security [--json]`: the security
-    settings in force."""
+    `show scenario [NAME]`: the scenarios; `show line [NAME]`: the [[line]] tables; `show
+    route`: the [[route]] tables, then the implicit routes (today's routing of a face without
+    a route) as comments; `show --security [--json]`: the security settings in force."""
     if as_json and not security:
         raise click.UsageError("--json goes with --security")
     if security and group is not None:
@@ -330,6 +333,12 @@ def show(ctx, config_path: Path, instance: str | None, security: bool, as_json: 
         return
     if group == cf.SCENARIO_KEY:
         _show_scenarios(settings, param)
+        return
+    if group == line_file.LINE_TABLE:
+        _show_lines(settings, param)
+        return
+    if group == line_file.ROUTE_TABLE:
+        _show_routes(schema, settings)
         return
     if param is not None:
         name = param.lower()
@@ -351,6 +360,10 @@ def show(ctx, config_path: Path, instance: str | None, security: bool, as_json: 
                 click.echo(f"{schema.file_name(name):<{SHOW_WIDTH}} {line}")
     if group is None and settings.scenarios:
         _show_scenarios(settings, None)
+    if group is None and settings.lines:
+        _show_lines(settings, None)
+    if group is None and (settings.routes or settings.lines):
+        _show_routes(schema, settings)
 
 
 def _show_security(schema: ck.Schema, settings: cf.Settings, as_json: bool) -> None:
@@ -377,6 +390,42 @@ def _show_scenarios(settings: cf.Settings, name: str | None) -> None:
             click.echo()
         for line in scenario_text.block(sc.fields()):
             click.echo(line)
+
+
+def _show_lines(settings: cf.Settings, name: str | None) -> None:
+    shown = [line for line in settings.lines if name is None or line.name == name]
+    if name is not None and not shown:
+        names = ", ".join(line.name for line in settings.lines)
+        raise click.BadParameter(f"no line {name!r} in {settings.path}"
+                                 + (f" (lines: {names})" if names else ""), param_hint="NAME")
+    for line in shown:
+        click.echo()
+        click.echo("[[line]]")
+        for key, value in line_file.line_fields(line).items():
+            click.echo(f"{key} = {dump_value(value)}")
+
+
+def _show_routes(schema: ck.Schema, settings: cf.Settings) -> None:
+    """The [[route]] tables, then the implicit routes in force beside them (when the file
+    would start: else only the tables)."""
+    for route in settings.routes:
+        click.echo()
+        click.echo("[[route]]")
+        for key, value in line_file.route_fields(route).items():
+            click.echo(f"{key} = {dump_value(value)}")
+    try:
+        cfg = checks.check_file(schema, settings)
+    except (ConfigError, click.ClickException):
+        return
+    implicit = implicit_routes(cfg) if settings.mode in LINE_MODES else ()
+    if implicit:
+        click.echo()
+    for route in implicit:
+        face = f"from {route.face}: " if route.face != TCP_FACE else ""
+        click.echo(f"# implicit ({route.label}): {face}units "
+                   f"{number_list_text(route.units)} -> {route.target}"
+                   + (f" offset {route.offset}" if route.offset else "")
+                   + (f" address {route.address}" if route.address is not None else ""))
 
 
 def _read_checked(ctx, schema: ck.Schema, path: Path, words) -> tuple[str, dict, cf.Settings]:

@@ -18,7 +18,7 @@ from mbgw.config.lines import (
     TCP_FACE,
     RouteConfig,
 )
-from mbgw.config.model import parse_number_list
+from mbgw.config.model import number_list_text, parse_number_list
 from mbgw.config.scenario import split_server
 from mbgw.config.schema import Schema, default_value
 from mbgw.config.values import Problem, check_value, process, to_click
@@ -207,3 +207,26 @@ def table_units_overlap(values: dict, routes: tuple[RouteConfig, ...]) -> list[s
         return []
     return [f"{r.label}.table: table.units routes units to the table already; both at once "
             f"is an overlap (remove one)" for r in routes if r.table and r.face == TCP_FACE]
+
+
+def line_fields(line: LineTable) -> dict:
+    """A [[line]] as its table's keys: name, mode, then the keys the file gives."""
+    return {"name": line.name, "mode": line.mode, **line.keys}
+
+
+def route_fields(route: RouteConfig) -> dict:
+    """A route as the keys of its [[route]] table (what parse_routes reads)."""
+    fields: dict = {"units": number_list_text(route.units)}
+    if route.face != TCP_FACE:
+        fields["from"] = route.face
+    if route.line is not None:
+        fields["line"] = route.line
+    if route.table:
+        fields["table"] = True
+    if route.server is not None:
+        fields["server"] = route.target.removeprefix("server ")
+    if route.offset:
+        fields["offset"] = route.offset
+    if route.address is not None:
+        fields["address"] = route.address
+    return fields

@@ -146,7 +146,10 @@ def route_problems(lines: tuple[LineConfig, ...], routes: tuple[RouteConfig, ...
         low = 0 if route.server is not None else 1
         if not route.implicit and (route.line is not None or route.server is not None):
             bad = [u for u in route.units if not low <= route.rewrite(u) <= high]
-            if bad:
+            if bad and route.address is None and not route.offset:
+                problems.append(f"{label}.units: unit {bad[0]} is outside {low}..{high}, the "
+                                f"target's addresses; give offset or address")
+            elif bad:
                 problems.append(f"{label}.{'address' if route.address is not None else 'offset'}"
                                 f": unit {bad[0]} becomes {route.rewrite(bad[0])}, outside "
                                 f"{low}..{high}")
