@@ -31,7 +31,7 @@ def register(root: click.Group) -> None:
         if command is not None and not any(p.name == "config" for p in command.params):
             command.params.append(_mode_config_option())
             command.params.append(_scenarios_option())
-            if mode in LINE_MODES:
+            if mode in LINE_MODES and isinstance(command, ModeCommand):   # make_config's
                 command.params += [_given_option(line_file.LINES_PARAM),
                                    _given_option(line_file.ROUTES_PARAM)]
     for command in (run, check_config, config):
