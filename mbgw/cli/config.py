@@ -335,10 +335,10 @@ def show(ctx, config_path: Path, instance: str | None, security: bool, as_json: 
         _show_scenarios(settings, param)
         return
     if group == line_file.LINE_TABLE:
-        _show_lines(settings, param)
+        _show_lines(settings, param, separate=False)
         return
     if group == line_file.ROUTE_TABLE:
-        _show_routes(schema, settings)
+        _show_routes(schema, settings, separate=False)
         return
     if param is not None:
         name = param.lower()
@@ -392,24 +392,26 @@ def _show_scenarios(settings: cf.Settings, name: str | None) -> None:
             click.echo(line)
 
 
-def _show_lines(settings: cf.Settings, name: str | None) -> None:
+def _show_lines(settings: cf.Settings, name: str | None, separate: bool = True) -> None:
     shown = [line for line in settings.lines if name is None or line.name == name]
     if name is not None and not shown:
         names = ", ".join(line.name for line in settings.lines)
         raise click.BadParameter(f"no line {name!r} in {settings.path}"
                                  + (f" (lines: {names})" if names else ""), param_hint="NAME")
-    for line in shown:
-        click.echo()
+    for number, line in enumerate(shown):
+        if separate or number:
+            click.echo()
         click.echo("[[line]]")
         for key, value in line_file.line_fields(line).items():
             click.echo(f"{key} = {dump_value(value)}")
 
 
-def _show_routes(schema: ck.Schema, settings: cf.Settings) -> None:
+def _show_routes(schema: ck.Schema, settings: cf.Settings, separate: bool = True) -> None:
     """The [[route]] tables, then the implicit routes in force beside them (when the file
     would start: else only the tables)."""
-    for route in settings.routes:
-        click.echo()
+    for number, route in enumerate(settings.routes):
+        if separate or number:
+            click.echo()
         click.echo("[[route]]")
         for key, value in line_file.route_fields(route).items():
             click.echo(f"{key} = {dump_value(value)}")
@@ -418,7 +420,7 @@ def _show_routes(schema: ck.Schema, settings: cf.Settings) -> None:
     except (ConfigError, click.ClickException):
         return
     implicit = implicit_routes(cfg) if settings.mode in LINE_MODES else ()
-    if implicit:
+    if implicit and (separate or settings.routes):
         click.echo()
     for route in implicit:
         face = f"from {route.face}: " if route.face != TCP_FACE else ""

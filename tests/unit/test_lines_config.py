@@ -270,3 +270,24 @@ def test_config_show_lists_lines_routes_and_the_implicit_ones(tmp_path):
                                       str(path)], prog_name="mbgw")
     assert shown.output.strip() == ('[[line]]\nname = "meters"\nmode = "slave"\n'
                                     'device = "/dev/ttyUSB1"\nbaudrate = 9600')
+
+
+# --- the documented examples -----------------------------------------------------------------
+
+def _toml_after(text: str, opening: str, closing: str) -> str:
+    start = text.index(opening)
+    return text[start:text.index(closing, start)]
+
+
+def test_the_readme_and_man_page_examples_pass_check_config(tmp_path):
+    from tests.harness import CHECKOUT
+    readme = (CHECKOUT / "README.md").read_text()
+    example = _toml_after(readme, "# /tmp/lines.toml\n", "```")
+    assert 'units = "32-63"' in example
+    path, result = check_config(tmp_path, example)
+    assert result.exit_code == 0, result.output
+    page = (CHECKOUT / "docs" / "mbgw.toml.5").read_text()
+    section = page[page.index('.SH "LINES AND ROUTES"'):page.index(".SH SCENARIOS")]
+    example = _toml_after(section, ".nf\n", ".fi\n").removeprefix(".nf\n").replace("\\-", "-")
+    path, result = check_config(tmp_path, example)
+    assert result.exit_code == 0, result.output
