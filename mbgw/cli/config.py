@@ -106,6 +106,10 @@ def _apply_file(ctx: click.Context, param: click.Parameter, value) -> None:
         value = ck.DEFAULT_PATH
     schema = schema_of(ctx)
     settings = _load(ctx, schema, Path(value), exit_code=EX_CONFIG)
+    if (settings.lines or settings.routes) and not any(
+            p.name == line_file.LINES_PARAM for p in ctx.command.params):
+        raise Failure(f"{value}: line: [[line]] and [[route]] tables are for slave and master "
+                      f"modes; {ctx.command.name} mode bridges [serial] only", EX_CONFIG)
     ctx.default_map = {**settings.default_map(schema, ctx.command.name or ""),
                        **(ctx.default_map or {})}
     ctx.meta[META_FILE] = Path(value)

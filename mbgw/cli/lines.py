@@ -24,7 +24,9 @@ def line_config(table: line_file.LineTable) -> LineConfig:
                                   if name in params})
         line_demotion = demotion(params["down_after"], params["probe_interval"])
     except click.BadParameter as err:
-        raise click.BadParameter(f"line {table.name}: {err.message}") from None
+        key = str(err.param_hint or "").strip("'").removeprefix("--")   # "'--rts'": rts
+        where = f"line {table.name}.{key}" if key else f"line {table.name}"
+        raise click.BadParameter(f"{where}: {err.message}") from None
     own = {field: params[name] for name, field in SLAVE_LINE_PARAMS.items()
            if params.get(name) is not None}
     return LineConfig(table.name, serial, mode=table.mode, demotion=line_demotion, **own)

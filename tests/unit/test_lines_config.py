@@ -137,6 +137,10 @@ ROUTE_TO_SERIAL = '[[route]]\nunits = "1-10"\nline = "serial"\n'
      "line m.retries: applies to slave-mode lines only"),
     (SERIAL + '[[line]]\nname = "m"\ndevice = "/dev/ttyUSB1"\nmode = "master"\nstout = 2\n',
      "line m.stout: applies to slave-mode lines only"),
+    (SERIAL + '[[line]]\nname = "m"\ndevice = "/dev/ttyUSB1"\ninterface = "rs232"\n'
+     'rts = "flow"\n', "line m.rts: rts flow with cts ignore"),
+    (SERIAL + '[[line]]\nname = "m"\ndevice = "/etc/passwd"\n',
+     "line m.device: device /etc/passwd: a regular file, not a serial device"),
     (SERIAL + '[[line]]\nname = "m"\ndevice = "/dev/ttyUSB0"\n',
      "line m.device /dev/ttyUSB0: line serial uses it already"),
     (SERIAL + METERS + METERS.replace("USB1", "USB2"),
@@ -201,6 +205,15 @@ def test_run_refuses_what_check_config_refuses(tmp_path):
     result = CliRunner().invoke(main, ["run", "--config", str(path)], prog_name="mbgw")
     assert result.exit_code == 78, result.output
     assert "route 1.line 'nowhere': no such line" in result.output
+
+
+def test_the_transparent_command_refuses_a_file_with_lines(tmp_path):
+    path = tmp_path / "mbgw.toml"
+    path.write_text(SERIAL + METERS)
+    result = CliRunner().invoke(main, ["transparent", "--config", str(path)], prog_name="mbgw")
+    assert result.exit_code == 78, result.output
+    assert "line: [[line]] and [[route]] tables are for slave and master modes; transparent " \
+           "mode bridges [serial] only" in result.output
 
 
 # --- implicit routes -------------------------------------------------------------------------
