@@ -15,8 +15,10 @@ from mbgw.config.schema import Schema
 from mbgw.errors import ConfigError, ConfigFileError
 from mbgw.ops import preflight
 
-# a message that names its key already: "tls.key: ", "net.authip[2]: ", "scenario boiler: "
-_LABEL = re.compile(r"^([a-z]+\.[a-z-]+(\[\d+\])?|scenario [^:]+|slaveid '[^']*'): ")
+# a message that names its key already: "tls.key: ", "net.authip[2]: ", "scenario boiler: ",
+# "line meters.baudrate: ", "route 2.units: "
+_LABEL = re.compile(r"^([a-z]+\.[a-z-]+(\[\d+\])?|scenario [^:]+|(line|route) [^:]+"
+                    r"|slaveid '[^']*'): ")
 _FLAG = re.compile(r"--[a-z][a-z-]*")
 
 

@@ -10,10 +10,12 @@ from mbgw.cli import checks
 from mbgw.cli.options import EX_CONFIG, META_FILE, Failure, ModeCommand
 from mbgw.config import edit as config_set
 from mbgw.config import file as cf
+from mbgw.config import line_file, scenario_text
 from mbgw.config import scenario as scenario_config
-from mbgw.config import scenario_text
 from mbgw.config import schema as ck
 from mbgw.config import text as config_text
+from mbgw.config.lines import LINE_MODES, TCP_FACE, implicit_routes
+from mbgw.config.model import number_list_text
 from mbgw.config.toml_text import dump_value, set_line, write_atomic
 from mbgw.errors import ConfigError, ConfigFileError
 
@@ -29,6 +31,9 @@ def register(root: click.Group) -> None:
         if command is not None and not any(p.name == "config" for p in command.params):
             command.params.append(_mode_config_option())
             command.params.append(_scenarios_option())
+            if mode in LINE_MODES and isinstance(command, ModeCommand):   # make_config's
+                command.params += [_given_option(line_file.LINES_PARAM),
+                                   _given_option(line_file.ROUTES_PARAM)]
     for command in (run, check_config, config):
         root.add_command(command)
 
@@ -84,6 +89,11 @@ def _scenarios_option() -> click.Option:
                         hidden=True)
 
 
+def _given_option(name: str) -> click.Option:
+    """The file's [[line]] or [[route]] tables, handed over like the scenarios."""
+    return click.Option([f"--{name}", name], type=_GivenValue(), default=(), hidden=True)
+
+
 def _apply_file(ctx: click.Context, param: click.Parameter, value) -> None:
     """Eager: runs before the other options take their values, and gives them the file's
     values as defaults (click's default_map), so the command line wins over the file."""
@@ -96,6 +106,10 @@ def _apply_file(ctx: click.Context, param: click.Parameter, value) -> None:
         value = ck.DEFAULT_PATH
     schema = schema_of(ctx)
     settings = _load(ctx, schema, Path(value), exit_code=EX_CONFIG)
+    if (settings.lines or settings.routes) and not any(
+            p.name == line_file.LINES_PARAM for p in ctx.command.params):
+        raise Failure(f"{value}: line: [[line]] and [[route]] tables are for slave and master "
+                      f"modes; {ctx.command.name} mode bridges [serial] only", EX_CONFIG)
     ctx.default_map = {**settings.default_map(schema, ctx.command.name or ""),
                        **(ctx.default_map or {})}
     ctx.meta[META_FILE] = Path(value)
@@ -294,15 +308,17 @@ def config() -> None:
                    "web console (which passwords are set, never their hashes), the control "
                    "socket, and who may read the file.")
 @click.option("--json", "as_json", is_flag=True, help="With --security: as a JSON document.")
-@click.argument("group", required=False, type=click.Choice([*ck.GROUPS, cf.SCENARIO_KEY]))
+@click.argument("group", required=False, type=click.Choice(
+    [*ck.GROUPS, cf.SCENARIO_KEY, line_file.LINE_TABLE, line_file.ROUTE_TABLE]))
 @click.argument("param", required=False)
 @click.pass_context
 def show(ctx, config_path: Path, instance: str | None, security: bool, as_json: bool,
          group: str | None, param: str | None) -> None:
     """Show the settings in effect (the file's, else the built-in defaults): all, one GROUP
     (serial, net, general, table), or one PARAM, like the guide's `show serial stout`;
-    `show scenario [NAME]`: the scenarios; `show --security [--json]`: the security
-    settings in force."""
+    `show scenario [NAME]`: the scenarios; `show line [NAME]`: the [[line]] tables; `show
+    route`: the [[route]] tables, then the implicit routes (today's routing of a face without
+    a route) as comments; `show --security [--json]`: the security settings in force."""
     if as_json and not security:
         raise click.UsageError("--json goes with --security")
     if security and group is not None:
@@ -321,6 +337,12 @@ def show(ctx, config_path: Path, instance: str | None, security: bool, as_json: 
         return
     if group == cf.SCENARIO_KEY:
         _show_scenarios(settings, param)
+        return
+    if group == line_file.LINE_TABLE:
+        _show_lines(settings, param, separate=False)
+        return
+    if group == line_file.ROUTE_TABLE:
+        _show_routes(schema, settings, separate=False)
         return
     if param is not None:
         name = param.lower()
@@ -342,6 +364,10 @@ def show(ctx, config_path: Path, instance: str | None, security: bool, as_json: 
                 click.echo(f"{schema.file_name(name):<{SHOW_WIDTH}} {line}")
     if group is None and settings.scenarios:
         _show_scenarios(settings, None)
+    if group is None and settings.lines:
+        _show_lines(settings, None)
+    if group is None and (settings.routes or settings.lines):
+        _show_routes(schema, settings)
 
 
 def _show_security(schema: ck.Schema, settings: cf.Settings, as_json: bool) -> None:
@@ -368,6 +394,44 @@ def _show_scenarios(settings: cf.Settings, name: str | None) -> None:
             click.echo()
         for line in scenario_text.block(sc.fields()):
             click.echo(line)
+
+
+def _show_lines(settings: cf.Settings, name: str | None, separate: bool = True) -> None:
+    shown = [line for line in settings.lines if name is None or line.name == name]
+    if name is not None and not shown:
+        names = ", ".join(line.name for line in settings.lines)
+        raise click.BadParameter(f"no line {name!r} in {settings.path}"
+                                 + (f" (lines: {names})" if names else ""), param_hint="NAME")
+    for number, line in enumerate(shown):
+        if separate or number:
+            click.echo()
+        click.echo("[[line]]")
+        for key, value in line_file.line_fields(line).items():
+            click.echo(f"{key} = {dump_value(value)}")
+
+
+def _show_routes(schema: ck.Schema, settings: cf.Settings, separate: bool = True) -> None:
+    """The [[route]] tables, then the implicit routes in force beside them (when the file
+    would start: else only the tables)."""
+    for number, route in enumerate(settings.routes):
+        if separate or number:
+            click.echo()
+        click.echo("[[route]]")
+        for key, value in line_file.route_fields(route).items():
+            click.echo(f"{key} = {dump_value(value)}")
+    try:
+        cfg = checks.check_file(schema, settings)
+    except (ConfigError, click.ClickException):
+        return
+    implicit = implicit_routes(cfg) if settings.mode in LINE_MODES else ()
+    if implicit and (separate or settings.routes):
+        click.echo()
+    for route in implicit:
+        face = f"from {route.face}: " if route.face != TCP_FACE else ""
+        click.echo(f"# implicit ({route.label}): {face}units "
+                   f"{number_list_text(route.units)} -> {route.target}"
+                   + (f" offset {route.offset}" if route.offset else "")
+                   + (f" address {route.address}" if route.address is not None else ""))
 
 
 def _read_checked(ctx, schema: ck.Schema, path: Path, words) -> tuple[str, dict, cf.Settings]:

@@ -4,6 +4,7 @@ socket, metrics, log level) with slave mode."""
 import click
 from click.core import ParameterSource
 
+from mbgw.cli.lines import with_lines
 from mbgw.cli.options import (
     ModeCommand,
     convert,
@@ -108,6 +109,7 @@ def master_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                   tcpto, mdbport, exception, max_connections, control, metrics, log_level=None,
                   down_after=config.DEFAULT_DOWN_AFTER,
                   probe_interval=config.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
+                  lines=(), routes=(),
                   tls_port=config.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
                   tls_require_role=True, tls_crl=None, authip=(), bind=None,
                   **table_settings) -> config.MasterConfig:
@@ -120,12 +122,12 @@ def master_config(device, protocol, baudrate, line_format, interface, rtsdelays,
     conflict = config.table_address_conflict(table.address, slaveid) if table.enabled else None
     if conflict:
         raise click.BadParameter(conflict, param_hint="'--table-address' / '--slaveid'")
-    return convert("'--tcpto'", lambda: config.MasterConfig(
+    cfg = convert("'--tcpto'", lambda: config.MasterConfig(
         serial=serial, slaveid=slaveid, tcpto_ms=tcpto, mdbport=mdbport, exception=exception,
         upstream_tls=upstream_tls,
         max_connections=max_connections, control=control, metrics=metrics,
         demotion=demotion(down_after, probe_interval), table=table,
         firewall=firewall, scenarios=scenarios, tls=tls, authip=authip, bind=bind))
-
+    return with_lines(cfg, "master", lines, routes)
 
 master.make_config = master_config

@@ -1,6 +1,7 @@
 """The `mbgw slave` command: Modbus TCP clients reach the slaves on a serial line."""
 import click
 
+from mbgw.cli.lines import with_lines
 from mbgw.cli.options import (
     ModeCommand,
     convert,
@@ -108,6 +109,7 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
                  retries, turnaround, control, metrics, log_level=None, shortcut=True,
                  down_after=config.DEFAULT_DOWN_AFTER,
                  probe_interval=config.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
+                 lines=(), routes=(),
                  tls_port=config.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
                  tls_require_role=True, tls_crl=None, tcpto=config.DEFAULT_TCPTO_MS,
                  late_window=None,
@@ -121,7 +123,7 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
     if mdbport == 0 and not tls.enabled:
         raise click.BadParameter("0 turns plain Modbus TCP off: it needs TLS (--tls-cert)",
                                  param_hint="'--mdbport'")
-    return convert("'--authip'", lambda: config.SlaveConfig(
+    cfg = convert("'--authip'", lambda: config.SlaveConfig(
         serial=serial, slaveid=slaveid, exception=exception, authip=authip, mdbport=mdbport,
         upstream_tls=upstream_tls,
         bind=bind, max_connections=max_connections,
@@ -130,6 +132,6 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
         metrics=metrics, shortcut=shortcut,
         demotion=demotion(down_after, probe_interval), table=table, tcpto_ms=tcpto,
         firewall=firewall, scenarios=scenarios, tls=tls))
-
+    return with_lines(cfg, "slave", lines, routes)
 
 slave.make_config = slave_config

@@ -19,6 +19,8 @@ from pathlib import Path
 import click
 
 from mbgw.config import firewall as fw
+from mbgw.config import line_file
+from mbgw.config.lines import LINE_MODES
 from mbgw.config.scenario import parse_scenarios
 from mbgw.config.schema import (
     DEFAULT_PATH,
@@ -48,6 +50,8 @@ class Settings:
     values: dict               # key name -> value, for the keys present in the file
     firewall: fw.FirewallConfig = fw.FirewallConfig()   # [firewall], [[rule]]
     scenarios: tuple = ()      # the [[scenario]] tables, checked (ScenarioConfig)
+    lines: tuple = ()          # the [[line]] tables, checked (line_file.LineTable)
+    routes: tuple = ()         # the [[route]] tables (RouteConfig)
 
     def default_map(self, schema: Schema, command_name: str) -> dict:
         """click's default_map for a mode command: its options the file sets.  The authip and
@@ -63,6 +67,10 @@ class Settings:
             mapping[fw.PARAM] = self.firewall
         if self.scenarios:
             mapping[SCENARIOS_PARAM] = self.scenarios
+        if self.lines:
+            mapping[line_file.LINES_PARAM] = self.lines
+        if self.routes:
+            mapping[line_file.ROUTES_PARAM] = self.routes
         return mapping
 
     def get(self, schema: Schema, name: str):
@@ -111,8 +119,9 @@ def check(schema: Schema, path: Path, data: dict) -> Settings:
     the problems found."""
     problems = []
     for name, content in data.items():
-        if name in (fw.GROUP, fw.RULE_TABLE, SCENARIO_KEY):
-            continue                    # fw.from_file's, parse_scenarios'
+        if name in (fw.GROUP, fw.RULE_TABLE, SCENARIO_KEY, line_file.LINE_TABLE,
+                    line_file.ROUTE_TABLE):
+            continue                    # fw.from_file's, parse_scenarios', line_file's
         if name in GROUPS:
             if not isinstance(content, dict):
                 problems.append(f"{name}: expected a group [{name}], not a value")
@@ -150,9 +159,18 @@ def check(schema: Schema, path: Path, data: dict) -> Settings:
         problems = check_across(schema, mode, values)
     scenarios, scenario_problems = parse_scenarios(data.get(SCENARIO_KEY, []), mode)
     problems += scenario_problems
+    lines, line_problems = line_file.parse_lines(
+        schema, line_file.tables(data, line_file.LINE_TABLE, problems), mode)
+    routes, route_problems = line_file.parse_routes(
+        line_file.tables(data, line_file.ROUTE_TABLE, problems))
+    problems += line_problems + route_problems
+    if routes and mode not in LINE_MODES:
+        problems.append(f"route: [[route]] tables are for slave and master modes; {mode} mode "
+                        f"bridges [serial] only")
+    problems += line_file.table_units_overlap(values, routes)
     if problems:
         raise ConfigFileError(path, problems)
-    return Settings(Path(path), mode, values, rules, scenarios)
+    return Settings(Path(path), mode, values, rules, scenarios, lines, routes)
 
 
 def _check_mode(schema: Schema, serial: dict, problems: list) -> str:

@@ -9,10 +9,17 @@ target, each rewritten on the way (an offset, or one fixed address).
 `[serial]` is the first line, named `serial`; `[[line]]` tables add more, `[[route]]` tables
 the routes.  Without a route for a face, the face keeps today's routing (`implicit` routes).
 """
+import ipaddress
 import re
 from dataclasses import dataclass, field
 
-from mbgw.config.model import Demotion, SerialConfig
+from mbgw.config.model import (
+    DEFAULT_TURNAROUND_MS,
+    Demotion,
+    MasterConfig,
+    SerialConfig,
+    SlaveConfig,
+)
 from mbgw.errors import ConfigError
 from mbgw.protocol import pdu
 
@@ -34,6 +41,8 @@ class LineConfig:
     mode: str = "slave"
     retries: int = 0
     demotion: Demotion = field(default_factory=Demotion)
+    turnaround_ms: int = DEFAULT_TURNAROUND_MS   # slave mode: the pause after a broadcast
+    late_window_ms: int | None = None            # slave mode: None: stout
 
     def __post_init__(self) -> None:
         if self.name != PRIMARY_LINE and not NAME_PATTERN.fullmatch(self.name):
@@ -64,10 +73,16 @@ class RouteConfig:
     offset: int = 0
     address: int | None = None     # one fixed address (ACKSYS's slaveid)
     implicit: bool = False         # today's routing, shown as a route (slaveid, [table] units)
+    tls: bool = False              # server: reached over TLS (a slaveid range's `tls`)
+    fingerprint: bytes | None = None   # server: its certificate's pinned SHA-256
 
     @property
     def label(self) -> str:
-        return f"route {self.index}" if not self.implicit else "implicit route"
+        if not self.implicit:
+            return f"route {self.index}"
+        if self.table:
+            return "table.units" if self.face == TCP_FACE else "table.address"
+        return "net.slaveid" if self.server is not None else "implicit route"
 
     @property
     def target(self) -> str:
@@ -129,9 +144,12 @@ def route_problems(lines: tuple[LineConfig, ...], routes: tuple[RouteConfig, ...
                 problems.append(f"{label}.line {route.line!r}: a line cannot route to itself")
         high = MAX_SERVER_UNIT if route.server is not None else pdu.MAX_SERIAL_ADDRESS
         low = 0 if route.server is not None else 1
-        if route.line is not None or route.server is not None:
+        if not route.implicit and (route.line is not None or route.server is not None):
             bad = [u for u in route.units if not low <= route.rewrite(u) <= high]
-            if bad:
+            if bad and route.address is None and not route.offset:
+                problems.append(f"{label}.units: unit {bad[0]} is outside {low}..{high}, the "
+                                f"target's addresses; give offset or address")
+            elif bad:
                 problems.append(f"{label}.{'address' if route.address is not None else 'offset'}"
                                 f": unit {bad[0]} becomes {route.rewrite(bad[0])}, outside "
                                 f"{low}..{high}")
@@ -172,3 +190,86 @@ class RouteMap:
     def units(self, face: str) -> list[RouteConfig | None]:
         """face's routes by unit (every entry None when the face has none)."""
         return self._faces.get(face) or [None] * 256
+
+
+ALL_UNITS = tuple(range(256))
+
+
+def implicit_routes(cfg: SlaveConfig | MasterConfig) -> tuple[RouteConfig, ...]:
+    """Today's routing, as routes, for each face without an explicit route (implicit=True).
+    Slave mode's TCP face: the table's units to the table, every other unit to line serial
+    (at the fixed `slaveid` address when it is set).  Master mode's serial face: the slaveid
+    ranges to their servers, the table's serial address to the table.  A face with explicit
+    routes keeps only its table route, unless one of its routes is `table = true`."""
+    if isinstance(cfg, SlaveConfig):
+        return _slave_routes(cfg)
+    return _master_routes(cfg)
+
+
+def _explicit(cfg: SlaveConfig | MasterConfig, face: str) -> tuple[bool, bool]:
+    """(the face has explicit routes, one of them is to the table)."""
+    own = [r for r in cfg.routes if r.face == face]
+    return bool(own), any(r.table for r in own)
+
+
+def _slave_routes(cfg: SlaveConfig) -> tuple[RouteConfig, ...]:
+    explicit, explicit_table = _explicit(cfg, TCP_FACE)
+    routes = []
+    table_units: tuple[int, ...] = ()
+    if cfg.table.enabled and not explicit_table:
+        table_units = cfg.table.units if cfg.table.direct else ALL_UNITS
+        routes.append(RouteConfig(0, table_units, table=True, implicit=True))
+    if not explicit and len(table_units) < len(ALL_UNITS):
+        taken = set(table_units)
+        routes.append(RouteConfig(0, tuple(u for u in ALL_UNITS if u not in taken),
+                                  line=PRIMARY_LINE, address=cfg.slaveid or None,
+                                  implicit=True))
+    return tuple(routes)
+
+
+def _master_routes(cfg: MasterConfig) -> tuple[RouteConfig, ...]:
+    explicit, explicit_table = _explicit(cfg, PRIMARY_LINE)
+    routes = []
+    if cfg.table.enabled and cfg.table.address and not explicit_table:
+        routes.append(RouteConfig(0, (cfg.table.address,), face=PRIMARY_LINE, table=True,
+                                  implicit=True))
+    if explicit:
+        return tuple(routes)
+    for r in cfg.slaveid.ranges:
+        addresses = range(r.first, r.last + 1)
+        units = [r.remote_first + step if r.remote_first else 0xFF
+                 for step in range(len(addresses))]
+        if not r.variable_ip:
+            routes.append(RouteConfig(
+                0, tuple(addresses), face=PRIMARY_LINE, server=(str(r.ip), cfg.mdbport),
+                offset=r.remote_first - r.first if r.remote_first else 0,
+                address=None if r.remote_first else 0xFF, implicit=True, tls=r.tls,
+                fingerprint=r.fingerprint))
+            continue
+        for step, address in enumerate(addresses):
+            host = str(ipaddress.IPv4Address(int(r.ip) + step))
+            routes.append(RouteConfig(0, (address,), face=PRIMARY_LINE,
+                                      server=(host, cfg.mdbport), address=units[step],
+                                      implicit=True, tls=r.tls, fingerprint=r.fingerprint))
+    return tuple(routes)
+
+
+def effective_routes(cfg: SlaveConfig | MasterConfig) -> tuple[RouteConfig, ...]:
+    """The routes in force: the implicit ones (listed first, as status shows them), then the
+    file's."""
+    return (*implicit_routes(cfg), *cfg.routes)
+
+
+def route_map(cfg: SlaveConfig | MasterConfig) -> RouteMap:
+    """The routing the daemon runs with: every face's explicit and implicit routes."""
+    return RouteMap(effective_routes(cfg))
+
+
+def config_problems(cfg: SlaveConfig | MasterConfig, mode: str) -> list[str]:
+    """What check-config refuses in a daemon's lines and routes: line serial (with the
+    daemon's mode) and cfg.lines, the implicit routes beside the explicit ones."""
+    primary = LineConfig(PRIMARY_LINE, cfg.serial, mode=mode)
+    problems = route_problems((primary, *cfg.lines), effective_routes(cfg))
+    problems += [f"{r.label}.table: the table is off (table.enabled = false)"
+                 for r in cfg.routes if r.table and not cfg.table.enabled]
+    return problems

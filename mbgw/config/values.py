@@ -94,12 +94,13 @@ def process(command: click.Command, param: click.Parameter, value):
 
 
 
-def check_value(schema: Schema, key: Key, mode: str, value) -> list[str]:
+def check_value(schema: Schema, key: Key, mode: str, value, label: str | None = None
+                ) -> list[str]:
     """Problems with one key's value, checked by the option of the file's mode (or of the mode
-    that has the key)."""
+    that has the key); each names it by label (default: the key's, e.g. serial.stout)."""
     mode = key.mode_for(mode)
     command, param = schema.commands[mode], key.params[mode]
-    label = key.label
+    label = label or key.label
     if key.name == "authip" and param.multiple:
         return _check_authip(command, param, value, label)
     if key.name == "slaveid" and param.multiple:

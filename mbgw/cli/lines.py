@@ -1,0 +1,45 @@
+"""A mode command's [[line]] and [[route]] settings: the lines built like [serial] (the same
+serial_config and demotion), then the lines and routes checked together with line serial."""
+import dataclasses
+
+import click
+
+from mbgw.cli.options import demotion, serial_config
+from mbgw.config import line_file
+from mbgw.config.lines import LineConfig, config_problems
+from mbgw.config.model import MasterConfig, SlaveConfig
+
+SERIAL_PARAMS = ("device", "protocol", "baudrate", "line_format", "interface", "rtsdelays",
+                 "stout", "silence", "ascii_timeout", "nocheck", "dtr", "rts", "cts",
+                 "xonxoff", "interframe_silence")
+SLAVE_LINE_PARAMS = {"retries": "retries", "turnaround": "turnaround_ms",
+                     "late_window": "late_window_ms"}
+
+
+def line_config(table: line_file.LineTable) -> LineConfig:
+    """One [[line]]; click.BadParameter naming it when its settings do not go together."""
+    params = table.params
+    try:
+        serial = serial_config(**{name: params[name] for name in SERIAL_PARAMS
+                                  if name in params})
+        line_demotion = demotion(params["down_after"], params["probe_interval"])
+    except click.BadParameter as err:
+        key = str(err.param_hint or "").strip("'").removeprefix("--")   # "'--rts'": rts
+        where = f"line {table.name}.{key}" if key else f"line {table.name}"
+        raise click.BadParameter(f"{where}: {err.message}") from None
+    own = {field: params[name] for name, field in SLAVE_LINE_PARAMS.items()
+           if params.get(name) is not None}
+    return LineConfig(table.name, serial, mode=table.mode, demotion=line_demotion, **own)
+
+
+def with_lines(cfg: SlaveConfig | MasterConfig, mode: str, lines=(), routes=()):
+    """cfg with the file's lines and routes, checked: click.BadParameter with the first
+    problem, which names its line or route and key."""
+    if not lines and not routes:
+        return cfg
+    cfg = dataclasses.replace(cfg, lines=tuple(line_config(t) for t in lines),
+                              routes=tuple(routes))
+    problems = config_problems(cfg, mode)
+    if problems:
+        raise click.BadParameter(problems[0])
+    return cfg

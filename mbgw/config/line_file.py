@@ -1,0 +1,232 @@
+"""The `[[line]]` and `[[route]]` tables of the configuration file, checked key by key.
+
+A `[[line]]` takes every `[serial]` key, checked by the same option as under `[serial]` (of
+the line's own mode's command), plus `name` and `mode`.  Its values are handed on converted
+as the command line would give them (`LineTable.params`, by parameter name), for the mode
+command to build its LineConfig.  A `[[route]]` becomes a RouteConfig at once.  What only the
+whole configuration can check (unknown lines, overlaps, rewrites) is `lines.route_problems`'."""
+import difflib
+from dataclasses import dataclass, field
+
+from mbgw.config.lines import (
+    DEFAULT_SERVER_PORT,
+    LINE_MODES,
+    MAX_LINES,
+    MAX_ROUTES,
+    NAME_PATTERN,
+    PRIMARY_LINE,
+    TCP_FACE,
+    RouteConfig,
+)
+from mbgw.config.model import number_list_text, parse_number_list
+from mbgw.config.scenario import split_server
+from mbgw.config.schema import Schema, default_value
+from mbgw.config.values import Problem, check_value, process, to_click
+from mbgw.errors import ConfigError
+
+LINE_TABLE = "line"
+ROUTE_TABLE = "route"
+LINES_PARAM = "lines"            # the mode commands' hidden parameters the file fills
+ROUTES_PARAM = "routes"
+LINE_OWN_KEYS = ("name", "mode")
+MASTER_LINE_REFUSED = ("stout", "nocheck")      # as `mbgw master --stout` is refused
+ROUTE_KEYS = ("units", "line", "table", "server", "offset", "address", "from")
+TCP_UNITS = (1, 255)             # as [table] units
+SERIAL_ADDRESSES = (1, 247)      # a serial face's addresses
+OFFSET_RANGE = (-254, 254)
+ADDRESS_RANGE = (0, 255)
+
+
+@dataclass(frozen=True)
+class LineTable:
+    """One checked [[line]]: its name, mode, and its [serial] keys' values as the line's mode
+    command receives them (parameter name -> value, defaults filled in)."""
+    name: str
+    mode: str
+    params: dict = field(default_factory=dict)
+    keys: dict = field(default_factory=dict)     # as written: key name -> TOML value
+
+
+def tables(data: dict, name: str, problems: list[str]) -> list[dict]:
+    """The [[name]] tables of a file (a problem when `name` is not an array of tables)."""
+    found = data.get(name, [])
+    if not isinstance(found, list) or not all(isinstance(t, dict) for t in found):
+        problems.append(f"{name}: expected [[{name}]] tables")
+        return []
+    return found
+
+
+def parse_lines(schema: Schema, found: list[dict], daemon_mode: str
+                ) -> tuple[tuple[LineTable, ...], list[str]]:
+    problems: list[str] = []
+    if len(found) > MAX_LINES:
+        problems.append(f"line: {len(found)} [[line]] tables, at most {MAX_LINES}")
+    lines = []
+    for index, fields in enumerate(found, 1):
+        line = _parse_line(schema, fields, index, problems)
+        if line is not None:
+            lines.append(line)
+    if found and daemon_mode not in LINE_MODES:
+        problems.append(f"line: [[line]] tables are for slave and master modes; {daemon_mode} "
+                        f"mode bridges [serial] only")
+    return tuple(lines), problems
+
+
+def _parse_line(schema: Schema, fields: dict, index: int, problems: list[str]
+                ) -> LineTable | None:
+    name = fields.get("name")
+    if not isinstance(name, str) or not NAME_PATTERN.fullmatch(name):
+        problems.append(f"line {index}.name: " + (
+            "missing; every [[line]] has a name" if name is None else
+            f"{name!r}: expected 1 to 32 of a-z, 0-9 and -, beginning with a letter or digit"))
+        return None
+    label = f"line {name}"
+    if name == PRIMARY_LINE:
+        problems.append(f"{label}.name: {PRIMARY_LINE!r} is [serial]'s name, reserved")
+        return None
+    mode = fields.get("mode", "slave")
+    if mode not in LINE_MODES:
+        problems.append(f"{label}.mode: expected \"slave\" (mbgw is the master on the line) or "
+                        f"\"master\" (a master is on it), got {mode!r}")
+        return None
+    before = len(problems)
+    for key_name, value in fields.items():
+        if key_name in LINE_OWN_KEYS:
+            continue
+        key = schema.find("serial", key_name)
+        if key is None:
+            problems.append(f"{label}.{key_name}: unknown key" + _line_hint(schema, key_name))
+        elif mode not in key.params or (mode == "master" and key_name in MASTER_LINE_REFUSED):
+            problems.append(f"{label}.{key_name}: applies to slave-mode lines only")
+        else:
+            problems += check_value(schema, key, mode, value, f"{label}.{key_name}")
+    if "device" not in fields:
+        problems.append(f"{label}.device: missing; every line needs its device")
+    if len(problems) > before:
+        return None
+    return LineTable(name, mode, _params(schema, fields, mode),
+                     {k: v for k, v in fields.items() if k not in LINE_OWN_KEYS})
+
+
+def line_keys(schema: Schema) -> list[str]:
+    """The keys a [[line]] may have, beside name and mode."""
+    return [name for name in schema.group_keys("serial") if name in schema.keys]
+
+
+def _line_hint(schema: Schema, name: str) -> str:
+    match = difflib.get_close_matches(name.lower(), [*LINE_OWN_KEYS, *line_keys(schema)], n=1,
+                                      cutoff=0.6)
+    return f"; did you mean {match[0]}?" if match else ""
+
+
+def _params(schema: Schema, fields: dict, mode: str) -> dict:
+    """The line's [serial] keys as its mode command's parameters, the file's or the default."""
+    params = {}
+    command = schema.commands[mode]
+    for name in line_keys(schema):
+        key = schema.keys[name]
+        param = key.params.get(mode)
+        if param is None or param.name is None:
+            continue
+        value = fields[name] if name in fields else default_value(schema, name, mode)
+        try:
+            params[param.name] = process(command, param, None if value is None else
+                                         to_click(name, param, value))
+        except Problem:             # a default the option refuses: the device, required
+            params[param.name] = None
+    return params
+
+
+def parse_routes(found: list[dict]) -> tuple[tuple[RouteConfig, ...], list[str]]:
+    problems: list[str] = []
+    if len(found) > MAX_ROUTES:
+        problems.append(f"route: {len(found)} [[route]] tables, at most {MAX_ROUTES}")
+    routes = []
+    for index, fields in enumerate(found, 1):
+        try:
+            routes.append(_parse_route(fields, index))
+        except ConfigError as err:
+            problems.append(str(err))
+    return tuple(routes), problems
+
+
+def _parse_route(fields: dict, index: int) -> RouteConfig:
+    label = f"route {index}"
+    for name in fields:
+        if name not in ROUTE_KEYS:
+            match = difflib.get_close_matches(name.lower(), ROUTE_KEYS, n=1, cutoff=0.6)
+            raise ConfigError(f"{label}.{name}: unknown key (keys: {', '.join(ROUTE_KEYS)})"
+                              + (f"; did you mean {match[0]}?" if match else ""))
+
+    def typed(name: str, kind: type, wanted: str, default=None):
+        value = fields.get(name, default)
+        if value is not default and (not isinstance(value, kind)
+                                     or (kind is int and isinstance(value, bool))):
+            raise ConfigError(f"{label}.{name}: expected {wanted}, got {value!r}")
+        return value
+
+    face = typed("from", str, "a line name", TCP_FACE)
+    if "from" in fields and face == TCP_FACE:
+        raise ConfigError(f"{label}.from: expected a line name, got \"\"")
+    units_value = fields.get("units")
+    if units_value is None:
+        raise ConfigError(f"{label}.units: missing; e.g. units = \"32-63\"")
+    if not isinstance(units_value, (str, int)) or isinstance(units_value, bool):
+        raise ConfigError(f"{label}.units: expected numbers and ranges, e.g. \"1,5,32-63\", got "
+                          f"{units_value!r}")
+    low, high = TCP_UNITS if face == TCP_FACE else SERIAL_ADDRESSES
+    try:
+        units = parse_number_list(f"{label}.units", str(units_value), low, high)
+    except ConfigError as err:
+        raise ConfigError(str(err).replace(f"{label}.units ", f"{label}.units: ", 1)) from None
+    server = typed("server", str, "\"IP[:PORT]\"")
+    server_address = None
+    if server is not None:
+        try:
+            server_address = split_server(server, DEFAULT_SERVER_PORT)
+        except ConfigError as err:
+            raise ConfigError(f"{label}.server: {err}") from None
+    offset = typed("offset", int, "an integer", 0)
+    if not OFFSET_RANGE[0] <= offset <= OFFSET_RANGE[1]:
+        raise ConfigError(f"{label}.offset: {offset} out of range {OFFSET_RANGE[0]}.."
+                          f"{OFFSET_RANGE[1]}")
+    address = typed("address", int, "an integer")
+    if address is not None and not ADDRESS_RANGE[0] <= address <= ADDRESS_RANGE[1]:
+        raise ConfigError(f"{label}.address: {address} out of range {ADDRESS_RANGE[0]}.."
+                          f"{ADDRESS_RANGE[1]}")
+    return RouteConfig(index=index, units=units, face=face,
+                       line=typed("line", str, "a line name"),
+                       table=typed("table", bool, "true or false", False),
+                       server=server_address, offset=offset, address=address)
+
+
+def table_units_overlap(values: dict, routes: tuple[RouteConfig, ...]) -> list[str]:
+    """[table] units written in the file and a `table = true` route on the TCP face: both
+    take units to the table."""
+    if "units" not in values:
+        return []
+    return [f"{r.label}.table: table.units routes units to the table already; both at once "
+            f"is an overlap (remove one)" for r in routes if r.table and r.face == TCP_FACE]
+
+
+def line_fields(line: LineTable) -> dict:
+    """A [[line]] as its table's keys: name, mode, then the keys the file gives."""
+    return {"name": line.name, "mode": line.mode, **line.keys}
+
+
+def route_fields(route: RouteConfig) -> dict:
+    """A route as the keys of its [[route]] table (what parse_routes reads)."""
+    fields: dict = {"units": number_list_text(route.units)}
+    if route.face != TCP_FACE:
+        fields["from"] = route.face
+    if route.line is not None:
+        fields["line"] = route.line
+    if route.table:
+        fields["table"] = True
+    if route.server is not None:
+        fields["server"] = route.target.removeprefix("server ")
+    if route.offset:
+        fields["offset"] = route.offset
+    if route.address is not None:
+        fields["address"] = route.address
+    return fields
