@@ -43,8 +43,8 @@ static int64_t wall_lead_ns(void)
 
 /* The kernel's receive timestamp (CLOCK_REALTIME, of the newest segment the read took) on
  * the monotonic clock, never after now; now when there is none (a socket without
- * SO_TIMESTAMPNS, data that came before the first socket asked for timestamps).  A step of
- * the wall clock between the arrival and the read moves the arrival by as much. */
+ * SO_TIMESTAMPNS, data that came before the first socket asked for timestamps).  A step
+ * of the wall clock between the arrival and the read moves the arrival by as much. */
 static int64_t arrival_ns(struct msghdr *msg)
 {
     int64_t now = now_ns();
@@ -53,7 +53,8 @@ static int64_t arrival_ns(struct msghdr *msg)
             continue;
         struct timespec stamp;
         memcpy(&stamp, CMSG_DATA(c), sizeof stamp);
-        int64_t arrived = (int64_t)stamp.tv_sec * 1000000000 + stamp.tv_nsec - wall_lead_ns();
+        int64_t arrived =
+            (int64_t)stamp.tv_sec * 1000000000 + stamp.tv_nsec - wall_lead_ns();
         return arrived < now ? arrived : now;
     }
     return now;
@@ -66,7 +67,9 @@ long mbgw_client_recv(int fd, uint8_t *buf, size_t cap, int64_t *arrived_ns)
         struct cmsghdr align;
         char space[CMSG_SPACE(sizeof(struct timespec))];
     } control;
-    struct msghdr msg = { .msg_iov = &iov, .msg_iovlen = 1, .msg_control = control.space,
+    struct msghdr msg = { .msg_iov = &iov,
+                          .msg_iovlen = 1,
+                          .msg_control = control.space,
                           .msg_controllen = sizeof control.space };
     ssize_t n;
     do
@@ -152,8 +155,9 @@ int mbgw_take_request(modbus_t *ctx, int client_fd, int *in_flight, uint8_t *in,
         return (int)n; /* a bad header, or not exactly one request */
     uint8_t unit = in[6];
     uint8_t address = sc->slaveid ? sc->slaveid : unit;
-    /* a down address: Python refuses the request at once, or sends it as the probe; one in
-     * its late window waits in the queue (the late reply would look like its answer) */
+    /* a down address: Python refuses the request at once, or sends it as the probe;
+     * one in its late window waits in the queue (the late reply would look like its
+     * answer) */
     int64_t now = now_ns();
     if (address < 1 || address > MBGW_MAX_ADDRESS || !sc->framed[in[7]] ||
         sc->down[address] || now < sc->quiet_until_ns || now < sc->late_until[address])
