@@ -252,7 +252,7 @@ static void sleep_us(int32_t us)
 int mbgw_write_frame(int fd, const uint8_t *buf, size_t len, int rts_control,
                      int32_t before_us, int32_t after_us)
 {
-    int rc;
+    int rc = 0;
     if (rts_control) {
         if ((rc = tty_set_rts(fd, 1)) < 0)
             return rc;
@@ -270,20 +270,31 @@ int mbgw_write_frame(int fd, const uint8_t *buf, size_t len, int rts_control,
             continue;
         if (n < 0 && errno == EAGAIN) {
             struct pollfd p = { fd, POLLOUT, 0 };
-            if (poll(&p, 1, 1000) <= 0 || !(p.revents & POLLOUT))
-                return -EIO;
+            if (poll(&p, 1, 1000) <= 0 || !(p.revents & POLLOUT)) {
+                rc = -EIO;
+                goto out;
+            }
             continue;
         }
-        return n < 0 ? -errno : -EIO;
+        rc = n < 0 ? -errno : -EIO;
+        goto out;
     }
     if (rts_control) {
-        if (tcdrain(fd) < 0)
-            return -errno;
+        if (tcdrain(fd) < 0) {
+            rc = -errno;
+            goto out;
+        }
         sleep_us(after_us);
-        if ((rc = tty_set_rts(fd, 0)) < 0)
-            return rc;
     }
-    return 0;
+out:
+    /* RTS raised stays raised on no path: a transceiver left transmitting blocks the bus
+     * for every device on it until the port is reopened. */
+    if (rts_control) {
+        int dropped = tty_set_rts(fd, 0);
+        if (rc == 0)
+            rc = dropped;
+    }
+    return rc;
 }
 
 int mbgw_discard_echo(int fd, const uint8_t *sent, size_t len, int64_t deadline_ns)
