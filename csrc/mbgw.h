@@ -181,22 +181,25 @@ struct mbgw_forward {
  * the end-of-frame silence), into buf + MBGW_REPLY_AT (buf holds MBGW_REPLY_AT +
  * MBGW_REPLY_SCAN bytes).  When the frame is from req's address and answers req
  * (mbgw_reply_matches), came in time and to->fd >= 0, it goes to that socket at once as a
- * Modbus TCP frame, and *sent is the bytes the socket took (all of them when the
- * connection is broken: its next read tells); else *sent is -1.  *end_ns, *noise:
+ * Modbus TCP frame, and *forwarded is the bytes the socket took (all of them when the
+ * connection is broken: its next read tells); else *forwarded is -1.  *end_ns, *noise:
  * mbgw_find_reply's. Returns the frame's length with CRC (any address), or
  * mbgw_find_reply's negative errno; -EBADF ctx has no line open. */
 int mbgw_receive_reply(struct _modbus *ctx, uint8_t *buf, const uint8_t *req,
                        size_t req_len, int64_t deadline_ns, int32_t gap_us,
-                       const struct mbgw_forward *to, int64_t *end_ns, int *sent,
+                       const struct mbgw_forward *to, int64_t *end_ns, int *forwarded,
                        int *noise);
 
 /* libmodbus's send of req (it adds the CRC), then mbgw_receive_reply with the deadline
  * stout_ns after the request's last byte, in one call: the thread sleeps the moment the
  * request is written.  times[0]: when the request's last byte leaves (char_ns a
- * character), or -1 when the write failed; times[1]: mbgw_receive_reply's *end_ns. */
+ * character); times[1]: mbgw_receive_reply's *end_ns.  Returns mbgw_receive_reply's
+ * result; when the request could not be written, the write's negative errno with
+ * times[0] 0 (nothing left, nothing read). */
 int mbgw_exchange(struct _modbus *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
                   int64_t char_ns, int64_t stout_ns, int32_t gap_us,
-                  const struct mbgw_forward *to, int64_t *times, int *sent, int *noise);
+                  const struct mbgw_forward *to, int64_t *times, int *forwarded,
+                  int *noise);
 
 /* SO_TIMESTAMPNS on a socket (a listening one: on every connection it accepts too): the
  * kernel then dates what arrives, for mbgw_client_recv. */
@@ -208,8 +211,6 @@ int mbgw_stamp_arrivals(int fd);
  * -EAGAIN when nothing waits, another negative errno. */
 long mbgw_client_recv(int client_fd, uint8_t *buf, size_t cap, int64_t *arrived_ns);
 
-/* mbgw_take_request's result when it left the request to the caller. */
-#define MBGW_NOT_TAKEN 1000000
 #define MBGW_MAX_ADDRESS 247 /* the highest unicast serial address */
 
 /* What a request must meet to take the shortcut to the line, and what came of it. */
@@ -222,9 +223,10 @@ struct mbgw_shortcut {
     int64_t stout_ns;
     int32_t gap_us;     /* the end-of-frame silence */
     uint8_t slaveid;    /* the serial address of every request; 0: the unit id */
-    int result;         /* out: mbgw_exchange's return, or MBGW_NOT_TAKEN */
-    int64_t times[2];   /* out: mbgw_exchange's */
-    int sent;           /* out: mbgw_exchange's */
+    int taken;          /* out: 1 the request went on the line, 0 it is the caller's */
+    int result;         /* out: when taken, mbgw_exchange's return */
+    int64_t times[2];   /* out: when taken, mbgw_exchange's */
+    int forwarded;      /* out: when taken, mbgw_exchange's */
     int noise;          /* out: mbgw_exchange's */
     uint8_t address;    /* out: the serial address the request went to */
     int64_t arrived_ns; /* out: when what was read arrived (mbgw_client_recv) */
@@ -237,8 +239,8 @@ struct mbgw_shortcut {
  * one as the probe) nor in its late window (sc->late_until), and the line
  * has been silent until sc->quiet_until_ns, the request goes on the line at once
  * (mbgw_exchange, its reply forwarded to client_fd, which then runs first, and in_flight
- * decremented as it is); the caller keeps the books.  Otherwise sc->result is
- * MBGW_NOT_TAKEN and the bytes are the caller's to frame.
+ * decremented as it is) and sc->taken is 1; the caller keeps the books.  Otherwise
+ * sc->taken is 0 and the bytes are the caller's to frame.
  * Returns the bytes read, 0 when the connection has ended, -EAGAIN when nothing came, or
  * another negative errno. */
 int mbgw_take_request(struct _modbus *ctx, int client_fd, int *in_flight, uint8_t *in,
