@@ -1,6 +1,8 @@
 /* mbgw's own C: what Debian's libmodbus 3.1.6 lacks.  This header is also the cffi cdef,
  * so it holds only prototypes and plain #defines (no #include, no #if).
- * Every function returns a negative errno value on failure. */
+ * A function that can fail returns a negative errno value when it does (not -1 with errno
+ * set), except mbgw_send_rtu, which follows libmodbus.  The others return what their
+ * comment says: the CRC, a length, a verdict, a generation, or nothing. */
 
 struct _modbus; /* libmodbus's modbus_t */
 
@@ -30,7 +32,7 @@ int mbgw_rtu_reply_length(size_t req_len, const uint8_t *rsp, size_t have);
 /* The same for a request (master mode receives requests for several addresses). */
 int mbgw_rtu_request_length(const uint8_t *req, size_t have);
 
-/* --- line.c: timed reads on the tty's fd --- */
+/* --- line.c: timed reads and writes on the tty's fd --- */
 
 /* Read and discard input until the line has been quiet for quiet_us since last_ns
  * (CLOCK_MONOTONIC).  Returns the number of bytes discarded.  (No tcflush: it would drop,
@@ -74,6 +76,16 @@ long mbgw_find_reply(int fd, uint8_t *buf, size_t cap, const uint8_t *req, size_
  * MBGW_ASCII_MAX_FRAME. */
 long mbgw_ascii_read_frame(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns,
                            int32_t interchar_us, int64_t *end_ns, int *noise);
+
+/* Write the whole frame.  With rts_control, raise RTS before_us before the first byte and
+ * drop it after_us after the last one has left the UART (tcdrain), for RS-485
+ * transceivers whose driver has no kernel RS-485 mode. */
+int mbgw_write_frame(int fd, const uint8_t *buf, size_t len, int rts_control,
+                     int32_t before_us, int32_t after_us);
+
+/* Read back and drop the echo of the frame just sent (2-wire RS-485 with the receiver
+ * on). -EPROTO when the echo differs (a collision), -ETIMEDOUT when it does not come. */
+int mbgw_discard_echo(int fd, const uint8_t *sent, size_t len, int64_t deadline_ns);
 
 /* --- tty.c: the tty itself: its claim, settings libmodbus cannot make, RTS --- */
 
@@ -122,18 +134,6 @@ int mbgw_line_thread_init(void);
 
 /* Name the calling thread (at most 15 bytes) for ps -L, top -H and /proc/PID/task. */
 int mbgw_name_thread(const char *name);
-
-/* --- line.c: writing --- */
-
-/* Write the whole frame.  With rts_control, raise RTS before_us before the first byte and
- * drop it after_us after the last one has left the UART (tcdrain), for RS-485
- * transceivers whose driver has no kernel RS-485 mode. */
-int mbgw_write_frame(int fd, const uint8_t *buf, size_t len, int rts_control,
-                     int32_t before_us, int32_t after_us);
-
-/* Read back and drop the echo of the frame just sent (2-wire RS-485 with the receiver
- * on). -EPROTO when the echo differs (a collision), -ETIMEDOUT when it does not come. */
-int mbgw_discard_echo(int fd, const uint8_t *sent, size_t len, int64_t deadline_ns);
 
 /* --- match.c: does a reply answer its request (no I/O) --- */
 
@@ -260,7 +260,7 @@ long mbgw_rtu_read_request(int fd, int wake_fd, uint8_t *buf, size_t cap,
                            const uint8_t *reply_to, size_t reply_to_len, int32_t gap_us,
                            int idle_ms);
 
-/* --- table.c: the exchange table and the Modbus server that answers from it --- */
+/* --- table.c: the exchange table's memory; table_answer.c: its Modbus server --- */
 
 #define MBGW_PDU_MAX 253  /* Modbus Application Protocol V1.1b3, 4.1 */
 #define MBGW_MBAP_MAX 260 /* the MBAP header (7 bytes) and the largest PDU */
@@ -315,17 +315,16 @@ void mbgw_table_set_config(mbgw_table *t, int address, int count, const uint16_t
 int mbgw_table_unwritten(mbgw_table *t, int first, int count);
 
 /* FC 7's status byte: bit 0 the serial line is down, bit 1 a scenario is in error, bit 2
- * a device is down: down (256 flags by serial address, the caller's, NULL: none) is read
- * at each FC 7. */
+ * a device is down. */
 void mbgw_table_set_flags(mbgw_table *t, int line_down, int scenario_error);
 /* One of them alone (the line thread and the scenarios each own one). */
 #define MBGW_TABLE_LINE_DOWN 0
 #define MBGW_TABLE_SCENARIO_ERROR 1
 void mbgw_table_set_flag(mbgw_table *t, int flag, int on);
+/* Bit 2's source: down (256 flags by serial address, the caller's, NULL: none) is read at
+ * each FC 7. */
 void mbgw_table_watch_down(mbgw_table *t, const uint8_t *down);
 
-/* Counts the writes that changed a value in 0x0800-0x7FFF (the outputs and the free
- * zone). */
 /* count bits from bit address `bit` (bit B: bit B % 16 of register B / 16), packed as in
  * a Modbus PDU (the first in the least significant bit of packed[0]), under the lock (the
  * other bits of the registers kept); -EINVAL beyond the table's 65,536 bits. */
@@ -336,6 +335,8 @@ int mbgw_table_write_bits(mbgw_table *t, int bit, int count, const uint8_t *pack
  * respond" (a scenario's data too old to serve).  -EINVAL beyond the table. */
 int mbgw_table_set_stale(mbgw_table *t, int first, int count, int on);
 
+/* Counts the writes that changed a value in 0x0800-0x7FFF (the outputs and the free
+ * zone): persistence saves when it has moved. */
 uint64_t mbgw_table_persist_generation(mbgw_table *t);
 
 /* by_function[fc * 3 + MBGW_TABLE_*] (256 * 3), by_exception[code] (16): since the last

@@ -1,7 +1,7 @@
 /* Master mode's serial receive: every frame the serial master puts on the line, whatever
- * its address (libmodbus 3.1.6 serves one address, and takes the frame after a request
- * for another slave for that slave's reply even when it is the next request:
- * notes/libmodbus.md 1.5).
+ * its address.  libmodbus 3.1.6 serves one address (modbus-rtu.c's
+ * _modbus_rtu_check_integrity drops the frames for others), and takes the frame after a
+ * request for another slave for that slave's reply even when it is the next request.
  *
  * RTU frames carry no length, so the end of a frame is found from its content (Modbus
  * over Serial Line V1.02, 2.5.1: the receiver checks the CRC, then the address):
