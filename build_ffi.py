@@ -46,7 +46,10 @@ ffibuilder.set_source(
     sources=sorted(glob.glob("csrc/*.c")),
     include_dirs=["csrc", *include_dirs],
     libraries=["modbus"],
-    extra_compile_args=["-std=gnu99", "-O2", "-Wall", "-Wextra", "-Werror"],
+    # Hidden by default: the extension exports PyInit__ffi (cffi marks it) and nothing else,
+    # so csrc's unprefixed internal helpers (be16, read_some, ...) clash with no other library.
+    extra_compile_args=["-std=gnu99", "-O2", "-fvisibility=hidden",
+                        "-Wall", "-Wextra", "-Werror"],
 )
 
 if __name__ == "__main__":

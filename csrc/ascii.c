@@ -1,5 +1,6 @@
-/* Modbus ASCII framing (Modbus over Serial Line V1.02, 2.5.2): ':' then address, function,
- * data and LRC as pairs of hex characters, then CR LF.  libmodbus has no ASCII at all. */
+/* Modbus ASCII framing (Modbus over Serial Line V1.02, 2.5.2): ':' then address,
+ * function, data and LRC as pairs of hex characters, then CR LF.  libmodbus has no ASCII
+ * at all. */
 #include <errno.h>
 #include <stddef.h>
 #include <stdint.h>
@@ -40,7 +41,7 @@ static int nibble(uint8_t c)
         return c - '0';
     if (c >= 'A' && c <= 'F')
         return c - 'A' + 10;
-    if (c >= 'a' && c <= 'f')                  /* accepted on receive, never sent */
+    if (c >= 'a' && c <= 'f') /* accepted on receive, never sent */
         return c - 'a' + 10;
     return -1;
 }
@@ -49,12 +50,13 @@ int mbgw_ascii_decode(const uint8_t *frame, size_t len, uint8_t *adu, size_t cap
 {
     if (len > MBGW_ASCII_MAX_FRAME)
         return -EMSGSIZE;
-    if (len < 1 + 2 * 3 + 2 || frame[0] != ':' || frame[len - 2] != '\r' || frame[len - 1] != '\n')
+    if (len < 1 + 2 * 3 + 2 || frame[0] != ':' || frame[len - 2] != '\r' ||
+        frame[len - 1] != '\n')
         return -EBADMSG;
     size_t hex_len = len - 3;
     if (hex_len % 2)
         return -EBADMSG;
-    size_t n = hex_len / 2;                    /* bytes including the LRC */
+    size_t n = hex_len / 2; /* bytes including the LRC */
     if (n - 1 > cap)
         return -EMSGSIZE;
     uint8_t sum = 0;
@@ -67,7 +69,7 @@ int mbgw_ascii_decode(const uint8_t *frame, size_t len, uint8_t *adu, size_t cap
         if (i < n - 1)
             adu[i] = b;
     }
-    if (sum != 0)                              /* data + LRC sums to zero */
+    if (sum != 0) /* data + LRC sums to zero */
         return -EILSEQ;
     return (int)(n - 1);
 }

@@ -1,5 +1,5 @@
-/* The raw line monitor (mbgw trace --raw): while a capture is set, every byte read from or
- * written to the serial line is appended to it as records, each
+/* The raw line monitor (mbgw trace --raw): while a capture is set, every byte read from
+ * or written to the serial line is appended to it as records, each
  *   direction (MBGW_CAPTURE_RX or _TX), time (int64 CLOCK_MONOTONIC ns, native order),
  *   length (uint16, native order), the bytes;
  * the line's thread (the only one that reads or writes the line) drains it between
@@ -26,7 +26,7 @@ void capture_note(int direction, const uint8_t *bytes, size_t len)
     if (c == NULL || len == 0)
         return;
     if (len > 0xffff || c->len + MBGW_CAPTURE_HEAD + len > c->cap) {
-        c->dropped += len;                      /* nobody drained it in time */
+        c->dropped += len; /* nobody drained it in time */
         return;
     }
     int64_t t = now_ns();

@@ -43,8 +43,8 @@ static int64_t wall_lead_ns(void)
 
 /* The kernel's receive timestamp (CLOCK_REALTIME, of the newest segment the read took) on
  * the monotonic clock, never after now; now when there is none (a socket without
- * SO_TIMESTAMPNS, data that came before the first socket asked for timestamps).  A step of
- * the wall clock between the arrival and the read moves the arrival by as much. */
+ * SO_TIMESTAMPNS, data that came before the first socket asked for timestamps).  A step
+ * of the wall clock between the arrival and the read moves the arrival by as much. */
 static int64_t arrival_ns(struct msghdr *msg)
 {
     int64_t now = now_ns();
@@ -53,7 +53,8 @@ static int64_t arrival_ns(struct msghdr *msg)
             continue;
         struct timespec stamp;
         memcpy(&stamp, CMSG_DATA(c), sizeof stamp);
-        int64_t arrived = (int64_t)stamp.tv_sec * 1000000000 + stamp.tv_nsec - wall_lead_ns();
+        int64_t arrived =
+            (int64_t)stamp.tv_sec * 1000000000 + stamp.tv_nsec - wall_lead_ns();
         return arrived < now ? arrived : now;
     }
     return now;
@@ -66,7 +67,9 @@ long mbgw_client_recv(int fd, uint8_t *buf, size_t cap, int64_t *arrived_ns)
         struct cmsghdr align;
         char space[CMSG_SPACE(sizeof(struct timespec))];
     } control;
-    struct msghdr msg = { .msg_iov = &iov, .msg_iovlen = 1, .msg_control = control.space,
+    struct msghdr msg = { .msg_iov = &iov,
+                          .msg_iovlen = 1,
+                          .msg_control = control.space,
                           .msg_controllen = sizeof control.space };
     ssize_t n;
     do
@@ -80,9 +83,9 @@ long mbgw_client_recv(int fd, uint8_t *buf, size_t cap, int64_t *arrived_ns)
 
 int mbgw_receive_reply(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
                        int64_t deadline_ns, int32_t gap_us, const struct mbgw_forward *to,
-                       int64_t *end_ns, int *sent, int *noise)
+                       int64_t *end_ns, int *forwarded, int *noise)
 {
-    *sent = -1;
+    *forwarded = -1;
     int fd = modbus_get_socket(ctx);
     if (fd < 0) { /* no line open: ppoll would ignore the fd and wait for the deadline */
         *noise = 0;
@@ -111,9 +114,9 @@ int mbgw_receive_reply(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t r
         send(to->fd, buf, MBGW_REPLY_AT + 1 + pdu_len, MSG_DONTWAIT | MSG_NOSIGNAL);
     adu[0] = address;
     if (w >= 0)
-        *sent = (int)w;
+        *forwarded = (int)w;
     else
-        *sent = errno == EAGAIN ? 0 : (int)(MBGW_REPLY_AT + 1 + pdu_len);
+        *forwarded = errno == EAGAIN ? 0 : (int)(MBGW_REPLY_AT + 1 + pdu_len);
     /* The client just woken is often on this CPU: let it run before our bookkeeping. */
     if (w > 0 && to->yield_cpu)
         sched_yield();
@@ -122,24 +125,25 @@ int mbgw_receive_reply(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t r
 
 int mbgw_exchange(modbus_t *ctx, uint8_t *buf, const uint8_t *req, size_t req_len,
                   int64_t char_ns, int64_t stout_ns, int32_t gap_us,
-                  const struct mbgw_forward *to, int64_t *times, int *sent, int *noise)
+                  const struct mbgw_forward *to, int64_t *times, int *forwarded,
+                  int *noise)
 {
-    *sent = -1;
+    *forwarded = -1;
     *noise = 0;
     if (mbgw_send_rtu(ctx, req, req_len) < 0) {
-        times[0] = -1;
+        times[0] = 0; /* nothing left */
         times[1] = now_ns();
         return -errno;
     }
     times[0] = now_ns() + (int64_t)(req_len + CRC_LEN) * char_ns;
     return mbgw_receive_reply(ctx, buf, req, req_len, times[0] + stout_ns, gap_us, to,
-                              &times[1], sent, noise);
+                              &times[1], forwarded, noise);
 }
 
 int mbgw_take_request(modbus_t *ctx, int client_fd, int *in_flight, uint8_t *in,
                       size_t in_cap, uint8_t *buf, struct mbgw_shortcut *sc)
 {
-    sc->result = MBGW_NOT_TAKEN;
+    sc->taken = 0;
     long n = mbgw_client_recv(client_fd, in, in_cap, &sc->arrived_ns);
     if (n < 0)
         return (int)n;
@@ -152,8 +156,9 @@ int mbgw_take_request(modbus_t *ctx, int client_fd, int *in_flight, uint8_t *in,
         return (int)n; /* a bad header, or not exactly one request */
     uint8_t unit = in[6];
     uint8_t address = sc->slaveid ? sc->slaveid : unit;
-    /* a down address: Python refuses the request at once, or sends it as the probe; one in
-     * its late window waits in the queue (the late reply would look like its answer) */
+    /* a down address: Python refuses the request at once, or sends it as the probe;
+     * one in its late window waits in the queue (the late reply would look like its
+     * answer) */
     int64_t now = now_ns();
     if (address < 1 || address > MBGW_MAX_ADDRESS || !sc->framed[in[7]] ||
         sc->down[address] || now < sc->quiet_until_ns || now < sc->late_until[address])
@@ -163,7 +168,8 @@ int mbgw_take_request(modbus_t *ctx, int client_fd, int *in_flight, uint8_t *in,
     memcpy(adu + 1, in + MBAP_LEN, length - 1);
     struct mbgw_forward to = { client_fd, (uint16_t)(in[0] << 8 | in[1]), unit, 1,
                                in_flight };
+    sc->taken = 1;
     sc->result = mbgw_exchange(ctx, buf, adu, length, sc->char_ns, sc->stout_ns,
-                               sc->gap_us, &to, sc->times, &sc->sent, &sc->noise);
+                               sc->gap_us, &to, sc->times, &sc->forwarded, &sc->noise);
     return (int)n;
 }

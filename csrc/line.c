@@ -1,6 +1,7 @@
 /* Timed I/O on the serial line's fd (opened and configured by libmodbus).  ppoll gives
  * microsecond timeouts where epoll and poll round to milliseconds: at 115200 baud the
- * inter-frame silence is 1.75 ms, so a millisecond lost per transaction would cost ~10 %. */
+ * inter-frame silence is 1.75 ms, so a millisecond lost per transaction would cost
+ * ~10 %. */
 #define _GNU_SOURCE
 #include <errno.h>
 #include <poll.h>
@@ -19,7 +20,7 @@ int wait_input(int fd, int64_t until_ns)
     for (;;) {
         int64_t left = until_ns - now_ns();
         if (left < 0)
-            left = 0;                           /* time is up: still look once */
+            left = 0; /* time is up: still look once */
         struct timespec ts = { left / 1000000000, left % 1000000000 };
         struct pollfd p = { fd, POLLIN, 0 };
         int rc = ppoll(&p, 1, &ts, NULL);
@@ -32,7 +33,7 @@ int wait_input(int fd, int64_t until_ns)
             return 0;
         if (p.revents & POLLIN)
             return 1;
-        return -EIO;                            /* POLLHUP/POLLERR: the device went away */
+        return -EIO; /* POLLHUP/POLLERR: the device went away */
     }
 }
 
@@ -45,7 +46,7 @@ long read_some(int fd, uint8_t *buf, size_t cap)
             return n;
         }
         if (n == 0)
-            return -EIO;                        /* end of file on a tty: hung up */
+            return -EIO; /* end of file on a tty: hung up */
         if (errno == EINTR)
             continue;
         if (errno == EAGAIN)
@@ -106,14 +107,14 @@ int mbgw_idle_wait(int fd, int wake_fd, int timeout_ms)
     }
 }
 
-long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns, int32_t gap_us,
-                     int64_t *end_ns)
+long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns,
+                     int32_t gap_us, int64_t *end_ns)
 {
     size_t have = 0;
     *end_ns = 0;
     for (;;) {
-        /* The first byte is awaited until the deadline; after it, a silence of gap_us ends
-         * the frame, complete or not (Serial Line V1.02 2.5.1.1). */
+        /* The first byte is awaited until the deadline; after it, a silence of gap_us
+         * ends the frame, complete or not (Serial Line V1.02 2.5.1.1). */
         int64_t until = have > 0 ? *end_ns + (int64_t)gap_us * 1000 : deadline_ns;
         int rc = wait_input(fd, until);
         if (rc < 0)
@@ -132,8 +133,8 @@ long mbgw_read_reply(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns, int3
 
 /* --- slave mode: the reply among what the line carries --- */
 
-/* How many bytes to read now: while the burst may begin with a frame, no further than that
- * frame's end (a frame right behind it is the next call's); else what came. */
+/* How many bytes to read now: while the burst may begin with a frame, no further than
+ * that frame's end (a frame right behind it is the next call's); else what came. */
 static size_t next_read(int head, size_t have, size_t cap)
 {
     if (head == 0 && have < MIN_REPLY)
@@ -147,19 +148,20 @@ long mbgw_find_reply(int fd, uint8_t *buf, size_t cap, const uint8_t *req, size_
                      int64_t deadline_ns, int32_t gap_us, int64_t *end_ns, int *noise)
 {
     size_t have = 0;
-    int head = 0;                       /* burst_head of the bytes read */
+    int head = 0; /* burst_head of the bytes read */
     *noise = 0;
     *end_ns = now_ns();
     if (*end_ns >= deadline_ns)
         return -ETIMEDOUT;
     for (;;) {
-        /* The first byte is awaited until the deadline; after it, a silence of gap_us ends
-         * the burst (Serial Line V1.02 2.5.1.1). */
-        long rc = wait_input(fd, have > 0 ? *end_ns + (int64_t)gap_us * 1000 : deadline_ns);
+        /* The first byte is awaited until the deadline; after it, a silence of gap_us
+         * ends the burst (Serial Line V1.02 2.5.1.1). */
+        long rc =
+            wait_input(fd, have > 0 ? *end_ns + (int64_t)gap_us * 1000 : deadline_ns);
         if (rc > 0) {
             rc = read_some(fd, buf + have, next_read(head, have, cap));
             if (rc == 0)
-                continue;                       /* woken without a byte */
+                continue; /* woken without a byte */
         } else if (rc == 0 && have == 0) {
             *end_ns = now_ns();
             return -ETIMEDOUT;
@@ -196,7 +198,7 @@ long mbgw_ascii_read_frame(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns
      * frame may already be queued behind this one and must stay there. */
     uint8_t chunk[1];
     size_t have = 0;
-    long got = 0;                               /* every byte read */
+    long got = 0; /* every byte read */
     long rc;
     if (cap > MBGW_ASCII_MAX_FRAME)
         cap = MBGW_ASCII_MAX_FRAME;
@@ -220,9 +222,9 @@ long mbgw_ascii_read_frame(int fd, uint8_t *buf, size_t cap, int64_t deadline_ns
         for (long i = 0; i < rc; i++) {
             uint8_t c = chunk[i];
             if (c == ':')
-                have = 0;                       /* a colon always starts a new frame */
+                have = 0; /* a colon always starts a new frame */
             else if (have == 0)
-                continue;                       /* noise between frames */
+                continue; /* noise between frames */
             if (have == cap) {
                 *noise = (int)got;
                 return -EMSGSIZE;
@@ -250,7 +252,7 @@ static void sleep_us(int32_t us)
 int mbgw_write_frame(int fd, const uint8_t *buf, size_t len, int rts_control,
                      int32_t before_us, int32_t after_us)
 {
-    int rc;
+    int rc = 0;
     if (rts_control) {
         if ((rc = tty_set_rts(fd, 1)) < 0)
             return rc;
@@ -268,20 +270,31 @@ int mbgw_write_frame(int fd, const uint8_t *buf, size_t len, int rts_control,
             continue;
         if (n < 0 && errno == EAGAIN) {
             struct pollfd p = { fd, POLLOUT, 0 };
-            if (poll(&p, 1, 1000) <= 0 || !(p.revents & POLLOUT))
-                return -EIO;
+            if (poll(&p, 1, 1000) <= 0 || !(p.revents & POLLOUT)) {
+                rc = -EIO;
+                goto out;
+            }
             continue;
         }
-        return n < 0 ? -errno : -EIO;
+        rc = n < 0 ? -errno : -EIO;
+        goto out;
     }
     if (rts_control) {
-        if (tcdrain(fd) < 0)
-            return -errno;
+        if (tcdrain(fd) < 0) {
+            rc = -errno;
+            goto out;
+        }
         sleep_us(after_us);
-        if ((rc = tty_set_rts(fd, 0)) < 0)
-            return rc;
     }
-    return 0;
+out:
+    /* RTS raised stays raised on no path: a transceiver left transmitting blocks the bus
+     * for every device on it until the port is reopened. */
+    if (rts_control) {
+        int dropped = tty_set_rts(fd, 0);
+        if (rc == 0)
+            rc = dropped;
+    }
+    return rc;
 }
 
 int mbgw_discard_echo(int fd, const uint8_t *sent, size_t len, int64_t deadline_ns)
@@ -295,7 +308,8 @@ int mbgw_discard_echo(int fd, const uint8_t *sent, size_t len, int64_t deadline_
         if (rc == 0)
             return -ETIMEDOUT;
         size_t want = len - have;
-        long n = read_some(fd, echo + have, want < sizeof echo - have ? want : sizeof echo - have);
+        long n = read_some(fd, echo + have,
+                           want < sizeof echo - have ? want : sizeof echo - have);
         if (n < 0)
             return (int)n;
         have += (size_t)n;

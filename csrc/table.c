@@ -1,8 +1,8 @@
-/* The exchange table's memory: 65,536 registers that Modbus clients, a serial master and the
- * operator read and write, under one mutex (csrc/table_answer.c answers a Modbus request
- * whole under it, so no reader ever sees half of a write); the operator's and persistence's
- * access, FC 7's flags, stale ranges, the watches of changed values and the counters, plain
- * arrays in the table, so answering allocates nothing. */
+/* The exchange table's memory: 65,536 registers that Modbus clients, a serial master and
+ * the operator read and write, under one mutex (csrc/table_answer.c answers a Modbus
+ * request whole under it, so no reader ever sees half of a write); the operator's and
+ * persistence's access, FC 7's flags, stale ranges, the watches of changed values and the
+ * counters, plain arrays in the table, so answering allocates nothing. */
 #include <errno.h>
 #include <pthread.h>
 #include <stdint.h>
@@ -67,7 +67,8 @@ static void tell_watchers(mbgw_table *t, unsigned address, int first_write)
             w->changed = 1;
             if (w->fd >= 0) {
                 uint64_t one = 1;
-                ssize_t n = write(w->fd, &one, sizeof one);  /* EAGAIN: already signalled */
+                /* EAGAIN: already signalled */
+                ssize_t n = write(w->fd, &one, sizeof one);
                 (void)n;
             }
         }
@@ -94,8 +95,7 @@ static void set_register(mbgw_table *t, unsigned address, uint16_t value, int *c
     }
 }
 
-void store_registers(mbgw_table *t, unsigned address, unsigned count,
-                            const uint8_t *be)
+void store_registers(mbgw_table *t, unsigned address, unsigned count, const uint8_t *be)
 {
     int changed = 0;
     for (unsigned i = 0; i < count; i++)
@@ -119,7 +119,8 @@ void set_bit(mbgw_table *t, unsigned bit, int on, int *changed)
 {
     uint16_t mask = (uint16_t)(1u << (bit & 15));
     uint16_t old = t->reg[bit >> 4];
-    set_register(t, bit >> 4, on ? (uint16_t)(old | mask) : (uint16_t)(old & ~mask), changed);
+    set_register(t, bit >> 4, on ? (uint16_t)(old | mask) : (uint16_t)(old & ~mask),
+                 changed);
 }
 
 int status_byte(const mbgw_table *t)
@@ -302,8 +303,8 @@ int mbgw_table_watch(mbgw_table *t, int first, int count, int fd, int first_writ
     int id = -ENOSPC;
     for (int i = 0; i < MBGW_TABLE_WATCHES; i++) {
         if (t->watches[i].end == 0) {
-            t->watches[i] = (struct watch){(unsigned)first, (unsigned)(first + count), fd, 0,
-                                           first_writes};
+            t->watches[i] = (struct watch){ (unsigned)first, (unsigned)(first + count),
+                                            fd, 0, first_writes };
             id = i;
             break;
         }
@@ -319,7 +320,7 @@ void mbgw_table_unwatch(mbgw_table *t, int id)
     if (id < 0 || id >= MBGW_TABLE_WATCHES)
         return;
     pthread_mutex_lock(&t->lock);
-    t->watches[id] = (struct watch){0, 0, -1, 0, 0};
+    t->watches[id] = (struct watch){ 0, 0, -1, 0, 0 };
     mark_watched(t);
     pthread_mutex_unlock(&t->lock);
 }

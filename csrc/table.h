@@ -1,5 +1,5 @@
-/* What csrc/table.c (the exchange table's memory) and csrc/table_answer.c (the Modbus server
- * answering from it) share; Python does not see it (the cdef is mbgw.h). */
+/* What csrc/table.c (the exchange table's memory) and csrc/table_answer.c (the Modbus
+ * server answering from it) share; Python does not see it (the cdef is mbgw.h). */
 #ifndef MBGW_TABLE_H
 #define MBGW_TABLE_H
 
@@ -9,10 +9,12 @@
 /* after mbgw.h, which has no include guard (it is also cffi's cdef) */
 
 #define REGISTERS 65536
-#define OUTPUTS_FIRST 0x0800   /* outputs, then the free zone: what persistence keeps */
-#define CONFIG_FIRST 0x8000    /* the configuration zone: read-only to Modbus and the operator */
-#define FUNCTIONS_KNOWN (1u << 1 | 1u << 2 | 1u << 3 | 1u << 4 | 1u << 5 | 1u << 6 | \
-                         1u << 7 | 1u << 15 | 1u << 16 | 1u << 23)
+#define OUTPUTS_FIRST 0x0800 /* outputs, then the free zone: what persistence keeps */
+/* the configuration zone: read-only to Modbus and the operator */
+#define CONFIG_FIRST 0x8000
+#define FUNCTIONS_KNOWN                                                                  \
+    (1u << 1 | 1u << 2 | 1u << 3 | 1u << 4 | 1u << 5 | 1u << 6 | 1u << 7 | 1u << 15 |    \
+     1u << 16 | 1u << 23)
 
 /* The Modbus limits of a quantity (section 6). */
 #define READ_BITS_MAX 2000
@@ -24,34 +26,36 @@
 #define ILLEGAL_FUNCTION 0x01
 #define ILLEGAL_ADDRESS 0x02
 #define ILLEGAL_VALUE 0x03
-#define TARGET_FAILED 0x0B    /* a stale register: its scenario's device does not answer */
+#define TARGET_FAILED 0x0B /* a stale register: its scenario's device does not answer */
 
 #define COIL_ON 0xFF00
 
 #define OUTCOMES 3 /* MBGW_TABLE_ANSWERED, _EXCEPTION, _BROADCAST */
 
-
-/* A range whose changes someone waits for: scenarios sent on change, transparent mode's tx
- * area.  The flag is set, and the eventfd written once, by the first change after a take. */
+/* A range whose changes someone waits for: scenarios sent on change, transparent mode's
+ * tx area.  The flag is set, and the eventfd written once, by the first change after a
+ * take. */
 struct watch {
-    unsigned first, end;        /* end == 0: the slot is free */
+    unsigned first, end; /* end == 0: the slot is free */
     int fd;
     int changed;
-    int first_writes;           /* a register's first write counts as a change, same value or not */
+    int first_writes; /* a register's first write counts as a change, same value or not */
 };
 
 struct mbgw_table {
     uint16_t reg[REGISTERS];
-    uint8_t watched[REGISTERS / 8];   /* registers inside some watch: the only ones looked up */
-    uint8_t stale[REGISTERS / 8];     /* registers whose scenario's data is too old to serve */
-    uint8_t written[REGISTERS / 8];   /* registers written since start, by anyone */
-    unsigned stale_count;             /* 0: no read looks at the bitmap */
+    uint8_t
+        watched[REGISTERS / 8]; /* registers inside some watch: the only ones looked up */
+    uint8_t
+        stale[REGISTERS / 8]; /* registers whose scenario's data is too old to serve */
+    uint8_t written[REGISTERS / 8]; /* registers written since start, by anyone */
+    unsigned stale_count;           /* 0: no read looks at the bitmap */
     struct watch watches[MBGW_TABLE_WATCHES];
     pthread_mutex_t lock;
     uint32_t functions;
     int line_down;
     int scenario_error;
-    const volatile uint8_t *down;   /* 256 flags owned by the caller, or NULL */
+    const volatile uint8_t *down; /* 256 flags owned by the caller, or NULL */
     uint64_t generation;
     uint64_t by_function[256][OUTCOMES];
     uint64_t by_exception[16];

@@ -1,5 +1,5 @@
-/* The Modbus server of the exchange table: a request PDU (or MBAP frame) answered from its
- * registers, under the table's lock.  Modbus Application Protocol V1.1b3, sections 6
+/* The Modbus server of the exchange table: a request PDU (or MBAP frame) answered from
+ * its registers, under the table's lock.  Modbus Application Protocol V1.1b3, sections 6
  * (functions) and 7 (exceptions); the memory itself is csrc/table.c. */
 #include <errno.h>
 #include <pthread.h>
@@ -115,7 +115,8 @@ static int read_write_registers(mbgw_table *t, const uint8_t *req, int len, uint
     if (len < 10)
         return -ILLEGAL_VALUE;
     unsigned read_address = be16(req + 1), read_quantity = be16(req + 3);
-    unsigned write_address = be16(req + 5), write_quantity = be16(req + 7), bytes = req[9];
+    unsigned write_address = be16(req + 5), write_quantity = be16(req + 7),
+             bytes = req[9];
     if (read_quantity < 1 || read_quantity > READ_REGS_MAX || write_quantity < 1 ||
         write_quantity > RW_WRITE_REGS_MAX || bytes != 2 * write_quantity ||
         (unsigned)len != 10 + bytes)
@@ -172,7 +173,8 @@ static int writes(uint8_t fc)
     return fc == 0x05 || fc == 0x06 || fc == 0x0F || fc == 0x10 || fc == 0x17;
 }
 
-int mbgw_table_answer(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp, int broadcast)
+int mbgw_table_answer(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp,
+                      int broadcast)
 {
     if (len < 1)
         return 0;
@@ -204,15 +206,16 @@ int mbgw_table_answer(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp, 
 int mbgw_table_answer_mbap(mbgw_table *t, const uint8_t *adu, int len, uint8_t *rsp,
                            int broadcast)
 {
-    if (len < MBAP_LEN + 1 || be16(adu + 2) != 0 || (int)be16(adu + 4) != len - MBAP_HEAD_LEN)
+    if (len < MBAP_LEN + 1 || be16(adu + 2) != 0 ||
+        (int)be16(adu + 4) != len - MBAP_HEAD_LEN)
         return -EBADMSG;
-    int n = mbgw_table_answer(t, adu + MBAP_LEN, len - MBAP_LEN, rsp + MBAP_LEN, broadcast);
+    int n =
+        mbgw_table_answer(t, adu + MBAP_LEN, len - MBAP_LEN, rsp + MBAP_LEN, broadcast);
     if (n == 0)
         return 0;
-    memcpy(rsp, adu, 2);  /* the transaction id */
+    memcpy(rsp, adu, 2); /* the transaction id */
     put16(rsp + 2, 0);
     put16(rsp + 4, (unsigned)n + 1);
-    rsp[6] = adu[6];      /* the unit id */
+    rsp[6] = adu[6]; /* the unit id */
     return MBAP_LEN + n;
 }
-

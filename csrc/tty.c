@@ -2,7 +2,8 @@
  * libmodbus cannot make, RTS.  Those settings are any baud rate (termios2 + BOTHER;
  * libmodbus silently turns rates outside its table into 9600), mark and space parity
  * (CMSPAR; libmodbus refuses them), low-latency mode, and the kernel's RS-485 direction
- * control, the RS-232 control lines and flow control.  <asm/termbits.h> clashes with <termios.h>, hence this file of its own. */
+ * control, the RS-232 control lines and flow control.  <asm/termbits.h> clashes with
+ * <termios.h>, hence this file of its own. */
 #include <asm/ioctls.h>
 #include <asm/termbits.h>
 #include <errno.h>
@@ -52,11 +53,20 @@ uint32_t mbgw_tty_cflag(uint32_t cflag, int data_bits, char parity, int stop_bit
     cflag &= ~(uint32_t)(CSIZE | PARENB | PARODD | CMSPAR | CSTOPB);
     cflag |= data_bits == 7 ? CS7 : CS8;
     switch (parity) {
-    case 'e': cflag |= PARENB; break;
-    case 'o': cflag |= PARENB | PARODD; break;
-    case 'm': cflag |= PARENB | CMSPAR | PARODD; break;   /* parity bit always 1 */
-    case 's': cflag |= PARENB | CMSPAR; break;            /* parity bit always 0 */
-    default: break;
+    case 'e':
+        cflag |= PARENB;
+        break;
+    case 'o':
+        cflag |= PARENB | PARODD;
+        break;
+    case 'm': /* parity bit always 1 */
+        cflag |= PARENB | CMSPAR | PARODD;
+        break;
+    case 's': /* parity bit always 0 */
+        cflag |= PARENB | CMSPAR;
+        break;
+    default:
+        break;
     }
     if (stop_bits == 2)
         cflag |= CSTOPB;
@@ -70,7 +80,7 @@ int mbgw_tty_set_format(int fd, int data_bits, char parity, int stop_bits)
         return -errno;
     tio.c_cflag = mbgw_tty_cflag(tio.c_cflag, data_bits, parity, stop_bits);
     if (parity == 'm' || parity == 's')
-        tio.c_iflag &= ~(uint32_t)INPCK;       /* a device may answer in another parity */
+        tio.c_iflag &= ~(uint32_t)INPCK; /* a device may answer in another parity */
     if (ioctl(fd, TCSETS2, &tio) < 0)
         return -errno;
     return 0;
@@ -158,7 +168,7 @@ int mbgw_tty_flow(int fd, int rtscts, int xonxoff)
         tio.c_cflag |= CRTSCTS;
     if (xonxoff) {
         tio.c_iflag |= IXON | IXOFF;
-        tio.c_cc[VSTART] = 0x11;   /* libmodbus zeroes c_cc: the characters are ^Q and ^S */
+        tio.c_cc[VSTART] = 0x11; /* libmodbus zeroes c_cc: the characters are ^Q and ^S */
         tio.c_cc[VSTOP] = 0x13;
     }
     if (ioctl(fd, TCSETS2, &tio) < 0)

@@ -3,10 +3,10 @@
  * the bytes the line (or the server) brought.
  * Rules: mbgw_reply_matches is 0 or 1, an exception reply matches only as 2 bytes;
  * mbgw_tcp_reply_verdict answers only when the unit is the one sent and the PDU matches;
- * a frame taken from a burst, at each prefix as line.c reads it, lies inside what was read,
- * is at least 4 bytes with a valid CRC, and one found behind noise is req's address and
- * matches req; a burst with no frame has one of the three errors; no byte past what was
- * read is looked at (AddressSanitizer). */
+ * a frame taken from a burst, at each prefix as line.c reads it, lies inside what was
+ * read, is at least 4 bytes with a valid CRC, and one found behind noise is req's address
+ * and matches req; a burst with no frame has one of the three errors; no byte past what
+ * was read is looked at (AddressSanitizer). */
 #include <errno.h>
 
 #include "internal.h"

@@ -6,7 +6,7 @@
  * or -EILSEQ, -EBADMSG, -EMSGSIZE, or -ECANCELED once the stream is used up; each call
  * that does not end the stream takes at least one byte; the buffer is never written past
  * cap (AddressSanitizer). */
-#define _GNU_SOURCE             /* memmem */
+#define _GNU_SOURCE /* memmem */
 #include <errno.h>
 #include <string.h>
 
@@ -91,8 +91,8 @@ static void one(const uint8_t *data, size_t len)
     MUST(buf != NULL);
     for (;;) {
         size_t before = pos;
-        long n = mbgw_rtu_read_request(0, -1, buf, MBGW_RTU_MAX_ADU, reply_to, reply_to_len,
-                                       1750, -1);
+        long n = mbgw_rtu_read_request(0, -1, buf, MBGW_RTU_MAX_ADU, reply_to,
+                                       reply_to_len, 1750, -1);
         if (n == -ECANCELED) {
             MUST(pos == stream_len);
             break;

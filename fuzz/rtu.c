@@ -35,7 +35,8 @@ static void one(const uint8_t *data, size_t len)
 {
     if (len < 1)
         return;
-    size_t req_len = 2 + data[0] % (MBGW_RTU_MAX_ADU - 3);  /* an ADU without CRC: 2..254 */
+    /* an ADU without CRC: 2..254 */
+    size_t req_len = 2 + data[0] % (MBGW_RTU_MAX_ADU - 3);
     stable(request_length, 0, data + 1, len - 1);
     stable(mbgw_rtu_reply_length, req_len, data + 1, len - 1);
 }

@@ -3,10 +3,10 @@
  * registers the request touches first stale, bit 3 only some functions enabled: the next
  * byte's bits), then the request.
  * Rules: a PDU answer is 0 (broadcast, nothing to send) or 2..253 bytes: the request's
- * function code, or its exception (0x01, 0x02, 0x03 or 0x0B) in 2 bytes; an MBAP answer is
- * -EBADMSG for a bad header, 0, or the reply with the request's transaction and unit id,
- * protocol id 0 and a length field that is its own; nothing is read or written past the
- * buffers (AddressSanitizer). */
+ * function code, or its exception (0x01, 0x02, 0x03 or 0x0B) in 2 bytes; an MBAP answer
+ * is -EBADMSG for a bad header, 0, or the reply with the request's transaction and unit
+ * id, protocol id 0 and a length field that is its own; nothing is read or written past
+ * the buffers (AddressSanitizer). */
 #include <errno.h>
 #include <string.h>
 
@@ -25,7 +25,7 @@ static void check_pdu(const uint8_t *req, int n, const uint8_t *rsp, int broadca
         return;
     }
     if (rsp[0] == req[0] && !(req[0] & 0x80))
-        return;                                 /* a reply */
+        return; /* a reply */
     MUST(n == 2 && rsp[0] == (req[0] | 0x80));
     MUST(rsp[1] == 0x01 || rsp[1] == 0x02 || rsp[1] == 0x03 || rsp[1] == 0x0B);
 }
@@ -43,7 +43,7 @@ static void one(const uint8_t *data, size_t len)
     size_t at = 1;
     mbgw_table_set_functions(table, 0xFFFFFFFFu);
     if (flags & 8) {
-        uint32_t mask = (uint32_t)data[at++] << 1;     /* functions 1..8 */
+        uint32_t mask = (uint32_t)data[at++] << 1; /* functions 1..8 */
         mbgw_table_set_functions(table, mask | (1u << 15) | (1u << 16) | (1u << 23));
     }
     if (len <= at)

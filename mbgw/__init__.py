@@ -1,3 +1,3 @@
 """mbgw: a Modbus gateway between Modbus TCP and Modbus RTU/ASCII serial lines."""
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"

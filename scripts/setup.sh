@@ -19,10 +19,10 @@ $SUDO apt-get build-dep -y -qq ./
 # systemd-container and mmdebstrap (scripts/container-test.sh boots the package under systemd
 # in a Debian 12 container; without recommends: libnss-mymachines would edit the host's
 # nsswitch.conf), and AFL++ with clang's sanitizer runtime (scripts/fuzz.sh: afl-clang-fast
-# with AddressSanitizer)
+# with AddressSanitizer), and clang-format (.ci/run checks csrc/ and fuzz/ against .clang-format)
 $SUDO apt-get install -y -qq --no-install-recommends python3-venv socat mbpoll lintian systemd \
     tshark openssl sslscan chromium chromium-driver systemd-container mmdebstrap afl++ \
-    libclang-rt-14-dev
+    libclang-rt-14-dev clang-format
 
 # Debian's own python3, the interpreter the .deb runs on (never a pyenv shim).
 /usr/bin/python3 -m venv .venv

@@ -18,7 +18,6 @@ from mbgw.line.frames import ASCII_MAX_FRAME, RTU_MAX_ADU
 
 REPLY_AT = lib.MBGW_REPLY_AT
 REPLY_SCAN = lib.MBGW_REPLY_SCAN
-NOT_TAKEN = lib.MBGW_NOT_TAKEN
 # what Port.idle_wait saw
 IDLE_WOKEN = lib.MBGW_IDLE_WOKEN
 IDLE_INPUT = lib.MBGW_IDLE_INPUT
@@ -94,7 +93,7 @@ class Port:
             raise
         self._buf = ffi.new("uint8_t[]", max(ASCII_MAX_FRAME, REPLY_AT + REPLY_SCAN))
         self._end_ns = ffi.new("int64_t *")
-        self._sent = ffi.new("int *")
+        self._forwarded = ffi.new("int *")
         self._noise = ffi.new("int *")
         self._times = ffi.new("int64_t[2]")
         self._to = ffi.new("struct mbgw_forward *")
@@ -216,8 +215,9 @@ class Port:
         n = lib.mbgw_receive_reply(self._ctx, self._buf, adu, len(adu), deadline_ns,
                                    self._gap_us,
                                    self._forward_to(client_fd, tid, unit, yield_cpu, in_flight),
-                                   self._end_ns, self._sent, self._noise)
-        return self._received(n, adu[0], 0, self._end_ns[0], self._sent[0], self._noise[0])
+                                   self._end_ns, self._forwarded, self._noise)
+        return self._received(n, adu[0], 0, self._end_ns[0], self._forwarded[0],
+                              self._noise[0])
 
     def exchange(self, adu: bytes, char_ns: int, stout_ns: int, client_fd: int = -1,
                  tid: int = 0, unit: int = 0, yield_cpu: bool = False,
@@ -229,8 +229,8 @@ class Port:
         n = lib.mbgw_exchange(self._ctx, self._buf, adu, len(adu), char_ns, stout_ns,
                               self._gap_us,
                               self._forward_to(client_fd, tid, unit, yield_cpu, in_flight),
-                              times, self._sent, self._noise)
-        return self._exchanged(n, times, adu[0], self._sent[0], self._noise[0])
+                              times, self._forwarded, self._noise)
+        return self._exchanged(n, times, adu[0], self._forwarded[0], self._noise[0])
 
     def shortcut_rules(self, framed, char_ns: int, stout_ns: int, slaveid: int,
                        down: bytearray, late_until) -> None:
@@ -260,17 +260,17 @@ class Port:
         n = lib.mbgw_take_request(self._ctx, client_fd, in_flight, self._in, INPUT_SIZE,
                                   self._buf, sc)
         data = ffi.buffer(self._in, n)[:] if n > 0 else b""
-        taken = sc.result != NOT_TAKEN
-        return Take(data, n, taken, sc.sent if taken else -1, sc.arrived_ns)
+        taken = bool(sc.taken)
+        return Take(data, n, taken, sc.forwarded if taken else -1, sc.arrived_ns)
 
     def exchanged(self) -> Reception:
         """What exchange() would have returned, for the request take_request() took."""
         sc = self._shortcut
-        return self._exchanged(sc.result, sc.times, sc.address, sc.sent, sc.noise)
+        return self._exchanged(sc.result, sc.times, sc.address, sc.forwarded, sc.noise)
 
     def _exchanged(self, n: int, times, address: int, forwarded: int,
                    noise: int) -> Reception:
-        if times[0] < 0:
+        if n < 0 and times[0] == 0:        # the request was not written
             raise self._fail(-n, "write")
         return self._received(n, address, times[0], times[1], forwarded, noise)
 
