@@ -6,9 +6,10 @@ import socket
 import struct
 import subprocess
 import sys
-import time
 
 import pytest
+
+from tests.ops import wait_for_log
 
 pytestmark = pytest.mark.integration
 
@@ -42,13 +43,6 @@ def ask(sock: socket.socket, tid: int, unit: int) -> bytes:
 def config_set(path, *words: str) -> None:
     subprocess.run([sys.executable, "-m", "mbgw", "config", "set", "--config", str(path),
                     *words], check=True, capture_output=True)
-
-
-def wait_for_log(gw, text: str, count: int = 1) -> None:
-    deadline = time.monotonic() + REPLY_S
-    while gw.log().count(text) < count:
-        assert time.monotonic() < deadline, f"no {text!r} in the log:\n{gw.log()}"
-        time.sleep(0.02)
 
 
 def reload(gw, expected: str, count: int = 1) -> None:

@@ -14,11 +14,11 @@ import pytest
 
 from tests.integration.scenarios.test_scenarios_serial import (
     TABLE_UNIT,
+    WAIT_S,
     frames_to,
     poll,
     scenarios_by_name,
     table_read,
-    until,
     wait_for_scenario,
     write_config,
 )
@@ -27,6 +27,7 @@ from tests.integration.slave.test_faults import received
 from tests.modbus import holding_reply, read_holding
 from tests.ops import devices, mbgw, status, wait_for, wait_for_log
 from tests.peers.scripted_tcp_server import ScriptedServer
+from tests.wait import until
 
 pytestmark = pytest.mark.integration
 
@@ -98,7 +99,7 @@ def test_an_absent_slaves_scenario_leaves_the_line_to_the_others_but_for_probes(
     for n in range(10):
         assert c.ask(HEALTHY, read_holding(n, 2)) == pymodbus_reply(n, 2)
     until(lambda: len(frames_to(record, ABSENT)) > DOWN_AFTER * (1 + RETRIES),
-          "a probe of the absent slave")
+          "a probe of the absent slave", WAIT_S)
     after = wait_for_scenario(gw, "meter", lambda sc: sc["successes"] >= meter["successes"] + 6,
                               "the healthy scenario going on")
     assert after["overruns"] == meter["overruns"] and after["state"] == "running", after
@@ -125,7 +126,7 @@ def test_a_device_that_answers_its_probe_has_its_scenario_running_again(
     assert s["errors"].get("device-down", 0) >= 1 and s["errors"]["timeout"] == DOWN_AFTER, s
     c = client(gw)
     assert table_read(c, 30, 2) == holding_reply(0, 2)
-    until(lambda: len(frames_to(record, MUTED)) >= 14, "the runs after the probe")
+    until(lambda: len(frames_to(record, MUTED)) >= 14, "the runs after the probe", WAIT_S)
     sent = [when for when, frame in received(record) if frame[0] == MUTED]
     assert sent[9] - sent[8] >= INTERVAL_S                        # the probe's first frame
     assert all(b - a < INTERVAL_S for a, b in zip(sent[9:], sent[10:], strict=False)), sent
@@ -164,11 +165,11 @@ def test_a_silent_tcp_server_is_not_dialled_while_down_but_for_probes(
                         table=0x1001, cycle=500))
     gw = start_gateway(pty_pair.gateway, "--config", str(path))
     wait_for_log(gw, f"scenario server {dead.server} is down")
-    until(lambda: scenario_status(gw, "dead")["message"] == "server down", "server down")
+    until(lambda: scenario_status(gw, "dead")["message"] == "server down", "server down", WAIT_S)
     before = scenario_status(gw, "alive")
-    until(lambda: len(dead.times) >= DOWN_AFTER + 2, "two probes of the silent server")
+    until(lambda: len(dead.times) >= DOWN_AFTER + 2, "two probes of the silent server", WAIT_S)
     after = until(lambda: (s := scenario_status(gw, "alive"))["successes"] >=
-                  before["successes"] + 4 and s, "the other server's scenario going on")
+                  before["successes"] + 4 and s, "the other server's scenario going on", WAIT_S)
     assert after["overruns"] == before["overruns"], after
     times = list(dead.times)
     assert_probes_only(times[DOWN_AFTER - 1], [[t] for t in times[DOWN_AFTER:]])
@@ -177,4 +178,4 @@ def test_a_silent_tcp_server_is_not_dialled_while_down_but_for_probes(
     until(lambda: scenario_status(gw, "dead")["state"] == "running", "the probe answered",
           timeout=30)          # the probes' interval has doubled meanwhile
     count = len(dead.times)
-    until(lambda: len(dead.times) >= count + 3, "its runs at its cycle again")
+    until(lambda: len(dead.times) >= count + 3, "its runs at its cycle again", WAIT_S)

@@ -25,6 +25,7 @@ from tests.integration.slave.test_diagnostics import scrape
 from tests.integration.slave.test_faults import received
 from tests.modbus import Client, holding_reply, read_holding, rtu
 from tests.ops import mbgw, metric_families, metric_value, status, wait_for, wait_for_log
+from tests.wait import until
 
 pytestmark = pytest.mark.integration
 
@@ -98,15 +99,6 @@ def fault_line(recording_peer):
     return start
 
 
-def until(condition, what: str, timeout: float = WAIT_S):
-    """condition()'s value once truthy (it is polled: the gateway acts on its own)."""
-    deadline = time.monotonic() + timeout
-    while not (value := condition()):
-        assert time.monotonic() < deadline, f"never {what}: {value!r}"
-        time.sleep(0.02)
-    return value
-
-
 def table_read(client: Client, first: int, count: int) -> bytes:
     return client.ask(TABLE_UNIT, read_holding(first, count))
 
@@ -136,7 +128,7 @@ def test_two_devices_polled_into_the_table_are_read_in_one_request(pymodbus_line
     c = client(gw)
     want = holding_reply(0, 0)[:1] + bytes((40,)) + b"".join(
         v.to_bytes(2, "big") for v in [*range(100, 110), *range(1005, 1015)])
-    until(lambda: table_read(c, 0, 20) == want, "both devices' data in the table")
+    until(lambda: table_read(c, 0, 20) == want, "both devices' data in the table", WAIT_S)
     s = wait_for_scenario(gw, "meter", lambda sc: sc["state"] == "running", "meter running")
     assert s["message"] == "" and s["successes"] >= 1
     families = metric_families(parser, scrape(port)[2])
@@ -155,10 +147,10 @@ def test_a_value_is_copied_from_one_device_to_another_on_change(pymodbus_line, g
                      on_change("copy", 2, 6, 5, 50)])
     c = client(gw)
     until(lambda: c.ask(2, read_holding(5, 1)) == bytes.fromhex("03 02 0064"),
-          "device 1's 100 copied to device 2")
+          "device 1's 100 copied to device 2", WAIT_S)
     assert c.ask(1, bytes.fromhex("06 0000 1092")) == bytes.fromhex("06 0000 1092")
     until(lambda: c.ask(2, read_holding(5, 1)) == bytes.fromhex("03 02 1092"),
-          "device 1's new value copied to device 2")
+          "device 1's new value copied to device 2", WAIT_S)
 
 
 # --- the change trigger and the insertion order, from the frames the peer saw ---
@@ -172,8 +164,8 @@ def test_the_same_value_again_sends_nothing_a_new_value_one_write(fault_line, ga
     for value in (5, 5, 6):
         assert c.ask(TABLE_UNIT, bytes.fromhex(f"06 012c {value:04x}"))[0] == 0x06
         if value == 5:
-            until(lambda: frames_to(record, 20), "the first write")
-    until(lambda: len(frames_to(record, 20)) >= 2, "the second write")
+            until(lambda: frames_to(record, 20), "the first write", WAIT_S)
+    until(lambda: len(frames_to(record, 20)) >= 2, "the second write", WAIT_S)
     # a request on the line behind anything the writes could still have queued
     assert c.ask(21, read_holding(0, 1)) == holding_reply(0, 1)
     assert [f[1:6] for f in frames_to(record, 20)] == [bytes.fromhex("06 0007 0005"),
@@ -187,7 +179,7 @@ def test_a_broadcast_scenario_is_sent_to_address_0_and_awaits_no_reply(fault_lin
     gw, _ = gateway([on_change("all", 0, 6, 9, 310)])
     c = client(gw)
     assert c.ask(TABLE_UNIT, bytes.fromhex("06 0136 002a"))[0] == 0x06       # table 310 = 42
-    until(lambda: frames_to(record, 0), "the broadcast")
+    until(lambda: frames_to(record, 0), "the broadcast", WAIT_S)
     s = wait_for_scenario(gw, "all", lambda sc: sc["runs"] == 1, "run once")
     assert (s["state"], s["successes"], s["errors"]) == ("running", 1, {}), s
     assert [f[1:6] for f in frames_to(record, 0)] == [bytes.fromhex("06 0009 002a")]
@@ -202,10 +194,10 @@ def test_pending_change_scenarios_go_between_the_cyclic_ones(fault_line, gateway
     gw, _ = gateway([*cyclic, on_change("w1", 21, 6, 1, 400), on_change("w2", 22, 6, 2, 401)],
                     serial=NEVER_DOWN)
     c = client(gw)
-    until(lambda: len(frames_to(record, 2)) >= 3, "the cyclic scenarios running")
+    until(lambda: len(frames_to(record, 2)) >= 3, "the cyclic scenarios running", WAIT_S)
     triggered = time.monotonic()
     assert c.ask(TABLE_UNIT, bytes.fromhex("10 0190 0002 04 0001 0002"))[0] == 0x10
-    until(lambda: frames_to(record, 22), "the second change scenario")
+    until(lambda: frames_to(record, 22), "the second change scenario", WAIT_S)
     after = [f[0] for when, f in received(record) if when >= triggered]
     w1, w2 = after.index(21), after.index(22)
     assert w1 <= 1, after                       # at most the cyclic run being started
@@ -265,11 +257,11 @@ def test_a_client_is_served_while_100_scenarios_saturate_the_line(fault_line, ga
     gw, _ = gateway([poll(f"s{n:03d}", 30, 3, n, 10, 10 * n) for n in range(100)],
                     baudrate=19200)
     c = client(gw)
-    until(lambda: len(frames_to(record, 30)) >= 10, "the scenarios running")
+    until(lambda: len(frames_to(record, 30)) >= 10, "the scenarios running", WAIT_S)
     for n in range(20):
         assert c.ask(31, read_holding(n, 2)) == holding_reply(n, 2)
     until(lambda: len(frames_to(record, 31)) == 20 and received(record)[-1][1][0] == 30,
-          "a scenario run after the last request")
+          "a scenario run after the last request", WAIT_S)
     order = [f[0] for _, f in received(record)]
     first = order.index(31)
     gaps = [len(run) for run in bytes(order[first:]).split(bytes((31,)))[1:-1]]
@@ -288,7 +280,7 @@ def test_reload_adds_and_removes_scenarios_and_keeps_the_unchanged_ones(fault_li
     os.kill(gw.proc.pid, signal.SIGHUP)
     wait_for_log(gw, "configuration reloaded")
     assert client(gw).ask(43, read_holding(0, 1)) == holding_reply(0, 1)   # a marker frame
-    until(lambda: len(frames_to(record, 42)) >= 3, "the new scenario running")
+    until(lambda: len(frames_to(record, 42)) >= 3, "the new scenario running", WAIT_S)
     order = [f[0] for _, f in received(record)]
     assert 41 not in order[order.index(43):], order
     s = scenarios_by_name(status(gw))
@@ -301,20 +293,21 @@ def test_disable_stops_a_scenario_until_it_is_enabled_again(fault_line, gateway,
     request sent after the command), the other goes on; enable: it runs again."""
     record = fault_line()
     gw, path = gateway([poll("a", 50, 3, 0, 1, 0), poll("b", 51, 3, 0, 1, 1)])
-    until(lambda: len(frames_to(record, 50)) >= 2, "a running")
+    until(lambda: len(frames_to(record, 50)) >= 2, "a running", WAIT_S)
     done = mbgw("scenario", "disable", "a", "--control", gw.control)
     assert done.returncode == 0, done.stderr
     c = client(gw)
     assert c.ask(52, read_holding(0, 1)) == holding_reply(0, 1)       # a marker frame
     marker = len(received(record))
-    until(lambda: len(frames_to(record, 51)) >= len(frames_to(record, 50)) + 5, "b going on")
+    until(lambda: len(frames_to(record, 51)) >= len(frames_to(record, 50)) + 5,
+          "b going on", WAIT_S)
     assert 50 not in [f[0] for _, f in received(record)[marker:]]
     assert scenarios_by_name(status(gw))["a"]["state"] == "disabled"
     assert 'enabled = false' not in path.read_text()                   # not --save
     done = mbgw("scenario", "enable", "a", "--control", gw.control)
     assert done.returncode == 0, done.stderr
     count = len(frames_to(record, 50))
-    until(lambda: len(frames_to(record, 50)) > count, "a running again")
+    until(lambda: len(frames_to(record, 50)) > count, "a running again", WAIT_S)
 
 
 def test_scenario_test_runs_once_on_the_line_and_changes_nothing(fault_line, gateway, client):
@@ -353,10 +346,9 @@ def test_stale_data_answers_0x0b_until_the_device_answers_again(fault_line, gate
     gw, _ = gateway([poll("fresh", 14, 3, 0, 2, 70, retries=0, **{"stale-after": 300})],
                     serial=NEVER_DOWN)
     c = client(gw)
-    until(lambda: table_read(c, 71, 1) == bytes.fromhex("83 0b"), "stale data refused")
+    until(lambda: table_read(c, 71, 1) == bytes.fromhex("83 0b"), "stale data refused", WAIT_S)
     assert table_read(c, 72, 1) == bytes.fromhex("03 02 0000")       # beside the range
-    until(lambda: table_read(c, 70, 2) == holding_reply(0, 2), "fresh data again")
-
+    until(lambda: table_read(c, 70, 2) == holding_reply(0, 2), "fresh data again", WAIT_S)
 
 
 # --- the device lost and back ---
@@ -381,7 +373,7 @@ def test_a_change_made_while_the_device_is_lost_is_written_once_it_is_back(
     pty_pair.start()
     pymodbus_line(1, 2)
     until(lambda: c.ask(2, read_holding(6, 1)) == bytes.fromhex("03 02 0309"),
-          "the change written once the device is back")
+          "the change written once the device is back", WAIT_S)
 
 
 def test_the_table_the_scenarios_serve_is_shown_on_and_the_start_names_file_and_scenarios(

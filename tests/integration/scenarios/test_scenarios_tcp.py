@@ -10,7 +10,6 @@ import queue
 import signal
 import struct
 import threading
-import time
 import urllib.request
 from dataclasses import dataclass
 
@@ -29,6 +28,7 @@ from tests.integration.ops.test_trace_raw import Trace
 from tests.modbus import Client
 from tests.ops import mbgw, metric_families, metric_value, status, wait_for_log
 from tests.peers.scripted_tcp_server import ScriptedServer
+from tests.wait import until
 
 pytestmark = pytest.mark.integration
 
@@ -225,8 +225,6 @@ def test_work_handed_over_runs_on_the_runner_thread(runner):
     assert names == "mbgw-scenarios-tcp"
 
 
-
-
 # --- in the daemons: the data lands in the table, read back over the table's TCP side -------
 
 SERVER = "127.0.8.1"            # pymodbus: holding registers of unit u: 8, 1, u, 103..
@@ -267,15 +265,6 @@ def write_table(port: int, unit: int, address: int, *values: int) -> None:
         client.close()
 
 
-def until(condition, what: str):
-    """condition()'s value once it is true (the daemon works on its own: polled)."""
-    deadline = time.monotonic() + CONDITION_S
-    while not (value := condition()):
-        assert time.monotonic() < deadline, f"never {what}"
-        time.sleep(0.02)
-    return value
-
-
 def scenario_status(gw, name: str) -> dict:
     return next(s for s in status(gw)["scenarios"] if s["name"] == name)
 
@@ -313,8 +302,10 @@ def test_master_mode_polls_pymodbus_into_the_table(servers_at, master_with):
     gw, table_port, _ = master_with(scenario_toml(
         "boiler", f"{SERVER}:{port}", unit=5, function=3, address=0, quantity=3, table=FREE,
         cycle=100), "--metrics", f"127.0.0.1:{metrics_port}")
-    until(lambda: read_table(table_port, 1, FREE, 3) == [8, 1, 5], "the data in the table")
-    s = until(lambda: (s := scenario_status(gw, "boiler"))["successes"] and s, "a success")
+    until(lambda: read_table(table_port, 1, FREE, 3) == [8, 1, 5],
+          "the data in the table", CONDITION_S)
+    s = until(lambda: (s := scenario_status(gw, "boiler"))["successes"] and s,
+              "a success", CONDITION_S)
     assert s["state"] == "running" and s["kind"] == "tcp"
     with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics", timeout=5) as r:
         families = metric_families(parser, r.read().decode())
@@ -331,17 +322,18 @@ def test_slave_mode_polls_and_writes_on_change(slave_with, scripted):
                       table=FREE, cycle=100)
         + scenario_toml("push", server.server, unit=9, function=16, address=20, quantity=2,
                         table=FREE + 0x10, trigger="change"))
-    until(lambda: read_table(gw.port, TABLE_UNIT, FREE, 2) == [0x0102, 0x0102], "read data")
+    until(lambda: read_table(gw.port, TABLE_UNIT, FREE, 2) == [0x0102, 0x0102],
+          "read data", CONDITION_S)
     assert (9, bytes([3, 0, 4, 0, 2])) in server.wait_requests(1)
 
     def writes():
         return [pdu for _, pdu in server.requests if pdu[0] == 16]
 
     write_table(gw.port, TABLE_UNIT, FREE + 0x10, 7, 8)
-    until(lambda: writes(), "a write on change")
+    until(lambda: writes(), "a write on change", CONDITION_S)
     write_table(gw.port, TABLE_UNIT, FREE + 0x10, 7, 8)          # the same values: no write
     write_table(gw.port, TABLE_UNIT, FREE + 0x10, 7, 9)          # a new value: one write
-    until(lambda: len(writes()) >= 2, "the second write")
+    until(lambda: len(writes()) >= 2, "the second write", CONDITION_S)
     assert writes() == [bytes([16, 0, 20, 0, 2, 4, 0, 7, 0, 8]),
                         bytes([16, 0, 20, 0, 2, 4, 0, 7, 0, 9])]
 
@@ -384,10 +376,10 @@ def test_a_failing_server_puts_the_scenario_in_error_then_it_recovers(
     gw, _ = slave_with(scenario_toml("flaky", server.server, function=3, address=0,
                                      quantity=2, table=FREE, cycle=100),
                        serial="down-after = 0\n")     # every run dials: its own message
-    until(lambda: scenario_status(gw, "flaky")["message"] == message, message)
+    until(lambda: scenario_status(gw, "flaky")["message"] == message, message, CONDITION_S)
     server.default = "ok"
     s = until(lambda: (s := scenario_status(gw, "flaky"))["state"] == "running" and s,
-              "recovery")
+              "recovery", CONDITION_S)
     assert s["successes"] >= 1
     assert read_table(gw.port, TABLE_UNIT, FREE, 2) == [0x1234, 0x1234]
 
@@ -396,9 +388,11 @@ def test_a_refused_server_then_its_return(slave_with, scripted):
     port = free_port()
     gw, _ = slave_with(scenario_toml("later", f"127.0.0.1:{port}", function=3, address=0,
                                      quantity=1, table=FREE, cycle=100))
-    until(lambda: scenario_status(gw, "later")["message"] == "connection refused", "refused")
+    until(lambda: scenario_status(gw, "later")["message"] == "connection refused",
+          "refused", CONDITION_S)
     server = scripted(values=(42,), port=port)
-    until(lambda: read_table(gw.port, TABLE_UNIT, FREE, 1) == [42], "the data after recovery")
+    until(lambda: read_table(gw.port, TABLE_UNIT, FREE, 1) == [42],
+          "the data after recovery", CONDITION_S)
     assert scenario_status(gw, "later")["state"] == "running"
     assert server.connections == 1
 
@@ -410,11 +404,12 @@ def test_reload_starts_and_stops_the_tcp_scenarios(slave_with, scripted):
     path.write_text(text + scenario_toml("added", server.server, function=3, address=0,
                                          quantity=1, table=FREE, cycle=100))
     os.kill(gw.proc.pid, signal.SIGHUP)
-    until(lambda: read_table(gw.port, TABLE_UNIT, FREE, 1) == [5], "the added scenario's data")
+    until(lambda: read_table(gw.port, TABLE_UNIT, FREE, 1) == [5],
+          "the added scenario's data", CONDITION_S)
     path.write_text(text)
     os.kill(gw.proc.pid, signal.SIGHUP)
     wait_for_log(gw, "no TCP scenarios any more")        # the runner has ended
-    until(lambda: server.disconnections, "the connection closed")
+    until(lambda: server.disconnections, "the connection closed", CONDITION_S)
     write_table(gw.port, TABLE_UNIT, FREE, 0)             # a round trip through the gateway
     assert server.connections == 1
 
@@ -434,7 +429,7 @@ def test_scenario_test_and_disable_in_master_mode(servers_at, master_with, scrip
     assert reply["ok"] and reply["data"] == [8, 1, 6], reply
     assert read_table(table_port, 1, FREE + 0x20, 3) == [0, 0, 0]     # not stored
 
-    until(lambda: read_table(table_port, 1, FREE, 1) == [3], "the cyclic data")
+    until(lambda: read_table(table_port, 1, FREE, 1) == [3], "the cyclic data", CONDITION_S)
     result = mbgw("scenario", "disable", "ticker", "--control", gw.control)
     assert result.returncode == 0, result.stderr
     assert scenario_status(gw, "ticker")["state"] == "disabled"
@@ -447,7 +442,7 @@ def test_scenario_test_and_disable_in_master_mode(servers_at, master_with, scrip
     assert read_table(table_port, 1, FREE, 1) == [3]
     result = mbgw("scenario", "enable", "ticker", "--control", gw.control)
     assert result.returncode == 0, result.stderr
-    until(lambda: read_table(table_port, 1, FREE, 1) == [4], "the runs again")
+    until(lambda: read_table(table_port, 1, FREE, 1) == [4], "the runs again", CONDITION_S)
 
 
 def test_stale_data_is_refused_over_tcp_until_the_server_answers_again(slave_with, scripted):
@@ -455,13 +450,14 @@ def test_stale_data_is_refused_over_tcp_until_the_server_answers_again(slave_wit
     gw, _ = slave_with(scenario_toml("fresh", server.server, function=3, address=0,
                                      quantity=2, table=FREE, cycle=100, stale_after=500,
                                      retries=0))
-    until(lambda: read_table(gw.port, TABLE_UNIT, FREE, 2) == [11, 11], "the data")
+    until(lambda: read_table(gw.port, TABLE_UNIT, FREE, 2) == [11, 11], "the data", CONDITION_S)
     server.default = "silent"
     until(lambda: read_table(gw.port, TABLE_UNIT, FREE, 2) == bytes([0x83, 0x0B]),
-          "0x0B for stale data")
+          "0x0B for stale data", CONDITION_S)
     assert read_table(gw.port, TABLE_UNIT, FREE + 2, 1) == [0]     # the register after: served
     server.default = "ok"
-    until(lambda: read_table(gw.port, TABLE_UNIT, FREE, 2) == [11, 11], "fresh data again")
+    until(lambda: read_table(gw.port, TABLE_UNIT, FREE, 2) == [11, 11],
+          "fresh data again", CONDITION_S)
 
 
 def test_transparent_mode_runs_tcp_scenarios_beside_its_frames(tmp_path, pty_pair,
@@ -475,8 +471,9 @@ def test_transparent_mode_runs_tcp_scenarios_beside_its_frames(tmp_path, pty_pai
                         "meter", f"{SERVER}:{port}", unit=6, function=3, address=0,
                         quantity=3, table=FREE, cycle=100))
     gw = start_gateway(pty_pair.gateway, "--config", str(path), mode="transparent")
-    until(lambda: read_table(gw.port, 1, FREE, 3) == [8, 1, 6], "the data in the table")
-    assert until(lambda: scenario_status(gw, "meter")["successes"], "a success")
+    until(lambda: read_table(gw.port, 1, FREE, 3) == [8, 1, 6],
+          "the data in the table", CONDITION_S)
+    assert until(lambda: scenario_status(gw, "meter")["successes"], "a success", CONDITION_S)
     shown = mbgw("scenarios", "--control", gw.control)
     assert shown.returncode == 0 and "meter" in shown.stdout
 

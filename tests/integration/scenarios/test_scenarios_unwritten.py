@@ -13,14 +13,15 @@ import pytest
 from mbgw.table.persist import FIRST, encode
 from tests.integration.scenarios.test_scenarios_serial import (
     TABLE_UNIT,
+    WAIT_S,
     poll,
-    until,
     wait_for_scenario,
     write_config,
 )
 from tests.integration.slave.test_faults import received
 from tests.modbus import read_holding
 from tests.ops import mbgw, status
+from tests.wait import until
 
 pytestmark = pytest.mark.integration
 
@@ -70,7 +71,7 @@ def test_a_fresh_cyclic_write_sends_nothing_until_a_client_writes_then_exactly_t
     wait_for_scenario(gw, "setpoint", lambda sc: "register 21" in sc["message"],
                       "waiting for register 21")
     assert c.ask(TABLE_UNIT, bytes.fromhex("06 0015 0000"))[0] == 0x06      # 21 = 0: given
-    until(lambda: writes(record), "the write")
+    until(lambda: writes(record), "the write", WAIT_S)
     assert c.ask(SLAVE, read_holding(20, 2)) == bytes.fromhex("03 04 002a 0000")
     assert set(writes(record)) == {fc16(42, 0)}
     s = status(gw)["scenarios"][0]
@@ -79,7 +80,7 @@ def test_a_fresh_cyclic_write_sends_nothing_until_a_client_writes_then_exactly_t
 
 def test_send_unwritten_sends_the_tables_zeros_from_the_start(line, client):
     gw, record = line([{**SETPOINT, "send-unwritten": True}])
-    until(lambda: writes(record), "the write")
+    until(lambda: writes(record), "the write", WAIT_S)
     assert writes(record)[0] == fc16(0, 0)
     assert client(gw).ask(SLAVE, read_holding(20, 2)) == bytes.fromhex("03 04 0000 0000")
 
@@ -91,7 +92,7 @@ def test_registers_restored_from_the_table_file_count_as_written(state_directory
     registers[0] = 7
     saved.write_bytes(encode(registers))
     gw, record = line([{**SETPOINT, "table": 0x0800}], persist=str(saved))
-    until(lambda: writes(record), "the write")
+    until(lambda: writes(record), "the write", WAIT_S)
     assert writes(record)[0] == fc16(7, 0)
     s = wait_for_scenario(gw, "setpoint", lambda sc: sc["runs"] >= 1, "run")
     assert s["message"] == "" and s["state"] == "running", s

@@ -11,7 +11,6 @@ import struct
 import subprocess
 import sys
 import threading
-import time
 
 import pytest
 
@@ -19,6 +18,7 @@ from tests import harness
 from tests.modbus import holding_reply, recv_adu
 from tests.modbus import mbap as adu
 from tests.ops import wait_for
+from tests.wait import until
 
 pytestmark = pytest.mark.integration
 
@@ -171,10 +171,8 @@ def test_a_lone_request_on_the_line_keeps_its_connection_from_eviction(
 
 def wait_for_record(record, text: str) -> None:
     """Until the scripted slave has recorded a frame starting with text."""
-    deadline = time.monotonic() + REPLY_TIMEOUT_S
-    while not (record.exists() and text in record.read_text()):
-        assert time.monotonic() < deadline, f"the slave never recorded {text!r}"
-        time.sleep(0.01)
+    until(lambda: record.exists() and text in record.read_text(),
+          f"the slave recording {text!r}", REPLY_TIMEOUT_S)
 
 
 SLOW = bytes.fromhex("03 0000 0001")           # to address 2, which never answers

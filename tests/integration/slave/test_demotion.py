@@ -51,8 +51,8 @@ GIVE_UP_S = 30.0              # a probe that never comes fails the test after th
 
 # --- slave mode -----------------------------------------------------------------------------
 
-@pytest.fixture(params=[(), ("--no-shortcut",)], ids=["shortcut", "no-shortcut"])
-def gateway(pty_pair, recording_peer, start_gateway, request):
+@pytest.fixture
+def gateway(pty_pair, recording_peer, start_gateway, shortcut_both_ways):
     """gateway(*options, mute_first=3) -> (a ready gateway, stout STOUT_MS, demoted after
     DOWN_AFTER failures and probed every INTERVAL_MS unless told; the record of the fault
     slave on its line)."""
@@ -60,7 +60,7 @@ def gateway(pty_pair, recording_peer, start_gateway, request):
         record = recording_peer("fault_slave.py", "--mute-first", str(mute_first))
         gw = start_gateway(pty_pair.gateway, "--baudrate", "38400", "--stout", str(STOUT_MS),
                            "--down-after", str(DOWN_AFTER), "--probe-interval",
-                           str(INTERVAL_MS), *request.param, *options)
+                           str(INTERVAL_MS), *shortcut_both_ways, *options)
         return gw, record
     return start
 

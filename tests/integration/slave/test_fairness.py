@@ -161,8 +161,8 @@ def most_waited_through(matched: list[tuple[Sent, float]], heads) -> dict[int, i
     return most
 
 
-@pytest.fixture(params=[(), ("--no-shortcut",)], ids=["shortcut", "no-shortcut"])
-def rig(pty_pair, start_gateway, recording_peer, request):
+@pytest.fixture
+def rig(pty_pair, start_gateway, recording_peer, shortcut_both_ways):
     """(gateway, the slave's record): stout STOUT_MS, 0x0B for the silent unit at once, so
     its client asks again at once; demotion off, so that the silent unit stays on the line
     (tests/integration/slave/test_demotion.py has it on); no late window, whose wait after a
@@ -171,7 +171,7 @@ def rig(pty_pair, start_gateway, recording_peer, request):
     record = recording_peer("fault_slave.py")
     gw = start_gateway(pty_pair.gateway, "--baudrate", "19200", "--stout", str(STOUT_MS),
                        "--exception", "--max-connections", "40", "--down-after", "0",
-                       "--late-window", "0", *request.param)
+                       "--late-window", "0", *shortcut_both_ways)
     return gw, record
 
 

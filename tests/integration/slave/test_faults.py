@@ -44,15 +44,15 @@ def line(recording_peer):
     return functools.partial(recording_peer, "fault_slave.py")
 
 
-@pytest.fixture(params=[(), ("--no-shortcut",)], ids=["shortcut", "no-shortcut"])
-def gateway(pty_pair, start_gateway, request):
+@pytest.fixture
+def gateway(pty_pair, start_gateway, shortcut_both_ways):
     """gateway(*options) -> a ready gateway on the pty pair with stout STOUT_MS, at 38400
     bit/s unless told (t3.5 = 1.75 ms, well under the peer's pauses).  Every test runs twice:
     with the idle line's shortcut (a request that finds the line idle goes on it from C,
     csrc/forward.c) and without it (every request through the queue, SerialMaster.transact)."""
     def start(*options: str, baudrate: int = 38400):
         return start_gateway(pty_pair.gateway, "--baudrate", str(baudrate),
-                             "--stout", str(STOUT_MS), *request.param, *options)
+                             "--stout", str(STOUT_MS), *shortcut_both_ways, *options)
     return start
 
 

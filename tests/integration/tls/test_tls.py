@@ -14,7 +14,8 @@ import pytest
 from pymodbus.client import ModbusTlsClient
 
 from tests.harness import free_port
-from tests.integration.ops.test_reload import ask, config_set, recv_frame, wait_for_log
+from tests.integration.ops.test_reload import ask, config_set, recv_frame
+from tests.ops import wait_for_log
 from tests.pki import Authority
 
 pytestmark = pytest.mark.integration

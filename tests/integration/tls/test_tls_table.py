@@ -14,7 +14,7 @@ from pymodbus.exceptions import ModbusException
 
 from mbgw.table.server import HANDSHAKES_PER_ADDRESS
 from tests.harness import free_port
-from tests.integration.ops.test_reload import recv_frame, wait_for_log
+from tests.integration.ops.test_reload import recv_frame
 from tests.integration.tls.test_tls import (
     REPLY_S,
     client_context,
@@ -23,6 +23,7 @@ from tests.integration.tls.test_tls import (
     tls_client,
     tls_options,
 )
+from tests.ops import wait_for_log
 from tests.pki import Authority
 
 pytestmark = pytest.mark.integration

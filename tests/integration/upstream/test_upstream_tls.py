@@ -17,6 +17,7 @@ from tests.integration.master.rig import (
     wait_for_log,
 )
 from tests.integration.scenarios.test_scenarios_tcp import (
+    CONDITION_S,
     FREE,
     READ_3,
     TABLE_UNIT,
@@ -27,9 +28,9 @@ from tests.integration.scenarios.test_scenarios_tcp import (
     registers,
     scenario_status,
     scenario_toml,
-    until,
 )
 from tests.pki import Authority
+from tests.wait import until
 
 pytestmark = pytest.mark.integration
 
@@ -151,11 +152,13 @@ def test_slave_mode_runs_tls_scenarios_from_the_file(pki, tls_servers, slave_wit
         + scenario_toml("impostor", f"127.0.8.2:{impostor}", table=FREE + 8, **keys)
         + f'\n[tls]\nclient-cert = "{cert}"\nclient-key = "{key}"\nserver-ca = "{ca.cert}"\n',
         serial="down-after = 0\n")     # the impostor keeps its own message, never "server down"
-    until(lambda: read_table(gw.port, TABLE_UNIT, FREE, 3) == [8, 1, 5], "the data in the table")
-    secure = until(lambda: (s := scenario_status(gw, "secure"))["successes"] and s, "a success")
+    until(lambda: read_table(gw.port, TABLE_UNIT, FREE, 3) == [8, 1, 5],
+          "the data in the table", CONDITION_S)
+    secure = until(lambda: (s := scenario_status(gw, "secure"))["successes"] and s,
+                   "a success", CONDITION_S)
     assert secure["state"] == "running" and secure["target"].endswith("unit 5 TLS")
     refused = until(lambda: (s := scenario_status(gw, "impostor"))["state"] == "error" and s,
-                    "the impostor's error")
+                    "the impostor's error", CONDITION_S)
     assert refused["message"] == "connection refused: TLS handshake failed"
     assert read_table(gw.port, TABLE_UNIT, FREE + 8, 3) == [0, 0, 0]
 

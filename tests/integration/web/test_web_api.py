@@ -16,9 +16,10 @@ import urllib.request
 import pytest
 
 from tests.harness import CHECKOUT, free_port
-from tests.integration.scenarios.test_scenarios_serial import frames_to, poll, until, write_config
+from tests.integration.scenarios.test_scenarios_serial import WAIT_S, frames_to, poll, write_config
 from tests.modbus import Client, holding_reply, read_holding
 from tests.ops import status, wait_for_log
+from tests.wait import until
 
 pytestmark = pytest.mark.integration
 
@@ -192,18 +193,19 @@ def test_scenarios_are_listed_disabled_enabled_and_tested(console):
     gw, path, web, record = console([poll("a", 50, 3, 0, 1, 0), poll("b", 51, 3, 0, 1, 1)])
     admin(web)
     until(lambda: {s["name"]: s["state"] for s in web.ok("GET", "/api/scenarios")["scenarios"]}
-          == {"a": "running", "b": "running"}, "both running")
+          == {"a": "running", "b": "running"}, "both running", WAIT_S)
     assert web.ok("POST", "/api/scenarios/a/disable", {})["ok"]
     assert {s["name"]: s["state"] for s in web.ok("GET", "/api/scenarios")["scenarios"]}["a"] \
         == "disabled"
     count = len(frames_to(record, 50))
-    until(lambda: len(frames_to(record, 51)) >= len(frames_to(record, 50)) + 3, "b going on")
+    until(lambda: len(frames_to(record, 51)) >= len(frames_to(record, 50)) + 3,
+          "b going on", WAIT_S)
     assert len(frames_to(record, 50)) <= count + 1           # one may have been on its way
     assert "enabled = false" not in path.read_text()
     assert "scenario a disabled by web admin@127.0.0.1 until the next reload" in gw.log()
     assert "by uid web" not in gw.log()
     assert web.ok("POST", "/api/scenarios/a/enable", {})["ok"]
-    until(lambda: len(frames_to(record, 50)) > count + 1, "a running again")
+    until(lambda: len(frames_to(record, 50)) > count + 1, "a running again", WAIT_S)
     assert web.post("/api/scenarios/nope/enable")[0] == 400
     result = web.ok("POST", "/api/scenarios/test", {"slave": 60, "function": 3, "address": 4,
                                                     "quantity": 2, "table": 80})
@@ -313,7 +315,7 @@ def test_the_file_is_downloaded_and_an_upload_is_checked_before_it_replaces_it(c
     good = text.replace("stout = 100", "stout = 650")
     assert web.call("POST", "/api/config/file", raw=good.encode())[0] == 200
     assert path.read_text() == good
-    until(lambda: status(gw)["serial"]["stout_ms"] == 650, "reloaded")
+    until(lambda: status(gw)["serial"]["stout_ms"] == 650, "reloaded", WAIT_S)
 
 
 def test_the_answer_is_the_reloads_outcome_as_the_log_says_it(console):
@@ -508,7 +510,7 @@ def test_https_with_a_self_signed_certificate_and_a_secure_cookie(console, tmp_p
     web = admin(web)
     assert web.call("POST", "/api/config/file", raw=text.encode())[0] == 200
     secure = Web(f"https://127.0.0.1:{port}", ssl.create_default_context(cafile=cert))
-    until(lambda: _serves(secure), "HTTPS after the reload")
+    until(lambda: _serves(secure), "HTTPS after the reload", WAIT_S)
     code, reply, headers = secure.call("POST", "/api/login",
                                        {"user": "admin", "password": ADMIN_PASSWORD})
     assert code == 200 and "Secure" in headers["Set-Cookie"]
@@ -533,11 +535,11 @@ def test_a_reload_moves_the_console_and_new_passwords_end_the_sessions(console, 
     assert web.ok("POST", "/api/config", {"group": "web", "key": "listen",
                                           "value": f"127.0.0.1:{port}"})
     moved = Web(f"http://127.0.0.1:{port}")
-    until(lambda: _serves(moved), "the console on its new port")
+    until(lambda: _serves(moved), "the console on its new port", WAIT_S)
     assert not _serves(web)
     admin(moved)
     set_passwords(path, ("admin", "another-secret"))
     gw.proc.send_signal(signal.SIGHUP)
-    until(lambda: moved.get("/api/session")[0] == 401, "the session ended")
+    until(lambda: moved.get("/api/session")[0] == 401, "the session ended", WAIT_S)
     assert moved.login("admin", ADMIN_PASSWORD) == 401
     assert moved.login("admin", "another-secret") == 200

@@ -4,7 +4,6 @@ itself (Client.probe, Client.busy), over real loopback TCP connections."""
 import select
 import socket
 import struct
-import time
 from types import SimpleNamespace
 
 import pytest
@@ -13,6 +12,7 @@ from mbgw.config.model import ACTIVE_WINDOW_S
 from mbgw.slave.client import PEER_GONE, Client
 from mbgw.slave.server import SLOW_REQUEST_S, eviction_victim
 from tests.modbus import mbap, read_holding
+from tests.wait import until
 
 NOW = 1000.0
 
@@ -89,12 +89,7 @@ def tcp():
 
 def shows(client: Client, events: int) -> bool:
     """Whether the probe shows events within a second (loopback delivers at once, mostly)."""
-    deadline = time.monotonic() + 1.0
-    while not client.probe() & events:
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.001)
-    return True
+    return bool(until(lambda: client.probe() & events, f"the events {events:#x} shown", 1.0))
 
 
 def test_a_quiet_live_connection_shows_nothing(tcp):
