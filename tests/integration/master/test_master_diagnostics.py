@@ -13,6 +13,7 @@ import time
 import urllib.request
 
 import pytest
+from prometheus_client import parser
 
 from mbgw.ops.device_stats import LATENCY_BUCKETS_MS, MASTER_COUNTS
 from tests.harness import free_port
@@ -305,7 +306,6 @@ def test_trace_shows_both_sides_and_writes_a_pcap_that_tshark_decodes(rig, line,
 # --- Prometheus -----------------------------------------------------------------------------
 
 def test_metrics_are_the_status_figures_for_prometheus(rig, line):
-    parser = pytest.importorskip("prometheus_client.parser")
     metrics_port = free_port()
     gw, _ = rig("--metrics", f"127.0.0.1:{metrics_port}")
     assert f"metrics on http://127.0.0.1:{metrics_port}/metrics" in gw.log()

@@ -23,6 +23,7 @@ import urllib.error
 import urllib.request
 
 import pytest
+from prometheus_client import parser
 
 from mbgw.ops.device_stats import COUNTS, LATENCY_BUCKETS_MS
 from tests.harness import free_port, stop_counters
@@ -392,7 +393,6 @@ def scrape(port: int, path: str = "/metrics") -> tuple[int, str, str]:
 
 
 def test_metrics_are_the_status_figures_for_prometheus(rig, client):
-    parser = pytest.importorskip("prometheus_client.parser")
     port = free_port()
     gw = rig("--exception", "--metrics", f"127.0.0.1:{port}")
     assert f"metrics on http://127.0.0.1:{port}/metrics" in gw.log()

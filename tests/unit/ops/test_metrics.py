@@ -9,7 +9,9 @@ from types import SimpleNamespace
 
 import prometheus_client
 import pytest
+from prometheus_client import parser
 from prometheus_client.core import CounterMetricFamily
+from prometheus_client.openmetrics import parser as openmetrics_parser
 
 from mbgw.errors import ConfigError
 from mbgw.ops.counters import MASTER_NAMES, NAMES, Counters, MasterCounters
@@ -81,7 +83,6 @@ def live_objects():
 
 
 def families(text: str) -> dict:
-    parser = pytest.importorskip("prometheus_client.parser")
     return {f.name: f for f in parser.text_string_to_metric_families(text)}
 
 
@@ -339,7 +340,6 @@ def test_a_collector_bug_costs_one_scrape_only(caplog):
 
 
 def test_prometheus_may_ask_for_openmetrics_and_gzip():
-    parser = pytest.importorskip("prometheus_client.openmetrics.parser")
     o = live_objects()
     collector = slave_collector(o.counters, o.devices, o.scheduler, o.server, o.worker, 0.0)
 
@@ -352,7 +352,7 @@ def test_prometheus_may_ask_for_openmetrics_and_gzip():
         assert headers["Content-Encoding"] == "gzip"
         assert int(headers["Content-Length"]) == len(body)
         text = gzip.decompress(body).decode()
-        found = {f.name: f for f in parser.text_string_to_metric_families(text)}
+        found = {f.name: f for f in openmetrics_parser.text_string_to_metric_families(text)}
         assert found["mbgw_timeouts"].samples[0].value == o.counters.timeouts
         assert found["mbgw_transaction_latency_seconds"].type == "histogram"
     _serve(test, collector)

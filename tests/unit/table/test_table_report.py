@@ -5,7 +5,7 @@ import json
 from types import SimpleNamespace
 
 import prometheus_client
-import pytest
+from prometheus_client import parser
 
 from mbgw.cli.render import _table_section, format_status
 from mbgw.config.model import TableConfig
@@ -140,7 +140,6 @@ def test_status_says_when_the_table_file_cannot_be_written():
 def families(collector) -> dict:
     registry = prometheus_client.CollectorRegistry()
     registry.register(collector)
-    parser = pytest.importorskip("prometheus_client.parser")
     text = prometheus_client.generate_latest(registry).decode()
     return {f.name: f for f in parser.text_string_to_metric_families(text)}
 

@@ -1,5 +1,6 @@
 """Transparent mode's settings and configuration keys: `mbgw config set serial mode
 transparent`, `mbgw run` reaching `mbgw transparent`, and the areas' bounds named by key."""
+import socket
 import tomllib
 
 import pytest
@@ -8,6 +9,7 @@ from click.testing import CliRunner
 from mbgw.cli import main
 from mbgw.config.model import SerialConfig, TransparentConfig
 from mbgw.errors import ConfigError
+from tests.harness import free_port
 
 
 def mbgw(*args):
@@ -16,14 +18,27 @@ def mbgw(*args):
 
 def test_config_set_mode_transparent_and_run_reaches_it(tmp_path):
     path = tmp_path / "mbgw.toml"
-    for words in (("serial", "mode", "transparent"), ("serial", "device", "/dev/null"),
-                  ("transparent", "eof", "crlf"), ("transparent", "raw-port", "4001")):
-        result = mbgw("config", "set", *words, "--config", path)
-        assert result.exit_code == 0, result.output
-    values = tomllib.loads(path.read_text())
-    assert values["serial"]["mode"] == "transparent"
-    assert values["transparent"] == {"eof": "crlf", "raw-port": 4001}
-    assert "ok (transparent mode)" in mbgw("check-config", path).output
+    # raw-port, a port the test holds: only transparent mode listens there, after mdbport
+    # (a free port, not 502) and before it opens the device, so `run` failing on it is
+    # transparent mode's own exit
+    with socket.socket() as held:
+        held.bind(("0.0.0.0", 0))
+        held.listen()
+        port = held.getsockname()[1]
+        for words in (("serial", "mode", "transparent"), ("serial", "device", "/dev/null"),
+                      ("transparent", "eof", "crlf"), ("transparent", "raw-port", port),
+                      ("net", "mdbport", free_port())):
+            result = mbgw("config", "set", *words, "--config", path)
+            assert result.exit_code == 0, result.output
+        values = tomllib.loads(path.read_text())
+        assert values["serial"]["mode"] == "transparent"
+        assert values["transparent"] == {"eof": "crlf", "raw-port": port}
+        assert "ok (transparent mode)" in mbgw("check-config", path).output
+        result = mbgw("run", "--config", path)
+        assert result.exit_code == 1, result.output
+        assert f"raw-port {port}: cannot listen there" in result.output
+    # another mdbport: the first run's listener lives on in its result's traceback
+    assert mbgw("config", "set", "net", "mdbport", free_port(), "--config", path).exit_code == 0
     result = mbgw("run", "--config", path)
     assert result.exit_code == 1 and "cannot open /dev/null" in result.output
 
