@@ -6,10 +6,10 @@ import json
 import re
 import subprocess
 import sys
-import time
 
 from mbgw.ops import control
 from tests.harness import CHECKOUT, _read_lines_until, reachable_by_others
+from tests.wait import until
 
 CONDITION_TIMEOUT_S = 5.0       # for what the daemon does on its own after the last event
 
@@ -37,22 +37,19 @@ def status(gw) -> dict:
 def wait_for(gw, condition, what: str) -> dict:
     """The daemon's status once condition(status) holds (it is polled over the control socket,
     in process: the daemon does this on its own, after the last event a test can see)."""
-    deadline = time.monotonic() + CONDITION_TIMEOUT_S
-    while True:
-        s = control.call(gw.control, {"command": "status"})
-        if condition(s):
-            return s
-        assert time.monotonic() < deadline, f"never {what}: {s}"
-        time.sleep(0.02)
+    seen: list[dict] = [{}]
+
+    def holding() -> dict | None:
+        seen[0] = control.call(gw.control, {"command": "status"})
+        return seen[0] if condition(seen[0]) else None
+
+    return until(holding, lambda: f"{what}: {seen[0]}", CONDITION_TIMEOUT_S)
 
 
-def wait_for_log(gw, text: str, count: int = 1) -> str:
+def wait_for_log(gw, text: str, count: int = 1, timeout: float = CONDITION_TIMEOUT_S) -> str:
     """The gateway's log once text stands in it count times."""
-    deadline = time.monotonic() + CONDITION_TIMEOUT_S
-    while (log := gw.log()).count(text) < count:
-        assert time.monotonic() < deadline, f"no {text!r} in the log:\n{log}"
-        time.sleep(0.02)
-    return log
+    return until(lambda: (log := gw.log()).count(text) >= count and log,
+                 lambda: f"{text!r} in the log:\n{gw.log()}", timeout)
 
 
 def devices(s: dict) -> dict[int, dict]:

@@ -7,6 +7,7 @@ import logging
 import os
 import secrets
 import time
+from collections.abc import Callable
 
 log = logging.getLogger("mbgw.web")
 
@@ -31,8 +32,9 @@ class Session:
 
 
 class Sessions:
-    def __init__(self) -> None:
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
         self._sessions: dict[str, Session] = {}
+        self._clock = clock
         self.idle_s = float(os.environ.get(IDLE_ENV) or IDLE_S)
         self.absolute_s = ABSOLUTE_S
 
@@ -42,7 +44,7 @@ class Sessions:
         mine = [token for token, s in self._sessions.items() if s.role == role]
         if len(mine) >= SESSIONS_PER_ROLE:
             del self._sessions[mine[0]]
-        now = time.monotonic()
+        now = self._clock()
         token = secrets.token_urlsafe(32)
         session = Session(role, secrets.token_urlsafe(32), now, now)
         self._sessions[token] = session
@@ -54,7 +56,7 @@ class Sessions:
         session = self._sessions.get(token) if token else None
         if token is None or session is None:
             return None
-        now = time.monotonic()
+        now = self._clock()
         if now - session.used > self.idle_s or now - session.created > self.absolute_s:
             del self._sessions[token]
             return None
@@ -74,16 +76,17 @@ class LoginLimit:
     takes time, during which others come): so many attempts at once are refused as surely
     as many in a row."""
 
-    def __init__(self) -> None:
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
         self._failures: dict[str, collections.deque] = {}
+        self._clock = clock
 
     def attempt(self, address: str) -> int:
         """Let an attempt from address in, counted as failed until succeeded(): 0; else the
         seconds until address may try again."""
         failures = self._recent(address)
         if len(failures) >= FAILURES_PER_WINDOW:
-            return max(1, int(failures[0] + LOGIN_WINDOW_S - time.monotonic()) + 1)
-        failures.append(time.monotonic())
+            return max(1, int(failures[0] + LOGIN_WINDOW_S - self._clock()) + 1)
+        failures.append(self._clock())
         self._failures[address] = failures
         return 0
 
@@ -94,7 +97,7 @@ class LoginLimit:
     def _recent(self, address: str) -> collections.deque:
         """The address's failures within the window (addresses with none are forgotten)."""
         failures = self._failures.get(address, collections.deque())
-        limit = time.monotonic() - LOGIN_WINDOW_S
+        limit = self._clock() - LOGIN_WINDOW_S
         while failures and failures[0] < limit:
             failures.popleft()
         if not failures:

@@ -1,5 +1,5 @@
 """A scripted serial slave that shapes its replies on the wire: pauses inside a frame, echoes,
-bad checksums, ASCII oddities.  For tests/integration/test_serial_line.py.
+bad checksums, ASCII oddities.  For tests/component/test_serial_line.py.
 
 usage: paced_slave.py DEVICE [--ascii] [--gap-ms MS] [--record PATH]
 

@@ -128,3 +128,15 @@ def test_no_import_cycles():
 def test_only_the_line_and_the_table_import_the_c_core():
     users = sorted(m for m, deps in GRAPH.items() if "mbgw._ffi" in deps)
     assert users and all(part(m) in ("line", "table") for m in users), users
+
+
+UNIT_TESTS = Path(__file__).resolve().parent
+
+
+def test_each_folder_of_unit_tests_is_named_after_an_mbgw_package():
+    """tests/unit/<name>/ holds the unit tests of mbgw/<name>/: a folder named after nothing
+    (a typo, a package renamed or removed) would scatter the tests the layout keeps together."""
+    packages = {p.name for p in PACKAGE.iterdir() if (p / "__init__.py").is_file()}
+    folders = {p.name for p in UNIT_TESTS.iterdir() if p.is_dir() and p.name != "__pycache__"}
+    assert folders, "no folder in tests/unit"
+    assert folders <= packages, f"tests/unit/{sorted(folders - packages)} name no mbgw package"

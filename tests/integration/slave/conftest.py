@@ -1,0 +1,9 @@
+import pytest
+
+
+@pytest.fixture(params=[(), ("--no-shortcut",)], ids=["shortcut", "no-shortcut"])
+def shortcut_both_ways(request) -> tuple[str, ...]:
+    """The gateway's options for one of two runs of the test: with the idle line's shortcut
+    (a request that finds the line idle goes on it from C, csrc/forward.c) and without it
+    (every request through the queue, SerialMaster.transact)."""
+    return request.param
