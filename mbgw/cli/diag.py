@@ -2,6 +2,7 @@
 [reset], trace.  Registered on the main group by mbgw.cli."""
 import json
 import time
+from typing import NoReturn
 
 import click
 
@@ -70,7 +71,7 @@ def _host(peer: str) -> str:
     return peer.rsplit(":", 1)[0].strip("[]")
 
 
-def _fail(message: str):
+def _fail(message: str) -> NoReturn:
     raise Failure(message)
 
 

@@ -81,6 +81,11 @@ class SerialMaster:
         self._late_pending = previous._late_pending
         self.late_open = previous.late_open
 
+    def clear_mismatch(self) -> None:
+        """Before a scenario's run: a mismatch after it is that run's (a method, not an
+        assignment, so that mypy does not take mismatch for None after it)."""
+        self.mismatch = None
+
     @property
     def quiet_until_ns(self) -> int:
         """The line must stay silent until then."""
