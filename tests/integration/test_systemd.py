@@ -124,7 +124,7 @@ def test_slave_mode_pings_the_watchdog_while_its_line_thread_turns(
 
 
 def test_master_mode_pings_the_watchdog_while_its_line_thread_turns(
-        pty_pair, servers_at, line, start_gateway):  # noqa: F811
+        pty_pair, servers_at, line, start_gateway):
     port, _ = servers_at(SERVER)
     gw = start_gateway(pty_pair.gateway, "--baudrate", "19200", "--mdbport", str(port),
                        "--tcpto", str(TCPTO_MS), "--slaveid", f"1 1 1 0 {SERVER}",
