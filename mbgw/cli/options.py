@@ -7,6 +7,7 @@ import click
 
 from mbgw.config import model as config
 from mbgw.config.firewall import FirewallConfig
+from mbgw.config.number_list import parse_number_list
 from mbgw.config.schema import SerialOption, TableOption, TlsOption, WebOption
 from mbgw.errors import ConfigError
 
@@ -235,7 +236,7 @@ table_switch = click.option(
 
 
 def _parse_functions(value, option: str = "table-functions") -> tuple[int, ...]:
-    functions = config.parse_number_list(option, value, 1, 255)
+    functions = parse_number_list(option, value, 1, 255)
     others = [str(f) for f in functions if f not in config.TABLE_FUNCTIONS]
     if others:
         raise ConfigError(f"{option} {value!r}: {', '.join(others)}: the table "

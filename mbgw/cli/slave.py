@@ -22,6 +22,7 @@ from mbgw.cli.options import (
 )
 from mbgw.cli.run import run_daemon
 from mbgw.config import model as config
+from mbgw.config.number_list import number_list_text, parse_number_list
 from mbgw.config.schema import TableOption
 
 
@@ -30,7 +31,7 @@ def _parse_authip(values) -> tuple:
 
 
 def _parse_units(value) -> tuple[int, ...]:
-    return config.parse_number_list("table-units", value, 1, 255)
+    return parse_number_list("table-units", value, 1, 255)
 
 
 @click.command(cls=ModeCommand)
@@ -85,7 +86,7 @@ def _parse_units(value) -> tuple[int, ...]:
                    "the table (a Modbus TCP server of local data; unit 0 is a broadcast write, "
                    "not answered).")
 @click.option("--table-units", cls=TableOption, key="units", metavar="LIST",
-              default=config.number_list_text(config.DEFAULT_TABLE_UNITS), show_default=True,
+              default=number_list_text(config.DEFAULT_TABLE_UNITS), show_default=True,
               callback=parser(_parse_units),
               help="With --table and --direct: the TCP unit ids that reach the table, e.g. "
                    "247-254 or 1,5,200-210 (1..255).")

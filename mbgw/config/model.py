@@ -7,6 +7,9 @@ import re
 import stat
 from dataclasses import dataclass, field
 
+from mbgw.config.firewall import FirewallConfig
+from mbgw.config.scenario import check_scenarios
+from mbgw.config.slaveid import SlaveIdTable
 from mbgw.errors import ConfigError
 
 # Rates libmodbus 3.1.6 sets itself; it silently turns any other rate into 9600.
@@ -274,39 +277,7 @@ def check_persist_path(text: str) -> str:
     return text
 
 
-def parse_number_list(option: str, text: str, low: int, high: int) -> tuple[int, ...]:
-    """'1,5,200-210' (commas or spaces between items, N-M for a range) -> (1, 5, 200, ..., 210),
-    sorted, each number checked against low..high."""
-    numbers: set[int] = set()
-    items = [i for i in re.split(r"[,\s]+", str(text).strip()) if i]
-    if not items:
-        raise ConfigError(f"{option} {text!r}: empty; expected numbers or ranges, e.g. 1,5,200-210")
-    for item in items:
-        match = re.fullmatch(r"(\d+)(?:-(\d+))?", item)
-        if not match:
-            raise ConfigError(f"{option} {text!r}: {item!r} is not a number or a range N-M")
-        first, last = int(match[1]), int(match[2] or match[1])
-        if first > last:
-            raise ConfigError(f"{option} {text!r}: range {item} runs backwards")
-        for number in (first, last):
-            if not low <= number <= high:
-                raise ConfigError(f"{option} {text!r}: {number} out of range {low}..{high}")
-        numbers.update(range(first, last + 1))
-    return tuple(sorted(numbers))
-
-
-def number_list_text(numbers) -> str:
-    """(1, 5, 200, ..., 210) -> '1,5,200-210': what parse_number_list reads."""
-    parts: list[str] = []
-    for number in sorted(numbers):
-        if parts and number == int(parts[-1].rsplit("-", 1)[-1]) + 1:
-            parts[-1] = f"{parts[-1].split('-')[0]}-{number}"
-        else:
-            parts.append(str(number))
-    return ",".join(parts)
-
-
-def table_address_conflict(address: int, slaveid: "SlaveIdTable") -> str | None:
+def table_address_conflict(address: int, slaveid: SlaveIdTable) -> str | None:
     """Master mode: why the table's serial address cannot be `address` with this slaveid
     table (a range routing it to a TCP server), or None."""
     if address == 0:
@@ -492,7 +463,7 @@ class SlaveConfig:
     demotion: Demotion = field(default_factory=Demotion)
     shortcut: bool = True          # an idle line's request goes on it from C (a hidden switch)
     table: TableConfig = field(default_factory=TableConfig)
-    firewall: "FirewallConfig | None" = None   # [[rule]] tables; None: every request allowed
+    firewall: FirewallConfig | None = None   # [[rule]] tables; None: every request allowed
     tcpto_ms: int = DEFAULT_TCPTO_MS   # TCP scenarios: the time for a transaction with a server
     scenarios: tuple = ()          # ScenarioConfig (mbgw.config.scenario), [[scenario]]
     config_file: str | None = None  # the file the settings came from (scenario ... --save)
@@ -531,7 +502,6 @@ class SlaveConfig:
 
 
 def _check_scenarios(scenarios, mode: str) -> None:
-    from mbgw.config.scenario import check_scenarios
     problems = check_scenarios(scenarios, mode)
     if problems:
         raise ConfigError(problems[0])
@@ -548,20 +518,11 @@ def parse_ip(option: str, text: str) -> ipaddress.IPv4Address | ipaddress.IPv6Ad
     return address
 
 
-import typing  # noqa: E402  (master mode's settings were added below slave mode's)
-from typing import TYPE_CHECKING  # noqa: E402
-
-if typing.TYPE_CHECKING:
-    from mbgw.config.slaveid import SlaveIdTable
-if TYPE_CHECKING:    # config.firewall reads this module's number lists
-    from mbgw.config.firewall import FirewallConfig
-
-
 @dataclass(frozen=True)
 class MasterConfig:
     """Master mode: a Modbus master on the serial line, Modbus TCP servers on the network."""
     serial: SerialConfig
-    slaveid: "SlaveIdTable"
+    slaveid: SlaveIdTable
     tcpto_ms: int = DEFAULT_TCPTO_MS
     mdbport: int = DEFAULT_MDBPORT  # the remote servers' port
     exception: bool = False
@@ -571,7 +532,7 @@ class MasterConfig:
     demotion: Demotion = field(default_factory=Demotion)
     table: TableConfig = field(default_factory=TableConfig)
     upstream_tls: UpstreamTlsConfig = field(default_factory=UpstreamTlsConfig)
-    firewall: "FirewallConfig | None" = None   # the table server's; None: all allowed
+    firewall: FirewallConfig | None = None   # the table server's; None: all allowed
     scenarios: tuple = ()           # ScenarioConfig (mbgw.config.scenario): TCP ones only
     config_file: str | None = None  # the file the settings came from (scenario ... --save)
     tls: TlsConfig = field(default_factory=TlsConfig)    # on the table's server
@@ -686,7 +647,7 @@ class TransparentModeConfig:
     control: str | None = None
     metrics: str | None = None
     table: TableConfig = field(default_factory=lambda: TableConfig(enabled=True, direct=False))
-    firewall: "FirewallConfig | None" = None   # on mdbport's requests; None: all allowed
+    firewall: FirewallConfig | None = None   # on mdbport's requests; None: all allowed
     scenarios: tuple = ()           # ScenarioConfig (mbgw.config.scenario): TCP ones only
     config_file: str | None = None  # the file the settings came from (scenario ... --save)
     tcpto_ms: int = DEFAULT_TCPTO_MS   # TCP scenarios: the time for a transaction with a server
