@@ -1,5 +1,6 @@
-"""Validated settings.  Options keep the ACKSYS names and units (ms); every default and
-bound is stated here once."""
+"""Validated settings: the serial line's, the table's, TLS, web, slave and master mode's
+(transparent mode's are in config.transparent).  Options keep the ACKSYS names and units
+(ms); every default and bound is stated once, here or in the module of its settings."""
 import ipaddress
 import math
 import os
