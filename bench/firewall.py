@@ -19,8 +19,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from mbgw.config.firewall import from_file  # noqa: E402
-from mbgw.firewall.guard import Firewall  # noqa: E402
+from mbgw.config.firewall import from_file
+from mbgw.firewall.guard import Firewall
 
 REQUESTS = [struct.pack(">BHH", 3, 10, 10),
             struct.pack(">BHHB", 16, 100, 2, 4) + bytes(4),

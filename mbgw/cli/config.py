@@ -15,7 +15,7 @@ from mbgw.config import scenario as scenario_config
 from mbgw.config import schema as ck
 from mbgw.config import text as config_text
 from mbgw.config.lines import LINE_MODES, TCP_FACE, implicit_routes
-from mbgw.config.model import number_list_text
+from mbgw.config.number_list import number_list_text
 from mbgw.config.toml_text import dump_value, set_line, write_atomic
 from mbgw.errors import ConfigError, ConfigFileError
 
@@ -334,16 +334,26 @@ def show(ctx, config_path: Path, instance: str | None, security: bool, as_json: 
         settings = cf.Settings(path, schema.default_mode, {})
     if security:
         _show_security(schema, settings, as_json)
-        return
+    elif not _show_tables(schema, settings, group, param):
+        _show_groups(schema, settings, group, param)
+
+
+def _show_tables(schema: ck.Schema, settings: cf.Settings, group: str | None,
+                 param: str | None) -> bool:
+    """`show scenario|line|route [NAME]`: True when group was one of those."""
     if group == cf.SCENARIO_KEY:
         _show_scenarios(settings, param)
-        return
-    if group == line_file.LINE_TABLE:
+    elif group == line_file.LINE_TABLE:
         _show_lines(settings, param, separate=False)
-        return
-    if group == line_file.ROUTE_TABLE:
+    elif group == line_file.ROUTE_TABLE:
         _show_routes(schema, settings, separate=False)
-        return
+    else:
+        return False
+    return True
+
+
+def _show_groups(schema: ck.Schema, settings: cf.Settings, group: str | None,
+                 param: str | None) -> None:
     if param is not None:
         name = param.lower()
         key = schema.find(group, name) if group else None

@@ -2,6 +2,7 @@
 [reset], trace.  Registered on the main group by mbgw.cli."""
 import json
 import time
+from typing import NoReturn
 
 import click
 
@@ -70,8 +71,65 @@ def _host(peer: str) -> str:
     return peer.rsplit(":", 1)[0].strip("[]")
 
 
-def _fail(message: str):
+def _fail(message: str) -> NoReturn:
     raise Failure(message)
+
+
+def _close(path: str, which: str | None, close_all: bool) -> None:
+    """mbgw clients close: by ID, else every client whose address or IP is which (all)."""
+    if which is not None and which.isdigit():
+        _call(path, {"command": "close", "client": int(which)})
+        click.echo(f"client {which} closed")
+        return
+    listed = _call(path, {"command": "status"})
+    if "clients" not in listed:
+        _call(path, {"command": "close", "client": 0})    # the mode's own refusal
+    chosen = [c for c in listed["clients"]
+              if close_all or which in (c["peer"], _host(c["peer"]))]
+    if which is not None and not chosen:
+        peers = ", ".join(c["peer"] for c in listed["clients"]) or "none"
+        _fail(f"no client at {which} (clients: {peers})")
+    for c in chosen:
+        _call(path, {"command": "close", "client": c["id"]})
+        click.echo(f"client {c['id']} ({c['peer']}) closed")
+    if not chosen:
+        click.echo("no clients")
+
+
+def _trace(path: str, request: dict, raw: bool, pcap_file, count: int | None) -> None:
+    """mbgw trace: the daemon's events, shown (and written to pcap_file) until count."""
+    from mbgw.cli.pcap import PcapWriter
+
+    try:
+        sock = ctl.connect(path, timeout=None)
+    except PermissionError:
+        _fail(f"permission denied on {path}: run it as root or as a member of the "
+              f"service's group (e.g. sudo mbgw trace)")
+    except (FileNotFoundError, ConnectionRefusedError):
+        _fail(f"no mbgw daemon answers on {path} (is it running? --control PATH or "
+              f"-i NAME)")
+    writer = PcapWriter(pcap_file) if pcap_file else None
+    echo = (lambda text: click.echo(text, err=True)) if pcap_file and \
+        pcap_file.name == "<stdout>" else click.echo
+    seen = 0
+    with sock, sock.makefile("rb") as events:
+        sock.sendall(json.dumps(request).encode() + b"\n")
+        header = json.loads(events.readline() or b"{}")     # {"mode": ..., ...}
+        if "error" in header:
+            _fail(header["error"])
+        echo(raw_columns() if raw else trace_columns(header.get("mode", "slave")))
+        try:
+            for line_text in events:
+                event = json.loads(line_text)
+                echo(format_raw(event) if raw else format_event(event))
+                if writer is not None and event.get("mode") != "transparent":
+                    writer.write_event(event)     # raw frames are not Modbus/TCP; a
+                    #                               scenario's run has no TCP ends
+                seen += 1
+                if count is not None and seen >= count:
+                    break
+        except KeyboardInterrupt:
+            pass
 
 
 def register(main: click.Group) -> None:
@@ -106,24 +164,7 @@ def register(main: click.Group) -> None:
         IP:PORT, or an IP (every client from it); --all: every client."""
         if (which is None) == (not close_all):
             raise click.UsageError("give an ID, an ADDRESS or --all (one of them)")
-        path = _socket_path(control, instance)
-        if which is not None and which.isdigit():
-            _call(path, {"command": "close", "client": int(which)})
-            click.echo(f"client {which} closed")
-            return
-        listed = _call(path, {"command": "status"})
-        if "clients" not in listed:
-            _call(path, {"command": "close", "client": 0})    # the mode's own refusal
-        chosen = [c for c in listed["clients"]
-                  if close_all or which in (c["peer"], _host(c["peer"]))]
-        if which is not None and not chosen:
-            peers = ", ".join(c["peer"] for c in listed["clients"]) or "none"
-            _fail(f"no client at {which} (clients: {peers})")
-        for c in chosen:
-            _call(path, {"command": "close", "client": c["id"]})
-            click.echo(f"client {c['id']} ({c['peer']}) closed")
-        if not chosen:
-            click.echo("no clients")
+        _close(_socket_path(control, instance), which, close_all)
 
     @main.group(invoke_without_command=True)
     @click.option("--json", "as_json", is_flag=True, help="Print the counters as JSON.")
@@ -179,8 +220,6 @@ def register(main: click.Group) -> None:
               count: int | None, control: str | None, instance: str | None) -> None:
         """Live, decoded view of the traffic through the running daemon: the TCP clients'
         requests and the scenarios' runs (marked with the scenario's name)."""
-        from mbgw.cli.pcap import PcapWriter
-
         if raw and pcap_file:
             raise click.UsageError("--pcap writes Modbus/TCP frames: not with --raw")
         if raw and (unit is not None or client_id is not None or function is not None or
@@ -188,36 +227,6 @@ def register(main: click.Group) -> None:
             raise click.UsageError("--raw shows bytes: it takes --line and --errors only")
         wanted = {"unit": unit, "client": client_id, "function": function,
                   "scenario": scenario, "line": line, "errors": errors}
-        path = _socket_path(control, instance)
-        try:
-            sock = ctl.connect(path, timeout=None)
-        except PermissionError:
-            _fail(f"permission denied on {path}: run it as root or as a member of the "
-                  f"service's group (e.g. sudo mbgw trace)")
-        except (FileNotFoundError, ConnectionRefusedError):
-            _fail(f"no mbgw daemon answers on {path} (is it running? --control PATH or "
-                  f"-i NAME)")
-        writer = PcapWriter(pcap_file) if pcap_file else None
-        echo = (lambda text: click.echo(text, err=True)) if pcap_file and \
-            pcap_file.name == "<stdout>" else click.echo
-        seen = 0
         request = {"command": "trace", "raw": raw,
                    "filters": {k: v for k, v in wanted.items() if v not in (None, False)}}
-        with sock, sock.makefile("rb") as events:
-            sock.sendall(json.dumps(request).encode() + b"\n")
-            header = json.loads(events.readline() or b"{}")     # {"mode": ..., ...}
-            if "error" in header:
-                _fail(header["error"])
-            echo(raw_columns() if raw else trace_columns(header.get("mode", "slave")))
-            try:
-                for line_text in events:
-                    event = json.loads(line_text)
-                    echo(format_raw(event) if raw else format_event(event))
-                    if writer is not None and event.get("mode") != "transparent":
-                        writer.write_event(event)     # raw frames are not Modbus/TCP; a
-                        #                               scenario's run has no TCP ends
-                    seen += 1
-                    if count is not None and seen >= count:
-                        break
-            except KeyboardInterrupt:
-                pass
+        _trace(_socket_path(control, instance), request, raw, pcap_file, count)

@@ -27,7 +27,7 @@ from mbgw.cli.options import (
     upstream_tls_options,
 )
 from mbgw.cli.run import run_daemon
-from mbgw.config import model as config
+from mbgw.config import model
 from mbgw.config.schema import TableOption
 from mbgw.config.slaveid import MAX_RANGES, SlaveIdTable
 
@@ -45,18 +45,18 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
                    "a range already defined replaces it (other overlaps are refused); FS=0 "
                    "clears the table.  A 6th word tls reaches the range's servers over TLS "
                    "(--tls-client-cert).")
-@click.option("--tcpto", type=click.IntRange(*config.TCPTO_RANGE),
-              default=config.MasterConfig.tcpto_ms, show_default=True, metavar="MS",
+@click.option("--tcpto", type=click.IntRange(*model.TCPTO_RANGE),
+              default=model.MasterConfig.tcpto_ms, show_default=True, metavar="MS",
               help="Time for a transaction with a server, connecting included, 1..65535 ms.")
-@click.option("--mdbport", type=click.IntRange(*config.PORT_RANGE),
-              default=config.MasterConfig.mdbport, show_default=True,
+@click.option("--mdbport", type=click.IntRange(*model.PORT_RANGE),
+              default=model.MasterConfig.mdbport, show_default=True,
               help="Modbus TCP port of the remote servers.")
-@click.option("--exception/--no-exception", default=config.MasterConfig.exception,
+@click.option("--exception/--no-exception", default=model.MasterConfig.exception,
               show_default=True,
               help="Answer exception 0x0B when a server does not reply within tcpto, 0x0A "
                    "when it cannot be reached, instead of staying silent.")
-@click.option("--max-connections", type=click.IntRange(*config.MAX_CONNECTIONS_RANGE),
-              default=config.MasterConfig.max_connections, show_default=True,
+@click.option("--max-connections", type=click.IntRange(*model.MAX_CONNECTIONS_RANGE),
+              default=model.MasterConfig.max_connections, show_default=True,
               help="Connections kept open to servers; one more closes the least recently "
                    "used.")
 @click.option("--authip", multiple=True, metavar="IP", callback=parser(parse_authip),
@@ -69,8 +69,8 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
 @demotion_options
 @table_switch
 @click.option("--table-address", cls=TableOption, key="address",
-              type=click.IntRange(*config.TABLE_ADDRESS_RANGE),
-              default=config.TableConfig.address, show_default=True, metavar="N",
+              type=click.IntRange(*model.TABLE_ADDRESS_RANGE),
+              default=model.TableConfig.address, show_default=True, metavar="N",
               help="With --table: mbgw answers requests for serial address N (1..247) from "
                    "the table, as a serial slave; no --slaveid range may hold N.  0: the "
                    "table is reached only on --table-port.")
@@ -80,12 +80,12 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
                    "of its own (VPGate 3.7) [default: --table-functions, which is then the "
                    "TCP clients' list only].")
 @click.option("--table-port", cls=TableOption, key="port",
-              type=click.IntRange(*config.PORT_RANGE),
-              default=config.TableConfig.port, show_default=True,
+              type=click.IntRange(*model.PORT_RANGE),
+              default=model.TableConfig.port, show_default=True,
               help="With --table: the TCP port where Modbus TCP clients reach the table.")
 @click.option("--table-max-connections", cls=TableOption, key="table-max-connections",
-              file_key="max-connections", type=click.IntRange(*config.MAX_CONNECTIONS_RANGE),
-              default=config.DEFAULT_TABLE_MAX_CONNECTIONS, show_default=True, metavar="N",
+              file_key="max-connections", type=click.IntRange(*model.MAX_CONNECTIONS_RANGE),
+              default=model.DEFAULT_TABLE_MAX_CONNECTIONS, show_default=True, metavar="N",
               help="With --table: TCP clients of the table at once (its TLS port's included); "
                    "a newcomer beyond it takes the place of one that sent no request yet, or "
                    "is refused.")
@@ -107,22 +107,22 @@ def master(ctx, **options) -> None:
 def master_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout, silence,
                   ascii_timeout, nocheck, dtr, rts, cts, xonxoff, interframe_silence, slaveid,
                   tcpto, mdbport, exception, max_connections, control, metrics, log_level=None,
-                  down_after=config.DEFAULT_DOWN_AFTER,
-                  probe_interval=config.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
+                  down_after=model.DEFAULT_DOWN_AFTER,
+                  probe_interval=model.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
                   lines=(), routes=(),
-                  tls_port=config.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
+                  tls_port=model.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
                   tls_require_role=True, tls_crl=None, authip=(), bind=None,
-                  **table_settings) -> config.MasterConfig:
+                  **table_settings) -> model.MasterConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck, dtr, rts, cts, xonxoff,
                             interframe_silence)
     upstream_tls = upstream_tls_config(table_settings)
     table = table_config(**table_settings)
     tls = tls_config(tls_port, tls_cert, tls_key, tls_ca, tls_require_role, tls_crl)
-    conflict = config.table_address_conflict(table.address, slaveid) if table.enabled else None
+    conflict = model.table_address_conflict(table.address, slaveid) if table.enabled else None
     if conflict:
         raise click.BadParameter(conflict, param_hint="'--table-address' / '--slaveid'")
-    cfg = convert("'--tcpto'", lambda: config.MasterConfig(
+    cfg = convert("'--tcpto'", lambda: model.MasterConfig(
         serial=serial, slaveid=slaveid, tcpto_ms=tcpto, mdbport=mdbport, exception=exception,
         upstream_tls=upstream_tls,
         max_connections=max_connections, control=control, metrics=metrics,

@@ -5,8 +5,9 @@ from collections.abc import Callable
 
 import click
 
-from mbgw.config import model as config
+from mbgw.config import model
 from mbgw.config.firewall import FirewallConfig
+from mbgw.config.number_list import parse_number_list
 from mbgw.config.schema import SerialOption, TableOption, TlsOption, WebOption
 from mbgw.errors import ConfigError
 
@@ -101,14 +102,14 @@ def parser(parse):
 
 def parse_authip(values) -> tuple:
     """--authip: IP addresses (an IPv4-mapped IPv6 one as its IPv4 address)."""
-    return tuple(str(config.parse_ip("authip", v)) for v in values)
+    return tuple(str(model.parse_ip("authip", v)) for v in values)
 
 
 def parse_bind(value):
     """--bind: an IP address (the listeners bind it as given, scope id included)."""
     if value is not None:
         try:
-            config.parse_ip("bind", value)
+            model.parse_ip("bind", value)
         except ConfigError:
             raise ConfigError(f"{value!r} is not an IP address") from None
     return value
@@ -142,59 +143,59 @@ serial_options = stack(
                  callback=parser(_check_device),
                  help="Serial device, e.g. /dev/ttyUSB0; one that is not there yet is "
                       "waited for."),
-    click.option("--protocol", cls=SerialOption, type=click.Choice(config.PROTOCOLS),
-                 default=config.SerialConfig.protocol, show_default=True,
+    click.option("--protocol", cls=SerialOption, type=click.Choice(model.PROTOCOLS),
+                 default=model.SerialConfig.protocol, show_default=True,
                  help="Modbus framing on the serial line."),
-    click.option("--baudrate", cls=SerialOption, type=click.IntRange(*config.BAUDRATE_RANGE),
-                 default=config.SerialConfig.baudrate, show_default=True,
-                 help="Line speed in bit/s, any rate from %d to %d." % config.BAUDRATE_RANGE),
-    click.option("--format", "line_format", cls=SerialOption, default=str(config.LineFormat()),
+    click.option("--baudrate", cls=SerialOption, type=click.IntRange(*model.BAUDRATE_RANGE),
+                 default=model.SerialConfig.baudrate, show_default=True,
+                 help="Line speed in bit/s, any rate from %d to %d." % model.BAUDRATE_RANGE),
+    click.option("--format", "line_format", cls=SerialOption, default=str(model.LineFormat()),
                  show_default=True,
-                 callback=parser(config.LineFormat.parse), metavar="NPS",
+                 callback=parser(model.LineFormat.parse), metavar="NPS",
                  help="Data bits (7|8), parity (n|e|o|m|s: none, even, odd, mark, space), "
                       "stop bits (1|2)."),
-    click.option("--interface", cls=SerialOption, default=str(config.Interface()),
+    click.option("--interface", cls=SerialOption, default=str(model.Interface()),
                  show_default=True,
-                 callback=parser(config.Interface.parse), metavar="KIND",
+                 callback=parser(model.Interface.parse), metavar="KIND",
                  help="rs232; 'rs422 master' (or rs422), 'rs422 slave' (the transmitter on "
                       "only while sending, for multidrop); 'rs485 noecho' (or rs485) or "
                       "'rs485 echo' (the transceiver hears its own frames; they are dropped). "
                       "4wires is rs422, 2wires rs485."),
     click.option("--rtsdelays", cls=SerialOption,
-                 type=(click.IntRange(*config.RTSDELAY_RANGE),
-                       click.IntRange(*config.RTSDELAY_RANGE)),
-                 default=config.SerialConfig.rtsdelays, show_default=True, metavar="BEFORE AFTER",
+                 type=(click.IntRange(*model.RTSDELAY_RANGE),
+                       click.IntRange(*model.RTSDELAY_RANGE)),
+                 default=model.SerialConfig.rtsdelays, show_default=True, metavar="BEFORE AFTER",
                  help="RS-485, an RS-422 slave or --rts modem: ms between raising RTS and "
                       "the first byte, and between the last byte and dropping RTS, 0..255."),
-    click.option("--dtr", cls=SerialOption, type=click.Choice(config.DTR_MODES),
-                 default=config.SerialConfig.dtr, show_default=True,
+    click.option("--dtr", cls=SerialOption, type=click.Choice(model.DTR_MODES),
+                 default=model.SerialConfig.dtr, show_default=True,
                  help="RS-232 DTR held high or low (a modem's on-line line)."),
-    click.option("--rts", cls=SerialOption, type=click.Choice(config.RTS_MODES),
-                 default=config.SerialConfig.rts, show_default=True,
+    click.option("--rts", cls=SerialOption, type=click.Choice(model.RTS_MODES),
+                 default=model.SerialConfig.rts, show_default=True,
                  help="RS-232 RTS: held high or low; flow: RTS/CTS flow control (with --cts "
                       "flow); modem: raised for each frame with --rtsdelays around it, a "
                       "radio modem's push-to-talk."),
-    click.option("--cts", cls=SerialOption, type=click.Choice(config.CTS_MODES),
-                 default=config.SerialConfig.cts, show_default=True,
+    click.option("--cts", cls=SerialOption, type=click.Choice(model.CTS_MODES),
+                 default=model.SerialConfig.cts, show_default=True,
                  help="RS-232 CTS: ignored, or flow: send only while CTS is up (with --rts "
                       "flow)."),
-    click.option("--xonxoff", cls=SerialOption, type=click.Choice(config.XONXOFF_MODES),
-                 default=config.SerialConfig.xonxoff, show_default=True,
+    click.option("--xonxoff", cls=SerialOption, type=click.Choice(model.XONXOFF_MODES),
+                 default=model.SerialConfig.xonxoff, show_default=True,
                  help="XON/XOFF software flow control on the line: use or ignore."),
-    click.option("--stout", cls=SerialOption, type=click.IntRange(*config.STOUT_RANGE),
-                 default=config.DEFAULT_STOUT_MS, show_default=True, metavar="MS",
+    click.option("--stout", cls=SerialOption, type=click.IntRange(*model.STOUT_RANGE),
+                 default=model.DEFAULT_STOUT_MS, show_default=True, metavar="MS",
                  help="Time from the end of a request to the end of its answer, 1..65535 ms."),
-    click.option("--silence", cls=SerialOption, type=click.IntRange(*config.SILENCE_RANGE),
-                 default=config.SerialConfig.silence_ms, show_default=True,
+    click.option("--silence", cls=SerialOption, type=click.IntRange(*model.SILENCE_RANGE),
+                 default=model.SerialConfig.silence_ms, show_default=True,
                  metavar="MS",
                  help="RTU end-of-frame silence in ms, 0..65535 (0: the standard 3.5 "
                       "characters, 1.75 ms above 19200 bit/s); shorter gaps stay inside "
                       "a frame."),
     click.option("--ascii-timeout", cls=SerialOption,
-                 type=click.IntRange(*config.ASCII_TIMEOUT_RANGE),
-                 default=config.DEFAULT_ASCII_TIMEOUT_MS, show_default=True, metavar="MS",
+                 type=click.IntRange(*model.ASCII_TIMEOUT_RANGE),
+                 default=model.DEFAULT_ASCII_TIMEOUT_MS, show_default=True, metavar="MS",
                  help="ASCII: longest pause between two characters of a frame, 1..65535 ms."),
-    click.option("--nocheck", cls=SerialOption, is_flag=True, default=config.SerialConfig.nocheck,
+    click.option("--nocheck", cls=SerialOption, is_flag=True, default=model.SerialConfig.nocheck,
                  show_default=True,
                  help="Debugging only: forward serial replies unchecked (no CRC/LRC, "
                       "address or length control), as received until end of frame.  "
@@ -204,30 +205,30 @@ serial_options = stack(
 
 # Demotion of silent serial addresses, the same rule in both modes ([serial] keys).
 demotion_options = stack(
-    click.option("--down-after", cls=SerialOption, type=click.IntRange(*config.DOWN_AFTER_RANGE),
-                 default=config.DEFAULT_DOWN_AFTER, show_default=True, metavar="N",
+    click.option("--down-after", cls=SerialOption, type=click.IntRange(*model.DOWN_AFTER_RANGE),
+                 default=model.DEFAULT_DOWN_AFTER, show_default=True, metavar="N",
                  help="A serial address is down after N requests in a row without a valid "
                       "reply; its requests are then refused at once (0x0B with --exception) "
                       "but for a probe per --probe-interval, until it answers.  0: never "
-                      "down.  %d..%d." % config.DOWN_AFTER_RANGE),
+                      "down.  %d..%d." % model.DOWN_AFTER_RANGE),
     click.option("--probe-interval", cls=SerialOption,
-                 type=click.IntRange(*config.PROBE_INTERVAL_RANGE),
-                 default=config.DEFAULT_PROBE_INTERVAL_MS, show_default=True, metavar="MS",
+                 type=click.IntRange(*model.PROBE_INTERVAL_RANGE),
+                 default=model.DEFAULT_PROBE_INTERVAL_MS, show_default=True, metavar="MS",
                  help="While an address is down, one request per interval goes to it as a "
                       "probe; the interval doubles while the probes fail, up to %d ms.  "
-                      "%d..%d ms." % (config.PROBE_BACKOFF_MAX_MS,
-                                      *config.PROBE_INTERVAL_RANGE)),
+                      "%d..%d ms." % (model.PROBE_BACKOFF_MAX_MS,
+                                      *model.PROBE_INTERVAL_RANGE)),
 )
 
 
-def demotion(down_after: int, probe_interval: int) -> config.Demotion:
-    return convert("'--down-after'", lambda: config.Demotion(down_after, probe_interval))
+def demotion(down_after: int, probe_interval: int) -> model.Demotion:
+    return convert("'--down-after'", lambda: model.Demotion(down_after, probe_interval))
 
 
 # The exchange table ([table] keys): --table first, then the mode's own options, then these.
 table_switch = click.option(
     "--table/--no-table", "table_enabled", cls=TableOption, key="enabled",
-    default=config.TableConfig.enabled, show_default=True,
+    default=model.TableConfig.enabled, show_default=True,
     help="Serve the exchange table: 65,536 registers of local data that Modbus TCP clients "
          "and the serial side read and write (mbgw.toml(5), [table]).  Slave mode: TCP "
          "units --table-units reach it (every unit with --no-direct); master mode: the "
@@ -235,11 +236,11 @@ table_switch = click.option(
 
 
 def _parse_functions(value, option: str = "table-functions") -> tuple[int, ...]:
-    functions = config.parse_number_list(option, value, 1, 255)
-    others = [str(f) for f in functions if f not in config.TABLE_FUNCTIONS]
+    functions = parse_number_list(option, value, 1, 255)
+    others = [str(f) for f in functions if f not in model.TABLE_FUNCTIONS]
     if others:
         raise ConfigError(f"{option} {value!r}: {', '.join(others)}: the table "
-                          f"answers only {', '.join(map(str, config.TABLE_FUNCTIONS))}")
+                          f"answers only {', '.join(map(str, model.TABLE_FUNCTIONS))}")
     return functions
 
 
@@ -249,28 +250,28 @@ def parse_serial_functions(value) -> tuple[int, ...] | None:
 
 def _parse_persist(value):
     if value is not None and value != PERSIST_OFF:
-        config.check_persist_path(str(value))
+        model.check_persist_path(str(value))
     return value
 
 
 table_options = stack(
     click.option("--table-functions", cls=TableOption, key="functions",
-                 default=",".join(map(str, config.TABLE_FUNCTIONS)), show_default=True,
+                 default=",".join(map(str, model.TABLE_FUNCTIONS)), show_default=True,
                  callback=parser(_parse_functions), metavar="LIST",
                  help="Function codes the table answers, of %s (e.g. 3,4,6,16); any other "
-                      "is exception 0x01." % ",".join(map(str, config.TABLE_FUNCTIONS))),
+                      "is exception 0x01." % ",".join(map(str, model.TABLE_FUNCTIONS))),
     click.option("--table-persist", cls=TableOption, key="persist", metavar="PATH",
-                 default=config.TableConfig.persist, callback=parser(_parse_persist),
+                 default=model.TableConfig.persist, callback=parser(_parse_persist),
                  help="Keep the outputs and the free zone (0x0800-0x7FFF) in this file "
                       "across restarts, written atomically; a regular file in the state "
                       "directory ($STATE_DIRECTORY, else %s); off: not kept [default: "
                       "$STATE_DIRECTORY/table under the units, else not kept]."
-                      % config.DEFAULT_STATE_DIRECTORY),
+                      % model.DEFAULT_STATE_DIRECTORY),
     click.option("--table-persist-interval", cls=TableOption, key="persist-interval",
-                 type=click.IntRange(*config.PERSIST_INTERVAL_RANGE),
-                 default=config.DEFAULT_PERSIST_INTERVAL_S, show_default=True, metavar="S",
+                 type=click.IntRange(*model.PERSIST_INTERVAL_RANGE),
+                 default=model.DEFAULT_PERSIST_INTERVAL_S, show_default=True, metavar="S",
                  help="With --table-persist: save changes at most every S seconds "
-                      "(%d..%d), and at stop." % config.PERSIST_INTERVAL_RANGE),
+                      "(%d..%d), and at stop." % model.PERSIST_INTERVAL_RANGE),
 )
 
 
@@ -288,14 +289,14 @@ def persist_path(value: str | None) -> str | None:
     return os.path.join(state, PERSIST_FILE) if state else None
 
 
-def table_config(**settings) -> config.TableConfig:
+def table_config(**settings) -> model.TableConfig:
     """TableConfig from the click values (table_enabled, table_functions, ...)."""
     fields = {"enabled": "table_enabled", "direct": "table_direct", "units": "table_units",
               "functions": "table_functions", "serial_functions": "table_serial_functions",
               "address": "table_address",
               "port": "table_port", "persist_interval_s": "table_persist_interval",
               "max_connections": "table_max_connections"}
-    return convert("'--table'", lambda: config.TableConfig(
+    return convert("'--table'", lambda: model.TableConfig(
         persist=persist_path(settings.get("table_persist")),
         **{f: settings[o] for f, o in fields.items() if settings.get(o) is not None}))
 
@@ -339,8 +340,8 @@ def _crl_callback(ctx, param, value):
 # Modbus/TCP Security ([tls] keys): TLS is on when a certificate is given.
 tls_options = stack(
     click.option("--tls-port", cls=TlsOption, key="tls-port", file_key="port",
-                 type=click.IntRange(*config.PORT_RANGE),
-                 default=config.DEFAULT_TLS_PORT, show_default=True,
+                 type=click.IntRange(*model.PORT_RANGE),
+                 default=model.DEFAULT_TLS_PORT, show_default=True,
                  help="Modbus/TCP Security (TLS) port, with --tls-cert."),
     click.option("--tls-cert", cls=TlsOption, key="cert", metavar="PATH", default=None,
                  callback=_tls_file(_check_cert),
@@ -352,9 +353,9 @@ tls_options = stack(
     click.option("--tls-ca", cls=TlsOption, key="ca", metavar="PATH", default=None,
                  callback=_tls_file(_check_ca),
                  help="CA certificate(s) (PEM) that client certificates must chain to; the "
-                      "client's role is its certificate's extension %s." % config.ROLE_OID),
+                      "client's role is its certificate's extension %s." % model.ROLE_OID),
     click.option("--tls-require-role/--no-tls-require-role", cls=TlsOption,
-                 key="require-role", default=config.TlsConfig.require_role, show_default=True,
+                 key="require-role", default=model.TlsConfig.require_role, show_default=True,
                  help="Refuse every request (exception 0x01) of a TLS client whose "
                       "certificate has no role; the session stays open."),
     click.option("--tls-crl", cls=TlsOption, key="crl", metavar="PATH", default=None,
@@ -365,11 +366,11 @@ tls_options = stack(
 
 
 def tls_config(tls_port, tls_cert, tls_key, tls_ca, tls_require_role=True,
-               tls_crl=None) -> config.TlsConfig:
+               tls_crl=None) -> model.TlsConfig:
     from mbgw.ops.tls import check_crl_issuer, file_stamps
     if tls_crl is not None and tls_ca is not None:
         convert("'--tls-crl'", lambda: check_crl_issuer(tls_crl, tls_ca))
-    return convert("'--tls-cert'", lambda: config.TlsConfig(
+    return convert("'--tls-cert'", lambda: model.TlsConfig(
         port=tls_port, cert=tls_cert, key=tls_key, ca=tls_ca, require_role=tls_require_role,
         crl=tls_crl, files=file_stamps(tls_cert, tls_key, tls_ca, tls_crl)))
 
@@ -391,13 +392,13 @@ upstream_tls_options = stack(
                  default=None, callback=_client_file(_check_ca, "tls-server-ca"),
                  help="CA certificate(s) (PEM) that the servers' certificates must chain to."),
     click.option("--tls-server-port", cls=TlsOption, key="server-port",
-                 type=click.IntRange(*config.PORT_RANGE),
-                 default=config.DEFAULT_TLS_PORT, show_default=True,
+                 type=click.IntRange(*model.PORT_RANGE),
+                 default=model.DEFAULT_TLS_PORT, show_default=True,
                  help="Master mode: the TLS port of the servers of `tls` slaveid ranges."),
 )
 
 
-def upstream_tls_config(settings: dict) -> config.UpstreamTlsConfig:
+def upstream_tls_config(settings: dict) -> model.UpstreamTlsConfig:
     """UpstreamTlsConfig from the click values, taken out of settings."""
     return _upstream_tls_config(**{name: settings.pop(name) for name in (
         "tls_client_cert", "tls_client_key", "tls_server_ca", "tls_server_port")
@@ -405,9 +406,9 @@ def upstream_tls_config(settings: dict) -> config.UpstreamTlsConfig:
 
 
 def _upstream_tls_config(tls_client_cert=None, tls_client_key=None, tls_server_ca=None,
-                         tls_server_port=config.DEFAULT_TLS_PORT) -> config.UpstreamTlsConfig:
+                         tls_server_port=model.DEFAULT_TLS_PORT) -> model.UpstreamTlsConfig:
     from mbgw.ops.tls import file_stamps
-    return convert("'--tls-client-cert'", lambda: config.UpstreamTlsConfig(
+    return convert("'--tls-client-cert'", lambda: model.UpstreamTlsConfig(
         client_cert=tls_client_cert, client_key=tls_client_key, server_ca=tls_server_ca,
         server_port=tls_server_port,
         files=file_stamps(tls_client_cert, tls_client_key, tls_server_ca)))
@@ -490,7 +491,7 @@ web_options = stack(
                  callback=parser(_password_hash("web.user-password")),
                  help="The user's password hash (set by mbgw config password user)."),
     click.option("--web-https-only/--no-web-https-only", cls=WebOption, key="web-https-only",
-                 file_key="https-only", default=config.WebConfig.https_only, show_default=True,
+                 file_key="https-only", default=model.WebConfig.https_only, show_default=True,
                  callback=_needs_web_cert,
                  help="With --web-cert: a plain HTTP request on the console's port is "
                       "redirected to HTTPS, and every answer sets Strict-Transport-Security."),
@@ -499,27 +500,27 @@ WEB_PARAMS = ("web_listen", "web_cert", "web_key", "web_admin_password", "web_us
               "web_https_only")
 
 
-def web_config(options: dict) -> config.WebConfig:
+def web_config(options: dict) -> model.WebConfig:
     """WebConfig from the click values; takes them out of `options` (the mode's own
     function does not know them)."""
     web = {name: options.pop(name, None) for name in WEB_PARAMS}
-    return convert("'--web'", lambda: config.WebConfig(
+    return convert("'--web'", lambda: model.WebConfig(
         listen=web["web_listen"], cert=web["web_cert"], key=web["web_key"],
         admin_password=web["web_admin_password"], user_password=web["web_user_password"],
         https_only=bool(web["web_https_only"])))
 
 
 daemon_options = stack(
-    click.option("--request-timeout", type=click.IntRange(*config.REQUEST_TIMEOUT_RANGE),
-                 default=config.DEFAULT_REQUEST_TIMEOUT_MS, show_default=True, metavar="MS",
+    click.option("--request-timeout", type=click.IntRange(*model.REQUEST_TIMEOUT_RANGE),
+                 default=model.DEFAULT_REQUEST_TIMEOUT_MS, show_default=True, metavar="MS",
                  help="A request begun (a Modbus request's first byte, a TLS handshake, an "
                       "HTTP request) must be whole within MS, or its connection is closed; "
                       "a connection that has sent no whole request is the first a newcomer "
-                      "replaces.  %d..%d ms." % config.REQUEST_TIMEOUT_RANGE),
-    click.option("--location", default=config.DEFAULT_LOCATION, show_default=True,
-                 metavar="TEXT", callback=parser(config.parse_location),
+                      "replaces.  %d..%d ms." % model.REQUEST_TIMEOUT_RANGE),
+    click.option("--location", default=model.DEFAULT_LOCATION, show_default=True,
+                 metavar="TEXT", callback=parser(model.parse_location),
                  help="Where the gateway is, up to %d ASCII characters: shown by mbgw status, "
-                      "the web console and the table's configuration zone." % config.LOCATION_MAX),
+                      "the web console and the table's configuration zone." % model.LOCATION_MAX),
     click.option("--control", metavar="PATH", default=None,
                  help="Control socket for mbgw status/trace [default: "
                       "$RUNTIME_DIRECTORY/mbgw.sock or /run/mbgw/mbgw.sock]."),
@@ -541,8 +542,8 @@ daemon_options = stack(
 
 # Slave and master modes' (transparent mode's is its own, [transparent] silence).
 interframe_option = click.option(
-    "--interframe-silence", cls=SerialOption, type=click.IntRange(*config.INTERFRAME_SILENCE_RANGE),
-    default=config.SerialConfig.interframe_ms, show_default=True, metavar="MS",
+    "--interframe-silence", cls=SerialOption, type=click.IntRange(*model.INTERFRAME_SILENCE_RANGE),
+    default=model.SerialConfig.interframe_ms, show_default=True, metavar="MS",
     help="VPGate's interframe silence: ms, beyond t3.5, that the line stays quiet after a "
          "frame before mbgw sends (slave mode: the next request after a reply; master mode: "
          "its answer after a request), 0..65535.")
@@ -550,9 +551,9 @@ interframe_option = click.option(
 
 def serial_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout,
                    silence, ascii_timeout, nocheck, dtr="high", rts="high", cts="ignore",
-                   xonxoff="ignore", interframe_silence=0) -> config.SerialConfig:
+                   xonxoff="ignore", interframe_silence=0) -> model.SerialConfig:
     try:
-        return config.SerialConfig(
+        return model.SerialConfig(
             device=device, protocol=protocol, baudrate=baudrate, format=line_format,
             interface=interface, rtsdelays=tuple(rtsdelays), stout_ms=stout,
             silence_ms=silence, ascii_timeout_ms=ascii_timeout, nocheck=nocheck, dtr=dtr,

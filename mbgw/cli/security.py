@@ -10,8 +10,8 @@ import ssl
 import stat
 from pathlib import Path
 
-from mbgw.config import file as cf
-from mbgw.config import schema as ck
+from mbgw.config.file import Settings
+from mbgw.config.schema import NO_ADDRESS, Schema
 from mbgw.errors import ConfigError
 from mbgw.ops.control import default_path as control_default_path
 from mbgw.slave.handshakes import MAX_HANDSHAKES
@@ -19,11 +19,11 @@ from mbgw.slave.handshakes import MAX_HANDSHAKES
 ALL_ADDRESSES = "all addresses (IPv4 and IPv6)"
 
 
-def report(schema: ck.Schema, settings: cf.Settings) -> dict:
+def report(schema: Schema, settings: Settings) -> dict:
     def get(name: str):
         return settings.get(schema, name) if name in schema.keys else None
 
-    authip = [a for a in get("authip") or [] if a != ck.NO_ADDRESS]
+    authip = [a for a in get("authip") or [] if a != NO_ADDRESS]
     tls = _tls(get)
     return {"file": _file_access(settings.path), "mode": settings.mode,
             "listeners": _listeners(settings.mode, get, tls["enabled"], authip),
@@ -99,7 +99,7 @@ def _tls(get) -> dict:
             "suites": [c["name"] for c in context.get_ciphers() if c["protocol"] in names]}
 
 
-def _firewall(settings: cf.Settings) -> dict:
+def _firewall(settings: Settings) -> dict:
     fw = settings.firewall
     return {"default": fw.default, "rules": [
         {"rule": r.index, "selects": r.describe(),

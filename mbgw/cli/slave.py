@@ -22,71 +22,72 @@ from mbgw.cli.options import (
     upstream_tls_options,
 )
 from mbgw.cli.run import run_daemon
-from mbgw.config import model as config
+from mbgw.config import model
+from mbgw.config.number_list import number_list_text, parse_number_list
 from mbgw.config.schema import TableOption
 
 
 def _parse_authip(values) -> tuple:
-    return tuple(str(config.parse_ip("authip", v)) for v in values)
+    return tuple(str(model.parse_ip("authip", v)) for v in values)
 
 
 def _parse_units(value) -> tuple[int, ...]:
-    return config.parse_number_list("table-units", value, 1, 255)
+    return parse_number_list("table-units", value, 1, 255)
 
 
 @click.command(cls=ModeCommand)
 @serial_options
 @interframe_option
-@click.option("--slaveid", type=click.IntRange(*config.SLAVEID_RANGE),
-              default=config.SlaveConfig.slaveid, show_default=True,
+@click.option("--slaveid", type=click.IntRange(*model.SLAVEID_RANGE),
+              default=model.SlaveConfig.slaveid, show_default=True,
               help="0: the TCP unit id is the serial address; 1..247: force this address.")
-@click.option("--exception/--no-exception", default=config.SlaveConfig.exception,
+@click.option("--exception/--no-exception", default=model.SlaveConfig.exception,
               show_default=True,
               help="Answer exception 0x0B when a slave does not reply, 0x0A when the line "
                    "cannot be reached, instead of staying silent.")
 @click.option("--authip", multiple=True, metavar="IP", callback=parser(_parse_authip),
               help="Client address allowed to connect (repeat, at most 8; none: anyone).")
-@click.option("--mdbport", type=click.IntRange(*config.MDBPORT_RANGE),
-              default=config.SlaveConfig.mdbport, show_default=True,
+@click.option("--mdbport", type=click.IntRange(*model.MDBPORT_RANGE),
+              default=model.SlaveConfig.mdbport, show_default=True,
               help="Modbus TCP port to listen on (0: none, Modbus/TCP Security only).")
 @click.option("--bind", metavar="ADDR", default=None, callback=parser(parse_bind),
               help="Listen on this IP address only [default: all, IPv4 and IPv6].")
-@click.option("--max-connections", type=click.IntRange(*config.MAX_CONNECTIONS_RANGE),
-              default=config.SlaveConfig.max_connections, show_default=True,
+@click.option("--max-connections", type=click.IntRange(*model.MAX_CONNECTIONS_RANGE),
+              default=model.SlaveConfig.max_connections, show_default=True,
               help="Simultaneous TCP clients (closed ones do not count); a newcomer closes an "
                    "idle one that never sent a request, else the least recently active one "
-                   f"quiet for {config.ACTIVE_WINDOW_S} s, else it is refused.")
-@click.option("--max-connections-per-ip", type=click.IntRange(*config.MAX_CONNECTIONS_PER_IP_RANGE),
-              default=config.SlaveConfig.max_connections_per_ip, show_default=True,
+                   f"quiet for {model.ACTIVE_WINDOW_S} s, else it is refused.")
+@click.option("--max-connections-per-ip", type=click.IntRange(*model.MAX_CONNECTIONS_PER_IP_RANGE),
+              default=model.SlaveConfig.max_connections_per_ip, show_default=True,
               help="Simultaneous TCP clients from one address (0: no limit); one more from "
                    "that address is refused.")
-@click.option("--retries", type=click.IntRange(*config.RETRIES_RANGE),
-              default=config.SlaveConfig.retries, show_default=True,
+@click.option("--retries", type=click.IntRange(*model.RETRIES_RANGE),
+              default=model.SlaveConfig.retries, show_default=True,
               help="Times a request is repeated after no valid reply.")
-@click.option("--late-window", type=click.IntRange(*config.LATE_WINDOW_RANGE), default=None,
+@click.option("--late-window", type=click.IntRange(*model.LATE_WINDOW_RANGE), default=None,
               metavar="MS",
               help="After a request to a serial address timed out, its next request waits "
                    "until the late reply has come (it is dropped) or the line has been quiet "
                    "this long past the timeout; other addresses are served meanwhile.  0: no "
                    "wait.  0..65535 ms [default: stout].")
-@click.option("--turnaround", type=click.IntRange(*config.TURNAROUND_RANGE),
-              default=config.SlaveConfig.turnaround_ms,
+@click.option("--turnaround", type=click.IntRange(*model.TURNAROUND_RANGE),
+              default=model.SlaveConfig.turnaround_ms,
               show_default=True, metavar="MS",
               help="Pause on the line after a broadcast (unit 0), before the next request.")
-@click.option("--tcpto", type=click.IntRange(*config.TCPTO_RANGE),
-              default=config.SlaveConfig.tcpto_ms, show_default=True, metavar="MS",
+@click.option("--tcpto", type=click.IntRange(*model.TCPTO_RANGE),
+              default=model.SlaveConfig.tcpto_ms, show_default=True, metavar="MS",
               help="TCP scenarios: the time for a transaction with a server, connecting "
                    "included.")
 @demotion_options
 @table_switch
 @click.option("--direct/--no-direct", "table_direct", cls=TableOption, key="direct",
-              default=config.TableConfig.direct, show_default=True,
+              default=model.TableConfig.direct, show_default=True,
               help="With --table: only the units of --table-units reach the table, the others "
                    "go to the serial line (direct messaging).  --no-direct: every unit reaches "
                    "the table (a Modbus TCP server of local data; unit 0 is a broadcast write, "
                    "not answered).")
 @click.option("--table-units", cls=TableOption, key="units", metavar="LIST",
-              default=config.number_list_text(config.DEFAULT_TABLE_UNITS), show_default=True,
+              default=number_list_text(model.DEFAULT_TABLE_UNITS), show_default=True,
               callback=parser(_parse_units),
               help="With --table and --direct: the TCP unit ids that reach the table, e.g. "
                    "247-254 or 1,5,200-210 (1..255).")
@@ -94,7 +95,7 @@ def _parse_units(value) -> tuple[int, ...]:
 @tls_options
 @upstream_tls_options
 @daemon_options
-@click.option("--shortcut/--no-shortcut", default=config.SlaveConfig.shortcut, hidden=True,
+@click.option("--shortcut/--no-shortcut", default=model.SlaveConfig.shortcut, hidden=True,
               help="Put a request that finds the line idle on it from C (for diagnosis).")
 def slave(**options) -> None:
     """Slave mode: Modbus TCP clients reach the slaves on a serial line."""
@@ -107,13 +108,13 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
                  ascii_timeout, nocheck, dtr, rts, cts, xonxoff, interframe_silence, slaveid,
                  exception, authip, mdbport, bind, max_connections, max_connections_per_ip,
                  retries, turnaround, control, metrics, log_level=None, shortcut=True,
-                 down_after=config.DEFAULT_DOWN_AFTER,
-                 probe_interval=config.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
+                 down_after=model.DEFAULT_DOWN_AFTER,
+                 probe_interval=model.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
                  lines=(), routes=(),
-                 tls_port=config.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
-                 tls_require_role=True, tls_crl=None, tcpto=config.DEFAULT_TCPTO_MS,
+                 tls_port=model.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
+                 tls_require_role=True, tls_crl=None, tcpto=model.DEFAULT_TCPTO_MS,
                  late_window=None,
-                 **table_settings) -> config.SlaveConfig:
+                 **table_settings) -> model.SlaveConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck, dtr, rts, cts, xonxoff,
                             interframe_silence)
@@ -123,7 +124,7 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
     if mdbport == 0 and not tls.enabled:
         raise click.BadParameter("0 turns plain Modbus TCP off: it needs TLS (--tls-cert)",
                                  param_hint="'--mdbport'")
-    cfg = convert("'--authip'", lambda: config.SlaveConfig(
+    cfg = convert("'--authip'", lambda: model.SlaveConfig(
         serial=serial, slaveid=slaveid, exception=exception, authip=authip, mdbport=mdbport,
         upstream_tls=upstream_tls,
         bind=bind, max_connections=max_connections,

@@ -9,7 +9,7 @@ import dataclasses
 import difflib
 import ipaddress
 
-from mbgw.config.model import number_list_text, parse_number_list
+from mbgw.config.number_list import number_list_text, parse_number_list
 from mbgw.errors import ConfigError
 
 GROUP = "firewall"                 # [firewall]

@@ -18,7 +18,7 @@ from mbgw.config.lines import (
     TCP_FACE,
     RouteConfig,
 )
-from mbgw.config.model import number_list_text, parse_number_list
+from mbgw.config.number_list import number_list_text, parse_number_list
 from mbgw.config.scenario import split_server
 from mbgw.config.schema import Schema, default_value
 from mbgw.config.values import Problem, check_value, process, to_click

@@ -1,5 +1,6 @@
-"""Validated settings.  Options keep the ACKSYS names and units (ms); every default and
-bound is stated here once."""
+"""Validated settings: the serial line's, the table's, TLS, web, slave and master mode's
+(transparent mode's are in config.transparent).  Options keep the ACKSYS names and units
+(ms); every default and bound is stated once, here or in the module of its settings."""
 import ipaddress
 import math
 import os
@@ -7,6 +8,9 @@ import re
 import stat
 from dataclasses import dataclass, field
 
+from mbgw.config.firewall import FirewallConfig
+from mbgw.config.scenario import check_scenarios
+from mbgw.config.slaveid import SlaveIdTable
 from mbgw.errors import ConfigError
 
 # Rates libmodbus 3.1.6 sets itself; it silently turns any other rate into 9600.
@@ -274,39 +278,7 @@ def check_persist_path(text: str) -> str:
     return text
 
 
-def parse_number_list(option: str, text: str, low: int, high: int) -> tuple[int, ...]:
-    """'1,5,200-210' (commas or spaces between items, N-M for a range) -> (1, 5, 200, ..., 210),
-    sorted, each number checked against low..high."""
-    numbers: set[int] = set()
-    items = [i for i in re.split(r"[,\s]+", str(text).strip()) if i]
-    if not items:
-        raise ConfigError(f"{option} {text!r}: empty; expected numbers or ranges, e.g. 1,5,200-210")
-    for item in items:
-        match = re.fullmatch(r"(\d+)(?:-(\d+))?", item)
-        if not match:
-            raise ConfigError(f"{option} {text!r}: {item!r} is not a number or a range N-M")
-        first, last = int(match[1]), int(match[2] or match[1])
-        if first > last:
-            raise ConfigError(f"{option} {text!r}: range {item} runs backwards")
-        for number in (first, last):
-            if not low <= number <= high:
-                raise ConfigError(f"{option} {text!r}: {number} out of range {low}..{high}")
-        numbers.update(range(first, last + 1))
-    return tuple(sorted(numbers))
-
-
-def number_list_text(numbers) -> str:
-    """(1, 5, 200, ..., 210) -> '1,5,200-210': what parse_number_list reads."""
-    parts: list[str] = []
-    for number in sorted(numbers):
-        if parts and number == int(parts[-1].rsplit("-", 1)[-1]) + 1:
-            parts[-1] = f"{parts[-1].split('-')[0]}-{number}"
-        else:
-            parts.append(str(number))
-    return ",".join(parts)
-
-
-def table_address_conflict(address: int, slaveid: "SlaveIdTable") -> str | None:
+def table_address_conflict(address: int, slaveid: SlaveIdTable) -> str | None:
     """Master mode: why the table's serial address cannot be `address` with this slaveid
     table (a range routing it to a TCP server), or None."""
     if address == 0:
@@ -492,7 +464,7 @@ class SlaveConfig:
     demotion: Demotion = field(default_factory=Demotion)
     shortcut: bool = True          # an idle line's request goes on it from C (a hidden switch)
     table: TableConfig = field(default_factory=TableConfig)
-    firewall: "FirewallConfig | None" = None   # [[rule]] tables; None: every request allowed
+    firewall: FirewallConfig | None = None   # [[rule]] tables; None: every request allowed
     tcpto_ms: int = DEFAULT_TCPTO_MS   # TCP scenarios: the time for a transaction with a server
     scenarios: tuple = ()          # ScenarioConfig (mbgw.config.scenario), [[scenario]]
     config_file: str | None = None  # the file the settings came from (scenario ... --save)
@@ -531,7 +503,6 @@ class SlaveConfig:
 
 
 def _check_scenarios(scenarios, mode: str) -> None:
-    from mbgw.config.scenario import check_scenarios
     problems = check_scenarios(scenarios, mode)
     if problems:
         raise ConfigError(problems[0])
@@ -548,20 +519,11 @@ def parse_ip(option: str, text: str) -> ipaddress.IPv4Address | ipaddress.IPv6Ad
     return address
 
 
-import typing  # noqa: E402  (master mode's settings were added below slave mode's)
-from typing import TYPE_CHECKING  # noqa: E402
-
-if typing.TYPE_CHECKING:
-    from mbgw.config.slaveid import SlaveIdTable
-if TYPE_CHECKING:    # config.firewall reads this module's number lists
-    from mbgw.config.firewall import FirewallConfig
-
-
 @dataclass(frozen=True)
 class MasterConfig:
     """Master mode: a Modbus master on the serial line, Modbus TCP servers on the network."""
     serial: SerialConfig
-    slaveid: "SlaveIdTable"
+    slaveid: SlaveIdTable
     tcpto_ms: int = DEFAULT_TCPTO_MS
     mdbport: int = DEFAULT_MDBPORT  # the remote servers' port
     exception: bool = False
@@ -571,7 +533,7 @@ class MasterConfig:
     demotion: Demotion = field(default_factory=Demotion)
     table: TableConfig = field(default_factory=TableConfig)
     upstream_tls: UpstreamTlsConfig = field(default_factory=UpstreamTlsConfig)
-    firewall: "FirewallConfig | None" = None   # the table server's; None: all allowed
+    firewall: FirewallConfig | None = None   # the table server's; None: all allowed
     scenarios: tuple = ()           # ScenarioConfig (mbgw.config.scenario): TCP ones only
     config_file: str | None = None  # the file the settings came from (scenario ... --save)
     tls: TlsConfig = field(default_factory=TlsConfig)    # on the table's server
@@ -607,101 +569,3 @@ class MasterConfig:
     @property
     def tcpto_ns(self) -> int:
         return self.tcpto_ms * 1_000_000
-
-
-
-# Transparent mode (VPGate 3.8, 6.5.2): raw frames between the line and the table.
-EOF_CHARS = {"nul": b"\x00", "space": b" ", "lf": b"\n", "cr": b"\r", "crlf": b"\r\n",
-             "lfcr": b"\n\r"}
-EOF_KINDS = (*EOF_CHARS, "char", "length", "timeout")
-EOF_CHAR_RANGE = (0, 255)
-EOF_TIMEOUT_RANGE = (0, 65535)         # ms; 0: the serial line's end-of-frame silence
-RX_ADDRESS_RANGE = (0, 2047)           # the inputs zone
-TX_ADDRESS_RANGE = (2048, 4095)        # the outputs zone
-FRAME_SIZE_RANGE = (1, 250)            # bytes, two to a register
-
-
-@dataclass(frozen=True)
-class TransparentConfig:
-    """How frames are cut on the line and where they are in the table."""
-    eof: str = "cr"
-    eof_char: int = 0x0D
-    eof_timeout_ms: int = 0
-    rx_address: int = 0
-    rx_size: int = 250
-    tx_address: int = 2048
-    tx_size: int = 250
-    crc: bool = False
-    trigger: bool = False
-    silence_ms: int = 0            # after a frame was received, before sending
-    raw_port: int | None = None    # one TCP client's raw byte stream to the line; None: off
-
-    def __post_init__(self) -> None:
-        if self.eof not in EOF_KINDS:
-            raise ConfigError(f"eof {self.eof!r}: expected one of {', '.join(EOF_KINDS)}")
-        for name, value, (low, high) in (
-                ("eof-char", self.eof_char, EOF_CHAR_RANGE),
-                ("eof-timeout", self.eof_timeout_ms, EOF_TIMEOUT_RANGE),
-                ("rx-size", self.rx_size, FRAME_SIZE_RANGE),
-                ("tx-size", self.tx_size, FRAME_SIZE_RANGE),
-                ("transparent.silence", self.silence_ms, INTERFRAME_SILENCE_RANGE)):
-            if not low <= value <= high:
-                raise ConfigError(f"{name} {value}: out of range {low}..{high}")
-        for name, address, size, (low, high) in (
-                ("rx-address", self.rx_address, self.rx_size, RX_ADDRESS_RANGE),
-                ("tx-address", self.tx_address, self.tx_size, TX_ADDRESS_RANGE)):
-            last = address + registers_of(size) - 1
-            if not low <= address <= high or last > high:
-                raise ConfigError(f"{name} {address}: the area (registers {address}..{last}) "
-                                  f"must lie in {low}..{high}")
-        if self.raw_port is not None and not PORT_RANGE[0] <= self.raw_port <= PORT_RANGE[1]:
-            raise ConfigError(f"raw-port {self.raw_port}: out of range {PORT_RANGE[0]}.."
-                              f"{PORT_RANGE[1]}")
-
-    @property
-    def end(self) -> bytes | None:
-        """The characters that end a frame, None when a frame ends otherwise."""
-        if self.eof == "char":
-            return bytes([self.eof_char])
-        return EOF_CHARS.get(self.eof)
-
-    def eof_timeout_for(self, serial: SerialConfig) -> int:
-        """eof-timeout in ms, the serial line's end-of-frame silence (at least 1 ms) for 0."""
-        return self.eof_timeout_ms or max(1, math.ceil(serial.end_of_frame_us / 1000))
-
-
-def registers_of(size: int) -> int:
-    """The registers that hold size bytes, two to a register."""
-    return (size + 1) // 2
-
-
-@dataclass(frozen=True)
-class TransparentModeConfig:
-    """Transparent mode: raw frames on the serial line, the table served on mdbport."""
-    serial: SerialConfig
-    transparent: TransparentConfig = field(default_factory=TransparentConfig)
-    authip: tuple = ()
-    mdbport: int = DEFAULT_MDBPORT
-    bind: str | None = None
-    control: str | None = None
-    metrics: str | None = None
-    table: TableConfig = field(default_factory=lambda: TableConfig(enabled=True, direct=False))
-    firewall: "FirewallConfig | None" = None   # on mdbport's requests; None: all allowed
-    scenarios: tuple = ()           # ScenarioConfig (mbgw.config.scenario): TCP ones only
-    config_file: str | None = None  # the file the settings came from (scenario ... --save)
-    tcpto_ms: int = DEFAULT_TCPTO_MS   # TCP scenarios: the time for a transaction with a server
-    tls: TlsConfig = field(default_factory=TlsConfig)    # on the table's server
-    web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
-    request_timeout_ms: int = DEFAULT_REQUEST_TIMEOUT_MS   # [net] request-timeout
-    location: str = DEFAULT_LOCATION   # [general] location, the guide's set location
-
-    @property
-    def table_on(self) -> bool:
-        return True
-
-    def __post_init__(self) -> None:
-        if self.mdbport == 0 and not self.tls.enabled:
-            raise ConfigError("mdbport 0 turns plain Modbus TCP off: it needs TLS (tls-cert)")
-        if len(self.authip) > MAX_AUTHIP:
-            raise ConfigError(f"authip: at most {MAX_AUTHIP} addresses, got {len(self.authip)}")
-        object.__setattr__(self, "authip", tuple(parse_ip("authip", a) for a in self.authip))

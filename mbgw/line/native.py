@@ -9,7 +9,7 @@ never stalls the asyncio thread.
 import errno
 import os
 import struct
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 from mbgw._ffi import ffi, lib
 from mbgw.errors import ChecksumError, FrameError, LineTimeout, MbgwError, SerialError
@@ -80,7 +80,7 @@ class Port:
 
     def __init__(self, device: str, baudrate: int, parity: str, data_bits: int, stop_bits: int):
         self.device = device
-        self._ctx = None
+        self._ctx: Any = None          # libmodbus's modbus_t * while the line is open
         self._lock_fd = lib.mbgw_tty_lock(device.encode())
         if self._lock_fd < 0:
             code = -self._lock_fd

@@ -17,7 +17,7 @@ import signal
 from collections.abc import Awaitable, Callable
 
 from mbgw.audit import Kind, event
-from mbgw.ops.service import sd_notify
+from mbgw.ops.notify import sd_notify
 
 log = logging.getLogger("mbgw")
 

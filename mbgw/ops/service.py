@@ -5,45 +5,19 @@ import asyncio
 import logging
 import math
 import os
-import socket
-import struct
 import time
 from typing import TYPE_CHECKING
 
 from mbgw.ops.control import ControlServer, default_path
+from mbgw.ops.notify import sd_notify
+from mbgw.ops.reload import Reloads
 
 if TYPE_CHECKING:
     from mbgw.ops.metrics_server import MetricsServer
-    from mbgw.ops.reload import Reloads
 
 log = logging.getLogger("mbgw")
 
 STATUS_PERIOD_S = 5.0    # how often systemd's STATUS= line is brought up to date
-NOTIFY_WAIT_S = 2        # the longest a change of state waits for room on the notify socket
-NOTIFY_WAIT = struct.pack("ll", NOTIFY_WAIT_S, 0)     # struct timeval, for SO_SNDTIMEO
-
-
-def sd_notify(state: str, wait: bool = True) -> bool:
-    """Tell systemd (or a test) about our state, when NOTIFY_SOCKET asks for it; True when
-    sent.  A change of state waits while the socket's queue is full, as libsystemd's
-    sd_notify does, but NOTIFY_WAIT_S at most; wait=False drops a periodic message instead:
-    the event loop must not wait for it."""
-    path = os.environ.get("NOTIFY_SOCKET")
-    if not path:
-        return False
-    if path.startswith("@"):
-        path = "\0" + path[1:]
-    try:
-        with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM | socket.SOCK_CLOEXEC) as sock:
-            if wait:        # bounded: a reader that never reads must not keep us from stopping
-                sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, NOTIFY_WAIT)
-            sock.sendto(state.encode(), 0 if wait else socket.MSG_DONTWAIT, path)
-    except OSError as err:    # nobody listening any more: not our problem to die of
-        log.debug("sd_notify %s: %s", state, err)
-        return False
-    return True
-
-
 def watchdog_interval() -> float | None:
     """Half of systemd's WatchdogSec= (WATCHDOG_USEC) when its watchdog is on for this
     process (WATCHDOG_PID, when set, is ours); None when it is off."""
@@ -103,7 +77,7 @@ async def start_control(path: str | None, commands: dict) -> ControlServer | Non
     return control
 
 
-async def serve_until_stopped(stop: asyncio.Event, holder, line, reloads: "Reloads",
+async def serve_until_stopped(stop: asyncio.Event, holder, line, reloads: Reloads,
                               control: ControlServer | None,
                               metrics: "MetricsServer | None") -> None:
     """Ready: reload on SIGHUP (mbgw.ops.reload), tell systemd, keep it told (see

@@ -38,6 +38,7 @@ from mbgw.errors import BadReply, ConfigError, GatewayTimeout, NoRoute
 from mbgw.ops.counters import MasterCounters
 from mbgw.ops.device_stats import DeviceStats, HealthRule
 from mbgw.ops.tls import client_context
+from mbgw.ops.trace import TraceHub
 from mbgw.scenarios.engine import Scenarios
 from mbgw.scenarios.health import ServerHealth
 from mbgw.scenarios.report import scenarios_status, trace_event
@@ -84,7 +85,7 @@ class TcpRunner:
                  rule: HealthRule | None = None) -> None:
         """pins: the servers whose certificate is pinned (scenario_pins)."""
         self.engine = engine
-        self.trace = None       # the daemon's trace hub (mbgw.ops.trace), for its runs
+        self.trace: TraceHub | None = None   # the daemon's trace hub (mbgw.ops.trace), for its runs
         self.health = ServerHealth(rule)       # the servers' demotion, by the engine too
         engine.health = self.health
         self._tcpto_ns = tcpto_ms * 1_000_000

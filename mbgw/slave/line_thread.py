@@ -27,6 +27,7 @@ from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.protocol import mbap, pdu
+from mbgw.scenarios.engine import Scenarios
 from mbgw.scenarios.exchange import EXCEPTION_KINDS, FRAME_WITHOUT_REQUEST, TIMEOUT
 from mbgw.scenarios.health import SerialHealth
 from mbgw.scenarios.report import trace_event
@@ -74,8 +75,8 @@ class LineWorker(LineThread[SlaveConfig]):
         self._gate = Gate()                  # see the module's docstring
         self._reader: TableReader | None = None     # while the table is on
         self._master: SerialMaster | None = self._master_on(line) if line else None
-        self._engine = None                # the serial scenarios' engine (use_scenarios)
-        self._scenarios = None             # the engine while it has scenarios to run
+        self._engine: Scenarios | None = None      # the serial scenarios' engine (use_scenarios)
+        self._scenarios: Scenarios | None = None   # the engine while it has scenarios to run
         self._due_s: float | None = None   # until the next scenario is due (None: none is)
         self._engine_woken = False         # its eventfd was ready (a test, with no scenario)
         self._timed_out: dict[int, Job] = {}   # by address: the job whose late reply may come
@@ -374,7 +375,7 @@ class LineWorker(LineThread[SlaveConfig]):
 
     # --- the serial scenarios ---
 
-    def use_scenarios(self, engine) -> None:
+    def use_scenarios(self, engine: Scenarios) -> None:
         """Run engine's scenarios on this line, and those of the settings to come (called
         once, before start())."""
         self._engine = engine
@@ -437,7 +438,7 @@ class LineWorker(LineThread[SlaveConfig]):
             event = trace_event("reply", scenario, bytes(reply), kind or "ok", latency_ms)
         trace.emit_threadsafe(event)
 
-    def _scenarios_while_down(self, engine) -> None:
+    def _scenarios_while_down(self, engine: Scenarios) -> None:
         """None runs, but the engine's eventfd is read, changes are taken and data ages
         (stale-after); a test is answered at once."""
         now = time.monotonic()
@@ -455,7 +456,7 @@ class LineWorker(LineThread[SlaveConfig]):
             return None, PATH_UNAVAILABLE, 0
         device = self.devices.get(scenario.slave)
         retried, foreign = device.retries, _foreign_frames(device)
-        master.mismatch = None
+        master.clear_mismatch()
         master.on_retry = on_retry
         try:
             reply = self._on_line(master, bytes((scenario.slave,)) + request, scenario.retries)

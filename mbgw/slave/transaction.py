@@ -81,6 +81,11 @@ class SerialMaster:
         self._late_pending = previous._late_pending
         self.late_open = previous.late_open
 
+    def clear_mismatch(self) -> None:
+        """Before a scenario's run: a mismatch after it is that run's (a method, not an
+        assignment, so that mypy does not take mismatch for None after it)."""
+        self.mismatch = None
+
     @property
     def quiet_until_ns(self) -> int:
         """The line must stay silent until then."""
@@ -247,16 +252,8 @@ class SerialMaster:
         if not exchange:
             self._sent(framing.send(adu))
         while True:
-            if exchange:
-                exchange = False
-                got = framing.exchange(adu, self._stout_ns, forward, taken)
-                self._sent(got.request_end_ns)
-                if taken:
-                    self._sent_ns = got.request_end_ns - (len(adu) + 2) * framing.line.char_ns
-            elif self._nocheck:
-                got = framing.receive_unchecked(adu, self._deadline)
-            else:
-                got = framing.receive(adu, self._deadline, forward)
+            got = self._reception(adu, forward, exchange, taken)
+            exchange = False
             if got.fault is not None:
                 if isinstance(got.fault, LineTimeout):
                     self._quiet_from_ns = max(self._quiet_from_ns, got.last_byte_ns)
@@ -286,3 +283,17 @@ class SerialMaster:
                 self.mismatch = frame[1:]
                 continue
             return got
+
+    def _reception(self, adu: bytes, forward, exchange: bool, taken: bool) -> Reception:
+        """The next frame (or fault) on the line for adu; exchange: adu is sent first, in
+        the same C call (taken: that call was made already, by the shortcut)."""
+        framing = self.framing
+        if exchange:
+            got = framing.exchange(adu, self._stout_ns, forward, taken)
+            self._sent(got.request_end_ns)
+            if taken:
+                self._sent_ns = got.request_end_ns - (len(adu) + 2) * framing.line.char_ns
+            return got
+        if self._nocheck:
+            return framing.receive_unchecked(adu, self._deadline)
+        return framing.receive(adu, self._deadline, forward)

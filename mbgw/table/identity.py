@@ -7,7 +7,8 @@ import mbgw
 from mbgw.config.model import PROTOCOLS
 
 if TYPE_CHECKING:
-    from mbgw.config.model import MasterConfig, SlaveConfig, TransparentModeConfig
+    from mbgw.config.model import MasterConfig, SlaveConfig
+    from mbgw.config.transparent import TransparentModeConfig
     from mbgw.table.memory import Table
 
 VENDOR = "mbgw"

@@ -20,7 +20,8 @@ table_status(table, settings, serial, persist) ->
              "connections_tls_probes": n}}
                                                master mode's table TCP server, when given
 """
-from mbgw.config.model import TableConfig, number_list_text
+from mbgw.config.model import TableConfig
+from mbgw.config.number_list import number_list_text
 
 SERIAL_KEYS = ("requests", "crc_errors", "length_errors", "send_failures")
 

@@ -6,7 +6,7 @@ import logging
 import signal
 import time
 
-from mbgw.config.model import TransparentModeConfig
+from mbgw.config.transparent import TransparentModeConfig
 from mbgw.errors import ConfigError
 from mbgw.firewall.guard import Firewall
 from mbgw.line.supervisor import open_at_start

@@ -4,7 +4,8 @@ on the line, after the end characters or the data: it is checked and dropped on 
 added when sending; the table never holds it."""
 import struct
 
-from mbgw.config.model import SerialConfig, TransparentConfig, registers_of
+from mbgw.config.model import SerialConfig
+from mbgw.config.transparent import TransparentConfig, registers_of
 from mbgw.line.frames import crc16
 
 MAX_FRAME = 4096        # bytes without an end: dropped as incomplete (the line is out of step)

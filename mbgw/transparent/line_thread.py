@@ -11,7 +11,7 @@ import os
 import select
 import time
 
-from mbgw.config.model import TransparentModeConfig
+from mbgw.config.transparent import TransparentModeConfig
 from mbgw.errors import SerialError
 from mbgw.line.port import SerialLine
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread

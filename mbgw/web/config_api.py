@@ -11,10 +11,10 @@ from pathlib import Path
 
 import click
 
-from mbgw.config import edit as config_set
-from mbgw.config import file as cf
-from mbgw.config import text as config_text
+from mbgw.config.edit import REMOVE, apply_changes, changes_for_set, show_lines
+from mbgw.config.file import Settings, check, load, parse, read_text, resolve
 from mbgw.config.schema import GROUPS, MODE_KEY, MODES, Schema, is_secret
+from mbgw.config.text import edit
 from mbgw.config.toml_text import write_atomic
 from mbgw.errors import ConfigError, ConfigFileError
 
@@ -34,12 +34,12 @@ def use_commands(root: click.Group, given=(), check: Callable | None = None) -> 
     _root, _given, _check = root, frozenset(given), check
 
 
-def _start_check(keys: Schema, settings: cf.Settings) -> None:
+def _start_check(keys: Schema, settings: Settings) -> None:
     """Raises ConfigFileError when `mbgw run` (and so a reload) would refuse the file."""
     if _check is not None:
         _check(keys, settings, given=_given)
     else:
-        cf.resolve(keys, settings, given=_given)
+        resolve(keys, settings, given=_given)
 
 
 class ConfigRefused(Exception):
@@ -67,7 +67,7 @@ def show(path: Path) -> dict:
         for name in keys.group_keys(group):
             groups.setdefault(group, {})[keys.file_name(name)] = {
                 "value": settings.get(keys, name),
-                "lines": config_set.show_lines(keys, settings, name)}
+                "lines": show_lines(keys, settings, name)}
     return {"file": str(path), "mode": settings.mode, "groups": groups}
 
 
@@ -86,24 +86,24 @@ def set_value(path: Path, group: str, key: str, value) -> dict:
                             f"serial mode ... and systemctl restart mbgw", field)
     text = _read(path)
     try:
-        data = cf.parse(path, text)
-        settings = cf.check(keys, path, data)
+        data = parse(path, text)
+        settings = check(keys, path, data)
     except ConfigFileError as err:
         raise ConfigRefused("the file has problems: fix it first", None, err.problems) \
             from None
     try:
-        changes = config_set.changes_for_set(keys, settings, group, key, words)
-        new_data = config_set.apply_changes(data, keys, changes)
-        _start_check(keys, cf.check(keys, path, new_data))
+        changes = changes_for_set(keys, settings, group, key, words)
+        new_data = apply_changes(data, keys, changes)
+        _start_check(keys, check(keys, path, new_data))
     except ConfigFileError as err:
         raise ConfigRefused("; ".join(err.problems), field, err.problems) from None
     except ConfigError as err:
         raise ConfigRefused(str(err), field) from None
-    new_text = config_text.edit(text, keys, changes.get(MODE_KEY, settings.mode), changes)
+    new_text = edit(text, keys, changes.get(MODE_KEY, settings.mode), changes)
     if tomllib.loads(new_text) != new_data:
         raise ConfigRefused("could not edit the file in place; nothing written", field)
     _write(path, new_text)
-    return {keys.label(name): (None if v is config_set.REMOVE else v)
+    return {keys.label(name): (None if v is REMOVE else v)
             for name, v in changes.items() if name not in keys.keys
             or not any(map(is_secret, keys.keys[name].params.values()))}
 
@@ -118,7 +118,7 @@ def upload(path: Path, text: str) -> str:
     if len(text.encode()) > MAX_FILE:
         raise ConfigRefused(f"the file is over {MAX_FILE // 1024} KiB")
     try:
-        settings = cf.check(keys, path, cf.parse(path, text))
+        settings = check(keys, path, parse(path, text))
         _start_check(keys, settings)
     except ConfigFileError as err:
         raise ConfigRefused(f"{len(err.problems)} problem(s); nothing written", None,
@@ -143,9 +143,9 @@ def _words(value, field: str) -> list[str]:
                         field)
 
 
-def _load(keys: Schema, path: Path) -> cf.Settings:
+def _load(keys: Schema, path: Path) -> Settings:
     try:
-        return cf.load(keys, path)
+        return load(keys, path)
     except ConfigFileError as err:
         raise ConfigRefused("the file has problems", None, err.problems) from None
     except OSError as err:
@@ -154,7 +154,7 @@ def _load(keys: Schema, path: Path) -> cf.Settings:
 
 def _read(path: Path) -> str:
     try:
-        return cf.read_text(path)
+        return read_text(path)
     except OSError as err:
         raise ConfigRefused(f"cannot read {path}: {err.strerror or err}") from None
 

@@ -17,7 +17,7 @@ from pymodbus.framer import FramerType
 from pymodbus.server import ModbusSerialServer
 
 sys.path.insert(0, str(Path(__file__).parent))
-from pymodbus_slave import device  # noqa: E402  (the same datastore as the RTU peer)
+from pymodbus_slave import device  # the same datastore as the RTU peer
 
 
 async def main() -> None:

@@ -39,6 +39,9 @@ ALLOWED = {
 }
 
 
+TYPE_CHECKING = ("TYPE_CHECKING", "typing.TYPE_CHECKING")
+
+
 def module_name(path: Path) -> str:
     parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
     if parts[-1] == "__init__":
@@ -54,10 +57,14 @@ def imports(path: Path, known: set[str]) -> set[str]:
     """The mbgw modules that the file imports (a `from mbgw.pkg import mod` names the module
     when there is one, else the package), but not those imported for type annotations only
     (under `if TYPE_CHECKING:`)."""
+    return imports_in(path.read_text(), str(path), known)
+
+
+def imports_in(source: str, filename: str, known: set[str]) -> set[str]:
     found = set()
-    tree = ast.parse(path.read_text(), str(path))
+    tree = ast.parse(source, filename)
     for node in ast.walk(tree):
-        if isinstance(node, ast.If) and ast.unparse(node.test) == "TYPE_CHECKING":
+        if isinstance(node, ast.If) and ast.unparse(node.test) in TYPE_CHECKING:
             node.body = []         # imports for annotations only: no dependency at run time
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
@@ -91,17 +98,21 @@ def test_imports_run_one_way(module):
     assert not wrong, f"{module} ({own}) may not import {wrong}"
 
 
-def test_no_import_cycles():
-    """Tarjan's strongly connected components over the module graph: every one a single
-    module that does not import itself."""
-    index, low, stack, on_stack, cycles = {}, {}, [], set(), []
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Tarjan's strongly connected components over the module graph: those of more than one
+    module, each sorted (a module importing itself is no cycle Python trips on)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
 
     def visit(v: str) -> None:
         index[v] = low[v] = len(index)
         stack.append(v)
         on_stack.add(v)
-        for w in GRAPH.get(v, ()):
-            if w not in GRAPH:
+        for w in graph.get(v, ()):
+            if w not in graph:
                 continue
             if w not in index:
                 visit(w)
@@ -117,12 +128,39 @@ def test_no_import_cycles():
                 if w == v:
                     break
             if len(component) > 1:
-                cycles.append(sorted(component))
+                found.append(sorted(component))
 
-    for module in GRAPH:
+    for module in graph:
         if module not in index:
             visit(module)
-    assert not cycles, cycles
+    return found
+
+
+def test_no_import_cycles():
+    """No two modules import each other, directly or through others, at run time."""
+    assert not cycles(GRAPH), cycles(GRAPH)
+
+
+def test_a_cycle_through_modules_is_found():
+    graph = {"a.x": {"a.y"}, "a.y": {"b.z"}, "b.z": {"a.x"}, "b.w": {"a.x"}, "c": {"c"}}
+    assert cycles(graph) == [["a.x", "a.y", "b.z"]]
+    assert cycles({"a.x": {"a.y"}, "a.y": set()}) == []
+
+
+def test_imports_for_annotations_only_are_no_dependency():
+    known = {"mbgw.config.model", "mbgw.config.firewall", "mbgw.config.slaveid",
+             "mbgw.config.scenario"}
+    source = (
+        "import typing\n"
+        "from typing import TYPE_CHECKING\n"
+        "from mbgw.config.model import SerialConfig\n"
+        "if TYPE_CHECKING:\n"
+        "    from mbgw.config.firewall import FirewallConfig\n"
+        "if typing.TYPE_CHECKING:\n"
+        "    from mbgw.config import slaveid\n"
+        "def lazy():\n"
+        "    from mbgw.config import scenario\n")
+    assert imports_in(source, "<test>", known) == {"mbgw.config.model", "mbgw.config.scenario"}
 
 
 def test_only_the_line_and_the_table_import_the_c_core():

@@ -241,7 +241,7 @@ def test_a_reader_never_sees_half_of_a_write(pty_pair, start_peer, start_gateway
         def run() -> None:
             try:
                 work(*args)
-            except Exception as err:  # noqa: BLE001 (a thread's failure is the test's)
+            except Exception as err:   # a thread's failure is the test's
                 failures.append(f"{work.__name__}{args}: {err!r}")
                 stop.set()
         return threading.Thread(target=run)

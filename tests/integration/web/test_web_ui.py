@@ -25,9 +25,9 @@ from selenium.webdriver.common.by import By
 from selenium.webdriver.support import expected_conditions as EC
 from selenium.webdriver.support.ui import Select, WebDriverWait
 
-from tests.harness import Gateway, Peer, PtyPair, free_port  # noqa: E402
-from tests.modbus import Client, crc16, read_holding  # noqa: E402
-from tests.ops import status, tracing, tshark_warnings, wait_for, wait_for_log  # noqa: E402
+from tests.harness import Gateway, Peer, PtyPair, free_port
+from tests.modbus import Client, crc16, read_holding
+from tests.ops import status, tracing, tshark_warnings, wait_for, wait_for_log
 
 pytestmark = pytest.mark.integration
 

@@ -17,7 +17,8 @@ from mbgw.config import file as cf
 from mbgw.config import schema as config_keys
 from mbgw.config import text as config_text
 from mbgw.config import toml_text as toml_edit
-from mbgw.config.model import LineFormat, TableConfig, number_list_text, parse_number_list
+from mbgw.config.model import LineFormat, TableConfig
+from mbgw.config.number_list import number_list_text, parse_number_list
 from mbgw.config.slaveid import SlaveRange
 from mbgw.errors import ConfigError, ConfigFileError
 

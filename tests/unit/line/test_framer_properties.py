@@ -8,7 +8,8 @@ import struct
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mbgw.config.model import EOF_KINDS, SerialConfig, TransparentConfig
+from mbgw.config.model import SerialConfig
+from mbgw.config.transparent import EOF_KINDS, TransparentConfig
 from mbgw.errors import ChecksumError, FrameError
 from mbgw.line import frames
 from mbgw.line.framing import AsciiFraming

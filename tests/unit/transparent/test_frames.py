@@ -4,7 +4,8 @@ delivers them; the CRC checked and added by Rules, against the published CRC-16/
 vectors of tests/vectors/crc16.txt (none of them produced by mbgw)."""
 import pytest
 
-from mbgw.config.model import EOF_CHARS, SerialConfig, TransparentConfig
+from mbgw.config.model import SerialConfig
+from mbgw.config.transparent import EOF_CHARS, TransparentConfig
 from mbgw.transparent.frames import MAX_FRAME, Receiver, Rules
 from tests.unit.vectors import CHECK_VECTORS
 

@@ -7,7 +7,8 @@ import pytest
 from click.testing import CliRunner
 
 from mbgw.cli import main
-from mbgw.config.model import SerialConfig, TransparentConfig
+from mbgw.config.model import SerialConfig
+from mbgw.config.transparent import TransparentConfig
 from mbgw.errors import ConfigError
 from tests.harness import free_port
 
