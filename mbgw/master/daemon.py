@@ -6,9 +6,11 @@ import logging
 import signal
 import time
 
+from mbgw.config.lines import RouteMap
 from mbgw.config.model import MasterConfig
 from mbgw.line.supervisor import open_at_start
-from mbgw.master.line_thread import SerialSlave, table_address
+from mbgw.master.face_routes import face_settings
+from mbgw.master.serial_face import SerialFace, build_face
 from mbgw.master.status import MasterStatus
 from mbgw.master.table_service import TableService
 from mbgw.ops.counters import MasterCounters
@@ -48,20 +50,79 @@ def run_master(cfg: MasterConfig, reconfigure=None) -> None:
     tables = TableService(cfg)
     line = open_at_start(cfg.serial)
     try:
-        slave = SerialSlave(cfg, line, counters, tables.table)
+        slave = SerialFace(face_settings(cfg, None, RouteMap(cfg.routes)), line, counters,
+                           tables.table)
     except BaseException:
         if line is not None:
             line.close()
         raise
+    faces = Faces(slave)
     try:
+        faces.build(cfg, tables.table)
         try:
             tables.start()
         except OSError as err:
             raise TableListenFailure(err) from None
-        asyncio.run(_serve(cfg, slave, counters, tables, reconfigure))
+        asyncio.run(_serve(cfg, faces, counters, tables, reconfigure))
     finally:
         tables.stop()
-        slave.close()
+        faces.close()
+
+
+class Faces:
+    """Line serial's face and the faces of the other lines in master mode (`[[line]]`), each
+    on its own thread; the status and the metrics show line serial's."""
+
+    def __init__(self, primary: SerialFace) -> None:
+        self.primary = primary
+        self.others: dict[str, SerialFace] = {}
+
+    def build(self, cfg: MasterConfig, table) -> None:
+        routes = RouteMap(cfg.routes)
+        for line in cfg.lines:
+            if line.is_face:
+                self.others[line.name] = build_face(line, cfg, routes, {}, table)
+                log.info("line %s: master mode, serial %s %d %s %s; %d routes", line.name,
+                         line.serial.device, line.serial.baudrate, line.serial.format,
+                         line.serial.protocol,
+                         sum(r.face == line.name for r in cfg.routes))
+
+    def start(self, idle_ms: int) -> None:
+        for face in (self.primary, *self.others.values()):
+            face.idle_ms = idle_ms
+            face.start()
+
+    def reconfigure(self, cfg: MasterConfig) -> None:
+        """New settings for every face whose line is still there in master mode; lines
+        added, removed or turned to slave mode take a restart."""
+        routes = RouteMap(cfg.routes)
+        self.primary.reconfigure(face_settings(cfg, None, routes))
+        lines = {line.name: line for line in cfg.lines if line.is_face}
+        for name, face in self.others.items():
+            if name in lines:
+                face.reconfigure(face_settings(cfg, lines[name], routes))
+        changed = lines.keys() ^ self.others.keys()
+        if changed:
+            log.warning("lines %s: adding or removing a line in master mode takes a "
+                        "restart", ", ".join(sorted(changed)))
+
+    def stop(self) -> None:
+        for face in (self.primary, *self.others.values()):
+            face.stop()
+
+    def join(self) -> None:
+        for face in (self.primary, *self.others.values()):
+            if face.is_alive():
+                face.join()
+
+    def close(self) -> None:
+        for face in (self.primary, *self.others.values()):
+            face.close()
+
+
+def table_address(cfg: MasterConfig) -> int:
+    """The serial address the table answers as; 0: none."""
+    return cfg.table.address if cfg.table.enabled else 0
 
 
 async def _tick(tables: TableService) -> None:
@@ -80,8 +141,9 @@ def _log_slaveid(cfg: MasterConfig) -> None:
         log.warning("the slaveid table is empty: every request on the line is ignored")
 
 
-async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters,
+async def _serve(cfg: MasterConfig, faces: Faces, counters: MasterCounters,
                  tables: TableService, reconfigure) -> None:
+    slave = faces.primary
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
@@ -92,8 +154,7 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
         counters, slave.devices, slave, started,
         lambda: tables.figures(slave.table_counters.snapshot()), tables.firewall_report),
         engines))
-    slave.idle_ms = idle_ms(watchdog_interval())
-    slave.start()
+    faces.start(idle_ms(watchdog_interval()))
     status = MasterStatus(cfg, slave, counters, tables)
     status.scenario_engines = engines
     commands = {**status.commands(), **scenario_commands(engines, cfg.config_file)}
@@ -117,7 +178,7 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
         await console.reconfigure(new.web, report)
         _log_slaveid(new)
         tables.reconfigure(new, report)
-        slave.reconfigure(new)
+        faces.reconfigure(new)
         await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms,
                                 new.upstream_tls)
     reloads.apply = apply
@@ -129,6 +190,6 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
         await console.close()
         await asyncio.to_thread(scenarios.stop)
     ticking.cancel()
-    slave.stop()
-    await asyncio.to_thread(slave.join)
+    faces.stop()
+    await asyncio.to_thread(faces.join)
     log_stopped(counters)

@@ -1,13 +1,16 @@
-"""Master mode's serial side: mbgw answers on the line for every serial address of the
-slaveid table, as the proxy of the remote Modbus TCP servers.
+"""A serial face: a line in master mode, where an outside master polls serial addresses and
+mbgw answers for each address a route takes (mbgw.master.face_routes), as the proxy of its
+target.
 
-One thread owns the line and the upstream connections.  It waits for a frame (no deadline;
-the eventfd wakes it to stop) and:
-- ignores a frame for an address outside the table, and the reply the slave it was for (if
-  one is on the bus) sends next: the receiver is told to expect it (csrc/request.c);
-- forwards a broadcast (address 0) with unit id 0 to every server of the table, and answers
-  nothing (Serial Line V1.02, 2.1);
-- forwards any other frame to its server and unit id with tcpto as the deadline, then writes
+One thread owns the line, the upstream connections and the wait for other lines' answers.
+It waits for a frame (no deadline; the eventfd wakes it to stop) and:
+- ignores a frame for an address no route takes, and the reply the slave it was for (if one
+  is on the bus) sends next: the receiver is told to expect it (csrc/request.c);
+- forwards a broadcast (address 0) with unit id 0 to every server the face reaches, and
+  writes it into the table when the face reaches the table; it answers nothing (Serial Line
+  V1.02, 2.1).  A broadcast never goes to another line: its devices were not given to this
+  master;
+- forwards a frame routed to a server to its unit id with tcpto as the deadline, then writes
   the reply with the master's serial address.  No reply in time, or a reply that does not
   answer the request (another unit id, function or size, a bad MBAP header: logged at most
   once a minute per address and kind): 0x0B with `exception`, else silence; server
@@ -15,10 +18,11 @@ the eventfd wakes it to stop) and:
   has given up on the request, and the late answer is dropped;
 - answers at once (0x0B with `exception`, else silence) a frame for an address that is down
   (demotion, mbgw.ops.device_stats), without a word to its server, unless a probe is due;
-- answers a frame for the table address (`table-address`, with the table on) itself, from
-  the exchange table (mbgw.table), once the line has been quiet for t3.5, as a serial slave
-  of local data (VPGate 3.7); a broadcast is also written into the table.  The table slave
-  counts its requests, invalid CRCs and lengths, and failed sends (VPGate 8.5).
+- hands a frame routed to a line in slave mode to that line's thread (mbgw.routing: an
+  Exchange in its Inbox) and writes what it answers; a line that does not answer within its
+  safety bound is 0x0B (or silence); a line that is not running, 0x0A (or silence);
+- answers a frame routed to the table from the exchange table once the line has been quiet
+  for t3.5 (mbgw.master.table_slave).
 A device that fails is closed, reopened when it is back (mbgw.line.supervisor), and reported
 once per change.
 Each serial address answered for has its statistics and health (mbgw.ops.device_stats), and the
@@ -31,8 +35,10 @@ import os
 import select
 import ssl
 import time
+from collections import deque
 
-from mbgw.config.model import MasterConfig
+from mbgw.config.lines import RouteMap
+from mbgw.config.model import SerialConfig
 from mbgw.errors import (
     BadReply,
     ChecksumError,
@@ -41,94 +47,123 @@ from mbgw.errors import (
     GatewayTimeout,
     LineTimeout,
     NoRoute,
-    SerialError,
 )
 from mbgw.line import frames, native
 from mbgw.line.framing import framing_for
 from mbgw.line.port import SerialLine
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s
+from mbgw.master.face_routes import (
+    LINE,
+    SERVER,
+    TABLE,
+    FaceSettings,
+    Hop,
+    build_hops,
+    face_settings,
+    ports,
+)
+from mbgw.master.table_slave import TableSlave
 from mbgw.master.trace import (
     OUTCOME_BAD_REPLY,
     OUTCOME_DEVICE_DOWN,
     OUTCOME_EXCEPTION,
     OUTCOME_REPLY,
-    OUTCOME_TABLE,
     OUTCOME_TIMEOUT,
     OUTCOME_UNREACHABLE,
     MasterTracer,
 )
 from mbgw.ops.counters import MasterCounters, TableSlaveCounters
-from mbgw.ops.device_stats import MASTER_COUNTS, DeviceTable, HealthRule
+from mbgw.ops.device_stats import MASTER_COUNTS, DeviceStats, DeviceTable, HealthRule
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.ops.tls import client_context
 from mbgw.ops.trace import TraceHub
 from mbgw.protocol import pdu
+from mbgw.routing.exchange import Exchange
 from mbgw.upstream.pool import Interrupted, UpstreamPool, drain
 
 log = logging.getLogger("mbgw.line")
 wire = logging.getLogger("mbgw.wire")
 
-UNUSED_SETTINGS = {"stout_ms": 0, "nocheck": False}   # slave mode's: no reopen for them
-# read at each answer: no reopen either
-ANSWER_SETTINGS = {"interframe_ms": 0}
 BAD_REPLY_LOG_INTERVAL_S = 60.0
+OUTCOME_LINE_DOWN = "line not running"
 
 
-def _line_settings(serial):
-    return dataclasses.replace(serial, **UNUSED_SETTINGS, **ANSWER_SETTINGS)
+def _line_settings(serial: SerialConfig) -> SerialConfig:
+    """The settings that reopen the line: not slave mode's stout and nocheck, nor
+    interframe-silence, read at each answer."""
+    return dataclasses.replace(serial, stout_ms=0, nocheck=False, interframe_ms=0)
 
 
-def serial_functions(cfg: MasterConfig) -> tuple[int, ...]:
-    """What the table's serial slave answers: its own list, else the table's."""
-    return cfg.table.serial_functions or cfg.table.functions
+def build_face(line, cfg, routes: RouteMap, inboxes: dict, table) -> "SerialFace":
+    """An unstarted thread serving the master-mode line (a LineConfig) of a daemon with the
+    settings cfg (SlaveConfig or MasterConfig): routes is the daemon's RouteMap, inboxes
+    the Inbox of each target line by name, table the exchange table or None.  Raises
+    SerialError when the device is there and does not open (one that is not there is waited
+    for)."""
+    from mbgw.line.supervisor import open_at_start
+    settings = face_settings(cfg, line, routes)
+    opened = open_at_start(settings.serial)
+    try:
+        return SerialFace(settings, opened, MasterCounters(), table, inboxes)
+    except BaseException:
+        if opened is not None:
+            opened.close()
+        raise
 
 
-def table_address(cfg: MasterConfig) -> int:
-    """The serial address the table answers as; 0: none."""
-    return cfg.table.address if cfg.table.enabled else 0
-
-
-class SerialSlave(LineThread[MasterConfig]):
-    def __init__(self, cfg: MasterConfig, line: SerialLine | None, counters: MasterCounters,
-                 table=None) -> None:
-        """table: the exchange table (mbgw.table.memory.Table), None in a gateway without."""
-        super().__init__(cfg, line)
-        self._table = cfg.slaveid
+class SerialFace(LineThread[FaceSettings]):
+    def __init__(self, settings: FaceSettings, line: SerialLine | None,
+                 counters: MasterCounters, table=None, inboxes: dict | None = None) -> None:
+        """table: the exchange table (mbgw.table.memory.Table), None in a gateway without;
+        inboxes: the target lines' Inbox by name."""
+        super().__init__(settings, line)
+        self.face = settings.name
         self._counters = counters
-        self._tcpto_ns = cfg.tcpto_ns
-        self.devices = DeviceTable(MASTER_COUNTS, HealthRule(cfg.demotion))
+        self._inboxes = inboxes or {}
+        self.devices = DeviceTable(MASTER_COUNTS, HealthRule(settings.demotion))
         self._down = self.devices.rule.down    # the addresses that are down, by address
         self.trace = TraceHub()
         self.watch_raw(self.trace, answers=True)
         self._tracer = MasterTracer(self.trace)
         self.wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
-        self._pool = UpstreamPool(cfg.mdbport, cfg.max_connections, counters, self.wake_fd)
-        self._pool.on_late = self._late
+        self._answer_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        self._answered: deque[tuple[Exchange, bytes | None, str]] = deque()
+        self._pools: dict[int, UpstreamPool] = {}
         self._tls_context: ssl.SSLContext | None = None
-        self._use_tls(None, cfg)
         self._reply_to = b""       # the last frame for another slave: its reply may come next
         self._received_ns = 0       # when the request being answered was taken off the line
         self._bad_reply_logged: dict[tuple[int, str], float] = {}   # (address, kind): when
-        self.table = table
-        self.table_counters = TableSlaveCounters()
-        self._table_address = table_address(cfg) if table is not None else 0
-        self._rejected = -1     # the address of the frame a receive has just rejected
+        self._empty_table_counters = TableSlaveCounters()
+        self._table: TableSlave | None = None
         if table is not None:
-            self._responder = table.responder(serial_functions(cfg))
-            table.watch_down(self._down)
+            self._table = TableSlave(table, settings.table_functions)
+            if settings.owns_table_flags:
+                table.watch_down(self._down)
+        self._routes: list[Hop | None] = [None] * 256
+        self._use_routes(None, settings)
+        self._rejected = -1     # the address of the frame a receive has just rejected
         if line is not None:
             self._attach(line)
         else:
             self._detach()
 
     @property
+    def table(self):
+        """The exchange table, or None."""
+        return self._table.table if self._table is not None else None
+
+    @property
+    def table_counters(self) -> TableSlaveCounters:
+        return self._table.counters if self._table is not None else self._empty_table_counters
+
+    @property
     def turn_limit_s(self) -> float:
-        """The longest request and the silence that ends it, tcpto with its server, the
-        longest answer."""
+        """The longest request and the silence that ends it, the longest wait for its
+        target, the longest answer."""
         cfg = self._cfg
         s = cfg.serial
         end_ms = s.ascii_timeout_ms if s.protocol == "ascii" else s.end_of_frame_us / 1000
-        return ((end_ms + sum(s.rtsdelays) + cfg.tcpto_ms + s.interframe_ms) / 1000
+        return ((end_ms + sum(s.rtsdelays) + cfg.longest_wait_ms + s.interframe_ms) / 1000
                 + 2 * longest_frame_s(s) + TURN_MARGIN_S)
 
     def _attach(self, line: SerialLine) -> None:
@@ -143,15 +178,17 @@ class SerialSlave(LineThread[MasterConfig]):
         # the longest ASCII frame at the line's speed, plus one inter-character pause
         self._ascii_frame_ns = (frames.ASCII_MAX_FRAME * serial.char_ns
                                 + self._interchar_us * 1000)
-        if self.table is not None:
+        if self.table is not None and self._cfg.owns_table_flags:
             self.table.set_flags(line_down=False)
 
     def connections(self) -> list[dict]:
         """The open upstream connections (from any thread)."""
-        return self._pool.connections()
+        return [c for pool in list(self._pools.values()) for c in pool.connections()]
 
     def stop(self) -> None:
-        self._pool.stopping = True
+        for pool in list(self._pools.values()):
+            pool.stopping = True
+        self._stopping = True
         super().stop()
 
     # --- the line thread's hooks (mbgw.line.supervisor.LineThread) ---
@@ -161,42 +198,61 @@ class SerialSlave(LineThread[MasterConfig]):
 
     def _detach(self) -> None:
         self._reply_to = b""
-        if self.table is not None:
+        if self.table is not None and self._cfg.owns_table_flags:
             self.table.set_flags(line_down=True)
 
-    def _reopens(self, old, new) -> bool:
+    def _reopens(self, old: SerialConfig, new: SerialConfig) -> bool:
         return _line_settings(new) != _line_settings(old)
 
-    def _configure(self, old: MasterConfig, reopen: bool) -> None:
+    def _configure(self, old: FaceSettings, reopen: bool) -> None:
         cfg = self._cfg
-        self._table = cfg.slaveid
-        self._tcpto_ns = cfg.tcpto_ns
-        self._pool.reconfigure(cfg.mdbport, cfg.max_connections)
-        try:
-            self._use_tls(old, cfg)
-        except ConfigError as err:
-            log.error("TLS to servers: %s: the previous certificates stay in use", err)
-        if self.table is not None:
-            self._responder = self.table.responder(serial_functions(cfg))
-            address = table_address(cfg)
-            if address != self._table_address:
-                self.table_counters.reset()     # a new slave (VPGate 8.5)
-            self._table_address = address
+        self._use_routes(old, cfg)
+        if self._table is not None:
+            self._table.set_functions(cfg.table_functions)
+            if cfg.table_address != old.table_address:
+                self._table.counters.reset()     # a new slave (VPGate 8.5)
         if cfg.demotion != old.demotion:
             self.devices.set_rule(cfg.demotion)
         if reopen:
             self._reply_to = b""
 
-    def _use_tls(self, old: MasterConfig | None, cfg: MasterConfig) -> None:
-        """The `tls` ranges' servers reached over TLS; a client context made again when the
-        files changed.  Raises ConfigError."""
-        upstream = cfg.upstream_tls
-        if not (upstream.enabled and cfg.slaveid.tls_hosts):
+    def _use_routes(self, old: FaceSettings | None, cfg: FaceSettings) -> None:
+        """One upstream pool per servers' port (the old ones for ports no longer reached
+        closed), and each address's hop."""
+        pools = {}
+        for port in ports(cfg):
+            pool = self._pools.get(port)
+            if pool is None:
+                pool = UpstreamPool(port, cfg.max_connections, self._counters, self.wake_fd)
+                pool.on_late = self._late
+            else:
+                pool.reconfigure(port, cfg.max_connections)
+            pools[port] = pool
+        for port, pool in self._pools.items():
+            if port not in pools:
+                pool.close()
+        self._pools = pools
+        try:
+            self._use_tls(old, cfg)
+        except ConfigError as err:
+            if old is None:
+                raise
+            log.error("TLS to servers: %s: the previous certificates stay in use", err)
+        self._routes = build_hops(cfg, self._inboxes, pools.__getitem__,
+                                  self._table is not None)
+
+    def _use_tls(self, old: FaceSettings | None, cfg: FaceSettings) -> None:
+        """The slaveid table's `tls` ranges' servers reached over TLS; a client context made
+        again when the files changed.  Raises ConfigError."""
+        upstream, slaveid = cfg.upstream_tls, cfg.slaveid
+        pool = self._pools.get(cfg.mdbport)
+        if slaveid is None or pool is None:
+            return
+        if not (upstream.enabled and slaveid.tls_hosts):
             self._tls_context = None
         elif self._tls_context is None or old is None or old.upstream_tls != upstream:
             self._tls_context = client_context(upstream)
-        self._pool.set_tls(self._tls_context, upstream.server_port, cfg.slaveid.tls_hosts,
-                           cfg.slaveid.pins)
+        pool.set_tls(self._tls_context, upstream.server_port, slaveid.tls_hosts, slaveid.pins)
 
     def _turn(self) -> None:
         try:
@@ -210,11 +266,13 @@ class SerialSlave(LineThread[MasterConfig]):
 
     def close(self) -> None:
         """After the thread has ended (or if it never started)."""
-        self._pool.close()
+        for pool in self._pools.values():
+            pool.close()
         if self._line is not None:
             self._line.close()
             self._line = None
         os.close(self.wake_fd)
+        os.close(self._answer_fd)
 
     # --- receiving ---
 
@@ -224,44 +282,55 @@ class SerialSlave(LineThread[MasterConfig]):
             adu = self._receive()
         except ChecksumError:
             self._counters.crc_errors += 1
-            if self._table_address and self._rejected == self._table_address:
-                self.table_counters.crc_errors += 1
-            self._reply_to = b""
+            self._rejected_for_table(checksum=True)
             return
         except (FrameError, LineTimeout):      # LineTimeout: noise, no ':' (ASCII)
             self._counters.invalid_frames += 1
-            if self._table_address and self._rejected == self._table_address:
-                self.table_counters.length_errors += 1
-            self._reply_to = b""
+            self._rejected_for_table(checksum=False)
             return
         if adu is None:
             return
         self._received_ns = time.monotonic_ns()
         if len(adu) < 2:
             self._counters.invalid_frames += 1
-            if self._table_address and adu and adu[0] == self._table_address:
-                self.table_counters.length_errors += 1
+            if adu and (table := self._table_of(adu[0])) is not None:
+                table.rejected(checksum=False)
             return
+        self._route(adu)
+
+    def _rejected_for_table(self, checksum: bool) -> None:
+        """A frame rejected by the receiver: the table's when its address goes there."""
+        self._reply_to = b""
+        if (table := self._table_of(self._rejected)) is not None:
+            table.rejected(checksum)
+
+    def _table_of(self, address: int) -> TableSlave | None:
+        """The table's serial slave when the address is routed to it."""
+        hop = self._routes[address] if 0 < address < len(self._routes) else None
+        return self._table if hop is not None and hop.kind == TABLE else None
+
+    def _route(self, adu: bytes) -> None:
         address = adu[0]
         if address == pdu.BROADCAST:
             self._reply_to = b""
-            if self._table_address:
-                self._broadcast_to_table(adu)
             self._broadcast(adu)
             return
-        if address == self._table_address:
-            self._reply_to = b""
-            self._answer_from_table(adu)
-            return
-        route = self._table.route(address)
-        if route is None:
+        hop = self._routes[address]
+        if hop is None:
             self._counters.other_addresses += 1
             self._reply_to = adu
             if self.trace.active:
                 self._tracer.ignored(adu)
             return
         self._reply_to = b""
-        self._forward(adu, *route)
+        if hop.kind == SERVER:
+            self._forward(adu, hop)
+        elif hop.kind == LINE:
+            self._to_line(adu, hop)
+        else:
+            assert self._table is not None
+            self._table.serve(adu, self._answer_quietly,
+                              self._tracer if self.trace.active else None)
 
     def _receive_rtu(self) -> bytes | None:
         try:
@@ -285,123 +354,91 @@ class SerialSlave(LineThread[MasterConfig]):
             self._rejected = _ascii_address(got.frame)
             raise
 
-    # --- the exchange table's serial slave ---
+    # --- to a server ---
 
-    def _answer_from_table(self, adu: bytes) -> None:
-        """A request for the table address: answered from the table once the line has been
-        quiet for t3.5, unless the master moves on first."""
-        counts = self.table_counters
-        counts.requests += 1
-        if _length_error(adu):
-            counts.length_errors += 1       # the table answers it 0x03
-        received_ns = time.monotonic_ns()
-        reply = self._responder.answer(memoryview(adu)[1:])
-        outcome = OUTCOME_TABLE
-        if reply is not None:
-            try:
-                sent = self._answer(adu[0], reply, self._quiet_ms)
-            except SerialError:
-                counts.send_failures += 1
-                raise
-            if not sent:
-                outcome += ", abandoned: the master moved on"
-        if self.trace.active:
-            self._tracer.table(adu, reply, outcome, (time.monotonic_ns() - received_ns) / 1e6)
-
-    def _broadcast_to_table(self, adu: bytes) -> None:
-        """A broadcast's writes go into the table too (its reads are ignored)."""
-        self._responder.answer(memoryview(adu)[1:], True)
-        if self.trace.active:
-            self._tracer.table(adu, None, f"{OUTCOME_TABLE}: broadcast", 0.0)
-
-    # --- forwarding ---
-
-    def _forward(self, adu: bytes, host: str, unit: int) -> None:
+    def _forward(self, adu: bytes, hop: Hop) -> None:
         self._counters.requests += 1
         stats = self.devices.get(adu[0])
-        if stats.upstream != (host, unit):
-            stats.upstream = (host, unit)
+        if stats.upstream != (hop.host, hop.unit):
+            stats.upstream = (hop.host, hop.unit)
         if self._down[adu[0]] and not stats.admit(time.monotonic()):
-            self._refuse_as_down(adu, stats, host, unit)
+            self._refuse_as_down(adu, stats, hop)
             return
         stats.transactions += 1
         if wire.isEnabledFor(logging.DEBUG):
-            wire.debug("line rx %s -> %s unit %d", adu.hex(" "), host, unit)
-        tracing = self.trace.active
-        if tracing:
-            server, sent = self._pool.server(host), []
-
+            wire.debug("line rx %s -> %s unit %d", adu.hex(" "), hop.host, hop.unit)
+        sent: list = []
+        server = hop.label if self.trace.active else ""
+        on_sent = None
+        if server:
             def on_sent(conn, tid: int) -> None:
                 sent.append((conn, tid))
-                self._tracer.request(adu, server, conn, tid, unit)
-            self._pool.on_sent = on_sent
-        received_ns = time.monotonic_ns()
-        reply, code = None, None
-        reply_unit: int | None = unit
+                self._tracer.request(adu, server, conn, tid, hop.unit)
+        reply, reply_unit, code, outcome = self._transact(adu, hop, stats, on_sent)
+        latency_ms = (time.monotonic_ns() - self._received_ns) / 1e6
+        outcome = self._reply(adu, reply if code is None else None, code, stats, outcome)
+        if server:
+            self._tracer.outcome(adu, server, sent[0] if sent else None, reply_unit, reply,
+                                 outcome, None if reply is None else latency_ms)
+
+    def _transact(self, adu: bytes, hop: Hop, stats: DeviceStats, on_sent):
+        """(the server's reply or None, its unit, the exception code to answer or None,
+        the outcome)."""
         try:
-            reply = self._pool.transact(host, unit, adu[1:], received_ns + self._tcpto_ns)
+            reply = hop.pool.transact(hop.host, hop.unit, adu[1:],
+                                      self._received_ns + self._cfg.tcpto_ns, on_sent)
         except GatewayTimeout:
             self._counters.timeouts += 1
             stats.timeouts += 1
             stats.failed()
-            outcome, code = OUTCOME_TIMEOUT, pdu.GATEWAY_TARGET_FAILED
+            return None, hop.unit, pdu.GATEWAY_TARGET_FAILED, OUTCOME_TIMEOUT
         except NoRoute:
             self._counters.unreachable += 1
             stats.unreachable += 1
             stats.failed()
-            outcome, code = OUTCOME_UNREACHABLE, pdu.GATEWAY_PATH_UNAVAILABLE
+            return None, hop.unit, pdu.GATEWAY_PATH_UNAVAILABLE, OUTCOME_UNREACHABLE
         except BadReply as err:
-            self._bad_reply(stats, host, unit, err)
-            outcome, code = f"{OUTCOME_BAD_REPLY}: {err}", pdu.GATEWAY_TARGET_FAILED
-            if err.pdu is not None:       # the server's frame, for the trace
-                reply, reply_unit = err.pdu, err.unit
-                latency_ms = (time.monotonic_ns() - received_ns) / 1e6
-        else:
-            exception = reply[0] & pdu.EXCEPTION_FLAG
-            if exception:
-                self._counters.device_exceptions += 1
-            latency_ms = (time.monotonic_ns() - received_ns) / 1e6
-            stats.answered(latency_ms, reply[1] if exception and len(reply) > 1 else None)
-            outcome = OUTCOME_EXCEPTION if exception else OUTCOME_REPLY
-        finally:
-            if tracing:
-                self._pool.on_sent = None
+            self._bad_reply(stats, hop, err)
+            # the server's frame, if any, for the trace
+            return (err.pdu, err.unit if err.pdu is not None else hop.unit,
+                    pdu.GATEWAY_TARGET_FAILED, f"{OUTCOME_BAD_REPLY}: {err}")
+        exception = reply[0] & pdu.EXCEPTION_FLAG
+        if exception:
+            self._counters.device_exceptions += 1
+        stats.answered((time.monotonic_ns() - self._received_ns) / 1e6,
+                       reply[1] if exception and len(reply) > 1 else None)
+        return reply, hop.unit, None, OUTCOME_EXCEPTION if exception else OUTCOME_REPLY
+
+    def _reply(self, adu: bytes, reply: bytes | None, code: int | None, stats: DeviceStats,
+               outcome: str, quiet_ms: int = 0) -> str:
+        """Answer the master: reply, else exception `code` (with `exception`), else
+        nothing; the outcome with what became of the answer."""
         answer = reply if code is None else gateway_exception(
             self._cfg.exception, adu[1], code, self._counters, stats)
-        if answer is not None:
-            if self._answer(adu[0], answer):
-                if code is not None:
-                    outcome += f", answered 0x{code:02x}"
-            else:
-                stats.abandoned += 1
-                outcome += ", abandoned: the master moved on"
-        if tracing:
-            self._tracer.outcome(adu, server, sent[0] if sent else None, reply_unit, reply,
-                                 outcome, None if reply is None else latency_ms)
+        if answer is None:
+            return outcome
+        if not self._answer(adu[0], answer, quiet_ms):
+            stats.abandoned += 1
+            return outcome + ", abandoned: the master moved on"
+        return outcome + (f", answered 0x{code:02x}" if code is not None else "")
 
     def _late(self, conn, tid: int, unit: int, reply: bytes) -> None:
-        """The pool dropped a late reply (an earlier request's tid)."""
+        """A pool dropped a late reply (an earlier request's tid)."""
         if self.trace.active:
-            self._tracer.late(self._pool.server(conn.host), conn, tid, unit, reply)
+            pool = self._pools.get(conn.port)
+            server = pool.server(conn.host) if pool is not None else f"{conn.host}:{conn.port}"
+            self._tracer.late(server, conn, tid, unit, reply)
 
-    def _refuse_as_down(self, adu: bytes, stats, host: str, unit: int) -> None:
+    def _refuse_as_down(self, adu: bytes, stats: DeviceStats, hop: Hop) -> None:
         """The address is down and this is no probe: nothing goes to its server, the master
         gets 0x0B once the line has been quiet for t3.5 (with `exception`), else nothing."""
         self._counters.demoted_rejects += 1
-        outcome = OUTCOME_DEVICE_DOWN
-        answer = gateway_exception(self._cfg.exception, adu[1], pdu.GATEWAY_TARGET_FAILED,
-                                   self._counters, stats)
-        if answer is not None:
-            if self._answer(adu[0], answer, self._quiet_ms):
-                outcome += f", answered 0x{pdu.GATEWAY_TARGET_FAILED:02x}"
-            else:
-                stats.abandoned += 1
-                outcome += ", abandoned: the master moved on"
+        outcome = self._reply(adu, None, pdu.GATEWAY_TARGET_FAILED, stats, OUTCOME_DEVICE_DOWN,
+                              self._quiet_ms)
         if self.trace.active:
-            self._tracer.outcome(adu, self._pool.server(host), None, unit, None, outcome,
-                                 None)
+            self._tracer.outcome(adu, hop.label, None, hop.unit, None, outcome, None)
 
-    def _bad_reply(self, stats, host: str, unit: int, err: BadReply) -> None:
+    def _bad_reply(self, stats, hop: Hop, err: BadReply) -> None:
         """Counted as the device's failure; a warning per address and kind of bad reply, at
         most once a minute (before the health change it may bring)."""
         setattr(stats, err.counter, getattr(stats, err.counter) + 1)
@@ -411,9 +448,75 @@ class SerialSlave(LineThread[MasterConfig]):
             self._bad_reply_logged[key] = now
             log.warning("device %d: the reply of server %s unit %d does not answer the "
                         "request (%s): dropped (replies of this kind for this address are "
-                        "logged at most once a minute)", stats.address, self._pool.server(host),
-                        unit, err)
+                        "logged at most once a minute)", stats.address, hop.label, hop.unit,
+                        err)
         stats.failed()
+
+    # --- to a line in slave mode ---
+
+    def _to_line(self, adu: bytes, hop: Hop) -> None:
+        """Hand the request to the target line's thread and answer what it answers."""
+        self._counters.requests += 1
+        stats = self.devices.get(adu[0])
+        stats.transactions += 1
+        tracing = self.trace.active
+        if tracing:
+            self._tracer.request(adu, hop.label, None, None, hop.unit)
+        if hop.inbox is None:
+            self._counters.unreachable += 1
+            stats.unreachable += 1
+            reply, code, outcome = None, pdu.GATEWAY_PATH_UNAVAILABLE, OUTCOME_LINE_DOWN
+        else:
+            exchange = Exchange(self.face, hop.unit, adu[1:], self._received_ns,
+                                self._done)
+            hop.inbox.submit(exchange)
+            answered = self._await(exchange, self._received_ns + hop.limit_ns)
+            if answered is None:
+                self._counters.timeouts += 1
+                stats.timeouts += 1
+                reply, code, outcome = None, pdu.GATEWAY_TARGET_FAILED, OUTCOME_TIMEOUT
+            else:
+                (reply, outcome), code = answered, None
+                if reply is not None:
+                    stats.answered((time.monotonic_ns() - self._received_ns) / 1e6,
+                                   reply[1] if reply[0] & pdu.EXCEPTION_FLAG and len(reply) > 1
+                                   else None)
+        latency_ms = (time.monotonic_ns() - self._received_ns) / 1e6
+        if reply is not None or code is not None:
+            outcome = self._reply(adu, reply, code, stats, outcome)
+        if tracing:
+            self._tracer.outcome(adu, hop.label, None, hop.unit, reply, outcome,
+                                 None if reply is None else latency_ms)
+
+    def _done(self, exchange: Exchange, reply: bytes | None, outcome: str) -> None:
+        """The target line's thread: its answer to an exchange of this face."""
+        self._answered.append((exchange, reply, outcome))
+        os.eventfd_write(self._answer_fd, 1)
+
+    def _await(self, exchange: Exchange, deadline_ns: int) -> tuple[bytes | None, str] | None:
+        """The target's (reply, outcome) for exchange; None at deadline_ns.  Answers to
+        earlier exchanges (after their deadline) are dropped.  Raises Interrupted."""
+        while True:
+            while self._answered:
+                done, reply, outcome = self._answered.popleft()
+                if done is exchange:
+                    return reply, outcome
+            timeout_s = (deadline_ns - time.monotonic_ns()) / 1e9
+            if timeout_s <= 0:
+                return None
+            ready = select.select([self._answer_fd, self.wake_fd], [], [], timeout_s)[0]
+            if self.wake_fd in ready:
+                if self._stopping:
+                    raise Interrupted()
+                drain(self.wake_fd)         # a new configuration: applied after this
+            if self._answer_fd in ready:
+                drain(self._answer_fd)
+
+    # --- answering ---
+
+    def _answer_quietly(self, address: int, answer) -> bool:
+        """An answer given at once (the table's): after t3.5 of quiet."""
+        return self._answer(address, answer, self._quiet_ms)
 
     def _answer(self, address: int, answer, quiet_ms: int = 0) -> bool:
         """Write the answer on the line once it has been quiet for quiet_ms, and the
@@ -435,25 +538,41 @@ class SerialSlave(LineThread[MasterConfig]):
         self._counters.replies += 1
         return True
 
+    # --- broadcasts ---
+
     def _broadcast(self, adu: bytes) -> None:
-        destinations = self._table.destinations
-        if self.trace.active:
-            self._pool.on_sent = lambda conn, tid: self._tracer.request(
-                adu, f"{conn.host}:{conn.port}", conn, tid, pdu.BROADCAST)
-        try:
-            reached = self._pool.send_all(destinations, pdu.BROADCAST, adu[1:],
-                                          time.monotonic_ns() + self._tcpto_ns)
-        finally:
-            self._pool.on_sent = None
+        """To the table and every server the face reaches (never to another line)."""
+        tracer = self._tracer if self.trace.active else None
+        servers: dict[int, dict[str, None]] = {}
+        to_table = False
+        for hop in self._routes:
+            if hop is None:
+                continue
+            if hop.kind == SERVER:
+                servers.setdefault(hop.port, {})[hop.host] = None
+            elif hop.kind == TABLE:
+                to_table = True
+        if to_table and self._table is not None:
+            self._table.broadcast(adu, tracer)
+        on_sent = None
+        if tracer is not None:
+            def on_sent(conn, tid: int) -> None:
+                tracer.request(adu, f"{conn.host}:{conn.port}", conn, tid, pdu.BROADCAST)
+        deadline_ns = time.monotonic_ns() + self._cfg.tcpto_ns
+        reached = total = 0
+        for port, hosts in servers.items():
+            total += len(hosts)
+            reached += self._pools[port].send_all(hosts, pdu.BROADCAST, adu[1:], deadline_ns,
+                                                  on_sent)
         self._counters.broadcasts += 1        # counted once sent: its transaction is over
         stats = self.devices.get(pdu.BROADCAST)
         stats.transactions += 1
         stats.broadcasts += 1
-        if reached < len(destinations):
-            log.debug("broadcast reached %d of %d servers", reached, len(destinations))
-        if self.trace.active:
-            self._tracer.outcome(adu, None, None, pdu.BROADCAST, None,
-                                 f"broadcast: {reached} of {len(destinations)} servers", None)
+        if reached < total:
+            log.debug("broadcast reached %d of %d servers", reached, total)
+        if tracer is not None:
+            tracer.outcome(adu, None, None, pdu.BROADCAST, None,
+                           f"broadcast: {reached} of {total} servers", None)
 
 
 def _ascii_address(frame: bytes) -> int:
@@ -462,18 +581,3 @@ def _ascii_address(frame: bytes) -> int:
         return int(frame[1:3], 16)
     except ValueError:
         return -1
-
-
-def _length_error(adu: bytes) -> bool:
-    """The frame's length, or its byte count, is not what its function code and quantity say
-    (VPGate 8.5 "invalid length")."""
-    expected = frames.rtu_request_length(adu + b"\0\0")
-    if expected != frames.LEN_UNKNOWN and expected != len(adu) + native.CRC_LEN:
-        return True
-    function = adu[1]
-    if function in (0x0F, 0x10):
-        quantity = int.from_bytes(adu[4:6], "big")
-        return adu[6] != ((quantity + 7) // 8 if function == 0x0F else 2 * quantity)
-    if function == 0x17:
-        return adu[10] != 2 * int.from_bytes(adu[8:10], "big")
-    return False
