@@ -100,7 +100,7 @@ class Faces:
         lines = {line.name: line for line in cfg.lines if line.is_face}
         for name, face in self.others.items():
             if name in lines:
-                face.reconfigure(face_settings(cfg, lines[name], routes))
+                face.reconfigure_line(lines[name], cfg, routes)
         changed = lines.keys() ^ self.others.keys()
         if changed:
             log.warning("lines %s: adding or removing a line in master mode takes a "

@@ -21,7 +21,8 @@ class Hop:
     """Where one serial address goes: kind, and for a server its host, port and unit id, for
     a line its name, the address there, its inbox (None: that line is not running) and the
     longest its answer may take."""
-    __slots__ = ("kind", "host", "port", "unit", "line", "inbox", "limit_ns", "pool")
+    __slots__ = ("kind", "host", "port", "unit", "line", "inbox", "limit_ns", "pool",
+                 "upstream")
 
     def __init__(self, kind: str, host: str = "", port: int = 0, unit: int = 0,
                  line: str = "", inbox=None, limit_ns: int = 0, pool=None) -> None:
@@ -33,6 +34,7 @@ class Hop:
         self.inbox = inbox
         self.limit_ns = limit_ns
         self.pool = pool              # the UpstreamPool for the server's port
+        self.upstream = (host, unit)  # the device statistics' upstream (a server's)
 
     @property
     def label(self) -> str:

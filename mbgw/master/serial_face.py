@@ -181,6 +181,11 @@ class SerialFace(LineThread[FaceSettings]):
         if self.table is not None and self._cfg.owns_table_flags:
             self.table.set_flags(line_down=False)
 
+    def reconfigure_line(self, line, cfg, routes: RouteMap) -> None:
+        """New settings, as build_face takes them (from another thread); the inboxes dict
+        given to build_face is read again then, so lines added to it are reached."""
+        self.reconfigure(face_settings(cfg, line, routes))
+
     def connections(self) -> list[dict]:
         """The open upstream connections (from any thread)."""
         return [c for pool in list(self._pools.values()) for c in pool.connections()]
@@ -225,6 +230,7 @@ class SerialFace(LineThread[FaceSettings]):
             if pool is None:
                 pool = UpstreamPool(port, cfg.max_connections, self._counters, self.wake_fd)
                 pool.on_late = self._late
+                pool.stopping = self._stopping
             else:
                 pool.reconfigure(port, cfg.max_connections)
             pools[port] = pool
@@ -264,15 +270,23 @@ class SerialFace(LineThread[FaceSettings]):
         if select.select([self.wake_fd], [], [], timeout_s)[0]:
             drain(self.wake_fd)             # stopping, or a new configuration
 
+    def _finish(self) -> None:
+        """The thread ends: the device and the connections are released at once."""
+        super()._finish()
+        for pool in self._pools.values():
+            pool.close()
+
     def close(self) -> None:
-        """After the thread has ended (or if it never started)."""
+        """After the thread has ended (or if it never started): its eventfds too."""
         for pool in self._pools.values():
             pool.close()
         if self._line is not None:
             self._line.close()
             self._line = None
-        os.close(self.wake_fd)
-        os.close(self._answer_fd)
+        if self.wake_fd >= 0:
+            os.close(self.wake_fd)
+            os.close(self._answer_fd)
+            self.wake_fd = self._answer_fd = -1
 
     # --- receiving ---
 
@@ -359,18 +373,19 @@ class SerialFace(LineThread[FaceSettings]):
     def _forward(self, adu: bytes, hop: Hop) -> None:
         self._counters.requests += 1
         stats = self.devices.get(adu[0])
-        if stats.upstream != (hop.host, hop.unit):
-            stats.upstream = (hop.host, hop.unit)
+        if stats.upstream != hop.upstream:
+            stats.upstream = hop.upstream
         if self._down[adu[0]] and not stats.admit(time.monotonic()):
             self._refuse_as_down(adu, stats, hop)
             return
         stats.transactions += 1
         if wire.isEnabledFor(logging.DEBUG):
             wire.debug("line rx %s -> %s unit %d", adu.hex(" "), hop.host, hop.unit)
-        sent: list = []
         server = hop.label if self.trace.active else ""
-        on_sent = None
+        on_sent = sent = None
         if server:
+            sent = []
+
             def on_sent(conn, tid: int) -> None:
                 sent.append((conn, tid))
                 self._tracer.request(adu, server, conn, tid, hop.unit)
