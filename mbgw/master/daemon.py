@@ -48,17 +48,8 @@ def run_master(cfg: MasterConfig, reconfigure=None) -> None:
     (None: there is no file to reload)."""
     counters = MasterCounters()
     tables = TableService(cfg)
-    line = open_at_start(cfg.serial)
+    faces = Faces.opened(cfg, counters, tables.table)
     try:
-        slave = SerialFace(face_settings(cfg, None, RouteMap(cfg.routes)), line, counters,
-                           tables.table)
-    except BaseException:
-        if line is not None:
-            line.close()
-        raise
-    faces = Faces(slave)
-    try:
-        faces.build(cfg, tables.table)
         try:
             tables.start()
         except OSError as err:
@@ -77,15 +68,37 @@ class Faces:
         self.primary = primary
         self.others: dict[str, SerialFace] = {}
 
-    def build(self, cfg: MasterConfig, table) -> None:
+    @classmethod
+    def opened(cls, cfg: MasterConfig, counters: MasterCounters, table) -> "Faces":
+        """Every face, its device open (or waited for).  Raises SerialError (what was
+        opened closed)."""
+        line = open_at_start(cfg.serial)
+        try:
+            primary = SerialFace(face_settings(cfg, None, RouteMap(cfg.routes)), line,
+                                 counters, table)
+        except BaseException:
+            if line is not None:
+                line.close()
+            raise
+        faces = cls(primary)
+        try:
+            faces._build_others(cfg, table)
+        except BaseException:
+            faces.close()
+            raise
+        return faces
+
+    def _build_others(self, cfg: MasterConfig, table) -> None:
         routes = RouteMap(cfg.routes)
         for line in cfg.lines:
-            if line.is_face:
-                self.others[line.name] = build_face(line, cfg, routes, {}, table)
-                log.info("line %s: master mode, serial %s %d %s %s; %d routes", line.name,
-                         line.serial.device, line.serial.baudrate, line.serial.format,
-                         line.serial.protocol,
-                         sum(r.face == line.name for r in cfg.routes))
+            if not line.is_face:
+                log.error("line %s: a line in slave mode does not run in a master-mode "
+                          "daemon yet: requests routed to it get 0x0A or silence", line.name)
+                continue
+            self.others[line.name] = build_face(line, cfg, routes, {}, table)
+            log.info("line %s: master mode, serial %s %d %s %s; %d routes", line.name,
+                     line.serial.device, line.serial.baudrate, line.serial.format,
+                     line.serial.protocol, sum(r.face == line.name for r in cfg.routes))
 
     def start(self, idle_ms: int) -> None:
         for face in (self.primary, *self.others.values()):
