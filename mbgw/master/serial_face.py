@@ -51,7 +51,7 @@ from mbgw.errors import (
 from mbgw.line import frames, native
 from mbgw.line.framing import framing_for
 from mbgw.line.port import SerialLine
-from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s
+from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s, open_at_start
 from mbgw.master.face_routes import (
     LINE,
     SERVER,
@@ -100,7 +100,6 @@ def build_face(line, cfg, routes: RouteMap, inboxes: dict, table) -> "SerialFace
     the Inbox of each target line by name, table the exchange table or None.  Raises
     SerialError when the device is there and does not open (one that is not there is waited
     for)."""
-    from mbgw.line.supervisor import open_at_start
     settings = face_settings(cfg, line, routes)
     opened = open_at_start(settings.serial)
     try:
@@ -119,7 +118,7 @@ class SerialFace(LineThread[FaceSettings]):
         super().__init__(settings, line)
         self.face = settings.name
         self._counters = counters
-        self._inboxes = inboxes or {}
+        self._inboxes = inboxes if inboxes is not None else {}   # the caller's, kept
         self.devices = DeviceTable(MASTER_COUNTS, HealthRule(settings.demotion))
         self._down = self.devices.rule.down    # the addresses that are down, by address
         self.trace = TraceHub()
