@@ -19,19 +19,16 @@ SERVER, TABLE, LINE = "server", "table", "line"
 
 class Hop:
     """Where one serial address goes: kind, and for a server its host, port and unit id, for
-    a line its name, the address there, its inbox (None: that line is not running) and the
-    longest its answer may take."""
-    __slots__ = ("kind", "host", "port", "unit", "line", "inbox", "limit_ns", "pool",
-                 "upstream")
+    a line its name, the address there and the longest its answer may take."""
+    __slots__ = ("kind", "host", "port", "unit", "line", "limit_ns", "pool", "upstream")
 
     def __init__(self, kind: str, host: str = "", port: int = 0, unit: int = 0,
-                 line: str = "", inbox=None, limit_ns: int = 0, pool=None) -> None:
+                 line: str = "", limit_ns: int = 0, pool=None) -> None:
         self.kind = kind
         self.host = host
         self.port = port
         self.unit = unit              # the unit id (server) or serial address (line) there
         self.line = line
-        self.inbox = inbox
         self.limit_ns = limit_ns
         self.pool = pool              # the UpstreamPool for the server's port
         self.upstream = (host, unit)  # the device statistics' upstream (a server's)
@@ -112,7 +109,7 @@ def _line_limit_ms(cfg, name: str) -> int:
     return cfg.tcpto_ms + stout_ms * (retries + 1)
 
 
-def build_hops(face: FaceSettings, inboxes: dict, pool_for: Callable[[int], object],
+def build_hops(face: FaceSettings, pool_for: Callable[[int], object],
                table_on: bool) -> list[Hop | None]:
     """Each serial address's hop (index 0, the broadcast address, is None).  pool_for(port):
     the upstream pool for servers on port; table_on: the face has the exchange table."""
@@ -124,7 +121,6 @@ def build_hops(face: FaceSettings, inboxes: dict, pool_for: Callable[[int], obje
             unit = route.rewrite(address)
             if route.line is not None:
                 hops[address] = Hop(LINE, unit=unit, line=route.line,
-                                    inbox=inboxes.get(route.line),
                                     limit_ns=limits[route.line] * 1_000_000)
             elif route.table:
                 hops[address] = table

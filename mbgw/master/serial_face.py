@@ -114,7 +114,8 @@ class SerialFace(LineThread[FaceSettings]):
     def __init__(self, settings: FaceSettings, line: SerialLine | None,
                  counters: MasterCounters, table=None, inboxes: dict | None = None) -> None:
         """table: the exchange table (mbgw.table.memory.Table), None in a gateway without;
-        inboxes: the target lines' Inbox by name."""
+        inboxes: the target lines' Inbox by name, looked up at each request (a line not in
+        it is not running: 0x0A or silence)."""
         super().__init__(settings, line)
         self.face = settings.name
         self._counters = counters
@@ -181,8 +182,7 @@ class SerialFace(LineThread[FaceSettings]):
             self.table.set_flags(line_down=False)
 
     def reconfigure_line(self, line, cfg, routes: RouteMap) -> None:
-        """New settings, as build_face takes them (from another thread); the inboxes dict
-        given to build_face is read again then, so lines added to it are reached."""
+        """New settings, as build_face takes them (from another thread)."""
         self.reconfigure(face_settings(cfg, line, routes))
 
     def connections(self) -> list[dict]:
@@ -243,8 +243,7 @@ class SerialFace(LineThread[FaceSettings]):
             if old is None:
                 raise
             log.error("TLS to servers: %s: the previous certificates stay in use", err)
-        self._routes = build_hops(cfg, self._inboxes, pools.__getitem__,
-                                  self._table is not None)
+        self._routes = build_hops(cfg, pools.__getitem__, self._table is not None)
 
     def _use_tls(self, old: FaceSettings | None, cfg: FaceSettings) -> None:
         """The slaveid table's `tls` ranges' servers reached over TLS; a client context made
@@ -476,14 +475,15 @@ class SerialFace(LineThread[FaceSettings]):
         tracing = self.trace.active
         if tracing:
             self._tracer.request(adu, hop.label, None, None, hop.unit)
-        if hop.inbox is None:
+        inbox = self._inboxes.get(hop.line)
+        if inbox is None:
             self._counters.unreachable += 1
             stats.unreachable += 1
             reply, code, outcome = None, pdu.GATEWAY_PATH_UNAVAILABLE, OUTCOME_LINE_DOWN
         else:
             exchange = Exchange(self.face, hop.unit, adu[1:], self._received_ns,
                                 self._done)
-            hop.inbox.submit(exchange)
+            inbox.submit(exchange)
             answered = self._await(exchange, self._received_ns + hop.limit_ns)
             if answered is None:
                 self._counters.timeouts += 1

@@ -202,3 +202,13 @@ def test_a_broadcast_never_goes_to_another_line(face_with, master, inbox, target
     os.write(master, rtu(0, bytes.fromhex("06 00 01 00 07")))
     ask(master, rtu(3, read_holding(0, 1)), rtu(3, bytes((0x03, 2, 0, 103))))
     assert [e.address for e in t.wait_for(1)] == [3]
+
+
+def test_a_line_whose_inbox_comes_later_is_reached_from_then_on(face_with, master, inbox,
+                                                                 target):
+    inboxes: dict = {}
+    face_with(to_meters((3,)), inboxes=inboxes)
+    ask(master, rtu(3, read_holding(0, 1)), exception(3, 0x03, 0x0A))
+    target(register_reply)
+    inboxes[METERS] = inbox            # the target line has started
+    ask(master, rtu(3, read_holding(0, 1)), rtu(3, bytes((0x03, 2, 0, 103))))
