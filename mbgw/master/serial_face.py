@@ -148,6 +148,11 @@ class SerialFace(LineThread[FaceSettings]):
             self._detach()
 
     @property
+    def counters(self) -> MasterCounters:
+        """The face's own counters (status, metrics)."""
+        return self._counters
+
+    @property
     def table(self):
         """The exchange table, or None."""
         return self._table.table if self._table is not None else None
