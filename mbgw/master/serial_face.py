@@ -35,7 +35,6 @@ import os
 import select
 import ssl
 import time
-from collections import deque
 
 from mbgw.config.lines import RouteMap
 from mbgw.config.model import SerialConfig
@@ -62,6 +61,7 @@ from mbgw.master.face_routes import (
     face_settings,
     ports,
 )
+from mbgw.master.line_target import LineRequests
 from mbgw.master.table_slave import TableSlave
 from mbgw.master.trace import (
     OUTCOME_BAD_REPLY,
@@ -78,7 +78,6 @@ from mbgw.ops.exception_reply import gateway_exception
 from mbgw.ops.tls import client_context
 from mbgw.ops.trace import TraceHub
 from mbgw.protocol import pdu
-from mbgw.routing.exchange import Exchange
 from mbgw.upstream.pool import Interrupted, UpstreamPool, drain
 
 log = logging.getLogger("mbgw.line")
@@ -126,8 +125,7 @@ class SerialFace(LineThread[FaceSettings]):
         self.watch_raw(self.trace, answers=True)
         self._tracer = MasterTracer(self.trace)
         self.wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
-        self._answer_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
-        self._answered: deque[tuple[Exchange, bytes | None, str]] = deque()
+        self._lines = LineRequests(self.face, self.wake_fd, lambda: self._stopping)
         self._pools: dict[int, UpstreamPool] = {}
         self._tls_context: ssl.SSLContext | None = None
         self._reply_to = b""       # the last frame for another slave: its reply may come next
@@ -286,10 +284,10 @@ class SerialFace(LineThread[FaceSettings]):
         if self._line is not None:
             self._line.close()
             self._line = None
+        self._lines.close()
         if self.wake_fd >= 0:
             os.close(self.wake_fd)
-            os.close(self._answer_fd)
-            self.wake_fd = self._answer_fd = -1
+            self.wake_fd = -1
 
     # --- receiving ---
 
@@ -486,10 +484,8 @@ class SerialFace(LineThread[FaceSettings]):
             stats.unreachable += 1
             reply, code, outcome = None, pdu.GATEWAY_PATH_UNAVAILABLE, OUTCOME_LINE_DOWN
         else:
-            exchange = Exchange(self.face, hop.unit, adu[1:], self._received_ns,
-                                self._done)
-            inbox.submit(exchange)
-            answered = self._await(exchange, self._received_ns + hop.limit_ns)
+            answered = self._lines.ask(inbox, hop.unit, adu[1:], self._received_ns,
+                                       self._received_ns + hop.limit_ns)
             if answered is None:
                 self._counters.timeouts += 1
                 stats.timeouts += 1
@@ -506,30 +502,6 @@ class SerialFace(LineThread[FaceSettings]):
         if tracing:
             self._tracer.outcome(adu, hop.label, None, hop.unit, reply, outcome,
                                  None if reply is None else latency_ms)
-
-    def _done(self, exchange: Exchange, reply: bytes | None, outcome: str) -> None:
-        """The target line's thread: its answer to an exchange of this face."""
-        self._answered.append((exchange, reply, outcome))
-        os.eventfd_write(self._answer_fd, 1)
-
-    def _await(self, exchange: Exchange, deadline_ns: int) -> tuple[bytes | None, str] | None:
-        """The target's (reply, outcome) for exchange; None at deadline_ns.  Answers to
-        earlier exchanges (after their deadline) are dropped.  Raises Interrupted."""
-        while True:
-            while self._answered:
-                done, reply, outcome = self._answered.popleft()
-                if done is exchange:
-                    return reply, outcome
-            timeout_s = (deadline_ns - time.monotonic_ns()) / 1e9
-            if timeout_s <= 0:
-                return None
-            ready = select.select([self._answer_fd, self.wake_fd], [], [], timeout_s)[0]
-            if self.wake_fd in ready:
-                if self._stopping:
-                    raise Interrupted()
-                drain(self.wake_fd)         # a new configuration: applied after this
-            if self._answer_fd in ready:
-                drain(self._answer_fd)
 
     # --- answering ---
 
