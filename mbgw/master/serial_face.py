@@ -493,9 +493,11 @@ class SerialFace(LineThread[FaceSettings]):
             else:
                 (reply, outcome), code = answered, None
                 if reply is not None:
+                    exception = reply[0] & pdu.EXCEPTION_FLAG and len(reply) > 1
+                    if exception:
+                        self._counters.device_exceptions += 1
                     stats.answered((time.monotonic_ns() - self._received_ns) / 1e6,
-                                   reply[1] if reply[0] & pdu.EXCEPTION_FLAG and len(reply) > 1
-                                   else None)
+                                   reply[1] if exception else None)
         latency_ms = (time.monotonic_ns() - self._received_ns) / 1e6
         if reply is not None or code is not None:
             outcome = self._reply(adu, reply, code, stats, outcome)
