@@ -6,9 +6,9 @@ import logging
 import signal
 import time
 
+from mbgw.config.lines import PRIMARY_LINE
 from mbgw.config.model import MasterConfig
-from mbgw.line.supervisor import open_at_start
-from mbgw.master.line_thread import SerialSlave, table_address
+from mbgw.master.faces import Faces
 from mbgw.master.status import MasterStatus
 from mbgw.master.table_service import TableService
 from mbgw.ops.counters import MasterCounters
@@ -46,22 +46,21 @@ def run_master(cfg: MasterConfig, reconfigure=None) -> None:
     (None: there is no file to reload)."""
     counters = MasterCounters()
     tables = TableService(cfg)
-    line = open_at_start(cfg.serial)
-    try:
-        slave = SerialSlave(cfg, line, counters, tables.table)
-    except BaseException:
-        if line is not None:
-            line.close()
-        raise
+    faces = Faces.opened(cfg, counters, tables.table)
     try:
         try:
             tables.start()
         except OSError as err:
             raise TableListenFailure(err) from None
-        asyncio.run(_serve(cfg, slave, counters, tables, reconfigure))
+        asyncio.run(_serve(cfg, faces, counters, tables, reconfigure))
     finally:
         tables.stop()
-        slave.close()
+        faces.close()
+
+
+def table_address(cfg: MasterConfig) -> int:
+    """The serial address the table answers as; 0: none."""
+    return cfg.table.address if cfg.table.enabled else 0
 
 
 async def _tick(tables: TableService) -> None:
@@ -71,7 +70,7 @@ async def _tick(tables: TableService) -> None:
 
 
 def _log_slaveid(cfg: MasterConfig) -> None:
-    if cfg.slaveid.ranges:
+    if cfg.slaveid.ranges or any(r.face == PRIMARY_LINE for r in cfg.routes):
         return
     if table_address(cfg):
         log.info("the slaveid table is empty: mbgw is a Modbus %s server of the exchange "
@@ -80,8 +79,9 @@ def _log_slaveid(cfg: MasterConfig) -> None:
         log.warning("the slaveid table is empty: every request on the line is ignored")
 
 
-async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters,
+async def _serve(cfg: MasterConfig, faces: Faces, counters: MasterCounters,
                  tables: TableService, reconfigure) -> None:
+    slave = faces.primary
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
     for signum in (signal.SIGTERM, signal.SIGINT):
@@ -92,8 +92,7 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
         counters, slave.devices, slave, started,
         lambda: tables.figures(slave.table_counters.snapshot()), tables.firewall_report),
         engines))
-    slave.idle_ms = idle_ms(watchdog_interval())
-    slave.start()
+    faces.start(idle_ms(watchdog_interval()))
     status = MasterStatus(cfg, slave, counters, tables)
     status.scenario_engines = engines
     commands = {**status.commands(), **scenario_commands(engines, cfg.config_file)}
@@ -117,7 +116,7 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
         await console.reconfigure(new.web, report)
         _log_slaveid(new)
         tables.reconfigure(new, report)
-        slave.reconfigure(new)
+        faces.reconfigure(new)
         await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms,
                                 new.upstream_tls)
     reloads.apply = apply
@@ -129,6 +128,6 @@ async def _serve(cfg: MasterConfig, slave: SerialSlave, counters: MasterCounters
         await console.close()
         await asyncio.to_thread(scenarios.stop)
     ticking.cancel()
-    slave.stop()
-    await asyncio.to_thread(slave.join)
+    faces.stop()
+    await asyncio.to_thread(faces.join)
     log_stopped(counters)

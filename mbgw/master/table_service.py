@@ -1,5 +1,5 @@
 """Master mode's exchange table beside the line: the table itself (the line thread's
-serial slave answers from it, mbgw.master.line_thread), its Modbus TCP server on
+serial slave answers from it, mbgw.master.table_slave), its Modbus TCP server on
 `table-port` (mbgw.table.server, a thread of its own; with TLS on `tls-port` too) while
 the table is on, its file
 (`table-persist`, mbgw.table.persist: loaded at start, saved by tick() and at stop), and the

@@ -24,9 +24,10 @@ TABLE_SERVER = "table"
 class MasterTracer:
     def __init__(self, hub) -> None:
         self.hub = hub            # a TraceHub; .active tells whether anyone traces
-        self._addresses: dict[tuple[str, int], int] = {}    # (server, tid): serial address
+        self._addresses: dict[tuple[str, int | None], int] = {}    # (server, tid): serial address
 
-    def request(self, adu: bytes, server: str, conn, tid: int, unit: int) -> None:
+    def request(self, adu: bytes, server: str, conn, tid: int | None, unit: int) -> None:
+        """A request gone to its target (conn and tid None: not over Modbus TCP)."""
         if len(self._addresses) >= ADDRESSES_KEPT:
             self._addresses.clear()
         self._addresses[server, tid] = adu[0]

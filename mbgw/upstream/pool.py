@@ -85,6 +85,9 @@ class Connection:
         return self.tid
 
 
+OnSent = Callable[[Connection, int], None]
+
+
 class UpstreamPool:
     def __init__(self, port: int, limit: int, counters: MasterCounters, wake_fd: int) -> None:
         self._port = port
@@ -100,8 +103,6 @@ class UpstreamPool:
         self._chunk = bytearray(RECV_SIZE)
         self._view = memoryview(self._chunk)
         self.stopping = False     # set before the eventfd is signalled to stop
-        # (conn, tid) after each request went out; for the trace
-        self.on_sent: Callable[[Connection, int], None] | None = None
         # (conn, tid, unit, PDU) of a late reply, dropped; for the trace
         self.on_late: Callable[[Connection, int, int, bytes], None] | None = None
 
@@ -158,16 +159,18 @@ class UpstreamPool:
                  "units": sorted(c.units), "last_activity": now - (mono - c.last_active)}
                 for c in conns]
 
-    def transact(self, host: str, unit: int, request: bytes, deadline_ns: int) -> bytes:
-        """Send the request PDU to host's unit and return the reply PDU.  Raises GatewayTimeout
+    def transact(self, host: str, unit: int, request: bytes, deadline_ns: int,
+                 on_sent: OnSent | None = None) -> bytes:
+        """Send the request PDU to host's unit and return the reply PDU; on_sent(conn, tid)
+        once it went out (for the trace).  Raises GatewayTimeout
         when no reply came before deadline_ns (CLOCK_MONOTONIC) or the connection broke
         after the request went out, BadReply when the reply does not answer the request,
         NoRoute when host cannot be reached, Interrupted."""
         conn = self._connection(host, deadline_ns)
         tid = conn.next_tid()
         self._send(conn, mbap.frame(tid, unit, request), unit)
-        if self.on_sent is not None:
-            self.on_sent(conn, tid)
+        if on_sent is not None:
+            on_sent(conn, tid)
         while True:
             try:
                 for reply_tid, reply_unit, reply in mbap.split_frames(conn.buf):
@@ -187,9 +190,11 @@ class UpstreamPool:
             if self._receive(conn) is False:
                 raise ConnectionLost()
 
-    def send_all(self, hosts, unit: int, request: bytes, deadline_ns: int) -> int:
-        """Send a request that gets no reply (a broadcast) to each host; returns how many it
-        reached.  Hosts not connected by deadline_ns are skipped.  Raises Interrupted."""
+    def send_all(self, hosts, unit: int, request: bytes, deadline_ns: int,
+                 on_sent: OnSent | None = None) -> int:
+        """Send a request that gets no reply (a broadcast) to each host (on_sent(conn, tid)
+        after each); returns how many it reached.  Hosts not connected by deadline_ns are
+        skipped.  Raises Interrupted."""
         reached = 0
         for host in hosts:
             try:
@@ -198,8 +203,8 @@ class UpstreamPool:
                 self._send(conn, mbap.frame(tid, unit, request), unit)
             except (GatewayTimeout, NoRoute):
                 continue
-            if self.on_sent is not None:
-                self.on_sent(conn, tid)
+            if on_sent is not None:
+                on_sent(conn, tid)
             reached += 1
         return reached
 

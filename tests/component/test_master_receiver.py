@@ -187,7 +187,7 @@ def test_a_device_that_goes_away_is_a_serial_error():
 
 
 
-# ---- ASCII: the reader in csrc/line.c, called as master.line_thread.SerialSlave does ----
+# ---- ASCII: the reader in csrc/line.c, called as master.serial_face.SerialFace does ----
 
 ASCII_TIMEOUT_US = 200_000
 

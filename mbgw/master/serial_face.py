@@ -1,0 +1,576 @@
+"""A serial face: a line in master mode, where an outside master polls serial addresses and
+mbgw answers for each address a route takes (mbgw.master.face_routes), as the proxy of its
+target.
+
+One thread owns the line, the upstream connections and the wait for other lines' answers.
+It waits for a frame (no deadline; the eventfd wakes it to stop) and:
+- ignores a frame for an address no route takes, and the reply the slave it was for (if one
+  is on the bus) sends next: the receiver is told to expect it (csrc/request.c);
+- forwards a broadcast (address 0) with unit id 0 to every server the face reaches, and
+  writes it into the table when the face reaches the table; it answers nothing (Serial Line
+  V1.02, 2.1).  A broadcast never goes to another line: its devices were not given to this
+  master;
+- forwards a frame routed to a server to its unit id with tcpto as the deadline, then writes
+  the reply with the master's serial address.  No reply in time, or a reply that does not
+  answer the request (another unit id, function or size, a bad MBAP header: logged at most
+  once a minute per address and kind): 0x0B with `exception`, else silence; server
+  unreachable: 0x0A, or silence.  If the master has sent something new in the meantime it
+  has given up on the request, and the late answer is dropped;
+- answers at once (0x0B with `exception`, else silence) a frame for an address that is down
+  (demotion, mbgw.ops.device_stats), without a word to its server, unless a probe is due;
+- hands a frame routed to a line in slave mode to that line's thread (mbgw.routing: an
+  Exchange in its Inbox) and writes what it answers; a line that does not answer within its
+  safety bound is 0x0B (or silence); a line that is not running, 0x0A (or silence);
+- answers a frame routed to the table from the exchange table once the line has been quiet
+  for t3.5 (mbgw.master.table_slave).
+A device that fails is closed, reopened when it is back (mbgw.line.supervisor), and reported
+once per change.
+Each serial address answered for has its statistics and health (mbgw.ops.device_stats), and the
+traffic goes to `mbgw trace` while someone traces (mbgw.master.trace).  A new configuration
+(SIGHUP) is taken between two transactions; new line settings reopen the line.
+"""
+import dataclasses
+import logging
+import os
+import select
+import ssl
+import time
+
+from mbgw.config.lines import RouteMap
+from mbgw.config.model import SerialConfig
+from mbgw.errors import (
+    BadReply,
+    ChecksumError,
+    ConfigError,
+    FrameError,
+    GatewayTimeout,
+    LineTimeout,
+    NoRoute,
+)
+from mbgw.line import frames, native
+from mbgw.line.framing import framing_for
+from mbgw.line.port import SerialLine
+from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s, open_at_start
+from mbgw.master.face_routes import (
+    LINE,
+    SERVER,
+    TABLE,
+    FaceSettings,
+    Hop,
+    build_hops,
+    face_settings,
+    ports,
+)
+from mbgw.master.line_target import LineRequests
+from mbgw.master.table_slave import TableSlave
+from mbgw.master.trace import (
+    OUTCOME_BAD_REPLY,
+    OUTCOME_DEVICE_DOWN,
+    OUTCOME_EXCEPTION,
+    OUTCOME_REPLY,
+    OUTCOME_TIMEOUT,
+    OUTCOME_UNREACHABLE,
+    MasterTracer,
+)
+from mbgw.ops.counters import MasterCounters, TableSlaveCounters
+from mbgw.ops.device_stats import MASTER_COUNTS, DeviceStats, DeviceTable, HealthRule
+from mbgw.ops.exception_reply import gateway_exception
+from mbgw.ops.tls import client_context
+from mbgw.ops.trace import TraceHub
+from mbgw.protocol import pdu
+from mbgw.upstream.pool import Interrupted, UpstreamPool, drain
+
+log = logging.getLogger("mbgw.line")
+wire = logging.getLogger("mbgw.wire")
+
+BAD_REPLY_LOG_INTERVAL_S = 60.0
+OUTCOME_LINE_DOWN = "line not running"
+
+
+def _line_settings(serial: SerialConfig) -> SerialConfig:
+    """The settings that reopen the line: not slave mode's stout and nocheck, nor
+    interframe-silence, read at each answer."""
+    return dataclasses.replace(serial, stout_ms=0, nocheck=False, interframe_ms=0)
+
+
+def build_face(line, cfg, routes: RouteMap, inboxes: dict, table) -> "SerialFace":
+    """An unstarted thread serving the master-mode line (a LineConfig) of a daemon with the
+    settings cfg (SlaveConfig or MasterConfig): routes is the daemon's RouteMap, inboxes
+    the Inbox of each target line by name, table the exchange table or None.  Raises
+    SerialError when the device is there and does not open (one that is not there is waited
+    for)."""
+    settings = face_settings(cfg, line, routes)
+    opened = open_at_start(settings.serial)
+    try:
+        return SerialFace(settings, opened, MasterCounters(), table, inboxes)
+    except BaseException:
+        if opened is not None:
+            opened.close()
+        raise
+
+
+class SerialFace(LineThread[FaceSettings]):
+    def __init__(self, settings: FaceSettings, line: SerialLine | None,
+                 counters: MasterCounters, table=None, inboxes: dict | None = None) -> None:
+        """table: the exchange table (mbgw.table.memory.Table), None in a gateway without;
+        inboxes: the target lines' Inbox by name, looked up at each request (a line not in
+        it is not running: 0x0A or silence)."""
+        super().__init__(settings, line)
+        self.face = settings.name
+        self._counters = counters
+        self._inboxes = inboxes if inboxes is not None else {}   # the caller's, kept
+        self.devices = DeviceTable(MASTER_COUNTS, HealthRule(settings.demotion))
+        self._down = self.devices.rule.down    # the addresses that are down, by address
+        self.trace = TraceHub()
+        self.watch_raw(self.trace, answers=True)
+        self._tracer = MasterTracer(self.trace)
+        self.wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+        self._lines = LineRequests(self.face, self.wake_fd, lambda: self._stopping)
+        self._pools: dict[int, UpstreamPool] = {}
+        self._tls_context: ssl.SSLContext | None = None
+        self._reply_to = b""       # the last frame for another slave: its reply may come next
+        self._received_ns = 0       # when the request being answered was taken off the line
+        self._bad_reply_logged: dict[tuple[int, str], float] = {}   # (address, kind): when
+        self._empty_table_counters = TableSlaveCounters()
+        self._table: TableSlave | None = None
+        if table is not None:
+            self._table = TableSlave(table, settings.table_functions)
+            if settings.owns_table_flags:
+                table.watch_down(self._down)
+        self._routes: list[Hop | None] = [None] * 256
+        self._use_routes(None, settings)
+        self._rejected = -1     # the address of the frame a receive has just rejected
+        if line is not None:
+            self._attach(line)
+        else:
+            self._detach()
+
+    @property
+    def counters(self) -> MasterCounters:
+        """The face's own counters (status, metrics)."""
+        return self._counters
+
+    @property
+    def table(self):
+        """The exchange table, or None."""
+        return self._table.table if self._table is not None else None
+
+    @property
+    def table_counters(self) -> TableSlaveCounters:
+        return self._table.counters if self._table is not None else self._empty_table_counters
+
+    @property
+    def turn_limit_s(self) -> float:
+        """The longest request and the silence that ends it, the longest wait for its
+        target, the longest answer."""
+        cfg = self._cfg
+        s = cfg.serial
+        end_ms = s.ascii_timeout_ms if s.protocol == "ascii" else s.end_of_frame_us / 1000
+        return ((end_ms + sum(s.rtsdelays) + cfg.longest_wait_ms + s.interframe_ms) / 1000
+                + 2 * longest_frame_s(s) + TURN_MARGIN_S)
+
+    def _attach(self, line: SerialLine) -> None:
+        self._port = line.port
+        self._framing = framing_for(line)
+        serial = line.cfg
+        self._receive = self._receive_ascii if serial.protocol == "ascii" else self._receive_rtu
+        self._gap_us = serial.end_of_frame_us
+        self._interchar_us = serial.ascii_timeout_ms * 1000
+        # what an answer given at once waits after the request: t3.5 (RTU), in whole ms
+        self._quiet_ms = -(-self._framing.inter_frame_us // 1000)
+        # the longest ASCII frame at the line's speed, plus one inter-character pause
+        self._ascii_frame_ns = (frames.ASCII_MAX_FRAME * serial.char_ns
+                                + self._interchar_us * 1000)
+        if self.table is not None and self._cfg.owns_table_flags:
+            self.table.set_flags(line_down=False)
+
+    def reconfigure_line(self, line, cfg, routes: RouteMap) -> None:
+        """New settings, as build_face takes them (from another thread)."""
+        self.reconfigure(face_settings(cfg, line, routes))
+
+    def connections(self) -> list[dict]:
+        """The open upstream connections (from any thread)."""
+        return [c for pool in list(self._pools.values()) for c in pool.connections()]
+
+    def stop(self) -> None:
+        for pool in list(self._pools.values()):
+            pool.stopping = True
+        self._stopping = True
+        super().stop()
+
+    # --- the line thread's hooks (mbgw.line.supervisor.LineThread) ---
+
+    def _wake(self) -> None:
+        os.eventfd_write(self.wake_fd, 1)
+
+    def _detach(self) -> None:
+        self._reply_to = b""
+        if self.table is not None and self._cfg.owns_table_flags:
+            self.table.set_flags(line_down=True)
+
+    def _reopens(self, old: SerialConfig, new: SerialConfig) -> bool:
+        return _line_settings(new) != _line_settings(old)
+
+    def _configure(self, old: FaceSettings, reopen: bool) -> None:
+        cfg = self._cfg
+        self._use_routes(old, cfg)
+        if self._table is not None:
+            self._table.set_functions(cfg.table_functions)
+            if cfg.table_address != old.table_address:
+                self._table.counters.reset()     # a new slave (VPGate 8.5)
+        if cfg.demotion != old.demotion:
+            self.devices.set_rule(cfg.demotion)
+        if reopen:
+            self._reply_to = b""
+
+    def _use_routes(self, old: FaceSettings | None, cfg: FaceSettings) -> None:
+        """One upstream pool per servers' port (the old ones for ports no longer reached
+        closed), and each address's hop."""
+        pools = {}
+        for port in ports(cfg):
+            pool = self._pools.get(port)
+            if pool is None:
+                pool = UpstreamPool(port, cfg.max_connections, self._counters, self.wake_fd)
+                pool.on_late = self._late
+                pool.stopping = self._stopping
+            else:
+                pool.reconfigure(port, cfg.max_connections)
+            pools[port] = pool
+        for port, pool in self._pools.items():
+            if port not in pools:
+                pool.close()
+        self._pools = pools
+        try:
+            self._use_tls(old, cfg)
+        except ConfigError as err:
+            if old is None:
+                raise
+            log.error("TLS to servers: %s: the previous certificates stay in use", err)
+        self._routes = build_hops(cfg, pools.__getitem__, self._table is not None)
+
+    def _use_tls(self, old: FaceSettings | None, cfg: FaceSettings) -> None:
+        """The slaveid table's `tls` ranges' servers reached over TLS; a client context made
+        again when the files changed.  Raises ConfigError."""
+        upstream, slaveid = cfg.upstream_tls, cfg.slaveid
+        pool = self._pools.get(cfg.mdbport)
+        if slaveid is None or pool is None:
+            return
+        if not (upstream.enabled and slaveid.tls_hosts):
+            self._tls_context = None
+        elif self._tls_context is None or old is None or old.upstream_tls != upstream:
+            self._tls_context = client_context(upstream)
+        pool.set_tls(self._tls_context, upstream.server_port, slaveid.tls_hosts, slaveid.pins)
+
+    def _turn(self) -> None:
+        try:
+            self._serve_next()
+        except Interrupted:
+            pass
+
+    def _while_down(self, timeout_s: float) -> None:
+        if select.select([self.wake_fd], [], [], timeout_s)[0]:
+            drain(self.wake_fd)             # stopping, or a new configuration
+
+    def _finish(self) -> None:
+        """The thread ends: the device and the connections are released at once."""
+        super()._finish()
+        for pool in self._pools.values():
+            pool.close()
+
+    def close(self) -> None:
+        """After the thread has ended (or if it never started): its eventfds too."""
+        for pool in self._pools.values():
+            pool.close()
+        if self._line is not None:
+            self._line.close()
+            self._line = None
+        self._lines.close()
+        if self.wake_fd >= 0:
+            os.close(self.wake_fd)
+            self.wake_fd = -1
+
+    # --- receiving ---
+
+    def _serve_next(self) -> None:
+        self._rejected = -1
+        try:
+            adu = self._receive()
+        except ChecksumError:
+            self._counters.crc_errors += 1
+            self._rejected_for_table(checksum=True)
+            return
+        except (FrameError, LineTimeout):      # LineTimeout: noise, no ':' (ASCII)
+            self._counters.invalid_frames += 1
+            self._rejected_for_table(checksum=False)
+            return
+        if adu is None:
+            return
+        self._received_ns = time.monotonic_ns()
+        if len(adu) < 2:
+            self._counters.invalid_frames += 1
+            if adu and (table := self._table_of(adu[0])) is not None:
+                table.rejected(checksum=False)
+            return
+        self._route(adu)
+
+    def _rejected_for_table(self, checksum: bool) -> None:
+        """A frame rejected by the receiver: the table's when its address goes there."""
+        self._reply_to = b""
+        if (table := self._table_of(self._rejected)) is not None:
+            table.rejected(checksum)
+
+    def _table_of(self, address: int) -> TableSlave | None:
+        """The table's serial slave when the address is routed to it."""
+        hop = self._routes[address] if 0 < address < len(self._routes) else None
+        return self._table if hop is not None and hop.kind == TABLE else None
+
+    def _route(self, adu: bytes) -> None:
+        address = adu[0]
+        if address == pdu.BROADCAST:
+            self._reply_to = b""
+            self._broadcast(adu)
+            return
+        hop = self._routes[address]
+        if hop is None:
+            self._counters.other_addresses += 1
+            self._reply_to = adu
+            if self.trace.active:
+                self._tracer.ignored(adu)
+            return
+        self._reply_to = b""
+        if hop.kind == SERVER:
+            self._forward(adu, hop)
+        elif hop.kind == LINE:
+            self._to_line(adu, hop)
+        else:
+            assert self._table is not None
+            self._table.serve(adu, self._answer_quietly,
+                              self._tracer if self.trace.active else None)
+
+    def _receive_rtu(self) -> bytes | None:
+        try:
+            return self._port.read_request(self.wake_fd, self._reply_to, self._gap_us,
+                                           self.idle_ms)
+        except (ChecksumError, FrameError):
+            self._rejected = self._port.rejected_address
+            raise
+
+    def _receive_ascii(self) -> bytes | None:
+        if self._port.idle_wait(self.wake_fd, self.idle_ms) != native.IDLE_INPUT:
+            return None
+        got = self._port.read_ascii(time.monotonic_ns() + self._ascii_frame_ns,
+                                    self._interchar_us)
+        if got.fault is not None:
+            raise got.fault
+        assert got.frame is not None
+        try:
+            return frames.ascii_decode(got.frame)
+        except (ChecksumError, FrameError):
+            self._rejected = _ascii_address(got.frame)
+            raise
+
+    # --- to a server ---
+
+    def _forward(self, adu: bytes, hop: Hop) -> None:
+        self._counters.requests += 1
+        stats = self.devices.get(adu[0])
+        if stats.upstream != hop.upstream:
+            stats.upstream = hop.upstream
+        if self._down[adu[0]] and not stats.admit(time.monotonic()):
+            self._refuse_as_down(adu, stats, hop)
+            return
+        stats.transactions += 1
+        if wire.isEnabledFor(logging.DEBUG):
+            wire.debug("line rx %s -> %s unit %d", adu.hex(" "), hop.host, hop.unit)
+        server = hop.label if self.trace.active else ""
+        on_sent = sent = None
+        if server:
+            sent = []
+
+            def on_sent(conn, tid: int) -> None:
+                sent.append((conn, tid))
+                self._tracer.request(adu, server, conn, tid, hop.unit)
+        reply, reply_unit, code, outcome = self._transact(adu, hop, stats, on_sent)
+        latency_ms = (time.monotonic_ns() - self._received_ns) / 1e6
+        outcome = self._reply(adu, reply if code is None else None, code, stats, outcome)
+        if server:
+            self._tracer.outcome(adu, server, sent[0] if sent else None, reply_unit, reply,
+                                 outcome, None if reply is None else latency_ms)
+
+    def _transact(self, adu: bytes, hop: Hop, stats: DeviceStats, on_sent):
+        """(the server's reply or None, its unit, the exception code to answer or None,
+        the outcome)."""
+        try:
+            reply = hop.pool.transact(hop.host, hop.unit, adu[1:],
+                                      self._received_ns + self._cfg.tcpto_ns, on_sent)
+        except GatewayTimeout:
+            self._counters.timeouts += 1
+            stats.timeouts += 1
+            stats.failed()
+            return None, hop.unit, pdu.GATEWAY_TARGET_FAILED, OUTCOME_TIMEOUT
+        except NoRoute:
+            self._counters.unreachable += 1
+            stats.unreachable += 1
+            stats.failed()
+            return None, hop.unit, pdu.GATEWAY_PATH_UNAVAILABLE, OUTCOME_UNREACHABLE
+        except BadReply as err:
+            self._bad_reply(stats, hop, err)
+            # the server's frame, if any, for the trace
+            return (err.pdu, err.unit if err.pdu is not None else hop.unit,
+                    pdu.GATEWAY_TARGET_FAILED, f"{OUTCOME_BAD_REPLY}: {err}")
+        exception = reply[0] & pdu.EXCEPTION_FLAG
+        if exception:
+            self._counters.device_exceptions += 1
+        stats.answered((time.monotonic_ns() - self._received_ns) / 1e6,
+                       reply[1] if exception and len(reply) > 1 else None)
+        return reply, hop.unit, None, OUTCOME_EXCEPTION if exception else OUTCOME_REPLY
+
+    def _reply(self, adu: bytes, reply: bytes | None, code: int | None, stats: DeviceStats,
+               outcome: str, quiet_ms: int = 0) -> str:
+        """Answer the master: reply, else exception `code` (with `exception`), else
+        nothing; the outcome with what became of the answer."""
+        answer = reply if code is None else gateway_exception(
+            self._cfg.exception, adu[1], code, self._counters, stats)
+        if answer is None:
+            return outcome
+        if not self._answer(adu[0], answer, quiet_ms):
+            stats.abandoned += 1
+            return outcome + ", abandoned: the master moved on"
+        return outcome + (f", answered 0x{code:02x}" if code is not None else "")
+
+    def _late(self, conn, tid: int, unit: int, reply: bytes) -> None:
+        """A pool dropped a late reply (an earlier request's tid)."""
+        if self.trace.active:
+            pool = self._pools.get(conn.port)
+            server = pool.server(conn.host) if pool is not None else f"{conn.host}:{conn.port}"
+            self._tracer.late(server, conn, tid, unit, reply)
+
+    def _refuse_as_down(self, adu: bytes, stats: DeviceStats, hop: Hop) -> None:
+        """The address is down and this is no probe: nothing goes to its server, the master
+        gets 0x0B once the line has been quiet for t3.5 (with `exception`), else nothing."""
+        self._counters.demoted_rejects += 1
+        outcome = self._reply(adu, None, pdu.GATEWAY_TARGET_FAILED, stats, OUTCOME_DEVICE_DOWN,
+                              self._quiet_ms)
+        if self.trace.active:
+            self._tracer.outcome(adu, hop.label, None, hop.unit, None, outcome, None)
+
+    def _bad_reply(self, stats, hop: Hop, err: BadReply) -> None:
+        """Counted as the device's failure; a warning per address and kind of bad reply, at
+        most once a minute (before the health change it may bring)."""
+        setattr(stats, err.counter, getattr(stats, err.counter) + 1)
+        key, now = (stats.address, err.counter), time.monotonic()
+        if now - self._bad_reply_logged.get(key, -BAD_REPLY_LOG_INTERVAL_S) >= \
+                BAD_REPLY_LOG_INTERVAL_S:
+            self._bad_reply_logged[key] = now
+            log.warning("device %d: the reply of server %s unit %d does not answer the "
+                        "request (%s): dropped (replies of this kind for this address are "
+                        "logged at most once a minute)", stats.address, hop.label, hop.unit,
+                        err)
+        stats.failed()
+
+    # --- to a line in slave mode ---
+
+    def _to_line(self, adu: bytes, hop: Hop) -> None:
+        """Hand the request to the target line's thread and answer what it answers."""
+        self._counters.requests += 1
+        stats = self.devices.get(adu[0])
+        stats.transactions += 1
+        tracing = self.trace.active
+        if tracing:
+            self._tracer.request(adu, hop.label, None, None, hop.unit)
+        inbox = self._inboxes.get(hop.line)
+        if inbox is None:
+            self._counters.unreachable += 1
+            stats.unreachable += 1
+            reply, code, outcome = None, pdu.GATEWAY_PATH_UNAVAILABLE, OUTCOME_LINE_DOWN
+        else:
+            answered = self._lines.ask(inbox, hop.unit, adu[1:], self._received_ns,
+                                       self._received_ns + hop.limit_ns)
+            if answered is None:
+                self._counters.timeouts += 1
+                stats.timeouts += 1
+                reply, code, outcome = None, pdu.GATEWAY_TARGET_FAILED, OUTCOME_TIMEOUT
+            else:
+                (reply, outcome), code = answered, None
+                if reply is not None:
+                    exception = reply[0] & pdu.EXCEPTION_FLAG and len(reply) > 1
+                    if exception:
+                        self._counters.device_exceptions += 1
+                    stats.answered((time.monotonic_ns() - self._received_ns) / 1e6,
+                                   reply[1] if exception else None)
+        latency_ms = (time.monotonic_ns() - self._received_ns) / 1e6
+        if reply is not None or code is not None:
+            outcome = self._reply(adu, reply, code, stats, outcome)
+        if tracing:
+            self._tracer.outcome(adu, hop.label, None, hop.unit, reply, outcome,
+                                 None if reply is None else latency_ms)
+
+    # --- answering ---
+
+    def _answer_quietly(self, address: int, answer) -> bool:
+        """An answer given at once (the table's): after t3.5 of quiet."""
+        return self._answer(address, answer, self._quiet_ms)
+
+    def _answer(self, address: int, answer, quiet_ms: int = 0) -> bool:
+        """Write the answer on the line once it has been quiet for quiet_ms, and the
+        interframe silence has passed since the request was taken, unless the master has
+        moved on (False)."""
+        interframe_ns = self._cfg.serial.interframe_ms * 1_000_000
+        if interframe_ns:
+            left_ns = self._received_ns + interframe_ns - time.monotonic_ns()
+            quiet_ms = max(quiet_ms, -(-left_ns // 1_000_000))
+        while (idle := self._port.idle_wait(self.wake_fd, quiet_ms)) != native.IDLE_TIMEOUT:
+            if idle == native.IDLE_INPUT or self._stopping:
+                self._counters.abandoned += 1
+                return False
+            # woken (and the signal taken) for a new configuration: it waits for this answer
+        frame = bytes((address,)) + answer
+        if wire.isEnabledFor(logging.DEBUG):
+            wire.debug("line tx %s", frame.hex(" "))
+        self._framing.send(frame)
+        self._counters.replies += 1
+        return True
+
+    # --- broadcasts ---
+
+    def _broadcast(self, adu: bytes) -> None:
+        """To the table and every server the face reaches (never to another line)."""
+        tracer = self._tracer if self.trace.active else None
+        servers: dict[int, dict[str, None]] = {}
+        to_table = False
+        for hop in self._routes:
+            if hop is None:
+                continue
+            if hop.kind == SERVER:
+                servers.setdefault(hop.port, {})[hop.host] = None
+            elif hop.kind == TABLE:
+                to_table = True
+        if to_table and self._table is not None:
+            self._table.broadcast(adu, tracer)
+        on_sent = None
+        if tracer is not None:
+            def on_sent(conn, tid: int) -> None:
+                tracer.request(adu, f"{conn.host}:{conn.port}", conn, tid, pdu.BROADCAST)
+        deadline_ns = time.monotonic_ns() + self._cfg.tcpto_ns
+        reached = total = 0
+        for port, hosts in servers.items():
+            total += len(hosts)
+            reached += self._pools[port].send_all(hosts, pdu.BROADCAST, adu[1:], deadline_ns,
+                                                  on_sent)
+        self._counters.broadcasts += 1        # counted once sent: its transaction is over
+        stats = self.devices.get(pdu.BROADCAST)
+        stats.transactions += 1
+        stats.broadcasts += 1
+        if reached < total:
+            log.debug("broadcast reached %d of %d servers", reached, total)
+        if tracer is not None:
+            tracer.outcome(adu, None, None, pdu.BROADCAST, None,
+                           f"broadcast: {reached} of {total} servers", None)
+
+
+def _ascii_address(frame: bytes) -> int:
+    """The address of an ASCII frame (':' and two hex digits), -1 when it has none."""
+    try:
+        return int(frame[1:3], 16)
+    except ValueError:
+        return -1
