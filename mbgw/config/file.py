@@ -114,9 +114,8 @@ def nesting(value) -> int:
         level = [v for c in containers for v in (c.values() if isinstance(c, dict) else c)]
 
 
-def check(schema: Schema, path: Path, data: dict) -> Settings:
-    """Every key known, every value accepted by its option; raises ConfigFileError listing all
-    the problems found."""
+def _top_level_problems(schema: Schema, data: dict) -> list[str]:
+    """What is wrong at the file's top level: unknown groups, keys outside a group."""
     problems = []
     for name, content in data.items():
         if name in (fw.GROUP, fw.RULE_TABLE, SCENARIO_KEY, line_file.LINE_TABLE,
@@ -134,6 +133,13 @@ def check(schema: Schema, path: Path, data: dict) -> Settings:
                             f"[{schema.label(name).split('.')[0]}]")
         else:
             problems.append(f"{name}: unknown key{schema.hint(name)}")
+    return problems
+
+
+def check(schema: Schema, path: Path, data: dict) -> Settings:
+    """Every key known, every value accepted by its option; raises ConfigFileError listing all
+    the problems found."""
+    problems = _top_level_problems(schema, data)
     groups = {g: data[g] for g in GROUPS if isinstance(data.get(g), dict)}
     mode = _check_mode(schema, groups.get("serial", {}), problems)
     values = {}

@@ -103,6 +103,25 @@ class RouteConfig:
 def route_problems(lines: tuple[LineConfig, ...], routes: tuple[RouteConfig, ...]) -> list[str]:
     """What check-config refuses in lines and routes, each naming its key."""
     problems: list[str] = []
+    by_name = _named(lines, problems)
+    taken: dict[tuple[str, int], RouteConfig] = {}
+    for route in routes:
+        found = _route_problems(route, by_name)
+        problems += found
+        if found and found[0].startswith(f"{route.label}: give one target"):
+            continue
+        for unit in route.units:
+            other_route = taken.get((route.face, unit))
+            if other_route is not None:
+                problems.append(f"{route.label}.units: unit {unit} is routed by "
+                                f"{other_route.label} already")
+                break
+            taken[(route.face, unit)] = route
+    return problems
+
+
+def _named(lines: tuple[LineConfig, ...], problems: list[str]) -> dict[str, LineConfig]:
+    """The lines by name; two with one name, or two on one device, are problems."""
     by_name: dict[str, LineConfig] = {}
     by_device: dict[str, str] = {}
     for line in lines:
@@ -114,53 +133,59 @@ def route_problems(lines: tuple[LineConfig, ...], routes: tuple[RouteConfig, ...
             problems.append(f"line {line.name}.device {line.serial.device}: line {other} "
                             f"uses it already")
         by_device.setdefault(line.serial.device, line.name)
-    taken: dict[tuple[str, int], RouteConfig] = {}
-    for route in routes:
-        label = route.label
-        targets = [n for n, given in (("line", route.line is not None), ("table", route.table),
-                                      ("server", route.server is not None)) if given]
-        if len(targets) != 1:
-            problems.append(f"{label}: give one target: line = NAME, table = true or server = "
-                            f"\"IP[:PORT]\"" + (f" (got {' and '.join(targets)})"
-                                                if targets else ""))
-            continue
-        if route.address is not None and route.offset:
-            problems.append(f"{label}.offset: offset and address exclude each other")
-        if route.face != TCP_FACE:
-            face = by_name.get(route.face)
-            if face is None:
-                problems.append(f"{label}.from {route.face!r}: no such line")
-            elif not face.is_face:
-                problems.append(f"{label}.from {route.face!r}: the line is in slave mode; from "
-                                f"names a line in master mode (a master on it)")
-        if route.line is not None:
-            target = by_name.get(route.line)
-            if target is None:
-                problems.append(f"{label}.line {route.line!r}: no such line")
-            elif not target.is_target:
-                problems.append(f"{label}.line {route.line!r}: the line is in master mode; a "
-                                f"route reaches a line in slave mode (mbgw the master on it)")
-            elif route.line == route.face:
-                problems.append(f"{label}.line {route.line!r}: a line cannot route to itself")
-        high = MAX_SERVER_UNIT if route.server is not None else pdu.MAX_SERIAL_ADDRESS
-        low = 0 if route.server is not None else 1
-        if not route.implicit and (route.line is not None or route.server is not None):
-            bad = [u for u in route.units if not low <= route.rewrite(u) <= high]
-            if bad and route.address is None and not route.offset:
-                problems.append(f"{label}.units: unit {bad[0]} is outside {low}..{high}, the "
-                                f"target's addresses; give offset or address")
-            elif bad:
-                problems.append(f"{label}.{'address' if route.address is not None else 'offset'}"
-                                f": unit {bad[0]} becomes {route.rewrite(bad[0])}, outside "
-                                f"{low}..{high}")
-        for unit in route.units:
-            other_route = taken.get((route.face, unit))
-            if other_route is not None:
-                problems.append(f"{label}.units: unit {unit} is routed by "
-                                f"{other_route.label} already")
-                break
-            taken[(route.face, unit)] = route
+    return by_name
+
+
+def _route_problems(route: RouteConfig, by_name: dict[str, LineConfig]) -> list[str]:
+    label = route.label
+    targets = [n for n, given in (("line", route.line is not None), ("table", route.table),
+                                  ("server", route.server is not None)) if given]
+    if len(targets) != 1:
+        return [f"{label}: give one target: line = NAME, table = true or server = "
+                f"\"IP[:PORT]\"" + (f" (got {' and '.join(targets)})" if targets else "")]
+    problems = []
+    if route.address is not None and route.offset:
+        problems.append(f"{label}.offset: offset and address exclude each other")
+    if route.face != TCP_FACE:
+        face = by_name.get(route.face)
+        if face is None:
+            problems.append(f"{label}.from {route.face!r}: no such line")
+        elif not face.is_face:
+            problems.append(f"{label}.from {route.face!r}: the line is in slave mode; from "
+                            f"names a line in master mode (a master on it)")
+    if route.line is not None:
+        problems += _line_target_problems(route, by_name.get(route.line))
+    if not route.implicit and (route.line is not None or route.server is not None):
+        problems += _rewrite_problems(route)
     return problems
+
+
+def _line_target_problems(route: RouteConfig, target: LineConfig | None) -> list[str]:
+    label = route.label
+    if target is None:
+        return [f"{label}.line {route.line!r}: no such line"]
+    if not target.is_target:
+        return [f"{label}.line {route.line!r}: the line is in master mode; a route reaches a "
+                f"line in slave mode (mbgw the master on it)"]
+    if route.line == route.face:
+        return [f"{label}.line {route.line!r}: a line cannot route to itself"]
+    return []
+
+
+def _rewrite_problems(route: RouteConfig) -> list[str]:
+    """A unit rewritten outside the target's addresses: 1..247 on a line, 0..255 on a
+    server."""
+    high = MAX_SERVER_UNIT if route.server is not None else pdu.MAX_SERIAL_ADDRESS
+    low = 0 if route.server is not None else 1
+    bad = [u for u in route.units if not low <= route.rewrite(u) <= high]
+    if not bad:
+        return []
+    if route.address is None and not route.offset:
+        return [f"{route.label}.units: unit {bad[0]} is outside {low}..{high}, the target's "
+                f"addresses; give offset or address"]
+    key = "address" if route.address is not None else "offset"
+    return [f"{route.label}.{key}: unit {bad[0]} becomes {route.rewrite(bad[0])}, outside "
+            f"{low}..{high}"]
 
 
 def check_routes(lines: tuple[LineConfig, ...], routes: tuple[RouteConfig, ...]) -> None:

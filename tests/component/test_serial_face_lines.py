@@ -14,7 +14,7 @@ from mbgw.config.model import SerialConfig, SlaveConfig
 from mbgw.master.serial_face import build_face
 from mbgw.routing.exchange import Exchange
 from mbgw.routing.inbox import Inbox
-from tests.integration.test_master import recv
+from tests.integration.master.test_master import recv
 from tests.modbus import read_holding, rtu
 
 BAUD = 19200

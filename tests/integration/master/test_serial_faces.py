@@ -4,7 +4,7 @@ socat pty polls serial addresses; each route takes its addresses to a remote Mod
 fixed address, or to the exchange table; an address no route takes is never answered.  Two
 lines in master mode in one daemon each reach their own server.
 
-The lines and routes reach `mbgw master` through tests/peers/lines_hook (JSON); the masters
+The lines and routes reach `mbgw master` through its configuration file; the masters
 are raw RTU frames checked byte for byte against frames built here (tests/modbus.py's CRC),
 mbpoll and pymodbus's serial client.  "No answer" is checked by order: a request that must be
 answered follows the one that must not, and the first bytes back must be its answer."""
@@ -18,12 +18,11 @@ import pytest
 from pymodbus.client import ModbusSerialClient
 
 from tests.harness import PtyPair, free_port
-from tests.integration.test_master import BAUD, REPLY_S, holding_reply, identity, recv
+from tests.integration.master.test_master import BAUD, REPLY_S, holding_reply, identity, recv
 from tests.modbus import rtu_frame as rtu
 
 pytestmark = pytest.mark.integration
 
-HOOK = Path(__file__).resolve().parents[1] / "peers" / "lines_hook"
 METER = "127.0.4.1"          # on the servers' common port
 PANEL_METER = "127.0.4.2"    # on the common port too: line panel's
 OTHER_PORT_METER = "127.0.4.3"   # alone on a port of its own
@@ -56,15 +55,41 @@ def unanswered(fd: int, request: bytes, then: bytes, expected: bytes) -> None:
     assert got == want, f"{request.hex(' ')} then {then.hex(' ')}: got {got.hex(' ')!r}"
 
 
+def _toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    return json.dumps(str(value))
+
+
+def lines_file(path: Path, lines, routes) -> Path:
+    """A configuration file with these [[line]] and [[route]] tables (dicts of their keys;
+    a route's units a list, its server [HOST, PORT])."""
+    text = []
+    for line in lines:
+        text.append("[[line]]")
+        text += [f"{key} = {_toml_value(value)}" for key, value in line.items()]
+    for route in routes:
+        text.append("[[route]]")
+        for key, value in route.items():
+            if key == "units":
+                value = ",".join(str(unit) for unit in value)
+            elif key == "server":
+                value = f"{value[0]}:{value[1]}"
+            text.append(f"{key} = {_toml_value(value)}")
+    path.write_text("\n".join(text) + "\n")
+    return path
+
+
 @pytest.fixture
-def lines_master(pty_pair, start_gateway):
+def lines_master(pty_pair, start_gateway, tmp_path):
     """lines_master(*options, lines=[], routes=[]) -> `mbgw master` on pty_pair at BAUD with
-    these [[line]] and [[route]] settings (dicts, as lines_hook reads them)."""
+    these [[line]] and [[route]] tables in its configuration file."""
     def start(*options: str, lines=(), routes=()):
-        given = json.dumps({"lines": list(lines), "routes": list(routes)})
-        path = os.pathsep.join(filter(None, (str(HOOK), os.environ.get("PYTHONPATH"))))
-        return start_gateway(pty_pair.gateway, "--baudrate", BAUD, *options, mode="master",
-                             listen=False, env={"PYTHONPATH": path, "MBGW_TEST_LINES": given})
+        config = lines_file(tmp_path / "lines.toml", lines, routes)
+        return start_gateway(pty_pair.gateway, "--config", str(config), "--baudrate", BAUD,
+                             *options, mode="master", listen=False)
     return start
 
 
