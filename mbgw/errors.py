@@ -1,4 +1,5 @@
 """The exception tree.  Each kind of failure has its own class; nothing raises a base class."""
+import os
 
 
 class MbgwError(Exception):
@@ -6,7 +7,32 @@ class MbgwError(Exception):
 
 
 class ConfigError(MbgwError, ValueError):
-    """A configuration value is invalid; the message names the option and the reason."""
+    """A configuration value is invalid; the message names the option and the reason.  key:
+    the option's name when the raiser knows it (the CLI then blames that option)."""
+
+    def __init__(self, *args, key: str | None = None) -> None:
+        super().__init__(*args)
+        self.key = key
+
+
+class ListenError(MbgwError, OSError):
+    """A port cannot be listened on.  option: the setting that named it (table-port,
+    --metrics); port: the port, or the ADDR:PORT of an HTTP endpoint; reason: why, from the
+    OSError (errno kept) or as text."""
+
+    def __init__(self, option: str, port: int | str, reason: str | OSError) -> None:
+        code = None
+        if isinstance(reason, OSError):
+            code = reason.errno or None
+            reason = os.strerror(reason.errno) if reason.errno else \
+                (reason.strerror or str(reason))
+        self.option = option
+        self.port = port
+        self.reason = reason
+        super().__init__(code, f"{option} {port}: cannot listen there: {reason}")
+
+    def __str__(self) -> str:
+        return str(self.strerror)
 
 
 class SerialError(MbgwError, OSError):

@@ -116,8 +116,8 @@ def parse_bind(value):
 
 def _parse_metrics(value):
     if value is not None:
-        from mbgw.ops.metrics_server import parse_address
-        parse_address(value)
+        from mbgw.net.address import parse_host_port
+        parse_host_port(value, "metrics")
     return value
 
 
@@ -310,17 +310,17 @@ def _tls_file(check):
 
 
 def _check_cert(path, option="tls-cert"):
-    from mbgw.ops.tls import check_certificate
+    from mbgw.net.tls import check_certificate
     check_certificate(path, option)
 
 
 def _check_key(path, option="tls-key"):
-    from mbgw.ops.tls import check_key
+    from mbgw.net.tls import check_key
     check_key(path, option)
 
 
 def _check_ca(path, option="tls-ca"):
-    from mbgw.ops.tls import check_ca
+    from mbgw.net.tls import check_ca
     check_ca(path, option)
 
 
@@ -328,7 +328,7 @@ def _crl_callback(ctx, param, value):
     """The CRL readable, and signed by a CA of tls-ca (when that option came first; the mode's
     settings check it again)."""
     if value is not None:
-        from mbgw.ops.tls import check_crl, check_crl_issuer
+        from mbgw.net.tls import check_crl, check_crl_issuer
         convert("'--tls-crl'", lambda: check_crl(value))
         ca = ctx.params.get("tls_ca")
         if ca is not None:
@@ -366,7 +366,7 @@ tls_options = stack(
 
 def tls_config(tls_port, tls_cert, tls_key, tls_ca, tls_require_role=True,
                tls_crl=None) -> config.TlsConfig:
-    from mbgw.ops.tls import check_crl_issuer, file_stamps
+    from mbgw.net.tls import check_crl_issuer, file_stamps
     if tls_crl is not None and tls_ca is not None:
         convert("'--tls-crl'", lambda: check_crl_issuer(tls_crl, tls_ca))
     return convert("'--tls-cert'", lambda: config.TlsConfig(
@@ -406,7 +406,7 @@ def upstream_tls_config(settings: dict) -> config.UpstreamTlsConfig:
 
 def _upstream_tls_config(tls_client_cert=None, tls_client_key=None, tls_server_ca=None,
                          tls_server_port=config.DEFAULT_TLS_PORT) -> config.UpstreamTlsConfig:
-    from mbgw.ops.tls import file_stamps
+    from mbgw.net.tls import file_stamps
     return convert("'--tls-client-cert'", lambda: config.UpstreamTlsConfig(
         client_cert=tls_client_cert, client_key=tls_client_key, server_ca=tls_server_ca,
         server_port=tls_server_port,
@@ -428,8 +428,8 @@ class _FirewallRules(click.ParamType):
 
 def _parse_listen(value):
     if value is not None:
-        from mbgw.web.address import parse_listen
-        parse_listen(value)
+        from mbgw.net.address import parse_host_port
+        parse_host_port(value, example="127.0.0.1:8080")
     return value
 
 

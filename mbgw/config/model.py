@@ -539,7 +539,7 @@ def _check_scenarios(scenarios, mode: str) -> None:
 
 def parse_ip(option: str, text: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address:
     try:
-        # Peers are compared without their scope id (see acl.AccessList.allows)
+        # Peers are compared without their scope id (see mbgw.net.acl.AccessList.allows)
         address = ipaddress.ip_address(str(text).split("%", 1)[0])
     except ValueError:
         raise ConfigError(f"{option} {text!r}: not an IP address") from None
