@@ -61,12 +61,33 @@ class ConfigFileError(ConfigError):
         super().__init__("\n".join(f"{self.path}: {p}" for p in self.problems))
 
 
+class BadHeader(MbgwError, ValueError):
+    """An MBAP header (protocol id, length) the stream can no longer be trusted after: the
+    connection must close."""
+
+
 class GatewayTimeout(MbgwError):
     """Master mode: no reply from the remote server within tcpto (connecting included)."""
 
 
+class ConnectTimeout(GatewayTimeout):
+    """No connection to the server within the deadline."""
+
+
+class ConnectionLost(GatewayTimeout):
+    """The connection broke while the request was on it (to master mode, no answer)."""
+
+
 class NoRoute(MbgwError):
     """Master mode: the remote server cannot be reached (connection refused, no route)."""
+
+
+class HandshakeFailed(NoRoute):
+    """The TLS handshake with the server failed: no connection (to master mode, 0x0A)."""
+
+
+class Interrupted(MbgwError):
+    """A line's eventfd was signalled during a wait on a server: the gateway is stopping."""
 
 
 class BadReply(MbgwError):

@@ -85,12 +85,19 @@ def _shown(value) -> str:
 LOG_LEVELS = click.Choice(["debug", "info", "warning", "error"], case_sensitive=False)
 
 
-def convert(param_name: str, build):
-    """Run a config constructor, turning ConfigError into a usage error (exit 2)."""
+def convert(param_name: str | None, build):
+    """Run a config constructor, turning ConfigError into a usage error (exit 2) naming the
+    option: the error's key when it carries one (the message then without the key, which
+    the hint says), else param_name (None: no option in particular)."""
     try:
         return build()
     except ConfigError as err:
-        raise click.BadParameter(str(err), param_hint=param_name) from None
+        if err.key is None:
+            raise click.BadParameter(str(err), param_hint=param_name) from None
+        message = str(err)
+        for said in (f"{err.key}: ", f"{err.key} "):
+            message = message.removeprefix(said)
+        raise click.BadParameter(message, param_hint=f"'--{err.key}'") from None
 
 
 def parser(parse):

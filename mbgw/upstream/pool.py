@@ -32,7 +32,15 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable
 
-from mbgw.errors import BadReply, GatewayTimeout, MbgwError, NoRoute
+from mbgw.errors import (
+    BadReply,
+    ConnectionLost,
+    ConnectTimeout,
+    GatewayTimeout,
+    HandshakeFailed,
+    Interrupted,
+    NoRoute,
+)
 from mbgw.line import frames
 from mbgw.net.tls import handshake_step, server_mismatch
 from mbgw.ops.counters import MasterCounters
@@ -43,22 +51,6 @@ wire = logging.getLogger("mbgw.wire")
 
 RECV_SIZE = 4096
 TID_MASK = 0xFFFF
-
-
-class Interrupted(MbgwError):
-    """The line's eventfd was signalled during a wait: the gateway is stopping."""
-
-
-class ConnectTimeout(GatewayTimeout):
-    """No connection to the server within the deadline."""
-
-
-class ConnectionLost(GatewayTimeout):
-    """The connection broke while the request was on it (to master mode, no answer)."""
-
-
-class HandshakeFailed(NoRoute):
-    """The TLS handshake with the server failed: no connection (to master mode, 0x0A)."""
 
 
 class Connection:
