@@ -1,4 +1,6 @@
-"""The exception tree.  Each kind of failure has its own class; nothing raises a base class."""
+"""The exception tree.  Each kind of failure has its own class; nothing raises a base class.
+A module's own refusals that never leave it (the control socket's BadRequest, the console's
+ConfigRefused) derive from MbgwError where they are."""
 import os
 
 
@@ -64,6 +66,15 @@ class ConfigFileError(ConfigError):
 class BadHeader(MbgwError, ValueError):
     """An MBAP header (protocol id, length) the stream can no longer be trusted after: the
     connection must close."""
+
+
+class TableError(MbgwError, ValueError):
+    """An access to the table it does not allow (out of range, the configuration zone, a value
+    that is not 16 bits); the message names the address and the reason."""
+
+
+class Damaged(MbgwError, ValueError):
+    """A table file that is not a whole one; the message says why."""
 
 
 class GatewayTimeout(MbgwError):

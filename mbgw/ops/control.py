@@ -10,6 +10,7 @@ import os
 import socket
 import struct
 
+from mbgw.errors import MbgwError
 from mbgw.net.ratelimit import RateLimitedLog
 from mbgw.ops.limits import WarnLimit, share
 
@@ -23,7 +24,7 @@ MAX_CONNECTIONS = 32             # at once (a trace is one for as long as it run
 PER_USER = share(MAX_CONNECTIONS)    # ... of which one uid holds at most this many
 
 
-class BadRequest(Exception):
+class BadRequest(MbgwError):
     """A control request that cannot be served: the client is told why, in one JSON line."""
 
 
