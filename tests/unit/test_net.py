@@ -2,6 +2,7 @@
 the errors that name the option they are about (errors.ListenError, ConfigError.key)."""
 import errno
 import socket
+import ssl
 
 import click
 import pytest
@@ -14,6 +15,7 @@ from mbgw.net.acl import AccessList
 from mbgw.net.address import format_address, parse_host_port
 from mbgw.net.listen import listen
 from mbgw.net.ratelimit import RateLimitedLog
+from mbgw.net.tls import handshake_step
 from mbgw.table.memory import Table
 from mbgw.table.server import TableServer
 
@@ -179,3 +181,29 @@ def test_a_refusal_without_a_key_blames_no_option():
         convert(None, lambda: SlaveConfig(SerialConfig("/dev/null"), scenarios=(scenario,)))
     message = caught.value.format_message()
     assert "--authip" not in message and "scenario remote: " in message
+
+
+def _client_handshake():
+    """A client TLS socket whose ClientHello is out, and the peer's plain end."""
+    ours, peer = socket.socketpair()
+    ours.setblocking(False)
+    context = ssl.create_default_context()
+    context.check_hostname = False
+    context.verify_mode = ssl.CERT_NONE
+    tls = context.wrap_socket(ours, do_handshake_on_connect=False)
+    assert handshake_step(tls) == ("read", "")
+    return tls, peer
+
+
+@pytest.mark.parametrize("describe, why", [
+    (None, "TLS handshake refused (WRONG_VERSION_NUMBER)"),
+    (lambda err: f"TLS handshake failed: {type(err).__name__}", "TLS handshake failed: SSLError"),
+])
+def test_a_handshake_step_says_why_it_failed_in_its_callers_words(describe, why):
+    tls, peer = _client_handshake()
+    try:
+        peer.sendall(b"HTTP/1.0 400 Bad Request\r\n\r\n")     # not a TLS server
+        assert handshake_step(tls, describe) == ("failed", why)
+    finally:
+        tls.close()
+        peer.close()
