@@ -1,4 +1,7 @@
-"""The exception tree.  Each kind of failure has its own class; nothing raises a base class."""
+"""The exception tree.  Each kind of failure has its own class; nothing raises a base class.
+A module's own refusals that never leave it (the control socket's BadRequest, the console's
+ConfigRefused) derive from MbgwError where they are."""
+import os
 
 
 class MbgwError(Exception):
@@ -6,7 +9,32 @@ class MbgwError(Exception):
 
 
 class ConfigError(MbgwError, ValueError):
-    """A configuration value is invalid; the message names the option and the reason."""
+    """A configuration value is invalid; the message names the option and the reason.  key:
+    the option's name when the raiser knows it (the CLI then blames that option)."""
+
+    def __init__(self, *args, key: str | None = None) -> None:
+        super().__init__(*args)
+        self.key = key
+
+
+class ListenError(MbgwError, OSError):
+    """A port cannot be listened on.  option: the setting that named it (table-port,
+    --metrics); port: the port, or the ADDR:PORT of an HTTP endpoint; reason: why, from the
+    OSError (errno kept) or as text."""
+
+    def __init__(self, option: str, port: int | str, reason: str | OSError) -> None:
+        code = None
+        if isinstance(reason, OSError):
+            code = reason.errno or None
+            reason = os.strerror(reason.errno) if reason.errno else \
+                (reason.strerror or str(reason))
+        self.option = option
+        self.port = port
+        self.reason = reason
+        super().__init__(code, f"{option} {port}: cannot listen there: {reason}")
+
+    def __str__(self) -> str:
+        return str(self.strerror)
 
 
 class SerialError(MbgwError, OSError):
@@ -35,12 +63,42 @@ class ConfigFileError(ConfigError):
         super().__init__("\n".join(f"{self.path}: {p}" for p in self.problems))
 
 
+class BadHeader(MbgwError, ValueError):
+    """An MBAP header (protocol id, length) the stream can no longer be trusted after: the
+    connection must close."""
+
+
+class TableError(MbgwError, ValueError):
+    """An access to the table it does not allow (out of range, the configuration zone, a value
+    that is not 16 bits); the message names the address and the reason."""
+
+
+class Damaged(MbgwError, ValueError):
+    """A table file that is not a whole one; the message says why."""
+
+
 class GatewayTimeout(MbgwError):
     """Master mode: no reply from the remote server within tcpto (connecting included)."""
 
 
+class ConnectTimeout(GatewayTimeout):
+    """No connection to the server within the deadline."""
+
+
+class ConnectionLost(GatewayTimeout):
+    """The connection broke while the request was on it (to master mode, no answer)."""
+
+
 class NoRoute(MbgwError):
     """Master mode: the remote server cannot be reached (connection refused, no route)."""
+
+
+class HandshakeFailed(NoRoute):
+    """The TLS handshake with the server failed: no connection (to master mode, 0x0A)."""
+
+
+class Interrupted(MbgwError):
+    """A line's eventfd was signalled during a wait on a server: the gateway is stopping."""
 
 
 class BadReply(MbgwError):

@@ -122,7 +122,7 @@ def master_config(device, protocol, baudrate, line_format, interface, rtsdelays,
     conflict = model.table_address_conflict(table.address, slaveid) if table.enabled else None
     if conflict:
         raise click.BadParameter(conflict, param_hint="'--table-address' / '--slaveid'")
-    cfg = convert("'--tcpto'", lambda: model.MasterConfig(
+    cfg = convert(None, lambda: model.MasterConfig(
         serial=serial, slaveid=slaveid, tcpto_ms=tcpto, mdbport=mdbport, exception=exception,
         upstream_tls=upstream_tls,
         max_connections=max_connections, control=control, metrics=metrics,

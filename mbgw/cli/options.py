@@ -86,12 +86,19 @@ def _shown(value) -> str:
 LOG_LEVELS = click.Choice(["debug", "info", "warning", "error"], case_sensitive=False)
 
 
-def convert(param_name: str, build):
-    """Run a config constructor, turning ConfigError into a usage error (exit 2)."""
+def convert(param_name: str | None, build):
+    """Run a config constructor, turning ConfigError into a usage error (exit 2) naming the
+    option: the error's key when it carries one (the message then without the key, which
+    the hint says), else param_name (None: no option in particular)."""
     try:
         return build()
     except ConfigError as err:
-        raise click.BadParameter(str(err), param_hint=param_name) from None
+        if err.key is None:
+            raise click.BadParameter(str(err), param_hint=param_name) from None
+        message = str(err)
+        for said in (f"{err.key}: ", f"{err.key} "):
+            message = message.removeprefix(said)
+        raise click.BadParameter(message, param_hint=f"'--{err.key}'") from None
 
 
 def parser(parse):
@@ -117,8 +124,8 @@ def parse_bind(value):
 
 def _parse_metrics(value):
     if value is not None:
-        from mbgw.ops.metrics_server import parse_address
-        parse_address(value)
+        from mbgw.net.address import parse_host_port
+        parse_host_port(value, "metrics")
     return value
 
 
@@ -311,17 +318,17 @@ def _tls_file(check):
 
 
 def _check_cert(path, option="tls-cert"):
-    from mbgw.ops.tls import check_certificate
+    from mbgw.net.tls import check_certificate
     check_certificate(path, option)
 
 
 def _check_key(path, option="tls-key"):
-    from mbgw.ops.tls import check_key
+    from mbgw.net.tls import check_key
     check_key(path, option)
 
 
 def _check_ca(path, option="tls-ca"):
-    from mbgw.ops.tls import check_ca
+    from mbgw.net.tls import check_ca
     check_ca(path, option)
 
 
@@ -329,7 +336,7 @@ def _crl_callback(ctx, param, value):
     """The CRL readable, and signed by a CA of tls-ca (when that option came first; the mode's
     settings check it again)."""
     if value is not None:
-        from mbgw.ops.tls import check_crl, check_crl_issuer
+        from mbgw.net.tls import check_crl, check_crl_issuer
         convert("'--tls-crl'", lambda: check_crl(value))
         ca = ctx.params.get("tls_ca")
         if ca is not None:
@@ -367,7 +374,7 @@ tls_options = stack(
 
 def tls_config(tls_port, tls_cert, tls_key, tls_ca, tls_require_role=True,
                tls_crl=None) -> model.TlsConfig:
-    from mbgw.ops.tls import check_crl_issuer, file_stamps
+    from mbgw.net.tls import check_crl_issuer, file_stamps
     if tls_crl is not None and tls_ca is not None:
         convert("'--tls-crl'", lambda: check_crl_issuer(tls_crl, tls_ca))
     return convert("'--tls-cert'", lambda: model.TlsConfig(
@@ -407,7 +414,7 @@ def upstream_tls_config(settings: dict) -> model.UpstreamTlsConfig:
 
 def _upstream_tls_config(tls_client_cert=None, tls_client_key=None, tls_server_ca=None,
                          tls_server_port=model.DEFAULT_TLS_PORT) -> model.UpstreamTlsConfig:
-    from mbgw.ops.tls import file_stamps
+    from mbgw.net.tls import file_stamps
     return convert("'--tls-client-cert'", lambda: model.UpstreamTlsConfig(
         client_cert=tls_client_cert, client_key=tls_client_key, server_ca=tls_server_ca,
         server_port=tls_server_port,
@@ -429,8 +436,8 @@ class _FirewallRules(click.ParamType):
 
 def _parse_listen(value):
     if value is not None:
-        from mbgw.web.address import parse_listen
-        parse_listen(value)
+        from mbgw.net.address import parse_host_port
+        parse_host_port(value, example="127.0.0.1:8080")
     return value
 
 

@@ -12,7 +12,7 @@ from mbgw.cli import checks
 from mbgw.cli.config import EX_CONFIG, config_file, reloader, schema_of
 from mbgw.cli.options import Failure
 from mbgw.config.schema import Schema
-from mbgw.errors import ConfigError, ConfigFileError, SerialError
+from mbgw.errors import ConfigError, ConfigFileError, ListenError, SerialError
 from mbgw.ops import preflight
 
 
@@ -22,7 +22,6 @@ def run_daemon(run: Callable, make_config: Callable, options: dict) -> None:
     the settings did not come from a file).  Settings that the start would refuse fail with
     exit status 78 (EX_CONFIG), naming the key; a device or port that cannot be had with 1."""
     from mbgw.ops import log
-    from mbgw.ops.service import ListenError
 
     path = config_file()
     ctx = click.get_current_context()

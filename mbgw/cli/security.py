@@ -13,8 +13,8 @@ from pathlib import Path
 from mbgw.config.file import Settings
 from mbgw.config.schema import NO_ADDRESS, Schema
 from mbgw.errors import ConfigError
+from mbgw.net.tls import MAX_HANDSHAKES
 from mbgw.ops.control import default_path as control_default_path
-from mbgw.slave.handshakes import MAX_HANDSHAKES
 
 ALL_ADDRESSES = "all addresses (IPv4 and IPv6)"
 
@@ -80,7 +80,7 @@ def _tls(get) -> dict:
     """The server side's TLS: the files, and what a context built from them offers (the
     files are read as the daemon reads them: an error says why they would be refused)."""
     from mbgw.config.model import TlsConfig
-    from mbgw.ops.tls import server_context
+    from mbgw.net.tls import server_context
     cert, key, ca, crl = get("cert"), get("key"), get("ca"), get("crl")
     out: dict = {"enabled": cert is not None, "cert": cert, "key": key, "ca": ca, "crl": crl,
                  "client_certificate": "required" if cert else None,

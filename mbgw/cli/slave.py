@@ -121,10 +121,7 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
     upstream_tls = upstream_tls_config(table_settings)
     table = table_config(**table_settings)
     tls = tls_config(tls_port, tls_cert, tls_key, tls_ca, tls_require_role, tls_crl)
-    if mdbport == 0 and not tls.enabled:
-        raise click.BadParameter("0 turns plain Modbus TCP off: it needs TLS (--tls-cert)",
-                                 param_hint="'--mdbport'")
-    cfg = convert("'--authip'", lambda: model.SlaveConfig(
+    cfg = convert(None, lambda: model.SlaveConfig(
         serial=serial, slaveid=slaveid, exception=exception, authip=authip, mdbport=mdbport,
         upstream_tls=upstream_tls,
         bind=bind, max_connections=max_connections,

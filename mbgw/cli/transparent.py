@@ -120,10 +120,7 @@ def transparent_config(device, protocol, baudrate, line_format, interface, rtsde
         rx_size=rx_size, tx_address=tx_address, tx_size=tx_size, crc=crc, trigger=trigger,
         silence_ms=interframe_silence, raw_port=raw_port))
     tls = tls_config(tls_port, tls_cert, tls_key, tls_ca, tls_require_role, tls_crl)
-    if mdbport == 0 and not tls.enabled:
-        raise click.BadParameter("0 turns plain Modbus TCP off: it needs TLS (--tls-cert)",
-                                 param_hint="'--mdbport'")
-    return convert("'--authip'", lambda: TransparentModeConfig(
+    return convert(None, lambda: TransparentModeConfig(
         serial=serial, transparent=frames, authip=authip, mdbport=mdbport, bind=bind,
         control=control, metrics=metrics, firewall=firewall, scenarios=scenarios,
         tcpto_ms=tcpto, tls=tls, table=model.TableConfig(

@@ -480,16 +480,19 @@ class SlaveConfig:
         _check_scenarios(self.scenarios, "slave")
         check_upstream_tls(self.upstream_tls, self.scenarios)
         if self.mdbport == 0 and not self.tls.enabled:
-            raise ConfigError("mdbport 0 turns plain Modbus TCP off: it needs TLS (tls-cert)")
+            raise ConfigError("mdbport 0 turns plain Modbus TCP off: it needs TLS (--tls-cert)",
+                              key="mdbport")
         low, high = TCPTO_RANGE
         if not low <= self.tcpto_ms <= high:
-            raise ConfigError(f"tcpto {self.tcpto_ms}: out of range {low}..{high}")
+            raise ConfigError(f"tcpto {self.tcpto_ms}: out of range {low}..{high}", key="tcpto")
         if len(self.authip) > MAX_AUTHIP:
-            raise ConfigError(f"authip: at most {MAX_AUTHIP} addresses, got {len(self.authip)}")
+            raise ConfigError(f"authip: at most {MAX_AUTHIP} addresses, got {len(self.authip)}",
+                              key="authip")
         object.__setattr__(self, "authip", tuple(parse_ip("authip", a) for a in self.authip))
         low, high = LATE_WINDOW_RANGE
         if self.late_window_ms is not None and not low <= self.late_window_ms <= high:
-            raise ConfigError(f"late-window {self.late_window_ms}: out of range {low}..{high}")
+            raise ConfigError(f"late-window {self.late_window_ms}: out of range {low}..{high}",
+                              key="late-window")
 
     @property
     def late_window(self) -> int:
@@ -510,7 +513,7 @@ def _check_scenarios(scenarios, mode: str) -> None:
 
 def parse_ip(option: str, text: str) -> ipaddress.IPv4Address | ipaddress.IPv6Address:
     try:
-        # Peers are compared without their scope id (see acl.AccessList.allows)
+        # Peers are compared without their scope id (see mbgw.net.acl.AccessList.allows)
         address = ipaddress.ip_address(str(text).split("%", 1)[0])
     except ValueError:
         raise ConfigError(f"{option} {text!r}: not an IP address") from None
@@ -548,18 +551,21 @@ class MasterConfig:
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "master")
         if len(self.authip) > MAX_AUTHIP:
-            raise ConfigError(f"authip: at most {MAX_AUTHIP} addresses, got {len(self.authip)}")
+            raise ConfigError(f"authip: at most {MAX_AUTHIP} addresses, got {len(self.authip)}",
+                              key="authip")
         object.__setattr__(self, "authip", tuple(parse_ip("authip", a) for a in self.authip))
         check_upstream_tls(self.upstream_tls, self.scenarios, self.slaveid)
         low, high = TCPTO_RANGE
         if not low <= self.tcpto_ms <= high:
-            raise ConfigError(f"tcpto {self.tcpto_ms}: out of range {low}..{high}")
+            raise ConfigError(f"tcpto {self.tcpto_ms}: out of range {low}..{high}", key="tcpto")
         if self.max_connections < 1:
-            raise ConfigError(f"max-connections {self.max_connections}: at least 1")
+            raise ConfigError(f"max-connections {self.max_connections}: at least 1",
+                              key="max-connections")
         conflict = table_address_conflict(self.table.address, self.slaveid) \
             if self.table.enabled else None
         if conflict:
-            raise ConfigError(f"table-address {self.table.address}: {conflict}")
+            raise ConfigError(f"table-address {self.table.address}: {conflict}",
+                              key="table-address")
 
     @property
     def table_on(self) -> bool:

@@ -110,7 +110,9 @@ class TransparentModeConfig:
 
     def __post_init__(self) -> None:
         if self.mdbport == 0 and not self.tls.enabled:
-            raise ConfigError("mdbport 0 turns plain Modbus TCP off: it needs TLS (tls-cert)")
+            raise ConfigError("mdbport 0 turns plain Modbus TCP off: it needs TLS (--tls-cert)",
+                              key="mdbport")
         if len(self.authip) > MAX_AUTHIP:
-            raise ConfigError(f"authip: at most {MAX_AUTHIP} addresses, got {len(self.authip)}")
+            raise ConfigError(f"authip: at most {MAX_AUTHIP} addresses, got {len(self.authip)}",
+                              key="authip")
         object.__setattr__(self, "authip", tuple(parse_ip("authip", a) for a in self.authip))

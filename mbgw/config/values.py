@@ -8,7 +8,7 @@ from mbgw.config.model import table_address_conflict
 from mbgw.config.schema import AUTHIP_ENTRIES, NO_ADDRESS, Key, Schema, default_value
 from mbgw.config.slaveid import SlaveIdTable, SlaveRange
 from mbgw.config.toml_text import dump_value, dumpable
-from mbgw.errors import ConfigError
+from mbgw.errors import ConfigError, MbgwError
 
 
 def _kind(param_type: click.ParamType) -> str:
@@ -76,7 +76,7 @@ def to_click(name: str, param: click.Parameter, value):
     return value
 
 
-class Problem(Exception):
+class Problem(MbgwError):
     """A value its option refuses; the message says why."""
 
 

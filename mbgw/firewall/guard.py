@@ -2,15 +2,14 @@
 Firewall.refused() for a request the guard refused (counted, logged rate-limited)."""
 import logging
 import struct
-import time
 
 from mbgw.audit import Kind, event
 from mbgw.config.firewall import FirewallConfig, Rule
+from mbgw.net.ratelimit import RateLimitedLog
 from mbgw.protocol import pdu
 
 log = logging.getLogger("mbgw.firewall")
 
-LOG_INTERVAL_S = 60.0
 DEFAULT_LABEL = "default"          # the refusals of [firewall] default = "deny"
 NO_ROLE_LABEL = "no-role"          # a TLS client whose certificate has no role
 ILLEGAL_FUNCTION = 0x01            # MODBUS/TCP Security: an unauthorized request gets 0x01
@@ -39,7 +38,7 @@ _REFUSED, _ALLOWED, _SOME = 0, 1, 2
 class Guard:
     """What one client may do: the rule that selected it, compiled (256 flags by unit and by
     function; the address ranges, or None for all)."""
-    __slots__ = ("rule", "label", "units", "functions", "ranges", "logged_at", "unlogged")
+    __slots__ = ("rule", "label", "units", "functions", "ranges")
 
     def __init__(self, rule: Rule | None, label: str = DEFAULT_LABEL) -> None:
         """rule None: nothing allowed ([firewall] default = "deny", or label NO_ROLE_LABEL:
@@ -63,8 +62,6 @@ class Guard:
         self.units = bytes(units)
         self.functions = bytes(functions)
         self.ranges = rule.registers if rule else None
-        self.logged_at = -LOG_INTERVAL_S
-        self.unlogged = 0
 
     def allows(self, unit: int, request) -> bool:
         """request: the PDU (function code first)."""
@@ -136,6 +133,7 @@ class Firewall:
         self.cfg = cfg or FirewallConfig()
         self.require_role = require_role
         self.refused_by = self._zero()  # by rule index, DEFAULT_LABEL or NO_ROLE_LABEL
+        self._refusals = RateLimitedLog()      # logged by client (peer)
 
     @property
     def enabled(self) -> bool:
@@ -175,19 +173,14 @@ class Firewall:
         """Count and log a request guard refused; its exception reply (0x01)."""
         label = guard.label
         self.refused_by[label] += 1
-        now = time.monotonic()
-        if now - guard.logged_at < LOG_INTERVAL_S:
-            guard.unlogged += 1
-        else:
+        left_out = self._refusals.due(peer)
+        if left_out is not None:
             rule = guard.rule.describe() if guard.rule else _UNRULED[guard.label]
-            more = f"; {guard.unlogged} more refused since the last report" \
-                if guard.unlogged else ""
+            more = f"; {left_out} more refused since the last report" if left_out else ""
             event(log, Kind.FIREWALL_REFUSED, "firewall: refused client %s (role %s) unit %d "
                   "function %d: %s%s (logged at most once a minute per client)", peer,
                   role or "none", unit, request[0], rule, more, client=peer, role=role,
                   unit=unit, function=request[0], rule=label, reason=rule)
-            guard.logged_at = now
-            guard.unlogged = 0
         return pdu.exception_pdu(request[0], ILLEGAL_FUNCTION)
 
     def report(self, clients=()) -> dict:

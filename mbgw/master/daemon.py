@@ -14,7 +14,6 @@ from mbgw.master.table_service import TableService
 from mbgw.ops.counters import MasterCounters
 from mbgw.ops.reload import ReloadReport, Reloads
 from mbgw.ops.service import (
-    ListenError,
     idle_ms,
     log_stopped,
     origin,
@@ -33,25 +32,17 @@ log = logging.getLogger("mbgw")
 TICK_S = 1.0        # how often the table's file is looked at (it is saved per its interval)
 
 
-class TableListenFailure(ListenError):
-    def __init__(self, err: OSError) -> None:
-        Exception.__init__(self, err.strerror)
-
-
 def run_master(cfg: MasterConfig, reconfigure=None) -> None:
     """Raises SerialError when the device is there and cannot be opened (one that is not
-    there yet is waited for), MetricsListenError when the
-    metrics address cannot be bound, TableListenFailure when table-port cannot; otherwise
+    there yet is waited for), ListenError when the metrics address, table-port or
+    tls-port cannot be listened on; otherwise
     returns after SIGTERM or SIGINT.  reconfigure() gives the settings to apply on SIGHUP
     (None: there is no file to reload)."""
     counters = MasterCounters()
     tables = TableService(cfg)
     faces = Faces.opened(cfg, counters, tables.table)
     try:
-        try:
-            tables.start()
-        except OSError as err:
-            raise TableListenFailure(err) from None
+        tables.start()
         asyncio.run(_serve(cfg, faces, counters, tables, reconfigure))
     finally:
         tables.stop()

@@ -8,17 +8,17 @@ import logging
 import time
 
 from mbgw.config.model import MasterConfig, TableConfig, TlsConfig
-from mbgw.errors import ConfigError
+from mbgw.errors import ConfigError, ListenError
 from mbgw.firewall.guard import Firewall
-from mbgw.ops.access import access_check
+from mbgw.net.acl import AccessList
+from mbgw.net.tls import server_context
 from mbgw.ops.reload import ReloadReport
-from mbgw.ops.tls import role_of, server_context
 from mbgw.table import identity
 from mbgw.table.control import table_commands
 from mbgw.table.memory import Table
 from mbgw.table.persist import Persistence
 from mbgw.table.report import table_status
-from mbgw.table.server import TableListenError, TableServer
+from mbgw.table.server import TableServer
 
 log = logging.getLogger("mbgw.table")
 
@@ -42,7 +42,7 @@ class TableService:
 
     def start(self) -> None:
         """Load the table's file, serve the table on table-port when it is on.  Raises
-        ConfigError (the file cannot be read), TableListenError."""
+        ConfigError (the file cannot be read), ListenError."""
         if self.persistence is not None:
             self.persistence.load()
         if self.cfg.enabled:
@@ -55,12 +55,12 @@ class TableService:
             self.persistence.maybe_save(time.monotonic())
 
     def _start_server(self, port: int) -> None:
-        """Raises TableListenError, ConfigError (the TLS files)."""
+        """Raises ListenError, ConfigError (the TLS files)."""
         tls = self.tls
         context = server_context(tls) if tls.enabled else None
         self.server = TableServer(self.table, port, self.bind, firewall=self.firewall,
-                                  allows=access_check(self.authip), tls=context,
-                                  tls_port=tls.port, role_of=role_of,
+                                  allows=AccessList(self.authip).allows, tls=context,
+                                  tls_port=tls.port,
                                   max_connections=self.cfg.max_connections)
         self.server.request_timeout_s = self.request_timeout_s
         self.server.start()
@@ -107,7 +107,7 @@ class TableService:
                 self._start_server(new.port)
             elif new.port != self.server.port:
                 self.server.move(new.port)
-        except TableListenError as err:
+        except ListenError as err:
             report.refuse("table", f"{err.strerror}; the table's TCP server is left as it was")
         except ConfigError as err:
             report.refuse("tls", f"{err}; the table's TCP server is not started")
@@ -122,12 +122,12 @@ class TableService:
         if settings.authip != self.authip:
             self.authip = settings.authip
             if server is not None:
-                server.set_access(access_check(self.authip))
+                server.set_access(AccessList(self.authip).allows)
         if settings.bind != self.bind:
             if server is not None:
                 try:
                     server.rebind(settings.bind)
-                except TableListenError as err:
+                except ListenError as err:
                     report.refuse("bind", f"{err.strerror}; the table is still served on "
                                           f"{', '.join(server.addresses) or 'no port'}")
                     return
@@ -140,7 +140,7 @@ class TableService:
         try:
             context = server_context(new) if new.enabled else None
             self.server.set_tls(context, new.port)
-        except (ConfigError, TableListenError) as err:
+        except (ConfigError, ListenError) as err:
             report.refuse("tls", f"{err}; the running TLS settings stay")
             self.tls = old
 

@@ -9,8 +9,9 @@ import logging
 import os
 import socket
 import struct
-import time
 
+from mbgw.errors import MbgwError
+from mbgw.net.ratelimit import RateLimitedLog
 from mbgw.ops.limits import WarnLimit, share
 
 log = logging.getLogger("mbgw.control")
@@ -23,7 +24,7 @@ MAX_CONNECTIONS = 32             # at once (a trace is one for as long as it run
 PER_USER = share(MAX_CONNECTIONS)    # ... of which one uid holds at most this many
 
 
-class BadRequest(Exception):
+class BadRequest(MbgwError):
     """A control request that cannot be served: the client is told why, in one JSON line."""
 
 
@@ -44,26 +45,6 @@ def parse_request(line: bytes) -> dict:
     return request
 
 
-class BadRequestLog:
-    """One warning per interval for bad control requests, with how many came meanwhile: a
-    misbehaving client must not be able to fill the log."""
-
-    def __init__(self, interval_s: float = BAD_REQUEST_LOG_INTERVAL_S) -> None:
-        self._interval_s = interval_s
-        self._next = 0.0
-        self._suppressed = 0
-
-    def warn(self, reason: str) -> None:
-        now = time.monotonic()
-        if now < self._next:
-            self._suppressed += 1
-            return
-        more = f" ({self._suppressed} more since the last warning)" if self._suppressed else ""
-        log.warning("control socket: bad request refused: %s%s", reason, more)
-        self._suppressed = 0
-        self._next = now + self._interval_s
-
-
 def default_path(name: str = "mbgw") -> str:
     """systemd's RuntimeDirectory when it set one, else /run/mbgw."""
     directory = os.environ.get("RUNTIME_DIRECTORY", DEFAULT_DIR).split(":")[0]
@@ -80,7 +61,7 @@ class ControlServer:
         self.path = path
         self._commands = commands      # name -> callable(request dict) -> reply dict
         self._server: asyncio.base_events.Server | None = None
-        self._bad_requests = BadRequestLog()
+        self._bad_requests = RateLimitedLog(BAD_REQUEST_LOG_INTERVAL_S)
         self._open: dict[int, int] = {}        # connections by uid
         self._warn = WarnLimit(log)
 
@@ -133,7 +114,10 @@ class ControlServer:
                     return
                 request = parse_request(line)
             except BadRequest as err:
-                self._bad_requests.warn(str(err))
+                left_out = self._bad_requests.due()
+                if left_out is not None:
+                    more = f" ({left_out} more since the last warning)" if left_out else ""
+                    log.warning("control socket: bad request refused: %s%s", err, more)
                 await _reply(writer, {"error": str(err)})
                 return
             name = request["command"]

@@ -5,9 +5,9 @@ fails for want of descriptors or memory rests the listener and is logged once wi
 address and reason, with how many were left out."""
 import errno
 import logging
-import time
 
 from mbgw.audit import Kind, event
+from mbgw.net.ratelimit import RateLimitedLog
 
 # accept() errors that say "not now" (the process or the system is out of something): the
 # listener rests, the backlog keeps the newcomers until it tries again
@@ -15,7 +15,6 @@ RESOURCE_ERRORS = frozenset({errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.EN
 REST_FIRST_S = 0.05
 REST_MAX_S = 1.0
 WARN_INTERVAL_S = 60.0
-MAX_WARN_KEYS = 4096            # (address, reason) pairs remembered; a flood forgets the oldest
 # What one client address may hold of a listener's connections (its share): the rest stays
 # for the others.
 SHARE_DIVISOR = 4
@@ -56,32 +55,23 @@ def is_resource_error(err: OSError) -> bool:
     return err.errno in RESOURCE_ERRORS
 
 
-class WarnLimit:
+class WarnLimit(RateLimitedLog):
     """A warning about one client's connection at most once per interval for each (address,
     reason); the next one says how many were left out meanwhile."""
 
     def __init__(self, logger: logging.Logger, interval_s: float = WARN_INTERVAL_S,
                  level: int = logging.WARNING) -> None:
+        super().__init__(interval_s)
         self._log = logger
-        self._interval_s = interval_s
         self._level = level
-        self._last: dict[tuple[str, str], tuple[float, int]] = {}   # -> (when logged, left out)
 
     def warn(self, host: str, why: str, message: str, *args, kind: Kind | None = None,
              **fields) -> bool:
         """Log message % args unless (host, why) was logged within the interval (an audit
         event of kind, with fields, when one is given); True when it was logged."""
-        now = time.monotonic()
-        key = (host, why)
-        last = self._last.get(key)
-        if last is not None and now - last[0] < self._interval_s:
-            self._last[key] = (last[0], last[1] + 1)
+        left_out = self.due((host, why))
+        if left_out is None:
             return False
-        left_out = last[1] if last is not None else 0
-        if len(self._last) >= MAX_WARN_KEYS:
-            del self._last[next(iter(self._last))]
-        self._last.pop(key, None)
-        self._last[key] = (now, 0)
         more = f" ({left_out} more like it left out)" if left_out else \
             " (logged at most once a minute per address and reason)"
         if kind is None:

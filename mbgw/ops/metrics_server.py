@@ -17,7 +17,7 @@ from wsgiref.simple_server import WSGIRequestHandler, WSGIServer
 
 from prometheus_client import CollectorRegistry, make_wsgi_app
 
-from mbgw.errors import ConfigError
+from mbgw.net.address import parse_host_port
 from mbgw.ops.limits import AcceptRest, WarnLimit, is_resource_error, share
 
 log = logging.getLogger("mbgw.metrics")
@@ -27,21 +27,6 @@ MAX_SCRAPES = 16                # connections at once (a thread each) ...
 PER_ADDRESS = share(MAX_SCRAPES)    # ... of which one address holds at most this many
 
 
-def parse_address(text: str) -> tuple[str | None, int]:
-    """'ADDR:PORT', '[IPV6]:PORT' or ':PORT' (every address) -> (host or None, port)."""
-    host, sep, port = text.rpartition(":")
-    if not sep:
-        raise ConfigError(f"metrics {text!r}: not ADDR:PORT")
-    if host.startswith("[") and host.endswith("]"):
-        host = host[1:-1]
-    elif ":" in host:
-        raise ConfigError(f"metrics {text!r}: write an IPv6 address in brackets, "
-                          f"[ADDR]:PORT")
-    if not port.isdigit() or not 1 <= int(port) <= 65535:
-        raise ConfigError(f"metrics {text!r}: port {port!r} is not 1..65535")
-    return host or None, int(port)
-
-
 # --- the HTTP side ---------------------------------------------------------------------------
 
 class MetricsServer:
@@ -49,7 +34,7 @@ class MetricsServer:
 
     def __init__(self, address: str, collector) -> None:
         self.address = address
-        self.host, self.port = parse_address(address)
+        self.host, self.port = parse_host_port(address, "metrics")
         self.names: list[str] = []         # the listening addresses, once started
         self._collector = collector
         self._servers: list[_HttpServer] = []

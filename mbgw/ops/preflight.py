@@ -17,7 +17,7 @@ from pathlib import Path
 
 from mbgw.config.model import MasterConfig
 from mbgw.errors import ConfigError
-from mbgw.ops.tls import check_pair, client_context, server_context
+from mbgw.net.tls import check_pair, client_context, server_context
 
 
 def problems(cfg) -> list[str]:

@@ -8,6 +8,7 @@ import os
 import time
 from typing import TYPE_CHECKING
 
+from mbgw import errors
 from mbgw.ops.control import ControlServer, default_path
 from mbgw.ops.notify import sd_notify
 from mbgw.ops.reload import Reloads
@@ -37,20 +38,17 @@ def idle_ms(interval: float | None) -> int:
     return -1 if interval is None else math.ceil(interval * 1000)
 
 
-class ListenError(Exception):
+class ListenError(errors.ListenError):
+    """slave/server.py's spelling for its TLS port, until it raises mbgw.errors.ListenError
+    itself (then this class goes)."""
+
     def __init__(self, port: int, err: OSError) -> None:
-        super().__init__(f"cannot listen on port {port}: {err.strerror}")
-
-
-class MetricsListenError(ListenError):
-    def __init__(self, address: str, err: OSError) -> None:
-        reason = os.strerror(err.errno) if err.errno else str(err)
-        Exception.__init__(self, f"--metrics {address}: cannot listen there: {reason}")
+        super().__init__("tls-port", port, err)
 
 
 def start_metrics(address: str | None, collector) -> "MetricsServer | None":
     """The --metrics endpoint (None when off) serving collector(mbgw.ops.metrics); .names are
-    its listening addresses.  Raises MetricsListenError when it cannot listen.  Without
+    its listening addresses.  Raises ListenError when it cannot listen.  Without
     --metrics, mbgw.ops.metrics(_server) and prometheus_client are never imported (45 ms,
     3 MiB)."""
     if not address:
@@ -61,7 +59,7 @@ def start_metrics(address: str | None, collector) -> "MetricsServer | None":
     try:
         metrics.names = metrics.start()
     except OSError as err:
-        raise MetricsListenError(address, err) from None
+        raise errors.ListenError("--metrics", address, err) from None
     return metrics
 
 

@@ -1,14 +1,12 @@
 """Modbus TCP framing (Messaging on TCP/IP Implementation Guide V1.0b, 3.1.3)."""
 import struct
 
+from mbgw.errors import BadHeader
+
 HEADER = struct.Struct(">HHHB")     # transaction id, protocol id, length, unit id
 HEADER_LEN = HEADER.size
 MIN_LENGTH = 2                      # unit id + function code
 MAX_LENGTH = 254                    # unit id + the largest PDU (253 bytes)
-
-
-class BadHeader(ValueError):
-    """The stream can no longer be trusted: the connection must close."""
 
 
 def split_frames(buf: bytearray):

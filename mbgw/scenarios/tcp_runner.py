@@ -34,19 +34,24 @@ from typing import Any
 
 from mbgw.config.model import UpstreamTlsConfig
 from mbgw.config.scenario import split_server
-from mbgw.errors import BadReply, ConfigError, GatewayTimeout, NoRoute
+from mbgw.errors import (
+    BadReply,
+    ConfigError,
+    ConnectionLost,
+    ConnectTimeout,
+    GatewayTimeout,
+    HandshakeFailed,
+    Interrupted,
+    NoRoute,
+)
+from mbgw.net.tls import client_context
 from mbgw.ops.counters import MasterCounters
 from mbgw.ops.device_stats import DeviceStats, HealthRule
-from mbgw.ops.tls import client_context
 from mbgw.ops.trace import TraceHub
 from mbgw.scenarios.engine import Scenarios
 from mbgw.scenarios.health import ServerHealth
 from mbgw.scenarios.report import scenarios_status, trace_event
 from mbgw.upstream.pool import (
-    ConnectionLost,
-    ConnectTimeout,
-    HandshakeFailed,
-    Interrupted,
     UpstreamPool,
     drain,
 )

@@ -5,6 +5,7 @@ import signal
 import time
 
 from mbgw.config.model import SlaveConfig
+from mbgw.errors import ListenError
 from mbgw.line.port import SerialLine
 from mbgw.line.supervisor import open_at_start
 from mbgw.ops.counters import Counters
@@ -12,8 +13,6 @@ from mbgw.ops.device_stats import DeviceTable, HealthRule
 from mbgw.ops.load import LineLoad
 from mbgw.ops.reload import ReloadReport, Reloads
 from mbgw.ops.service import (
-    ListenError,
-    MetricsListenError,
     idle_ms,
     log_stopped,
     origin,
@@ -69,8 +68,10 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
         loop.add_signal_handler(signum, stop.set)
     try:
         addresses = await server.start()
+    except ListenError:             # the TLS port's, named already
+        raise
     except OSError as err:
-        raise ListenError(cfg.mdbport, err) from None
+        raise ListenError("mdbport", cfg.mdbport, err) from None
     started = time.time()
     load = LineLoad(lambda: counters.line_busy_ns)
     try:
@@ -78,7 +79,7 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
             counters, devices, scheduler, server, worker, started, tables.figures, load,
             lambda: server.firewall.report() if server.firewall.configured else None),
             engines))
-    except MetricsListenError:
+    except ListenError:
         server.close()
         raise
     worker.idle_ms = idle_ms(watchdog_interval())

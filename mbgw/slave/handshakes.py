@@ -8,11 +8,15 @@ import asyncio
 import socket
 import ssl
 
-from mbgw.ops.tls import first_byte, handshake_step, start_handshake
+from mbgw.net.tls import (
+    HANDSHAKE_TIMEOUT_S,
+    MAX_HANDSHAKES,
+    first_byte,
+    handshake_step,
+    start_handshake,
+)
 
-MAX_HANDSHAKES = 64
 HANDSHAKES_PER_ADDRESS = MAX_HANDSHAKES // 8    # one address cannot fill the slots
-HANDSHAKE_TIMEOUT_S = 10.0                      # the server sets request-timeout
 
 
 class Handshake:

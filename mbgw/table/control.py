@@ -6,6 +6,7 @@ import logging
 from collections.abc import Callable
 
 from mbgw.audit import operator
+from mbgw.errors import MbgwError
 from mbgw.table.memory import BITS, CONFIG_ZONE, REGISTERS
 
 log = logging.getLogger("mbgw.table")
@@ -14,7 +15,7 @@ MAX_OPERATOR_COUNT = 2000            # one reply line stays small; the Modbus bi
 REGISTER_MAX = 0xFFFF
 
 
-class BadTableRequest(Exception):
+class BadTableRequest(MbgwError):
     """What is wrong with an operator's request, in words for the reply."""
 
 

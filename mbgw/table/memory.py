@@ -5,7 +5,7 @@ from collections.abc import Iterable
 
 from mbgw._ffi import ffi, lib
 from mbgw.config.model import TABLE_FUNCTIONS
-from mbgw.errors import MbgwError
+from mbgw.errors import TableError
 
 REGISTERS = 0x10000
 BITS = 0x10000                  # bit B: bit B % 16 of register B // 16
@@ -18,11 +18,6 @@ MBAP_MAX = lib.MBGW_MBAP_MAX
 EXCEPTION_CODES = 16
 ILLEGAL_FUNCTION = 0x01
 _OUTCOMES = ("answered", "exception", "broadcast")   # the C counters' order (MBGW_TABLE_*)
-
-
-class TableError(MbgwError, ValueError):
-    """An access to the table it does not allow (out of range, the configuration zone, a value
-    that is not 16 bits); the message names the address and the reason."""
 
 
 def _function_mask(functions: Iterable[int]) -> int:

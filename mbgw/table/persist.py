@@ -14,7 +14,7 @@ import time
 import zlib
 from pathlib import Path
 
-from mbgw.errors import ConfigError
+from mbgw.errors import ConfigError, Damaged
 from mbgw.table.memory import CONFIG_ZONE, OUTPUTS, Table
 
 log = logging.getLogger("mbgw.table")
@@ -26,10 +26,6 @@ COUNT = CONFIG_ZONE.start - FIRST            # 30,720 registers: outputs and the
 HEADER = struct.Struct(">8sHHH")             # magic, version, first register, count
 CRC = struct.Struct(">I")
 SIZE = HEADER.size + 2 * COUNT + CRC.size
-
-
-class Damaged(ValueError):
-    """A file that is not a whole table file; the message says why."""
 
 
 def encode(registers: list[int]) -> bytes:

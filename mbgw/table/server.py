@@ -39,24 +39,28 @@ import time
 from typing import cast
 
 from mbgw.audit import Kind, event
+from mbgw.errors import ListenError
 from mbgw.firewall.guard import Firewall, Guard
+from mbgw.net.address import format_address
+from mbgw.net.listen import listen
+from mbgw.net.ratelimit import RateLimitedLog
+from mbgw.net.tls import (
+    HANDSHAKE_TIMEOUT_S,
+    MAX_HANDSHAKES,
+    first_byte,
+    handshake_step,
+    role_of,
+    start_handshake,
+)
 from mbgw.ops.limits import AcceptRest, WarnLimit, is_resource_error, share
-from mbgw.ops.tls import first_byte, handshake_step, start_handshake
 from mbgw.protocol import mbap
 
 log = logging.getLogger("mbgw.table")
 
 MAX_CONNECTIONS = 32          # table clients at once, by default ([table] max-connections)
 RECEIVE_SIZE = 4096           # one read: 15 requests of 260 bytes, 341 reads of 12
-LISTEN_BACKLOG = 16
-REFUSAL_LOG_INTERVAL_S = 60.0
 REBIND_WAIT_S = 5.0           # a reload waits this long for the server's thread to rebind
-REFUSALS_REMEMBERED = 1024    # (address, reason) pairs; those older than a minute go first
 BROADCAST_UNIT = 0
-# TLS handshakes under way at once, and how long one may take: a flood of connections that
-# never finish (or garbage) costs the loop one wake-up each and no more.
-MAX_HANDSHAKES = 64
-HANDSHAKE_TIMEOUT_S = 10.0          # until the daemon sets request_timeout_s
 PER_ADDRESS = share(MAX_CONNECTIONS)
 HANDSHAKES_PER_ADDRESS = share(MAX_HANDSHAKES) // 2
 FIRST_REQUEST_S = 60.0              # a client that sent no whole request this long is closed
@@ -70,46 +74,6 @@ _HEADER_LEN = mbap.HEADER_LEN
 _MIN_LENGTH = mbap.MIN_LENGTH
 _MAX_LENGTH = mbap.MAX_LENGTH
 _UNIT_AT = _HEADER_LEN - 1
-
-
-class TableListenError(OSError):
-    """table-port cannot be listened on; the message names the port and why."""
-
-    def __init__(self, port: int, err: OSError, option: str = "table-port") -> None:
-        reason = os.strerror(err.errno) if err.errno else str(err)
-        super().__init__(err.errno, f"{option} {port}: cannot listen there: {reason}")
-
-
-def listen(port: int, bind: str | None = None,
-           option: str = "table-port") -> list[socket.socket]:
-    """Listening sockets on bind (None: every interface, IPv4 and IPv6) and port.  Raises
-    TableListenError naming option."""
-    try:
-        infos = socket.getaddrinfo(bind, port, socket.AF_UNSPEC, socket.SOCK_STREAM, 0,
-                                   socket.AI_PASSIVE)
-    except socket.gaierror as err:
-        raise TableListenError(port, OSError(0, str(err)), option) from None
-    sockets: list[socket.socket] = []
-    try:
-        for family, kind, proto, _, address in dict.fromkeys(infos):
-            sock = socket.socket(family, kind, proto)
-            sockets.append(sock)
-            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            if family == socket.AF_INET6:
-                sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
-            sock.bind(address)
-            sock.listen(LISTEN_BACKLOG)
-            sock.setblocking(False)
-    except OSError as err:
-        for sock in sockets:
-            sock.close()
-        raise TableListenError(port, err, option) from None
-    return sockets
-
-
-def _name(address) -> str:
-    host, port = address[:2]
-    return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
 
 
 class _Connection:
@@ -159,11 +123,12 @@ class TableServer(threading.Thread):
     def __init__(self, table, port: int | None, bind: str | None = None,
                  firewall: Firewall | None = None, allows=None,
                  tls: ssl.SSLContext | None = None, tls_port: int | None = None,
-                 role_of=None, max_connections: int = MAX_CONNECTIONS) -> None:
-        """Listens at once: raises TableListenError when it cannot.  allows(host): whether a
-        peer may connect (None: anyone; authip, mbgw.ops.access).  port None: no plain
-        listener; tls: the TLS listener's context (mbgw.ops.tls.server_context) on
-        tls_port; role_of(der): the role in a client's certificate (mbgw.ops.tls.role_of)."""
+                 max_connections: int = MAX_CONNECTIONS,
+                 port_option: str = "table-port") -> None:
+        """Listens at once: raises ListenError naming port_option (the setting that gives
+        port) or tls-port when it cannot.  allows(host): whether a peer may connect (None:
+        anyone; authip, mbgw.net.acl.AccessList.allows).  port None: no plain listener;
+        tls: the TLS listener's context (mbgw.net.tls.server_context) on tls_port."""
         super().__init__(name="mbgw-table", daemon=True)
         self._table = table
         self.port = port
@@ -174,20 +139,20 @@ class TableServer(threading.Thread):
         self._new_bind: tuple | None = None        # (bind, queue of the outcome) from rebind()
         self._to_close: list[tuple[int, str]] = []  # (client id, who) from close_client()
         self._last_id = 0
-        self._listeners = listen(port, bind) if port is not None else []
+        self._port_option = port_option
+        self._listeners = listen(bind, port, option=port_option) if port is not None else []
         self._tls = tls
-        self._role_of = role_of or (lambda der: None)
         self.tls_port = tls_port if tls is not None else None
         try:
-            self._tls_listeners = listen(self.tls_port, bind, "tls-port") \
+            self._tls_listeners = listen(bind, self.tls_port, option="tls-port") \
                 if self.tls_port is not None else []
-        except TableListenError:
+        except ListenError:
             for sock in self._listeners:
                 sock.close()
             raise
         self._new_tls: tuple | None = None
         self._handshakes: dict[int, _Handshake] = {}     # by fd
-        self._tls_refused_logged: dict[tuple[str, str], float] = {}  # (address, reason)
+        self._tls_refusals = RateLimitedLog()       # logged by (address, reason)
         self._answer = None
         self._wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         self._stopping = False
@@ -216,8 +181,8 @@ class TableServer(threading.Thread):
 
     @property
     def addresses(self) -> list[str]:
-        return [_name(s.getsockname()) for s in self._listeners] + \
-            [f"{_name(s.getsockname())} (TLS)" for s in self._tls_listeners]
+        return [format_address(s.getsockname()) for s in self._listeners] + \
+            [f"{format_address(s.getsockname())} (TLS)" for s in self._tls_listeners]
 
     def figures(self) -> dict:
         """The TCP server's counters, as the status reports them."""
@@ -281,7 +246,7 @@ class TableServer(threading.Thread):
 
     def rebind(self, bind: str | None) -> None:
         """Listen on bind instead, on the port and the TLS port (another thread; the clients
-        stay).  Raises TableListenError, and then the old address stays."""
+        stay).  Raises ListenError, and then the old address stays."""
         outcome: queue.Queue = queue.Queue(maxsize=1)
         with self._lock:
             self._new_bind = (bind, outcome)
@@ -289,15 +254,15 @@ class TableServer(threading.Thread):
         try:
             error = outcome.get(timeout=REBIND_WAIT_S)
         except queue.Empty:
-            error = TableListenError(self.port or self.tls_port or 0,
-                                     OSError(0, "the table server does not answer"), "bind")
+            error = ListenError("bind", self.port or self.tls_port or 0,
+                                "the table server does not answer")
         if error is not None:
             raise error
 
     def move(self, port: int) -> None:
         """Listen on port instead (called from another thread; the clients stay).  Raises
-        TableListenError, and then the old port stays."""
-        listeners = listen(port, self.bind)
+        ListenError, and then the old port stays."""
+        listeners = listen(self.bind, port, option=self._port_option)
         with self._lock:
             self._new_listeners = listeners
         self.port = port
@@ -306,11 +271,12 @@ class TableServer(threading.Thread):
     def set_tls(self, context: ssl.SSLContext | None, port: int) -> None:
         """New TLS settings or renewed files (another thread): context (None: TLS off) is for
         new connections, those open keep theirs; listening moves when the port changes.
-        Raises TableListenError, and then nothing changes."""
+        Raises ListenError, and then nothing changes."""
         new_port = port if context is not None else None
         listeners = None                    # the same ones
         if new_port != self.tls_port:
-            listeners = listen(port, self.bind, "tls-port") if new_port is not None else []
+            listeners = listen(self.bind, port, option="tls-port") \
+                if new_port is not None else []
         with self._lock:
             self._new_tls = (context, listeners)
         self.tls_port = new_port
@@ -372,8 +338,8 @@ class TableServer(threading.Thread):
             sock.close()
             self.refused_authip += 1
             self._warn.warn(address[0], "authip", "table client %s refused: not in authip",
-                            _name(address), kind=Kind.CONNECTION_REFUSED,
-                            client=_name(address), reason="not in authip")
+                            format_address(address), kind=Kind.CONNECTION_REFUSED,
+                            client=format_address(address), reason="not in authip")
             return
         if not self._room_for(sock, address):
             return
@@ -382,7 +348,7 @@ class TableServer(threading.Thread):
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)   # no Nagle in the flights
             self._start_handshake(sock, address)
         else:
-            self._adopt(_Connection(sock, _name(address), address[0]))
+            self._adopt(_Connection(sock, format_address(address), address[0]))
 
     def _room_for(self, sock: socket.socket, address) -> bool:
         """Whether a newcomer fits (a silent or slow client closed for it if need be); else
@@ -407,13 +373,13 @@ class TableServer(threading.Thread):
             victim = min(victims, key=lambda c: c.opened)
             self.evicted += 1
             log.debug("table client %s closed to make room for %s", victim.peer,
-                      _name(address))
+                      format_address(address))
             self._close(victim)
             return True
         sock.close()
         self.refused_limit += 1
-        self._warn.warn(host, "limit", "table client %s refused: %s", _name(address), why,
-                        kind=Kind.CONNECTION_REFUSED, client=_name(address),
+        self._warn.warn(host, "limit", "table client %s refused: %s", format_address(address), why,
+                        kind=Kind.CONNECTION_REFUSED, client=format_address(address),
                         reason="too many table clients")
         return False
 
@@ -499,13 +465,13 @@ class TableServer(threading.Thread):
         self._end_handshake(handshake)
         sock, address = cast(ssl.SSLSocket, handshake.sock), handshake.address
         try:
-            role = self._role_of(sock.getpeercert(binary_form=True))
+            role = role_of(sock.getpeercert(binary_form=True))
         except (OSError, ValueError):       # the peer has gone meanwhile
             sock.close()
             return
         if not self._room_for(sock, address):
             return
-        client = _Connection(sock, _name(address), address[0], role, tls=True)
+        client = _Connection(sock, format_address(address), address[0], role, tls=True)
         self._adopt(client)
         if sock.pending():                  # a request came with the handshake's end
             self._receive(client, self._answer)
@@ -538,17 +504,10 @@ class TableServer(threading.Thread):
     def _tls_refused(self, address, reason: str) -> None:
         """Counted; logged at most once a minute per address and reason."""
         self.refused_tls += 1
-        now = time.monotonic()
-        logged = self._tls_refused_logged
-        key = (address[0], reason)
-        if now - logged.get(key, -REFUSAL_LOG_INTERVAL_S) >= REFUSAL_LOG_INTERVAL_S:
-            if len(logged) >= REFUSALS_REMEMBERED:
-                for old in [k for k, t in logged.items() if now - t >= REFUSAL_LOG_INTERVAL_S]:
-                    del logged[old]
-            logged[key] = now
+        if self._tls_refusals.due((address[0], reason)) is not None:
             event(log, Kind.TLS_REFUSED, "table client %s refused: %s (further TLS refusals of "
                   "this address for this reason are logged at most once a minute)",
-                  _name(address), reason, client=_name(address), reason=reason)
+                  format_address(address), reason, client=format_address(address), reason=reason)
 
     def _close(self, client: _Connection) -> None:
         del self._clients[client.fd]
@@ -627,24 +586,26 @@ class TableServer(threading.Thread):
         back on the old one when the new one cannot be listened on."""
         self._relisten(self._listeners + self._tls_listeners, [], quiet=True)
         self._listeners = self._tls_listeners = []
-        error: TableListenError | None = None
+        error: ListenError | None = None
         try:
             self._listeners, self._tls_listeners = self._listen_on(bind)
             self.bind = bind
-        except TableListenError as err:
+        except ListenError as err:
             error = err
             try:
                 self._listeners, self._tls_listeners = self._listen_on(self.bind)
-            except TableListenError as again:
+            except ListenError as again:
                 log.error("table server: %s; no TCP client reaches the table", again.strerror)
         self._relisten([], self._listeners + self._tls_listeners)
         outcome.put(error)      # once the listeners are whatever they stay: rebind() reports them
 
     def _listen_on(self, bind: str | None) -> tuple[list, list]:
-        plain = listen(self.port, bind) if self.port is not None else []
+        plain = listen(bind, self.port, option=self._port_option) \
+            if self.port is not None else []
         try:
-            tls = listen(self.tls_port, bind, "tls-port") if self.tls_port is not None else []
-        except TableListenError:
+            tls = listen(bind, self.tls_port, option="tls-port") \
+                if self.tls_port is not None else []
+        except ListenError:
             for sock in plain:
                 sock.close()
             raise

@@ -7,13 +7,14 @@ import signal
 import time
 
 from mbgw.config.transparent import TransparentModeConfig
-from mbgw.errors import ConfigError
+from mbgw.errors import ConfigError, ListenError
 from mbgw.firewall.guard import Firewall
 from mbgw.line.supervisor import open_at_start
-from mbgw.ops.access import access_check
+from mbgw.net.acl import AccessList
+from mbgw.net.listen import listen
+from mbgw.net.tls import server_context
 from mbgw.ops.reload import ReloadReport, Reloads
 from mbgw.ops.service import (
-    ListenError,
     idle_ms,
     log_stopped,
     origin,
@@ -23,14 +24,13 @@ from mbgw.ops.service import (
     warn_of_overlaps,
     watchdog_interval,
 )
-from mbgw.ops.tls import role_of, server_context
 from mbgw.scenarios.control import scenario_commands
 from mbgw.scenarios.tcp_runner import TcpScenarios, with_scenarios
 from mbgw.table import identity
 from mbgw.table.control import table_commands
 from mbgw.table.memory import Table
 from mbgw.table.report import table_status
-from mbgw.table.server import TableListenError, TableServer, listen
+from mbgw.table.server import TableServer
 from mbgw.transparent.counters import TransparentCounters
 from mbgw.transparent.line_thread import FrameLine
 from mbgw.transparent.raw import RawPort
@@ -41,22 +41,11 @@ from mbgw.web.hooks import WebHooks
 log = logging.getLogger("mbgw")
 
 
-class TransparentListenFailure(ListenError):
-    def __init__(self, option: str, port: int, err: OSError) -> None:
-        reason = err.strerror or str(err)
-        if isinstance(err, TableListenError):
-            reason = reason.split(": ", 2)[-1]
-        Exception.__init__(self, f"{option} {port}: cannot listen there: {reason}")
-
-
 def _raw_port(cfg: TransparentModeConfig, allows, counters) -> RawPort | None:
     port = cfg.transparent.raw_port
     if port is None:
         return None
-    try:
-        return RawPort(listen(port, cfg.bind), allows, counters)
-    except OSError as err:
-        raise TransparentListenFailure("raw-port", port, err) from None
+    return RawPort(listen(cfg.bind, port, option="raw-port"), allows, counters)
 
 
 def run_transparent(cfg: TransparentModeConfig, reconfigure=None) -> None:
@@ -67,18 +56,13 @@ def run_transparent(cfg: TransparentModeConfig, reconfigure=None) -> None:
     counters = TransparentCounters()
     table = Table(cfg.table.functions)
     identity.fill(table, cfg, "transparent")
-    allows = access_check(cfg.authip)
+    allows = AccessList(cfg.authip).allows
     context = server_context(cfg.tls) if cfg.tls.enabled else None     # ConfigError
-    try:
-        server = TableServer(table, cfg.mdbport or None, cfg.bind,
-                             Firewall(cfg.firewall, cfg.tls.roles_required),
-                             allows=allows, tls=context, tls_port=cfg.tls.port,
-                             role_of=role_of, max_connections=cfg.table.max_connections)
-        server.request_timeout_s = cfg.request_timeout_ms / 1000
-    except OSError as err:
-        option, port = ("tls-port", cfg.tls.port) if "tls-port" in str(err) else \
-            ("mdbport", cfg.mdbport)
-        raise TransparentListenFailure(option, port, err) from None
+    server = TableServer(table, cfg.mdbport or None, cfg.bind,
+                         Firewall(cfg.firewall, cfg.tls.roles_required),
+                         allows=allows, tls=context, tls_port=cfg.tls.port,
+                         max_connections=cfg.table.max_connections, port_option="mdbport")
+    server.request_timeout_s = cfg.request_timeout_ms / 1000
     raw = _raw_port(cfg, allows, counters)
     line = open_at_start(cfg.serial, counters)
     try:
@@ -100,14 +84,14 @@ def _retls(server: TableServer, new: TransparentModeConfig, report: ReloadReport
     that cannot be loaded leave TLS as it was."""
     try:
         server.set_tls(server_context(new.tls) if new.tls.enabled else None, new.tls.port)
-    except (ConfigError, TableListenError) as err:
+    except (ConfigError, ListenError) as err:
         report.refuse("tls", f"{err}; the running TLS settings stay")
 
 
 async def _rebind(server: TableServer, bind: str | None, report: ReloadReport) -> None:
     try:
         await asyncio.to_thread(server.rebind, bind)
-    except TableListenError as err:
+    except ListenError as err:
         report.refuse("bind", f"{err.strerror}; still listening on "
                               f"{', '.join(server.addresses) or 'no port'}")
 
@@ -157,7 +141,7 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
         if new.mdbport != old.mdbport:
             report.at_restart("mdbport")
         if new.authip != old.authip:
-            allows = access_check(new.authip)
+            allows = AccessList(new.authip).allows
             server.set_access(allows)
             if raw is not None:
                 raw.allows = allows             # for its next client

@@ -9,17 +9,13 @@ import socket
 import time
 
 from mbgw.audit import Kind
+from mbgw.net.address import format_address
 from mbgw.ops.limits import AcceptRest, WarnLimit, is_resource_error
 from mbgw.transparent.counters import TransparentCounters
 
 log = logging.getLogger("mbgw.transparent")
 
 RECEIVE_SIZE = 4096
-
-
-def _name(address) -> str:
-    host, port = address[:2]
-    return f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
 
 
 class RawPort:
@@ -63,7 +59,7 @@ class RawPort:
                 self.resting_until = time.monotonic() + self._rest.failed(err)
             return
         self._rest.accepted()
-        peer = _name(address)
+        peer = format_address(address)
         if not self.allows(address[0]):
             key, reason = "authip", "not in authip"
         elif self.client is not None and self.reading:

@@ -32,10 +32,18 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable
 
-from mbgw.errors import BadReply, GatewayTimeout, MbgwError, NoRoute
+from mbgw.errors import (
+    BadReply,
+    ConnectionLost,
+    ConnectTimeout,
+    GatewayTimeout,
+    HandshakeFailed,
+    Interrupted,
+    NoRoute,
+)
 from mbgw.line import frames
+from mbgw.net.tls import handshake_step, server_mismatch
 from mbgw.ops.counters import MasterCounters
-from mbgw.ops.tls import server_mismatch
 from mbgw.protocol import mbap
 
 log = logging.getLogger("mbgw.tcp")
@@ -43,22 +51,6 @@ wire = logging.getLogger("mbgw.wire")
 
 RECV_SIZE = 4096
 TID_MASK = 0xFFFF
-
-
-class Interrupted(MbgwError):
-    """The line's eventfd was signalled during a wait: the gateway is stopping."""
-
-
-class ConnectTimeout(GatewayTimeout):
-    """No connection to the server within the deadline."""
-
-
-class ConnectionLost(GatewayTimeout):
-    """The connection broke while the request was on it (to master mode, no answer)."""
-
-
-class HandshakeFailed(NoRoute):
-    """The TLS handshake with the server failed: no connection (to master mode, 0x0A)."""
 
 
 class Connection:
@@ -297,22 +289,17 @@ class UpstreamPool:
     def _handshake(self, host: str, sock: ssl.SSLSocket, poller, deadline_ns: int) -> None:
         """The TLS handshake, stepped as the socket is ready, within deadline_ns."""
         while True:
-            try:
-                sock.do_handshake()
+            step, failure = handshake_step(sock, _handshake_failure)
+            why: str | None = failure
+            if step == "done":
                 why = server_mismatch(sock.getpeercert(binary_form=True), host,
                                       self._pins.get(host))
                 if why is None:
                     return
+            if why:
                 self._failed(host, why)
                 raise HandshakeFailed(f"{self.server(host)}: {why}")
-            except ssl.SSLWantReadError:
-                poller.modify(sock, select.POLLIN)
-            except ssl.SSLWantWriteError:
-                poller.modify(sock, select.POLLOUT)
-            except (ssl.SSLError, OSError) as err:
-                reason = f"TLS handshake failed: {_tls_reason(err)}"
-                self._failed(host, reason)
-                raise HandshakeFailed(f"{self.server(host)}: {reason}") from None
+            poller.modify(sock, select.POLLIN if step == "read" else select.POLLOUT)
             try:
                 self._wait(poller, deadline_ns)
             except GatewayTimeout:
@@ -430,9 +417,9 @@ def drain(fd: int) -> None:
         pass
 
 
-def _tls_reason(err: Exception) -> str:
-    """What OpenSSL said, e.g. "certificate verify failed: unable to get local issuer
-    certificate"."""
+def _handshake_failure(err: OSError) -> str:
+    """What OpenSSL said, e.g. "TLS handshake failed: the server's certificate: unable to
+    get local issuer certificate"."""
     if isinstance(err, ssl.SSLCertVerificationError):
-        return f"the server's certificate: {err.verify_message}"
-    return getattr(err, "reason", None) or str(err)
+        return f"TLS handshake failed: the server's certificate: {err.verify_message}"
+    return f"TLS handshake failed: {getattr(err, 'reason', None) or err}"

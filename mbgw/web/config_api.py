@@ -16,7 +16,7 @@ from mbgw.config.file import Settings, check, load, parse, read_text, resolve
 from mbgw.config.schema import GROUPS, MODE_KEY, MODES, Schema, is_secret
 from mbgw.config.text import edit
 from mbgw.config.toml_text import write_atomic
-from mbgw.errors import ConfigError, ConfigFileError
+from mbgw.errors import ConfigError, ConfigFileError, MbgwError
 
 MAX_FILE = 256 * 1024
 
@@ -42,7 +42,7 @@ def _start_check(keys: Schema, settings: Settings) -> None:
         resolve(keys, settings, given=_given)
 
 
-class ConfigRefused(Exception):
+class ConfigRefused(MbgwError):
     """A change that was not made: why, the key ("group.key", or None) and the problems."""
 
     def __init__(self, message: str, field: str | None = None, problems=()) -> None:

@@ -1,12 +1,11 @@
 """The console as a daemon holds it: started with the loop, reconfigured by a reload,
 closed at stop.  aiohttp (100 ms to import) is imported only once [web] listen is on."""
 import logging
-import ssl
 from typing import TYPE_CHECKING
 
 from mbgw.config.model import WebConfig
 from mbgw.ops.reload import ReloadReport
-from mbgw.web.hooks import WebHooks, WebListenError
+from mbgw.web.hooks import WebHooks
 
 if TYPE_CHECKING:
     from mbgw.web.server import WebServer
@@ -20,7 +19,7 @@ class Console:
         self.server: "WebServer | None" = None
 
     async def start(self, cfg: WebConfig) -> None:
-        """Raises WebListenError when it cannot listen."""
+        """Raises ListenError (mbgw.errors) when it cannot listen."""
         if cfg.listen is None:
             return
         from mbgw.web.server import start_web
@@ -34,7 +33,7 @@ class Console:
             return
         try:
             await self.start(cfg)
-        except (WebListenError, OSError, ssl.SSLError) as err:
+        except OSError as err:       # ListenError and ssl.SSLError included
             if report is None:
                 log.error("web console off: %s", err)
             else:

@@ -11,13 +11,14 @@ from pathlib import Path
 from aiohttp import web
 
 from mbgw.config.model import WebConfig
+from mbgw.errors import ListenError
+from mbgw.net.address import parse_host_port
 from mbgw.ops.limits import WarnLimit
 from mbgw.ops.reload import ReloadReport
 from mbgw.web import api
-from mbgw.web.address import parse_listen
 from mbgw.web.auth import COOKIE, CSRF_HEADER, LoginLimit, Sessions
 from mbgw.web.gate import Gate
-from mbgw.web.hooks import WebHooks, WebListenError
+from mbgw.web.hooks import WebHooks
 
 log = logging.getLogger("mbgw.web")
 
@@ -53,11 +54,11 @@ class WebServer:
         return {"admin": self.cfg.admin_password, "user": self.cfg.user_password}
 
     async def start(self, cfg: WebConfig) -> None:
-        """Listen as cfg says (nothing when listen is off); raises WebListenError."""
+        """Listen as cfg says (nothing when listen is off); raises ListenError."""
         self.cfg = cfg
         if cfg.listen is None:
             return
-        host, port = parse_listen(cfg.listen)
+        host, port = parse_host_port(cfg.listen, example="127.0.0.1:8080")
         context = _ssl_context(cfg)
         runner = web.AppRunner(self._app(), access_log=None)
         await runner.setup()
@@ -66,7 +67,7 @@ class WebServer:
             self.names = gate.listen(host, port)
         except OSError as err:
             await runner.cleanup()
-            raise WebListenError(cfg.listen, err) from None
+            raise ListenError("--web", cfg.listen, err) from None
         self._runner, self.gate = runner, gate
         scheme = "https" if cfg.https else "http"
         log.info("web console on %s", ", ".join(f"{scheme}://{n}/" for n in self.names))
@@ -92,7 +93,7 @@ class WebServer:
         self._stop_listening()
         try:
             await self.start(cfg)
-        except (WebListenError, OSError, ssl.SSLError) as err:
+        except OSError as err:       # ListenError and ssl.SSLError included
             why = await self._back_to(old, f"web console off: {err}", err)
             self.cfg = self.cfg if self._runner is not None \
                 else dataclasses.replace(cfg, listen=None)      # off: the next reload tries
@@ -110,7 +111,7 @@ class WebServer:
             return why
         try:
             await self.start(old)
-        except (WebListenError, OSError, ssl.SSLError):
+        except OSError:       # ListenError and ssl.SSLError included
             return why
         return f"{err}; the console stays on {old.listen}"
 
@@ -155,7 +156,7 @@ async def _cleanup(runner: web.AppRunner, gate: Gate | None) -> None:
 
 async def start_web(cfg: WebConfig, hooks: WebHooks) -> WebServer:
     """The console (idle while [web] listen is off, so that a reload can turn it on);
-    raises WebListenError when it cannot listen."""
+    raises ListenError when it cannot listen."""
     server = WebServer(hooks)
     await server.start(cfg)
     return server

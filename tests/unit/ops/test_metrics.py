@@ -14,10 +14,11 @@ from prometheus_client.core import CounterMetricFamily
 from prometheus_client.openmetrics import parser as openmetrics_parser
 
 from mbgw.errors import ConfigError
+from mbgw.net.address import parse_host_port
 from mbgw.ops.counters import MASTER_NAMES, NAMES, Counters, MasterCounters
 from mbgw.ops.device_stats import MASTER_COUNTS, DeviceTable
 from mbgw.ops.metrics import master_collector, slave_collector
-from mbgw.ops.metrics_server import MetricsServer, parse_address
+from mbgw.ops.metrics_server import MetricsServer
 
 
 @pytest.mark.parametrize("text, expected", [
@@ -29,7 +30,7 @@ from mbgw.ops.metrics_server import MetricsServer, parse_address
     (":9502", (None, 9502)),
 ])
 def test_metrics_address(text, expected):
-    assert parse_address(text) == expected
+    assert parse_host_port(text, "metrics") == expected
 
 
 @pytest.mark.parametrize("text", ["9502", "127.0.0.1", "127.0.0.1:", "127.0.0.1:0",
@@ -37,7 +38,7 @@ def test_metrics_address(text, expected):
                                   "127.0.0.1:-1"])
 def test_bad_metrics_address(text):
     with pytest.raises(ConfigError, match="metrics"):
-        parse_address(text)
+        parse_host_port(text, "metrics")
 
 
 def exposition(collector) -> str:

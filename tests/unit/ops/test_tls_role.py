@@ -6,7 +6,7 @@ import pytest
 
 from mbgw.config.model import SerialConfig, SlaveConfig, TlsConfig
 from mbgw.errors import ConfigError
-from mbgw.ops.tls import _utf8_string, role_of, server_context
+from mbgw.net.tls import _utf8_string, role_of, server_context
 
 
 @pytest.mark.parametrize("der, role", [

@@ -1,9 +1,9 @@
-"""The authip access list (mbgw.slave.acl.AccessList), built the way the daemon builds it: from the
+"""The authip access list (mbgw.net.acl.AccessList), built the way the daemon builds it: from the
 validated SlaveConfig.authip."""
 import pytest
 
 from mbgw.config.model import SerialConfig, SlaveConfig
-from mbgw.slave.acl import AccessList
+from mbgw.net.acl import AccessList
 
 
 def _acl(*authip: str) -> AccessList:

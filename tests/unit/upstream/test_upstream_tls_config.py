@@ -13,7 +13,7 @@ from mbgw.config.model import MasterConfig, SerialConfig, UpstreamTlsConfig
 from mbgw.config.scenario import parse_scenario
 from mbgw.config.slaveid import SlaveIdTable, SlaveRange, parse_fingerprint
 from mbgw.errors import ConfigError
-from mbgw.ops.tls import client_context, server_mismatch
+from mbgw.net.tls import client_context, server_mismatch
 from tests.pki import Authority
 
 
