@@ -12,9 +12,10 @@ import time
 from collections import deque
 from collections.abc import Callable
 
+from mbgw.errors import Interrupted
 from mbgw.routing.exchange import Exchange
 from mbgw.routing.inbox import Inbox
-from mbgw.upstream.pool import Interrupted, drain
+from mbgw.upstream.pool import drain
 
 
 class LineRequests:

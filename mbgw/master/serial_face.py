@@ -44,6 +44,7 @@ from mbgw.errors import (
     ConfigError,
     FrameError,
     GatewayTimeout,
+    Interrupted,
     LineTimeout,
     NoRoute,
 )
@@ -72,18 +73,18 @@ from mbgw.master.trace import (
     OUTCOME_UNREACHABLE,
     MasterTracer,
 )
+from mbgw.net.ratelimit import RateLimitedLog
+from mbgw.net.tls import client_context
 from mbgw.ops.counters import MasterCounters, TableSlaveCounters
 from mbgw.ops.device_stats import MASTER_COUNTS, DeviceStats, DeviceTable, HealthRule
 from mbgw.ops.exception_reply import gateway_exception
-from mbgw.ops.tls import client_context
 from mbgw.ops.trace import TraceHub
 from mbgw.protocol import pdu
-from mbgw.upstream.pool import Interrupted, UpstreamPool, drain
+from mbgw.upstream.pool import UpstreamPool, drain
 
 log = logging.getLogger("mbgw.line")
 wire = logging.getLogger("mbgw.wire")
 
-BAD_REPLY_LOG_INTERVAL_S = 60.0
 OUTCOME_LINE_DOWN = "line not running"
 
 
@@ -130,7 +131,7 @@ class SerialFace(LineThread[FaceSettings]):
         self._tls_context: ssl.SSLContext | None = None
         self._reply_to = b""       # the last frame for another slave: its reply may come next
         self._received_ns = 0       # when the request being answered was taken off the line
-        self._bad_reply_logged: dict[tuple[int, str], float] = {}   # (address, kind): when
+        self._bad_reply_log = RateLimitedLog()      # by (address, kind of bad reply)
         self._empty_table_counters = TableSlaveCounters()
         self._table: TableSlave | None = None
         if table is not None:
@@ -458,14 +459,12 @@ class SerialFace(LineThread[FaceSettings]):
         """Counted as the device's failure; a warning per address and kind of bad reply, at
         most once a minute (before the health change it may bring)."""
         setattr(stats, err.counter, getattr(stats, err.counter) + 1)
-        key, now = (stats.address, err.counter), time.monotonic()
-        if now - self._bad_reply_logged.get(key, -BAD_REPLY_LOG_INTERVAL_S) >= \
-                BAD_REPLY_LOG_INTERVAL_S:
-            self._bad_reply_logged[key] = now
+        left_out = self._bad_reply_log.due((stats.address, err.counter))
+        if left_out is not None:
             log.warning("device %d: the reply of server %s unit %d does not answer the "
                         "request (%s): dropped (replies of this kind for this address are "
-                        "logged at most once a minute)", stats.address, hop.label, hop.unit,
-                        err)
+                        "logged at most once a minute%s)", stats.address, hop.label, hop.unit,
+                        err, f"; {left_out} left out since the last" if left_out else "")
         stats.failed()
 
     # --- to a line in slave mode ---
