@@ -32,6 +32,7 @@ from mbgw.slave.line_thread import LineWorker, serial_scenarios
 from mbgw.slave.routes import effective_routes
 from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
+from mbgw.slave.servers import ServerTargets, server_targets
 from mbgw.slave.status import SlaveStatus
 from mbgw.slave.table_service import TableService
 from mbgw.slave.targets import TargetLines
@@ -56,6 +57,17 @@ def run_slave(cfg: SlaveConfig, reconfigure=None, faces=None) -> None:
             line.close()
 
 
+def _servers(cfg: SlaveConfig, inboxes: dict[str, Inbox]) -> ServerTargets | None:
+    """The remote servers' thread, unstarted, its inboxes added to inboxes; None: no route
+    reaches a server."""
+    servers = server_targets(cfg)
+    if not servers:
+        return None
+    thread = ServerTargets(servers, cfg.tcpto_ms, cfg.exception)
+    inboxes.update(thread.inboxes)
+    return thread
+
+
 async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
                  reconfigure, faces) -> None:
     loop = asyncio.get_running_loop()
@@ -64,6 +76,7 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
     tables = TableService(cfg, devices)
     inboxes: dict[str, Inbox] = {}     # every target's but the table's, by name
     targets = TargetLines(cfg, inboxes)
+    servers = _servers(cfg, inboxes)
 
     worker: LineWorker
     server = TcpServer(cfg, scheduler, counters, lambda: worker.up, devices, tables.table,
@@ -97,6 +110,8 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
     worker.idle_ms = idle_ms(watchdog_interval())
     worker.start()
     targets.start(worker.idle_ms)
+    if servers is not None:
+        servers.start()
     for face in serial_faces:
         face.start()
     status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses, tables,
@@ -121,17 +136,34 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
     scenarios = TcpScenarios(tables.table, engines, devices.rule, server.trace)
     scenarios.start(cfg.scenarios, cfg.tcpto_ms, cfg.upstream_tls)
 
+    running = cfg                      # the settings in force
+
     async def apply(new: SlaveConfig, report: ReloadReport) -> None:
+        nonlocal servers, running
         await console.reconfigure(new.web, report)
         tables.reconfigure(new, report)
         removed = await asyncio.to_thread(targets.reconfigure, new)
-        await server.reconfigure(new, report)     # the face routes to the lines in force
+        old_servers = servers
+        if (new.tcpto_ms, new.exception, server_targets(new)) != \
+                (running.tcpto_ms, running.exception, server_targets(running)):
+            for label in server_targets(running):
+                inboxes.pop(label, None)
+            servers = _servers(new, inboxes)
+            if servers is not None:
+                servers.start()
+        else:
+            old_servers = None
+        await server.reconfigure(new, report)     # the face routes to the targets in force
         worker.reconfigure(new)
         for target in removed:
             target.stop()
             await asyncio.to_thread(target.join)
+        if old_servers is not None:
+            old_servers.stop()
+            await asyncio.to_thread(old_servers.join_and_close)
         await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms,
                                 new.upstream_tls)
+        running = new
     reloads.apply = apply
 
     kept = asyncio.ensure_future(tables.keep())
@@ -152,6 +184,9 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
     worker.stop()
     await asyncio.to_thread(worker.join)
     await asyncio.to_thread(targets.join)
+    if servers is not None:
+        servers.stop()
+        await asyncio.to_thread(servers.join_and_close)
     tables.save()
     serial_engine.close()
     scheduler.close()

@@ -13,12 +13,11 @@ import os
 import signal
 import struct
 import threading
-import time
 from pathlib import Path
 
 import pytest
 
-from tests.harness import PtyPair
+from tests.harness import PtyPair, free_port
 from tests.integration.test_reload import config_set, wait_for_log
 from tests.modbus import Client, read_holding
 from tests.ops import status, wait_for
@@ -226,22 +225,20 @@ def test_a_reload_adds_and_removes_a_line(tmp_path, lines, gateway, client):
     assert received(meters.record) == [bytes((METER,)) + read_holding(0, 1)]
 
 
-def test_a_remote_server_answers_its_units(lines, gateway, client, servers_at):
+def test_remote_servers_answer_their_units(lines, gateway, client, servers_at):
     serial = lines("serial", SERIAL_SLAVE)
-    port, _ = servers_at("127.0.0.1")
+    port, _ = servers_at("127.0.0.1", silent=("127.0.0.2",))
     gw = gateway(serial, {"routes": [
         {"units": "1-31", "line": "serial"},
         {"units": "100-109", "server": ["127.0.0.1", port], "offset": -99},
-        {"units": "110", "server": ["127.0.0.1", free_closed_port()]}]}, "--exception")
+        {"units": "110", "server": ["127.0.0.2", port], "address": 1},
+        {"units": "111", "server": ["127.0.0.1", free_port()], "address": 1}]},
+        "--exception", "--tcpto", "300")
     c = client(gw)
-    started = time.monotonic()
-    reply = c.ask(101, read_holding(0, 2))
-    assert reply[:2] == b"\x03\x04", reply.hex(" ")
-    assert c.ask(110, read_holding(0, 1)) == b"\x83\x0a"          # nobody listens there
-    assert time.monotonic() - started < 10
+    # unit 101 is unit 2 on 127.0.0.1: registers 0..2 hold 0, 1 (the address) and the unit
+    assert c.ask(101, read_holding(0, 3)) == bytes.fromhex("03 06 0000 0001 0002")
+    assert c.ask(101, read_holding(10, 1)) == b"\x83\x02"         # the server's exception
+    assert c.ask(110, read_holding(0, 1)) == b"\x83\x0b"          # silent: no reply in time
+    assert c.ask(111, read_holding(0, 1)) == b"\x83\x0a"          # nobody listens there
     assert c.ask(SERIAL_SLAVE, read_holding(0, 1)) == hr_reply(0, 1)
-
-
-def free_closed_port() -> int:
-    from tests.harness import free_port
-    return free_port()
+    assert received(serial.record) == [bytes((SERIAL_SLAVE,)) + read_holding(0, 1)]
