@@ -74,6 +74,9 @@ class LineWorker(LineThread[SlaveConfig]):
         self.devices = devices
         self._down = devices.rule.down     # the addresses that are down, by address
         self._finished = server.finished   # finished(job, reply_pdu_or_None[, bytes forwarded])
+        # deliver(job, reply_pdu_or_None[, bytes forwarded]): the client's, until exchanges
+        # come too (use_inbox), so that a daemon of one line pays no dispatch per request
+        self._deliver = self._finished
         self._inbox: Inbox | None = None   # exchanges from other faces (use_inbox)
         self._queues: dict[Hashable, Queue] = {}   # the exchanges' queues, by source
         self._taken: Job | None = None     # put on the line by the shortcut, books to keep
@@ -289,7 +292,7 @@ class LineWorker(LineThread[SlaveConfig]):
         self._deliver(job, self._failure(job, pdu.GATEWAY_TARGET_FAILED))
         return True
 
-    def _deliver(self, job: Job, reply: bytes | None, sent: int = -1) -> None:
+    def _deliver_any(self, job: Job, reply: bytes | None, sent: int = -1) -> None:
         """job's outcome to its client (TcpServer.finished), or to the face whose exchange it
         is (its done, on this thread)."""
         exchange = job.exchange
@@ -401,6 +404,7 @@ class LineWorker(LineThread[SlaveConfig]):
     def use_inbox(self, inbox: Inbox) -> None:
         """Take the exchanges submitted to inbox (called once, before start())."""
         self._inbox = inbox
+        self._deliver = self._deliver_any
         self._connections.poll_also(inbox.wake_fd, self._exchanges)
 
     def _exchanges(self) -> None:

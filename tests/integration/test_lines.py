@@ -200,6 +200,22 @@ def test_a_lost_line_is_refused_at_once_while_the_other_answers(lines, gateway, 
     assert received(meters.record)[-1] == bytes((METER,)) + read_holding(2, 1)
 
 
+def test_line_serial_lost_leaves_the_other_lines_answering(lines, gateway, client):
+    """Line serial's thread is the TCP face's home: while its device is lost it still reads
+    the clients and hands the other lines' requests over."""
+    serial, meters = lines("serial", SERIAL_SLAVE), lines("meters", METER)
+    gw = gateway(serial, meters_spec(meters), "--exception")
+    c = client(gw)
+    serial.lose()
+    wait_for_log(gw, f"serial device {serial.pair.gateway} lost")
+    assert c.ask(SERIAL_SLAVE, read_holding(0, 1)) == b"\x83\x0a"
+    assert c.ask(METER_UNIT, read_holding(4, 2)) == hr_reply(4, 2)
+    serial.restore()
+    wait_for_log(gw, f"serial device {serial.pair.gateway} is back")
+    assert c.ask(SERIAL_SLAVE, read_holding(0, 1)) == hr_reply(0, 1)
+    assert c.ask(METER_UNIT, read_holding(5, 1)) == hr_reply(5, 1)
+
+
 def test_a_reload_adds_and_removes_a_line(tmp_path, lines, gateway, client):
     serial, meters = lines("serial", SERIAL_SLAVE), lines("meters", METER)
     config = tmp_path / "mbgw.toml"
