@@ -20,7 +20,7 @@ import pytest
 from tests.harness import PtyPair, free_port
 from tests.integration.test_reload import config_set, wait_for_log
 from tests.modbus import Client, read_holding
-from tests.ops import status, wait_for
+from tests.ops import mbgw, status, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -125,6 +125,8 @@ def test_units_reach_their_line_rewritten_and_come_back_as_sent(lines, gateway, 
     assert routes == {("1-31", "line serial", "", False),
                       ("32-63", "line meters", "offset -31", False),
                       ("247-254", "table", "", True)}
+    text = mbgw("status", "--control", gw.control).stdout
+    assert "meters        up" in text and "32-63            line meters" in text, text
 
 
 def test_a_unit_no_route_takes_reaches_no_line(lines, gateway, client):
