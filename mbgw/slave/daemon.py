@@ -153,8 +153,10 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
                 servers.start()
         else:
             old_servers = None
-        await server.reconfigure(new, report)     # the face routes to the targets in force
-        worker.reconfigure(new)
+        await server.reconfigure(new, report)
+        worker.configured.clear()
+        worker.reconfigure(new)        # the face routes to the targets in force from then on
+        await asyncio.to_thread(worker.configured.wait, worker.turn_limit_s + 1)
         for target in removed:
             target.stop()
             await asyncio.to_thread(target.join)

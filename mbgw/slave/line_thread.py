@@ -16,6 +16,7 @@ the next scenario is due or the engine's eventfd says a change made one pending 
 operator's `scenario test` waits: it runs in the scenario queue's turn too)."""
 import errno
 import logging
+import threading
 import time
 from typing import Hashable
 
@@ -92,6 +93,7 @@ class LineWorker(LineThread[SlaveConfig]):
         self._timed_out: dict[int, Job] = {}   # by address: the job whose late reply may come
         self._run_started = 0              # the scenario run traced last began (ns)
         self._trace = server.trace
+        self.configured = threading.Event()    # set when new settings are in force
         self.watch_raw(server.trace)
         if line is None:
             self._line_state(down=True)
@@ -163,6 +165,7 @@ class LineWorker(LineThread[SlaveConfig]):
         return any(getattr(new, name) != getattr(old, name) for name in REOPEN_SETTINGS)
 
     def _configure(self, old: SlaveConfig, reopen: bool) -> None:
+        self._server.route_face(self._cfg)
         if self._cfg.demotion != old.demotion:
             self.devices.set_rule(self._cfg.demotion)
         if (self._reader is not None) != self._server.reads_meanwhile:
@@ -175,6 +178,7 @@ class LineWorker(LineThread[SlaveConfig]):
             self._due_s = None
         if not reopen and self._master is not None and self._line is not None:
             self._master = self._master_on(self._line, self._master)
+        self.configured.set()
 
     def _turn(self) -> None:
         if self._scenarios is not None or self._engine_woken:

@@ -107,14 +107,17 @@ class TcpServer:
         # route never see half of it.
         self.inboxes: dict[str, Inbox] = inboxes if inboxes is not None else {}
         self._face: list[Hop | None] = []
-        self._route_face(cfg)
+        self.route_face(cfg)
         self._responder = table.responder() if table is not None else None   # line thread's
         self._kept: list[tuple] = []     # requests for the line read by the table reader
         # Exchanges other lines answered, for the thread that holds the gate to deliver
         self._completions: deque[tuple] = deque()
         self.connections.on_wake = self._deliver_completions
 
-    def _route_face(self, cfg: SlaveConfig) -> None:
+    def route_face(self, cfg: SlaveConfig) -> None:
+        """The face's hops for cfg, swapped whole.  At a reload the line thread calls it
+        between two turns (LineWorker._configure), so that the C shortcut never takes a
+        request the new routes send elsewhere."""
         face = face_hops(effective_routes(cfg), self.inboxes, self.table is not None)
         self.shortcut_allowed = is_today(face) and not cfg.table_on
         self.reads_meanwhile = reaches_elsewhere(face) or (cfg.table_on and
@@ -176,7 +179,6 @@ class TcpServer:
         if self._handshakes is not None:
             self._handshakes.timeout_s = cfg.request_timeout_ms / 1000
         self._guard_clients(self.firewall.renewed(cfg.firewall, cfg.tls.roles_required))
-        self._route_face(cfg)
         if self.table is not None and cfg.table.functions != old.table.functions:
             self.table.set_functions(cfg.table.functions)
         for client in list(self.clients):

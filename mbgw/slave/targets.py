@@ -44,6 +44,9 @@ class NoClients:
         self.connections = Connections(scheduler.wake_fd, self._no_client, self._no_client,
                                        counters)
 
+    def route_face(self, cfg: SlaveConfig) -> None:
+        """No face here."""
+
     @staticmethod
     def _no_client(*_) -> None:
         raise AssertionError("a target line has no client of its own")
