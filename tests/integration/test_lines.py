@@ -10,9 +10,11 @@ lines_runner.py (a JSON file) until the configuration file has [[line]] and [[ro
 """
 import json
 import os
+import select
 import signal
 import struct
 import threading
+import time
 from pathlib import Path
 
 import pytest
@@ -137,7 +139,8 @@ def test_a_unit_no_route_takes_reaches_no_line(lines, gateway, client):
     assert c.ask(0x40, read_holding(0, 1)) == b"\x83\x0a"        # 64: just past the meters
     assert c.ask(METER_UNIT, read_holding(0, 1)) == hr_reply(0, 1)   # the connection goes on
     assert received(serial.record) == []
-    assert received(meters.record) == [bytes((METER,)) + read_holding(0, 1)]
+    assert received(meters.record) == [bytes((METER,)) + read_holding(0, 1),
+                                       bytes((METER,)) + read_holding(1, 1)]
     assert wait_for(gw, lambda s: s["counters"]["unroutable"] == 2, "2 unroutable")
 
 
@@ -182,6 +185,25 @@ def test_two_clients_on_two_lines_in_parallel_get_their_own_replies(lines, gatew
                                        for t in range(1, 41)]
     assert received(meters.record) == [bytes((METER,)) + read_holding(t % 50, 1)
                                        for t in range(1, 41)]
+
+
+def test_another_lines_request_does_not_wait_for_line_serials_transaction(
+        lines, gateway, client):
+    """While line serial waits for a silent unit, a request for meters is handed over at once
+    (the reader thread) and answered before that transaction ends."""
+    serial, meters = lines("serial", SERIAL_SLAVE), lines("meters", METER)
+    gw = gateway(serial, meters_spec(meters), "--exception", "--stout", "2000")
+    waiting, other = client(gw), client(gw)
+    silent = SERIAL_SLAVE + 1
+    waiting.send(bytes.fromhex("0007 0000 0006") + bytes((silent,)) + read_holding(0, 1))
+    on_line = bytes((silent,)) + read_holding(0, 1)
+    deadline = time.monotonic() + 5
+    while on_line not in received(serial.record):
+        assert time.monotonic() < deadline, "the request never reached line serial"
+        time.sleep(0.01)
+    assert other.ask(METER_UNIT, read_holding(0, 1)) == hr_reply(0, 1)
+    assert select.select([waiting.sock], [], [], 0)[0] == []   # serial is still waiting
+    assert waiting.recv(5) == (7, silent, b"\x83\x0b")
 
 
 def test_a_lost_line_is_refused_at_once_while_the_other_answers(lines, gateway, client):
@@ -230,6 +252,13 @@ def test_a_reload_adds_and_removes_a_line(tmp_path, lines, gateway, client):
     os.kill(gw.proc.pid, signal.SIGHUP)
     wait_for_log(gw, "configuration reloaded: lines, routes changed")
     assert c.ask(METER_UNIT, read_holding(0, 1)) == hr_reply(0, 1)   # same connection
+    changed = meters_spec(meters)
+    changed["lines"][0]["baudrate"] = 9600
+    (tmp_path / "lines.json").write_text(json.dumps(changed))
+    os.kill(gw.proc.pid, signal.SIGHUP)
+    wait_for_log(gw, "configuration reloaded: lines changed")
+    wait_for_log(gw, f"serial line settings changed: reopening {meters.pair.gateway}")
+    assert c.ask(METER_UNIT, read_holding(1, 1)) == hr_reply(1, 1)
     (tmp_path / "lines.json").write_text(json.dumps(
         {"routes": [{"units": "1-31", "line": "serial"}]}))
     os.kill(gw.proc.pid, signal.SIGHUP)
@@ -240,7 +269,8 @@ def test_a_reload_adds_and_removes_a_line(tmp_path, lines, gateway, client):
     fd = os.open(meters.pair.gateway, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
     os.close(fd)
     assert [row["name"] for row in status(gw)["lines"]] == ["serial"]
-    assert received(meters.record) == [bytes((METER,)) + read_holding(0, 1)]
+    assert received(meters.record) == [bytes((METER,)) + read_holding(0, 1),
+                                       bytes((METER,)) + read_holding(1, 1)]
 
 
 def test_remote_servers_answer_their_units(lines, gateway, client, servers_at):
