@@ -89,8 +89,10 @@ def is_today(hops: list[Hop | None]) -> bool:
     return all(h is DIRECT or h is TO_TABLE for h in hops)
 
 
-def reaches_elsewhere(hops: list[Hop | None]) -> bool:
-    return any(h is not None and h.kind is ELSEWHERE for h in hops)
+def answered_off_the_line(hops: list[Hop | None]) -> bool:
+    """Some unit is answered elsewhere than on line serial (the table, another target): the
+    table reader then serves the clients while line serial is in a transaction."""
+    return any(h is not None and h.kind is not SERIAL for h in hops)
 
 
 def routes_status(routes: RouteMap) -> list[dict]:

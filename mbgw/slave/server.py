@@ -51,10 +51,10 @@ from mbgw.slave.routes import (
     SERIAL,
     TABLE,
     Hop,
+    answered_off_the_line,
     effective_routes,
     face_hops,
     is_today,
-    reaches_elsewhere,
 )
 from mbgw.slave.scheduler import (
     OUTCOME_DEVICE_DOWN,
@@ -120,8 +120,7 @@ class TcpServer:
         request the new routes send elsewhere."""
         face = face_hops(effective_routes(cfg), self.inboxes, self.table is not None)
         self.shortcut_allowed = is_today(face) and not cfg.table_on
-        self.reads_meanwhile = reaches_elsewhere(face) or (cfg.table_on and
-                                                           self.table is not None)
+        self.reads_meanwhile = answered_off_the_line(face)
         self._face = face
 
     # --- the asyncio thread: listening and admission ---

@@ -11,10 +11,10 @@ from mbgw.slave.routes import (
     SERIAL,
     TABLE,
     TO_TABLE,
+    answered_off_the_line,
     effective_routes,
     face_hops,
     is_today,
-    reaches_elsewhere,
     routes_status,
     units_text,
 )
@@ -34,13 +34,14 @@ def hops(cfg: SlaveConfig, inboxes=None):
 def test_without_routes_every_unit_goes_todays_way():
     face = hops(BASE)
     assert len(face) == 256 and all(h is DIRECT for h in face)
-    assert is_today(face) and not reaches_elsewhere(face)
+    assert is_today(face) and not answered_off_the_line(face)
 
 
 def test_the_tables_units_without_routes():
     face = hops(TABLE_ON)
     assert [u for u, h in enumerate(face) if h is TO_TABLE] == list(range(247, 255))
     assert all(h is DIRECT for u, h in enumerate(face) if not 247 <= u <= 254)
+    assert is_today(face) and answered_off_the_line(face)     # the table reader runs
     no_direct = dataclasses.replace(TABLE_ON, table=TableConfig(enabled=True, direct=False))
     assert all(h is TO_TABLE for h in hops(no_direct))
 
@@ -57,7 +58,7 @@ def test_routes_take_their_units_and_the_rest_is_unrouted():
         assert meters is not None and meters.kind is ELSEWHERE and meters.inbox is inbox
         assert [meters.rewrite(u) for u in (32, 63)] == [1, 32]
         assert all(face[u] is TO_TABLE for u in range(247, 255))  # [table] units stay
-        assert not is_today(face) and reaches_elsewhere(face)
+        assert not is_today(face) and answered_off_the_line(face)
     finally:
         inbox.close()
 
