@@ -35,7 +35,7 @@ from mbgw.slave.server import TcpServer
 from mbgw.slave.servers import ServerTargets, server_targets
 from mbgw.slave.status import SlaveStatus
 from mbgw.slave.table_service import TableService
-from mbgw.slave.targets import TargetLines
+from mbgw.slave.targets import EveryLine, TargetLines
 from mbgw.web.console import start_console
 from mbgw.web.hooks import WebHooks
 
@@ -171,7 +171,8 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
     kept = asyncio.ensure_future(tables.keep())
     sampled = asyncio.ensure_future(load.keep())
     try:
-        await serve_until_stopped(stop, status, worker, reloads, control, metrics)
+        await serve_until_stopped(stop, status, EveryLine(worker, targets), reloads, control,
+                                  metrics)
     finally:
         await console.close()
         await asyncio.to_thread(scenarios.stop)

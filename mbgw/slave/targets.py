@@ -151,5 +151,28 @@ class TargetLines:
         return [t.status() for t in self.lines.values()]
 
 
+class EveryLine:
+    """Line serial's thread and the target lines' as one for systemd's watchdog: it turns
+    while each of them does (the oldest heartbeat, the longest turn)."""
+
+    def __init__(self, serial: LineWorker, targets: TargetLines) -> None:
+        self._serial = serial
+        self._targets = targets
+
+    def _workers(self) -> list[LineWorker]:
+        return [self._serial, *(t.worker for t in list(self._targets.lines.values()))]
+
+    @property
+    def heartbeat(self) -> float:
+        return min(w.heartbeat for w in self._workers())
+
+    @property
+    def turn_limit_s(self) -> float:
+        return max(w.turn_limit_s for w in self._workers())
+
+    def is_alive(self) -> bool:
+        return all(w.is_alive() for w in self._workers())
+
+
 def target_lines(cfg: SlaveConfig) -> list[LineConfig]:
     return [line for line in cfg.lines if line.is_target and line.name != "serial"]
