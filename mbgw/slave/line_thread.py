@@ -13,7 +13,12 @@ rules: the scenario queue takes turns with the clients in the scheduler's ring, 
 SerialMaster transaction with the scenario's retries, a device that is down gets no run but
 its probe (the same DeviceStats.admit as the clients' requests), and the idle wait ends when
 the next scenario is due or the engine's eventfd says a change made one pending (or an
-operator's `scenario test` waits: it runs in the scenario queue's turn too)."""
+operator's `scenario test` waits: it runs in the scenario queue's turn too).
+
+Requests from other faces come as Exchanges through an Inbox (use_inbox): a target line
+(mbgw.slave.targets) has no client of its own and takes only those; each is admitted by the
+same rules as a client's request and queued in its source's turn, and its outcome goes to
+Exchange.done on this thread."""
 import errno
 import logging
 import threading
@@ -57,9 +62,9 @@ wire = logging.getLogger("mbgw.wire")
 
 # A scenario's run while the serial device is lost: the engine's error kind for 0x0A.
 PATH_UNAVAILABLE = EXCEPTION_KINDS[pdu.GATEWAY_PATH_UNAVAILABLE]
-# Serial settings that need the port opened again; the others apply to the next transaction.
 # Sources (TCP clients, serial faces) whose queue is kept while idle, before idle ones go.
 MAX_SOURCES = 256
+# Serial settings that need the port opened again; the others apply to the next transaction.
 REOPEN_SETTINGS = ("device", "baudrate", "format", "interface", "rtsdelays", "dtr", "rts",
                    "cts", "xonxoff")
 
@@ -417,11 +422,11 @@ class LineWorker(LineThread[SlaveConfig]):
         assert inbox is not None
         for exchange in inbox.drain():
             try:
-                self._admit(exchange)
+                self._admit_exchange(exchange)
             except Exception:   # a bug must cost one request, never the line
                 log.exception("internal error admitting %s", exchange.pdu.hex(" "))
 
-    def _admit(self, exchange: Exchange) -> None:
+    def _admit_exchange(self, exchange: Exchange) -> None:
         """As TcpServer._admit: a line that is down refuses at once (0x0A), an address that is
         down too (0x0B) unless this is its probe; otherwise a job in the source's turn."""
         counters = self._counters

@@ -16,6 +16,12 @@ With the exchange table on, a request for it (routes_to_table) is answered at on
 thread that read it: the line thread, or while that thread is in a serial transaction the
 table reader (mbgw.slave.table_reader), which calls read_meanwhile() and keeps the requests
 for the line for the line thread (take_kept).  Both hold the line worker's gate meanwhile.
+
+Each unit's hop (mbgw.slave.routes) says where its request goes: today's way to line serial,
+the table, line serial with the unit rewritten, nowhere (0x0A or silence), or another target
+(a line, a remote server) as an Exchange in its Inbox.  That target's thread hands the
+outcome back through a deque and the wake-up eventfd, and whoever holds the gate delivers it
+(_deliver_completions): a client is only ever touched under the gate.
 """
 import asyncio
 import dataclasses
