@@ -62,6 +62,7 @@ wire = logging.getLogger("mbgw.wire")
 
 # A scenario's run while the serial device is lost: the engine's error kind for 0x0A.
 PATH_UNAVAILABLE = EXCEPTION_KINDS[pdu.GATEWAY_PATH_UNAVAILABLE]
+OUTCOME_WITHDRAWN = "client gone"     # an exchange whose source closed before its turn
 # Sources (TCP clients, serial faces) whose queue is kept while idle, before idle ones go.
 MAX_SOURCES = 256
 # Serial settings that need the port opened again; the others apply to the next transaction.
@@ -253,9 +254,11 @@ class LineWorker(LineThread[SlaveConfig]):
     # --- serving ---
 
     def _serve(self, job: Job, taken: bool = False) -> None:
+        client = job.client
+        if client is None and self._withdrawn(job):
+            return
         self._serving = job
         try:
-            client = job.client
             # The reply may go straight to a client whose earlier replies have all gone out.
             # With no other request waiting for the line, that client (often woken onto this
             # CPU) then runs before our bookkeeping.
@@ -447,6 +450,15 @@ class LineWorker(LineThread[SlaveConfig]):
                 return
             job.probe = True
         self._scheduler.submit(self._queue_of(exchange.source), job)
+
+    def _withdrawn(self, job: Job) -> bool:
+        """An exchange whose source has closed (a TCP client gone: `closed`, read only) does
+        not go on the line, as a closed client's queue is discarded; the face is told."""
+        exchange = job.exchange
+        if exchange is None or not getattr(exchange.source, "closed", False):
+            return False
+        exchange.done(exchange, None, OUTCOME_WITHDRAWN)
+        return True
 
     def _queue_of(self, source: Hashable) -> Queue:
         queues = self._queues

@@ -205,6 +205,32 @@ def test_another_lines_request_does_not_wait_for_line_serials_transaction(
     assert waiting.recv(5) == (7, silent, b"\x83\x0b")
 
 
+def test_a_gone_clients_requests_for_another_line_never_reach_it(lines, gateway, client):
+    """As a closed client's queue on line serial is discarded, its requests waiting for
+    meters are dropped there before their turn."""
+    serial, meters = lines("serial", SERIAL_SLAVE), lines("meters", METER)
+    spec = meters_spec(meters)
+    spec["lines"][0]["stout"] = 1000
+    gw = gateway(serial, spec, "--late-window", "0")    # no wait for a late reply from 5
+    silent_unit = METER_UNIT + 4                   # address 5 on meters: nobody answers
+    leaving = client(gw)
+    leaving.send(*(struct.pack(">HHHB", tid, 0, 6, silent_unit) + read_holding(tid, 1)
+                   for tid in range(1, 7)))
+    first = bytes((5,)) + read_holding(1, 1)
+    deadline = time.monotonic() + 5
+    while first not in received(meters.record):
+        assert time.monotonic() < deadline, "the first request never reached meters"
+        time.sleep(0.01)
+    leaving.close()
+    staying = client(gw)
+    # The first comes before the gone client's next turn (it began when that turn ended);
+    # the second would come after it.
+    assert staying.ask(METER_UNIT, read_holding(8, 1)) == hr_reply(8, 1)
+    assert staying.ask(METER_UNIT, read_holding(9, 1)) == hr_reply(9, 1)
+    assert received(meters.record) == [first, bytes((METER,)) + read_holding(8, 1),
+                                       bytes((METER,)) + read_holding(9, 1)]
+
+
 def test_a_lost_line_is_refused_at_once_while_the_other_answers(lines, gateway, client):
     serial, meters = lines("serial", SERIAL_SLAVE), lines("meters", METER)
     gw = gateway(serial, meters_spec(meters), "--exception")
