@@ -148,7 +148,7 @@ class TargetLines:
         return removed
 
     def status(self) -> list[dict]:
-        return [t.status() for t in self.lines.values()]
+        return [t.status() for t in list(self.lines.values())]   # a reload may be adding
 
 
 class EveryLine:
