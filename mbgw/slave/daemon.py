@@ -142,7 +142,7 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
         nonlocal servers, running
         await console.reconfigure(new.web, report)
         tables.reconfigure(new, report)
-        removed = await asyncio.to_thread(targets.reconfigure, new)
+        removed = await asyncio.to_thread(targets.reconfigure, new, report)
         old_servers = servers
         if (new.tcpto_ms, new.exception, server_targets(new)) != \
                 (running.tcpto_ms, running.exception, server_targets(running)):

@@ -10,10 +10,12 @@ import logging
 
 from mbgw.config.lines import LineConfig
 from mbgw.config.model import SlaveConfig
+from mbgw.errors import SerialError
 from mbgw.line.port import SerialLine
 from mbgw.line.supervisor import open_at_start
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable, HealthRule
+from mbgw.ops.reload import ReloadReport
 from mbgw.ops.trace import TraceHub
 from mbgw.routing.inbox import Inbox
 from mbgw.slave.connections import Connections
@@ -125,11 +127,13 @@ class TargetLines:
         for target in self.lines.values():
             target.join()
 
-    def reconfigure(self, cfg: SlaveConfig) -> list[TargetLine]:
+    def reconfigure(self, cfg: SlaveConfig,
+                    report: ReloadReport | None = None) -> list[TargetLine]:
         """Lines added are opened and started, changed ones reconfigured (reopened when their
-        port settings changed), the others kept as they are.  Returns the removed ones, out
-        of the inboxes already: the caller stops and joins them once the face no longer
-        routes to them."""
+        port settings changed), the others kept as they are; an added line whose device is
+        there and does not open is told to the report (its units are unrouted).  Returns the
+        removed ones, out of the inboxes already: the caller stops and joins them once the
+        face no longer routes to them."""
         wanted = {line.name: line for line in target_lines(cfg)}
         removed = [self.lines.pop(name) for name in list(self.lines) if name not in wanted]
         for target in removed:
@@ -139,8 +143,10 @@ class TargetLines:
             if kept is None:
                 try:
                     self._add(cfg, line).start()
-                except Exception as err:   # SerialError: a device there that does not open
-                    log.error("line %s not opened: %s", name, err)
+                except SerialError as err:    # a device there that does not open
+                    log.error("line %s not opened: %s", name, err.strerror or err)
+                    if report is not None:
+                        report.refuse("lines", f"line {name}: {err.strerror or err}")
                     self.lines.pop(name, None)
                     self.inboxes.pop(name, None)
             elif kept.config != line:

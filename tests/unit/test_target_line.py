@@ -8,6 +8,7 @@ import pytest
 
 from mbgw.config.lines import LineConfig
 from mbgw.config.model import SerialConfig, SlaveConfig
+from mbgw.ops.reload import ReloadReport
 from mbgw.routing.exchange import Exchange
 from mbgw.slave.targets import TargetLine, TargetLines
 
@@ -55,6 +56,24 @@ def test_lines_added_and_removed_by_name(absent):
         for target in removed:
             target.stop()
             target.join()
+    finally:
+        lines.stop()
+        lines.join()
+
+
+def test_a_line_added_whose_device_does_not_open_is_told(tmp_path, absent):
+    not_a_tty = tmp_path / "plain-file"
+    not_a_tty.write_text("")
+    cfg = SlaveConfig(SerialConfig("/dev/null"))
+    inboxes: dict = {}
+    lines = TargetLines(cfg, inboxes)
+    report = ReloadReport()
+    bad = LineConfig("bad", SerialConfig(str(not_a_tty)))
+    try:
+        assert lines.reconfigure(dataclasses.replace(cfg, lines=(bad, absent)), report) == []
+        assert list(report.not_applied) == ["lines"]
+        assert "line bad:" in report.not_applied["lines"]
+        assert list(inboxes) == ["meters"] and list(lines.lines) == ["meters"]
     finally:
         lines.stop()
         lines.join()
