@@ -88,11 +88,12 @@ class Gateway:
 
     def __init__(self, directory: Path, device: str, *args: str, port: int | None = None,
                  mode: str = "slave", listen: bool = True, env: dict | None = None,
-                 keep_notify: bool = False) -> None:
+                 keep_notify: bool = False, program: tuple[str, ...] = ("-m", "mbgw")) -> None:
         """listen=False: no --bind/--mdbport (master mode, where --mdbport is the remote
         servers' port and is among args); port then only names the log and notify files.
         env: more environment variables.  keep_notify: the notify socket stays open after
-        READY=1, for notification(); a test that keeps it must read it (see notification)."""
+        READY=1, for notification(); a test that keeps it must read it (see notification).
+        program: what python runs (a test's own wrapper of mbgw's command line)."""
         self.port = port or free_port()
         self.log_path = directory / f"mbgw-{self.port}.log"
         notify_path = str(directory / f"notify-{self.port}")
@@ -104,7 +105,7 @@ class Gateway:
         env = dict(os.environ, NOTIFY_SOCKET=notify_path, RUNTIME_DIRECTORY=str(runtime),
                    **(env or {}))
         network = ["--bind", "127.0.0.1", "--mdbport", str(self.port)] if listen else []
-        self.args = [sys.executable, "-m", "mbgw", mode, "--device", device, *network, *args]
+        self.args = [sys.executable, *program, mode, "--device", device, *network, *args]
         self._log = open(self.log_path, "w")
         self.proc = subprocess.Popen(self.args, env=env, stdout=self._log, stderr=self._log)
         self._notify = notify

@@ -37,6 +37,8 @@ def format_status(s: dict, now: float) -> str:
         lines += [*_transparent_sections(s), "", *_clients_section(s, now, "table clients")]
     else:
         lines += _slave_sections(s, now)
+    if len(s.get("lines", ())) > 1 or any(not r["implicit"] for r in s.get("routes", ())):
+        lines += ["", *_lines_section(s["lines"]), "", *_routes_section(s["routes"])]
     if s.get("table") is not None:
         lines += ["", *_table_section(s["table"], s["mode"], now, bool(s.get("scenarios")))]
     elif s.get("scenarios"):
@@ -48,6 +50,21 @@ def format_status(s: dict, now: float) -> str:
         lines += ["", *format_scenarios(s["scenarios"], now)]
     lines += ["", *_counters_section(s)]
     return "\n".join(lines)
+
+
+def _lines_section(rows: list[dict]) -> list[str]:
+    """The daemon's lines (more than one, or routes of the file's)."""
+    out = ["lines      name          state    requests  replies  timeouts  device"]
+    out += [f"           {r['name']:<13} {r['state']:<8} {r['requests']:>8} {r['replies']:>8} "
+            f"{r['timeouts']:>9}  {r['device']} ({r['mode']})" for r in rows]
+    return out
+
+
+def _routes_section(rows: list[dict]) -> list[str]:
+    out = ["routes     face    units            target                     rewrite"]
+    out += [f"           {r['face']:<7} {r['units']:<16} {r['target']:<26} "
+            f"{r['rewrite'] or '-'}{' (implicit)' if r['implicit'] else ''}" for r in rows]
+    return out
 
 
 STATS_KEYS = ("counters", "counters_since", "line_utilisation_pct", "line_load_pct")

@@ -241,7 +241,7 @@ def _slave_routes(cfg: SlaveConfig) -> tuple[RouteConfig, ...]:
     explicit, explicit_table = _explicit(cfg, TCP_FACE)
     routes = []
     table_units: tuple[int, ...] = ()
-    if cfg.table.enabled and not explicit_table:
+    if cfg.table_on and not explicit_table:
         table_units = cfg.table.units if cfg.table.direct else ALL_UNITS
         routes.append(RouteConfig(0, table_units, table=True, implicit=True))
     if not explicit and len(table_units) < len(ALL_UNITS):
@@ -296,5 +296,5 @@ def config_problems(cfg: SlaveConfig | MasterConfig, mode: str) -> list[str]:
     primary = LineConfig(PRIMARY_LINE, cfg.serial, mode=mode)
     problems = route_problems((primary, *cfg.lines), effective_routes(cfg))
     problems += [f"{r.label}.table: the table is off (table.enabled = false)"
-                 for r in cfg.routes if r.table and not cfg.table.enabled]
+                 for r in cfg.routes if r.table and not cfg.table_on]
     return problems

@@ -12,6 +12,7 @@ import os
 import select
 import time
 from collections import deque
+from collections.abc import Callable
 
 from mbgw.line.clients import ClientReader
 from mbgw.ops.limits import WarnLimit
@@ -39,6 +40,8 @@ class Connections:
         self._also: dict = {}                      # fd -> on_ready (poll_also)
         self._again: list[Client] = []   # whole requests held, room again: served unpolled
         self._warn = WarnLimit(log)
+        # called when the wake-up eventfd is read (by whoever holds the gate)
+        self.on_wake: Callable[[], None] | None = None
 
     def adopt(self, client: Client) -> None:
         """Asyncio thread: from now on the line thread serves client."""
@@ -126,6 +129,8 @@ class Connections:
             os.eventfd_read(self._wake_fd)
         except BlockingIOError:
             pass
+        if self.on_wake is not None:
+            self.on_wake()
         while self._adopted:
             # read at once: what a newcomer sent must not wait for the next transaction
             client = self._adopted.popleft()

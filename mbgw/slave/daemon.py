@@ -4,6 +4,7 @@ import logging
 import signal
 import time
 
+from mbgw.config.lines import PRIMARY_LINE
 from mbgw.config.model import SlaveConfig
 from mbgw.errors import ListenError
 from mbgw.line.port import SerialLine
@@ -22,44 +23,69 @@ from mbgw.ops.service import (
     warn_of_overlaps,
     watchdog_interval,
 )
+from mbgw.routing.inbox import Inbox
 from mbgw.scenarios.control import scenario_commands
 from mbgw.scenarios.engine import Scenarios
 from mbgw.scenarios.tcp_runner import TcpScenarios, with_scenarios
 from mbgw.slave.line_thread import LineWorker, serial_scenarios
+from mbgw.slave.routes import effective_routes
 from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
+from mbgw.slave.servers import ServerTargets, server_targets
 from mbgw.slave.status import SlaveStatus
 from mbgw.slave.table_service import TableService
+from mbgw.slave.targets import EveryLine, TargetLines
 from mbgw.web.console import start_console
 from mbgw.web.hooks import WebHooks
 
 log = logging.getLogger("mbgw")
 
 
-def run_slave(cfg: SlaveConfig, reconfigure=None) -> None:
+def run_slave(cfg: SlaveConfig, reconfigure=None, faces=None) -> None:
     """Raises SerialError when the device is there and cannot be opened (one that is not there
     yet is waited for), ListenError when mdbport cannot be bound; otherwise returns after
     SIGTERM or SIGINT.  reconfigure() gives the settings to apply on SIGHUP (None: there is no
-    file to reload)."""
+    file to reload).  faces(cfg, routes, inboxes, table): the serial faces' threads, unstarted
+    (mbgw.gateway's, when some line is in master mode)."""
     counters = Counters()
     line = open_at_start(cfg.serial, counters)
     try:
-        asyncio.run(_serve(cfg, line, counters, reconfigure))
+        asyncio.run(_serve(cfg, line, counters, reconfigure, faces))
     finally:
         if line is not None:
             line.close()
 
 
-async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
-                 reconfigure) -> None:
+def _servers(cfg: SlaveConfig, inboxes: dict[str, Inbox]) -> ServerTargets | None:
+    """The remote servers' thread, unstarted, its inboxes added to inboxes; None: no route
+    reaches a server."""
+    servers = server_targets(cfg)
+    if not servers:
+        return None
+    thread = ServerTargets(servers, cfg.tcpto_ms, cfg.exception)
+    inboxes.update(thread.inboxes)
+    return thread
+
+
+async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,  # noqa: C901
+                 reconfigure, faces) -> None:
     loop = asyncio.get_running_loop()
     devices = DeviceTable(rule=HealthRule(cfg.demotion))
     scheduler = Scheduler()
     tables = TableService(cfg, devices)
+    inboxes: dict[str, Inbox] = {}     # every target's but the table's, by name
+    targets = TargetLines(cfg, inboxes)
+    servers = _servers(cfg, inboxes)
 
     worker: LineWorker
-    server = TcpServer(cfg, scheduler, counters, lambda: worker.up, devices, tables.table)
+    server = TcpServer(cfg, scheduler, counters, lambda: worker.up, devices, tables.table,
+                       inboxes)
     worker = LineWorker(cfg, line, scheduler, server, counters, devices)
+    if cfg.lines:                      # a serial face may reach line serial too
+        inboxes[PRIMARY_LINE] = Inbox()
+        worker.use_inbox(inboxes[PRIMARY_LINE])
+    serial_faces = faces(cfg, effective_routes(cfg), inboxes, tables.table) \
+        if faces is not None else []
     serial_engine = Scenarios(serial_scenarios(cfg), tables.table, "serial")
     worker.use_scenarios(serial_engine)      # run, and reconfigured, by the line thread
     engines: dict = {"serial": serial_engine}   # the scenarios' engines by kind
@@ -84,8 +110,14 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
         raise
     worker.idle_ms = idle_ms(watchdog_interval())
     worker.start()
+    targets.start(worker.idle_ms)
+    if servers is not None:
+        servers.start()
+    for face in serial_faces:
+        face.start()
     status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses, tables,
                          load)
+    status.targets = targets
     status.scenario_engines = engines
     commands = {**status.commands(), **scenario_commands(engines, cfg.config_file)}
     control = await start_control(cfg.control, commands)
@@ -105,27 +137,60 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
     scenarios = TcpScenarios(tables.table, engines, devices.rule, server.trace)
     scenarios.start(cfg.scenarios, cfg.tcpto_ms, cfg.upstream_tls)
 
+    running = cfg                      # the settings in force
+
     async def apply(new: SlaveConfig, report: ReloadReport) -> None:
+        nonlocal servers, running
         await console.reconfigure(new.web, report)
         tables.reconfigure(new, report)
+        removed = await asyncio.to_thread(targets.reconfigure, new, report)
+        old_servers = servers
+        if (new.tcpto_ms, new.exception, server_targets(new)) != \
+                (running.tcpto_ms, running.exception, server_targets(running)):
+            for label in server_targets(running):
+                inboxes.pop(label, None)
+            servers = _servers(new, inboxes)
+            if servers is not None:
+                servers.start()
+        else:
+            old_servers = None
         await server.reconfigure(new, report)
-        worker.reconfigure(new)
+        worker.configured.clear()
+        worker.reconfigure(new)        # the face routes to the targets in force from then on
+        await asyncio.to_thread(worker.configured.wait, worker.turn_limit_s + 1)
+        for target in removed:
+            target.stop()
+            await asyncio.to_thread(target.join)
+        if old_servers is not None:
+            old_servers.stop()
+            await asyncio.to_thread(old_servers.join_and_close)
         await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms,
                                 new.upstream_tls)
+        running = new
     reloads.apply = apply
 
     kept = asyncio.ensure_future(tables.keep())
     sampled = asyncio.ensure_future(load.keep())
     try:
-        await serve_until_stopped(stop, status, worker, reloads, control, metrics)
+        await serve_until_stopped(stop, status, EveryLine(worker, targets), reloads, control,
+                                  metrics)
     finally:
         await console.close()
         await asyncio.to_thread(scenarios.stop)
     kept.cancel()
     sampled.cancel()
     server.close()
+    for face in serial_faces:
+        face.stop()
+    for face in serial_faces:
+        await asyncio.to_thread(face.join)
+    targets.stop()
     worker.stop()
     await asyncio.to_thread(worker.join)
+    await asyncio.to_thread(targets.join)
+    if servers is not None:
+        servers.stop()
+        await asyncio.to_thread(servers.join_and_close)
     tables.save()
     serial_engine.close()
     scheduler.close()

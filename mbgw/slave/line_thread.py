@@ -13,10 +13,17 @@ rules: the scenario queue takes turns with the clients in the scheduler's ring, 
 SerialMaster transaction with the scenario's retries, a device that is down gets no run but
 its probe (the same DeviceStats.admit as the clients' requests), and the idle wait ends when
 the next scenario is due or the engine's eventfd says a change made one pending (or an
-operator's `scenario test` waits: it runs in the scenario queue's turn too)."""
+operator's `scenario test` waits: it runs in the scenario queue's turn too).
+
+Requests from other faces come as Exchanges through an Inbox (use_inbox): a target line
+(mbgw.slave.targets) has no client of its own and takes only those; each is admitted by the
+same rules as a client's request and queued in its source's turn, and its outcome goes to
+Exchange.done on this thread."""
 import errno
 import logging
+import threading
 import time
+from typing import Hashable
 
 from mbgw.config.model import SlaveConfig
 from mbgw.errors import LineTimeout, SerialError
@@ -27,6 +34,8 @@ from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.protocol import mbap, pdu
+from mbgw.routing.exchange import Exchange
+from mbgw.routing.inbox import Inbox
 from mbgw.scenarios.engine import Scenarios
 from mbgw.scenarios.exchange import EXCEPTION_KINDS, FRAME_WITHOUT_REQUEST, TIMEOUT
 from mbgw.scenarios.health import SerialHealth
@@ -43,6 +52,7 @@ from mbgw.slave.scheduler import (
     OUTCOME_TIMEOUT,
     SCENARIO_TURN,
     Job,
+    Queue,
     Scheduler,
 )
 from mbgw.slave.table_reader import Gate, TableReader
@@ -53,6 +63,9 @@ wire = logging.getLogger("mbgw.wire")
 
 # A scenario's run while the serial device is lost: the engine's error kind for 0x0A.
 PATH_UNAVAILABLE = EXCEPTION_KINDS[pdu.GATEWAY_PATH_UNAVAILABLE]
+OUTCOME_WITHDRAWN = "client gone"     # an exchange whose source closed before its turn
+# Sources (TCP clients, serial faces) whose queue is kept while idle, before idle ones go.
+MAX_SOURCES = 256
 # Serial settings that need the port opened again; the others apply to the next transaction.
 REOPEN_SETTINGS = ("device", "baudrate", "format", "interface", "rtsdelays", "dtr", "rts",
                    "cts", "xonxoff")
@@ -68,7 +81,12 @@ class LineWorker(LineThread[SlaveConfig]):
         self._counters = counters
         self.devices = devices
         self._down = devices.rule.down     # the addresses that are down, by address
-        self._deliver = server.finished    # deliver(job, reply_pdu_or_None[, bytes forwarded])
+        self._finished = server.finished   # finished(job, reply_pdu_or_None[, bytes forwarded])
+        # deliver(job, reply_pdu_or_None[, bytes forwarded]): the client's, until exchanges
+        # come too (use_inbox), so that a daemon of one line pays no dispatch per request
+        self._deliver = self._finished
+        self._inbox: Inbox | None = None   # exchanges from other faces (use_inbox)
+        self._queues: dict[Hashable, Queue] = {}   # the exchanges' queues, by source
         self._taken: Job | None = None     # put on the line by the shortcut, books to keep
         self._shortcut = False
         self._serving: Job | None = None     # until its outcome has been delivered
@@ -82,6 +100,7 @@ class LineWorker(LineThread[SlaveConfig]):
         self._timed_out: dict[int, Job] = {}   # by address: the job whose late reply may come
         self._run_started = 0              # the scenario run traced last began (ns)
         self._trace = server.trace
+        self.configured = threading.Event()    # set when new settings are in force
         self.watch_raw(server.trace)
         if line is None:
             self._line_state(down=True)
@@ -97,8 +116,9 @@ class LineWorker(LineThread[SlaveConfig]):
         # The shortcut takes plain RTU requests, which libmodbus sends and frames.
         # Not with the table on: C would write a reply to a client the table reader may be
         # answering at the same time.
+        # Nor when the TCP face routes units elsewhere: C would put them on this line.
         self._shortcut = cfg.shortcut and cfg.serial.protocol == "rtu" and \
-            line.libmodbus_sends and not cfg.serial.nocheck and not cfg.table_on
+            line.libmodbus_sends and not cfg.serial.nocheck and self._server.shortcut_allowed
         if self._shortcut:
             line.port.shortcut_rules(pdu.LIBMODBUS_FRAMED, line.char_ns,
                                      cfg.serial.stout_ms * 1_000_000, cfg.slaveid, self._down,
@@ -152,9 +172,10 @@ class LineWorker(LineThread[SlaveConfig]):
         return any(getattr(new, name) != getattr(old, name) for name in REOPEN_SETTINGS)
 
     def _configure(self, old: SlaveConfig, reopen: bool) -> None:
+        self._server.route_face(self._cfg)
         if self._cfg.demotion != old.demotion:
             self.devices.set_rule(self._cfg.demotion)
-        if self._cfg.table_on != old.table_on:
+        if (self._reader is not None) != self._server.reads_meanwhile:
             self._stop_reader()
             self._start_reader()
         if self._engine is not None and self._cfg.scenarios != old.scenarios:
@@ -164,6 +185,7 @@ class LineWorker(LineThread[SlaveConfig]):
             self._due_s = None
         if not reopen and self._master is not None and self._line is not None:
             self._master = self._master_on(self._line, self._master)
+        self.configured.set()
 
     def _turn(self) -> None:
         if self._scenarios is not None or self._engine_woken:
@@ -193,14 +215,18 @@ class LineWorker(LineThread[SlaveConfig]):
         self._stop_reader()
         self._connections.close_all()
         self.close_line()
+        if self._inbox is not None:    # what waits for this line is refused (it is removed)
+            self._reject_waiting()
+            self._exchanges()
 
     # --- the table reader (the gate is held) ---
 
     def _start_reader(self) -> None:
-        table = self._server.table
-        if self._cfg.table_on and table is not None:
+        if self._server.reads_meanwhile:
+            table = self._server.table
             self._reader = TableReader(self._gate, self._connections, self._scheduler.wake_fd,
-                                       self._server.read_meanwhile, table.responder())
+                                       self._server.read_meanwhile,
+                                       table.responder() if table is not None else None)
             self._reader.start()
 
     def _stop_reader(self) -> None:
@@ -229,14 +255,16 @@ class LineWorker(LineThread[SlaveConfig]):
     # --- serving ---
 
     def _serve(self, job: Job, taken: bool = False) -> None:
+        client = job.client
+        if client is None and self._withdrawn(job):
+            return
         self._serving = job
         try:
-            client = job.client
             # The reply may go straight to a client whose earlier replies have all gone out.
             # With no other request waiting for the line, that client (often woken onto this
             # CPU) then runs before our bookkeeping.
             forward = client.forward_target(job.tid, job.unit, not self._scheduler.depth) \
-                if self._reader is None else NO_FORWARD
+                if self._reader is None and client is not None else NO_FORWARD
             master = self._master
             assert master is not None          # jobs are served only while the line is up
             reply = self._transact(master, job, forward, taken)
@@ -276,6 +304,17 @@ class LineWorker(LineThread[SlaveConfig]):
         job.outcome = OUTCOME_DEVICE_DOWN
         self._deliver(job, self._failure(job, pdu.GATEWAY_TARGET_FAILED))
         return True
+
+    def _deliver_any(self, job: Job, reply: bytes | None, sent: int = -1) -> None:
+        """job's outcome to its client (TcpServer.finished), or to the face whose exchange it
+        is (its done, on this thread)."""
+        exchange = job.exchange
+        if exchange is None:
+            self._finished(job, reply, sent)
+        else:
+            if reply is not None:
+                self._counters.replies += 1     # as the TcpServer counts what it sends
+            exchange.done(exchange, reply, job.outcome)
 
     def _reply_now(self, reply: bytes, sent: int) -> None:
         """The serial master found the reply (sent: the bytes of it already forwarded, or
@@ -372,6 +411,65 @@ class LineWorker(LineThread[SlaveConfig]):
             self._counters.line_down_rejects += 1
             job.outcome = OUTCOME_LINE_DOWN
             self._deliver(job, self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE))
+
+    # --- exchanges: requests from other faces (the Modbus TCP face, a serial face) ---
+
+    def use_inbox(self, inbox: Inbox) -> None:
+        """Take the exchanges submitted to inbox (called once, before start())."""
+        self._inbox = inbox
+        self._deliver = self._deliver_any
+        self._connections.poll_also(inbox.wake_fd, self._exchanges)
+
+    def _exchanges(self) -> None:
+        """Line thread: admit what was submitted, each as a job in its source's queue."""
+        inbox = self._inbox
+        assert inbox is not None
+        for exchange in inbox.drain():
+            try:
+                self._admit_exchange(exchange)
+            except Exception:   # a bug must cost one request, never the line
+                log.exception("internal error admitting %s", exchange.pdu.hex(" "))
+
+    def _admit_exchange(self, exchange: Exchange) -> None:
+        """As TcpServer._admit: a line that is down refuses at once (0x0A), an address that is
+        down too (0x0B) unless this is its probe; otherwise a job in the source's turn."""
+        counters = self._counters
+        counters.requests += 1
+        address = exchange.address
+        job = Job(None, 0, 0, bytes((address,)) + exchange.pdu, exchange.received_ns,
+                  exchange=exchange)
+        if self._line is None:
+            counters.line_down_rejects += 1
+            job.outcome = OUTCOME_LINE_DOWN
+            self._deliver(job, self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE))
+            return
+        if self._down[address]:
+            if not self.devices.get(address).admit(time.monotonic()):
+                counters.demoted_rejects += 1
+                job.outcome = OUTCOME_DEVICE_DOWN
+                self._deliver(job, self._failure(job, pdu.GATEWAY_TARGET_FAILED))
+                return
+            job.probe = True
+        self._scheduler.submit(self._queue_of(exchange.source), job)
+
+    def _withdrawn(self, job: Job) -> bool:
+        """An exchange whose source has closed (a TCP client gone: `closed`, read only) does
+        not go on the line, as a closed client's queue is discarded; the face is told."""
+        exchange = job.exchange
+        if exchange is None or not getattr(exchange.source, "closed", False):
+            return False
+        exchange.done(exchange, None, OUTCOME_WITHDRAWN)
+        return True
+
+    def _queue_of(self, source: Hashable) -> Queue:
+        queues = self._queues
+        queue = queues.get(source)
+        if queue is None:
+            if len(queues) >= MAX_SOURCES:     # forget the sources with nothing queued
+                for gone in [s for s, q in queues.items() if not q.scheduled]:
+                    del queues[gone]
+            queue = queues[source] = Queue()
+        return queue
 
     # --- the serial scenarios ---
 

@@ -27,11 +27,12 @@ from collections import deque
 
 
 class Job:
-    __slots__ = ("client", "tid", "unit", "adu", "outcome", "received_ns", "probe")
+    __slots__ = ("client", "tid", "unit", "adu", "outcome", "received_ns", "probe", "exchange")
 
     def __init__(self, client, tid: int, unit: int, adu: bytes, received_ns: int = 0,
-                 probe: bool = False) -> None:
-        self.client = client
+                 probe: bool = False, exchange=None) -> None:
+        self.client = client       # None for an exchange (another face's) or a scenario
+        self.exchange = exchange   # a routing.Exchange: its done() is told the outcome
         self.tid = tid
         self.unit = unit
         self.adu = adu

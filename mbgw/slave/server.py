@@ -16,6 +16,12 @@ With the exchange table on, a request for it (routes_to_table) is answered at on
 thread that read it: the line thread, or while that thread is in a serial transaction the
 table reader (mbgw.slave.table_reader), which calls read_meanwhile() and keeps the requests
 for the line for the line thread (take_kept).  Both hold the line worker's gate meanwhile.
+
+Each unit's hop (mbgw.slave.routes) says where its request goes: today's way to line serial,
+the table, line serial with the unit rewritten, nowhere (0x0A or silence), or another target
+(a line, a remote server) as an Exchange in its Inbox.  That target's thread hands the
+outcome back through a deque and the wake-up eventfd, and whoever holds the gate delivers it
+(_deliver_completions): a client is only ever touched under the gate.
 """
 import asyncio
 import dataclasses
@@ -24,6 +30,7 @@ import select
 import socket
 import ssl
 import time
+from collections import deque
 
 from mbgw.audit import Kind, event, operator
 from mbgw.config.model import ACTIVE_WINDOW_S, SlaveConfig
@@ -39,10 +46,22 @@ from mbgw.ops.service import ListenError
 from mbgw.ops.tls import role_of, server_context
 from mbgw.ops.trace import TraceHub
 from mbgw.protocol import mbap, pdu
+from mbgw.routing.exchange import Exchange
+from mbgw.routing.inbox import Inbox
 from mbgw.slave.acl import AccessList
 from mbgw.slave.client import PEER_GONE, Client, TlsClient
 from mbgw.slave.connections import Connections
 from mbgw.slave.handshakes import HANDSHAKES_PER_ADDRESS, MAX_HANDSHAKES, Handshakes
+from mbgw.slave.routes import (
+    DIRECT,
+    SERIAL,
+    TABLE,
+    Hop,
+    answered_off_the_line,
+    effective_routes,
+    face_hops,
+    is_today,
+)
 from mbgw.slave.scheduler import (
     OUTCOME_DEVICE_DOWN,
     OUTCOME_LATE,
@@ -64,9 +83,11 @@ SWEEP_S = 0.25                   # how often the clients' deadlines are looked a
 
 class TcpServer:
     def __init__(self, cfg: SlaveConfig, scheduler: Scheduler, counters: Counters,
-                 line_up, devices: DeviceTable, table=None) -> None:
+                 line_up, devices: DeviceTable, table=None,
+                 inboxes: dict[str, Inbox] | None = None) -> None:
         """table: the exchange table (mbgw.table.memory.Table), served while cfg.table is
-        enabled."""
+        enabled.  inboxes: the other targets' (lines by name, servers by target label), a
+        dict the daemon keeps up to date before each reconfigure()."""
         self._cfg = cfg
         self._scheduler = scheduler
         self.counters = counters
@@ -88,11 +109,25 @@ class TcpServer:
         self.trace = TraceHub()
         self.connections = Connections(scheduler.wake_fd, self.request, self._closed, counters)
         self.table = table
-        # Units the table answers (256 flags; all of them with direct messaging off); swapped
-        # whole at a reload, so the threads that route never see half of it.
-        self._table_units = table_units(cfg)
+        # Each unit's hop (mbgw.slave.routes); swapped whole at a reload, so the threads that
+        # route never see half of it.
+        self.inboxes: dict[str, Inbox] = inboxes if inboxes is not None else {}
+        self._face: list[Hop | None] = []
+        self.route_face(cfg)
         self._responder = table.responder() if table is not None else None   # line thread's
         self._kept: list[tuple] = []     # requests for the line read by the table reader
+        # Exchanges other lines answered, for the thread that holds the gate to deliver
+        self._completions: deque[tuple] = deque()
+        self.connections.on_wake = self._deliver_completions
+
+    def route_face(self, cfg: SlaveConfig) -> None:
+        """The face's hops for cfg, swapped whole.  At a reload the line thread calls it
+        between two turns (LineWorker._configure), so that the C shortcut never takes a
+        request the new routes send elsewhere."""
+        face = face_hops(effective_routes(cfg), self.inboxes, self.table is not None)
+        self.shortcut_allowed = is_today(face) and not cfg.table_on
+        self.reads_meanwhile = answered_off_the_line(face)
+        self._face = face
 
     # --- the asyncio thread: listening and admission ---
 
@@ -149,7 +184,6 @@ class TcpServer:
         if self._handshakes is not None:
             self._handshakes.timeout_s = cfg.request_timeout_ms / 1000
         self._guard_clients(self.firewall.renewed(cfg.firewall, cfg.tls.roles_required))
-        self._table_units = table_units(cfg)
         if self.table is not None and cfg.table.functions != old.table.functions:
             self.table.set_functions(cfg.table.functions)
         for client in list(self.clients):
@@ -438,13 +472,65 @@ class TcpServer:
         if guard is not None and not guard.allows(unit, request):
             self._refused_by_firewall(client, guard, tid, unit, request, received_ns)
             return
-        if self._table_units[unit]:
-            self._from_table(client, tid, unit, request, self._responder)
+        hop = self._face[unit]
+        if hop is DIRECT:
+            job = self._admit(client, tid, unit, request, received_ns or client.arrived_ns)
+            if job is not None:
+                client.in_flight += 1
+                self._scheduler.submit(client.queue, job)
             return
-        job = self._admit(client, tid, unit, request, received_ns or client.arrived_ns)
-        if job is not None:
+        self._elsewhere(hop, client, tid, unit, request, received_ns or client.arrived_ns,
+                        self._responder)
+
+    def _elsewhere(self, hop: Hop | None, client: Client, tid: int, unit: int,
+                   request: bytes, received_ns: int, responder) -> None:
+        """A request the face's routes take elsewhere than today's way to line serial."""
+        if hop is None:
+            self.counters.requests += 1
+            if self.trace.active:
+                self.trace.emit_threadsafe(self._event("request", client, tid, unit, request,
+                                                       "", None))
+            self.counters.unroutable += 1
+            self._refuse(client, tid, unit, request, OUTCOME_UNROUTABLE, received_ns)
+            return
+        kind = hop.kind
+        if kind is TABLE:
+            self._from_table(client, tid, unit, request, responder,
+                             hop.rewrite(unit) == pdu.BROADCAST)
+        elif kind is SERIAL:
+            job = self._admit(client, tid, unit, request, received_ns, hop.rewrite(unit))
+            if job is not None:
+                client.in_flight += 1
+                self._scheduler.submit(client.queue, job)
+        else:
+            self.counters.requests += 1
+            if self.trace.active:
+                self.trace.emit_threadsafe(self._event("request", client, tid, unit, request,
+                                                       "", None))
+            inbox = hop.inbox
+            assert inbox is not None
             client.in_flight += 1
-            self._scheduler.submit(client.queue, job)
+            inbox.submit(Exchange(client, hop.rewrite(unit), request, received_ns,
+                                  self._completed, (client, tid, unit)))
+
+    def _completed(self, exchange: Exchange, reply: bytes | None, outcome: str) -> None:
+        """The target's thread: the outcome waits for the thread that holds the gate (the
+        client is touched by no other)."""
+        self._completions.append((exchange, reply, outcome))
+        self._scheduler.wake()
+
+    def _deliver_completions(self) -> None:
+        """Under the gate (the line thread, or the table reader): the other lines' outcomes
+        to their clients, under the client's own transaction id and unit."""
+        completions = self._completions
+        while completions:
+            exchange, reply, outcome = completions.popleft()
+            client, tid, unit = exchange.context
+            client.in_flight -= 1
+            self._answer(client, tid, unit, reply)
+            if self.trace.active:
+                self.traced(client, tid, unit, exchange.pdu[0], reply, outcome,
+                            exchange.received_ns)
 
     # --- the table reader, under the gate while the line thread is in a serial transaction
 
@@ -453,17 +539,17 @@ class TcpServer:
         """A request the table reader read: a table request is answered now (with the
         reader's own responder); one for the line is kept for the line thread, in flight
         already so that the client's limit of requests in the gateway holds."""
-        if self._table_units[unit]:
-            client.requests += 1
-            guard = client.guard
-            if guard is not None and not guard.allows(unit, request):
-                self._refused_by_firewall(client, guard, tid, unit, request,
-                                          client.arrived_ns)
-            else:
-                self._from_table(client, tid, unit, request, responder)
-        else:
+        hop = self._face[unit]
+        if hop is not None and hop.kind is SERIAL:
             client.in_flight += 1
             self._kept.append((client, tid, unit, request, client.arrived_ns))
+            return
+        client.requests += 1
+        guard = client.guard
+        if guard is not None and not guard.allows(unit, request):
+            self._refused_by_firewall(client, guard, tid, unit, request, client.arrived_ns)
+        else:
+            self._elsewhere(hop, client, tid, unit, request, client.arrived_ns, responder)
 
     def take_kept(self) -> None:
         """Line thread, under the gate: route the requests the table reader kept for the line,
@@ -478,7 +564,7 @@ class TcpServer:
         kept.clear()
 
     def _from_table(self, client: Client, tid: int, unit: int, request: bytes,
-                    responder) -> None:
+                    responder, broadcast: bool) -> None:
         """Answer a request from the exchange table at once; unit 0 is a broadcast into it
         (direct messaging off), with no reply."""
         self.counters.requests += 1
@@ -486,7 +572,7 @@ class TcpServer:
         if tracing:
             self.trace.emit_threadsafe(self._event("request", client, tid, unit, request, "",
                                                    None))
-        if unit == pdu.BROADCAST:
+        if broadcast:
             reply = responder.answer(request, broadcast=True)
         else:
             reply = responder.answer(request)
@@ -519,7 +605,7 @@ class TcpServer:
         return self._admit(client, tid, unit, request, received_ns)
 
     def _admit(self, client: Client, tid: int, unit: int, request: bytes,
-               received_ns: int) -> Job | None:
+               received_ns: int, address: int = 0) -> Job | None:
         """The job for a request that arrived at received_ns, or None when it was answered
         at once (it cannot reach the line, or its address is down and this is no probe: it
         must not wait in the queue for a refusal)."""
@@ -528,7 +614,7 @@ class TcpServer:
         if tracing:
             self.trace.emit_threadsafe(self._event("request", client, tid, unit, request, "",
                                                    None))
-        address = self._cfg.slaveid or unit
+        address = address or self._cfg.slaveid or unit
         if address > pdu.MAX_SERIAL_ADDRESS:
             self.counters.unroutable += 1
             self._refuse(client, tid, unit, request, OUTCOME_UNROUTABLE, received_ns)
@@ -607,20 +693,6 @@ class TcpServer:
                 "function": data[0], "length": len(data) if direction != "no reply" else 0,
                 "pdu": data.hex() if direction != "no reply" else "", "outcome": outcome,
                 "latency_ms": latency_ms}
-
-
-def table_units(cfg: SlaveConfig) -> bytes:
-    """256 flags, by unit id: the units the exchange table answers (none while it is off --
-    scenarios turn it on; every one, unit 0 the broadcast, with direct messaging off)."""
-    table = cfg.table
-    if not cfg.table_on:
-        return bytes(256)
-    if not table.direct:
-        return bytes((1,)) * 256
-    flags = bytearray(256)
-    for unit in table.units:
-        flags[unit] = 1
-    return bytes(flags)
 
 
 def slow(client: Client, now: float) -> bool:

@@ -2,9 +2,12 @@
 close (the commands both modes share are in mbgw.ops.status)."""
 import time
 
+from mbgw.config.lines import PRIMARY_LINE
 from mbgw.ops.load import LineLoad, average_percent
 from mbgw.ops.status import DaemonStatus
 from mbgw.scenarios.report import scenarios_status
+from mbgw.slave.routes import effective_routes, routes_status
+from mbgw.slave.targets import TargetLines
 
 
 class SlaveStatus(DaemonStatus):
@@ -21,6 +24,7 @@ class SlaveStatus(DaemonStatus):
         self._scheduler = scheduler
         self._addresses = addresses
         self.scenario_engines: dict = {}    # the scenarios' engines by kind (the daemon's)
+        self.targets: TargetLines | None = None     # the lines beside serial (the daemon's)
 
     def commands(self) -> dict:
         tables = self._tables
@@ -62,9 +66,18 @@ class SlaveStatus(DaemonStatus):
             "line_utilisation_pct": average_percent(busy_ns, mono - self._reset_mono),
             "line_load_pct": self.load.percent(),
             "devices": [d.snapshot() for d in self._devices.all()],
+            "lines": self._lines(counters),
+            "routes": routes_status(effective_routes(self.cfg)),
             **({"scenarios": rows} if (rows := scenarios_status(self.scenario_engines.values()))
                else {}),
         }
+
+    def _lines(self, counters: dict) -> list[dict]:
+        s = self.cfg.serial
+        serial = {"name": PRIMARY_LINE, "device": s.device, "mode": "slave",
+                  "state": self._worker.state, "requests": counters["requests"],
+                  "replies": counters["replies"], "timeouts": counters["timeouts"]}
+        return [serial, *(self.targets.status() if self.targets is not None else ())]
 
     def summary(self) -> str:
         c = self._counters

@@ -1,0 +1,184 @@
+"""The lines in slave mode beside `serial` (`[[line]]`, mode slave): targets, each a LineWorker
+of its own (its SerialLine, Scheduler, SerialMaster, DeviceTable, Counters; one thread) with
+no TCP connection of its own.  Requests reach it as Exchanges through its Inbox, from the Modbus
+TCP face (mbgw.slave.server) or a serial face; each becomes a job in its source's queue, under
+the same rules as line serial's (line down, demotion, retries, late windows), and the face is
+told the outcome on this line's thread (Exchange.done).
+"""
+import dataclasses
+import logging
+
+from mbgw.config.lines import LineConfig
+from mbgw.config.model import SlaveConfig
+from mbgw.errors import SerialError
+from mbgw.line.port import SerialLine
+from mbgw.line.supervisor import open_at_start
+from mbgw.ops.counters import Counters
+from mbgw.ops.device_stats import DeviceTable, HealthRule
+from mbgw.ops.reload import ReloadReport
+from mbgw.ops.trace import TraceHub
+from mbgw.routing.inbox import Inbox
+from mbgw.slave.connections import Connections
+from mbgw.slave.line_thread import LineWorker
+from mbgw.slave.scheduler import Scheduler
+
+log = logging.getLogger("mbgw.line")
+
+
+def line_settings(cfg: SlaveConfig, line: LineConfig) -> SlaveConfig:
+    """The daemon's settings as a target line's worker reads them: the line's port, retries
+    and demotion; no table, no scenarios, no shortcut (no client of its own)."""
+    return dataclasses.replace(
+        cfg, serial=line.serial, retries=line.retries, demotion=line.demotion, slaveid=0,
+        shortcut=False, scenarios=(), table=dataclasses.replace(cfg.table, enabled=False),
+        lines=(), routes=())
+
+
+class NoClients:
+    """What a target line's worker has where line serial's has the TcpServer: a Connections
+    with no client (its poll: the wake-up eventfd, the inbox, the serial port)."""
+    table = None
+    reads_meanwhile = False
+    shortcut_allowed = False
+
+    def __init__(self, scheduler: Scheduler, counters: Counters) -> None:
+        self.trace = TraceHub()
+        self.connections = Connections(scheduler.wake_fd, self._no_client, self._no_client,
+                                       counters)
+
+    def route_face(self, cfg: SlaveConfig) -> None:
+        """No face here."""
+
+    @staticmethod
+    def _no_client(*_) -> None:
+        raise AssertionError("a target line has no client of its own")
+
+    finished = _no_client
+    traced_late = _no_client
+
+
+class TargetLine:
+    """One target line: its worker, its inbox and what it keeps per line."""
+
+    def __init__(self, cfg: SlaveConfig, line: LineConfig) -> None:
+        self.config = line
+        self.counters = Counters()
+        self.devices = DeviceTable(rule=HealthRule(line.demotion))
+        self.scheduler = Scheduler()
+        self.inbox = Inbox()
+        settings = line_settings(cfg, line)
+        port: SerialLine | None = open_at_start(line.serial, self.counters)
+        self.worker = LineWorker(settings, port, self.scheduler,
+                                 NoClients(self.scheduler, self.counters), self.counters,
+                                 self.devices)
+        self.worker.name = f"mbgw-{line.name}"[:15]
+        self.worker.use_inbox(self.inbox)
+
+    def start(self) -> None:
+        self.worker.start()
+
+    def stop(self) -> None:
+        self.worker.stop()
+
+    def join(self) -> None:
+        """After stop(); then its port is closed (the worker closes it) and its fds."""
+        self.worker.join()
+        self.scheduler.close()
+        self.inbox.close()
+
+    def reconfigure(self, cfg: SlaveConfig, line: LineConfig) -> None:
+        self.config = line
+        self.worker.reconfigure(line_settings(cfg, line))
+
+    def status(self) -> dict:
+        c = self.counters
+        s = self.config.serial
+        return {"name": self.config.name, "device": s.device, "mode": self.config.mode,
+                "state": self.worker.state, "requests": c.requests, "replies": c.replies,
+                "timeouts": c.timeouts}
+
+
+class TargetLines:
+    """Every target line but serial, by name: opened at start, added, changed and removed by
+    a reload.  inboxes is the dict the TCP face routes with (line serial's included when a
+    serial face may reach it)."""
+
+    def __init__(self, cfg: SlaveConfig, inboxes: dict[str, Inbox]) -> None:
+        self.inboxes = inboxes
+        self.lines: dict[str, TargetLine] = {}
+        for line in target_lines(cfg):
+            self._add(cfg, line)
+
+    def _add(self, cfg: SlaveConfig, line: LineConfig) -> TargetLine:
+        target = self.lines[line.name] = TargetLine(cfg, line)
+        self.inboxes[line.name] = target.inbox
+        return target
+
+    def start(self, idle_ms: int = -1) -> None:
+        for target in self.lines.values():
+            target.worker.idle_ms = idle_ms
+            target.start()
+
+    def stop(self) -> None:
+        for target in self.lines.values():
+            target.stop()
+
+    def join(self) -> None:
+        for target in self.lines.values():
+            target.join()
+
+    def reconfigure(self, cfg: SlaveConfig,
+                    report: ReloadReport | None = None) -> list[TargetLine]:
+        """Lines added are opened and started, changed ones reconfigured (reopened when their
+        port settings changed), the others kept as they are; an added line whose device is
+        there and does not open is told to the report (its units are unrouted).  Returns the
+        removed ones, out of the inboxes already: the caller stops and joins them once the
+        face no longer routes to them."""
+        wanted = {line.name: line for line in target_lines(cfg)}
+        removed = [self.lines.pop(name) for name in list(self.lines) if name not in wanted]
+        for target in removed:
+            self.inboxes.pop(target.config.name, None)
+        for name, line in wanted.items():
+            kept = self.lines.get(name)
+            if kept is None:
+                try:
+                    self._add(cfg, line).start()
+                except SerialError as err:    # a device there that does not open
+                    log.error("line %s not opened: %s", name, err.strerror or err)
+                    if report is not None:
+                        report.refuse("lines", f"line {name}: {err.strerror or err}")
+                    self.lines.pop(name, None)
+                    self.inboxes.pop(name, None)
+            elif kept.config != line:
+                kept.reconfigure(cfg, line)
+        return removed
+
+    def status(self) -> list[dict]:
+        return [t.status() for t in list(self.lines.values())]   # a reload may be adding
+
+
+class EveryLine:
+    """Line serial's thread and the target lines' as one for systemd's watchdog: it turns
+    while each of them does (the oldest heartbeat, the longest turn)."""
+
+    def __init__(self, serial: LineWorker, targets: TargetLines) -> None:
+        self._serial = serial
+        self._targets = targets
+
+    def _workers(self) -> list[LineWorker]:
+        return [self._serial, *(t.worker for t in list(self._targets.lines.values()))]
+
+    @property
+    def heartbeat(self) -> float:
+        return min(w.heartbeat for w in self._workers())
+
+    @property
+    def turn_limit_s(self) -> float:
+        return max(w.turn_limit_s for w in self._workers())
+
+    def is_alive(self) -> bool:
+        return all(w.is_alive() for w in self._workers())
+
+
+def target_lines(cfg: SlaveConfig) -> list[LineConfig]:
+    return [line for line in cfg.lines if line.is_target and line.name != "serial"]
