@@ -6,9 +6,9 @@
 Two measures, on bench.py's simulated slave (simline slave: FC03 of 10 registers from unit 1,
 answered after the wire time of request and reply at 115200, every gap recorded at the slave):
 
-  * eight lines through one listener: eight slaves on ptys of their own; first the eight
-    direct masters (simline master) at once, one on each slave, for each line's reference in
-    this run; then one `mbgw slave` with `[serial]` and seven `[[line]]`s on the same
+  * eight lines through one listener: eight slaves on ptys of their own; first one direct
+    master (simline master) alone, then eight at once, one on each slave, for each line's
+    reference in this run; then one `mbgw slave` with `[serial]` and seven `[[line]]`s on the same
     slaves, routes taking unit k to line k's address 1, and CLIENTS closed-loop Modbus TCP
     clients a line, all on the one listener.  Per line: the rate against its direct master
     and against the line's limit (wire time + t3.5 a transaction), the gaps under t3.5 at
@@ -176,14 +176,19 @@ def eight_lines(exe: str, tmp: Path, warmup: float, seconds: float) -> None:
     try:
         for _ in range(LINES):
             sides.append(bench.Side(exe, tmp, False, BAUD))
+        alone = direct_all(exe, sides[:1], seconds)[0]
         direct = direct_all(exe, sides, seconds)
         config = tmp / "lines.toml"
         lines_config(config, sides)
-        gateway = bench.Gateway(tmp, sides[0].device, "--config", str(config), "--baudrate",
-                                str(BAUD), "--stout", "1000", "--max-connections", "64",
-                                "--log-level", "warning")
+        # a directory of its own: the gateway's notify socket is named by its port
+        gateway = bench.Gateway(Path(tempfile.mkdtemp(dir=tmp)), sides[0].device, "--config",
+                                str(config), "--baudrate", str(BAUD), "--stout", "1000",
+                                "--max-connections", "64", "--log-level", "warning")
         runs, cpu = clients_all(gateway.port, sides, warmup, seconds, gateway.proc.pid)
         report_lines(sides, direct, runs, seconds)
+        print(f"  one direct master alone (line serial, before the eight): {alone.rate:.1f} "
+              f"tx/s, {100 * alone.rate / LIMIT_TX_S:.1f} % of the limit, cycle p50 "
+              f"{alone.median_cycle_us:.0f} us (the limit's {1e6 / LIMIT_TX_S:.0f} us)")
         wall = seconds * 1e9
         total = sum(r.count for r in runs)
         used = sum(cpu.values())
@@ -216,11 +221,19 @@ def report_lines(sides: list, direct: list, runs: list, seconds: float) -> None:
               f"{r.rate:7.1f} {bench._share(r, d):7.1f} {100 * r.rate / LIMIT_TX_S:6.1f} "
               f"{bench._median_share(r, d):7.1f} {r.lat_ms(50):6.2f} {r.lat_ms(99):6.2f} "
               f"{r.gap_us(0):5.0f} {below:>9} {r.errors + r.collisions + r.bad_frames:4d}")
+    print("  gap (a reply's end to the next request, at the slave) p50 / p90 / p99, us: "
+          "direct " + _gaps(direct) + "; mbgw " + _gaps(runs))
     rates = [bench._share(r, d) for d, r in zip(direct, runs, strict=True)]
     limits = [100 * r.rate / LIMIT_TX_S for r in runs]
     print(f"  all lines: {sum(r.rate for r in runs):.0f} tx/s; of direct "
           f"{min(rates):.1f}..{max(rates):.1f} %, of the limit {min(limits):.1f}.."
           f"{max(limits):.1f} % (aim: >= 97 % of the limit at once)")
+
+
+def _gaps(runs: list) -> str:
+    """The gaps of every line together."""
+    gaps = sorted(g for r in runs for g in r.gaps)
+    return " / ".join(f"{bench.pct(gaps, q) / 1e3:.0f}" for q in (50, 90, 99))
 
 
 def bridge(exe: str, tmp: Path, rounds: int, slice_s: float) -> None:
@@ -237,7 +250,7 @@ def bridge(exe: str, tmp: Path, rounds: int, slice_s: float) -> None:
             "[[line]]", 'name = "panel"', f'device = "{panel.gateway}"', f"baudrate = {BAUD}",
             'mode = "master"',
             "[[route]]", 'from = "panel"', 'units = "1"', 'line = "serial"']) + "\n")
-        gateway = bench.Gateway(tmp, bridged.device, "--config", str(config), "--baudrate",
+        gateway = bench.Gateway(directory, bridged.device, "--config", str(config), "--baudrate",
                                 str(BAUD), "--stout", "1000", "--log-level", "warning")
         parts = {"direct": [], "bridge": []}
         for _ in range(rounds):
