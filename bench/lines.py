@@ -17,9 +17,10 @@ answered after the wire time of request and reply at 115200, every gap recorded 
   * the serial-to-serial bridge: a master (simline master) on a socat pty pair whose other
     end is line "panel" of mbgw in master mode, routed to line serial (slave mode), where a
     slave answers; against the same master reading a second, identical slave directly.  Both
-    at the idle pace (the next request t3.5 + 1 ms after a reply), in alternating rounds:
-    p50/p99 of the master's latency (request written -> reply's last byte) and what mbgw
-    adds.
+    at the idle pace (the next request t3.5 + 1 ms after a reply), in alternating rounds
+    with a third: the same master reading a third slave through a socat pair alone (what
+    the pair that carries line panel costs): p50/p99 of the master's latency (request
+    written -> reply's last byte) and what mbgw adds.
 
 See README.md, "Many lines".
 """
@@ -240,6 +241,7 @@ def bridge(exe: str, tmp: Path, rounds: int, slice_s: float) -> None:
     """A master on line panel (master mode) reads the slave on line serial through mbgw,
     in turns with the same master reading a second slave directly."""
     direct_side = bench.Side(exe, tmp, False, BAUD)
+    relayed = bench.Side(exe, tmp, True, BAUD)      # behind a socat pair, as panel is
     bridged = bench.Side(exe, tmp, False, BAUD)
     directory = Path(tempfile.mkdtemp(dir=tmp))
     panel = PtyPair(directory)
@@ -252,37 +254,44 @@ def bridge(exe: str, tmp: Path, rounds: int, slice_s: float) -> None:
             "[[route]]", 'from = "panel"', 'units = "1"', 'line = "serial"']) + "\n")
         gateway = bench.Gateway(directory, bridged.device, "--config", str(config), "--baudrate",
                                 str(BAUD), "--stout", "1000", "--log-level", "warning")
-        parts = {"direct": [], "bridge": []}
+        parts = {"direct": [], "socat": [], "bridge": []}
         for _ in range(rounds):
             parts["direct"].append(bench.run_direct(exe, direct_side.device, direct_side.slave,
                                                     T35_US, slice_s, BRIDGE_PAUSE_US))
+            parts["socat"].append(bench.run_direct(exe, relayed.device, relayed.slave,
+                                                   T35_US, slice_s, BRIDGE_PAUSE_US))
             parts["bridge"].append(bench.run_direct(exe, panel.device, bridged.slave, T35_US,
                                                     slice_s, BRIDGE_PAUSE_US))
         direct = bench.merge("direct read of the slave", parts["direct"])
+        socat = bench.merge("direct, through a socat pair", parts["socat"])
         through = bench.merge("through mbgw (panel -> serial)", parts["bridge"])
-        report_bridge(direct, through, rounds, slice_s)
+        report_bridge(direct, socat, through, rounds, slice_s)
     finally:
         if gateway is not None:
             bench._stop_and_show(gateway)
         panel.stop()
         direct_side.stop()
+        relayed.stop()
         bridged.stop()
 
 
-def report_bridge(direct, through, rounds: int, slice_s: float) -> None:
+def report_bridge(direct, socat, through, rounds: int, slice_s: float) -> None:
     print(f"\nSerial-to-serial bridge at {BAUD}: simline master, next request t3.5 + "
           f"{BRIDGE_PAUSE_US} us after each reply; {rounds} rounds of {slice_s:g} s each, "
           "in turns")
     print(f"  {'':34} {'tx':>6} {'lat p50':>8} {'lat p99':>8} {'gap min':>8} {'gaps':>9} "
           f"{'err':>4}")
     print(f"  {'':34} {'':>6} {'us':>8} {'us':>8} {'us':>8} {'< t3.5':>9} {'':>4}")
-    for r in (direct, through):
+    for r in (direct, socat, through):
         print(f"  {r.name:34} {r.count:6d} {r.lat_ms(50) * 1e3:8.0f} {r.lat_ms(99) * 1e3:8.0f} "
               f"{r.gap_us(0):8.0f} {f'{r.gaps_below(T35_US)}/{r.gap_count}':>9} "
               f"{r.errors + r.collisions + r.bad_frames:4d}")
-    print(f"  mbgw adds p50 {(through.lat_ms(50) - direct.lat_ms(50)) * 1e3:+.0f} us, p99 "
-          f"{(through.lat_ms(99) - direct.lat_ms(99)) * 1e3:+.0f} us (a pty, not a wire, "
-          "carries the panel side: no wire time is added there)")
+    added = (through.lat_ms(50) - direct.lat_ms(50)) * 1e3
+    relay = (socat.lat_ms(50) - direct.lat_ms(50)) * 1e3
+    print(f"  mbgw adds p50 {added:+.0f} us, p99 "
+          f"{(through.lat_ms(99) - direct.lat_ms(99)) * 1e3:+.0f} us; of the p50, the socat "
+          f"pair that carries line panel (a pty, no wire time) takes {relay:+.0f} us, mbgw "
+          f"itself {added - relay:+.0f} us")
 
 
 def run(quick: bool) -> None:
