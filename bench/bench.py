@@ -2,7 +2,7 @@
 """mbgw throughput, latency and line-gap benchmark.  Prints figures, never pass/fail.
 
     .venv/bin/python bench/bench.py [--quick] [--socat] [--fairness | --table | --tls |
-                                     --scenarios]
+                                     --scenarios | --lines]
 
 For each line -- 19200 baud, 115200 baud, and a full-speed pty -- a simulated RTU slave
 (bench/simline.c, compiled at run time) answers FC03 reads of 10 registers (8-byte request,
@@ -821,10 +821,18 @@ def main() -> None:
                     help="instead of the runs above: 100 serial scenarios saturating the line, "
                     "a client beside them, one scenario's period (bench/scenarios.py; about "
                     "70 s; --quick: 25 s)")
+    ap.add_argument("--lines", action="store_true",
+                    help="instead of the runs above: 8 lines at 115200 through one listener, "
+                    "and the serial-to-serial bridge's added latency (bench/lines.py; about "
+                    "45 s; --quick: 15 s)")
     ap.add_argument("--web", action="store_true",
                     help="instead of the runs above: a client's latency with a browser on the "
                     "web console's Traffic page and without (bench/web.py; about 40 s)")
     args = ap.parse_args()
+    if args.lines:
+        import lines  # bench/lines.py, beside this script
+        lines.run(args.quick)
+        return
     if args.web:
         import web  # bench/web.py, beside this script
         web.run(args.quick)

@@ -1,7 +1,7 @@
 """A real serial slave that is not our code: pymodbus's RTU server on a pty.
 
 usage: pymodbus_slave.py DEVICE [ADDRESS...] [--identity] [--silent-unknown] [--record PATH]
-                                                                 (default address 17)
+                           [--record-replies]                    (default address 17)
 Holding registers 0..99 hold 100..199, input registers 0..99 hold 1000..1099,
 coils and discrete inputs alternate 1, 0 from address 0.  Broadcasts (address 0) are
 executed on every address.  Prints READY when listening.
@@ -13,6 +13,9 @@ executed on every address.  Prints READY when listening.
 --record PATH     every request pymodbus decoded, for any address, as a line
                   "<time.monotonic()> rx <address, PDU in hex>" (as fault_slave.py records, but
                   without the CRC), flushed at once: what the line carried, for the tests.
+--record-replies  also every reply, as "<time.monotonic()> tx <address, PDU in hex>", taken
+                  just before pymodbus writes it (so a reply's row is never later than its
+                  end on the line).
 """
 import argparse
 import asyncio
@@ -53,6 +56,7 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--identity", action="store_true")
     parser.add_argument("--silent-unknown", action="store_true")
     parser.add_argument("--record")
+    parser.add_argument("--record-replies", action="store_true")
     return parser.parse_args()
 
 
@@ -66,6 +70,9 @@ async def main() -> None:
     def watch(sending: bool, pdu):
         # pymodbus's trace_pdu hook: a request dropped here is never executed nor answered.
         if sending:
+            if record is not None and args.record_replies:
+                frame = bytes((pdu.dev_id, pdu.function_code)) + pdu.encode()
+                record.write(f"{time.monotonic()} tx {frame.hex()}\n")
             return pdu
         if record is not None:
             frame = bytes((pdu.dev_id, pdu.function_code)) + pdu.encode()
