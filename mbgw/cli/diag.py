@@ -19,7 +19,6 @@ from mbgw.cli.render import (
     trace_columns,
 )
 from mbgw.ops import control as ctl
-from mbgw.ops.trace import LINES
 
 
 def control_option(function):
@@ -116,6 +115,8 @@ def _trace(path: str, request: dict, raw: bool, pcap_file, count: int | None) ->
         sock.sendall(json.dumps(request).encode() + b"\n")
         header = json.loads(events.readline() or b"{}")     # {"mode": ..., ...}
         if "error" in header:
+            if header["error"].startswith("trace: line "):
+                raise click.BadParameter(header["error"], param_hint="'--line'")
             _fail(header["error"])
         echo(raw_columns() if raw else trace_columns(header.get("mode", "slave")))
         try:
@@ -207,8 +208,9 @@ def register(main: click.Group) -> None:
                   help="Only this function code (its exception replies included).")
     @click.option("--scenario", default=None, metavar="NAME",
                   help="Only this scenario's runs.")
-    @click.option("--line", type=click.Choice(LINES), default=None,
-                  help="Only this line's traffic (one line today: serial).")
+    @click.option("--line", default=None, metavar="NAME",
+                  help="Only this line's traffic: serial or a [[line]] name (mbgw status "
+                       "lists them).")
     @click.option("--errors", is_flag=True,
                   help="Errors only: exception replies, no reply, late replies, noise on "
                        "the line.")

@@ -100,7 +100,7 @@ async def _serve(cfg: MasterConfig, faces: Faces, counters: MasterCounters,
     if metrics is not None:
         log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
     _log_slaveid(cfg)
-    scenarios = TcpScenarios(tables.table, engines, slave.devices.rule, slave.trace)
+    scenarios = TcpScenarios(tables.table, engines, slave.devices.rule, slave.hub)
     scenarios.start(cfg.scenarios, cfg.tcpto_ms, cfg.upstream_tls)
 
     async def apply(new: MasterConfig, report: ReloadReport) -> None:

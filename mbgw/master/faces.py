@@ -48,7 +48,7 @@ class Faces:
                 log.error("line %s: a line in slave mode does not run in a master-mode "
                           "daemon yet: requests routed to it get 0x0A or silence", line.name)
                 continue
-            self.others[line.name] = build_face(line, cfg, routes, {}, table)
+            self.others[line.name] = build_face(line, cfg, routes, {}, table, self.primary.hub)
             log.info("line %s: master mode, serial %s %d %s %s; %d routes", line.name,
                      line.serial.device, line.serial.baudrate, line.serial.format,
                      line.serial.protocol, sum(r.face == line.name for r in cfg.routes))

@@ -9,7 +9,7 @@ class MasterStatus(DaemonStatus):
     mode = "master"
 
     def __init__(self, cfg, slave, counters, tables) -> None:
-        super().__init__(cfg, counters, slave.devices, slave.trace)
+        super().__init__(cfg, counters, slave.devices, slave.hub)
         self._slave = slave
         self._tables = tables
         self.scenario_engines: dict = {}    # the scenarios' engines by kind (the daemon's)

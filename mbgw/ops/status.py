@@ -9,6 +9,7 @@ import time
 
 from mbgw import __version__
 from mbgw.audit import Kind, event, operator
+from mbgw.config.lines import PRIMARY_LINE
 from mbgw.ops.trace import NO_RAW_VIEW
 from mbgw.ops.trace import filters as trace_filters
 
@@ -25,6 +26,8 @@ class DaemonStatus:
         self._counters = counters
         self._devices = devices
         self._trace = trace
+        if trace is not None:
+            trace.line_names = self.line_names
         self._started = time.time()
         self._started_mono = time.monotonic()
         self._reset_at = self._started              # shown: "counters since"
@@ -34,6 +37,10 @@ class DaemonStatus:
     def trace_hub(self):
         """The hub the trace streams subscribe to (the control socket's, the web console's)."""
         return self._trace
+
+    def line_names(self) -> tuple[str, ...]:
+        """The daemon's lines now (a reload may add or remove some)."""
+        return (PRIMARY_LINE, *(line.name for line in getattr(self.cfg, "lines", ())))
 
     def commands(self) -> dict:
         return {"status": self.status, "close": self.close, "reset": self.reset,
@@ -90,13 +97,13 @@ class DaemonStatus:
                     writer: asyncio.StreamWriter) -> None:
         hub = self._trace
         try:
-            wanted = trace_filters(request.get("filters") or {})
+            wanted = trace_filters(request.get("filters") or {}, hub.line_names())
         except ValueError as err:
             writer.write(json.dumps({"error": str(err)}).encode() + b"\n")
             await writer.drain()
             return
         raw = bool(request.get("raw"))
-        if raw and hub.on_raw_watch is None:
+        if raw and not hub.raw_view:
             writer.write(json.dumps({"error": NO_RAW_VIEW % self.mode}).encode() + b"\n")
             await writer.drain()
             return

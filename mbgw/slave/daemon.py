@@ -80,11 +80,12 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters, 
     worker: LineWorker
     server = TcpServer(cfg, scheduler, counters, lambda: worker.up, devices, tables.table,
                        inboxes)
+    server.trace = targets.hub         # one hub: every line's events, named by line
     worker = LineWorker(cfg, line, scheduler, server, counters, devices)
     if cfg.lines:                      # a serial face may reach line serial too
         inboxes[PRIMARY_LINE] = Inbox()
         worker.use_inbox(inboxes[PRIMARY_LINE])
-    serial_faces = faces(cfg, effective_routes(cfg), inboxes, tables.table) \
+    serial_faces = faces(cfg, effective_routes(cfg), inboxes, tables.table, targets.hub) \
         if faces is not None else []
     serial_engine = Scenarios(serial_scenarios(cfg), tables.table, "serial")
     worker.use_scenarios(serial_engine)      # run, and reconfigured, by the line thread

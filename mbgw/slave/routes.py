@@ -17,7 +17,7 @@ ELSEWHERE = "elsewhere"  # another line, a remote server: through its inbox
 
 class Hop:
     """Where one unit's request goes from the TCP face, and the unit it becomes there."""
-    __slots__ = ("kind", "offset", "address", "inbox")
+    __slots__ = ("kind", "offset", "address", "inbox", "line")
 
     def __init__(self, kind: str, route: RouteConfig | None = None,
                  inbox: Inbox | None = None) -> None:
@@ -25,6 +25,9 @@ class Hop:
         self.offset = route.offset if route is not None else 0
         self.address = route.address if route is not None else None
         self.inbox = inbox
+        # the line it reaches (None: the table or a server), as the trace names it
+        self.line = PRIMARY_LINE if kind == SERIAL else route.line if route is not None \
+            else None
 
     def rewrite(self, unit: int) -> int:
         return self.address if self.address is not None else unit + self.offset

@@ -16,7 +16,7 @@ from mbgw.line.supervisor import open_at_start
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable, HealthRule
 from mbgw.ops.reload import ReloadReport
-from mbgw.ops.trace import TraceHub
+from mbgw.ops.trace import LineTrace, TraceHub
 from mbgw.routing.inbox import Inbox
 from mbgw.slave.connections import Connections
 from mbgw.slave.line_thread import LineWorker
@@ -41,8 +41,8 @@ class NoClients:
     reads_meanwhile = False
     shortcut_allowed = False
 
-    def __init__(self, scheduler: Scheduler, counters: Counters) -> None:
-        self.trace = TraceHub()
+    def __init__(self, scheduler: Scheduler, counters: Counters, trace: LineTrace) -> None:
+        self.trace = trace
         self.connections = Connections(scheduler.wake_fd, self._no_client, self._no_client,
                                        counters)
 
@@ -60,8 +60,10 @@ class NoClients:
 class TargetLine:
     """One target line: its worker, its inbox and what it keeps per line."""
 
-    def __init__(self, cfg: SlaveConfig, line: LineConfig) -> None:
+    def __init__(self, cfg: SlaveConfig, line: LineConfig, hub: TraceHub | None = None) -> None:
+        """hub: the daemon's trace hub (None: one of its own, nobody subscribes)."""
         self.config = line
+        hub = hub if hub is not None else TraceHub()
         self.counters = Counters()
         self.devices = DeviceTable(rule=HealthRule(line.demotion))
         self.scheduler = Scheduler()
@@ -69,9 +71,11 @@ class TargetLine:
         settings = line_settings(cfg, line)
         port: SerialLine | None = open_at_start(line.serial, self.counters)
         self.worker = LineWorker(settings, port, self.scheduler,
-                                 NoClients(self.scheduler, self.counters), self.counters,
-                                 self.devices)
+                                 NoClients(self.scheduler, self.counters,
+                                           hub.for_line(line.name)),
+                                 self.counters, self.devices)
         self.worker.name = f"mbgw-{line.name}"[:15]
+        self.worker.line_name = line.name
         self.worker.use_inbox(self.inbox)
 
     def start(self) -> None:
@@ -103,14 +107,17 @@ class TargetLines:
     a reload.  inboxes is the dict the TCP face routes with (line serial's included when a
     serial face may reach it)."""
 
-    def __init__(self, cfg: SlaveConfig, inboxes: dict[str, Inbox]) -> None:
+    def __init__(self, cfg: SlaveConfig, inboxes: dict[str, Inbox],
+                 hub: TraceHub | None = None) -> None:
+        """hub: the daemon's trace hub (None: one of their own, nobody subscribes)."""
         self.inboxes = inboxes
+        self.hub = hub if hub is not None else TraceHub()
         self.lines: dict[str, TargetLine] = {}
         for line in target_lines(cfg):
             self._add(cfg, line)
 
     def _add(self, cfg: SlaveConfig, line: LineConfig) -> TargetLine:
-        target = self.lines[line.name] = TargetLine(cfg, line)
+        target = self.lines[line.name] = TargetLine(cfg, line, self.hub)
         self.inboxes[line.name] = target.inbox
         return target
 

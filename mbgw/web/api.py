@@ -244,8 +244,9 @@ async def trace(request: web.Request) -> web.StreamResponse:
     query = request.query
     raw = query.get("raw") in ("1", "true")
     try:
-        wanted = trace_filters({key: query[key] for key in FILTER_KEYS if query.get(key)})
-        if raw and hub.on_raw_watch is None:
+        wanted = trace_filters({key: query[key] for key in FILTER_KEYS if query.get(key)},
+                               hub.line_names())
+        if raw and not hub.raw_view:
             raise ValueError(NO_RAW_VIEW % "this")
     except ValueError as err:
         raise web.HTTPBadRequest(text=json.dumps({"error": str(err)}),
