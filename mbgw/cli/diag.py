@@ -13,8 +13,10 @@ from mbgw.cli.render import (
     format_clients,
     format_counters,
     format_event,
+    format_line_status,
     format_raw,
     format_status,
+    line_status,
     raw_columns,
     trace_columns,
 )
@@ -133,17 +135,34 @@ def _trace(path: str, request: dict, raw: bool, pcap_file, count: int | None) ->
             pass
 
 
+def _status(path: str, as_json: bool, line: str | None) -> None:
+    """mbgw status: the daemon's, or one line's (an unknown line fails naming the known)."""
+    reply = _call(path, {"command": "status"})
+    if line is not None:
+        try:
+            reply = line_status(reply, line)
+        except LookupError as err:
+            _fail(str(err))
+    if as_json:
+        click.echo(json.dumps(reply, indent=2))
+    elif line is not None:
+        click.echo(format_line_status(reply, time.time()))
+    else:
+        click.echo(format_status(reply, time.time()))
+
+
 def register(main: click.Group) -> None:
     @main.command()
     @click.option("--json", "as_json", is_flag=True, help="Print the status as JSON.")
+    @click.option("--line", default=None, metavar="NAME",
+                  help="Only this line: its state, counters, devices and routes (serial or a "
+                       "[[line]] name).")
     @control_option
-    def status(as_json: bool, control: str | None, instance: str | None) -> None:
-        """What the running daemon is doing: clients, devices, counters."""
-        reply = _call(_socket_path(control, instance), {"command": "status"})
-        if as_json:
-            click.echo(json.dumps(reply, indent=2))
-        else:
-            click.echo(format_status(reply, time.time()))
+    def status(as_json: bool, line: str | None, control: str | None,
+               instance: str | None) -> None:
+        """What the running daemon is doing: clients, devices, counters; its lines and
+        routes."""
+        _status(_socket_path(control, instance), as_json, line)
 
     @main.group(invoke_without_command=True)
     @control_option

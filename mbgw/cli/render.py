@@ -60,6 +60,38 @@ def _lines_section(rows: list[dict]) -> list[str]:
     return out
 
 
+def line_status(s: dict, name: str) -> dict:
+    """`mbgw status --line NAME`: that line's row and the routes from or to it.  A
+    LookupError names a line the daemon does not have, and those it has."""
+    rows = s.get("lines") or []
+    for row in rows:
+        if row["name"] == name:
+            routes = [r for r in s.get("routes", ())
+                      if r["face"] == name or r["target"] == f"line {name}"]
+            return {"mode": s["mode"], "version": s["version"], "pid": s["pid"],
+                    "line": row, "routes": routes}
+    known = ", ".join(r["name"] for r in rows) or "serial"
+    raise LookupError(f"status --line {name}: no such line (this daemon's lines: {known})")
+
+
+def format_line_status(s: dict, now: float) -> str:
+    """line_status()'s, as text."""
+    row = s["line"]
+    out = [f"mbgw {s['version']}, {s['mode']} mode, pid {s['pid']}", "",
+           *_lines_section([row]), "",
+           f"devices of line {row['name']} ({len(row['devices'])})"]
+    if row["devices"]:
+        out.append(_HEALTH_COLUMNS)
+        out += [_health(d, now) for d in row["devices"]]
+    out += ["", *_routes_section(s["routes"]), "", f"counters of line {row['name']}"]
+    counters = row["counters"]
+    names = [n for n in counters if counters[n]] or list(counters)[:3]
+    for i in range(0, len(names), 3):
+        out.append("  " + "".join(f"{n:<28}{counters[n]:>10}   " for n in names[i:i + 3])
+                   .rstrip())
+    return "\n".join(out)
+
+
 def _routes_section(rows: list[dict]) -> list[str]:
     out = ["routes     face    units            target                     rewrite"]
     out += [f"           {r['face']:<7} {r['units']:<16} {r['target']:<26} "

@@ -86,6 +86,7 @@ async def _serve(cfg: MasterConfig, faces: Faces, counters: MasterCounters,
     faces.start(idle_ms(watchdog_interval()))
     status = MasterStatus(cfg, slave, counters, tables)
     status.scenario_engines = engines
+    status.other_faces = faces.others
     commands = {**status.commands(), **scenario_commands(engines, cfg.config_file)}
     control = await start_control(cfg.control, commands)
     reloads = Reloads(status, reconfigure)

@@ -4,7 +4,7 @@ import time
 
 from mbgw.config.lines import PRIMARY_LINE
 from mbgw.ops.load import LineLoad, average_percent
-from mbgw.ops.status import DaemonStatus
+from mbgw.ops.status import DaemonStatus, line_row
 from mbgw.scenarios.report import scenarios_status
 from mbgw.slave.routes import effective_routes, routes_status
 from mbgw.slave.targets import TargetLines
@@ -65,18 +65,16 @@ class SlaveStatus(DaemonStatus):
             "counters_since": self._reset_at,
             "line_utilisation_pct": average_percent(busy_ns, mono - self._reset_mono),
             "line_load_pct": self.load.percent(),
-            "devices": [d.snapshot() for d in self._devices.all()],
-            "lines": self._lines(counters),
+            "devices": (devices := [d.snapshot() for d in self._devices.all()]),
+            "lines": self._lines(counters, devices),
             "routes": routes_status(effective_routes(self.cfg)),
             **({"scenarios": rows} if (rows := scenarios_status(self.scenario_engines.values()))
                else {}),
         }
 
-    def _lines(self, counters: dict) -> list[dict]:
-        s = self.cfg.serial
-        serial = {"name": PRIMARY_LINE, "device": s.device, "mode": "slave",
-                  "state": self._worker.state, "requests": counters["requests"],
-                  "replies": counters["replies"], "timeouts": counters["timeouts"]}
+    def _lines(self, counters: dict, devices: list[dict]) -> list[dict]:
+        serial = line_row(PRIMARY_LINE, self.cfg.serial.device, "slave", self._worker.state,
+                          counters, devices)
         return [serial, *(self.targets.status() if self.targets is not None else ())]
 
     def summary(self) -> str:

@@ -16,6 +16,7 @@ from mbgw.line.supervisor import open_at_start
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable, HealthRule
 from mbgw.ops.reload import ReloadReport
+from mbgw.ops.status import line_row
 from mbgw.ops.trace import LineTrace, TraceHub
 from mbgw.routing.inbox import Inbox
 from mbgw.slave.connections import Connections
@@ -101,6 +102,13 @@ class TargetLine:
                 "state": self.worker.state, "requests": c.requests, "replies": c.replies,
                 "timeouts": c.timeouts}
 
+    def row(self) -> dict:
+        """status() with all its counters and its devices (mbgw status's row)."""
+        counters = self.counters.snapshot()
+        counters.pop("line_busy_ns", None)
+        return line_row(self.config.name, self.config.serial.device, self.config.mode,
+                        self.worker.state, counters, [d.snapshot() for d in self.devices.all()])
+
 
 class TargetLines:
     """Every target line but serial, by name: opened at start, added, changed and removed by
@@ -161,7 +169,7 @@ class TargetLines:
         return removed
 
     def status(self) -> list[dict]:
-        return [t.status() for t in list(self.lines.values())]   # a reload may be adding
+        return [t.row() for t in list(self.lines.values())]   # a reload may be adding
 
 
 class EveryLine:
