@@ -81,8 +81,8 @@ async def _serve(cfg: MasterConfig, faces: Faces, counters: MasterCounters,
     engines: dict = {}         # the scenarios' engine by kind, while it runs (TCP only here)
     metrics = start_metrics(cfg.metrics, lambda m: with_scenarios(m.master_collector(
         counters, slave.devices, slave, started,
-        lambda: tables.figures(slave.table_counters.snapshot()), tables.firewall_report),
-        engines))
+        lambda: tables.figures(slave.table_counters.snapshot()), tables.firewall_report,
+        faces.metered), engines))
     faces.start(idle_ms(watchdog_interval()))
     status = MasterStatus(cfg, slave, counters, tables)
     status.scenario_engines = engines

@@ -53,6 +53,11 @@ class Faces:
                      line.serial.device, line.serial.baudrate, line.serial.format,
                      line.serial.protocol, sum(r.face == line.name for r in cfg.routes))
 
+    def metered(self) -> list[tuple]:
+        """Each line's (name, counters, devices) for /metrics, line serial's first."""
+        return [(self.primary.face, self.primary.counters, self.primary.devices),
+                *((name, face.counters, face.devices) for name, face in self.others.items())]
+
     def start(self, idle_ms: int) -> None:
         for face in (self.primary, *self.others.values()):
             face.idle_ms = idle_ms

@@ -104,7 +104,8 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters, 
     try:
         metrics = start_metrics(cfg.metrics, lambda m: with_scenarios(m.slave_collector(
             counters, devices, scheduler, server, worker, started, tables.figures, load,
-            lambda: server.firewall.report() if server.firewall.configured else None),
+            lambda: server.firewall.report() if server.firewall.configured else None,
+            lambda: [(PRIMARY_LINE, counters, devices), *targets.metered()]),
             engines))
     except ListenError:
         server.close()

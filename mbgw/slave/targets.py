@@ -168,6 +168,10 @@ class TargetLines:
                 kept.reconfigure(cfg, line)
         return removed
 
+    def metered(self) -> list[tuple]:
+        """Each line's (name, counters, devices) for /metrics."""
+        return [(name, t.counters, t.devices) for name, t in list(self.lines.items())]
+
     def status(self) -> list[dict]:
         return [t.row() for t in list(self.lines.values())]   # a reload may be adding
 
