@@ -69,5 +69,6 @@ def _event(direction: str, address: int | None, function: int, server: str | Non
     return {"time": time.time(), "mode": "master", "direction": direction,
             "address": address, "server": server,
             "peer": conn.local if conn is not None else None, "local": server,
+            "remote": server,
             "tid": tid, "unit": unit, "function": function, "length": len(data),
             "pdu": data.hex(), "outcome": outcome, "latency_ms": latency_ms}

@@ -36,8 +36,10 @@ class TraceEvent(TypedDict, total=False):
     # The two ends of the Modbus/TCP exchange as mbgw.cli.pcap writes them.  Slave mode: the
     # remote client and mbgw's listener; master mode: mbgw's own end of the upstream
     # connection and the remote server.
-    peer: str | None        # the other end's address: the one the console shows
-    local: str | None
+    peer: str | None        # the client's end
+    local: str | None       # the server's end
+    remote: str | None      # the far end as mbgw shows it: the client (slave mode), the
+    #                         target (master mode: a server's address, "table", a line)
     client: int             # slave mode: the client's id (mbgw status)
     mode: str               # "master" in master mode, "transparent" in transparent mode
     server: str | None      # master mode: the target shown (IP:port, "table", a line)

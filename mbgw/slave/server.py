@@ -683,7 +683,8 @@ class TcpServer:
     def _event(direction: str, client: Client, tid: int, unit: int, data: bytes,
                outcome: str, latency_ms, line: str | None = PRIMARY_LINE) -> TraceEvent:
         return {"time": time.time(), "line": line, "direction": direction, "client": client.id,
-                "peer": client.peer, "local": client.local, "tid": tid, "unit": unit,
+                "peer": client.peer, "local": client.local, "remote": client.peer,
+                "tid": tid, "unit": unit,
                 "function": data[0], "length": len(data) if direction != "no reply" else 0,
                 "pdu": data.hex() if direction != "no reply" else "", "outcome": outcome,
                 "latency_ms": latency_ms}
