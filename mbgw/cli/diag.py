@@ -121,10 +121,14 @@ def _trace(path: str, request: dict, raw: bool, pcap_file, count: int | None) ->
                 raise click.BadParameter(header["error"], param_hint="'--line'")
             _fail(header["error"])
         echo(raw_columns() if raw else trace_columns(header.get("mode", "slave")))
+        named = len(header.get("lines", ())) > 1     # each event's line, when there are more
         try:
             for line_text in events:
                 event = json.loads(line_text)
-                echo(format_raw(event) if raw else format_event(event))
+                text = format_raw(event) if raw else format_event(event)
+                if named and event.get("line") is not None:
+                    text = f"{text}  line {event['line']}"
+                echo(text)
                 if writer is not None and event.get("mode") != "transparent":
                     writer.write_event(event)     # raw frames are not Modbus/TCP; a
                     #                               scenario's run has no TCP ends

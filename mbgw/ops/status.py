@@ -83,7 +83,7 @@ class DaemonStatus:
 
     def trace_header(self) -> dict:
         """The first line of a trace stream."""
-        return {"mode": self.mode}
+        return {"mode": self.mode, "lines": list(self.line_names())}
 
     def reset(self, request: dict) -> dict:
         self._counters.reset()

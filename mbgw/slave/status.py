@@ -37,7 +37,7 @@ class SlaveStatus(DaemonStatus):
         return super().reset(request)
 
     def trace_header(self) -> dict:
-        return {"mode": self.mode, "listening": self._addresses}
+        return {**super().trace_header(), "listening": self._addresses}
 
     def status(self, request: dict) -> dict:
         now, mono = time.time(), time.monotonic()
