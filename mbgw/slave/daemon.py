@@ -120,6 +120,7 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters, 
     status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses, tables,
                          load)
     status.targets = targets
+    status.faces = serial_faces
     status.scenario_engines = engines
     commands = {**status.commands(), **scenario_commands(engines, cfg.config_file)}
     control = await start_control(cfg.control, commands)

@@ -25,6 +25,7 @@ class SlaveStatus(DaemonStatus):
         self._addresses = addresses
         self.scenario_engines: dict = {}    # the scenarios' engines by kind (the daemon's)
         self.targets: TargetLines | None = None     # the lines beside serial (the daemon's)
+        self.faces: list = []      # the serial faces of the lines in master mode (the daemon's)
 
     def commands(self) -> dict:
         tables = self._tables
@@ -75,7 +76,11 @@ class SlaveStatus(DaemonStatus):
     def _lines(self, counters: dict, devices: list[dict]) -> list[dict]:
         serial = line_row(PRIMARY_LINE, self.cfg.serial.device, "slave", self._worker.state,
                           counters, devices)
-        return [serial, *(self.targets.status() if self.targets is not None else ())]
+        devices_of = {line.name: line.serial.device for line in self.cfg.lines}
+        faces = [line_row(face.face, devices_of.get(face.face, "?"), "master", face.state,
+                          face.counters.snapshot(), [d.snapshot() for d in face.devices.all()])
+                 for face in self.faces]
+        return [serial, *(self.targets.status() if self.targets is not None else ()), *faces]
 
     def summary(self) -> str:
         c = self._counters
