@@ -39,6 +39,8 @@ def format_status(s: dict, now: float) -> str:
         lines += _slave_sections(s, now)
     if len(s.get("lines", ())) > 1 or any(not r["implicit"] for r in s.get("routes", ())):
         lines += ["", *_lines_section(s["lines"]), "", *_routes_section(s["routes"])]
+        for row in s["lines"][1:]:        # line serial's devices are above
+            lines += ["", *_line_devices(row, now)]
     if s.get("table") is not None:
         lines += ["", *_table_section(s["table"], s["mode"], now, bool(s.get("scenarios")))]
     elif s.get("scenarios"):
@@ -74,15 +76,19 @@ def line_status(s: dict, name: str) -> dict:
     raise LookupError(f"status --line {name}: no such line (this daemon's lines: {known})")
 
 
+def _line_devices(row: dict, now: float) -> list[str]:
+    out = [f"devices of line {row['name']} ({len(row.get('devices', ()))})"]
+    if row.get("devices"):
+        out.append(_HEALTH_COLUMNS)
+        out += [_health(d, now) for d in row["devices"]]
+    return out
+
+
 def format_line_status(s: dict, now: float) -> str:
     """line_status()'s, as text."""
     row = s["line"]
     out = [f"mbgw {s['version']}, {s['mode']} mode, pid {s['pid']}", "",
-           *_lines_section([row]), "",
-           f"devices of line {row['name']} ({len(row['devices'])})"]
-    if row["devices"]:
-        out.append(_HEALTH_COLUMNS)
-        out += [_health(d, now) for d in row["devices"]]
+           *_lines_section([row]), "", *_line_devices(row, now)]
     out += ["", *_routes_section(s["routes"]), "", f"counters of line {row['name']}"]
     counters = row["counters"]
     names = [n for n in counters if counters[n]] or list(counters)[:3]

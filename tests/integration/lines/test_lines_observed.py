@@ -74,6 +74,7 @@ def test_status_shows_each_line_and_narrows_to_one(two_lines, client):
         {("32-63", "line meters")}
     text = mbgw("status", "--line", "meters", "--control", gw.control).stdout
     assert "devices of line meters (1)" in text and "line serial" not in text, text
+    assert "devices of line meters (1)" in mbgw("status", "--control", gw.control).stdout
 
     unknown = mbgw("status", "--line", "tanks", "--control", gw.control)
     assert unknown.returncode == 1
