@@ -66,13 +66,16 @@ def line_status(s: dict, name: str) -> dict:
     """`mbgw status --line NAME`: that line's row and the routes from or to it.  A
     LookupError names a line the daemon does not have, and those it has."""
     rows = s.get("lines") or []
+    if not rows:
+        raise LookupError(f"status --line {name}: {s['mode']} mode shows no lines: mbgw "
+                          f"status shows its one line")
     for row in rows:
         if row["name"] == name:
             routes = [r for r in s.get("routes", ())
                       if r["face"] == name or r["target"] == f"line {name}"]
             return {"mode": s["mode"], "version": s["version"], "pid": s["pid"],
                     "line": row, "routes": routes}
-    known = ", ".join(r["name"] for r in rows) or "serial"
+    known = ", ".join(r["name"] for r in rows)
     raise LookupError(f"status --line {name}: no such line (this daemon's lines: {known})")
 
 
