@@ -164,14 +164,16 @@ class DaemonCollector:
                     "(request to reply or timeout); its rate is the line's utilisation.",
                     labels=["line"])
                 for line, values in snapshots:
-                    family.add_metric([line], values.get(name, 0) / 1e9)
+                    if name in values:
+                        family.add_metric([line], values[name] / 1e9)
                 yield family
                 continue
             help_text = (master and _MASTER_COUNTER_HELP.get(name)) or \
                 _COUNTER_HELP.get(name) or name.replace("_", " ") + "."
             family = CounterMetricFamily(f"mbgw_{name}", help_text, labels=["line"])
             for line, values in snapshots:
-                family.add_metric([line], values.get(name, 0))
+                if name in values:       # a line of the other mode keeps counters of its own
+                    family.add_metric([line], values[name])
             yield family
 
     def _device_counters(self, table):
@@ -182,7 +184,8 @@ class DaemonCollector:
                                          help_text + " By line and serial address.",
                                          labels=["line", "address"])
             for line, d in table:
-                family.add_metric([line, str(d.address)], getattr(d, name))
+                if name in d.counts:
+                    family.add_metric([line, str(d.address)], getattr(d, name))
             yield family
         family = CounterMetricFamily(
             "mbgw_device_exception_replies", "Exception replies by serial address and "

@@ -105,7 +105,8 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters, 
         metrics = start_metrics(cfg.metrics, lambda m: with_scenarios(m.slave_collector(
             counters, devices, scheduler, server, worker, started, tables.figures, load,
             lambda: server.firewall.report() if server.firewall.configured else None,
-            lambda: [(PRIMARY_LINE, counters, devices), *targets.metered()]),
+            lambda: [(PRIMARY_LINE, counters, devices), *targets.metered(),
+                     *((face.face, face.counters, face.devices) for face in serial_faces)]),
             engines))
     except ListenError:
         server.close()

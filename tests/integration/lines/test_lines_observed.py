@@ -7,15 +7,17 @@ carried; the trace is read from the control socket as `mbgw trace` reads it, the
 over HTTP with prometheus_client's parser.  The rig is test_lines.py's.
 """
 import json
+import os
 import urllib.request
 
 import pytest
 from prometheus_client import parser
 
 from mbgw.ops import control
-from tests.harness import free_port
+from tests.harness import PtyPair, free_port
 from tests.integration.lines import test_lines as rig
-from tests.modbus import read_holding
+from tests.integration.master.test_master import recv
+from tests.modbus import read_holding, rtu_frame
 from tests.ops import mbgw, metric_families, metric_value, status
 
 pytestmark = pytest.mark.integration
@@ -133,3 +135,44 @@ def test_metrics_carry_each_line(two_lines, client):
     assert metric_value(found, "mbgw_transaction_latency_seconds",
                         "mbgw_transaction_latency_seconds_count",
                         line="meters", address=rig.METER) == 2
+
+
+def test_a_line_in_master_mode_is_shown_and_measured_by_its_name(lines, gateway, tmp_path):
+    """A slave-mode daemon with a serial master on line panel reaching line serial's slave:
+    panel's row, devices and metric samples, and its trace events named panel."""
+    serial = lines("serial", rig.SERIAL_SLAVE)
+    (tmp_path / "panel").mkdir()
+    panel = PtyPair(tmp_path / "panel")
+    port = free_port()
+    try:
+        # a line in master mode takes no stout: written here, not by the rig's lines_toml
+        (tmp_path / "mbgw.toml").write_text(
+            f'[[line]]\nname = "panel"\ndevice = "{panel.gateway}"\nmode = "master"\n'
+            f'baudrate = 19200\n')
+        gw = gateway(serial, {"routes": [{"units": "1-2", "from": "panel", "line": "serial",
+                                          "address": rig.SERIAL_SLAVE}]},
+                     "--metrics", f"127.0.0.1:{port}")
+        only_panel = TraceStream(gw, line="panel")
+        master = os.open(panel.device, os.O_RDWR | os.O_NOCTTY)
+        try:
+            request = bytes((1,)) + read_holding(0, 1)
+            os.write(master, rtu_frame(request))
+            expected = rtu_frame(bytes((1,)) + rig.hr_reply(0, 1))
+            assert recv(master, len(expected)) == expected
+            asked, answered = only_panel.events(2)
+        finally:
+            os.close(master)
+            only_panel.close()
+        assert (asked["line"], asked["address"], answered["line"], answered["outcome"]) == \
+            ("panel", 1, "panel", "reply")
+        assert rig.received(serial.record) == [bytes((rig.SERIAL_SLAVE,)) + read_holding(0, 1)]
+        rows = {row["name"]: row for row in status(gw)["lines"]}
+        assert (rows["panel"]["mode"], rows["panel"]["requests"]) == ("master", 1)
+        assert [(d["line"], d["address"]) for d in rows["panel"]["devices"]] == [("panel", 1)]
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5) as r:
+            found = metric_families(parser, r.read().decode())
+        assert metric_value(found, "mbgw_requests", "mbgw_requests_total", line="panel") == 1
+        assert metric_value(found, "mbgw_device_transactions",
+                            "mbgw_device_transactions_total", line="panel", address=1) == 1
+    finally:
+        panel.stop()
