@@ -3,7 +3,8 @@
  *   direction (MBGW_CAPTURE_RX or _TX), time (int64 CLOCK_MONOTONIC ns, native order),
  *   length (uint16, native order), the bytes;
  * the line's thread (the only one that reads or writes the line) drains it between
- * transactions.  With none set, a read costs one pointer test. */
+ * transactions.  With none set, a read costs one pointer test.  Each line thread has its
+ * own: with many lines, one line's bytes never land in another's capture. */
 #include <stddef.h>
 #include <stdint.h>
 #include <string.h>
@@ -13,11 +14,17 @@
 #include "internal.h"
 #include "mbgw.h"
 
-static struct mbgw_capture *capture;
+static _Thread_local struct mbgw_capture *capture;
 
 void mbgw_capture_set(struct mbgw_capture *c)
 {
     capture = c;
+}
+
+void mbgw_capture_unset(struct mbgw_capture *c)
+{
+    if (capture == c)
+        capture = NULL;
 }
 
 void capture_note(int direction, const uint8_t *bytes, size_t len)

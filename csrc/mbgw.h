@@ -364,7 +364,7 @@ int mbgw_table_take_change(mbgw_table *t, int id, uint16_t *out);
  * serial line is appended to buf as records: direction (1 byte), time (int64
  * CLOCK_MONOTONIC ns), length (uint16), the bytes, both numbers in the machine's order.
  * Bytes that do not fit are counted in dropped.  Set and drained by the line's thread
- * only; NULL: off. */
+ * only, one per thread; NULL: off.  unset: off, if c is this thread's. */
 #define MBGW_CAPTURE_RX 0
 #define MBGW_CAPTURE_TX 1
 #define MBGW_CAPTURE_HEAD 11
@@ -375,6 +375,7 @@ struct mbgw_capture {
     uint64_t dropped;
 };
 void mbgw_capture_set(struct mbgw_capture *c);
+void mbgw_capture_unset(struct mbgw_capture *c);
 
 /* modbus_send_raw_request (libmodbus appends the CRC), noted in the capture.  0, or -1
  * with errno set. */

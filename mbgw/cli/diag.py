@@ -13,13 +13,14 @@ from mbgw.cli.render import (
     format_clients,
     format_counters,
     format_event,
+    format_line_status,
     format_raw,
     format_status,
+    line_status,
     raw_columns,
     trace_columns,
 )
 from mbgw.ops import control as ctl
-from mbgw.ops.trace import LINES
 
 
 def control_option(function):
@@ -116,12 +117,18 @@ def _trace(path: str, request: dict, raw: bool, pcap_file, count: int | None) ->
         sock.sendall(json.dumps(request).encode() + b"\n")
         header = json.loads(events.readline() or b"{}")     # {"mode": ..., ...}
         if "error" in header:
+            if header["error"].startswith("trace: line "):
+                raise click.BadParameter(header["error"], param_hint="'--line'")
             _fail(header["error"])
         echo(raw_columns() if raw else trace_columns(header.get("mode", "slave")))
+        named = len(header.get("lines", ())) > 1     # each event's line, when there are more
         try:
             for line_text in events:
                 event = json.loads(line_text)
-                echo(format_raw(event) if raw else format_event(event))
+                text = format_raw(event) if raw else format_event(event)
+                if named and event.get("line") is not None:
+                    text = f"{text}  line {event['line']}"
+                echo(text)
                 if writer is not None and event.get("mode") != "transparent":
                     writer.write_event(event)     # raw frames are not Modbus/TCP; a
                     #                               scenario's run has no TCP ends
@@ -132,17 +139,34 @@ def _trace(path: str, request: dict, raw: bool, pcap_file, count: int | None) ->
             pass
 
 
+def _status(path: str, as_json: bool, line: str | None) -> None:
+    """mbgw status: the daemon's, or one line's (an unknown line fails naming the known)."""
+    reply = _call(path, {"command": "status"})
+    if line is not None:
+        try:
+            reply = line_status(reply, line)
+        except LookupError as err:
+            _fail(str(err))
+    if as_json:
+        click.echo(json.dumps(reply, indent=2))
+    elif line is not None:
+        click.echo(format_line_status(reply, time.time()))
+    else:
+        click.echo(format_status(reply, time.time()))
+
+
 def register(main: click.Group) -> None:
     @main.command()
     @click.option("--json", "as_json", is_flag=True, help="Print the status as JSON.")
+    @click.option("--line", default=None, metavar="NAME",
+                  help="Only this line: its state, counters, devices and routes (serial or a "
+                       "[[line]] name).")
     @control_option
-    def status(as_json: bool, control: str | None, instance: str | None) -> None:
-        """What the running daemon is doing: clients, devices, counters."""
-        reply = _call(_socket_path(control, instance), {"command": "status"})
-        if as_json:
-            click.echo(json.dumps(reply, indent=2))
-        else:
-            click.echo(format_status(reply, time.time()))
+    def status(as_json: bool, line: str | None, control: str | None,
+               instance: str | None) -> None:
+        """What the running daemon is doing: clients, devices, counters; its lines and
+        routes."""
+        _status(_socket_path(control, instance), as_json, line)
 
     @main.group(invoke_without_command=True)
     @control_option
@@ -207,8 +231,9 @@ def register(main: click.Group) -> None:
                   help="Only this function code (its exception replies included).")
     @click.option("--scenario", default=None, metavar="NAME",
                   help="Only this scenario's runs.")
-    @click.option("--line", type=click.Choice(LINES), default=None,
-                  help="Only this line's traffic (one line today: serial).")
+    @click.option("--line", default=None, metavar="NAME",
+                  help="Only this line's traffic: serial or a [[line]] name (mbgw status "
+                       "lists them).")
     @click.option("--errors", is_flag=True,
                   help="Errors only: exception replies, no reply, late replies, noise on "
                        "the line.")

@@ -39,6 +39,8 @@ def format_status(s: dict, now: float) -> str:
         lines += _slave_sections(s, now)
     if len(s.get("lines", ())) > 1 or any(not r["implicit"] for r in s.get("routes", ())):
         lines += ["", *_lines_section(s["lines"]), "", *_routes_section(s["routes"])]
+        for row in s["lines"][1:]:        # line serial's devices are above
+            lines += ["", *_line_devices(row, now)]
     if s.get("table") is not None:
         lines += ["", *_table_section(s["table"], s["mode"], now, bool(s.get("scenarios")))]
     elif s.get("scenarios"):
@@ -58,6 +60,45 @@ def _lines_section(rows: list[dict]) -> list[str]:
     out += [f"           {r['name']:<13} {r['state']:<8} {r['requests']:>8} {r['replies']:>8} "
             f"{r['timeouts']:>9}  {r['device']} ({r['mode']})" for r in rows]
     return out
+
+
+def line_status(s: dict, name: str) -> dict:
+    """`mbgw status --line NAME`: that line's row and the routes from or to it.  A
+    LookupError names a line the daemon does not have, and those it has."""
+    rows = s.get("lines") or []
+    if not rows:
+        raise LookupError(f"status --line {name}: {s['mode']} mode shows no lines: mbgw "
+                          f"status shows its one line")
+    for row in rows:
+        if row["name"] == name:
+            routes = [r for r in s.get("routes", ())
+                      if r["face"] == name or r["target"] == f"line {name}"]
+            return {"mode": s["mode"], "version": s["version"], "pid": s["pid"],
+                    "line": row, "routes": routes}
+    known = ", ".join(r["name"] for r in rows)
+    raise LookupError(f"status --line {name}: no such line (this daemon's lines: {known})")
+
+
+def _line_devices(row: dict, now: float) -> list[str]:
+    out = [f"devices of line {row['name']} ({len(row.get('devices', ()))})"]
+    if row.get("devices"):
+        out.append(_HEALTH_COLUMNS)
+        out += [_health(d, now) for d in row["devices"]]
+    return out
+
+
+def format_line_status(s: dict, now: float) -> str:
+    """line_status()'s, as text."""
+    row = s["line"]
+    out = [f"mbgw {s['version']}, {s['mode']} mode, pid {s['pid']}", "",
+           *_lines_section([row]), "", *_line_devices(row, now)]
+    out += ["", *_routes_section(s["routes"]), "", f"counters of line {row['name']}"]
+    counters = row["counters"]
+    names = [n for n in counters if counters[n]] or list(counters)[:3]
+    for i in range(0, len(names), 3):
+        out.append("  " + "".join(f"{n:<28}{counters[n]:>10}   " for n in names[i:i + 3])
+                   .rstrip())
+    return "\n".join(out)
 
 
 def _routes_section(rows: list[dict]) -> list[str]:

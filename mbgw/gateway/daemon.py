@@ -13,8 +13,8 @@ def run_gateway(cfg: SlaveConfig, reconfigure=None) -> None:
     run_slave(cfg, reconfigure, faces)
 
 
-def serial_faces(cfg: SlaveConfig, routes, inboxes: dict, table) -> list:
+def serial_faces(cfg: SlaveConfig, routes, inboxes: dict, table, hub=None) -> list:
     """The serial faces' threads, unstarted: one per line in master mode."""
     serial_face = importlib.import_module("mbgw.master.serial_face")
-    return [serial_face.build_face(line, cfg, routes, inboxes, table)
+    return [serial_face.build_face(line, cfg, routes, inboxes, table, hub)
             for line in cfg.lines if line.is_face]

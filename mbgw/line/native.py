@@ -363,7 +363,8 @@ class Capture:
         self.on = True
 
     def stop(self) -> None:
-        lib.mbgw_capture_set(ffi.NULL)
+        """On the line's thread (another thread's capture is not touched)."""
+        lib.mbgw_capture_unset(self._c)
         self.on = False
 
     def __del__(self) -> None:

@@ -121,8 +121,12 @@ Settings = TypeVar("Settings", bound=_Settings)
 
 class RawHub(Protocol):
     """What a line thread needs of the trace hub (mbgw.ops.trace.TraceHub) for its raw view."""
-    raw_active: bool
-    on_raw_watch: Callable[[bool], None] | None
+    @property
+    def raw_active(self) -> bool: ...
+
+    def add_raw_watcher(self, watcher: Callable[[bool], None]) -> None: ...
+
+    def remove_raw_watcher(self, watcher: Callable[[bool], None]) -> None: ...
 
     def emit_threadsafe(self, event: dict) -> None: ...
 
@@ -151,6 +155,7 @@ class LineThread(threading.Thread, Generic[Settings]):
         # the thread may wait while nothing happens (-1: no limit; set before start()).
         self.heartbeat = time.monotonic()
         self.idle_ms = -1
+        self.line_name = "serial"       # the line's name in the trace (set before start())
         self._raw_hub: RawHub | None = None     # whose raw subscribers watch the line
         self._raw_monitor: RawMonitor | None = None     # since somebody first watched it
         self._answers = False                   # mbgw is the line's slave (master mode)
@@ -207,13 +212,18 @@ class LineThread(threading.Thread, Generic[Settings]):
                     log.exception("internal error")
         finally:
             self._finish()
+            if self._raw_hub is not None:
+                self._raw_hub.remove_raw_watcher(self._raw_watcher)
+
+    def _raw_watcher(self, on: bool) -> None:
+        self._wake()        # the next turn looks
 
     def watch_raw(self, hub: "RawHub", answers: bool = False) -> None:
         """Let hub's raw subscribers (`mbgw trace --raw`) watch this line (before start());
         answers: mbgw is the slave on the line (master mode), not its master."""
         self._raw_hub = hub
         self._answers = answers
-        hub.on_raw_watch = lambda on: self._wake()      # the next turn looks
+        hub.add_raw_watcher(self._raw_watcher)
 
     def _watched_turn(self, hub: "RawHub") -> None:
         """A turn while somebody watches the raw line (or did until now): the C capture set
@@ -231,6 +241,7 @@ class LineThread(threading.Thread, Generic[Settings]):
             self._turn()
         finally:
             for event in raw.take():
+                event["line"] = self.line_name
                 hub.emit_threadsafe(event)
 
     def close_line(self) -> None:

@@ -81,11 +81,12 @@ async def _serve(cfg: MasterConfig, faces: Faces, counters: MasterCounters,
     engines: dict = {}         # the scenarios' engine by kind, while it runs (TCP only here)
     metrics = start_metrics(cfg.metrics, lambda m: with_scenarios(m.master_collector(
         counters, slave.devices, slave, started,
-        lambda: tables.figures(slave.table_counters.snapshot()), tables.firewall_report),
-        engines))
+        lambda: tables.figures(slave.table_counters.snapshot()), tables.firewall_report,
+        faces.metered), engines))
     faces.start(idle_ms(watchdog_interval()))
     status = MasterStatus(cfg, slave, counters, tables)
     status.scenario_engines = engines
+    status.other_faces = faces.others
     commands = {**status.commands(), **scenario_commands(engines, cfg.config_file)}
     control = await start_control(cfg.control, commands)
     reloads = Reloads(status, reconfigure)
@@ -100,7 +101,7 @@ async def _serve(cfg: MasterConfig, faces: Faces, counters: MasterCounters,
     if metrics is not None:
         log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
     _log_slaveid(cfg)
-    scenarios = TcpScenarios(tables.table, engines, slave.devices.rule, slave.trace)
+    scenarios = TcpScenarios(tables.table, engines, slave.devices.rule, slave.hub)
     scenarios.start(cfg.scenarios, cfg.tcpto_ms, cfg.upstream_tls)
 
     async def apply(new: MasterConfig, report: ReloadReport) -> None:

@@ -48,10 +48,15 @@ class Faces:
                 log.error("line %s: a line in slave mode does not run in a master-mode "
                           "daemon yet: requests routed to it get 0x0A or silence", line.name)
                 continue
-            self.others[line.name] = build_face(line, cfg, routes, {}, table)
+            self.others[line.name] = build_face(line, cfg, routes, {}, table, self.primary.hub)
             log.info("line %s: master mode, serial %s %d %s %s; %d routes", line.name,
                      line.serial.device, line.serial.baudrate, line.serial.format,
                      line.serial.protocol, sum(r.face == line.name for r in cfg.routes))
+
+    def metered(self) -> list[tuple]:
+        """Each line's (name, counters, devices) for /metrics, line serial's first."""
+        return [(self.primary.face, self.primary.counters, self.primary.devices),
+                *((name, face.counters, face.devices) for name, face in self.others.items())]
 
     def start(self, idle_ms: int) -> None:
         for face in (self.primary, *self.others.values()):

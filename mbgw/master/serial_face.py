@@ -64,28 +64,19 @@ from mbgw.master.face_routes import (
 )
 from mbgw.master.line_target import LineRequests
 from mbgw.master.table_slave import TableSlave
-from mbgw.master.trace import (
-    OUTCOME_BAD_REPLY,
-    OUTCOME_DEVICE_DOWN,
-    OUTCOME_EXCEPTION,
-    OUTCOME_REPLY,
-    OUTCOME_TIMEOUT,
-    OUTCOME_UNREACHABLE,
-    MasterTracer,
-)
+from mbgw.master.trace import MasterTracer
 from mbgw.net.ratelimit import RateLimitedLog
 from mbgw.net.tls import client_context
 from mbgw.ops.counters import MasterCounters, TableSlaveCounters
 from mbgw.ops.device_stats import MASTER_COUNTS, DeviceStats, DeviceTable, HealthRule
 from mbgw.ops.exception_reply import gateway_exception
-from mbgw.ops.trace import TraceHub
+from mbgw.ops.trace import Outcome, TraceHub
 from mbgw.protocol import pdu
 from mbgw.upstream.pool import UpstreamPool, drain
 
 log = logging.getLogger("mbgw.line")
 wire = logging.getLogger("mbgw.wire")
 
-OUTCOME_LINE_DOWN = "line not running"
 
 
 def _line_settings(serial: SerialConfig) -> SerialConfig:
@@ -94,7 +85,8 @@ def _line_settings(serial: SerialConfig) -> SerialConfig:
     return dataclasses.replace(serial, stout_ms=0, nocheck=False, interframe_ms=0)
 
 
-def build_face(line, cfg, routes: RouteMap, inboxes: dict, table) -> "SerialFace":
+def build_face(line, cfg, routes: RouteMap, inboxes: dict, table,
+               hub: TraceHub | None = None) -> "SerialFace":
     """An unstarted thread serving the master-mode line (a LineConfig) of a daemon with the
     settings cfg (SlaveConfig or MasterConfig): routes is the daemon's RouteMap, inboxes
     the Inbox of each target line by name, table the exchange table or None.  Raises
@@ -103,7 +95,7 @@ def build_face(line, cfg, routes: RouteMap, inboxes: dict, table) -> "SerialFace
     settings = face_settings(cfg, line, routes)
     opened = open_at_start(settings.serial)
     try:
-        return SerialFace(settings, opened, MasterCounters(), table, inboxes)
+        return SerialFace(settings, opened, MasterCounters(), table, inboxes, hub)
     except BaseException:
         if opened is not None:
             opened.close()
@@ -112,19 +104,23 @@ def build_face(line, cfg, routes: RouteMap, inboxes: dict, table) -> "SerialFace
 
 class SerialFace(LineThread[FaceSettings]):
     def __init__(self, settings: FaceSettings, line: SerialLine | None,
-                 counters: MasterCounters, table=None, inboxes: dict | None = None) -> None:
+                 counters: MasterCounters, table=None, inboxes: dict | None = None,
+                 hub: TraceHub | None = None) -> None:
         """table: the exchange table (mbgw.table.memory.Table), None in a gateway without;
         inboxes: the target lines' Inbox by name, looked up at each request (a line not in
-        it is not running: 0x0A or silence)."""
+        it is not running: 0x0A or silence); hub: the daemon's trace hub (None: a new one,
+        line serial's face makes it)."""
         super().__init__(settings, line)
         self.face = settings.name
         self._counters = counters
         self._inboxes = inboxes if inboxes is not None else {}   # the caller's, kept
         self.devices = DeviceTable(MASTER_COUNTS, HealthRule(settings.demotion))
         self._down = self.devices.rule.down    # the addresses that are down, by address
-        self.trace = TraceHub()
-        self.watch_raw(self.trace, answers=True)
-        self._tracer = MasterTracer(self.trace)
+        self.hub = hub if hub is not None else TraceHub()
+        self.trace = self.hub         # .active: one attribute test on the request's path
+        self.line_name = self.face
+        self.watch_raw(self.hub, answers=True)
+        self._tracer = MasterTracer(self.hub.for_line(self.face))    # events name the line
         self.wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         self._lines = LineRequests(self.face, self.wake_fd, lambda: self._stopping)
         self._pools: dict[int, UpstreamPool] = {}
@@ -408,23 +404,23 @@ class SerialFace(LineThread[FaceSettings]):
             self._counters.timeouts += 1
             stats.timeouts += 1
             stats.failed()
-            return None, hop.unit, pdu.GATEWAY_TARGET_FAILED, OUTCOME_TIMEOUT
+            return None, hop.unit, pdu.GATEWAY_TARGET_FAILED, Outcome.TIMEOUT
         except NoRoute:
             self._counters.unreachable += 1
             stats.unreachable += 1
             stats.failed()
-            return None, hop.unit, pdu.GATEWAY_PATH_UNAVAILABLE, OUTCOME_UNREACHABLE
+            return None, hop.unit, pdu.GATEWAY_PATH_UNAVAILABLE, Outcome.UNREACHABLE
         except BadReply as err:
             self._bad_reply(stats, hop, err)
             # the server's frame, if any, for the trace
             return (err.pdu, err.unit if err.pdu is not None else hop.unit,
-                    pdu.GATEWAY_TARGET_FAILED, f"{OUTCOME_BAD_REPLY}: {err}")
+                    pdu.GATEWAY_TARGET_FAILED, f"{Outcome.BAD_REPLY}: {err}")
         exception = reply[0] & pdu.EXCEPTION_FLAG
         if exception:
             self._counters.device_exceptions += 1
         stats.answered((time.monotonic_ns() - self._received_ns) / 1e6,
                        reply[1] if exception and len(reply) > 1 else None)
-        return reply, hop.unit, None, OUTCOME_EXCEPTION if exception else OUTCOME_REPLY
+        return reply, hop.unit, None, Outcome.SERVER_EXCEPTION if exception else Outcome.REPLY
 
     def _reply(self, adu: bytes, reply: bytes | None, code: int | None, stats: DeviceStats,
                outcome: str, quiet_ms: int = 0) -> str:
@@ -450,7 +446,7 @@ class SerialFace(LineThread[FaceSettings]):
         """The address is down and this is no probe: nothing goes to its server, the master
         gets 0x0B once the line has been quiet for t3.5 (with `exception`), else nothing."""
         self._counters.demoted_rejects += 1
-        outcome = self._reply(adu, None, pdu.GATEWAY_TARGET_FAILED, stats, OUTCOME_DEVICE_DOWN,
+        outcome = self._reply(adu, None, pdu.GATEWAY_TARGET_FAILED, stats, Outcome.DEVICE_DOWN,
                               self._quiet_ms)
         if self.trace.active:
             self._tracer.outcome(adu, hop.label, None, hop.unit, None, outcome, None)
@@ -478,17 +474,18 @@ class SerialFace(LineThread[FaceSettings]):
         if tracing:
             self._tracer.request(adu, hop.label, None, None, hop.unit)
         inbox = self._inboxes.get(hop.line)
+        outcome: str
         if inbox is None:
             self._counters.unreachable += 1
             stats.unreachable += 1
-            reply, code, outcome = None, pdu.GATEWAY_PATH_UNAVAILABLE, OUTCOME_LINE_DOWN
+            reply, code, outcome = None, pdu.GATEWAY_PATH_UNAVAILABLE, Outcome.LINE_DOWN
         else:
             answered = self._lines.ask(inbox, hop.unit, adu[1:], self._received_ns,
                                        self._received_ns + hop.limit_ns)
             if answered is None:
                 self._counters.timeouts += 1
                 stats.timeouts += 1
-                reply, code, outcome = None, pdu.GATEWAY_TARGET_FAILED, OUTCOME_TIMEOUT
+                reply, code, outcome = None, pdu.GATEWAY_TARGET_FAILED, Outcome.TIMEOUT
             else:
                 (reply, outcome), code = answered, None
                 if reply is not None:

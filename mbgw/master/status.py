@@ -1,6 +1,8 @@
 """What the running master-mode daemon reports through the control socket (the commands
 both modes share are in mbgw.ops.status)."""
-from mbgw.ops.status import DaemonStatus
+from mbgw.config.lines import PRIMARY_LINE, route_map
+from mbgw.master.serial_face import SerialFace
+from mbgw.ops.status import DaemonStatus, line_row, routes_status
 from mbgw.scenarios.report import scenarios_status
 
 
@@ -9,15 +11,17 @@ class MasterStatus(DaemonStatus):
     mode = "master"
 
     def __init__(self, cfg, slave, counters, tables) -> None:
-        super().__init__(cfg, counters, slave.devices, slave.trace)
+        super().__init__(cfg, counters, slave.devices, slave.hub)
         self._slave = slave
         self._tables = tables
         self.scenario_engines: dict = {}    # the scenarios' engines by kind (the daemon's)
+        self.other_faces: dict[str, SerialFace] = {}    # the [[line]]s in master mode
 
     def status(self, request: dict) -> dict:
         cfg = self.cfg
         data = self._common()
         data["serial"]["state"] = self._slave.state
+        devices_by_line = {line.name: line.serial.device for line in cfg.lines}
         return {
             **data,
             "upstream": {"port": cfg.mdbport, "tcpto_ms": cfg.tcpto_ms,
@@ -27,9 +31,16 @@ class MasterStatus(DaemonStatus):
                          "variable_ip": r.variable_ip, "ip": str(r.ip), "tls": r.tls,
                          "route": str(r)}
                         for r in cfg.slaveid.ranges],
-            "counters": self._counters.snapshot(),
+            "counters": (counters := self._counters.snapshot()),
             "counters_since": self._reset_at,
-            "devices": [d.snapshot() for d in self._devices.all()],
+            "devices": (devices := [d.snapshot() for d in self._devices.all()]),
+            "lines": [line_row(PRIMARY_LINE, cfg.serial.device, "master", self._slave.state,
+                               counters, devices),
+                      *(line_row(name, devices_by_line.get(name, "?"), "master", face.state,
+                                 face.counters.snapshot(),
+                                 [d.snapshot() for d in face.devices.all()])
+                        for name, face in list(self.other_faces.items()))],
+            "routes": routes_status(route_map(cfg)),
             "table": self._tables.figures(self._slave.table_counters.snapshot()),
             "clients": self._tables.clients(),
             **({"firewall": firewall} if (firewall := self._tables.firewall_report()) else {}),

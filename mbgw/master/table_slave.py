@@ -7,8 +7,9 @@ from collections.abc import Callable
 
 from mbgw.errors import SerialError
 from mbgw.line import frames, native
-from mbgw.master.trace import OUTCOME_TABLE, MasterTracer
+from mbgw.master.trace import MasterTracer
 from mbgw.ops.counters import TableSlaveCounters
+from mbgw.ops.trace import Outcome
 
 # send(address, reply) -> False when the master moved on before the line was quiet
 Send = Callable[[int, bytes], bool]
@@ -41,7 +42,7 @@ class TableSlave:
             counts.length_errors += 1       # the table answers it 0x03
         received_ns = time.monotonic_ns()
         reply = self._responder.answer(memoryview(adu)[1:])
-        outcome = OUTCOME_TABLE
+        outcome: str = Outcome.TABLE
         if reply is not None:
             try:
                 sent = send(adu[0], reply)
@@ -57,7 +58,7 @@ class TableSlave:
         """A broadcast's writes go into the table too (its reads are ignored)."""
         self._responder.answer(memoryview(adu)[1:], True)
         if tracer is not None:
-            tracer.table(adu, None, f"{OUTCOME_TABLE}: broadcast", 0.0)
+            tracer.table(adu, None, f"{Outcome.TABLE}: broadcast", 0.0)
 
 
 def length_error(adu: bytes) -> bool:

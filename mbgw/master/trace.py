@@ -8,15 +8,8 @@ address is a "request" event and a "reply" (or, for a broadcast, "no reply") eve
 "late" event, dropped: its serial address is the one its request had, when still known."""
 import time
 
-OUTCOME_REPLY = "reply"
-OUTCOME_EXCEPTION = "server exception"
-OUTCOME_TIMEOUT = "timeout"
-OUTCOME_UNREACHABLE = "unreachable"
-OUTCOME_BAD_REPLY = "not the answer"       # the reply with our tid does not answer the request
-OUTCOME_IGNORED = "not in the slaveid table"
-OUTCOME_DEVICE_DOWN = "device down"        # refused at once: its address is down, no probe
-OUTCOME_TABLE = "table"                    # answered from the exchange table by mbgw itself
-OUTCOME_LATE = "late reply, dropped"       # a reply carrying an earlier request's tid
+from mbgw.ops.trace import Outcome, TraceEvent
+
 ADDRESSES_KEPT = 256                       # requests whose serial address a late reply finds
 TABLE_SERVER = "table"
 
@@ -63,18 +56,19 @@ class MasterTracer:
     def late(self, server: str, conn, tid: int, unit: int, reply: bytes) -> None:
         """A server's reply to an earlier request, dropped."""
         self.hub.emit_threadsafe(_event("late", self._addresses.get((server, tid)), reply[0],
-                                        server, conn, tid, unit, reply, OUTCOME_LATE, None))
+                                        server, conn, tid, unit, reply, Outcome.LATE, None))
 
     def ignored(self, adu: bytes) -> None:
         self.hub.emit_threadsafe(_event("ignored", adu[0], adu[1], None, None, None, None,
-                                        adu[1:], OUTCOME_IGNORED, None))
+                                        adu[1:], Outcome.IGNORED, None))
 
 
 def _event(direction: str, address: int | None, function: int, server: str | None, conn,
            tid: int | None, unit: int | None, data: bytes, outcome: str,
-           latency_ms: float | None) -> dict:
+           latency_ms: float | None) -> TraceEvent:
     return {"time": time.time(), "mode": "master", "direction": direction,
             "address": address, "server": server,
             "peer": conn.local if conn is not None else None, "local": server,
+            "remote": server,
             "tid": tid, "unit": unit, "function": function, "length": len(data),
             "pdu": data.hex(), "outcome": outcome, "latency_ms": latency_ms}

@@ -9,6 +9,7 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Histo
 from prometheus_client.utils import floatToGoString
 
 from mbgw import __version__
+from mbgw.config.lines import PRIMARY_LINE
 from mbgw.ops.device_stats import DEGRADED, DOWN, LATENCY_BUCKETS_MS, UP
 
 _COUNTER_HELP = {
@@ -111,9 +112,13 @@ class DaemonCollector:
 
     def __init__(self, counters, devices, started: float, mode: str, gauges,
                  table=None, firewall=None,
-                 scenarios=None) -> None:
+                 scenarios=None, lines=None) -> None:
         self._counters = counters
         self._devices = devices
+        # () -> (name, counters, device table) of each line: the per-line families' samples,
+        # each labelled line="NAME" (line serial's too)
+        self._lines = lines if lines is not None else \
+            (lambda: [(PRIMARY_LINE, counters, devices)])
         self._started = started
         self._mode = mode
         self._gauges = gauges
@@ -123,10 +128,11 @@ class DaemonCollector:
 
     def collect(self):
         yield from self._daemon()
-        yield from self._line_counters()
+        lines = list(self._lines())
+        yield from self._line_counters(lines)
         for name, help_text, value in self._gauges():
             yield GaugeMetricFamily(name, help_text, value=value)
-        table = self._devices.all()
+        table = [(name, d) for name, _, devices in lines for d in devices.all()]
         yield from self._device_counters(table)
         yield from self._device_health(table)
         yield self._latency(table)
@@ -148,38 +154,49 @@ class DaemonCollector:
                                 "When the daemon started (Unix time).",
                                 value=round(self._started, 3))
 
-    def _line_counters(self):
+    def _line_counters(self, lines):
         master = self._mode == "master"
-        for name, value in self._counters.snapshot().items():
+        snapshots = [(name, counters.snapshot()) for name, counters, _ in lines]
+        for name in snapshots[0][1]:
             if name == "line_busy_ns":
-                yield CounterMetricFamily(
+                family = CounterMetricFamily(
                     "mbgw_line_busy_seconds", "Time the serial line carried a transaction "
                     "(request to reply or timeout); its rate is the line's utilisation.",
-                    value=value / 1e9)
+                    labels=["line"])
+                for line, values in snapshots:
+                    if name in values:
+                        family.add_metric([line], values[name] / 1e9)
+                yield family
                 continue
             help_text = (master and _MASTER_COUNTER_HELP.get(name)) or \
                 _COUNTER_HELP.get(name) or name.replace("_", " ") + "."
-            yield CounterMetricFamily(f"mbgw_{name}", help_text, value=value)
+            family = CounterMetricFamily(f"mbgw_{name}", help_text, labels=["line"])
+            for line, values in snapshots:
+                if name in values:       # a line of the other mode keeps counters of its own
+                    family.add_metric([line], values[name])
+            yield family
 
     def _device_counters(self, table):
         master = self._mode == "master"
         for name in self._devices.counts:
             help_text = (master and _MASTER_DEVICE_HELP.get(name)) or _DEVICE_HELP[name]
             family = CounterMetricFamily(f"mbgw_device_{name}",
-                                         help_text + " By serial address.", labels=["address"])
-            for d in table:
-                family.add_metric([str(d.address)], getattr(d, name))
+                                         help_text + " By line and serial address.",
+                                         labels=["line", "address"])
+            for line, d in table:
+                if name in d.counts:
+                    family.add_metric([line, str(d.address)], getattr(d, name))
             yield family
         family = CounterMetricFamily(
             "mbgw_device_exception_replies", "Exception replies by serial address and "
             "exception code; source: the device (in master mode its server) sent it, or the "
             "gateway generated it (0x0B: no reply, 0x0A: line down or server unreachable).",
-            labels=["address", "code", "source"])
-        for d in table:
+            labels=["line", "address", "code", "source"])
+        for line, d in table:
             for source, by_code in (("device", d.exceptions),
                                     ("gateway", d.gateway_exceptions)):
                 for code, n in sorted(dict(by_code).items()):
-                    family.add_metric([str(d.address), f"0x{code:02x}", source], n)
+                    family.add_metric([line, str(d.address), f"0x{code:02x}", source], n)
         yield family
 
     def _device_health(self, table):
@@ -187,27 +204,27 @@ class DaemonCollector:
             "mbgw_device_health", "Health of the serial address: 1 for its current state "
             "(up: its recent requests were answered; degraded: some failed; down: the last "
             "down-after failed in a row, its requests are refused but for probes), 0 for the "
-            "others.", labels=["address", "state"])
+            "others.", labels=["line", "address", "state"])
         since = GaugeMetricFamily(
             "mbgw_device_health_since_seconds",
             "When the serial address entered its current health state (Unix time).",
-            labels=["address"])
+            labels=["line", "address"])
         failures = GaugeMetricFamily(
             "mbgw_device_consecutive_failures",
             "Transactions in a row without a valid reply, by serial address.",
-            labels=["address"])
+            labels=["line", "address"])
         success = GaugeMetricFamily(
             "mbgw_device_last_success_timestamp_seconds",
             "When the serial address last answered (Unix time); absent if it never did.",
-            labels=["address"])
-        for d in table:
+            labels=["line", "address"])
+        for line, d in table:
             address = str(d.address)
             for state in (UP, DEGRADED, DOWN):
-                health.add_metric([address, state], 1 if d.health == state else 0)
-            since.add_metric([address], round(d.health_since, 3))
-            failures.add_metric([address], d.consecutive_failures)
+                health.add_metric([line, address, state], 1 if d.health == state else 0)
+            since.add_metric([line, address], round(d.health_since, 3))
+            failures.add_metric([line, address], d.consecutive_failures)
             if d.last_success is not None:
-                success.add_metric([address], round(d.last_success, 3))
+                success.add_metric([line, address], round(d.last_success, 3))
         yield from (health, since, failures, success)
 
     def _latency(self, table):
@@ -216,14 +233,14 @@ class DaemonCollector:
             "Time from receiving the master's request to its server's reply, by serial "
             "address." if self._mode == "master" else
             "Time from sending a request on the line to the end of its valid reply "
-            "(the last try's, after retries), by serial address.", labels=["address"])
+            "(the last try's, after retries), by serial address.", labels=["line", "address"])
         bounds = [floatToGoString(ms / 1000) for ms in LATENCY_BUCKETS_MS] + ["+Inf"]
-        for d in table:
+        for line, d in table:
             cumulative, buckets = 0, []
             for bound, n in zip(bounds, list(d.latency_buckets), strict=True):
                 cumulative += n
                 buckets.append((bound, cumulative))
-            family.add_metric([str(d.address)], buckets, d.latency_sum_ms / 1000)
+            family.add_metric([line, str(d.address)], buckets, d.latency_sum_ms / 1000)
         return family
 
 
@@ -313,15 +330,17 @@ def scenario_families(rows: list[dict]):
 
 
 def slave_collector(counters, devices, scheduler, server, worker,
-                    started: float, table=None, load=None, firewall=None) -> DaemonCollector:
+                    started: float, table=None, load=None, firewall=None,
+                    lines=None) -> DaemonCollector:
     """Slave mode's metrics; table(): the exchange table's status dict, when it is on; load:
-    the line's load (mbgw.ops.load.LineLoad)."""
+    the line's load (mbgw.ops.load.LineLoad); lines(): every line's (name, counters,
+    devices), line serial's first (None: line serial only)."""
     return DaemonCollector(counters, devices, started, "slave", lambda: [
         ("mbgw_line_up", "1 while the serial device is open and usable.", int(worker.up)),
         *_load_gauges(load),
         ("mbgw_queue_depth", "Requests waiting for the serial line.", scheduler.depth),
         ("mbgw_clients_connected", "Modbus TCP clients connected.", len(server.clients))],
-        table, firewall)
+        table, firewall, lines=lines)
 
 
 def _load_gauges(load) -> list[tuple[str, str, float]]:
@@ -335,12 +354,13 @@ def _load_gauges(load) -> list[tuple[str, str, float]]:
 
 
 def master_collector(counters, devices, slave, started: float,
-                     table=None, firewall=None) -> DaemonCollector:
-    """Master mode's metrics; table(): the exchange table's status dict, when it is on."""
+                     table=None, firewall=None, lines=None) -> DaemonCollector:
+    """Master mode's metrics; table(): the exchange table's status dict, when it is on;
+    lines() as slave_collector's."""
     return DaemonCollector(counters, devices, started, "master", lambda: [
         ("mbgw_line_up", "1 while the serial device is open and usable.", int(slave.up)),
         ("mbgw_upstream_connections", "Connections open to Modbus TCP servers.",
-         len(slave.connections()))], table, firewall)
+         len(slave.connections()))], table, firewall, lines=lines)
 
 
 _TRANSPARENT_HELP = {

@@ -9,6 +9,7 @@ import time
 
 from mbgw import __version__
 from mbgw.audit import Kind, event, operator
+from mbgw.config.lines import PRIMARY_LINE, RouteMap
 from mbgw.ops.trace import NO_RAW_VIEW
 from mbgw.ops.trace import filters as trace_filters
 
@@ -25,6 +26,8 @@ class DaemonStatus:
         self._counters = counters
         self._devices = devices
         self._trace = trace
+        if trace is not None:
+            trace.line_names = self.line_names
         self._started = time.time()
         self._started_mono = time.monotonic()
         self._reset_at = self._started              # shown: "counters since"
@@ -34,6 +37,10 @@ class DaemonStatus:
     def trace_hub(self):
         """The hub the trace streams subscribe to (the control socket's, the web console's)."""
         return self._trace
+
+    def line_names(self) -> tuple[str, ...]:
+        """The daemon's lines now (a reload may add or remove some)."""
+        return (PRIMARY_LINE, *(line.name for line in getattr(self.cfg, "lines", ())))
 
     def commands(self) -> dict:
         return {"status": self.status, "close": self.close, "reset": self.reset,
@@ -76,7 +83,7 @@ class DaemonStatus:
 
     def trace_header(self) -> dict:
         """The first line of a trace stream."""
-        return {"mode": self.mode}
+        return {"mode": self.mode, "lines": list(self.line_names())}
 
     def reset(self, request: dict) -> dict:
         self._counters.reset()
@@ -90,13 +97,13 @@ class DaemonStatus:
                     writer: asyncio.StreamWriter) -> None:
         hub = self._trace
         try:
-            wanted = trace_filters(request.get("filters") or {})
+            wanted = trace_filters(request.get("filters") or {}, hub.line_names())
         except ValueError as err:
             writer.write(json.dumps({"error": str(err)}).encode() + b"\n")
             await writer.drain()
             return
         raw = bool(request.get("raw"))
-        if raw and hub.on_raw_watch is None:
+        if raw and not hub.raw_view:
             writer.write(json.dumps({"error": NO_RAW_VIEW % self.mode}).encode() + b"\n")
             await writer.drain()
             return
@@ -127,3 +134,33 @@ async def until_closed(reader: asyncio.StreamReader) -> None:
     kept."""
     while await reader.read(4096):
         pass
+
+
+def line_row(name: str, device: str, mode: str, state: str, counters: dict,
+             devices: list[dict]) -> dict:
+    """One line as `mbgw status` shows it: its name, device, mode and state, the three
+    counters the table shows, all its counters and its devices (each naming the line)."""
+    for row in devices:
+        row["line"] = name
+    return {"name": name, "device": device, "mode": mode, "state": state,
+            "requests": counters["requests"], "replies": counters["replies"],
+            "timeouts": counters["timeouts"], "counters": counters, "devices": devices}
+
+
+def routes_status(routes: RouteMap) -> list[dict]:
+    """The routes as `mbgw status` lists them."""
+    return [{"face": r.face or "tcp", "units": units_text(r.units), "target": r.target,
+             "rewrite": f"address {r.address}" if r.address is not None
+             else f"offset {r.offset:+d}" if r.offset else "",
+             "implicit": r.implicit} for r in routes.routes]
+
+
+def units_text(units: tuple[int, ...]) -> str:
+    """1,2,3,7 as "1-3,7"."""
+    ranges: list[list[int]] = []
+    for unit in sorted(units):
+        if ranges and ranges[-1][1] == unit - 1:
+            ranges[-1][1] = unit
+        else:
+            ranges.append([unit, unit])
+    return ",".join(str(a) if a == b else f"{a}-{b}" for a, b in ranges)

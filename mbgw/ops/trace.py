@@ -1,27 +1,80 @@
 """Live traffic for `mbgw trace`: events go to whoever subscribed over the control socket.
-With nobody tracing, the only cost on the transaction path is one attribute test.
+With nobody tracing, the only cost on the transaction path is one attribute test.  The
+daemon has one hub; each line emits through its LineTrace, which names the line in the
+event.  Every key an event may carry is in TraceEvent, every outcome in Outcome.
 
-An event is a dict: "time", "direction" (request, reply, no reply, late: a reply after its
-request timed out, dropped; master mode also has ignored), "tid", "unit", "function",
-"length", "pdu" (hex), "outcome", "latency_ms", and the two ends of the Modbus/TCP exchange
-as mbgw.cli.pcap writes them: "peer" the client's address,
-"local" the server's.  In slave mode those are the remote client and mbgw's listener (plus
-"client", its id); in master mode mbgw's own end of the upstream connection and the remote
-server (plus "mode": "master", "address": the serial address, "server": the server shown).
-A scenario's run has "scenario" (its name) and neither "peer" nor "local".
-
-A raw subscriber (`mbgw trace --raw`) gets the line's bursts instead (mbgw.line.raw): "raw":
-true, "time", "kind" (request, reply, noise, unsolicited), "bytes" (hex), "length",
-"gap_us" (silence since the burst before), "line".  While one watches, `on_raw_watch(True)`
-has asked the line to capture them; nobody watching, the line captures nothing.
+A raw subscriber (`mbgw trace --raw`) gets the lines' bursts instead (mbgw.line.raw).
+While one watches, every line's raw watcher has been told to capture them; nobody
+watching, no line captures anything.
 
 Filters (a subscriber's, `filters()`): "unit", "client", "function", "scenario", "line"
-(the one line is "serial") and "errors" (errors only: an exception reply, a scenario's reply
-that did not answer its request, no reply but to a broadcast, a late reply, noise); raw events are
-filtered by line and errors only."""
+(one of the daemon's line names) and "errors" (errors only: an exception reply, a scenario's
+reply that did not answer its request, no reply but to a broadcast, a late reply, noise); raw
+events are filtered by line and errors only."""
 import asyncio
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
+from enum import StrEnum
+from typing import Any, TypedDict
+
+
+class TraceEvent(TypedDict, total=False):
+    """One event of `mbgw trace` (JSON on the control socket and the console)."""
+    time: float             # when it was emitted (Unix time)
+    line: str | None        # the line's name ("serial" or a [[line]] name); None: no line
+    #                         (answered by the table, refused by the firewall, unroutable)
+    direction: str          # request, reply, no reply, late (a reply after its request
+    #                         timed out, dropped), ignored (master mode: no route takes it)
+    tid: int | None         # the Modbus/TCP transaction id (None: not over Modbus/TCP)
+    unit: int | None        # the unit id of the Modbus/TCP exchange
+    address: int | None     # master mode: the serial address the line's master asked for
+    function: int
+    length: int             # of the PDU
+    pdu: str                # hex
+    outcome: str            # an Outcome ("" for a request); a scenario's run: its kind, ok
+    latency_ms: float | None
+    # The two ends of the Modbus/TCP exchange as mbgw.cli.pcap writes them.  Slave mode: the
+    # remote client and mbgw's listener; master mode: mbgw's own end of the upstream
+    # connection and the remote server.
+    peer: str | None        # the client's end
+    local: str | None       # the server's end
+    remote: str | None      # the far end as mbgw shows it: the client (slave mode), the
+    #                         target (master mode: a server's address, "table", a line)
+    client: int             # slave mode: the client's id (mbgw status)
+    mode: str               # "master" in master mode, "transparent" in transparent mode
+    server: str | None      # master mode: the target shown (IP:port, "table", a line)
+    scenario: str           # a scenario's run: its name (and neither peer nor local)
+    # A raw burst (`--raw`, mbgw.line.raw)
+    raw: bool
+    kind: str               # request, reply, noise, unsolicited, dropped
+    bytes: str              # hex
+    frame: str              # transparent mode: the frame as it went on the line, hex
+    gap_us: int | None      # silence since the burst before
+
+
+# What the hub passes on: a TraceEvent, or a dict built with the same keys.
+Event = TraceEvent | dict[str, Any]
+
+
+class Outcome(StrEnum):
+    """How a request ended, in every mode (an event's "outcome")."""
+    REPLY = "reply"
+    DEVICE_EXCEPTION = "device exception"     # the serial device's exception reply
+    SERVER_EXCEPTION = "server exception"     # the Modbus TCP server's
+    TIMEOUT = "timeout"
+    UNREACHABLE = "unreachable"               # no connection to the server
+    BAD_REPLY = "not the answer"              # the reply with our tid does not answer it
+    IGNORED = "not in the slaveid table"      # master mode: no route takes the address
+    LINE_DOWN = "line down"
+    DEVICE_DOWN = "device down"               # refused at once: its address is down, no probe
+    LATE = "late reply, dropped"              # the reply to a request that timed out
+    BROADCAST = "broadcast"
+    UNROUTABLE = "unroutable"
+    ERROR = "internal error"
+    TABLE = "table"                           # answered from the exchange table
+    FIREWALL = "firewall"                     # refused by the firewall (0x01)
+    WITHDRAWN = "client gone"                 # its source closed before its turn
+
 
 log = logging.getLogger("mbgw.trace")
 
@@ -29,14 +82,15 @@ log = logging.getLogger("mbgw.trace")
 NO_RAW_VIEW = ("--raw: %s mode has no raw line view; mbgw trace shows each frame there in "
                "hex as it went on the line")
 QUEUE_LIMIT = 10_000    # events a slow reader may lag behind before events are dropped for it
-LINES = ("serial",)     # the lines a --line filter may name
+PRIMARY = "serial"      # the first line's name (mbgw.config.lines.PRIMARY_LINE)
 FILTER_KEYS = ("unit", "client", "function", "scenario", "line", "errors")
 _NUMBERS = {"unit": (0, 255), "client": (1, 2**31), "function": (1, 127)}
 
 
-def filters(given: dict) -> dict:
-    """The filters of a trace request (keys of FILTER_KEYS; None: not set), checked: a
-    ValueError names the one that is wrong and why."""
+def filters(given: dict, lines: Iterable[str] = (PRIMARY,)) -> dict:
+    """The filters of a trace request (keys of FILTER_KEYS; None: not set), checked against
+    the daemon's line names: a ValueError names the one that is wrong and why."""
+    lines = tuple(lines)
     out: dict = {}
     for key, value in given.items():
         if value is None or value is False:
@@ -53,9 +107,8 @@ def filters(given: dict) -> dict:
                 raise ValueError(f"trace: {key} {number}: expected {low}..{high}")
             out[key] = number
         elif key == "line":
-            if value not in LINES:
-                raise ValueError(f"trace: line {value!r}: this daemon has one line, "
-                                 f"{' '.join(LINES)}")
+            if value not in lines:
+                raise ValueError(f"trace: line {value!r}: {known_lines(lines)}")
             out[key] = value
         elif key == "errors":
             out[key] = bool(value)
@@ -64,7 +117,14 @@ def filters(given: dict) -> dict:
     return out
 
 
-def is_error(event: dict) -> bool:
+def known_lines(lines: tuple[str, ...]) -> str:
+    """The daemon's lines, for an error naming a line it does not have."""
+    if len(lines) == 1:
+        return f"this daemon has one line, {lines[0]}"
+    return f"this daemon's lines are {', '.join(lines)}"
+
+
+def is_error(event: Event) -> bool:
     if event.get("raw"):
         return event.get("kind") == "noise"
     direction = event.get("direction")
@@ -78,7 +138,7 @@ def is_error(event: dict) -> bool:
     return False
 
 
-def matches(event: dict, wanted: dict) -> bool:
+def matches(event: Event, wanted: dict) -> bool:
     """Whether event passes the filters (filters()'s); a request passes the errors filter
     never: its outcome is in the reply."""
     if not wanted:
@@ -111,14 +171,33 @@ class _Subscriber:
 
 
 class TraceHub:
+    """The daemon's one hub: every line's events, to every subscriber."""
+
     def __init__(self) -> None:
         self._subscribers: dict[asyncio.Queue, _Subscriber] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
         self.active = False           # a subscriber wants the decoded events
-        self.raw_active = False       # one wants the line's raw bursts
-        # called (on the asyncio thread) when raw_active changes: the line starts or stops
-        # capturing (set by the line's owner)
-        self.on_raw_watch: Callable[[bool], None] | None = None
+        self.raw_active = False       # one wants the lines' raw bursts
+        # called (on the asyncio thread) when raw_active changes: each line starts or stops
+        # capturing (added by the lines' threads)
+        self._raw_watchers: list[Callable[[bool], None]] = []
+        # the daemon's line names now, for the "line" filter (set by the daemon's status)
+        self.line_names: Callable[[], tuple[str, ...]] = lambda: (PRIMARY,)
+
+    @property
+    def raw_view(self) -> bool:
+        """Whether any line can show its raw bursts (transparent mode's cannot)."""
+        return bool(self._raw_watchers)
+
+    def add_raw_watcher(self, watcher: Callable[[bool], None]) -> None:
+        self._raw_watchers.append(watcher)
+
+    def remove_raw_watcher(self, watcher: Callable[[bool], None]) -> None:
+        if watcher in self._raw_watchers:
+            self._raw_watchers.remove(watcher)
+
+    def for_line(self, name: str) -> "LineTrace":
+        return LineTrace(self, name)
 
     def subscribe(self, raw: bool = False, wanted: dict | None = None) -> asyncio.Queue:
         queue: asyncio.Queue = asyncio.Queue(QUEUE_LIMIT)
@@ -138,10 +217,10 @@ class TraceHub:
         raw = any(s.raw for s in self._subscribers.values())
         if raw != self.raw_active:
             self.raw_active = raw
-            if self.on_raw_watch is not None:
-                self.on_raw_watch(raw)
+            for watcher in list(self._raw_watchers):
+                watcher(raw)
 
-    def emit(self, event: dict) -> None:
+    def emit(self, event: Event) -> None:
         """On the asyncio loop's thread."""
         raw = bool(event.get("raw"))
         for queue, subscriber in self._subscribers.items():
@@ -152,8 +231,35 @@ class TraceHub:
             else:
                 queue.put_nowait(event)
 
-    def emit_threadsafe(self, event: dict) -> None:
+    def emit_threadsafe(self, event: Event) -> None:
         """From another thread (the line thread), while active."""
         loop = self._loop
         if loop is not None and not loop.is_closed():
             loop.call_soon_threadsafe(self.emit, event)
+
+
+class LineTrace:
+    """One line's way into the daemon's hub: what it emits carries the line's name."""
+    __slots__ = ("hub", "line")
+
+    def __init__(self, hub: TraceHub, line: str) -> None:
+        self.hub = hub
+        self.line = line
+
+    @property
+    def active(self) -> bool:
+        return self.hub.active
+
+    @property
+    def raw_active(self) -> bool:
+        return self.hub.raw_active
+
+    def add_raw_watcher(self, watcher: Callable[[bool], None]) -> None:
+        self.hub.add_raw_watcher(watcher)
+
+    def remove_raw_watcher(self, watcher: Callable[[bool], None]) -> None:
+        self.hub.remove_raw_watcher(watcher)
+
+    def emit_threadsafe(self, event: Event) -> None:
+        event["line"] = self.line
+        self.hub.emit_threadsafe(event)

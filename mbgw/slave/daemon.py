@@ -80,11 +80,12 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters, 
     worker: LineWorker
     server = TcpServer(cfg, scheduler, counters, lambda: worker.up, devices, tables.table,
                        inboxes)
+    server.trace = targets.hub         # one hub: every line's events, named by line
     worker = LineWorker(cfg, line, scheduler, server, counters, devices)
     if cfg.lines:                      # a serial face may reach line serial too
         inboxes[PRIMARY_LINE] = Inbox()
         worker.use_inbox(inboxes[PRIMARY_LINE])
-    serial_faces = faces(cfg, effective_routes(cfg), inboxes, tables.table) \
+    serial_faces = faces(cfg, effective_routes(cfg), inboxes, tables.table, targets.hub) \
         if faces is not None else []
     serial_engine = Scenarios(serial_scenarios(cfg), tables.table, "serial")
     worker.use_scenarios(serial_engine)      # run, and reconfigured, by the line thread
@@ -103,7 +104,9 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters, 
     try:
         metrics = start_metrics(cfg.metrics, lambda m: with_scenarios(m.slave_collector(
             counters, devices, scheduler, server, worker, started, tables.figures, load,
-            lambda: server.firewall.report() if server.firewall.configured else None),
+            lambda: server.firewall.report() if server.firewall.configured else None,
+            lambda: [(PRIMARY_LINE, counters, devices), *targets.metered(),
+                     *((face.face, face.counters, face.devices) for face in serial_faces)]),
             engines))
     except ListenError:
         server.close()
@@ -118,6 +121,7 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters, 
     status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses, tables,
                          load)
     status.targets = targets
+    status.faces = serial_faces
     status.scenario_engines = engines
     commands = {**status.commands(), **scenario_commands(engines, cfg.config_file)}
     control = await start_control(cfg.control, commands)

@@ -33,6 +33,7 @@ from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable
 from mbgw.ops.exception_reply import gateway_exception
+from mbgw.ops.trace import Outcome
 from mbgw.protocol import mbap, pdu
 from mbgw.routing.exchange import Exchange
 from mbgw.routing.inbox import Inbox
@@ -42,19 +43,7 @@ from mbgw.scenarios.health import SerialHealth
 from mbgw.scenarios.report import trace_event
 from mbgw.slave.client import Client
 from mbgw.slave.connections import Connections
-from mbgw.slave.scheduler import (
-    OUTCOME_BROADCAST,
-    OUTCOME_DEVICE_DOWN,
-    OUTCOME_ERROR,
-    OUTCOME_EXCEPTION,
-    OUTCOME_LINE_DOWN,
-    OUTCOME_REPLY,
-    OUTCOME_TIMEOUT,
-    SCENARIO_TURN,
-    Job,
-    Queue,
-    Scheduler,
-)
+from mbgw.slave.scheduler import SCENARIO_TURN, Job, Queue, Scheduler
 from mbgw.slave.table_reader import Gate, TableReader
 from mbgw.slave.transaction import SerialMaster
 
@@ -63,7 +52,6 @@ wire = logging.getLogger("mbgw.wire")
 
 # A scenario's run while the serial device is lost: the engine's error kind for 0x0A.
 PATH_UNAVAILABLE = EXCEPTION_KINDS[pdu.GATEWAY_PATH_UNAVAILABLE]
-OUTCOME_WITHDRAWN = "client gone"     # an exchange whose source closed before its turn
 # Sources (TCP clients, serial faces) whose queue is kept while idle, before idle ones go.
 MAX_SOURCES = 256
 # Serial settings that need the port opened again; the others apply to the next transaction.
@@ -269,17 +257,17 @@ class LineWorker(LineThread[SlaveConfig]):
             assert master is not None          # jobs are served only while the line is up
             reply = self._transact(master, job, forward, taken)
             if reply is None:
-                job.outcome = OUTCOME_BROADCAST    # a reply went out through _reply_now
+                job.outcome = Outcome.BROADCAST    # a reply went out through _reply_now
         except LineTimeout:
-            job.outcome = OUTCOME_TIMEOUT
+            job.outcome = Outcome.TIMEOUT
             reply = self._failure(job, pdu.GATEWAY_TARGET_FAILED)
         except SerialError as err:
             self._lost(err)
-            job.outcome = OUTCOME_LINE_DOWN
+            job.outcome = Outcome.LINE_DOWN
             reply = self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE)
         except Exception:   # a bug must cost one transaction, never the line
             log.exception("internal error serving %s", job.adu.hex(" "))
-            job.outcome = OUTCOME_ERROR
+            job.outcome = Outcome.ERROR
             reply = self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE)
         master = self._master
         if master is not None and master.late_until[job.adu[0]]:
@@ -301,7 +289,7 @@ class LineWorker(LineThread[SlaveConfig]):
         if device.admit(time.monotonic()):
             return False
         self._counters.demoted_rejects += 1
-        job.outcome = OUTCOME_DEVICE_DOWN
+        job.outcome = Outcome.DEVICE_DOWN
         self._deliver(job, self._failure(job, pdu.GATEWAY_TARGET_FAILED))
         return True
 
@@ -322,7 +310,7 @@ class LineWorker(LineThread[SlaveConfig]):
         job, self._serving = self._serving, None
         if job is None:        # a scenario's run: its reply is the runner's
             return
-        job.outcome = OUTCOME_EXCEPTION if reply[0] & pdu.EXCEPTION_FLAG else OUTCOME_REPLY
+        job.outcome = Outcome.DEVICE_EXCEPTION if reply[0] & pdu.EXCEPTION_FLAG else Outcome.REPLY
         if self._reader is None:
             self._deliver(job, reply, sent)
             return
@@ -409,7 +397,7 @@ class LineWorker(LineThread[SlaveConfig]):
             if job is SCENARIO_TURN:       # none runs while the line is down
                 continue
             self._counters.line_down_rejects += 1
-            job.outcome = OUTCOME_LINE_DOWN
+            job.outcome = Outcome.LINE_DOWN
             self._deliver(job, self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE))
 
     # --- exchanges: requests from other faces (the Modbus TCP face, a serial face) ---
@@ -440,13 +428,13 @@ class LineWorker(LineThread[SlaveConfig]):
                   exchange=exchange)
         if self._line is None:
             counters.line_down_rejects += 1
-            job.outcome = OUTCOME_LINE_DOWN
+            job.outcome = Outcome.LINE_DOWN
             self._deliver(job, self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE))
             return
         if self._down[address]:
             if not self.devices.get(address).admit(time.monotonic()):
                 counters.demoted_rejects += 1
-                job.outcome = OUTCOME_DEVICE_DOWN
+                job.outcome = Outcome.DEVICE_DOWN
                 self._deliver(job, self._failure(job, pdu.GATEWAY_TARGET_FAILED))
                 return
             job.probe = True
@@ -458,7 +446,7 @@ class LineWorker(LineThread[SlaveConfig]):
         exchange = job.exchange
         if exchange is None or not getattr(exchange.source, "closed", False):
             return False
-        exchange.done(exchange, None, OUTCOME_WITHDRAWN)
+        exchange.done(exchange, None, Outcome.WITHDRAWN)
         return True
 
     def _queue_of(self, source: Hashable) -> Queue:

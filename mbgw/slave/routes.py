@@ -8,6 +8,8 @@ A unit no route takes has no hop (None).
 """
 from mbgw.config.lines import PRIMARY_LINE, TCP_FACE, RouteConfig, RouteMap, route_map
 from mbgw.config.model import SlaveConfig
+from mbgw.ops.status import routes_status as routes_status
+from mbgw.ops.status import units_text as units_text
 from mbgw.routing.inbox import Inbox
 
 SERIAL = "serial"        # line serial, owned by the TCP face's own line thread
@@ -17,7 +19,7 @@ ELSEWHERE = "elsewhere"  # another line, a remote server: through its inbox
 
 class Hop:
     """Where one unit's request goes from the TCP face, and the unit it becomes there."""
-    __slots__ = ("kind", "offset", "address", "inbox")
+    __slots__ = ("kind", "offset", "address", "inbox", "line")
 
     def __init__(self, kind: str, route: RouteConfig | None = None,
                  inbox: Inbox | None = None) -> None:
@@ -25,6 +27,9 @@ class Hop:
         self.offset = route.offset if route is not None else 0
         self.address = route.address if route is not None else None
         self.inbox = inbox
+        # the line it reaches (None: the table or a server), as the trace names it
+        self.line = PRIMARY_LINE if kind == SERIAL else route.line if route is not None \
+            else None
 
     def rewrite(self, unit: int) -> int:
         return self.address if self.address is not None else unit + self.offset
@@ -77,22 +82,3 @@ def answered_off_the_line(hops: list[Hop | None]) -> bool:
     """Some unit is answered elsewhere than on line serial (the table, another target): the
     table reader then serves the clients while line serial is in a transaction."""
     return any(h is not None and h.kind is not SERIAL for h in hops)
-
-
-def routes_status(routes: RouteMap) -> list[dict]:
-    """The routes as `mbgw status` lists them."""
-    return [{"face": r.face or "tcp", "units": units_text(r.units), "target": r.target,
-             "rewrite": f"address {r.address}" if r.address is not None
-             else f"offset {r.offset:+d}" if r.offset else "",
-             "implicit": r.implicit} for r in routes.routes]
-
-
-def units_text(units: tuple[int, ...]) -> str:
-    """1,2,3,7 as "1-3,7"."""
-    ranges: list[list[int]] = []
-    for unit in sorted(units):
-        if ranges and ranges[-1][1] == unit - 1:
-            ranges[-1][1] = unit
-        else:
-            ranges.append([unit, unit])
-    return ",".join(str(a) if a == b else f"{a}-{b}" for a, b in ranges)

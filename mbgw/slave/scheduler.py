@@ -36,24 +36,13 @@ class Job:
         self.tid = tid
         self.unit = unit
         self.adu = adu
-        self.outcome = ""          # set by the line thread: one of the OUTCOME_* strings
+        self.outcome: str = ""     # set by the line thread: an ops.trace.Outcome
         self.received_ns = received_ns
         self.probe = probe         # admitted while its address is down: it goes on the line
 
 
-OUTCOME_REPLY = "reply"
-OUTCOME_EXCEPTION = "device exception"
-OUTCOME_TIMEOUT = "timeout"
-OUTCOME_LINE_DOWN = "line down"
-OUTCOME_DEVICE_DOWN = "device down"    # refused: its address is down, and it is no probe
-OUTCOME_LATE = "late reply, dropped"   # a trace event: the reply to a request that timed out
 # What take() returns for the scenario queue's turn: the line thread runs the scenario due.
 SCENARIO_TURN = Job(None, 0, 0, b"")
-
-OUTCOME_BROADCAST = "broadcast"
-OUTCOME_UNROUTABLE = "unroutable"
-OUTCOME_ERROR = "internal error"
-OUTCOME_TABLE = "table"                # answered from the exchange table, not the line
 
 
 class Queue:

@@ -33,6 +33,7 @@ import time
 from collections import deque
 
 from mbgw.audit import Kind, event, operator
+from mbgw.config.lines import PRIMARY_LINE
 from mbgw.config.model import ACTIVE_WINDOW_S, SlaveConfig
 from mbgw.errors import ConfigError
 from mbgw.firewall.guard import Firewall
@@ -44,7 +45,7 @@ from mbgw.ops.limits import AcceptRest, WarnLimit, is_resource_error
 from mbgw.ops.reload import ReloadReport
 from mbgw.ops.service import ListenError
 from mbgw.ops.tls import role_of, server_context
-from mbgw.ops.trace import TraceHub
+from mbgw.ops.trace import Outcome, TraceEvent, TraceHub
 from mbgw.protocol import mbap, pdu
 from mbgw.routing.exchange import Exchange
 from mbgw.routing.inbox import Inbox
@@ -62,19 +63,10 @@ from mbgw.slave.routes import (
     face_hops,
     is_today,
 )
-from mbgw.slave.scheduler import (
-    OUTCOME_DEVICE_DOWN,
-    OUTCOME_LATE,
-    OUTCOME_LINE_DOWN,
-    OUTCOME_TABLE,
-    OUTCOME_UNROUTABLE,
-    Job,
-    Scheduler,
-)
+from mbgw.slave.scheduler import Job, Scheduler
 
 log = logging.getLogger("mbgw.tcp")
 
-OUTCOME_FIREWALL = "firewall"    # refused by the firewall (0x01)
 LISTEN_BACKLOG = 100
 FIRST_REQUEST_S = 60.0           # a connection that sent no whole request this long is closed
 SLOW_REQUEST_S = 0.5             # a request begun this long ago and not whole: a slow client
@@ -489,9 +481,10 @@ class TcpServer:
             self.counters.requests += 1
             if self.trace.active:
                 self.trace.emit_threadsafe(self._event("request", client, tid, unit, request,
-                                                       "", None))
+                                                       "", None, None))
             self.counters.unroutable += 1
-            self._refuse(client, tid, unit, request, OUTCOME_UNROUTABLE, received_ns)
+            self._refuse(client, tid, unit, request, Outcome.UNROUTABLE, received_ns,
+                         line=None)
             return
         kind = hop.kind
         if kind is TABLE:
@@ -506,12 +499,12 @@ class TcpServer:
             self.counters.requests += 1
             if self.trace.active:
                 self.trace.emit_threadsafe(self._event("request", client, tid, unit, request,
-                                                       "", None))
+                                                       "", None, hop.line))
             inbox = hop.inbox
             assert inbox is not None
             client.in_flight += 1
             inbox.submit(Exchange(client, hop.rewrite(unit), request, received_ns,
-                                  self._completed, (client, tid, unit)))
+                                  self._completed, (client, tid, unit, hop.line)))
 
     def _completed(self, exchange: Exchange, reply: bytes | None, outcome: str) -> None:
         """The target's thread: the outcome waits for the thread that holds the gate (the
@@ -525,12 +518,12 @@ class TcpServer:
         completions = self._completions
         while completions:
             exchange, reply, outcome = completions.popleft()
-            client, tid, unit = exchange.context
+            client, tid, unit, line = exchange.context
             client.in_flight -= 1
             self._answer(client, tid, unit, reply)
             if self.trace.active:
                 self.traced(client, tid, unit, exchange.pdu[0], reply, outcome,
-                            exchange.received_ns)
+                            exchange.received_ns, line)
 
     # --- the table reader, under the gate while the line thread is in a serial transaction
 
@@ -571,14 +564,15 @@ class TcpServer:
         tracing = self.trace.active
         if tracing:
             self.trace.emit_threadsafe(self._event("request", client, tid, unit, request, "",
-                                                   None))
+                                                   None, None))
         if broadcast:
             reply = responder.answer(request, broadcast=True)
         else:
             reply = responder.answer(request)
         self._answer(client, tid, unit, reply)
         if tracing:
-            self.traced(client, tid, unit, request[0], reply, OUTCOME_TABLE, client.arrived_ns)
+            self.traced(client, tid, unit, request[0], reply, Outcome.TABLE, client.arrived_ns,
+                        None)
 
     def _refused_by_firewall(self, client: Client, guard, tid: int, unit: int,
                              request: bytes, received_ns: int) -> None:
@@ -589,12 +583,12 @@ class TcpServer:
         tracing = self.trace.active
         if tracing:
             self.trace.emit_threadsafe(self._event("request", client, tid, unit, request, "",
-                                                   None))
+                                                   None, None))
         reply = self.firewall.refused(guard, client.peer, client.role, unit, request)
         self._answer(client, tid, unit, reply)
         if tracing:
-            self.traced(client, tid, unit, request[0], reply, OUTCOME_FIREWALL,
-                        received_ns or client.arrived_ns)
+            self.traced(client, tid, unit, request[0], reply, Outcome.FIREWALL,
+                        received_ns or client.arrived_ns, None)
 
     def taken(self, client: Client, tid: int, unit: int, request: bytes,
               received_ns: int) -> Job | None:
@@ -617,18 +611,18 @@ class TcpServer:
         address = address or self._cfg.slaveid or unit
         if address > pdu.MAX_SERIAL_ADDRESS:
             self.counters.unroutable += 1
-            self._refuse(client, tid, unit, request, OUTCOME_UNROUTABLE, received_ns)
+            self._refuse(client, tid, unit, request, Outcome.UNROUTABLE, received_ns)
             return None
         if not self._line_up():
             self.counters.line_down_rejects += 1
-            self._refuse(client, tid, unit, request, OUTCOME_LINE_DOWN, received_ns)
+            self._refuse(client, tid, unit, request, Outcome.LINE_DOWN, received_ns)
             return None
         down = self._down[address] == 1
         if down:
             device = self._devices.get(address)
             if not device.admit(time.monotonic()):
                 self.counters.demoted_rejects += 1
-                self._refuse(client, tid, unit, request, OUTCOME_DEVICE_DOWN, received_ns,
+                self._refuse(client, tid, unit, request, Outcome.DEVICE_DOWN, received_ns,
                              pdu.GATEWAY_TARGET_FAILED, device)
                 return None
         return Job(client, tid, unit, bytes((address,)) + request, received_ns, probe=down)
@@ -662,34 +656,35 @@ class TcpServer:
 
     def _refuse(self, client: Client, tid: int, unit: int, request: bytes, outcome: str,
                 received_ns: int, code: int = pdu.GATEWAY_PATH_UNAVAILABLE,
-                device=None) -> None:
+                device=None, line: str | None = PRIMARY_LINE) -> None:
         reply = gateway_exception(self._cfg.exception, request[0], code, self.counters,
                                   device)
         self._answer(client, tid, unit, reply)
         if self.trace.active:
-            self.traced(client, tid, unit, request[0], reply, outcome, received_ns)
+            self.traced(client, tid, unit, request[0], reply, outcome, received_ns, line)
 
     def traced_late(self, job: Job, reply: bytes) -> None:
         """The late reply to job, which timed out, was dropped (while someone traces)."""
         if self.trace.active:
             self.trace.emit_threadsafe(self._event("late", job.client, job.tid, job.unit,
-                                                   reply, OUTCOME_LATE, None))
+                                                   reply, Outcome.LATE, None))
 
     def traced(self, client: Client, tid: int, unit: int, function: int, reply: bytes | None,
-               outcome: str, received_ns: int) -> None:
+               outcome: str, received_ns: int, line: str | None = PRIMARY_LINE) -> None:
         latency_ms = (time.monotonic_ns() - received_ns) / 1e6 if received_ns else None
         if reply is None:
             event = self._event("no reply", client, tid, unit, bytes((function,)), outcome,
-                                latency_ms)
+                                latency_ms, line)
         else:
-            event = self._event("reply", client, tid, unit, reply, outcome, latency_ms)
+            event = self._event("reply", client, tid, unit, reply, outcome, latency_ms, line)
         self.trace.emit_threadsafe(event)
 
     @staticmethod
     def _event(direction: str, client: Client, tid: int, unit: int, data: bytes,
-               outcome: str, latency_ms) -> dict:
-        return {"time": time.time(), "direction": direction, "client": client.id,
-                "peer": client.peer, "local": client.local, "tid": tid, "unit": unit,
+               outcome: str, latency_ms, line: str | None = PRIMARY_LINE) -> TraceEvent:
+        return {"time": time.time(), "line": line, "direction": direction, "client": client.id,
+                "peer": client.peer, "local": client.local, "remote": client.peer,
+                "tid": tid, "unit": unit,
                 "function": data[0], "length": len(data) if direction != "no reply" else 0,
                 "pdu": data.hex() if direction != "no reply" else "", "outcome": outcome,
                 "latency_ms": latency_ms}

@@ -17,6 +17,7 @@ from mbgw.config.model import SlaveConfig
 from mbgw.errors import BadReply, GatewayTimeout, NoRoute
 from mbgw.ops.counters import MasterCounters
 from mbgw.ops.exception_reply import gateway_exception
+from mbgw.ops.trace import Outcome
 from mbgw.protocol import pdu
 from mbgw.routing.exchange import Exchange
 from mbgw.routing.inbox import Inbox
@@ -25,12 +26,6 @@ from mbgw.upstream.pool import Interrupted, UpstreamPool
 log = logging.getLogger("mbgw.tcp")
 
 MAX_CONNECTIONS = 32       # per port, as master mode's default
-OUTCOME_REPLY = "reply"
-OUTCOME_EXCEPTION = "device exception"
-OUTCOME_TIMEOUT = "timeout"
-OUTCOME_UNREACHABLE = "unreachable"
-OUTCOME_BROADCAST = "broadcast"
-OUTCOME_ERROR = "internal error"
 
 
 def server_targets(cfg: SlaveConfig) -> dict[str, tuple[str, int]]:
@@ -80,14 +75,14 @@ class ServerTargets(threading.Thread):
                 for exchange in inbox.drain():
                     exchange.done(exchange, self._failure(exchange,
                                                           pdu.GATEWAY_PATH_UNAVAILABLE),
-                                  OUTCOME_UNREACHABLE)
+                                  Outcome.UNREACHABLE)
             for pool in self._pools.values():
                 pool.close()
 
     def _serve(self, label: str, exchange: Exchange) -> None:
         if self._stopping:
             exchange.done(exchange, self._failure(exchange, pdu.GATEWAY_PATH_UNAVAILABLE),
-                          OUTCOME_UNREACHABLE)
+                          Outcome.UNREACHABLE)
             return
         host, port = self.servers[label]
         pool = self._pools[port]
@@ -97,25 +92,26 @@ class ServerTargets(threading.Thread):
             if exchange.address == pdu.BROADCAST:
                 pool.send_all((host,), pdu.BROADCAST, exchange.pdu, deadline_ns)
                 self.counters.broadcasts += 1
-                reply, outcome = None, OUTCOME_BROADCAST
+                reply, outcome = None, Outcome.BROADCAST
             else:
                 reply = pool.transact(host, exchange.address, exchange.pdu, deadline_ns)
                 self.counters.replies += 1
-                outcome = OUTCOME_EXCEPTION if reply[0] & pdu.EXCEPTION_FLAG else OUTCOME_REPLY
+                outcome = Outcome.DEVICE_EXCEPTION if reply[0] & pdu.EXCEPTION_FLAG \
+                    else Outcome.REPLY
         except NoRoute:
             self.counters.unreachable += 1
             reply, outcome = self._failure(exchange, pdu.GATEWAY_PATH_UNAVAILABLE), \
-                OUTCOME_UNREACHABLE
+                Outcome.UNREACHABLE
         except (GatewayTimeout, BadReply):
             self.counters.timeouts += 1
-            reply, outcome = self._failure(exchange, pdu.GATEWAY_TARGET_FAILED), OUTCOME_TIMEOUT
+            reply, outcome = self._failure(exchange, pdu.GATEWAY_TARGET_FAILED), Outcome.TIMEOUT
         except Interrupted:
             reply, outcome = self._failure(exchange, pdu.GATEWAY_PATH_UNAVAILABLE), \
-                OUTCOME_UNREACHABLE
+                Outcome.UNREACHABLE
         except Exception:   # a bug must cost one request, never the thread
             log.exception("internal error on a request to %s", label)
             reply, outcome = self._failure(exchange, pdu.GATEWAY_PATH_UNAVAILABLE), \
-                OUTCOME_ERROR
+                Outcome.ERROR
         exchange.done(exchange, reply, outcome)
 
     def _failure(self, exchange: Exchange, code: int) -> bytes | None:

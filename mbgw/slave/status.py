@@ -4,7 +4,7 @@ import time
 
 from mbgw.config.lines import PRIMARY_LINE
 from mbgw.ops.load import LineLoad, average_percent
-from mbgw.ops.status import DaemonStatus
+from mbgw.ops.status import DaemonStatus, line_row
 from mbgw.scenarios.report import scenarios_status
 from mbgw.slave.routes import effective_routes, routes_status
 from mbgw.slave.targets import TargetLines
@@ -25,6 +25,7 @@ class SlaveStatus(DaemonStatus):
         self._addresses = addresses
         self.scenario_engines: dict = {}    # the scenarios' engines by kind (the daemon's)
         self.targets: TargetLines | None = None     # the lines beside serial (the daemon's)
+        self.faces: list = []      # the serial faces of the lines in master mode (the daemon's)
 
     def commands(self) -> dict:
         tables = self._tables
@@ -37,7 +38,7 @@ class SlaveStatus(DaemonStatus):
         return super().reset(request)
 
     def trace_header(self) -> dict:
-        return {"mode": self.mode, "listening": self._addresses}
+        return {**super().trace_header(), "listening": self._addresses}
 
     def status(self, request: dict) -> dict:
         now, mono = time.time(), time.monotonic()
@@ -65,19 +66,21 @@ class SlaveStatus(DaemonStatus):
             "counters_since": self._reset_at,
             "line_utilisation_pct": average_percent(busy_ns, mono - self._reset_mono),
             "line_load_pct": self.load.percent(),
-            "devices": [d.snapshot() for d in self._devices.all()],
-            "lines": self._lines(counters),
+            "devices": (devices := [d.snapshot() for d in self._devices.all()]),
+            "lines": self._lines(counters, devices),
             "routes": routes_status(effective_routes(self.cfg)),
             **({"scenarios": rows} if (rows := scenarios_status(self.scenario_engines.values()))
                else {}),
         }
 
-    def _lines(self, counters: dict) -> list[dict]:
-        s = self.cfg.serial
-        serial = {"name": PRIMARY_LINE, "device": s.device, "mode": "slave",
-                  "state": self._worker.state, "requests": counters["requests"],
-                  "replies": counters["replies"], "timeouts": counters["timeouts"]}
-        return [serial, *(self.targets.status() if self.targets is not None else ())]
+    def _lines(self, counters: dict, devices: list[dict]) -> list[dict]:
+        serial = line_row(PRIMARY_LINE, self.cfg.serial.device, "slave", self._worker.state,
+                          counters, devices)
+        devices_of = {line.name: line.serial.device for line in self.cfg.lines}
+        faces = [line_row(face.face, devices_of.get(face.face, "?"), "master", face.state,
+                          face.counters.snapshot(), [d.snapshot() for d in face.devices.all()])
+                 for face in self.faces]
+        return [serial, *(self.targets.status() if self.targets is not None else ()), *faces]
 
     def summary(self) -> str:
         c = self._counters

@@ -16,7 +16,8 @@ from mbgw.line.supervisor import open_at_start
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable, HealthRule
 from mbgw.ops.reload import ReloadReport
-from mbgw.ops.trace import TraceHub
+from mbgw.ops.status import line_row
+from mbgw.ops.trace import LineTrace, TraceHub
 from mbgw.routing.inbox import Inbox
 from mbgw.slave.connections import Connections
 from mbgw.slave.line_thread import LineWorker
@@ -41,8 +42,8 @@ class NoClients:
     reads_meanwhile = False
     shortcut_allowed = False
 
-    def __init__(self, scheduler: Scheduler, counters: Counters) -> None:
-        self.trace = TraceHub()
+    def __init__(self, scheduler: Scheduler, counters: Counters, trace: LineTrace) -> None:
+        self.trace = trace
         self.connections = Connections(scheduler.wake_fd, self._no_client, self._no_client,
                                        counters)
 
@@ -60,8 +61,10 @@ class NoClients:
 class TargetLine:
     """One target line: its worker, its inbox and what it keeps per line."""
 
-    def __init__(self, cfg: SlaveConfig, line: LineConfig) -> None:
+    def __init__(self, cfg: SlaveConfig, line: LineConfig, hub: TraceHub | None = None) -> None:
+        """hub: the daemon's trace hub (None: one of its own, nobody subscribes)."""
         self.config = line
+        hub = hub if hub is not None else TraceHub()
         self.counters = Counters()
         self.devices = DeviceTable(rule=HealthRule(line.demotion))
         self.scheduler = Scheduler()
@@ -69,9 +72,11 @@ class TargetLine:
         settings = line_settings(cfg, line)
         port: SerialLine | None = open_at_start(line.serial, self.counters)
         self.worker = LineWorker(settings, port, self.scheduler,
-                                 NoClients(self.scheduler, self.counters), self.counters,
-                                 self.devices)
+                                 NoClients(self.scheduler, self.counters,
+                                           hub.for_line(line.name)),
+                                 self.counters, self.devices)
         self.worker.name = f"mbgw-{line.name}"[:15]
+        self.worker.line_name = line.name
         self.worker.use_inbox(self.inbox)
 
     def start(self) -> None:
@@ -97,20 +102,30 @@ class TargetLine:
                 "state": self.worker.state, "requests": c.requests, "replies": c.replies,
                 "timeouts": c.timeouts}
 
+    def row(self) -> dict:
+        """status() with all its counters and its devices (mbgw status's row)."""
+        counters = self.counters.snapshot()
+        counters.pop("line_busy_ns", None)
+        return line_row(self.config.name, self.config.serial.device, self.config.mode,
+                        self.worker.state, counters, [d.snapshot() for d in self.devices.all()])
+
 
 class TargetLines:
     """Every target line but serial, by name: opened at start, added, changed and removed by
     a reload.  inboxes is the dict the TCP face routes with (line serial's included when a
     serial face may reach it)."""
 
-    def __init__(self, cfg: SlaveConfig, inboxes: dict[str, Inbox]) -> None:
+    def __init__(self, cfg: SlaveConfig, inboxes: dict[str, Inbox],
+                 hub: TraceHub | None = None) -> None:
+        """hub: the daemon's trace hub (None: one of their own, nobody subscribes)."""
         self.inboxes = inboxes
+        self.hub = hub if hub is not None else TraceHub()
         self.lines: dict[str, TargetLine] = {}
         for line in target_lines(cfg):
             self._add(cfg, line)
 
     def _add(self, cfg: SlaveConfig, line: LineConfig) -> TargetLine:
-        target = self.lines[line.name] = TargetLine(cfg, line)
+        target = self.lines[line.name] = TargetLine(cfg, line, self.hub)
         self.inboxes[line.name] = target.inbox
         return target
 
@@ -153,8 +168,12 @@ class TargetLines:
                 kept.reconfigure(cfg, line)
         return removed
 
+    def metered(self) -> list[tuple]:
+        """Each line's (name, counters, devices) for /metrics."""
+        return [(name, t.counters, t.devices) for name, t in list(self.lines.items())]
+
     def status(self) -> list[dict]:
-        return [t.status() for t in list(self.lines.values())]   # a reload may be adding
+        return [t.row() for t in list(self.lines.values())]   # a reload may be adding
 
 
 class EveryLine:

@@ -248,7 +248,7 @@ class FrameLine(LineThread[TransparentModeConfig]):
                 self._emit("tx" if from_table else "raw", frame, "sent")
 
     def _emit(self, direction: str, frame: bytes, outcome: str) -> None:
-        self.trace.emit_threadsafe({"time": time.time(), "mode": "transparent",
+        self.trace.emit_threadsafe({"time": time.time(), "mode": "transparent", "line": "serial",
                                     "direction": direction, "length": len(frame),
                                     "frame": frame.hex(), "outcome": outcome})
 

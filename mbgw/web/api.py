@@ -176,17 +176,29 @@ async def close_client(request: web.Request) -> web.Response:
     return answer(reply, "no clients to close in this mode")
 
 
+def every_device(status: dict) -> list[dict]:
+    """Every line's devices, each naming its line (the status's "devices" are line
+    serial's)."""
+    lines = status.get("lines")
+    if not lines:
+        return status.get("devices", [])
+    return [device for line in lines for device in line.get("devices", ())]
+
+
 async def devices(request: web.Request) -> web.Response:
     reply = await command(request, "status")
-    return web.json_response({"devices": reply.get("devices", [])})
+    return web.json_response({"devices": every_device(reply)})
 
 
 async def stats(request: web.Request) -> web.Response:
     reply = await command(request, "status")
-    return web.json_response({name: reply[name] for name in
-                              ("counters", "counters_since", "line_utilisation_pct",
-                               "line_load_pct", "devices",
-                               "table", "firewall", "scenarios") if name in reply})
+    figures = {name: reply[name] for name in
+               ("counters", "counters_since", "line_utilisation_pct", "line_load_pct",
+                "devices", "table", "firewall", "scenarios") if name in reply}
+    if reply.get("lines"):
+        figures["devices"] = every_device(reply)
+        figures["lines"] = {line["name"]: line.get("counters", {}) for line in reply["lines"]}
+    return web.json_response(figures)
 
 
 async def stats_reset(request: web.Request) -> web.Response:
@@ -244,8 +256,9 @@ async def trace(request: web.Request) -> web.StreamResponse:
     query = request.query
     raw = query.get("raw") in ("1", "true")
     try:
-        wanted = trace_filters({key: query[key] for key in FILTER_KEYS if query.get(key)})
-        if raw and hub.on_raw_watch is None:
+        wanted = trace_filters({key: query[key] for key in FILTER_KEYS if query.get(key)},
+                               hub.line_names())
+        if raw and not hub.raw_view:
             raise ValueError(NO_RAW_VIEW % "this")
     except ValueError as err:
         raise web.HTTPBadRequest(text=json.dumps({"error": str(err)}),

@@ -191,6 +191,7 @@ const pages = {
   devices: { title: "Devices", build: devicesPage },
   scenarios: { title: "Scenarios", build: scenariosPage },
   table: { title: "Exchange table", build: tablePage },
+  lines: { title: "Lines", build: linesPage },
   stats: { title: "Statistics", build: statsPage },
   traffic: { title: "Traffic", build: trafficPage },
   config: { title: "Configuration", build: configPage },
@@ -461,7 +462,7 @@ async function closeClient(id, message) {
 
 // ---- Devices -----------------------------------------------------------------------------
 
-const DEVICE_FIXED = ["address", "health", "health_since", "last_success",
+const DEVICE_FIXED = ["line", "address", "health", "health_since", "last_success",
   "consecutive_failures", "latency_sum_ms", "upstream", "diagnosis"];
 
 function devicesPage(body) {
@@ -475,11 +476,13 @@ function devicesPage(body) {
       const counts = devices.length
         ? Object.keys(devices[0]).filter((k) => !DEVICE_FIXED.includes(k) &&
             typeof devices[0][k] === "number") : [];
-      const head = ["Address", "Health", "Since", "Last success", "Failures in a row",
+      const head = ["Line", "Address", "Health", "Since", "Last success", "Failures in a row",
         ...counts.map((k) => k.replace(/_/g, " ")), "Exceptions", "Upstream"];
       clear(holder).append(devices.length ? el("table", { id: "devices-table" },
         el("thead", {}, el("tr", {}, ...head.map((h) => el("th", { text: h })))),
-        el("tbody", {}, ...devices.map((d) => el("tr", { "data-address": d.address },
+        el("tbody", {}, ...devices.map((d) => el("tr", { "data-address": d.address,
+          "data-line": show(d.line) },
+          el("td", { class: "line", text: show(d.line) }),
           el("td", { class: "num", text: d.address }),
           el("td", { class: `health-${d.health}` }, show(d.health),
             d.diagnosis ? el("div", { class: "diagnosis", text: d.diagnosis }) : null),
@@ -656,6 +659,47 @@ function tablePage(body) {
   return page;
 }
 
+// ---- Lines -------------------------------------------------------------------------------
+
+// The daemon's lines and where each face's units go (mbgw status's lines and routes).
+function linesPage(body) {
+  const holder = el("div");
+  body.append(holder);
+  const table = (id, head, rows) => el("table", { id },
+    el("thead", {}, el("tr", {}, ...head.map((h) => el("th", { text: h })))),
+    el("tbody", {}, ...rows));
+  return {
+    async refresh() {
+      const s = await load("/api/status");
+      if (!s) return;
+      const lines = listOf(s, "lines");
+      const routes = listOf(s, "routes");
+      clear(holder).append(
+        el("h2", { text: "Lines" }),
+        lines.length ? table("lines-table", ["Name", "Device", "Mode", "State", "Requests",
+          "Replies", "Timeouts", "Devices"], lines.map((l) => el("tr", { "data-line": l.name },
+          el("td", { class: "line", text: show(l.name) }),
+          el("td", { text: show(l.device) }),
+          el("td", { text: show(l.mode) }),
+          el("td", { class: `state-${l.state}`, text: show(l.state) }),
+          el("td", { class: "num", text: show(l.requests) }),
+          el("td", { class: "num", text: show(l.replies) }),
+          el("td", { class: "num", text: show(l.timeouts) }),
+          el("td", { class: "num", text: show(listOf(l, "devices").length) }))))
+          : el("p", { id: "no-lines", text: "This mode has one line, serial." }),
+        el("h2", { text: "Routes" }),
+        routes.length ? table("routes-table", ["Face", "Units", "Target", "Rewrite", ""],
+          routes.map((r) => el("tr", {},
+            el("td", { text: show(r.face) }),
+            el("td", { text: show(r.units) }),
+            el("td", { text: show(r.target) }),
+            el("td", { text: r.rewrite ? show(r.rewrite) : "—" }),
+            el("td", { text: r.implicit ? "implicit" : "" }))))
+          : el("p", { id: "no-routes", text: "No routes." }));
+    },
+  };
+}
+
 // ---- Statistics --------------------------------------------------------------------------
 
 function statsPage(body) {
@@ -679,11 +723,11 @@ function statsPage(body) {
 
 // The decoded view (the clients' exchanges and the scenarios' runs) or the raw line (its
 // bursts in hex, mbgw trace --raw), and the filters of mbgw trace.
-const DECODED_COLUMNS = ["Time", "Direction", "Client", "Unit", "Function", "Length", "PDU",
+const DECODED_COLUMNS = ["Time", "Direction", "Line", "Client", "Unit", "Function", "Length", "PDU",
   "Outcome", "Latency ms"];
 const RAW_COLUMNS = ["Time", "Gap µs", "Kind", "Length", "Bytes"];
-const TRACE_FILTERS = [["unit", "Unit"], ["client", "Client"], ["function", "Function"],
-  ["scenario", "Scenario"]];
+const TRACE_FILTERS = [["line", "Line"], ["unit", "Unit"], ["client", "Client"],
+  ["function", "Function"], ["scenario", "Scenario"]];
 
 function trafficPage(body) {
   const shown = [];                 // the events shown, for the pcap
@@ -724,8 +768,9 @@ function trafficPage(body) {
   const decodedRow = (event) => el("tr", { class: "trace-event" },
     el("td", { text: typeof event.time === "number" ? clock(event.time) : show(event.time) }),
     el("td", { text: show(event.direction) }),
+    el("td", { class: "line", text: show(event.line) }),
     el("td", { class: "peer", text: event.scenario != null ? `scenario ${event.scenario}`
-      : show(event.server || event.peer || event.client) }),
+      : show(event.remote) }),
     el("td", { class: "num", text: show(event.unit) }),
     el("td", { class: "num", text: show(event.function) }),
     el("td", { class: "num", text: show(event.length) }),

@@ -92,6 +92,7 @@ def hostile_documents() -> dict:
 
 
 TRACE_EVENT = {"time": 1.7e9, "direction": "request", "client": 7, "peer": HOSTILE,
+               "remote": HOSTILE, "line": HOSTILE,
                "unit": 1, "function": 3, "length": 6, "pdu": HOSTILE, "outcome": HOSTILE}
 
 
@@ -483,7 +484,7 @@ def test_devices_statistics_and_a_scenario_test_from_the_browser(browser, consol
 PAGE_LOADED = {"clients": "#clients-table", "devices": "#devices-table, #no-devices",
                "scenarios": "#scenarios-table", "table": "#table-grid",
                "stats": "#stats-table", "traffic": '#trace-info[data-stream="open"]',
-               "config": "#config-groups fieldset"}
+               "config": "#config-groups fieldset", "lines": "#lines-table, #no-lines"}
 
 
 @pytest.mark.parametrize("mode", ["master", "transparent"])

@@ -88,7 +88,9 @@ def families(text: str) -> dict:
 
 
 def samples(family, **labels) -> dict:
-    """{(sample name, frozenset(labels - given)): value} of the samples matching labels."""
+    """{(sample name, frozenset(labels - given)): value} of the samples matching labels
+    (line serial's unless a line is given: every per-line family has the label)."""
+    labels.setdefault("line", "serial")
     return {(s.name, tuple(sorted((k, v) for k, v in s.labels.items() if k not in labels))):
             s.value for s in family.samples
             if all(s.labels.get(k) == v for k, v in labels.items())}
