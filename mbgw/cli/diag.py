@@ -118,7 +118,7 @@ def _trace(path: str, request: dict, raw: bool, pcap_file, count: int | None) ->
         header = json.loads(events.readline() or b"{}")     # {"mode": ..., ...}
         if "error" in header:
             if header["error"].startswith("trace: line "):
-                raise click.BadParameter(header["error"], param_hint="'--line'")
+                _fail(f"--line: {header['error']}")     # exit 1, as status --line
             _fail(header["error"])
         echo(raw_columns() if raw else trace_columns(header.get("mode", "slave")))
         named = len(header.get("lines", ())) > 1     # each event's line, when there are more

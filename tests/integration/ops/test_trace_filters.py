@@ -83,7 +83,9 @@ def test_the_line_filter_takes_the_serial_line_only(gw, client, trace):
     t = trace(gw, "--line", "serial", "--raw")
     assert t.lines(3)[1:]            # the scenario's bursts
     wrong = mbgw("trace", "--line", "tcp", "--control", gw.control)
-    assert wrong.returncode == 2 and "--line" in wrong.stderr, wrong.stderr
+    # issue 24: an unknown line exits 1 naming it (it was a usage error, 2, with one line)
+    assert wrong.returncode == 1 and "--line" in wrong.stderr and "tcp" in wrong.stderr, \
+        wrong.stderr
 
 
 def test_the_pcap_holds_the_clients_exchanges_not_the_scenarios(gw, client, tmp_path, trace):
