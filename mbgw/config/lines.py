@@ -297,4 +297,9 @@ def config_problems(cfg: SlaveConfig | MasterConfig, mode: str) -> list[str]:
     problems = route_problems((primary, *cfg.lines), effective_routes(cfg))
     problems += [f"{r.label}.table: the table is off (table.enabled = false)"
                  for r in cfg.routes if r.table and not cfg.table_on]
+    if mode == "master":
+        problems += [f"{r.label}.from: a master-mode daemon has no Modbus TCP listeners to "
+                     f"route units from; give from = \"LINE\" (a line in master mode), or "
+                     f"run a slave-mode daemon with the serial master's line as a [[line]] "
+                     f"in master mode" for r in cfg.routes if r.face == TCP_FACE]
     return problems
