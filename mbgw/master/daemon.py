@@ -1,49 +1,38 @@
-"""Runs master mode: opens the line, serves the serial master, tells systemd it is ready,
-stops on a signal; the operator's tools (control socket, metrics, SIGHUP reload, systemd's
-watchdog) are mbgw.ops.service's."""
+"""Master mode's daemon: opens the lines, serves the serial masters (the serial faces), runs
+the lines in slave mode it is handed (targets) and the table; the skeleton that runs them
+(signals, control socket, metrics, reload, systemd's watchdog) is mbgw.gateway.skeleton's."""
 import asyncio
 import logging
-import signal
-import time
 
 from mbgw.config.lines import PRIMARY_LINE
 from mbgw.config.model import MasterConfig
-from mbgw.master.faces import Faces
+from mbgw.master.faces import Faces, retire
 from mbgw.master.status import MasterStatus
 from mbgw.master.table_service import TableService
 from mbgw.ops.counters import MasterCounters
-from mbgw.ops.reload import ReloadReport, Reloads
-from mbgw.ops.service import (
-    idle_ms,
-    log_stopped,
-    origin,
-    serve_until_stopped,
-    start_control,
-    start_metrics,
-    warn_of_overlaps,
-    watchdog_interval,
-)
-from mbgw.scenarios.control import scenario_commands
-from mbgw.scenarios.tcp_runner import TcpScenarios, with_scenarios
-from mbgw.web.console import start_console
-from mbgw.web.hooks import WebHooks
+from mbgw.ops.reload import ReloadReport
+from mbgw.ops.service import ModeParts, origin
 
 log = logging.getLogger("mbgw")
 TICK_S = 1.0        # how often the table's file is looked at (it is saved per its interval)
 
 
-def run_master(cfg: MasterConfig, reconfigure=None) -> None:
+def run_master(cfg: MasterConfig, reconfigure, serve, targets=None) -> None:
     """Raises SerialError when the device is there and cannot be opened (one that is not
     there yet is waited for), ListenError when the metrics address, table-port or
-    tls-port cannot be listened on; otherwise
-    returns after SIGTERM or SIGINT.  reconfigure() gives the settings to apply on SIGHUP
-    (None: there is no file to reload)."""
+    tls-port cannot be listened on; otherwise returns after SIGTERM or SIGINT.
+    reconfigure() gives the settings to apply on SIGHUP (None: there is no file to reload).
+    serve(parts, reconfigure): the daemon's skeleton (mbgw.gateway.skeleton.serve_mode).
+    targets(cfg, inboxes): the lines in slave mode, unstarted, their inboxes added to inboxes
+    (mbgw.gateway's slave.targets.TargetLines); None: such lines do not run."""
     counters = MasterCounters()
     tables = TableService(cfg)
-    faces = Faces.opened(cfg, counters, tables.table)
+    inboxes: dict = {}
+    lines = targets(cfg, inboxes) if targets is not None else None
+    faces = Faces.opened(cfg, counters, tables.table, inboxes)
     try:
         tables.start()
-        asyncio.run(_serve(cfg, faces, counters, tables, reconfigure))
+        asyncio.run(serve(MasterMode(cfg, faces, counters, tables, lines), reconfigure))
     finally:
         tables.stop()
         faces.close()
@@ -70,55 +59,70 @@ def _log_slaveid(cfg: MasterConfig) -> None:
         log.warning("the slaveid table is empty: every request on the line is ignored")
 
 
-async def _serve(cfg: MasterConfig, faces: Faces, counters: MasterCounters,
-                 tables: TableService, reconfigure) -> None:
-    slave = faces.primary
-    loop = asyncio.get_running_loop()
-    stop = asyncio.Event()
-    for signum in (signal.SIGTERM, signal.SIGINT):
-        loop.add_signal_handler(signum, stop.set)
-    started = time.time()
-    engines: dict = {}         # the scenarios' engine by kind, while it runs (TCP only here)
-    metrics = start_metrics(cfg.metrics, lambda m: with_scenarios(m.master_collector(
-        counters, slave.devices, slave, started,
-        lambda: tables.figures(slave.table_counters.snapshot()), tables.firewall_report),
-        engines))
-    faces.start(idle_ms(watchdog_interval()))
-    status = MasterStatus(cfg, slave, counters, tables)
-    status.scenario_engines = engines
-    commands = {**status.commands(), **scenario_commands(engines, cfg.config_file)}
-    control = await start_control(cfg.control, commands)
-    reloads = Reloads(status, reconfigure)
-    console = await start_console(cfg.web, WebHooks(commands, status.trace_hub,
-                                                    cfg.config_file, reloads.run))
-    s = cfg.serial
-    log.info("master mode: serial %s %d %s %s %s; servers' port %d, tcpto %d ms, exception %s, "
-             "at most %d connections; slaveid %s%s", s.device, s.baudrate, s.format, s.protocol,
-             s.wiring, cfg.mdbport, cfg.tcpto_ms, "on" if cfg.exception else "off",
-             cfg.max_connections, cfg.slaveid, origin(cfg))
-    warn_of_overlaps(cfg)
-    if metrics is not None:
-        log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
-    _log_slaveid(cfg)
-    scenarios = TcpScenarios(tables.table, engines, slave.devices.rule, slave.trace)
-    scenarios.start(cfg.scenarios, cfg.tcpto_ms, cfg.upstream_tls)
+class MasterMode(ModeParts):
+    """Master mode's objects: the serial faces, the lines in slave mode (targets, when the
+    gateway hands them), the table's service."""
 
-    async def apply(new: MasterConfig, report: ReloadReport) -> None:
-        await console.reconfigure(new.web, report)
+    def __init__(self, cfg: MasterConfig, faces: Faces, counters: MasterCounters,
+                 tables: TableService, lines) -> None:
+        slave = faces.primary
+        super().__init__(cfg, MasterStatus(cfg, slave, counters, tables), counters)
+        self.faces = faces
+        self.targets = lines
+        self.tables = tables
+        self.status.faces = faces
+        self.status.targets = lines
+        self.table, self.health, self.trace = tables.table, slave.devices.rule, slave.trace
+        if lines is None:
+            for line in cfg.lines:
+                if line.is_target:
+                    log.error("line %s: a line in slave mode does not run in this daemon: "
+                              "requests routed to it get 0x0A or silence", line.name)
+
+    def threads(self) -> list:
+        return [*self.faces.all(), *(self.targets.threads() if self.targets is not None else ())]
+
+    def collector(self, metrics, started: float):
+        slave, tables = self.faces.primary, self.tables
+        return metrics.master_collector(
+            self.counters, slave.devices, slave, started,
+            lambda: tables.figures(slave.table_counters.snapshot()), tables.firewall_report)
+
+    def start(self, idle_ms: int) -> None:
+        if self.targets is not None:
+            self.targets.start(idle_ms)
+        self.faces.start(idle_ms)
+
+    def log_start(self) -> None:
+        cfg = self.cfg
+        s = cfg.serial
+        log.info("master mode: serial %s %d %s %s %s; servers' port %d, tcpto %d ms, "
+                 "exception %s, at most %d connections; slaveid %s%s", s.device, s.baudrate,
+                 s.format, s.protocol, s.wiring, cfg.mdbport, cfg.tcpto_ms,
+                 "on" if cfg.exception else "off", cfg.max_connections, cfg.slaveid,
+                 origin(cfg))
+        _log_slaveid(cfg)
+
+    def tasks(self) -> tuple:
+        return (lambda: _tick(self.tables),)
+
+    def lines(self) -> list[dict]:
+        return self.status.lines()
+
+    async def apply(self, new: MasterConfig, report: ReloadReport) -> None:
         _log_slaveid(new)
-        tables.reconfigure(new, report)
-        faces.reconfigure(new)
-        await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms,
-                                new.upstream_tls)
-    reloads.apply = apply
+        self.tables.reconfigure(new, report)
+        removed = await asyncio.to_thread(self.targets.reconfigure, new, report) \
+            if self.targets is not None else []
+        retired = self.faces.reconfigure(new, report)   # they route to the lines in force
+        await asyncio.to_thread(retire, retired)
+        for target in removed:
+            target.stop()
+            await asyncio.to_thread(target.join)
 
-    ticking = asyncio.ensure_future(_tick(tables))
-    try:
-        await serve_until_stopped(stop, status, slave, reloads, control, metrics)
-    finally:
-        await console.close()
-        await asyncio.to_thread(scenarios.stop)
-    ticking.cancel()
-    faces.stop()
-    await asyncio.to_thread(faces.join)
-    log_stopped(counters)
+    async def stop(self) -> None:
+        self.faces.stop()
+        await asyncio.to_thread(self.faces.join)
+        if self.targets is not None:
+            self.targets.stop()
+            await asyncio.to_thread(self.targets.join)

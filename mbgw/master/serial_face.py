@@ -185,6 +185,11 @@ class SerialFace(LineThread[FaceSettings]):
         if self.table is not None and self._cfg.owns_table_flags:
             self.table.set_flags(line_down=False)
 
+    @property
+    def device(self) -> str:
+        """The serial device's path in the settings in force (status)."""
+        return self._cfg.serial.device
+
     def reconfigure_line(self, line, cfg, routes: RouteMap) -> None:
         """New settings, as build_face takes them (from another thread)."""
         self.reconfigure(face_settings(cfg, line, routes))

@@ -1,5 +1,6 @@
 """What the running master-mode daemon reports through the control socket (the commands
 both modes share are in mbgw.ops.status)."""
+from mbgw.master.faces import Faces
 from mbgw.ops.status import DaemonStatus
 from mbgw.scenarios.report import scenarios_status
 
@@ -13,6 +14,8 @@ class MasterStatus(DaemonStatus):
         self._slave = slave
         self._tables = tables
         self.scenario_engines: dict = {}    # the scenarios' engines by kind (the daemon's)
+        self.faces: Faces | None = None     # every line in master mode
+        self.targets = None     # the lines in slave mode (slave.targets.TargetLines), if any
 
     def status(self, request: dict) -> dict:
         cfg = self.cfg
@@ -28,6 +31,7 @@ class MasterStatus(DaemonStatus):
                          "route": str(r)}
                         for r in cfg.slaveid.ranges],
             "counters": self._counters.snapshot(),
+            "lines": self.lines(),
             "counters_since": self._reset_at,
             "devices": [d.snapshot() for d in self._devices.all()],
             "table": self._tables.figures(self._slave.table_counters.snapshot()),
@@ -36,6 +40,18 @@ class MasterStatus(DaemonStatus):
             **({"scenarios": rows} if (rows := scenarios_status(self.scenario_engines.values()))
                else {}),
         }
+
+    def lines(self) -> list[dict]:
+        """Every line: line serial and the others in master mode (faces), then those in
+        slave mode (targets)."""
+        faces = self.faces.all() if self.faces is not None else [self._slave]
+        rows = []
+        for face in faces:
+            c = face.counters
+            rows.append({"name": face.face, "device": face.device, "mode": "master",
+                         "state": face.state, "requests": c.requests, "replies": c.replies,
+                         "timeouts": c.timeouts})
+        return rows + (self.targets.status() if self.targets is not None else [])
 
     def commands(self) -> dict:
         return {**super().commands(), **self._tables.commands()}

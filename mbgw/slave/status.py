@@ -72,6 +72,10 @@ class SlaveStatus(DaemonStatus):
                else {}),
         }
 
+    def lines(self) -> list[dict]:
+        """The "lines" rows, as the metrics read them."""
+        return self._lines(self._counters.snapshot())
+
     def _lines(self, counters: dict) -> list[dict]:
         s = self.cfg.serial
         serial = {"name": PRIMARY_LINE, "device": s.device, "mode": "slave",

@@ -9,7 +9,7 @@ import dataclasses
 import logging
 
 from mbgw.config.lines import LineConfig
-from mbgw.config.model import SlaveConfig
+from mbgw.config.model import MasterConfig, SlaveConfig
 from mbgw.errors import SerialError
 from mbgw.line.port import SerialLine
 from mbgw.line.supervisor import open_at_start
@@ -25,11 +25,16 @@ from mbgw.slave.scheduler import Scheduler
 log = logging.getLogger("mbgw.line")
 
 
-def line_settings(cfg: SlaveConfig, line: LineConfig) -> SlaveConfig:
+def line_settings(cfg: SlaveConfig | MasterConfig, line: LineConfig) -> SlaveConfig:
     """The daemon's settings as a target line's worker reads them: the line's port, retries
-    and demotion; no table, no scenarios, no shortcut (no client of its own)."""
+    and demotion; no table, no scenarios, no shortcut (no client of its own).  In a
+    master-mode daemon (cfg a MasterConfig) the line's own timing and the daemon's
+    `exception` make the rest."""
+    base = cfg if isinstance(cfg, SlaveConfig) else SlaveConfig(
+        serial=line.serial, exception=cfg.exception, turnaround_ms=line.turnaround_ms,
+        late_window_ms=line.late_window_ms)
     return dataclasses.replace(
-        cfg, serial=line.serial, retries=line.retries, demotion=line.demotion, slaveid=0,
+        base, serial=line.serial, retries=line.retries, demotion=line.demotion, slaveid=0,
         shortcut=False, scenarios=(), table=dataclasses.replace(cfg.table, enabled=False),
         lines=(), routes=())
 
@@ -60,7 +65,7 @@ class NoClients:
 class TargetLine:
     """One target line: its worker, its inbox and what it keeps per line."""
 
-    def __init__(self, cfg: SlaveConfig, line: LineConfig) -> None:
+    def __init__(self, cfg: SlaveConfig | MasterConfig, line: LineConfig) -> None:
         self.config = line
         self.counters = Counters()
         self.devices = DeviceTable(rule=HealthRule(line.demotion))
@@ -86,7 +91,7 @@ class TargetLine:
         self.scheduler.close()
         self.inbox.close()
 
-    def reconfigure(self, cfg: SlaveConfig, line: LineConfig) -> None:
+    def reconfigure(self, cfg: SlaveConfig | MasterConfig, line: LineConfig) -> None:
         self.config = line
         self.worker.reconfigure(line_settings(cfg, line))
 
@@ -103,13 +108,13 @@ class TargetLines:
     a reload.  inboxes is the dict the TCP face routes with (line serial's included when a
     serial face may reach it)."""
 
-    def __init__(self, cfg: SlaveConfig, inboxes: dict[str, Inbox]) -> None:
+    def __init__(self, cfg: SlaveConfig | MasterConfig, inboxes: dict[str, Inbox]) -> None:
         self.inboxes = inboxes
         self.lines: dict[str, TargetLine] = {}
         for line in target_lines(cfg):
             self._add(cfg, line)
 
-    def _add(self, cfg: SlaveConfig, line: LineConfig) -> TargetLine:
+    def _add(self, cfg: SlaveConfig | MasterConfig, line: LineConfig) -> TargetLine:
         target = self.lines[line.name] = TargetLine(cfg, line)
         self.inboxes[line.name] = target.inbox
         return target
@@ -127,7 +132,7 @@ class TargetLines:
         for target in self.lines.values():
             target.join()
 
-    def reconfigure(self, cfg: SlaveConfig,
+    def reconfigure(self, cfg: SlaveConfig | MasterConfig,
                     report: ReloadReport | None = None) -> list[TargetLine]:
         """Lines added are opened and started, changed ones reconfigured (reopened when their
         port settings changed), the others kept as they are; an added line whose device is
@@ -156,29 +161,10 @@ class TargetLines:
     def status(self) -> list[dict]:
         return [t.status() for t in list(self.lines.values())]   # a reload may be adding
 
-
-class EveryLine:
-    """Line serial's thread and the target lines' as one for systemd's watchdog: it turns
-    while each of them does (the oldest heartbeat, the longest turn)."""
-
-    def __init__(self, serial: LineWorker, targets: TargetLines) -> None:
-        self._serial = serial
-        self._targets = targets
-
-    def _workers(self) -> list[LineWorker]:
-        return [self._serial, *(t.worker for t in list(self._targets.lines.values()))]
-
-    @property
-    def heartbeat(self) -> float:
-        return min(w.heartbeat for w in self._workers())
-
-    @property
-    def turn_limit_s(self) -> float:
-        return max(w.turn_limit_s for w in self._workers())
-
-    def is_alive(self) -> bool:
-        return all(w.is_alive() for w in self._workers())
+    def threads(self) -> list[LineWorker]:
+        """Their threads, for the watchdog."""
+        return [t.worker for t in list(self.lines.values())]
 
 
-def target_lines(cfg: SlaveConfig) -> list[LineConfig]:
+def target_lines(cfg: SlaveConfig | MasterConfig) -> list[LineConfig]:
     return [line for line in cfg.lines if line.is_target and line.name != "serial"]
