@@ -10,17 +10,15 @@ from mbgw.gateway.skeleton import serve_mode
 
 
 def run_slave_mode(cfg: SlaveConfig, reconfigure=None) -> None:
-    """mbgw slave's daemon; with a line in master mode, its serial face too."""
+    """mbgw slave's daemon; its lines in master mode as serial faces too."""
     from mbgw.slave.daemon import run_slave
-    faces = serial_faces if any(line.is_face for line in cfg.lines) else None
-    run_slave(cfg, reconfigure, serve_mode, faces)
+    run_slave(cfg, reconfigure, serve_mode, serial_faces)
 
 
 def run_master_mode(cfg: MasterConfig, reconfigure=None) -> None:
-    """mbgw master's daemon; with a line in slave mode, that line as a target too."""
+    """mbgw master's daemon; its lines in slave mode as targets too."""
     from mbgw.master.daemon import run_master
-    targets = target_lines if any(line.is_target for line in cfg.lines) else None
-    run_master(cfg, reconfigure, serve_mode, targets)
+    run_master(cfg, reconfigure, serve_mode, target_lines)
 
 
 def run_transparent_mode(cfg, reconfigure=None) -> None:
@@ -29,11 +27,11 @@ def run_transparent_mode(cfg, reconfigure=None) -> None:
     run_transparent(cfg, reconfigure, serve_mode)
 
 
-def serial_faces(cfg: SlaveConfig, routes, inboxes: dict, table) -> list:
-    """The serial faces' threads, unstarted: one per line in master mode."""
-    serial_face = importlib.import_module("mbgw.master.serial_face")
-    return [serial_face.build_face(line, cfg, routes, inboxes, table)
-            for line in cfg.lines if line.is_face]
+def serial_faces(cfg: SlaveConfig, inboxes: dict, table):
+    """The serial faces of the lines in master mode (master.faces.LineFaces), unstarted;
+    imported only for a daemon that has such a line."""
+    faces = importlib.import_module("mbgw.master.faces")
+    return faces.LineFaces(cfg, inboxes, table)
 
 
 def target_lines(cfg: MasterConfig, inboxes: dict):

@@ -2,11 +2,13 @@
 the lines in slave mode it is handed (targets) and the table; the skeleton that runs them
 (signals, control socket, metrics, reload, systemd's watchdog) is mbgw.gateway.skeleton's."""
 import asyncio
+import dataclasses
 import logging
+from typing import Any
 
 from mbgw.config.lines import PRIMARY_LINE
 from mbgw.config.model import MasterConfig
-from mbgw.master.faces import Faces, retire
+from mbgw.master.faces import Faces, LineFaces
 from mbgw.master.status import MasterStatus
 from mbgw.master.table_service import TableService
 from mbgw.ops.counters import MasterCounters
@@ -24,18 +26,23 @@ def run_master(cfg: MasterConfig, reconfigure, serve, targets=None) -> None:
     reconfigure() gives the settings to apply on SIGHUP (None: there is no file to reload).
     serve(parts, reconfigure): the daemon's skeleton (mbgw.gateway.skeleton.serve_mode).
     targets(cfg, inboxes): the lines in slave mode, unstarted, their inboxes added to inboxes
-    (mbgw.gateway's slave.targets.TargetLines); None: such lines do not run."""
+    (mbgw.gateway's slave.targets.TargetLines), called when there are any, at start or at a
+    reload; None: such lines do not run."""
     counters = MasterCounters()
     tables = TableService(cfg)
-    inboxes: dict = {}
-    lines = targets(cfg, inboxes) if targets is not None else None
+    inboxes: dict = {}                 # the lines in slave mode's, by name
     faces = Faces.opened(cfg, counters, tables.table, inboxes)
     try:
         tables.start()
-        asyncio.run(serve(MasterMode(cfg, faces, counters, tables, lines), reconfigure))
+        asyncio.run(serve(MasterMode(cfg, faces, counters, tables, targets, inboxes),
+                          reconfigure))
     finally:
         tables.stop()
         faces.close()
+
+
+def _has_targets(cfg: MasterConfig) -> bool:
+    return any(line.is_target for line in cfg.lines)
 
 
 def table_address(cfg: MasterConfig) -> int:
@@ -64,20 +71,30 @@ class MasterMode(ModeParts):
     gateway hands them), the table's service."""
 
     def __init__(self, cfg: MasterConfig, faces: Faces, counters: MasterCounters,
-                 tables: TableService, lines) -> None:
+                 tables: TableService, targets, inboxes: dict) -> None:
         slave = faces.primary
         super().__init__(cfg, MasterStatus(cfg, slave, counters, tables), counters)
         self.faces = faces
-        self.targets = lines
         self.tables = tables
+        self._make_targets = targets
+        self._inboxes = inboxes
+        self._idle_ms = -1
+        self.targets: Any = None       # the lines in slave mode (TargetLines), once any
+        if _has_targets(cfg):
+            self._add_targets(cfg)
         self.status.faces = faces
-        self.status.targets = lines
         self.table, self.health, self.trace = tables.table, slave.devices.rule, slave.trace
-        if lines is None:
+
+    def _add_targets(self, cfg: MasterConfig) -> Any:
+        """The lines in slave mode of cfg, unstarted (None: the daemon runs none)."""
+        if self._make_targets is None:
             for line in cfg.lines:
                 if line.is_target:
                     log.error("line %s: a line in slave mode does not run in this daemon: "
                               "requests routed to it get 0x0A or silence", line.name)
+            return None
+        self.targets = self.status.targets = self._make_targets(cfg, self._inboxes)
+        return self.targets
 
     def threads(self) -> list:
         return [*self.faces.all(), *(self.targets.threads() if self.targets is not None else ())]
@@ -89,6 +106,7 @@ class MasterMode(ModeParts):
             lambda: tables.figures(slave.table_counters.snapshot()), tables.firewall_report)
 
     def start(self, idle_ms: int) -> None:
+        self._idle_ms = idle_ms
         if self.targets is not None:
             self.targets.start(idle_ms)
         self.faces.start(idle_ms)
@@ -112,10 +130,15 @@ class MasterMode(ModeParts):
     async def apply(self, new: MasterConfig, report: ReloadReport) -> None:
         _log_slaveid(new)
         self.tables.reconfigure(new, report)
+        if self.targets is None and _has_targets(new):
+            # the first line in slave mode: reconfigure opens it (or tells the report)
+            added = self._add_targets(dataclasses.replace(new, lines=()))
+            if added is not None:
+                added.start(self._idle_ms)
         removed = await asyncio.to_thread(self.targets.reconfigure, new, report) \
             if self.targets is not None else []
         retired = self.faces.reconfigure(new, report)   # they route to the lines in force
-        await asyncio.to_thread(retire, retired)
+        await asyncio.to_thread(LineFaces.retire, retired)
         for target in removed:
             target.stop()
             await asyncio.to_thread(target.join)

@@ -5,7 +5,7 @@ others."""
 import logging
 
 from mbgw.config.lines import RouteMap
-from mbgw.config.model import MasterConfig
+from mbgw.config.model import MasterConfig, SlaveConfig
 from mbgw.errors import SerialError
 from mbgw.line.supervisor import open_at_start
 from mbgw.master.face_routes import face_settings
@@ -16,52 +16,40 @@ from mbgw.ops.reload import ReloadReport
 log = logging.getLogger("mbgw")
 
 
-class Faces:
-    """Line serial's face and the faces of the other lines in master mode (`[[line]]`), each
-    on its own thread; a reload adds and removes the others.  inboxes: the target lines'
-    Inbox by name (the caller's dict, which the faces look up at each request)."""
+class LineFaces:
+    """The serial faces of the lines in master mode beside serial (`[[line]]`), by name,
+    each on its own thread: opened at start, added, changed and removed by a reload.  In a
+    master-mode daemon beside line serial's face (Faces), in a slave-mode one alone.
+    inboxes: the target lines' Inbox by name (the caller's dict, which the faces look up at
+    each request)."""
 
-    def __init__(self, primary: SerialFace, inboxes: dict, table) -> None:
-        self.primary = primary
-        self.others: dict[str, SerialFace] = {}
+    def __init__(self, cfg: SlaveConfig | MasterConfig, inboxes: dict, table) -> None:
+        """Raises SerialError (what was opened closed)."""
+        self.faces: dict[str, SerialFace] = {}
         self._inboxes = inboxes
         self._table = table
         self._idle_ms = -1
-
-    @classmethod
-    def opened(cls, cfg: MasterConfig, counters: MasterCounters, table,
-               inboxes: dict | None = None) -> "Faces":
-        """Every face, its device open (or waited for).  Raises SerialError (what was
-        opened closed)."""
-        inboxes = inboxes if inboxes is not None else {}
-        line = open_at_start(cfg.serial)
-        try:
-            primary = SerialFace(face_settings(cfg, None, RouteMap(cfg.routes)), line,
-                                 counters, table, inboxes)
-        except BaseException:
-            if line is not None:
-                line.close()
-            raise
-        faces = cls(primary, inboxes, table)
         try:
             routes = RouteMap(cfg.routes)
-            for line_cfg in face_lines(cfg).values():
-                faces._add(line_cfg, cfg, routes)
+            for line in face_lines(cfg).values():
+                self._add(line, cfg, routes)
         except BaseException:
-            faces.close()
+            self.close()
             raise
-        return faces
 
-    def _add(self, line, cfg: MasterConfig, routes: RouteMap) -> SerialFace:
-        face = self.others[line.name] = build_face(line, cfg, routes, self._inboxes,
-                                                   self._table)
+    def _add(self, line, cfg: SlaveConfig | MasterConfig, routes: RouteMap) -> SerialFace:
+        face = self.faces[line.name] = build_face(line, cfg, routes, self._inboxes,
+                                                  self._table)
         log.info("line %s: master mode, serial %s %d %s %s; %d routes", line.name,
                  line.serial.device, line.serial.baudrate, line.serial.format,
                  line.serial.protocol, sum(r.face == line.name for r in cfg.routes))
         return face
 
     def all(self) -> list[SerialFace]:
-        return [self.primary, *list(self.others.values())]   # a reload may be adding
+        return list(self.faces.values())      # a reload may be adding
+
+    def status(self) -> list[dict]:
+        return [face.status() for face in self.all()]
 
     def start(self, idle_ms: int) -> None:
         self._idle_ms = idle_ms
@@ -69,18 +57,17 @@ class Faces:
             face.idle_ms = idle_ms
             face.start()
 
-    def reconfigure(self, cfg: MasterConfig,
+    def reconfigure(self, cfg: SlaveConfig | MasterConfig,
                     report: ReloadReport | None = None) -> list[SerialFace]:
         """New settings for every face whose line is still there in master mode; lines
         added are opened and started (one whose device is there and does not open is told
         to the report).  Returns the faces removed: the caller stops, joins and closes them
-        (see retire)."""
+        (retire) once nothing routes through them."""
         routes = RouteMap(cfg.routes)
-        self.primary.reconfigure(face_settings(cfg, None, routes))
         wanted = face_lines(cfg)
-        removed = [self.others.pop(name) for name in list(self.others) if name not in wanted]
+        removed = [self.faces.pop(name) for name in list(self.faces) if name not in wanted]
         for name, line in wanted.items():
-            face = self.others.get(name)
+            face = self.faces.get(name)
             if face is not None:
                 face.reconfigure_line(line, cfg, routes)
                 continue
@@ -94,6 +81,16 @@ class Faces:
             face.idle_ms = self._idle_ms
             face.start()
         return removed
+
+    @staticmethod
+    def retire(faces: list[SerialFace]) -> None:
+        """Faces a reload removed: stopped, joined, their devices released."""
+        for face in faces:
+            face.stop()
+        for face in faces:
+            if face.is_alive():
+                face.join()
+            face.close()
 
     def stop(self) -> None:
         for face in self.all():
@@ -109,16 +106,63 @@ class Faces:
             face.close()
 
 
-def retire(faces: list[SerialFace]) -> None:
-    """Faces a reload removed: stopped, joined, their devices released."""
-    for face in faces:
-        face.stop()
-    for face in faces:
-        if face.is_alive():
-            face.join()
-        face.close()
+class Faces:
+    """Line serial's face and the faces of the other lines in master mode (LineFaces): a
+    master-mode daemon's."""
+
+    def __init__(self, primary: SerialFace, others: LineFaces) -> None:
+        self.primary = primary
+        self.others = others
+
+    @classmethod
+    def opened(cls, cfg: MasterConfig, counters: MasterCounters, table,
+               inboxes: dict | None = None) -> "Faces":
+        """Every face, its device open (or waited for).  Raises SerialError (what was
+        opened closed)."""
+        inboxes = inboxes if inboxes is not None else {}
+        line = open_at_start(cfg.serial)
+        try:
+            primary = SerialFace(face_settings(cfg, None, RouteMap(cfg.routes)), line,
+                                 counters, table, inboxes)
+        except BaseException:
+            if line is not None:
+                line.close()
+            raise
+        try:
+            others = LineFaces(cfg, inboxes, table)
+        except BaseException:
+            primary.close()
+            raise
+        return cls(primary, others)
+
+    def all(self) -> list[SerialFace]:
+        return [self.primary, *self.others.all()]
+
+    def start(self, idle_ms: int) -> None:
+        self.primary.idle_ms = idle_ms
+        self.primary.start()
+        self.others.start(idle_ms)
+
+    def reconfigure(self, cfg: MasterConfig,
+                    report: ReloadReport | None = None) -> list[SerialFace]:
+        """As LineFaces.reconfigure, line serial's face given its new settings too."""
+        self.primary.reconfigure(face_settings(cfg, None, RouteMap(cfg.routes)))
+        return self.others.reconfigure(cfg, report)
+
+    def stop(self) -> None:
+        self.primary.stop()
+        self.others.stop()
+
+    def join(self) -> None:
+        if self.primary.is_alive():
+            self.primary.join()
+        self.others.join()
+
+    def close(self) -> None:
+        self.primary.close()
+        self.others.close()
 
 
-def face_lines(cfg: MasterConfig) -> dict:
+def face_lines(cfg: SlaveConfig | MasterConfig) -> dict:
     """The lines in master mode beside serial, by name."""
     return {line.name: line for line in cfg.lines if line.is_face}

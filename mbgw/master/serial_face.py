@@ -185,10 +185,12 @@ class SerialFace(LineThread[FaceSettings]):
         if self.table is not None and self._cfg.owns_table_flags:
             self.table.set_flags(line_down=False)
 
-    @property
-    def device(self) -> str:
-        """The serial device's path in the settings in force (status)."""
-        return self._cfg.serial.device
+    def status(self) -> dict:
+        """Its row of the status's "lines" (from any thread)."""
+        c = self._counters
+        return {"name": self.face, "device": self._cfg.serial.device, "mode": "master",
+                "state": self.state, "requests": c.requests, "replies": c.replies,
+                "timeouts": c.timeouts}
 
     def reconfigure_line(self, line, cfg, routes: RouteMap) -> None:
         """New settings, as build_face takes them (from another thread)."""

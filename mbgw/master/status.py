@@ -45,13 +45,8 @@ class MasterStatus(DaemonStatus):
         """Every line: line serial and the others in master mode (faces), then those in
         slave mode (targets)."""
         faces = self.faces.all() if self.faces is not None else [self._slave]
-        rows = []
-        for face in faces:
-            c = face.counters
-            rows.append({"name": face.face, "device": face.device, "mode": "master",
-                         "state": face.state, "requests": c.requests, "replies": c.replies,
-                         "timeouts": c.timeouts})
-        return rows + (self.targets.status() if self.targets is not None else [])
+        return [*(face.status() for face in faces),
+                *(self.targets.status() if self.targets is not None else ())]
 
     def commands(self) -> dict:
         return {**super().commands(), **self._tables.commands()}

@@ -2,7 +2,9 @@
 lines, the remote servers and the serial faces; the skeleton that runs them is
 mbgw.gateway.skeleton's."""
 import asyncio
+import dataclasses
 import logging
+from typing import Any
 
 from mbgw.config.lines import PRIMARY_LINE
 from mbgw.config.model import SlaveConfig
@@ -17,7 +19,6 @@ from mbgw.ops.service import ModeParts, origin
 from mbgw.routing.inbox import Inbox
 from mbgw.scenarios.engine import Scenarios
 from mbgw.slave.line_thread import LineWorker, serial_scenarios
-from mbgw.slave.routes import effective_routes
 from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
 from mbgw.slave.servers import ServerTargets, server_targets
@@ -62,12 +63,17 @@ async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
     await serve(mode, reconfigure)
 
 
+def _has_faces(cfg: SlaveConfig) -> bool:
+    return any(line.is_face for line in cfg.lines)
+
+
 class SlaveMode(ModeParts):
     """Slave mode's objects: line serial's worker, the Modbus TCP face, the target lines, the
     remote servers, the serial faces of the lines in master mode, the table."""
 
     def __init__(self, cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
                  faces) -> None:
+        super().__init__(cfg, None, counters)       # the status once listening (listen)
         self.devices = devices = DeviceTable(rule=HealthRule(cfg.demotion))
         self.scheduler = Scheduler()
         self.tables = TableService(cfg, devices)
@@ -82,16 +88,27 @@ class SlaveMode(ModeParts):
         if cfg.lines:                      # a serial face may reach line serial too
             self.inboxes[PRIMARY_LINE] = Inbox()
             worker.use_inbox(self.inboxes[PRIMARY_LINE])
-        self.serial_faces = faces(cfg, effective_routes(cfg), self.inboxes,
-                                  self.tables.table) if faces is not None else []
+        self._make_faces = faces
+        self.serial_faces: Any = None      # the serial faces (master.faces.LineFaces), once any
+        if _has_faces(cfg):
+            self._add_faces(cfg)
         self.serial_engine = Scenarios(serial_scenarios(cfg), self.tables.table, "serial")
         worker.use_scenarios(self.serial_engine)    # run, and reconfigured, by the line thread
         self.load = LineLoad(lambda: counters.line_busy_ns)
         self.addresses: list[str] = []
         self.running = cfg                 # the settings in force
-        super().__init__(cfg, None, counters)
+        self._idle_ms = -1                 # the watchdog's idle limit, for lines added later
         self.engines["serial"] = self.serial_engine
         self.table, self.health, self.trace = self.tables.table, devices.rule, self.server.trace
+
+    def _add_faces(self, cfg: SlaveConfig):
+        """The serial faces of cfg's lines in master mode, unstarted (None: the daemon runs
+        none)."""
+        if self._make_faces is not None:
+            self.serial_faces = self._make_faces(cfg, self.inboxes, self.tables.table)
+            if self.status is not None:
+                self.status.faces = self.serial_faces
+        return self.serial_faces
 
     async def listen(self) -> None:
         """The Modbus TCP face's listeners; then the status, which shows them."""
@@ -105,9 +122,11 @@ class SlaveMode(ModeParts):
                                   self.counters, self.devices, self.addresses, self.tables,
                                   self.load)
         self.status.targets = self.targets
+        self.status.faces = self.serial_faces
 
     def threads(self) -> list:
-        return [self.worker, *self.targets.threads(), *self.serial_faces]
+        faces = self.serial_faces.all() if self.serial_faces is not None else ()
+        return [self.worker, *self.targets.threads(), *faces]
 
     def collector(self, metrics, started: float):
         server = self.server
@@ -122,9 +141,9 @@ class SlaveMode(ModeParts):
         self.targets.start(idle_ms)
         if self.servers is not None:
             self.servers.start()
-        for face in self.serial_faces:
-            face.idle_ms = idle_ms
-            face.start()
+        self._idle_ms = idle_ms
+        if self.serial_faces is not None:
+            self.serial_faces.start(idle_ms)
 
     def log_start(self) -> None:
         cfg = self.cfg
@@ -145,12 +164,15 @@ class SlaveMode(ModeParts):
     async def apply(self, new: SlaveConfig, report: ReloadReport) -> None:
         self.tables.reconfigure(new, report)
         removed = await asyncio.to_thread(self.targets.reconfigure, new, report)
+        retired = self._reface(new, report)
         old_servers = self._reserve(new)
         await self.server.reconfigure(new, report)
         worker = self.worker
         worker.configured.clear()
         worker.reconfigure(new)        # the face routes to the targets in force from then on
         await asyncio.to_thread(worker.configured.wait, worker.turn_limit_s + 1)
+        if retired:
+            await asyncio.to_thread(self.serial_faces.retire, retired)
         for target in removed:
             target.stop()
             await asyncio.to_thread(target.join)
@@ -158,6 +180,19 @@ class SlaveMode(ModeParts):
             old_servers.stop()
             await asyncio.to_thread(old_servers.join_and_close)
         self.running = new
+
+    def _reface(self, new: SlaveConfig, report: ReloadReport) -> list:
+        """The serial faces of new's lines in master mode: added, changed, removed.  Returns
+        the removed ones, for the caller to retire."""
+        if self.serial_faces is None:
+            if not _has_faces(new):
+                return []
+            # the first line in master mode: reconfigure opens it (or tells the report)
+            added = self._add_faces(dataclasses.replace(new, lines=()))
+            if added is None:
+                return []
+            added.start(self._idle_ms)
+        return self.serial_faces.reconfigure(new, report)
 
     def _reserve(self, new: SlaveConfig) -> ServerTargets | None:
         """The remote servers' thread anew when their settings changed; returns the old one,
@@ -176,10 +211,11 @@ class SlaveMode(ModeParts):
 
     async def stop(self) -> None:
         self.server.close()
-        for face in self.serial_faces:
-            face.stop()
-        for face in self.serial_faces:
-            await asyncio.to_thread(face.join)
+        faces = self.serial_faces
+        if faces is not None:
+            faces.stop()
+            await asyncio.to_thread(faces.join)
+            faces.close()
         self.targets.stop()
         self.worker.stop()
         await asyncio.to_thread(self.worker.join)

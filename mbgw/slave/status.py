@@ -25,6 +25,7 @@ class SlaveStatus(DaemonStatus):
         self._addresses = addresses
         self.scenario_engines: dict = {}    # the scenarios' engines by kind (the daemon's)
         self.targets: TargetLines | None = None     # the lines beside serial (the daemon's)
+        self.faces = None       # the lines in master mode (master.faces.LineFaces), if any
 
     def commands(self) -> dict:
         tables = self._tables
@@ -81,7 +82,8 @@ class SlaveStatus(DaemonStatus):
         serial = {"name": PRIMARY_LINE, "device": s.device, "mode": "slave",
                   "state": self._worker.state, "requests": counters["requests"],
                   "replies": counters["replies"], "timeouts": counters["timeouts"]}
-        return [serial, *(self.targets.status() if self.targets is not None else ())]
+        return [serial, *(self.targets.status() if self.targets is not None else ()),
+                *(self.faces.status() if self.faces is not None else ())]
 
     def summary(self) -> str:
         c = self._counters

@@ -111,6 +111,7 @@ class TargetLines:
     def __init__(self, cfg: SlaveConfig | MasterConfig, inboxes: dict[str, Inbox]) -> None:
         self.inboxes = inboxes
         self.lines: dict[str, TargetLine] = {}
+        self._idle_ms = -1                 # the watchdog's idle limit, for lines added later
         for line in target_lines(cfg):
             self._add(cfg, line)
 
@@ -120,6 +121,7 @@ class TargetLines:
         return target
 
     def start(self, idle_ms: int = -1) -> None:
+        self._idle_ms = idle_ms
         for target in self.lines.values():
             target.worker.idle_ms = idle_ms
             target.start()
@@ -147,7 +149,9 @@ class TargetLines:
             kept = self.lines.get(name)
             if kept is None:
                 try:
-                    self._add(cfg, line).start()
+                    added = self._add(cfg, line)
+                    added.worker.idle_ms = self._idle_ms
+                    added.start()
                 except SerialError as err:    # a device there that does not open
                     log.error("line %s not opened: %s", name, err.strerror or err)
                     if report is not None:

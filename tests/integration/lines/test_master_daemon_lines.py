@@ -1,7 +1,9 @@
 """Lines of both kinds in a master-mode daemon (issue 24): a serial master on `[serial]`
 reaches a meter on a [[line]] in slave mode (mbgw the master on that line), its address
 rewritten by an offset there and given back as asked; a reload adds a line in master mode
-(its serial master then reaches the same meter) and removes it, releasing its device.
+(its serial master then reaches the same meter) and removes it, releasing its device; and
+a reload adds a line in master mode to a slave-mode daemon, whose master then reaches both
+mode's lines while the TCP clients keep theirs.
 
 Peers that are not ours: a recording pymodbus RTU slave on a socat pty pair (the meter), and
 raw RTU frames written by the test as the serial masters, each answer checked byte for byte
@@ -11,7 +13,14 @@ import signal
 
 import pytest
 
-from tests.integration.lines.test_lines import METER, METER_UNIT, Line, hr_reply, received
+from tests.integration.lines.test_lines import (
+    METER,
+    METER_UNIT,
+    SERIAL_SLAVE,
+    Line,
+    hr_reply,
+    received,
+)
 from tests.integration.master.test_serial_faces import ask, lines_file, read
 from tests.modbus import read_holding
 from tests.ops import status, wait_for_log
@@ -86,3 +95,37 @@ def test_a_reload_adds_and_removes_a_line_in_master_mode(
     ask(master, read(METER_UNIT, 0, 1), bytes((METER_UNIT,)) + hr_reply(0, 1))
     assert received(meters.record) == [bytes((METER,)) + read_holding(3, 1),
                                        bytes((METER,)) + read_holding(0, 1)]
+
+
+def test_a_reload_adds_a_line_in_master_mode_to_a_slave_mode_daemon(
+        tmp_path, start_peer, start_gateway, meters, second_pty, open_line, client):
+    serial = Line(tmp_path / "serial", start_peer, SERIAL_SLAVE)
+    try:
+        tcp_routes = [{"units": list(range(1, 32)), "line": "serial"},
+                      {"units": list(range(32, 64)), "line": "meters", "offset": -31}]
+        config = lines_file(tmp_path / "lines.toml", [meters_line(meters)], tcp_routes)
+        gw = start_gateway(serial.pair.gateway, "--config", str(config), "--baudrate",
+                           str(BAUD), "--stout", "300")
+        c = client(gw)
+        assert c.ask(METER_UNIT, read_holding(0, 1)) == hr_reply(0, 1)
+        panel_line = {"name": "panel", "device": second_pty.gateway, "baudrate": BAUD,
+                      "mode": "master"}
+        lines_file(config, [meters_line(meters), panel_line],
+                   [*tcp_routes, {"units": [7], "from": "panel", "line": "meters",
+                                  "address": 1},
+                    {"units": [9], "from": "panel", "line": "serial",
+                     "address": SERIAL_SLAVE}])
+        os.kill(gw.proc.pid, signal.SIGHUP)
+        wait_for_log(gw, "configuration reloaded: lines, routes changed")
+        panel = open_line(second_pty.device)
+        ask(panel, read(7, 2, 1), bytes((7,)) + hr_reply(2, 1))
+        ask(panel, read(9, 4, 1), bytes((9,)) + hr_reply(4, 1))
+        assert c.ask(METER_UNIT, read_holding(1, 1)) == hr_reply(1, 1)   # same connection
+        rows = {row["name"]: row["mode"] for row in status(gw)["lines"]}
+        assert rows == {"serial": "slave", "meters": "slave", "panel": "master"}
+        assert received(meters.record) == [bytes((METER,)) + read_holding(0, 1),
+                                           bytes((METER,)) + read_holding(2, 1),
+                                           bytes((METER,)) + read_holding(1, 1)]
+        assert received(serial.record) == [bytes((SERIAL_SLAVE,)) + read_holding(4, 1)]
+    finally:
+        serial.stop()
