@@ -1,6 +1,7 @@
 """Runs transparent mode: opens the line, serves the table on mdbport (mbgw.table.server)
 and the raw port, runs the line thread (mbgw.transparent.line_thread), tells systemd it is
-ready, stops on a signal; the operator's tools are mbgw.ops.service's."""
+ready, stops on a signal; the skeleton that runs them (signals, control socket, metrics,
+reload, systemd's watchdog) is mbgw.gateway.skeleton's."""
 import asyncio
 import logging
 
