@@ -20,6 +20,7 @@ from mbgw.config.model import (
     SerialConfig,
     SlaveConfig,
 )
+from mbgw.config.number_list import number_list_text
 from mbgw.errors import ConfigError
 from mbgw.protocol import pdu
 
@@ -288,6 +289,14 @@ def effective_routes(cfg: SlaveConfig | MasterConfig) -> tuple[RouteConfig, ...]
 def route_map(cfg: SlaveConfig | MasterConfig) -> RouteMap:
     """The routing the daemon runs with: every face's explicit and implicit routes."""
     return RouteMap(effective_routes(cfg))
+
+
+def routes_status(routes: RouteMap) -> list[dict]:
+    """The routes as `mbgw status` lists them (both modes)."""
+    return [{"face": r.face or "tcp", "units": number_list_text(r.units), "target": r.target,
+             "rewrite": f"address {r.address}" if r.address is not None
+             else f"offset {r.offset:+d}" if r.offset else "",
+             "implicit": r.implicit} for r in routes.routes]
 
 
 def config_problems(cfg: SlaveConfig | MasterConfig, mode: str) -> list[str]:

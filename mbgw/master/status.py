@@ -1,5 +1,6 @@
 """What the running master-mode daemon reports through the control socket (the commands
 both modes share are in mbgw.ops.status)."""
+from mbgw.config.lines import route_map, routes_status
 from mbgw.master.faces import Faces
 from mbgw.ops.status import DaemonStatus
 from mbgw.scenarios.report import scenarios_status
@@ -32,6 +33,7 @@ class MasterStatus(DaemonStatus):
                         for r in cfg.slaveid.ranges],
             "counters": self._counters.snapshot(),
             "lines": self.lines(),
+            "routes": routes_status(route_map(cfg)),
             "counters_since": self._reset_at,
             "devices": [d.snapshot() for d in self._devices.all()],
             "table": self._tables.figures(self._slave.table_counters.snapshot()),

@@ -77,22 +77,3 @@ def answered_off_the_line(hops: list[Hop | None]) -> bool:
     """Some unit is answered elsewhere than on line serial (the table, another target): the
     table reader then serves the clients while line serial is in a transaction."""
     return any(h is not None and h.kind is not SERIAL for h in hops)
-
-
-def routes_status(routes: RouteMap) -> list[dict]:
-    """The routes as `mbgw status` lists them."""
-    return [{"face": r.face or "tcp", "units": units_text(r.units), "target": r.target,
-             "rewrite": f"address {r.address}" if r.address is not None
-             else f"offset {r.offset:+d}" if r.offset else "",
-             "implicit": r.implicit} for r in routes.routes]
-
-
-def units_text(units: tuple[int, ...]) -> str:
-    """1,2,3,7 as "1-3,7"."""
-    ranges: list[list[int]] = []
-    for unit in sorted(units):
-        if ranges and ranges[-1][1] == unit - 1:
-            ranges[-1][1] = unit
-        else:
-            ranges.append([unit, unit])
-    return ",".join(str(a) if a == b else f"{a}-{b}" for a, b in ranges)

@@ -2,11 +2,11 @@
 close (the commands both modes share are in mbgw.ops.status)."""
 import time
 
-from mbgw.config.lines import PRIMARY_LINE
+from mbgw.config.lines import PRIMARY_LINE, routes_status
 from mbgw.ops.load import LineLoad, average_percent
 from mbgw.ops.status import DaemonStatus
 from mbgw.scenarios.report import scenarios_status
-from mbgw.slave.routes import effective_routes, routes_status
+from mbgw.slave.routes import effective_routes
 from mbgw.slave.targets import TargetLines
 
 

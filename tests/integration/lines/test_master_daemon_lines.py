@@ -23,7 +23,7 @@ from tests.integration.lines.test_lines import (
 )
 from tests.integration.master.test_serial_faces import ask, lines_file, read
 from tests.modbus import read_holding
-from tests.ops import status, wait_for_log
+from tests.ops import mbgw, status, wait_for_log
 
 pytestmark = pytest.mark.integration
 
@@ -67,6 +67,9 @@ def test_a_serial_master_reaches_a_meter_on_a_line_in_slave_mode(
     rows = {row["name"]: row for row in status(gw)["lines"]}
     assert (rows["serial"]["mode"], rows["meters"]["mode"]) == ("master", "slave")
     assert rows["meters"]["requests"] == 2 and rows["meters"]["replies"] == 2
+    text = mbgw("status", "--control", gw.control)
+    assert text.returncode == 0, text.stderr
+    assert "meters" in text.stdout and "32-63" in text.stdout and "offset -31" in text.stdout
 
 
 def test_a_reload_adds_and_removes_a_line_in_master_mode(
