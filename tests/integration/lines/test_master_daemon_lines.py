@@ -10,9 +10,12 @@ raw RTU frames written by the test as the serial masters, each answer checked by
 (tests/modbus.py's CRC)."""
 import os
 import signal
+import urllib.request
 
 import pytest
+from prometheus_client import parser
 
+from tests.harness import free_port
 from tests.integration.lines.test_lines import (
     METER,
     METER_UNIT,
@@ -23,7 +26,7 @@ from tests.integration.lines.test_lines import (
 )
 from tests.integration.master.test_serial_faces import ask, lines_file, read
 from tests.modbus import read_holding
-from tests.ops import mbgw, status, wait_for_log
+from tests.ops import mbgw, metric_families, metric_value, status, wait_for_log
 
 pytestmark = pytest.mark.integration
 
@@ -48,16 +51,18 @@ def meters_line(meters) -> dict:
 def master_daemon(tmp_path, start_gateway, pty_pair):
     """master_daemon(lines, routes) -> `mbgw master` on pty_pair with these [[line]] and
     [[route]] tables in its configuration file, tmp_path/lines.toml."""
-    def start(lines, routes):
+    def start(lines, routes, *options: str):
         config = lines_file(tmp_path / "lines.toml", lines, routes)
         return start_gateway(pty_pair.gateway, "--config", str(config), "--baudrate",
-                             str(BAUD), "--exception", mode="master", listen=False)
+                             str(BAUD), "--exception", *options, mode="master", listen=False)
     return start
 
 
 def test_a_serial_master_reaches_a_meter_on_a_line_in_slave_mode(
         meters, master_daemon, pty_pair, open_line):
-    gw = master_daemon([meters_line(meters)], [SERIAL_ROUTE])
+    metrics_port = free_port()
+    gw = master_daemon([meters_line(meters)], [SERIAL_ROUTE],
+                       "--metrics", f"127.0.0.1:{metrics_port}")
     master = open_line(pty_pair.device)
     # address 32 is address 1 on meters; the answer carries the address the master asked
     ask(master, read(METER_UNIT, 0, 2), bytes((METER_UNIT,)) + hr_reply(0, 2))
@@ -70,6 +75,13 @@ def test_a_serial_master_reaches_a_meter_on_a_line_in_slave_mode(
     text = mbgw("status", "--control", gw.control)
     assert text.returncode == 0, text.stderr
     assert "meters" in text.stdout and "32-63" in text.stdout and "offset -31" in text.stdout
+    with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics", timeout=5) as r:
+        families = metric_families(parser, r.read().decode())
+    for line, mode in (("serial", "master"), ("meters", "slave")):
+        for name in ("requests", "replies", "timeouts"):
+            assert metric_value(families, f"mbgw_line_{name}", f"mbgw_line_{name}_total",
+                                line=line, mode=mode) == rows[line][name], (line, name)
+        assert metric_value(families, "mbgw_line_open", line=line, mode=mode) == 1
 
 
 def test_a_reload_adds_and_removes_a_line_in_master_mode(
