@@ -2,8 +2,9 @@
 reaches a meter on a [[line]] in slave mode (mbgw the master on that line), its address
 rewritten by an offset there and given back as asked; a reload adds a line in master mode
 (its serial master then reaches the same meter) and removes it, releasing its device; and
-a reload adds a line in master mode to a slave-mode daemon, whose master then reaches both
-mode's lines while the TCP clients keep theirs.
+a slave-mode daemon serves a line in master mode it starts with or a reload adds, whose master
+then reaches lines in slave mode while the TCP clients keep theirs; status and /metrics list
+every line.
 
 Peers that are not ours: a recording pymodbus RTU slave on a socat pty pair (the meter), and
 raw RTU frames written by the test as the serial masters, each answer checked byte for byte
@@ -142,5 +143,26 @@ def test_a_reload_adds_a_line_in_master_mode_to_a_slave_mode_daemon(
                                            bytes((METER,)) + read_holding(2, 1),
                                            bytes((METER,)) + read_holding(1, 1)]
         assert received(serial.record) == [bytes((SERIAL_SLAVE,)) + read_holding(4, 1)]
+    finally:
+        serial.stop()
+
+
+def test_a_slave_mode_daemon_started_with_a_line_in_master_mode_serves_it(
+        tmp_path, start_peer, start_gateway, meters, second_pty, open_line, client):
+    serial = Line(tmp_path / "serial", start_peer, SERIAL_SLAVE)
+    try:
+        panel_line = {"name": "panel", "device": second_pty.gateway, "baudrate": BAUD,
+                      "mode": "master"}
+        config = lines_file(tmp_path / "lines.toml", [meters_line(meters), panel_line],
+                            [{"units": list(range(1, 32)), "line": "serial"},
+                             {"units": [7], "from": "panel", "line": "meters", "address": 1}])
+        gw = start_gateway(serial.pair.gateway, "--config", str(config), "--baudrate",
+                           str(BAUD), "--stout", "300")
+        panel = open_line(second_pty.device)
+        ask(panel, read(7, 2, 1), bytes((7,)) + hr_reply(2, 1))
+        assert client(gw).ask(SERIAL_SLAVE, read_holding(0, 1)) == hr_reply(0, 1)
+        rows = {row["name"]: row for row in status(gw)["lines"]}
+        assert rows["panel"]["mode"] == "master" and rows["panel"]["requests"] == 1
+        assert received(meters.record) == [bytes((METER,)) + read_holding(2, 1)]
     finally:
         serial.stop()
