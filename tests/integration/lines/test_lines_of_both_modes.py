@@ -1,4 +1,4 @@
-"""Lines of both kinds in a master-mode daemon (issue 24): a serial master on `[serial]`
+"""Lines of both modes in either mode's daemon (issue 24): a serial master on `[serial]`
 reaches a meter on a [[line]] in slave mode (mbgw the master on that line), its address
 rewritten by an offset there and given back as asked; a reload adds a line in master mode
 (its serial master then reaches the same meter) and removes it, releasing its device; and
