@@ -95,13 +95,13 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
 @click.pass_context
 def master(ctx, **options) -> None:
     """Master mode: a Modbus master on the serial line reaches Modbus TCP servers."""
-    from mbgw.master.daemon import run_master
+    from mbgw.gateway.daemon import run_master_mode
 
     for name in SLAVE_MODE_ONLY:
         if ctx.get_parameter_source(name) in (ParameterSource.COMMANDLINE,
                                               ParameterSource.ENVIRONMENT):
             raise click.BadParameter("applies to slave mode only", param_hint=f"'--{name}'")
-    run_daemon(run_master, master_config, options)
+    run_daemon(run_master_mode, master_config, options)
 
 
 def master_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout, silence,

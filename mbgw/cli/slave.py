@@ -99,9 +99,9 @@ def _parse_units(value) -> tuple[int, ...]:
               help="Put a request that finds the line idle on it from C (for diagnosis).")
 def slave(**options) -> None:
     """Slave mode: Modbus TCP clients reach the slaves on a serial line."""
-    from mbgw.gateway.daemon import run_gateway
+    from mbgw.gateway.daemon import run_slave_mode
 
-    run_daemon(run_gateway, slave_config, options)
+    run_daemon(run_slave_mode, slave_config, options)
 
 
 def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout, silence,

@@ -100,9 +100,9 @@ def _option(flag: str, key: str, **kwargs):
 def transparent(**options) -> None:
     """Transparent mode: Modbus TCP clients exchange raw frames with a serial device through
     the exchange table."""
-    from mbgw.transparent.daemon import run_transparent
+    from mbgw.gateway.daemon import run_transparent_mode
 
-    run_daemon(run_transparent, transparent_config, options)
+    run_daemon(run_transparent_mode, transparent_config, options)
 
 
 def transparent_config(device, protocol, baudrate, line_format, interface, rtsdelays, stout,

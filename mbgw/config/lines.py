@@ -20,6 +20,7 @@ from mbgw.config.model import (
     SerialConfig,
     SlaveConfig,
 )
+from mbgw.config.number_list import number_list_text
 from mbgw.errors import ConfigError
 from mbgw.protocol import pdu
 
@@ -290,6 +291,14 @@ def route_map(cfg: SlaveConfig | MasterConfig) -> RouteMap:
     return RouteMap(effective_routes(cfg))
 
 
+def routes_status(routes: RouteMap) -> list[dict]:
+    """The routes as `mbgw status` lists them (both modes)."""
+    return [{"face": r.face or "tcp", "units": number_list_text(r.units), "target": r.target,
+             "rewrite": f"address {r.address}" if r.address is not None
+             else f"offset {r.offset:+d}" if r.offset else "",
+             "implicit": r.implicit} for r in routes.routes]
+
+
 def config_problems(cfg: SlaveConfig | MasterConfig, mode: str) -> list[str]:
     """What check-config refuses in a daemon's lines and routes: line serial (with the
     daemon's mode) and cfg.lines, the implicit routes beside the explicit ones."""
@@ -297,4 +306,9 @@ def config_problems(cfg: SlaveConfig | MasterConfig, mode: str) -> list[str]:
     problems = route_problems((primary, *cfg.lines), effective_routes(cfg))
     problems += [f"{r.label}.table: the table is off (table.enabled = false)"
                  for r in cfg.routes if r.table and not cfg.table_on]
+    if mode == "master":
+        problems += [f"{r.label}.from: a master-mode daemon has no Modbus TCP listeners to "
+                     f"route units from; give from = \"LINE\" (a line in master mode), or "
+                     f"run a slave-mode daemon with the serial master's line as a [[line]] "
+                     f"in master mode" for r in cfg.routes if r.face == TCP_FACE]
     return problems

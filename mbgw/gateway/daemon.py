@@ -1,20 +1,41 @@
-"""The daemon of `mbgw slave` with its lines: line serial and the target lines (slave mode's
-daemon), and the serial faces of the lines in master mode (mbgw.master's, imported only when
-the settings have such a line)."""
+"""The daemon of each mode command, composed here: the mode's own objects (mbgw.slave.daemon,
+mbgw.master.daemon, mbgw.transparent.daemon) run by the one skeleton
+(mbgw.gateway.skeleton.serve_mode), with the lines of the other mode's kind: a slave-mode
+daemon runs the serial faces of its lines in master mode (mbgw.master's), a master-mode daemon
+runs its lines in slave mode as targets (mbgw.slave's LineWorker without TCP clients)."""
 import importlib
 
-from mbgw.config.model import SlaveConfig
-from mbgw.slave.daemon import run_slave
+from mbgw.config.model import MasterConfig, SlaveConfig
+from mbgw.gateway.skeleton import serve_mode
 
 
-def run_gateway(cfg: SlaveConfig, reconfigure=None) -> None:
-    """As run_slave; with a line in master mode, its serial face too."""
-    faces = serial_faces if any(line.is_face for line in cfg.lines) else None
-    run_slave(cfg, reconfigure, faces)
+def run_slave_mode(cfg: SlaveConfig, reconfigure=None) -> None:
+    """mbgw slave's daemon; its lines in master mode as serial faces too."""
+    from mbgw.slave.daemon import run_slave
+    run_slave(cfg, reconfigure, serve_mode, serial_faces)
 
 
-def serial_faces(cfg: SlaveConfig, routes, inboxes: dict, table, hub=None) -> list:
-    """The serial faces' threads, unstarted: one per line in master mode."""
-    serial_face = importlib.import_module("mbgw.master.serial_face")
-    return [serial_face.build_face(line, cfg, routes, inboxes, table, hub)
-            for line in cfg.lines if line.is_face]
+def run_master_mode(cfg: MasterConfig, reconfigure=None) -> None:
+    """mbgw master's daemon; its lines in slave mode as targets too."""
+    from mbgw.master.daemon import run_master
+    run_master(cfg, reconfigure, serve_mode, target_lines)
+
+
+def run_transparent_mode(cfg, reconfigure=None) -> None:
+    """mbgw transparent's daemon."""
+    from mbgw.transparent.daemon import run_transparent
+    run_transparent(cfg, reconfigure, serve_mode)
+
+
+def serial_faces(cfg: SlaveConfig, inboxes: dict, table, hub=None):
+    """The serial faces of the lines in master mode (master.faces.LineFaces), unstarted;
+    imported only for a daemon that has such a line.  hub: the daemon's trace hub."""
+    faces = importlib.import_module("mbgw.master.faces")
+    return faces.LineFaces(cfg, inboxes, table, hub)
+
+
+def target_lines(cfg: MasterConfig, inboxes: dict, hub=None):
+    """The lines in slave mode, their threads unstarted, their inboxes added to inboxes.
+    hub: the daemon's trace hub."""
+    targets = importlib.import_module("mbgw.slave.targets")
+    return targets.TargetLines(cfg, inboxes, hub)

@@ -1,52 +1,48 @@
-"""Runs master mode: opens the line, serves the serial master, tells systemd it is ready,
-stops on a signal; the operator's tools (control socket, metrics, SIGHUP reload, systemd's
-watchdog) are mbgw.ops.service's."""
+"""Master mode's daemon: opens the lines, serves the serial masters (the serial faces), runs
+the lines in slave mode it is handed (targets) and the table; the skeleton that runs them
+(signals, control socket, metrics, reload, systemd's watchdog) is mbgw.gateway.skeleton's."""
 import asyncio
+import dataclasses
 import logging
-import signal
-import time
+from typing import Any
 
 from mbgw.config.lines import PRIMARY_LINE
 from mbgw.config.model import MasterConfig
-from mbgw.master.faces import Faces
+from mbgw.master.faces import Faces, LineFaces
 from mbgw.master.status import MasterStatus
 from mbgw.master.table_service import TableService
 from mbgw.ops.counters import MasterCounters
-from mbgw.ops.reload import ReloadReport, Reloads
-from mbgw.ops.service import (
-    idle_ms,
-    log_stopped,
-    origin,
-    serve_until_stopped,
-    start_control,
-    start_metrics,
-    warn_of_overlaps,
-    watchdog_interval,
-)
-from mbgw.scenarios.control import scenario_commands
-from mbgw.scenarios.tcp_runner import TcpScenarios, with_scenarios
-from mbgw.web.console import start_console
-from mbgw.web.hooks import WebHooks
+from mbgw.ops.reload import ReloadReport
+from mbgw.ops.service import ModeParts, origin
 
 log = logging.getLogger("mbgw")
 TICK_S = 1.0        # how often the table's file is looked at (it is saved per its interval)
 
 
-def run_master(cfg: MasterConfig, reconfigure=None) -> None:
+def run_master(cfg: MasterConfig, reconfigure, serve, targets=None) -> None:
     """Raises SerialError when the device is there and cannot be opened (one that is not
     there yet is waited for), ListenError when the metrics address, table-port or
-    tls-port cannot be listened on; otherwise
-    returns after SIGTERM or SIGINT.  reconfigure() gives the settings to apply on SIGHUP
-    (None: there is no file to reload)."""
+    tls-port cannot be listened on; otherwise returns after SIGTERM or SIGINT.
+    reconfigure() gives the settings to apply on SIGHUP (None: there is no file to reload).
+    serve(parts, reconfigure): the daemon's skeleton (mbgw.gateway.skeleton.serve_mode).
+    targets(cfg, inboxes): the lines in slave mode, unstarted, their inboxes added to inboxes
+    (mbgw.gateway's slave.targets.TargetLines), called when there are any, at start or at a
+    reload; None: such lines do not run."""
     counters = MasterCounters()
     tables = TableService(cfg)
-    faces = Faces.opened(cfg, counters, tables.table)
+    inboxes: dict = {}                 # the lines in slave mode's, by name
+    faces = Faces.opened(cfg, counters, tables.table, inboxes)
     try:
         tables.start()
-        asyncio.run(_serve(cfg, faces, counters, tables, reconfigure))
+        asyncio.run(serve(MasterMode(cfg, faces, counters, tables, targets, inboxes),
+                          reconfigure))
     finally:
         tables.stop()
         faces.close()
+
+
+def _has_targets(cfg: MasterConfig) -> bool:
+    return any(line.is_target for line in cfg.lines)
 
 
 def table_address(cfg: MasterConfig) -> int:
@@ -70,56 +66,93 @@ def _log_slaveid(cfg: MasterConfig) -> None:
         log.warning("the slaveid table is empty: every request on the line is ignored")
 
 
-async def _serve(cfg: MasterConfig, faces: Faces, counters: MasterCounters,
-                 tables: TableService, reconfigure) -> None:
-    slave = faces.primary
-    loop = asyncio.get_running_loop()
-    stop = asyncio.Event()
-    for signum in (signal.SIGTERM, signal.SIGINT):
-        loop.add_signal_handler(signum, stop.set)
-    started = time.time()
-    engines: dict = {}         # the scenarios' engine by kind, while it runs (TCP only here)
-    metrics = start_metrics(cfg.metrics, lambda m: with_scenarios(m.master_collector(
-        counters, slave.devices, slave, started,
-        lambda: tables.figures(slave.table_counters.snapshot()), tables.firewall_report,
-        faces.metered), engines))
-    faces.start(idle_ms(watchdog_interval()))
-    status = MasterStatus(cfg, slave, counters, tables)
-    status.scenario_engines = engines
-    status.other_faces = faces.others
-    commands = {**status.commands(), **scenario_commands(engines, cfg.config_file)}
-    control = await start_control(cfg.control, commands)
-    reloads = Reloads(status, reconfigure)
-    console = await start_console(cfg.web, WebHooks(commands, status.trace_hub,
-                                                    cfg.config_file, reloads.run))
-    s = cfg.serial
-    log.info("master mode: serial %s %d %s %s %s; servers' port %d, tcpto %d ms, exception %s, "
-             "at most %d connections; slaveid %s%s", s.device, s.baudrate, s.format, s.protocol,
-             s.wiring, cfg.mdbport, cfg.tcpto_ms, "on" if cfg.exception else "off",
-             cfg.max_connections, cfg.slaveid, origin(cfg))
-    warn_of_overlaps(cfg)
-    if metrics is not None:
-        log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
-    _log_slaveid(cfg)
-    scenarios = TcpScenarios(tables.table, engines, slave.devices.rule, slave.hub)
-    scenarios.start(cfg.scenarios, cfg.tcpto_ms, cfg.upstream_tls)
+class MasterMode(ModeParts):
+    """Master mode's objects: the serial faces, the lines in slave mode (targets, when the
+    gateway hands them), the table's service."""
 
-    async def apply(new: MasterConfig, report: ReloadReport) -> None:
-        await console.reconfigure(new.web, report)
+    def __init__(self, cfg: MasterConfig, faces: Faces, counters: MasterCounters,
+                 tables: TableService, targets, inboxes: dict) -> None:
+        slave = faces.primary
+        super().__init__(cfg, MasterStatus(cfg, slave, counters, tables), counters)
+        self.faces = faces
+        self.tables = tables
+        self._make_targets = targets
+        self._inboxes = inboxes
+        self._idle_ms = -1
+        self.targets: Any = None       # the lines in slave mode (TargetLines), once any
+        if _has_targets(cfg):
+            self._add_targets(cfg)
+        self.status.faces = faces
+        self.table, self.health, self.trace = tables.table, slave.devices.rule, slave.hub
+
+    def _add_targets(self, cfg: MasterConfig) -> Any:
+        """The lines in slave mode of cfg, unstarted (None: the daemon runs none)."""
+        if self._make_targets is None:
+            for line in cfg.lines:
+                if line.is_target:
+                    log.error("line %s: a line in slave mode does not run in this daemon: "
+                              "requests routed to it get 0x0A or silence", line.name)
+            return None
+        self.targets = self.status.targets = self._make_targets(cfg, self._inboxes,
+                                                                  self.faces.primary.hub)
+        return self.targets
+
+    def threads(self) -> list:
+        return [*self.faces.all(), *(self.targets.threads() if self.targets is not None else ())]
+
+    def collector(self, metrics, started: float):
+        slave, tables = self.faces.primary, self.tables
+        return metrics.master_collector(
+            self.counters, slave.devices, slave, started,
+            lambda: tables.figures(slave.table_counters.snapshot()), tables.firewall_report,
+            self.metered)
+
+    def metered(self) -> list[tuple]:
+        """Each line's (name, counters, devices) for /metrics, line serial's first."""
+        targets = self.targets.metered() if self.targets is not None else ()
+        return [*self.faces.metered(), *targets]
+
+    def start(self, idle_ms: int) -> None:
+        self._idle_ms = idle_ms
+        if self.targets is not None:
+            self.targets.start(idle_ms)
+        self.faces.start(idle_ms)
+
+    def log_start(self) -> None:
+        cfg = self.cfg
+        s = cfg.serial
+        log.info("master mode: serial %s %d %s %s %s; servers' port %d, tcpto %d ms, "
+                 "exception %s, at most %d connections; slaveid %s%s", s.device, s.baudrate,
+                 s.format, s.protocol, s.wiring, cfg.mdbport, cfg.tcpto_ms,
+                 "on" if cfg.exception else "off", cfg.max_connections, cfg.slaveid,
+                 origin(cfg))
+        _log_slaveid(cfg)
+
+    def tasks(self) -> tuple:
+        return (lambda: _tick(self.tables),)
+
+    def lines(self) -> list[dict]:
+        return self.status.lines()
+
+    async def apply(self, new: MasterConfig, report: ReloadReport) -> None:
         _log_slaveid(new)
-        tables.reconfigure(new, report)
-        faces.reconfigure(new)
-        await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms,
-                                new.upstream_tls)
-    reloads.apply = apply
+        self.tables.reconfigure(new, report)
+        if self.targets is None and _has_targets(new):
+            # the first line in slave mode: reconfigure opens it (or tells the report)
+            added = self._add_targets(dataclasses.replace(new, lines=()))
+            if added is not None:
+                added.start(self._idle_ms)
+        removed = await asyncio.to_thread(self.targets.reconfigure, new, report) \
+            if self.targets is not None else []
+        retired = self.faces.reconfigure(new, report)   # they route to the lines in force
+        await asyncio.to_thread(LineFaces.retire, retired)
+        for target in removed:
+            target.stop()
+            await asyncio.to_thread(target.join)
 
-    ticking = asyncio.ensure_future(_tick(tables))
-    try:
-        await serve_until_stopped(stop, status, slave, reloads, control, metrics)
-    finally:
-        await console.close()
-        await asyncio.to_thread(scenarios.stop)
-    ticking.cancel()
-    faces.stop()
-    await asyncio.to_thread(faces.join)
-    log_stopped(counters)
+    async def stop(self) -> None:
+        self.faces.stop()
+        await asyncio.to_thread(self.faces.join)
+        if self.targets is not None:
+            self.targets.stop()
+            await asyncio.to_thread(self.targets.join)

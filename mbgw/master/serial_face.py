@@ -70,6 +70,7 @@ from mbgw.net.tls import client_context
 from mbgw.ops.counters import MasterCounters, TableSlaveCounters
 from mbgw.ops.device_stats import MASTER_COUNTS, DeviceStats, DeviceTable, HealthRule
 from mbgw.ops.exception_reply import gateway_exception
+from mbgw.ops.status import line_row
 from mbgw.ops.trace import Outcome, TraceHub
 from mbgw.protocol import pdu
 from mbgw.upstream.pool import UpstreamPool, drain
@@ -180,6 +181,11 @@ class SerialFace(LineThread[FaceSettings]):
                                 + self._interchar_us * 1000)
         if self.table is not None and self._cfg.owns_table_flags:
             self.table.set_flags(line_down=False)
+
+    def status(self) -> dict:
+        """Its row of the status's "lines", counters and devices included (any thread)."""
+        return line_row(self.face, self._cfg.serial.device, "master", self.state,
+                        self._counters.snapshot(), [d.snapshot() for d in self.devices.all()])
 
     def reconfigure_line(self, line, cfg, routes: RouteMap) -> None:
         """New settings, as build_face takes them (from another thread)."""

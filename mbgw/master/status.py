@@ -1,8 +1,8 @@
 """What the running master-mode daemon reports through the control socket (the commands
 both modes share are in mbgw.ops.status)."""
-from mbgw.config.lines import PRIMARY_LINE, route_map
-from mbgw.master.serial_face import SerialFace
-from mbgw.ops.status import DaemonStatus, line_row, routes_status
+from mbgw.config.lines import route_map, routes_status
+from mbgw.master.faces import Faces
+from mbgw.ops.status import DaemonStatus
 from mbgw.scenarios.report import scenarios_status
 
 
@@ -15,13 +15,13 @@ class MasterStatus(DaemonStatus):
         self._slave = slave
         self._tables = tables
         self.scenario_engines: dict = {}    # the scenarios' engines by kind (the daemon's)
-        self.other_faces: dict[str, SerialFace] = {}    # the [[line]]s in master mode
+        self.faces: Faces | None = None     # every line in master mode
+        self.targets = None     # the lines in slave mode (slave.targets.TargetLines), if any
 
     def status(self, request: dict) -> dict:
         cfg = self.cfg
         data = self._common()
         data["serial"]["state"] = self._slave.state
-        devices_by_line = {line.name: line.serial.device for line in cfg.lines}
         return {
             **data,
             "upstream": {"port": cfg.mdbport, "tcpto_ms": cfg.tcpto_ms,
@@ -31,15 +31,10 @@ class MasterStatus(DaemonStatus):
                          "variable_ip": r.variable_ip, "ip": str(r.ip), "tls": r.tls,
                          "route": str(r)}
                         for r in cfg.slaveid.ranges],
-            "counters": (counters := self._counters.snapshot()),
+            "counters": self._counters.snapshot(),
             "counters_since": self._reset_at,
-            "devices": (devices := [d.snapshot() for d in self._devices.all()]),
-            "lines": [line_row(PRIMARY_LINE, cfg.serial.device, "master", self._slave.state,
-                               counters, devices),
-                      *(line_row(name, devices_by_line.get(name, "?"), "master", face.state,
-                                 face.counters.snapshot(),
-                                 [d.snapshot() for d in face.devices.all()])
-                        for name, face in list(self.other_faces.items()))],
+            "devices": [d.snapshot() for d in self._devices.all()],
+            "lines": self.lines(),
             "routes": routes_status(route_map(cfg)),
             "table": self._tables.figures(self._slave.table_counters.snapshot()),
             "clients": self._tables.clients(),
@@ -47,6 +42,13 @@ class MasterStatus(DaemonStatus):
             **({"scenarios": rows} if (rows := scenarios_status(self.scenario_engines.values()))
                else {}),
         }
+
+    def lines(self) -> list[dict]:
+        """Every line: line serial and the others in master mode (faces), then those in
+        slave mode (targets)."""
+        faces = self.faces.all() if self.faces is not None else [self._slave]
+        return [*(face.status() for face in faces),
+                *(self.targets.status() if self.targets is not None else ())]
 
     def commands(self) -> dict:
         return {**super().commands(), **self._tables.commands()}

@@ -5,6 +5,8 @@ status` reads them, so the two always agree and the line path never calls promet
 the table, the firewall and the scenarios give theirs as the status's plain dicts.  Serving
 them over HTTP is mbgw.ops.metrics_server.
 """
+from collections.abc import Callable
+
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily
 from prometheus_client.utils import floatToGoString
 
@@ -125,6 +127,7 @@ class DaemonCollector:
         self._table = table
         self._firewall = firewall       # the firewall's status dict (mbgw.firewall), or None
         self.scenarios = scenarios      # () -> the status's "scenarios" rows, or None
+        self.lines: Callable[[], list[dict]] | None = None   # () -> the status's "lines" rows
 
     def collect(self):
         yield from self._daemon()
@@ -144,6 +147,8 @@ class DaemonCollector:
             yield firewall_family(firewall)
         if self.scenarios is not None:
             yield from scenario_families(self.scenarios())
+        if self.lines is not None:
+            yield from line_families(self.lines())
 
     def _daemon(self):
         info = GaugeMetricFamily("mbgw_info", "mbgw's version and mode (always 1).",
@@ -290,6 +295,28 @@ def firewall_family(status: dict) -> CounterMetricFamily:
     if status.get("require_role"):
         refused.add_metric(["no-role"], status["refused_no_role"])
     return refused
+
+
+def line_families(rows: list[dict]):
+    """Every line's figures, labelled by its name and mode (slave: mbgw is the master on it,
+    master: a serial master is), from the status's "lines" rows."""
+    labels = ["line", "mode"]
+    families = {key: CounterMetricFamily(f"mbgw_line_{key}", help_text, labels=labels)
+                for key, help_text in (
+                    ("requests", "Requests that came in for (master) or went out on (slave) "
+                                 "each line."),
+                    ("replies", "Replies given on (master) or received from (slave) each "
+                                "line."),
+                    ("timeouts", "Requests on each line that got no valid reply in time."))}
+    up = GaugeMetricFamily("mbgw_line_open", "1 while each line's serial device is open.",
+                           labels=labels)
+    for row in rows:
+        key = [row["name"], row["mode"]]
+        for name, family in families.items():
+            family.add_metric(key, row[name])
+        up.add_metric(key, int(row["state"] == "up"))
+    yield from families.values()
+    yield up
 
 
 SCENARIO_STATES = ("starting", "running", "error", "disabled")

@@ -1,12 +1,14 @@
-"""What both modes' daemons share: systemd notification, the control socket and metrics
-endpoint started and closed, the stop and its last log line (the SIGHUP reload is
-mbgw.ops.reload's)."""
+"""What every mode's daemon shares: what a mode hands the daemon's skeleton (ModeParts, run by
+mbgw.gateway.skeleton.serve_mode), systemd notification and its watchdog over every line
+thread, the control socket and metrics endpoint started and closed, the stop and its last log
+line (the SIGHUP reload is mbgw.ops.reload's)."""
 import asyncio
 import logging
 import math
 import os
 import time
-from typing import TYPE_CHECKING
+from collections.abc import Awaitable, Callable
+from typing import TYPE_CHECKING, Any
 
 from mbgw import errors
 from mbgw.ops.control import ControlServer, default_path
@@ -19,6 +21,79 @@ if TYPE_CHECKING:
 log = logging.getLogger("mbgw")
 
 STATUS_PERIOD_S = 5.0    # how often systemd's STATUS= line is brought up to date
+
+
+class ModeParts:
+    """What a mode's daemon hands the skeleton (mbgw.gateway.skeleton.serve_mode), which does
+    the rest the same for every mode: signals, metrics, the watchdog, the control socket, the
+    console, the TCP scenarios, reload, stop.  A mode subclasses it with its own objects and
+    fills in what differs; the attributes are what the skeleton reads."""
+    table: Any = None         # the exchange table the TCP scenarios use
+    health: Any = None        # the demotion rule the TCP scenarios follow (HealthRule)
+    trace: Any = None         # the trace hub the TCP scenarios' transactions go to
+    client_tls = True         # the TCP scenarios use [upstream-tls] (a mode without it: off)
+
+    def __init__(self, cfg, status, counters) -> None:
+        self.cfg = cfg                 # the settings it starts with
+        self.status = status           # its mbgw.ops.status.DaemonStatus
+        self.counters = counters       # what the last log line shows (snapshot())
+        self.commands: dict = {}       # control commands beside the status's
+        self.engines: dict = {}        # its scenarios' engines by kind; the skeleton adds tcp
+
+    def threads(self) -> list:
+        """Every line thread now (the watchdog's: a reload adds and removes lines)."""
+        raise NotImplementedError
+
+    def start(self, idle_ms: int) -> None:
+        """Starts the mode's threads, given the longest a line thread may wait idle."""
+        raise NotImplementedError
+
+    def collector(self, metrics, started: float):
+        """The mode's metrics collector, from the module mbgw.ops.metrics."""
+        raise NotImplementedError
+
+    def log_start(self) -> None:
+        """The mode's start-up lines."""
+
+    def lines(self) -> list[dict]:
+        """Every line's status row (name, device, mode, state, requests, replies, timeouts),
+        for the metrics; none in a mode of one line only."""
+        return []
+
+    async def apply(self, new, report) -> None:
+        """A reload's new settings for the mode's own objects (ReloadReport report)."""
+
+    async def stop(self) -> None:
+        """Stops, joins and closes the mode's objects."""
+
+    def abandon(self) -> None:
+        """The start failed after the parts were built: what they opened is closed."""
+
+    def tasks(self) -> tuple[Callable[[], Awaitable[None]], ...]:
+        """Loop tasks while it runs (cancelled at the stop)."""
+        return ()
+
+
+class EveryThread:
+    """The daemon's line threads as one for systemd's watchdog: it turns while each of them
+    does (the oldest heartbeat, the longest turn).  threads() is asked each time: a reload
+    adds and removes lines."""
+
+    def __init__(self, threads: Callable[[], list]) -> None:
+        self._threads = threads
+
+    @property
+    def heartbeat(self) -> float:
+        return min(t.heartbeat for t in self._threads())
+
+    @property
+    def turn_limit_s(self) -> float:
+        return max(t.turn_limit_s for t in self._threads())
+
+    def is_alive(self) -> bool:
+        return all(t.is_alive() for t in self._threads())
+
+
 def watchdog_interval() -> float | None:
     """Half of systemd's WatchdogSec= (WATCHDOG_USEC) when its watchdog is on for this
     process (WATCHDOG_PID, when set, is ours); None when it is off."""

@@ -9,7 +9,7 @@ import time
 
 from mbgw import __version__
 from mbgw.audit import Kind, event, operator
-from mbgw.config.lines import PRIMARY_LINE, RouteMap
+from mbgw.config.lines import PRIMARY_LINE
 from mbgw.ops.trace import NO_RAW_VIEW
 from mbgw.ops.trace import filters as trace_filters
 
@@ -145,22 +145,3 @@ def line_row(name: str, device: str, mode: str, state: str, counters: dict,
     return {"name": name, "device": device, "mode": mode, "state": state,
             "requests": counters["requests"], "replies": counters["replies"],
             "timeouts": counters["timeouts"], "counters": counters, "devices": devices}
-
-
-def routes_status(routes: RouteMap) -> list[dict]:
-    """The routes as `mbgw status` lists them."""
-    return [{"face": r.face or "tcp", "units": units_text(r.units), "target": r.target,
-             "rewrite": f"address {r.address}" if r.address is not None
-             else f"offset {r.offset:+d}" if r.offset else "",
-             "implicit": r.implicit} for r in routes.routes]
-
-
-def units_text(units: tuple[int, ...]) -> str:
-    """1,2,3,7 as "1-3,7"."""
-    ranges: list[list[int]] = []
-    for unit in sorted(units):
-        if ranges and ranges[-1][1] == unit - 1:
-            ranges[-1][1] = unit
-        else:
-            ranges.append([unit, unit])
-    return ",".join(str(a) if a == b else f"{a}-{b}" for a, b in ranges)

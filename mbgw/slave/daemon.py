@@ -1,8 +1,10 @@
-"""Runs slave mode: opens the line, listens, tells systemd it is ready, stops on a signal."""
+"""Slave mode's daemon: opens line serial, listens (the Modbus TCP face), builds the target
+lines, the remote servers and the serial faces; the skeleton that runs them is
+mbgw.gateway.skeleton's."""
 import asyncio
+import dataclasses
 import logging
-import signal
-import time
+from typing import Any
 
 from mbgw.config.lines import PRIMARY_LINE
 from mbgw.config.model import SlaveConfig
@@ -12,45 +14,32 @@ from mbgw.line.supervisor import open_at_start
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceTable, HealthRule
 from mbgw.ops.load import LineLoad
-from mbgw.ops.reload import ReloadReport, Reloads
-from mbgw.ops.service import (
-    idle_ms,
-    log_stopped,
-    origin,
-    serve_until_stopped,
-    start_control,
-    start_metrics,
-    warn_of_overlaps,
-    watchdog_interval,
-)
+from mbgw.ops.reload import ReloadReport
+from mbgw.ops.service import ModeParts, origin
 from mbgw.routing.inbox import Inbox
-from mbgw.scenarios.control import scenario_commands
 from mbgw.scenarios.engine import Scenarios
-from mbgw.scenarios.tcp_runner import TcpScenarios, with_scenarios
 from mbgw.slave.line_thread import LineWorker, serial_scenarios
-from mbgw.slave.routes import effective_routes
 from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
 from mbgw.slave.servers import ServerTargets, server_targets
 from mbgw.slave.status import SlaveStatus
 from mbgw.slave.table_service import TableService
-from mbgw.slave.targets import EveryLine, TargetLines
-from mbgw.web.console import start_console
-from mbgw.web.hooks import WebHooks
+from mbgw.slave.targets import TargetLines
 
 log = logging.getLogger("mbgw")
 
 
-def run_slave(cfg: SlaveConfig, reconfigure=None, faces=None) -> None:
+def run_slave(cfg: SlaveConfig, reconfigure, serve, faces=None) -> None:
     """Raises SerialError when the device is there and cannot be opened (one that is not there
     yet is waited for), ListenError when mdbport cannot be bound; otherwise returns after
     SIGTERM or SIGINT.  reconfigure() gives the settings to apply on SIGHUP (None: there is no
-    file to reload).  faces(cfg, routes, inboxes, table): the serial faces' threads, unstarted
-    (mbgw.gateway's, when some line is in master mode)."""
+    file to reload).  serve(parts, reconfigure): the daemon's skeleton
+    (mbgw.gateway.skeleton.serve_mode).  faces(cfg, routes, inboxes, table): the serial faces'
+    threads, unstarted (mbgw.gateway's, when some line is in master mode)."""
     counters = Counters()
     line = open_at_start(cfg.serial, counters)
     try:
-        asyncio.run(_serve(cfg, line, counters, reconfigure, faces))
+        asyncio.run(_serve(cfg, line, counters, reconfigure, serve, faces))
     finally:
         if line is not None:
             line.close()
@@ -67,136 +56,184 @@ def _servers(cfg: SlaveConfig, inboxes: dict[str, Inbox]) -> ServerTargets | Non
     return thread
 
 
-async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,  # noqa: C901
-                 reconfigure, faces) -> None:
-    loop = asyncio.get_running_loop()
-    devices = DeviceTable(rule=HealthRule(cfg.demotion))
-    scheduler = Scheduler()
-    tables = TableService(cfg, devices)
-    inboxes: dict[str, Inbox] = {}     # every target's but the table's, by name
-    targets = TargetLines(cfg, inboxes)
-    servers = _servers(cfg, inboxes)
+async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
+                 reconfigure, serve, faces) -> None:
+    mode = SlaveMode(cfg, line, counters, faces)
+    await mode.listen()
+    await serve(mode, reconfigure)
 
-    worker: LineWorker
-    server = TcpServer(cfg, scheduler, counters, lambda: worker.up, devices, tables.table,
-                       inboxes)
-    server.trace = targets.hub         # one hub: every line's events, named by line
-    worker = LineWorker(cfg, line, scheduler, server, counters, devices)
-    if cfg.lines:                      # a serial face may reach line serial too
-        inboxes[PRIMARY_LINE] = Inbox()
-        worker.use_inbox(inboxes[PRIMARY_LINE])
-    serial_faces = faces(cfg, effective_routes(cfg), inboxes, tables.table, targets.hub) \
-        if faces is not None else []
-    serial_engine = Scenarios(serial_scenarios(cfg), tables.table, "serial")
-    worker.use_scenarios(serial_engine)      # run, and reconfigured, by the line thread
-    engines: dict = {"serial": serial_engine}   # the scenarios' engines by kind
-    stop = asyncio.Event()
-    for signum in (signal.SIGTERM, signal.SIGINT):
-        loop.add_signal_handler(signum, stop.set)
-    try:
-        addresses = await server.start()
-    except ListenError:             # the TLS port's, named already
-        raise
-    except OSError as err:
-        raise ListenError("mdbport", cfg.mdbport, err) from None
-    started = time.time()
-    load = LineLoad(lambda: counters.line_busy_ns)
-    try:
-        metrics = start_metrics(cfg.metrics, lambda m: with_scenarios(m.slave_collector(
-            counters, devices, scheduler, server, worker, started, tables.figures, load,
+
+def _has_faces(cfg: SlaveConfig) -> bool:
+    return any(line.is_face for line in cfg.lines)
+
+
+class SlaveMode(ModeParts):
+    """Slave mode's objects: line serial's worker, the Modbus TCP face, the target lines, the
+    remote servers, the serial faces of the lines in master mode, the table."""
+
+    def __init__(self, cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
+                 faces) -> None:
+        super().__init__(cfg, None, counters)       # the status once listening (listen)
+        self.devices = devices = DeviceTable(rule=HealthRule(cfg.demotion))
+        self.scheduler = Scheduler()
+        self.tables = TableService(cfg, devices)
+        self.inboxes: dict[str, Inbox] = {}     # every target's but the table's, by name
+        self.targets = TargetLines(cfg, self.inboxes)
+        self.servers = _servers(cfg, self.inboxes)
+        worker: LineWorker
+        self.server = TcpServer(cfg, self.scheduler, counters, lambda: worker.up, devices,
+                                self.tables.table, self.inboxes)
+        self.server.trace = self.targets.hub    # one hub: every line's events, named by line
+        self.worker = worker = LineWorker(cfg, line, self.scheduler, self.server, counters,
+                                          devices)
+        if cfg.lines:                      # a serial face may reach line serial too
+            self.inboxes[PRIMARY_LINE] = Inbox()
+            worker.use_inbox(self.inboxes[PRIMARY_LINE])
+        self._make_faces = faces
+        self.serial_faces: Any = None      # the serial faces (master.faces.LineFaces), once any
+        if _has_faces(cfg):
+            self._add_faces(cfg)
+        self.serial_engine = Scenarios(serial_scenarios(cfg), self.tables.table, "serial")
+        worker.use_scenarios(self.serial_engine)    # run, and reconfigured, by the line thread
+        self.load = LineLoad(lambda: counters.line_busy_ns)
+        self.addresses: list[str] = []
+        self.running = cfg                 # the settings in force
+        self._idle_ms = -1                 # the watchdog's idle limit, for lines added later
+        self.engines["serial"] = self.serial_engine
+        self.table, self.health, self.trace = self.tables.table, devices.rule, self.server.trace
+
+    def _add_faces(self, cfg: SlaveConfig):
+        """The serial faces of cfg's lines in master mode, unstarted (None: the daemon runs
+        none)."""
+        if self._make_faces is not None:
+            self.serial_faces = self._make_faces(cfg, self.inboxes, self.tables.table,
+                                                 self.targets.hub)
+            if self.status is not None:
+                self.status.faces = self.serial_faces
+        return self.serial_faces
+
+    async def listen(self) -> None:
+        """The Modbus TCP face's listeners; then the status, which shows them."""
+        try:
+            self.addresses = await self.server.start()
+        except ListenError:             # the TLS port's, named already
+            raise
+        except OSError as err:
+            raise ListenError("mdbport", self.cfg.mdbport, err) from None
+        self.status = SlaveStatus(self.cfg, self.server, self.worker, self.scheduler,
+                                  self.counters, self.devices, self.addresses, self.tables,
+                                  self.load)
+        self.status.targets = self.targets
+        self.status.faces = self.serial_faces
+
+    def threads(self) -> list:
+        faces = self.serial_faces.all() if self.serial_faces is not None else ()
+        return [self.worker, *self.targets.threads(), *faces]
+
+    def collector(self, metrics, started: float):
+        server = self.server
+        return metrics.slave_collector(
+            self.counters, self.devices, self.scheduler, server, self.worker, started,
+            self.tables.figures, self.load,
             lambda: server.firewall.report() if server.firewall.configured else None,
-            lambda: [(PRIMARY_LINE, counters, devices), *targets.metered(),
-                     *((face.face, face.counters, face.devices) for face in serial_faces)]),
-            engines))
-    except ListenError:
-        server.close()
-        raise
-    worker.idle_ms = idle_ms(watchdog_interval())
-    worker.start()
-    targets.start(worker.idle_ms)
-    if servers is not None:
-        servers.start()
-    for face in serial_faces:
-        face.start()
-    status = SlaveStatus(cfg, server, worker, scheduler, counters, devices, addresses, tables,
-                         load)
-    status.targets = targets
-    status.faces = serial_faces
-    status.scenario_engines = engines
-    commands = {**status.commands(), **scenario_commands(engines, cfg.config_file)}
-    control = await start_control(cfg.control, commands)
-    reloads = Reloads(status, reconfigure)
-    console = await start_console(cfg.web, WebHooks(commands, status.trace_hub,
-                                                    cfg.config_file, reloads.run))
-    s = cfg.serial
-    log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s%s",
-             ", ".join(addresses), s.device, s.baudrate, s.format, s.protocol, s.wiring,
-             s.stout_ms, ", nocheck" if s.nocheck else "", origin(cfg))
-    warn_of_overlaps(cfg)
-    if metrics is not None:
-        log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
-    if s.nocheck:
-        log.warning("nocheck is on: serial replies are forwarded unchecked (a debugging mode)")
+            self.metered)
 
-    scenarios = TcpScenarios(tables.table, engines, devices.rule, server.trace)
-    scenarios.start(cfg.scenarios, cfg.tcpto_ms, cfg.upstream_tls)
+    def metered(self) -> list[tuple]:
+        """Each line's (name, counters, devices) for /metrics, line serial's first."""
+        faces = self.serial_faces.metered() if self.serial_faces is not None else ()
+        return [(PRIMARY_LINE, self.counters, self.devices), *self.targets.metered(), *faces]
 
-    running = cfg                      # the settings in force
+    def start(self, idle_ms: int) -> None:
+        self.worker.idle_ms = idle_ms
+        self.worker.start()
+        self.targets.start(idle_ms)
+        if self.servers is not None:
+            self.servers.start()
+        self._idle_ms = idle_ms
+        if self.serial_faces is not None:
+            self.serial_faces.start(idle_ms)
 
-    async def apply(new: SlaveConfig, report: ReloadReport) -> None:
-        nonlocal servers, running
-        await console.reconfigure(new.web, report)
-        tables.reconfigure(new, report)
-        removed = await asyncio.to_thread(targets.reconfigure, new, report)
-        old_servers = servers
-        if (new.tcpto_ms, new.exception, server_targets(new)) != \
-                (running.tcpto_ms, running.exception, server_targets(running)):
-            for label in server_targets(running):
-                inboxes.pop(label, None)
-            servers = _servers(new, inboxes)
-            if servers is not None:
-                servers.start()
-        else:
-            old_servers = None
-        await server.reconfigure(new, report)
+    def log_start(self) -> None:
+        cfg = self.cfg
+        s = cfg.serial
+        log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s%s",
+                 ", ".join(self.addresses), s.device, s.baudrate, s.format, s.protocol,
+                 s.wiring, s.stout_ms, ", nocheck" if s.nocheck else "", origin(cfg))
+        if s.nocheck:
+            log.warning("nocheck is on: serial replies are forwarded unchecked (a debugging "
+                        "mode)")
+
+    def tasks(self) -> tuple:
+        return (self.tables.keep, self.load.keep)
+
+    def lines(self) -> list[dict]:
+        return self.status.lines()
+
+    async def apply(self, new: SlaveConfig, report: ReloadReport) -> None:
+        self.tables.reconfigure(new, report)
+        removed = await asyncio.to_thread(self.targets.reconfigure, new, report)
+        retired = self._reface(new, report)
+        old_servers = self._reserve(new)
+        await self.server.reconfigure(new, report)
+        worker = self.worker
         worker.configured.clear()
         worker.reconfigure(new)        # the face routes to the targets in force from then on
         await asyncio.to_thread(worker.configured.wait, worker.turn_limit_s + 1)
+        if retired:
+            await asyncio.to_thread(self.serial_faces.retire, retired)
         for target in removed:
             target.stop()
             await asyncio.to_thread(target.join)
         if old_servers is not None:
             old_servers.stop()
             await asyncio.to_thread(old_servers.join_and_close)
-        await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms,
-                                new.upstream_tls)
-        running = new
-    reloads.apply = apply
+        self.running = new
 
-    kept = asyncio.ensure_future(tables.keep())
-    sampled = asyncio.ensure_future(load.keep())
-    try:
-        await serve_until_stopped(stop, status, EveryLine(worker, targets), reloads, control,
-                                  metrics)
-    finally:
-        await console.close()
-        await asyncio.to_thread(scenarios.stop)
-    kept.cancel()
-    sampled.cancel()
-    server.close()
-    for face in serial_faces:
-        face.stop()
-    for face in serial_faces:
-        await asyncio.to_thread(face.join)
-    targets.stop()
-    worker.stop()
-    await asyncio.to_thread(worker.join)
-    await asyncio.to_thread(targets.join)
-    if servers is not None:
-        servers.stop()
-        await asyncio.to_thread(servers.join_and_close)
-    tables.save()
-    serial_engine.close()
-    scheduler.close()
-    log_stopped(counters)
+    def _reface(self, new: SlaveConfig, report: ReloadReport) -> list:
+        """The serial faces of new's lines in master mode: added, changed, removed.  Returns
+        the removed ones, for the caller to retire."""
+        if self.serial_faces is None:
+            if not _has_faces(new):
+                return []
+            # the first line in master mode: reconfigure opens it (or tells the report)
+            added = self._add_faces(dataclasses.replace(new, lines=()))
+            if added is None:
+                return []
+            added.start(self._idle_ms)
+        return self.serial_faces.reconfigure(new, report)
 
+    def _reserve(self, new: SlaveConfig) -> ServerTargets | None:
+        """The remote servers' thread anew when their settings changed; returns the old one,
+        for the caller to stop once the face routes to the new one (None: kept)."""
+        running = self.running
+        if (new.tcpto_ms, new.exception, server_targets(new)) == \
+                (running.tcpto_ms, running.exception, server_targets(running)):
+            return None
+        old = self.servers
+        for label in server_targets(running):
+            self.inboxes.pop(label, None)
+        self.servers = _servers(new, self.inboxes)
+        if self.servers is not None:
+            self.servers.start()
+        return old
+
+    async def stop(self) -> None:
+        self.server.close()
+        faces = self.serial_faces
+        if faces is not None:
+            faces.stop()
+            await asyncio.to_thread(faces.join)
+            faces.close()
+        self.targets.stop()
+        self.worker.stop()
+        await asyncio.to_thread(self.worker.join)
+        await asyncio.to_thread(self.targets.join)
+        if self.servers is not None:
+            self.servers.stop()
+            await asyncio.to_thread(self.servers.join_and_close)
+        self.tables.save()
+        self.serial_engine.close()
+        self.scheduler.close()
+
+    def abandon(self) -> None:
+        self.server.close()

@@ -8,8 +8,6 @@ A unit no route takes has no hop (None).
 """
 from mbgw.config.lines import PRIMARY_LINE, TCP_FACE, RouteConfig, RouteMap, route_map
 from mbgw.config.model import SlaveConfig
-from mbgw.ops.status import routes_status as routes_status
-from mbgw.ops.status import units_text as units_text
 from mbgw.routing.inbox import Inbox
 
 SERIAL = "serial"        # line serial, owned by the TCP face's own line thread

@@ -2,11 +2,11 @@
 close (the commands both modes share are in mbgw.ops.status)."""
 import time
 
-from mbgw.config.lines import PRIMARY_LINE
+from mbgw.config.lines import PRIMARY_LINE, routes_status
 from mbgw.ops.load import LineLoad, average_percent
 from mbgw.ops.status import DaemonStatus, line_row
 from mbgw.scenarios.report import scenarios_status
-from mbgw.slave.routes import effective_routes, routes_status
+from mbgw.slave.routes import effective_routes
 from mbgw.slave.targets import TargetLines
 
 
@@ -25,7 +25,7 @@ class SlaveStatus(DaemonStatus):
         self._addresses = addresses
         self.scenario_engines: dict = {}    # the scenarios' engines by kind (the daemon's)
         self.targets: TargetLines | None = None     # the lines beside serial (the daemon's)
-        self.faces: list = []      # the serial faces of the lines in master mode (the daemon's)
+        self.faces = None       # the lines in master mode (master.faces.LineFaces), if any
 
     def commands(self) -> dict:
         tables = self._tables
@@ -73,14 +73,17 @@ class SlaveStatus(DaemonStatus):
                else {}),
         }
 
+    def lines(self) -> list[dict]:
+        """The "lines" rows, as the metrics read them."""
+        counters = self._counters.snapshot()
+        counters.pop("line_busy_ns", None)
+        return self._lines(counters, [d.snapshot() for d in self._devices.all()])
+
     def _lines(self, counters: dict, devices: list[dict]) -> list[dict]:
         serial = line_row(PRIMARY_LINE, self.cfg.serial.device, "slave", self._worker.state,
                           counters, devices)
-        devices_of = {line.name: line.serial.device for line in self.cfg.lines}
-        faces = [line_row(face.face, devices_of.get(face.face, "?"), "master", face.state,
-                          face.counters.snapshot(), [d.snapshot() for d in face.devices.all()])
-                 for face in self.faces]
-        return [serial, *(self.targets.status() if self.targets is not None else ()), *faces]
+        return [serial, *(self.targets.status() if self.targets is not None else ()),
+                *(self.faces.status() if self.faces is not None else ())]
 
     def summary(self) -> str:
         c = self._counters

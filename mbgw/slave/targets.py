@@ -9,7 +9,7 @@ import dataclasses
 import logging
 
 from mbgw.config.lines import LineConfig
-from mbgw.config.model import SlaveConfig
+from mbgw.config.model import MasterConfig, SlaveConfig
 from mbgw.errors import SerialError
 from mbgw.line.port import SerialLine
 from mbgw.line.supervisor import open_at_start
@@ -26,11 +26,16 @@ from mbgw.slave.scheduler import Scheduler
 log = logging.getLogger("mbgw.line")
 
 
-def line_settings(cfg: SlaveConfig, line: LineConfig) -> SlaveConfig:
+def line_settings(cfg: SlaveConfig | MasterConfig, line: LineConfig) -> SlaveConfig:
     """The daemon's settings as a target line's worker reads them: the line's port, retries
-    and demotion; no table, no scenarios, no shortcut (no client of its own)."""
+    and demotion; no table, no scenarios, no shortcut (no client of its own).  In a
+    master-mode daemon (cfg a MasterConfig) the line's own timing and the daemon's
+    `exception` make the rest."""
+    base = cfg if isinstance(cfg, SlaveConfig) else SlaveConfig(
+        serial=line.serial, exception=cfg.exception, turnaround_ms=line.turnaround_ms,
+        late_window_ms=line.late_window_ms)
     return dataclasses.replace(
-        cfg, serial=line.serial, retries=line.retries, demotion=line.demotion, slaveid=0,
+        base, serial=line.serial, retries=line.retries, demotion=line.demotion, slaveid=0,
         shortcut=False, scenarios=(), table=dataclasses.replace(cfg.table, enabled=False),
         lines=(), routes=())
 
@@ -61,7 +66,8 @@ class NoClients:
 class TargetLine:
     """One target line: its worker, its inbox and what it keeps per line."""
 
-    def __init__(self, cfg: SlaveConfig, line: LineConfig, hub: TraceHub | None = None) -> None:
+    def __init__(self, cfg: SlaveConfig | MasterConfig, line: LineConfig,
+                 hub: TraceHub | None = None) -> None:
         """hub: the daemon's trace hub (None: one of its own, nobody subscribes)."""
         self.config = line
         hub = hub if hub is not None else TraceHub()
@@ -91,7 +97,7 @@ class TargetLine:
         self.scheduler.close()
         self.inbox.close()
 
-    def reconfigure(self, cfg: SlaveConfig, line: LineConfig) -> None:
+    def reconfigure(self, cfg: SlaveConfig | MasterConfig, line: LineConfig) -> None:
         self.config = line
         self.worker.reconfigure(line_settings(cfg, line))
 
@@ -115,21 +121,23 @@ class TargetLines:
     a reload.  inboxes is the dict the TCP face routes with (line serial's included when a
     serial face may reach it)."""
 
-    def __init__(self, cfg: SlaveConfig, inboxes: dict[str, Inbox],
+    def __init__(self, cfg: SlaveConfig | MasterConfig, inboxes: dict[str, Inbox],
                  hub: TraceHub | None = None) -> None:
         """hub: the daemon's trace hub (None: one of their own, nobody subscribes)."""
         self.inboxes = inboxes
         self.hub = hub if hub is not None else TraceHub()
         self.lines: dict[str, TargetLine] = {}
+        self._idle_ms = -1                 # the watchdog's idle limit, for lines added later
         for line in target_lines(cfg):
             self._add(cfg, line)
 
-    def _add(self, cfg: SlaveConfig, line: LineConfig) -> TargetLine:
+    def _add(self, cfg: SlaveConfig | MasterConfig, line: LineConfig) -> TargetLine:
         target = self.lines[line.name] = TargetLine(cfg, line, self.hub)
         self.inboxes[line.name] = target.inbox
         return target
 
     def start(self, idle_ms: int = -1) -> None:
+        self._idle_ms = idle_ms
         for target in self.lines.values():
             target.worker.idle_ms = idle_ms
             target.start()
@@ -142,7 +150,7 @@ class TargetLines:
         for target in self.lines.values():
             target.join()
 
-    def reconfigure(self, cfg: SlaveConfig,
+    def reconfigure(self, cfg: SlaveConfig | MasterConfig,
                     report: ReloadReport | None = None) -> list[TargetLine]:
         """Lines added are opened and started, changed ones reconfigured (reopened when their
         port settings changed), the others kept as they are; an added line whose device is
@@ -157,7 +165,9 @@ class TargetLines:
             kept = self.lines.get(name)
             if kept is None:
                 try:
-                    self._add(cfg, line).start()
+                    added = self._add(cfg, line)
+                    added.worker.idle_ms = self._idle_ms
+                    added.start()
                 except SerialError as err:    # a device there that does not open
                     log.error("line %s not opened: %s", name, err.strerror or err)
                     if report is not None:
@@ -175,29 +185,10 @@ class TargetLines:
     def status(self) -> list[dict]:
         return [t.row() for t in list(self.lines.values())]   # a reload may be adding
 
-
-class EveryLine:
-    """Line serial's thread and the target lines' as one for systemd's watchdog: it turns
-    while each of them does (the oldest heartbeat, the longest turn)."""
-
-    def __init__(self, serial: LineWorker, targets: TargetLines) -> None:
-        self._serial = serial
-        self._targets = targets
-
-    def _workers(self) -> list[LineWorker]:
-        return [self._serial, *(t.worker for t in list(self._targets.lines.values()))]
-
-    @property
-    def heartbeat(self) -> float:
-        return min(w.heartbeat for w in self._workers())
-
-    @property
-    def turn_limit_s(self) -> float:
-        return max(w.turn_limit_s for w in self._workers())
-
-    def is_alive(self) -> bool:
-        return all(w.is_alive() for w in self._workers())
+    def threads(self) -> list[LineWorker]:
+        """Their threads, for the watchdog."""
+        return [t.worker for t in list(self.lines.values())]
 
 
-def target_lines(cfg: SlaveConfig) -> list[LineConfig]:
+def target_lines(cfg: SlaveConfig | MasterConfig) -> list[LineConfig]:
     return [line for line in cfg.lines if line.is_target and line.name != "serial"]

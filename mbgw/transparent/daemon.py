@@ -1,10 +1,9 @@
 """Runs transparent mode: opens the line, serves the table on mdbport (mbgw.table.server)
 and the raw port, runs the line thread (mbgw.transparent.line_thread), tells systemd it is
-ready, stops on a signal; the operator's tools are mbgw.ops.service's."""
+ready, stops on a signal; the skeleton that runs them (signals, control socket, metrics,
+reload, systemd's watchdog) is mbgw.gateway.skeleton's."""
 import asyncio
 import logging
-import signal
-import time
 
 from mbgw.config.transparent import TransparentModeConfig
 from mbgw.errors import ConfigError, ListenError
@@ -13,19 +12,8 @@ from mbgw.line.supervisor import open_at_start
 from mbgw.net.acl import AccessList
 from mbgw.net.listen import listen
 from mbgw.net.tls import server_context
-from mbgw.ops.reload import ReloadReport, Reloads
-from mbgw.ops.service import (
-    idle_ms,
-    log_stopped,
-    origin,
-    serve_until_stopped,
-    start_control,
-    start_metrics,
-    warn_of_overlaps,
-    watchdog_interval,
-)
-from mbgw.scenarios.control import scenario_commands
-from mbgw.scenarios.tcp_runner import TcpScenarios, with_scenarios
+from mbgw.ops.reload import ReloadReport
+from mbgw.ops.service import ModeParts, origin
 from mbgw.table import identity
 from mbgw.table.control import table_commands
 from mbgw.table.memory import Table
@@ -35,8 +23,6 @@ from mbgw.transparent.counters import TransparentCounters
 from mbgw.transparent.line_thread import FrameLine
 from mbgw.transparent.raw import RawPort
 from mbgw.transparent.status import TransparentStatus
-from mbgw.web.console import start_console
-from mbgw.web.hooks import WebHooks
 
 log = logging.getLogger("mbgw")
 
@@ -48,11 +34,12 @@ def _raw_port(cfg: TransparentModeConfig, allows, counters) -> RawPort | None:
     return RawPort(listen(cfg.bind, port, option="raw-port"), allows, counters)
 
 
-def run_transparent(cfg: TransparentModeConfig, reconfigure=None) -> None:
+def run_transparent(cfg: TransparentModeConfig, reconfigure, serve) -> None:
     """Raises SerialError when the device is there and cannot be opened (one that is not
     there yet is waited for), ListenError when mdbport,
     raw-port or the metrics address cannot be listened on; otherwise returns after SIGTERM or
-    SIGINT.  reconfigure() gives the settings SIGHUP applies (None: no file)."""
+    SIGINT.  reconfigure() gives the settings SIGHUP applies (None: no file).
+    serve(parts, reconfigure): the daemon's skeleton (mbgw.gateway.skeleton.serve_mode)."""
     counters = TransparentCounters()
     table = Table(cfg.table.functions)
     identity.fill(table, cfg, "transparent")
@@ -73,7 +60,8 @@ def run_transparent(cfg: TransparentModeConfig, reconfigure=None) -> None:
         raise
     server.start()
     try:
-        asyncio.run(_serve(cfg, frames, counters, table, server, raw, reconfigure))
+        asyncio.run(serve(TransparentMode(cfg, frames, counters, table, server, raw),
+                          reconfigure))
     finally:
         server.stop()
         server.join()
@@ -96,48 +84,48 @@ async def _rebind(server: TableServer, bind: str | None, report: ReloadReport) -
                               f"{', '.join(server.addresses) or 'no port'}")
 
 
-async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table: Table,
-                 server: TableServer, raw: RawPort | None, reconfigure) -> None:
-    loop = asyncio.get_running_loop()
-    stop = asyncio.Event()
-    for signum in (signal.SIGTERM, signal.SIGINT):
-        loop.add_signal_handler(signum, stop.set)
-    started = time.time()
+class TransparentMode(ModeParts):
+    """Transparent mode's objects: the line thread, the table's server, the raw port.  Its
+    TCP scenarios reach their servers without TLS: the mode has no [upstream-tls] settings
+    (no client certificate to present)."""
+    client_tls = False
 
-    def table_figures() -> dict:
-        return table_status(table, cfg.table, None, None, server.figures())
+    def __init__(self, cfg: TransparentModeConfig, frames: FrameLine, counters, table: Table,
+                 server: TableServer, raw: RawPort | None) -> None:
+        super().__init__(cfg, TransparentStatus(cfg, frames, counters, self._table_figures,
+                                                raw, server), counters)
+        self.frames, self.server, self.raw = frames, server, raw
+        self.table, self.trace = table, self.status.trace_hub
+        self.commands = table_commands(table)
 
-    status = TransparentStatus(cfg, frames, counters, table_figures, raw, server)
-    engines: dict = {}         # the TCP scenarios' engine, while they run
-    status.scenario_engines = engines
-    metrics = start_metrics(cfg.metrics, lambda m: with_scenarios(m.transparent_collector(
-        frames, status.figures, started, table_figures), engines))
-    frames.idle_ms = idle_ms(watchdog_interval())
-    frames.start()
-    commands = {**status.commands(), **table_commands(table),
-                **scenario_commands(engines, cfg.config_file)}
-    control = await start_control(cfg.control, commands)
-    reloads = Reloads(status, reconfigure)
-    console = await start_console(cfg.web, WebHooks(commands, status.trace_hub,
-                                                    cfg.config_file, reloads.run))
-    s, t = cfg.serial, cfg.transparent
-    log.info("transparent mode: serial %s %d %s %s; eof %s, eof-timeout %d ms, rx %d+%d bytes, "
-             "tx %d+%d bytes, crc %s, trigger %s, silence %d ms; table on %s%s%s",
-             s.device, s.baudrate, s.format, s.wiring, t.eof if t.eof != "char" else
-             f"char 0x{t.eof_char:02x}", t.eof_timeout_for(s), t.rx_address, t.rx_size,
-             t.tx_address, t.tx_size, "on" if t.crc else "off", "on" if t.trigger else "off",
-             t.silence_ms, ", ".join(server.addresses),
-             f"; raw port {raw.port}" if raw is not None else "", origin(cfg))
-    warn_of_overlaps(cfg)
-    if metrics is not None:
-        log.info("metrics on %s", ", ".join(f"http://{a}/metrics" for a in metrics.names))
-    scenarios = TcpScenarios(table, engines, trace=status.trace_hub)
-    scenarios.start(cfg.scenarios, cfg.tcpto_ms)
+    def _table_figures(self) -> dict:
+        return table_status(self.table, self.cfg.table, None, None, self.server.figures())
 
-    async def apply(new: TransparentModeConfig, report: ReloadReport) -> None:
-        await console.reconfigure(new.web, report)
-        old = status.cfg
-        identity.fill(table, new, "transparent")
+    def threads(self) -> list:
+        return [self.frames]
+
+    def collector(self, metrics, started: float):
+        return metrics.transparent_collector(self.frames, self.status.figures, started,
+                                             self._table_figures)
+
+    def start(self, idle_ms: int) -> None:
+        self.frames.idle_ms = idle_ms
+        self.frames.start()
+
+    def log_start(self) -> None:
+        cfg, raw = self.cfg, self.raw
+        s, t = cfg.serial, cfg.transparent
+        log.info("transparent mode: serial %s %d %s %s; eof %s, eof-timeout %d ms, rx %d+%d "
+                 "bytes, tx %d+%d bytes, crc %s, trigger %s, silence %d ms; table on %s%s%s",
+                 s.device, s.baudrate, s.format, s.wiring, t.eof if t.eof != "char" else
+                 f"char 0x{t.eof_char:02x}", t.eof_timeout_for(s), t.rx_address, t.rx_size,
+                 t.tx_address, t.tx_size, "on" if t.crc else "off",
+                 "on" if t.trigger else "off", t.silence_ms, ", ".join(self.server.addresses),
+                 f"; raw port {raw.port}" if raw is not None else "", origin(cfg))
+
+    async def apply(self, new: TransparentModeConfig, report: ReloadReport) -> None:
+        old, server, raw = self.status.cfg, self.server, self.raw
+        identity.fill(self.table, new, "transparent")
         if new.mdbport != old.mdbport:
             report.at_restart("mdbport")
         if new.authip != old.authip:
@@ -158,15 +146,8 @@ async def _serve(cfg: TransparentModeConfig, frames: FrameLine, counters, table:
         server.max_connections = new.table.max_connections
         if new.tls != old.tls:
             _retls(server, new, report)
-        frames.reconfigure(new)
-        await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms)
-    reloads.apply = apply
+        self.frames.reconfigure(new)
 
-    try:
-        await serve_until_stopped(stop, status, frames, reloads, control, metrics)
-    finally:
-        await console.close()
-        await asyncio.to_thread(scenarios.stop)
-    frames.stop()
-    await asyncio.to_thread(frames.join)
-    log_stopped(counters)
+    async def stop(self) -> None:
+        self.frames.stop()
+        await asyncio.to_thread(self.frames.join)

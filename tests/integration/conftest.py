@@ -4,7 +4,7 @@ import os
 
 import pytest
 
-from tests.harness import Gateway, Peer, free_port
+from tests.harness import Gateway, Peer, PtyPair, free_port
 from tests.integration.master.test_master import BAUD
 
 
@@ -44,3 +44,28 @@ def line(pty_pair):
     fd = os.open(pty_pair.device, os.O_RDWR | os.O_NOCTTY)
     yield fd
     os.close(fd)
+
+
+@pytest.fixture
+def second_pty(tmp_path):
+    """A second pty pair (tmp_path/panel), for a second line."""
+    directory = tmp_path / "panel"
+    directory.mkdir()
+    pair = PtyPair(directory)
+    yield pair
+    pair.stop()
+
+
+@pytest.fixture
+def open_line():
+    """open_line(device) -> an fd on a pty's far end (a serial master's); closed after."""
+    fds = []
+
+    def opened(device: str) -> int:
+        fd = os.open(device, os.O_RDWR | os.O_NOCTTY)
+        fds.append(fd)
+        return fd
+
+    yield opened
+    for fd in fds:
+        os.close(fd)

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from pymodbus.client import ModbusSerialClient
 
-from tests.harness import PtyPair, free_port
+from tests.harness import free_port
 from tests.integration.master.test_master import BAUD, REPLY_S, holding_reply, identity, recv
 from tests.modbus import rtu_frame as rtu
 
@@ -91,29 +91,6 @@ def lines_master(pty_pair, start_gateway, tmp_path):
         return start_gateway(pty_pair.gateway, "--config", str(config), "--baudrate", BAUD,
                              *options, mode="master", listen=False)
     return start
-
-
-@pytest.fixture
-def second_pty(tmp_path):
-    directory = tmp_path / "panel"
-    directory.mkdir()
-    pair = PtyPair(directory)
-    yield pair
-    pair.stop()
-
-
-@pytest.fixture
-def open_line():
-    fds = []
-
-    def opened(device: str) -> int:
-        fd = os.open(device, os.O_RDWR | os.O_NOCTTY)
-        fds.append(fd)
-        return fd
-
-    yield opened
-    for fd in fds:
-        os.close(fd)
 
 
 @pytest.fixture

@@ -21,8 +21,6 @@ from tests.ops import mbgw, metric_families, metric_value, status
 pytestmark = pytest.mark.integration
 
 lines_master = rig.lines_master       # the rig's fixtures, used here as they are
-second_pty = rig.second_pty
-open_line = rig.open_line
 meters = rig.meters
 
 

@@ -199,6 +199,20 @@ def test_master_mode_line_serial_is_a_face(schema, tmp_path):
         tmp_path, text.replace('line = "meters"', 'line = "serial"'))
 
 
+def test_a_master_mode_daemon_refuses_routes_from_the_tcp_face(tmp_path):
+    """A master-mode daemon has no Modbus TCP listeners: check-config and run refuse a route
+    without `from`, naming it."""
+    text = ('[serial]\nmode = "master"\ndevice = "/dev/ttyUSB0"\n' + METERS
+            + '[[route]]\nfrom = "serial"\nunits = "1-31"\nline = "meters"\n'
+            + '[[route]]\nunits = "32-63"\nline = "meters"\noffset = -31\n')
+    expected = "route 2.from: a master-mode daemon has no Modbus TCP listeners"
+    assert expected in refusal(tmp_path, text)
+    result = CliRunner().invoke(main, ["run", "--config", str(tmp_path / "mbgw.toml")],
+                                prog_name="mbgw")
+    assert result.exit_code == 78, result.output
+    assert expected in result.output
+
+
 def test_run_refuses_what_check_config_refuses(tmp_path):
     path = tmp_path / "mbgw.toml"
     path.write_text(SERIAL + '[[route]]\nunits = "1"\nline = "nowhere"\n')

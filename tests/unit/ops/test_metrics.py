@@ -91,6 +91,8 @@ def samples(family, **labels) -> dict:
     """{(sample name, frozenset(labels - given)): value} of the samples matching labels
     (line serial's unless a line is given: every per-line family has the label)."""
     labels.setdefault("line", "serial")
+    if labels["line"] is None:             # every line's
+        del labels["line"]
     return {(s.name, tuple(sorted((k, v) for k, v in s.labels.items() if k not in labels))):
             s.value for s in family.samples
             if all(s.labels.get(k) == v for k, v in labels.items())}
@@ -121,6 +123,27 @@ def test_every_counter_and_gauge_is_there_with_help_and_type():
     types = [row.split()[2] for row in lines if row.startswith("# TYPE ")]
     assert len(types) == len(set(types))
     assert text.endswith("\n")
+
+
+def test_every_line_has_its_figures_labelled_by_name_and_mode():
+    o = live_objects()
+    collector = slave_collector(o.counters, o.devices, o.scheduler, o.server, o.worker, 0.0)
+    collector.lines = lambda: [
+        {"name": "serial", "device": "/dev/ttyS0", "mode": "master", "state": "up",
+         "requests": 7, "replies": 6, "timeouts": 1},
+        {"name": "meters", "device": "/dev/ttyS1", "mode": "slave", "state": "down",
+         "requests": 3, "replies": 0, "timeouts": 3}]
+    found = families(exposition(collector))
+    assert samples(found["mbgw_line_requests"], line=None) == {
+        ("mbgw_line_requests_total", (("line", "serial"), ("mode", "master"))): 7,
+        ("mbgw_line_requests_total", (("line", "meters"), ("mode", "slave"))): 3}
+    assert samples(found["mbgw_line_replies"], line="meters") == {
+        ("mbgw_line_replies_total", (("mode", "slave"),)): 0}
+    assert samples(found["mbgw_line_timeouts"], line="serial") == {
+        ("mbgw_line_timeouts_total", (("mode", "master"),)): 1}
+    assert samples(found["mbgw_line_open"], line=None) == {
+        ("mbgw_line_open", (("line", "serial"), ("mode", "master"))): 1,
+        ("mbgw_line_open", (("line", "meters"), ("mode", "slave"))): 0}
 
 
 def test_per_address_counters_health_and_exceptions():

@@ -2,8 +2,9 @@
 routes, the file's routes with the table's units kept, each unit's hop and rewrite."""
 import dataclasses
 
-from mbgw.config.lines import LineConfig, RouteConfig
+from mbgw.config.lines import LineConfig, RouteConfig, routes_status
 from mbgw.config.model import SerialConfig, SlaveConfig, TableConfig
+from mbgw.config.number_list import number_list_text as units_text
 from mbgw.routing.inbox import Inbox
 from mbgw.slave.routes import (
     DIRECT,
@@ -15,8 +16,6 @@ from mbgw.slave.routes import (
     effective_routes,
     face_hops,
     is_today,
-    routes_status,
-    units_text,
 )
 from mbgw.slave.targets import line_settings
 
