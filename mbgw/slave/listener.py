@@ -23,7 +23,7 @@ from mbgw.audit import Kind, event, operator
 from mbgw.config.model import ACTIVE_WINDOW_S, SlaveConfig
 from mbgw.errors import ConfigError, ListenError
 from mbgw.firewall.guard import Firewall
-from mbgw.line import clients
+from mbgw.line.forward import stamp_arrivals
 from mbgw.net.acl import AccessList
 from mbgw.net.address import format_address
 from mbgw.net.listen import listen
@@ -84,7 +84,7 @@ class Listener:
         assert self._loop is not None
         if self._cfg.mdbport:
             self._listeners = listen(self._cfg.bind, self._cfg.mdbport, option="mdbport",
-                                     stamp_arrivals=clients.stamp_arrivals,
+                                     stamp_arrivals=stamp_arrivals,
                                      backlog=LISTEN_BACKLOG)
         for sock in self._listeners:
             self._loop.add_reader(sock.fileno(), self._accept, sock)
@@ -94,7 +94,7 @@ class Listener:
         assert self._loop is not None
         if self._tls is not None:
             self._tls_listeners = listen(self._cfg.bind, self._cfg.tls.port, option="tls-port",
-                                         stamp_arrivals=clients.stamp_arrivals,
+                                         stamp_arrivals=stamp_arrivals,
                                          backlog=LISTEN_BACKLOG)
         for sock in self._tls_listeners:
             self._loop.add_reader(sock.fileno(), self._accept_tls, sock)

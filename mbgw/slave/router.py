@@ -106,7 +106,7 @@ class Router:
         if hop is DIRECT:
             job = self._admit(client, tid, unit, request, received_ns)
             if job is not None:
-                client.in_flight += 1
+                client.admitted()
                 self._scheduler.submit(client.queue, job)
             return
         self._elsewhere(hop, client, tid, unit, request, received_ns, self._responder)
@@ -146,13 +146,13 @@ class Router:
         elif kind is SERIAL:
             job = self._admit(client, tid, unit, request, received_ns, hop.rewrite(unit))
             if job is not None:
-                client.in_flight += 1
+                client.admitted()
                 self._scheduler.submit(client.queue, job)
         else:
             self._requested(client, tid, unit, request)
             inbox = hop.inbox
             assert inbox is not None
-            client.in_flight += 1
+            client.admitted()
             inbox.submit(Exchange(client, hop.rewrite(unit), request, received_ns,
                                   self._completed, (client, tid, unit)))
 
@@ -169,7 +169,7 @@ class Router:
         while completions:
             exchange, reply, outcome = completions.popleft()
             client, tid, unit = exchange.context
-            client.in_flight -= 1
+            client.answered()
             self._answer(client, tid, unit, reply)
             if self.trace.active:
                 self.traced(client, tid, unit, exchange.pdu[0], reply, outcome,
@@ -184,7 +184,7 @@ class Router:
         already so that the client's limit of requests in the gateway holds."""
         hop = self._face[unit]
         if hop is not None and hop.kind is SERIAL:
-            client.in_flight += 1
+            client.admitted()
             self._kept.append((client, tid, unit, request, client.arrived_ns))
             return
         if self._allowed(client, tid, unit, request, client.arrived_ns):
@@ -197,7 +197,7 @@ class Router:
         if not kept:
             return
         for client, tid, unit, request, received_ns in kept:
-            client.in_flight -= 1
+            client.answered()
             if not client.closed:
                 self.request(client, tid, unit, request, received_ns)
         kept.clear()
@@ -259,13 +259,12 @@ class Router:
                 return None
         return Job(client, tid, unit, bytes((address,)) + request, received_ns, probe=down)
 
-    def finished(self, job: Job, reply: bytes | None, sent: int = -1) -> None:
+    def finished(self, job: Job, reply: bytes | None, forwarded: int = -1) -> None:
         """job's outcome: its reply (if any) goes out at once, or its rest when the serial
-        receive sent `sent` bytes of it already."""
+        receive forwarded that many bytes of it already."""
         client = job.client
-        if sent < 0:            # else C counted it answered as it sent the reply
-            client.in_flight -= 1
-        self._answer(client, job.tid, job.unit, reply, sent)
+        client.answered(forwarded)
+        self._answer(client, job.tid, job.unit, reply, forwarded)
         if self.trace.active:
             self.traced(client, job.tid, job.unit, job.adu[1], reply, job.outcome,
                         job.received_ns)
@@ -275,12 +274,12 @@ class Router:
         self._scheduler.discard(client.queue)
 
     def _answer(self, client: Client, tid: int, unit: int, reply: bytes | None,
-                sent: int = -1) -> None:
+                forwarded: int = -1) -> None:
         if reply is not None and not client.closed:
-            if sent < 0:
+            if forwarded < 0:
                 client.send(mbap.frame(tid, unit, reply))
-            elif sent < mbap.HEADER_LEN + len(reply):
-                client.send(mbap.frame(tid, unit, reply)[sent:])
+            elif forwarded < mbap.HEADER_LEN + len(reply):
+                client.send(mbap.frame(tid, unit, reply)[forwarded:])
             self.counters.replies += 1
             client.last_active = time.monotonic()
 
