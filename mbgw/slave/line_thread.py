@@ -296,7 +296,10 @@ class LineWorker(LineThread[SlaveConfig]):
             log.exception("internal error serving %s", job.adu.hex(" "))
             job.outcome = OUTCOME_ERROR
             reply = self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE)
-        self._deliver_safely(job, reply, forwarded)
+        try:
+            self._deliver(job, reply, forwarded)
+        except Exception:
+            log.exception("internal error delivering the outcome of %s", job.adu.hex(" "))
         master = self._master
         if got is not None and master is not None:
             try:
