@@ -42,15 +42,24 @@ class SerialError(MbgwError, OSError):
 
 
 class LineTimeout(MbgwError):
-    """No valid reply arrived on the serial line before the deadline."""
+    """No valid reply arrived on the serial line before the deadline.  mismatch: the last
+    reply PDU that came and did not answer the request (another function, another size),
+    for a scenario to tell why it failed; None when none came."""
+
+    def __init__(self, mismatch: bytes | None = None) -> None:
+        super().__init__()
+        self.mismatch = mismatch
 
 
 class ChecksumError(MbgwError):
-    """A frame arrived with a bad CRC."""
+    """A frame arrived with a bad CRC.  address: its first byte (the address, unless noise),
+    when the reader says (native.Port.read_request)."""
+    address: int | None = None
 
 
 class FrameError(MbgwError):
-    """A frame is malformed (too long, truncated)."""
+    """A frame is malformed (too long, truncated).  address: as ChecksumError's."""
+    address: int | None = None
 
 
 class ConfigFileError(ConfigError):

@@ -4,13 +4,11 @@ what came is a native.Reception, its frame address + PDU without the check bytes
 import time
 
 from mbgw.errors import ChecksumError, FrameError
-from mbgw.line import clients, frames
+from mbgw.line import frames
+from mbgw.line.forward import NO_FORWARD, Forward
 from mbgw.line.native import Reception
 from mbgw.line.port import SerialLine
 from mbgw.protocol import pdu
-
-# receive(): the reply goes nowhere before it is returned
-NO_FORWARD = (-1, 0, 0, False, clients.NO_COUNTER)
 
 
 class RtuFraming:
@@ -27,29 +25,28 @@ class RtuFraming:
     def send(self, adu: bytes) -> int:
         return self.line.transmit_rtu(adu)
 
-    def receive(self, adu: bytes, deadline: int, forward=NO_FORWARD) -> Reception:
+    def receive(self, adu: bytes, deadline: int, forward: Forward = NO_FORWARD) -> Reception:
         """The next frame after adu, address + PDU (its CRC checked and removed); noise before it
-        is skipped and counted (noise_bytes).  forward: (socket fd, tid, unit, yield,
-        in-flight counter) of the client to which a reply that answers adu goes at once
-        (Reception.forwarded)."""
-        return self._book(self.port.receive_reply(adu, deadline, *forward))
+        is skipped and counted (noise_bytes).  forward: the client to which a reply that
+        answers adu goes at once (Reception.forwarded)."""
+        return self._book(self.port.receive_reply(adu, deadline, forward))
 
     def exchanges(self, adu: bytes) -> bool:
         """exchange() can take adu: a function code of pdu.LIBMODBUS_FRAMED, on a line
         libmodbus writes to."""
         return adu[1] in pdu.LIBMODBUS_FRAMED and self.line.libmodbus_sends
 
-    def exchange(self, adu: bytes, stout_ns: int, forward=NO_FORWARD,
-                 taken: bool = False) -> Reception:
+    def exchange(self, adu: bytes, stout_ns: int, forward: Forward = NO_FORWARD) -> Reception:
         """send(adu) and receive() with the deadline stout_ns after the request, in one C
-        call, so that nothing runs between the write and the wait for the reply (taken: the
-        port took adu from its client and exchanged it already).  Raises SerialError when
-        the write failed (the line is lost)."""
-        port = self.port
-        if taken:
-            got = port.exchanged()
-        else:
-            got = port.exchange(adu, self.line.char_ns, stout_ns, *forward)
+        call, so that nothing runs between the write and the wait for the reply.  Raises
+        SerialError when the write failed (the line is lost)."""
+        got = self.port.exchange(adu, self.line.char_ns, stout_ns, forward)
+        self.line.sent_rtu(len(adu))
+        return self._book(got)
+
+    def exchanged(self, adu: bytes, got: Reception) -> Reception:
+        """Count an exchange of adu that C made (exchange(), or the port's shortcut, which
+        took adu from its client): got, what it received."""
         self.line.sent_rtu(len(adu))
         return self._book(got)
 
@@ -100,7 +97,7 @@ class AsciiFraming:
         counters.bytes_received += got.noise + got.length
         return got
 
-    def receive(self, adu: bytes, deadline: int, forward=NO_FORWARD) -> Reception:
+    def receive(self, adu: bytes, deadline: int, forward: Forward = NO_FORWARD) -> Reception:
         """The next frame, address + PDU (its LRC checked and removed); replies are never
         forwarded before they are checked here."""
         got = self._read(deadline)

@@ -1,6 +1,6 @@
 """The serial port over the C core: `Port` (a libmodbus context plus csrc/'s timed reads and
 writes) and what its calls hand back (`Reception`, `Take`).  The frame rules are in
-mbgw.line.frames, the client sockets' reads in mbgw.line.clients: with this module the only
+mbgw.line.frames, the client sockets' reads in mbgw.line.forward: with this module the only
 importers of the generated cffi module.
 
 Every blocking call here releases the GIL (cffi API mode), so the serial line's thread
@@ -13,7 +13,7 @@ from typing import Any, NamedTuple
 
 from mbgw._ffi import ffi, lib
 from mbgw.errors import ChecksumError, FrameError, LineTimeout, MbgwError, SerialError
-from mbgw.line.clients import NO_COUNTER
+from mbgw.line.forward import NO_COUNTER, NO_FORWARD, Forward
 from mbgw.line.frames import ASCII_MAX_FRAME, RTU_MAX_ADU
 
 REPLY_AT = lib.MBGW_REPLY_AT
@@ -54,7 +54,7 @@ class Take(NamedTuple):
     status: int               # bytes read, 0 at the connection's end, -errno
     taken: bool               # exchanged: Port.exchanged() gives its outcome
     forwarded: int            # bytes of its reply the client's socket took (-1: not sent)
-    arrived_ns: int           # when what was read arrived (clients.ClientReader.arrived_ns)
+    arrived_ns: int           # when what was read arrived (forward.ClientReader.arrived_ns)
 
 
 def tty_cflag(cflag: int, data_bits: int, parity: str, stop_bits: int) -> int:
@@ -204,31 +204,25 @@ class Port:
     def discard_echo(self, sent: bytes, deadline_ns: int) -> None:
         self._check(lib.mbgw_discard_echo(self.fd, sent, len(sent), deadline_ns), "read echo")
 
-    def receive_reply(self, adu: bytes, deadline_ns: int, client_fd: int = -1, tid: int = 0,
-                      unit: int = 0, yield_cpu: bool = False,
-                      in_flight=NO_COUNTER) -> Reception:
+    def receive_reply(self, adu: bytes, deadline_ns: int,
+                      forward: Forward = NO_FORWARD) -> Reception:
         """The next frame after the request adu (csrc mbgw_find_reply: noise is skipped and
-        the reply found behind it), CRC checked.  With client_fd, a reply that answers adu in
-        time has gone to that socket as a Modbus TCP frame with tid and unit already
-        (Reception.forwarded), and in_flight (a counter()) went down by one as it was;
-        yield_cpu: then the client that was woken runs before this returns."""
+        the reply found behind it), CRC checked.  With a forward, a reply that answers adu
+        in time has gone to its client already (Reception.forwarded)."""
         n = lib.mbgw_receive_reply(self._ctx, self._buf, adu, len(adu), deadline_ns,
-                                   self._gap_us,
-                                   self._forward_to(client_fd, tid, unit, yield_cpu, in_flight),
+                                   self._gap_us, self._forward_to(forward),
                                    self._end_ns, self._forwarded, self._noise)
         return self._received(n, adu[0], 0, self._end_ns[0], self._forwarded[0],
                               self._noise[0])
 
-    def exchange(self, adu: bytes, char_ns: int, stout_ns: int, client_fd: int = -1,
-                 tid: int = 0, unit: int = 0, yield_cpu: bool = False,
-                 in_flight=NO_COUNTER) -> Reception:
+    def exchange(self, adu: bytes, char_ns: int, stout_ns: int,
+                 forward: Forward = NO_FORWARD) -> Reception:
         """send_rtu(adu) and receive_reply() in one call, the deadline stout_ns after the
         request's last byte (char_ns a character): nothing runs between the write and the
         wait.  Raises SerialError when the write failed."""
         times = self._times
         n = lib.mbgw_exchange(self._ctx, self._buf, adu, len(adu), char_ns, stout_ns,
-                              self._gap_us,
-                              self._forward_to(client_fd, tid, unit, yield_cpu, in_flight),
+                              self._gap_us, self._forward_to(forward),
                               times, self._forwarded, self._noise)
         return self._exchanged(n, times, adu[0], self._forwarded[0], self._noise[0])
 
@@ -274,13 +268,9 @@ class Port:
             raise self._fail(-n, "write")
         return self._received(n, address, times[0], times[1], forwarded, noise)
 
-    def _forward_to(self, client_fd: int, tid: int, unit: int, yield_cpu: bool, in_flight):
+    def _forward_to(self, forward: Forward):
         to = self._to
-        to.fd = client_fd
-        to.tid = tid
-        to.unit = unit
-        to.yield_cpu = yield_cpu
-        to.in_flight = in_flight
+        to.fd, to.tid, to.unit, to.yield_cpu, to.in_flight = forward
         return to
 
     def _received(self, n: int, address: int, request_end_ns: int, last_byte_ns: int,
@@ -331,18 +321,18 @@ class Port:
         """Master mode: the next RTU frame for any address, without its (valid) CRC; None
         when woken through wake_fd, or after idle_ms (-1: no limit), before a frame began.
         reply_to: the last frame for an address we do not answer for (its slave's reply may
-        come next), or b"".  Raises ChecksumError, FrameError, SerialError."""
+        come next), or b"".  Raises ChecksumError or FrameError (with the rejected frame's
+        first byte: its address, unless noise), SerialError."""
         n = lib.mbgw_rtu_read_request(self.fd, wake_fd, self._buf, RTU_MAX_ADU, reply_to,
                                       len(reply_to), gap_us, idle_ms)
         if n == -errno.ECANCELED:
             return None
-        return ffi.buffer(self._buf, self._check(n, "read") - 2)[:]
-
-    @property
-    def rejected_address(self) -> int:
-        """The first byte (the address, unless noise) of the frame read_request() has just
-        rejected (ChecksumError, FrameError)."""
-        return self._buf[0]
+        if n < 0:
+            fault = self._fail(-n, "read")
+            if isinstance(fault, (ChecksumError, FrameError)):
+                fault.address = self._buf[0]
+            raise fault
+        return ffi.buffer(self._buf, n - 2)[:]
 
 
 class Capture:

@@ -354,8 +354,8 @@ class SerialFace(LineThread[FaceSettings]):
         try:
             return self._port.read_request(self.wake_fd, self._reply_to, self._gap_us,
                                            self.idle_ms)
-        except (ChecksumError, FrameError):
-            self._rejected = self._port.rejected_address
+        except (ChecksumError, FrameError) as err:
+            self._rejected = -1 if err.address is None else err.address
             raise
 
     def _receive_ascii(self) -> bytes | None:

@@ -6,12 +6,12 @@ from mbgw.errors import ListenError
 LISTEN_BACKLOG = 16
 
 
-def listen(bind: str | None, port: int, *, option: str,
-           stamp_arrivals=None) -> list[socket.socket]:
+def listen(bind: str | None, port: int, *, option: str, stamp_arrivals=None,
+           backlog: int = LISTEN_BACKLOG) -> list[socket.socket]:
     """Non-blocking listening sockets on bind (None: every interface, IPv4 and IPv6) and
     port.  stamp_arrivals(fd), when given, is called on each before it listens (slave mode
-    dates its connections' requests).  Raises ListenError naming option; nothing is left
-    open then."""
+    dates its connections' requests); backlog: listen()'s.  Raises ListenError naming
+    option; nothing is left open then."""
     try:
         infos = socket.getaddrinfo(bind, port, socket.AF_UNSPEC, socket.SOCK_STREAM, 0,
                                    socket.AI_PASSIVE)
@@ -28,7 +28,7 @@ def listen(bind: str | None, port: int, *, option: str,
             if family == socket.AF_INET6:
                 sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
             sock.bind(address)
-            sock.listen(LISTEN_BACKLOG)
+            sock.listen(backlog)
             sock.setblocking(False)
     except OSError as err:
         for sock in sockets:

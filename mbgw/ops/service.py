@@ -113,14 +113,6 @@ def idle_ms(interval: float | None) -> int:
     return -1 if interval is None else math.ceil(interval * 1000)
 
 
-class ListenError(errors.ListenError):
-    """slave/server.py's spelling for its TLS port, until it raises mbgw.errors.ListenError
-    itself (then this class goes)."""
-
-    def __init__(self, port: int, err: OSError) -> None:
-        super().__init__("tls-port", port, err)
-
-
 def start_metrics(address: str | None, collector) -> "MetricsServer | None":
     """The --metrics endpoint (None when off) serving collector(mbgw.ops.metrics); .names are
     its listening addresses.  Raises ListenError when it cannot listen.  Without

@@ -10,8 +10,7 @@ import threading
 import time
 
 from mbgw.firewall.guard import Guard
-from mbgw.line import clients
-from mbgw.line.framing import NO_FORWARD
+from mbgw.line.forward import NO_FORWARD, ClientReader, Forward, counter
 from mbgw.protocol import mbap
 from mbgw.slave.scheduler import Queue
 
@@ -19,6 +18,8 @@ MAX_IN_FLIGHT = 16          # TCP guide 4.4.2: a server holds 1..16 transactions
 RECEIVE_SIZE = 4096         # what one read takes from a connection: 15 requests of 260 bytes
 OUTPUT_LIMIT = 65536        # replies held for a client that does not read: then it is not read
 _client_ids = itertools.count(1)
+# Forward(...) without the NamedTuple's own __new__, a Python call: once per request
+_new_tuple = tuple.__new__
 # What poll() says of a connection whose peer has closed it or reset it.
 PEER_GONE = select.POLLRDHUP | select.POLLHUP | select.POLLERR | select.POLLNVAL
 
@@ -41,7 +42,7 @@ class Client:
         self.local = local
         self.queue = Queue()
         # requests taken in and not yet answered: C counts one down as it hands a reply over
-        self.flight = clients.counter()
+        self.flight = counter()
         self.requests = 0
         self.connected_at = time.time()
         self.last_active = self.opened = time.monotonic()
@@ -60,11 +61,19 @@ class Client:
 
     @property
     def in_flight(self) -> int:
+        """Requests taken in and not yet answered (C's count too: see answered)."""
         return self.flight[0]
 
-    @in_flight.setter
-    def in_flight(self, count: int) -> None:
-        self.flight[0] = count
+    def admitted(self) -> None:
+        """A request of this client is in the gateway from now on (queued, kept for the line,
+        with another target, or on the line)."""
+        self.flight[0] += 1
+
+    def answered(self, forwarded: int = -1) -> None:
+        """A request is no longer in the gateway; forwarded: the bytes of its reply C sent
+        straight from the line (then C counted it answered as it did), or -1."""
+        if forwarded < 0:
+            self.flight[0] -= 1
 
     @property
     def readable(self) -> bool:
@@ -74,7 +83,7 @@ class Client:
     def output_waiting(self) -> bool:
         return bool(self._out)
 
-    def receive(self, reader: clients.ClientReader) -> list | None:
+    def receive(self, reader: ClientReader) -> list | None:
         """What has arrived, as whole frames [(tid, unit, pdu)], and when (arrived_ns); None
         once the connection has ended.  Raises mbap.BadHeader."""
         n = reader.read(self.fd)
@@ -88,13 +97,13 @@ class Client:
     # here to go out before it (order) and the connection is open: forward_target() for a
     # request from the queue, at_rest for the idle line's shortcut (mbgw_take_request).
 
-    def forward_target(self, tid: int, unit: int, yield_cpu: bool) -> tuple:
-        """Where the C receive may send the reply to request tid straight from the line (a
-        framing forward tuple), or NO_FORWARD; yield_cpu: nothing else waits for the line,
-        so the client woken by the reply may run first."""
+    def forward_target(self, tid: int, unit: int, yield_cpu: bool) -> Forward:
+        """Where the C receive may send the reply to request tid straight from the line, or
+        NO_FORWARD; yield_cpu: nothing else waits for the line, so the client woken by the
+        reply may run first."""
         if self._out or self.closed:
             return NO_FORWARD
-        return (self.fd, tid, unit, yield_cpu, self.flight)
+        return _new_tuple(Forward, (self.fd, tid, unit, yield_cpu, self.flight))
 
     @property
     def at_rest(self) -> bool:
@@ -186,7 +195,7 @@ class TlsClient(Client):
         super().__init__(sock, host, peer, local)
         self.role = role
 
-    def receive(self, reader: clients.ClientReader) -> list | None:
+    def receive(self, reader: ClientReader) -> list | None:
         sock = self.sock
         assert isinstance(sock, ssl.SSLSocket)
         try:
@@ -201,7 +210,7 @@ class TlsClient(Client):
             return None
         return self.received(data, time.monotonic_ns())
 
-    def forward_target(self, tid: int, unit: int, yield_cpu: bool) -> tuple:
+    def forward_target(self, tid: int, unit: int, yield_cpu: bool) -> Forward:
         return NO_FORWARD
 
     @property

@@ -14,7 +14,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 
-from mbgw.line.clients import ClientReader
+from mbgw.line.forward import ClientReader
 from mbgw.ops.limits import WarnLimit
 from mbgw.protocol import mbap
 from mbgw.slave.client import RECEIVE_SIZE, Client

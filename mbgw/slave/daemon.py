@@ -81,9 +81,9 @@ class SlaveMode(ModeParts):
         self.targets = TargetLines(cfg, self.inboxes)
         self.servers = _servers(cfg, self.inboxes)
         worker: LineWorker
+        # one hub: every line's events, each naming its line
         self.server = TcpServer(cfg, self.scheduler, counters, lambda: worker.up, devices,
-                                self.tables.table, self.inboxes)
-        self.server.trace = self.targets.hub    # one hub: every line's events, named by line
+                                self.tables.table, self.inboxes, self.targets.hub)
         self.worker = worker = LineWorker(cfg, line, self.scheduler, self.server, counters,
                                           devices)
         if cfg.lines:                      # a serial face may reach line serial too

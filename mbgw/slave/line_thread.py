@@ -27,7 +27,9 @@ from typing import Hashable
 
 from mbgw.config.model import SlaveConfig
 from mbgw.errors import LineTimeout, SerialError
-from mbgw.line.framing import NO_FORWARD, framing_for
+from mbgw.line.forward import NO_FORWARD
+from mbgw.line.framing import framing_for
+from mbgw.line.native import Reception
 from mbgw.line.port import SerialLine
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s
 from mbgw.ops.counters import Counters
@@ -69,15 +71,15 @@ class LineWorker(LineThread[SlaveConfig]):
         self._counters = counters
         self.devices = devices
         self._down = devices.rule.down     # the addresses that are down, by address
-        self._finished = server.finished   # finished(job, reply_pdu_or_None[, bytes forwarded])
-        # deliver(job, reply_pdu_or_None[, bytes forwarded]): the client's, until exchanges
-        # come too (use_inbox), so that a daemon of one line pays no dispatch per request
+        self._finished = server.finished   # finished(job, reply_pdu_or_None[, forwarded])
+        # deliver(job, reply_pdu_or_None[, bytes of it forwarded]): the client's, until
+        # exchanges come too (use_inbox), so that a daemon of one line pays no dispatch per
+        # request
         self._deliver = self._finished
         self._inbox: Inbox | None = None   # exchanges from other faces (use_inbox)
         self._queues: dict[Hashable, Queue] = {}   # the exchanges' queues, by source
         self._taken: Job | None = None     # put on the line by the shortcut, books to keep
         self._shortcut = False
-        self._serving: Job | None = None     # until its outcome has been delivered
         self._gate = Gate()                  # see the module's docstring
         self._reader: TableReader | None = None     # while the table is on
         self._master: SerialMaster | None = self._master_on(line) if line else None
@@ -97,7 +99,6 @@ class LineWorker(LineThread[SlaveConfig]):
         cfg = self._cfg
         master = SerialMaster(framing_for(line), cfg.serial, self._counters, self.devices,
                               cfg.retries, cfg.turnaround_ms, cfg.late_window)
-        master.on_reply = self._reply_now
         master.on_late = self._late
         if previous is not None:
             master.keep_line_state(previous)
@@ -188,7 +189,7 @@ class LineWorker(LineThread[SlaveConfig]):
             self._idle()
             job, self._taken = self._taken, None
             if job is not None:
-                self._serve(job, taken=True)
+                self._serve_taken(job)
         elif not self._refused_as_down(job):
             self._serve(job)
             self._connections.wait(0)      # what the clients sent meanwhile
@@ -228,25 +229,31 @@ class LineWorker(LineThread[SlaveConfig]):
                 self._gate.take()
             self._server.take_kept()
 
-    def _transact(self, master: SerialMaster, job: Job, forward, taken: bool) -> bytes | None:
-        """master.transact, without the gate while the table reader runs; the requests it
-        kept for the line meanwhile are routed as soon as the gate is back."""
+    def _exchange_job(self, master: SerialMaster, job: Job, forward) -> Reception | None:
+        """master.exchange, without the gate while the table reader runs; the gate is back
+        when it returns.  The requests the reader kept for the line meanwhile are routed
+        once the reply has gone on (_serve), or at once when there is none (it raised)."""
         if self._reader is None:
-            return master.transact(job.adu, forward, taken)
+            return master.exchange(job.adu, forward)
         self._gate.release()
         try:
-            return master.transact(job.adu, forward, taken)
-        finally:
+            got = master.exchange(job.adu, forward)
+        except BaseException:
             self._gate.take()
             self._server.take_kept()
+            raise
+        self._gate.take()
+        return got
 
     # --- serving ---
 
-    def _serve(self, job: Job, taken: bool = False) -> None:
+    def _serve(self, job: Job) -> None:
+        """job on the line; its outcome to its client (or face) at once, the books after."""
         client = job.client
         if client is None and self._withdrawn(job):
             return
-        self._serving = job
+        got = None
+        forwarded = -1
         try:
             # The reply may go straight to a client whose earlier replies have all gone out.
             # With no other request waiting for the line, that client (often woken onto this
@@ -255,9 +262,17 @@ class LineWorker(LineThread[SlaveConfig]):
                 if self._reader is None and client is not None else NO_FORWARD
             master = self._master
             assert master is not None          # jobs are served only while the line is up
-            reply = self._transact(master, job, forward, taken)
-            if reply is None:
-                job.outcome = Outcome.BROADCAST    # a reply went out through _reply_now
+            got = self._exchange_job(master, job, forward)
+            if got is None:
+                job.outcome = Outcome.BROADCAST
+                reply = None
+            else:
+                frame = got.frame
+                assert frame is not None       # exchange() returns replies only
+                reply = frame[1:]
+                forwarded = got.forwarded
+                job.outcome = Outcome.DEVICE_EXCEPTION if reply[0] & pdu.EXCEPTION_FLAG \
+                    else Outcome.REPLY
         except LineTimeout:
             job.outcome = Outcome.TIMEOUT
             reply = self._failure(job, pdu.GATEWAY_TARGET_FAILED)
@@ -269,15 +284,46 @@ class LineWorker(LineThread[SlaveConfig]):
             log.exception("internal error serving %s", job.adu.hex(" "))
             job.outcome = Outcome.ERROR
             reply = self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE)
+        try:
+            self._deliver(job, reply, forwarded)
+        except Exception:
+            log.exception("internal error delivering the outcome of %s", job.adu.hex(" "))
         master = self._master
+        if got is not None and master is not None:
+            try:
+                master.book(got)
+            except Exception:   # a bug must cost one transaction's books, never the line
+                log.exception("internal error booking %s", job.adu.hex(" "))
+        if self._reader is not None:
+            self._server.take_kept()
         if master is not None and master.late_until[job.adu[0]]:
             self._timed_out[job.adu[0]] = job       # a try timed out: its reply may come
-        if self._serving is not None:
-            self._serving = None
-            try:
-                self._deliver(job, reply)
-            except Exception:
-                log.exception("internal error delivering the outcome of %s", job.adu.hex(" "))
+
+    def _serve_taken(self, job: Job) -> None:
+        """job, which the shortcut has put on the line already (_take): what C received is
+        handed to the master, then served as any job (a write that failed: the line is
+        lost)."""
+        master = self._master
+        try:
+            assert master is not None
+            master.book_taken(master.framing.port.exchanged())
+        except SerialError as err:
+            self._lost(err)
+            job.outcome = Outcome.LINE_DOWN
+            self._deliver_safely(job, self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE))
+            return
+        except Exception:   # a bug must cost one transaction, never the line
+            log.exception("internal error serving %s", job.adu.hex(" "))
+            job.outcome = Outcome.ERROR
+            self._deliver_safely(job, self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE))
+            return
+        self._serve(job)
+
+    def _deliver_safely(self, job: Job, reply: bytes | None, forwarded: int = -1) -> None:
+        try:
+            self._deliver(job, reply, forwarded)
+        except Exception:
+            log.exception("internal error delivering the outcome of %s", job.adu.hex(" "))
 
     def _refused_as_down(self, job: Job) -> bool:
         """A job queued before its address went down is refused now, unless it is the probe
@@ -293,32 +339,16 @@ class LineWorker(LineThread[SlaveConfig]):
         self._deliver(job, self._failure(job, pdu.GATEWAY_TARGET_FAILED))
         return True
 
-    def _deliver_any(self, job: Job, reply: bytes | None, sent: int = -1) -> None:
-        """job's outcome to its client (TcpServer.finished), or to the face whose exchange it
+    def _deliver_any(self, job: Job, reply: bytes | None, forwarded: int = -1) -> None:
+        """job's outcome to its client (Router.finished), or to the face whose exchange it
         is (its done, on this thread)."""
         exchange = job.exchange
         if exchange is None:
-            self._finished(job, reply, sent)
+            self._finished(job, reply, forwarded)
         else:
             if reply is not None:
-                self._counters.replies += 1     # as the TcpServer counts what it sends
+                self._counters.replies += 1     # as the Router counts what it sends
             exchange.done(exchange, reply, job.outcome)
-
-    def _reply_now(self, reply: bytes, sent: int) -> None:
-        """The serial master found the reply (sent: the bytes of it already forwarded, or
-        -1): it goes to the client before the books."""
-        job, self._serving = self._serving, None
-        if job is None:        # a scenario's run: its reply is the runner's
-            return
-        job.outcome = Outcome.DEVICE_EXCEPTION if reply[0] & pdu.EXCEPTION_FLAG else Outcome.REPLY
-        if self._reader is None:
-            self._deliver(job, reply, sent)
-            return
-        self._gate.take()
-        try:
-            self._deliver(job, reply, sent)
-        finally:
-            self._gate.release()
 
     def _late(self, frame: bytes) -> None:
         """A late reply (address + PDU) was dropped: traced with the request it answered."""
@@ -370,12 +400,12 @@ class LineWorker(LineThread[SlaveConfig]):
         master = self._master
         assert master is not None
         port = master.framing.port
-        client.in_flight += 1          # from now on, never an idle connection to evict,
+        client.admitted()              # from now on, never an idle connection to evict,
         client.requests += 1           # nor one that never sent a request, once answered
         take = port.take_request(client.fd, master.quiet_until_ns, client.flight)
         data = take.input
         if not take.taken:
-            client.in_flight -= 1
+            client.answered()
             client.requests -= 1
             if take.status == -errno.EAGAIN:
                 return []
@@ -387,8 +417,8 @@ class LineWorker(LineThread[SlaveConfig]):
                                              take.arrived_ns)
         except Exception:   # a bug must cost one transaction, never the line
             log.exception("internal error on a request the shortcut took: %s", data.hex(" "))
-        if self._taken is None and take.forwarded < 0:
-            client.in_flight -= 1      # not counted answered by a reply's forward either
+        if self._taken is None:
+            client.answered(take.forwarded)     # no job will: C may have, forwarding
         return []
 
     def _reject_waiting(self) -> None:
@@ -419,7 +449,7 @@ class LineWorker(LineThread[SlaveConfig]):
                 log.exception("internal error admitting %s", exchange.pdu.hex(" "))
 
     def _admit_exchange(self, exchange: Exchange) -> None:
-        """As TcpServer._admit: a line that is down refuses at once (0x0A), an address that is
+        """As Router._admit: a line that is down refuses at once (0x0A), an address that is
         down too (0x0B) unless this is its probe; otherwise a job in the source's turn."""
         counters = self._counters
         counters.requests += 1
@@ -542,12 +572,11 @@ class LineWorker(LineThread[SlaveConfig]):
             return None, PATH_UNAVAILABLE, 0
         device = self.devices.get(scenario.slave)
         retried, foreign = device.retries, _foreign_frames(device)
-        master.clear_mismatch()
         master.on_retry = on_retry
         try:
             reply = self._on_line(master, bytes((scenario.slave,)) + request, scenario.retries)
-        except LineTimeout:
-            reply = master.mismatch
+        except LineTimeout as timeout:
+            reply = timeout.mismatch
             if reply is None:       # VPGate 8.2: another master's frames came instead
                 kind = FRAME_WITHOUT_REQUEST if _foreign_frames(device) > foreign else TIMEOUT
                 return None, kind, device.retries - retried
@@ -566,10 +595,10 @@ class LineWorker(LineThread[SlaveConfig]):
         """master.transact for a scenario, without the gate (the table reader serves the
         clients meanwhile); the requests it kept for the line are routed after."""
         if self._reader is None:
-            return master.transact(adu, NO_FORWARD, False, retries)
+            return master.transact(adu, retries)
         self._gate.release()
         try:
-            return master.transact(adu, NO_FORWARD, False, retries)
+            return master.transact(adu, retries)
         finally:
             self._gate.take()
             self._server.take_kept()

@@ -23,8 +23,8 @@ from collections.abc import Callable
 
 from mbgw.config.model import SerialConfig
 from mbgw.errors import ChecksumError, LineTimeout
+from mbgw.line.forward import NO_FORWARD, Forward
 from mbgw.line.frames import reply_matches
-from mbgw.line.framing import NO_FORWARD
 from mbgw.line.native import Reception
 from mbgw.line.supervisor import longest_frame_s
 from mbgw.ops.counters import Counters
@@ -61,16 +61,20 @@ class SerialMaster:
         self._quiet_from_ns = 0
         self._quiet_us = 0
         self._deadline = 0          # of the reply to the request last sent
-        # on_reply(reply PDU, bytes of it forwarded or -1): called before the reply is booked
-        self.on_reply: Callable[[bytes, int], None] | None = None
         # on_late(frame: address + PDU): a late reply was dropped (for the trace)
         self.on_late: Callable[[bytes], None] | None = None
-        # The last reply dropped for not answering its request (another function, another
-        # size), for a scenario to tell why it failed; its runner clears it.
-        self.mismatch: bytes | None = None
         # on_retry(): called before each repeat of a request (a scenario's status says so)
         self.on_retry: Callable[[], None] | None = None
-        self._bad_bytes = 0         # in frames that were not the reply, this transaction
+        # The transaction under way, for book() and LineTimeout: its device, when its first
+        # try began, its tries but one, the bytes in frames that were not the reply, and the
+        # last reply dropped for not answering it (another function, another size).
+        self._device: DeviceStats | None = None
+        self._address = 0
+        self._started = 0
+        self._attempt = 0
+        self._bad_bytes = 0
+        self._mismatch: bytes | None = None
+        self._taken: Reception | None = None    # book_taken's, for the next exchange()
 
     def keep_line_state(self, previous: "SerialMaster") -> None:
         """Taking over the line from previous (new settings): the silence it owes the line
@@ -81,24 +85,39 @@ class SerialMaster:
         self._late_pending = previous._late_pending
         self.late_open = previous.late_open
 
-    def clear_mismatch(self) -> None:
-        """Before a scenario's run: a mismatch after it is that run's (a method, not an
-        assignment, so that mypy does not take mismatch for None after it)."""
-        self.mismatch = None
-
     @property
     def quiet_until_ns(self) -> int:
         """The line must stay silent until then."""
         return self._quiet_from_ns + self._quiet_us * 1000
 
-    def transact(self, adu: bytes, forward=NO_FORWARD, taken: bool = False,
-                 retries: int = -1) -> bytes | None:
-        """Send adu (address + PDU) and return the reply PDU; None for a broadcast.
-        forward: where the reply may go straight from the C receive (framing.NO_FORWARD);
-        taken: the port has exchanged adu already (native.Port.take_request); retries: this
-        transaction's own (a scenario's), -1 for the line's.
-        Raises LineTimeout when no valid reply came, SerialError when the port failed."""
-        device = self.devices.get(adu[0])
+    def transact(self, adu: bytes, retries: int = -1) -> bytes | None:
+        """exchange(adu) and book() its reply: the reply PDU, None for a broadcast."""
+        got = self.exchange(adu, NO_FORWARD, retries)
+        if got is None:
+            return None
+        self.book(got)
+        frame = got.frame
+        assert frame is not None        # exchange() returns replies only
+        return frame[1:]
+
+    def book_taken(self, got: Reception) -> None:
+        """The port's shortcut (native.Port.take_request) has exchanged a request already
+        and got is what it received: the next exchange() of that request goes on from
+        there, without sending it."""
+        self._taken = got
+
+    def exchange(self, adu: bytes, forward: Forward = NO_FORWARD,
+                 retries: int = -1) -> Reception | None:
+        """Send adu (address + PDU) and return what brought the reply (its frame: address
+        + PDU; forwarded: the bytes of it forward's client has had already), for book()
+        once the reply has gone on; None for a broadcast (booked already).  forward: where
+        the reply may go straight from the C receive; retries: this transaction's own (a
+        scenario's), -1 for the line's.  Raises LineTimeout (booked; its mismatch: the last
+        reply that did not answer adu) when no valid reply came, SerialError when the port
+        failed."""
+        taken, self._taken = self._taken, None
+        self._address = adu[0]
+        self._device = device = self.devices.get(adu[0])
         device.transactions += 1
         if adu[0] == pdu.BROADCAST:
             self._await_quiet(adu)
@@ -109,42 +128,48 @@ class SerialMaster:
             return None
         if self.late_until[adu[0]]:
             self._await_late(adu[0])
-        started = 0
         counters = self._counters
         noise = counters.noise_bytes      # from here on, bytes in no frame ...
         self._bad_bytes = 0               # ... and in frames that were not the reply
+        self._mismatch = None
         for attempt in range((self._retries if retries < 0 else retries) + 1):
             if attempt:
                 self._count(device, "retries")
-                taken = False
+                taken = None
                 if self.on_retry is not None:
                     self.on_retry()
-            if not taken:
+            if taken is None:
                 self._await_quiet(adu)
             elif wire.isEnabledFor(logging.DEBUG):
                 wire.debug("tx %s", adu.hex(" "))
-            got = self._receive(adu, device, forward, taken or (
+            got = self._receive(adu, device, forward, taken is not None or (
                 self.framing.exchanges(adu) and not self._nocheck), taken)
             if not attempt:
-                started = self._sent_ns
+                self._started = self._sent_ns
             if got is not None and got.frame is not None:
-                reply = got.frame[1:]
-                if self.on_reply is not None:
-                    self.on_reply(reply, got.forwarded)
-                ended = got.last_byte_ns
-                self._counters.line_busy_ns += ended - started
-                exception = reply[1] if reply[0] & pdu.EXCEPTION_FLAG and len(reply) > 1 else None
-                if exception is not None:
-                    self._counters.device_exceptions += 1
-                device.answered((ended - self._sent_ns) / 1e6, exception)
-                if attempt:         # the tries before may still answer
-                    self._open_window(adu[0], attempt)
-                return reply
-        self._counters.line_busy_ns += self._deadline - started
+                self._attempt = attempt
+                return got
+        self._counters.line_busy_ns += self._deadline - self._started
         self._count(device, "timeouts")
         device.failed(counters.noise_bytes - noise + self._bad_bytes)
         self._open_window(adu[0], attempt + 1)
-        raise LineTimeout()
+        raise LineTimeout(self._mismatch)
+
+    def book(self, got: Reception) -> None:
+        """The books of the reply exchange() has just returned (got), kept once the reply
+        has gone on: the line's busy time, the device's answer and latency, and the late
+        window the tries before it may have left open."""
+        frame = got.frame
+        device = self._device
+        assert frame is not None and device is not None
+        ended = got.last_byte_ns
+        self._counters.line_busy_ns += ended - self._started
+        exception = frame[2] if frame[1] & pdu.EXCEPTION_FLAG and len(frame) > 2 else None
+        if exception is not None:
+            self._counters.device_exceptions += 1
+        device.answered((ended - self._sent_ns) / 1e6, exception)
+        if self._attempt:           # the tries before may still answer
+            self._open_window(self._address, self._attempt)
 
     # --- the late window (see the module's docstring) ---
 
@@ -243,17 +268,17 @@ class SerialMaster:
         self._quiet_us = self.framing.inter_frame_us + self._interframe_us
         self._deadline = end_ns + self._stout_ns
 
-    def _receive(self, adu: bytes, device: DeviceStats, forward, exchange: bool,
-                 taken: bool = False) -> Reception | None:
+    def _receive(self, adu: bytes, device: DeviceStats, forward: Forward, exchange: bool,
+                 taken: Reception | None = None) -> Reception | None:
         """Send adu (in one C call with the first receive when exchange; taken: that call
-        was made already) and return what brought the reply (its frame: address + PDU), or
-        None once stout has passed without one."""
+        was made already, by the shortcut, and received this) and return what brought the
+        reply (its frame: address + PDU), or None once stout has passed without one."""
         framing = self.framing
         if not exchange:
             self._sent(framing.send(adu))
         while True:
             got = self._reception(adu, forward, exchange, taken)
-            exchange = False
+            exchange, taken = False, None
             if got.fault is not None:
                 if isinstance(got.fault, LineTimeout):
                     self._quiet_from_ns = max(self._quiet_from_ns, got.last_byte_ns)
@@ -280,19 +305,23 @@ class SerialMaster:
             if not reply_matches(adu[1:], frame[1:]):
                 self._count(device, "wrong_function")
                 self._bad_bytes += got.length
-                self.mismatch = frame[1:]
+                self._mismatch = frame[1:]
                 continue
             return got
 
-    def _reception(self, adu: bytes, forward, exchange: bool, taken: bool) -> Reception:
+    def _reception(self, adu: bytes, forward: Forward, exchange: bool,
+                   taken: Reception | None) -> Reception:
         """The next frame (or fault) on the line for adu; exchange: adu is sent first, in
         the same C call (taken: that call was made already, by the shortcut)."""
         framing = self.framing
         if exchange:
-            got = framing.exchange(adu, self._stout_ns, forward, taken)
+            if taken is None:
+                got = framing.exchange(adu, self._stout_ns, forward)
+                self._sent(got.request_end_ns)
+                return got
+            got = framing.exchanged(adu, taken)
             self._sent(got.request_end_ns)
-            if taken:
-                self._sent_ns = got.request_end_ns - (len(adu) + 2) * framing.line.char_ns
+            self._sent_ns = got.request_end_ns - (len(adu) + 2) * framing.line.char_ns
             return got
         if self._nocheck:
             return framing.receive_unchecked(adu, self._deadline)

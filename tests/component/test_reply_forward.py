@@ -13,7 +13,7 @@ import pytest
 from mbgw._ffi import ffi, lib
 
 from mbgw.errors import FrameError, LineTimeout
-from mbgw.line.clients import counter
+from mbgw.line.forward import NO_COUNTER, Forward, counter
 from mbgw.line.native import REPLY_AT, REPLY_SCAN, Port
 from tests.modbus import holding_reply, mbap, read_holding, rtu
 
@@ -34,6 +34,11 @@ def line(pty_pair):
     port.close()
 
 
+def to(sock: socket.socket, yield_cpu: bool = False, in_flight=NO_COUNTER) -> Forward:
+    """The reply's way to the client at sock, as TID and CLIENT_UNIT."""
+    return Forward(sock.fileno(), TID, CLIENT_UNIT, yield_cpu, in_flight)
+
+
 def deadline(seconds: float = 1.0) -> int:
     return time.monotonic_ns() + int(seconds * 1e9)
 
@@ -52,8 +57,7 @@ def test_a_reply_that_answers_goes_to_the_client_at_once(line, socket_ends):
     in_flight = counter()
     in_flight[0] = 1
     os.write(slave, rtu(UNIT, holding_reply(0, 3)))
-    got = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT, True,
-                             in_flight)
+    got = port.receive_reply(REQUEST, deadline(), to(ours, True, in_flight))
     assert got.frame == bytes((UNIT,)) + holding_reply(0, 3)
     expected = mbap(TID, CLIENT_UNIT, holding_reply(0, 3))
     assert got.forwarded == len(expected)
@@ -65,7 +69,7 @@ def test_a_device_exception_is_an_answer_too(line, socket_ends):
     port, slave = line
     ours, theirs = socket_ends
     os.write(slave, rtu(UNIT, b"\x83\x02"))
-    assert port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT).frame
+    assert port.receive_reply(REQUEST, deadline(), to(ours)).frame
     assert theirs.recv(1024) == mbap(TID, CLIENT_UNIT, b"\x83\x02")
 
 
@@ -80,8 +84,7 @@ def test_a_reply_that_does_not_answer_never_reaches_the_client(line, socket_ends
     in_flight = counter()
     in_flight[0] = 1
     os.write(slave, rtu(UNIT, reply))
-    got = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT, False,
-                             in_flight)
+    got = port.receive_reply(REQUEST, deadline(), to(ours, False, in_flight))
     assert got.frame == bytes((UNIT,)) + reply
     assert got.forwarded == -1
     assert nothing_on(theirs)
@@ -92,7 +95,7 @@ def test_a_frame_from_another_address_is_dropped_unsent(line, socket_ends):
     port, slave = line
     ours, theirs = socket_ends
     os.write(slave, rtu(UNIT + 1, holding_reply(0, 3)))
-    got = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT)
+    got = port.receive_reply(REQUEST, deadline(), to(ours))
     assert got.frame is None
     assert got.foreign_address == UNIT + 1
     assert got.forwarded == -1
@@ -105,7 +108,7 @@ def test_a_reply_behind_noise_goes_to_the_client_and_the_noise_is_counted(line, 
     port, slave = line
     ours, theirs = socket_ends
     os.write(slave, bytes.fromhex(noise) + rtu(UNIT, holding_reply(0, 3)))
-    got = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT)
+    got = port.receive_reply(REQUEST, deadline(), to(ours))
     assert got.frame == bytes((UNIT,)) + holding_reply(0, 3)
     assert theirs.recv(1024) == mbap(TID, CLIENT_UNIT, holding_reply(0, 3))
     assert got.noise == len(bytes.fromhex(noise))
@@ -115,7 +118,7 @@ def test_a_frame_right_behind_a_foreign_one_stays_for_the_next_receive(line, soc
     port, slave = line
     ours, theirs = socket_ends
     os.write(slave, rtu(UNIT + 1, b"\x83\x02") + rtu(UNIT, holding_reply(0, 3)))
-    got = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT)
+    got = port.receive_reply(REQUEST, deadline(), to(ours))
     assert got.frame is None
     assert (got.foreign_address, got.length, got.noise) == (UNIT + 1, 5, 0)
     assert nothing_on(theirs)
@@ -126,7 +129,7 @@ def test_noise_alone_is_counted_and_sends_nothing(line, socket_ends):
     port, slave = line
     ours, theirs = socket_ends
     os.write(slave, bytes.fromhex("09 18 ff ff 01 02"))
-    got = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT)
+    got = port.receive_reply(REQUEST, deadline(), to(ours))
     assert isinstance(got.fault, FrameError)
     assert got.noise == 6
     assert nothing_on(theirs)
@@ -141,7 +144,7 @@ def test_a_full_client_socket_takes_nothing_and_loses_nothing(line, socket_ends)
         except BlockingIOError:
             break
     os.write(slave, rtu(UNIT, holding_reply(0, 3)))
-    got = port.receive_reply(REQUEST, deadline(), ours.fileno(), TID, CLIENT_UNIT)
+    got = port.receive_reply(REQUEST, deadline(), to(ours))
     assert got.frame == bytes((UNIT,)) + holding_reply(0, 3)
     assert got.forwarded == 0     # the caller sends the whole reply later, behind what waits
 
@@ -157,7 +160,7 @@ def test_without_a_client_nothing_is_sent(line):
 def test_no_reply_by_the_deadline_is_a_timeout(line, socket_ends):
     port, _ = line
     ours, theirs = socket_ends
-    got = port.receive_reply(REQUEST, deadline(0.05), ours.fileno(), TID, CLIENT_UNIT)
+    got = port.receive_reply(REQUEST, deadline(0.05), to(ours))
     assert isinstance(got.fault, LineTimeout)
     assert nothing_on(theirs)
 
@@ -185,7 +188,7 @@ def test_the_exchange_writes_the_request_and_forwards_its_reply(line, socket_end
     ours, theirs = socket_ends
     thread, got = answer_once(slave, rtu(UNIT, holding_reply(0, 3)))
     before = time.monotonic_ns()
-    reply = port.exchange(REQUEST, CHAR_NS, 1_000_000_000, ours.fileno(), TID, CLIENT_UNIT)
+    reply = port.exchange(REQUEST, CHAR_NS, 1_000_000_000, to(ours))
     thread.join(1)
     assert got == [rtu(UNIT, read_holding(0, 3))]
     assert reply.frame == bytes((UNIT,)) + holding_reply(0, 3)
@@ -197,7 +200,7 @@ def test_the_exchange_writes_the_request_and_forwards_its_reply(line, socket_end
 def test_the_exchange_waits_stout_from_the_end_of_the_request(line, socket_ends):
     port, slave = line
     ours, theirs = socket_ends
-    got = port.exchange(REQUEST, CHAR_NS, 50_000_000, ours.fileno(), TID, CLIENT_UNIT)
+    got = port.exchange(REQUEST, CHAR_NS, 50_000_000, to(ours))
     assert isinstance(got.fault, LineTimeout)
     assert got.last_byte_ns >= got.request_end_ns + 50_000_000
     assert os.read(slave, 256) == rtu(UNIT, read_holding(0, 3))

@@ -13,7 +13,7 @@ from array import array
 import pytest
 
 from mbgw.errors import LineTimeout
-from mbgw.line.clients import counter
+from mbgw.line.forward import counter
 from mbgw.line.native import Port
 from mbgw.protocol import pdu
 from tests.modbus import holding_reply, mbap, read_holding, rtu

@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from mbgw.line import clients
+from mbgw.line import forward
 from mbgw.ops.counters import Counters
 from mbgw.slave.client import MAX_IN_FLIGHT, Client
 from mbgw.slave.connections import Connections
@@ -41,7 +41,7 @@ class Rig:
         """Over loopback TCP from a listener that dates arrivals, as the gateway's does."""
         if self.listener is None:
             self.listener = socket.create_server(("127.0.0.1", 0))
-            clients.stamp_arrivals(self.listener.fileno())
+            forward.stamp_arrivals(self.listener.fileno())
             self._until_arrivals_are_dated()
         theirs = socket.create_connection(self.listener.getsockname())
         ours, _ = self.listener.accept()
@@ -51,7 +51,7 @@ class Rig:
         """The kernel turns its receive timestamps on in deferred work when the first
         socket asks for them; what arrives before is undated (read as arrived now)."""
         assert self.listener is not None
-        reader = clients.ClientReader(16)
+        reader = forward.ClientReader(16)
         deadline = time.monotonic() + 5
         with socket.create_connection(self.listener.getsockname()) as theirs:
             ours, _ = self.listener.accept()
@@ -230,14 +230,15 @@ def test_what_a_held_back_client_sent_is_dated_from_when_it_is_read_again(rig):
     what it sent meanwhile does not go ahead of the clients that waited."""
     client, peer = rig.connect_tcp()
     rig.connections.wait(5000)
-    client.in_flight = MAX_IN_FLIGHT
+    for _ in range(MAX_IN_FLIGHT):
+        client.admitted()
     rig.connections.wait(0)
     peer.sendall(mbap(1, 1, read_holding(0, 1)))
     sent = time.monotonic_ns()
     readable(client)
     rig.connections.wait(0)
     assert rig.requests == []
-    client.in_flight = MAX_IN_FLIGHT - 1
+    client.answered()
     resumed = time.monotonic_ns()
     rig.connections.wait(5000)
     (arrived,) = rig.arrivals[client.id]

@@ -1,10 +1,29 @@
-"""What the C core does on slave mode's client sockets for the line thread: a counter C counts
-down as it hands a reply over, and reads dated by the kernel's receive timestamp."""
+"""What the C core does on slave mode's client sockets for the line thread (csrc/forward.c):
+where a reply goes straight from the line (Forward), a counter C counts down as it hands a
+reply over, and reads dated by the kernel's receive timestamp."""
 import os
+from typing import Any, NamedTuple
 
 from mbgw._ffi import ffi, lib
 
 NO_COUNTER = ffi.NULL
+
+
+class Forward(NamedTuple):
+    """Where the C receive sends a reply that answers its request at once (struct
+    mbgw_forward): the client's socket, as a Modbus TCP frame with the client's transaction
+    and unit ids; yield_cpu: then the client woken runs first (nothing else waits for the
+    line); in_flight: the client's counter(), which C counts down as it hands the reply
+    over."""
+    fd: int
+    tid: int
+    unit: int
+    yield_cpu: bool
+    in_flight: Any
+
+
+# the reply goes nowhere before it is returned
+NO_FORWARD = Forward(-1, 0, 0, False, NO_COUNTER)
 
 
 def counter():
