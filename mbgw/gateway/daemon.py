@@ -2,7 +2,7 @@
 mbgw.master.daemon, mbgw.transparent.daemon) run by the one skeleton
 (mbgw.gateway.skeleton.serve_mode), with the lines of the other mode's kind: a slave-mode
 daemon runs the serial faces of its lines in master mode (mbgw.master's), a master-mode daemon
-runs its lines in slave mode as targets (mbgw.slave's LineWorker without TCP clients)."""
+runs its lines in slave mode as targets (mbgw.slave's SlaveLineThread without TCP clients)."""
 import importlib
 
 from mbgw.config.model import MasterConfig, SlaveConfig

@@ -7,7 +7,7 @@ from mbgw.errors import ChecksumError, FrameError
 from mbgw.line import frames
 from mbgw.line.forward import NO_FORWARD, Forward
 from mbgw.line.native import Reception
-from mbgw.line.port import SerialLine
+from mbgw.line.serial_line import SerialLine
 from mbgw.protocol import pdu
 
 

@@ -21,8 +21,8 @@ from typing import TYPE_CHECKING, Generic, Protocol, TypeVar
 
 from mbgw.errors import SerialError
 from mbgw.line import frames, native
-from mbgw.line.port import SerialLine
 from mbgw.line.raw import RawMonitor
+from mbgw.line.serial_line import SerialLine
 
 if TYPE_CHECKING:      # the settings' type only: the line never reads the configuration files
     from mbgw.config.model import SerialConfig

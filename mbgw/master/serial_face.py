@@ -50,7 +50,7 @@ from mbgw.errors import (
 )
 from mbgw.line import frames, native
 from mbgw.line.framing import framing_for
-from mbgw.line.port import SerialLine
+from mbgw.line.serial_line import SerialLine
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s, open_at_start
 from mbgw.master.face_routes import (
     LINE,
@@ -68,7 +68,7 @@ from mbgw.master.trace import MasterTracer
 from mbgw.net.ratelimit import RateLimitedLog
 from mbgw.net.tls import client_context
 from mbgw.ops.counters import MasterCounters, TableSlaveCounters
-from mbgw.ops.device_stats import MASTER_COUNTS, DeviceStats, DeviceTable, HealthRule
+from mbgw.ops.device_stats import MASTER_COUNTS, DeviceHealth, DeviceStats, HealthRule
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.ops.status import line_row
 from mbgw.ops.trace import Outcome, TraceHub
@@ -115,7 +115,7 @@ class SerialFace(LineThread[FaceSettings]):
         self.face = settings.name
         self._counters = counters
         self._inboxes = inboxes if inboxes is not None else {}   # the caller's, kept
-        self.devices = DeviceTable(MASTER_COUNTS, HealthRule(settings.demotion))
+        self.devices = DeviceHealth(MASTER_COUNTS, HealthRule(settings.demotion))
         self._down = self.devices.rule.down    # the addresses that are down, by address
         self.hub = hub if hub is not None else TraceHub()
         self.trace = self.hub         # .active: one attribute test on the request's path

@@ -224,7 +224,7 @@ class DeviceStats:
         return data
 
 
-class DeviceTable:
+class DeviceHealth:
     """DeviceStats by serial address, created on first use, under one HealthRule."""
 
     def __init__(self, counts: tuple = COUNTS, rule: HealthRule | None = None) -> None:

@@ -1,13 +1,13 @@
 """Demotion for scenarios: the rule direct requests obey (mbgw.ops.device_stats), applied to
 a scenario's runs.  While its device (a serial address) or its server (a TCP scenario's
 host and port) is down, its runs are skipped, but for the probe the rule lets through
-(`admit`).  A serial scenario shares the line's DeviceTable, so a client's request and a
+(`admit`).  A serial scenario shares the line's DeviceHealth, so a client's request and a
 scenario's run are one device's probes; a TCP server's health is the TCP runner's, judged by
 the same HealthRule (down-after, probe-interval)."""
 import time
 
 from mbgw.config.scenario import ScenarioConfig, split_server
-from mbgw.ops.device_stats import DOWN, DeviceStats, DeviceTable, HealthRule
+from mbgw.ops.device_stats import DOWN, DeviceHealth, DeviceStats, HealthRule
 from mbgw.scenarios.exchange import DEVICE_DOWN, SERVER_DOWN
 
 
@@ -15,7 +15,7 @@ class SerialHealth:
     """The serial scenarios' view of the line's devices (on the line thread)."""
     down_kind = DEVICE_DOWN
 
-    def __init__(self, devices: DeviceTable) -> None:
+    def __init__(self, devices: DeviceHealth) -> None:
         self.devices = devices
 
     def down(self, sc: ScenarioConfig) -> bool:

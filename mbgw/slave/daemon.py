@@ -9,16 +9,16 @@ from typing import Any
 from mbgw.config.lines import PRIMARY_LINE
 from mbgw.config.model import SlaveConfig
 from mbgw.errors import ListenError
-from mbgw.line.port import SerialLine
+from mbgw.line.serial_line import SerialLine
 from mbgw.line.supervisor import open_at_start
 from mbgw.ops.counters import Counters
-from mbgw.ops.device_stats import DeviceTable, HealthRule
+from mbgw.ops.device_stats import DeviceHealth, HealthRule
 from mbgw.ops.load import LineLoad
 from mbgw.ops.reload import ReloadReport
 from mbgw.ops.service import ModeParts, origin
 from mbgw.routing.inbox import Inbox
 from mbgw.scenarios.engine import Scenarios
-from mbgw.slave.line_thread import LineWorker, serial_scenarios
+from mbgw.slave.line_thread import SlaveLineThread, serial_scenarios
 from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
 from mbgw.slave.servers import ServerTargets, server_targets
@@ -74,17 +74,17 @@ class SlaveMode(ModeParts):
     def __init__(self, cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
                  faces) -> None:
         super().__init__(cfg, None, counters)       # the status once listening (listen)
-        self.devices = devices = DeviceTable(rule=HealthRule(cfg.demotion))
+        self.devices = devices = DeviceHealth(rule=HealthRule(cfg.demotion))
         self.scheduler = Scheduler()
         self.tables = TableService(cfg, devices)
         self.inboxes: dict[str, Inbox] = {}     # every target's but the table's, by name
         self.targets = TargetLines(cfg, self.inboxes)
         self.servers = _servers(cfg, self.inboxes)
-        worker: LineWorker
+        worker: SlaveLineThread
         # one hub: every line's events, each naming its line
         self.server = TcpServer(cfg, self.scheduler, counters, lambda: worker.up, devices,
                                 self.tables.table, self.inboxes, self.targets.hub)
-        self.worker = worker = LineWorker(cfg, line, self.scheduler, self.server, counters,
+        self.worker = worker = SlaveLineThread(cfg, line, self.scheduler, self.server, counters,
                                           devices)
         if cfg.lines:                      # a serial face may reach line serial too
             self.inboxes[PRIMARY_LINE] = Inbox()

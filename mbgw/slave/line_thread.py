@@ -30,10 +30,10 @@ from mbgw.errors import LineTimeout, SerialError
 from mbgw.line.forward import NO_FORWARD
 from mbgw.line.framing import framing_for
 from mbgw.line.native import Reception
-from mbgw.line.port import SerialLine
+from mbgw.line.serial_line import SerialLine
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s
 from mbgw.ops.counters import Counters
-from mbgw.ops.device_stats import DeviceTable
+from mbgw.ops.device_stats import DeviceHealth
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.ops.trace import Outcome
 from mbgw.protocol import mbap, pdu
@@ -61,9 +61,9 @@ REOPEN_SETTINGS = ("device", "baudrate", "format", "interface", "rtsdelays", "dt
                    "cts", "xonxoff")
 
 
-class LineWorker(LineThread[SlaveConfig]):
+class SlaveLineThread(LineThread[SlaveConfig]):
     def __init__(self, cfg: SlaveConfig, line: SerialLine | None, scheduler: Scheduler,
-                 server, counters: Counters, devices: DeviceTable) -> None:
+                 server, counters: Counters, devices: DeviceHealth) -> None:
         super().__init__(cfg, line)
         self._scheduler = scheduler
         self._server = server          # the TcpServer

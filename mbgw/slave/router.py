@@ -23,7 +23,7 @@ from mbgw.config.lines import PRIMARY_LINE
 from mbgw.config.model import SlaveConfig
 from mbgw.firewall.guard import Firewall, Guard
 from mbgw.ops.counters import Counters
-from mbgw.ops.device_stats import DeviceTable
+from mbgw.ops.device_stats import DeviceHealth
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.ops.trace import Outcome, TraceEvent, TraceHub
 from mbgw.protocol import mbap, pdu
@@ -47,7 +47,7 @@ OUTCOME_FIREWALL = Outcome.FIREWALL    # refused by the firewall (0x01)
 
 class Router:
     def __init__(self, cfg: SlaveConfig, scheduler: Scheduler, counters: Counters,
-                 line_up, devices: DeviceTable, firewall: Firewall, trace: TraceHub,
+                 line_up, devices: DeviceHealth, firewall: Firewall, trace: TraceHub,
                  table=None, inboxes: dict[str, Inbox] | None = None) -> None:
         """line_up: callable, is the serial line usable?  table: the exchange table
         (mbgw.table.memory.Table), served while cfg.table is enabled.  inboxes: the other
@@ -74,7 +74,7 @@ class Router:
 
     def route_face(self, cfg: SlaveConfig) -> None:
         """The face's hops for cfg, swapped whole.  At a reload the line thread calls it
-        between two turns (LineWorker._configure), so that the C shortcut never takes a
+        between two turns (SlaveLineThread._configure), so that the C shortcut never takes a
         request the new routes send elsewhere."""
         face = face_hops(effective_routes(cfg), self.inboxes, self.table is not None)
         self.shortcut_allowed = is_today(face) and not cfg.table_on

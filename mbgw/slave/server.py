@@ -13,7 +13,7 @@ the line worker and the status hold.
 from mbgw.config.model import SlaveConfig
 from mbgw.firewall.guard import Firewall
 from mbgw.ops.counters import Counters
-from mbgw.ops.device_stats import DeviceTable
+from mbgw.ops.device_stats import DeviceHealth
 from mbgw.ops.reload import ReloadReport
 from mbgw.ops.trace import TraceHub
 from mbgw.routing.inbox import Inbox
@@ -32,7 +32,7 @@ from mbgw.slave.scheduler import Scheduler
 
 class TcpServer:
     def __init__(self, cfg: SlaveConfig, scheduler: Scheduler, counters: Counters,
-                 line_up, devices: DeviceTable, table=None,
+                 line_up, devices: DeviceHealth, table=None,
                  inboxes: dict[str, Inbox] | None = None, trace: TraceHub | None = None) -> None:
         """line_up: callable, is the serial line usable?  table: the exchange table
         (mbgw.table.memory.Table), served while cfg.table is enabled.  inboxes: the other

@@ -2,7 +2,7 @@
 reads the clients, so that a request for the exchange table never waits for the line.
 
 The line thread holds the gate (a lock) at all times except around its blocking serial calls
-(LineWorker._transact).  This thread polls the readable clients and the wake-up eventfd
+(SlaveLineThread._transact).  This thread polls the readable clients and the wake-up eventfd
 without the gate, then takes it -- which it gets only while the line thread is on the line --
 and serves what is ready with Connections' own code: a table request is answered at once, a
 request for the line is kept for the line thread (TcpServer.read_meanwhile), which routes it
@@ -56,7 +56,7 @@ class TableReader(threading.Thread):
     def __init__(self, gate: Gate, connections: Connections, wake_fd: int,
                  on_request, responder) -> None:
         """on_request(client, tid, unit, pdu, responder): TcpServer.read_meanwhile."""
-        super().__init__(name="mbgw-table", daemon=True)
+        super().__init__(name="mbgw-table-reader", daemon=True)
         self._gate = gate
         self._connections = connections
         self._wake_fd = wake_fd

@@ -7,7 +7,7 @@ import logging
 import time
 
 from mbgw.config.model import SlaveConfig
-from mbgw.ops.device_stats import DeviceTable
+from mbgw.ops.device_stats import DeviceHealth
 from mbgw.ops.reload import ReloadReport
 from mbgw.table import identity
 from mbgw.table.control import table_commands
@@ -21,7 +21,7 @@ TICK_S = 1.0        # how often the file is looked at (it is written at most eve
 
 
 class TableService:
-    def __init__(self, settings: SlaveConfig, devices: DeviceTable) -> None:
+    def __init__(self, settings: SlaveConfig, devices: DeviceHealth) -> None:
         """The table, built even while it is off (a reload may turn it on); FC 7 tells
         whether a device is down from the demotion's flags.  Raises ConfigError when the
         table's file is there but cannot be read."""

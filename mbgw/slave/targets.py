@@ -1,5 +1,5 @@
-"""The lines in slave mode beside `serial` (`[[line]]`, mode slave): targets, each a LineWorker
-of its own (its SerialLine, Scheduler, SerialMaster, DeviceTable, Counters; one thread) with
+"""The lines in slave mode beside `serial` (`[[line]]`, mode slave): targets, each a SlaveLineThread
+of its own (its SerialLine, Scheduler, SerialMaster, DeviceHealth, Counters; one thread) with
 no TCP connection of its own.  Requests reach it as Exchanges through its Inbox, from the Modbus
 TCP face (mbgw.slave.server) or a serial face; each becomes a job in its source's queue, under
 the same rules as line serial's (line down, demotion, retries, late windows), and the face is
@@ -11,16 +11,16 @@ import logging
 from mbgw.config.lines import LineConfig
 from mbgw.config.model import MasterConfig, SlaveConfig
 from mbgw.errors import SerialError
-from mbgw.line.port import SerialLine
+from mbgw.line.serial_line import SerialLine
 from mbgw.line.supervisor import open_at_start
 from mbgw.ops.counters import Counters
-from mbgw.ops.device_stats import DeviceTable, HealthRule
+from mbgw.ops.device_stats import DeviceHealth, HealthRule
 from mbgw.ops.reload import ReloadReport
 from mbgw.ops.status import line_row
 from mbgw.ops.trace import LineTrace, TraceHub
 from mbgw.routing.inbox import Inbox
 from mbgw.slave.connections import Connections
-from mbgw.slave.line_thread import LineWorker
+from mbgw.slave.line_thread import SlaveLineThread
 from mbgw.slave.scheduler import Scheduler
 
 log = logging.getLogger("mbgw.line")
@@ -72,12 +72,12 @@ class TargetLine:
         self.config = line
         hub = hub if hub is not None else TraceHub()
         self.counters = Counters()
-        self.devices = DeviceTable(rule=HealthRule(line.demotion))
+        self.devices = DeviceHealth(rule=HealthRule(line.demotion))
         self.scheduler = Scheduler()
         self.inbox = Inbox()
         settings = line_settings(cfg, line)
         port: SerialLine | None = open_at_start(line.serial, self.counters)
-        self.worker = LineWorker(settings, port, self.scheduler,
+        self.worker = SlaveLineThread(settings, port, self.scheduler,
                                  NoClients(self.scheduler, self.counters,
                                            hub.for_line(line.name)),
                                  self.counters, self.devices)
@@ -185,7 +185,7 @@ class TargetLines:
     def status(self) -> list[dict]:
         return [t.row() for t in list(self.lines.values())]   # a reload may be adding
 
-    def threads(self) -> list[LineWorker]:
+    def threads(self) -> list[SlaveLineThread]:
         """Their threads, for the watchdog."""
         return [t.worker for t in list(self.lines.values())]
 

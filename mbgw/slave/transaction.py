@@ -28,7 +28,7 @@ from mbgw.line.frames import reply_matches
 from mbgw.line.native import Reception
 from mbgw.line.supervisor import longest_frame_s
 from mbgw.ops.counters import Counters
-from mbgw.ops.device_stats import DeviceStats, DeviceTable
+from mbgw.ops.device_stats import DeviceHealth, DeviceStats
 from mbgw.protocol import pdu
 
 wire = logging.getLogger("mbgw.wire")
@@ -39,7 +39,7 @@ LISTENING = b"\x00\x00"
 
 
 class SerialMaster:
-    def __init__(self, framing, cfg: SerialConfig, counters: Counters, devices: DeviceTable,
+    def __init__(self, framing, cfg: SerialConfig, counters: Counters, devices: DeviceHealth,
                  retries: int = 0, turnaround_ms: int = 100, late_window_ms: int = 0) -> None:
         self.framing = framing
         self.devices = devices

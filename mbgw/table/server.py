@@ -129,7 +129,7 @@ class TableServer(threading.Thread):
         port) or tls-port when it cannot.  allows(host): whether a peer may connect (None:
         anyone; authip, mbgw.net.acl.AccessList.allows).  port None: no plain listener;
         tls: the TLS listener's context (mbgw.net.tls.server_context) on tls_port."""
-        super().__init__(name="mbgw-table", daemon=True)
+        super().__init__(name="mbgw-table-server", daemon=True)
         self._table = table
         self.port = port
         self.max_connections = max_connections     # another thread may set it (a reload)

@@ -1,7 +1,8 @@
 """`mbgw transparent`: raw frames of a device that speaks no Modbus, exchanged with Modbus TCP
 clients through the exchange table (VPGate 3.8).  `frames` (the rules, no I/O: where a frame
 ends on the line, what is stored at rx-address, what the tx area sends), `line_thread`
-(`FrameLine`: the serial line, the tx area's watch and the raw port in one poll()), `raw`
+(`TransparentLineThread`: the serial line, the tx area's watch and the raw port in one
+poll()), `raw`
 (`RawPort`: one TCP client's byte stream to the line), `counters`, `daemon`, `status`.
 
 The path of one frame: bytes read from the tty are cut into frames by `frames.Receiver`

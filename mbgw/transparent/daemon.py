@@ -20,7 +20,7 @@ from mbgw.table.memory import Table
 from mbgw.table.report import table_status
 from mbgw.table.server import TableServer
 from mbgw.transparent.counters import TransparentCounters
-from mbgw.transparent.line_thread import FrameLine
+from mbgw.transparent.line_thread import TransparentLineThread
 from mbgw.transparent.raw import RawPort
 from mbgw.transparent.status import TransparentStatus
 
@@ -53,7 +53,7 @@ def run_transparent(cfg: TransparentModeConfig, reconfigure, serve) -> None:
     raw = _raw_port(cfg, allows, counters)
     line = open_at_start(cfg.serial, counters)
     try:
-        frames = FrameLine(cfg, line, table, raw, counters)
+        frames = TransparentLineThread(cfg, line, table, raw, counters)
     except BaseException:
         if line is not None:
             line.close()
@@ -90,8 +90,8 @@ class TransparentMode(ModeParts):
     (no client certificate to present)."""
     client_tls = False
 
-    def __init__(self, cfg: TransparentModeConfig, frames: FrameLine, counters, table: Table,
-                 server: TableServer, raw: RawPort | None) -> None:
+    def __init__(self, cfg: TransparentModeConfig, frames: TransparentLineThread, counters,
+                 table: Table, server: TableServer, raw: RawPort | None) -> None:
         super().__init__(cfg, TransparentStatus(cfg, frames, counters, self._table_figures,
                                                 raw, server), counters)
         self.frames, self.server, self.raw = frames, server, raw

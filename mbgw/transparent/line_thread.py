@@ -1,8 +1,9 @@
-"""Transparent mode's line thread (`FrameLine`): one poll() over the tty, the tx area's watch,
-the raw port and a wake-up eventfd.  Frames from the line are stored at rx-address and given
-to the raw client; the tx area's frames and the raw client's bytes are sent once `silence`
-has passed since the line's last received byte.  Timing is poll()'s milliseconds: eof-timeout
-and silence are whole ms, and a pause of the line thread only lengthens them."""
+"""Transparent mode's line thread (`TransparentLineThread`): one poll() over the tty, the tx
+area's watch, the raw port and a wake-up eventfd.  Frames from the line are stored at
+rx-address and given to the raw client; the tx area's frames and the raw client's bytes are
+sent once `silence` has passed since the line's last received byte.  Timing is poll()'s
+milliseconds: eof-timeout and silence are whole ms, and a pause of the line thread only
+lengthens them."""
 import collections
 import errno
 import logging
@@ -13,7 +14,7 @@ import time
 
 from mbgw.config.transparent import TransparentModeConfig
 from mbgw.errors import SerialError
-from mbgw.line.port import SerialLine
+from mbgw.line.serial_line import SerialLine
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread
 from mbgw.ops.trace import TraceHub
 from mbgw.transparent.counters import TransparentCounters
@@ -34,7 +35,7 @@ def _drain(fd: int) -> None:
         pass
 
 
-class FrameLine(LineThread[TransparentModeConfig]):
+class TransparentLineThread(LineThread[TransparentModeConfig]):
     def __init__(self, cfg: TransparentModeConfig, line: SerialLine | None, table,
                  raw: RawPort | None, counters: TransparentCounters) -> None:
         self.counters = counters

@@ -10,9 +10,9 @@ import pytest
 from mbgw.config.model import SerialConfig
 from mbgw.errors import LineTimeout
 from mbgw.line.framing import framing_for
-from mbgw.line.port import SerialLine
+from mbgw.line.serial_line import SerialLine
 from mbgw.ops.counters import Counters
-from mbgw.ops.device_stats import DeviceTable
+from mbgw.ops.device_stats import DeviceHealth
 from mbgw.slave.transaction import SerialMaster
 from tests.modbus import holding_reply, read_holding, rtu
 
@@ -40,7 +40,7 @@ def rig(pty_pair):
         thread.start()
         threads.append(thread)
 
-    yield SerialMaster(framing_for(line), cfg, counters, DeviceTable()), counters, answer
+    yield SerialMaster(framing_for(line), cfg, counters, DeviceHealth()), counters, answer
     for thread in threads:
         thread.join(2)
     os.close(slave)

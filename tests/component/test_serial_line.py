@@ -27,9 +27,9 @@ from pymodbus.client import ModbusTcpClient
 from mbgw.config.model import Interface, SerialConfig
 from mbgw.errors import LineTimeout
 from mbgw.line.framing import framing_for
-from mbgw.line.port import SerialLine
+from mbgw.line.serial_line import SerialLine
 from mbgw.ops.counters import Counters
-from mbgw.ops.device_stats import DeviceTable
+from mbgw.ops.device_stats import DeviceHealth
 from mbgw.slave.transaction import SerialMaster
 from tests.harness import READY_TIMEOUT_S, stop_counters
 from tests.modbus import holding_reply, mbap, read_holding, rtu
@@ -336,7 +336,7 @@ def in_process(pty_pair):
         line = SerialLine(cfg, counters)
         lines.append(line)
         line.rts_control = False
-        return SerialMaster(framing_for(line), cfg, counters, DeviceTable()), counters
+        return SerialMaster(framing_for(line), cfg, counters, DeviceHealth()), counters
 
     yield make
     for line in lines:

@@ -23,7 +23,7 @@ from mbgw.cli import main
 from mbgw.config.model import Interface, LineFormat, SerialConfig
 from mbgw.errors import ChecksumError, ConfigError, FrameError, SerialError
 from mbgw.line import frames, native
-from mbgw.line.port import SerialLine
+from mbgw.line.serial_line import SerialLine
 from tests.harness import CHECKOUT, reachable_by_others
 
 # ---------------------------------------------------------------------------------------------
@@ -325,7 +325,7 @@ def test_second_open_by_another_user_says_in_use(pty, open_line):
     os.chmod(pty, 0o666)
     code = ("import sys\n"
             "from mbgw.config.model import SerialConfig\n"
-            "from mbgw.line.port import SerialLine\n"
+            "from mbgw.line.serial_line import SerialLine\n"
             "try:\n"
             f"    SerialLine(SerialConfig({pty!r}))\n"
             "except Exception as err:\n"

@@ -16,8 +16,8 @@ from mbgw.ops.device_stats import (
     COUNTS,
     LATENCY_BUCKETS_MS,
     RECENT_WINDOW,
+    DeviceHealth,
     DeviceStats,
-    DeviceTable,
     HealthRule,
 )
 
@@ -186,7 +186,7 @@ def test_failures_add_nothing_to_the_latency():
 
 
 def test_table_creates_a_device_on_first_use_and_lists_them_by_address():
-    table = DeviceTable()
+    table = DeviceHealth()
     assert table.all() == []
     a = table.get(17)
     assert table.get(17) is a
@@ -196,7 +196,7 @@ def test_table_creates_a_device_on_first_use_and_lists_them_by_address():
 
 
 def test_reset_zeroes_the_counts_and_keeps_health_and_last_success(clock, health_log):
-    table = DeviceTable()
+    table = DeviceHealth()
     d = table.get(5)
     d.transactions = 9
     for name in COUNTS:
@@ -229,7 +229,7 @@ def test_reset_zeroes_the_counts_and_keeps_health_and_last_success(clock, health
 def test_reset_is_in_place_so_a_transaction_in_progress_keeps_counting(health_log):
     """The line thread holds its device's object through a transaction while the operator
     resets: the outcome must land in the table, health included."""
-    table = DeviceTable()
+    table = DeviceHealth()
     held = table.get(3)
     for _ in range(3):
         held.failed()
@@ -255,7 +255,7 @@ def rule(down_after: int = 3, probe_interval_ms: int = 1000) -> HealthRule:
 
 
 def test_down_after_exactly_down_after_failures_and_flagged_for_the_line(clock):
-    table = DeviceTable(rule=rule(down_after=4))
+    table = DeviceHealth(rule=rule(down_after=4))
     d = table.get(9)
     for n in range(1, 5):
         assert table.rule.down[9] == 0 and d.admit(clock.monotonic())
@@ -324,7 +324,7 @@ def test_down_after_0_never_demotes(clock, health_log):
 
 
 def test_new_settings_judge_every_device_again_and_log_only_the_changes(clock, health_log):
-    table = DeviceTable(rule=rule(down_after=5, probe_interval_ms=8000))
+    table = DeviceHealth(rule=rule(down_after=5, probe_interval_ms=8000))
     a, b = table.get(1), table.get(2)
     for _ in range(3):
         a.failed()

@@ -53,7 +53,7 @@ def test_the_average_is_measured_on_the_monotonic_clock(monkeypatch):
 
     from mbgw.config.model import SerialConfig, SlaveConfig
     from mbgw.ops.counters import Counters
-    from mbgw.ops.device_stats import DeviceTable
+    from mbgw.ops.device_stats import DeviceHealth
     from mbgw.slave.status import SlaveStatus
 
     counters = Counters()
@@ -61,7 +61,7 @@ def test_the_average_is_measured_on_the_monotonic_clock(monkeypatch):
                              firewall=SimpleNamespace(configured=False))
     status = SlaveStatus(SlaveConfig(SerialConfig("/dev/null")), server,
                          SimpleNamespace(up=True, state="up"),
-                         SimpleNamespace(depth=0), counters, DeviceTable(), [])
+                         SimpleNamespace(depth=0), counters, DeviceHealth(), [])
     wall, mono = time.time(), time.monotonic()
     counters.line_busy_ns = 5 * 10**9
     monkeypatch.setattr(time, "time", lambda: wall - 3600)        # stepped back an hour

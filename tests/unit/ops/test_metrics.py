@@ -16,7 +16,7 @@ from prometheus_client.openmetrics import parser as openmetrics_parser
 from mbgw.errors import ConfigError
 from mbgw.net.address import parse_host_port
 from mbgw.ops.counters import MASTER_NAMES, NAMES, Counters, MasterCounters
-from mbgw.ops.device_stats import MASTER_COUNTS, DeviceTable
+from mbgw.ops.device_stats import MASTER_COUNTS, DeviceHealth
 from mbgw.ops.metrics import master_collector, slave_collector
 from mbgw.ops.metrics_server import MetricsServer
 
@@ -61,7 +61,7 @@ def live_objects():
     for i, name in enumerate(NAMES):
         setattr(counters, name, i + 1)
     counters.line_busy_ns = 2_500_000_000
-    devices = DeviceTable()
+    devices = DeviceHealth()
     one = devices.get(1)
     one.transactions = 5
     for ms in (1.0, 3.0, 3.0, 700.0):
@@ -192,7 +192,7 @@ def test_latency_histogram_is_cumulative():
 
 
 def test_an_empty_gateway_renders_a_valid_text():
-    found = families(render(Counters(), DeviceTable(), SimpleNamespace(depth=0),
+    found = families(render(Counters(), DeviceHealth(), SimpleNamespace(depth=0),
                             SimpleNamespace(clients=[]), SimpleNamespace(up=False), 0.0))
     assert found["mbgw_line_up"].samples[0].value == 0
     assert found["mbgw_device_health"].samples == []
@@ -202,7 +202,7 @@ def test_master_mode_renders_its_own_counters_gauges_and_per_address_counts():
     counters = MasterCounters()
     for i, name in enumerate(MASTER_NAMES):
         setattr(counters, name, i + 1)
-    devices = DeviceTable(MASTER_COUNTS)
+    devices = DeviceHealth(MASTER_COUNTS)
     three = devices.get(3)
     three.transactions, three.unreachable = 2, 2
     three.failed()

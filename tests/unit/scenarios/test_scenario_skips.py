@@ -2,7 +2,7 @@
 whose table registers nobody has written since start ("waiting for data", unless
 send-unwritten), and a run for a device that is down but for its probe (the demotion rule of
 mbgw.ops.device_stats, through mbgw.scenarios.health).  A real exchange table, the real
-DeviceTable, a virtual clock for the schedule."""
+DeviceHealth, a virtual clock for the schedule."""
 import logging
 import re
 
@@ -11,7 +11,7 @@ import pytest
 from mbgw.cli.render import format_scenarios
 from mbgw.config.model import Demotion
 from mbgw.config.scenario import parse_scenario
-from mbgw.ops.device_stats import DOWN, DeviceTable, HealthRule
+from mbgw.ops.device_stats import DOWN, DeviceHealth, HealthRule
 from mbgw.scenarios.engine import Scenarios
 from mbgw.scenarios.health import SerialHealth, ServerHealth
 from mbgw.table.memory import Table
@@ -118,8 +118,8 @@ def test_scenario_test_of_an_unwritten_write_is_refused_before_the_line(table, c
 
 # --- demotion ---
 
-def devices(down_after=2, interval_ms=1000) -> DeviceTable:
-    return DeviceTable(rule=HealthRule(Demotion(down_after, interval_ms)))
+def devices(down_after=2, interval_ms=1000) -> DeviceHealth:
+    return DeviceHealth(rule=HealthRule(Demotion(down_after, interval_ms)))
 
 
 def fail(table_, address, times):

@@ -10,7 +10,7 @@ from prometheus_client import parser
 from mbgw.cli.render import _table_section, format_status
 from mbgw.config.model import TableConfig
 from mbgw.ops.counters import Counters, MasterCounters
-from mbgw.ops.device_stats import DeviceTable
+from mbgw.ops.device_stats import DeviceHealth
 from mbgw.ops.metrics import master_collector, slave_collector
 from mbgw.table.memory import Table
 from mbgw.table.report import table_status
@@ -145,7 +145,7 @@ def families(collector) -> dict:
 
 
 def slave_metrics(table):
-    return families(slave_collector(Counters(), DeviceTable(), SimpleNamespace(depth=0),
+    return families(slave_collector(Counters(), DeviceHealth(), SimpleNamespace(depth=0),
                                     SimpleNamespace(clients=[]), SimpleNamespace(up=True), 0.0,
                                     table))
 
@@ -177,7 +177,7 @@ def test_metrics_master_serial_slave_errors():
     status = {"requests": requests(), "exceptions": {},
               "serial": {"requests": 9, "crc_errors": 1, "length_errors": 2,
                          "send_failures": 3}}
-    found = families(master_collector(MasterCounters(), DeviceTable(),
+    found = families(master_collector(MasterCounters(), DeviceHealth(),
                                       SimpleNamespace(up=True, connections=lambda: []), 0.0,
                                       lambda: status))
     assert {s.labels["kind"]: s.value for s in found["mbgw_table_serial_errors"].samples} == \
@@ -188,7 +188,7 @@ def test_metrics_master_serial_slave_errors():
 
 def test_metrics_read_the_live_table_at_each_scrape():
     table = Table()
-    collector = slave_collector(Counters(), DeviceTable(), SimpleNamespace(depth=0),
+    collector = slave_collector(Counters(), DeviceHealth(), SimpleNamespace(depth=0),
                                 SimpleNamespace(clients=[]), SimpleNamespace(up=True), 0.0,
                                 lambda: table_status(table))
     table.answer(bytes([0x04, 0x00, 0x00, 0x00, 0x01]))
