@@ -1,11 +1,11 @@
-"""Remote Modbus TCP servers as targets (`[[route]] server = "IP[:PORT]"`): one thread,
-mbgw-servers, with the upstream pool (one per port) and an Inbox per server.
+"""Remote Modbus TCP servers as targets (`[[route]] server = "IP[:PORT]"`): a thread per
+server (mbgw-server HOST:PORT), each with its own upstream connection and an Inbox.
 
 Each Exchange is one transaction bounded by tcpto, connecting included: a reply (the server's
 exception included) goes back as it came; a server that cannot be reached is 0x0A, no reply in
 time (or one that does not answer the request) 0x0B, with `exception` on, else silence.  One
-transaction at a time, in the order the exchanges came: a silent server holds the others for
-tcpto at most.
+transaction at a time per server, in the order the exchanges came; a silent server holds up
+only its own requests.
 """
 import logging
 import os
@@ -33,71 +33,74 @@ def server_targets(cfg: SlaveConfig) -> dict[str, tuple[str, int]]:
     return {r.target: r.server for r in cfg.routes if r.server is not None}
 
 
-class ServerTargets(threading.Thread):
+class ServerTargets:
+    """Every server the routes reach, each served by a thread of its own."""
+
     def __init__(self, servers: dict[str, tuple[str, int]], tcpto_ms: int,
                  exception: bool) -> None:
-        super().__init__(name="mbgw-servers", daemon=True)
-        self.servers = servers
+        self.threads = {label: ServerThread(label, server, tcpto_ms, exception)
+                        for label, server in servers.items()}
+        self.inboxes = {label: thread.inbox for label, thread in self.threads.items()}
+
+    def start(self) -> None:
+        for thread in self.threads.values():
+            thread.start()
+
+    def stop(self) -> None:
+        for thread in self.threads.values():
+            thread.stop()
+
+    def join_and_close(self) -> None:
+        for thread in self.threads.values():
+            thread.join_and_close()
+
+
+class ServerThread(threading.Thread):
+    """One server's transactions, one at a time, on its own connection."""
+
+    def __init__(self, label: str, server: tuple[str, int], tcpto_ms: int,
+                 exception: bool) -> None:
+        super().__init__(name=f"mbgw-{label}", daemon=True)
+        self.label = label
+        self.host, port = server
         self.tcpto_ns = tcpto_ms * 1_000_000
         self.exception = exception
         self.counters = MasterCounters()
-        self.inboxes = {label: Inbox() for label in servers}
+        self.inbox = Inbox()
         self._stop_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         self._stopping = False
-        self._pools = {port: UpstreamPool(port, MAX_CONNECTIONS, self.counters, self._stop_fd)
-                       for port in {port for _, port in servers.values()}}
+        self._pool = UpstreamPool(port, MAX_CONNECTIONS, self.counters, self._stop_fd)
 
     def stop(self) -> None:
         self._stopping = True
-        self._pools_stopping()
+        self._pool.stopping = True
         os.eventfd_write(self._stop_fd, 1)
-
-    def _pools_stopping(self) -> None:
-        for pool in self._pools.values():
-            pool.stopping = True
 
     def run(self) -> None:
         poller = select.poll()
-        by_fd = {}
-        for label, inbox in self.inboxes.items():
-            poller.register(inbox.wake_fd, select.POLLIN)
-            by_fd[inbox.wake_fd] = label
+        poller.register(self.inbox.wake_fd, select.POLLIN)
         poller.register(self._stop_fd, select.POLLIN)
         try:
             while not self._stopping:
                 for fd, _ in poller.poll():
-                    ready = by_fd.get(fd)
-                    if ready is not None:
-                        for exchange in self.inboxes[ready].drain():
-                            self._serve(ready, exchange)
+                    if fd == self.inbox.wake_fd:
+                        for exchange in self.inbox.drain():
+                            self._serve(exchange)
         finally:
-            for inbox in self.inboxes.values():      # what is left: refused
-                for exchange in inbox.drain():
-                    exchange.done(exchange, self._failure(exchange,
-                                                          pdu.GATEWAY_PATH_UNAVAILABLE),
-                                  Outcome.UNREACHABLE)
-            for pool in self._pools.values():
-                pool.close()
+            for exchange in self.inbox.drain():      # what is left: refused
+                exchange.done(exchange, self._failure(exchange, pdu.GATEWAY_PATH_UNAVAILABLE),
+                              Outcome.UNREACHABLE)
+            self._pool.close()
 
-    def _serve(self, label: str, exchange: Exchange) -> None:
+    def _serve(self, exchange: Exchange) -> None:
         if self._stopping:
             exchange.done(exchange, self._failure(exchange, pdu.GATEWAY_PATH_UNAVAILABLE),
                           Outcome.UNREACHABLE)
             return
-        host, port = self.servers[label]
-        pool = self._pools[port]
         deadline_ns = time.monotonic_ns() + self.tcpto_ns
         self.counters.requests += 1
         try:
-            if exchange.address == pdu.BROADCAST:
-                pool.send_all((host,), pdu.BROADCAST, exchange.pdu, deadline_ns)
-                self.counters.broadcasts += 1
-                reply, outcome = None, Outcome.BROADCAST
-            else:
-                reply = pool.transact(host, exchange.address, exchange.pdu, deadline_ns)
-                self.counters.replies += 1
-                outcome = Outcome.DEVICE_EXCEPTION if reply[0] & pdu.EXCEPTION_FLAG \
-                    else Outcome.REPLY
+            reply, outcome = self._transact(exchange, deadline_ns)
         except NoRoute:
             self.counters.unreachable += 1
             reply, outcome = self._failure(exchange, pdu.GATEWAY_PATH_UNAVAILABLE), \
@@ -109,10 +112,20 @@ class ServerTargets(threading.Thread):
             reply, outcome = self._failure(exchange, pdu.GATEWAY_PATH_UNAVAILABLE), \
                 Outcome.UNREACHABLE
         except Exception:   # a bug must cost one request, never the thread
-            log.exception("internal error on a request to %s", label)
+            log.exception("internal error on a request to %s", self.label)
             reply, outcome = self._failure(exchange, pdu.GATEWAY_PATH_UNAVAILABLE), \
                 Outcome.ERROR
         exchange.done(exchange, reply, outcome)
+
+    def _transact(self, exchange: Exchange, deadline_ns: int) -> tuple[bytes | None, str]:
+        if exchange.address == pdu.BROADCAST:
+            self._pool.send_all((self.host,), pdu.BROADCAST, exchange.pdu, deadline_ns)
+            self.counters.broadcasts += 1
+            return None, Outcome.BROADCAST
+        reply = self._pool.transact(self.host, exchange.address, exchange.pdu, deadline_ns)
+        self.counters.replies += 1
+        return reply, (Outcome.DEVICE_EXCEPTION if reply[0] & pdu.EXCEPTION_FLAG
+                       else Outcome.REPLY)
 
     def _failure(self, exchange: Exchange, code: int) -> bytes | None:
         if exchange.address == pdu.BROADCAST:
@@ -120,7 +133,7 @@ class ServerTargets(threading.Thread):
         return gateway_exception(self.exception, exchange.pdu[0], code, self.counters)
 
     def join_and_close(self) -> None:
-        self.join()
-        for inbox in self.inboxes.values():
-            inbox.close()
+        if self.is_alive():
+            self.join()
+        self.inbox.close()
         os.close(self._stop_fd)

@@ -21,7 +21,7 @@ import pytest
 
 from tests.harness import PtyPair, free_port
 from tests.integration.ops.test_reload import config_set
-from tests.modbus import Client, read_holding
+from tests.modbus import Client, mbap, read_holding
 from tests.ops import mbgw, status, wait_for, wait_for_log
 
 pytestmark = pytest.mark.integration
@@ -341,3 +341,21 @@ def test_remote_servers_answer_their_units(lines, gateway, client, servers_at):
     assert c.ask(111, read_holding(0, 1)) == b"\x83\x0a"          # nobody listens there
     assert c.ask(SERIAL_SLAVE, read_holding(0, 1)) == hr_reply(0, 1)
     assert received(serial.record) == [bytes((SERIAL_SLAVE,)) + read_holding(0, 1)]
+
+
+def test_a_silent_server_holds_up_its_own_requests_only(lines, gateway, client, servers_at):
+    serial = lines("serial", SERIAL_SLAVE)
+    port, _ = servers_at("127.0.0.1", silent=("127.0.0.2",))
+    gw = gateway(serial, {"routes": [
+        {"units": "1-31", "line": "serial"},
+        {"units": "100", "server": ["127.0.0.2", port], "address": 1},     # silent
+        {"units": "101", "server": ["127.0.0.1", port], "address": 2}]},
+        "--exception", "--tcpto", "5000")
+    waiting, other = client(gw), client(gw)
+    waiting.send(mbap(1, 100, read_holding(0, 1)))
+    # the silent server's request is on its connection (the servers' peer saw it connect)
+    # while another server answers at once: its reply comes before the silent one's 0x0B
+    assert other.ask(101, read_holding(0, 3)) == bytes.fromhex("03 06 0000 0001 0002")
+    assert other.ask(SERIAL_SLAVE, read_holding(0, 1)) == hr_reply(0, 1)
+    assert waiting.recv(timeout=0.01) is None        # still waiting for its server
+    assert waiting.recv(timeout=10) == (1, 100, b"\x83\x0b")
