@@ -6,6 +6,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.unit.test_layout import ALLOWED
+
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGE = ROOT / "mbgw"
 DOC = (ROOT / "docs" / "architecture.md").read_text()
@@ -162,3 +164,33 @@ def test_each_path_says_its_count():
 @pytest.mark.parametrize("count, files", COUNTS)
 def test_each_count_is_its_list(count, files):
     assert int(count) == len(re.findall(r"`[^`]+`", files)), files
+
+
+def anchor(heading: str) -> str:
+    """The anchor GitHub gives a heading: lower case, no punctuation, spaces as hyphens."""
+    return re.sub(r"[^\w\- ]", "", heading.lower()).replace(" ", "-")
+
+
+ANCHORS = {anchor(h) for h in re.findall(r"^#+ (.+)$", DOC, re.M)}
+INITS = sorted(p.parent.name for p in PACKAGE.glob("*/__init__.py"))
+
+
+def test_a_heading_has_githubs_anchor():
+    assert anchor("TCP face → line `serial`") == "tcp-face--line-serial"
+    assert anchor("Details: serial faces (lines in master mode)") == \
+        "details-serial-faces-lines-in-master-mode"
+
+
+@pytest.mark.parametrize("package", INITS)
+def test_each_package_says_its_job_imports_and_section(package):
+    """A package's docstring: its job, what it may import (the layout test's rule, not a copy
+    that drifts) and where the doc tells its part of a request's path."""
+    doc = ast.get_docstring(ast.parse((PACKAGE / package / "__init__.py").read_text())) or ""
+    links = re.findall(r"docs/architecture\.md#([\w-]+)", doc)
+    assert links and set(links) <= ANCHORS, (links, sorted(ANCHORS))
+    said = re.search(r"May import (.*?),\s+besides\s+errors\s+and\s+audit", doc, re.S)
+    assert said, "no 'May import ..., besides errors and audit'"
+    names = set(re.findall(r"[a-z]+", said[1].replace("the C core", "_ffi")))
+    names -= {"and", "mbgw", "nothing"}
+    names = {"_ffi" if n == "ffi" else n for n in names}
+    assert names == ALLOWED[package] - {"errors", "audit"}, said[1]
