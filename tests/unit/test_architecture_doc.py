@@ -194,3 +194,16 @@ def test_each_package_says_its_job_imports_and_section(package):
     names -= {"and", "mbgw", "nothing"}
     names = {"_ffi" if n == "ffi" else n for n in names}
     assert names == ALLOWED[package] - {"errors", "audit"}, said[1]
+
+
+def test_each_module_is_in_its_packages_list():
+    """The package list is the tree: a module added, moved or renamed shows up here."""
+    section = DOC[DOC.index("## The packages"):DOC.index("### The C core")]
+    missing = []
+    for path in sorted(PACKAGE.glob("*/*.py")):
+        if path.name == "__init__.py":
+            continue
+        entry = re.search(rf"\*\*`{path.parent.name}/`\*\*(.*?)(?=\n- |\Z)", section, re.S)
+        if entry is None or f"`{path.stem}`" not in entry[1]:
+            missing.append(path.relative_to(PACKAGE).as_posix())
+    assert not missing, f"docs/architecture.md, The packages, does not list {missing}"
