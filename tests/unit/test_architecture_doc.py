@@ -113,7 +113,8 @@ def problem(span: str) -> str | None:
         return None if found else "no such file"
     if re.fullmatch(r"mbgw_\w+", name):
         return None if re.search(rf"\b{name}\s*\(", C_SOURCES) else "no such C function"
-    if m := re.fullmatch(r"((?:\w+/)+\w+)\.(\w+(?:\.\w+)?)", name):
+    if (m := re.fullmatch(r"((?:\w+/)+\w+)\.(\w+(?:\.\w+)?)", name)) \
+            and name.split("/")[0] in PACKAGES:
         module, dotted = m[1], m[2].split(".")
         if module not in MODULES:
             return f"no module mbgw/{module}.py"
