@@ -1,6 +1,11 @@
 """The mbgw command line (click): the mode commands, the configuration file's commands and
-the operator's tools.  Options carry the ACKSYS command names and defaults; nothing imports
-this package, and its modules never import its __init__."""
+the operator's tools.  Nothing imports this package, and its modules never import its
+__init__.
+
+May import gateway, routing, slave, master, transparent, scenarios, upstream,
+line, net, table, ops, protocol, config, firewall, web, besides errors and audit.
+See docs/architecture.md#the-packages.
+"""
 import click
 
 from mbgw import __version__

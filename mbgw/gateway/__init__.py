@@ -1,4 +1,8 @@
-"""The daemon as a whole: its lines (targets and serial faces), the Modbus TCP face, the
-table and the remote servers, wired by the routes.  The one package that may import every
-mode's package, so that a line in slave mode and one in master mode run in one process.
+"""The daemon of each mode, composed: its lines (targets and serial faces), the Modbus TCP face,
+the table and the remote servers, wired by the routes, around one skeleton.  The one
+package below cli that may import every mode's package.
+
+May import routing, slave, master, transparent, scenarios, upstream, line, net,
+table, ops, protocol, config, firewall, web, besides errors and audit.
+See docs/architecture.md#threads.
 """

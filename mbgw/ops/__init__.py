@@ -1,11 +1,8 @@
-"""Running as a service, for both modes: systemd notification, SIGHUP reload and stop
-(`service`), the control socket (`control`) with the commands both modes share (`status`),
-the trace hub (`trace`), Prometheus metrics (`metrics`), line-wide counters (`counters`),
-per-address statistics and health, which also demotes a silent address (`device_stats`),
-logging for operators (`log`), the Modbus TCP servers' TLS context, certificate checks and
-client roles (`tls`).
+"""Running as a service, for every mode: systemd, reloads, the control socket, status, the
+trace hub, metrics, counters, device health and demotion, logging.  Nothing on a request's
+path waits for this package; what the threads share here is one attribute read or write
+each (counters, TraceHub.active, the running configuration, replaced whole).
 
-Shared between threads: the counters (the line thread writes most, the asyncio thread the
-connection counters and resets them), TraceHub.active, the line's up flag, and the
-running configuration (replaced whole by a reload).  Each is one attribute read or write,
-safe under the GIL; nothing on a request's path waits for this package."""
+May import net, protocol, config, besides errors and audit.
+See docs/architecture.md#the-packages.
+"""

@@ -1,14 +1,14 @@
-"""Slave mode's requests from Modbus TCP clients, on the thread that holds the line worker's
+"""Slave mode's requests from Modbus TCP clients, on the thread that holds the line thread's
 gate: routed, answered at once or queued for the line, and their outcomes sent back.
 
-The line thread's Connections calls request() for each frame it reads and the line worker
+The line thread's Connections calls request() for each frame it reads and the line thread
 finished() with each outcome: one thread carries a transaction from the client's bytes to the
 reply.  Each request is checked against its client's firewall rule first.
 
-With the exchange table on, a request for it (routes_to_table) is answered at once by the
+With the exchange table on, a request for it (its unit's hop, TABLE) is answered at once by the
 thread that read it: the line thread, or while that thread is in a serial transaction the
 table reader (mbgw.slave.table_reader), which calls read_meanwhile() and keeps the requests
-for the line for the line thread (take_kept).  Both hold the line worker's gate meanwhile.
+for the line for the line thread (take_kept).  Both hold the line thread's gate meanwhile.
 
 Each unit's hop (mbgw.slave.routes) says where its request goes: today's way to line serial,
 the table, line serial with the unit rewritten, nowhere (0x0A or silence), or another target
@@ -225,7 +225,7 @@ class Router:
 
     def taken(self, client: Client, tid: int, unit: int, request: bytes,
               received_ns: int) -> Job | None:
-        """A request the line worker put on the idle line itself (its shortcut, which takes
+        """A request the line thread put on the idle line itself (its shortcut, which takes
         only what routes, never for an address that is down) after it arrived at
         received_ns, counted, checked and traced as request() does; the client has it in
         flight and counted already."""

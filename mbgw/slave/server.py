@@ -8,7 +8,7 @@ that meet at the thread seam.
 
 An admitted connection is handed from the first to the second through Connections (the line
 thread's poll over the clients).  TcpServer puts the three together and is what the daemon,
-the line worker and the status hold.
+the line thread (SlaveLineThread) and the status hold.
 """
 from mbgw.config.model import SlaveConfig
 from mbgw.firewall.guard import Firewall
