@@ -158,7 +158,7 @@ scrape_one_reply() {
     local text
     text=$(/usr/bin/python3 -c 'import urllib.request
 print(urllib.request.urlopen("http://127.0.0.1:9502/metrics", timeout=10).read().decode())') \
-        && grep -Eq '^mbgw_device_replies_total\{line="serial",address="17"\} 1(\.0)?$' <<<"$text"
+        && grep -Eq '^mbgw_device_replies_total\{(address="17",line="serial"|line="serial",address="17")\} 1(\.0)?$' <<<"$text"
 }
 
 stop_gateway() {
