@@ -133,7 +133,7 @@ class SlaveLineThread(LineThread[SlaveConfig]):
         self._scheduler.wake()
 
     def run(self) -> None:
-        self._gate.take()
+        self._gate.take_for_line()
         try:
             self._start_reader()
             super().run()
@@ -222,11 +222,8 @@ class SlaveLineThread(LineThread[SlaveConfig]):
         reader, self._reader = self._reader, None
         if reader is not None:
             reader.stop()
-            self._gate.release()
-            try:
+            with self._gate.line_away:
                 reader.join()
-            finally:
-                self._gate.take()
             self._server.take_kept()
 
     def _exchange_job(self, master: SerialMaster, job: Job, forward) -> Reception | None:
@@ -235,15 +232,12 @@ class SlaveLineThread(LineThread[SlaveConfig]):
         once the reply has gone on (_serve), or at once when there is none (it raised)."""
         if self._reader is None:
             return master.exchange(job.adu, forward)
-        self._gate.release()
         try:
-            got = master.exchange(job.adu, forward)
+            with self._gate.line_away:
+                return master.exchange(job.adu, forward)
         except BaseException:
-            self._gate.take()
             self._server.take_kept()
             raise
-        self._gate.take()
-        return got
 
     # --- serving ---
 
@@ -596,11 +590,10 @@ class SlaveLineThread(LineThread[SlaveConfig]):
         clients meanwhile); the requests it kept for the line are routed after."""
         if self._reader is None:
             return master.transact(adu, retries)
-        self._gate.release()
         try:
-            return master.transact(adu, retries)
+            with self._gate.line_away:
+                return master.transact(adu, retries)
         finally:
-            self._gate.take()
             self._server.take_kept()
 
 

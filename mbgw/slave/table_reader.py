@@ -32,8 +32,13 @@ class Gate:
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._turnstile = threading.Lock()
+        # `with gate.reader_side:` the reader's turn, behind the line thread if it waits;
+        # `with gate.line_away:` the line thread without the gate for a blocking call, and
+        # first in line to have it back (made once: nothing is allocated per transaction)
+        self.reader_side = _ReaderSide(self._lock, self._turnstile)
+        self.line_away = _LineAway(self)
 
-    def take(self) -> None:
+    def take_for_line(self) -> None:
         """The line thread's: first in line."""
         with self._turnstile:
             self._lock.acquire()
@@ -41,15 +46,34 @@ class Gate:
     def release(self) -> None:
         self._lock.release()
 
-    def __enter__(self) -> "Gate":
-        """The table reader's: behind the line thread if it is waiting."""
+
+class _ReaderSide:
+    __slots__ = ("_lock", "_turnstile")
+
+    def __init__(self, lock: threading.Lock, turnstile: threading.Lock) -> None:
+        self._lock = lock
+        self._turnstile = turnstile
+
+    def __enter__(self) -> None:
         with self._turnstile:
             pass
         self._lock.acquire()
-        return self
 
     def __exit__(self, *exc) -> None:
         self._lock.release()
+
+
+class _LineAway:
+    __slots__ = ("_gate",)
+
+    def __init__(self, gate: Gate) -> None:
+        self._gate = gate
+
+    def __enter__(self) -> None:
+        self._gate.release()
+
+    def __exit__(self, *exc) -> None:
+        self._gate.take_for_line()
 
 
 class TableReader(threading.Thread):
@@ -79,7 +103,7 @@ class TableReader(threading.Thread):
         ready: list = []
         try:
             while True:
-                with self._gate:
+                with self._gate.reader_side:
                     if self._stopping:
                         return
                     try:
