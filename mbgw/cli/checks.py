@@ -9,7 +9,7 @@ import re
 import click
 
 from mbgw.cli.options import ModeCommand, web_config
-from mbgw.config import file as cf
+from mbgw.config.file import Settings, resolve, with_file
 from mbgw.config.model import DEFAULT_LOCATION, DEFAULT_REQUEST_TIMEOUT_MS
 from mbgw.config.schema import Schema
 from mbgw.errors import ConfigError, ConfigFileError
@@ -52,14 +52,14 @@ def problems(schema: Schema, command: click.Command, params: dict,
     return cfg, preflight.problems(cfg)
 
 
-def check_file(schema: Schema, settings: cf.Settings, given=()):
+def check_file(schema: Schema, settings: Settings, given=()):
     """The settings a file starts (its mode's), when `mbgw run` would start them: raises
     ConfigFileError listing the problems, each naming the file and the key.  `given`: see
     mbgw.config.file.resolve."""
-    params = cf.resolve(schema, settings, given=given)
+    params = resolve(schema, settings, given=given)
     cfg, found = problems(schema, schema.commands[settings.mode], params)
     if found:
-        raise ConfigFileError(settings.path, [cf.with_file(p, settings.path) for p in found])
+        raise ConfigFileError(settings.path, [with_file(p, settings.path) for p in found])
     return cfg
 
 
@@ -81,15 +81,15 @@ def param_of(command: click.Command, err: click.BadParameter) -> click.Parameter
     return next((p for p in command.params if flag.group() in getattr(p, "opts", ())), None)
 
 
-def refusals(schema: Schema, settings: cf.Settings) -> tuple[list[str], list[str]]:
+def refusals(schema: Schema, settings: Settings) -> tuple[list[str], list[str]]:
     """What `mbgw run` would refuse in a checked file, as `mbgw config set` weighs it:
     (what is wrong in itself: a file a key names, an address; refused), (keys that do not
     go together yet, which setting another key mends, e.g. tls.cert before tls.key; written
     with a warning)."""
     try:
-        params = cf.resolve(schema, settings)
+        params = resolve(schema, settings)
     except ConfigFileError as err:
         return [], err.problems
     cfg, found = problems(schema, schema.commands[settings.mode], params)
-    found = [cf.with_file(p, settings.path) for p in found]
+    found = [with_file(p, settings.path) for p in found]
     return ([], found) if cfg is None else (found, [])

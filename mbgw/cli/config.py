@@ -8,14 +8,25 @@ import click
 
 from mbgw.cli import checks
 from mbgw.cli.options import EX_CONFIG, META_FILE, Failure, ModeCommand
-from mbgw.config import edit as config_set
-from mbgw.config import file as cf
 from mbgw.config import line_file, scenario_text
 from mbgw.config import scenario as scenario_config
-from mbgw.config import schema as ck
-from mbgw.config import text as config_text
+from mbgw.config import schema as config_schema  # DEFAULT_PATH, CONFIG_DIR read at each call
+from mbgw.config.edit import REMOVE, apply_changes, changes_for_set, show_lines
+from mbgw.config.file import (
+    SCENARIO_KEY,
+    SCENARIOS_PARAM,
+    Settings,
+    check,
+    click_problem,
+    load,
+    load_options,
+    parse,
+    read_text,
+)
 from mbgw.config.lines import LINE_MODES, TCP_FACE, implicit_routes
 from mbgw.config.number_list import number_list_text
+from mbgw.config.schema import GROUPS, MODE_KEY, MODES, Schema
+from mbgw.config.text import default_line, edit, factory_text
 from mbgw.config.toml_text import dump_value, set_line, write_atomic
 from mbgw.errors import ConfigError, ConfigFileError
 
@@ -26,7 +37,7 @@ META_MODE_FROM_FILE = "mbgw.mode_from_file"   # ctx.meta: `mbgw run` took the mo
 def register(root: click.Group) -> None:
     """Add the commands to `root`, and a --config FILE option to its mode commands."""
     ModeCommand.file_values = staticmethod(_file_values)
-    for mode in ck.MODES:
+    for mode in MODES:
         command = root.commands.get(mode)
         if command is not None and not any(p.name == "config" for p in command.params):
             command.params.append(_mode_config_option())
@@ -38,11 +49,11 @@ def register(root: click.Group) -> None:
         root.add_command(command)
 
 
-def schema_of(ctx: click.Context) -> ck.Schema:
+def schema_of(ctx: click.Context) -> Schema:
     root = ctx.find_root().command
-    if not isinstance(root, click.Group) or not any(m in root.commands for m in ck.MODES):
+    if not isinstance(root, click.Group) or not any(m in root.commands for m in MODES):
         root = click.Group(commands=[ctx.command])
-    return ck.Schema(root)
+    return Schema(root)
 
 
 def _command_line(ctx: click.Context, *words) -> str:
@@ -54,10 +65,10 @@ def _permission_failure(ctx, path, doing: str, words, exit_code: int = 1) -> Fai
                    f"sudo {_command_line(ctx, *words)}", exit_code)
 
 
-def _load(ctx: click.Context, schema: ck.Schema, path: Path, words=(),
-          exit_code: int = 1) -> cf.Settings:
+def _load(ctx: click.Context, schema: Schema, path: Path, words=(),
+          exit_code: int = 1) -> Settings:
     try:
-        return cf.load(schema, path)
+        return load(schema, path)
     except PermissionError:
         raise _permission_failure(ctx, path, "read", words, exit_code) from None
     except ConfigFileError as err:
@@ -70,8 +81,8 @@ def _mode_config_option() -> click.Option:
     return click.Option(
         ["--config"], metavar="FILE", type=click.Path(dir_okay=False), envvar="MBGW_CONFIG",
         is_eager=True, expose_value=False, callback=_apply_file,
-        help=f"Take the options not given here from FILE [default: {ck.DEFAULT_PATH}, when "
-             f"it exists; also $MBGW_CONFIG].")
+        help=f"Take the options not given here from FILE [default: "
+             f"{config_schema.DEFAULT_PATH}, when it exists; also $MBGW_CONFIG].")
 
 
 class _GivenValue(click.ParamType):
@@ -85,7 +96,7 @@ class _GivenValue(click.ParamType):
 def _scenarios_option() -> click.Option:
     """The file's [[scenario]] tables (ScenarioConfig), through click's default_map like the
     other keys' values: hidden, no command-line form."""
-    return click.Option(["--scenarios", cf.SCENARIOS_PARAM], type=_GivenValue(), default=(),
+    return click.Option(["--scenarios", SCENARIOS_PARAM], type=_GivenValue(), default=(),
                         hidden=True)
 
 
@@ -101,9 +112,9 @@ def _apply_file(ctx: click.Context, param: click.Parameter, value) -> None:
     if ctx.default_map is not None and not given:   # `mbgw run`, load_options gave the file
         return
     if value is None:
-        if not ck.DEFAULT_PATH.exists():
+        if not config_schema.DEFAULT_PATH.exists():
             return
-        value = ck.DEFAULT_PATH
+        value = config_schema.DEFAULT_PATH
     schema = schema_of(ctx)
     settings = _load(ctx, schema, Path(value), exit_code=EX_CONFIG)
     if (settings.lines or settings.routes) and not any(
@@ -123,11 +134,11 @@ def _file_values(ctx: click.Context) -> tuple[Path, dict] | None:
     if path is not None and ctx.default_map:
         return path, dict(ctx.default_map)
     import os
-    path = Path(os.environ.get("MBGW_CONFIG") or ck.DEFAULT_PATH)
+    path = Path(os.environ.get("MBGW_CONFIG") or config_schema.DEFAULT_PATH)
     if not path.exists():
         return None
     try:
-        settings = cf.load(schema_of(ctx), path)
+        settings = load(schema_of(ctx), path)
     except (OSError, ConfigFileError):
         return None
     return path, settings.default_map(schema_of(ctx), ctx.command.name or "")
@@ -159,7 +170,7 @@ def reloader(ctx: click.Context | None = None):
     from_file = ctx.meta.get(META_MODE_FROM_FILE, False)
 
     def reload() -> dict:
-        options = cf.load_options(root, path, mode=None if from_file else mode,
+        options = load_options(root, path, mode=None if from_file else mode,
                                   given=kept)
         if options["mode"] != mode:
             raise ConfigError(f"{path}: serial.mode is {options['mode']} now: changing the "
@@ -173,10 +184,11 @@ def reloader(ctx: click.Context | None = None):
 def _file_options(function):
     function = click.option(
         "-i", "--instance", metavar="NAME",
-        help=f"The file of the service instance mbgw@NAME: {ck.CONFIG_DIR}/NAME.toml.")(function)
+        help=f"The file of the service instance mbgw@NAME: "
+             f"{config_schema.CONFIG_DIR}/NAME.toml.")(function)
     return click.option(
         "--config", "config_path", metavar="FILE", envvar="MBGW_CONFIG",
-        type=click.Path(dir_okay=False, path_type=Path), default=ck.DEFAULT_PATH,
+        type=click.Path(dir_okay=False, path_type=Path), default=config_schema.DEFAULT_PATH,
         show_default=True, help="The configuration file (also $MBGW_CONFIG).")(function)
 
 
@@ -185,7 +197,7 @@ def _path(ctx: click.Context, config_path: Path, instance: str | None) -> Path:
         return Path(config_path)
     if ctx.get_parameter_source("config_path") == click.core.ParameterSource.COMMANDLINE:
         raise click.UsageError("give --config or --instance, not both")
-    return ck.CONFIG_DIR / f"{check_instance(instance)}.toml"
+    return config_schema.CONFIG_DIR / f"{check_instance(instance)}.toml"
 
 
 def check_instance(instance: str) -> str:
@@ -198,15 +210,15 @@ def check_instance(instance: str) -> str:
 
 def _file_words(ctx: click.Context, path: Path) -> list[str]:
     """The file options to repeat in a suggested command."""
-    return [] if path == ck.DEFAULT_PATH else ["--config", str(path)]
+    return [] if path == config_schema.DEFAULT_PATH else ["--config", str(path)]
 
 
 def _say_how_to_apply(path: Path) -> None:
     """Print the command that makes the running service take the file, when it is a
     service's file."""
-    if path == ck.DEFAULT_PATH:
+    if path == config_schema.DEFAULT_PATH:
         click.echo("apply it with: systemctl reload mbgw")
-    elif path.parent == ck.CONFIG_DIR and path.suffix == ".toml":
+    elif path.parent == config_schema.CONFIG_DIR and path.suffix == ".toml":
         click.echo(f"apply it with: systemctl reload mbgw@{path.stem}")
 
 
@@ -257,7 +269,7 @@ def run(ctx: click.Context, config_path: Path, instance: str | None, args) -> No
         sub = command.make_context(settings.mode, list(args), parent=ctx,
                                    default_map=settings.default_map(schema, settings.mode))
     except click.MissingParameter as err:
-        raise Failure(f"{path}: {cf.click_problem(schema, settings, err)}", EX_CONFIG) \
+        raise Failure(f"{path}: {click_problem(schema, settings, err)}", EX_CONFIG) \
             from None
     with sub:
         command.invoke(sub)
@@ -309,7 +321,7 @@ def config() -> None:
                    "socket, and who may read the file.")
 @click.option("--json", "as_json", is_flag=True, help="With --security: as a JSON document.")
 @click.argument("group", required=False, type=click.Choice(
-    [*ck.GROUPS, cf.SCENARIO_KEY, line_file.LINE_TABLE, line_file.ROUTE_TABLE]))
+    [*GROUPS, SCENARIO_KEY, line_file.LINE_TABLE, line_file.ROUTE_TABLE]))
 @click.argument("param", required=False)
 @click.pass_context
 def show(ctx, config_path: Path, instance: str | None, security: bool, as_json: bool,
@@ -331,17 +343,17 @@ def show(ctx, config_path: Path, instance: str | None, security: bool, as_json: 
                                              *_file_words(ctx, path)])
     else:
         click.echo(f"mbgw: {path} does not exist: built-in defaults", err=True)
-        settings = cf.Settings(path, schema.default_mode, {})
+        settings = Settings(path, schema.default_mode, {})
     if security:
         _show_security(schema, settings, as_json)
     elif not _show_tables(schema, settings, group, param):
         _show_groups(schema, settings, group, param)
 
 
-def _show_tables(schema: ck.Schema, settings: cf.Settings, group: str | None,
+def _show_tables(schema: Schema, settings: Settings, group: str | None,
                  param: str | None) -> bool:
     """`show scenario|line|route [NAME]`: True when group was one of those."""
-    if group == cf.SCENARIO_KEY:
+    if group == SCENARIO_KEY:
         _show_scenarios(settings, param)
     elif group == line_file.LINE_TABLE:
         _show_lines(settings, param, separate=False)
@@ -352,25 +364,25 @@ def _show_tables(schema: ck.Schema, settings: cf.Settings, group: str | None,
     return True
 
 
-def _show_groups(schema: ck.Schema, settings: cf.Settings, group: str | None,
+def _show_groups(schema: Schema, settings: Settings, group: str | None,
                  param: str | None) -> None:
     if param is not None:
         name = param.lower()
         key = schema.find(group, name) if group else None
-        if key is None and not (group == "serial" and name == ck.MODE_KEY):
+        if key is None and not (group == "serial" and name == MODE_KEY):
             raise click.BadParameter(f"{group}.{param}: unknown{schema.hint(name)}",
                                      param_hint="PARAM")
         name = key.name if key is not None else name
-        for line in config_set.show_lines(schema, settings, name):
+        for line in show_lines(schema, settings, name):
             click.echo(line)
         return
-    for shown in [group] if group else ck.GROUPS:
+    for shown in [group] if group else GROUPS:
         names = schema.group_keys(shown)
         if not names:
             continue
         click.echo(f"[{shown}]")
         for name in names:
-            for line in config_set.show_lines(schema, settings, name):
+            for line in show_lines(schema, settings, name):
                 click.echo(f"{schema.file_name(name):<{SHOW_WIDTH}} {line}")
     if group is None and settings.scenarios:
         _show_scenarios(settings, None)
@@ -380,7 +392,7 @@ def _show_groups(schema: ck.Schema, settings: cf.Settings, group: str | None,
         _show_routes(schema, settings)
 
 
-def _show_security(schema: ck.Schema, settings: cf.Settings, as_json: bool) -> None:
+def _show_security(schema: Schema, settings: Settings, as_json: bool) -> None:
     import json
 
     from mbgw.cli import security
@@ -392,7 +404,7 @@ def _show_security(schema: ck.Schema, settings: cf.Settings, as_json: bool) -> N
             click.echo(line)
 
 
-def _show_scenarios(settings: cf.Settings, name: str | None) -> None:
+def _show_scenarios(settings: Settings, name: str | None) -> None:
     shown = [sc for sc in settings.scenarios if name is None or sc.name == name]
     if name is not None and not shown:
         names = ", ".join(sc.name for sc in settings.scenarios)
@@ -406,7 +418,7 @@ def _show_scenarios(settings: cf.Settings, name: str | None) -> None:
             click.echo(line)
 
 
-def _show_lines(settings: cf.Settings, name: str | None, separate: bool = True) -> None:
+def _show_lines(settings: Settings, name: str | None, separate: bool = True) -> None:
     shown = [line for line in settings.lines if name is None or line.name == name]
     if name is not None and not shown:
         names = ", ".join(line.name for line in settings.lines)
@@ -420,7 +432,7 @@ def _show_lines(settings: cf.Settings, name: str | None, separate: bool = True) 
             click.echo(f"{key} = {dump_value(value)}")
 
 
-def _show_routes(schema: ck.Schema, settings: cf.Settings, separate: bool = True) -> None:
+def _show_routes(schema: Schema, settings: Settings, separate: bool = True) -> None:
     """The [[route]] tables, then the implicit routes in force beside them (when the file
     would start: else only the tables)."""
     for number, route in enumerate(settings.routes):
@@ -444,18 +456,18 @@ def _show_routes(schema: ck.Schema, settings: cf.Settings, separate: bool = True
                    + (f" address {route.address}" if route.address is not None else ""))
 
 
-def _read_checked(ctx, schema: ck.Schema, path: Path, words) -> tuple[str, dict, cf.Settings]:
+def _read_checked(ctx, schema: Schema, path: Path, words) -> tuple[str, dict, Settings]:
     """The file's text, its data and its checked settings (the factory file's when there is
     none yet); a file that does not pass its check stops the edit."""
     try:
-        text = cf.read_text(path)
+        text = read_text(path)
     except FileNotFoundError:
-        text = config_text.factory_text(schema)
+        text = factory_text(schema)
     except PermissionError:
         raise _permission_failure(ctx, path, "read", words) from None
     try:
-        data = cf.parse(path, text)
-        return text, data, cf.check(schema, path, data)
+        data = parse(path, text)
+        return text, data, check(schema, path, data)
     except ConfigFileError as err:
         group = ctx.parent
         while group.parent is not None and group.command is not config:
@@ -473,20 +485,20 @@ def _change(ctx, path: Path, words, change, shown: bool = True) -> None:
     text, data, settings = _read_checked(ctx, schema, path, words)
     try:
         changes = change(schema, settings, data)
-        new_data = config_set.apply_changes(data, schema, changes)
+        new_data = apply_changes(data, schema, changes)
         pending = _start_check(schema, path, new_data)
     except ConfigError as err:
         raise _refused(path, err) from None
-    new_mode = changes.get(ck.MODE_KEY, settings.mode)
-    new_text = config_text.edit(text, schema, new_mode, changes)
+    new_mode = changes.get(MODE_KEY, settings.mode)
+    new_text = edit(text, schema, new_mode, changes)
     if tomllib.loads(new_text) != new_data:          # the editor's own check
         raise Failure(f"{path}: could not edit the file in place; nothing written")
-    labels = {name: schema.label(name) if name == ck.MODE_KEY or name in schema.keys else name
+    labels = {name: schema.label(name) if name == MODE_KEY or name in schema.keys else name
               for name in changes}
     _write(ctx, path, new_text, words, ", ".join(labels.values()))
     for name, value in changes.items():
         label = labels[name]
-        if value is config_set.REMOVE:
+        if value is REMOVE:
             click.echo(f"{path}: {label} back to its default")
         elif not shown:
             click.echo(f"{path}: {label} set")
@@ -497,11 +509,11 @@ def _change(ctx, path: Path, words, change, shown: bool = True) -> None:
         _say_how_to_apply(path)
 
 
-def _start_check(schema: ck.Schema, path: Path, data: dict) -> list[str]:
+def _start_check(schema: Schema, path: Path, data: dict) -> list[str]:
     """The checks of the file and of `mbgw run` (mbgw.cli.checks) on an edit's result:
     raises ConfigError on a problem the edit must not write; the keys that do not go
     together yet (another `set` mends them)."""
-    wrong, pending = checks.refusals(schema, cf.check(schema, path, data))
+    wrong, pending = checks.refusals(schema, check(schema, path, data))
     if wrong:
         raise ConfigFileError(path, [*wrong, "nothing written"])
     return pending
@@ -524,7 +536,7 @@ def _warn_pending(path: Path, pending: list[str]) -> None:
 
 @config.command("set")
 @_file_options
-@click.argument("group", type=click.Choice(ck.GROUPS))
+@click.argument("group", type=click.Choice(GROUPS))
 @click.argument("param")
 @click.argument("values", nargs=-1, required=True)
 @click.pass_context
@@ -545,14 +557,14 @@ def set_(ctx, config_path: Path, instance: str | None, group: str, param: str,
     path = _path(ctx, config_path, instance)
     words = [group, param, *values, *_file_words(ctx, path)]
     _change(ctx, path, words,
-            lambda schema, settings, data: config_set.changes_for_set(schema, settings, group,
+            lambda schema, settings, data: changes_for_set(schema, settings, group,
                                                                       param,
                                                               list(values)))
 
 
 @config.command("unset")
 @_file_options
-@click.argument("group", type=click.Choice(ck.GROUPS))
+@click.argument("group", type=click.Choice(GROUPS))
 @click.argument("param")
 @click.pass_context
 def unset(ctx, config_path: Path, instance: str | None, group: str, param: str) -> None:
@@ -560,8 +572,8 @@ def unset(ctx, config_path: Path, instance: str | None, group: str, param: str) 
     misspelt key too."""
     path = _path(ctx, config_path, instance)
     words = [group, param, *_file_words(ctx, path)]
-    if group == "serial" and param == ck.MODE_KEY:
-        _change(ctx, path, words, lambda schema, settings, data: config_set.changes_for_set(
+    if group == "serial" and param == MODE_KEY:
+        _change(ctx, path, words, lambda schema, settings, data: changes_for_set(
             schema, settings, group, param, [schema.default_mode]))
     else:
         _unset(ctx, path, words, group, param)
@@ -571,7 +583,7 @@ def _unset(ctx, path: Path, words, group: str, param: str) -> None:
     """Works on the text, even when the key is unknown (a typo) or its value is bad."""
     schema = schema_of(ctx)
     try:
-        text = cf.read_text(path)
+        text = read_text(path)
     except FileNotFoundError:
         click.echo(f"{path}: no such file: {group}.{param} is at its default")
         return
@@ -586,8 +598,8 @@ def _unset(ctx, path: Path, words, group: str, param: str) -> None:
     serial_data = data.get("serial")
     serial = serial_data if isinstance(serial_data, dict) else {}
     known = schema.find(group, param)
-    commented = config_text.default_line(schema, known.name,
-                                         str(serial.get(ck.MODE_KEY, ""))) if known else None
+    commented = default_line(schema, known.name,
+                                         str(serial.get(MODE_KEY, ""))) if known else None
     new_text = set_line(text, group, param, None, commented)
     new_data = _parse(path, new_text)
     if param in new_data.get(group, {}):
@@ -599,7 +611,7 @@ def _unset(ctx, path: Path, words, group: str, param: str) -> None:
     _audit(ctx, path, f"{group}.{param}")
     click.echo(f"{path}: {group}.{param} back to its default")
     try:
-        wrong, pending = checks.refusals(schema, cf.check(schema, path, new_data))
+        wrong, pending = checks.refusals(schema, check(schema, path, new_data))
         if wrong or pending:
             raise ConfigFileError(path, [*wrong, *pending])
     except ConfigFileError as err:
@@ -609,7 +621,7 @@ def _unset(ctx, path: Path, words, group: str, param: str) -> None:
 
 def _parse(path: Path, text: str) -> dict:
     try:
-        return cf.parse(path, text)
+        return parse(path, text)
     except ConfigFileError as err:
         raise Failure(str(err)) from None
 
@@ -676,7 +688,7 @@ def default(ctx, config_path: Path, instance: str | None) -> None:
     """Write the factory defaults: the guide's `set default`.  Every key is listed with its
     help, commented out at its built-in default; the device is /dev/ttyUSB0."""
     path = _path(ctx, config_path, instance)
-    _write(ctx, path, config_text.factory_text(schema_of(ctx)), _file_words(ctx, path),
+    _write(ctx, path, factory_text(schema_of(ctx)), _file_words(ctx, path),
            "factory defaults")
     click.echo(f"{path}: factory defaults written")
     _say_how_to_apply(path)
@@ -718,7 +730,7 @@ def scenario_add(ctx, config_path: Path, instance: str | None, name: str, keys: 
         if "name" in fields:
             raise ConfigError("name: give it once, as NAME, not as a KEY=VALUE")
         scenario = scenario_config.parse_scenario({"name": name, **fields}, f"scenario {name}")
-        if any(e.get("name") == name for e in data.get(cf.SCENARIO_KEY, [])
+        if any(e.get("name") == name for e in data.get(SCENARIO_KEY, [])
                if isinstance(e, dict)):
             raise ConfigError(f"scenario {name}: already there (mbgw config scenario remove "
                               f"{name} first)")
@@ -738,7 +750,7 @@ def scenario_remove(ctx, config_path: Path, instance: str | None, name: str) -> 
     def change(text: str, data: dict) -> str:
         new_text = scenario_text.remove(text, name)
         if new_text is None:
-            names = [e.get("name") for e in data.get(cf.SCENARIO_KEY, []) if isinstance(e, dict)]
+            names = [e.get("name") for e in data.get(SCENARIO_KEY, []) if isinstance(e, dict)]
             raise ConfigError(f"no scenario {name!r}" +
                               (f" (scenarios: {', '.join(map(str, names))})" if names else ""))
         return new_text
@@ -752,12 +764,12 @@ def _edit_scenarios(ctx, path: Path, words, change, done: str) -> None:
     text, data, _ = _read_checked(ctx, schema, path, words)
     try:
         new_text = change(text, data)
-        pending = _start_check(schema, path, cf.parse(path, new_text))
+        pending = _start_check(schema, path, parse(path, new_text))
     except ConfigError as err:
         raise _refused(path, err) from None
     _write(ctx, path, new_text, words, done)
     click.echo(f"{path}: {done}")
-    scenarios = cf.check(schema, path, cf.parse(path, new_text)).scenarios
+    scenarios = check(schema, path, parse(path, new_text)).scenarios
     for warning in scenario_config.overlaps(scenarios):
         click.echo(f"mbgw: warning: {path}: {warning}", err=True)
     _warn_pending(path, pending)
