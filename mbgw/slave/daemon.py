@@ -18,6 +18,7 @@ from mbgw.ops.reload import ReloadReport
 from mbgw.ops.service import ModeParts, origin
 from mbgw.routing.inbox import Inbox
 from mbgw.scenarios.engine import Scenarios
+from mbgw.slave.line_share import LineShare
 from mbgw.slave.line_thread import SlaveLineThread, serial_scenarios
 from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
@@ -141,7 +142,8 @@ class SlaveMode(ModeParts):
     def metered(self) -> list[tuple]:
         """Each line's (name, counters, devices) for /metrics, line serial's first."""
         faces = self.serial_faces.metered() if self.serial_faces is not None else ()
-        return [(PRIMARY_LINE, self.counters, self.devices), *self.targets.metered(), *faces]
+        serial = LineShare(self.counters, self.server.router.off_line, self.inboxes)
+        return [(PRIMARY_LINE, serial, self.devices), *self.targets.metered(), *faces]
 
     def start(self, idle_ms: int) -> None:
         self.worker.idle_ms = idle_ms
