@@ -19,10 +19,15 @@ class LineShare:
         self._off_line = off_line
         self._inboxes = inboxes
 
+    def reset(self) -> None:
+        """With the totals' reset: what the face answered off the line, from zero."""
+        self._off_line.reset()
+
     def snapshot(self) -> dict[str, int]:
         counters = self._totals.snapshot()
         if self._inboxes:
             off_line = self._off_line
             for name in FACE_COUNTED:
-                counters[name] -= getattr(off_line, name)
+                # a reset between the two reads must not show a negative count
+                counters[name] = max(0, counters[name] - getattr(off_line, name))
         return counters

@@ -24,9 +24,7 @@ class SlaveStatus(DaemonStatus):
         self._worker = worker
         self._scheduler = scheduler
         self._addresses = addresses
-        router = server.router
-        self._off_line = router.off_line
-        self.serial_counters = LineShare(counters, router.off_line, router.inboxes)
+        self.line_share: LineShare | None = None    # line serial's own figures (the daemon's)
         self.scenario_engines: dict = {}    # the scenarios' engines by kind (the daemon's)
         self.targets: TargetLines | None = None     # the lines beside serial (the daemon's)
         self.faces = None       # the lines in master mode (master.faces.LineFaces), if any
@@ -37,7 +35,8 @@ class SlaveStatus(DaemonStatus):
 
     def reset(self, request: dict) -> dict:
         self._server.firewall.reset_counts()
-        self._off_line.reset()
+        if self.line_share is not None:
+            self.line_share.reset()
         if self._tables is not None:
             self._tables.table.reset_counts()
         return super().reset(request)
@@ -83,7 +82,7 @@ class SlaveStatus(DaemonStatus):
         return self._lines([d.snapshot() for d in self._devices.all()])
 
     def _lines(self, devices: list[dict]) -> list[dict]:
-        counters = self.serial_counters.snapshot()
+        counters = (self.line_share or self._counters).snapshot()
         counters.pop("line_busy_ns", None)
         serial = line_row(PRIMARY_LINE, self.cfg.serial.device, "slave", self._worker.state,
                           counters, devices)
