@@ -16,11 +16,14 @@ import os
 import select
 import threading
 
+from mbgw.line import native
 from mbgw.slave.connections import Connections
 
 log = logging.getLogger("mbgw.tcp")
 
 _IN = select.POLLIN
+# Its name in ps -L and top -H as in Python's threading (the kernel keeps 15 bytes).
+THREAD_NAME = "mbgw-tbl-reader"
 
 
 class Gate:
@@ -56,7 +59,7 @@ class TableReader(threading.Thread):
     def __init__(self, gate: Gate, connections: Connections, wake_fd: int,
                  on_request, responder) -> None:
         """on_request(client, tid, unit, pdu, responder): TcpServer.read_meanwhile."""
-        super().__init__(name="mbgw-table-reader", daemon=True)
+        super().__init__(name=THREAD_NAME, daemon=True)
         self._gate = gate
         self._connections = connections
         self._wake_fd = wake_fd
@@ -76,6 +79,7 @@ class TableReader(threading.Thread):
         os.eventfd_write(self._stop_fd, 1)
 
     def run(self) -> None:
+        native.name_thread(self.name)
         ready: list = []
         try:
             while True:
