@@ -58,7 +58,8 @@ class Gate:
 class TableReader(threading.Thread):
     def __init__(self, gate: Gate, connections: Connections, wake_fd: int,
                  on_request, responder) -> None:
-        """on_request(client, tid, unit, pdu, responder): TcpServer.read_meanwhile."""
+        """on_request(client, tid, unit, pdu, responder): TcpServer.read_meanwhile.  Made
+        under the gate: connections keeps this thread's poll up to date from then on."""
         super().__init__(name=THREAD_NAME, daemon=True)
         self._gate = gate
         self._connections = connections
@@ -71,7 +72,7 @@ class TableReader(threading.Thread):
         self._poll = select.poll()
         self._poll.register(self._stop_fd, _IN)
         self._poll.register(wake_fd, _IN)
-        self._polled: dict[int, object] = {}      # client fd -> the client polled there
+        connections.attach(self._poll)
 
     def stop(self) -> None:
         """Called by the line thread, which must then let go of the gate and join."""
@@ -85,25 +86,13 @@ class TableReader(threading.Thread):
             while True:
                 with self._gate:
                     if self._stopping:
+                        self._connections.detach()
                         return
                     try:
                         self._connections.serve_ready(ready, self._on_request)
+                        self._connections.update()
                     except Exception:   # a bug must cost this wake-up, never the thread
                         log.exception("internal error in the table reader")
-                    self._update()
                 ready = self._poll.poll()
         finally:
             os.close(self._stop_fd)
-
-    def _update(self) -> None:
-        """Poll the clients that may be read now (under the gate)."""
-        polled = self._polled
-        wanted = dict(self._connections.wanted())
-        for fd, client in list(polled.items()):
-            if wanted.get(fd) is not client:
-                self._poll.unregister(fd)
-                del polled[fd]
-        for fd, client in wanted.items():
-            if fd not in polled:
-                self._poll.register(fd, _IN)
-                polled[fd] = client
