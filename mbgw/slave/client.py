@@ -8,6 +8,7 @@ import socket
 import ssl
 import threading
 import time
+from collections.abc import Callable
 
 from mbgw.firewall.guard import Guard
 from mbgw.line.forward import NO_FORWARD, ClientReader, Forward, counter
@@ -32,6 +33,10 @@ class Client:
     listener = "plain"
     guard: Guard | None = None
     firewall_refused = 0
+    # Its poller (Connections): on_change(client) when what the client can take may have
+    # changed (readable, output_waiting, held); polled_in: whether it is polled for input.
+    on_change: Callable[["Client"], None] | None = None
+    polled_in = False
 
     def __init__(self, sock: socket.socket, host: str, peer: str, local: str) -> None:
         self.id = next(_client_ids)
@@ -58,6 +63,7 @@ class Client:
         self._buf = bytearray()     # received, not yet a whole frame
         self._out = bytearray()     # replies the socket would not take yet
         self._lock = threading.Lock()   # close() in the line thread, shutdown() in asyncio's
+        self.changed = True         # told to on_change and not looked at since
 
     @property
     def in_flight(self) -> int:
@@ -67,13 +73,24 @@ class Client:
     def admitted(self) -> None:
         """A request of this client is in the gateway from now on (queued, kept for the line,
         with another target, or on the line)."""
-        self.flight[0] += 1
+        flight = self.flight
+        flight[0] += 1
+        if flight[0] >= MAX_IN_FLIGHT and self.polled_in:
+            self._changed()
 
     def answered(self, forwarded: int = -1) -> None:
         """A request is no longer in the gateway; forwarded: the bytes of its reply C sent
         straight from the line (then C counted it answered as it did), or -1."""
         if forwarded < 0:
             self.flight[0] -= 1
+        if not self.polled_in or self.held:     # room again, perhaps
+            self._changed()
+
+    def _changed(self) -> None:
+        if not self.changed:
+            self.changed = True
+            if self.on_change is not None:
+                self.on_change(self)
 
     @property
     def readable(self) -> bool:
@@ -128,6 +145,8 @@ class Client:
         frames = list(itertools.islice(mbap.split_frames(buf),
                                        max(0, MAX_IN_FLIGHT - self.in_flight)))
         self.held = mbap.whole_frame(buf)
+        if self.held:
+            self._changed()
         if not buf or self.held:
             self.partial_since = 0.0
         elif frames or not self.partial_since:
@@ -147,8 +166,10 @@ class Client:
                 return
             frame = frame[sent:]
         self._out += frame
+        self._changed()
 
     def flush(self) -> None:
+        """Its poller calls it, and looks at the client again after."""
         try:
             sent = os.write(self.fd, self._out)
         except BlockingIOError:
@@ -224,6 +245,7 @@ class TlsClient(Client):
                 return
             frame = frame[sent:]
         self._out += frame
+        self._changed()
 
     def flush(self) -> None:
         sent = self._write(self._out)

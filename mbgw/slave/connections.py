@@ -39,6 +39,10 @@ class Connections:
         self._reader = ClientReader(RECEIVE_SIZE)
         self._also: dict = {}                      # fd -> on_ready (poll_also)
         self._again: list[Client] = []   # whole requests held, room again: served unpolled
+        # the clients whose readability or output may have changed since update() (told by
+        # Client.on_change), so that no wait scans them all
+        self._changes: list[Client] = []
+        self._mirror: select.poll | None = None    # the table reader's poll (attach)
         self._warn = WarnLimit(log)
         # called when the wake-up eventfd is read (by whoever holds the gate)
         self.on_wake: Callable[[], None] | None = None
@@ -61,7 +65,7 @@ class Connections:
         rest in its own way when it is all that is ready (the line worker's shortcut: with
         more, which came first is told by reading them all), and returns what
         Client.receive would."""
-        self._update()
+        self.update()
         if serial_fd >= 0:
             self._poll.register(serial_fd, _IN)
         again = self._again
@@ -96,15 +100,26 @@ class Connections:
     def _with_held(self, ready: list, again: list[Client]) -> list:
         """ready, and the clients whose held requests may go on now (as if they had input)."""
         polled = {fd for fd, _ in ready}
-        ready = ready + [(c.fd, _IN) for c in again if c.fd not in polled]
+        for client in again:
+            if client.fd not in polled:
+                polled.add(client.fd)
+                ready.append((client.fd, _IN))
         again.clear()
         return ready
 
     # --- the table reader (mbgw.slave.table_reader), under the line worker's gate ---
 
-    def wanted(self):
-        """(fd, client) of the clients that may be read now."""
-        return ((fd, client) for fd, client in self._clients.items() if client.readable)
+    def attach(self, poll: select.poll) -> None:
+        """From now on poll (the table reader's) has every client that may be read now,
+        for input, as this thread's own poll has them."""
+        self.update()
+        for fd, events in self._events.items():
+            if events & _IN:
+                poll.register(fd, _IN)
+        self._mirror = poll
+
+    def detach(self) -> None:
+        self._mirror = None
 
     def serve_ready(self, ready, on_request) -> None:
         """Serve what the table reader's poll() found ready (it polled without the gate: a
@@ -137,32 +152,62 @@ class Connections:
             self._clients[client.fd] = client
             self._events[client.fd] = _IN
             self._poll.register(client.fd, _IN)
+            if self._mirror is not None:
+                self._mirror.register(client.fd, _IN)
+            client.polled_in = True
+            client.on_change = self._changes.append
+            self._changes.append(client)    # looked at in the next update(), once
             self._serve(client, _IN, on_request=on_request)
 
-    def _update(self) -> None:
-        """Poll each client for what it can take now: no input while it has 16 requests in
-        the gateway or a backlog of replies it does not read.  What a client held back so
-        sent meanwhile is in the line's order from when it is read again."""
-        for fd, client in self._clients.items():
+    def update(self) -> None:
+        """Under the gate: poll each client that changed for what it can take now: no
+        input while it has 16 requests in the gateway or a backlog of replies it does not
+        read.  What a client held back so sent meanwhile is in the line's order from when it
+        is read again."""
+        changes = self._changes
+        if not changes:
+            return
+        clients = self._clients
+        for client in changes:
+            client.changed = False
+            fd = client.fd
+            if clients.get(fd) is not client:
+                continue
             readable = client.readable
             if readable and client.held:
                 self._again.append(client)
             wanted = (_IN if readable else 0) | (_OUT if client.output_waiting else 0)
-            if wanted == self._events[fd]:
+            polled = self._events[fd]
+            if wanted == polled:
                 continue
-            if wanted & ~self._events[fd] & _IN:
-                client.resumed_ns = time.monotonic_ns()
             if not wanted:
                 self._poll.unregister(fd)
-            elif self._events[fd]:
+            elif polled:
                 self._poll.modify(fd, wanted)
             else:
                 self._poll.register(fd, wanted)
             self._events[fd] = wanted
+            if (wanted ^ polled) & _IN:
+                self._polled_in(client, bool(wanted & _IN))
+        changes.clear()
+
+    def _polled_in(self, client: Client, polled: bool) -> None:
+        client.polled_in = polled
+        if polled:
+            client.resumed_ns = time.monotonic_ns()
+        mirror = self._mirror
+        if mirror is not None:
+            if polled:
+                mirror.register(client.fd, _IN)
+            else:
+                mirror.unregister(client.fd)
 
     def _serve(self, client: Client, events: int, take=None, on_request=None) -> None:
         if events & _OUT:
             client.flush()
+            if not client.changed:
+                client.changed = True
+                self._changes.append(client)
         if not events & ~_OUT:
             return
         on_request = on_request or self._on_request
@@ -186,8 +231,13 @@ class Connections:
 
     def _close(self, client: Client) -> None:
         fd = client.fd
-        if self._events.pop(fd, 0):
+        events = self._events.pop(fd, 0)
+        if events:
             self._poll.unregister(fd)
+        if events & _IN and self._mirror is not None:
+            self._mirror.unregister(fd)
+        client.on_change = None          # nothing of it to update any more
+        client.changed = True
         del self._clients[fd]
         client.close()
         self._on_closed(client)

@@ -18,6 +18,7 @@ from mbgw.ops.reload import ReloadReport
 from mbgw.ops.service import ModeParts, origin
 from mbgw.routing.inbox import Inbox
 from mbgw.scenarios.engine import Scenarios
+from mbgw.slave.line_share import LineShare
 from mbgw.slave.line_thread import SlaveLineThread, serial_scenarios
 from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
@@ -96,6 +97,7 @@ class SlaveMode(ModeParts):
         self.serial_engine = Scenarios(serial_scenarios(cfg), self.tables.table, "serial")
         worker.use_scenarios(self.serial_engine)    # run, and reconfigured, by the line thread
         self.load = LineLoad(lambda: counters.line_busy_ns)
+        self.line_share = LineShare(counters, self.server.router.off_line, self.inboxes)
         self.addresses: list[str] = []
         self.running = cfg                 # the settings in force
         self._idle_ms = -1                 # the watchdog's idle limit, for lines added later
@@ -124,6 +126,7 @@ class SlaveMode(ModeParts):
                                   self.counters, self.devices, self.addresses, self.tables,
                                   self.load)
         self.status.targets = self.targets
+        self.status.line_share = self.line_share
         self.status.faces = self.serial_faces
 
     def threads(self) -> list:
@@ -141,7 +144,7 @@ class SlaveMode(ModeParts):
     def metered(self) -> list[tuple]:
         """Each line's (name, counters, devices) for /metrics, line serial's first."""
         faces = self.serial_faces.metered() if self.serial_faces is not None else ()
-        return [(PRIMARY_LINE, self.counters, self.devices), *self.targets.metered(), *faces]
+        return [(PRIMARY_LINE, self.line_share, self.devices), *self.targets.metered(), *faces]
 
     def start(self, idle_ms: int) -> None:
         self.worker.idle_ms = idle_ms

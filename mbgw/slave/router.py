@@ -71,6 +71,10 @@ class Router:
         self._kept: list[tuple] = []     # requests for the line read by the table reader
         # Exchanges other lines answered, for the thread that holds the gate to deliver
         self._completions: deque[tuple] = deque()
+        # What the face answered off line serial (the table, another line, unroutable, the
+        # firewall), also in counters, the daemon's totals: line serial's own figures are
+        # the difference (mbgw.slave.line_share)
+        self.off_line = Counters()
 
     def route_face(self, cfg: SlaveConfig) -> None:
         """The face's hops for cfg, swapped whole.  At a reload the line thread calls it
@@ -128,11 +132,17 @@ class Router:
     def _elsewhere(self, hop: Hop | None, client: Client, tid: int, unit: int,
                    request: bytes, received_ns: int, responder) -> None:
         """A request the face's routes take elsewhere than today's way to line serial."""
+        off_line = self.off_line
         if hop is None:
             self._requested(client, tid, unit, request, None)
             self.counters.unroutable += 1
-            self._refuse(client, tid, unit, request, Outcome.UNROUTABLE, received_ns,
-                         line=None)
+            off_line.requests += 1
+            off_line.unroutable += 1
+            if self._cfg.exception:          # as gateway_exception counts
+                off_line.gateway_exceptions += 1
+            if self._refuse(client, tid, unit, request, Outcome.UNROUTABLE, received_ns,
+                            line=None):
+                off_line.replies += 1
             return
         kind = hop.kind
         if kind is TABLE:
@@ -145,6 +155,7 @@ class Router:
                 self._scheduler.submit(client.queue, job)
         else:
             self._requested(client, tid, unit, request, hop.line)
+            off_line.requests += 1
             inbox = hop.inbox
             assert inbox is not None
             client.admitted()
@@ -165,7 +176,8 @@ class Router:
             exchange, reply, outcome = completions.popleft()
             client, tid, unit, line = exchange.context
             client.answered()
-            self._answer(client, tid, unit, reply)
+            if self._answer(client, tid, unit, reply):
+                self.off_line.replies += 1
             if self.trace.active:
                 self.traced(client, tid, unit, exchange.pdu[0], reply, outcome,
                             exchange.received_ns, line)
@@ -206,7 +218,9 @@ class Router:
             reply = responder.answer(request, broadcast=True)
         else:
             reply = responder.answer(request)
-        self._answer(client, tid, unit, reply)
+        self.off_line.requests += 1
+        if self._answer(client, tid, unit, reply):
+            self.off_line.replies += 1
         if tracing:
             self.traced(client, tid, unit, request[0], reply, Outcome.TABLE, client.arrived_ns,
                         None)
@@ -218,7 +232,9 @@ class Router:
         client.firewall_refused += 1
         tracing = self._requested(client, tid, unit, request)
         reply = self.firewall.refused(guard, client.peer, client.role, unit, request)
-        self._answer(client, tid, unit, reply)
+        self.off_line.requests += 1
+        if self._answer(client, tid, unit, reply):
+            self.off_line.replies += 1
         if tracing:
             self.traced(client, tid, unit, request[0], reply, Outcome.FIREWALL, received_ns,
                         None)
@@ -271,7 +287,8 @@ class Router:
         self._scheduler.discard(client.queue)
 
     def _answer(self, client: Client, tid: int, unit: int, reply: bytes | None,
-                forwarded: int = -1) -> None:
+                forwarded: int = -1) -> bool:
+        """Whether a reply was counted (sent, or forwarded by C already)."""
         if reply is not None and not client.closed:
             if forwarded < 0:
                 client.send(mbap.frame(tid, unit, reply))
@@ -279,15 +296,19 @@ class Router:
                 client.send(mbap.frame(tid, unit, reply)[forwarded:])
             self.counters.replies += 1
             client.last_active = time.monotonic()
+            return True
+        return False
 
     def _refuse(self, client: Client, tid: int, unit: int, request: bytes, outcome: str,
                 received_ns: int, code: int = pdu.GATEWAY_PATH_UNAVAILABLE,
-                device=None, line: str | None = PRIMARY_LINE) -> None:
+                device=None, line: str | None = PRIMARY_LINE) -> bool:
+        """Whether a reply was sent."""
         reply = gateway_exception(self._cfg.exception, request[0], code, self.counters,
                                   device)
-        self._answer(client, tid, unit, reply)
+        sent = self._answer(client, tid, unit, reply)
         if self.trace.active:
             self.traced(client, tid, unit, request[0], reply, outcome, received_ns, line)
+        return sent
 
     def traced_late(self, job: Job, reply: bytes) -> None:
         """The late reply to job, which timed out, was dropped (while someone traces)."""

@@ -6,6 +6,7 @@ from mbgw.config.lines import PRIMARY_LINE, routes_status
 from mbgw.ops.load import LineLoad, average_percent
 from mbgw.ops.status import DaemonStatus, line_row
 from mbgw.scenarios.report import scenarios_status
+from mbgw.slave.line_share import LineShare
 from mbgw.slave.routes import effective_routes
 from mbgw.slave.targets import TargetLines
 
@@ -23,6 +24,7 @@ class SlaveStatus(DaemonStatus):
         self._worker = worker
         self._scheduler = scheduler
         self._addresses = addresses
+        self.line_share: LineShare | None = None    # line serial's own figures (the daemon's)
         self.scenario_engines: dict = {}    # the scenarios' engines by kind (the daemon's)
         self.targets: TargetLines | None = None     # the lines beside serial (the daemon's)
         self.faces = None       # the lines in master mode (master.faces.LineFaces), if any
@@ -33,6 +35,8 @@ class SlaveStatus(DaemonStatus):
 
     def reset(self, request: dict) -> dict:
         self._server.firewall.reset_counts()
+        if self.line_share is not None:
+            self.line_share.reset()
         if self._tables is not None:
             self._tables.table.reset_counts()
         return super().reset(request)
@@ -67,7 +71,7 @@ class SlaveStatus(DaemonStatus):
             "line_utilisation_pct": average_percent(busy_ns, mono - self._reset_mono),
             "line_load_pct": self.load.percent(),
             "devices": (devices := [d.snapshot() for d in self._devices.all()]),
-            "lines": self._lines(counters, devices),
+            "lines": self._lines(devices),
             "routes": routes_status(effective_routes(self.cfg)),
             **({"scenarios": rows} if (rows := scenarios_status(self.scenario_engines.values()))
                else {}),
@@ -75,11 +79,11 @@ class SlaveStatus(DaemonStatus):
 
     def lines(self) -> list[dict]:
         """The "lines" rows, as the metrics read them."""
-        counters = self._counters.snapshot()
-        counters.pop("line_busy_ns", None)
-        return self._lines(counters, [d.snapshot() for d in self._devices.all()])
+        return self._lines([d.snapshot() for d in self._devices.all()])
 
-    def _lines(self, counters: dict, devices: list[dict]) -> list[dict]:
+    def _lines(self, devices: list[dict]) -> list[dict]:
+        counters = (self.line_share or self._counters).snapshot()
+        counters.pop("line_busy_ns", None)
         serial = line_row(PRIMARY_LINE, self.cfg.serial.device, "slave", self._worker.state,
                           counters, devices)
         return [serial, *(self.targets.status() if self.targets is not None else ()),

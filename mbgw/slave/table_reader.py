@@ -16,11 +16,14 @@ import os
 import select
 import threading
 
+from mbgw.line import native
 from mbgw.slave.connections import Connections
 
 log = logging.getLogger("mbgw.tcp")
 
 _IN = select.POLLIN
+# Its name in ps -L and top -H as in Python's threading (the kernel keeps 15 bytes).
+THREAD_NAME = "mbgw-tbl-reader"
 
 
 class Gate:
@@ -79,8 +82,9 @@ class _LineAway:
 class TableReader(threading.Thread):
     def __init__(self, gate: Gate, connections: Connections, wake_fd: int,
                  on_request, responder) -> None:
-        """on_request(client, tid, unit, pdu, responder): TcpServer.read_meanwhile."""
-        super().__init__(name="mbgw-table-reader", daemon=True)
+        """on_request(client, tid, unit, pdu, responder): TcpServer.read_meanwhile.  Made
+        under the gate: connections keeps this thread's poll up to date from then on."""
+        super().__init__(name=THREAD_NAME, daemon=True)
         self._gate = gate
         self._connections = connections
         self._wake_fd = wake_fd
@@ -92,7 +96,7 @@ class TableReader(threading.Thread):
         self._poll = select.poll()
         self._poll.register(self._stop_fd, _IN)
         self._poll.register(wake_fd, _IN)
-        self._polled: dict[int, object] = {}      # client fd -> the client polled there
+        connections.attach(self._poll)
 
     def stop(self) -> None:
         """Called by the line thread, which must then let go of the gate and join."""
@@ -100,30 +104,19 @@ class TableReader(threading.Thread):
         os.eventfd_write(self._stop_fd, 1)
 
     def run(self) -> None:
+        native.name_thread(self.name)
         ready: list = []
         try:
             while True:
                 with self._gate.reader_side:
                     if self._stopping:
+                        self._connections.detach()
                         return
                     try:
                         self._connections.serve_ready(ready, self._on_request)
+                        self._connections.update()
                     except Exception:   # a bug must cost this wake-up, never the thread
                         log.exception("internal error in the table reader")
-                    self._update()
                 ready = self._poll.poll()
         finally:
             os.close(self._stop_fd)
-
-    def _update(self) -> None:
-        """Poll the clients that may be read now (under the gate)."""
-        polled = self._polled
-        wanted = dict(self._connections.wanted())
-        for fd, client in list(polled.items()):
-            if wanted.get(fd) is not client:
-                self._poll.unregister(fd)
-                del polled[fd]
-        for fd, client in wanted.items():
-            if fd not in polled:
-                self._poll.register(fd, _IN)
-                polled[fd] = client

@@ -126,8 +126,9 @@ def test_metrics_carry_each_line(two_lines, client):
     with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5) as r:
         found = metric_families(parser, r.read().decode())
     assert metric_value(found, "mbgw_requests", "mbgw_requests_total", line="meters") == 2
-    # line serial's counters are the TCP face's too: every request it took is in them
-    assert metric_value(found, "mbgw_requests", "mbgw_requests_total", line="serial") == 3
+    # line serial's samples count its own transactions, not the face's others
+    assert metric_value(found, "mbgw_requests", "mbgw_requests_total", line="serial") == 1
+    assert metric_value(found, "mbgw_replies", "mbgw_replies_total", line="serial") == 1
     assert metric_value(found, "mbgw_device_replies", "mbgw_device_replies_total",
                         line="meters", address=rig.METER) == 2
     assert metric_value(found, "mbgw_device_replies", "mbgw_device_replies_total",
@@ -135,6 +136,40 @@ def test_metrics_carry_each_line(two_lines, client):
     assert metric_value(found, "mbgw_transaction_latency_seconds",
                         "mbgw_transaction_latency_seconds_count",
                         line="meters", address=rig.METER) == 2
+
+
+def test_each_line_counts_its_own_transactions_and_the_daemon_all(two_lines, client):
+    """Line serial's row counts only what went on line serial, meters' what went on
+    meters, the daemon's counters every request of the face (an unroutable one too)."""
+    gw, serial, meters, port = two_lines
+    c = client(gw)
+    for address in (0, 1):
+        assert c.ask(rig.SERIAL_SLAVE, read_holding(address, 1)) == rig.hr_reply(address, 1)
+    for address in (0, 1, 2):
+        assert c.ask(rig.METER_UNIT, read_holding(address, 1)) == rig.hr_reply(address, 1)
+    assert len(rig.received(serial.record)) == 2
+    assert len(rig.received(meters.record)) == 3
+    s = status(gw)
+    rows = {row["name"]: row for row in s["lines"]}
+    assert (rows["serial"]["requests"], rows["serial"]["replies"]) == (2, 2)
+    assert rows["serial"]["counters"]["requests"] == 2
+    assert (rows["meters"]["requests"], rows["meters"]["replies"]) == (3, 3)
+    assert (s["counters"]["requests"], s["counters"]["replies"]) == (5, 5)
+
+    unrouted = 200          # no route takes it: 0x0A (--exception), counted by the daemon
+    assert c.ask(unrouted, read_holding(0, 1)) == bytes((0x83, 0x0A))
+    s = status(gw)
+    rows = {row["name"]: row for row in s["lines"]}
+    assert (rows["serial"]["requests"], rows["serial"]["replies"]) == (2, 2)
+    assert rows["serial"]["counters"]["unroutable"] == 0
+    assert rows["serial"]["counters"]["gateway_exceptions"] == 0
+    assert (s["counters"]["requests"], s["counters"]["replies"]) == (6, 6)
+    assert (s["counters"]["unroutable"], s["counters"]["gateway_exceptions"]) == (1, 1)
+    assert len(rig.received(serial.record)) == 2 and len(rig.received(meters.record)) == 3
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5) as r:
+        found = metric_families(parser, r.read().decode())
+    assert metric_value(found, "mbgw_requests", "mbgw_requests_total", line="serial") == 2
+    assert metric_value(found, "mbgw_requests", "mbgw_requests_total", line="meters") == 3
 
 
 def test_a_line_in_master_mode_is_shown_and_measured_by_its_name(lines, gateway, tmp_path):
