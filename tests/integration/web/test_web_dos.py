@@ -54,14 +54,15 @@ def port_of(web: Web) -> int:
 def raw_post(port: int, path: str, body: bytes, headers: dict | None = None,
              timeout: float = 10) -> tuple[int, bytes]:
     """(status, body) of one POST on a connection of its own; status 0: the connection was
-    closed without an answer."""
+    closed without an answer, or none came in time (300 connections at once overflow the
+    listener's backlog: the kernel lets some through only after its SYN-ACK retries)."""
     conn = http.client.HTTPConnection("127.0.0.1", port, timeout=timeout)
     try:
         conn.request("POST", path, body=body, headers={"Content-Type": "application/json",
                                                        **(headers or {})})
         response = conn.getresponse()
         return response.status, response.read()
-    except (ConnectionError, http.client.HTTPException):
+    except (ConnectionError, TimeoutError, http.client.HTTPException):
         return 0, b""
     finally:
         conn.close()
