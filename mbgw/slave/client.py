@@ -13,7 +13,7 @@ from collections.abc import Callable
 from mbgw.firewall.guard import Guard
 from mbgw.line.forward import NO_FORWARD, ClientReader, Forward, counter
 from mbgw.protocol import mbap
-from mbgw.slave.scheduler import Queue
+from mbgw.routing.queue import Queue
 
 MAX_IN_FLIGHT = 16          # TCP guide 4.4.2: a server holds 1..16 transactions per client
 RECEIVE_SIZE = 4096         # what one read takes from a connection: 15 requests of 260 bytes
