@@ -42,8 +42,7 @@ from mbgw.scenarios.engine import Scenarios
 from mbgw.scenarios.exchange import EXCEPTION_KINDS, FRAME_WITHOUT_REQUEST, TIMEOUT
 from mbgw.scenarios.health import SerialHealth
 from mbgw.scenarios.report import trace_event
-from mbgw.slave.client import Client
-from mbgw.slave.connections import Connections
+from mbgw.slave.connections import Client, Connections
 from mbgw.slave.table_reader import Gate, TableReader
 from mbgw.slave.transaction import SerialMaster
 

@@ -28,7 +28,7 @@ from mbgw.ops.exception_reply import gateway_exception
 from mbgw.ops.trace import Outcome, TraceEvent, TraceHub
 from mbgw.protocol import mbap, pdu
 from mbgw.routing.queue import Exchange, Inbox, Job, Scheduler
-from mbgw.slave.client import Client
+from mbgw.slave.connections import Client
 from mbgw.slave.routes import (
     DIRECT,
     SERIAL,

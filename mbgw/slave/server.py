@@ -17,8 +17,7 @@ from mbgw.ops.device_stats import DeviceHealth
 from mbgw.ops.reload import ReloadReport
 from mbgw.ops.trace import TraceHub
 from mbgw.routing.queue import Inbox, Scheduler
-from mbgw.slave.client import Client
-from mbgw.slave.connections import Connections
+from mbgw.slave.connections import Client, Connections
 from mbgw.slave.listener import (  # noqa: F401 (the names tests and docs know here)
     FIRST_REQUEST_S,
     SLOW_REQUEST_S,

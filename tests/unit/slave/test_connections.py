@@ -9,8 +9,7 @@ import pytest
 from mbgw.line import forward
 from mbgw.ops.counters import Counters
 from mbgw.routing.queue import Job, Scheduler
-from mbgw.slave.client import MAX_IN_FLIGHT, Client
-from mbgw.slave.connections import Connections
+from mbgw.slave.connections import MAX_IN_FLIGHT, Client, Connections
 from tests.modbus import mbap, read_holding
 
 
