@@ -97,13 +97,6 @@ def master(pty_pair):
 
 
 @pytest.fixture
-def inbox():
-    box = Inbox()
-    yield box
-    box.close()
-
-
-@pytest.fixture
 def target(inbox):
     targets = []
 

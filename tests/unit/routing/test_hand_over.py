@@ -7,7 +7,7 @@ import time
 import pytest
 
 from mbgw.errors import Interrupted
-from mbgw.routing.queue import AnswerWait, Exchange, Inbox
+from mbgw.routing.queue import AnswerWait, Exchange
 
 REQUEST = bytes((0x03, 0, 0, 0, 1))
 REPLY = bytes((0x03, 2, 0, 42))
@@ -29,20 +29,6 @@ class Target:
         self.got.append(exchange)
         if self.reply is not None:
             exchange.done(exchange, self.reply, "reply")
-
-
-@pytest.fixture
-def wake_fd():
-    fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
-    yield fd
-    os.close(fd)
-
-
-@pytest.fixture
-def inbox():
-    box = Inbox()
-    yield box
-    box.close()
 
 
 def test_an_inbox_hands_over_in_order_and_rings_while_some_wait(inbox):
