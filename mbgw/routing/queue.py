@@ -1,9 +1,10 @@
 """A request handed to a target on another thread, and its turn there.
 
 A face builds an `Exchange` and submits it to the target's `Inbox`; the target's thread
-drains the inbox, lines each exchange up in its `Scheduler` (a turn per source, beside its
-own clients and scenarios), and answers it through the exchange's `done`.  A face whose thread
-waits for the answer itself (a serial face) does so with an `AnswerWait`.
+drains the inbox and answers each exchange through its `done`.  A line's thread first lines
+it up in its `Scheduler` (a turn per source, beside the line's own clients and scenarios); a
+server's thread serves them in order.  A face whose thread waits for the answer itself (a
+serial face) does so with an `AnswerWait`.
 """
 import os
 import select
