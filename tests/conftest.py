@@ -5,6 +5,7 @@ import socket
 
 import pytest
 
+from mbgw.routing.queue import Inbox
 from tests.harness import Gateway, Peer, PtyPair
 from tests.modbus import Client
 
@@ -125,3 +126,19 @@ def socket_ends():
     yield ours, theirs
     ours.close()
     theirs.close()
+
+
+@pytest.fixture
+def wake_fd():
+    """A thread's wake-up eventfd, as the daemon makes them."""
+    fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
+    yield fd
+    os.close(fd)
+
+
+@pytest.fixture
+def inbox():
+    """A target's Inbox (mbgw.routing.queue), for a test that plays the target."""
+    box = Inbox()
+    yield box
+    box.close()

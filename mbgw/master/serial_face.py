@@ -62,18 +62,19 @@ from mbgw.master.face_routes import (
     face_settings,
     ports,
 )
-from mbgw.master.line_target import LineRequests
 from mbgw.master.table_slave import TableSlave
 from mbgw.master.trace import MasterTracer
 from mbgw.net.ratelimit import RateLimitedLog
 from mbgw.net.tls import client_context
 from mbgw.ops.counters import MasterCounters, TableSlaveCounters
 from mbgw.ops.device_stats import MASTER_COUNTS, DeviceHealth, DeviceStats, HealthRule
+from mbgw.ops.eventfd import drain
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.ops.status import line_row
 from mbgw.ops.trace import Outcome, TraceHub
 from mbgw.protocol import pdu
-from mbgw.upstream.pool import UpstreamPool, drain
+from mbgw.routing.queue import AnswerWait
+from mbgw.upstream.pool import UpstreamPool
 
 log = logging.getLogger("mbgw.line")
 wire = logging.getLogger("mbgw.wire")
@@ -123,7 +124,7 @@ class SerialFace(LineThread[FaceSettings]):
         self.watch_raw(self.hub, answers=True)
         self._tracer = MasterTracer(self.hub.for_line(self.face))    # events name the line
         self.wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
-        self._lines = LineRequests(self.face, self.wake_fd, lambda: self._stopping)
+        self._lines = AnswerWait(self.face, self.wake_fd, lambda: self._stopping)
         self._pools: dict[int, UpstreamPool] = {}
         self._tls_context: ssl.SSLContext | None = None
         self._reply_to = b""       # the last frame for another slave: its reply may come next

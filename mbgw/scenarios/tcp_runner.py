@@ -47,14 +47,12 @@ from mbgw.errors import (
 from mbgw.net.tls import client_context
 from mbgw.ops.counters import MasterCounters
 from mbgw.ops.device_stats import DeviceStats, HealthRule
+from mbgw.ops.eventfd import drain
 from mbgw.ops.trace import TraceHub
 from mbgw.scenarios.engine import Scenarios
 from mbgw.scenarios.health import ServerHealth
 from mbgw.scenarios.report import scenarios_status, trace_event
-from mbgw.upstream.pool import (
-    UpstreamPool,
-    drain,
-)
+from mbgw.upstream.pool import UpstreamPool
 
 log = logging.getLogger("mbgw.scenarios")
 

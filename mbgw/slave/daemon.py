@@ -16,11 +16,10 @@ from mbgw.ops.device_stats import DeviceHealth, HealthRule
 from mbgw.ops.load import LineLoad
 from mbgw.ops.reload import ReloadReport
 from mbgw.ops.service import ModeParts, origin
-from mbgw.routing.inbox import Inbox
+from mbgw.routing.queue import Inbox, Scheduler
 from mbgw.scenarios.engine import Scenarios
 from mbgw.slave.line_share import LineShare
 from mbgw.slave.line_thread import SlaveLineThread, serial_scenarios
-from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
 from mbgw.slave.servers import ServerTargets, server_targets
 from mbgw.slave.status import SlaveStatus

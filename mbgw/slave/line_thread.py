@@ -37,15 +37,12 @@ from mbgw.ops.device_stats import DeviceHealth
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.ops.trace import Outcome
 from mbgw.protocol import mbap, pdu
-from mbgw.routing.exchange import Exchange
-from mbgw.routing.inbox import Inbox
+from mbgw.routing.queue import SCENARIO_TURN, Exchange, Inbox, Job, Queue, Scheduler
 from mbgw.scenarios.engine import Scenarios
 from mbgw.scenarios.exchange import EXCEPTION_KINDS, FRAME_WITHOUT_REQUEST, TIMEOUT
 from mbgw.scenarios.health import SerialHealth
 from mbgw.scenarios.report import trace_event
-from mbgw.slave.client import Client
-from mbgw.slave.connections import Connections
-from mbgw.slave.scheduler import SCENARIO_TURN, Job, Queue, Scheduler
+from mbgw.slave.connections import Client, Connections
 from mbgw.slave.table_reader import Gate, TableReader
 from mbgw.slave.transaction import SerialMaster
 

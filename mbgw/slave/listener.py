@@ -31,8 +31,7 @@ from mbgw.net.tls import role_of, server_context
 from mbgw.ops.counters import Counters
 from mbgw.ops.limits import AcceptRest, WarnLimit, is_resource_error
 from mbgw.ops.reload import ReloadReport
-from mbgw.slave.client import PEER_GONE, Client, TlsClient
-from mbgw.slave.connections import Connections
+from mbgw.slave.connections import PEER_GONE, Client, Connections, TlsClient
 from mbgw.slave.handshakes import HANDSHAKES_PER_ADDRESS, MAX_HANDSHAKES, Handshakes
 
 log = logging.getLogger("mbgw.tcp")

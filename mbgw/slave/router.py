@@ -27,9 +27,8 @@ from mbgw.ops.device_stats import DeviceHealth
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.ops.trace import Outcome, TraceEvent, TraceHub
 from mbgw.protocol import mbap, pdu
-from mbgw.routing.exchange import Exchange
-from mbgw.routing.inbox import Inbox
-from mbgw.slave.client import Client
+from mbgw.routing.queue import Exchange, Inbox, Job, Scheduler
+from mbgw.slave.connections import Client
 from mbgw.slave.routes import (
     DIRECT,
     SERIAL,
@@ -40,7 +39,6 @@ from mbgw.slave.routes import (
     face_hops,
     is_today,
 )
-from mbgw.slave.scheduler import Job, Scheduler
 
 OUTCOME_FIREWALL = Outcome.FIREWALL    # refused by the firewall (0x01)
 

@@ -8,7 +8,7 @@ A unit no route takes has no hop (None).
 """
 from mbgw.config.lines import PRIMARY_LINE, TCP_FACE, RouteConfig, RouteMap, route_map
 from mbgw.config.model import SlaveConfig
-from mbgw.routing.inbox import Inbox
+from mbgw.routing.queue import Inbox
 
 SERIAL = "serial"        # line serial, owned by the TCP face's own line thread
 TABLE = "table"

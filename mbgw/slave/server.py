@@ -16,9 +16,8 @@ from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceHealth
 from mbgw.ops.reload import ReloadReport
 from mbgw.ops.trace import TraceHub
-from mbgw.routing.inbox import Inbox
-from mbgw.slave.client import Client
-from mbgw.slave.connections import Connections
+from mbgw.routing.queue import Inbox, Scheduler
+from mbgw.slave.connections import Client, Connections
 from mbgw.slave.listener import (  # noqa: F401 (the names tests and docs know here)
     FIRST_REQUEST_S,
     SLOW_REQUEST_S,
@@ -27,7 +26,6 @@ from mbgw.slave.listener import (  # noqa: F401 (the names tests and docs know h
     slow,
 )
 from mbgw.slave.router import OUTCOME_FIREWALL, Router  # noqa: F401
-from mbgw.slave.scheduler import Scheduler
 
 
 class TcpServer:

@@ -19,8 +19,7 @@ from mbgw.ops.counters import MasterCounters
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.ops.trace import Outcome
 from mbgw.protocol import pdu
-from mbgw.routing.exchange import Exchange
-from mbgw.routing.inbox import Inbox
+from mbgw.routing.queue import Exchange, Inbox
 from mbgw.upstream.pool import Interrupted, UpstreamPool
 
 log = logging.getLogger("mbgw.tcp")

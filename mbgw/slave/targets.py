@@ -18,10 +18,9 @@ from mbgw.ops.device_stats import DeviceHealth, HealthRule
 from mbgw.ops.reload import ReloadReport
 from mbgw.ops.status import line_row
 from mbgw.ops.trace import LineTrace, TraceHub
-from mbgw.routing.inbox import Inbox
+from mbgw.routing.queue import Inbox, Scheduler
 from mbgw.slave.connections import Connections
 from mbgw.slave.line_thread import SlaveLineThread
-from mbgw.slave.scheduler import Scheduler
 
 log = logging.getLogger("mbgw.line")
 

@@ -52,6 +52,7 @@ from mbgw.net.tls import (
     role_of,
     start_handshake,
 )
+from mbgw.ops.eventfd import drain
 from mbgw.ops.limits import AcceptRest, WarnLimit, is_resource_error, share
 from mbgw.protocol import mbap
 
@@ -527,10 +528,7 @@ class TableServer(threading.Thread):
         os.close(self._wake_fd)
 
     def _woken(self) -> dict:
-        try:
-            os.eventfd_read(self._wake_fd)
-        except BlockingIOError:
-            pass
+        drain(self._wake_fd)
         with self._lock:
             new, self._new_listeners = self._new_listeners, None
             firewall, self._new_firewall = self._new_firewall, None

@@ -16,6 +16,7 @@ from mbgw.config.transparent import TransparentModeConfig
 from mbgw.errors import SerialError
 from mbgw.line.serial_line import SerialLine
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread
+from mbgw.ops.eventfd import drain
 from mbgw.ops.trace import TraceHub
 from mbgw.transparent.counters import TransparentCounters
 from mbgw.transparent.frames import MAX_FRAME, Receiver, Rules, from_registers
@@ -26,13 +27,6 @@ log = logging.getLogger("mbgw.transparent")
 READ_SIZE = 4096
 _IN = select.POLLIN
 _TROUBLE = select.POLLHUP | select.POLLERR | select.POLLNVAL
-
-
-def _drain(fd: int) -> None:
-    try:
-        os.eventfd_read(fd)
-    except BlockingIOError:
-        pass
 
 
 class TransparentLineThread(LineThread[TransparentModeConfig]):
@@ -142,10 +136,10 @@ class TransparentLineThread(LineThread[TransparentModeConfig]):
         if fd == self._tty_fd:
             self._read_line(events)
         elif fd == self._tx_fd:
-            _drain(fd)
+            drain(fd)
             self._take_tx()
         elif fd == self._wake_fd:
-            _drain(fd)
+            drain(fd)
         elif raw is not None and fd in raw.listeners:
             raw.accept(fd)
         elif raw is not None and raw.is_client(fd):

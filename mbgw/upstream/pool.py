@@ -44,6 +44,7 @@ from mbgw.errors import (
 from mbgw.line import frames
 from mbgw.net.tls import handshake_step, server_mismatch
 from mbgw.ops.counters import MasterCounters
+from mbgw.ops.eventfd import drain
 from mbgw.protocol import mbap
 
 log = logging.getLogger("mbgw.tcp")
@@ -407,14 +408,6 @@ class UpstreamPool:
             drain(self._wake_fd)
             if len(events) > 1:
                 return
-
-
-def drain(fd: int) -> None:
-    """Take the signal of an eventfd (non-blocking), if there is one."""
-    try:
-        os.eventfd_read(fd)
-    except BlockingIOError:
-        pass
 
 
 def _handshake_failure(err: OSError) -> str:

@@ -36,13 +36,6 @@ def line():
     os.close(bus)
 
 
-@pytest.fixture
-def wake_fd():
-    fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
-    yield fd
-    os.close(fd)
-
-
 def test_a_request_for_any_address(line, wake_fd):
     bus, port = line
     for address in (1, 17, 247, 255):

@@ -12,8 +12,7 @@ import pytest
 from mbgw.config.lines import LineConfig, RouteConfig, RouteMap
 from mbgw.config.model import SerialConfig, SlaveConfig
 from mbgw.master.serial_face import build_face
-from mbgw.routing.exchange import Exchange
-from mbgw.routing.inbox import Inbox
+from mbgw.routing.queue import Exchange, Inbox
 from tests.integration.master.test_master import recv
 from tests.modbus import read_holding, rtu
 
@@ -95,13 +94,6 @@ def master(pty_pair):
     fd = os.open(pty_pair.device, os.O_RDWR | os.O_NOCTTY)
     yield fd
     os.close(fd)
-
-
-@pytest.fixture
-def inbox():
-    box = Inbox()
-    yield box
-    box.close()
 
 
 @pytest.fixture

@@ -16,13 +16,13 @@ from dataclasses import dataclass
 import pytest
 from prometheus_client import parser
 
+from mbgw.ops.eventfd import drain
 from mbgw.scenarios.tcp_runner import (
     CONNECTION_LOST,
     CONNECTION_REFUSED,
     TIMEOUT,
     TcpRunner,
 )
-from mbgw.upstream.pool import drain
 from tests.harness import Peer, free_port
 from tests.integration.ops.test_trace_raw import Trace
 from tests.modbus import Client

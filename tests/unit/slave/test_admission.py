@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import pytest
 
 from mbgw.config.model import ACTIVE_WINDOW_S
-from mbgw.slave.client import PEER_GONE, Client
+from mbgw.slave.connections import PEER_GONE, Client
 from mbgw.slave.server import SLOW_REQUEST_S, eviction_victim
 from tests.modbus import mbap, read_holding
 from tests.wait import until

@@ -1,4 +1,4 @@
-"""A client's requests in the gateway (mbgw.slave.client): written by admitted() and
+"""A client's requests in the gateway (mbgw.slave.connections.Client): written by admitted() and
 answered(forwarded) only, in the C int the reply's forward counts down, and where the C
 receive may send a reply (forward_target, a line.forward.Forward)."""
 import socket
@@ -6,7 +6,7 @@ import socket
 import pytest
 
 from mbgw.line.forward import NO_FORWARD, Forward
-from mbgw.slave.client import MAX_IN_FLIGHT, Client
+from mbgw.slave.connections import MAX_IN_FLIGHT, Client
 
 
 @pytest.fixture

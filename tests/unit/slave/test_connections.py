@@ -8,9 +8,8 @@ import pytest
 
 from mbgw.line import forward
 from mbgw.ops.counters import Counters
-from mbgw.slave.client import MAX_IN_FLIGHT, Client
-from mbgw.slave.connections import Connections
-from mbgw.slave.scheduler import Job, Scheduler
+from mbgw.routing.queue import Job, Scheduler
+from mbgw.slave.connections import MAX_IN_FLIGHT, Client, Connections
 from tests.modbus import mbap, read_holding
 
 

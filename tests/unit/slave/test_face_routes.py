@@ -5,7 +5,7 @@ import dataclasses
 from mbgw.config.lines import LineConfig, RouteConfig, routes_status
 from mbgw.config.model import SerialConfig, SlaveConfig, TableConfig
 from mbgw.config.number_list import number_list_text as units_text
-from mbgw.routing.inbox import Inbox
+from mbgw.routing.queue import Inbox
 from mbgw.slave.routes import (
     DIRECT,
     ELSEWHERE,

@@ -6,7 +6,7 @@ import socket
 import pytest
 
 from mbgw.protocol import mbap
-from mbgw.slave.client import OUTPUT_LIMIT, Client
+from mbgw.slave.connections import OUTPUT_LIMIT, Client
 
 
 def frames_from(data: bytes) -> list[int]:

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from mbgw.slave.client import MAX_IN_FLIGHT, Client
+from mbgw.slave.connections import MAX_IN_FLIGHT, Client
 from mbgw.slave.table_reader import THREAD_NAME, Gate, TableReader
 from tests.modbus import mbap, read_holding
 from tests.unit.slave.test_connections import Rig, readable

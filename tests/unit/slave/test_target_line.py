@@ -9,7 +9,7 @@ import pytest
 from mbgw.config.lines import LineConfig
 from mbgw.config.model import SerialConfig, SlaveConfig
 from mbgw.ops.reload import ReloadReport
-from mbgw.routing.exchange import Exchange
+from mbgw.routing.queue import Exchange
 from mbgw.slave.targets import TargetLine, TargetLines
 
 DEADLINE_S = 5.0

@@ -1,5 +1,5 @@
-"""The line queue (mbgw.slave.scheduler): fair between clients, in order within a client, and an
-eventfd through which other threads wake the line thread.
+"""The line queue (mbgw.routing.queue.Scheduler): fair between clients, in order within a
+client, and an eventfd through which other threads wake the line thread.
 
 The rule (docs/architecture.md, slave path step 4): one turn per waiting client, taken in the
 order the turns began: a client with nothing queued begins one when its request arrives
@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from mbgw.slave.scheduler import SCENARIO_TURN, Job, Queue, Scheduler
+from mbgw.routing.queue import SCENARIO_TURN, Job, Queue, Scheduler
 
 
 @pytest.fixture
