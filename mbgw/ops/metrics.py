@@ -112,7 +112,7 @@ class DaemonCollector:
     transaction.  gauges() gives (name, help, value) of the mode's own gauges; table(), when
     the daemon serves the exchange table, its status dict (mbgw.table.report.table_status)."""
 
-    def __init__(self, counters, devices, started: float, mode: str, gauges,
+    def __init__(self, counters, devices, started: float, mode: str, up, gauges,
                  table=None, firewall=None,
                  scenarios=None, lines=None) -> None:
         self._counters = counters
@@ -127,12 +127,16 @@ class DaemonCollector:
         self._table = table
         self._firewall = firewall       # the firewall's status dict (mbgw.firewall), or None
         self.scenarios = scenarios      # () -> the status's "scenarios" rows, or None
-        self.lines: Callable[[], list[dict]] | None = None   # () -> the status's "lines" rows
+        # () -> the status's "lines" rows, whose state says each line's mbgw_line_up; until
+        # the daemon gives them, line serial's alone, up() saying its state
+        self.lines: Callable[[], list[dict]] = lambda: [
+            {"name": PRIMARY_LINE, "mode": mode, "state": "up" if up() else "down"}]
 
     def collect(self):
         yield from self._daemon()
         lines = list(self._lines())
         yield from self._line_counters(lines)
+        yield line_up_family(self.lines())
         for name, help_text, value in self._gauges():
             yield GaugeMetricFamily(name, help_text, value=value)
         table = [(name, d) for name, _, devices in lines for d in devices.all()]
@@ -147,8 +151,6 @@ class DaemonCollector:
             yield firewall_family(firewall)
         if self.scenarios is not None:
             yield from scenario_families(self.scenarios())
-        if self.lines is not None:
-            yield from line_families(self.lines())
 
     def _daemon(self):
         info = GaugeMetricFamily("mbgw_info", "mbgw's version and mode (always 1).",
@@ -297,26 +299,14 @@ def firewall_family(status: dict) -> CounterMetricFamily:
     return refused
 
 
-def line_families(rows: list[dict]):
-    """Every line's figures, labelled by its name and mode (slave: mbgw is the master on it,
-    master: a serial master is), from the status's "lines" rows."""
-    labels = ["line", "mode"]
-    families = {key: CounterMetricFamily(f"mbgw_line_{key}", help_text, labels=labels)
-                for key, help_text in (
-                    ("requests", "Requests that came in for (master) or went out on (slave) "
-                                 "each line."),
-                    ("replies", "Replies given on (master) or received from (slave) each "
-                                "line."),
-                    ("timeouts", "Requests on each line that got no valid reply in time."))}
-    up = GaugeMetricFamily("mbgw_line_open", "1 while each line's serial device is open.",
-                           labels=labels)
+def line_up_family(rows: list[dict]) -> GaugeMetricFamily:
+    """mbgw_line_up of every line, labelled by its name and mode (slave: mbgw is the master
+    on it, master: a serial master is), from the status's "lines" rows."""
+    up = GaugeMetricFamily("mbgw_line_up", "1 while the line's serial device is open and "
+                           "usable.", labels=["line", "mode"])
     for row in rows:
-        key = [row["name"], row["mode"]]
-        for name, family in families.items():
-            family.add_metric(key, row[name])
-        up.add_metric(key, int(row["state"] == "up"))
-    yield from families.values()
-    yield up
+        up.add_metric([row["name"], row["mode"]], int(row["state"] == "up"))
+    return up
 
 
 SCENARIO_STATES = ("starting", "running", "error", "disabled")
@@ -362,8 +352,7 @@ def slave_collector(counters, devices, scheduler, server, worker,
     """Slave mode's metrics; table(): the exchange table's status dict, when it is on; load:
     the line's load (mbgw.ops.load.LineLoad); lines(): every line's (name, counters,
     devices), line serial's first (None: line serial only)."""
-    return DaemonCollector(counters, devices, started, "slave", lambda: [
-        ("mbgw_line_up", "1 while the serial device is open and usable.", int(worker.up)),
+    return DaemonCollector(counters, devices, started, "slave", lambda: worker.up, lambda: [
         *_load_gauges(load),
         ("mbgw_queue_depth", "Requests waiting for the serial line.", scheduler.depth),
         ("mbgw_clients_connected", "Modbus TCP clients connected.", len(server.clients))],
@@ -384,8 +373,7 @@ def master_collector(counters, devices, slave, started: float,
                      table=None, firewall=None, lines=None) -> DaemonCollector:
     """Master mode's metrics; table(): the exchange table's status dict, when it is on;
     lines() as slave_collector's."""
-    return DaemonCollector(counters, devices, started, "master", lambda: [
-        ("mbgw_line_up", "1 while the serial device is open and usable.", int(slave.up)),
+    return DaemonCollector(counters, devices, started, "master", lambda: slave.up, lambda: [
         ("mbgw_upstream_connections", "Connections open to Modbus TCP servers.",
          len(slave.connections()))], table, firewall, lines=lines)
 
@@ -422,14 +410,16 @@ class TransparentCollector:
         yield info
         yield GaugeMetricFamily("mbgw_start_time_seconds", "When the daemon started (Unix time).",
                                 value=round(self._started, 3))
-        yield GaugeMetricFamily("mbgw_line_up", "1 while the serial device is open and usable.",
-                                value=int(self._line.up))
+        yield line_up_family([{"name": PRIMARY_LINE, "mode": "transparent",
+                               "state": "up" if self._line.up else "down"}])
         figures = self._figures()
         for name, value in self._line.counters.snapshot().items():
             help_text = _TRANSPARENT_HELP.get(name) or _COUNTER_HELP.get(name) or \
                 name.replace("_", " ") + "."
             prefix = "mbgw_transparent_" if name in _TRANSPARENT_HELP else "mbgw_"
-            yield CounterMetricFamily(prefix + name, help_text, value=value)
+            family = CounterMetricFamily(prefix + name, help_text, labels=["line"])
+            family.add_metric([PRIMARY_LINE], value)
+            yield family
         yield GaugeMetricFamily("mbgw_transparent_raw_client_connected",
                                 "1 while a raw-port client is connected.",
                                 value=int(figures["raw_client"] is not None))

@@ -80,9 +80,9 @@ def test_a_serial_master_reaches_a_meter_on_a_line_in_slave_mode(
         families = metric_families(parser, r.read().decode())
     for line, mode in (("serial", "master"), ("meters", "slave")):
         for name in ("requests", "replies", "timeouts"):
-            assert metric_value(families, f"mbgw_line_{name}", f"mbgw_line_{name}_total",
-                                line=line, mode=mode) == rows[line][name], (line, name)
-        assert metric_value(families, "mbgw_line_open", line=line, mode=mode) == 1
+            assert metric_value(families, f"mbgw_{name}", f"mbgw_{name}_total",
+                                line=line) == rows[line][name], (line, name)
+        assert metric_value(families, "mbgw_line_up", line=line, mode=mode) == 1
 
 
 def test_a_reload_adds_and_removes_a_line_in_master_mode(
