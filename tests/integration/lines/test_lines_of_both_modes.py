@@ -27,7 +27,14 @@ from tests.integration.lines.test_lines import (
 )
 from tests.integration.master.test_serial_faces import ask, lines_file, read
 from tests.modbus import read_holding
-from tests.ops import mbgw, metric_families, metric_value, status, wait_for_log
+from tests.ops import (
+    line_threads,
+    mbgw,
+    metric_families,
+    metric_value,
+    status,
+    wait_for_log,
+)
 
 pytestmark = pytest.mark.integration
 
@@ -99,10 +106,13 @@ def test_a_reload_adds_and_removes_a_line_in_master_mode(
     panel = open_line(second_pty.device)
     ask(panel, read(7, 3, 1), bytes((7,)) + hr_reply(3, 1))
     assert [row["name"] for row in status(gw)["lines"]] == ["serial", "panel", "meters"]
+    # each line's thread is named after it, line serial's keeps its name of one-line days
+    assert line_threads(gw) == ["mbgw-line", "mbgw-meters", "mbgw-panel"]
     lines_file(config, [meters_line(meters)], [SERIAL_ROUTE])
     os.kill(gw.proc.pid, signal.SIGHUP)
     wait_for_log(gw, "configuration reloaded: lines, routes changed", 2)
     assert [row["name"] for row in status(gw)["lines"]] == ["serial", "meters"]
+    assert line_threads(gw) == ["mbgw-line", "mbgw-meters"]
     # the device is released: another program may open it now
     fd = os.open(second_pty.gateway, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
     os.close(fd)
@@ -163,6 +173,7 @@ def test_a_slave_mode_daemon_started_with_a_line_in_master_mode_serves_it(
         assert client(gw).ask(SERIAL_SLAVE, read_holding(0, 1)) == hr_reply(0, 1)
         rows = {row["name"]: row for row in status(gw)["lines"]}
         assert rows["panel"]["mode"] == "master" and rows["panel"]["requests"] == 1
+        assert line_threads(gw) == ["mbgw-line", "mbgw-meters", "mbgw-panel"]
         assert received(meters.record) == [bytes((METER,)) + read_holding(2, 1)]
     finally:
         serial.stop()
