@@ -3,6 +3,7 @@
 holds, its log, and the Prometheus text parsed by prometheus_client's parser."""
 import contextlib
 import json
+import pathlib
 import re
 import subprocess
 import sys
@@ -25,6 +26,14 @@ def mbgw(*args: str, user: str | None = None, groups: str | None = None,
     with reachable_by_others():
         return subprocess.run(command, capture_output=True, text=True, timeout=timeout,
                               cwd=CHECKOUT)
+
+
+def line_threads(gw) -> list[str]:
+    """The kernel's names of the daemon's threads that name themselves mbgw-... (what `ps -L`
+    shows), sorted."""
+    tasks = pathlib.Path(f"/proc/{gw.proc.pid}/task")
+    names = (t.joinpath("comm").read_text().strip() for t in tasks.iterdir())
+    return sorted(name for name in names if name.startswith("mbgw-"))
 
 
 def status(gw) -> dict:

@@ -41,6 +41,8 @@ def format_status(s: dict, now: float) -> str:
         lines += ["", *_lines_section(s["lines"]), "", *_routes_section(s["routes"])]
         for row in s["lines"][1:]:        # line serial's devices are above
             lines += ["", *_line_devices(row, now)]
+    if s.get("servers"):
+        lines += ["", *_servers_section(s["servers"])]
     if s.get("table") is not None:
         lines += ["", *_table_section(s["table"], s["mode"], now, bool(s.get("scenarios")))]
     elif s.get("scenarios"):
@@ -99,6 +101,20 @@ def format_line_status(s: dict, now: float) -> str:
         out.append("  " + "".join(f"{n:<28}{counters[n]:>10}   " for n in names[i:i + 3])
                    .rstrip())
     return "\n".join(out)
+
+
+def _servers_section(rows: list[dict]) -> list[str]:
+    """The remote Modbus TCP servers the TCP face's routes reach (slave mode)."""
+    out = [f"servers ({len(rows)})",
+           f"  {'SERVER':<21} {'REQUESTS':>8} {'REPLIES':>8} {'EXCEPT':>6} {'TIMEOUTS':>8} "
+           f"{'UNREACH':>7} {'OPEN':>4} {'OPENED':>6} {'LOST':>4}"]
+    for r in rows:
+        c = r["counters"]
+        out.append(f"  {r['server']:<21} {c['requests']:>8} {c['replies']:>8} "
+                   f"{c['device_exceptions']:>6} {c['timeouts']:>8} {c['unreachable']:>7} "
+                   f"{len(r['connections']):>4} {c['connections_opened']:>6} "
+                   f"{c['connections_lost']:>4}")
+    return out
 
 
 def _routes_section(rows: list[dict]) -> list[str]:

@@ -131,6 +131,15 @@ class RawHub(Protocol):
     def emit_threadsafe(self, event: dict) -> None: ...
 
 
+PRIMARY_THREAD = "mbgw-line"
+
+
+def thread_name(line: str) -> str:
+    """The name `ps -L` shows for line's thread: mbgw-line for line serial (as before there
+    were other lines), mbgw-NAME for the others, cut to the kernel's 15 characters."""
+    return PRIMARY_THREAD if line == "serial" else f"mbgw-{line}"[:15]
+
+
 class LineThread(threading.Thread, Generic[Settings]):
     """What a line thread is in either mode: it serves one turn at a time (`_turn`) while the
     device is open; when the device is lost it closes it and opens it again when it is back
@@ -140,7 +149,7 @@ class LineThread(threading.Thread, Generic[Settings]):
 
     def __init__(self, cfg: Settings, line: SerialLine | None) -> None:
         """line: the device opened, or None when it is not there yet (open_at_start)."""
-        super().__init__(name="mbgw-line", daemon=True)
+        super().__init__(name=PRIMARY_THREAD, daemon=True)
         self._cfg = cfg
         self._stopping = False
         self._new_cfg: Settings | None = None
@@ -159,6 +168,11 @@ class LineThread(threading.Thread, Generic[Settings]):
         self._raw_hub: RawHub | None = None     # whose raw subscribers watch the line
         self._raw_monitor: RawMonitor | None = None     # since somebody first watched it
         self._answers = False                   # mbgw is the line's slave (master mode)
+
+    def name_line(self, name: str) -> None:
+        """The line's name, in the trace and in the thread's name (before start())."""
+        self.line_name = name
+        self.name = thread_name(name)
 
     @property
     def up(self) -> bool:

@@ -120,7 +120,7 @@ class SerialFace(LineThread[FaceSettings]):
         self._down = self.devices.rule.down    # the addresses that are down, by address
         self.hub = hub if hub is not None else TraceHub()
         self.trace = self.hub         # .active: one attribute test on the request's path
-        self.line_name = self.face
+        self.name_line(self.face)
         self.watch_raw(self.hub, answers=True)
         self._tracer = MasterTracer(self.hub.for_line(self.face))    # events name the line
         self.wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)

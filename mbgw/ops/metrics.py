@@ -112,7 +112,7 @@ class DaemonCollector:
     transaction.  gauges() gives (name, help, value) of the mode's own gauges; table(), when
     the daemon serves the exchange table, its status dict (mbgw.table.report.table_status)."""
 
-    def __init__(self, counters, devices, started: float, mode: str, gauges,
+    def __init__(self, counters, devices, started: float, mode: str, up, gauges,
                  table=None, firewall=None,
                  scenarios=None, lines=None) -> None:
         self._counters = counters
@@ -127,12 +127,19 @@ class DaemonCollector:
         self._table = table
         self._firewall = firewall       # the firewall's status dict (mbgw.firewall), or None
         self.scenarios = scenarios      # () -> the status's "scenarios" rows, or None
-        self.lines: Callable[[], list[dict]] | None = None   # () -> the status's "lines" rows
+        # () -> the status's "lines" rows, whose state says each line's mbgw_line_up; until
+        # the daemon gives them, line serial's alone, up() saying its state
+        # () -> the remote servers the TCP face's routes reach: "server" and "counters"
+        # (mbgw.slave.servers), or None
+        self.servers: Callable[[], list[dict]] | None = None
+        self.lines: Callable[[], list[dict]] = lambda: [
+            {"name": PRIMARY_LINE, "mode": mode, "state": "up" if up() else "down"}]
 
     def collect(self):
         yield from self._daemon()
         lines = list(self._lines())
         yield from self._line_counters(lines)
+        yield line_up_family(self.lines())
         for name, help_text, value in self._gauges():
             yield GaugeMetricFamily(name, help_text, value=value)
         table = [(name, d) for name, _, devices in lines for d in devices.all()]
@@ -147,8 +154,8 @@ class DaemonCollector:
             yield firewall_family(firewall)
         if self.scenarios is not None:
             yield from scenario_families(self.scenarios())
-        if self.lines is not None:
-            yield from line_families(self.lines())
+        if self.servers is not None:
+            yield from server_families(self.servers())
 
     def _daemon(self):
         info = GaugeMetricFamily("mbgw_info", "mbgw's version and mode (always 1).",
@@ -297,26 +304,52 @@ def firewall_family(status: dict) -> CounterMetricFamily:
     return refused
 
 
-def line_families(rows: list[dict]):
-    """Every line's figures, labelled by its name and mode (slave: mbgw is the master on it,
-    master: a serial master is), from the status's "lines" rows."""
-    labels = ["line", "mode"]
-    families = {key: CounterMetricFamily(f"mbgw_line_{key}", help_text, labels=labels)
-                for key, help_text in (
-                    ("requests", "Requests that came in for (master) or went out on (slave) "
-                                 "each line."),
-                    ("replies", "Replies given on (master) or received from (slave) each "
-                                "line."),
-                    ("timeouts", "Requests on each line that got no valid reply in time."))}
-    up = GaugeMetricFamily("mbgw_line_open", "1 while each line's serial device is open.",
-                           labels=labels)
+def line_up_family(rows: list[dict]) -> GaugeMetricFamily:
+    """mbgw_line_up of every line, labelled by its name and mode (slave: mbgw is the master
+    on it, master: a serial master is), from the status's "lines" rows."""
+    up = GaugeMetricFamily("mbgw_line_up", "1 while the line's serial device is open and "
+                           "usable.", labels=["line", "mode"])
     for row in rows:
-        key = [row["name"], row["mode"]]
-        for name, family in families.items():
-            family.add_metric(key, row[name])
-        up.add_metric(key, int(row["state"] == "up"))
-    yield from families.values()
-    yield up
+        up.add_metric([row["name"], row["mode"]], int(row["state"] == "up"))
+    return up
+
+
+_SERVER_HELP = {
+    "requests": "Requests routed to the remote Modbus TCP server (broadcasts included).",
+    "replies": "Replies from the server (exception replies included).",
+    "device_exceptions": "Exception replies the server sent.",
+    "gateway_exceptions": "Exception replies the gateway sent for the server (0x0A: not "
+                          "reached, 0x0B: no reply within tcpto).",
+    "timeouts": "Requests the server did not answer within tcpto (or answered wrongly).",
+    "unreachable": "Requests whose server could not be reached (connection failed).",
+    "broadcasts": "Broadcasts (unit 0) sent to the server.",
+    "late_replies": "Server replies that came after tcpto, dropped by transaction id.",
+    "wrong_unit": "Server replies with another unit id than the one sent.",
+    "wrong_function": "Server replies with another function, size or echo than the request "
+                      "asked.",
+    "connections_opened": "Connections opened to the server (reconnects included).",
+    "connections_evicted": "Connections to the server closed to make room for another.",
+    "connections_lost": "Connections to the server closed by the server or broken.",
+    "connections_bad_header": "Connections to the server closed for a bad MBAP header.",
+}
+
+
+def server_families(rows: list[dict]):
+    """The remote servers' families (slave mode's `server =` routes), labelled by HOST:PORT,
+    from the status's "servers" rows."""
+    if not rows:
+        return
+    for name in rows[0]["counters"]:
+        family = CounterMetricFamily(f"mbgw_server_{name}", _SERVER_HELP.get(name) or
+                                     name.replace("_", " ") + ".", labels=["server"])
+        for row in rows:
+            family.add_metric([row["server"]], row["counters"][name])
+        yield family
+    connections = GaugeMetricFamily("mbgw_server_connections",
+                                    "Connections open to the server.", labels=["server"])
+    for row in rows:
+        connections.add_metric([row["server"]], len(row["connections"]))
+    yield connections
 
 
 SCENARIO_STATES = ("starting", "running", "error", "disabled")
@@ -362,8 +395,7 @@ def slave_collector(counters, devices, scheduler, server, worker,
     """Slave mode's metrics; table(): the exchange table's status dict, when it is on; load:
     the line's load (mbgw.ops.load.LineLoad); lines(): every line's (name, counters,
     devices), line serial's first (None: line serial only)."""
-    return DaemonCollector(counters, devices, started, "slave", lambda: [
-        ("mbgw_line_up", "1 while the serial device is open and usable.", int(worker.up)),
+    return DaemonCollector(counters, devices, started, "slave", lambda: worker.up, lambda: [
         *_load_gauges(load),
         ("mbgw_queue_depth", "Requests waiting for the serial line.", scheduler.depth),
         ("mbgw_clients_connected", "Modbus TCP clients connected.", len(server.clients))],
@@ -384,8 +416,7 @@ def master_collector(counters, devices, slave, started: float,
                      table=None, firewall=None, lines=None) -> DaemonCollector:
     """Master mode's metrics; table(): the exchange table's status dict, when it is on;
     lines() as slave_collector's."""
-    return DaemonCollector(counters, devices, started, "master", lambda: [
-        ("mbgw_line_up", "1 while the serial device is open and usable.", int(slave.up)),
+    return DaemonCollector(counters, devices, started, "master", lambda: slave.up, lambda: [
         ("mbgw_upstream_connections", "Connections open to Modbus TCP servers.",
          len(slave.connections()))], table, firewall, lines=lines)
 
@@ -422,14 +453,16 @@ class TransparentCollector:
         yield info
         yield GaugeMetricFamily("mbgw_start_time_seconds", "When the daemon started (Unix time).",
                                 value=round(self._started, 3))
-        yield GaugeMetricFamily("mbgw_line_up", "1 while the serial device is open and usable.",
-                                value=int(self._line.up))
+        yield line_up_family([{"name": PRIMARY_LINE, "mode": "transparent",
+                               "state": "up" if self._line.up else "down"}])
         figures = self._figures()
         for name, value in self._line.counters.snapshot().items():
             help_text = _TRANSPARENT_HELP.get(name) or _COUNTER_HELP.get(name) or \
                 name.replace("_", " ") + "."
             prefix = "mbgw_transparent_" if name in _TRANSPARENT_HELP else "mbgw_"
-            yield CounterMetricFamily(prefix + name, help_text, value=value)
+            family = CounterMetricFamily(prefix + name, help_text, labels=["line"])
+            family.add_metric([PRIMARY_LINE], value)
+            yield family
         yield GaugeMetricFamily("mbgw_transparent_raw_client_connected",
                                 "1 while a raw-port client is connected.",
                                 value=int(figures["raw_client"] is not None))

@@ -8,7 +8,8 @@ While one watches, every line's raw watcher has been told to capture them; nobod
 watching, no line captures anything.
 
 Filters (a subscriber's, `filters()`): "unit", "client", "function", "scenario", "line"
-(one of the daemon's line names) and "errors" (errors only: an exception reply, a scenario's
+(one of the daemon's line names: its events, and a serial face's requests routed to it) and
+"errors" (errors only: an exception reply, a scenario's
 reply that did not answer its request, no reply but to a broadcast, a late reply, noise); raw
 events are filtered by line and errors only."""
 import asyncio
@@ -145,8 +146,9 @@ def matches(event: Event, wanted: dict) -> bool:
         return True
     if wanted.get("errors") and not is_error(event):
         return False
-    if "line" in wanted and event.get("line", "serial") != wanted["line"]:
-        return False
+    if "line" in wanted and event.get("line", PRIMARY) != wanted["line"] and \
+            event.get("server") != f"line {wanted['line']}":
+        return False      # neither on that line nor a serial face's request to it
     if event.get("raw"):
         return True
     if "scenario" in wanted and event.get("scenario") != wanted["scenario"]:

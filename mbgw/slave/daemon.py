@@ -127,6 +127,12 @@ class SlaveMode(ModeParts):
         self.status.targets = self.targets
         self.status.line_share = self.line_share
         self.status.faces = self.serial_faces
+        self.status.servers = self.server_rows
+
+    def server_rows(self) -> list[dict]:
+        """The remote servers the routes reach, as status and /metrics show them."""
+        servers = self.servers        # a reload may replace them meanwhile
+        return servers.status() if servers is not None else []
 
     def threads(self) -> list:
         faces = self.serial_faces.all() if self.serial_faces is not None else ()
@@ -134,11 +140,13 @@ class SlaveMode(ModeParts):
 
     def collector(self, metrics, started: float):
         server = self.server
-        return metrics.slave_collector(
+        collector = metrics.slave_collector(
             self.counters, self.devices, self.scheduler, server, self.worker, started,
             self.tables.figures, self.load,
             lambda: server.firewall.report() if server.firewall.configured else None,
             self.metered)
+        collector.servers = self.server_rows
+        return collector
 
     def metered(self) -> list[tuple]:
         """Each line's (name, counters, devices) for /metrics, line serial's first."""

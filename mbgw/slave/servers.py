@@ -25,6 +25,11 @@ from mbgw.upstream.pool import Interrupted, UpstreamPool
 log = logging.getLogger("mbgw.tcp")
 
 MAX_CONNECTIONS = 32       # per port, as master mode's default
+# What status and /metrics show of each server: the counters its thread and its pool keep
+SERVER_FIGURES = ("requests", "replies", "device_exceptions", "gateway_exceptions", "timeouts",
+                  "unreachable", "broadcasts", "late_replies", "wrong_unit", "wrong_function",
+                  "connections_opened", "connections_evicted", "connections_lost",
+                  "connections_bad_header")
 
 
 def server_targets(cfg: SlaveConfig) -> dict[str, tuple[str, int]]:
@@ -40,6 +45,10 @@ class ServerTargets:
         self.threads = {label: ServerThread(label, server, tcpto_ms, exception)
                         for label, server in servers.items()}
         self.inboxes = {label: thread.inbox for label, thread in self.threads.items()}
+
+    def status(self) -> list[dict]:
+        """Each server's figures (ServerThread.status), from any thread."""
+        return [thread.status() for thread in self.threads.values()]
 
     def start(self) -> None:
         for thread in self.threads.values():
@@ -61,6 +70,7 @@ class ServerThread(threading.Thread):
                  exception: bool) -> None:
         super().__init__(name=f"mbgw-{label}", daemon=True)
         self.label = label
+        self.address = label.removeprefix("server ")      # HOST:PORT, [IPv6]:PORT
         self.host, port = server
         self.tcpto_ns = tcpto_ms * 1_000_000
         self.exception = exception
@@ -74,6 +84,14 @@ class ServerThread(threading.Thread):
         self._stopping = True
         self._pool.stopping = True
         os.eventfd_write(self._stop_fd, 1)
+
+    def status(self) -> dict:
+        """The server as status and /metrics show it: HOST:PORT, its figures and its open
+        connections (read from any thread while this one counts)."""
+        counters = self.counters
+        return {"server": self.address,
+                "counters": {name: getattr(counters, name) for name in SERVER_FIGURES},
+                "connections": self._pool.connections()}
 
     def run(self) -> None:
         poller = select.poll()
@@ -123,8 +141,10 @@ class ServerThread(threading.Thread):
             return None, Outcome.BROADCAST
         reply = self._pool.transact(self.host, exchange.address, exchange.pdu, deadline_ns)
         self.counters.replies += 1
-        return reply, (Outcome.DEVICE_EXCEPTION if reply[0] & pdu.EXCEPTION_FLAG
-                       else Outcome.REPLY)
+        if reply[0] & pdu.EXCEPTION_FLAG:
+            self.counters.device_exceptions += 1
+            return reply, Outcome.DEVICE_EXCEPTION
+        return reply, Outcome.REPLY
 
     def _failure(self, exchange: Exchange, code: int) -> bytes | None:
         if exchange.address == pdu.BROADCAST:

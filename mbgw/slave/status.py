@@ -1,6 +1,7 @@
 """What the running slave-mode daemon reports through the control socket: status and client
 close (the commands both modes share are in mbgw.ops.status)."""
 import time
+from collections.abc import Callable
 
 from mbgw.config.lines import PRIMARY_LINE, routes_status
 from mbgw.ops.load import LineLoad, average_percent
@@ -28,6 +29,8 @@ class SlaveStatus(DaemonStatus):
         self.scenario_engines: dict = {}    # the scenarios' engines by kind (the daemon's)
         self.targets: TargetLines | None = None     # the lines beside serial (the daemon's)
         self.faces = None       # the lines in master mode (master.faces.LineFaces), if any
+        # () -> the remote servers the routes reach (slave.servers.ServerThread.status)
+        self.servers: Callable[[], list[dict]] = list
 
     def commands(self) -> dict:
         tables = self._tables
@@ -73,6 +76,7 @@ class SlaveStatus(DaemonStatus):
             "devices": (devices := [d.snapshot() for d in self._devices.all()]),
             "lines": self._lines(devices),
             "routes": routes_status(effective_routes(self.cfg)),
+            "servers": self.servers(),
             **({"scenarios": rows} if (rows := scenarios_status(self.scenario_engines.values()))
                else {}),
         }

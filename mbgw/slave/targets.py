@@ -80,8 +80,7 @@ class TargetLine:
                                  NoClients(self.scheduler, self.counters,
                                            hub.for_line(line.name)),
                                  self.counters, self.devices)
-        self.worker.name = f"mbgw-{line.name}"[:15]
-        self.worker.line_name = line.name
+        self.worker.name_line(line.name)
         self.worker.use_inbox(self.inbox)
 
     def start(self) -> None:

@@ -198,6 +198,8 @@ async def stats(request: web.Request) -> web.Response:
     if reply.get("lines"):
         figures["devices"] = every_device(reply)
         figures["lines"] = {line["name"]: line.get("counters", {}) for line in reply["lines"]}
+    if reply.get("servers"):
+        figures["servers"] = {row["server"]: row["counters"] for row in reply["servers"]}
     return web.json_response(figures)
 
 

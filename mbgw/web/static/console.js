@@ -661,7 +661,8 @@ function tablePage(body) {
 
 // ---- Lines -------------------------------------------------------------------------------
 
-// The daemon's lines and where each face's units go (mbgw status's lines and routes).
+// The daemon's lines, where each face's units go and the remote servers they reach (mbgw
+// status's lines, routes and servers).
 function linesPage(body) {
   const holder = el("div");
   body.append(holder);
@@ -674,6 +675,7 @@ function linesPage(body) {
       if (!s) return;
       const lines = listOf(s, "lines");
       const routes = listOf(s, "routes");
+      const servers = listOf(s, "servers");
       clear(holder).append(
         el("h2", { text: "Lines" }),
         lines.length ? table("lines-table", ["Name", "Device", "Mode", "State", "Requests",
@@ -695,7 +697,17 @@ function linesPage(body) {
             el("td", { text: show(r.target) }),
             el("td", { text: r.rewrite ? show(r.rewrite) : "—" }),
             el("td", { text: r.implicit ? "implicit" : "" }))))
-          : el("p", { id: "no-routes", text: "No routes." }));
+          : el("p", { id: "no-routes", text: "No routes." }),
+        ...(servers.length ? [el("h2", { text: "Servers" }),
+          table("servers-table", ["Server", "Requests", "Replies", "Exceptions", "Timeouts",
+            "Unreachable", "Open", "Opened", "Lost"], servers.map((r) => {
+            const c = r.counters || {};
+            return el("tr", { "data-server": r.server },
+              el("td", { text: show(r.server) }),
+              ...[c.requests, c.replies, c.device_exceptions, c.timeouts, c.unreachable,
+                listOf(r, "connections").length, c.connections_opened, c.connections_lost]
+                .map((n) => el("td", { class: "num", text: show(n) })));
+          }))] : []));
     },
   };
 }

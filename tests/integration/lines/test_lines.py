@@ -15,14 +15,16 @@ import signal
 import struct
 import threading
 import time
+import urllib.request
 from pathlib import Path
 
 import pytest
+from prometheus_client import parser
 
 from tests.harness import PtyPair, free_port
 from tests.integration.ops.test_reload import config_set
 from tests.modbus import Client, mbap, read_holding
-from tests.ops import mbgw, status, wait_for, wait_for_log
+from tests.ops import mbgw, metric_families, metric_value, status, wait_for, wait_for_log
 
 pytestmark = pytest.mark.integration
 
@@ -359,3 +361,51 @@ def test_a_silent_server_holds_up_its_own_requests_only(lines, gateway, client, 
     assert other.ask(SERIAL_SLAVE, read_holding(0, 1)) == hr_reply(0, 1)
     assert waiting.recv(timeout=0.01) is None        # still waiting for its server
     assert waiting.recv(timeout=10) == (1, 100, b"\x83\x0b")
+
+
+def test_each_servers_figures_in_status_and_metrics(lines, gateway, client, servers_at):
+    serial = lines("serial", SERIAL_SLAVE)
+    port, _ = servers_at("127.0.0.1", silent=("127.0.0.2",))
+    closed = free_port()
+    metrics_port = free_port()
+    gw = gateway(serial, {"routes": [
+        {"units": "1-31", "line": "serial"},
+        {"units": "100-109", "server": ["127.0.0.1", port], "offset": -99},
+        {"units": "110", "server": ["127.0.0.2", port], "address": 1},
+        {"units": "111", "server": ["127.0.0.1", closed], "address": 1}]},
+        "--exception", "--tcpto", "300", "--metrics", f"127.0.0.1:{metrics_port}")
+    c = client(gw)
+    for start in range(3):
+        assert c.ask(101, read_holding(start, 1)) == bytes((3, 2, 0, start))
+    assert c.ask(101, read_holding(10, 1)) == b"\x83\x02"         # the server's exception
+    assert c.ask(110, read_holding(0, 1)) == b"\x83\x0b"          # silent: no reply in time
+    assert c.ask(111, read_holding(0, 1)) == b"\x83\x0a"          # nobody listens there
+    answering, silent, absent = (f"127.0.0.1:{port}", f"127.0.0.2:{port}",
+                                 f"127.0.0.1:{closed}")
+    rows = {row["server"]: row for row in status(gw)["servers"]}
+    assert set(rows) == {answering, silent, absent}
+    figures = ("requests", "replies", "device_exceptions", "gateway_exceptions", "timeouts",
+               "unreachable", "connections_opened")
+    expected = {answering: (4, 4, 1, 0, 0, 0, 1), silent: (1, 0, 0, 1, 1, 0, 1),
+                absent: (1, 0, 0, 1, 0, 1, 0)}
+    for server, values in expected.items():
+        assert tuple(rows[server]["counters"][n] for n in figures) == values, server
+    assert [conn["server"] for conn in rows[answering]["connections"]] == [answering]
+    assert rows[absent]["connections"] == []
+
+    text = mbgw("status", "--control", gw.control)
+    assert text.returncode == 0, text.stderr
+    shown = {row.split()[0]: row.split()[1:] for row in text.stdout.splitlines()
+             if row.startswith("  127.0.0.")}
+    # SERVER REQUESTS REPLIES EXCEPT TIMEOUTS UNREACH OPEN OPENED LOST
+    assert shown[answering] == ["4", "4", "1", "0", "0", "1", "1", "0"]
+    assert shown[absent] == ["1", "0", "0", "0", "1", "0", "0", "0"]
+
+    with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics", timeout=5) as r:
+        families = metric_families(parser, r.read().decode())
+    for server, values in expected.items():
+        for name, value in zip(figures, values, strict=True):
+            assert metric_value(families, f"mbgw_server_{name}", f"mbgw_server_{name}_total",
+                                server=server) == value, (server, name)
+    assert metric_value(families, "mbgw_server_connections", server=answering) == 1
+    assert metric_value(families, "mbgw_server_connections", server=absent) == 0

@@ -9,6 +9,7 @@ every line.
 Peers that are not ours: a recording pymodbus RTU slave on a socat pty pair (the meter), and
 raw RTU frames written by the test as the serial masters, each answer checked byte for byte
 (tests/modbus.py's CRC)."""
+import json
 import os
 import signal
 import urllib.request
@@ -25,9 +26,17 @@ from tests.integration.lines.test_lines import (
     hr_reply,
     received,
 )
+from tests.integration.lines.test_lines_observed import TraceStream
 from tests.integration.master.test_serial_faces import ask, lines_file, read
 from tests.modbus import read_holding
-from tests.ops import mbgw, metric_families, metric_value, status, wait_for_log
+from tests.ops import (
+    line_threads,
+    mbgw,
+    metric_families,
+    metric_value,
+    status,
+    wait_for_log,
+)
 
 pytestmark = pytest.mark.integration
 
@@ -65,9 +74,18 @@ def test_a_serial_master_reaches_a_meter_on_a_line_in_slave_mode(
     gw = master_daemon([meters_line(meters)], [SERIAL_ROUTE],
                        "--metrics", f"127.0.0.1:{metrics_port}")
     master = open_line(pty_pair.device)
-    # address 32 is address 1 on meters; the answer carries the address the master asked
-    ask(master, read(METER_UNIT, 0, 2), bytes((METER_UNIT,)) + hr_reply(0, 2))
-    ask(master, read(METER_UNIT, 5, 1), bytes((METER_UNIT,)) + hr_reply(5, 1))
+    on_meters = TraceStream(gw, line="meters")
+    try:
+        # address 32 is address 1 on meters; the answer carries the address the master asked
+        ask(master, read(METER_UNIT, 0, 2), bytes((METER_UNIT,)) + hr_reply(0, 2))
+        ask(master, read(METER_UNIT, 5, 1), bytes((METER_UNIT,)) + hr_reply(5, 1))
+        # line meters' traffic: line serial's master's requests, which name their face
+        assert [(e["line"], e["direction"], e["address"], e["server"])
+                for e in on_meters.events(4)] == \
+            [("serial", direction, METER_UNIT, "line meters")
+             for direction in ("request", "reply") * 2]
+    finally:
+        on_meters.close()
     assert received(meters.record) == [bytes((METER,)) + read_holding(0, 2),
                                        bytes((METER,)) + read_holding(5, 1)]
     rows = {row["name"]: row for row in status(gw)["lines"]}
@@ -76,13 +94,21 @@ def test_a_serial_master_reaches_a_meter_on_a_line_in_slave_mode(
     text = mbgw("status", "--control", gw.control)
     assert text.returncode == 0, text.stderr
     assert "meters" in text.stdout and "32-63" in text.stdout and "offset -31" in text.stdout
+    for line, mode in (("serial", "master"), ("meters", "slave")):
+        one = mbgw("status", "--line", line, "--json", "--control", gw.control)
+        assert one.returncode == 0, one.stderr
+        narrowed = json.loads(one.stdout)
+        assert (narrowed["line"]["name"], narrowed["line"]["mode"]) == (line, mode)
+        assert narrowed["line"]["requests"] == 2
+        assert [(r["face"], r["target"]) for r in narrowed["routes"]] == \
+            [("serial", "line meters")]
     with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics", timeout=5) as r:
         families = metric_families(parser, r.read().decode())
     for line, mode in (("serial", "master"), ("meters", "slave")):
         for name in ("requests", "replies", "timeouts"):
-            assert metric_value(families, f"mbgw_line_{name}", f"mbgw_line_{name}_total",
-                                line=line, mode=mode) == rows[line][name], (line, name)
-        assert metric_value(families, "mbgw_line_open", line=line, mode=mode) == 1
+            assert metric_value(families, f"mbgw_{name}", f"mbgw_{name}_total",
+                                line=line) == rows[line][name], (line, name)
+        assert metric_value(families, "mbgw_line_up", line=line, mode=mode) == 1
 
 
 def test_a_reload_adds_and_removes_a_line_in_master_mode(
@@ -99,10 +125,13 @@ def test_a_reload_adds_and_removes_a_line_in_master_mode(
     panel = open_line(second_pty.device)
     ask(panel, read(7, 3, 1), bytes((7,)) + hr_reply(3, 1))
     assert [row["name"] for row in status(gw)["lines"]] == ["serial", "panel", "meters"]
+    # each line's thread is named after it, line serial's keeps its name of one-line days
+    assert line_threads(gw) == ["mbgw-line", "mbgw-meters", "mbgw-panel"]
     lines_file(config, [meters_line(meters)], [SERIAL_ROUTE])
     os.kill(gw.proc.pid, signal.SIGHUP)
     wait_for_log(gw, "configuration reloaded: lines, routes changed", 2)
     assert [row["name"] for row in status(gw)["lines"]] == ["serial", "meters"]
+    assert line_threads(gw) == ["mbgw-line", "mbgw-meters"]
     # the device is released: another program may open it now
     fd = os.open(second_pty.gateway, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
     os.close(fd)
@@ -159,10 +188,33 @@ def test_a_slave_mode_daemon_started_with_a_line_in_master_mode_serves_it(
         gw = start_gateway(serial.pair.gateway, "--config", str(config), "--baudrate",
                            str(BAUD), "--stout", "300")
         panel = open_line(second_pty.device)
-        ask(panel, read(7, 2, 1), bytes((7,)) + hr_reply(2, 1))
+        streams = {line: TraceStream(gw, line=line) for line in ("panel", "meters")}
+        raw_panel = TraceStream(gw, raw=True, line="panel")
+        try:
+            assert streams["panel"].header["lines"] == ["serial", "meters", "panel"]
+            ask(panel, read(7, 2, 1), bytes((7,)) + hr_reply(2, 1))
+            # the panel's line as it went: its master's request, mbgw's reply
+            assert [(b["line"], b["kind"], bytes.fromhex(b["bytes"])[:-2])
+                    for b in raw_panel.events(2)] == \
+                [("panel", "request", read(7, 2, 1)),
+                 ("panel", "reply", bytes((7,)) + hr_reply(2, 1))]
+            for line, stream in streams.items():      # the panel's request, on each
+                assert [(e["line"], e["direction"], e["address"], e["server"])
+                        for e in stream.events(2)] == [("panel", "request", 7, "line meters"),
+                                                       ("panel", "reply", 7, "line meters")], \
+                    line
+        finally:
+            for stream in (*streams.values(), raw_panel):
+                stream.close()
         assert client(gw).ask(SERIAL_SLAVE, read_holding(0, 1)) == hr_reply(0, 1)
         rows = {row["name"]: row for row in status(gw)["lines"]}
         assert rows["panel"]["mode"] == "master" and rows["panel"]["requests"] == 1
+        for line, mode in (("panel", "master"), ("meters", "slave")):
+            text = mbgw("status", "--line", line, "--control", gw.control)
+            assert text.returncode == 0, text.stderr
+            assert f"devices of line {line} (1)" in text.stdout, text.stdout
+            assert f"({mode})" in text.stdout and "panel   7" in text.stdout, text.stdout
+        assert line_threads(gw) == ["mbgw-line", "mbgw-meters", "mbgw-panel"]
         assert received(meters.record) == [bytes((METER,)) + read_holding(2, 1)]
     finally:
         serial.stop()

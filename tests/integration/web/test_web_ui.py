@@ -520,3 +520,53 @@ def test_every_page_works_in_master_and_transparent_mode(browser, mode, tmp_path
 
 def scenarios(s: dict) -> dict:
     return {sc["name"]: sc for sc in s.get("scenarios", [])}
+
+
+def test_the_lines_page_shows_every_line_and_each_remote_servers_figures(browser, tmp_path):
+    path = tmp_path / "mbgw.toml"
+    web_port = free_port()
+    server_port = free_port()
+    servers = Peer("pymodbus_tcp_servers.py", str(server_port), "127.0.0.1")
+    pairs = {}
+    for name in ("serial", "meters", "panel"):
+        (tmp_path / name).mkdir()
+        pairs[name] = PtyPair(tmp_path / name)
+    meters, panel = pairs["meters"], pairs["panel"]
+    path.write_text("\n".join([
+        "[web]", f'listen = "127.0.0.1:{web_port}"',
+        "[[line]]", 'name = "meters"', f'device = "{meters.gateway}"', "baudrate = 19200",
+        "[[line]]", 'name = "panel"', f'device = "{panel.gateway}"', "baudrate = 19200",
+        'mode = "master"',
+        "[[route]]", 'units = "1-31"', 'line = "serial"',
+        "[[route]]", 'units = "32-63"', 'line = "meters"', "offset = -31",
+        "[[route]]", 'from = "panel"', 'units = "7"', 'line = "meters"', "address = 1",
+        "[[route]]", 'units = "100-109"', f'server = "127.0.0.1:{server_port}"',
+        "offset = -99"]) + "\n")
+    set_password(path, "admin")
+    gw = Gateway(tmp_path, pairs["serial"].gateway, "--baudrate", "19200", "--config", str(path))
+    try:
+        c = Client(gw.port)
+        for start in range(3):
+            assert c.ask(101, read_holding(start, 1)) == bytes((3, 2, 0, start))
+        assert c.ask(101, read_holding(10, 1)) == b"\x83\x02"      # the server's exception
+        log_in(browser, SimpleNamespace(url=f"http://127.0.0.1:{web_port}/"), "admin")
+        browser.get_log("browser")
+        go(browser, "lines")
+        for line, mode in (("serial", "slave"), ("meters", "slave"), ("panel", "master")):
+            row = f'#lines-table tr[data-line="{line}"]'
+            wait(browser, found(row))
+            cells = [td.text for td in browser.find_elements(By.CSS_SELECTOR, f"{row} td")]
+            assert cells[:4] == [line, pairs[line].gateway, mode, "up"], cells
+        server = f"127.0.0.1:{server_port}"
+        row = f'#servers-table tr[data-server="{server}"]'
+        wait(browser, found(row))
+        cells = [td.text for td in browser.find_elements(By.CSS_SELECTOR, f"{row} td")]
+        # Server, Requests, Replies, Exceptions, Timeouts, Unreachable, Open, Opened, Lost
+        assert cells == [server, "4", "4", "1", "0", "0", "1", "1", "0"]
+        errors = [e for e in browser.get_log("browser") if e.get("source") == "javascript"]
+        assert errors == []
+    finally:
+        gw.stop()
+        servers.stop()
+        for pair in pairs.values():
+            pair.stop()

@@ -49,3 +49,15 @@ def test_which_events_pass(wanted, passing):
     if wanted.get("errors"):
         events.append(LATE)
     assert [e for e in events if matches(e, wanted)] == passing
+
+
+def test_a_line_passes_a_serial_faces_requests_to_it():
+    # a serial master on line panel reads address 1 of line meters: panel's events
+    to_meters = {"direction": "request", "line": "panel", "address": 7, "unit": 1,
+                 "function": 3, "server": "line meters"}
+    to_a_server = {**to_meters, "server": "127.0.0.1:502"}
+    on_meters = {"direction": "request", "line": "meters", "client": 1, "unit": 32,
+                 "function": 3}
+    events = [to_meters, to_a_server, on_meters, NOISE]
+    assert [e for e in events if matches(e, {"line": "meters"})] == [to_meters, on_meters]
+    assert [e for e in events if matches(e, {"line": "panel"})] == [to_meters, to_a_server]
