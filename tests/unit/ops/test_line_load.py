@@ -59,10 +59,11 @@ def test_the_average_is_measured_on_the_monotonic_clock(monkeypatch):
     counters = Counters()
     server = SimpleNamespace(trace=None, clients=[],
                              firewall=SimpleNamespace(configured=False))
+    wall, mono = time.time(), time.monotonic()
+    monkeypatch.setattr(time, "monotonic", lambda: mono)          # the reset, dated exactly
     status = SlaveStatus(SlaveConfig(SerialConfig("/dev/null")), server,
                          SimpleNamespace(up=True, state="up"),
                          SimpleNamespace(depth=0), counters, DeviceHealth(), [])
-    wall, mono = time.time(), time.monotonic()
     counters.line_busy_ns = 5 * 10**9
     monkeypatch.setattr(time, "time", lambda: wall - 3600)        # stepped back an hour
     monkeypatch.setattr(time, "monotonic", lambda: mono + 20)
