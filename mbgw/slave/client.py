@@ -11,8 +11,14 @@ import time
 from collections.abc import Callable
 
 from mbgw.firewall.guard import Guard
-from mbgw.line.forward import NO_FORWARD, ClientReader, Forward, counter
-from mbgw.protocol import mbap
+from mbgw.line.native import (
+    NO_FORWARD,
+    ClientReader,
+    Forward,
+    counter,
+    split_frames,
+    whole_frame,
+)
 from mbgw.slave.scheduler import Queue
 
 MAX_IN_FLIGHT = 16          # TCP guide 4.4.2: a server holds 1..16 transactions per client
@@ -102,7 +108,7 @@ class Client:
 
     def receive(self, reader: ClientReader) -> list | None:
         """What has arrived, as whole frames [(tid, unit, pdu)], and when (arrived_ns); None
-        once the connection has ended.  Raises mbap.BadHeader."""
+        once the connection has ended.  Raises BadHeader."""
         n = reader.read(self.fd)
         if n == -errno.EAGAIN:
             return self.received(b"", self.arrived_ns) if self.held else []
@@ -142,9 +148,9 @@ class Client:
         self.arrived_ns = max(arrived_ns, self.resumed_ns)
         now = time.monotonic()
         self.last_active = now
-        frames = list(itertools.islice(mbap.split_frames(buf),
+        frames = list(itertools.islice(split_frames(buf),
                                        max(0, MAX_IN_FLIGHT - self.in_flight)))
-        self.held = mbap.whole_frame(buf)
+        self.held = whole_frame(buf)
         if self.held:
             self._changed()
         if not buf or self.held:

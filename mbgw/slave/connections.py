@@ -14,9 +14,9 @@ import time
 from collections import deque
 from collections.abc import Callable
 
-from mbgw.line.forward import ClientReader
+from mbgw.errors import BadHeader
+from mbgw.line.native import ClientReader
 from mbgw.ops.limits import WarnLimit
-from mbgw.protocol import mbap
 from mbgw.slave.client import RECEIVE_SIZE, Client
 
 log = logging.getLogger("mbgw.tcp")
@@ -213,7 +213,7 @@ class Connections:
         on_request = on_request or self._on_request
         try:
             frames = client.receive(self._reader) if take is None else take(client)
-        except mbap.BadHeader as err:
+        except BadHeader as err:
             self._counters.connections_bad_header += 1
             self._warn.warn(client.host, "bad header", "client %s: bad MBAP header (%s); "
                             "closing the connection", client.peer, err)
