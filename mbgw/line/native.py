@@ -84,13 +84,22 @@ def tcp_reply_verdict(request: bytes, unit: int, reply_unit: int, reply: bytes) 
                                       len(reply))
 
 
-# --- Modbus TCP framing (Messaging on TCP/IP Implementation Guide V1.0b, 3.1.3), the rule
-# csrc/forward.c applies to a request it takes and a reply it forwards ---
+# --- Modbus TCP framing (Messaging on TCP/IP Implementation Guide V1.0b, 3.1.3): which
+# headers frame something is csrc/mbap.c's rule, the one csrc/forward.c's shortcut and
+# csrc/table_answer.c apply too ---
 
 HEADER = struct.Struct(">HHHB")     # transaction id, protocol id, length, unit id
 HEADER_LEN = HEADER.size
-MIN_LENGTH = 2                      # unit id + function code
-MAX_LENGTH = 254                    # unit id + the largest PDU (253 bytes)
+
+# frame_length(protocol id, length field): the frame's length, header included (6 + the
+# length field), or -errno for a header that frames nothing (bad_header).  The C function
+# itself: it runs for every frame read.
+frame_length = lib.mbgw_mbap_frame_len
+
+
+def bad_header(code: int, protocol: int, length: int) -> BadHeader:
+    """What frame_length's -errno code says of a header."""
+    return BadHeader(f"protocol id {protocol}" if code == -errno.EPROTO else f"length {length}")
 
 
 def split_frames(buf: bytearray):
@@ -98,11 +107,9 @@ def split_frames(buf: bytearray):
     Raises BadHeader on a protocol id other than 0 or a length outside 2..254."""
     while len(buf) >= HEADER_LEN:
         tid, protocol, length, unit = HEADER.unpack_from(buf)
-        if protocol != 0:
-            raise BadHeader(f"protocol id {protocol}")
-        if not MIN_LENGTH <= length <= MAX_LENGTH:
-            raise BadHeader(f"length {length}")
-        end = 6 + length
+        end = frame_length(protocol, length)
+        if end < 0:
+            raise bad_header(end, protocol, length)
         if len(buf) < end:
             return
         pdu = bytes(buf[HEADER_LEN:end])
@@ -115,7 +122,8 @@ def whole_frame(buf: bytearray) -> bool:
     if len(buf) < HEADER_LEN:
         return False
     _, protocol, length, _ = HEADER.unpack_from(buf)
-    return protocol != 0 or not MIN_LENGTH <= length <= MAX_LENGTH or len(buf) >= 6 + length
+    end = frame_length(protocol, length)
+    return end < 0 or len(buf) >= end
 
 
 def frame(tid: int, unit: int, pdu: bytes) -> bytes:

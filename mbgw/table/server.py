@@ -71,8 +71,7 @@ _IN = select.POLLIN
 _OUT = select.POLLOUT
 _HEADER = native.HEADER
 _HEADER_LEN = native.HEADER_LEN
-_MIN_LENGTH = native.MIN_LENGTH
-_MAX_LENGTH = native.MAX_LENGTH
+_frame_length = native.frame_length
 _UNIT_AT = _HEADER_LEN - 1
 
 
@@ -672,11 +671,10 @@ class TableServer(threading.Thread):
         try:
             while n - at >= _HEADER_LEN:
                 _, protocol, length, unit = _HEADER.unpack_from(view, at)
-                if protocol != 0:
-                    raise BadHeader(f"protocol id {protocol}")
-                if not _MIN_LENGTH <= length <= _MAX_LENGTH:
-                    raise BadHeader(f"length {length}")
-                end = at + 6 + length
+                end = _frame_length(protocol, length)
+                if end < 0:
+                    raise native.bad_header(end, protocol, length)
+                end += at
                 if end > n:
                     break
                 client.requests += 1

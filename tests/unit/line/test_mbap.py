@@ -1,6 +1,8 @@
 """Modbus TCP framing (mbgw.line.native), per the Messaging on TCP/IP Implementation Guide V1.0b,
 3.1.3: transaction id (2), protocol id (2, 0 = Modbus), length (2, unit id + PDU), unit id
 (1), big-endian, then the PDU."""
+import errno
+
 import pytest
 
 from mbgw.errors import BadHeader
@@ -91,6 +93,14 @@ def test_length_limits_2_and_254_are_accepted(length):
     pdu = bytes(length - 1)
     buf = bytearray(bytes.fromhex("00 01 00 00") + length.to_bytes(2, "big") + b"\x11" + pdu)
     assert _split(buf) == [(1, 0x11, pdu)]
+
+
+def test_the_c_rule_gives_the_frame_length_or_why_none():
+    assert [native.frame_length(0, length) for length in (2, 6, 254)] == [8, 12, 260]
+    assert native.frame_length(1, 6) == -errno.EPROTO
+    assert native.frame_length(0, 1) == native.frame_length(0, 255) == -errno.EMSGSIZE
+    assert str(native.bad_header(-errno.EPROTO, 7, 6)) == "protocol id 7"
+    assert str(native.bad_header(-errno.EMSGSIZE, 0, 255)) == "length 255"
 
 
 def test_bad_header_is_raised_as_soon_as_the_header_is_complete():
