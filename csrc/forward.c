@@ -147,12 +147,11 @@ int mbgw_take_request(modbus_t *ctx, int client_fd, int *in_flight, uint8_t *in,
     long n = mbgw_client_recv(client_fd, in, in_cap, &sc->arrived_ns);
     if (n < 0)
         return (int)n;
-    if (n < MBAP_LEN + 1)
+    if (n < MBAP_LEN)
         return (int)n;
     /* MBAP header: transaction id, protocol id, length (unit id + PDU), unit id */
     unsigned length = (unsigned)in[4] << 8 | in[5];
-    if (in[2] || in[3] || (size_t)n != MBAP_HEAD_LEN + length || length < 2 ||
-        length > MBAP_MAX_LENGTH)
+    if (mbgw_mbap_frame_len((unsigned)in[2] << 8 | in[3], length) != n)
         return (int)n; /* a bad header, or not exactly one request */
     uint8_t unit = in[6];
     uint8_t address = sc->slaveid ? sc->slaveid : unit;

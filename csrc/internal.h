@@ -17,6 +17,7 @@
  * id, protocol id, length (of what follows: unit id + PDU), unit id. */
 #define MBAP_HEAD_LEN 6     /* the bytes before those the length counts */
 #define MBAP_LEN 7          /* with the unit id */
+#define MBAP_MIN_LENGTH 2   /* the length: unit id + function code */
 #define MBAP_MAX_LENGTH 254 /* the length: unit id + the largest PDU */
 
 static inline int64_t now_ns(void)

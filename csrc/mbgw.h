@@ -154,6 +154,13 @@ int mbgw_reply_matches(const uint8_t *req, size_t req_len, const uint8_t *rsp,
 int mbgw_tcp_reply_verdict(const uint8_t *req, size_t req_len, uint8_t unit,
                            uint8_t rsp_unit, const uint8_t *rsp, size_t rsp_len);
 
+/* --- mbap.c: the MBAP header of Modbus TCP --- */
+
+/* The length of the frame (header included) whose MBAP header holds protocol id protocol
+ * and the length field length (unit id + PDU): 6 + length.  -EPROTO the protocol id is
+ * not 0 (not Modbus), -EMSGSIZE the length is outside 2..254. */
+int mbgw_mbap_frame_len(unsigned protocol, unsigned length);
+
 /* --- forward.c: slave mode's replies to the client's socket, requests to the line --- */
 
 /* Where mbgw_receive_reply puts the ADU: behind the first 6 bytes of an MBAP header, so
@@ -293,7 +300,7 @@ int mbgw_table_answer(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp,
 /* The same for a whole Modbus TCP frame (7-byte MBAP header + PDU) into rsp
  * (MBGW_MBAP_MAX bytes): the reply with the request's transaction id and unit id,
  * protocol id 0 and its length field.  Returns its length, 0 for no reply, -EBADMSG when
- * the header's protocol id is not 0 or its length field is not the frame's. */
+ * the header frames nothing (mbgw_mbap_frame_len) or another length than the frame's. */
 int mbgw_table_answer_mbap(mbgw_table *t, const uint8_t *adu, int len, uint8_t *rsp,
                            int broadcast);
 

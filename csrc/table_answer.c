@@ -206,8 +206,7 @@ int mbgw_table_answer(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp,
 int mbgw_table_answer_mbap(mbgw_table *t, const uint8_t *adu, int len, uint8_t *rsp,
                            int broadcast)
 {
-    if (len < MBAP_LEN + 1 || be16(adu + 2) != 0 ||
-        (int)be16(adu + 4) != len - MBAP_HEAD_LEN)
+    if (len < MBAP_LEN || mbgw_mbap_frame_len(be16(adu + 2), be16(adu + 4)) != len)
         return -EBADMSG;
     int n =
         mbgw_table_answer(t, adu + MBAP_LEN, len - MBAP_LEN, rsp + MBAP_LEN, broadcast);

@@ -6,7 +6,7 @@ numbers so that the TCP stream reassembles."""
 import ipaddress
 import struct
 
-from mbgw.protocol import mbap
+from mbgw.line import native
 
 LINKTYPE_ETHERNET = 1
 _ETHER_IPV4 = b"\x02\x00\x00\x00\x00\x01" + b"\x02\x00\x00\x00\x00\x02" + b"\x08\x00"
@@ -42,7 +42,7 @@ class PcapWriter:
         """One traced request or reply; False for events that carried nothing."""
         if event.get("direction") not in ("request", "reply") or event.get("peer") is None:
             return False          # nothing went over TCP (master mode's table slave)
-        payload = mbap.frame(event["tid"], event["unit"], bytes.fromhex(event["pdu"]))
+        payload = native.frame(event["tid"], event["unit"], bytes.fromhex(event["pdu"]))
         client, server = _split(event["peer"]), _split(event["local"])
         if event["direction"] == "request":
             src, dst = client, server

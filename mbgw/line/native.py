@@ -1,7 +1,8 @@
-"""The serial port over the C core: `Port` (a libmodbus context plus csrc/'s timed reads and
-writes) and what its calls hand back (`Reception`, `Take`).  The frame rules are in
-mbgw.line.frames, the client sockets' reads in mbgw.line.forward: with this module the only
-importers of the generated cffi module.
+"""The one Python face of the C core (csrc/, through the generated cffi module, which no
+other module of `line` imports): the frame rules (CRC, LRC, RTU lengths, ASCII, whether a reply
+answers), the MBAP header of Modbus TCP, what C does on slave mode's client sockets (`Forward`,
+`ClientReader`), and the serial port (`Port`: a libmodbus context plus csrc/'s timed reads and
+writes) with what its calls hand back (`Reception`, `Take`).
 
 Every blocking call here releases the GIL (cffi API mode), so the serial line's thread
 never stalls the asyncio thread.
@@ -12,9 +13,183 @@ import struct
 from typing import Any, NamedTuple
 
 from mbgw._ffi import ffi, lib
-from mbgw.errors import ChecksumError, FrameError, LineTimeout, MbgwError, SerialError
-from mbgw.line.forward import NO_COUNTER, NO_FORWARD, Forward
-from mbgw.line.frames import ASCII_MAX_FRAME, RTU_MAX_ADU
+from mbgw.errors import (
+    BadHeader,
+    ChecksumError,
+    FrameError,
+    LineTimeout,
+    MbgwError,
+    SerialError,
+)
+
+# --- frame rules, no I/O (csrc/crc.c, ascii.c, rtu.c, match.c) ---
+
+LEN_UNKNOWN = lib.MBGW_LEN_UNKNOWN
+RTU_MAX_ADU = lib.MBGW_RTU_MAX_ADU
+ASCII_MAX_FRAME = lib.MBGW_ASCII_MAX_FRAME
+
+
+def crc16(data: bytes) -> int:
+    return lib.mbgw_crc16(data, len(data))
+
+
+def lrc(data: bytes) -> int:
+    return lib.mbgw_lrc(data, len(data))
+
+
+def rtu_reply_length(request_len: int, reply: bytes) -> int:
+    return lib.mbgw_rtu_reply_length(request_len, reply, len(reply))
+
+
+def rtu_request_length(request: bytes) -> int:
+    return lib.mbgw_rtu_request_length(request, len(request))
+
+
+_ascii_out = ffi.new("uint8_t[]", ASCII_MAX_FRAME)
+_ascii_in = ffi.new("uint8_t[]", RTU_MAX_ADU)
+
+
+def ascii_encode(adu: bytes) -> bytes:
+    """address..data as an ASCII frame ':' HEX LRC CR LF (not thread-safe: one line thread)."""
+    n = lib.mbgw_ascii_encode(adu, len(adu), _ascii_out, ASCII_MAX_FRAME)
+    if n < 0:
+        raise FrameError(os.strerror(-n))
+    return ffi.buffer(_ascii_out, n)[:]
+
+
+def ascii_decode(frame: bytes) -> bytes:
+    """An ASCII frame back to address..data.  ChecksumError on a wrong LRC."""
+    n = lib.mbgw_ascii_decode(frame, len(frame), _ascii_in, RTU_MAX_ADU)
+    if n == -errno.EILSEQ:
+        raise ChecksumError()
+    if n < 0:
+        raise FrameError(os.strerror(-n))
+    return ffi.buffer(_ascii_in, n)[:]
+
+
+def reply_matches(request: bytes, reply: bytes) -> bool:
+    return lib.mbgw_reply_matches(request, len(request), reply, len(reply)) == 1
+
+
+REPLY_ANSWERS = lib.MBGW_REPLY_ANSWERS
+REPLY_BAD_LENGTH = lib.MBGW_REPLY_BAD_LENGTH
+REPLY_WRONG_UNIT = lib.MBGW_REPLY_WRONG_UNIT
+REPLY_WRONG_FUNCTION = lib.MBGW_REPLY_WRONG_FUNCTION
+
+
+def tcp_reply_verdict(request: bytes, unit: int, reply_unit: int, reply: bytes) -> int:
+    """Master mode: what a server's reply PDU (and its unit id) is to the request PDU sent
+    to unit: one of REPLY_*."""
+    return lib.mbgw_tcp_reply_verdict(request, len(request), unit, reply_unit, reply,
+                                      len(reply))
+
+
+# --- Modbus TCP framing (Messaging on TCP/IP Implementation Guide V1.0b, 3.1.3): which
+# headers frame something is csrc/mbap.c's rule, the one csrc/forward.c's shortcut and
+# csrc/table_answer.c apply too ---
+
+HEADER = struct.Struct(">HHHB")     # transaction id, protocol id, length, unit id
+HEADER_LEN = HEADER.size
+
+# frame_length(protocol id, length field): the frame's length, header included (6 + the
+# length field), or -errno for a header that frames nothing (bad_header).  The C function
+# itself: it runs for every frame read.
+frame_length = lib.mbgw_mbap_frame_len
+
+
+def bad_header(code: int, protocol: int, length: int) -> BadHeader:
+    """What frame_length's -errno code says of a header."""
+    return BadHeader(f"protocol id {protocol}" if code == -errno.EPROTO else f"length {length}")
+
+
+def split_frames(buf: bytearray):
+    """Yield (tid, unit, pdu) for every complete frame at the start of buf and remove them.
+    Raises BadHeader on a protocol id other than 0 or a length outside 2..254."""
+    while len(buf) >= HEADER_LEN:
+        tid, protocol, length, unit = HEADER.unpack_from(buf)
+        end = frame_length(protocol, length)
+        if end < 0:
+            raise bad_header(end, protocol, length)
+        if len(buf) < end:
+            return
+        pdu = bytes(buf[HEADER_LEN:end])
+        del buf[:end]
+        yield tid, unit, pdu
+
+
+def whole_frame(buf: bytearray) -> bool:
+    """Whether buf begins with a whole frame (or a bad header, which split_frames raises)."""
+    if len(buf) < HEADER_LEN:
+        return False
+    _, protocol, length, _ = HEADER.unpack_from(buf)
+    end = frame_length(protocol, length)
+    return end < 0 or len(buf) >= end
+
+
+def frame(tid: int, unit: int, pdu: bytes) -> bytes:
+    return HEADER.pack(tid, 0, len(pdu) + 1, unit) + pdu
+
+
+# --- slave mode's client sockets (csrc/forward.c): where a reply goes straight from the
+# line, a counter C counts down as it hands a reply over, reads dated by the kernel ---
+
+NO_COUNTER = ffi.NULL
+
+
+class Forward(NamedTuple):
+    """Where the C receive sends a reply that answers its request at once (struct
+    mbgw_forward): the client's socket, as a Modbus TCP frame with the client's transaction
+    and unit ids; yield_cpu: then the client woken runs first (nothing else waits for the
+    line); in_flight: the client's counter(), which C counts down as it hands the reply
+    over."""
+    fd: int
+    tid: int
+    unit: int
+    yield_cpu: bool
+    in_flight: Any
+
+
+# the reply goes nowhere before it is returned
+NO_FORWARD = Forward(-1, 0, 0, False, NO_COUNTER)
+
+
+def counter():
+    """An int that C can count down (a client's requests in flight): c[0]."""
+    return ffi.new("int *")
+
+
+def stamp_arrivals(fd: int) -> None:
+    """The kernel dates what arrives on socket fd (a listening socket: on each connection it
+    accepts), for ClientReader.  Raises OSError."""
+    err = lib.mbgw_stamp_arrivals(fd)
+    if err < 0:
+        raise OSError(-err, os.strerror(-err))
+
+
+class ClientReader:
+    """Reads a client's socket into one buffer and tells when what it read arrived: by the
+    kernel's receive timestamp (stamp_arrivals), so that requests read together after a
+    transaction are known in the order they came.  For one thread (the line thread)."""
+
+    def __init__(self, size: int) -> None:
+        self._size = size
+        self._buf = ffi.new("uint8_t[]", size)
+        self._arrived = ffi.new("int64_t *")
+        self.data = memoryview(ffi.buffer(self._buf))   # read() put its bytes at the front
+
+    def read(self, fd: int) -> int:
+        """The bytes read into data, 0 at the connection's end, -EAGAIN when nothing waits,
+        another -errno."""
+        return lib.mbgw_client_recv(fd, self._buf, self._size, self._arrived)
+
+    @property
+    def arrived_ns(self) -> int:
+        """When the newest of what read() read arrived (CLOCK_MONOTONIC); now if the kernel
+        did not date it."""
+        return self._arrived[0]
+
+
+# --- the serial port (csrc/line.c, tty.c, request.c, forward.c, capture.c) ---
 
 REPLY_AT = lib.MBGW_REPLY_AT
 REPLY_SCAN = lib.MBGW_REPLY_SCAN
@@ -30,7 +205,6 @@ _LIBMODBUS_ERRORS = {
     lib.EMBBADCRC: "invalid CRC",
     lib.EMBBADDATA: "invalid data",
 }
-
 
 
 class Reception(NamedTuple):
@@ -54,7 +228,7 @@ class Take(NamedTuple):
     status: int               # bytes read, 0 at the connection's end, -errno
     taken: bool               # exchanged: Port.exchanged() gives its outcome
     forwarded: int            # bytes of its reply the client's socket took (-1: not sent)
-    arrived_ns: int           # when what was read arrived (forward.ClientReader.arrived_ns)
+    arrived_ns: int           # when what was read arrived (ClientReader.arrived_ns)
 
 
 def tty_cflag(cflag: int, data_bits: int, parity: str, stop_bits: int) -> int:

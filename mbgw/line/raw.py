@@ -5,8 +5,7 @@ with the silence before it and what it was: a request we sent, the reply to it, 
 was).  Nothing here runs unless somebody watches."""
 import time
 
-from mbgw.line import frames
-from mbgw.line.native import Capture
+from mbgw.line.native import Capture, crc16
 
 
 class RawMonitor:
@@ -125,4 +124,4 @@ class RawMonitor:
         if self._ascii:
             return frame[:1] == b":" and frame.endswith(b"\r\n")
         return len(frame) >= 4 and \
-            frames.crc16(frame[:-2]) == int.from_bytes(frame[-2:], "little")
+            crc16(frame[:-2]) == int.from_bytes(frame[-2:], "little")

@@ -7,7 +7,7 @@ import time
 from typing import TYPE_CHECKING, Protocol
 
 from mbgw.errors import FrameError, LineTimeout
-from mbgw.line import frames, native
+from mbgw.line import native
 
 if TYPE_CHECKING:      # the settings' type only: the line never reads the configuration files
     from mbgw.config.model import SerialConfig
@@ -106,9 +106,16 @@ class SerialLine:
         """transmit() for an RTU frame given without its CRC: libmodbus adds it and writes,
         when it may (libmodbus_sends)."""
         if not self.libmodbus_sends:
-            return self.transmit(adu + CRC.pack(frames.crc16(adu)))
+            return self.transmit(adu + CRC.pack(native.crc16(adu)))
         self.port.send_rtu(adu)
         return self._done(len(adu) + CRC.size)
+
+    def send_adu(self, adu: bytes) -> int:
+        """Put address + PDU on the line in its framing: transmit_rtu() or, on an ASCII
+        line, transmit() of its ':' hex LRC CR LF frame."""
+        if self.cfg.protocol == "ascii":
+            return self.transmit(native.ascii_encode(adu))
+        return self.transmit_rtu(adu)
 
     def sent_rtu(self, adu_length: int) -> None:
         """Count an RTU frame that libmodbus wrote (native.Port.exchange)."""

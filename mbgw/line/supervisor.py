@@ -20,7 +20,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Generic, Protocol, TypeVar
 
 from mbgw.errors import SerialError
-from mbgw.line import frames, native
+from mbgw.line import native
 from mbgw.line.raw import RawMonitor
 from mbgw.line.serial_line import SerialLine
 
@@ -39,7 +39,7 @@ TURN_MARGIN_S = 1.0
 
 def longest_frame_s(serial: "SerialConfig") -> float:
     """The time the longest frame of the line's protocol takes on the wire."""
-    chars = frames.ASCII_MAX_FRAME if serial.protocol == "ascii" else frames.RTU_MAX_ADU
+    chars = native.ASCII_MAX_FRAME if serial.protocol == "ascii" else native.RTU_MAX_ADU
     return chars * serial.char_ns / 1e9
 
 

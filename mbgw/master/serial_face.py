@@ -48,8 +48,7 @@ from mbgw.errors import (
     LineTimeout,
     NoRoute,
 )
-from mbgw.line import frames, native
-from mbgw.line.framing import framing_for
+from mbgw.line import native
 from mbgw.line.serial_line import SerialLine
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s, open_at_start
 from mbgw.master.face_routes import (
@@ -170,15 +169,16 @@ class SerialFace(LineThread[FaceSettings]):
 
     def _attach(self, line: SerialLine) -> None:
         self._port = line.port
-        self._framing = framing_for(line)
+        self._send_adu = line.send_adu
         serial = line.cfg
         self._receive = self._receive_ascii if serial.protocol == "ascii" else self._receive_rtu
         self._gap_us = serial.end_of_frame_us
         self._interchar_us = serial.ascii_timeout_ms * 1000
-        # what an answer given at once waits after the request: t3.5 (RTU), in whole ms
-        self._quiet_ms = -(-self._framing.inter_frame_us // 1000)
+        # what an answer given at once waits after the request: t3.5 (RTU; ASCII frames
+        # end with CR LF, not silence), in whole ms
+        self._quiet_ms = 0 if serial.protocol == "ascii" else -(-serial.t35_us // 1000)
         # the longest ASCII frame at the line's speed, plus one inter-character pause
-        self._ascii_frame_ns = (frames.ASCII_MAX_FRAME * serial.char_ns
+        self._ascii_frame_ns = (native.ASCII_MAX_FRAME * serial.char_ns
                                 + self._interchar_us * 1000)
         if self.table is not None and self._cfg.owns_table_flags:
             self.table.set_flags(line_down=False)
@@ -368,7 +368,7 @@ class SerialFace(LineThread[FaceSettings]):
             raise got.fault
         assert got.frame is not None
         try:
-            return frames.ascii_decode(got.frame)
+            return native.ascii_decode(got.frame)
         except (ChecksumError, FrameError):
             self._rejected = _ascii_address(got.frame)
             raise
@@ -530,7 +530,7 @@ class SerialFace(LineThread[FaceSettings]):
         frame = bytes((address,)) + answer
         if wire.isEnabledFor(logging.DEBUG):
             wire.debug("line tx %s", frame.hex(" "))
-        self._framing.send(frame)
+        self._send_adu(frame)
         self._counters.replies += 1
         return True
 

@@ -6,7 +6,7 @@ import time
 from collections.abc import Callable
 
 from mbgw.errors import SerialError
-from mbgw.line import frames, native
+from mbgw.line import native
 from mbgw.master.trace import MasterTracer
 from mbgw.ops.counters import TableSlaveCounters
 from mbgw.ops.trace import Outcome
@@ -64,8 +64,8 @@ class TableSlave:
 def length_error(adu: bytes) -> bool:
     """The frame's length, or its byte count, is not what its function code and quantity say
     (VPGate 8.5 "invalid length")."""
-    expected = frames.rtu_request_length(adu + b"\0\0")
-    if expected != frames.LEN_UNKNOWN and expected != len(adu) + native.CRC_LEN:
+    expected = native.rtu_request_length(adu + b"\0\0")
+    if expected != native.LEN_UNKNOWN and expected != len(adu) + native.CRC_LEN:
         return True
     function = adu[1]
     if function in (0x0F, 0x10):

@@ -21,11 +21,18 @@ import time
 from collections import deque
 from collections.abc import Callable
 
+from mbgw.errors import BadHeader
 from mbgw.firewall.guard import Guard
-from mbgw.line.forward import NO_FORWARD, ClientReader, Forward, counter
+from mbgw.line.native import (
+    NO_FORWARD,
+    ClientReader,
+    Forward,
+    counter,
+    split_frames,
+    whole_frame,
+)
 from mbgw.ops.eventfd import drain
 from mbgw.ops.limits import WarnLimit
-from mbgw.protocol import mbap
 from mbgw.routing.queue import Queue
 
 log = logging.getLogger("mbgw.tcp")
@@ -122,7 +129,7 @@ class Client:
 
     def receive(self, reader: ClientReader) -> list | None:
         """What has arrived, as whole frames [(tid, unit, pdu)], and when (arrived_ns); None
-        once the connection has ended.  Raises mbap.BadHeader."""
+        once the connection has ended.  Raises BadHeader."""
         n = reader.read(self.fd)
         if n == -errno.EAGAIN:
             return self.received(b"", self.arrived_ns) if self.held else []
@@ -162,9 +169,9 @@ class Client:
         self.arrived_ns = max(arrived_ns, self.resumed_ns)
         now = time.monotonic()
         self.last_active = now
-        frames = list(itertools.islice(mbap.split_frames(buf),
+        frames = list(itertools.islice(split_frames(buf),
                                        max(0, MAX_IN_FLIGHT - self.in_flight)))
-        self.held = mbap.whole_frame(buf)
+        self.held = whole_frame(buf)
         if self.held:
             self._changed()
         if not buf or self.held:
@@ -479,7 +486,7 @@ class Connections:
         on_request = on_request or self._on_request
         try:
             frames = client.receive(self._reader) if take is None else take(client)
-        except mbap.BadHeader as err:
+        except BadHeader as err:
             self._counters.connections_bad_header += 1
             self._warn.warn(client.host, "bad header", "client %s: bad MBAP header (%s); "
                             "closing the connection", client.peer, err)

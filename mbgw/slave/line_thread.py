@@ -27,16 +27,14 @@ from typing import Hashable
 
 from mbgw.config.model import SlaveConfig
 from mbgw.errors import LineTimeout, SerialError
-from mbgw.line.forward import NO_FORWARD
-from mbgw.line.framing import framing_for
-from mbgw.line.native import Reception
+from mbgw.line.native import HEADER, HEADER_LEN, NO_FORWARD, Reception
 from mbgw.line.serial_line import SerialLine
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceHealth
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.ops.trace import Outcome
-from mbgw.protocol import mbap, pdu
+from mbgw.protocol import pdu
 from mbgw.routing.queue import SCENARIO_TURN, Exchange, Inbox, Job, Queue, Scheduler
 from mbgw.scenarios.engine import Scenarios
 from mbgw.scenarios.exchange import EXCEPTION_KINDS, FRAME_WITHOUT_REQUEST, TIMEOUT
@@ -44,7 +42,7 @@ from mbgw.scenarios.health import SerialHealth
 from mbgw.scenarios.report import trace_event
 from mbgw.slave.connections import Client, Connections
 from mbgw.slave.table_reader import Gate, TableReader
-from mbgw.slave.transaction import SerialMaster
+from mbgw.slave.transaction import SerialMaster, framing_for
 
 log = logging.getLogger("mbgw.line")
 wire = logging.getLogger("mbgw.wire")
@@ -401,10 +399,10 @@ class SlaveLineThread(LineThread[SlaveConfig]):
             if take.status == -errno.EAGAIN:
                 return []
             return client.received(data, take.arrived_ns) if take.status > 0 else None
-        tid, _, _, unit = mbap.HEADER.unpack_from(data)
+        tid, _, _, unit = HEADER.unpack_from(data)
         client.last_active = time.monotonic()
         try:
-            self._taken = self._server.taken(client, tid, unit, data[mbap.HEADER_LEN:],
+            self._taken = self._server.taken(client, tid, unit, data[HEADER_LEN:],
                                              take.arrived_ns)
         except Exception:   # a bug must cost one transaction, never the line
             log.exception("internal error on a request the shortcut took: %s", data.hex(" "))

@@ -23,7 +23,7 @@ from mbgw.audit import Kind, event, operator
 from mbgw.config.model import ACTIVE_WINDOW_S, SlaveConfig
 from mbgw.errors import ConfigError, ListenError
 from mbgw.firewall.guard import Firewall
-from mbgw.line.forward import stamp_arrivals
+from mbgw.line.native import stamp_arrivals
 from mbgw.net.acl import AccessList
 from mbgw.net.address import format_address
 from mbgw.net.listen import listen

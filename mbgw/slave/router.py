@@ -22,11 +22,12 @@ from collections import deque
 from mbgw.config.lines import PRIMARY_LINE
 from mbgw.config.model import SlaveConfig
 from mbgw.firewall.guard import Firewall, Guard
+from mbgw.line import native
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceHealth
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.ops.trace import Outcome, TraceEvent, TraceHub
-from mbgw.protocol import mbap, pdu
+from mbgw.protocol import pdu
 from mbgw.routing.queue import Exchange, Inbox, Job, Scheduler
 from mbgw.slave.connections import Client
 from mbgw.slave.routes import (
@@ -289,9 +290,9 @@ class Router:
         """Whether a reply was counted (sent, or forwarded by C already)."""
         if reply is not None and not client.closed:
             if forwarded < 0:
-                client.send(mbap.frame(tid, unit, reply))
-            elif forwarded < mbap.HEADER_LEN + len(reply):
-                client.send(mbap.frame(tid, unit, reply)[forwarded:])
+                client.send(native.frame(tid, unit, reply))
+            elif forwarded < native.HEADER_LEN + len(reply):
+                client.send(native.frame(tid, unit, reply)[forwarded:])
             self.counters.replies += 1
             client.last_active = time.monotonic()
             return True

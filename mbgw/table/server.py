@@ -39,8 +39,9 @@ import time
 from typing import cast
 
 from mbgw.audit import Kind, event
-from mbgw.errors import ListenError
+from mbgw.errors import BadHeader, ListenError
 from mbgw.firewall.guard import Firewall, Guard
+from mbgw.line import native
 from mbgw.net.address import format_address
 from mbgw.net.listen import listen
 from mbgw.net.ratelimit import RateLimitedLog
@@ -54,7 +55,6 @@ from mbgw.net.tls import (
 )
 from mbgw.ops.eventfd import drain
 from mbgw.ops.limits import AcceptRest, WarnLimit, is_resource_error, share
-from mbgw.protocol import mbap
 
 log = logging.getLogger("mbgw.table")
 
@@ -70,10 +70,9 @@ SWEEP_S = 0.25                      # how often the deadlines are looked at, wit
 
 _IN = select.POLLIN
 _OUT = select.POLLOUT
-_HEADER = mbap.HEADER
-_HEADER_LEN = mbap.HEADER_LEN
-_MIN_LENGTH = mbap.MIN_LENGTH
-_MAX_LENGTH = mbap.MAX_LENGTH
+_HEADER = native.HEADER
+_HEADER_LEN = native.HEADER_LEN
+_frame_length = native.frame_length
 _UNIT_AT = _HEADER_LEN - 1
 
 
@@ -656,7 +655,7 @@ class TableServer(threading.Thread):
             view = self._input_view[:n]
         try:
             self._answer_all(client, view, len(view), answer)
-        except mbap.BadHeader as err:
+        except BadHeader as err:
             self.bad_header += 1
             self._warn.warn(client.host, "bad header", "table client %s: bad MBAP header (%s); "
                             "closing the connection", client.peer, err)
@@ -664,17 +663,16 @@ class TableServer(threading.Thread):
 
     def _answer_all(self, client: _Connection, view: memoryview, n: int, answer) -> None:
         """Answer every whole frame in view (n bytes); keep the start of an incomplete one.
-        Raises mbap.BadHeader once the replies before the bad header are sent."""
+        Raises BadHeader once the replies before the bad header are sent."""
         at = 0
         replies = self._replies
         try:
             while n - at >= _HEADER_LEN:
                 _, protocol, length, unit = _HEADER.unpack_from(view, at)
-                if protocol != 0:
-                    raise mbap.BadHeader(f"protocol id {protocol}")
-                if not _MIN_LENGTH <= length <= _MAX_LENGTH:
-                    raise mbap.BadHeader(f"length {length}")
-                end = at + 6 + length
+                end = _frame_length(protocol, length)
+                if end < 0:
+                    raise native.bad_header(end, protocol, length)
+                end += at
                 if end > n:
                     break
                 client.requests += 1
@@ -707,7 +705,7 @@ class TableServer(threading.Thread):
         client.firewall_refused += 1
         refusal = self.firewall.refused(guard, client.peer, client.role, unit,
                                         frame[_HEADER_LEN:])
-        return mbap.frame(_HEADER.unpack_from(frame)[0], unit, refusal)
+        return native.frame(_HEADER.unpack_from(frame)[0], unit, refusal)
 
     def _send(self, client: _Connection, data) -> None:
         """Onto the socket now, or held (and the client no longer read) until it takes it."""

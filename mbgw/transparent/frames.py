@@ -6,7 +6,7 @@ import struct
 
 from mbgw.config.model import SerialConfig
 from mbgw.config.transparent import TransparentConfig, registers_of
-from mbgw.line.frames import crc16
+from mbgw.line.native import crc16
 
 MAX_FRAME = 4096        # bytes without an end: dropped as incomplete (the line is out of step)
 _CRC = struct.Struct("<H")

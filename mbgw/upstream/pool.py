@@ -5,7 +5,7 @@ recently used (TCP guide 4.2.3: "close the oldest unused").  Requests go out in 
 transaction id of our own, one at a time; only the reply with that id is taken, earlier ones
 (late after tcpto) are dropped and counted.  That reply must answer the request: the unit id
 sent, the request's function (or its exception) with the size or echo the request implies, a
-PDU as long as its MBAP length says (frames.tcp_reply_verdict).  One that does not ends the
+PDU as long as its MBAP length says (native.tcp_reply_verdict).  One that does not ends the
 wait at once as BadReply, since no other reply will come for that id; a bad header (a
 protocol id other than 0, a length that does not fit) also closes the connection, whose
 stream can no longer be trusted.  A connection the server has closed is found before the
@@ -33,6 +33,7 @@ from collections import OrderedDict
 from collections.abc import Callable
 
 from mbgw.errors import (
+    BadHeader,
     BadReply,
     ConnectionLost,
     ConnectTimeout,
@@ -41,11 +42,10 @@ from mbgw.errors import (
     Interrupted,
     NoRoute,
 )
-from mbgw.line import frames
+from mbgw.line import native
 from mbgw.net.tls import handshake_step, server_mismatch
 from mbgw.ops.counters import MasterCounters
 from mbgw.ops.eventfd import drain
-from mbgw.protocol import mbap
 
 log = logging.getLogger("mbgw.tcp")
 wire = logging.getLogger("mbgw.wire")
@@ -161,12 +161,12 @@ class UpstreamPool:
         NoRoute when host cannot be reached, Interrupted."""
         conn = self._connection(host, deadline_ns)
         tid = conn.next_tid()
-        self._send(conn, mbap.frame(tid, unit, request), unit)
+        self._send(conn, native.frame(tid, unit, request), unit)
         if on_sent is not None:
             on_sent(conn, tid)
         while True:
             try:
-                for reply_tid, reply_unit, reply in mbap.split_frames(conn.buf):
+                for reply_tid, reply_unit, reply in native.split_frames(conn.buf):
                     if reply_tid == tid:
                         conn.last_active = time.monotonic()
                         if wire.isEnabledFor(logging.DEBUG):
@@ -175,7 +175,7 @@ class UpstreamPool:
                         self._check(conn, request, unit, reply_unit, reply)
                         return reply
                     self._late(conn, reply_tid, reply_unit, reply)
-            except mbap.BadHeader as err:
+            except BadHeader as err:
                 reason = f"bad MBAP header: {err}"
                 self._bad_header(conn, reason)
                 raise BadReply("invalid_frames", reason) from None
@@ -193,7 +193,7 @@ class UpstreamPool:
             try:
                 conn = self._connection(host, deadline_ns)
                 tid = conn.next_tid()
-                self._send(conn, mbap.frame(tid, unit, request), unit)
+                self._send(conn, native.frame(tid, unit, request), unit)
             except (GatewayTimeout, NoRoute):
                 continue
             if on_sent is not None:
@@ -204,15 +204,15 @@ class UpstreamPool:
     def _check(self, conn: Connection, request: bytes, unit: int, reply_unit: int,
                reply: bytes) -> None:
         """Raise BadReply unless reply (from reply_unit) answers request (sent to unit)."""
-        verdict = frames.tcp_reply_verdict(request, unit, reply_unit, reply)
-        if verdict == frames.REPLY_ANSWERS:
+        verdict = native.tcp_reply_verdict(request, unit, reply_unit, reply)
+        if verdict == native.REPLY_ANSWERS:
             return
-        if verdict == frames.REPLY_BAD_LENGTH:
+        if verdict == native.REPLY_BAD_LENGTH:
             reason = (f"bad MBAP header: length {len(reply) + 1} does not fit its function "
                       f"0x{reply[0]:02x} PDU")
             self._bad_header(conn, reason)
             raise BadReply("invalid_frames", reason)
-        if verdict == frames.REPLY_WRONG_UNIT:
+        if verdict == native.REPLY_WRONG_UNIT:
             self._counters.wrong_unit += 1
             raise BadReply("wrong_unit", f"unit id {reply_unit} instead of {unit}", reply_unit,
                            reply)
@@ -340,9 +340,9 @@ class UpstreamPool:
         waiting; False when the server has closed it (it is then dropped)."""
         while got := self._receive(conn):
             try:
-                for reply_tid, reply_unit, reply in mbap.split_frames(conn.buf):
+                for reply_tid, reply_unit, reply in native.split_frames(conn.buf):
                     self._late(conn, reply_tid, reply_unit, reply)
-            except mbap.BadHeader as err:
+            except BadHeader as err:
                 self._bad_header(conn, f"bad MBAP header ({err})")
                 return False
         return got is None

@@ -9,11 +9,10 @@ import pytest
 
 from mbgw.config.model import SerialConfig
 from mbgw.errors import LineTimeout
-from mbgw.line.framing import framing_for
 from mbgw.line.serial_line import SerialLine
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceHealth
-from mbgw.slave.transaction import SerialMaster
+from mbgw.slave.transaction import SerialMaster, framing_for
 from tests.modbus import holding_reply, read_holding, rtu
 
 pytestmark = pytest.mark.integration

@@ -8,7 +8,7 @@ import time
 import pytest
 
 from mbgw.errors import ChecksumError, FrameError, SerialError
-from mbgw.line import frames, native
+from mbgw.line import native
 from tests.modbus import rtu_frame as rtu
 
 pytestmark = pytest.mark.integration
@@ -193,7 +193,7 @@ def read_ascii(port: native.Port, wake_fd: int) -> bytes | None:
 
 def test_ascii_frames_in_one_burst_come_out_one_by_one(line, wake_fd):
     bus, port = line
-    sent = [frames.ascii_encode(adu) for adu in (READ_OTHER, OTHER_REPLY, READ_17,
+    sent = [native.ascii_encode(adu) for adu in (READ_OTHER, OTHER_REPLY, READ_17,
                                                  bytes.fromhex("11 07"))]
     os.write(bus, b"noise" + b"".join(sent))
     assert [read_ascii(port, wake_fd) for _ in sent] == sent

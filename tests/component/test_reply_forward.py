@@ -13,8 +13,7 @@ import pytest
 from mbgw._ffi import ffi, lib
 
 from mbgw.errors import FrameError, LineTimeout
-from mbgw.line.forward import NO_COUNTER, Forward, counter
-from mbgw.line.native import REPLY_AT, REPLY_SCAN, Port
+from mbgw.line.native import NO_COUNTER, REPLY_AT, REPLY_SCAN, Forward, Port, counter
 from tests.modbus import holding_reply, mbap, read_holding, rtu
 
 pytestmark = pytest.mark.integration

@@ -13,8 +13,7 @@ from array import array
 import pytest
 
 from mbgw.errors import LineTimeout
-from mbgw.line.forward import counter
-from mbgw.line.native import Port
+from mbgw.line.native import Port, counter
 from mbgw.protocol import pdu
 from tests.modbus import holding_reply, mbap, read_holding, rtu
 

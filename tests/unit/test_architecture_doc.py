@@ -147,7 +147,7 @@ def test_a_missing_name_is_caught():
     assert problem("slave/nothing.py") is not None
     assert problem("mbgw_nothing") is not None
     assert problem("Router.nothing") is not None
-    assert problem("mbap.nothing") is not None
+    assert problem("native.nothing") is not None
     assert problem("csrc/nothing.c") is not None
     assert problem("slave/nothing") is not None
     assert problem("mbgw/nothing/") is not None

@@ -13,12 +13,12 @@ PACKAGE = Path(__file__).resolve().parents[2] / "mbgw"
 # part that refuses or changes something may name them
 ALLOWED = {
     "protocol": {"errors", "audit"},
-    "line": {"protocol", "errors", "audit", "_ffi"},
+    "line": {"errors", "audit", "_ffi"},
     "config": {"protocol", "errors", "audit"},
     "net": {"protocol", "config", "errors", "audit"},
     "ops": {"net", "protocol", "config", "errors", "audit"},
     "firewall": {"net", "protocol", "config", "errors", "audit"},
-    "table": {"net", "protocol", "config", "errors", "audit", "_ffi", "firewall", "ops"},
+    "table": {"net", "line", "protocol", "config", "errors", "audit", "_ffi", "firewall", "ops"},
     "upstream": {"net", "line", "ops", "protocol", "config", "errors", "audit"},
     "routing": {"ops", "protocol", "config", "errors", "audit"},
     "scenarios": {"table", "upstream", "line", "net", "ops", "protocol", "config", "errors",

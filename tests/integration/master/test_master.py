@@ -18,7 +18,7 @@ import pytest
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.framer import FramerType
 
-from mbgw.line import frames
+from mbgw.line import native
 from tests import harness
 from tests.harness import Gateway, Peer, free_port, logged_counters
 from tests.modbus import rtu_frame as rtu
@@ -419,7 +419,7 @@ def test_a_broadcast_reaches_every_server_with_unit_0_and_gets_no_answer(gateway
 # ---- ASCII ----
 
 def ascii_frame(adu: bytes) -> bytes:
-    return frames.ascii_encode(adu)
+    return native.ascii_encode(adu)
 
 
 def test_an_ascii_master(gateway, serial_client, line):

@@ -28,7 +28,7 @@ REPLY_TIMEOUT_S = 3.0
 NO_REPLY_S = 0.5          # how long "no reply" is awaited
 
 
-# ---- raw Modbus TCP, written from the TCP guide (3.1.3), independent of mbgw.protocol.mbap ----
+# ---- raw Modbus TCP, written from the TCP guide (3.1.3), independent of mbgw.line.native ----
 
 def transact(sock: socket.socket, tid: int, unit: int, pdu: bytes) -> bytes:
     """Send one request and return the reply PDU, checking the MBAP header of the reply."""

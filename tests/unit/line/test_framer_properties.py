@@ -1,8 +1,9 @@
 """Properties of the Python framers, on inputs hypothesis makes: the MBAP splitter
-(mbgw/protocol/mbap.py), the PDU helpers (pdu.py), RTU and ASCII on the line
-(mbgw/line/framing.py over the C core's rules, mbgw/line/frames.py), and transparent mode's
-frames (mbgw/transparent/frames.py).  Round trips give back what went in; random bytes never
-raise anything but the documented errors (BadHeader; ChecksumError and FrameError)."""
+(mbgw/line/native.py), the PDU helpers (pdu.py), RTU and ASCII on the line
+(mbgw/slave/transaction.py's framings over the C core's rules in mbgw/line/native.py), and
+transparent mode's frames (mbgw/transparent/frames.py).  Round trips give back what went
+in; random bytes never raise anything but the documented errors (BadHeader; ChecksumError
+and FrameError)."""
 import struct
 
 from hypothesis import given, settings
@@ -10,11 +11,11 @@ from hypothesis import strategies as st
 
 from mbgw.config.model import SerialConfig
 from mbgw.config.transparent import EOF_KINDS, TransparentConfig
-from mbgw.errors import ChecksumError, FrameError
-from mbgw.line import frames
-from mbgw.line.framing import AsciiFraming
+from mbgw.errors import BadHeader, ChecksumError, FrameError
+from mbgw.line import native
 from mbgw.line.native import Reception
-from mbgw.protocol import mbap, pdu
+from mbgw.protocol import pdu
+from mbgw.slave.transaction import AsciiFraming
 from mbgw.transparent.frames import MAX_FRAME, Receiver, Rules, from_registers, to_registers
 
 PDUS = st.binary(min_size=1, max_size=253)
@@ -29,12 +30,12 @@ settings.load_profile("mbgw")
 @given(st.lists(st.tuples(st.integers(0, 0xFFFF), st.integers(0, 255), PDUS), max_size=8),
        st.lists(st.integers(1, 64), max_size=20))
 def test_mbap_frames_come_back_whole_however_the_stream_is_cut(sent, cuts):
-    stream = b"".join(mbap.frame(tid, unit, body) for tid, unit, body in sent)
+    stream = b"".join(native.frame(tid, unit, body) for tid, unit, body in sent)
     buf, got, at = bytearray(), [], 0
     for cut in [*cuts, len(stream)]:
         buf += stream[at:at + cut]
         at += cut
-        got += list(mbap.split_frames(buf))
+        got += list(native.split_frames(buf))
     assert got == sent and not buf
 
 
@@ -42,11 +43,11 @@ def test_mbap_frames_come_back_whole_however_the_stream_is_cut(sent, cuts):
 def test_mbap_random_bytes_give_frames_or_bad_header_nothing_else(data):
     buf = bytearray(data)
     try:
-        for tid, unit, body in mbap.split_frames(buf):
+        for tid, unit, body in native.split_frames(buf):
             assert 0 <= tid <= 0xFFFF and 0 <= unit <= 255 and 1 <= len(body) <= 253
-    except mbap.BadHeader:
+    except BadHeader:
         return
-    assert len(buf) < mbap.HEADER_LEN or \
+    assert len(buf) < native.HEADER_LEN or \
         len(buf) < 6 + struct.unpack_from(">H", buf, 4)[0]      # what is left is a start
 
 
@@ -59,19 +60,19 @@ def test_an_exception_pdu_is_the_function_flagged_and_its_code(function, code):
 
 @given(ADUS)
 def test_rtu_a_frame_with_its_crc_checks_and_a_changed_byte_does_not(adu):
-    crc = frames.crc16(adu)
+    crc = native.crc16(adu)
     frame = adu + struct.pack("<H", crc)
-    assert frames.crc16(frame) == 0
+    assert native.crc16(frame) == 0
     spoiled = bytes([frame[0] ^ 0x01]) + frame[1:]
-    assert frames.crc16(spoiled) != 0
+    assert native.crc16(spoiled) != 0
 
 
-@given(st.binary(min_size=1, max_size=frames.RTU_MAX_ADU - 2))
+@given(st.binary(min_size=1, max_size=native.RTU_MAX_ADU - 2))
 def test_rtu_a_request_length_once_known_stays_as_bytes_come(data):
     known = 0
     for have in range(len(data) + 1):
-        n = frames.rtu_request_length(data[:have])
-        assert n == 0 or n == frames.LEN_UNKNOWN or n >= 4
+        n = native.rtu_request_length(data[:have])
+        assert n == 0 or n == native.LEN_UNKNOWN or n >= 4
         if known:
             assert n == known
         known = n
@@ -79,19 +80,19 @@ def test_rtu_a_request_length_once_known_stays_as_bytes_come(data):
 
 @given(st.binary(min_size=2, max_size=252))
 def test_ascii_round_trip(adu):
-    line = frames.ascii_encode(adu)
+    line = native.ascii_encode(adu)
     assert line[:1] == b":" and line[-2:] == b"\r\n" and line[1:-2] == line[1:-2].upper()
-    assert frames.ascii_decode(line) == adu
-    assert frames.ascii_decode(line.lower()) == adu            # lower case hex is taken
+    assert native.ascii_decode(line) == adu
+    assert native.ascii_decode(line.lower()) == adu            # lower case hex is taken
 
 
-@given(st.binary(max_size=frames.ASCII_MAX_FRAME + 8))
+@given(st.binary(max_size=native.ASCII_MAX_FRAME + 8))
 def test_ascii_random_bytes_decode_or_raise_the_documented_errors(data):
     try:
-        adu = frames.ascii_decode(data)
+        adu = native.ascii_decode(data)
     except (ChecksumError, FrameError):
         return
-    assert frames.ascii_encode(adu).upper() == data.upper()
+    assert native.ascii_encode(adu).upper() == data.upper()
 
 
 class _Line:
@@ -118,7 +119,7 @@ def test_ascii_framing_on_random_frames_returns_a_checked_frame_or_a_fault(data,
     got = AsciiFraming(_Line(data)).receive(bytes([address, 3]), deadline=0)
     if got.frame is not None:
         assert got.frame[0] == address and len(got.frame) >= 2
-        assert frames.ascii_decode(data) == got.frame
+        assert native.ascii_decode(data) == got.frame
     else:
         assert isinstance(got.fault, (ChecksumError, FrameError)) or \
             got.foreign_address not in (-1, address)
@@ -126,7 +127,7 @@ def test_ascii_framing_on_random_frames_returns_a_checked_frame_or_a_fault(data,
 
 @given(ADUS.filter(lambda a: len(a) >= 2), st.integers(0, 255))
 def test_ascii_framing_takes_its_own_address_and_refuses_another(adu, address):
-    got = AsciiFraming(_Line(frames.ascii_encode(adu))).receive(bytes([address, 3]), 0)
+    got = AsciiFraming(_Line(native.ascii_encode(adu))).receive(bytes([address, 3]), 0)
     if adu[0] == address:
         assert got.frame == adu
     else:

@@ -6,12 +6,12 @@ frames built here from published PDUs carry two filler bytes in its place.
 """
 import pytest
 
-from mbgw.line import frames
+from mbgw.line import native
 from tests.unit.vectors import CHECK_VECTORS, PDU_PAIRS
 
 ADDRESS = b"\x11"
 CRC_FILLER = b"\x00\x00"
-UNKNOWN = frames.LEN_UNKNOWN
+UNKNOWN = native.LEN_UNKNOWN
 PAIR_IDS = [p.label for p in PDU_PAIRS]
 
 # How many ADU bytes must have arrived before the length can be told (address = byte 0),
@@ -62,14 +62,14 @@ def _is_return_query_data(pdu: bytes) -> bool:
 def test_request_length_of_published_request(pair):
     adu = _request_adu(pair)
     expected = UNKNOWN if _is_return_query_data(pair.request) else len(adu)
-    assert frames.rtu_request_length(adu) == expected
+    assert native.rtu_request_length(adu) == expected
 
 
 @pytest.mark.parametrize("pair", PDU_PAIRS, ids=PAIR_IDS)
 def test_request_fed_byte_by_byte_needs_more_bytes_until_the_length_field(pair):
     adu = _request_adu(pair)
     expected = UNKNOWN if _is_return_query_data(pair.request) else len(adu)
-    answers = _fed_byte_by_byte(frames.rtu_request_length, adu)
+    answers = _fed_byte_by_byte(native.rtu_request_length, adu)
     _assert_known_from(answers, REQUEST_KNOWN_AT[pair.request[0]], expected)
 
 
@@ -83,38 +83,38 @@ def test_request_fed_byte_by_byte_needs_more_bytes_until_the_length_field(pair):
 ])
 def test_request_length_from_the_spec_layout(pdu):
     adu = ADDRESS + bytes.fromhex(pdu) + CRC_FILLER
-    assert frames.rtu_request_length(adu) == len(adu)
+    assert native.rtu_request_length(adu) == len(adu)
 
 
 def test_return_query_data_request_is_framed_by_silence_whatever_its_size():
     # 6.8 sub-function 00: "The data passed in the request data field is to be returned".
     for data in (b"", b"\xA5\x37", bytes(range(20))):
         adu = ADDRESS + b"\x08\x00\x00" + data + CRC_FILLER
-        assert frames.rtu_request_length(adu) == UNKNOWN
+        assert native.rtu_request_length(adu) == UNKNOWN
 
 
 def test_write_multiple_registers_request_with_the_largest_byte_count():
     # 6.12: at most 123 registers, byte count 246 -> ADU 1 + 6 + 246 + 2 = 255.
     head = ADDRESS + bytes.fromhex("10 00 00 00 7B F6")
-    assert frames.rtu_request_length(head) == 255
+    assert native.rtu_request_length(head) == 255
 
 
 def test_read_device_id_request_with_another_mei_type_is_framed_by_silence():
     # 6.20: MEI type 0x0D is CANopen General Reference, whose length the PDU does not tell.
-    assert frames.rtu_request_length(ADDRESS + bytes.fromhex("2B 0D 00 00 00")) == UNKNOWN
-    assert frames.rtu_request_length(ADDRESS + b"\x2B") == 0
+    assert native.rtu_request_length(ADDRESS + bytes.fromhex("2B 0D 00 00 00")) == UNKNOWN
+    assert native.rtu_request_length(ADDRESS + b"\x2B") == 0
 
 
 @pytest.mark.parametrize("function", [65, 66, 72, 100, 108, 110, 0x70, 0x7F])
 def test_request_with_user_defined_or_unassigned_function_is_framed_by_silence(function):
-    assert frames.rtu_request_length(ADDRESS) == 0
-    assert frames.rtu_request_length(ADDRESS + bytes((function,))) == UNKNOWN
-    assert frames.rtu_request_length(ADDRESS + bytes((function, 1, 2, 3))) == UNKNOWN
+    assert native.rtu_request_length(ADDRESS) == 0
+    assert native.rtu_request_length(ADDRESS + bytes((function,))) == UNKNOWN
+    assert native.rtu_request_length(ADDRESS + bytes((function, 1, 2, 3))) == UNKNOWN
 
 
 def test_request_needs_address_and_function_code():
-    assert frames.rtu_request_length(b"") == 0
-    assert frames.rtu_request_length(b"\x11") == 0
+    assert native.rtu_request_length(b"") == 0
+    assert native.rtu_request_length(b"\x11") == 0
 
 
 # --- replies ----------------------------------------------------------------------------
@@ -123,7 +123,7 @@ def test_request_needs_address_and_function_code():
 def test_reply_length_of_published_response(pair):
     request = ADDRESS + pair.request
     reply = _reply_adu(pair)
-    assert frames.rtu_reply_length(len(request), reply) == len(reply)
+    assert native.rtu_reply_length(len(request), reply) == len(reply)
 
 
 @pytest.mark.parametrize("pair", [p for p in PDU_PAIRS if p.response[0] != 0x2B],
@@ -133,7 +133,7 @@ def test_reply_fed_byte_by_byte_needs_more_bytes_until_the_length_field(pair):
     reply = _reply_adu(pair)
     function = pair.response[0]
     known_at = 2 if function & 0x80 else REPLY_KNOWN_AT[function]
-    answers = _fed_byte_by_byte(lambda prefix: frames.rtu_reply_length(request_len, prefix), reply)
+    answers = _fed_byte_by_byte(lambda prefix: native.rtu_reply_length(request_len, prefix), reply)
     _assert_known_from(answers, known_at, len(reply))
 
 
@@ -146,16 +146,16 @@ def test_published_rtu_frame_with_its_crc_is_measured_whole(vector):
     frame = vector.frame + vector.crc_wire
     assert "request" in vector.source or "response" in vector.source
     if "request" in vector.source:
-        assert frames.rtu_request_length(frame) == len(frame)
+        assert native.rtu_request_length(frame) == len(frame)
     if "response" in vector.source:
-        assert frames.rtu_reply_length(6, frame) == len(frame)
+        assert native.rtu_reply_length(6, frame) == len(frame)
 
 
 def test_read_device_identification_reply_is_measured_object_by_object():
     pair = next(p for p in PDU_PAIRS if p.label == "FC2B/0E")
     reply = _reply_adu(pair)
     assert len(reply) == 34                    # address + bytes 0-30 of the manual + CRC
-    answers = _fed_byte_by_byte(lambda prefix: frames.rtu_reply_length(6, prefix), reply)
+    answers = _fed_byte_by_byte(lambda prefix: native.rtu_reply_length(6, prefix), reply)
     # ADU offsets: 7 object count; object 0 length at 9, object 1 length at 18, object 2
     # length at 27.  The length is known once the last object's length byte is in.
     _assert_known_from(answers, 28, 34)
@@ -164,29 +164,29 @@ def test_read_device_identification_reply_is_measured_object_by_object():
 def test_read_device_identification_reply_without_objects():
     # 6.21 layout: 2B 0E code conformity more-follows next-object number-of-objects(0).
     reply = ADDRESS + bytes.fromhex("2B 0E 01 01 00 00 00") + CRC_FILLER
-    answers = _fed_byte_by_byte(lambda prefix: frames.rtu_reply_length(6, prefix), reply)
+    answers = _fed_byte_by_byte(lambda prefix: native.rtu_reply_length(6, prefix), reply)
     _assert_known_from(answers, 8, 10)
 
 
 def test_reply_to_another_mei_type_is_framed_by_silence():
     reply = ADDRESS + bytes.fromhex("2B 0D 00 01 02 03")
-    assert frames.rtu_reply_length(6, reply[:2]) == 0
-    assert frames.rtu_reply_length(6, reply[:3]) == UNKNOWN
-    assert frames.rtu_reply_length(6, reply) == UNKNOWN
+    assert native.rtu_reply_length(6, reply[:2]) == 0
+    assert native.rtu_reply_length(6, reply[:3]) == UNKNOWN
+    assert native.rtu_reply_length(6, reply) == UNKNOWN
 
 
 @pytest.mark.parametrize("function", [65, 66, 72, 100, 108, 110, 0x70, 0x7F])
 def test_reply_with_user_defined_or_unassigned_function_is_framed_by_silence(function):
-    assert frames.rtu_reply_length(4, ADDRESS) == 0
-    assert frames.rtu_reply_length(4, ADDRESS + bytes((function,))) == UNKNOWN
-    assert frames.rtu_reply_length(4, ADDRESS + bytes((function, 3, 1, 2, 3))) == UNKNOWN
+    assert native.rtu_reply_length(4, ADDRESS) == 0
+    assert native.rtu_reply_length(4, ADDRESS + bytes((function,))) == UNKNOWN
+    assert native.rtu_reply_length(4, ADDRESS + bytes((function, 3, 1, 2, 3))) == UNKNOWN
 
 
 @pytest.mark.parametrize("function", [0x01, 0x03, 0x08, 0x14, 0x17, 0x18, 0x2B, 108])
 def test_exception_reply_is_five_bytes_for_any_function(function):
     # 7: the function code with its MSB set, then one exception code.
     reply = ADDRESS + bytes((function | 0x80, 0x02)) + CRC_FILLER
-    answers = _fed_byte_by_byte(lambda prefix: frames.rtu_reply_length(8, prefix), reply)
+    answers = _fed_byte_by_byte(lambda prefix: native.rtu_reply_length(8, prefix), reply)
     _assert_known_from(answers, 2, 5)
 
 
@@ -195,34 +195,34 @@ def test_diagnostics_reply_echoes_the_request_length():
     for data in (b"\xA5\x37", b"\x01\x02\x03\x04", bytes(40)):
         request = ADDRESS + b"\x08\x00\x00" + data
         reply = request + CRC_FILLER
-        assert frames.rtu_reply_length(len(request), reply[:2]) == len(reply)
+        assert native.rtu_reply_length(len(request), reply[:2]) == len(reply)
 
 
 def test_read_registers_reply_with_the_largest_byte_count():
     # 6.3: at most 125 registers, byte count 250 -> ADU 1 + 2 + 250 + 2 = 255.
-    assert frames.rtu_reply_length(6, ADDRESS + b"\x03\xFA") == 255
+    assert native.rtu_reply_length(6, ADDRESS + b"\x03\xFA") == 255
 
 
 def test_read_coils_reply_length_follows_the_byte_count_not_the_request():
     # The reply length comes from the reply itself; whether it fits the request is
     # reply_matches's business (csrc/match.c).
-    assert frames.rtu_reply_length(6, ADDRESS + b"\x01\x01") == 6
-    assert frames.rtu_reply_length(6, ADDRESS + b"\x01\x00") == 5
+    assert native.rtu_reply_length(6, ADDRESS + b"\x01\x01") == 6
+    assert native.rtu_reply_length(6, ADDRESS + b"\x01\x00") == 5
 
 
 def test_read_fifo_reply_with_the_largest_queue():
     # 6.18: at most 31 registers -> byte count 2 + 62 = 64 -> ADU 1 + 3 + 64 + 2 = 70.
-    assert frames.rtu_reply_length(4, ADDRESS + b"\x18\x00") == 0
-    assert frames.rtu_reply_length(4, ADDRESS + b"\x18\x00\x40") == 70
+    assert native.rtu_reply_length(4, ADDRESS + b"\x18\x00") == 0
+    assert native.rtu_reply_length(4, ADDRESS + b"\x18\x00\x40") == 70
 
 
 def test_report_server_id_reply_from_the_spec_layout():
     # 6.13: function code, byte count, server id (device specific), run indicator FF.
     reply = ADDRESS + bytes.fromhex("11 02 42 FF") + CRC_FILLER
-    answers = _fed_byte_by_byte(lambda prefix: frames.rtu_reply_length(4, prefix), reply)
+    answers = _fed_byte_by_byte(lambda prefix: native.rtu_reply_length(4, prefix), reply)
     _assert_known_from(answers, 3, 7)
 
 
 def test_reply_needs_address_and_function_code():
-    assert frames.rtu_reply_length(8, b"") == 0
-    assert frames.rtu_reply_length(8, b"\x11") == 0
+    assert native.rtu_reply_length(8, b"") == 0
+    assert native.rtu_reply_length(8, b"\x11") == 0

@@ -22,7 +22,7 @@ from click.testing import CliRunner
 from mbgw.cli import main
 from mbgw.config.model import Interface, LineFormat, SerialConfig
 from mbgw.errors import ChecksumError, ConfigError, FrameError, SerialError
-from mbgw.line import frames, native
+from mbgw.line import native
 from mbgw.line.serial_line import SerialLine
 from tests.harness import CHECKOUT, reachable_by_others
 
@@ -58,38 +58,38 @@ def published(body_hex: str, lrc: int) -> bytes:
 
 
 def test_spec_example_literally():
-    assert frames.ascii_encode(bytes.fromhex("11 03 00 6B 00 03")) == b":1103006B00037E\r\n"
-    assert frames.ascii_decode(b":1103006B00037E\r\n") == bytes.fromhex("11 03 00 6B 00 03")
+    assert native.ascii_encode(bytes.fromhex("11 03 00 6B 00 03")) == b":1103006B00037E\r\n"
+    assert native.ascii_decode(b":1103006B00037E\r\n") == bytes.fromhex("11 03 00 6B 00 03")
 
 
 def test_vpgate_examples_literally():
     # Appendix A, function 1: request ":390100220012" LRC "92", response ":39010359C401" "A5"
-    assert frames.ascii_encode(bytes.fromhex("39 01 00 22 00 12")) == b":39010022001292\r\n"
-    assert frames.ascii_encode(bytes.fromhex("39 01 03 59 C4 01")) == b":39010359C401A5\r\n"
+    assert native.ascii_encode(bytes.fromhex("39 01 00 22 00 12")) == b":39010022001292\r\n"
+    assert native.ascii_encode(bytes.fromhex("39 01 03 59 C4 01")) == b":39010359C401A5\r\n"
 
 
 @pytest.mark.parametrize("body, lrc, source", ASCII_VECTORS, ids=ASCII_IDS)
 def test_lrc(body, lrc, source):
-    assert frames.lrc(bytes.fromhex(body)) == lrc
+    assert native.lrc(bytes.fromhex(body)) == lrc
 
 
 @pytest.mark.parametrize("body, lrc, source", ASCII_VECTORS, ids=ASCII_IDS)
 def test_encode(body, lrc, source):
-    assert frames.ascii_encode(bytes.fromhex(body)) == published(body, lrc)
+    assert native.ascii_encode(bytes.fromhex(body)) == published(body, lrc)
 
 
 @pytest.mark.parametrize("body, lrc, source", ASCII_VECTORS, ids=ASCII_IDS)
 def test_decode(body, lrc, source):
-    assert frames.ascii_decode(published(body, lrc)) == bytes.fromhex(body)
+    assert native.ascii_decode(published(body, lrc)) == bytes.fromhex(body)
 
 
 @pytest.mark.parametrize("body, lrc, source", ASCII_VECTORS, ids=ASCII_IDS)
 def test_decode_accepts_lower_case_hex(body, lrc, source):
-    assert frames.ascii_decode(published(body, lrc).lower()) == bytes.fromhex(body)
+    assert native.ascii_decode(published(body, lrc).lower()) == bytes.fromhex(body)
 
 
 def test_decode_accepts_mixed_case_hex():
-    assert frames.ascii_decode(b":39010359c401A5\r\n") == bytes.fromhex("39 01 03 59 C4 01")
+    assert native.ascii_decode(b":39010359c401A5\r\n") == bytes.fromhex("39 01 03 59 C4 01")
 
 
 @pytest.mark.parametrize("frame", [
@@ -100,7 +100,7 @@ def test_decode_accepts_mixed_case_hex():
 ])
 def test_decode_refuses_a_wrong_lrc(frame):
     with pytest.raises(ChecksumError):
-        frames.ascii_decode(frame)
+        native.ascii_decode(frame)
 
 
 @pytest.mark.parametrize("frame", [
@@ -120,7 +120,7 @@ def test_decode_refuses_a_wrong_lrc(frame):
 ])
 def test_decode_refuses_malformed_frames(frame):
     with pytest.raises(FrameError):
-        frames.ascii_decode(frame)
+        native.ascii_decode(frame)
 
 
 def _frame_of(n_bytes: int) -> bytes:
@@ -137,8 +137,8 @@ def lrc_of(data: bytes) -> int:
 def test_largest_frame_is_513_characters_and_accepted():
     frame = _frame_of(254)
     assert len(frame) == 513
-    assert frames.ascii_decode(frame) == bytes.fromhex(frame[1:-4].decode())
-    assert frames.ascii_encode(bytes.fromhex(frame[1:-4].decode())) == frame
+    assert native.ascii_decode(frame) == bytes.fromhex(frame[1:-4].decode())
+    assert native.ascii_encode(bytes.fromhex(frame[1:-4].decode())) == frame
 
 
 @pytest.mark.parametrize("n_bytes", [257, 300])
@@ -146,7 +146,7 @@ def test_decode_refuses_frames_over_513_characters(n_bytes):
     frame = _frame_of(n_bytes)
     assert len(frame) > 513
     with pytest.raises(FrameError):
-        frames.ascii_decode(frame)
+        native.ascii_decode(frame)
 
 
 @pytest.mark.parametrize("n_bytes", [255, 256])
@@ -154,17 +154,17 @@ def test_decode_refuses_a_515_or_517_character_frame(n_bytes):
     frame = _frame_of(n_bytes)
     assert len(frame) == 2 * n_bytes + 5 > 513
     with pytest.raises(FrameError):
-        frames.ascii_decode(frame)
+        native.ascii_decode(frame)
 
 
 @pytest.mark.parametrize("n_bytes", [255, 256, 300])
 def test_encode_refuses_frames_over_513_characters(n_bytes):
     with pytest.raises(FrameError):
-        frames.ascii_encode(bytes(n_bytes))
+        native.ascii_encode(bytes(n_bytes))
 
 
 def test_encode_sends_upper_case():
-    assert frames.ascii_encode(bytes.fromhex("AB CD EF")) == b":ABCDEF" + b"%02X\r\n" % (
+    assert native.ascii_encode(bytes.fromhex("AB CD EF")) == b":ABCDEF" + b"%02X\r\n" % (
         lrc_of(bytes.fromhex("AB CD EF")))
 
 

@@ -1,7 +1,7 @@
 """reply_matches (csrc/match.c): can this reply PDU be the answer to that request PDU?"""
 import pytest
 
-from mbgw.line.frames import reply_matches
+from mbgw.line.native import reply_matches
 from mbgw.protocol import pdu
 from tests.unit.vectors import PDU_PAIRS
 

@@ -1,11 +1,11 @@
 """A client's requests in the gateway (mbgw.slave.connections.Client): written by admitted() and
 answered(forwarded) only, in the C int the reply's forward counts down, and where the C
-receive may send a reply (forward_target, a line.forward.Forward)."""
+receive may send a reply (forward_target, a line.native.Forward)."""
 import socket
 
 import pytest
 
-from mbgw.line.forward import NO_FORWARD, Forward
+from mbgw.line.native import NO_FORWARD, Forward
 from mbgw.slave.connections import MAX_IN_FLIGHT, Client
 
 

@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from mbgw.line import forward
+from mbgw.line import native
 from mbgw.ops.counters import Counters
 from mbgw.routing.queue import Job, Scheduler
 from mbgw.slave.connections import MAX_IN_FLIGHT, Client, Connections
@@ -40,7 +40,7 @@ class Rig:
         """Over loopback TCP from a listener that dates arrivals, as the gateway's does."""
         if self.listener is None:
             self.listener = socket.create_server(("127.0.0.1", 0))
-            forward.stamp_arrivals(self.listener.fileno())
+            native.stamp_arrivals(self.listener.fileno())
             self._until_arrivals_are_dated()
         theirs = socket.create_connection(self.listener.getsockname())
         ours, _ = self.listener.accept()
@@ -50,7 +50,7 @@ class Rig:
         """The kernel turns its receive timestamps on in deferred work when the first
         socket asks for them; what arrives before is undated (read as arrived now)."""
         assert self.listener is not None
-        reader = forward.ClientReader(16)
+        reader = native.ClientReader(16)
         deadline = time.monotonic() + 5
         with socket.create_connection(self.listener.getsockname()) as theirs:
             ours, _ = self.listener.accept()

@@ -5,7 +5,7 @@ import socket
 
 import pytest
 
-from mbgw.protocol import mbap
+from mbgw.line import native
 from mbgw.slave.connections import OUTPUT_LIMIT, Client
 
 
@@ -32,7 +32,7 @@ def pair():
 
 
 def reply(tid: int) -> bytes:
-    return mbap.frame(tid, 1, b"\x03\xfa" + bytes(250))
+    return native.frame(tid, 1, b"\x03\xfa" + bytes(250))
 
 
 def test_replies_keep_their_order_when_the_socket_fills_up(pair):

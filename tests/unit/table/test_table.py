@@ -383,6 +383,7 @@ def test_mbap_broadcast_writes_and_gets_no_reply():
     "00 01 00 01 00 06 01 03 00 00 00 01",     # protocol id 1
     "00 01 00 00 00 07 01 03 00 00 00 01",     # the length field says one byte more
     "00 01 00 00 00 01 01",                    # no PDU
+    "00 01 00 00 00 ff 01 03" + " 00" * 253,   # the frame's length, but over 254
 ])
 def test_mbap_header_that_does_not_fit_is_refused(frame_hex):
     table = Table()
