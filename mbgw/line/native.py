@@ -10,6 +10,7 @@ never stalls the asyncio thread.
 import errno
 import os
 import struct
+import threading
 from typing import Any, NamedTuple
 
 from mbgw._ffi import ffi, lib
@@ -45,26 +46,36 @@ def rtu_request_length(request: bytes) -> int:
     return lib.mbgw_rtu_request_length(request, len(request))
 
 
-_ascii_out = ffi.new("uint8_t[]", ASCII_MAX_FRAME)
-_ascii_in = ffi.new("uint8_t[]", RTU_MAX_ADU)
+class _AsciiBuffers(threading.local):
+    """Each line thread's own buffers: the C calls release the GIL, so two ASCII lines (a
+    serial face and a line in slave mode) would otherwise write into one."""
+
+    def __init__(self) -> None:
+        self.out = ffi.new("uint8_t[]", ASCII_MAX_FRAME)
+        self.into = ffi.new("uint8_t[]", RTU_MAX_ADU)
+
+
+_ascii = _AsciiBuffers()
 
 
 def ascii_encode(adu: bytes) -> bytes:
-    """address..data as an ASCII frame ':' HEX LRC CR LF (not thread-safe: one line thread)."""
-    n = lib.mbgw_ascii_encode(adu, len(adu), _ascii_out, ASCII_MAX_FRAME)
+    """address..data as an ASCII frame ':' HEX LRC CR LF."""
+    out = _ascii.out
+    n = lib.mbgw_ascii_encode(adu, len(adu), out, ASCII_MAX_FRAME)
     if n < 0:
         raise FrameError(os.strerror(-n))
-    return ffi.buffer(_ascii_out, n)[:]
+    return ffi.buffer(out, n)[:]
 
 
 def ascii_decode(frame: bytes) -> bytes:
     """An ASCII frame back to address..data.  ChecksumError on a wrong LRC."""
-    n = lib.mbgw_ascii_decode(frame, len(frame), _ascii_in, RTU_MAX_ADU)
+    into = _ascii.into
+    n = lib.mbgw_ascii_decode(frame, len(frame), into, RTU_MAX_ADU)
     if n == -errno.EILSEQ:
         raise ChecksumError()
     if n < 0:
         raise FrameError(os.strerror(-n))
-    return ffi.buffer(_ascii_in, n)[:]
+    return ffi.buffer(into, n)[:]
 
 
 def reply_matches(request: bytes, reply: bytes) -> bool:

@@ -54,3 +54,29 @@ def test_decode_rejects_a_wrong_lrc():
 def test_decode_rejects_malformed_frames(frame):
     with pytest.raises(FrameError):
         native.ascii_decode(frame)
+
+
+def test_two_threads_encode_and_decode_their_own_frames():
+    """Two ASCII lines each have a thread; the C calls release the GIL, so each must keep its
+    own buffers.  Frames from the Modbus over serial line specification's LRC example shape:
+    01 03 0000 0001 (LRC FB) and 11 03 0001 0002 (LRC E9)."""
+    import threading
+
+    from mbgw.line import native
+
+    cases = [(bytes.fromhex("010300000001"), b":010300000001FB\r\n"),
+             (bytes.fromhex("110300010002"), b":110300010002E9\r\n")]
+    wrong = []
+
+    def run(adu: bytes, frame: bytes) -> None:
+        for _ in range(20000):
+            if native.ascii_encode(adu) != frame or native.ascii_decode(frame) != adu:
+                wrong.append(adu)
+                return
+
+    threads = [threading.Thread(target=run, args=case) for case in cases]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert wrong == []
