@@ -155,12 +155,12 @@ done
 
 # Two pty pairs for the serial lines, that the units' group dialout can open; no serial slave:
 # the checks go to the exchange table (units 247-254) over Modbus TCP.
-for n in 0 2; do
+for n in 0 2 4; do
     inside systemd-run --quiet --unit="pty-mb$n" socat \
         "pty,raw,echo=0,link=/dev/ttyMB$n,group-late=dialout,perm-late=0660" \
         "pty,raw,echo=0,link=/dev/ttyMB$((n + 1))"
 done
-wait_for "pty pairs" inside test -e /dev/ttyMB0 -a -e /dev/ttyMB2
+wait_for "pty pairs" inside test -e /dev/ttyMB0 -a -e /dev/ttyMB2 -a -e /dev/ttyMB4
 
 # --- mbgw.service -----------------------------------------------------------------------------
 say "configure and start mbgw.service"
@@ -312,6 +312,25 @@ restarted_at=$(date +%s)
 [ "$(inside stat -c '%U:%G %a' /var/lib/mbgw)" = "mbgw:mbgw 750" ] \
     || fail "/var/lib/mbgw: $(inside stat -c '%U:%G %a' /var/lib/mbgw)"
 [ "$(inside stat -c '%U:%G' /var/lib/mbgw/table)" = "mbgw:mbgw" ] || fail "/var/lib/mbgw/table"
+
+# --- a second line added by a reload: a serial master on it reads the table through a route ----
+say "a [[line]] in master mode added by systemctl reload; mbpoll, its serial master, reads the table"
+inside sh -c 'printf "\n[[line]]\nname = \"panel\"\ndevice = \"/dev/ttyMB4\"\nbaudrate = 19200\n\
+format = \"8n1\"\nmode = \"master\"\n\n[[route]]\nfrom = \"panel\"\nunits = \"9\"\ntable = true\n" \
+    >> /etc/mbgw/mbgw.toml'
+inside mbgw check-config /etc/mbgw/mbgw.toml >/dev/null || fail "check-config with line panel"
+inside systemctl reload mbgw || fail "systemctl reload mbgw (line panel added)"
+[ "$(show mbgw MainPID)" = "$pid" ] || fail "adding a line restarted the daemon"
+wait_for "line panel in mbgw status" inside mbgw status --line panel
+# panel_reads: unit 9 on line panel, registers 4096-4097 of the table, as a serial master reads them
+panel_reads() {
+    [ "$(inside timeout 10 mbpoll -m rtu -b 19200 -d 8 -P none -s 1 -a 9 -0 -t 4 -r 4096 -c 2 \
+        -1 /dev/ttyMB5 | sed -n 's/^\[\([0-9]*\)\]: *\t*\(-\?[0-9]*\).*/\1=\2/p' \
+        | tr '\n' ' ')" = "4096=4660 4097=22136 " ]
+}
+wait_for "the table read by a serial master on line panel" panel_reads
+inside sh -c "cat /proc/$pid/task/*/comm" | grep -qx mbgw-panel \
+    || fail "no thread mbgw-panel for line panel"
 
 # --- mbgw@NAME, its own file beside mbgw.service --------------------------------------------
 say "mbgw@gw2 with /etc/mbgw/gw2.toml"
