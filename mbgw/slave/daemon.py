@@ -87,9 +87,10 @@ class SlaveMode(ModeParts):
                                 self.tables.table, self.inboxes, self.targets.hub)
         self.worker = worker = SlaveLineThread(cfg, line, self.scheduler, self.server, counters,
                                           devices)
-        if cfg.lines:                      # a serial face may reach line serial too
-            self.inboxes[PRIMARY_LINE] = Inbox()
-            worker.use_inbox(self.inboxes[PRIMARY_LINE])
+        # a serial face may reach line serial, one a reload adds too
+        self.serial_inbox = Inbox()
+        worker.use_inbox(self.serial_inbox)
+        self._share_serial_inbox(cfg)
         self._make_faces = faces
         self.serial_faces: Any = None      # the serial faces (master.faces.LineFaces), once any
         if _has_faces(cfg):
@@ -103,6 +104,12 @@ class SlaveMode(ModeParts):
         self._idle_ms = -1                 # the watchdog's idle limit, for lines added later
         self.engines["serial"] = self.serial_engine
         self.table, self.health, self.trace = self.tables.table, devices.rule, self.server.trace
+
+    def _share_serial_inbox(self, cfg: SlaveConfig) -> None:
+        """Line serial's inbox among the targets' once the daemon has lines: before, line
+        serial's figures are the daemon's (LineShare)."""
+        if cfg.lines:
+            self.inboxes.setdefault(PRIMARY_LINE, self.serial_inbox)
 
     def _add_faces(self, cfg: SlaveConfig):
         """The serial faces of cfg's lines in master mode, unstarted (None: the daemon runs
@@ -173,6 +180,7 @@ class SlaveMode(ModeParts):
         return self.status.lines()
 
     async def apply(self, new: SlaveConfig, report: ReloadReport) -> None:
+        self._share_serial_inbox(new)
         self.tables.reconfigure(new, report)
         removed = await asyncio.to_thread(self.targets.reconfigure, new, report)
         retired = self._reface(new, report)
