@@ -306,6 +306,9 @@ def config_problems(cfg: SlaveConfig | MasterConfig, mode: str) -> list[str]:
     problems = route_problems((primary, *cfg.lines), effective_routes(cfg))
     problems += [f"{r.label}.table: the table is off (table.enabled = false)"
                  for r in cfg.routes if r.table and not cfg.table_on]
+    if not cfg.upstream_tls.enabled:
+        problems += [f"{r.label}.tls: needs tls.client-cert, tls.client-key and "
+                     f"tls.server-ca" for r in cfg.routes if r.tls]
     if mode == "master" and any(r.face == TCP_FACE for r in cfg.routes):
         problems += _tcp_face_problems(cfg)
     return problems

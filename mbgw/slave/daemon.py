@@ -22,7 +22,7 @@ from mbgw.slave.line_share import LineShare
 from mbgw.slave.line_thread import SlaveLineThread, serial_scenarios
 from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
-from mbgw.slave.servers import ServerTargets, server_targets
+from mbgw.slave.servers import ServerTargets, how_reached, server_targets
 from mbgw.slave.status import SlaveStatus
 from mbgw.slave.table_service import TableService
 from mbgw.slave.targets import TargetLines
@@ -52,7 +52,7 @@ def _servers(cfg: SlaveConfig, inboxes: dict[str, Inbox]) -> ServerTargets | Non
     servers = server_targets(cfg)
     if not servers:
         return None
-    thread = ServerTargets(servers, cfg.tcpto_ms, cfg.exception)
+    thread = ServerTargets(servers, cfg.tcpto_ms, cfg.exception, cfg.upstream_tls)
     inboxes.update(thread.inboxes)
     return thread
 
@@ -217,8 +217,9 @@ class SlaveMode(ModeParts):
         """The remote servers' thread anew when their settings changed; returns the old one,
         for the caller to stop once the face routes to the new one (None: kept)."""
         running = self.running
-        if (new.tcpto_ms, new.exception, server_targets(new)) == \
-                (running.tcpto_ms, running.exception, server_targets(running)):
+        if (new.tcpto_ms, new.exception, new.upstream_tls, how_reached(server_targets(new))) \
+                == (running.tcpto_ms, running.exception, running.upstream_tls,
+                    how_reached(server_targets(running))):
             return None
         old = self.servers
         for label in server_targets(running):

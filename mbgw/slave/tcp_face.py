@@ -14,7 +14,7 @@ import logging
 import threading
 import time
 
-from mbgw.config.lines import TCP_FACE
+from mbgw.config.lines import TCP_FACE, RouteConfig
 from mbgw.config.model import MasterConfig, SlaveConfig
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceHealth, HealthRule
@@ -22,7 +22,7 @@ from mbgw.ops.reload import ReloadReport
 from mbgw.routing.inbox import Inbox
 from mbgw.slave.scheduler import Scheduler
 from mbgw.slave.server import TcpServer
-from mbgw.slave.servers import ServerTargets
+from mbgw.slave.servers import ServerTargets, how_reached
 
 log = logging.getLogger("mbgw.tcp")
 
@@ -34,11 +34,10 @@ def has_tcp_face(cfg: MasterConfig) -> bool:
     return any(r.face == TCP_FACE for r in cfg.routes)
 
 
-def face_servers(cfg: MasterConfig) -> dict[str, tuple[str, int]]:
+def face_servers(cfg: MasterConfig) -> dict[str, RouteConfig]:
     """The servers the TCP face's routes reach, by target label (a serial face reaches its
     own on its thread)."""
-    return {r.target: r.server for r in cfg.routes
-            if r.server is not None and r.face == TCP_FACE}
+    return {r.target: r for r in cfg.routes if r.server is not None and r.face == TCP_FACE}
 
 
 def face_settings(cfg: MasterConfig) -> SlaveConfig:
@@ -104,10 +103,15 @@ class TcpFace:
 
     def _serve_servers(self, cfg: MasterConfig) -> ServerTargets:
         """The remote servers' threads, unstarted, their inboxes among the targets'."""
-        self._reached = (cfg.tcpto_ms, cfg.exception, face_servers(cfg))
-        servers = ServerTargets(face_servers(cfg), cfg.tcpto_ms, cfg.exception)
+        self._reached = self._made_of(cfg)
+        servers = ServerTargets(face_servers(cfg), cfg.tcpto_ms, cfg.exception,
+                                cfg.upstream_tls)
         self._inboxes.update(servers.inboxes)
         return servers
+
+    @staticmethod
+    def _made_of(cfg: MasterConfig) -> tuple:
+        return cfg.tcpto_ms, cfg.exception, cfg.upstream_tls, how_reached(face_servers(cfg))
 
     def start(self) -> None:
         self._servers.start()
@@ -117,7 +121,7 @@ class TcpFace:
         """New settings; the servers' threads anew when theirs changed (the old ones stopped
         once the face routes to the new)."""
         old = None
-        if (cfg.tcpto_ms, cfg.exception, face_servers(cfg)) != self._reached:
+        if self._made_of(cfg) != self._reached:
             old = self._servers
             for label in old.inboxes:
                 self._inboxes.pop(label, None)
