@@ -133,9 +133,9 @@ class MasterMode(ModeParts):
             lambda: tables.figures(slave.table_counters.snapshot()), tables.firewall_report,
             self.metered, self._tcp_clients)
 
-    def _tcp_clients(self) -> int:
+    def _tcp_clients(self) -> int | None:
         face = self.tcp_face
-        return len(face.server.clients) if face is not None else 0
+        return len(face.server.clients) if face is not None else None
 
     def metered(self) -> list[tuple]:
         """Each line's (name, counters, devices) for /metrics, line serial's first."""
