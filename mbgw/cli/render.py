@@ -162,6 +162,11 @@ def format_clients(s: dict, now: float) -> str:
         return "\n".join([*_clients_section(s, now, "table clients"), "",
                           "raw        off" if raw["raw_port"] is None else
                           f"raw        port {raw['raw_port']}, {_raw_client(raw)}"])
+    if s.get("tcp_clients") is not None:
+        tcp = _clients_section({"clients": s["tcp_clients"]}, now)
+        if s.get("table") is None:
+            return "\n".join(tcp)
+        return "\n".join([*tcp, "", *_clients_section(s, now, "table clients")])
     if s.get("table") is None:
         return ("master mode: the exchange table is off, so no Modbus TCP clients; its "
                 f"connections go to the servers (mbgw status lists them: "
@@ -307,6 +312,9 @@ def _master_sections(s: dict, now: float) -> list[str]:
         f"empty: only the table's address {table_address} is answered" if table_address
         else "empty: every request is ignored"]
     lines += [f"{'slaveid' if i == 0 else '':<10} {route}" for i, route in enumerate(routes)]
+    if s.get("listening") is not None:
+        lines += [f"listening  {', '.join(s['listening'])} (the Modbus TCP face)", "",
+                  *_clients_section({"clients": s["tcp_clients"]}, now)]
     lines += ["", f"upstream connections ({len(up['connections'])})"]
     if up["connections"]:
         lines.append(f"  {'SERVER':<21} {'LOCAL':<21} {'CONNECTED':<19}  {'REQUESTS':>8}  "

@@ -19,8 +19,9 @@ from mbgw.config.lines import (
     RouteConfig,
 )
 from mbgw.config.number_list import number_list_text, parse_number_list
-from mbgw.config.scenario import split_server
+from mbgw.config.scenario import DEFAULT_TLS_SERVER_PORT, split_server
 from mbgw.config.schema import Schema, default_value
+from mbgw.config.slaveid import parse_fingerprint
 from mbgw.config.values import Problem, check_value, process, to_click
 from mbgw.errors import ConfigError
 
@@ -30,7 +31,8 @@ LINES_PARAM = "lines"            # the mode commands' hidden parameters the file
 ROUTES_PARAM = "routes"
 LINE_OWN_KEYS = ("name", "mode")
 MASTER_LINE_REFUSED = ("stout", "nocheck")      # as `mbgw master --stout` is refused
-ROUTE_KEYS = ("units", "line", "table", "server", "offset", "address", "from")
+ROUTE_KEYS = ("units", "line", "table", "server", "offset", "address", "from", "tls",
+              "fingerprint")
 TCP_UNITS = (1, 255)             # as [table] units
 SERIAL_ADDRESSES = (1, 247)      # a serial face's addresses
 OFFSET_RANGE = (-254, 254)
@@ -179,13 +181,7 @@ def _parse_route(fields: dict, index: int) -> RouteConfig:
         units = parse_number_list(f"{label}.units", str(units_value), low, high)
     except ConfigError as err:
         raise ConfigError(str(err).replace(f"{label}.units ", f"{label}.units: ", 1)) from None
-    server = typed("server", str, "\"IP[:PORT]\"")
-    server_address = None
-    if server is not None:
-        try:
-            server_address = split_server(server, DEFAULT_SERVER_PORT)
-        except ConfigError as err:
-            raise ConfigError(f"{label}.server: {err}") from None
+    server_address, tls, fingerprint = _server(label, typed)
     offset = typed("offset", int, "an integer", 0)
     if not OFFSET_RANGE[0] <= offset <= OFFSET_RANGE[1]:
         raise ConfigError(f"{label}.offset: {offset} out of range {OFFSET_RANGE[0]}.."
@@ -197,7 +193,30 @@ def _parse_route(fields: dict, index: int) -> RouteConfig:
     return RouteConfig(index=index, units=units, face=face,
                        line=typed("line", str, "a line name"),
                        table=typed("table", bool, "true or false", False),
-                       server=server_address, offset=offset, address=address)
+                       server=server_address, offset=offset, address=address, tls=tls,
+                       fingerprint=fingerprint)
+
+
+def _server(label: str, typed) -> tuple[tuple[str, int] | None, bool, bytes | None]:
+    """A route's server = "IP[:PORT]" (502, or 802 with tls = true, when left out), tls and
+    fingerprint, as a TCP scenario's."""
+    server = typed("server", str, "\"IP[:PORT]\"")
+    tls = typed("tls", bool, "true or false", False)
+    address = None
+    if server is not None:
+        try:
+            address = split_server(server, DEFAULT_TLS_SERVER_PORT if tls
+                                   else DEFAULT_SERVER_PORT)
+        except ConfigError as err:
+            raise ConfigError(f"{label}.server: {err}") from None
+    elif tls:
+        raise ConfigError(f"{label}.tls: only with server = \"IP[:PORT]\"")
+    fingerprint = typed("fingerprint", str, "the server certificate's SHA-256 fingerprint")
+    if fingerprint is not None and not tls:
+        raise ConfigError(f"{label}.fingerprint: only with tls = true")
+    pin = parse_fingerprint(f"{label}.fingerprint", fingerprint) \
+        if fingerprint is not None else None
+    return address, tls, pin
 
 
 def table_units_overlap(values: dict, routes: tuple[RouteConfig, ...]) -> list[str]:
@@ -225,6 +244,10 @@ def route_fields(route: RouteConfig) -> dict:
         fields["table"] = True
     if route.server is not None:
         fields["server"] = route.target.removeprefix("server ")
+    if route.tls:
+        fields["tls"] = True
+    if route.fingerprint is not None:
+        fields["fingerprint"] = route.fingerprint.hex(":").upper()
     if route.offset:
         fields["offset"] = route.offset
     if route.address is not None:

@@ -306,9 +306,25 @@ def config_problems(cfg: SlaveConfig | MasterConfig, mode: str) -> list[str]:
     problems = route_problems((primary, *cfg.lines), effective_routes(cfg))
     problems += [f"{r.label}.table: the table is off (table.enabled = false)"
                  for r in cfg.routes if r.table and not cfg.table_on]
-    if mode == "master":
-        problems += [f"{r.label}.from: a master-mode daemon has no Modbus TCP listeners to "
-                     f"route units from; give from = \"LINE\" (a line in master mode), or "
-                     f"run a slave-mode daemon with the serial master's line as a [[line]] "
-                     f"in master mode" for r in cfg.routes if r.face == TCP_FACE]
+    if not cfg.upstream_tls.enabled:
+        problems += [f"{r.label}.tls: needs tls.client-cert, tls.client-key and "
+                     f"tls.server-ca" for r in cfg.routes if r.tls]
+    if mode == "master" and any(r.face == TCP_FACE for r in cfg.routes):
+        problems += _tcp_face_problems(cfg)
     return problems
+
+
+def _tcp_face_problems(cfg: SlaveConfig | MasterConfig) -> list[str]:
+    """A master-mode daemon's Modbus TCP face listens on mdbport and, with TLS, tls.port:
+    neither may be the table server's."""
+    first = next(r for r in cfg.routes if r.face == TCP_FACE).label
+    if not cfg.table.enabled:
+        return []
+    if cfg.mdbport == cfg.table.port:
+        return [f"net.mdbport {cfg.mdbport}: {first} makes it the Modbus TCP face's port, "
+                f"and the table's server listens on it (table.port)"]
+    if cfg.tls.enabled:
+        return [f"tls.port {cfg.tls.port}: {first} makes the Modbus TCP face listen on it, "
+                f"and the table's server does too (table.enabled): route the table from "
+                f"the face (table = true) instead, or leave [tls] out"]
+    return []

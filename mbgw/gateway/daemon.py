@@ -2,7 +2,9 @@
 mbgw.master.daemon, mbgw.transparent.daemon) run by the one skeleton
 (mbgw.gateway.skeleton.serve_mode), with the lines of the other mode's kind: a slave-mode
 daemon runs the serial faces of its lines in master mode (mbgw.master's), a master-mode daemon
-runs its lines in slave mode as targets (mbgw.slave's SlaveLineThread without TCP clients)."""
+runs its lines in slave mode as targets (mbgw.slave's SlaveLineThread without TCP clients) and,
+when routes take TCP units, the Modbus TCP face (mbgw.slave's listener and router on a thread
+of the face's own)."""
 import importlib
 
 from mbgw.config.model import MasterConfig, SlaveConfig
@@ -18,7 +20,7 @@ def run_slave_mode(cfg: SlaveConfig, reconfigure=None) -> None:
 def run_master_mode(cfg: MasterConfig, reconfigure=None) -> None:
     """mbgw master's daemon; its lines in slave mode as targets too."""
     from mbgw.master.daemon import run_master
-    run_master(cfg, reconfigure, serve_mode, target_lines)
+    run_master(cfg, reconfigure, serve_mode, target_lines, tcp_face)
 
 
 def run_transparent_mode(cfg, reconfigure=None) -> None:
@@ -39,3 +41,12 @@ def target_lines(cfg: MasterConfig, inboxes: dict, hub=None):
     hub: the daemon's trace hub."""
     targets = importlib.import_module("mbgw.slave.targets")
     return targets.TargetLines(cfg, inboxes, hub)
+
+
+def tcp_face(cfg: MasterConfig, inboxes: dict, table, hub):
+    """A master-mode daemon's Modbus TCP face (slave.tcp_face.TcpFace), not listening yet;
+    None while no route takes TCP units."""
+    face = importlib.import_module("mbgw.slave.tcp_face")
+    if not face.has_tcp_face(cfg):
+        return None
+    return face.TcpFace(cfg, inboxes, table, hub)

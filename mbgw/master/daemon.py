@@ -1,5 +1,6 @@
 """Master mode's daemon: opens the lines, serves the serial masters (the serial faces), runs
-the lines in slave mode it is handed (targets) and the table; the skeleton that runs them
+the lines in slave mode it is handed (targets), the Modbus TCP face it is handed (when routes
+take TCP units) and the table; the skeleton that runs them
 (signals, control socket, metrics, reload, systemd's watchdog) is mbgw.gateway.skeleton's."""
 import asyncio
 import dataclasses
@@ -8,6 +9,7 @@ from typing import Any
 
 from mbgw.config.lines import PRIMARY_LINE
 from mbgw.config.model import MasterConfig
+from mbgw.errors import ConfigError, ListenError
 from mbgw.master.faces import Faces, LineFaces
 from mbgw.master.status import MasterStatus
 from mbgw.master.table_service import TableService
@@ -19,7 +21,7 @@ log = logging.getLogger("mbgw")
 TICK_S = 1.0        # how often the table's file is looked at (it is saved per its interval)
 
 
-def run_master(cfg: MasterConfig, reconfigure, serve, targets=None) -> None:
+def run_master(cfg: MasterConfig, reconfigure, serve, targets=None, tcp_face=None) -> None:
     """Raises SerialError when the device is there and cannot be opened (one that is not
     there yet is waited for), ListenError when the metrics address, table-port or
     tls-port cannot be listened on; otherwise returns after SIGTERM or SIGINT.
@@ -27,18 +29,25 @@ def run_master(cfg: MasterConfig, reconfigure, serve, targets=None) -> None:
     serve(parts, reconfigure): the daemon's skeleton (mbgw.gateway.skeleton.serve_mode).
     targets(cfg, inboxes): the lines in slave mode, unstarted, their inboxes added to inboxes
     (mbgw.gateway's slave.targets.TargetLines), called when there are any, at start or at a
-    reload; None: such lines do not run."""
+    reload; None: such lines do not run.  tcp_face(cfg, inboxes, table, hub): the Modbus TCP
+    face (mbgw.gateway's slave.tcp_face.TcpFace) when routes take TCP units, else None; it
+    raises ListenError when mdbport or tls-port cannot be listened on."""
     counters = MasterCounters()
     tables = TableService(cfg)
     inboxes: dict = {}                 # the lines in slave mode's, by name
     faces = Faces.opened(cfg, counters, tables.table, inboxes)
     try:
         tables.start()
-        asyncio.run(serve(MasterMode(cfg, faces, counters, tables, targets, inboxes),
-                          reconfigure))
+        mode = MasterMode(cfg, faces, counters, tables, targets, inboxes, tcp_face)
+        asyncio.run(_serve(mode, reconfigure, serve))
     finally:
         tables.stop()
         faces.close()
+
+
+async def _serve(mode: "MasterMode", reconfigure, serve) -> None:
+    await mode.listen()
+    await serve(mode, reconfigure)
 
 
 def _has_targets(cfg: MasterConfig) -> bool:
@@ -71,7 +80,7 @@ class MasterMode(ModeParts):
     gateway hands them), the table's service."""
 
     def __init__(self, cfg: MasterConfig, faces: Faces, counters: MasterCounters,
-                 tables: TableService, targets, inboxes: dict) -> None:
+                 tables: TableService, targets, inboxes: dict, tcp_face=None) -> None:
         slave = faces.primary
         super().__init__(cfg, MasterStatus(cfg, slave, counters, tables), counters)
         self.faces = faces
@@ -82,6 +91,8 @@ class MasterMode(ModeParts):
         self.targets: Any = None       # the lines in slave mode (TargetLines), once any
         if _has_targets(cfg):
             self._add_targets(cfg)
+        self._make_tcp_face = tcp_face
+        self.tcp_face: Any = None      # the Modbus TCP face (slave.tcp_face.TcpFace), once any
         self.status.faces = faces
         self.table, self.health, self.trace = tables.table, slave.devices.rule, slave.hub
 
@@ -97,6 +108,21 @@ class MasterMode(ModeParts):
                                                                   self.faces.primary.hub)
         return self.targets
 
+    async def listen(self) -> None:
+        """The Modbus TCP face's listeners, when routes take TCP units.  Raises ListenError."""
+        await self._add_tcp_face(self.cfg)
+
+    async def _add_tcp_face(self, cfg: MasterConfig) -> Any:
+        """The face, listening (None: cfg has none, or it runs already)."""
+        if self._make_tcp_face is None or self.tcp_face is not None:
+            return None
+        face = self._make_tcp_face(cfg, self._inboxes, self.tables.table if cfg.table_on
+                                   else None, self.faces.primary.hub)
+        if face is not None:
+            await face.listen()
+            self.tcp_face = self.status.tcp_face = face
+        return face
+
     def threads(self) -> list:
         return [*self.faces.all(), *(self.targets.threads() if self.targets is not None else ())]
 
@@ -105,7 +131,11 @@ class MasterMode(ModeParts):
         return metrics.master_collector(
             self.counters, slave.devices, slave, started,
             lambda: tables.figures(slave.table_counters.snapshot()), tables.firewall_report,
-            self.metered)
+            self.metered, self._tcp_clients)
+
+    def _tcp_clients(self) -> int | None:
+        face = self.tcp_face
+        return len(face.server.clients) if face is not None else None
 
     def metered(self) -> list[tuple]:
         """Each line's (name, counters, devices) for /metrics, line serial's first."""
@@ -116,6 +146,8 @@ class MasterMode(ModeParts):
         self._idle_ms = idle_ms
         if self.targets is not None:
             self.targets.start(idle_ms)
+        if self.tcp_face is not None:
+            self.tcp_face.start()
         self.faces.start(idle_ms)
 
     def log_start(self) -> None:
@@ -127,6 +159,8 @@ class MasterMode(ModeParts):
                  "on" if cfg.exception else "off", cfg.max_connections, cfg.slaveid,
                  origin(cfg))
         _log_slaveid(cfg)
+        if self.tcp_face is not None:
+            log.info("Modbus TCP face: listening on %s", ", ".join(self.tcp_face.addresses))
 
     def tasks(self) -> tuple:
         return (lambda: _tick(self.tables),)
@@ -144,13 +178,31 @@ class MasterMode(ModeParts):
                 added.start(self._idle_ms)
         removed = await asyncio.to_thread(self.targets.reconfigure, new, report) \
             if self.targets is not None else []
+        await self._reface(new, report)
         retired = self.faces.reconfigure(new, report)   # they route to the lines in force
         await asyncio.to_thread(LineFaces.retire, retired)
         for target in removed:
             target.stop()
             await asyncio.to_thread(target.join)
 
+    async def _reface(self, new: MasterConfig, report: ReloadReport) -> None:
+        """The Modbus TCP face: added by the first route of its, reconfigured after (it keeps
+        listening, its routes taking nothing, when the file has none left)."""
+        if self.tcp_face is not None:
+            await self.tcp_face.reconfigure(new, report)
+            return
+        try:
+            face = await self._add_tcp_face(new)
+        except (ListenError, ConfigError) as err:
+            report.refuse("mdbport", f"the Modbus TCP face cannot start: {err}")
+            return
+        if face is not None:
+            face.start()
+
     async def stop(self) -> None:
+        if self.tcp_face is not None:
+            self.tcp_face.stop()
+            await asyncio.to_thread(self.tcp_face.join)
         self.faces.stop()
         await asyncio.to_thread(self.faces.join)
         if self.targets is not None:

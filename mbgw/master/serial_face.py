@@ -33,7 +33,6 @@ import dataclasses
 import logging
 import os
 import select
-import ssl
 import time
 
 from mbgw.config.lines import RouteMap
@@ -64,7 +63,6 @@ from mbgw.master.face_routes import (
 from mbgw.master.table_slave import TableSlave
 from mbgw.master.trace import MasterTracer
 from mbgw.net.ratelimit import RateLimitedLog
-from mbgw.net.tls import client_context
 from mbgw.ops.counters import MasterCounters, TableSlaveCounters
 from mbgw.ops.device_stats import MASTER_COUNTS, DeviceHealth, DeviceStats, HealthRule
 from mbgw.ops.eventfd import drain
@@ -74,6 +72,7 @@ from mbgw.ops.trace import Outcome, TraceHub
 from mbgw.protocol import pdu
 from mbgw.routing.queue import AnswerWait
 from mbgw.upstream.pool import UpstreamPool
+from mbgw.upstream.tls_choice import ClientTls, routes_tls
 
 log = logging.getLogger("mbgw.line")
 wire = logging.getLogger("mbgw.wire")
@@ -125,7 +124,7 @@ class SerialFace(LineThread[FaceSettings]):
         self.wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         self._lines = AnswerWait(self.face, self.wake_fd, lambda: self._stopping)
         self._pools: dict[int, UpstreamPool] = {}
-        self._tls_context: ssl.SSLContext | None = None
+        self._tls = ClientTls()
         self._reply_to = b""       # the last frame for another slave: its reply may come next
         self._received_ns = 0       # when the request being answered was taken off the line
         self._bad_reply_log = RateLimitedLog()      # by (address, kind of bad reply)
@@ -245,25 +244,24 @@ class SerialFace(LineThread[FaceSettings]):
                 pool.close()
         self._pools = pools
         try:
-            self._use_tls(old, cfg)
+            self._use_tls(cfg)
         except ConfigError as err:
             if old is None:
                 raise
             log.error("TLS to servers: %s: the previous certificates stay in use", err)
         self._routes = build_hops(cfg, pools.__getitem__, self._table is not None)
 
-    def _use_tls(self, old: FaceSettings | None, cfg: FaceSettings) -> None:
-        """The slaveid table's `tls` ranges' servers reached over TLS; a client context made
-        again when the files changed.  Raises ConfigError."""
+    def _use_tls(self, cfg: FaceSettings) -> None:
+        """The servers of the slaveid table's `tls` ranges (on tls server-port) and of the
+        `tls = true` routes (on their own port) reached over TLS (upstream.tls_choice).
+        Raises ConfigError."""
         upstream, slaveid = cfg.upstream_tls, cfg.slaveid
-        pool = self._pools.get(cfg.mdbport)
-        if slaveid is None or pool is None:
-            return
-        if not (upstream.enabled and slaveid.tls_hosts):
-            self._tls_context = None
-        elif self._tls_context is None or old is None or old.upstream_tls != upstream:
-            self._tls_context = client_context(upstream)
-        pool.set_tls(self._tls_context, upstream.server_port, slaveid.tls_hosts, slaveid.pins)
+        for port, pool in self._pools.items():
+            if slaveid is not None and port == cfg.mdbport:
+                self._tls.reach(pool, upstream, upstream.server_port, slaveid.tls_hosts,
+                                slaveid.pins)
+            else:
+                self._tls.reach(pool, upstream, port, *routes_tls(cfg.routes, port))
 
     def _turn(self) -> None:
         try:

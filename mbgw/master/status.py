@@ -1,5 +1,7 @@
 """What the running master-mode daemon reports through the control socket (the commands
 both modes share are in mbgw.ops.status)."""
+from typing import Any
+
 from mbgw.config.lines import route_map, routes_status
 from mbgw.master.faces import Faces
 from mbgw.ops.status import DaemonStatus
@@ -17,6 +19,7 @@ class MasterStatus(DaemonStatus):
         self.scenario_engines: dict = {}    # the scenarios' engines by kind (the daemon's)
         self.faces: Faces | None = None     # every line in master mode
         self.targets = None     # the lines in slave mode (slave.targets.TargetLines), if any
+        self.tcp_face: Any = None    # the Modbus TCP face (slave.tcp_face.TcpFace), if any
 
     def status(self, request: dict) -> dict:
         cfg = self.cfg
@@ -38,10 +41,19 @@ class MasterStatus(DaemonStatus):
             "routes": routes_status(route_map(cfg)),
             "table": self._tables.figures(self._slave.table_counters.snapshot()),
             "clients": self._tables.clients(),
+            **self._tcp_face(),
             **({"firewall": firewall} if (firewall := self._tables.firewall_report()) else {}),
             **({"scenarios": rows} if (rows := scenarios_status(self.scenario_engines.values()))
                else {}),
         }
+
+    def _tcp_face(self) -> dict:
+        """The Modbus TCP face's listeners, clients and counters, when it runs."""
+        face = self.tcp_face
+        if face is None:
+            return {}
+        return {"listening": face.addresses, "tcp_clients": face.clients(),
+                "tcp_counters": face.counters.snapshot()}
 
     def lines(self) -> list[dict]:
         """Every line: line serial and the others in master mode (faces), then those in
@@ -60,12 +72,20 @@ class MasterStatus(DaemonStatus):
 
     def summary(self) -> str:
         c = self._counters
-        return (f"master mode: line {'up' if self._slave.up else 'down'}, "
+        face = self.tcp_face
+        clients = f"{len(face.server.clients)} clients, " if face is not None else ""
+        return (f"master mode: line {'up' if self._slave.up else 'down'}, {clients}"
                 f"{len(self._slave.connections())} server connections, {c.requests} requests, "
                 f"{c.timeouts} timeouts")
 
     def close(self, request: dict) -> dict:
-        """A client of the table's server (the connections to the servers are not clients)."""
+        """A client of the Modbus TCP face, else of the table's server (the connections to
+        the servers are not clients)."""
+        face = self.tcp_face
+        client_id = request.get("client")
+        if face is not None and isinstance(client_id, int) and \
+                face.close_client(client_id, request.get("uid")):
+            return {"ok": True}
         if not self._tables.cfg.enabled:
             return {"error": "clients close: master mode's only Modbus TCP clients are the "
                              "exchange table's, and the table is off (--table)"}

@@ -413,12 +413,16 @@ def _load_gauges(load) -> list[tuple[str, str, float]]:
 
 
 def master_collector(counters, devices, slave, started: float,
-                     table=None, firewall=None, lines=None) -> DaemonCollector:
+                     table=None, firewall=None, lines=None, clients=None) -> DaemonCollector:
     """Master mode's metrics; table(): the exchange table's status dict, when it is on;
-    lines() as slave_collector's."""
+    lines() as slave_collector's; clients(): the Modbus TCP face's clients, None while the
+    daemon has no such face."""
     return DaemonCollector(counters, devices, started, "master", lambda: slave.up, lambda: [
         ("mbgw_upstream_connections", "Connections open to Modbus TCP servers.",
-         len(slave.connections()))], table, firewall, lines=lines)
+         len(slave.connections())),
+        *([("mbgw_clients_connected", "Modbus TCP clients connected.", connected)]
+          if clients is not None and (connected := clients()) is not None else [])],
+        table, firewall, lines=lines)
 
 
 _TRANSPARENT_HELP = {

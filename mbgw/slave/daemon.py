@@ -21,7 +21,7 @@ from mbgw.scenarios.engine import Scenarios
 from mbgw.slave.line_share import LineShare
 from mbgw.slave.line_thread import SlaveLineThread, serial_scenarios
 from mbgw.slave.server import TcpServer
-from mbgw.slave.servers import ServerTargets, server_targets
+from mbgw.slave.servers import ServerTargets, how_reached, server_targets
 from mbgw.slave.status import SlaveStatus
 from mbgw.slave.table_service import TableService
 from mbgw.slave.targets import TargetLines
@@ -51,7 +51,7 @@ def _servers(cfg: SlaveConfig, inboxes: dict[str, Inbox]) -> ServerTargets | Non
     servers = server_targets(cfg)
     if not servers:
         return None
-    thread = ServerTargets(servers, cfg.tcpto_ms, cfg.exception)
+    thread = ServerTargets(servers, cfg.tcpto_ms, cfg.exception, cfg.upstream_tls)
     inboxes.update(thread.inboxes)
     return thread
 
@@ -86,9 +86,10 @@ class SlaveMode(ModeParts):
                                 self.tables.table, self.inboxes, self.targets.hub)
         self.worker = worker = SlaveLineThread(cfg, line, self.scheduler, self.server, counters,
                                           devices)
-        if cfg.lines:                      # a serial face may reach line serial too
-            self.inboxes[PRIMARY_LINE] = Inbox()
-            worker.use_inbox(self.inboxes[PRIMARY_LINE])
+        # a serial face may reach line serial, one a reload adds too
+        self.serial_inbox = Inbox()
+        worker.use_inbox(self.serial_inbox)
+        self._share_serial_inbox(cfg)
         self._make_faces = faces
         self.serial_faces: Any = None      # the serial faces (master.faces.LineFaces), once any
         if _has_faces(cfg):
@@ -102,6 +103,12 @@ class SlaveMode(ModeParts):
         self._idle_ms = -1                 # the watchdog's idle limit, for lines added later
         self.engines["serial"] = self.serial_engine
         self.table, self.health, self.trace = self.tables.table, devices.rule, self.server.trace
+
+    def _share_serial_inbox(self, cfg: SlaveConfig) -> None:
+        """Line serial's inbox among the targets' once the daemon has lines: before, line
+        serial's figures are the daemon's (LineShare)."""
+        if cfg.lines:
+            self.inboxes.setdefault(PRIMARY_LINE, self.serial_inbox)
 
     def _add_faces(self, cfg: SlaveConfig):
         """The serial faces of cfg's lines in master mode, unstarted (None: the daemon runs
@@ -180,6 +187,7 @@ class SlaveMode(ModeParts):
         return self.status.lines()
 
     async def apply(self, new: SlaveConfig, report: ReloadReport) -> None:
+        self._share_serial_inbox(new)
         self.tables.reconfigure(new, report)
         removed = await asyncio.to_thread(self.targets.reconfigure, new, report)
         retired = self._reface(new, report)
@@ -216,8 +224,9 @@ class SlaveMode(ModeParts):
         """The remote servers' thread anew when their settings changed; returns the old one,
         for the caller to stop once the face routes to the new one (None: kept)."""
         running = self.running
-        if (new.tcpto_ms, new.exception, server_targets(new)) == \
-                (running.tcpto_ms, running.exception, server_targets(running)):
+        if (new.tcpto_ms, new.exception, new.upstream_tls, how_reached(server_targets(new))) \
+                == (running.tcpto_ms, running.exception, running.upstream_tls,
+                    how_reached(server_targets(running))):
             return None
         old = self.servers
         for label in server_targets(running):

@@ -422,15 +422,16 @@ class SlaveLineThread(LineThread[SlaveConfig]):
     # --- exchanges: requests from other faces (the Modbus TCP face, a serial face) ---
 
     def use_inbox(self, inbox: Inbox) -> None:
-        """Take the exchanges submitted to inbox (called once, before start())."""
+        """Take the exchanges submitted to inbox (called once, before start()): one more fd
+        in the idle poll(), nothing per request until the first exchange comes."""
         self._inbox = inbox
-        self._deliver = self._deliver_any
         self._connections.poll_also(inbox.wake_fd, self._exchanges)
 
     def _exchanges(self) -> None:
         """Line thread: admit what was submitted, each as a job in its source's queue."""
         inbox = self._inbox
         assert inbox is not None
+        self._deliver = self._deliver_any    # outcomes go to clients and faces from now on
         for exchange in inbox.drain():
             try:
                 self._admit_exchange(exchange)

@@ -5,7 +5,8 @@ Each Exchange is one transaction bounded by tcpto, connecting included: a reply 
 exception included) goes back as it came; a server that cannot be reached is 0x0A, no reply in
 time (or one that does not answer the request) 0x0B, with `exception` on, else silence.  One
 transaction at a time per server, in the order the exchanges came; a silent server holds up
-only its own requests.
+only its own requests.  A route's `tls = true` server is reached over TLS as a serial face
+reaches it (mbgw.upstream.tls_choice).
 """
 import logging
 import os
@@ -13,7 +14,8 @@ import select
 import threading
 import time
 
-from mbgw.config.model import SlaveConfig
+from mbgw.config.lines import RouteConfig
+from mbgw.config.model import SlaveConfig, UpstreamTlsConfig
 from mbgw.errors import BadReply, GatewayTimeout, NoRoute
 from mbgw.ops.counters import MasterCounters
 from mbgw.ops.exception_reply import gateway_exception
@@ -21,6 +23,7 @@ from mbgw.ops.trace import Outcome
 from mbgw.protocol import pdu
 from mbgw.routing.queue import Exchange, Inbox
 from mbgw.upstream.pool import Interrupted, UpstreamPool
+from mbgw.upstream.tls_choice import ClientTls, routes_tls
 
 log = logging.getLogger("mbgw.tcp")
 
@@ -32,18 +35,26 @@ SERVER_FIGURES = ("requests", "replies", "device_exceptions", "gateway_exception
                   "connections_bad_header")
 
 
-def server_targets(cfg: SlaveConfig) -> dict[str, tuple[str, int]]:
-    """The servers the routes reach, by their target label (RouteConfig.target)."""
-    return {r.target: r.server for r in cfg.routes if r.server is not None}
+def server_targets(cfg: SlaveConfig) -> dict[str, RouteConfig]:
+    """The servers the routes reach, by their target label (RouteConfig.target): each the
+    route that reaches it (its server, tls, fingerprint)."""
+    return {r.target: r for r in cfg.routes if r.server is not None}
+
+
+def how_reached(servers: dict[str, RouteConfig]) -> dict[str, tuple]:
+    """What the servers' threads are made of (not the routes' units): a change to it makes
+    them anew at a reload."""
+    return {label: (r.server, r.tls, r.fingerprint) for label, r in servers.items()}
 
 
 class ServerTargets:
     """Every server the routes reach, each served by a thread of its own."""
 
-    def __init__(self, servers: dict[str, tuple[str, int]], tcpto_ms: int,
-                 exception: bool) -> None:
-        self.threads = {label: ServerThread(label, server, tcpto_ms, exception)
-                        for label, server in servers.items()}
+    def __init__(self, servers: dict[str, RouteConfig], tcpto_ms: int, exception: bool,
+                 upstream_tls: UpstreamTlsConfig) -> None:
+        """Raises ConfigError (the TLS client files of a `tls` route)."""
+        self.threads = {label: ServerThread(label, route, tcpto_ms, exception, upstream_tls)
+                        for label, route in servers.items()}
         self.inboxes = {label: thread.inbox for label, thread in self.threads.items()}
 
     def status(self) -> list[dict]:
@@ -66,12 +77,13 @@ class ServerTargets:
 class ServerThread(threading.Thread):
     """One server's transactions, one at a time, on its own connection."""
 
-    def __init__(self, label: str, server: tuple[str, int], tcpto_ms: int,
-                 exception: bool) -> None:
+    def __init__(self, label: str, route: RouteConfig, tcpto_ms: int, exception: bool,
+                 upstream_tls: UpstreamTlsConfig) -> None:
         super().__init__(name=f"mbgw-{label}", daemon=True)
         self.label = label
+        assert route.server is not None
         self.address = label.removeprefix("server ")      # HOST:PORT, [IPv6]:PORT
-        self.host, port = server
+        self.host, port = route.server
         self.tcpto_ns = tcpto_ms * 1_000_000
         self.exception = exception
         self.counters = MasterCounters()
@@ -79,6 +91,7 @@ class ServerThread(threading.Thread):
         self._stop_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         self._stopping = False
         self._pool = UpstreamPool(port, MAX_CONNECTIONS, self.counters, self._stop_fd)
+        ClientTls().reach(self._pool, upstream_tls, port, *routes_tls((route,), port))
 
     def stop(self) -> None:
         self._stopping = True

@@ -3,8 +3,8 @@ reaches a meter on a [[line]] in slave mode (mbgw the master on that line), its 
 rewritten by an offset there and given back as asked; a reload adds a line in master mode
 (its serial master then reaches the same meter) and removes it, releasing its device; and
 a slave-mode daemon serves a line in master mode it starts with or a reload adds, whose master
-then reaches lines in slave mode while the TCP clients keep theirs; status and /metrics list
-every line.
+then reaches lines in slave mode while the TCP clients keep theirs (line serial too, when the
+daemon started with `[serial]` alone); status and /metrics list every line.
 
 Peers that are not ours: a recording pymodbus RTU slave on a socat pty pair (the meter), and
 raw RTU frames written by the test as the serial masters, each answer checked byte for byte
@@ -216,5 +216,30 @@ def test_a_slave_mode_daemon_started_with_a_line_in_master_mode_serves_it(
             assert f"({mode})" in text.stdout and "panel   7" in text.stdout, text.stdout
         assert line_threads(gw) == ["mbgw-line", "mbgw-meters", "mbgw-panel"]
         assert received(meters.record) == [bytes((METER,)) + read_holding(2, 1)]
+    finally:
+        serial.stop()
+
+
+def test_a_reload_adds_a_serial_face_to_a_daemon_started_with_serial_alone(
+        tmp_path, start_peer, start_gateway, second_pty, open_line, client):
+    serial = Line(tmp_path / "serial", start_peer, SERIAL_SLAVE)
+    try:
+        config = lines_file(tmp_path / "lines.toml", [], [])
+        gw = start_gateway(serial.pair.gateway, "--config", str(config), "--baudrate",
+                           str(BAUD), "--stout", "300")
+        c = client(gw)
+        assert c.ask(SERIAL_SLAVE, read_holding(0, 1)) == hr_reply(0, 1)
+        panel_line = {"name": "panel", "device": second_pty.gateway, "baudrate": BAUD,
+                      "mode": "master"}
+        lines_file(config, [panel_line], [{"units": [9], "from": "panel", "line": "serial",
+                                           "address": SERIAL_SLAVE}])
+        os.kill(gw.proc.pid, signal.SIGHUP)
+        wait_for_log(gw, "configuration reloaded: lines, routes changed")
+        panel = open_line(second_pty.device)
+        ask(panel, read(9, 4, 1), bytes((9,)) + hr_reply(4, 1))
+        assert c.ask(SERIAL_SLAVE, read_holding(1, 1)) == hr_reply(1, 1)   # same connection
+        assert received(serial.record) == [bytes((SERIAL_SLAVE,)) + read_holding(0, 1),
+                                           bytes((SERIAL_SLAVE,)) + read_holding(4, 1),
+                                           bytes((SERIAL_SLAVE,)) + read_holding(1, 1)]
     finally:
         serial.stop()

@@ -1,6 +1,7 @@
-"""TLS to upstream servers (issue 17): master mode's `tls` slaveid ranges and `tls` TCP
-scenarios reach pymodbus's TLS server (tests/peers/pymodbus_tcp_servers.py --tls), which
-requires mbgw's client certificate; certificates made by openssl (tests/pki.py)."""
+"""TLS to upstream servers (issue 17): master mode's `tls` slaveid ranges, `tls` TCP
+scenarios and `tls = true` server routes (issue 24; a serial face's, the TCP face's) reach
+pymodbus's TLS server (tests/peers/pymodbus_tcp_servers.py --tls), which requires mbgw's
+client certificate; certificates made by openssl (tests/pki.py)."""
 import os
 
 import pytest
@@ -16,6 +17,7 @@ from tests.integration.master.rig import (
     status,
     wait_for_log,
 )
+from tests.integration.master.test_serial_faces import lines_file
 from tests.integration.scenarios.test_scenarios_tcp import (
     CONDITION_S,
     FREE,
@@ -207,3 +209,45 @@ def test_a_tcp_scenario_checks_the_name_or_the_pin(pki, tls_servers, tls_runner)
     assert tls_runner.engine.result() == (None, TLS_REFUSED, 0)
     tls_runner.engine.queue(Scenario(f"localhost:{port}", unit=7, tls=True))
     assert tls_runner.engine.result() == (registers(0, 1, 7), None, 0)
+
+
+def test_a_serial_face_reaches_a_route_server_over_tls(
+        tmp_path, pki, tls_servers, start_master, line):
+    """A `[[route]]` of a serial face with `server` and `tls = true` is reached over TLS on
+    the route's port, as a `tls` slaveid range is: mbgw's client certificate, the server's
+    checked against server-ca or the route's pinned fingerprint."""
+    ca, _, client = pki
+    port = tls_servers(ca, ca, TLS_HOST, "127.0.8.3", names=f"IP:{TLS_HOST}")
+    pinned = fingerprint(ca, "server0")
+    config = lines_file(tmp_path / "routes.toml", [], [
+        {"units": [1], "from": "serial", "server": [TLS_HOST, port], "tls": True},
+        {"units": [2], "from": "serial", "server": ["127.0.8.3", port], "tls": True,
+         "fingerprint": pinned},
+        {"units": [3], "from": "serial", "server": ["127.0.8.3", port], "tls": True,
+         "address": 4}])
+    gw = start_master("--config", str(config), "--exception", *client_options(ca, client))
+    ask(line, read_holding(1), expected=holding_reply(1, *identity(TLS_HOST, 1)))
+    ask(line, read_holding(2), expected=holding_reply(2, *identity("127.0.8.3", 2)))
+    # the pin is the server's, whichever route reaches it
+    ask(line, read_holding(3), expected=holding_reply(3, *identity("127.0.8.3", 4)))
+    connections = {c["server"]: c for c in status(gw)["upstream"]["connections"]}
+    assert connections[f"{TLS_HOST}:{port}"]["tls"] is True
+    assert connections[f"127.0.8.3:{port}"]["tls"] is True
+
+
+def test_a_tcp_face_reaches_a_route_server_over_tls(
+        tmp_path, pki, tls_servers, start_gateway, pty_pair, client):
+    """The Modbus TCP face's `tls = true` server routes (slave/servers.py) choose TLS as a
+    serial face's do: unit 9 over TLS answers; a server from another CA is 0x0A."""
+    ca, other, certificate = pki
+    port = tls_servers(ca, ca, TLS_HOST)
+    impostor = tls_servers(other, ca, "127.0.8.2")
+    config = lines_file(tmp_path / "routes.toml", [], [
+        {"units": [9], "server": [TLS_HOST, port], "tls": True, "address": 1},
+        {"units": [10], "server": ["127.0.8.2", impostor], "tls": True, "address": 1}])
+    gw = start_gateway(pty_pair.gateway, "--config", str(config), "--exception",
+                       *client_options(ca, certificate))
+    c = client(gw)
+    assert c.ask(9, read_holding(1)[1:]) == holding_reply(1, *identity(TLS_HOST, 1))[1:]
+    assert c.ask(10, read_holding(1)[1:]) == bytes((0x83, PATH_UNAVAILABLE))
+    wait_for_log(gw, "TLS handshake failed")

@@ -149,7 +149,8 @@ ROUTE_TO_SERIAL = '[[route]]\nunits = "1-10"\nline = "serial"\n'
      "route 1.units: '1-300': 300 out of range 1..255"),
     (SERIAL + '[[route]]\nline = "serial"\n', "route 1.units: missing"),
     (SERIAL + '[[route]]\nunits = "1"\nline = "serial"\nvia = "x"\n',
-     "route 1.via: unknown key (keys: units, line, table, server, offset, address, from)"),
+     "route 1.via: unknown key (keys: units, line, table, server, offset, address, from, "
+     "tls, fingerprint)"),
     (SERIAL + '[[route]]\nunits = "1"\nline = "nowhere"\n', "route 1.line 'nowhere': no such line"),
     (SERIAL + '[[route]]\nunits = "1"\n', "route 1: give one target"),
     (SERIAL + '[[route]]\nunits = "1"\nline = "serial"\ntable = true\n',
@@ -199,14 +200,19 @@ def test_master_mode_line_serial_is_a_face(schema, tmp_path):
         tmp_path, text.replace('line = "meters"', 'line = "serial"'))
 
 
-def test_a_master_mode_daemon_refuses_routes_from_the_tcp_face(tmp_path):
-    """A master-mode daemon has no Modbus TCP listeners: check-config and run refuse a route
-    without `from`, naming it."""
+def test_a_master_mode_daemon_takes_routes_from_the_tcp_face(schema, tmp_path):
+    """A route without `from` in a master-mode daemon is its Modbus TCP face's (it listens on
+    mdbport); a face whose port the table's server has is refused by check-config and run
+    alike, naming the key."""
     text = ('[serial]\nmode = "master"\ndevice = "/dev/ttyUSB0"\n' + METERS
             + '[[route]]\nfrom = "serial"\nunits = "1-31"\nline = "meters"\n'
             + '[[route]]\nunits = "32-63"\nline = "meters"\noffset = -31\n')
-    expected = "route 2.from: a master-mode daemon has no Modbus TCP listeners"
-    assert expected in refusal(tmp_path, text)
+    cfg = built(schema, tmp_path, text)
+    assert [r.face for r in cfg.routes] == [PRIMARY_LINE, TCP_FACE]
+    clash = text.replace('[serial]\n', '[table]\nenabled = true\n[serial]\n')
+    expected = ("net.mdbport 502: route 2 makes it the Modbus TCP face's port, and the "
+                "table's server listens on it (table.port)")
+    assert expected in refusal(tmp_path, clash)
     result = CliRunner().invoke(main, ["run", "--config", str(tmp_path / "mbgw.toml")],
                                 prog_name="mbgw")
     assert result.exit_code == 78, result.output
