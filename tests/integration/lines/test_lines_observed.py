@@ -19,6 +19,7 @@ from tests.integration.lines import test_lines as rig
 from tests.integration.master.test_master import recv
 from tests.modbus import read_holding, rtu_frame
 from tests.ops import mbgw, metric_families, metric_value, status
+from tests.wait import until
 
 pytestmark = pytest.mark.integration
 
@@ -123,8 +124,19 @@ def test_metrics_carry_each_line(two_lines, client):
     assert c.ask(rig.METER_UNIT, read_holding(3, 2)) == rig.hr_reply(3, 2)
     assert c.ask(rig.METER_UNIT, read_holding(0, 1)) == rig.hr_reply(0, 1)
     assert c.ask(rig.SERIAL_SLAVE, read_holding(0, 1)) == rig.hr_reply(0, 1)
-    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5) as r:
-        found = metric_families(parser, r.read().decode())
+
+    def scrape_once_booked():
+        """The books are kept after a reply has gone (C forwards it first)."""
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5) as r:
+            found = metric_families(parser, r.read().decode())
+        booked = (metric_value(found, "mbgw_transaction_latency_seconds",
+                               "mbgw_transaction_latency_seconds_count", line="meters",
+                               address=rig.METER) >= 2
+                  and metric_value(found, "mbgw_device_replies", "mbgw_device_replies_total",
+                                   line="serial", address=rig.SERIAL_SLAVE) >= 1)
+        return found if booked else None
+
+    found = until(scrape_once_booked, "the three transactions booked", 5)
     assert metric_value(found, "mbgw_requests", "mbgw_requests_total", line="meters") == 2
     # line serial's samples count its own transactions, not the face's others
     assert metric_value(found, "mbgw_requests", "mbgw_requests_total", line="serial") == 1
@@ -149,7 +161,15 @@ def test_each_line_counts_its_own_transactions_and_the_daemon_all(two_lines, cli
         assert c.ask(rig.METER_UNIT, read_holding(address, 1)) == rig.hr_reply(address, 1)
     assert len(rig.received(serial.record)) == 2
     assert len(rig.received(meters.record)) == 3
-    s = status(gw)
+
+    def booked():
+        """The books are kept after a reply has gone (C forwards it first)."""
+        s = status(gw)
+        rows = {row["name"]: row["replies"] for row in s["lines"]}
+        return s if (s["counters"]["replies"] >= 5 and rows["serial"] >= 2
+                     and rows["meters"] >= 3) else None
+
+    s = until(booked, "the five transactions booked", 5)
     rows = {row["name"]: row for row in s["lines"]}
     assert (rows["serial"]["requests"], rows["serial"]["replies"]) == (2, 2)
     assert rows["serial"]["counters"]["requests"] == 2
