@@ -6,7 +6,7 @@ from typing import NoReturn
 
 import click
 
-from mbgw.cli.config import check_instance
+from mbgw.cli.file_options import check_instance
 from mbgw.cli.options import Failure
 from mbgw.cli.render import (
     STATS_KEYS,

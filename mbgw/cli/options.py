@@ -34,7 +34,7 @@ class ModeCommand(click.Command):
     that a check of the options refuses (the CRL and the CA, checked together) is the file's
     problem: EX_CONFIG, naming the file and the key, not a usage error."""
     make_config: Callable | None = None
-    # (the file in use, its values by parameter name) for -h, or None (mbgw.cli.config)
+    # (the file in use, its values by parameter name) for -h, or None (mbgw.cli.config_option)
     file_values: Callable[[click.Context], tuple[object, dict] | None] | None = None
 
     def format_options(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:

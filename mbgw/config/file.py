@@ -274,7 +274,7 @@ def load_options(root: click.Group, path=DEFAULT_PATH, args=(), mode: str | None
     options that win over the file; `mode` takes another mode than the file's (as `mbgw slave
     --config PATH` does).  Raises ConfigFileError (a ConfigError) naming the file, the key and
     the reason.  The file is only read, so a daemon can call it on SIGHUP and keep running on
-    an error (see mbgw.cli.config.reloader), passing as `given` the parameters its command
+    an error (see mbgw.cli.config_option.reloader), passing as `given` the parameters its command
     line set (see resolve)."""
     schema = Schema(root)
     try:
