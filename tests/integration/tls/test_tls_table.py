@@ -12,7 +12,7 @@ import time
 import pytest
 from pymodbus.exceptions import ModbusException
 
-from mbgw.table.server import HANDSHAKES_PER_ADDRESS
+from mbgw.table.handshakes import HANDSHAKES_PER_ADDRESS
 from tests.harness import free_port
 from tests.integration.ops.test_reload import recv_frame
 from tests.integration.tls.test_tls import (
