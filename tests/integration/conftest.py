@@ -3,9 +3,11 @@ servers on loopback addresses, `mbgw master` on a pty, its end of the line."""
 import os
 
 import pytest
+from pymodbus.client import ModbusSerialClient
+from pymodbus.framer import FramerType
 
 from tests.harness import Gateway, Peer, PtyPair, free_port
-from tests.integration.master.test_master import BAUD
+from tests.integration.master.test_master import BAUD, REPLY_S
 
 
 @pytest.fixture
@@ -69,3 +71,20 @@ def open_line():
     yield opened
     for fd in fds:
         os.close(fd)
+
+
+@pytest.fixture
+def serial_client(pty_pair):
+    """serial_client(framer) -> pymodbus's serial master on the line; closed after."""
+    clients = []
+
+    def connect(framer=FramerType.RTU) -> ModbusSerialClient:
+        client = ModbusSerialClient(pty_pair.device, framer=framer, baudrate=int(BAUD),
+                                    timeout=REPLY_S, retries=0)
+        assert client.connect()
+        clients.append(client)
+        return client
+
+    yield connect
+    for client in clients:
+        client.close()

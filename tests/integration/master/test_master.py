@@ -15,7 +15,7 @@ import subprocess
 import time
 
 import pytest
-from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+from pymodbus.client import ModbusTcpClient
 from pymodbus.framer import FramerType
 
 from mbgw.line import frames
@@ -129,22 +129,6 @@ def counters(gw: Gateway) -> dict[str, int]:
     log = gw.log_path.read_text()
     assert code == 0, log
     return logged_counters(next(row for row in log.splitlines() if "stopped; counters:" in row))
-
-
-@pytest.fixture
-def serial_client(pty_pair):
-    clients = []
-
-    def connect(framer=FramerType.RTU) -> ModbusSerialClient:
-        client = ModbusSerialClient(pty_pair.device, framer=framer, baudrate=int(BAUD),
-                                    timeout=REPLY_S, retries=0)
-        assert client.connect()
-        clients.append(client)
-        return client
-
-    yield connect
-    for client in clients:
-        client.close()
 
 
 # ---- frames ----

@@ -19,7 +19,7 @@ import subprocess
 import time
 
 import pytest
-from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+from pymodbus.client import ModbusTcpClient
 from pymodbus.framer import FramerType
 
 from tests.harness import free_port
@@ -62,23 +62,6 @@ def table_master(start_master, servers):
                           "--table-address", str(TABLE), "--table-port", str(port), *options)
         return gw, port
     return start
-
-
-@pytest.fixture
-def serial_client(pty_pair):
-    """serial_client(framer) -> pymodbus's serial master on the line; closed after."""
-    clients = []
-
-    def connect(framer=FramerType.RTU) -> ModbusSerialClient:
-        client = ModbusSerialClient(pty_pair.device, framer=framer, baudrate=int(BAUD),
-                                    timeout=REPLY_S, retries=0)
-        assert client.connect()
-        clients.append(client)
-        return client
-
-    yield connect
-    for client in clients:
-        client.close()
 
 
 @pytest.fixture
