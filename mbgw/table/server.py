@@ -565,7 +565,7 @@ class TableServer(threading.Thread):
                     raise mbap.BadHeader(f"protocol id {protocol}")
                 if not _MIN_LENGTH <= length <= _MAX_LENGTH:
                     raise mbap.BadHeader(f"length {length}")
-                end = at + 6 + length
+                end = at + _UNIT_AT + length          # the length counts from the unit id
                 if end > n:
                     break
                 client.requests += 1
