@@ -22,6 +22,20 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def idle_connections(port: int, count: int) -> list[socket.socket]:
+    """count connections to port that never send a byte (those the peer refuses included)."""
+    opened = []
+    for _ in range(count):
+        sock = socket.socket()
+        sock.setblocking(False)
+        try:
+            sock.connect(("127.0.0.1", port))
+        except BlockingIOError:
+            pass
+        opened.append(sock)
+    return opened
+
+
 def _read_lines_until(proc: subprocess.Popen, stream, want, timeout: float) -> list[str]:
     """Read lines from stream until want(lines) is true; fail on exit or timeout.
     Reads the descriptor itself: a buffered reader would hide lines from select."""
