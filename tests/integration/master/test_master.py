@@ -20,7 +20,7 @@ from pymodbus.framer import FramerType
 
 from mbgw.line import frames
 from tests import harness
-from tests.harness import Gateway, Peer, free_port, logged_counters
+from tests.harness import Gateway, Peer, factory, free_port, logged_counters
 from tests.modbus import rtu_frame as rtu
 
 pytestmark = pytest.mark.integration
@@ -108,19 +108,13 @@ def servers():
 def gateway(tmp_path, pty_pair, servers):
     """gateway(*slaveid lines, options=[...]) -> a ready `mbgw master` on pty_pair.gateway
     that reaches `servers`."""
-    started = []
-
     def start(*lines: str, options=()) -> Gateway:
         port, _ = servers
         args = [a for line in lines for a in ("--slaveid", line)]
-        gw = Gateway(tmp_path, pty_pair.gateway, "--baudrate", BAUD, "--mdbport", str(port),
-                     *args, *options, mode="master", listen=False)
-        started.append(gw)
-        return gw
+        return Gateway(tmp_path, pty_pair.gateway, "--baudrate", BAUD, "--mdbport", str(port),
+                       *args, *options, mode="master", listen=False)
 
-    yield start
-    for gw in started:
-        gw.stop()
+    yield from factory(start, Gateway.stop)
 
 
 def counters(gw: Gateway) -> dict[str, int]:
