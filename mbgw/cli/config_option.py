@@ -33,6 +33,8 @@ def add_to_mode_commands(root: click.Group) -> None:
 
 
 def schema_of(ctx: click.Context) -> Schema:
+    """The configuration file's keys as the commands of ctx's root define them (a lone
+    command's own, when the root has no mode commands)."""
     root = ctx.find_root().command
     if not isinstance(root, click.Group) or not any(m in root.commands for m in MODES):
         root = click.Group(commands=[ctx.command])
@@ -40,16 +42,20 @@ def schema_of(ctx: click.Context) -> Schema:
 
 
 def command_line(ctx: click.Context, *words) -> str:
+    """The command being run with these words, to suggest it again (with sudo)."""
     return shlex.join([*ctx.command_path.split(), *map(str, words)])
 
 
 def permission_failure(ctx, path, doing: str, words, exit_code: int = 1) -> Failure:
+    """The file may not be read or written (doing): run the same command as root."""
     return Failure(f"cannot {doing} {path}: permission denied; run it as root: "
                    f"sudo {command_line(ctx, *words)}", exit_code)
 
 
 def load_settings(ctx: click.Context, schema: Schema, path: Path, words=(),
-          exit_code: int = 1) -> Settings:
+                  exit_code: int = 1) -> Settings:
+    """The file's checked settings; a Failure (exit_code) when it cannot be read or is
+    wrong."""
     try:
         return load(schema, path)
     except PermissionError:

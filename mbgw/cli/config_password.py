@@ -30,7 +30,7 @@ def password(ctx, config_path: Path, instance: str | None, role: str, from_stdin
     except ConfigError as err:
         raise Failure(str(err)) from None
     change_file(ctx, path, ["password", role, *file_words(ctx, path)],
-            lambda schema, settings, data: {f"{role}-password": stored}, shown=False)
+                lambda schema, settings, data: {f"{role}-password": stored}, shown=False)
     _keep_from_others(path)
 
 

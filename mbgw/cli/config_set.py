@@ -39,10 +39,8 @@ def set_(ctx, config_path: Path, instance: str | None, group: str, param: str,
     """
     path = file_path(ctx, config_path, instance)
     words = [group, param, *values, *file_words(ctx, path)]
-    change_file(ctx, path, words,
-            lambda schema, settings, data: changes_for_set(schema, settings, group,
-                                                                      param,
-                                                              list(values)))
+    change_file(ctx, path, words, lambda schema, settings, data: changes_for_set(
+        schema, settings, group, param, list(values)))
 
 
 @click.command("unset")
@@ -117,7 +115,7 @@ def default(ctx, config_path: Path, instance: str | None) -> None:
     help, commented out at its built-in default; the device is /dev/ttyUSB0."""
     path = file_path(ctx, config_path, instance)
     write_file(ctx, path, factory_text(schema_of(ctx)), file_words(ctx, path),
-           "factory defaults")
+               "factory defaults")
     click.echo(f"{path}: factory defaults written")
     say_how_to_apply(path)
 

@@ -46,8 +46,8 @@ def show(ctx, config_path: Path, instance: str | None, security: bool, as_json: 
     schema = schema_of(ctx)
     if path.exists():
         settings = load_settings(ctx, schema, path, [*filter(None, (group, param)),
-                                             *(["--security"] if security else []),
-                                             *file_words(ctx, path)])
+                                                     *(["--security"] if security else []),
+                                                     *file_words(ctx, path)])
     else:
         click.echo(f"mbgw: {path} does not exist: built-in defaults", err=True)
         settings = Settings(path, schema.default_mode, {})

@@ -9,6 +9,8 @@ from mbgw.config import schema as config_schema  # DEFAULT_PATH, CONFIG_DIR read
 
 
 def file_options(function):
+    """-i/--instance NAME and --config FILE on a command (its parameters instance and
+    config_path; file_path makes one path of them)."""
     function = click.option(
         "-i", "--instance", metavar="NAME",
         help=f"The file of the service instance mbgw@NAME: "
@@ -20,6 +22,7 @@ def file_options(function):
 
 
 def file_path(ctx: click.Context, config_path: Path, instance: str | None) -> Path:
+    """The file the options name; a usage error when both are given."""
     if instance is None:
         return Path(config_path)
     if ctx.get_parameter_source("config_path") == click.core.ParameterSource.COMMANDLINE:
