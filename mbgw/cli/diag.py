@@ -12,14 +12,11 @@ from mbgw.cli.render import (
     STATS_KEYS,
     format_clients,
     format_counters,
-    format_event,
     format_line_status,
-    format_raw,
     format_status,
     line_status,
-    raw_columns,
-    trace_columns,
 )
+from mbgw.cli.render_trace import format_event, format_raw, raw_columns, trace_columns
 from mbgw.ops import control as ctl
 
 
