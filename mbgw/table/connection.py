@@ -5,9 +5,7 @@ import socket
 import time
 
 from mbgw.firewall.guard import Guard
-
-FIRST_REQUEST_S = 60.0              # a client that sent no whole request this long is closed
-SLOW_REQUEST_S = 0.5                # a request begun this long ago and not whole: slow
+from mbgw.ops.limits import FIRST_REQUEST_S, SLOW_REQUEST_S
 
 
 class Connection:
