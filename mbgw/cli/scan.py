@@ -72,6 +72,8 @@ def _opened(cfg: SerialConfig) -> Iterator[Bus]:
         raise Failure(str(err)) from None
     try:
         yield bus
+    except SerialError as err:        # the device gone meanwhile
+        raise Failure(str(err)) from None
     finally:
         bus.close()
 
@@ -118,18 +120,20 @@ def scan_bus(settings: list[SerialConfig], units: Sequence[int], timeout_ms: int
              first: bool, progress: _Progress) -> list[dict]:
     """Each setting in turn, each unit not found yet at each."""
     found: list[dict] = []
+    answered: set[int] = set()
     with _opened(settings[0]) as bus:
         for index, cfg in enumerate(settings):
             if index:
                 bus.tune(cfg)
             for unit in units:
-                if any(row["unit"] == unit for row in found):
+                if unit in answered:
                     continue
                 progress.show(f"{cfg.baudrate} {cfg.format}: unit {unit}, "
                               f"{len(found)} found")
                 answer = bus.ask(unit, READ_REGISTER_0, timeout_ms)
                 if answer is None:
                     continue
+                answered.add(unit)
                 found.append(_found(bus, unit, cfg, answer))
                 if first:
                     return found
@@ -214,8 +218,10 @@ def register(main: click.Group) -> None:
                   help="The addresses to measure, e.g. 1,5,17.")
     @click.option("--count", default=100, show_default=True, type=click.IntRange(1, 100000),
                   help="Reads (FC 3 register 0) per address.")
-    @click.option("--baudrate", default=9600, show_default=True, type=int)
-    @click.option("--format", "line_format", default="8n1", show_default=True)
+    @click.option("--baudrate", default=9600, show_default=True, type=int,
+                  help="The line's baud rate.")
+    @click.option("--format", "line_format", default="8n1", show_default=True,
+                  metavar="FORMAT", help="The line's data bits, parity, stop bits.")
     @click.option("--timeout", "timeout_ms", default=1000, show_default=True,
                   type=click.IntRange(1, 60000), metavar="MS",
                   help="How long each read may take.")
@@ -223,7 +229,7 @@ def register(main: click.Group) -> None:
     def probe(device: str, units: str, count: int, baudrate: int, line_format: str,
               timeout_ms: int, as_json: bool) -> None:
         """Measure each address's response time over --count reads and print the stout it
-        recommends: p99 × 1.5, at least 20 ms.  Exit status 0 when an address answered, 1
+        recommends: p99 x 1.5 rounded up, at least 20 ms.  Exit status 0 when an address answered, 1
         when none did or the device is in use."""
         cfg = convert(None, lambda: SerialConfig(device, baudrate, LineFormat.parse(line_format)))
         unit_list = convert("'--units'", lambda: _units(units))
