@@ -9,7 +9,7 @@ See docs/architecture.md#the-packages.
 import click
 
 from mbgw import __version__
-from mbgw.cli import config, diag, scenarios, table
+from mbgw.cli import config, diag, scan, scenarios, table
 from mbgw.cli.master import master
 from mbgw.cli.slave import slave
 from mbgw.cli.transparent import transparent
@@ -28,3 +28,4 @@ config.register(main)   # run, check-config, config; --config on the mode comman
 diag.register(main)     # status, clients, stats, trace
 table.register(main)    # table read, table write
 scenarios.register(main)  # scenarios, scenario enable|disable|test
+scan.register(main)     # scan, probe: commissioning a bus

@@ -93,6 +93,14 @@ class SerialLine:
         if cfg.rts == "flow" or cfg.xonxoff == "use":
             port.set_flow(cfg.rts == "flow", cfg.xonxoff == "use")
 
+    def retune(self, cfg: "SerialConfig") -> None:
+        """The same port at cfg's baud rate and format, the rest as opened (mbgw scan)."""
+        fmt = cfg.format
+        self.port.set_baudrate(cfg.baudrate)
+        self.port.set_format(fmt.data_bits, fmt.parity, fmt.stop_bits)
+        self.cfg = cfg
+        self.char_ns = cfg.char_ns
+
     def close(self) -> None:
         self.port.close()
 
