@@ -1,6 +1,8 @@
 """The configuration zone's content (0x8000..., read-only to Modbus): who answers and how it is
 set, as documented in mbgw.toml(5), THE CONFIGURATION ZONE.  Computed from the settings at
-start and at each reload; nothing else writes the zone."""
+start and at each reload; nothing else writes the zone.  The same identity on the wire:
+FC 43/14's objects and FC 17's server id (mbgw.toml(5), THE IDENTITY FUNCTIONS)."""
+import socket
 from typing import TYPE_CHECKING
 
 import mbgw
