@@ -106,6 +106,15 @@ class Responder:
         return lib.mbgw_table_answer(self._table._t, _c_bytes(pdu), len(pdu),
                                      self.buffer, broadcast)
 
+    def answer_identity(self, pdu) -> memoryview | None:
+        """The gateway unit's answer: the identity functions as answer does, any other
+        function 0x01."""
+        if len(pdu) and pdu[0] not in IDENTITY_FUNCTIONS:
+            self._count_refused(False)
+            self.reply[0:2] = bytes((pdu[0] | 0x80, ILLEGAL_FUNCTION))
+            return self.reply[:2]
+        return self.answer(pdu)
+
     def answer(self, pdu, broadcast: bool = False) -> memoryview | None:
         """answer_into's reply PDU as a view of .reply, None when there is none."""
         n = self.answer_into(pdu, broadcast)

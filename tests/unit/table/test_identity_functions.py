@@ -167,8 +167,15 @@ def test_identity_functions_answer_on_a_responder_with_no_function(table):
     assert bytes(gateway.answer(H("08 00 00 12 34"))) == H("08 00 00 12 34")
     assert bytes(gateway.answer(H("11")))[:2] == H("11 0a")
     frame = H("00 07 00 00 00 05 fe 2b 0e 04 02")
-    assert bytes(gateway.answer_mbap(frame)) == H("00 07 00 00 00 0f fe 2b 0e 04 83 00 00 01 02 05") \
-        + b"V2.11"
+    assert bytes(gateway.answer_mbap(frame)) == \
+        H("00 07 00 00 00 0f fe 2b 0e 04 83 00 00 01 02 05") + b"V2.11"
     # the refusal counts as an exception reply
     assert table.diagnostics()["exceptions"] == 1
     assert table.diagnostics()["bus_messages"] == 4
+
+
+def test_the_gateway_unit_answers_identity_functions_only(table):
+    responder = table.responder()
+    assert bytes(responder.answer_identity(H("03 00 00 00 01"))) == H("83 01")
+    assert bytes(responder.answer_identity(H("08 00 00 12 34"))) == H("08 00 00 12 34")
+    assert bytes(responder.answer_identity(H("08 00 0d 00 00"))) == H("08 00 0d 00 01")
