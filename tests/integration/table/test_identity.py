@@ -1,0 +1,62 @@
+"""The gateway's identity on the wire (issue 29): FC 43/14, FC 17 and FC 8 answered by the
+table on every unit that reaches it and by `--gateway-unit`, read by pymodbus's TCP client
+against a running `mbgw slave`.  Expected values from the issue and the Modbus Application
+Protocol V1.1b3 (6.8, 6.13, 6.21): vendor and product "mbgw", the version of `mbgw
+--version`, the host name as object 6, server id "mbgw" with run indicator 0xFF."""
+import socket
+
+import pytest
+
+import mbgw
+from tests.integration.table import test_table_slave
+
+pytestmark = pytest.mark.integration
+table_gateway = test_table_slave.table_gateway      # the fixtures, shared
+pymodbus_client = test_table_slave.pymodbus_client
+
+GATEWAY_UNIT = 200
+
+
+@pytest.mark.parametrize("unit", [247, 254])
+def test_the_table_identifies_the_gateway(table_gateway, pymodbus_client, unit):
+    c = pymodbus_client(table_gateway())
+    rr = c.read_device_information(read_code=2, object_id=0, device_id=unit)
+    assert not rr.isError(), rr
+    assert rr.conformity == 0x83
+    assert rr.information[0] == b"mbgw" and rr.information[1] == b"mbgw"
+    assert rr.information[2] == mbgw.__version__.encode()
+    assert rr.information[6] == socket.gethostname().encode()
+    sid = c.report_device_id(device_id=unit)
+    assert not sid.isError(), sid
+    # server id, run indicator on, the version; pymodbus takes the last byte counted for
+    # the run indicator (it expects no additional data), so the version lacks its last one
+    assert sid.identifier == (b"mbgw\xff" + mbgw.__version__.encode())[:-1]
+
+
+def test_fc8_counts_the_requests_to_the_table_and_clears(table_gateway, pymodbus_client):
+    c = pymodbus_client(table_gateway())
+    assert not c.diag_clear_counters(device_id=250).isError()
+    for _ in range(5):
+        assert not c.read_holding_registers(0, count=1, device_id=251).isError()
+    assert c.write_register(0x8000, 1, device_id=251).isError()   # 0x02: read-only zone
+    echo = c.diag_query_data(b"\xa5\x37", device_id=250)
+    assert not echo.isError() and echo.message == b"\xa5\x37"
+    # since the clear: 5 reads, 1 exception, the echo, this one
+    assert c.diag_read_bus_message_count(device_id=252).message == 8
+    assert c.diag_read_bus_exception_error_count(device_id=252).message == 1
+    assert c.diag_read_device_message_count(device_id=252).message == 10
+    assert not c.diag_clear_counters(device_id=250).isError()
+    assert c.diag_read_bus_message_count(device_id=252).message == 1
+
+
+def test_the_gateway_unit_answers_identity_functions_only(table_gateway, pymodbus_client):
+    gw = table_gateway("--gateway-unit", str(GATEWAY_UNIT))
+    c = pymodbus_client(gw)
+    rr = c.read_device_information(read_code=1, object_id=0, device_id=GATEWAY_UNIT)
+    assert not rr.isError(), rr
+    assert rr.information[0] == b"mbgw"
+    assert c.report_device_id(device_id=GATEWAY_UNIT).identifier.startswith(b"mbgw\xff")
+    refused = c.read_holding_registers(0, count=1, device_id=GATEWAY_UNIT)
+    assert refused.isError() and refused.exception_code == 0x01
+    # the gateway unit and the table count together
+    assert c.diag_read_bus_exception_error_count(device_id=GATEWAY_UNIT).message == 1
