@@ -60,3 +60,14 @@ def test_the_gateway_unit_answers_identity_functions_only(table_gateway, pymodbu
     assert refused.isError() and refused.exception_code == 0x01
     # the gateway unit and the table count together
     assert c.diag_read_bus_exception_error_count(device_id=GATEWAY_UNIT).message == 1
+
+
+def test_the_gateway_unit_answers_with_the_table_off(pty_pair, start_peer, start_gateway,
+                                                     pymodbus_client):
+    start_peer("pymodbus_slave.py", pty_pair.device, "1", "--silent-unknown")
+    gw = start_gateway(pty_pair.gateway, "--baudrate", "19200", "--gateway-unit",
+                       str(GATEWAY_UNIT))
+    c = pymodbus_client(gw)
+    rr = c.read_device_information(read_code=4, object_id=0, device_id=GATEWAY_UNIT)
+    assert not rr.isError(), rr
+    assert rr.information[0] == b"mbgw"
