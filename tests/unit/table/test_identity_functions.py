@@ -10,6 +10,7 @@ import mbgw
 from mbgw.config.model import SerialConfig, SlaveConfig
 from mbgw.table import identity
 from mbgw.table.memory import IDENTITY_OBJECT_MAX, Table, TableError
+from tests.unit.vectors import PDU_PAIRS
 
 H = bytes.fromhex
 # the objects of the spec's example in 6.21 (VendorName, ProductCode, MajorMinorRevision)
@@ -43,6 +44,21 @@ def test_fc43_spec_example_basic_stream(table):
     assert ask(table, "2b 0e 01 00") == (
         "2b 0e 01 83 00 00 03 00 16 " + text(b"Company identification")
         + " 01 0f " + text(b"Product code XX") + " 02 05 " + text(b"V2.11"))
+
+
+def test_fc43_published_response_toshiba_vf_s15(table):
+    """tests/vectors/pdu_pairs.txt FC2B/0E: a device's basic stream, its conformity level
+    (02) replaced by mbgw's 0x83."""
+    (pair,) = [p for p in PDU_PAIRS if p.label == "FC2B/0E"]
+    table.set_identity([b"TOSHIBA", b"PNE001Z", b"0201", b"", b"", b"", b""], b"")
+    expected = bytearray(pair.response)
+    expected[3] = 0x83
+    assert table.answer(pair.request) == bytes(expected)
+
+
+def test_fc8_published_return_query_data(table):
+    (pair,) = [p for p in PDU_PAIRS if p.label == "FC08"]
+    assert table.answer(pair.request) == pair.response
 
 
 def test_fc43_regular_stream_has_objects_0_to_6(table):
