@@ -37,7 +37,7 @@ static void one(const uint8_t *data, size_t len)
         table = mbgw_table_new();
         MUST(table != NULL);
         /* identity objects long enough that FC 43/14's streams need More Follows */
-        static const uint8_t text[MBGW_IDENT_OBJECT_MAX] = { 'm', 'b', 'g', 'w' };
+        static const uint8_t text[MBGW_SERVER_ID_MAX] = { 'm', 'b', 'g', 'w' };
         for (int id = 0; id < MBGW_IDENT_OBJECTS; id++)
             MUST(mbgw_table_set_identity(table, id, text, 40 * id) == 0);
         MUST(mbgw_table_set_server_id(table, text, MBGW_SERVER_ID_MAX) == 0);
