@@ -6,13 +6,18 @@ Protocol V1.1b3 (6.8, 6.13, 6.21): vendor and product "mbgw", the version of `mb
 import socket
 
 import pytest
+from pymodbus.client import ModbusTcpClient
 
 import mbgw
-from tests.integration.table import test_table_slave
+from tests.integration.table import test_table_master, test_table_slave
 
 pytestmark = pytest.mark.integration
 table_gateway = test_table_slave.table_gateway      # the fixtures, shared
 pymodbus_client = test_table_slave.pymodbus_client
+table_master = test_table_master.table_master
+serial_client = test_table_master.serial_client
+servers = test_table_master.servers
+TABLE_ADDRESS = test_table_master.TABLE
 
 GATEWAY_UNIT = 200
 
@@ -71,3 +76,23 @@ def test_the_gateway_unit_answers_with_the_table_off(pty_pair, start_peer, start
     rr = c.read_device_information(read_code=4, object_id=0, device_id=GATEWAY_UNIT)
     assert not rr.isError(), rr
     assert rr.information[0] == b"mbgw"
+
+
+def test_master_mode_answers_the_identity_on_the_tables_serial_address_and_port(
+        table_master, serial_client):
+    gw, port = table_master()
+    serial = serial_client()
+    rr = serial.read_device_information(read_code=1, object_id=0, device_id=TABLE_ADDRESS)
+    assert not rr.isError(), rr
+    assert rr.conformity == 0x83
+    assert rr.information == {0: b"mbgw", 1: b"mbgw", 2: mbgw.__version__.encode()}
+    assert serial.diag_query_data(b"\x12\x34", device_id=TABLE_ADDRESS).message == b"\x12\x34"
+    tcp = ModbusTcpClient("127.0.0.1", port=port, timeout=3.0, retries=0)
+    assert tcp.connect()
+    try:
+        model = tcp.read_device_information(read_code=4, object_id=5, device_id=1)
+        assert model.information == {5: b"master"}
+        # the serial side's two requests, the TCP side's two: one table, one count
+        assert tcp.diag_read_bus_message_count(device_id=1).message == 4
+    finally:
+        tcp.close()
