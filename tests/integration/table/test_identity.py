@@ -9,7 +9,9 @@ import pytest
 from pymodbus.client import ModbusTcpClient
 
 import mbgw
+from tests.integration.ops.test_reload import config_set, reload
 from tests.integration.table import test_table_master, test_table_slave
+from tests.modbus import read_holding
 
 pytestmark = pytest.mark.integration
 table_gateway = test_table_slave.table_gateway      # the fixtures, shared
@@ -96,3 +98,24 @@ def test_master_mode_answers_the_identity_on_the_tables_serial_address_and_port(
         assert tcp.diag_read_bus_message_count(device_id=1).message == 4
     finally:
         tcp.close()
+
+
+def test_a_reload_gives_and_takes_the_gateway_unit(tmp_path, pty_pair, start_peer,
+                                                   start_gateway, client):
+    start_peer("pymodbus_slave.py", pty_pair.device, "1", "--silent-unknown")
+    path = tmp_path / "mbgw.toml"
+    for words in (("serial", "baudrate", "19200"), ("serial", "stout", "100"),
+                  ("net", "exception", "on")):
+        config_set(path, *words)
+    gw = start_gateway(pty_pair.gateway, "--config", str(path))
+    c = client(gw)
+    report_server_id = bytes.fromhex("11")
+    assert c.ask(GATEWAY_UNIT, report_server_id) == bytes.fromhex("91 0b")   # the line's
+    config_set(path, "general", "gateway-unit", str(GATEWAY_UNIT))
+    reload(gw, "configuration reloaded")
+    assert c.ask(GATEWAY_UNIT, report_server_id)[:7] == bytes.fromhex("11 0a") + b"mbgw\xff"
+    assert c.ask(GATEWAY_UNIT, read_holding(0, 1)) == bytes.fromhex("83 01")
+    assert c.ask(1, read_holding(0, 1)) == bytes.fromhex("03 02 0064")    # the line still
+    config_set(path, "general", "gateway-unit", "0")
+    reload(gw, "configuration reloaded", count=2)
+    assert c.ask(GATEWAY_UNIT, report_server_id) == bytes.fromhex("91 0b")
