@@ -6,7 +6,7 @@ import socket
 import pytest
 
 from mbgw.routing.queue import Inbox
-from tests.harness import Gateway, Peer, PtyPair
+from tests.harness import Gateway, Peer, PtyPair, factory
 from tests.modbus import Client
 
 # `mbgw slave` takes the values it is not given from /etc/mbgw/mbgw.toml when that exists (an
@@ -34,31 +34,14 @@ def pty_pair(tmp_path):
 @pytest.fixture
 def start_gateway(tmp_path):
     """start_gateway(device, *options) -> a ready Gateway; stopped after the test."""
-    started = []
-
-    def start(device, *args, **kwargs):
-        gw = Gateway(tmp_path, device, *args, **kwargs)
-        started.append(gw)
-        return gw
-
-    yield start
-    for gw in started:
-        gw.stop()
+    yield from factory(lambda device, *args, **kwargs: Gateway(tmp_path, device, *args,
+                                                               **kwargs), Gateway.stop)
 
 
 @pytest.fixture
 def start_peer():
     """start_peer(script, *args) -> a ready Peer from tests/peers; stopped after the test."""
-    started = []
-
-    def start(script, *args):
-        peer = Peer(script, *args)
-        started.append(peer)
-        return peer
-
-    yield start
-    for peer in started:
-        peer.stop()
+    yield from factory(Peer, Peer.stop)
 
 
 @pytest.fixture
@@ -104,16 +87,7 @@ def recording_peer(pty_pair, start_peer, tmp_path):
 def client():
     """client(gw, timeout=REPLY_S) -> a raw tests.modbus.Client to the gateway; closed after
     the test."""
-    clients = []
-
-    def connect(gw, **options) -> Client:
-        c = Client(gw.port, **options)
-        clients.append(c)
-        return c
-
-    yield connect
-    for c in clients:
-        c.close()
+    yield from factory(lambda gw, **options: Client(gw.port, **options), Client.close)
 
 
 @pytest.fixture

@@ -16,10 +16,39 @@ CHECKOUT = Path(__file__).resolve().parent.parent
 READY_TIMEOUT_S = 15.0
 
 
+def factory(make, end):
+    """A fixture's body, `yield from factory(make, end)`: the test gets a function that calls
+    make(*args, **kwargs) and returns what it made; after the test, end(thing) for each."""
+    made = []
+
+    def make_one(*args, **kwargs):
+        thing = make(*args, **kwargs)
+        made.append(thing)
+        return thing
+
+    yield make_one
+    for thing in made:
+        end(thing)
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def idle_connections(port: int, count: int) -> list[socket.socket]:
+    """count connections to port that never send a byte (those the peer refuses included)."""
+    opened = []
+    for _ in range(count):
+        sock = socket.socket()
+        sock.setblocking(False)
+        try:
+            sock.connect(("127.0.0.1", port))
+        except BlockingIOError:
+            pass
+        opened.append(sock)
+    return opened
 
 
 def _read_lines_until(proc: subprocess.Popen, stream, want, timeout: float) -> list[str]:

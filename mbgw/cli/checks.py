@@ -8,7 +8,8 @@ import re
 
 import click
 
-from mbgw.cli.options import ModeCommand, web_config
+from mbgw.cli.options import ModeCommand
+from mbgw.cli.web_options import web_config
 from mbgw.config.file import Settings, resolve, with_file
 from mbgw.config.model import DEFAULT_LOCATION, DEFAULT_REQUEST_TIMEOUT_MS
 from mbgw.config.schema import Schema

@@ -6,20 +6,17 @@ from typing import NoReturn
 
 import click
 
-from mbgw.cli.config import check_instance
+from mbgw.cli.file_options import check_instance
 from mbgw.cli.options import Failure
 from mbgw.cli.render import (
     STATS_KEYS,
     format_clients,
     format_counters,
-    format_event,
     format_line_status,
-    format_raw,
     format_status,
     line_status,
-    raw_columns,
-    trace_columns,
 )
+from mbgw.cli.render_trace import format_event, format_raw, raw_columns, trace_columns
 from mbgw.ops import control as ctl
 
 
@@ -155,103 +152,112 @@ def _status(path: str, as_json: bool, line: str | None) -> None:
         click.echo(format_status(reply, time.time()))
 
 
+@click.command()
+@click.option("--json", "as_json", is_flag=True, help="Print the status as JSON.")
+@click.option("--line", default=None, metavar="NAME",
+              help="Only this line: its state, counters, devices and routes (serial or a "
+                   "[[line]] name).")
+@control_option
+def status(as_json: bool, line: str | None, control: str | None,
+           instance: str | None) -> None:
+    """What the running daemon is doing: clients, devices, counters; its lines and
+    routes."""
+    _status(_socket_path(control, instance), as_json, line)
+
+
+@click.group(invoke_without_command=True)
+@control_option
+@click.pass_context
+def clients(ctx: click.Context, control: str | None, instance: str | None) -> None:
+    """The Modbus TCP clients of the running daemon: listed without a subcommand;
+    `clients close` closes them."""
+    if ctx.invoked_subcommand is None:
+        click.echo(format_clients(_call(_socket_path(control, instance),
+                                        {"command": "status"}), time.time()))
+
+
+@clients.command("close")
+@click.argument("which", required=False, metavar="ID|ADDRESS")
+@click.option("--all", "close_all", is_flag=True, help="Close every client.")
+@control_option
+def close(which: str | None, close_all: bool, control: str | None,
+          instance: str | None) -> None:
+    """Force-close a client: its ID (the ID column of mbgw clients), its address
+    IP:PORT, or an IP (every client from it); --all: every client."""
+    if (which is None) == (not close_all):
+        raise click.UsageError("give an ID, an ADDRESS or --all (one of them)")
+    _close(_socket_path(control, instance), which, close_all)
+
+
+@click.group(invoke_without_command=True)
+@click.option("--json", "as_json", is_flag=True, help="Print the counters as JSON.")
+@control_option
+@click.pass_context
+def stats(ctx: click.Context, as_json: bool, control: str | None,
+          instance: str | None) -> None:
+    """The running daemon's counters: shown without a subcommand; `stats reset` zeroes
+    them."""
+    if ctx.invoked_subcommand is not None:
+        return
+    reply = _call(_socket_path(control, instance), {"command": "status"})
+    if as_json:
+        click.echo(json.dumps({k: reply[k] for k in STATS_KEYS if k in reply}, indent=2))
+    else:
+        click.echo(format_counters(reply))
+
+
+@stats.command("reset")
+@control_option
+def reset(control: str | None, instance: str | None) -> None:
+    """Zero every counter (logged by the daemon)."""
+    _call(_socket_path(control, instance), {"command": "reset"})
+    click.echo("counters reset")
+
+
+@click.command()
+@click.option("--pcap", "pcap_file", type=click.File("wb"), default=None, metavar="FILE",
+              help="Also write the traffic to FILE as a Modbus/TCP pcap capture "
+                   "(Wireshark, tshark; '-' for standard output): the TCP clients' "
+                   "requests and replies; scenario runs and the raw line are not in it.")
+@click.option("--raw", is_flag=True,
+              help="Show the serial line's raw bytes instead: every burst sent and "
+                   "received in hex, the silence before it (us), and what it was "
+                   "(request, reply, noise, unsolicited).  The daemon captures them "
+                   "only while someone watches.")
+@click.option("--unit", type=click.IntRange(0, 255), default=None,
+              help="Only this unit id (serial address).")
+@click.option("--client", "client_id", type=click.IntRange(1), default=None,
+              metavar="ID", help="Only this client (the ID column of mbgw status).")
+@click.option("--function", type=click.IntRange(1, 127), default=None, metavar="FC",
+              help="Only this function code (its exception replies included).")
+@click.option("--scenario", default=None, metavar="NAME",
+              help="Only this scenario's runs.")
+@click.option("--line", default=None, metavar="NAME",
+              help="Only this line's traffic: serial or a [[line]] name (mbgw status "
+                   "lists them).")
+@click.option("--errors", is_flag=True,
+              help="Errors only: exception replies, no reply, late replies, noise on "
+                   "the line.")
+@click.option("--count", type=click.IntRange(1), default=None,
+              help="Stop after this many events [default: until Ctrl-C].")
+@control_option
+def trace(pcap_file, raw: bool, unit: int | None, client_id: int | None,
+          function: int | None, scenario: str | None, line: str | None, errors: bool,
+          count: int | None, control: str | None, instance: str | None) -> None:
+    """Live, decoded view of the traffic through the running daemon: the TCP clients'
+    requests and the scenarios' runs (marked with the scenario's name)."""
+    if raw and pcap_file:
+        raise click.UsageError("--pcap writes Modbus/TCP frames: not with --raw")
+    if raw and (unit is not None or client_id is not None or function is not None or
+                scenario is not None):
+        raise click.UsageError("--raw shows bytes: it takes --line and --errors only")
+    wanted = {"unit": unit, "client": client_id, "function": function,
+              "scenario": scenario, "line": line, "errors": errors}
+    request = {"command": "trace", "raw": raw,
+               "filters": {k: v for k, v in wanted.items() if v not in (None, False)}}
+    _trace(_socket_path(control, instance), request, raw, pcap_file, count)
+
+
 def register(main: click.Group) -> None:
-    @main.command()
-    @click.option("--json", "as_json", is_flag=True, help="Print the status as JSON.")
-    @click.option("--line", default=None, metavar="NAME",
-                  help="Only this line: its state, counters, devices and routes (serial or a "
-                       "[[line]] name).")
-    @control_option
-    def status(as_json: bool, line: str | None, control: str | None,
-               instance: str | None) -> None:
-        """What the running daemon is doing: clients, devices, counters; its lines and
-        routes."""
-        _status(_socket_path(control, instance), as_json, line)
-
-    @main.group(invoke_without_command=True)
-    @control_option
-    @click.pass_context
-    def clients(ctx: click.Context, control: str | None, instance: str | None) -> None:
-        """The Modbus TCP clients of the running daemon: listed without a subcommand;
-        `clients close` closes them."""
-        if ctx.invoked_subcommand is None:
-            click.echo(format_clients(_call(_socket_path(control, instance),
-                                            {"command": "status"}), time.time()))
-
-    @clients.command("close")
-    @click.argument("which", required=False, metavar="ID|ADDRESS")
-    @click.option("--all", "close_all", is_flag=True, help="Close every client.")
-    @control_option
-    def close(which: str | None, close_all: bool, control: str | None,
-              instance: str | None) -> None:
-        """Force-close a client: its ID (the ID column of mbgw clients), its address
-        IP:PORT, or an IP (every client from it); --all: every client."""
-        if (which is None) == (not close_all):
-            raise click.UsageError("give an ID, an ADDRESS or --all (one of them)")
-        _close(_socket_path(control, instance), which, close_all)
-
-    @main.group(invoke_without_command=True)
-    @click.option("--json", "as_json", is_flag=True, help="Print the counters as JSON.")
-    @control_option
-    @click.pass_context
-    def stats(ctx: click.Context, as_json: bool, control: str | None,
-              instance: str | None) -> None:
-        """The running daemon's counters: shown without a subcommand; `stats reset` zeroes
-        them."""
-        if ctx.invoked_subcommand is not None:
-            return
-        reply = _call(_socket_path(control, instance), {"command": "status"})
-        if as_json:
-            click.echo(json.dumps({k: reply[k] for k in STATS_KEYS if k in reply}, indent=2))
-        else:
-            click.echo(format_counters(reply))
-
-    @stats.command("reset")
-    @control_option
-    def reset(control: str | None, instance: str | None) -> None:
-        """Zero every counter (logged by the daemon)."""
-        _call(_socket_path(control, instance), {"command": "reset"})
-        click.echo("counters reset")
-
-    @main.command()
-    @click.option("--pcap", "pcap_file", type=click.File("wb"), default=None, metavar="FILE",
-                  help="Also write the traffic to FILE as a Modbus/TCP pcap capture "
-                       "(Wireshark, tshark; '-' for standard output): the TCP clients' "
-                       "requests and replies; scenario runs and the raw line are not in it.")
-    @click.option("--raw", is_flag=True,
-                  help="Show the serial line's raw bytes instead: every burst sent and "
-                       "received in hex, the silence before it (us), and what it was "
-                       "(request, reply, noise, unsolicited).  The daemon captures them "
-                       "only while someone watches.")
-    @click.option("--unit", type=click.IntRange(0, 255), default=None,
-                  help="Only this unit id (serial address).")
-    @click.option("--client", "client_id", type=click.IntRange(1), default=None,
-                  metavar="ID", help="Only this client (the ID column of mbgw status).")
-    @click.option("--function", type=click.IntRange(1, 127), default=None, metavar="FC",
-                  help="Only this function code (its exception replies included).")
-    @click.option("--scenario", default=None, metavar="NAME",
-                  help="Only this scenario's runs.")
-    @click.option("--line", default=None, metavar="NAME",
-                  help="Only this line's traffic: serial or a [[line]] name (mbgw status "
-                       "lists them).")
-    @click.option("--errors", is_flag=True,
-                  help="Errors only: exception replies, no reply, late replies, noise on "
-                       "the line.")
-    @click.option("--count", type=click.IntRange(1), default=None,
-                  help="Stop after this many events [default: until Ctrl-C].")
-    @control_option
-    def trace(pcap_file, raw: bool, unit: int | None, client_id: int | None,
-              function: int | None, scenario: str | None, line: str | None, errors: bool,
-              count: int | None, control: str | None, instance: str | None) -> None:
-        """Live, decoded view of the traffic through the running daemon: the TCP clients'
-        requests and the scenarios' runs (marked with the scenario's name)."""
-        if raw and pcap_file:
-            raise click.UsageError("--pcap writes Modbus/TCP frames: not with --raw")
-        if raw and (unit is not None or client_id is not None or function is not None or
-                    scenario is not None):
-            raise click.UsageError("--raw shows bytes: it takes --line and --errors only")
-        wanted = {"unit": unit, "client": client_id, "function": function,
-                  "scenario": scenario, "line": line, "errors": errors}
-        request = {"command": "trace", "raw": raw,
-                   "filters": {k: v for k, v in wanted.items() if v not in (None, False)}}
-        _trace(_socket_path(control, instance), request, raw, pcap_file, count)
+    for command in (status, clients, stats, trace):
+        main.add_command(command)

@@ -4,7 +4,7 @@ import dataclasses
 
 import click
 
-from mbgw.cli.options import demotion, serial_config
+from mbgw.cli.serial_options import demotion, serial_config
 from mbgw.config import line_file
 from mbgw.config.lines import LineConfig, config_problems
 from mbgw.config.model import MasterConfig, SlaveConfig

@@ -4,29 +4,19 @@ socket, metrics, log level) with slave mode."""
 import click
 from click.core import ParameterSource
 
+from mbgw.cli.daemon_options import daemon_options
 from mbgw.cli.lines import with_lines
-from mbgw.cli.options import (
-    ModeCommand,
-    convert,
-    daemon_options,
+from mbgw.cli.options import ModeCommand, convert, parse_authip, parse_bind, parser
+from mbgw.cli.run import run_daemon
+from mbgw.cli.serial_options import (
     demotion,
     demotion_options,
     interframe_option,
-    parse_authip,
-    parse_bind,
-    parse_serial_functions,
-    parser,
     serial_config,
     serial_options,
-    table_config,
-    table_options,
-    table_switch,
-    tls_config,
-    tls_options,
-    upstream_tls_config,
-    upstream_tls_options,
 )
-from mbgw.cli.run import run_daemon
+from mbgw.cli.table_options import parse_serial_functions, table_config, table_options, table_switch
+from mbgw.cli.tls_options import tls_config, tls_options, upstream_tls_config, upstream_tls_options
 from mbgw.config import model
 from mbgw.config.schema import TableOption
 from mbgw.config.slaveid import MAX_RANGES, SlaveIdTable

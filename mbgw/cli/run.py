@@ -1,7 +1,7 @@
-"""Running a mode command's daemon, the same for both modes: the settings from the options,
-checked as check-config checks them (mbgw.cli.checks), logging, SIGHUP applying the
-configuration file again, and a device or port that cannot be had turned into the command's
-failure."""
+"""`mbgw run` and `mbgw check-config`, and running a mode command's daemon, the same for
+every mode: the settings from the options, checked as check-config checks them
+(mbgw.cli.checks), logging, SIGHUP applying the configuration file again, and a device or
+port that cannot be had turned into the command's failure."""
 import dataclasses
 from collections.abc import Callable
 from pathlib import Path
@@ -9,8 +9,17 @@ from pathlib import Path
 import click
 
 from mbgw.cli import checks
-from mbgw.cli.config import EX_CONFIG, config_file, reloader, schema_of
-from mbgw.cli.options import Failure
+from mbgw.cli.config_option import (
+    META_MODE_FROM_FILE,
+    config_file,
+    load_settings,
+    reloader,
+    schema_of,
+)
+from mbgw.cli.file_options import file_options, file_path
+from mbgw.cli.options import EX_CONFIG, META_FILE, Failure
+from mbgw.config import scenario as scenario_config
+from mbgw.config.file import click_problem
 from mbgw.config.schema import Schema
 from mbgw.errors import ConfigError, ConfigFileError, ListenError, SerialError
 from mbgw.ops import preflight
@@ -91,3 +100,55 @@ def _hand_keys_to_web_console(ctx: click.Context) -> None:
 
 def _from_file(cfg, path):
     return cfg if path is None else dataclasses.replace(cfg, config_file=str(path))
+
+
+@click.command("run", context_settings={"ignore_unknown_options": True,
+                                        "allow_interspersed_args": False})
+@file_options
+@click.argument("args", nargs=-1, type=click.UNPROCESSED, metavar="[MODE OPTIONS]...")
+@click.pass_context
+def run(ctx: click.Context, config_path: Path, instance: str | None, args) -> None:
+    """Start the mode the configuration file selects (serial.mode): what the mbgw service
+    runs.  Options after the file options are the mode command's and win over the file,
+    e.g. `mbgw run --log-level debug`.  Exit status 78 when the file is wrong."""
+    path = file_path(ctx, config_path, instance)
+    schema = schema_of(ctx)
+    settings = load_settings(ctx, schema, path, exit_code=EX_CONFIG)
+    command = schema.commands[settings.mode]
+    ctx.meta[META_FILE] = path                  # shared with the mode command's context
+    ctx.meta[META_MODE_FROM_FILE] = True
+    try:
+        sub = command.make_context(settings.mode, list(args), parent=ctx,
+                                   default_map=settings.default_map(schema, settings.mode))
+    except click.MissingParameter as err:
+        raise Failure(f"{path}: {click_problem(schema, settings, err)}", EX_CONFIG) \
+            from None
+    with sub:
+        command.invoke(sub)
+
+
+@click.command("check-config")
+@file_options
+@click.argument("file", required=False, type=click.Path(dir_okay=False, path_type=Path))
+@click.pass_context
+def check_config(ctx: click.Context, config_path: Path, instance: str | None,
+                 file: Path | None) -> None:
+    """Check a configuration file without starting anything: every key known, every value
+    accepted as on the command line, what its mode requires present, the keys that go
+    together, the files it names (certificates and their keys, the table's file) and the
+    addresses it listens on: whatever `mbgw run` would refuse.  Exit status 78 when the file
+    is wrong.  FILE (or --config FILE, or -i NAME) defaults to $MBGW_CONFIG, else
+    /etc/mbgw/mbgw.toml."""
+    if file is not None and (instance is not None or ctx.get_parameter_source("config_path")
+                             == click.core.ParameterSource.COMMANDLINE):
+        raise click.UsageError("give FILE, --config FILE or -i NAME: one of them")
+    path = file or file_path(ctx, config_path, instance)
+    schema = schema_of(ctx)
+    settings = load_settings(ctx, schema, path, [path], exit_code=EX_CONFIG)
+    try:
+        checks.check_file(schema, settings)
+    except ConfigFileError as err:
+        raise Failure(str(err), EX_CONFIG) from None
+    for warning in scenario_config.overlaps(settings.scenarios):
+        click.echo(f"mbgw: warning: {path}: {warning}", err=True)
+    click.echo(f"{path}: ok ({settings.mode} mode)")

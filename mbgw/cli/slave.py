@@ -1,27 +1,19 @@
 """The `mbgw slave` command: Modbus TCP clients reach the slaves on a serial line."""
 import click
 
+from mbgw.cli.daemon_options import daemon_options
 from mbgw.cli.lines import with_lines
-from mbgw.cli.options import (
-    ModeCommand,
-    convert,
-    daemon_options,
+from mbgw.cli.options import ModeCommand, convert, parse_bind, parser
+from mbgw.cli.run import run_daemon
+from mbgw.cli.serial_options import (
     demotion,
     demotion_options,
     interframe_option,
-    parse_bind,
-    parser,
     serial_config,
     serial_options,
-    table_config,
-    table_options,
-    table_switch,
-    tls_config,
-    tls_options,
-    upstream_tls_config,
-    upstream_tls_options,
 )
-from mbgw.cli.run import run_daemon
+from mbgw.cli.table_options import table_config, table_options, table_switch
+from mbgw.cli.tls_options import tls_config, tls_options, upstream_tls_config, upstream_tls_options
 from mbgw.config import model
 from mbgw.config.number_list import number_list_text, parse_number_list
 from mbgw.config.schema import TableOption

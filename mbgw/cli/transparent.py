@@ -2,18 +2,11 @@
 that speaks no Modbus, through the exchange table served on mdbport (VPGate 3.8)."""
 import click
 
-from mbgw.cli.options import (
-    ModeCommand,
-    convert,
-    daemon_options,
-    parse_bind,
-    parser,
-    serial_config,
-    serial_options,
-    tls_config,
-    tls_options,
-)
+from mbgw.cli.daemon_options import daemon_options
+from mbgw.cli.options import ModeCommand, convert, parse_bind, parser
 from mbgw.cli.run import run_daemon
+from mbgw.cli.serial_options import serial_config, serial_options
+from mbgw.cli.tls_options import tls_config, tls_options
 from mbgw.config import model
 from mbgw.config.schema import TableOption, TransparentOption
 from mbgw.config.transparent import (

@@ -35,6 +35,7 @@ from mbgw.config.schema import (
     default_value,
     is_unset,
 )
+from mbgw.config.tables import array_of_tables
 from mbgw.config.values import check_across, check_value, to_click
 from mbgw.errors import ConfigFileError
 
@@ -166,9 +167,9 @@ def check(schema: Schema, path: Path, data: dict) -> Settings:
     scenarios, scenario_problems = parse_scenarios(data.get(SCENARIO_KEY, []), mode)
     problems += scenario_problems
     lines, line_problems = line_file.parse_lines(
-        schema, line_file.tables(data, line_file.LINE_TABLE, problems), mode)
+        schema, array_of_tables(data, line_file.LINE_TABLE, problems), mode)
     routes, route_problems = line_file.parse_routes(
-        line_file.tables(data, line_file.ROUTE_TABLE, problems))
+        array_of_tables(data, line_file.ROUTE_TABLE, problems))
     problems += line_problems + route_problems
     if routes and mode not in LINE_MODES:
         problems.append(f"route: [[route]] tables are for slave and master modes; {mode} mode "
@@ -274,7 +275,7 @@ def load_options(root: click.Group, path=DEFAULT_PATH, args=(), mode: str | None
     options that win over the file; `mode` takes another mode than the file's (as `mbgw slave
     --config PATH` does).  Raises ConfigFileError (a ConfigError) naming the file, the key and
     the reason.  The file is only read, so a daemon can call it on SIGHUP and keep running on
-    an error (see mbgw.cli.config.reloader), passing as `given` the parameters its command
+    an error (see mbgw.cli.config_option.reloader), passing as `given` the parameters its command
     line set (see resolve)."""
     schema = Schema(root)
     try:

@@ -6,10 +6,10 @@ when a client connects); `units`, `functions`, `registers` and `read-only` say w
 them do.  The first rule that selects a client decides everything that client may do; a
 client no rule selects is allowed everything (`default = "allow"`) or nothing ("deny")."""
 import dataclasses
-import difflib
 import ipaddress
 
 from mbgw.config.number_list import number_list_text, parse_number_list
+from mbgw.config.tables import array_of_tables, check_keys, parse_each, typed
 from mbgw.errors import ConfigError
 
 GROUP = "firewall"                 # [firewall]
@@ -83,21 +83,12 @@ def from_file(data: dict) -> tuple[FirewallConfig, list[str]]:
     and the problems found, each naming the key (`rule 2.functions`) and the reason."""
     problems: list[str] = []
     default = _policy(data.get(GROUP, {}), problems)
-    rules = []
-    tables = data.get(RULE_TABLE, [])
-    if isinstance(tables, dict):
-        problems.append(f"[{RULE_TABLE}]: write [[{RULE_TABLE}]] (one table per rule, in "
-                        "order), not [rule]")
-        tables = []
-    elif not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
-        problems.append(f"{RULE_TABLE}: expected [[{RULE_TABLE}]] tables, not a value")
-        tables = []
-    for index, table in enumerate(tables, 1):
-        try:
-            rules.append(parse_rule(index, table))
-        except ConfigError as err:
-            problems.append(str(err))
-    return FirewallConfig(tuple(rules), default), problems
+    wrong = (f"[{RULE_TABLE}]: write [[{RULE_TABLE}]] (one table per rule, in order), not "
+             f"[{RULE_TABLE}]" if isinstance(data.get(RULE_TABLE), dict)
+             else f"{RULE_TABLE}: expected [[{RULE_TABLE}]] tables, not a value")
+    rules, rule_problems = parse_each(array_of_tables(data, RULE_TABLE, problems, wrong),
+                                      parse_rule)
+    return FirewallConfig(rules, default), problems + rule_problems
 
 
 def _policy(group, problems: list[str]) -> str:
@@ -118,11 +109,7 @@ def _policy(group, problems: list[str]) -> str:
 def parse_rule(index: int, table: dict) -> Rule:
     """A [[rule]] table (the index-th, from 1).  Raises ConfigError naming the rule and key."""
     label = f"{RULE_TABLE} {index}"
-    for name in table:
-        if name not in RULE_KEYS:
-            match = difflib.get_close_matches(name.lower(), RULE_KEYS, n=1, cutoff=0.6)
-            raise ConfigError(f"{label}.{name}: unknown key (keys: {', '.join(RULE_KEYS)})"
-                              + (f"; did you mean {match[0]}?" if match else ""))
+    check_keys(label, table, RULE_KEYS)
     role = table.get("role")
     if role is not None and (not isinstance(role, str) or not role):
         raise ConfigError(f"{label}.role: expected the role's name, got {role!r}")
@@ -130,9 +117,7 @@ def parse_rule(index: int, table: dict) -> Rule:
     if listener is not None and listener not in LISTENERS:
         raise ConfigError(f"{label}.listener: expected "
                           f"{' or '.join(repr(n) for n in LISTENERS)}, got {listener!r}")
-    read_only = table.get("read-only", False)
-    if not isinstance(read_only, bool):
-        raise ConfigError(f"{label}.read-only: expected true or false, got {read_only!r}")
+    read_only = typed(label, table, "read-only", bool, "true or false", False)
     return Rule(index, role, _clients(label, table.get("client")), listener,
                 _numbers(label, "units", table.get("units"), UNIT_RANGE),
                 _numbers(label, "functions", table.get("functions"), FUNCTION_RANGE),

@@ -7,6 +7,7 @@ command to build its LineConfig.  A `[[route]]` becomes a RouteConfig at once.  
 whole configuration can check (unknown lines, overlaps, rewrites) is `lines.route_problems`'."""
 import difflib
 from dataclasses import dataclass, field
+from functools import partial
 
 from mbgw.config.lines import (
     DEFAULT_SERVER_PORT,
@@ -22,6 +23,7 @@ from mbgw.config.number_list import number_list_text, parse_number_list
 from mbgw.config.scenario import DEFAULT_TLS_SERVER_PORT, split_server
 from mbgw.config.schema import Schema, default_value
 from mbgw.config.slaveid import parse_fingerprint
+from mbgw.config.tables import check_keys, parse_each, typed
 from mbgw.config.values import Problem, check_value, process, to_click
 from mbgw.errors import ConfigError
 
@@ -47,15 +49,6 @@ class LineTable:
     mode: str
     params: dict = field(default_factory=dict)
     keys: dict = field(default_factory=dict)     # as written: key name -> TOML value
-
-
-def tables(data: dict, name: str, problems: list[str]) -> list[dict]:
-    """The [[name]] tables of a file (a problem when `name` is not an array of tables)."""
-    found = data.get(name, [])
-    if not isinstance(found, list) or not all(isinstance(t, dict) for t in found):
-        problems.append(f"{name}: expected [[{name}]] tables")
-        return []
-    return found
 
 
 def parse_lines(schema: Schema, found: list[dict], daemon_mode: str
@@ -140,34 +133,17 @@ def _params(schema: Schema, fields: dict, mode: str) -> dict:
 
 
 def parse_routes(found: list[dict]) -> tuple[tuple[RouteConfig, ...], list[str]]:
-    problems: list[str] = []
-    if len(found) > MAX_ROUTES:
-        problems.append(f"route: {len(found)} [[route]] tables, at most {MAX_ROUTES}")
-    routes = []
-    for index, fields in enumerate(found, 1):
-        try:
-            routes.append(_parse_route(fields, index))
-        except ConfigError as err:
-            problems.append(str(err))
-    return tuple(routes), problems
+    too_many = [f"route: {len(found)} [[route]] tables, at most {MAX_ROUTES}"] \
+        if len(found) > MAX_ROUTES else []
+    routes, problems = parse_each(found, _parse_route)
+    return routes, too_many + problems
 
 
-def _parse_route(fields: dict, index: int) -> RouteConfig:
+def _parse_route(index: int, fields: dict) -> RouteConfig:
     label = f"route {index}"
-    for name in fields:
-        if name not in ROUTE_KEYS:
-            match = difflib.get_close_matches(name.lower(), ROUTE_KEYS, n=1, cutoff=0.6)
-            raise ConfigError(f"{label}.{name}: unknown key (keys: {', '.join(ROUTE_KEYS)})"
-                              + (f"; did you mean {match[0]}?" if match else ""))
-
-    def typed(name: str, kind: type, wanted: str, default=None):
-        value = fields.get(name, default)
-        if value is not default and (not isinstance(value, kind)
-                                     or (kind is int and isinstance(value, bool))):
-            raise ConfigError(f"{label}.{name}: expected {wanted}, got {value!r}")
-        return value
-
-    face = typed("from", str, "a line name", TCP_FACE)
+    check_keys(label, fields, ROUTE_KEYS)
+    key = partial(typed, label, fields)
+    face = key("from", str, "a line name", TCP_FACE)
     if "from" in fields and face == TCP_FACE:
         raise ConfigError(f"{label}.from: expected a line name, got \"\"")
     units_value = fields.get("units")
@@ -181,27 +157,27 @@ def _parse_route(fields: dict, index: int) -> RouteConfig:
         units = parse_number_list(f"{label}.units", str(units_value), low, high)
     except ConfigError as err:
         raise ConfigError(str(err).replace(f"{label}.units ", f"{label}.units: ", 1)) from None
-    server_address, tls, fingerprint = _server(label, typed)
-    offset = typed("offset", int, "an integer", 0)
+    server_address, tls, fingerprint = _server(label, key)
+    offset = key("offset", int, "an integer", 0)
     if not OFFSET_RANGE[0] <= offset <= OFFSET_RANGE[1]:
         raise ConfigError(f"{label}.offset: {offset} out of range {OFFSET_RANGE[0]}.."
                           f"{OFFSET_RANGE[1]}")
-    address = typed("address", int, "an integer")
+    address = key("address", int, "an integer")
     if address is not None and not ADDRESS_RANGE[0] <= address <= ADDRESS_RANGE[1]:
         raise ConfigError(f"{label}.address: {address} out of range {ADDRESS_RANGE[0]}.."
                           f"{ADDRESS_RANGE[1]}")
     return RouteConfig(index=index, units=units, face=face,
-                       line=typed("line", str, "a line name"),
-                       table=typed("table", bool, "true or false", False),
+                       line=key("line", str, "a line name"),
+                       table=key("table", bool, "true or false", False),
                        server=server_address, offset=offset, address=address, tls=tls,
                        fingerprint=fingerprint)
 
 
-def _server(label: str, typed) -> tuple[tuple[str, int] | None, bool, bytes | None]:
+def _server(label: str, key) -> tuple[tuple[str, int] | None, bool, bytes | None]:
     """A route's server = "IP[:PORT]" (502, or 802 with tls = true, when left out), tls and
     fingerprint, as a TCP scenario's."""
-    server = typed("server", str, "\"IP[:PORT]\"")
-    tls = typed("tls", bool, "true or false", False)
+    server = key("server", str, "\"IP[:PORT]\"")
+    tls = key("tls", bool, "true or false", False)
     address = None
     if server is not None:
         try:
@@ -211,7 +187,7 @@ def _server(label: str, typed) -> tuple[tuple[str, int] | None, bool, bytes | No
             raise ConfigError(f"{label}.server: {err}") from None
     elif tls:
         raise ConfigError(f"{label}.tls: only with server = \"IP[:PORT]\"")
-    fingerprint = typed("fingerprint", str, "the server certificate's SHA-256 fingerprint")
+    fingerprint = key("fingerprint", str, "the server certificate's SHA-256 fingerprint")
     if fingerprint is not None and not tls:
         raise ConfigError(f"{label}.fingerprint: only with tls = true")
     pin = parse_fingerprint(f"{label}.fingerprint", fingerprint) \

@@ -6,7 +6,7 @@ and the check of a server's certificate against the address dialled or a pinned 
 (`server_mismatch`), the checks of the certificate files (at start, reload and `mbgw
 check-config`), and a client's role, read from its certificate's extension ROLE_OID (a
 UTF8String) with python3-cryptography, and the server handshake stepped in a poll loop
-(handshake_step) within the limits every TLS listener keeps."""
+(ServerHandshake, handshake_step) within the limits every TLS listener keeps."""
 import ctypes
 import datetime
 import hashlib
@@ -310,6 +310,35 @@ def handshake_step(sock: ssl.SSLSocket,
     except OSError as err:          # ssl.SSLError included
         return "failed", (describe or refusal)(err)
     return "done", ""
+
+
+class ServerHandshake:
+    """A TLS client's handshake on an accepted, non-blocking socket, one step each time the
+    socket is ready: `sock` is the plain socket until the client's first byte, then the
+    SSLSocket."""
+    __slots__ = ("sock", "fd", "address", "context")
+
+    def __init__(self, sock: socket.socket, address, context: ssl.SSLContext) -> None:
+        self.sock = sock
+        self.fd = sock.fileno()
+        self.address = address
+        self.context = context
+
+    def step(self) -> tuple[str, str]:
+        """("read", "") or ("write", ""): wait for the socket, then step again; ("probe", ""):
+        closed or reset before a byte (a health check's connect and close, no handshake
+        refused); ("failed", why); ("done", "")."""
+        if not isinstance(self.sock, ssl.SSLSocket):
+            heard = first_byte(self.sock)
+            if heard is None:
+                return "read", ""
+            if not heard:
+                return "probe", ""
+            tls = start_handshake(self.context, self.sock)
+            if isinstance(tls, str):
+                return "failed", tls
+            self.sock = tls
+        return handshake_step(self.sock)
 
 
 def refusal(err: OSError) -> str:

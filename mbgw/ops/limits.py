@@ -15,6 +15,9 @@ RESOURCE_ERRORS = frozenset({errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.EN
 REST_FIRST_S = 0.05
 REST_MAX_S = 1.0
 WARN_INTERVAL_S = 60.0
+# a Modbus TCP server's clients (the TCP face's and the table server's)
+FIRST_REQUEST_S = 60.0      # a connection that sent no whole request this long is closed
+SLOW_REQUEST_S = 0.5        # a request begun this long ago and not whole: a slow client
 # What one client address may hold of a listener's connections (its share): the rest stays
 # for the others.
 SHARE_DIVISOR = 4

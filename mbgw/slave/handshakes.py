@@ -8,29 +8,26 @@ import asyncio
 import socket
 import ssl
 
-from mbgw.net.tls import (
-    HANDSHAKE_TIMEOUT_S,
-    MAX_HANDSHAKES,
-    first_byte,
-    handshake_step,
-    start_handshake,
-)
+from mbgw.net.tls import HANDSHAKE_TIMEOUT_S, MAX_HANDSHAKES, ServerHandshake
 
 HANDSHAKES_PER_ADDRESS = MAX_HANDSHAKES // 8    # one address cannot fill the slots
 
 
 class Handshake:
-    """A TLS connection whose handshake is under way (sock: still the plain socket until the
-    client's first byte)."""
-    __slots__ = ("sock", "fd", "address", "timer", "waiting_read", "context")
+    """A TLS connection whose handshake is under way, and what the loop waits for."""
+    __slots__ = ("shake", "fd", "address", "timer", "waiting_read")
 
     def __init__(self, sock: socket.socket, address, context: ssl.SSLContext) -> None:
-        self.sock = sock
-        self.fd = sock.fileno()
+        self.shake = ServerHandshake(sock, address, context)
+        self.fd = self.shake.fd
         self.address = address
-        self.context = context
         self.timer: asyncio.TimerHandle | None = None
         self.waiting_read: bool | None = None    # which readiness it waits for, if any
+
+    @property
+    def sock(self) -> socket.socket:
+        """The plain socket until the client's first byte, then the SSLSocket."""
+        return self.shake.sock
 
 
 class Handshakes:
@@ -68,24 +65,13 @@ class Handshakes:
 
     def _step(self, handshake: Handshake) -> None:
         """One step of a client's handshake; the next when its socket is ready for it."""
-        if not isinstance(handshake.sock, ssl.SSLSocket):
-            heard = first_byte(handshake.sock)
-            if heard is None:
-                self._wait_for(handshake, read=True)
-                return
-            if not heard:
-                self._end(handshake)
-                handshake.sock.close()
-                self._on_probe(handshake.address[0])
-                return
-            tls = start_handshake(handshake.context, handshake.sock)
-            if isinstance(tls, str):
-                self._failed(handshake, tls)
-                return
-            handshake.sock = tls
-        step, why = handshake_step(handshake.sock)
+        step, why = handshake.shake.step()
         if step in ("read", "write"):
             self._wait_for(handshake, read=step == "read")
+        elif step == "probe":
+            self._end(handshake)
+            handshake.sock.close()
+            self._on_probe(handshake.address[0])
         elif step == "failed":
             self._failed(handshake, why)
         else:

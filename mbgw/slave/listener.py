@@ -29,7 +29,13 @@ from mbgw.net.address import format_address
 from mbgw.net.listen import listen
 from mbgw.net.tls import role_of, server_context
 from mbgw.ops.counters import Counters
-from mbgw.ops.limits import AcceptRest, WarnLimit, is_resource_error
+from mbgw.ops.limits import (
+    FIRST_REQUEST_S,
+    SLOW_REQUEST_S,
+    AcceptRest,
+    WarnLimit,
+    is_resource_error,
+)
 from mbgw.ops.reload import ReloadReport
 from mbgw.slave.connections import PEER_GONE, Client, Connections, TlsClient
 from mbgw.slave.handshakes import HANDSHAKES_PER_ADDRESS, MAX_HANDSHAKES, Handshakes
@@ -37,8 +43,6 @@ from mbgw.slave.handshakes import HANDSHAKES_PER_ADDRESS, MAX_HANDSHAKES, Handsh
 log = logging.getLogger("mbgw.tcp")
 
 LISTEN_BACKLOG = 100
-FIRST_REQUEST_S = 60.0           # a connection that sent no whole request this long is closed
-SLOW_REQUEST_S = 0.5             # a request begun this long ago and not whole: a slow client
 SWEEP_S = 0.25                   # how often the clients' deadlines are looked at
 
 

@@ -45,16 +45,11 @@ from mbgw.line import native
 from mbgw.net.address import format_address
 from mbgw.net.listen import listen
 from mbgw.net.ratelimit import RateLimitedLog
-from mbgw.net.tls import (
-    HANDSHAKE_TIMEOUT_S,
-    MAX_HANDSHAKES,
-    first_byte,
-    handshake_step,
-    role_of,
-    start_handshake,
-)
+from mbgw.net.tls import HANDSHAKE_TIMEOUT_S, role_of
 from mbgw.ops.eventfd import drain
 from mbgw.ops.limits import AcceptRest, WarnLimit, is_resource_error, share
+from mbgw.table.connection import Connection, eviction_victim, late
+from mbgw.table.handshakes import Handshakes
 
 log = logging.getLogger("mbgw.table")
 
@@ -63,9 +58,6 @@ RECEIVE_SIZE = 4096           # one read: 15 requests of 260 bytes, 341 reads of
 REBIND_WAIT_S = 5.0           # a reload waits this long for the server's thread to rebind
 BROADCAST_UNIT = 0
 PER_ADDRESS = share(MAX_CONNECTIONS)
-HANDSHAKES_PER_ADDRESS = share(MAX_HANDSHAKES) // 2
-FIRST_REQUEST_S = 60.0              # a client that sent no whole request this long is closed
-SLOW_REQUEST_S = 0.5                # a request begun this long ago and not whole: slow
 SWEEP_S = 0.25                      # how often the deadlines are looked at, with clients
 
 _IN = select.POLLIN
@@ -73,47 +65,6 @@ _OUT = select.POLLOUT
 _HEADER = native.HEADER
 _HEADER_LEN = native.HEADER_LEN
 _frame_length = native.frame_length
-_UNIT_AT = _HEADER_LEN - 1
-
-
-class _Connection:
-    __slots__ = ("sock", "fd", "peer", "partial", "held", "connected_at", "requests", "host",
-                 "role", "listener", "guard", "firewall_refused", "tls", "opened",
-                 "partial_since", "id", "last_active")
-
-    def __init__(self, sock: socket.socket, peer: str, host: str = "",
-                 role: str | None = None, tls: bool = False) -> None:
-        self.host = host
-        self.role = role                    # the firewall's view of it (TLS sets a role)
-        self.tls = tls                      # sock is an SSLSocket
-        self.listener = "tls" if tls else "plain"
-        self.guard: Guard | None = None
-        self.firewall_refused = 0
-        self.sock = sock
-        self.fd = sock.fileno()
-        self.peer = peer
-        self.partial = bytearray()      # the start of a frame the next read completes
-        self.held = bytearray()         # replies the socket has not taken yet
-        self.connected_at = time.time()
-        self.opened = time.monotonic()
-        self.partial_since = 0.0        # monotonic: when the frame in partial began
-        self.requests = 0
-        self.id = 0                     # the operator's handle (mbgw clients), set on adoption
-        self.last_active = self.opened  # monotonic: its last read
-
-
-class _Handshake:
-    """A TLS client whose handshake is under way (sock: the plain socket until its first
-    byte)."""
-    __slots__ = ("sock", "fd", "address", "deadline", "context")
-
-    def __init__(self, sock: socket.socket, address, deadline: float,
-                 context: ssl.SSLContext) -> None:
-        self.sock = sock
-        self.fd = sock.fileno()
-        self.address = address
-        self.deadline = deadline
-        self.context = context
 
 
 class TableServer(threading.Thread):
@@ -151,7 +102,6 @@ class TableServer(threading.Thread):
                 sock.close()
             raise
         self._new_tls: tuple | None = None
-        self._handshakes: dict[int, _Handshake] = {}     # by fd
         self._tls_refusals = RateLimitedLog()       # logged by (address, reason)
         self._answer = None
         self._wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
@@ -160,8 +110,10 @@ class TableServer(threading.Thread):
         self.firewall = firewall or Firewall(None)
         self._new_firewall: Firewall | None = None
         self._lock = threading.Lock()      # _new_listeners
-        self._clients: dict[int, _Connection] = {}
+        self._clients: dict[int, Connection] = {}
         self._poll = select.poll()
+        self._handshakes = Handshakes(self._poll, self._tls_client, self._tls_refused,
+                                      self._tls_probe)
         self._input = bytearray(RECEIVE_SIZE)
         self._input_view = memoryview(self._input)
         self._replies = bytearray()        # the replies of one read, sent together
@@ -302,13 +254,13 @@ class TableServer(threading.Thread):
                     if client is not None:
                         self._serve(client, events, answer)
                     elif fd in handshakes:
-                        self._shake(handshakes[fd])
+                        handshakes.step(fd)
                     elif fd in listeners:
                         self._accept(*listeners[fd])
                     elif fd == self._wake_fd:
                         listeners = self._woken()
                 if handshakes:
-                    self._expire_handshakes()
+                    handshakes.expire(self.request_timeout_s)
                 if clients or self._resting:
                     self._sweep()
         except Exception:
@@ -346,9 +298,9 @@ class TableServer(threading.Thread):
         sock.setblocking(False)
         if tls:
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)   # no Nagle in the flights
-            self._start_handshake(sock, address)
+            self._handshakes.start(self._tls, sock, address, self.request_timeout_s)
         else:
-            self._adopt(_Connection(sock, format_address(address), address[0]))
+            self._adopt(Connection(sock, format_address(address), address[0]))
 
     def _room_for(self, sock: socket.socket, address) -> bool:
         """Whether a newcomer fits (a silent or slow client closed for it if need be); else
@@ -365,12 +317,8 @@ class TableServer(threading.Thread):
                 f"(table.max-connections)"
         else:
             return True
-        now = time.monotonic()
-        victims = [c for c in pool if not c.requests and not c.held] or \
-            [c for c in pool if c.partial_since and now - c.partial_since >= SLOW_REQUEST_S
-             and not c.held]
-        if victims:
-            victim = min(victims, key=lambda c: c.opened)
+        victim = eviction_victim(pool, time.monotonic())
+        if victim is not None:
             self.evicted += 1
             log.debug("table client %s closed to make room for %s", victim.peer,
                       format_address(address))
@@ -394,20 +342,16 @@ class TableServer(threading.Thread):
             if now >= until:
                 del self._resting[fd]
                 self._poll.register(fd, _IN)
-        limit = self.request_timeout_s
         for client in list(self._clients.values()):
-            if client.partial_since and now - client.partial_since > limit:
-                reason = f"a request not whole within request-timeout ({limit * 1000:.0f} ms)"
-            elif not client.requests and now - client.opened > FIRST_REQUEST_S:
-                reason = f"no request within {FIRST_REQUEST_S:g} s"
-            else:
+            reason = late(client, now, self.request_timeout_s)
+            if reason is None:
                 continue
             self.timed_out += 1
             self._warn.warn(client.host, "timeout", "table client %s closed: %s", client.peer,
                             reason)
             self._close(client)
 
-    def _adopt(self, client: _Connection) -> None:
+    def _adopt(self, client: Connection) -> None:
         client.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         client.sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
         client.guard = self.firewall.guard(client.host, client.role, client.listener)
@@ -419,51 +363,11 @@ class TableServer(threading.Thread):
         log.debug("table client %s connected%s", client.peer,
                   f" (TLS, role {client.role})" if client.tls else "")
 
-    # --- Modbus/TCP Security: the handshake, a state of the poll loop ---
+    # --- Modbus/TCP Security: the ends of a handshake (mbgw.table.handshakes steps it) ---
 
-    def _start_handshake(self, sock: socket.socket, address) -> None:
-        context = self._tls
-        mine = sum(1 for h in self._handshakes.values() if h.address[0] == address[0])
-        if context is None or len(self._handshakes) >= MAX_HANDSHAKES \
-                or mine >= HANDSHAKES_PER_ADDRESS:
-            sock.close()
-            self._tls_refused(address, f"{MAX_HANDSHAKES} TLS handshakes under way already"
-                              if mine < HANDSHAKES_PER_ADDRESS else
-                              f"{mine} TLS handshakes of this address under way already")
-            return
-        handshake = _Handshake(sock, address, time.monotonic() + self.request_timeout_s, context)
-        self._handshakes[handshake.fd] = handshake
-        self._poll.register(handshake.fd, _IN)
-        self._shake(handshake)
-
-    def _shake(self, handshake: _Handshake) -> None:
-        """One step of a client's handshake; the next when its socket is ready for it."""
-        if not isinstance(handshake.sock, ssl.SSLSocket):
-            heard = first_byte(handshake.sock)
-            if heard is None:
-                return                      # polled for input already
-            if not heard:                   # a health check's connect and close
-                self._end_handshake(handshake)
-                handshake.sock.close()
-                self.tls_probes += 1
-                return
-            tls = start_handshake(handshake.context, handshake.sock)
-            if isinstance(tls, str):
-                self._handshake_failed(handshake, tls)
-                return
-            handshake.sock = tls
-        step, why = handshake_step(handshake.sock)
-        if step == "read":
-            self._poll.modify(handshake.fd, _IN)
-            return
-        if step == "write":
-            self._poll.modify(handshake.fd, _OUT)
-            return
-        if step == "failed":
-            self._handshake_failed(handshake, why)
-            return
-        self._end_handshake(handshake)
-        sock, address = cast(ssl.SSLSocket, handshake.sock), handshake.address
+    def _tls_client(self, sock: ssl.SSLSocket, address) -> None:
+        """A client whose handshake is over: served like a plain one, its role (from its
+        certificate) for the firewall."""
         try:
             role = role_of(sock.getpeercert(binary_form=True))
         except (OSError, ValueError):       # the peer has gone meanwhile
@@ -471,35 +375,13 @@ class TableServer(threading.Thread):
             return
         if not self._room_for(sock, address):
             return
-        client = _Connection(sock, format_address(address), address[0], role, tls=True)
+        client = Connection(sock, format_address(address), address[0], role, tls=True)
         self._adopt(client)
         if sock.pending():                  # a request came with the handshake's end
             self._receive(client, self._answer)
 
-    def _end_handshake(self, handshake: _Handshake) -> None:
-        del self._handshakes[handshake.fd]
-        self._poll.unregister(handshake.fd)
-
-    def _handshake_failed(self, handshake: _Handshake, reason: str) -> None:
-        self._end_handshake(handshake)
-        handshake.sock.close()
-        self._tls_refused(handshake.address, reason)
-
-    def _wait_ms(self) -> int | None:
-        """poll()'s timeout: until the first handshake's deadline, and at most SWEEP_S while
-        clients have deadlines or a listener rests (None: nothing to wait for)."""
-        wait = int(SWEEP_S * 1000) + 1 if self._clients or self._resting else None
-        if not self._handshakes:
-            return wait
-        first = min(h.deadline for h in self._handshakes.values())
-        first_ms = max(0, int((first - time.monotonic()) * 1000) + 1)
-        return first_ms if wait is None else min(wait, first_ms)
-
-    def _expire_handshakes(self) -> None:
-        now = time.monotonic()
-        for handshake in [h for h in self._handshakes.values() if h.deadline <= now]:
-            self._handshake_failed(handshake,
-                                   f"no TLS handshake within {self.request_timeout_s:g} s")
+    def _tls_probe(self) -> None:
+        self.tls_probes += 1
 
     def _tls_refused(self, address, reason: str) -> None:
         """Counted; logged at most once a minute per address and reason."""
@@ -509,7 +391,18 @@ class TableServer(threading.Thread):
                   "this address for this reason are logged at most once a minute)",
                   format_address(address), reason, client=format_address(address), reason=reason)
 
-    def _close(self, client: _Connection) -> None:
+    # --- waiting, closing ---
+
+    def _wait_ms(self) -> int | None:
+        """poll()'s timeout: until the first handshake's deadline, and at most SWEEP_S while
+        clients have deadlines or a listener rests (None: nothing to wait for)."""
+        wait = int(SWEEP_S * 1000) + 1 if self._clients or self._resting else None
+        first_ms = self._handshakes.wait_ms()
+        if first_ms is None or wait is None:
+            return wait if first_ms is None else first_ms
+        return min(wait, first_ms)
+
+    def _close(self, client: Connection) -> None:
         del self._clients[client.fd]
         self._poll.unregister(client.fd)
         client.sock.close()
@@ -518,9 +411,7 @@ class TableServer(threading.Thread):
     def _close_all(self) -> None:
         for client in list(self._clients.values()):
             self._close(client)
-        for handshake in list(self._handshakes.values()):
-            self._end_handshake(handshake)
-            handshake.sock.close()
+        self._handshakes.close()
         for sock in self._listeners + self._tls_listeners:
             sock.close()
         self._resting.clear()
@@ -573,10 +464,7 @@ class TableServer(threading.Thread):
                 event(log, Kind.CLIENT_CLOSED, "table client %s closed: no longer allowed by "
                       "authip", client.peer, client=client.peer, reason="not in authip")
                 self._close(client)
-        for handshake in list(self._handshakes.values()):
-            if not allows(handshake.address[0]):
-                self._end_handshake(handshake)
-                handshake.sock.close()
+        self._handshakes.close(allows)
 
     def _rebind(self, bind: str | None, outcome: queue.Queue) -> None:
         """Off the old address (the same port may not be listened on twice), on the new one;
@@ -621,7 +509,7 @@ class TableServer(threading.Thread):
 
     # --- requests ---
 
-    def _serve(self, client: _Connection, events: int, answer) -> None:
+    def _serve(self, client: Connection, events: int, answer) -> None:
         if events & _OUT:
             if not self._flush(client):
                 return
@@ -632,7 +520,7 @@ class TableServer(threading.Thread):
                 and cast(ssl.SSLSocket, client.sock).pending():
             self._receive(client, answer)
 
-    def _receive(self, client: _Connection, answer) -> None:
+    def _receive(self, client: Connection, answer) -> None:
         """One read of the client's requests, answered."""
         try:
             n = client.sock.recv_into(self._input)
@@ -661,7 +549,7 @@ class TableServer(threading.Thread):
                             "closing the connection", client.peer, err)
             self._close(client)
 
-    def _answer_all(self, client: _Connection, view: memoryview, n: int, answer) -> None:
+    def _answer_all(self, client: Connection, view: memoryview, n: int, answer) -> None:
         """Answer every whole frame in view (n bytes); keep the start of an incomplete one.
         Raises BadHeader once the replies before the bad header are sent."""
         at = 0
@@ -699,7 +587,7 @@ class TableServer(threading.Thread):
         else:
             client.partial_since = 0.0
 
-    def _refused(self, client: _Connection, guard: Guard, frame, unit: int) -> bytes:
+    def _refused(self, client: Connection, guard: Guard, frame, unit: int) -> bytes:
         """The reply to a request the firewall refused: 0x01, a broadcast's too (it was not
         done)."""
         client.firewall_refused += 1
@@ -707,7 +595,7 @@ class TableServer(threading.Thread):
                                         frame[_HEADER_LEN:])
         return native.frame(_HEADER.unpack_from(frame)[0], unit, refusal)
 
-    def _send(self, client: _Connection, data) -> None:
+    def _send(self, client: Connection, data) -> None:
         """Onto the socket now, or held (and the client no longer read) until it takes it."""
         if client.held:
             client.held += data
@@ -725,7 +613,7 @@ class TableServer(threading.Thread):
             client.held += memoryview(data)[sent:]
             self._poll.modify(client.fd, _OUT)
 
-    def _flush(self, client: _Connection) -> bool:
+    def _flush(self, client: Connection) -> bool:
         """Send held replies; True once none are left (the client is read again)."""
         try:
             sent = client.sock.send(client.held)

@@ -3,9 +3,11 @@ servers on loopback addresses, `mbgw master` on a pty, its end of the line."""
 import os
 
 import pytest
+from pymodbus.client import ModbusSerialClient
+from pymodbus.framer import FramerType
 
-from tests.harness import Gateway, Peer, PtyPair, free_port
-from tests.integration.master.test_master import BAUD
+from tests.harness import Gateway, Peer, PtyPair, factory, free_port
+from tests.integration.master.test_master import BAUD, REPLY_S
 
 
 @pytest.fixture
@@ -13,20 +15,14 @@ def servers_at():
     """servers_at(*hosts, silent=(), port=None) -> (port, Peer): pymodbus servers on these
     loopback addresses and on the silent ones (which never answer), all on one port;
     stopped after the test."""
-    started = []
-
-    def start(*hosts: str, silent=(), port: int | None = None):
+    def start(*hosts: str, silent=(), port: int | None = None) -> tuple[int, Peer]:
         port = port or free_port()
         args = [str(port), *hosts, *silent]
         if silent:
             args += ["--silent", *silent]
-        peer = Peer("pymodbus_tcp_servers.py", *args)
-        started.append(peer)
-        return port, peer
+        return port, Peer("pymodbus_tcp_servers.py", *args)
 
-    yield start
-    for peer in started:
-        peer.stop()
+    yield from factory(start, lambda started: started[1].stop())
 
 
 @pytest.fixture
@@ -69,3 +65,15 @@ def open_line():
     yield opened
     for fd in fds:
         os.close(fd)
+
+
+@pytest.fixture
+def serial_client(pty_pair):
+    """serial_client(framer) -> pymodbus's serial master on the line; closed after."""
+    def connect(framer=FramerType.RTU) -> ModbusSerialClient:
+        client = ModbusSerialClient(pty_pair.device, framer=framer, baudrate=int(BAUD),
+                                    timeout=REPLY_S, retries=0)
+        assert client.connect()
+        return client
+
+    yield from factory(connect, ModbusSerialClient.close)

@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 from prometheus_client import parser
 
-from tests.harness import PtyPair, free_port
+from tests.harness import PtyPair, factory, free_port
 from tests.integration.ops.test_reload import config_set
 from tests.modbus import Client, mbap, read_holding
 from tests.ops import mbgw, metric_families, metric_value, status, wait_for, wait_for_log
@@ -78,16 +78,8 @@ class Line:
 @pytest.fixture
 def lines(tmp_path, start_peer):
     """lines(name, *addresses) -> a Line in tmp_path/name; stopped after the test."""
-    made = []
-
-    def make(name: str, *addresses: int) -> Line:
-        line = Line(tmp_path / name, start_peer, *addresses)
-        made.append(line)
-        return line
-
-    yield make
-    for line in made:
-        line.stop()
+    yield from factory(lambda name, *addresses: Line(tmp_path / name, start_peer, *addresses),
+                       Line.stop)
 
 
 def lines_toml(spec: dict) -> str:

@@ -15,12 +15,12 @@ import subprocess
 import time
 
 import pytest
-from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+from pymodbus.client import ModbusTcpClient
 from pymodbus.framer import FramerType
 
 from mbgw.line import native
 from tests import harness
-from tests.harness import Gateway, Peer, free_port, logged_counters
+from tests.harness import Gateway, Peer, factory, free_port, logged_counters
 from tests.modbus import rtu_frame as rtu
 
 pytestmark = pytest.mark.integration
@@ -108,19 +108,13 @@ def servers():
 def gateway(tmp_path, pty_pair, servers):
     """gateway(*slaveid lines, options=[...]) -> a ready `mbgw master` on pty_pair.gateway
     that reaches `servers`."""
-    started = []
-
     def start(*lines: str, options=()) -> Gateway:
         port, _ = servers
         args = [a for line in lines for a in ("--slaveid", line)]
-        gw = Gateway(tmp_path, pty_pair.gateway, "--baudrate", BAUD, "--mdbport", str(port),
-                     *args, *options, mode="master", listen=False)
-        started.append(gw)
-        return gw
+        return Gateway(tmp_path, pty_pair.gateway, "--baudrate", BAUD, "--mdbport", str(port),
+                       *args, *options, mode="master", listen=False)
 
-    yield start
-    for gw in started:
-        gw.stop()
+    yield from factory(start, Gateway.stop)
 
 
 def counters(gw: Gateway) -> dict[str, int]:
@@ -129,22 +123,6 @@ def counters(gw: Gateway) -> dict[str, int]:
     log = gw.log_path.read_text()
     assert code == 0, log
     return logged_counters(next(row for row in log.splitlines() if "stopped; counters:" in row))
-
-
-@pytest.fixture
-def serial_client(pty_pair):
-    clients = []
-
-    def connect(framer=FramerType.RTU) -> ModbusSerialClient:
-        client = ModbusSerialClient(pty_pair.device, framer=framer, baudrate=int(BAUD),
-                                    timeout=REPLY_S, retries=0)
-        assert client.connect()
-        clients.append(client)
-        return client
-
-    yield connect
-    for client in clients:
-        client.close()
 
 
 # ---- frames ----

@@ -16,7 +16,7 @@ import pytest
 from click.testing import CliRunner
 
 from mbgw.cli import main
-from mbgw.cli.options import persist_path
+from mbgw.cli.table_options import persist_path
 from mbgw.ops import control
 from tests.harness import CHECKOUT
 from tests.integration.master.rig import ask, holding_reply, identity, read_holding

@@ -7,25 +7,11 @@ import subprocess
 
 import pytest
 
-from tests.integration.ops.test_trace_raw import Trace
 from tests.integration.scenarios.test_scenarios_serial import poll, write_config
 from tests.modbus import holding_reply, read_holding
 from tests.ops import mbgw, status, wait_for
 
 pytestmark = pytest.mark.integration
-
-
-@pytest.fixture
-def trace():
-    started = []
-
-    def start(gw, *args: str) -> Trace:
-        t = Trace(gw, *args)
-        started.append(t)
-        return t
-    yield start
-    for t in started:
-        t.stop()
 
 
 @pytest.fixture

@@ -45,19 +45,6 @@ class Trace:
 
 
 @pytest.fixture
-def trace():
-    started = []
-
-    def start(gw, *args: str) -> Trace:
-        t = Trace(gw, *args)
-        started.append(t)
-        return t
-    yield start
-    for t in started:
-        t.stop()
-
-
-@pytest.fixture
 def fault_line(recording_peer):
     """fault_line(*options) -> the record of the fault peer's frames."""
     def start(*options: str):

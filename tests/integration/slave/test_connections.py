@@ -72,14 +72,6 @@ class Sockets(list):
 
 
 @pytest.fixture
-def sockets():
-    opened = Sockets()
-    yield opened
-    for sock in opened:
-        sock.close()
-
-
-@pytest.fixture
 def rtu(pty_pair, start_peer):
     """pymodbus slave 17 on the line; requests to any other address get no reply."""
     start_peer("pymodbus_slave.py", pty_pair.device, "17", "--silent-unknown")

@@ -15,7 +15,6 @@ from tests import harness
 from tests.integration.slave.test_connections import (
     READ_3,
     REPLY_3,
-    Sockets,
     assert_closed,
     assert_served,
 )
@@ -32,14 +31,6 @@ SERVED_WITHIN_S = 2.0         # a legitimate newcomer beside a slowloris: a func
 def rtu(pty_pair, start_peer):
     start_peer("pymodbus_slave.py", pty_pair.device, "17", "--silent-unknown")
     return pty_pair
-
-
-@pytest.fixture
-def sockets():
-    opened = Sockets()
-    yield opened
-    for sock in opened:
-        sock.close()
 
 
 class Dribbler(threading.Thread):

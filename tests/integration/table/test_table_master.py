@@ -19,10 +19,10 @@ import subprocess
 import time
 
 import pytest
-from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+from pymodbus.client import ModbusTcpClient
 from pymodbus.framer import FramerType
 
-from tests.harness import free_port
+from tests.harness import free_port, idle_connections
 from tests.integration.master.test_master import (
     BAUD,
     REPLY_S,
@@ -62,23 +62,6 @@ def table_master(start_master, servers):
                           "--table-address", str(TABLE), "--table-port", str(port), *options)
         return gw, port
     return start
-
-
-@pytest.fixture
-def serial_client(pty_pair):
-    """serial_client(framer) -> pymodbus's serial master on the line; closed after."""
-    clients = []
-
-    def connect(framer=FramerType.RTU) -> ModbusSerialClient:
-        client = ModbusSerialClient(pty_pair.device, framer=framer, baudrate=int(BAUD),
-                                    timeout=REPLY_S, retries=0)
-        assert client.connect()
-        clients.append(client)
-        return client
-
-    yield connect
-    for client in clients:
-        client.close()
 
 
 @pytest.fixture
@@ -393,15 +376,7 @@ def test_idle_connections_to_the_table_port_cost_nothing_and_a_poller_is_served(
     pid = gw.proc.pid
     fds_before, cpu_before = len(os.listdir(f"/proc/{pid}/fd")), cpu_s(pid)
     log_before = len(gw.log().splitlines())
-    idle = []
-    for _ in range(50):             # never a byte: each replaces the oldest silent one
-        sock = socket.socket()
-        sock.setblocking(False)
-        try:
-            sock.connect(("127.0.0.1", port))
-        except BlockingIOError:
-            pass
-        idle.append(sock)
+    idle = idle_connections(port, 50)   # never a byte: each replaces the oldest silent one
     try:
         deadline = time.monotonic() + 3.0
         tid = 2

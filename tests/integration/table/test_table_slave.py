@@ -20,6 +20,7 @@ import threading
 import pytest
 from pymodbus.client import ModbusTcpClient
 
+from tests.harness import factory
 from tests.integration.ops.test_reload import config_set, reload
 from tests.integration.slave.test_passthrough import read_line
 from tests.modbus import crc16, mbap, read_holding
@@ -45,17 +46,12 @@ def table_gateway(pty_pair, start_peer, start_gateway):
 @pytest.fixture
 def pymodbus_client():
     """pymodbus_client(gw) -> a connected pymodbus TCP client; closed after the test."""
-    clients = []
-
     def connect(gw) -> ModbusTcpClient:
         c = ModbusTcpClient("127.0.0.1", port=gw.port, timeout=REPLY_S, retries=0)
         assert c.connect()
-        clients.append(c)
         return c
 
-    yield connect
-    for c in clients:
-        c.close()
+    yield from factory(connect, ModbusTcpClient.close)
 
 
 def read(c: ModbusTcpClient, address: int, count: int, unit: int) -> list[int]:

@@ -24,6 +24,17 @@ UNIT = 17
 REPLY_S = 3.0
 
 
+def reload_an_expired_certificate(gw, ca: Authority, cert, key) -> None:
+    """A certificate that expired on 2021-01-01 put in place of the server's cert and key,
+    then SIGHUP: the reload is refused, naming the file and the date."""
+    expired, expired_key = ca.issue("server3", server=True, start="20200101000000Z",
+                                    end="20210101000000Z")
+    os.replace(expired, cert)
+    os.replace(expired_key, key)
+    os.kill(gw.proc.pid, signal.SIGHUP)
+    wait_for_log(gw, f"{cert}: expired on 2021-01-01 00:00:00 UTC")
+
+
 @pytest.fixture
 def pki(tmp_path):
     """(our CA, another CA, the server's (cert, key))."""
@@ -217,12 +228,7 @@ def test_reload_loads_a_renewed_certificate_for_new_connections_only(
     finally:
         client.close()
     # an expired certificate is refused at reload, naming the file and the date
-    expired, expired_key = ca.issue("server3", server=True, start="20200101000000Z",
-                                    end="20210101000000Z")
-    os.replace(expired, cert)
-    os.replace(expired_key, key)
-    os.kill(gw.proc.pid, signal.SIGHUP)
-    wait_for_log(gw, f"{cert}: expired on 2021-01-01 00:00:00 UTC")
+    reload_an_expired_certificate(gw, ca, cert, key)
     assert "reload refused" in gw.log()
     client = tls_client(port, context)
     try:

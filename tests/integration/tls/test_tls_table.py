@@ -12,12 +12,13 @@ import time
 import pytest
 from pymodbus.exceptions import ModbusException
 
-from mbgw.table.server import HANDSHAKES_PER_ADDRESS
+from mbgw.table.handshakes import HANDSHAKES_PER_ADDRESS
 from tests.harness import free_port
 from tests.integration.ops.test_reload import recv_frame
 from tests.integration.tls.test_tls import (
     REPLY_S,
     client_context,
+    reload_an_expired_certificate,
     server_serial,
     status,
     tls_client,
@@ -219,12 +220,7 @@ def test_reload_loads_a_renewed_certificate_for_new_connections_only(tmp_path, s
         assert client.read_holding_registers(FREE, count=1, device_id=1).registers == [0]
     finally:
         client.close()
-    expired, expired_key = ca.issue("server3", server=True, start="20200101000000Z",
-                                    end="20210101000000Z")
-    os.replace(expired, cert)
-    os.replace(expired_key, key)
-    os.kill(gw.proc.pid, signal.SIGHUP)
-    wait_for_log(gw, f"{cert}: expired on 2021-01-01 00:00:00 UTC")
+    reload_an_expired_certificate(gw, ca, cert, key)
     # the renewed one again, on another port: the TLS listener moves, the plain one stays
     os.replace(renewed_cert, cert)
     os.replace(renewed_key_copy, key)

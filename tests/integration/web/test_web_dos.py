@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from tests.harness import free_port
+from tests.harness import free_port, idle_connections
 from tests.integration.scenarios.test_scenarios_serial import write_config
 from tests.integration.tls.test_tls import client_context, tls_options
 from tests.integration.web.test_web_api import (
@@ -172,20 +172,6 @@ def cpu_s(pid: int) -> float:
 def open_fds(pid: int) -> int:
     import os
     return len(os.listdir(f"/proc/{pid}/fd"))
-
-
-def idle_connections(port: int, count: int) -> list[socket.socket]:
-    """count connections to port that never send a byte (those the peer refuses included)."""
-    opened = []
-    for _ in range(count):
-        sock = socket.socket()
-        sock.setblocking(False)
-        try:
-            sock.connect(("127.0.0.1", port))
-        except BlockingIOError:
-            pass
-        opened.append(sock)
-    return opened
 
 
 @pytest.mark.usefixtures("many_fds")

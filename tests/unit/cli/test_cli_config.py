@@ -10,7 +10,8 @@ import pytest
 from click.testing import CliRunner
 
 from mbgw.cli import config as cli_config
-from mbgw.cli import main
+from mbgw.cli import config_option, config_write, main
+from mbgw.cli.options import EX_CONFIG
 from mbgw.config import schema as config_keys
 from mbgw.config import toml_text as toml_edit
 from mbgw.config.schema import SerialOption
@@ -63,7 +64,7 @@ def recorder() -> tuple[click.Group, list]:
         @click.option("--authip", multiple=True)
         def command(**options):
             calls.append((name, without_scenarios(options)))
-            reload = cli_config.reloader()
+            reload = config_option.reloader()
             reloaders.append(reload and (lambda: without_scenarios(reload())))
         return command
 
@@ -280,7 +281,7 @@ def test_instance_files_live_in_the_config_dir(tmp_path, monkeypatch):
 def test_permission_error_says_to_use_sudo(conf, monkeypatch):
     def refuse(*_):
         raise PermissionError(13, "Permission denied")
-    monkeypatch.setattr(cli_config, "write_atomic", refuse)
+    monkeypatch.setattr(config_write, "write_atomic", refuse)
     result = mbgw("config", "set", "serial", "stout", "700", "--config", conf)
     assert result.exit_code == 1
     assert (f"cannot write {conf}: permission denied; run it as root: sudo mbgw config set "
@@ -321,7 +322,7 @@ def test_mode_command_with_a_bad_file_names_it(tmp_path):
     path = tmp_path / "f.toml"
     path.write_text('[serial]\ndevice = "/dev/ttyS5"\nstout = 0\n')
     result = mbgw("slave", "--config", path, root=group)
-    assert result.exit_code == cli_config.EX_CONFIG and calls == []
+    assert result.exit_code == EX_CONFIG and calls == []
     assert f"mbgw: {path}: serial.stout: 0 is not in the range" in result.output
 
 
@@ -347,7 +348,7 @@ def test_a_path_that_can_never_be_a_serial_device_is_refused_by_set_check_and_ru
     assert result.exit_code != 0 and f"serial.device: device {tmp_path}: a directory, not a " \
         f"serial device" in result.output
     result = mbgw("run", "--config", conf)
-    assert result.exit_code == cli_config.EX_CONFIG
+    assert result.exit_code == EX_CONFIG
     assert f"serial.device: device {tmp_path}: a directory" in result.output
 
 
@@ -356,7 +357,7 @@ def test_run_without_a_device_names_the_key(tmp_path):
     path = tmp_path / "f.toml"
     path.write_text("[serial]\nstout = 700\n")
     result = mbgw("run", "--config", path, root=group)
-    assert result.exit_code == cli_config.EX_CONFIG and calls == []
+    assert result.exit_code == EX_CONFIG and calls == []
     assert f"mbgw: {path}: serial.device: missing; slave mode needs it" in result.output
 
 

@@ -11,7 +11,7 @@ import click
 import pytest
 
 from mbgw.cli import main
-from mbgw.cli.options import serial_options
+from mbgw.cli.serial_options import serial_options
 from mbgw.config import edit as config_set
 from mbgw.config import file as cf
 from mbgw.config import schema as config_keys
@@ -96,7 +96,7 @@ def test_keys_are_grouped_like_the_guide(schema, name, group):
 
 
 def test_a_new_option_is_a_new_key_with_nothing_to_list():
-    """A serial option (one of mbgw.cli.options.serial_options) goes to [serial], another to
+    """A serial option (one of mbgw.cli.serial_options.serial_options) goes to [serial], another to
     [general]; both appear in the factory file at their defaults."""
     @click.command("slave")
     @serial_options

@@ -10,7 +10,7 @@ import pytest
 from click.testing import CliRunner
 
 from mbgw.cli import main
-from mbgw.cli.config import EX_CONFIG
+from mbgw.cli.options import EX_CONFIG
 from mbgw.errors import ConfigError
 from mbgw.ops.limits import REST_MAX_S, AcceptRest, WarnLimit
 from mbgw.table.memory import Table

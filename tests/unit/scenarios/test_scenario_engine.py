@@ -8,17 +8,8 @@ import pytest
 
 from mbgw.config.scenario import parse_scenario
 from mbgw.scenarios.engine import Scenarios
-from mbgw.table.memory import Table
 
 H = bytes.fromhex
-
-
-class Clock:
-    def __init__(self):
-        self.now = 100.0
-
-    def __call__(self):
-        return self.now
 
 
 def sc(name, **keys):
@@ -26,16 +17,6 @@ def sc(name, **keys):
             "table": 0, "cycle": 1000}
     base.update(keys)
     return parse_scenario({k: v for k, v in base.items() if v is not None}, "s")
-
-
-@pytest.fixture
-def table():
-    return Table()
-
-
-@pytest.fixture
-def clock():
-    return Clock()
 
 
 def engine(table, clock, *configs):

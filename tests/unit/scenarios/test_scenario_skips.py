@@ -14,17 +14,8 @@ from mbgw.config.scenario import parse_scenario
 from mbgw.ops.device_stats import DOWN, DeviceHealth, HealthRule
 from mbgw.scenarios.engine import Scenarios
 from mbgw.scenarios.health import SerialHealth, ServerHealth
-from mbgw.table.memory import Table
 
 H = bytes.fromhex
-
-
-class Clock:
-    def __init__(self):
-        self.now = 100.0
-
-    def __call__(self):
-        return self.now
 
 
 def sc(name, **keys):
@@ -32,16 +23,6 @@ def sc(name, **keys):
             "table": 20, "cycle": 1000}
     base.update(keys)
     return parse_scenario({k: v for k, v in base.items() if v is not None}, "s")
-
-
-@pytest.fixture
-def table():
-    return Table()
-
-
-@pytest.fixture
-def clock():
-    return Clock()
 
 
 def status(e, name):
