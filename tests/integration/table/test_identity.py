@@ -17,7 +17,6 @@ pytestmark = pytest.mark.integration
 table_gateway = test_table_slave.table_gateway      # the fixtures, shared
 pymodbus_client = test_table_slave.pymodbus_client
 table_master = test_table_master.table_master
-serial_client = test_table_master.serial_client
 servers = test_table_master.servers
 TABLE_ADDRESS = test_table_master.TABLE
 
