@@ -310,13 +310,16 @@ int mbgw_table_answer_mbap(mbgw_table *t, const uint8_t *adu, int len, uint8_t *
  * mbgw_table_set_identity sets object `object` (0-6) of FC 43/14,
  * mbgw_table_set_server_id FC 17's bytes after the byte count; -EINVAL out of bounds.
  * mbgw_table_count_refused counts a request refused before the table saw it (0x01, or
- * nothing for a broadcast); mbgw_table_diagnostics copies FC 8's counters 11-18 (8). */
+ * nothing for a broadcast), mbgw_table_count_bad_frame a frame for it that framed nothing
+ * (a bad CRC or length on a serial line); mbgw_table_diagnostics copies FC 8's counters
+ * 11-18 (8). */
 #define MBGW_IDENT_OBJECTS 7
 #define MBGW_IDENT_OBJECT_MAX 244 /* one object alone fills a reply: 253 - 7 - 2 */
 #define MBGW_SERVER_ID_MAX 251    /* 253 - FC - byte count */
 int mbgw_table_set_identity(mbgw_table *t, int object, const uint8_t *value, int len);
 int mbgw_table_set_server_id(mbgw_table *t, const uint8_t *data, int len);
 void mbgw_table_count_refused(mbgw_table *t, int broadcast);
+void mbgw_table_count_bad_frame(mbgw_table *t);
 void mbgw_table_diagnostics(mbgw_table *t, uint16_t *out);
 
 /* count registers from address into out; -EINVAL beyond the table. */

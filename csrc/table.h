@@ -90,12 +90,11 @@ void set_bit(mbgw_table *t, unsigned bit, int on, int *changed);
 int status_byte(const mbgw_table *t);
 int any_stale(const mbgw_table *t, unsigned first, unsigned end);
 
-/* The identity functions (csrc/table_ident.c), the lock held but count_bad_frame's. */
+/* The identity functions (csrc/table_ident.c), the lock held. */
 int diagnostics(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp);
 int report_server_id(const mbgw_table *t, int len, uint8_t *rsp);
 int read_device_id(const mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp);
 void count_received(mbgw_table *t);
-void count_bad_frame(mbgw_table *t);
 
 static inline int beyond(unsigned address, unsigned quantity)
 {

@@ -185,7 +185,7 @@ int mbgw_table_answer(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp,
                       int broadcast)
 {
     if (len < 1) {
-        count_bad_frame(t);
+        mbgw_table_count_bad_frame(t);
         return 0;
     }
     uint8_t fc = req[0];
@@ -220,7 +220,7 @@ int mbgw_table_answer_mbap(mbgw_table *t, const uint8_t *adu, int len, uint8_t *
                            int broadcast)
 {
     if (len < MBAP_LEN || mbgw_mbap_frame_len(be16(adu + 2), be16(adu + 4)) != len) {
-        count_bad_frame(t);
+        mbgw_table_count_bad_frame(t);
         return -EBADMSG;
     }
     int n =

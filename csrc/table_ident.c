@@ -35,7 +35,7 @@ void count_received(mbgw_table *t)
     t->diag[DIAG_SERVER_MESSAGES]++;
 }
 
-void count_bad_frame(mbgw_table *t)
+void mbgw_table_count_bad_frame(mbgw_table *t)
 {
     pthread_mutex_lock(&t->lock);
     t->diag[DIAG_BUS_MESSAGES]++;

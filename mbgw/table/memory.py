@@ -234,6 +234,11 @@ class Table:
         if lib.mbgw_table_set_server_id(self._t, server_id, len(server_id)) < 0:
             raise TableError(f"server id: {len(server_id)} bytes, at most {SERVER_ID_MAX}")
 
+    def count_bad_frame(self) -> None:
+        """FC 8/11 and 12: a frame for the table that framed nothing (a serial slave's bad CRC
+        or length)."""
+        lib.mbgw_table_count_bad_frame(self._t)
+
     def diagnostics(self) -> dict[str, int]:
         """FC 8's counters 11-18 by name (DIAGNOSTIC_COUNTERS), since start or the last FC
         8/10."""

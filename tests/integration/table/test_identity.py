@@ -3,15 +3,19 @@ table on every unit that reaches it and by `--gateway-unit`, read by pymodbus's 
 against a running `mbgw slave`.  Expected values from the issue and the Modbus Application
 Protocol V1.1b3 (6.8, 6.13, 6.21): vendor and product "mbgw", the version of `mbgw
 --version`, the host name as object 6, server id "mbgw" with run indicator 0xFF."""
+import os
 import socket
 
 import pytest
 from pymodbus.client import ModbusTcpClient
 
 import mbgw
+from tests.integration.master.test_master import recv
 from tests.integration.ops.test_reload import config_set, reload
 from tests.integration.table import test_table_master, test_table_slave
 from tests.modbus import read_holding
+from tests.modbus import rtu_frame as rtu
+from tests.ops import wait_for
 
 pytestmark = pytest.mark.integration
 table_gateway = test_table_slave.table_gateway      # the fixtures, shared
@@ -118,3 +122,17 @@ def test_a_reload_gives_and_takes_the_gateway_unit(tmp_path, pty_pair, start_pee
     config_set(path, "general", "gateway-unit", "0")
     reload(gw, "configuration reloaded", count=2)
     assert c.ask(GATEWAY_UNIT, report_server_id) == bytes.fromhex("91 0b")
+
+
+def test_fc8_counts_a_bad_crc_to_the_tables_serial_address(table_master, line):
+    gw, _ = table_master()
+    bad = rtu(bytes((TABLE_ADDRESS,)) + read_holding(0x1000, 1))
+    os.write(line, bad[:-1] + bytes((bad[-1] ^ 0xFF,)))
+    wait_for(gw, lambda s: s["table"]["serial"]["crc_errors"] == 1, "counted the bad CRC")
+    # 12 bus communication error count: the bad CRC; 11 bus message count: it, the request
+    # for 12 and this one
+    for sub, count in ((0x0C, 1), (0x0B, 3)):
+        request = bytes((TABLE_ADDRESS, 0x08, 0x00, sub, 0x00, 0x00))
+        os.write(line, rtu(request))
+        expected = rtu(bytes((TABLE_ADDRESS, 0x08, 0x00, sub, 0x00, count)))
+        assert recv(line, len(expected)).hex(" ") == expected.hex(" ")
