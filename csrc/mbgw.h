@@ -290,6 +290,7 @@ void mbgw_table_set_functions(mbgw_table *t, uint32_t mask);
 /* Answer one request PDU req (function code first, len bytes) into rsp (MBGW_PDU_MAX
  * bytes): returns the reply PDU's length (a normal reply or exception 0x01, 0x02, 0x03),
  * or 0 when broadcast != 0 (writes done, reads ignored, nothing to send) or len < 1.
+ * The identity functions (below) are answered whatever the function mask says.
  * Checks in the order: function unknown or disabled 0x01; quantity outside the Modbus
  * limits, byte count or PDU length that does not match, FC 5 value not 0x0000/0xFF00
  * 0x03; address + quantity beyond 65,536 or a write into the configuration zone 0x02
@@ -303,6 +304,23 @@ int mbgw_table_answer(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp,
  * the header frames nothing (mbgw_mbap_frame_len) or another length than the frame's. */
 int mbgw_table_answer_mbap(mbgw_table *t, const uint8_t *adu, int len, uint8_t *rsp,
                            int broadcast);
+
+/* The identity functions, answered whatever mbgw_table_set_functions says: FC 8
+ * (sub-functions 0 and 10-18), FC 17 and FC 43/14 (conformity 0x83, objects 0-6).
+ * mbgw_table_set_identity sets object `object` (0-6) of FC 43/14,
+ * mbgw_table_set_server_id FC 17's bytes after the byte count; -EINVAL out of bounds.
+ * mbgw_table_count_refused counts a request refused before the table saw it (0x01, or
+ * nothing for a broadcast), mbgw_table_count_bad_frame a frame for it that framed nothing
+ * (a bad CRC or length on a serial line); mbgw_table_diagnostics copies FC 8's counters
+ * 11-18 (8). */
+#define MBGW_IDENT_OBJECTS 7
+#define MBGW_IDENT_OBJECT_MAX 244 /* one object alone fills a reply: 253 - 7 - 2 */
+#define MBGW_SERVER_ID_MAX 251    /* 253 - FC - byte count */
+int mbgw_table_set_identity(mbgw_table *t, int object, const uint8_t *value, int len);
+int mbgw_table_set_server_id(mbgw_table *t, const uint8_t *data, int len);
+void mbgw_table_count_refused(mbgw_table *t, int broadcast);
+void mbgw_table_count_bad_frame(mbgw_table *t);
+void mbgw_table_diagnostics(mbgw_table *t, uint16_t *out);
 
 /* count registers from address into out; -EINVAL beyond the table. */
 int mbgw_table_read(mbgw_table *t, int address, int count, uint16_t *out);

@@ -42,6 +42,20 @@ struct watch {
     int first_writes; /* a register's first write counts as a change, same value or not */
 };
 
+/* The FC 8 counters (sub-functions 11-18, in their order), 16 bits each as FC 8 reads
+ * them: a counter wraps. */
+enum diag_counter {
+    DIAG_BUS_MESSAGES,
+    DIAG_BUS_ERRORS,
+    DIAG_EXCEPTIONS,
+    DIAG_SERVER_MESSAGES,
+    DIAG_NO_RESPONSE,
+    DIAG_NAKS,
+    DIAG_BUSY,
+    DIAG_OVERRUNS,
+    DIAG_COUNTERS
+};
+
 struct mbgw_table {
     uint16_t reg[REGISTERS];
     uint8_t
@@ -59,6 +73,11 @@ struct mbgw_table {
     uint64_t generation;
     uint64_t by_function[256][OUTCOMES];
     uint64_t by_exception[16];
+    uint16_t diag[DIAG_COUNTERS];
+    uint8_t ident[MBGW_IDENT_OBJECTS][MBGW_IDENT_OBJECT_MAX]; /* FC 43/14's objects */
+    uint8_t ident_len[MBGW_IDENT_OBJECTS];
+    uint8_t server_id[MBGW_SERVER_ID_MAX]; /* FC 17's bytes after the byte count */
+    uint8_t server_id_len;
 };
 
 /* The registers, the table's lock held. */
@@ -70,6 +89,12 @@ int get_bit(const mbgw_table *t, unsigned bit);
 void set_bit(mbgw_table *t, unsigned bit, int on, int *changed);
 int status_byte(const mbgw_table *t);
 int any_stale(const mbgw_table *t, unsigned first, unsigned end);
+
+/* The identity functions (csrc/table_ident.c), the lock held. */
+int diagnostics(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp);
+int report_server_id(const mbgw_table *t, int len, uint8_t *rsp);
+int read_device_id(const mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp);
+void count_received(mbgw_table *t);
 
 static inline int beyond(unsigned address, unsigned quantity)
 {

@@ -143,9 +143,17 @@ static int exception_status(mbgw_table *t, int len, uint8_t *rsp)
 static int serve(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp)
 {
     uint8_t fc = req[0];
+    rsp[0] = fc;
+    switch (fc) {
+    case 0x08:
+        return diagnostics(t, req, len, rsp);
+    case 0x11:
+        return report_server_id(t, len, rsp);
+    case 0x2B:
+        return read_device_id(t, req, len, rsp);
+    }
     if (fc >= 32 || !(t->functions >> fc & 1))
         return -ILLEGAL_FUNCTION;
-    rsp[0] = fc;
     switch (fc) {
     case 0x01:
     case 0x02:
@@ -176,16 +184,20 @@ static int writes(uint8_t fc)
 int mbgw_table_answer(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp,
                       int broadcast)
 {
-    if (len < 1)
+    if (len < 1) {
+        mbgw_table_count_bad_frame(t);
         return 0;
+    }
     uint8_t fc = req[0];
     /* A broadcast's reply is built in a scratch buffer and dropped: reads are ignored. */
     uint8_t scratch[MBGW_PDU_MAX];
     pthread_mutex_lock(&t->lock);
+    count_received(t);
     if (broadcast) {
         if (writes(fc))
             serve(t, req, len, scratch);
         t->by_function[fc][MBGW_TABLE_BROADCAST]++;
+        t->diag[DIAG_NO_RESPONSE]++;
         pthread_mutex_unlock(&t->lock);
         return 0;
     }
@@ -196,6 +208,7 @@ int mbgw_table_answer(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp,
         n = 2;
         t->by_function[fc][MBGW_TABLE_EXCEPTION]++;
         t->by_exception[rsp[1]]++;
+        t->diag[DIAG_EXCEPTIONS]++;
     } else {
         t->by_function[fc][MBGW_TABLE_ANSWERED]++;
     }
@@ -206,8 +219,10 @@ int mbgw_table_answer(mbgw_table *t, const uint8_t *req, int len, uint8_t *rsp,
 int mbgw_table_answer_mbap(mbgw_table *t, const uint8_t *adu, int len, uint8_t *rsp,
                            int broadcast)
 {
-    if (len < MBAP_LEN || mbgw_mbap_frame_len(be16(adu + 2), be16(adu + 4)) != len)
+    if (len < MBAP_LEN || mbgw_mbap_frame_len(be16(adu + 2), be16(adu + 4)) != len) {
+        mbgw_table_count_bad_frame(t);
         return -EBADMSG;
+    }
     int n =
         mbgw_table_answer(t, adu + MBAP_LEN, len - MBAP_LEN, rsp + MBAP_LEN, broadcast);
     if (n == 0)

@@ -2,6 +2,7 @@
  * Modbus TCP frame.  Input: flags (bit 0 broadcast, bit 1 the MBAP form, bit 2 make the
  * registers the request touches first stale, bit 3 only some functions enabled: the next
  * byte's bits), then the request.
+ * The identity functions (csrc/table_ident.c) answer from long strings set once.
  * Rules: a PDU answer is 0 (broadcast, nothing to send) or 2..253 bytes: the request's
  * function code, or its exception (0x01, 0x02, 0x03 or 0x0B) in 2 bytes; an MBAP answer
  * is -EBADMSG for a bad header, 0, or the reply with the request's transaction and unit
@@ -35,6 +36,11 @@ static void one(const uint8_t *data, size_t len)
     if (table == NULL) {
         table = mbgw_table_new();
         MUST(table != NULL);
+        /* identity objects long enough that FC 43/14's streams need More Follows */
+        static const uint8_t text[MBGW_SERVER_ID_MAX] = { 'm', 'b', 'g', 'w' };
+        for (int id = 0; id < MBGW_IDENT_OBJECTS; id++)
+            MUST(mbgw_table_set_identity(table, id, text, 40 * id) == 0);
+        MUST(mbgw_table_set_server_id(table, text, MBGW_SERVER_ID_MAX) == 0);
     }
     if (len < 2)
         return;

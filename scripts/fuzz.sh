@@ -28,7 +28,7 @@ sources() {
         rtu) echo csrc/rtu.c ;;
         match) echo csrc/match.c csrc/rtu.c csrc/crc.c ;;
         request) echo csrc/request.c csrc/rtu.c csrc/crc.c ;;
-        table) echo csrc/table.c csrc/table_answer.c csrc/mbap.c ;;
+        table) echo csrc/table.c csrc/table_answer.c csrc/table_ident.c csrc/mbap.c ;;
         *) echo "fuzz: unknown target $1 (rtu, match, request, table)" >&2; exit 2 ;;
     esac
 }

@@ -33,12 +33,14 @@ def line_config(table: line_file.LineTable) -> LineConfig:
 
 
 def with_lines(cfg: SlaveConfig | MasterConfig, mode: str, lines=(), routes=()):
-    """cfg with the file's lines and routes, checked: click.BadParameter with the first
-    problem, which names its line or route and key."""
-    if not lines and not routes:
+    """cfg with the file's lines and routes, checked (and the gateway unit against the
+    implicit routes): click.BadParameter with the first problem, which names its line or
+    route and key."""
+    if lines or routes:
+        cfg = dataclasses.replace(cfg, lines=tuple(line_config(t) for t in lines),
+                                  routes=tuple(routes))
+    elif not (isinstance(cfg, SlaveConfig) and cfg.gateway_unit):
         return cfg
-    cfg = dataclasses.replace(cfg, lines=tuple(line_config(t) for t in lines),
-                              routes=tuple(routes))
     problems = config_problems(cfg, mode)
     if problems:
         raise click.BadParameter(problems[0])

@@ -87,6 +87,12 @@ def _parse_units(value) -> tuple[int, ...]:
 @tls_options
 @upstream_tls_options
 @daemon_options
+@click.option("--gateway-unit", type=click.IntRange(*model.GATEWAY_UNIT_RANGE), default=0,
+              show_default=True, metavar="UNIT",
+              help="A unit id of the Modbus TCP face that the gateway answers itself, with "
+                   "its identity functions only (FC 8 diagnostics, FC 17 report server id, "
+                   "FC 43/14 read device identification; any other function is exception "
+                   "0x01).  Outside every route and the table's units.  0: off.")
 @click.option("--shortcut/--no-shortcut", default=model.SlaveConfig.shortcut, hidden=True,
               help="Put a request that finds the line idle on it from C (for diagnosis).")
 def slave(**options) -> None:
@@ -105,7 +111,7 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
                  lines=(), routes=(),
                  tls_port=model.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
                  tls_require_role=True, tls_crl=None, tcpto=model.DEFAULT_TCPTO_MS,
-                 late_window=None,
+                 late_window=None, gateway_unit=0,
                  **table_settings) -> model.SlaveConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck, dtr, rts, cts, xonxoff,
@@ -121,7 +127,7 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
         turnaround_ms=turnaround, late_window_ms=late_window, control=control,
         metrics=metrics, shortcut=shortcut,
         demotion=demotion(down_after, probe_interval), table=table, tcpto_ms=tcpto,
-        firewall=firewall, scenarios=scenarios, tls=tls))
+        firewall=firewall, scenarios=scenarios, tls=tls, gateway_unit=gateway_unit))
     return with_lines(cfg, "slave", lines, routes)
 
 slave.make_config = slave_config

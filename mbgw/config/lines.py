@@ -74,6 +74,7 @@ class RouteConfig:
     offset: int = 0
     address: int | None = None     # one fixed address (ACKSYS's slaveid)
     implicit: bool = False         # today's routing, shown as a route (slaveid, [table] units)
+    gateway: bool = False          # general.gateway-unit: the table's identity functions only
     tls: bool = False              # server: reached over TLS (a slaveid range's `tls`)
     fingerprint: bytes | None = None   # server: its certificate's pinned SHA-256
 
@@ -81,6 +82,8 @@ class RouteConfig:
     def label(self) -> str:
         if not self.implicit:
             return f"route {self.index}"
+        if self.gateway:
+            return "general.gateway-unit"
         if self.table:
             return "table.units" if self.face == TCP_FACE else "table.address"
         return "net.slaveid" if self.server is not None else "implicit route"
@@ -90,6 +93,8 @@ class RouteConfig:
         """The target as status shows it: line NAME, table, server HOST:PORT."""
         if self.line is not None:
             return f"line {self.line}"
+        if self.gateway:
+            return "gateway"
         if self.table:
             return "table"
         assert self.server is not None
@@ -107,6 +112,8 @@ def route_problems(lines: tuple[LineConfig, ...], routes: tuple[RouteConfig, ...
     by_name = _named(lines, problems)
     taken: dict[tuple[str, int], RouteConfig] = {}
     for route in routes:
+        if route.gateway:
+            continue
         found = _route_problems(route, by_name)
         problems += found
         if found and found[0].startswith(f"{route.label}: give one target"):
@@ -118,6 +125,12 @@ def route_problems(lines: tuple[LineConfig, ...], routes: tuple[RouteConfig, ...
                                 f"{other_route.label} already")
                 break
             taken[(route.face, unit)] = route
+    for route in routes:
+        other_route = taken.get((route.face, route.units[0])) if route.gateway else None
+        if other_route is not None:
+            problems.append(f"general.gateway-unit: unit {route.units[0]} is routed by "
+                            f"{other_route.label} already; give one no route and not the "
+                            f"table takes")
     return problems
 
 
@@ -242,11 +255,14 @@ def _slave_routes(cfg: SlaveConfig) -> tuple[RouteConfig, ...]:
     explicit, explicit_table = _explicit(cfg, TCP_FACE)
     routes = []
     table_units: tuple[int, ...] = ()
+    gateway: tuple[int, ...] = (cfg.gateway_unit,) if cfg.gateway_unit else ()
+    if gateway:
+        routes.append(RouteConfig(0, gateway, gateway=True, implicit=True))
     if cfg.table_on and not explicit_table:
         table_units = cfg.table.units if cfg.table.direct else ALL_UNITS
         routes.append(RouteConfig(0, table_units, table=True, implicit=True))
-    if not explicit and len(table_units) < len(ALL_UNITS):
-        taken = set(table_units)
+    if not explicit and len(table_units) + len(gateway) < len(ALL_UNITS):
+        taken = {*table_units, *gateway}
         routes.append(RouteConfig(0, tuple(u for u in ALL_UNITS if u not in taken),
                                   line=PRIMARY_LINE, address=cfg.slaveid or None,
                                   implicit=True))

@@ -37,6 +37,7 @@ SILENCE_RANGE = (0, 65535)
 INTERFRAME_SILENCE_RANGE = (0, 65535)  # ms beyond t3.5 (VPGate's "Interframe silence")
 ASCII_TIMEOUT_RANGE = (1, 65535)
 SLAVEID_RANGE = (0, 247)
+GATEWAY_UNIT_RANGE = (0, 255)   # [general] gateway-unit; 0: off
 PORT_RANGE = (1, 65535)
 MDBPORT_RANGE = (0, 65535)      # slave mode: 0 is no plain Modbus TCP (TLS only)
 MAX_CONNECTIONS_RANGE = (1, 1000)
@@ -473,6 +474,8 @@ class SlaveConfig:
     web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
     request_timeout_ms: int = DEFAULT_REQUEST_TIMEOUT_MS   # [net] request-timeout
     location: str = DEFAULT_LOCATION   # [general] location, the guide's set location
+    gateway_unit: int = 0          # [general] gateway-unit: the TCP face's unit of the
+                                   # identity functions only (FC 8, 17, 43/14); 0: none
     lines: tuple = ()              # LineConfig (mbgw.config.lines): [[line]], beside [serial]
     routes: tuple = ()             # RouteConfig (mbgw.config.lines): [[route]]
 

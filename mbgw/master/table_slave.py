@@ -32,6 +32,7 @@ class TableSlave:
             self.counters.crc_errors += 1
         else:
             self.counters.length_errors += 1
+        self.table.count_bad_frame()
 
     def serve(self, adu: bytes, send: Send, tracer: MasterTracer | None) -> None:
         """Answer a request (ADU without check) from the table; tracer: while someone

@@ -32,6 +32,7 @@ from mbgw.routing.queue import Exchange, Inbox, Job, Scheduler
 from mbgw.slave.connections import Client
 from mbgw.slave.routes import (
     DIRECT,
+    GATEWAY,
     SERIAL,
     TABLE,
     Hop,
@@ -147,6 +148,8 @@ class Router:
         if kind is TABLE:
             self._from_table(client, tid, unit, request, responder,
                              hop.rewrite(unit) == pdu.BROADCAST)
+        elif kind is GATEWAY:
+            self._from_table(client, tid, unit, request, responder, False, identity=True)
         elif kind is SERIAL:
             job = self._admit(client, tid, unit, request, received_ns, hop.rewrite(unit))
             if job is not None:
@@ -209,11 +212,14 @@ class Router:
         kept.clear()
 
     def _from_table(self, client: Client, tid: int, unit: int, request: bytes,
-                    responder, broadcast: bool) -> None:
+                    responder, broadcast: bool, identity: bool = False) -> None:
         """Answer a request from the exchange table at once; unit 0 is a broadcast into it
-        (direct messaging off), with no reply."""
+        (direct messaging off), with no reply.  identity: the gateway unit's request, which
+        only the identity functions answer."""
         tracing = self._requested(client, tid, unit, request)
-        if broadcast:
+        if identity:
+            reply = responder.answer_identity(request)
+        elif broadcast:
             reply = responder.answer(request, broadcast=True)
         else:
             reply = responder.answer(request)

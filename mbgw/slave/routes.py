@@ -13,6 +13,7 @@ from mbgw.routing.queue import Inbox
 SERIAL = "serial"        # line serial, owned by the TCP face's own line thread
 TABLE = "table"
 ELSEWHERE = "elsewhere"  # another line, a remote server: through its inbox
+GATEWAY = "gateway"      # general.gateway-unit: the table's identity functions only
 
 
 class Hop:
@@ -35,6 +36,7 @@ class Hop:
 
 DIRECT = Hop(SERIAL)     # today's routing to line serial
 TO_TABLE = Hop(TABLE)    # today's routing to the table
+TO_GATEWAY = Hop(GATEWAY)
 
 
 def effective_routes(cfg: SlaveConfig) -> RouteMap:
@@ -46,7 +48,8 @@ def effective_routes(cfg: SlaveConfig) -> RouteMap:
 def face_hops(routes: RouteMap, inboxes: dict[str, Inbox], table_on: bool) -> list[Hop | None]:
     """The TCP face's 256 hops by unit.  inboxes: the targets' by name (a line's name, a
     server's target label); a route to a target without one, or to the table while it is
-    off, takes nothing."""
+    off, takes nothing.  table_on: the table is there to answer (the gateway unit answers
+    from it even while it is off)."""
     hops: list[Hop | None] = []
     made: dict[int, Hop | None] = {}
     for route in routes.units(TCP_FACE):
@@ -60,6 +63,8 @@ def face_hops(routes: RouteMap, inboxes: dict[str, Inbox], table_on: bool) -> li
 
 
 def _hop(route: RouteConfig, inboxes: dict[str, Inbox], table_on: bool) -> Hop | None:
+    if route.gateway:
+        return TO_GATEWAY if table_on else None
     if route.table:
         if not table_on:
             return None

@@ -1,10 +1,13 @@
 """The configuration zone's content (0x8000..., read-only to Modbus): who answers and how it is
 set, as documented in mbgw.toml(5), THE CONFIGURATION ZONE.  Computed from the settings at
-start and at each reload; nothing else writes the zone."""
+start and at each reload; nothing else writes the zone.  The same identity on the wire:
+FC 43/14's objects and FC 17's server id (mbgw.toml(5), THE IDENTITY FUNCTIONS)."""
+import socket
 from typing import TYPE_CHECKING
 
 import mbgw
 from mbgw.config.model import PROTOCOLS
+from mbgw.table.memory import IDENTITY_OBJECT_MAX
 
 if TYPE_CHECKING:
     from mbgw.config.model import MasterConfig, SlaveConfig
@@ -22,6 +25,8 @@ MODES = {"slave": 1, "master": 2, "transparent": 3}      # 0x8028
 PROTOCOL_CODES = {name: code for code, name in enumerate(PROTOCOLS)}   # rtu 0, ascii 1
 UNIT_MASK_REGISTERS = 16       # 256 unit ids, one bit each
 LOCATION_REGISTERS = 15        # 0x8044-0x8052: the guide's 30 bytes
+SERVER_ID = b"mbgw"
+RUN_INDICATOR_ON = b"\xff"
 
 
 def ascii_registers(text: str, registers: int) -> list[int]:
@@ -66,7 +71,22 @@ def zone(settings: "SlaveConfig | MasterConfig | TransparentModeConfig", mode: s
     ]
 
 
+def device_objects(mode: str, host: str) -> list[bytes]:
+    """FC 43/14's objects 0-6: VendorName, ProductCode, MajorMinorRevision, VendorUrl (none),
+    ProductName, ModelName (the mode), UserApplicationName (the host's name)."""
+    texts = [VENDOR, "mbgw", mbgw.__version__, "", PRODUCT, mode, host]
+    return [text.encode("ascii", "replace")[:IDENTITY_OBJECT_MAX] for text in texts]
+
+
+def server_id() -> bytes:
+    """FC 17's bytes after the byte count: the server id, the run indicator (on), the
+    version."""
+    return SERVER_ID + RUN_INDICATOR_ON + mbgw.__version__.encode("ascii")
+
+
 def fill(table: "Table", settings: "SlaveConfig | MasterConfig | TransparentModeConfig",
          mode: str) -> None:
-    """Write the zone's content into the table (at start and after a reload)."""
+    """Write the zone's content and the identity functions' strings into the table (at
+    start and after a reload)."""
     table.set_config(ZONE_START, zone(settings, mode))
+    table.set_identity(device_objects(mode, socket.gethostname()), server_id())

@@ -17,6 +17,13 @@ WATCHES = lib.MBGW_TABLE_WATCHES       # watches of changed values, at most
 MBAP_MAX = lib.MBGW_MBAP_MAX
 EXCEPTION_CODES = 16
 ILLEGAL_FUNCTION = 0x01
+# FC 8, 17, 43: answered on every unit that reaches the table, whatever its function lists
+IDENTITY_FUNCTIONS = frozenset((0x08, 0x11, 0x2B))
+IDENTITY_OBJECTS = lib.MBGW_IDENT_OBJECTS
+IDENTITY_OBJECT_MAX = lib.MBGW_IDENT_OBJECT_MAX
+SERVER_ID_MAX = lib.MBGW_SERVER_ID_MAX
+DIAGNOSTIC_COUNTERS = ("bus_messages", "bus_errors", "exceptions", "server_messages",
+                       "no_response", "naks", "busy", "overruns")   # FC 8/11-18
 _OUTCOMES = ("answered", "exception", "broadcast")   # the C counters' order (MBGW_TABLE_*)
 
 
@@ -60,7 +67,11 @@ class Responder:
         """A function the table answers (its mask is both lists) but not for this side."""
         mask = self.functions_mask if self.functions_mask is not None \
             else self._table.tcp_mask
-        return mask is not None and not (function < 32 and mask >> function & 1)
+        return mask is not None and not (function < 32 and mask >> function & 1) \
+            and function not in IDENTITY_FUNCTIONS
+
+    def _count_refused(self, broadcast: bool) -> None:
+        lib.mbgw_table_count_refused(self._table._t, broadcast)
 
     def answer_mbap_into(self, frame, broadcast: bool = False) -> int:
         """Answer a whole Modbus TCP frame (MBAP header + PDU, bytes or a buffer): the reply's
@@ -68,6 +79,7 @@ class Responder:
         for a header whose protocol id or length field is wrong."""
         if len(frame) > 7 and self._refused(frame[7]) and frame[2] == frame[3] == 0 \
                 and frame[4] << 8 | frame[5] == len(frame) - 6:
+            self._count_refused(broadcast)
             if broadcast:
                 return 0
             reply = self.reply
@@ -86,12 +98,22 @@ class Responder:
         """Answer a request PDU (function code first): the reply PDU's length in .reply, 0
         for none (broadcast, or an empty PDU)."""
         if len(pdu) and self._refused(pdu[0]):
+            self._count_refused(broadcast)
             if broadcast:
                 return 0
             self.reply[0:2] = bytes((pdu[0] | 0x80, ILLEGAL_FUNCTION))
             return 2
         return lib.mbgw_table_answer(self._table._t, _c_bytes(pdu), len(pdu),
                                      self.buffer, broadcast)
+
+    def answer_identity(self, pdu) -> memoryview | None:
+        """The gateway unit's answer: the identity functions as answer does, any other
+        function 0x01."""
+        if len(pdu) and pdu[0] not in IDENTITY_FUNCTIONS:
+            self._count_refused(False)
+            self.reply[0:2] = bytes((pdu[0] | 0x80, ILLEGAL_FUNCTION))
+            return self.reply[:2]
+        return self.answer(pdu)
 
     def answer(self, pdu, broadcast: bool = False) -> memoryview | None:
         """answer_into's reply PDU as a view of .reply, None when there is none."""
@@ -198,6 +220,31 @@ class Table:
         else:
             lib.mbgw_table_set_functions(self._t, mask | _function_mask(serial_functions))
             self.tcp_mask = mask
+
+    def set_identity(self, objects: "list[bytes]", server_id: bytes) -> None:
+        """FC 43/14's objects 0-6 (each at most IDENTITY_OBJECT_MAX bytes) and FC 17's bytes
+        after its byte count (server id, run indicator, additional data)."""
+        if len(objects) != IDENTITY_OBJECTS:
+            raise TableError(f"{len(objects)} identity objects: FC 43/14 has "
+                             f"{IDENTITY_OBJECTS}")
+        for number, value in enumerate(objects):
+            if lib.mbgw_table_set_identity(self._t, number, value, len(value)) < 0:
+                raise TableError(f"identity object {number}: {len(value)} bytes, at most "
+                                 f"{IDENTITY_OBJECT_MAX}")
+        if lib.mbgw_table_set_server_id(self._t, server_id, len(server_id)) < 0:
+            raise TableError(f"server id: {len(server_id)} bytes, at most {SERVER_ID_MAX}")
+
+    def count_bad_frame(self) -> None:
+        """FC 8/11 and 12: a frame for the table that framed nothing (a serial slave's bad CRC
+        or length)."""
+        lib.mbgw_table_count_bad_frame(self._t)
+
+    def diagnostics(self) -> dict[str, int]:
+        """FC 8's counters 11-18 by name (DIAGNOSTIC_COUNTERS), since start or the last FC
+        8/10."""
+        out = ffi.new("uint16_t[]", len(DIAGNOSTIC_COUNTERS))
+        lib.mbgw_table_diagnostics(self._t, out)
+        return dict(zip(DIAGNOSTIC_COUNTERS, out, strict=True))
 
     def set_flags(self, line_down: bool | None = None,
                   scenario_error: bool | None = None) -> None:

@@ -278,7 +278,7 @@ def test_exceptions_reach_the_serial_master(table_master, serial_client, line):
     cases = [
         (write_multiple(TABLE, CONFIG, 1), bytes.fromhex("0a 90 02")),   # the config zone
         (bytes.fromhex("0a 06 1000 0001"), bytes.fromhex("0a 86 01")),   # FC 6 disabled
-        (bytes.fromhex("0a 2b 0e 01 00"), bytes.fromhex("0a ab 01")),    # not a table function
+        (bytes.fromhex("0a 18 04 de"), bytes.fromhex("0a 98 01")),       # not a table function
         (read_holding(TABLE, 0xFFFF, 2), bytes.fromhex("0a 83 02")),     # beyond 65,535
         (read_holding(TABLE, 0, 126), bytes.fromhex("0a 83 03")),        # over 125 registers
         (read_holding(TABLE, CONFIG, 2), bytes.fromhex("0a 03 04 6d62 6777")),   # "mbgw"

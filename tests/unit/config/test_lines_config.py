@@ -324,3 +324,27 @@ def test_the_readme_and_man_page_examples_pass_check_config(tmp_path):
     example = _toml_after(section, ".nf\n", ".fi\n").removeprefix(".nf\n").replace("\\-", "-")
     path, result = check_config(tmp_path, example)
     assert result.exit_code == 0, result.output
+
+
+def test_the_gateway_unit_is_an_implicit_route_of_its_own(schema, tmp_path):
+    cfg = built(schema, tmp_path, SERIAL + '[general]\ngateway-unit = 200\n[table]\n'
+                'enabled = true\nunits = "250-254"\n')
+    gateway, table, serial = implicit_routes(cfg)
+    assert (gateway.gateway, gateway.units, gateway.target) == (True, (200,), "gateway")
+    assert gateway.label == "general.gateway-unit"
+    assert table.units == tuple(range(250, 255))
+    assert set(serial.units) == set(range(256)) - {200, *range(250, 255)}
+    off = built(schema, tmp_path, SERIAL)
+    assert not any(r.gateway for r in implicit_routes(off))
+
+
+@pytest.mark.parametrize("text, other", [
+    ('[general]\ngateway-unit = 251\n[table]\nenabled = true\nunits = "250-254"\n',
+     "table.units"),
+    ('[general]\ngateway-unit = 40\n[[route]]\nunits = "32-63"\nline = "serial"\n',
+     "route 1"),
+])
+def test_the_gateway_unit_is_refused_inside_a_route_or_the_tables_units(tmp_path, text,
+                                                                         other):
+    message = refusal(tmp_path, SERIAL + text)
+    assert "general.gateway-unit" in message and other in message

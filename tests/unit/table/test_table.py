@@ -140,9 +140,8 @@ def test_fc7_reads_the_watched_down_table_at_each_request(table):
 # --- exceptions, in the order the table checks them ---
 
 @pytest.mark.parametrize("request_hex, reply", [
-    ("08 00 00 12 34", "88 01"),          # diagnostics: not a table function
-    ("2b 0e 01 00", "ab 01"),              # read device identification
-    ("11", "91 01"),
+    ("08 00 01 00 00", "88 01"),          # diagnostics: restart, a sub-function it lacks
+    ("2b 0d 00 00", "ab 01"),              # MEI type 13 (CANopen), not device identification
     ("14 07 06 00 04 00 01 00 02", "94 01"),
     ("00", "80 01"),
 ])
@@ -397,7 +396,7 @@ def test_counters_by_function_and_exception_code(table):
     ask(table, "03 00 00 00 01")
     ask(table, "03 00 00 00 00")
     ask(table, "06 80 00 00 01")
-    ask(table, "08 00 00 00 00")
+    ask(table, "08 00 01 00 00")
     table.answer(H("06 00 00 00 01"), broadcast=True)
     counts = table.counts()
     by_function = counts["requests_by_function"]

@@ -22,7 +22,7 @@ def test_table_status_counts_requests_by_function_and_outcome():
     table = Table()
     table.answer(bytes([0x03, 0x10, 0x00, 0x00, 0x02]))                  # FC 3: answered
     table.answer(bytes([0x03, 0xFF, 0xFF, 0x00, 0x02]))                  # beyond: 0x02
-    table.answer(bytes([0x08, 0x00, 0x00, 0x00, 0x00]))                  # unknown FC: 0x01
+    table.answer(bytes([0x08, 0x00, 0x01, 0x00, 0x00]))                  # unknown: 0x01
     table.answer(bytes([0x06, 0x08, 0x00, 0x12, 0x34]), broadcast=True)   # broadcast write
     status = table_status(table)
     assert status["requests"]["3"] == {"answered": 1, "exception": 1, "broadcast": 0}
