@@ -28,4 +28,4 @@ $SUDO apt-get install -y -qq --no-install-recommends python3-venv socat mbpoll l
 /usr/bin/python3 -m venv .venv
 .venv/bin/pip install -q --upgrade pip
 .venv/bin/pip install -q -e '.[test]'
-echo "set-up done: run the tests with  .venv/bin/python -m pytest"
+echo "set-up done: run the tests with  scripts/test.sh"

@@ -1,7 +1,9 @@
 """Test harness: socat pty pairs, the gateway as a real subprocess, peers as subprocesses.
 Readiness is always an event (a line printed, a datagram received), never a sleep."""
 import contextlib
+import itertools
 import os
+import random
 import selectors
 import signal
 import socket
@@ -31,10 +33,36 @@ def factory(make, end):
         end(thing)
 
 
+# The ports the tests' gateways and peers listen on: below the kernel's ephemeral range (32768
+# up), so that no connection made meanwhile takes one between free_port() and the listener's
+# bind, and a block of them for each pytest-xdist worker, so that two workers never pick the
+# same one.
+PORTS = range(20000, 32768)
+
+
+def _block() -> range:
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw"))
+    size = len(PORTS) // workers
+    return PORTS[worker * size:(worker + 1) * size]
+
+
+_BLOCK = _block()
+# from a random start: another run of the tests at the same time most likely walks other ports
+_turn = itertools.count(random.randrange(len(_BLOCK)))
+
+
 def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """The next port of this worker's block that nothing listens on."""
+    for _ in _BLOCK:
+        port = _BLOCK[next(_turn) % len(_BLOCK)]
+        with socket.socket() as s:
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+            return port
+    raise RuntimeError(f"no free port in {_BLOCK}")
 
 
 def idle_connections(port: int, count: int) -> list[socket.socket]:

@@ -197,12 +197,14 @@ def test_ascii_noise_before_the_reply_is_skipped_and_counted(paced, gateway, cli
     assert (counters["invalid_frames"], counters["crc_errors"]) == (0, 0)
 
 
+@pytest.mark.serial
 def test_ascii_pause_inside_a_frame_under_the_ascii_timeout_is_allowed(paced, gateway, client):
     paced("--ascii", "--gap-ms", "300")
     gw = gateway("--protocol", "ascii", "--exception")      # 1 s inter-character, 600 ms stout
     assert client(gw).ask(5, read_holding(0, 2)) == holding_reply(0, 2)
 
 
+@pytest.mark.serial
 def test_ascii_pause_over_the_ascii_timeout_breaks_the_frame(paced, gateway, client):
     paced("--ascii", "--gap-ms", "300")
     gw = gateway("--protocol", "ascii", "--exception", "--ascii-timeout", "100")
@@ -282,6 +284,7 @@ SILENCE_CASES = [
 ]
 
 
+@pytest.mark.serial
 @pytest.mark.parametrize("request_pdu, reply_pdu", SILENCE_CASES)
 def test_gap_shorter_than_silence_stays_inside_the_frame(paced, gateway, client, request_pdu,
                                                          reply_pdu):
@@ -292,6 +295,7 @@ def test_gap_shorter_than_silence_stays_inside_the_frame(paced, gateway, client,
     assert (counters["crc_errors"], counters["invalid_frames"], counters["timeouts"]) == (0, 0, 0)
 
 
+@pytest.mark.serial
 @pytest.mark.parametrize("request_pdu, reply_pdu", SILENCE_CASES)
 def test_gap_longer_than_t35_ends_the_frame(paced, gateway, client, request_pdu, reply_pdu):
     paced("--gap-ms", "10")
@@ -399,6 +403,7 @@ def test_echo_not_configured_fc06_echo_is_taken_as_the_reply(paced, gateway, cli
     assert counters["late_bytes"] + counters["unsolicited_bytes"] == 8
 
 
+@pytest.mark.serial
 def test_ascii_echo_not_configured_is_skipped_as_a_wrong_reply(paced, gateway, client):
     """In ASCII the echo of an FC 03 request decodes as a reply whose byte count does not
     match the request: it is dropped (wrong_function) and the real reply behind it, a frame

@@ -66,6 +66,7 @@ def requests(record: str) -> list[tuple[int, str, int, int]]:
     return rows
 
 
+@pytest.mark.serial          # its delays are measured to a few ms
 def test_scan_finds_each_unit_at_its_settings_with_its_timing_and_identity(bus):
     device, record = bus(FAST, MIDDLE, SLOW)
     done = mbgw("scan", device, *SETTINGS, "--units", "2-5", "--timeout", "800", "--json",
@@ -122,6 +123,7 @@ def _recommended(p99_ms: float) -> int:
     return max(20, math.ceil(p99_ms * 1.5))
 
 
+@pytest.mark.serial          # its delays are measured to a few ms
 @pytest.mark.parametrize("unit", [FAST, MIDDLE, SLOW], ids=["20ms", "150ms", "700ms"])
 def test_probe_recommends_a_stout_from_the_p99(bus, unit):
     device, _ = bus(unit)
@@ -142,6 +144,7 @@ def test_probe_recommends_a_stout_from_the_p99(bus, unit):
     assert rows[1] == f"unit 5: {count} reads, 0 answered"
 
 
+@pytest.mark.serial          # its delays are measured to a few ms
 def test_a_late_reply_is_never_taken_for_the_next_reads(bus):
     """The 700 ms slave probed with a 500 ms timeout: each reply comes after its read gave
     up.  Taken for the next read (sent at once, as RTU has no transaction id), it would count
@@ -165,6 +168,7 @@ def test_probe_json(bus):
     assert row["stout_ms"] == _recommended(row["p99_ms"])
 
 
+@pytest.mark.serial          # its delays are measured to a few ms
 def test_an_empty_bus_takes_at_most_units_times_the_timeout_and_exits_1(bus):
     device, record = bus()
     units, timeout_ms = 10, 50

@@ -23,7 +23,7 @@ from tests.integration.master.rig import (
     wait_for_log,
 )
 
-pytestmark = pytest.mark.integration
+pytestmark = [pytest.mark.integration, pytest.mark.serial]
 
 SERVER = "127.0.7.1"          # answers; units 1..40 and 255
 TABLE = "1 2 1 0 " + SERVER   # serial addresses 1, 2 -> SERVER units 1, 2

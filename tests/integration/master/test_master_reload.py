@@ -79,6 +79,7 @@ def test_a_new_slaveid_table_applies_on_sighup(setup, line):
     assert gw.proc.poll() is None
 
 
+@pytest.mark.serial
 def test_tcpto_exception_and_max_connections_apply_on_sighup(setup, line):
     gw, path = setup
     ask(line, read_holding(1), expected=reply(1, ONE, 1))

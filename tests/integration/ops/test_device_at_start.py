@@ -84,6 +84,7 @@ def served_once_there(sock: socket.socket, tid: int) -> None:
         time.sleep(0.02)                      # poll interval, not synchronisation
 
 
+@pytest.mark.serial
 def test_slave_mode_starts_without_its_device_refuses_with_0x0a_then_serves(
         later, start_gateway, start_peer):
     gw = start_gateway(later.gateway, "--baudrate", "19200", "--exception",

@@ -133,6 +133,7 @@ def test_a_device_that_answers_garbage_is_told_from_a_silent_one(fault_line, gw,
     assert shown[row + 1].strip().startswith("next probe in"), shown
 
 
+@pytest.mark.serial
 def test_a_slow_device_is_not_taken_for_one_at_the_wrong_baud_rate(fault_line, gw, client):
     """Address 3 answers 150 ms late (stout 100): valid replies, too late; down, and no
     "not valid" said of it."""

@@ -19,7 +19,7 @@ import pytest
 from tests.modbus import mbap as adu
 from tests.ops import wait_for_log
 
-pytestmark = pytest.mark.integration
+pytestmark = [pytest.mark.integration, pytest.mark.serial]
 
 STOUT_S = 1.0
 PROMPT_S = 0.3            # "promptly": well before stout

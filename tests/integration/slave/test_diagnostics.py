@@ -74,6 +74,7 @@ def served(c: Client, tid: int, unit: int = 1, start: int = 0, count: int = 1) -
 
 # --- counters and health --------------------------------------------------------------------
 
+@pytest.mark.serial
 def test_counters_and_health_move_exactly_under_a_faulty_slave(rig, client):
     """One transaction per kind of fault, then the daemon's figures: nothing more, nothing
     less, each on the right device."""

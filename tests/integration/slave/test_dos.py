@@ -85,6 +85,7 @@ def test_a_request_not_whole_within_request_timeout_closes_its_connection(
     assert "a request not whole within request-timeout (300 ms)" in gw.log()
 
 
+@pytest.mark.serial
 def test_pipelined_requests_beyond_sixteen_wait_in_the_socket(rtu, start_gateway, sockets):
     gw = start_gateway(rtu.gateway, "--baudrate", "19200")
     sock = sockets.connect(gw.port)

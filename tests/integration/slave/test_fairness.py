@@ -20,7 +20,7 @@ import pytest
 from tests.integration.slave.test_faults import received
 from tests.modbus import mbap, read_holding
 
-pytestmark = pytest.mark.integration
+pytestmark = [pytest.mark.integration, pytest.mark.serial]
 
 STOUT_MS = 150
 HEALTHY, SILENT = 1, 2          # fault_slave.py: unit 1 answers, unit 2 never does

@@ -125,6 +125,7 @@ def test_silent_slave_with_exception_gets_0x0b_after_stout(line, gateway, client
 
 # --- late replies ---------------------------------------------------------------------------
 
+@pytest.mark.serial
 @pytest.mark.parametrize("exception", [False, True])
 def test_late_reply_is_never_taken_for_the_next_requests_answer(line, gateway, client,
                                                                  exception):
@@ -155,6 +156,7 @@ def test_late_reply_is_never_taken_for_the_next_requests_answer(line, gateway, c
                     unsolicited_frames=0, unsolicited_bytes=0)
 
 
+@pytest.mark.serial
 def test_late_reply_during_the_turnaround_counts_as_late_bytes(line, gateway, client):
     """A (unit 3) times out, a broadcast goes out, and A's late reply arrives during the
     turnaround that holds the next request back: it is discarded as late bytes."""
@@ -211,6 +213,7 @@ def test_reply_with_another_function_is_dropped(line, gateway, client):
     assert_counters(gw, requests=2, replies=1, timeouts=1, wrong_function=1)
 
 
+@pytest.mark.serial
 @BOTH_PATHS
 def test_reply_after_a_foreign_frame_is_delivered(line, gateway, client, function):
     # FC 108 replies are framed by silence: a gateway thread that sleeps through a 5 ms gap
@@ -226,6 +229,7 @@ def test_reply_after_a_foreign_frame_is_delivered(line, gateway, client, functio
     assert_counters(gw, requests=1, replies=1, wrong_unit=1)
 
 
+@pytest.mark.serial
 @pytest.mark.parametrize("function, garbage", [
     (0x03, "55 aa 55"),        # reads as the header of an exception reply (5 bytes)
     (0x03, "00 00 00"),        # reads as a read reply with byte count 0 (5 bytes)
@@ -248,6 +252,7 @@ def test_reply_after_garbage_and_silence_is_delivered(line, gateway, client, fun
     assert_counters(gw, requests=1, replies=1, invalid_frames=1, noise_bytes=3)
 
 
+@pytest.mark.serial
 @BOTH_PATHS
 def test_reply_after_garbage_and_the_least_silence_is_delivered(line, gateway, client,
                                                                  function):
@@ -437,6 +442,7 @@ def test_without_retries_the_missed_request_gets_no_answer(line, gateway, client
 
 # --- addressing -----------------------------------------------------------------------------
 
+@pytest.mark.serial
 def test_broadcast_reaches_the_line_unanswered_and_holds_the_line_for_turnaround(
         line, gateway, client):
     record = line()
@@ -452,6 +458,7 @@ def test_broadcast_reaches_the_line_unanswered_and_holds_the_line_for_turnaround
     assert_counters(gw, requests=2, replies=1, broadcasts=1)
 
 
+@pytest.mark.serial
 def test_a_request_on_the_idle_line_after_a_broadcast_still_waits_for_turnaround(
         line, gateway, client):
     """The broadcast is out and the line idle when the next request comes: it is read and
@@ -596,6 +603,7 @@ def wait_received(record, count: int) -> None:
         time.sleep(0.005)
 
 
+@pytest.mark.serial
 @pytest.mark.parametrize("exception", [False, True], ids=["silent", "exception"])
 def test_a_late_reply_never_reaches_another_clients_request_to_the_same_unit(
         line, gateway, client, exception):
@@ -625,6 +633,7 @@ def test_a_late_reply_never_reaches_another_clients_request_to_the_same_unit(
                     gateway_exceptions=1 if exception else 0, late_replies=1)
 
 
+@pytest.mark.serial
 def test_a_retry_takes_the_late_reply_to_its_first_try_and_the_window_waits_for_its_own(
         line, gateway, client, tmp_path):
     """With --retries 1, A's first try times out and the retry goes at once: the first try's
@@ -652,6 +661,7 @@ def test_a_retry_takes_the_late_reply_to_its_first_try_and_the_window_waits_for_
     assert_counters(gw, requests=2, replies=2, retries=1, late_replies=1)
 
 
+@pytest.mark.serial
 def test_a_silent_units_window_ends_when_the_line_has_been_quiet_for_late_window(
         line, gateway, client):
     """Unit 2 never answers: after A's timeout, B's request to it waits until the line has been

@@ -19,6 +19,7 @@ from mbgw.ops.counters import MASTER_NAMES, NAMES, Counters, MasterCounters
 from mbgw.ops.device_stats import MASTER_COUNTS, DeviceHealth
 from mbgw.ops.metrics import master_collector, slave_collector
 from mbgw.ops.metrics_server import MetricsServer
+from tests.harness import free_port
 
 
 @pytest.mark.parametrize("text, expected", [
@@ -404,12 +405,6 @@ def test_every_address_of_the_host_or_one_ipv6_address():
         with pytest.raises(ConnectionRefusedError):
             get(port, "127.0.0.1")
     _serve(test, address="[::1]:1")
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def test_a_taken_port_is_an_error_and_leaves_nothing_listening():
