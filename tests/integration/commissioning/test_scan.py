@@ -66,7 +66,6 @@ def requests(record: str) -> list[tuple[int, str, int, int]]:
     return rows
 
 
-@pytest.mark.serial          # its delays are measured to a few ms
 def test_scan_finds_each_unit_at_its_settings_with_its_timing_and_identity(bus):
     device, record = bus(FAST, MIDDLE, SLOW)
     done = mbgw("scan", device, *SETTINGS, "--units", "2-5", "--timeout", "800", "--json",
@@ -123,14 +122,15 @@ def _recommended(p99_ms: float) -> int:
     return max(20, math.ceil(p99_ms * 1.5))
 
 
-@pytest.mark.serial          # its delays are measured to a few ms
 @pytest.mark.parametrize("unit", [FAST, MIDDLE, SLOW], ids=["20ms", "150ms", "700ms"])
 def test_probe_recommends_a_stout_from_the_p99(bus, unit):
     device, _ = bus(unit)
     address, baud, fmt, delay = unit
     count = 10 if delay < 700 else 4
-    done = mbgw("probe", device, "--units", f"{address},5", "--baudrate", str(baud),
-                "--format", fmt, "--count", str(count), "--timeout", "900", timeout=30)
+    units = f"{address},5" if unit == FAST else str(address)   # 5: silent, asked once a run
+    done = mbgw("probe", device, "--units", units, "--baudrate", str(baud),
+                "--format", fmt, "--count", str(count), "--timeout",
+                "300" if delay < 700 else "900", timeout=30)
     assert done.returncode == 0, done.stderr
     rows = done.stdout.splitlines()
     match = re.fullmatch(rf"unit {address}: {count} reads, {count} answered, p50 (\S+) ms, "
@@ -141,10 +141,11 @@ def test_probe_recommends_a_stout_from_the_p99(bus, unit):
     assert stout == _recommended(p99)
     if p99 * 1.5 >= 20:
         assert p99 * 1.2 <= stout <= math.ceil(p99 * 1.5)
-    assert rows[1] == f"unit 5: {count} reads, 0 answered"
+    if unit == FAST:
+        assert rows[1] == f"unit 5: {count} reads, 0 answered"
 
 
-@pytest.mark.serial          # its delays are measured to a few ms
+@pytest.mark.serial          # a reply 200 ms after its read gave up
 def test_a_late_reply_is_never_taken_for_the_next_reads(bus):
     """The 700 ms slave probed with a 500 ms timeout: each reply comes after its read gave
     up.  Taken for the next read (sent at once, as RTU has no transaction id), it would count
@@ -168,7 +169,7 @@ def test_probe_json(bus):
     assert row["stout_ms"] == _recommended(row["p99_ms"])
 
 
-@pytest.mark.serial          # its delays are measured to a few ms
+@pytest.mark.serial          # the requests' times, to a few ms
 def test_an_empty_bus_takes_at_most_units_times_the_timeout_and_exits_1(bus):
     device, record = bus()
     units, timeout_ms = 10, 50
