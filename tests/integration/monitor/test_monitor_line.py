@@ -1,0 +1,155 @@
+"""A listen-only line (`mode = "monitor"`, issue 29): a scripted master and slave on one bus
+(tests/peers/bus_fanout.py: three ptys, each end's bytes to the others, who wrote what
+recorded) with mbgw's monitor line on it.  The table holds exactly the answered values under
+the [[monitor]] maps, a part where a reply covers part of a map; unanswered requests and CRC
+errors are counted; mbgw writes nothing on the bus."""
+import json
+import os
+import select
+import struct
+import time
+import tty
+from pathlib import Path
+
+import pytest
+
+from tests.harness import PtyPair
+from tests.ops import mbgw, status, wait_for
+
+pytestmark = pytest.mark.integration
+
+REPLY_S = 5.0
+CONFIG = """\
+[serial]
+mode = "slave"
+device = "{serial}"
+
+[table]
+enabled = true
+
+[[line]]
+name = "tap"
+mode = "monitor"
+device = "{tap}"
+baudrate = 19200
+
+[[monitor]]
+line = "tap"
+unit = 7
+function = 3
+address = 100
+quantity = 4
+table = 0
+
+[[monitor]]
+line = "tap"
+unit = 7
+function = 1
+address = 0
+quantity = 8
+table = 10
+
+[[monitor]]
+line = "tap"
+unit = 9
+function = 4
+address = 0
+quantity = 2
+table = 20
+"""
+
+
+def crc(adu: bytes) -> bytes:
+    value = 0xFFFF
+    for byte in adu:
+        value ^= byte
+        for _ in range(8):
+            value = (value >> 1) ^ 0xA001 if value & 1 else value >> 1
+    return struct.pack("<H", value)
+
+
+def rtu(adu: bytes) -> bytes:
+    return adu + crc(adu)
+
+
+def read(unit: int, function: int, start: int, count: int) -> bytes:
+    return rtu(struct.pack(">BBHH", unit, function, start, count))
+
+
+def registers(unit: int, values: list[int]) -> bytes:
+    return rtu(struct.pack(f">BBB{len(values)}H", unit, 3, 2 * len(values), *values))
+
+
+class End:
+    """One device on the bus: the test writes what it says and reads what the others do."""
+
+    def __init__(self, link: Path) -> None:
+        self.fd = os.open(link, os.O_RDWR | os.O_NOCTTY)
+        tty.setraw(self.fd)
+
+    def say(self, frame: bytes) -> None:
+        os.write(self.fd, frame)
+
+    def hear(self, frame: bytes) -> None:
+        """Read what the bus carried until it is frame (the other end's write, whole)."""
+        got = b""
+        deadline = time.monotonic() + REPLY_S
+        while len(got) < len(frame):
+            ready, _, _ = select.select([self.fd], [], [], deadline - time.monotonic())
+            assert ready, f"heard {got.hex()} of {frame.hex()}"
+            got += os.read(self.fd, len(frame) - len(got))
+        assert got == frame
+
+
+def exchange(master: End, slave: End, request: bytes, reply: bytes | None) -> None:
+    """The master's request heard by the slave, then its reply (if any) heard by the master:
+    so the bus carries them in this order."""
+    master.say(request)
+    slave.hear(request)
+    if reply is not None:
+        slave.say(reply)
+        master.hear(reply)
+
+
+def table(gw, address: int, count: int) -> list[int]:
+    result = mbgw("table", "read", str(address), str(count), "--json", "--control", gw.control)
+    assert result.returncode == 0, result.stderr
+    return json.loads(result.stdout)["values"]
+
+
+def test_the_monitor_line_stores_what_the_bus_answers_and_never_writes(
+        tmp_path, start_peer, start_gateway) -> None:
+    links = {name: tmp_path / name for name in ("master", "slave", "tap")}
+    record = tmp_path / "bus.txt"
+    start_peer("bus_fanout.py", *map(str, links.values()), "--record", str(record))
+    serial = PtyPair(tmp_path)
+    config = tmp_path / "mbgw.toml"
+    config.write_text(CONFIG.format(serial=serial.gateway, tap=links["tap"]))
+    try:
+        gw = start_gateway(serial.gateway, "--config", str(config))
+        master, slave = End(links["master"]), End(links["slave"])
+        bad = bytearray(registers(7, [9]))
+        bad[-1] ^= 0xFF
+        exchange(master, slave, read(7, 3, 100, 4), registers(7, [11, 22, 33, 44]))
+        exchange(master, slave, read(7, 3, 102, 4), registers(7, [55, 66, 77, 88]))
+        exchange(master, slave, read(9, 4, 0, 2), None)              # unanswered
+        exchange(master, slave, read(7, 1, 0, 8), rtu(bytes([7, 1, 1, 0b101])))
+        exchange(master, slave, read(7, 3, 200, 1), bytes(bad))      # a CRC error
+        exchange(master, slave, read(7, 3, 300, 1), registers(7, [99]))   # in no map
+        row = wait_for(gw, lambda s: any(
+            line["name"] == "tap" and line["counters"]["monitor_frames"] == 10
+            for line in s["lines"]), "10 frames heard")
+        tap = next(line for line in row["lines"] if line["name"] == "tap")
+        assert tap["mode"] == "monitor"
+        assert tap["counters"]["monitor_crc_errors"] == 1
+        assert tap["counters"]["monitor_unanswered"] == 2     # unit 9's, and the bad reply's
+        ages = {m["map"]: m["age_s"] for m in tap["maps"]}
+        assert ages[1] is not None and ages[2] is not None and ages[3] is None
+        assert table(gw, 0, 4) == [11, 22, 55, 66]
+        assert table(gw, 10, 8) == [1, 0, 1, 0, 0, 0, 0, 0]
+        assert table(gw, 20, 2) == [0, 0]
+        assert [row.split()[0] for row in record.read_text().splitlines()
+                if row.split()[0] == "tap"] == []
+        assert status(gw)["lines"][-1]["name"] == "tap"
+    finally:
+        serial.stop()
