@@ -87,6 +87,12 @@ def monitor_problems(maps: tuple[MonitorMap, ...], line_modes: dict[str, str]) -
     return problems
 
 
+def monitor_settings(cfg) -> tuple:
+    """What the monitor lines run with: their lines and the maps (a daemon's cfg).  They
+    are composed at start; a reload that changes this takes effect at restart."""
+    return tuple(line for line in cfg.lines if line.is_monitor), cfg.monitors
+
+
 def map_fields(m: MonitorMap) -> dict:
     """A map as the keys of its [[monitor]] table (what parse_monitors reads)."""
     return {"line": m.line, "unit": m.unit, "function": m.function, "address": m.address,

@@ -9,6 +9,7 @@ from typing import Any
 
 from mbgw.config.lines import PRIMARY_LINE
 from mbgw.config.model import MasterConfig
+from mbgw.config.monitor import monitor_settings
 from mbgw.errors import ConfigError, ListenError
 from mbgw.master.faces import Faces, LineFaces
 from mbgw.master.status import MasterStatus
@@ -102,6 +103,7 @@ class MasterMode(ModeParts):
         self.monitors: Any = \
             monitors(cfg, tables.table, slave.hub) if monitors is not None else None
         self.status.monitors = self.monitors
+        self._monitored = monitor_settings(cfg)
 
     def _add_targets(self, cfg: MasterConfig) -> Any:
         """The lines in slave mode of cfg, unstarted (None: the daemon runs none)."""
@@ -180,6 +182,8 @@ class MasterMode(ModeParts):
         return self.status.lines()
 
     async def apply(self, new: MasterConfig, report: ReloadReport) -> None:
+        if monitor_settings(new) != self._monitored:
+            report.at_restart("monitor")
         _log_slaveid(new)
         self.tables.reconfigure(new, report)
         if self.targets is None and _has_targets(new):

@@ -8,6 +8,7 @@ from typing import Any
 
 from mbgw.config.lines import PRIMARY_LINE
 from mbgw.config.model import SlaveConfig
+from mbgw.config.monitor import monitor_settings
 from mbgw.errors import ListenError
 from mbgw.line.serial_line import SerialLine
 from mbgw.line.supervisor import open_at_start
@@ -107,6 +108,7 @@ class SlaveMode(ModeParts):
         # the lines in monitor mode (monitor.lines.MonitorLines), at start only
         self.monitors: Any = monitors(cfg, self.tables.table, self.targets.hub) \
             if monitors is not None else None
+        self._monitored = monitor_settings(cfg)
 
     def _share_serial_inbox(self, cfg: SlaveConfig) -> None:
         """Line serial's inbox among the targets' once the daemon has lines: before, line
@@ -197,6 +199,8 @@ class SlaveMode(ModeParts):
         return self.status.lines()
 
     async def apply(self, new: SlaveConfig, report: ReloadReport) -> None:
+        if monitor_settings(new) != self._monitored:
+            report.at_restart("monitor")
         self._share_serial_inbox(new)
         self.tables.reconfigure(new, report)
         removed = await asyncio.to_thread(self.targets.reconfigure, new, report)
