@@ -18,6 +18,7 @@ from mbgw.line.supervisor import TURN_MARGIN_S, LineThread
 from mbgw.monitor.bus import BusDecoder, MonitorCounters
 from mbgw.monitor.store import MapStore
 from mbgw.ops.eventfd import drain
+from mbgw.ops.trace import Outcome
 
 READ_SIZE = 4096
 _IN = select.POLLIN
@@ -124,11 +125,11 @@ class MonitorLineThread(LineThread[LineConfig]):
 
 def _event(adu: bytes, what: str) -> dict:
     """A frame heard, as `mbgw trace` shows it: the bus's own request or reply."""
-    direction = "reply" if what == "reply" else "no reply" if what == "unanswered" else \
-        "request"
+    direction = {"reply": "reply", "unanswered": "no reply", "crc error": "ignored"}.get(
+        what, "request")
     return {"time": time.time(), "mode": "monitor", "direction": direction,
             "address": adu[0] if adu else None, "function": adu[1] if len(adu) > 1 else 0,
             "length": max(len(adu) - 1, 0), "pdu": adu[1:].hex(), "tid": None, "unit": None,
-            "outcome": {"reply": "reply", "unanswered": "timeout", "crc error": "crc error",
-                        "request": ""}[what], "latency_ms": None, "server": None,
-            "peer": None, "local": None, "remote": None}
+            "outcome": {"reply": Outcome.REPLY, "unanswered": Outcome.TIMEOUT,
+                        "crc error": Outcome.CRC_ERROR}.get(what, ""),
+            "latency_ms": None, "server": None, "peer": None, "local": None, "remote": None}

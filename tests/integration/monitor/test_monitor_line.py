@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.harness import PtyPair
+from tests.harness import PtyPair, free_port
 from tests.ops import mbgw, status, wait_for
 
 pytestmark = pytest.mark.integration
@@ -21,7 +21,7 @@ pytestmark = pytest.mark.integration
 REPLY_S = 5.0
 CONFIG = """\
 [serial]
-mode = "slave"
+mode = "{mode}"
 device = "{serial}"
 
 [table]
@@ -117,16 +117,21 @@ def table(gw, address: int, count: int) -> list[int]:
     return json.loads(result.stdout)["values"]
 
 
+@pytest.mark.parametrize("mode", ["slave", "master"])
 def test_the_monitor_line_stores_what_the_bus_answers_and_never_writes(
-        tmp_path, start_peer, start_gateway) -> None:
+        tmp_path, start_peer, start_gateway, mode: str) -> None:
     links = {name: tmp_path / name for name in ("master", "slave", "tap")}
     record = tmp_path / "bus.txt"
     start_peer("bus_fanout.py", *map(str, links.values()), "--record", str(record))
     serial = PtyPair(tmp_path)
     config = tmp_path / "mbgw.toml"
-    config.write_text(CONFIG.format(serial=serial.gateway, tap=links["tap"]))
+    config.write_text(CONFIG.format(mode=mode, serial=serial.gateway, tap=links["tap"]))
     try:
-        gw = start_gateway(serial.gateway, "--config", str(config))
+        if mode == "slave":
+            gw = start_gateway(serial.gateway, "--config", str(config))
+        else:
+            gw = start_gateway(serial.gateway, "--config", str(config), "--table-port",
+                               str(free_port()), mode="master", listen=False)
         master, slave = End(links["master"]), End(links["slave"])
         bad = bytearray(registers(7, [9]))
         bad[-1] ^= 0xFF
