@@ -23,12 +23,14 @@ class MonitorCounters:
     monitor_frames: int = 0
     monitor_crc_errors: int = 0
     monitor_unanswered: int = 0
+    monitor_answered: int = 0
 
     def snapshot(self) -> dict[str, int]:
         return {"bytes_received": self.bytes_received,
                 "monitor_frames": self.monitor_frames,
                 "monitor_crc_errors": self.monitor_crc_errors,
-                "monitor_unanswered": self.monitor_unanswered}
+                "monitor_unanswered": self.monitor_unanswered,
+                "monitor_answered": self.monitor_answered}
 
 
 # what a BusDecoder tells its owner: (request ADU, reply ADU or None), both without CRC;
@@ -106,6 +108,7 @@ class BusDecoder:
         request = self._request
         if is_reply and request is not None and native.reply_matches(request[1:], adu[1:]):
             self._request = None
+            self.counters.monitor_answered += 1
             self._tell(adu, "reply")
             self._answered(request, adu)
             return

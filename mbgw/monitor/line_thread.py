@@ -113,8 +113,10 @@ class MonitorLineThread(LineThread[LineConfig]):
         c = self.counters.snapshot()
         ages = self.store.ages(time.monotonic())
         return {"name": self.line_name, "device": self._cfg.serial.device, "mode": "monitor",
-                "state": self.state, "requests": c["monitor_frames"], "replies": 0,
-                "timeouts": c["monitor_unanswered"], "counters": c, "devices": [],
+                "state": self.state,
+                "requests": c["monitor_answered"] + c["monitor_unanswered"],
+                "replies": c["monitor_answered"], "timeouts": c["monitor_unanswered"],
+                "counters": c, "devices": [],
                 "maps": [{"map": index, "age_s": None if age is None else round(age, 3)}
                          for index, age in sorted(ages.items())]}
 

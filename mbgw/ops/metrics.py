@@ -19,6 +19,7 @@ _COUNTER_HELP = {
                       "requests and its slaves' replies).",
     "monitor_crc_errors": "Frames a monitor line heard whose CRC was wrong.",
     "monitor_unanswered": "Requests a monitor line heard that no reply answered.",
+    "monitor_answered": "Requests a monitor line heard with the reply that answered them.",
     "requests": "Modbus TCP requests received from clients.",
     "replies": "Modbus TCP replies sent to clients (exception replies included).",
     "device_exceptions": "Exception replies received from serial devices.",

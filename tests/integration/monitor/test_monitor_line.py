@@ -148,6 +148,7 @@ def test_the_monitor_line_stores_what_the_bus_answers_and_never_writes(
         assert tap["mode"] == "monitor"
         assert tap["counters"]["monitor_crc_errors"] == 1
         assert tap["counters"]["monitor_unanswered"] == 2     # unit 9's, and the bad reply's
+        assert (tap["requests"], tap["replies"], tap["timeouts"]) == (6, 4, 2)
         ages = {m["map"]: m["age_s"] for m in tap["maps"]}
         assert ages[1] is not None and ages[2] is not None and ages[3] is None
         assert table(gw, 0, 4) == [11, 22, 55, 66]
@@ -156,5 +157,8 @@ def test_the_monitor_line_stores_what_the_bus_answers_and_never_writes(
         assert [row.split()[0] for row in record.read_text().splitlines()
                 if row.split()[0] == "tap"] == []
         assert status(gw)["lines"][-1]["name"] == "tap"
+        text = mbgw("status", "--control", gw.control)
+        assert "maps of line tap (3)" in text.stdout, text.stdout + text.stderr
+        assert "monitor 3    never stored" in text.stdout
     finally:
         serial.stop()

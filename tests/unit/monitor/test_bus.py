@@ -31,7 +31,8 @@ def test_a_request_and_its_reply_are_a_pair() -> None:
     h = Heard()
     h.decoder.feed(rtu(READ) + rtu(ANSWER))
     assert h.pairs == [(READ, ANSWER)]
-    assert (h.counters.monitor_frames, h.counters.monitor_unanswered) == (2, 0)
+    c = h.counters
+    assert (c.monitor_frames, c.monitor_answered, c.monitor_unanswered) == (2, 1, 0)
 
 
 @pytest.mark.parametrize("seed", range(20))
