@@ -71,3 +71,18 @@ def test_the_readme_example_passes_check_config(tmp_path) -> None:
 ])
 def test_check_config_refuses(tmp_path, text: str, problem: str) -> None:
     assert problem in refusal(tmp_path, SERIAL + text)
+
+
+def test_config_show_monitor_prints_the_maps_as_the_file_reads_them(tmp_path) -> None:
+    import tomllib
+
+    from click.testing import CliRunner
+
+    from mbgw.cli import main
+    path, result = check_config(tmp_path, SERIAL + TAP + monitor() + monitor(unit=2, table=10))
+    assert result.exit_code == 0, result.output
+    shown = CliRunner().invoke(main, ["config", "show", "monitor", "--config", str(path)],
+                               prog_name="mbgw")
+    assert shown.exit_code == 0, shown.output
+    assert parse_monitors(tomllib.loads(shown.output)["monitor"]) == parse_monitors(
+        [GOOD, {**GOOD, "unit": 2, "table": 10}])
