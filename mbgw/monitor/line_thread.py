@@ -33,6 +33,14 @@ def listening(line: LineConfig) -> LineConfig:
     return dataclasses.replace(line, serial=serial)
 
 
+def transmitter_off(line: SerialLine) -> SerialLine:
+    """line, its RTS low where mbgw would drive it for a write (an RS-485 port without the
+    kernel's mode: the kernel raised RTS when the port opened, and nothing would lower it)."""
+    if line.rts_control:
+        line.port.set_modem_lines(None, False)
+    return line
+
+
 class MonitorLineThread(LineThread[LineConfig]):
     def __init__(self, cfg: LineConfig, line: SerialLine | None, store: MapStore,
                  trace) -> None:
@@ -56,7 +64,7 @@ class MonitorLineThread(LineThread[LineConfig]):
         return self._cfg.serial.t35_us / 1e6 + TURN_MARGIN_S
 
     def _open_line(self) -> SerialLine:
-        return SerialLine(self._cfg.serial, self.counters)
+        return transmitter_off(SerialLine(self._cfg.serial, self.counters))
 
     def _attach(self, line: SerialLine) -> None:
         self._tty_fd = line.port.fd

@@ -4,7 +4,7 @@ nor target: no route reaches it and it takes no request; it only stores what it 
 import logging
 
 from mbgw.line.supervisor import open_at_start
-from mbgw.monitor.line_thread import MonitorLineThread, listening
+from mbgw.monitor.line_thread import MonitorLineThread, listening, transmitter_off
 from mbgw.monitor.store import MapStore
 
 log = logging.getLogger("mbgw.monitor")
@@ -27,9 +27,10 @@ class MonitorLines:
             for line in (x for x in cfg.lines if x.is_monitor):
                 settings = listening(line)
                 maps = tuple(m for m in cfg.monitors if m.line == line.name)
+                port = open_at_start(settings.serial)
                 self.threads.append(MonitorLineThread(
-                    settings, open_at_start(settings.serial), MapStore(maps, table),
-                    hub.for_line(line.name)))
+                    settings, None if port is None else transmitter_off(port),
+                    MapStore(maps, table), hub.for_line(line.name)))
         except BaseException:
             self.close()
             raise
