@@ -33,8 +33,8 @@ class MonitorCounters:
                 "monitor_answered": self.monitor_answered}
 
 
-# what a BusDecoder tells its owner: (request ADU, reply ADU or None), both without CRC;
-# reply None: a request on its way (the trace shows it), or (unanswered True) given up on
+# what a BusDecoder hands its owner: a request ADU and the reply ADU that answers it, both
+# without their CRC
 Answered = Callable[[bytes, bytes], None]
 
 

@@ -60,6 +60,10 @@ class MonitorLineThread(LineThread[LineConfig]):
             self._attach(line)
 
     @property
+    def device(self) -> str:
+        return self._cfg.serial.device
+
+    @property
     def turn_limit_s(self) -> float:
         return self._cfg.serial.t35_us / 1e6 + TURN_MARGIN_S
 

@@ -46,7 +46,7 @@ class MonitorLines:
             t.idle_ms = idle_ms
             t.start()
             log.info("line %s: listening on %s (monitor mode: mbgw never transmits)",
-                     t.line_name, t._cfg.serial.device)
+                     t.line_name, t.device)
 
     def stop(self) -> None:
         for t in self.threads:
