@@ -28,8 +28,9 @@ _TROUBLE = select.POLLHUP | select.POLLERR | select.POLLNVAL
 def listening(line: LineConfig) -> LineConfig:
     """The line's settings as a listener opens its port: its transmitter never keyed."""
     serial = line.serial
-    if not serial.interface.drives_rts:
-        serial = dataclasses.replace(serial, rts="low")
+    if not serial.interface.drives_rts:    # nor RTS/CTS flow control, which would raise it
+        serial = dataclasses.replace(serial, rts="low",
+                                     cts="ignore" if serial.rts == "flow" else serial.cts)
     return dataclasses.replace(line, serial=serial)
 
 
