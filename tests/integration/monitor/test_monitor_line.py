@@ -9,12 +9,14 @@ import select
 import struct
 import time
 import tty
+import urllib.request
 from pathlib import Path
 
 import pytest
+from prometheus_client import parser
 
 from tests.harness import PtyPair, free_port
-from tests.ops import mbgw, status, wait_for
+from tests.ops import mbgw, metric_families, metric_value, status, wait_for
 
 pytestmark = pytest.mark.integration
 
@@ -126,12 +128,14 @@ def test_the_monitor_line_stores_what_the_bus_answers_and_never_writes(
     serial = PtyPair(tmp_path)
     config = tmp_path / "mbgw.toml"
     config.write_text(CONFIG.format(mode=mode, serial=serial.gateway, tap=links["tap"]))
+    metrics_port = free_port()
+    options = ("--config", str(config), "--metrics", f"127.0.0.1:{metrics_port}")
     try:
         if mode == "slave":
-            gw = start_gateway(serial.gateway, "--config", str(config))
+            gw = start_gateway(serial.gateway, *options)
         else:
-            gw = start_gateway(serial.gateway, "--config", str(config), "--table-port",
-                               str(free_port()), mode="master", listen=False)
+            gw = start_gateway(serial.gateway, *options, "--table-port", str(free_port()),
+                               mode="master", listen=False)
         master, slave = End(links["master"]), End(links["slave"])
         bad = bytearray(registers(7, [9]))
         bad[-1] ^= 0xFF
@@ -154,6 +158,12 @@ def test_the_monitor_line_stores_what_the_bus_answers_and_never_writes(
         assert table(gw, 0, 4) == [11, 22, 55, 66]
         assert table(gw, 10, 8) == [1, 0, 1, 0, 0, 0, 0, 0]
         assert table(gw, 20, 2) == [0, 0]
+        with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics",
+                                    timeout=5) as page:
+            families = metric_families(parser, page.read().decode())
+        assert [metric_value(families, f"mbgw_monitor_{name}", f"mbgw_monitor_{name}_total",
+                             line="tap")
+                for name in ("frames", "crc_errors", "unanswered")] == [10, 1, 2]
         writers = {row.split()[0] for row in record.read_text().splitlines()}
         assert writers == {"master", "slave"}           # mbgw's end wrote not one byte
         assert status(gw)["lines"][-1]["name"] == "tap"
