@@ -7,6 +7,7 @@ import json
 import os
 import select
 import struct
+import subprocess
 import time
 import tty
 import urllib.request
@@ -16,7 +17,15 @@ import pytest
 from prometheus_client import parser
 
 from tests.harness import PtyPair, free_port
-from tests.ops import mbgw, metric_families, metric_value, status, wait_for
+from tests.ops import (
+    mbgw,
+    metric_families,
+    metric_value,
+    status,
+    tracing,
+    tshark_warnings,
+    wait_for,
+)
 
 pytestmark = pytest.mark.integration
 
@@ -113,6 +122,21 @@ def exchange(master: End, slave: End, request: bytes, reply: bytes | None) -> No
         master.hear(reply)
 
 
+# the trace of play_the_bus: 6 requests, 4 replies, 2 given up on, 1 CRC error
+TRACE_EVENTS = 13
+
+
+def play_the_bus(master: End, slave: End) -> None:
+    bad = bytearray(registers(7, [9]))
+    bad[-1] ^= 0xFF
+    exchange(master, slave, read(7, 3, 100, 4), registers(7, [11, 22, 33, 44]))
+    exchange(master, slave, read(7, 3, 102, 4), registers(7, [55, 66, 77, 88]))
+    exchange(master, slave, read(9, 4, 0, 2), None)              # unanswered
+    exchange(master, slave, read(7, 1, 0, 8), rtu(bytes([7, 1, 1, 0b101])))
+    exchange(master, slave, read(7, 3, 200, 1), bytes(bad))      # a CRC error
+    exchange(master, slave, read(7, 3, 300, 1), registers(7, [99]))   # in no map
+
+
 def table(gw, address: int, count: int) -> list[int]:
     result = mbgw("table", "read", str(address), str(count), "--json", "--control", gw.control)
     assert result.returncode == 0, result.stderr
@@ -137,14 +161,23 @@ def test_the_monitor_line_stores_what_the_bus_answers_and_never_writes(
             gw = start_gateway(serial.gateway, *options, "--table-port", str(free_port()),
                                mode="master", listen=False)
         master, slave = End(links["master"]), End(links["slave"])
-        bad = bytearray(registers(7, [9]))
-        bad[-1] ^= 0xFF
-        exchange(master, slave, read(7, 3, 100, 4), registers(7, [11, 22, 33, 44]))
-        exchange(master, slave, read(7, 3, 102, 4), registers(7, [55, 66, 77, 88]))
-        exchange(master, slave, read(9, 4, 0, 2), None)              # unanswered
-        exchange(master, slave, read(7, 1, 0, 8), rtu(bytes([7, 1, 1, 0b101])))
-        exchange(master, slave, read(7, 3, 200, 1), bytes(bad))      # a CRC error
-        exchange(master, slave, read(7, 3, 300, 1), registers(7, [99]))   # in no map
+        pcap = tmp_path / "tap.pcap"
+        with tracing(gw, pcap, TRACE_EVENTS, "--line", "tap") as (trace, _):
+            play_the_bus(master, slave)
+            out, err = trace.communicate(timeout=10)
+        assert trace.returncode == 0, err
+        events = [text.split()[1:] for text in out.decode().splitlines()]
+        assert all(e[-2:] == ["line", "tap"] for e in events), events
+        assert events[:2] == [
+            ["request", "monitor", "(heard)", "-", "7", "0x03", "5", "line", "tap"],
+            ["reply", "monitor", "(heard)", "-", "7", "0x03", "10", "reply", "line", "tap"]]
+        assert sum(e[-3] == "timeout" for e in events) == 2
+        assert ["ignored", "monitor", "(heard)", "-", "7", "0x03", "6", "crc", "error", "line",
+                "tap"] in events
+        decoded = subprocess.run(["tshark", "-r", str(pcap), "-Y", "mbtcp"],
+                                 capture_output=True, text=True, timeout=60)
+        assert len(decoded.stdout.splitlines()) == 10, decoded.stdout + decoded.stderr
+        assert tshark_warnings(pcap, 502).stdout == ""
         row = wait_for(gw, lambda s: any(
             line["name"] == "tap" and line["counters"]["monitor_frames"] == 10
             for line in s["lines"]), "10 frames heard")

@@ -13,13 +13,13 @@ def shown(adu: bytes, what: str) -> str:
 
 def test_a_reply_heard_shows_its_line_address_and_function() -> None:
     row = shown(bytes.fromhex("070304000b0016"), "reply")
-    assert row.split()[1:] == ["reply", "monitor", "tap", "-", "7", "0x03", "6", "reply"]
+    assert row.split()[1:] == ["reply", "monitor", "(heard)", "-", "7", "0x03", "6", "reply"]
 
 
 def test_an_unanswered_request_and_a_crc_error_show_their_outcome() -> None:
     assert shown(bytes.fromhex("0904000000020000"), "unanswered").endswith("timeout")
-    assert shown(b"\x07", "crc error").split()[1:] == ["ignored", "monitor", "tap", "-", "7",
-                                                        "0x00", "0", "crc", "error"]
+    assert shown(b"\x07", "crc error").split()[1:] == ["ignored", "monitor", "(heard)", "-",
+                                                        "7", "0x00", "0", "crc", "error"]
 
 
 def test_a_crc_error_passes_the_errors_filter_and_a_request_does_not() -> None:
