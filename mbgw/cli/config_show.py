@@ -11,6 +11,7 @@ from mbgw.config import line_file, scenario_text
 from mbgw.config.edit import show_lines
 from mbgw.config.file import SCENARIO_KEY, Settings
 from mbgw.config.lines import LINE_MODES, TCP_FACE, implicit_routes
+from mbgw.config.monitor import MONITOR_TABLE, map_fields
 from mbgw.config.number_list import number_list_text
 from mbgw.config.schema import GROUPS, MODE_KEY, Schema
 from mbgw.config.toml_text import dump_value
@@ -28,7 +29,7 @@ SHOW_WIDTH = 16                    # the key column of `mbgw config show`
                    "socket, and who may read the file.")
 @click.option("--json", "as_json", is_flag=True, help="With --security: as a JSON document.")
 @click.argument("group", required=False, type=click.Choice(
-    [*GROUPS, SCENARIO_KEY, line_file.LINE_TABLE, line_file.ROUTE_TABLE]))
+    [*GROUPS, SCENARIO_KEY, line_file.LINE_TABLE, line_file.ROUTE_TABLE, MONITOR_TABLE]))
 @click.argument("param", required=False)
 @click.pass_context
 def show(ctx, config_path: Path, instance: str | None, security: bool, as_json: bool,
@@ -37,7 +38,8 @@ def show(ctx, config_path: Path, instance: str | None, security: bool, as_json: 
     (serial, net, general, table), or one PARAM, like the guide's `show serial stout`;
     `show scenario [NAME]`: the scenarios; `show line [NAME]`: the [[line]] tables; `show
     route`: the [[route]] tables, then the implicit routes (today's routing of a face without
-    a route) as comments; `show --security [--json]`: the security settings in force."""
+    a route) as comments; `show monitor`: the [[monitor]] maps; `show --security [--json]`:
+    the security settings in force."""
     if as_json and not security:
         raise click.UsageError("--json goes with --security")
     if security and group is not None:
@@ -66,6 +68,8 @@ def _show_tables(schema: Schema, settings: Settings, group: str | None,
         _show_lines(settings, param, separate=False)
     elif group == line_file.ROUTE_TABLE:
         _show_routes(schema, settings, separate=False)
+    elif group == MONITOR_TABLE:
+        _show_monitors(settings, separate=False)
     else:
         return False
     return True
@@ -97,6 +101,8 @@ def _show_groups(schema: Schema, settings: Settings, group: str | None,
         _show_lines(settings, None)
     if group is None and (settings.routes or settings.lines):
         _show_routes(schema, settings)
+    if group is None and settings.monitors:
+        _show_monitors(settings)
 
 
 def _show_security(schema: Schema, settings: Settings, as_json: bool) -> None:
@@ -136,6 +142,15 @@ def _show_lines(settings: Settings, name: str | None, separate: bool = True) -> 
             click.echo()
         click.echo("[[line]]")
         for key, value in line_file.line_fields(line).items():
+            click.echo(f"{key} = {dump_value(value)}")
+
+
+def _show_monitors(settings: Settings, separate: bool = True) -> None:
+    for number, m in enumerate(settings.monitors):
+        if separate or number:
+            click.echo()
+        click.echo(f"[[{MONITOR_TABLE}]]")
+        for key, value in map_fields(m).items():
             click.echo(f"{key} = {dump_value(value)}")
 
 

@@ -6,8 +6,9 @@ import click
 
 from mbgw.cli.serial_options import demotion, serial_config
 from mbgw.config import line_file
-from mbgw.config.lines import LineConfig, config_problems
+from mbgw.config.lines import PRIMARY_LINE, LineConfig, config_problems
 from mbgw.config.model import MasterConfig, SlaveConfig
+from mbgw.config.monitor import monitor_problems
 
 SERIAL_PARAMS = ("device", "protocol", "baudrate", "line_format", "interface", "rtsdelays",
                  "stout", "silence", "ascii_timeout", "nocheck", "dtr", "rts", "cts",
@@ -32,16 +33,19 @@ def line_config(table: line_file.LineTable) -> LineConfig:
     return LineConfig(table.name, serial, mode=table.mode, demotion=line_demotion, **own)
 
 
-def with_lines(cfg: SlaveConfig | MasterConfig, mode: str, lines=(), routes=()):
-    """cfg with the file's lines and routes, checked (and the gateway unit against the
-    implicit routes): click.BadParameter with the first problem, which names its line or
-    route and key."""
-    if lines or routes:
+def with_lines(cfg: SlaveConfig | MasterConfig, mode: str, lines=(), routes=(), monitors=()):
+    """cfg with the file's lines, routes and monitor maps, checked (and the gateway unit
+    against the implicit routes): click.BadParameter with the first problem, which names its
+    line, route or map and key."""
+    if lines or routes or monitors:
         cfg = dataclasses.replace(cfg, lines=tuple(line_config(t) for t in lines),
-                                  routes=tuple(routes))
+                                  routes=tuple(routes), monitors=tuple(monitors))
     elif not (isinstance(cfg, SlaveConfig) and cfg.gateway_unit):
         return cfg
     problems = config_problems(cfg, mode)
+    problems += monitor_problems(cfg.monitors, {line.name: line.mode for line in
+                                                (LineConfig(PRIMARY_LINE, cfg.serial, mode=mode),
+                                                 *cfg.lines)})
     if problems:
         raise click.BadParameter(problems[0])
     return cfg

@@ -2,7 +2,10 @@
 
 Each request and reply becomes one TCP segment between the client's address and the
 gateway's, inside synthetic Ethernet and IPv4/IPv6 headers, with per-direction sequence
-numbers so that the TCP stream reassembles."""
+numbers so that the TCP stream reassembles.  What a monitor line heard (RTU on a bus mbgw
+only listens to) goes in as Modbus/TCP too, between two made-up ends (MONITOR_MASTER, the
+bus's master; MONITOR_BUS, its slaves): the unit is the serial address, and each request
+and its reply share a transaction id numbered here."""
 import ipaddress
 import struct
 
@@ -12,6 +15,8 @@ LINKTYPE_ETHERNET = 1
 _ETHER_IPV4 = b"\x02\x00\x00\x00\x00\x01" + b"\x02\x00\x00\x00\x00\x02" + b"\x08\x00"
 _ETHER_IPV6 = b"\x02\x00\x00\x00\x00\x01" + b"\x02\x00\x00\x00\x00\x02" + b"\x86\xdd"
 _TCP_PSH_ACK = 0x18
+MONITOR_MASTER = "127.0.77.1:40000"
+MONITOR_BUS = "127.0.77.2:502"
 
 
 def _split(address: str) -> tuple[ipaddress.IPv4Address | ipaddress.IPv6Address, int]:
@@ -36,11 +41,16 @@ class PcapWriter:
     def __init__(self, stream) -> None:
         self._out = stream
         self._seq: dict[tuple, int] = {}
+        self._monitor_tid = 0
         stream.write(struct.pack("<IHHiIII", 0xA1B2C3D4, 2, 4, 0, 0, 65535, LINKTYPE_ETHERNET))
 
     def write_event(self, event: dict) -> bool:
         """One traced request or reply; False for events that carried nothing."""
-        if event.get("direction") not in ("request", "reply") or event.get("peer") is None:
+        if event.get("direction") not in ("request", "reply"):
+            return False
+        if event.get("mode") == "monitor":
+            return self._heard(event)
+        if event.get("peer") is None:
             return False          # nothing went over TCP (master mode's table slave)
         payload = native.frame(event["tid"], event["unit"], bytes.fromhex(event["pdu"]))
         client, server = _split(event["peer"]), _split(event["local"])
@@ -48,6 +58,17 @@ class PcapWriter:
             src, dst = client, server
         else:
             src, dst = server, client
+        self._packet(event["time"], src, dst, payload)
+        return True
+
+    def _heard(self, event: dict) -> bool:
+        """A frame heard on a monitor line, between the bus's made-up ends."""
+        if event["direction"] == "request":
+            self._monitor_tid = (self._monitor_tid + 1) & 0xFFFF
+            src, dst = _split(MONITOR_MASTER), _split(MONITOR_BUS)
+        else:
+            src, dst = _split(MONITOR_BUS), _split(MONITOR_MASTER)
+        payload = native.frame(self._monitor_tid, event["address"], bytes.fromhex(event["pdu"]))
         self._packet(event["time"], src, dst, payload)
         return True
 

@@ -41,7 +41,7 @@ def format_status(s: dict, now: float) -> str:
     if len(s.get("lines", ())) > 1 or any(not r["implicit"] for r in s.get("routes", ())):
         lines += ["", *_lines_section(s["lines"]), "", *_routes_section(s["routes"])]
         for row in s["lines"][1:]:        # line serial's devices are above
-            lines += ["", *_line_devices(row, now)]
+            lines += ["", *(_line_maps(row) if "maps" in row else _line_devices(row, now))]
     if s.get("servers"):
         lines += ["", *_servers_section(s["servers"])]
     if s.get("table") is not None:
@@ -90,11 +90,20 @@ def _line_devices(row: dict, now: float) -> list[str]:
     return out
 
 
+def _line_maps(row: dict) -> list[str]:
+    """A monitor line's [[monitor]] maps, each with its age."""
+    out = [f"maps of line {row['name']} ({len(row['maps'])})"]
+    out += [f"  monitor {m['map']:<4} " + ("never stored" if m["age_s"] is None else
+                                          f"stored {m['age_s']:.1f} s ago") for m in row["maps"]]
+    return out
+
+
 def format_line_status(s: dict, now: float) -> str:
     """line_status()'s, as text."""
     row = s["line"]
     out = [f"mbgw {s['version']}, {s['mode']} mode, pid {s['pid']}", "",
-           *_lines_section([row]), "", *_line_devices(row, now)]
+           *_lines_section([row]), "",
+           *(_line_maps(row) if "maps" in row else _line_devices(row, now))]
     out += ["", *_routes_section(s["routes"]), "", f"counters of line {row['name']}"]
     counters = row["counters"]
     names = [n for n in counters if counters[n]] or list(counters)[:3]

@@ -43,6 +43,9 @@ def format_event(e: dict) -> str:
         unit = "-" if e["unit"] is None else e["unit"]
         address = "-" if e["address"] is None else e["address"]
         where = f"{address:>4} {e['server'] or '-':<21}"
+    elif e.get("mode") == "monitor":     # heard on a listen-only line: no client, no tid
+        unit = "-" if e["address"] is None else e["address"]
+        tid, where = "-", f"{'monitor (heard)':<24}"     # trace names the line after
     elif e.get("scenario") is not None:
         tid, unit, where = "-", e["unit"], f"{'scenario ' + e['scenario']:<24}"
     else:

@@ -21,6 +21,7 @@ import click
 from mbgw.config import firewall as fw
 from mbgw.config import line_file
 from mbgw.config.lines import LINE_MODES
+from mbgw.config.monitor import MONITOR_TABLE, parse_monitors
 from mbgw.config.scenario import parse_scenarios
 from mbgw.config.schema import (
     DEFAULT_PATH,
@@ -53,6 +54,7 @@ class Settings:
     scenarios: tuple = ()      # the [[scenario]] tables, checked (ScenarioConfig)
     lines: tuple = ()          # the [[line]] tables, checked (line_file.LineTable)
     routes: tuple = ()         # the [[route]] tables (RouteConfig)
+    monitors: tuple = ()       # the [[monitor]] maps (MonitorMap)
 
     def default_map(self, schema: Schema, command_name: str) -> dict:
         """click's default_map for a mode command: its options the file sets.  The authip and
@@ -72,6 +74,8 @@ class Settings:
             mapping[line_file.LINES_PARAM] = self.lines
         if self.routes:
             mapping[line_file.ROUTES_PARAM] = self.routes
+        if self.monitors:
+            mapping[line_file.MONITORS_PARAM] = self.monitors
         return mapping
 
     def get(self, schema: Schema, name: str):
@@ -120,7 +124,7 @@ def _top_level_problems(schema: Schema, data: dict) -> list[str]:
     problems = []
     for name, content in data.items():
         if name in (fw.GROUP, fw.RULE_TABLE, SCENARIO_KEY, line_file.LINE_TABLE,
-                    line_file.ROUTE_TABLE):
+                    line_file.ROUTE_TABLE, MONITOR_TABLE):
             continue                    # fw.from_file's, parse_scenarios', line_file's
         if name in GROUPS:
             if not isinstance(content, dict):
@@ -170,14 +174,19 @@ def check(schema: Schema, path: Path, data: dict) -> Settings:
         schema, array_of_tables(data, line_file.LINE_TABLE, problems), mode)
     routes, route_problems = line_file.parse_routes(
         array_of_tables(data, line_file.ROUTE_TABLE, problems))
-    problems += line_problems + route_problems
+    monitors, monitor_problems = parse_monitors(
+        array_of_tables(data, MONITOR_TABLE, problems))
+    problems += line_problems + route_problems + monitor_problems
+    if monitors and mode not in LINE_MODES:
+        problems.append(f"monitor: [[monitor]] maps are for slave and master modes; {mode} "
+                        f"mode bridges [serial] only")
     if routes and mode not in LINE_MODES:
         problems.append(f"route: [[route]] tables are for slave and master modes; {mode} mode "
                         f"bridges [serial] only")
     problems += line_file.table_units_overlap(values, routes)
     if problems:
         raise ConfigFileError(path, problems)
-    return Settings(Path(path), mode, values, rules, scenarios, lines, routes)
+    return Settings(Path(path), mode, values, rules, scenarios, lines, routes, monitors)
 
 
 def _check_mode(schema: Schema, serial: dict, problems: list) -> str:

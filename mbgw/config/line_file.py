@@ -11,6 +11,7 @@ from functools import partial
 
 from mbgw.config.lines import (
     DEFAULT_SERVER_PORT,
+    LINE_KINDS,
     LINE_MODES,
     MAX_LINES,
     MAX_ROUTES,
@@ -31,8 +32,11 @@ LINE_TABLE = "line"
 ROUTE_TABLE = "route"
 LINES_PARAM = "lines"            # the mode commands' hidden parameters the file fills
 ROUTES_PARAM = "routes"
+MONITORS_PARAM = "monitors"
 LINE_OWN_KEYS = ("name", "mode")
 MASTER_LINE_REFUSED = ("stout", "nocheck")      # as `mbgw master --stout` is refused
+# a line in monitor mode takes a master-mode line's keys: the port's settings, no timing
+LISTENING_KEYS_OF = {"monitor": "master"}
 ROUTE_KEYS = ("units", "line", "table", "server", "offset", "address", "from", "tls",
               "fingerprint")
 TCP_UNITS = (1, 255)             # as [table] units
@@ -80,10 +84,12 @@ def _parse_line(schema: Schema, fields: dict, index: int, problems: list[str]
         problems.append(f"{label}.name: {PRIMARY_LINE!r} is [serial]'s name, reserved")
         return None
     mode = fields.get("mode", "slave")
-    if mode not in LINE_MODES:
-        problems.append(f"{label}.mode: expected \"slave\" (mbgw is the master on the line) or "
-                        f"\"master\" (a master is on it), got {mode!r}")
+    if mode not in LINE_KINDS:
+        problems.append(f"{label}.mode: expected \"slave\" (mbgw is the master on the line), "
+                        f"\"master\" (a master is on it) or \"monitor\" (mbgw only listens), "
+                        f"got {mode!r}")
         return None
+    keys_of = LISTENING_KEYS_OF.get(mode, mode)
     before = len(problems)
     for key_name, value in fields.items():
         if key_name in LINE_OWN_KEYS:
@@ -91,15 +97,16 @@ def _parse_line(schema: Schema, fields: dict, index: int, problems: list[str]
         key = schema.find("serial", key_name)
         if key is None:
             problems.append(f"{label}.{key_name}: unknown key" + _line_hint(schema, key_name))
-        elif mode not in key.params or (mode == "master" and key_name in MASTER_LINE_REFUSED):
+        elif keys_of not in key.params or (keys_of == "master"
+                                           and key_name in MASTER_LINE_REFUSED):
             problems.append(f"{label}.{key_name}: applies to slave-mode lines only")
         else:
-            problems += check_value(schema, key, mode, value, f"{label}.{key_name}")
+            problems += check_value(schema, key, keys_of, value, f"{label}.{key_name}")
     if "device" not in fields:
         problems.append(f"{label}.device: missing; every line needs its device")
     if len(problems) > before:
         return None
-    return LineTable(name, mode, _params(schema, fields, mode),
+    return LineTable(name, mode, _params(schema, fields, keys_of),
                      {k: v for k, v in fields.items() if k not in LINE_OWN_KEYS})
 
 

@@ -27,6 +27,7 @@ from mbgw.protocol import pdu
 PRIMARY_LINE = "serial"            # [serial]'s name; reserved for it
 TCP_FACE = ""                      # the face of the Modbus TCP listeners (plain and TLS)
 LINE_MODES = ("slave", "master")   # slave: mbgw masters the line; master: a master is on it
+LINE_KINDS = (*LINE_MODES, "monitor")   # a [[line]]'s; monitor: mbgw only listens
 NAME_PATTERN = re.compile(r"[a-z0-9][a-z0-9-]{0,31}")
 MAX_LINES = 32
 MAX_ROUTES = 256
@@ -49,9 +50,10 @@ class LineConfig:
         if self.name != PRIMARY_LINE and not NAME_PATTERN.fullmatch(self.name):
             raise ConfigError(f"line {self.name!r}: name: expected 1 to 32 of a-z, 0-9 and -, "
                               f"beginning with a letter or digit")
-        if self.mode not in LINE_MODES:
+        if self.mode not in LINE_KINDS:
             raise ConfigError(f"line {self.name}.mode {self.mode!r}: expected slave (mbgw is "
-                              f"the master on the line) or master (a master is on it)")
+                              f"the master on the line), master (a master is on it) or "
+                              f"monitor (mbgw only listens)")
 
     @property
     def is_target(self) -> bool:
@@ -60,6 +62,11 @@ class LineConfig:
     @property
     def is_face(self) -> bool:
         return self.mode == "master"
+
+    @property
+    def is_monitor(self) -> bool:
+        """Neither face nor target: mbgw never transmits on it."""
+        return self.mode == "monitor"
 
 
 @dataclass(frozen=True)
@@ -165,8 +172,8 @@ def _route_problems(route: RouteConfig, by_name: dict[str, LineConfig]) -> list[
         if face is None:
             problems.append(f"{label}.from {route.face!r}: no such line")
         elif not face.is_face:
-            problems.append(f"{label}.from {route.face!r}: the line is in slave mode; from "
-                            f"names a line in master mode (a master on it)")
+            problems.append(f"{label}.from {route.face!r}: the line is in {face.mode} mode; "
+                            f"from names a line in master mode (a master on it)")
     if route.line is not None:
         problems += _line_target_problems(route, by_name.get(route.line))
     if not route.implicit and (route.line is not None or route.server is not None):
@@ -179,8 +186,8 @@ def _line_target_problems(route: RouteConfig, target: LineConfig | None) -> list
     if target is None:
         return [f"{label}.line {route.line!r}: no such line"]
     if not target.is_target:
-        return [f"{label}.line {route.line!r}: the line is in master mode; a route reaches a "
-                f"line in slave mode (mbgw the master on it)"]
+        return [f"{label}.line {route.line!r}: the line is in {target.mode} mode; a route "
+                f"reaches a line in slave mode (mbgw the master on it)"]
     if route.line == route.face:
         return [f"{label}.line {route.line!r}: a line cannot route to itself"]
     return []

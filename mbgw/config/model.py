@@ -478,6 +478,7 @@ class SlaveConfig:
                                    # identity functions only (FC 8, 17, 43/14); 0: none
     lines: tuple = ()              # LineConfig (mbgw.config.lines): [[line]], beside [serial]
     routes: tuple = ()             # RouteConfig (mbgw.config.lines): [[route]]
+    monitors: tuple = ()           # MonitorMap (mbgw.config.monitor): [[monitor]]
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "slave")
@@ -504,8 +505,8 @@ class SlaveConfig:
 
     @property
     def table_on(self) -> bool:
-        """The exchange table runs: asked for, or a scenario needs it."""
-        return self.table.enabled or bool(self.scenarios)
+        """The exchange table runs: asked for, or a scenario or a monitor map needs it."""
+        return self.table.enabled or bool(self.scenarios) or bool(self.monitors)
 
 
 def _check_scenarios(scenarios, mode: str) -> None:
@@ -550,6 +551,7 @@ class MasterConfig:
     bind: str | None = None         # the table server's one address; None: every one
     lines: tuple = ()               # LineConfig (mbgw.config.lines): [[line]], beside [serial]
     routes: tuple = ()              # RouteConfig (mbgw.config.lines): [[route]]
+    monitors: tuple = ()            # MonitorMap (mbgw.config.monitor): [[monitor]]
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "master")
@@ -572,8 +574,8 @@ class MasterConfig:
 
     @property
     def table_on(self) -> bool:
-        """The exchange table runs: asked for, or a scenario needs it."""
-        return self.table.enabled or bool(self.scenarios)
+        """The exchange table runs: asked for, or a scenario or a monitor map needs it."""
+        return self.table.enabled or bool(self.scenarios) or bool(self.monitors)
 
     @property
     def tcpto_ns(self) -> int:

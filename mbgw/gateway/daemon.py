@@ -14,13 +14,13 @@ from mbgw.gateway.skeleton import serve_mode
 def run_slave_mode(cfg: SlaveConfig, reconfigure=None) -> None:
     """mbgw slave's daemon; its lines in master mode as serial faces too."""
     from mbgw.slave.daemon import run_slave
-    run_slave(cfg, reconfigure, serve_mode, serial_faces)
+    run_slave(cfg, reconfigure, serve_mode, serial_faces, monitor_lines)
 
 
 def run_master_mode(cfg: MasterConfig, reconfigure=None) -> None:
     """mbgw master's daemon; its lines in slave mode as targets too."""
     from mbgw.master.daemon import run_master
-    run_master(cfg, reconfigure, serve_mode, target_lines, tcp_face)
+    run_master(cfg, reconfigure, serve_mode, target_lines, tcp_face, monitor_lines)
 
 
 def run_transparent_mode(cfg, reconfigure=None) -> None:
@@ -41,6 +41,15 @@ def target_lines(cfg: MasterConfig, inboxes: dict, hub=None):
     hub: the daemon's trace hub."""
     targets = importlib.import_module("mbgw.slave.targets")
     return targets.TargetLines(cfg, inboxes, hub)
+
+
+def monitor_lines(cfg: SlaveConfig | MasterConfig, table, hub):
+    """The lines in monitor mode (monitor.lines.MonitorLines), unstarted; None when there are
+    none.  Neither face nor target: they take no request, they store what they hear."""
+    if not any(line.is_monitor for line in cfg.lines):
+        return None
+    lines = importlib.import_module("mbgw.monitor.lines")
+    return lines.MonitorLines(cfg, table, hub)
 
 
 def tcp_face(cfg: MasterConfig, inboxes: dict, table, hub):

@@ -9,6 +9,7 @@ from typing import Any
 
 from mbgw.config.lines import PRIMARY_LINE
 from mbgw.config.model import MasterConfig
+from mbgw.config.monitor import monitor_settings
 from mbgw.errors import ConfigError, ListenError
 from mbgw.master.faces import Faces, LineFaces
 from mbgw.master.status import MasterStatus
@@ -21,7 +22,8 @@ log = logging.getLogger("mbgw")
 TICK_S = 1.0        # how often the table's file is looked at (it is saved per its interval)
 
 
-def run_master(cfg: MasterConfig, reconfigure, serve, targets=None, tcp_face=None) -> None:
+def run_master(cfg: MasterConfig, reconfigure, serve, targets=None, tcp_face=None,
+               monitors=None) -> None:
     """Raises SerialError when the device is there and cannot be opened (one that is not
     there yet is waited for), ListenError when the metrics address, table-port or
     tls-port cannot be listened on; otherwise returns after SIGTERM or SIGINT.
@@ -31,14 +33,15 @@ def run_master(cfg: MasterConfig, reconfigure, serve, targets=None, tcp_face=Non
     (mbgw.gateway's slave.targets.TargetLines), called when there are any, at start or at a
     reload; None: such lines do not run.  tcp_face(cfg, inboxes, table, hub): the Modbus TCP
     face (mbgw.gateway's slave.tcp_face.TcpFace) when routes take TCP units, else None; it
-    raises ListenError when mdbport or tls-port cannot be listened on."""
+    raises ListenError when mdbport or tls-port cannot be listened on.  monitors(cfg, table,
+    hub): the lines in monitor mode, unstarted, or None."""
     counters = MasterCounters()
     tables = TableService(cfg)
     inboxes: dict = {}                 # the lines in slave mode's, by name
     faces = Faces.opened(cfg, counters, tables.table, inboxes)
     try:
         tables.start()
-        mode = MasterMode(cfg, faces, counters, tables, targets, inboxes, tcp_face)
+        mode = MasterMode(cfg, faces, counters, tables, targets, inboxes, tcp_face, monitors)
         asyncio.run(_serve(mode, reconfigure, serve))
     finally:
         tables.stop()
@@ -80,7 +83,8 @@ class MasterMode(ModeParts):
     gateway hands them), the table's service."""
 
     def __init__(self, cfg: MasterConfig, faces: Faces, counters: MasterCounters,
-                 tables: TableService, targets, inboxes: dict, tcp_face=None) -> None:
+                 tables: TableService, targets, inboxes: dict, tcp_face=None,
+                 monitors=None) -> None:
         slave = faces.primary
         super().__init__(cfg, MasterStatus(cfg, slave, counters, tables), counters)
         self.faces = faces
@@ -95,6 +99,11 @@ class MasterMode(ModeParts):
         self.tcp_face: Any = None      # the Modbus TCP face (slave.tcp_face.TcpFace), once any
         self.status.faces = faces
         self.table, self.health, self.trace = tables.table, slave.devices.rule, slave.hub
+        # the lines in monitor mode (monitor.lines.MonitorLines), at start only
+        self.monitors: Any = \
+            monitors(cfg, tables.table, slave.hub) if monitors is not None else None
+        self.status.monitors = self.monitors
+        self._monitored = monitor_settings(cfg)
 
     def _add_targets(self, cfg: MasterConfig) -> Any:
         """The lines in slave mode of cfg, unstarted (None: the daemon runs none)."""
@@ -124,7 +133,8 @@ class MasterMode(ModeParts):
         return face
 
     def threads(self) -> list:
-        return [*self.faces.all(), *(self.targets.threads() if self.targets is not None else ())]
+        return [*self.faces.all(), *(self.targets.threads() if self.targets is not None else ()),
+                *(self.monitors.threads if self.monitors is not None else ())]
 
     def collector(self, metrics, started: float):
         slave, tables = self.faces.primary, self.tables
@@ -140,7 +150,8 @@ class MasterMode(ModeParts):
     def metered(self) -> list[tuple]:
         """Each line's (name, counters, devices) for /metrics, line serial's first."""
         targets = self.targets.metered() if self.targets is not None else ()
-        return [*self.faces.metered(), *targets]
+        monitors = self.monitors.metered() if self.monitors is not None else ()
+        return [*self.faces.metered(), *targets, *monitors]
 
     def start(self, idle_ms: int) -> None:
         self._idle_ms = idle_ms
@@ -149,6 +160,8 @@ class MasterMode(ModeParts):
         if self.tcp_face is not None:
             self.tcp_face.start()
         self.faces.start(idle_ms)
+        if self.monitors is not None:
+            self.monitors.start(idle_ms)
 
     def log_start(self) -> None:
         cfg = self.cfg
@@ -169,6 +182,8 @@ class MasterMode(ModeParts):
         return self.status.lines()
 
     async def apply(self, new: MasterConfig, report: ReloadReport) -> None:
+        if monitor_settings(new) != self._monitored:
+            report.at_restart("monitor")
         _log_slaveid(new)
         self.tables.reconfigure(new, report)
         if self.targets is None and _has_targets(new):
@@ -205,6 +220,10 @@ class MasterMode(ModeParts):
             await asyncio.to_thread(self.tcp_face.join)
         self.faces.stop()
         await asyncio.to_thread(self.faces.join)
+        if self.monitors is not None:
+            self.monitors.stop()
+            await asyncio.to_thread(self.monitors.join)
+            self.monitors.close()
         if self.targets is not None:
             self.targets.stop()
             await asyncio.to_thread(self.targets.join)

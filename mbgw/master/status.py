@@ -20,6 +20,7 @@ class MasterStatus(DaemonStatus):
         self.faces: Faces | None = None     # every line in master mode
         self.targets = None     # the lines in slave mode (slave.targets.TargetLines), if any
         self.tcp_face: Any = None    # the Modbus TCP face (slave.tcp_face.TcpFace), if any
+        self.monitors: Any = None    # the lines in monitor mode (monitor.lines.MonitorLines)
 
     def status(self, request: dict) -> dict:
         cfg = self.cfg
@@ -60,7 +61,8 @@ class MasterStatus(DaemonStatus):
         slave mode (targets)."""
         faces = self.faces.all() if self.faces is not None else [self._slave]
         return [*(face.status() for face in faces),
-                *(self.targets.status() if self.targets is not None else ())]
+                *(self.targets.status() if self.targets is not None else ()),
+                *(self.monitors.status() if self.monitors is not None else ())]
 
     def commands(self) -> dict:
         return {**super().commands(), **self._tables.commands()}

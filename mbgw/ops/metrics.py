@@ -15,6 +15,11 @@ from mbgw.config.lines import PRIMARY_LINE
 from mbgw.ops.device_stats import DEGRADED, DOWN, LATENCY_BUCKETS_MS, UP
 
 _COUNTER_HELP = {
+    "monitor_frames": "Frames a monitor line heard with a valid CRC (the bus master's "
+                      "requests and its slaves' replies).",
+    "monitor_crc_errors": "Frames a monitor line heard whose CRC was wrong.",
+    "monitor_unanswered": "Requests a monitor line heard that no reply answered.",
+    "monitor_answered": "Requests a monitor line heard with the reply that answered them.",
     "requests": "Modbus TCP requests received from clients.",
     "replies": "Modbus TCP replies sent to clients (exception replies included).",
     "device_exceptions": "Exception replies received from serial devices.",
@@ -169,7 +174,8 @@ class DaemonCollector:
     def _line_counters(self, lines):
         master = self._mode == "master"
         snapshots = [(name, counters.snapshot()) for name, counters, _ in lines]
-        for name in snapshots[0][1]:
+        # line serial's names first, then those only other kinds of line keep (monitor_*)
+        for name in dict.fromkeys(n for _, values in snapshots for n in values):
             if name == "line_busy_ns":
                 family = CounterMetricFamily(
                     "mbgw_line_busy_seconds", "Time the serial line carried a transaction "

@@ -25,7 +25,8 @@ class TraceEvent(TypedDict, total=False):
     line: str | None        # the line's name ("serial" or a [[line]] name); None: no line
     #                         (answered by the table, refused by the firewall, unroutable)
     direction: str          # request, reply, no reply, late (a reply after its request
-    #                         timed out, dropped), ignored (master mode: no route takes it)
+    #                         timed out, dropped), ignored (master mode: no route takes it;
+    #                         a monitor line: a frame whose CRC is wrong)
     tid: int | None         # the Modbus/TCP transaction id (None: not over Modbus/TCP)
     unit: int | None        # the unit id of the Modbus/TCP exchange
     address: int | None     # master mode: the serial address the line's master asked for
@@ -75,6 +76,7 @@ class Outcome(StrEnum):
     TABLE = "table"                           # answered from the exchange table
     FIREWALL = "firewall"                     # refused by the firewall (0x01)
     WITHDRAWN = "client gone"                 # its source closed before its turn
+    CRC_ERROR = "crc error"                   # a monitor line: a frame heard that does not check
 
 
 log = logging.getLogger("mbgw.trace")
@@ -129,7 +131,7 @@ def is_error(event: Event) -> bool:
     if event.get("raw"):
         return event.get("kind") == "noise"
     direction = event.get("direction")
-    if direction == "late":
+    if direction == "late" or event.get("outcome") == Outcome.CRC_ERROR:
         return True
     if direction == "no reply":
         return event.get("outcome") != "broadcast"

@@ -8,6 +8,7 @@ from typing import Any
 
 from mbgw.config.lines import PRIMARY_LINE
 from mbgw.config.model import SlaveConfig
+from mbgw.config.monitor import monitor_settings
 from mbgw.errors import ListenError
 from mbgw.line.serial_line import SerialLine
 from mbgw.line.supervisor import open_at_start
@@ -29,17 +30,18 @@ from mbgw.slave.targets import TargetLines
 log = logging.getLogger("mbgw")
 
 
-def run_slave(cfg: SlaveConfig, reconfigure, serve, faces=None) -> None:
+def run_slave(cfg: SlaveConfig, reconfigure, serve, faces=None, monitors=None) -> None:
     """Raises SerialError when the device is there and cannot be opened (one that is not there
     yet is waited for), ListenError when mdbport cannot be bound; otherwise returns after
     SIGTERM or SIGINT.  reconfigure() gives the settings to apply on SIGHUP (None: there is no
     file to reload).  serve(parts, reconfigure): the daemon's skeleton
     (mbgw.gateway.skeleton.serve_mode).  faces(cfg, routes, inboxes, table): the serial faces'
-    threads, unstarted (mbgw.gateway's, when some line is in master mode)."""
+    threads, unstarted (mbgw.gateway's, when some line is in master mode).
+    monitors(cfg, table, hub): the lines in monitor mode, unstarted, or None."""
     counters = Counters()
     line = open_at_start(cfg.serial, counters)
     try:
-        asyncio.run(_serve(cfg, line, counters, reconfigure, serve, faces))
+        asyncio.run(_serve(cfg, line, counters, reconfigure, serve, faces, monitors))
     finally:
         if line is not None:
             line.close()
@@ -57,8 +59,8 @@ def _servers(cfg: SlaveConfig, inboxes: dict[str, Inbox]) -> ServerTargets | Non
 
 
 async def _serve(cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
-                 reconfigure, serve, faces) -> None:
-    mode = SlaveMode(cfg, line, counters, faces)
+                 reconfigure, serve, faces, monitors) -> None:
+    mode = SlaveMode(cfg, line, counters, faces, monitors)
     await mode.listen()
     await serve(mode, reconfigure)
 
@@ -72,7 +74,7 @@ class SlaveMode(ModeParts):
     remote servers, the serial faces of the lines in master mode, the table."""
 
     def __init__(self, cfg: SlaveConfig, line: SerialLine | None, counters: Counters,
-                 faces) -> None:
+                 faces, monitors=None) -> None:
         super().__init__(cfg, None, counters)       # the status once listening (listen)
         self.devices = devices = DeviceHealth(rule=HealthRule(cfg.demotion))
         self.scheduler = Scheduler()
@@ -103,6 +105,10 @@ class SlaveMode(ModeParts):
         self._idle_ms = -1                 # the watchdog's idle limit, for lines added later
         self.engines["serial"] = self.serial_engine
         self.table, self.health, self.trace = self.tables.table, devices.rule, self.server.trace
+        # the lines in monitor mode (monitor.lines.MonitorLines), at start only
+        self.monitors: Any = monitors(cfg, self.tables.table, self.targets.hub) \
+            if monitors is not None else None
+        self._monitored = monitor_settings(cfg)
 
     def _share_serial_inbox(self, cfg: SlaveConfig) -> None:
         """Line serial's inbox among the targets' once the daemon has lines: before, line
@@ -134,6 +140,7 @@ class SlaveMode(ModeParts):
         self.status.targets = self.targets
         self.status.line_share = self.line_share
         self.status.faces = self.serial_faces
+        self.status.monitors = self.monitors
         self.status.servers = self.server_rows
 
     def server_rows(self) -> list[dict]:
@@ -143,7 +150,8 @@ class SlaveMode(ModeParts):
 
     def threads(self) -> list:
         faces = self.serial_faces.all() if self.serial_faces is not None else ()
-        return [self.worker, *self.targets.threads(), *faces]
+        monitors = self.monitors.threads if self.monitors is not None else ()
+        return [self.worker, *self.targets.threads(), *faces, *monitors]
 
     def collector(self, metrics, started: float):
         server = self.server
@@ -158,7 +166,9 @@ class SlaveMode(ModeParts):
     def metered(self) -> list[tuple]:
         """Each line's (name, counters, devices) for /metrics, line serial's first."""
         faces = self.serial_faces.metered() if self.serial_faces is not None else ()
-        return [(PRIMARY_LINE, self.line_share, self.devices), *self.targets.metered(), *faces]
+        monitors = self.monitors.metered() if self.monitors is not None else ()
+        return [(PRIMARY_LINE, self.line_share, self.devices), *self.targets.metered(), *faces,
+                *monitors]
 
     def start(self, idle_ms: int) -> None:
         self.worker.idle_ms = idle_ms
@@ -169,6 +179,8 @@ class SlaveMode(ModeParts):
         self._idle_ms = idle_ms
         if self.serial_faces is not None:
             self.serial_faces.start(idle_ms)
+        if self.monitors is not None:
+            self.monitors.start(idle_ms)
 
     def log_start(self) -> None:
         cfg = self.cfg
@@ -187,6 +199,8 @@ class SlaveMode(ModeParts):
         return self.status.lines()
 
     async def apply(self, new: SlaveConfig, report: ReloadReport) -> None:
+        if monitor_settings(new) != self._monitored:
+            report.at_restart("monitor")
         self._share_serial_inbox(new)
         self.tables.reconfigure(new, report)
         removed = await asyncio.to_thread(self.targets.reconfigure, new, report)
@@ -243,6 +257,10 @@ class SlaveMode(ModeParts):
             faces.stop()
             await asyncio.to_thread(faces.join)
             faces.close()
+        if self.monitors is not None:
+            self.monitors.stop()
+            await asyncio.to_thread(self.monitors.join)
+            self.monitors.close()
         self.targets.stop()
         self.worker.stop()
         await asyncio.to_thread(self.worker.join)

@@ -29,6 +29,7 @@ class SlaveStatus(DaemonStatus):
         self.scenario_engines: dict = {}    # the scenarios' engines by kind (the daemon's)
         self.targets: TargetLines | None = None     # the lines beside serial (the daemon's)
         self.faces = None       # the lines in master mode (master.faces.LineFaces), if any
+        self.monitors = None    # the lines in monitor mode (monitor.lines.MonitorLines), if any
         # () -> the remote servers the routes reach (slave.servers.ServerThread.status)
         self.servers: Callable[[], list[dict]] = list
 
@@ -91,7 +92,8 @@ class SlaveStatus(DaemonStatus):
         serial = line_row(PRIMARY_LINE, self.cfg.serial.device, "slave", self._worker.state,
                           counters, devices)
         return [serial, *(self.targets.status() if self.targets is not None else ()),
-                *(self.faces.status() if self.faces is not None else ())]
+                *(self.faces.status() if self.faces is not None else ()),
+                *(self.monitors.status() if self.monitors is not None else ())]
 
     def summary(self) -> str:
         c = self._counters

@@ -193,3 +193,19 @@ def test_events_without_a_frame_write_nothing():
     _, records, written = write(event("no reply", 9, ""),
                                 {"direction": "something else", "time": T0})
     assert written == [False, False] and records == []
+
+
+def test_a_monitor_lines_pair_goes_in_between_the_bus_ends_with_one_tid() -> None:
+    heard = {"mode": "monitor", "time": T0, "tid": None, "unit": None, "peer": None,
+             "local": None, "address": 7}
+    crc_error = {**heard, "direction": "ignored", "pdu": "", "address": 7}
+    _, records, written = write({**heard, "direction": "request", "pdu": "0300640002"},
+                                {**heard, "direction": "reply", "pdu": "0304000b0016"},
+                                crc_error)
+    assert written == [True, True, False]
+    request, reply = (dissect(frame) for _, _, frame in records)
+    assert (str(request["src"]), request["sport"], str(request["dst"]), request["dport"]) == \
+        ("127.0.77.1", 40000, "127.0.77.2", 502)
+    assert (str(reply["src"]), reply["dport"]) == ("127.0.77.2", 40000)
+    assert request["payload"] == bytes.fromhex("0001 0000 0006 07 0300640002")
+    assert reply["payload"] == bytes.fromhex("0001 0000 0007 07 0304000b0016")
