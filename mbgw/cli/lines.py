@@ -32,13 +32,14 @@ def line_config(table: line_file.LineTable) -> LineConfig:
     return LineConfig(table.name, serial, mode=table.mode, demotion=line_demotion, **own)
 
 
-def with_lines(cfg: SlaveConfig | MasterConfig, mode: str, lines=(), routes=()):
-    """cfg with the file's lines and routes, checked (and the gateway unit against the
-    implicit routes): click.BadParameter with the first problem, which names its line or
-    route and key."""
-    if lines or routes:
+def with_lines(cfg: SlaveConfig | MasterConfig, mode: str, lines=(), routes=(),
+               devices=()):
+    """cfg with the file's lines, routes and devices, checked (and the gateway unit against
+    the implicit routes): click.BadParameter with the first problem, which names its line,
+    route or device and key."""
+    if lines or routes or devices:
         cfg = dataclasses.replace(cfg, lines=tuple(line_config(t) for t in lines),
-                                  routes=tuple(routes))
+                                  routes=tuple(routes), devices=tuple(devices))
     elif not (isinstance(cfg, SlaveConfig) and cfg.gateway_unit):
         return cfg
     problems = config_problems(cfg, mode)

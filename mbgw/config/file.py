@@ -53,6 +53,7 @@ class Settings:
     scenarios: tuple = ()      # the [[scenario]] tables, checked (ScenarioConfig)
     lines: tuple = ()          # the [[line]] tables, checked (line_file.LineTable)
     routes: tuple = ()         # the [[route]] tables (RouteConfig)
+    devices: tuple = ()        # the [[device]] tables (DeviceConfig)
 
     def default_map(self, schema: Schema, command_name: str) -> dict:
         """click's default_map for a mode command: its options the file sets.  The authip and
@@ -72,6 +73,8 @@ class Settings:
             mapping[line_file.LINES_PARAM] = self.lines
         if self.routes:
             mapping[line_file.ROUTES_PARAM] = self.routes
+        if self.devices:
+            mapping[line_file.DEVICES_PARAM] = self.devices
         return mapping
 
     def get(self, schema: Schema, name: str):
@@ -120,7 +123,7 @@ def _top_level_problems(schema: Schema, data: dict) -> list[str]:
     problems = []
     for name, content in data.items():
         if name in (fw.GROUP, fw.RULE_TABLE, SCENARIO_KEY, line_file.LINE_TABLE,
-                    line_file.ROUTE_TABLE):
+                    line_file.ROUTE_TABLE, line_file.DEVICE_TABLE):
             continue                    # fw.from_file's, parse_scenarios', line_file's
         if name in GROUPS:
             if not isinstance(content, dict):
@@ -170,14 +173,19 @@ def check(schema: Schema, path: Path, data: dict) -> Settings:
         schema, array_of_tables(data, line_file.LINE_TABLE, problems), mode)
     routes, route_problems = line_file.parse_routes(
         array_of_tables(data, line_file.ROUTE_TABLE, problems))
-    problems += line_problems + route_problems
+    devices, device_problems = line_file.parse_devices(
+        array_of_tables(data, line_file.DEVICE_TABLE, problems))
+    problems += line_problems + route_problems + device_problems
+    if devices and mode not in LINE_MODES:
+        problems.append(f"device: [[device]] tables are for slave and master modes; {mode} "
+                        f"mode bridges [serial] only")
     if routes and mode not in LINE_MODES:
         problems.append(f"route: [[route]] tables are for slave and master modes; {mode} mode "
                         f"bridges [serial] only")
     problems += line_file.table_units_overlap(values, routes)
     if problems:
         raise ConfigFileError(path, problems)
-    return Settings(Path(path), mode, values, rules, scenarios, lines, routes)
+    return Settings(Path(path), mode, values, rules, scenarios, lines, routes, devices)
 
 
 def _check_mode(schema: Schema, serial: dict, problems: list) -> str:
