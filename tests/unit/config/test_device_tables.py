@@ -101,3 +101,13 @@ def test_check_config_refuses_naming_the_device_and_key(tmp_path, text, expected
 def test_the_transparent_command_refuses_devices(tmp_path):
     text = '[serial]\nmode = "transparent"\ndevice = "/dev/ttyUSB0"\n' + FAST
     assert "device: [[device]] tables are for slave and master modes" in refusal(tmp_path, text)
+
+
+def test_config_show_lists_the_device_tables(tmp_path):
+    path = tmp_path / "mbgw.toml"
+    path.write_text(SERIAL + FAST + '[[device]]\nunit = 6\nretries = 2\npause = 0\n')
+    result = CliRunner().invoke(main, ["config", "show", "device", "--config", str(path)],
+                                prog_name="mbgw")
+    assert result.exit_code == 0, result.output
+    assert result.output == ('[[device]]\nline = "serial"\nunit = 5\nstout = 50\n\n'
+                             '[[device]]\nline = "serial"\nunit = 6\nretries = 2\n')
