@@ -176,8 +176,7 @@ class SlaveLineThread(LineThread[SlaveConfig]):
 
     def _configure(self, old: SlaveConfig, reopen: bool) -> None:
         self._server.route_face(self._cfg)
-        if self._cfg.demotion != old.demotion or self._cfg.devices != old.devices:
-            self._timing = self._retime()
+        self._timing = self._retime()      # the line's stout, retries and devices'
         if (self._reader is not None) != self._server.reads_meanwhile:
             self._stop_reader()
             self._start_reader()
