@@ -157,10 +157,12 @@ int mbgw_take_request(modbus_t *ctx, int client_fd, int *in_flight, uint8_t *in,
     uint8_t address = sc->slaveid ? sc->slaveid : unit;
     /* a down address: Python refuses the request at once, or sends it as the probe;
      * one in its late window waits in the queue (the late reply would look like its
-     * answer) */
+     * answer); one with timing of its own (stout, pause) is sent by Python, which keeps
+     * it */
     int64_t now = now_ns();
     if (address < 1 || address > MBGW_MAX_ADDRESS || !sc->framed[in[7]] ||
-        sc->down[address] || now < sc->quiet_until_ns || now < sc->late_until[address])
+        sc->down[address] || (sc->own && sc->own[address]) || now < sc->quiet_until_ns ||
+        now < sc->late_until[address])
         return (int)n;
     uint8_t adu[MBGW_RTU_MAX_ADU];
     adu[0] = sc->address = address;

@@ -225,6 +225,7 @@ struct mbgw_shortcut {
     const uint8_t *framed; /* 256 flags: the function codes libmodbus frames */
     const uint8_t *down;   /* 256 flags: the serial addresses that are down (demoted) */
     const int64_t *late_until; /* by address: the end of its late window (0: none) */
+    const uint8_t *own;    /* 256 flags: addresses with timing of their own ([[device]]) */
     int64_t quiet_until_ns;    /* the line must stay silent until then */
     int64_t char_ns;
     int64_t stout_ns;
@@ -243,7 +244,8 @@ struct mbgw_shortcut {
  * bytes) into in (mbgw_client_recv).  When that is exactly one Modbus TCP request with a
  * valid header, a function code marked in sc->framed, and a serial address
  * 1..MBGW_MAX_ADDRESS not marked in sc->down (the caller refuses those requests, or sends
- * one as the probe) nor in its late window (sc->late_until), and the line
+ * one as the probe), nor in sc->own (timing of its own), nor in its late window
+ * (sc->late_until), and the line
  * has been silent until sc->quiet_until_ns, the request goes on the line at once
  * (mbgw_exchange, its reply forwarded to client_fd, which then runs first, and in_flight
  * decremented as it is) and sc->taken is 1; the caller keeps the books.  Otherwise

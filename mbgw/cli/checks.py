@@ -18,7 +18,7 @@ from mbgw.ops import preflight
 
 # a message that names its key already: "tls.key: ", "net.authip[2]: ", "scenario boiler: ",
 # "line meters.baudrate: ", "route 2.units: "
-_LABEL = re.compile(r"^([a-z]+\.[a-z-]+(\[\d+\])?|scenario [^:]+|(line|route) [^:]+"
+_LABEL = re.compile(r"^([a-z]+\.[a-z-]+(\[\d+\])?|scenario [^:]+|(line|route|device) [^:]+"
                     r"|slaveid '[^']*'): ")
 _FLAG = re.compile(r"--[a-z][a-z-]*")
 

@@ -30,7 +30,8 @@ def add_to_mode_commands(root: click.Group) -> None:
             if mode in LINE_MODES and isinstance(command, ModeCommand):   # make_config's
                 command.params += [_given_option(line_file.LINES_PARAM),
                                    _given_option(line_file.ROUTES_PARAM),
-                                   _given_option(line_file.MONITORS_PARAM)]
+                                   _given_option(line_file.MONITORS_PARAM),
+                                   _given_option(line_file.DEVICES_PARAM)]
 
 
 def schema_of(ctx: click.Context) -> Schema:
@@ -107,7 +108,7 @@ def _apply_file(ctx: click.Context, param: click.Parameter, value) -> None:
         value = config_schema.DEFAULT_PATH
     schema = schema_of(ctx)
     settings = load_settings(ctx, schema, Path(value), exit_code=EX_CONFIG)
-    if (settings.lines or settings.routes or settings.monitors) and not any(
+    if (settings.lines or settings.routes or settings.monitors or settings.devices) and not any(
             p.name == line_file.LINES_PARAM for p in ctx.command.params):
         raise Failure(f"{value}: line: [[line]] and [[route]] tables are for slave and master "
                       f"modes; {ctx.command.name} mode bridges [serial] only", EX_CONFIG)

@@ -29,7 +29,8 @@ SHOW_WIDTH = 16                    # the key column of `mbgw config show`
                    "socket, and who may read the file.")
 @click.option("--json", "as_json", is_flag=True, help="With --security: as a JSON document.")
 @click.argument("group", required=False, type=click.Choice(
-    [*GROUPS, SCENARIO_KEY, line_file.LINE_TABLE, line_file.ROUTE_TABLE, MONITOR_TABLE]))
+    [*GROUPS, SCENARIO_KEY, line_file.LINE_TABLE, line_file.ROUTE_TABLE, MONITOR_TABLE,
+     line_file.DEVICE_TABLE]))
 @click.argument("param", required=False)
 @click.pass_context
 def show(ctx, config_path: Path, instance: str | None, security: bool, as_json: bool,
@@ -38,7 +39,8 @@ def show(ctx, config_path: Path, instance: str | None, security: bool, as_json: 
     (serial, net, general, table), or one PARAM, like the guide's `show serial stout`;
     `show scenario [NAME]`: the scenarios; `show line [NAME]`: the [[line]] tables; `show
     route`: the [[route]] tables, then the implicit routes (today's routing of a face without
-    a route) as comments; `show monitor`: the [[monitor]] maps; `show --security [--json]`:
+    a route) as comments; `show monitor`: the [[monitor]] maps; `show device`: the [[device]]
+    tables; `show --security [--json]`:
     the security settings in force."""
     if as_json and not security:
         raise click.UsageError("--json goes with --security")
@@ -61,7 +63,7 @@ def show(ctx, config_path: Path, instance: str | None, security: bool, as_json: 
 
 def _show_tables(schema: Schema, settings: Settings, group: str | None,
                  param: str | None) -> bool:
-    """`show scenario|line|route [NAME]`: True when group was one of those."""
+    """`show scenario|line|route|device [NAME]`: True when group was one of those."""
     if group == SCENARIO_KEY:
         _show_scenarios(settings, param)
     elif group == line_file.LINE_TABLE:
@@ -70,6 +72,8 @@ def _show_tables(schema: Schema, settings: Settings, group: str | None,
         _show_routes(schema, settings, separate=False)
     elif group == MONITOR_TABLE:
         _show_monitors(settings, separate=False)
+    elif group == line_file.DEVICE_TABLE:
+        _show_devices(settings, separate=False)
     else:
         return False
     return True
@@ -103,6 +107,17 @@ def _show_groups(schema: Schema, settings: Settings, group: str | None,
         _show_routes(schema, settings)
     if group is None and settings.monitors:
         _show_monitors(settings)
+    if group is None and settings.devices:
+        _show_devices(settings)
+
+
+def _show_devices(settings: Settings, separate: bool = True) -> None:
+    for number, device in enumerate(settings.devices):
+        if separate or number:
+            click.echo()
+        click.echo("[[device]]")
+        for key, value in line_file.device_fields(device).items():
+            click.echo(f"{key} = {dump_value(value)}")
 
 
 def _show_security(schema: Schema, settings: Settings, as_json: bool) -> None:

@@ -33,13 +33,15 @@ def line_config(table: line_file.LineTable) -> LineConfig:
     return LineConfig(table.name, serial, mode=table.mode, demotion=line_demotion, **own)
 
 
-def with_lines(cfg: SlaveConfig | MasterConfig, mode: str, lines=(), routes=(), monitors=()):
-    """cfg with the file's lines, routes and monitor maps, checked (and the gateway unit
-    against the implicit routes): click.BadParameter with the first problem, which names its
-    line, route or map and key."""
-    if lines or routes or monitors:
+def with_lines(cfg: SlaveConfig | MasterConfig, mode: str, lines=(), routes=(), monitors=(),
+               devices=()):
+    """cfg with the file's lines, routes, monitor maps and devices, checked (and the gateway
+    unit against the implicit routes): click.BadParameter with the first problem, which names
+    its line, route, map or device and key."""
+    if lines or routes or monitors or devices:
         cfg = dataclasses.replace(cfg, lines=tuple(line_config(t) for t in lines),
-                                  routes=tuple(routes), monitors=tuple(monitors))
+                                  routes=tuple(routes), monitors=tuple(monitors),
+                                  devices=tuple(devices))
     elif not (isinstance(cfg, SlaveConfig) and cfg.gateway_unit):
         return cfg
     problems = config_problems(cfg, mode)

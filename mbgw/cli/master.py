@@ -99,7 +99,7 @@ def master_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                   tcpto, mdbport, exception, max_connections, control, metrics, log_level=None,
                   down_after=model.DEFAULT_DOWN_AFTER,
                   probe_interval=model.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
-                  lines=(), routes=(), monitors=(),
+                  lines=(), routes=(), monitors=(), devices=(),
                   tls_port=model.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
                   tls_require_role=True, tls_crl=None, authip=(), bind=None,
                   **table_settings) -> model.MasterConfig:
@@ -118,6 +118,6 @@ def master_config(device, protocol, baudrate, line_format, interface, rtsdelays,
         max_connections=max_connections, control=control, metrics=metrics,
         demotion=demotion(down_after, probe_interval), table=table,
         firewall=firewall, scenarios=scenarios, tls=tls, authip=authip, bind=bind))
-    return with_lines(cfg, "master", lines, routes, monitors)
+    return with_lines(cfg, "master", lines, routes, monitors, devices)
 
 master.make_config = master_config

@@ -250,9 +250,14 @@ def _demotion(s: dict) -> str:
 
 
 def _next_probe(d: dict) -> list[str]:
-    """The lines under a device that fails: why, when bytes came but no valid reply; when a
-    request may go to it as a probe, while it is down."""
+    """The lines under a device: its own timing ([[device]]); when it fails, why, when bytes
+    came but no valid reply; when a request may go to it as a probe, while it is down."""
     lines = [f"        {d['diagnosis']}"] if d.get("diagnosis") else []
+    timing = d.get("timing")
+    if timing:
+        lines.append(f"        own timing: stout {timing['stout_ms']} ms, retries "
+                     f"{timing['retries']}, pause {timing['pause_ms']} ms, down after "
+                     f"{timing['down_after']}, probe every {timing['probe_interval_ms']} ms")
     wait = d.get("next_probe_in_s")
     return lines if wait is None else lines + [f"        next probe in {wait:.1f} s"]
 

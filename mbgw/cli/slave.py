@@ -108,7 +108,7 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
                  retries, turnaround, control, metrics, log_level=None, shortcut=True,
                  down_after=model.DEFAULT_DOWN_AFTER,
                  probe_interval=model.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
-                 lines=(), routes=(), monitors=(),
+                 lines=(), routes=(), monitors=(), devices=(),
                  tls_port=model.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
                  tls_require_role=True, tls_crl=None, tcpto=model.DEFAULT_TCPTO_MS,
                  late_window=None, gateway_unit=0,
@@ -128,6 +128,6 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
         metrics=metrics, shortcut=shortcut,
         demotion=demotion(down_after, probe_interval), table=table, tcpto_ms=tcpto,
         firewall=firewall, scenarios=scenarios, tls=tls, gateway_unit=gateway_unit))
-    return with_lines(cfg, "slave", lines, routes, monitors)
+    return with_lines(cfg, "slave", lines, routes, monitors, devices)
 
 slave.make_config = slave_config

@@ -55,6 +55,7 @@ class Settings:
     lines: tuple = ()          # the [[line]] tables, checked (line_file.LineTable)
     routes: tuple = ()         # the [[route]] tables (RouteConfig)
     monitors: tuple = ()       # the [[monitor]] maps (MonitorMap)
+    devices: tuple = ()        # the [[device]] tables (DeviceConfig)
 
     def default_map(self, schema: Schema, command_name: str) -> dict:
         """click's default_map for a mode command: its options the file sets.  The authip and
@@ -76,6 +77,8 @@ class Settings:
             mapping[line_file.ROUTES_PARAM] = self.routes
         if self.monitors:
             mapping[line_file.MONITORS_PARAM] = self.monitors
+        if self.devices:
+            mapping[line_file.DEVICES_PARAM] = self.devices
         return mapping
 
     def get(self, schema: Schema, name: str):
@@ -124,7 +127,7 @@ def _top_level_problems(schema: Schema, data: dict) -> list[str]:
     problems = []
     for name, content in data.items():
         if name in (fw.GROUP, fw.RULE_TABLE, SCENARIO_KEY, line_file.LINE_TABLE,
-                    line_file.ROUTE_TABLE, MONITOR_TABLE):
+                    line_file.ROUTE_TABLE, MONITOR_TABLE, line_file.DEVICE_TABLE):
             continue                    # fw.from_file's, parse_scenarios', line_file's
         if name in GROUPS:
             if not isinstance(content, dict):
@@ -176,9 +179,14 @@ def check(schema: Schema, path: Path, data: dict) -> Settings:
         array_of_tables(data, line_file.ROUTE_TABLE, problems))
     monitors, monitor_problems = parse_monitors(
         array_of_tables(data, MONITOR_TABLE, problems))
-    problems += line_problems + route_problems + monitor_problems
+    devices, device_problems = line_file.parse_devices(
+        array_of_tables(data, line_file.DEVICE_TABLE, problems))
+    problems += line_problems + route_problems + monitor_problems + device_problems
     if monitors and mode not in LINE_MODES:
         problems.append(f"monitor: [[monitor]] maps are for slave and master modes; {mode} "
+                        f"mode bridges [serial] only")
+    if devices and mode not in LINE_MODES:
+        problems.append(f"device: [[device]] tables are for slave and master modes; {mode} "
                         f"mode bridges [serial] only")
     if routes and mode not in LINE_MODES:
         problems.append(f"route: [[route]] tables are for slave and master modes; {mode} mode "
@@ -186,7 +194,8 @@ def check(schema: Schema, path: Path, data: dict) -> Settings:
     problems += line_file.table_units_overlap(values, routes)
     if problems:
         raise ConfigFileError(path, problems)
-    return Settings(Path(path), mode, values, rules, scenarios, lines, routes, monitors)
+    return Settings(Path(path), mode, values, rules, scenarios, lines, routes, monitors,
+                    devices)
 
 
 def _check_mode(schema: Schema, serial: dict, problems: list) -> str:

@@ -18,7 +18,15 @@ from mbgw.config.lines import (
     NAME_PATTERN,
     PRIMARY_LINE,
     TCP_FACE,
+    DeviceConfig,
     RouteConfig,
+)
+from mbgw.config.model import (
+    DOWN_AFTER_RANGE,
+    PAUSE_RANGE,
+    PROBE_INTERVAL_RANGE,
+    RETRIES_RANGE,
+    STOUT_RANGE,
 )
 from mbgw.config.number_list import number_list_text, parse_number_list
 from mbgw.config.scenario import DEFAULT_TLS_SERVER_PORT, split_server
@@ -30,9 +38,11 @@ from mbgw.errors import ConfigError
 
 LINE_TABLE = "line"
 ROUTE_TABLE = "route"
+DEVICE_TABLE = "device"
 LINES_PARAM = "lines"            # the mode commands' hidden parameters the file fills
 ROUTES_PARAM = "routes"
 MONITORS_PARAM = "monitors"
+DEVICES_PARAM = "devices"
 LINE_OWN_KEYS = ("name", "mode")
 MASTER_LINE_REFUSED = ("stout", "nocheck")      # as `mbgw master --stout` is refused
 # a line in monitor mode takes a master-mode line's keys: the port's settings, no timing
@@ -41,6 +51,12 @@ ROUTE_KEYS = ("units", "line", "table", "server", "offset", "address", "from", "
               "fingerprint")
 TCP_UNITS = (1, 255)             # as [table] units
 SERIAL_ADDRESSES = (1, 247)      # a serial face's addresses
+# a [[device]]'s timing keys: (field of DeviceConfig, bounds, as the [serial] key's)
+DEVICE_TIMING = {"stout": ("stout_ms", STOUT_RANGE), "retries": ("retries", RETRIES_RANGE),
+                 "pause": ("pause_ms", PAUSE_RANGE),
+                 "down-after": ("down_after", DOWN_AFTER_RANGE),
+                 "probe-interval": ("probe_interval_ms", PROBE_INTERVAL_RANGE)}
+DEVICE_KEYS = ("line", "unit", *DEVICE_TIMING)
 OFFSET_RANGE = (-254, 254)
 ADDRESS_RANGE = (0, 255)
 
@@ -178,6 +194,41 @@ def _parse_route(index: int, fields: dict) -> RouteConfig:
                        table=key("table", bool, "true or false", False),
                        server=server_address, offset=offset, address=address, tls=tls,
                        fingerprint=fingerprint)
+
+
+def parse_devices(found: list[dict]) -> tuple[tuple[DeviceConfig, ...], list[str]]:
+    return parse_each(found, _parse_device)
+
+
+def _parse_device(index: int, fields: dict) -> DeviceConfig:
+    label = f"device {index}"
+    check_keys(label, fields, DEVICE_KEYS)
+    key = partial(typed, label, fields)
+    unit = key("unit", int, "a serial address")
+    if unit is None:
+        raise ConfigError(f"{label}.unit: missing; the serial address, e.g. unit = 5")
+    low, high = SERIAL_ADDRESSES
+    if not low <= unit <= high:
+        raise ConfigError(f"{label}.unit: {unit} out of range {low}..{high}")
+    timing = {}
+    for name, (attribute, (low, high)) in DEVICE_TIMING.items():
+        value = key(name, int, "an integer (ms)" if attribute.endswith("_ms") else "an integer")
+        if value is not None and not low <= value <= high:
+            raise ConfigError(f"{label}.{name}: {value} out of range {low}..{high}")
+        if value is not None:
+            timing[attribute] = value
+    return DeviceConfig(index=index, unit=unit,
+                        line=key("line", str, "a line name", PRIMARY_LINE), **timing)
+
+
+def device_fields(device: DeviceConfig) -> dict:
+    """A device as the keys of its [[device]] table."""
+    fields: dict = {"line": device.line, "unit": device.unit}
+    for name, (attribute, _) in DEVICE_TIMING.items():
+        value = getattr(device, attribute)
+        if value is not None and (value or name != "pause"):
+            fields[name] = value
+    return fields
 
 
 def _server(label: str, key) -> tuple[tuple[str, int] | None, bool, bytes | None]:

@@ -113,6 +113,60 @@ class RouteConfig:
         return self.address if self.address is not None else unit + self.offset
 
 
+@dataclass(frozen=True)
+class DeviceConfig:
+    """A [[device]]: one serial address's own timing on a line in slave mode; what is None
+    is the line's."""
+    index: int                     # its place among the [[device]] tables, from 1
+    unit: int
+    line: str = PRIMARY_LINE
+    stout_ms: int | None = None
+    retries: int | None = None
+    pause_ms: int = 0              # the line quiet at least this long before each frame to it
+    down_after: int | None = None
+    probe_interval_ms: int | None = None
+
+    @property
+    def label(self) -> str:
+        return f"device {self.index}"
+
+    def demotion(self, line: Demotion) -> Demotion:
+        """Its demotion: its own down-after and probe-interval, the line's for the rest."""
+        return Demotion(line.down_after if self.down_after is None else self.down_after,
+                        line.probe_interval_ms if self.probe_interval_ms is None
+                        else self.probe_interval_ms)
+
+
+def line_devices(devices: tuple[DeviceConfig, ...], name: str) -> tuple[DeviceConfig, ...]:
+    """The [[device]] tables of line `name`."""
+    return tuple(d for d in devices if d.line == name)
+
+
+def device_problems(lines: tuple[LineConfig, ...], routes: tuple[RouteConfig, ...],
+                    devices: tuple[DeviceConfig, ...]) -> list[str]:
+    """A [[device]] on no line, on a line in master mode, twice for one (line, unit), or for
+    a unit no route reaches."""
+    by_name = {line.name: line for line in lines}
+    reached = {(r.line, r.rewrite(u)) for r in routes if r.line is not None for u in r.units}
+    problems: list[str] = []
+    seen: dict[tuple[str, int], DeviceConfig] = {}
+    for device in devices:
+        label, line = device.label, by_name.get(device.line)
+        if line is None:
+            problems.append(f"{label}.line {device.line!r}: no such line")
+        elif not line.is_target:
+            problems.append(f"{label}.line {device.line!r}: the line is in master mode; "
+                            f"[[device]] is for a line in slave mode (mbgw the master on it)")
+        elif (device.line, device.unit) in seen:
+            problems.append(f"{label}.unit: unit {device.unit} of line {device.line} has "
+                            f"{seen[device.line, device.unit].label} already")
+        elif (device.line, device.unit) not in reached:
+            problems.append(f"{label}.unit: no route reaches unit {device.unit} of line "
+                            f"{device.line}")
+        seen.setdefault((device.line, device.unit), device)
+    return problems
+
+
 def route_problems(lines: tuple[LineConfig, ...], routes: tuple[RouteConfig, ...]) -> list[str]:
     """What check-config refuses in lines and routes, each naming its key."""
     problems: list[str] = []
@@ -327,6 +381,7 @@ def config_problems(cfg: SlaveConfig | MasterConfig, mode: str) -> list[str]:
     daemon's mode) and cfg.lines, the implicit routes beside the explicit ones."""
     primary = LineConfig(PRIMARY_LINE, cfg.serial, mode=mode)
     problems = route_problems((primary, *cfg.lines), effective_routes(cfg))
+    problems += device_problems((primary, *cfg.lines), effective_routes(cfg), cfg.devices)
     problems += [f"{r.label}.table: the table is off (table.enabled = false)"
                  for r in cfg.routes if r.table and not cfg.table_on]
     if not cfg.upstream_tls.enabled:

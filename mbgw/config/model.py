@@ -62,6 +62,8 @@ DEFAULT_DOWN_AFTER = 3
 PROBE_INTERVAL_RANGE = (100, 65535)
 DEFAULT_PROBE_INTERVAL_MS = 5000
 PROBE_BACKOFF_MAX_MS = 60000
+# [[device]] pause: the line quiet at least this long before each frame to the unit (ms)
+PAUSE_RANGE = (0, 65535)
 # A request (a Modbus request, a TLS handshake, an HTTP request's headers) must be whole this
 # long after its first byte, or its connection is closed ([net] request-timeout, ms).
 REQUEST_TIMEOUT_RANGE = (100, 60000)
@@ -479,6 +481,7 @@ class SlaveConfig:
     lines: tuple = ()              # LineConfig (mbgw.config.lines): [[line]], beside [serial]
     routes: tuple = ()             # RouteConfig (mbgw.config.lines): [[route]]
     monitors: tuple = ()           # MonitorMap (mbgw.config.monitor): [[monitor]]
+    devices: tuple = ()            # DeviceConfig (mbgw.config.lines): [[device]]
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "slave")
@@ -552,6 +555,7 @@ class MasterConfig:
     lines: tuple = ()               # LineConfig (mbgw.config.lines): [[line]], beside [serial]
     routes: tuple = ()              # RouteConfig (mbgw.config.lines): [[route]]
     monitors: tuple = ()            # MonitorMap (mbgw.config.monitor): [[monitor]]
+    devices: tuple = ()             # DeviceConfig (mbgw.config.lines): [[device]]
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "master")

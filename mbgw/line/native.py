@@ -286,6 +286,7 @@ class Port:
         self._framed = ffi.NULL
         self._down = ffi.NULL
         self._late_until = ffi.NULL
+        self._own = ffi.NULL
         self._in = ffi.new("uint8_t[]", INPUT_SIZE)
         self.set_byte_timeout(0)
 
@@ -412,19 +413,23 @@ class Port:
         return self._exchanged(n, times, adu[0], self._forwarded[0], self._noise[0])
 
     def shortcut_rules(self, framed, char_ns: int, stout_ns: int, slaveid: int,
-                       down: bytearray, late_until) -> None:
+                       down: bytearray, late_until, own: bytes | bytearray = bytes(256)
+                       ) -> None:
         """What take_request() needs: the function codes libmodbus frames, the line's
         character time, stout, the forced serial address (0: none), the addresses that
         are down (256 flags) and the ends of their late windows (256 int64, an array "q");
         C reads both as they are at each take, so the owner keeps them up to date, never
-        resized."""
+        resized.  own: 256 flags, the addresses with timing of their own ([[device]]),
+        whose requests Python sends."""
         self._framed = ffi.new("uint8_t[256]", [code in framed for code in range(256)])
         self._down = ffi.from_buffer("uint8_t[]", down)
         self._late_until = ffi.from_buffer("int64_t[]", late_until)
+        self._own = ffi.new("uint8_t[256]", bytes(own))
         sc = self._shortcut
         sc.framed = self._framed
         sc.down = self._down
         sc.late_until = self._late_until
+        sc.own = self._own
         sc.char_ns = char_ns
         sc.stout_ns = stout_ns
         sc.slaveid = slaveid

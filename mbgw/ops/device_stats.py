@@ -38,8 +38,11 @@ class HealthRule:
     """The settings of health that a table's devices share, and which addresses are down."""
     __slots__ = ("down_after", "probe_interval_s", "probe_max_s", "down")
 
-    def __init__(self, settings: Demotion | None = None) -> None:
-        self.down = bytearray(256)     # 1 for an address that is down (read by C too)
+    def __init__(self, settings: Demotion | None = None, down: bytearray | None = None
+                 ) -> None:
+        """down: the flags of the rule of the line's other addresses (a device's own rule,
+        [[device]], shares them)."""
+        self.down = down if down is not None else bytearray(256)   # 1: down (read by C too)
         self.set(settings or Demotion())
 
     def set(self, settings: Demotion) -> None:
@@ -74,7 +77,7 @@ class DeviceStats:
                               "gateway_exceptions", "latency_buckets", "latency_sum_ms",
                               "last_success", "consecutive_failures", "recent_failures",
                               "health", "health_since", "probe_at", "probe_wait_s",
-                              "invalid_bytes")
+                              "invalid_bytes", "timing")
 
     def __init__(self, address: int | None, counts: tuple = COUNTS,
                  rule: HealthRule | None = None, name: str | None = None) -> None:
@@ -95,6 +98,7 @@ class DeviceStats:
         self.health_since = time.time()
         self.probe_at = 0.0            # while down: when the next probe may go (monotonic)
         self.probe_wait_s = 0.0        # while down: the interval after a failed probe
+        self.timing: dict | None = None    # its own timing ([[device]]), as status shows it
 
     def admit(self, now: float) -> bool:
         """Whether a request for this address goes on the line at `now` (time.monotonic()):
@@ -221,32 +225,53 @@ class DeviceStats:
             latency_sum_ms=round(self.latency_sum_ms, 3),
             next_probe_in_s=round(max(0.0, self.probe_at - time.monotonic()), 3)
             if self.health == DOWN else None)
+        if self.timing is not None:
+            data["timing"] = self.timing
         return data
 
 
 class DeviceHealth:
-    """DeviceStats by serial address, created on first use, under one HealthRule."""
+    """DeviceStats by serial address, created on first use, under one HealthRule, but for
+    the addresses with a rule of their own ([[device]] down-after, probe-interval)."""
 
     def __init__(self, counts: tuple = COUNTS, rule: HealthRule | None = None) -> None:
         self.counts = counts
         self.rule = rule if rule is not None else HealthRule()
+        self._own: dict[int, HealthRule] = {}
+        self._timing: dict[int, dict] = {}
         self._devices: dict[int, DeviceStats] = {}
 
     def get(self, address: int) -> DeviceStats:
         stats = self._devices.get(address)
         if stats is None:
-            stats = self._devices[address] = DeviceStats(address, self.counts, self.rule)
+            stats = self._devices[address] = DeviceStats(
+                address, self.counts, self._rule_of(address))
+            stats.timing = self._timing.get(address)
         return stats
 
-    def set_rule(self, settings: Demotion) -> None:
-        """New settings (a reload, on the line thread): every device is judged again by them."""
-        interval_changed = settings.probe_interval_ms / 1000 != self.rule.probe_interval_s
-        self.rule.set(settings)
+    def set_rule(self, settings: Demotion, own: dict[int, tuple[Demotion, dict]] | None = None
+                 ) -> None:
+        """New settings (at start, or a reload, on the line thread): every device is judged
+        again by them.  own: by address, a device's own demotion and its timing as status
+        shows it; such a device is listed from now on, even before its first request."""
+        own = own or {}
         now = time.monotonic()
-        for stats in list(self._devices.values()):
+        before = {a: self._rule_of(a).probe_interval_s for a in self._devices}
+        self.rule.set(settings)
+        self._own = {a: HealthRule(demotion, self.rule.down) for a, (demotion, _) in own.items()}
+        self._timing = {a: timing for a, (_, timing) in own.items()}
+        for address in own:
+            self.get(address)
+        for address, stats in list(self._devices.items()):
+            stats.rule = self._rule_of(address)
+            stats.timing = self._timing.get(address)
             stats.rejudge()
-            if interval_changed:
+            interval = before.get(address)
+            if interval is not None and interval != stats.rule.probe_interval_s:
                 stats.reprobe(now)
+
+    def _rule_of(self, address: int) -> HealthRule:
+        return self._own.get(address, self.rule)
 
     def all(self) -> list[DeviceStats]:
         return [self._devices[a] for a in sorted(self._devices)]

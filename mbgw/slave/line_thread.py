@@ -41,6 +41,7 @@ from mbgw.scenarios.exchange import EXCEPTION_KINDS, FRAME_WITHOUT_REQUEST, TIME
 from mbgw.scenarios.health import SerialHealth
 from mbgw.scenarios.report import trace_event
 from mbgw.slave.connections import Client, Connections
+from mbgw.slave.device_timing import DeviceTiming
 from mbgw.slave.table_reader import Gate, TableReader
 from mbgw.slave.transaction import SerialMaster, framing_for
 
@@ -77,6 +78,7 @@ class SlaveLineThread(LineThread[SlaveConfig]):
         self._shortcut = False
         self._gate = Gate()                  # see the module's docstring
         self._reader: TableReader | None = None     # while the table is on
+        self._timing = self._retime()
         self._master: SerialMaster | None = self._master_on(line) if line else None
         self._engine: Scenarios | None = None      # the serial scenarios' engine (use_scenarios)
         self._scenarios: Scenarios | None = None   # the engine while it has scenarios to run
@@ -90,10 +92,25 @@ class SlaveLineThread(LineThread[SlaveConfig]):
         if line is None:
             self._line_state(down=True)
 
+    def name_line(self, name: str) -> None:
+        """Also the line whose [[device]] tables it takes (before start())."""
+        super().name_line(name)
+        self._timing = self._retime()
+        if self._master is not None and self._line is not None:
+            self._master = self._master_on(self._line, self._master)
+
+    def _retime(self) -> DeviceTiming:
+        """The timing by address of the settings in force, its demotions told to the
+        devices."""
+        cfg = self._cfg
+        timing = DeviceTiming.of_line(cfg, self.line_name)
+        self.devices.set_rule(cfg.demotion, timing.demotions(cfg.demotion))
+        return timing
+
     def _master_on(self, line: SerialLine, previous: SerialMaster | None = None) -> SerialMaster:
         cfg = self._cfg
         master = SerialMaster(framing_for(line), cfg.serial, self._counters, self.devices,
-                              cfg.retries, cfg.turnaround_ms, cfg.late_window)
+                              cfg.retries, cfg.turnaround_ms, cfg.late_window, self._timing)
         master.on_late = self._late
         if previous is not None:
             master.keep_line_state(previous)
@@ -106,7 +123,7 @@ class SlaveLineThread(LineThread[SlaveConfig]):
         if self._shortcut:
             line.port.shortcut_rules(pdu.LIBMODBUS_FRAMED, line.char_ns,
                                      cfg.serial.stout_ms * 1_000_000, cfg.slaveid, self._down,
-                                     master.late_until)
+                                     master.late_until, self._timing.flags)
         return master
 
     # --- the line thread's hooks (mbgw.line.supervisor.LineThread) ---
@@ -118,11 +135,13 @@ class SlaveLineThread(LineThread[SlaveConfig]):
         after a broadcast."""
         cfg = self._cfg
         s = cfg.serial
-        quiet_ms = max(s.t35_us / 1000, s.silence_ms) + sum(s.rtsdelays) + s.interframe_ms
-        attempt_s = (quiet_ms + s.stout_ms) / 1000 + 2 * longest_frame_s(s)
+        timing = self._timing
+        quiet_ms = max(s.t35_us / 1000, s.silence_ms, timing.longest_pause_ms) + \
+            sum(s.rtsdelays) + s.interframe_ms
+        attempt_s = (quiet_ms + timing.longest_stout_ms) / 1000 + 2 * longest_frame_s(s)
         retries = max((sc.retries for sc in serial_scenarios(cfg)), default=cfg.retries)
-        return (max(retries, cfg.retries) + 1) * attempt_s + cfg.turnaround_ms / 1000 + \
-            TURN_MARGIN_S
+        return (max(retries, timing.most_retries) + 1) * attempt_s + \
+            cfg.turnaround_ms / 1000 + TURN_MARGIN_S
 
     def _wake(self) -> None:
         self._scheduler.wake()
@@ -157,8 +176,7 @@ class SlaveLineThread(LineThread[SlaveConfig]):
 
     def _configure(self, old: SlaveConfig, reopen: bool) -> None:
         self._server.route_face(self._cfg)
-        if self._cfg.demotion != old.demotion:
-            self.devices.set_rule(self._cfg.demotion)
+        self._timing = self._retime()      # the line's stout, retries and devices'
         if (self._reader is not None) != self._server.reads_meanwhile:
             self._stop_reader()
             self._start_reader()

@@ -8,7 +8,7 @@ told the outcome on this line's thread (Exchange.done).
 import dataclasses
 import logging
 
-from mbgw.config.lines import LineConfig
+from mbgw.config.lines import LineConfig, line_devices
 from mbgw.config.model import MasterConfig, SlaveConfig
 from mbgw.errors import SerialError
 from mbgw.line.serial_line import SerialLine
@@ -36,7 +36,7 @@ def line_settings(cfg: SlaveConfig | MasterConfig, line: LineConfig) -> SlaveCon
     return dataclasses.replace(
         base, serial=line.serial, retries=line.retries, demotion=line.demotion, slaveid=0,
         shortcut=False, scenarios=(), table=dataclasses.replace(cfg.table, enabled=False),
-        lines=(), routes=())
+        lines=(), routes=(), monitors=(), devices=line_devices(cfg.devices, line.name))
 
 
 class NoClients:
@@ -69,6 +69,7 @@ class TargetLine:
                  hub: TraceHub | None = None) -> None:
         """hub: the daemon's trace hub (None: one of its own, nobody subscribes)."""
         self.config = line
+        self.own = line_devices(cfg.devices, line.name)     # its [[device]] tables
         hub = hub if hub is not None else TraceHub()
         self.counters = Counters()
         self.devices = DeviceHealth(rule=HealthRule(line.demotion))
@@ -97,6 +98,7 @@ class TargetLine:
 
     def reconfigure(self, cfg: SlaveConfig | MasterConfig, line: LineConfig) -> None:
         self.config = line
+        self.own = line_devices(cfg.devices, line.name)
         self.worker.reconfigure(line_settings(cfg, line))
 
     def status(self) -> dict:
@@ -172,7 +174,7 @@ class TargetLines:
                         report.refuse("lines", f"line {name}: {err.strerror or err}")
                     self.lines.pop(name, None)
                     self.inboxes.pop(name, None)
-            elif kept.config != line:
+            elif kept.config != line or kept.own != line_devices(cfg.devices, name):
                 kept.reconfigure(cfg, line)
         return removed
 

@@ -34,6 +34,7 @@ from mbgw.line.supervisor import longest_frame_s
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceHealth, DeviceStats
 from mbgw.protocol import pdu
+from mbgw.slave.device_timing import DeviceTiming
 
 wire = logging.getLogger("mbgw.wire")
 
@@ -170,11 +171,19 @@ def framing_for(line: SerialLine):
 
 class SerialMaster:
     def __init__(self, framing, cfg: SerialConfig, counters: Counters, devices: DeviceHealth,
-                 retries: int = 0, turnaround_ms: int = 100, late_window_ms: int = 0) -> None:
+                 retries: int = 0, turnaround_ms: int = 100, late_window_ms: int = 0,
+                 timing: DeviceTiming | None = None) -> None:
+        """timing: stout, retries, pause and late window by address (None: the line's,
+        from cfg, retries and late_window_ms, for every address)."""
         self.framing = framing
         self.devices = devices
         self._sent_ns = 0
-        self._late_window_ns = late_window_ms * 1_000_000
+        if timing is None:
+            timing = DeviceTiming(cfg.stout_ms, retries, late_window_ms)
+        self._late_window_ns = timing.late_window_ns
+        self._stouts_ns = timing.stout_ns
+        self._retries = timing.retries
+        self._pauses_us = timing.pause_us
         # a frame that has begun is whole within this (its longest, and the silence after)
         self._frame_ns = int(longest_frame_s(cfg) * 1e9) + cfg.end_of_frame_us * 1000
         # By address: when its late window ends (CLOCK_MONOTONIC ns, 0: none open; C's
@@ -183,7 +192,6 @@ class SerialMaster:
         self._late_pending = bytearray(256)
         self.late_open: set[int] = set()        # the addresses with a window open
         self._counters = counters
-        self._retries = retries
         self._nocheck = cfg.nocheck
         self._stout_ns = cfg.stout_ms * 1_000_000
         self._turnaround_us = turnaround_ms * 1000
@@ -247,6 +255,7 @@ class SerialMaster:
         failed."""
         taken, self._taken = self._taken, None
         self._address = adu[0]
+        self._stout_ns = self._stouts_ns[adu[0]]
         self._device = device = self.devices.get(adu[0])
         device.transactions += 1
         if adu[0] == pdu.BROADCAST:
@@ -262,7 +271,7 @@ class SerialMaster:
         noise = counters.noise_bytes      # from here on, bytes in no frame ...
         self._bad_bytes = 0               # ... and in frames that were not the reply
         self._mismatch = None
-        for attempt in range((self._retries if retries < 0 else retries) + 1):
+        for attempt in range((self._retries[adu[0]] if retries < 0 else retries) + 1):
             if attempt:
                 self._count(device, "retries")
                 taken = None
@@ -318,9 +327,10 @@ class SerialMaster:
         return min((self.late_until[a] for a in self.late_open), default=0)
 
     def _open_window(self, address: int, tries: int) -> None:
-        if not self._late_window_ns:
+        window_ns = self._late_window_ns[address]
+        if not window_ns:
             return
-        self.late_until[address] = self._deadline + self._late_window_ns
+        self.late_until[address] = self._deadline + window_ns
         self._late_pending[address] = min(tries, 255)
         self.late_open.add(address)
 
@@ -380,10 +390,12 @@ class SerialMaster:
         setattr(device, name, getattr(device, name) + 1)
 
     def _await_quiet(self, adu: bytes) -> None:
-        """Until the line has been quiet long enough for adu to go out."""
+        """Until the line has been quiet long enough for adu to go out: what it owes the line
+        and the pause adu's device wants before each of its frames."""
         now = time.monotonic_ns()
-        if now < self.quiet_until_ns:    # else no C call is needed
-            stale = self.framing.port.wait_quiet(self._quiet_from_ns, self._quiet_us)
+        quiet_us = max(self._quiet_us, self._pauses_us[adu[0]])
+        if now < self._quiet_from_ns + quiet_us * 1000:    # else no C call is needed
+            stale = self.framing.port.wait_quiet(self._quiet_from_ns, quiet_us)
             if stale:
                 self._counters.late_bytes += stale
                 self._counters.bytes_received += stale
