@@ -225,8 +225,8 @@ struct mbgw_shortcut {
     const uint8_t *framed; /* 256 flags: the function codes libmodbus frames */
     const uint8_t *down;   /* 256 flags: the serial addresses that are down (demoted) */
     const int64_t *late_until; /* by address: the end of its late window (0: none) */
-    const uint8_t *own;    /* 256 flags: addresses with timing of their own ([[device]]) */
-    int64_t quiet_until_ns;    /* the line must stay silent until then */
+    const uint8_t *own; /* 256 flags: addresses with timing of their own ([[device]]) */
+    int64_t quiet_until_ns; /* the line must stay silent until then */
     int64_t char_ns;
     int64_t stout_ns;
     int32_t gap_us;     /* the end-of-frame silence */
