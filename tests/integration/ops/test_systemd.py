@@ -49,15 +49,29 @@ def _ptrace(request: int, tid: int) -> None:
 
 
 @contextlib.contextmanager
-def thread_stopped(tid: int):
-    """The thread tid of a child process stopped (the others run on) until the block ends."""
-    _ptrace(PTRACE_SEIZE, tid)
-    try:
+def thread_stopped(pid: int, tid: int):
+    """The thread tid of a child process stopped (the others run on) until the block ends.
+    It is stopped inside a system call, where a Python thread has let go of the GIL: stopped
+    in user space, it might hold the GIL and freeze every thread of the daemon, which is not
+    what a driver stuck in the kernel does; then it is let go and stopped again."""
+    for _ in range(1000):
+        _ptrace(PTRACE_SEIZE, tid)
         _ptrace(PTRACE_INTERRUPT, tid)
         os.waitpid(tid, WALL)
+        if not _in_user_space(pid, tid):
+            break
+        _ptrace(PTRACE_DETACH, tid)
+    else:
+        raise AssertionError(f"thread {tid} was never stopped inside a system call")
+    try:
         yield
     finally:
         _ptrace(PTRACE_DETACH, tid)
+
+
+def _in_user_space(pid: int, tid: int) -> bool:
+    """/proc's syscall file of a stopped thread: its system call's number, or -1 outside one."""
+    return Path(f"/proc/{pid}/task/{tid}/syscall").read_text().split()[0] == "-1"
 
 
 def line_thread(gw) -> int:
@@ -93,7 +107,7 @@ def status_line(gw, text: str) -> None:
 def watchdog_follows_the_line_thread(gw) -> None:
     """Stop the line thread: the pings stop, the daemon says why (log, STATUS=) while its
     control socket still answers; let it go: the pings come back."""
-    with thread_stopped(line_thread(gw)):
+    with thread_stopped(gw.proc.pid, line_thread(gw)):
         notified(gw, lambda m: m.startswith("STATUS=") and m.endswith("; line thread stuck"),
                  "STATUS= saying the line thread is stuck")
         deadline = time.monotonic() + QUIET_S
