@@ -1,12 +1,15 @@
 """Opening the serial line with every setting, and putting frames on it (direction control,
 echo).  Both gateway modes use it."""
 import dataclasses
+import errno
 import logging
+import os
+import select
 import struct
 import time
 from typing import TYPE_CHECKING, Protocol
 
-from mbgw.errors import FrameError, LineTimeout
+from mbgw.errors import FrameError, LineTimeout, SerialError
 from mbgw.line import native
 
 if TYPE_CHECKING:      # the settings' type only: the line never reads the configuration files
@@ -16,6 +19,24 @@ log = logging.getLogger("mbgw.line")
 
 ECHO_MARGIN_NS = 50_000_000     # the echo of a frame is back well within this after it ends
 CRC = struct.Struct("<H")       # an RTU frame's CRC goes low byte first
+
+
+TTY_READ_SIZE = 4096
+_HUNG_UP = select.POLLHUP | select.POLLERR | select.POLLNVAL
+
+
+def read_tty(fd: int, events: int) -> bytes:
+    """What the tty fd holds now (poll() said events): b"" when nothing waits.  Raises
+    SerialError when the device is gone (an error, or the hang-up poll() reported)."""
+    try:
+        data = os.read(fd, TTY_READ_SIZE)
+    except BlockingIOError:
+        return b""
+    except OSError as err:
+        raise SerialError(err.errno, f"read: {err.strerror}") from None
+    if not data and events & _HUNG_UP:
+        raise SerialError(errno.EIO, "read: the device hung up")
+    return data
 
 
 class LineCounters(Protocol):

@@ -5,24 +5,20 @@ off: RS-485 in the kernel's mode (RTS at its receive level, raised only for a wr
 never comes), RTS held low otherwise.  Timing is poll()'s milliseconds: the line's t3.5
 ends a frame whose length no rule gives, and a late wake-up only lengthens it."""
 import dataclasses
-import errno
 import math
 import os
 import select
 import time
 
 from mbgw.config.lines import LineConfig
-from mbgw.errors import SerialError
-from mbgw.line.serial_line import SerialLine
+from mbgw.line.serial_line import SerialLine, read_tty
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread
 from mbgw.monitor.bus import BusDecoder, MonitorCounters
 from mbgw.monitor.store import MapStore
 from mbgw.ops.eventfd import drain
 from mbgw.ops.trace import Outcome
 
-READ_SIZE = 4096
 _IN = select.POLLIN
-_TROUBLE = select.POLLHUP | select.POLLERR | select.POLLNVAL
 
 
 def listening(line: LineConfig) -> LineConfig:
@@ -102,15 +98,8 @@ class MonitorLineThread(LineThread[LineConfig]):
             drain(fd)
 
     def _read(self, events: int) -> None:
-        try:
-            data = os.read(self._tty_fd, READ_SIZE)
-        except BlockingIOError:
-            return
-        except OSError as err:
-            raise SerialError(err.errno, f"read: {err.strerror}") from None
+        data = read_tty(self._tty_fd, events)
         if not data:
-            if events & _TROUBLE:
-                raise SerialError(errno.EIO, "read: the device hung up")
             return
         self.counters.bytes_received += len(data)
         self.decoder.feed(data)

@@ -5,7 +5,6 @@ sent once `silence` has passed since the line's last received byte.  Timing is p
 milliseconds: eof-timeout and silence are whole ms, and a pause of the line thread only
 lengthens them."""
 import collections
-import errno
 import logging
 import math
 import os
@@ -13,8 +12,7 @@ import select
 import time
 
 from mbgw.config.transparent import TransparentModeConfig
-from mbgw.errors import SerialError
-from mbgw.line.serial_line import SerialLine
+from mbgw.line.serial_line import SerialLine, read_tty
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread
 from mbgw.ops.eventfd import drain
 from mbgw.ops.trace import TraceHub
@@ -24,9 +22,7 @@ from mbgw.transparent.raw import RECEIVE_SIZE, RawPort
 
 log = logging.getLogger("mbgw.transparent")
 
-READ_SIZE = 4096
 _IN = select.POLLIN
-_TROUBLE = select.POLLHUP | select.POLLERR | select.POLLNVAL
 
 
 class TransparentLineThread(LineThread[TransparentModeConfig]):
@@ -151,15 +147,8 @@ class TransparentLineThread(LineThread[TransparentModeConfig]):
     # --- receiving ---
 
     def _read_line(self, events: int) -> None:
-        try:
-            data = os.read(self._tty_fd, READ_SIZE)
-        except BlockingIOError:
-            return
-        except OSError as err:
-            raise SerialError(err.errno, f"read: {err.strerror}") from None
+        data = read_tty(self._tty_fd, events)
         if not data:
-            if events & _TROUBLE:
-                raise SerialError(errno.EIO, "read: the device hung up")
             return
         now = time.monotonic()
         self.counters.bytes_received += len(data)
