@@ -71,9 +71,10 @@ def _show_tables(schema: Schema, settings: Settings, group: str | None,
     elif group == line_file.ROUTE_TABLE:
         _show_routes(schema, settings, separate=False)
     elif group == MONITOR_TABLE:
-        _show_monitors(settings, separate=False)
+        _echo_tables(MONITOR_TABLE, [map_fields(m) for m in settings.monitors], False)
     elif group == line_file.DEVICE_TABLE:
-        _show_devices(settings, separate=False)
+        _echo_tables(line_file.DEVICE_TABLE,
+                     [line_file.device_fields(d) for d in settings.devices], False)
     else:
         return False
     return True
@@ -105,19 +106,10 @@ def _show_groups(schema: Schema, settings: Settings, group: str | None,
         _show_lines(settings, None)
     if group is None and (settings.routes or settings.lines):
         _show_routes(schema, settings)
-    if group is None and settings.monitors:
-        _show_monitors(settings)
-    if group is None and settings.devices:
-        _show_devices(settings)
-
-
-def _show_devices(settings: Settings, separate: bool = True) -> None:
-    for number, device in enumerate(settings.devices):
-        if separate or number:
-            click.echo()
-        click.echo("[[device]]")
-        for key, value in line_file.device_fields(device).items():
-            click.echo(f"{key} = {dump_value(value)}")
+    if group is None:
+        _echo_tables(MONITOR_TABLE, [map_fields(m) for m in settings.monitors])
+        _echo_tables(line_file.DEVICE_TABLE,
+                     [line_file.device_fields(d) for d in settings.devices])
 
 
 def _show_security(schema: Schema, settings: Settings, as_json: bool) -> None:
@@ -152,32 +144,25 @@ def _show_lines(settings: Settings, name: str | None, separate: bool = True) -> 
         names = ", ".join(line.name for line in settings.lines)
         raise click.BadParameter(f"no line {name!r} in {settings.path}"
                                  + (f" (lines: {names})" if names else ""), param_hint="NAME")
-    for number, line in enumerate(shown):
-        if separate or number:
-            click.echo()
-        click.echo("[[line]]")
-        for key, value in line_file.line_fields(line).items():
-            click.echo(f"{key} = {dump_value(value)}")
+    _echo_tables("line", [line_file.line_fields(line) for line in shown], separate)
 
 
-def _show_monitors(settings: Settings, separate: bool = True) -> None:
-    for number, m in enumerate(settings.monitors):
+def _echo_tables(name: str, tables: list[dict], separate: bool = True) -> None:
+    """Each of tables as a [[name]] table of the file (separate: a blank line before the
+    first too)."""
+    for number, fields in enumerate(tables):
         if separate or number:
             click.echo()
-        click.echo(f"[[{MONITOR_TABLE}]]")
-        for key, value in map_fields(m).items():
+        click.echo(f"[[{name}]]")
+        for key, value in fields.items():
             click.echo(f"{key} = {dump_value(value)}")
 
 
 def _show_routes(schema: Schema, settings: Settings, separate: bool = True) -> None:
     """The [[route]] tables, then the implicit routes in force beside them (when the file
     would start: else only the tables)."""
-    for number, route in enumerate(settings.routes):
-        if separate or number:
-            click.echo()
-        click.echo("[[route]]")
-        for key, value in line_file.route_fields(route).items():
-            click.echo(f"{key} = {dump_value(value)}")
+    _echo_tables("route", [line_file.route_fields(route) for route in settings.routes],
+                 separate)
     try:
         cfg = checks.check_file(schema, settings)
     except (ConfigError, click.ClickException):
