@@ -304,6 +304,7 @@ def test_a_client_appears_and_the_admin_closes_it(browser, console):
         row = wait(browser, lambda d: [r for r in d.find_elements(
             By.CSS_SELECTOR, "#clients-table tbody tr") if here in r.text])[0]
         row.find_element(By.CSS_SELECTOR, "button.close-client").click()
+        wait(browser, EC.alert_is_present()).accept()      # Close asks first
         wait(browser, EC.staleness_of(row))
         modbus.sock.settimeout(WAIT_S)
         assert modbus.sock.recv(1) == b""            # the gateway closed the connection
