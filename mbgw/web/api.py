@@ -321,18 +321,27 @@ async def config_show(request: web.Request) -> web.Response:
 
 
 async def config_set(request: web.Request) -> web.Response:
+    """One key ({"group", "key", "value"}) or several ({"changes": [{"group", "key",
+    "value"}, ...]}), checked together, written once and applied by one reload."""
     data = await body(request)
-    group, key, value = data.get("group"), data.get("key"), data.get("value")
-    if not isinstance(group, str) or not isinstance(key, str) or value is None:
-        return error(400, 'expected {"group", "key", "value"}')
+    wanted = data.get("changes", [data])
+    if not isinstance(wanted, list) or not wanted or not all(map(_change, wanted)):
+        return error(400, 'expected {"group", "key", "value"} or {"changes": [{"group", '
+                          '"key", "value"}, ...]}')
     try:
-        changed = config_api.set_value(_config_path(request), group, key, value)
+        changed = config_api.set_values(_config_path(request),
+                                        [(w["group"], w["key"], w["value"]) for w in wanted])
     except config_api.ConfigRefused as err:
         return _refused(err)
     event(log, Kind.CONFIG_CHANGED, "configuration changed from the web console (%s): %s",
           who(request), ", ".join(changed), source="web", user=who(request),
           keys=", ".join(changed))
     return await _reloaded(request, {"changed": changed})
+
+
+def _change(wanted) -> bool:
+    return isinstance(wanted, dict) and isinstance(wanted.get("group"), str) \
+        and isinstance(wanted.get("key"), str) and wanted.get("value") is not None
 
 
 async def config_download(request: web.Request) -> web.Response:
