@@ -22,6 +22,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 from typing import Protocol
 
+from mbgw.audit import Kind, event
 from mbgw.config.scenario import ScenarioConfig
 from mbgw.scenarios import exchange
 from mbgw.scenarios.plan import Planner
@@ -380,8 +381,9 @@ class Scenarios:
         if state.state != ERROR:
             state.error_since = time.time()
         if state.state != ERROR or state.message != message:
-            log.warning("scenario %s (%s): %s", state.scenario.name, state.scenario.target,
-                        message)
+            event(log, Kind.SCENARIO_ERROR, "scenario %s (%s): %s", state.scenario.name,
+                  state.scenario.target, message, scenario=state.scenario.name,
+                  reason=message)
         state.state, state.message = ERROR, message
         self._update_flag()
 

@@ -300,7 +300,7 @@ def _connected(request: web.Request) -> bool:
 
 # --- the configuration file ------------------------------------------------------------------
 
-def _config_path(request: web.Request) -> Path:
+def config_path(request: web.Request) -> Path:
     path = request.app["hooks"].config_file
     if path is None:
         raise web.HTTPNotFound(text=json.dumps(
@@ -315,7 +315,7 @@ def _refused(err: config_api.ConfigRefused) -> web.Response:
 
 async def config_show(request: web.Request) -> web.Response:
     try:
-        return web.json_response(config_api.show(_config_path(request)))
+        return web.json_response(config_api.show(config_path(request)))
     except config_api.ConfigRefused as err:
         return _refused(err)
 
@@ -329,14 +329,14 @@ async def config_set(request: web.Request) -> web.Response:
         return error(400, 'expected {"group", "key", "value"} or {"changes": [{"group", '
                           '"key", "value"}, ...]}')
     try:
-        changed = config_api.set_values(_config_path(request),
+        changed = config_api.set_values(config_path(request),
                                         [(w["group"], w["key"], w["value"]) for w in wanted])
     except config_api.ConfigRefused as err:
         return _refused(err)
     event(log, Kind.CONFIG_CHANGED, "configuration changed from the web console (%s): %s",
           who(request), ", ".join(changed), source="web", user=who(request),
           keys=", ".join(changed))
-    return await _reloaded(request, {"changed": changed})
+    return await reloaded(request, {"changed": changed})
 
 
 def _change(wanted) -> bool:
@@ -345,7 +345,7 @@ def _change(wanted) -> bool:
 
 
 async def config_download(request: web.Request) -> web.Response:
-    path = _config_path(request)
+    path = config_path(request)
     try:
         text = config_api.read_file(path)
     except config_api.ConfigRefused as err:
@@ -355,7 +355,7 @@ async def config_download(request: web.Request) -> web.Response:
 
 
 async def config_upload(request: web.Request) -> web.Response:
-    path = _config_path(request)
+    path = config_path(request)
     try:
         text = (await read(request)).decode()
         mode = config_api.upload(path, text)
@@ -365,10 +365,10 @@ async def config_upload(request: web.Request) -> web.Response:
         return _refused(err)
     event(log, Kind.CONFIG_CHANGED, "configuration file replaced from the web console (%s)",
           who(request), source="web", user=who(request), keys="the whole file")
-    return await _reloaded(request, {"mode": mode})
+    return await reloaded(request, {"mode": mode})
 
 
-async def _reloaded(request: web.Request, done: dict) -> web.Response:
+async def reloaded(request: web.Request, done: dict) -> web.Response:
     """The file is written: the daemon reloads it (as SIGHUP does), and the answer is the
     reload's outcome, as the log says it.  200 only when every change is in force; 409 when
     the file is written but the daemon refused it or put part of it in force (the running

@@ -15,7 +15,7 @@ import click
 from mbgw.config.edit import REMOVE, apply_changes, changes_for_set, show_lines
 from mbgw.config.file import Settings, check, load, parse, read_text, resolve
 from mbgw.config.schema import GROUPS, MODE_KEY, MODES, Schema, is_secret, key_help
-from mbgw.config.text import edit
+from mbgw.config.text import edit, factory_text
 from mbgw.config.toml_text import write_atomic
 from mbgw.errors import ConfigError, ConfigFileError, MbgwError
 
@@ -127,6 +127,31 @@ def _settable(keys: Schema, group: str, key: str, value, mode: str) -> list[str]
         raise ConfigRefused(f"{field}: changing the mode needs a restart: use mbgw config set "
                             f"serial mode ... and systemctl restart mbgw", field)
     return words
+
+
+def set_password(path: Path, role: str, stored: str) -> None:
+    """The hash of a role's password written as `mbgw config password ROLE` writes it."""
+    keys = schema()
+    text = _read(path)
+    try:
+        data = parse(path, text)
+        settings = check(keys, path, data)
+        changes = {f"{role}-password": stored}
+        data = apply_changes(data, keys, changes)
+        _start_check(keys, check(keys, path, data))
+    except ConfigFileError as err:
+        raise ConfigRefused("the file has problems: fix it first", None, err.problems) \
+            from None
+    new_text = edit(text, keys, settings.mode, changes)
+    if tomllib.loads(new_text) != data:
+        raise ConfigRefused("could not edit the file in place; nothing written")
+    _write(path, new_text)
+
+
+def factory_reset(path: Path) -> None:
+    """The file the package ships (`mbgw config default`: every key at its built-in
+    default) in place of this one."""
+    _write(path, factory_text(schema()))
 
 
 def read_file(path: Path) -> str:

@@ -11,6 +11,8 @@ import { linesPage } from "./lines.js";
 import { statsPage } from "./stats.js";
 import { trafficPage } from "./traffic.js";
 import { configPage } from "./config.js";
+import { eventsPage } from "./events.js";
+import { adminPage } from "./admin.js";
 
 const POLL_MS = 1000;            // live pages refresh once a second
 
@@ -70,6 +72,8 @@ const pages = {
   stats: { title: "Statistics", build: statsPage },
   traffic: { title: "Traffic", build: trafficPage },
   config: { title: "Configuration", build: configPage },
+  events: { title: "Events", build: eventsPage },
+  admin: { title: "Administration", build: adminPage },
 };
 
 function leavePage() {

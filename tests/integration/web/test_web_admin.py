@@ -1,16 +1,66 @@
 """The console's changes done through its pages, each seen from outside: several settings
-applied by one reload."""
+applied by one reload; a password changed (the new one in, the old one not); the user role
+refused every change (403, its buttons off); the Events page showing what the log got;
+reload, restart and the factory reset (the shipped file back)."""
+import hashlib
+import json
+import os
+import subprocess
+import sys
+import urllib.error
+import urllib.request
+from http.cookiejar import CookieJar
+
 import pytest
 from selenium.webdriver.common.by import By
+from selenium.webdriver.support import expected_conditions as EC
 from selenium.webdriver.support.ui import Select
 
 from tests.integration.web.chrome import DESKTOP, start_chromium
-from tests.integration.web.test_web_ui import Console, found, go, log_in, text_in, wait
+from tests.integration.web.test_web_ui import (
+    LOST,
+    PASSWORDS,
+    Console,
+    found,
+    go,
+    log_in,
+    text_in,
+    wait,
+)
 from tests.ops import wait_for, wait_for_log
 
 pytestmark = pytest.mark.integration
 
 RELOADED = "configuration reloaded: "
+NEW_PASSWORD = "a new user secret 3"
+ADMIN_ACTIONS = ["#password-change", "#admin-reload", "#admin-restart",
+                 "#admin-factory-reset", "#config-apply"]
+
+
+class Api:
+    """The JSON API as a script sees it: a session's cookie and CSRF token."""
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self.opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(
+            CookieJar()))
+        self.csrf = ""
+
+    def call(self, method: str, path: str, body: dict | None = None) -> tuple[int, dict]:
+        request = urllib.request.Request(
+            self.url + path.lstrip("/"), method=method,
+            data=None if body is None else json.dumps(body).encode(),
+            headers={"Content-Type": "application/json", "X-CSRF-Token": self.csrf})
+        try:
+            with self.opener.open(request, timeout=15) as response:
+                return response.status, json.loads(response.read() or b"{}")
+        except urllib.error.HTTPError as err:
+            return err.code, json.loads(err.read() or b"{}")
+
+    def log_in(self, role: str, password: str) -> int:
+        code, data = self.call("POST", "/api/login", {"user": role, "password": password})
+        self.csrf = data.get("csrf", "")
+        return code
 
 
 @pytest.fixture(scope="module")
@@ -89,3 +139,106 @@ def test_groups_of_other_modes_are_hidden_and_keys_have_help_units_and_choices(b
     assert "8n1" in choices and "7e1" in choices
     assert Select(field(browser, "serial.protocol")).first_selected_option.text == "rtu"
     wait_for_log(console.gw, "web login")
+
+
+def test_the_user_role_can_change_nothing(browser, console):
+    log_in(browser, console, "user")
+    for page, control in (("admin", "#password-change"), ("admin", "#admin-restart"),
+                          ("admin", "#admin-factory-reset"), ("admin", "#admin-reload"),
+                          ("config", "#config-apply")):
+        go(browser, page)
+        assert not wait(browser, found(control)).is_enabled(), control
+    api = Api(console.url)
+    assert api.log_in("user", PASSWORDS["user"]) == 200
+    before = console.path.read_bytes()
+    for path, body in (("/api/password", {"role": "user", "current": PASSWORDS["user"],
+                                           "new": NEW_PASSWORD, "again": NEW_PASSWORD}),
+                       ("/api/reload", {}), ("/api/restart", {}),
+                       ("/api/factory-reset", {"confirm": True}),
+                       ("/api/config", {"changes": [{"group": "serial", "key": "stout",
+                                                     "value": "400"}]})):
+        code, data = api.call("POST", path, body)
+        assert code == 403, (path, data)
+    assert api.call("GET", "/api/events")[0] == 200 and api.call("GET", "/api/system")[0] == 200
+    assert console.path.read_bytes() == before
+
+
+def test_a_password_changed_lets_the_new_one_in_and_the_old_one_not(browser, console):
+    log_in(browser, console, "admin")
+    go(browser, "admin")
+    Select(wait(browser, found("#password-role"))).select_by_value("user")
+    browser.find_element(By.ID, "password-current").send_keys(PASSWORDS["admin"])
+    browser.find_element(By.ID, "password-new").send_keys(NEW_PASSWORD)
+    browser.find_element(By.ID, "password-again").send_keys(NEW_PASSWORD[:-1])
+    browser.find_element(By.ID, "password-change").click()
+    wait(browser, text_in("#password-result", "differ"))
+    browser.find_element(By.ID, "password-again").send_keys(NEW_PASSWORD[-1])
+    browser.find_element(By.ID, "password-change").click()
+    wait(browser, text_in("#password-result", "log in again"))
+    api = Api(console.url)
+    assert api.log_in("user", PASSWORDS["user"]) == 401
+    assert api.log_in("user", NEW_PASSWORD) == 200
+    assert "user-password" in console.path.read_text()
+    wait(browser, EC.visibility_of_element_located((By.ID, "login-form")))  # sessions ended
+
+
+def test_the_events_page_shows_what_the_log_got_newest_first(browser, console):
+    wait_for_log(console.gw, f"scenario {LOST} (slave 9): ")
+    log_in(browser, console, "admin")
+    go(browser, "events")
+    wait(browser, text_in("#events-table", f"scenario {LOST} (slave 9): "))
+    wait(browser, text_in("#events-table", "web login: admin"))
+    events = Api(console.url)
+    events.log_in("admin", PASSWORDS["admin"])
+    shown = events.call("GET", "/api/events")[1]["events"]
+    times = [e["time"] for e in shown]
+    assert times == sorted(times, reverse=True)
+    kinds = {e["event"] for e in shown}
+    assert {"scenario-error", "login-ok", "login-failed", "config-changed"} <= kinds, kinds
+    assert any(e["event"] == "device-down" and e.get("device") for e in shown), shown
+    Select(browser.find_element(By.ID, "events-kind")).select_by_value("device-down")
+    wait(browser, lambda d: {td.text for td in d.find_elements(
+        By.CSS_SELECTOR, "#events-table td.event")} == {"device-down"})
+
+
+def test_system_information_and_a_reload_from_the_page(browser, console):
+    log_in(browser, console, "admin")
+    go(browser, "admin")
+    wait(browser, text_in('#system-table tr[data-name="file"] td', str(console.path)))
+    digest = hashlib.sha256(console.path.read_bytes()).hexdigest()
+    wait(browser, text_in('#system-table tr[data-name="sha256"] td', digest))
+    assert browser.find_element(By.CSS_SELECTOR, '#system-table tr[data-name="host"] td').text \
+        == os.uname().nodename
+    reloads = console.gw.log().count(RELOADED)
+    browser.find_element(By.ID, "admin-reload").click()
+    wait(browser, text_in("#admin-reload-result", "configuration reloaded"))
+    assert console.gw.log().count(RELOADED) == reloads + 1
+
+
+def test_a_restart_runs_the_daemon_again_in_the_same_process(browser, console):
+    log_in(browser, console, "admin")
+    go(browser, "admin")
+    started = console.gw.log().count("web console on ")
+    pid = wait_for(console.gw, lambda s: True, "status")["pid"]
+    wait(browser, found("#admin-restart")).click()
+    wait(browser, EC.alert_is_present()).accept()
+    wait(browser, text_in("#admin-restart-result", "restarting"))
+    wait_for_log(console.gw, "web console on ", started + 1)
+    assert wait_for(console.gw, lambda s: True, "status after the restart")["pid"] == pid
+    log_in(browser, console, "admin")                        # the console is back
+
+
+def test_a_factory_reset_puts_back_the_shipped_file(browser, console, tmp_path):
+    shipped = tmp_path / "shipped.toml"
+    done = subprocess.run([sys.executable, "-m", "mbgw", "config", "default", "--config",
+                           str(shipped)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    log_in(browser, console, "admin")
+    go(browser, "admin")
+    wait(browser, found("#admin-factory-reset")).click()
+    wait(browser, EC.alert_is_present()).dismiss()             # asked first: no
+    assert console.path.read_text() != shipped.read_text()
+    browser.find_element(By.ID, "admin-factory-reset").click()
+    wait(browser, EC.alert_is_present()).accept()
+    wait(browser, text_in("#admin-factory-reset-result", "the shipped file is back"))
+    assert console.path.read_text() == shipped.read_text()
