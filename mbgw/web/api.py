@@ -165,8 +165,11 @@ async def status(request: web.Request) -> web.Response:
 
 
 async def clients(request: web.Request) -> web.Response:
+    """Every Modbus TCP client: the listeners' (slave mode; a master-mode daemon's TCP face,
+    its "tcp_clients") and the table server's (master and transparent modes)."""
     reply = await command(request, "status")
-    return web.json_response({"clients": reply.get("clients", [])})
+    return web.json_response({"clients": [*reply.get("tcp_clients", []),
+                                          *reply.get("clients", [])]})
 
 
 async def close_client(request: web.Request) -> web.Response:

@@ -20,7 +20,7 @@ export function clientsPage(body) {
       td.append(adminControl(el("button", { type: "button", class: "close-client",
         text: "Close", onclick: () => closeClient(c, message) })));
     } },
-  ], (c) => c.id);
+  ], (c) => `${c.listener}/${c.id}`);     // the face's and the table's ids may meet
   body.append(message, table.element);
   return {
     async refresh() {
