@@ -35,6 +35,8 @@ def routes() -> list:
         web.get("/api/devices", devices),
         web.get("/api/scenarios", scenarios),
         web.post("/api/scenarios/test", test_scenario),
+        web.get("/api/scenarios/config", scenario_tables),
+        web.post("/api/scenarios/config", edit_scenarios),
         web.post("/api/scenarios/{name}/{action:enable|disable}", enable_scenario),
         web.get("/api/table", table_read), web.post("/api/table", table_write),
         web.get("/api/stats", stats), web.post("/api/stats/reset", stats_reset),
@@ -228,6 +230,34 @@ async def enable_scenario(request: web.Request) -> web.Response:
 async def test_scenario(request: web.Request) -> web.Response:
     return answer(await command(request, "scenario-test", {"fields": await body(request)}),
                   "no scenarios in this mode")
+
+
+async def scenario_tables(request: web.Request) -> web.Response:
+    try:
+        return web.json_response({"scenarios": config_api.scenario_tables(
+            config_path(request))})
+    except config_api.ConfigRefused as err:
+        return _refused(err)
+
+
+async def edit_scenarios(request: web.Request) -> web.Response:
+    """{"remove": [NAME...], "add": [{KEY: VALUE...}...]}: the scenarios toolbox's changes,
+    written at once and applied by one reload."""
+    data = await body(request)
+    remove, add = data.get("remove", []), data.get("add", [])
+    if not isinstance(remove, list) or not all(isinstance(n, str) for n in remove) \
+            or not isinstance(add, list) or not all(isinstance(f, dict) for f in add):
+        return error(400, 'expected {"remove": [NAME...], "add": [{KEY: VALUE...}...]}')
+    try:
+        done = config_api.edit_scenarios(config_path(request), remove, add)
+    except config_api.ConfigRefused as err:
+        return _refused(err)
+    if not done:
+        return web.json_response({"ok": True, "changed": []})
+    event(log, Kind.CONFIG_CHANGED, "scenarios changed from the web console (%s): %s",
+          who(request), ", ".join(done), source="web", user=who(request),
+          keys=", ".join(done))
+    return await reloaded(request, {"changed": done})
 
 
 # --- the exchange table ----------------------------------------------------------------------

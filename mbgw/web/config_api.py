@@ -12,8 +12,10 @@ from pathlib import Path
 
 import click
 
+from mbgw.config import scenario_text
 from mbgw.config.edit import REMOVE, apply_changes, changes_for_set, show_lines
-from mbgw.config.file import Settings, check, load, parse, read_text, resolve
+from mbgw.config.file import SCENARIO_KEY, Settings, check, load, parse, read_text, resolve
+from mbgw.config.scenario import parse_scenario
 from mbgw.config.schema import GROUPS, MODE_KEY, MODES, Schema, is_secret, key_help
 from mbgw.config.text import edit, factory_text
 from mbgw.config.toml_text import write_atomic
@@ -146,6 +148,56 @@ def set_password(path: Path, role: str, stored: str) -> None:
     if tomllib.loads(new_text) != data:
         raise ConfigRefused("could not edit the file in place; nothing written")
     _write(path, new_text)
+
+
+def scenario_tables(path: Path) -> list[dict]:
+    """The file's [[scenario]] tables as it writes them (the toolbox edits these)."""
+    data = _parsed(path, _read(path))
+    return [e for e in data.get(SCENARIO_KEY, []) if isinstance(e, dict)]
+
+
+def edit_scenarios(path: Path, remove: list[str], add: list[dict]) -> list[str]:
+    """Scenarios taken out by name, then added (each checked as `mbgw config scenario add`
+    checks it; a changed one is taken out and added), the file checked as a whole and
+    written once; raises ConfigRefused naming the scenario.  What was done, in words."""
+    keys = schema()
+    text = _read(path)
+    data = _parsed(path, text)
+    done = []
+    for name in remove:
+        new_text = scenario_text.remove(text, name)
+        if new_text is None:
+            raise ConfigRefused(f"no scenario {name!r}", f"scenario {name}")
+        text = new_text
+        done.append(f"{name} removed")
+    for fields in add:
+        name = str(fields.get("name", ""))
+        label = f"scenario {name}"
+        try:
+            scenario = parse_scenario(fields, label)
+        except ConfigError as err:
+            raise ConfigRefused(str(err), label) from None
+        if any(e.get("name") == name for e in
+               _parsed(path, text).get(SCENARIO_KEY, []) if isinstance(e, dict)):
+            raise ConfigRefused(f"{label}: already there", label)
+        text = scenario_text.add(text, scenario.fields())
+        done.append(f"{name} {'changed' if name in remove else 'added'}")
+    try:
+        _start_check(keys, check(keys, path, parse(path, text)))
+    except ConfigFileError as err:
+        raise ConfigRefused("; ".join(err.problems), None, err.problems) from None
+    if data == parse(path, text):
+        return []
+    _write(path, text)
+    return done
+
+
+def _parsed(path: Path, text: str) -> dict:
+    try:
+        return parse(path, text)
+    except ConfigFileError as err:
+        raise ConfigRefused("the file has problems: fix it first", None, err.problems) \
+            from None
 
 
 def factory_reset(path: Path) -> None:

@@ -74,7 +74,7 @@ const TIME_KEY = /(^|_)(since|started|time|at)$|^last_(success|activity|answer|s
 export function words(key) {
   let text = String(key);
   for (const [suffix] of UNITS) if (text.endsWith(suffix)) text = text.slice(0, -suffix.length);
-  text = text.replace(/_/g, " ").replace(/\b(crc|tcp|tls|rtu|ascii|pdu|id|ip|mqtt|p\d+)\b/gi,
+  text = text.replace(/[_-]/g, " ").replace(/\b(crc|tcp|tls|rtu|ascii|pdu|id|ip|mqtt|p\d+)\b/gi,
     (w) => (/^p\d+$/i.test(w) ? w.toLowerCase() : w.toUpperCase()));
   return text.charAt(0).toUpperCase() + text.slice(1);
 }

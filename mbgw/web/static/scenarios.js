@@ -1,7 +1,8 @@
 // ---- Scenarios: VPGate's colours, errors in words and since when, enable/disable, test -----
 import { act } from "./actions.js";
-import { load } from "./api.js";
+import { api, load } from "./api.js";
 import { adminControl, el, liveTable } from "./dom.js";
+import { deleteScenarios, scenarioForm } from "./scenario_form.js";
 import { ago, isoTime, listOf, ms, show, words } from "./format.js";
 
 // {"timeout": 45, "crc": 2}: "45 timeouts, 2 CRC"; "none".
@@ -21,11 +22,28 @@ function errorSince(s) {
 export function scenariosPage(body) {
   const result = el("p", { id: "scenarios-message", class: "result" });
   const save = adminControl(el("input", { type: "checkbox", id: "scenario-save" }));
+  let tables = new Map();            // the file's [[scenario]] tables by name
+  const ticked = new Set();
+  const form = scenarioForm(() => page.refresh());
+  const place = (s) => {
+    const t = tables.get(s.name) || {};
+    const p = t.function === 23 ? "read-" : "";
+    return t[`${p}address`] === undefined ? "—"
+      : `${t[`${p}address`]} ×${show(t[`${p}quantity`])} → table ${show(t[`${p}table`])}`;
+  };
   const table = liveTable("scenarios-table", [
+    { label: "", render: (td, s, isNew) => {
+      if (!isNew) return;
+      td.append(adminControl(el("input", { type: "checkbox", class: "tick",
+        "aria-label": `select ${s.name}`, onchange: (e) => {
+          if (e.target.checked) ticked.add(s.name); else ticked.delete(s.name);
+        } })));
+    } },
     { label: "Name", get: (s) => s.name, cls: () => "name" },
     { label: "Kind", get: (s) => s.kind },
     { label: "Target", get: (s) => s.target },
     { label: "Function", get: (s) => s.function, num: true },
+    { label: "Address, quantity, table", get: place, cls: () => "place" },
     { label: "Trigger", get: (s) => s.trigger },
     { label: "State", render: (td, s) => {
       td.replaceChildren(el("span", { class: `state state-${s.state}`, text: s.state }));
@@ -45,7 +63,15 @@ export function scenariosPage(body) {
           adminControl(el("button", { type: "button", class: "enable", text: "Enable",
             onclick: () => enable(s.name, true, save.checked, result) })), " ",
           adminControl(el("button", { type: "button", class: "disable", text: "Disable",
-            onclick: () => enable(s.name, false, save.checked, result) })));
+            onclick: () => enable(s.name, false, save.checked, result) })), " ",
+          el("button", { type: "button", class: "edit", text: "Edit", onclick: () => {
+            form.fill(tables.get(s.name) || { name: s.name }, false);
+            form.element.scrollIntoView();
+          } }), " ",
+          el("button", { type: "button", class: "duplicate", text: "Duplicate", onclick: () => {
+            form.fill(tables.get(s.name) || { name: s.name }, true);
+            form.element.scrollIntoView();
+          } }));
       }
     } },
   ], (s) => `${s.kind}/${s.name}`);
@@ -54,18 +80,24 @@ export function scenariosPage(body) {
   const out = el("pre", { id: "scenario-test-result" });
   const testButton = adminControl(el("button", { type: "button", id: "scenario-test",
     text: "Run the test", onclick: () => testScenario(fields.value, out) }));
+  const remove = adminControl(el("button", { type: "button", id: "scenarios-delete",
+    text: "Delete the ticked scenarios", onclick: () => deleteScenarios([...ticked], result,
+      () => { ticked.clear(); page.refresh(); }) }));
   body.append(result,
     el("p", {}, el("label", {}, save, " enable / disable also in the configuration file")),
-    table.element,
-    el("h2", { text: "Test a scenario" }),
+    table.element, el("div", { class: "controls" }, remove), form.element,
+    el("h2", { text: "Test any request" }),
     el("p", { text: "One KEY = VALUE per line, as in a [[scenario]] table of the file." }),
     fields, el("div", { class: "controls" }, testButton), out);
-  return {
+  const page = {
     async refresh() {
+      const file = await api("GET", "/api/scenarios/config");   // 404: no file
+      tables = new Map(listOf(file.ok ? file.data : null, "scenarios").map((t) => [t.name, t]));
       const data = await load("/api/scenarios");
       if (data) table.update(listOf(data, "scenarios"));
     },
   };
+  return page;
 }
 
 function enable(name, on, save, out) {

@@ -24,6 +24,7 @@ from tests.integration.web.test_web_ui import (
     found,
     go,
     log_in,
+    scenarios,
     text_in,
     wait,
 )
@@ -155,6 +156,7 @@ def test_the_user_role_can_change_nothing(browser, console):
                                            "new": NEW_PASSWORD, "again": NEW_PASSWORD}),
                        ("/api/reload", {}), ("/api/restart", {}),
                        ("/api/factory-reset", {"confirm": True}),
+                       ("/api/scenarios/config", {"remove": ["boiler"], "add": []}),
                        ("/api/config", {"changes": [{"group": "serial", "key": "stout",
                                                      "value": "400"}]})):
         code, data = api.call("POST", path, body)
@@ -226,6 +228,41 @@ def test_a_restart_runs_the_daemon_again_in_the_same_process(browser, console):
     wait_for_log(console.gw, "web console on ", started + 1)
     assert wait_for(console.gw, lambda s: True, "status after the restart")["pid"] == pid
     log_in(browser, console, "admin")                        # the console is back
+
+
+def test_a_scenario_created_in_the_browser_polls_the_slave_and_is_deleted(browser, console):
+    log_in(browser, console, "admin")
+    go(browser, "scenarios")
+    wait(browser, found("#scenario-form"))
+    for key, value in (("name", "pump"), ("slave", "1"), ("address", "4"), ("quantity", "2"),
+                       ("table", "300"), ("cycle", "200")):
+        element = browser.find_element(By.ID, f"sc-{key}")
+        element.clear()
+        element.send_keys(value)
+    Select(browser.find_element(By.ID, "sc-function")).select_by_value("3")
+    browser.find_element(By.ID, "scenario-try").click()          # a one-off poll: values
+    wait(browser, text_in("#scenario-form-result", "answered in "))
+    assert "{" not in browser.find_element(By.ID, "scenario-form-result").text
+    browser.find_element(By.ID, "scenario-save-form").click()
+    wait(browser, text_in("#scenario-form-result", "saved and applied"))
+    assert 'name = "pump"' in console.path.read_text()
+    wait_for(console.gw, lambda s: scenarios(s).get("pump", {}).get("successes", 0) > 0,
+             "the new scenario polling the slave")
+    row = 'tr[data-key="serial/pump"]'
+    wait(browser, text_in(f"{row} td.place", "4 ×2 → table 300"))
+    browser.find_element(By.CSS_SELECTOR, f"{row} button.duplicate").click()
+    assert browser.find_element(By.ID, "sc-name").get_attribute("value") == "pump-copy"
+    browser.find_element(By.ID, "scenario-save-form").click()
+    wait(browser, text_in("#scenario-form-result", "pump-copy added"))
+    wait(browser, found('tr[data-key="serial/pump-copy"]'))
+    for name in ("pump", "pump-copy"):
+        browser.find_element(By.CSS_SELECTOR, f'tr[data-key="serial/{name}"] input.tick').click()
+    browser.find_element(By.ID, "scenarios-delete").click()
+    wait(browser, EC.alert_is_present()).accept()
+    wait(browser, text_in("#scenarios-message", "deleted"))
+    assert "pump" not in console.path.read_text()
+    wait_for(console.gw, lambda s: not {"pump", "pump-copy"} & set(scenarios(s)),
+             "both scenarios gone")
 
 
 def test_a_factory_reset_puts_back_the_shipped_file(browser, console, tmp_path):
