@@ -12,6 +12,7 @@ import urllib.request
 from http.cookiejar import CookieJar
 
 import pytest
+from pymodbus.client import ModbusTcpClient
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support import expected_conditions as EC
 from selenium.webdriver.support.ui import Select
@@ -20,6 +21,7 @@ from tests.integration.web.chrome import DESKTOP, start_chromium
 from tests.integration.web.test_web_ui import (
     LOST,
     PASSWORDS,
+    TABLE_UNIT,
     Console,
     found,
     go,
@@ -263,6 +265,36 @@ def test_a_scenario_created_in_the_browser_polls_the_slave_and_is_deleted(browse
     assert "pump" not in console.path.read_text()
     wait_for(console.gw, lambda s: not {"pump", "pump-copy"} & set(scenarios(s)),
              "both scenarios gone")
+
+
+def test_the_exchange_table_in_typed_views_with_zones_and_owners(browser, console):
+    with ModbusTcpClient("127.0.0.1", port=console.gw.port) as modbus:
+        assert not modbus.write_registers(0x1000, [0x4049, 0x0FDB, 0xFFFF, 0xFFFE, 0x4142],
+                                          device_id=TABLE_UNIT).isError()
+    log_in(browser, console, "admin")
+    go(browser, "table")
+    address = wait(browser, found("#table-address"))
+    address.clear()
+    address.send_keys("0x1000")
+    view = Select(browser.find_element(By.ID, "table-view"))
+    view.select_by_value("float32")
+    cell = '#table-grid td.value[data-address="{}"]'
+    wait(browser, text_in(cell.format(0x1000), "3.141593"))
+    assert browser.find_element(By.CSS_SELECTOR, "#table-grid tr.zone").text.startswith(
+        "free zone 0x1000-0x7FFF")
+    view.select_by_value("int32")
+    wait(browser, text_in(cell.format(0x1002), "-2"))
+    browser.find_element(By.ID, "table-swap-words").click()
+    wait(browser, text_in(cell.format(0x1002), "-65537"))        # 0xFFFEFFFF
+    view.select_by_value("ascii")
+    browser.find_element(By.ID, "table-swap-bytes").click()
+    wait(browser, text_in(cell.format(0x1004), "BA"))
+    address.clear()
+    address.send_keys("0")
+    address.submit()
+    wait(browser, text_in("#table-owners", "scenario boiler: 0-1"))
+    assert "scenario boiler" in browser.find_element(
+        By.CSS_SELECTOR, cell.format(0)).get_attribute("title")
 
 
 def test_a_factory_reset_puts_back_the_shipped_file(browser, console, tmp_path):
