@@ -23,6 +23,7 @@ def routes() -> list:
         web.get("/api/events", events), web.get("/api/system", system),
         web.post("/api/password", password), web.post("/api/reload", reload),
         web.post("/api/restart", restart), web.post("/api/factory-reset", factory_reset),
+        web.get("/api/firewall", firewall), web.post("/api/firewall", set_firewall),
     ]
 
 
@@ -103,3 +104,30 @@ async def factory_reset(request: web.Request) -> web.Response:
           "web console (%s)", who(request), source="web", user=who(request),
           keys="the whole file")
     return await reloaded(request, {"factory_reset": True})
+
+
+async def firewall(request: web.Request) -> web.Response:
+    """The file's rules and default, and each rule's refusals since the counters' reset."""
+    try:
+        tables = config_api.firewall_tables(config_path(request))
+    except config_api.ConfigRefused as err:
+        return error(400, str(err), problems=err.problems)
+    status = await command(request, "status") or {}
+    return web.json_response({**tables, "report": status.get("firewall")})
+
+
+async def set_firewall(request: web.Request) -> web.Response:
+    """{"default": "allow"|"deny", "rules": [{KEY: VALUE...}...]}: every rule, in order."""
+    data = await body(request)
+    default, rules = data.get("default"), data.get("rules")
+    if not isinstance(default, str) or not isinstance(rules, list) \
+            or not all(isinstance(r, dict) for r in rules):
+        return error(400, 'expected {"default": "allow"|"deny", "rules": [{KEY: VALUE}...]}')
+    try:
+        config_api.set_firewall(config_path(request), default, rules)
+    except config_api.ConfigRefused as err:
+        return error(400, str(err), problems=err.problems)
+    event(log, Kind.CONFIG_CHANGED, "firewall changed from the web console (%s): default %s, "
+          "%d rules", who(request), default, len(rules), source="web", user=who(request),
+          keys="firewall")
+    return await reloaded(request, {"changed": ["firewall"]})

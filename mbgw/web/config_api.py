@@ -12,13 +12,15 @@ from pathlib import Path
 
 import click
 
+from mbgw.config import firewall as fw
 from mbgw.config import scenario_text
+from mbgw.config.array_text import replace_tables
 from mbgw.config.edit import REMOVE, apply_changes, changes_for_set, show_lines
 from mbgw.config.file import SCENARIO_KEY, Settings, check, load, parse, read_text, resolve
 from mbgw.config.scenario import parse_scenario
 from mbgw.config.schema import GROUPS, MODE_KEY, MODES, Schema, is_secret, key_help
 from mbgw.config.text import edit, factory_text
-from mbgw.config.toml_text import write_atomic
+from mbgw.config.toml_text import dump_value, set_line, write_atomic
 from mbgw.errors import ConfigError, ConfigFileError, MbgwError
 
 MAX_FILE = 256 * 1024
@@ -198,6 +200,32 @@ def _parsed(path: Path, text: str) -> dict:
     except ConfigFileError as err:
         raise ConfigRefused("the file has problems: fix it first", None, err.problems) \
             from None
+
+
+def firewall_tables(path: Path) -> dict:
+    """{"default", "rules": [the file's [[rule]] tables]}."""
+    data = _parsed(path, _read(path))
+    group = data.get(fw.GROUP, {})
+    return {"default": group.get(fw.DEFAULT_KEY, fw.DEFAULT_POLICY)
+            if isinstance(group, dict) else fw.DEFAULT_POLICY,
+            "rules": [r for r in data.get(fw.RULE_TABLE, []) if isinstance(r, dict)]}
+
+
+def set_firewall(path: Path, default: str, rules: list[dict]) -> None:
+    """[firewall] default and every [[rule]] replaced, in the order given; checked as
+    check-config does and written once (or not at all); raises ConfigRefused naming the
+    rule."""
+    keys = schema()
+    text = _read(path)
+    _parsed(path, text)
+    text = set_line(text, fw.GROUP, fw.DEFAULT_KEY,
+                    f"{fw.DEFAULT_KEY} = {dump_value(default)}")
+    text = replace_tables(text, fw.RULE_TABLE, rules)
+    try:
+        _start_check(keys, check(keys, path, parse(path, text)))
+    except ConfigFileError as err:
+        raise ConfigRefused("; ".join(err.problems), None, err.problems) from None
+    _write(path, text)
 
 
 def factory_reset(path: Path) -> None:

@@ -12,6 +12,7 @@ import { statsPage } from "./stats.js";
 import { trafficPage } from "./traffic.js";
 import { configPage } from "./config.js";
 import { eventsPage } from "./events.js";
+import { firewallPage } from "./firewall.js";
 import { adminPage } from "./admin.js";
 
 const POLL_MS = 1000;            // live pages refresh once a second
@@ -72,6 +73,7 @@ const pages = {
   stats: { title: "Statistics", build: statsPage },
   traffic: { title: "Traffic", build: trafficPage },
   config: { title: "Configuration", build: configPage },
+  firewall: { title: "Firewall", build: firewallPage },
   events: { title: "Events", build: eventsPage },
   admin: { title: "Administration", build: adminPage },
 };

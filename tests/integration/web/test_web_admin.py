@@ -297,6 +297,33 @@ def test_the_exchange_table_in_typed_views_with_zones_and_owners(browser, consol
         By.CSS_SELECTOR, cell.format(0)).get_attribute("title")
 
 
+def test_a_firewall_rule_added_in_the_browser_refuses_a_write(browser, console):
+    def write() -> bool:
+        with ModbusTcpClient("127.0.0.1", port=console.gw.port) as modbus:
+            return not modbus.write_register(0x300, 5, device_id=TABLE_UNIT).isError()
+
+    assert write()
+    log_in(browser, console, "admin")
+    go(browser, "firewall")
+    wait(browser, found("#firewall-rules"))
+    browser.find_element(By.ID, "firewall-add").click()
+    rule = browser.find_element(By.CSS_SELECTOR, "#firewall-rules tr.rule")
+    rule.find_element(By.CSS_SELECTOR, '[data-key="client"]').send_keys("127.0.0.1")
+    rule.find_element(By.CSS_SELECTOR, '[data-key="read-only"]').click()
+    browser.find_element(By.ID, "firewall-apply").click()
+    wait(browser, text_in("#firewall-result", "configuration reloaded"))
+    assert "[[rule]]" in console.path.read_text()
+    assert not write()                                          # 0x01, by rule 1
+    wait(browser, found("#firewall-rules tr.rule"))
+    browser.refresh()
+    wait(browser, text_in("#firewall-rules tr.rule td.refused", "1"))
+    browser.find_element(By.CSS_SELECTOR, "#firewall-rules tr.rule button.delete").click()
+    browser.find_element(By.ID, "firewall-apply").click()
+    wait(browser, text_in("#firewall-result", "configuration reloaded"))
+    assert "[[rule]]" not in console.path.read_text()
+    assert write()
+
+
 def test_a_factory_reset_puts_back_the_shipped_file(browser, console, tmp_path):
     shipped = tmp_path / "shipped.toml"
     done = subprocess.run([sys.executable, "-m", "mbgw", "config", "default", "--config",

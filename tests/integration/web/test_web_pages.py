@@ -20,7 +20,8 @@ from tests.modbus import Client, read_holding
 pytestmark = pytest.mark.integration
 
 ARTIFACTS = Path(__file__).resolve().parents[3] / "artifacts" / "console"
-PAGES = {"overview": "#overview-facts", **PAGE_LOADED, "events": "#events-table",
+PAGES = {"overview": "#overview-facts", **PAGE_LOADED, "firewall": "#firewall-rules",
+         "events": "#events-table",
          "admin": "#system-table"}
 
 # The widest the page is, and the buttons out of reach: right of the window, or hidden
