@@ -324,6 +324,23 @@ def test_a_firewall_rule_added_in_the_browser_refuses_a_write(browser, console):
     assert write()
 
 
+def test_device_details_on_demand_and_a_reset_of_the_counters_asked_first(browser, console):
+    log_in(browser, console, "admin")
+    go(browser, "devices")
+    wait(browser, found('#devices-table tr[data-address="9"] button.details')).click()
+    wait(browser, text_in("#devices-table tr.device-details", "Latency buckets"))
+    go(browser, "stats")
+    wait(browser, text_in('#stats-table tr[data-name="counters.requests"] td.rate', "/s"))
+    wait(browser, text_in('#stats-table tr[data-name="counters_since"] td', " ago)"))
+    browser.find_element(By.ID, "stats-reset").click()
+    wait(browser, EC.alert_is_present()).dismiss()
+    assert browser.find_element(By.ID, "stats-message").text == ""
+    browser.find_element(By.ID, "stats-reset").click()
+    wait(browser, EC.alert_is_present()).accept()
+    wait(browser, text_in("#stats-message", "counters reset"))
+    wait_for_log(console.gw, "counters reset by the operator (web admin@")
+
+
 def test_a_factory_reset_puts_back_the_shipped_file(browser, console, tmp_path):
     shipped = tmp_path / "shipped.toml"
     done = subprocess.run([sys.executable, "-m", "mbgw", "config", "default", "--config",
