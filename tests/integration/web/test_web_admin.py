@@ -1,7 +1,9 @@
 """The console's changes done through its pages, each seen from outside: several settings
 applied by one reload; a password changed (the new one in, the old one not); the user role
 refused every change (403, its buttons off); the Events page showing what the log got;
-reload, restart and the factory reset (the shipped file back)."""
+reload, restart and the factory reset (the shipped file back); a scenario created in the
+browser polling the slave; a firewall rule refusing a write; the table in typed views; a
+master-mode table client closed."""
 import hashlib
 import json
 import os
@@ -10,6 +12,7 @@ import sys
 import urllib.error
 import urllib.request
 from http.cookiejar import CookieJar
+from types import SimpleNamespace
 
 import pytest
 from pymodbus.client import ModbusTcpClient
@@ -17,6 +20,7 @@ from selenium.webdriver.common.by import By
 from selenium.webdriver.support import expected_conditions as EC
 from selenium.webdriver.support.ui import Select
 
+from tests.harness import Gateway, PtyPair, free_port
 from tests.integration.web.chrome import DESKTOP, start_chromium
 from tests.integration.web.test_web_ui import (
     LOST,
@@ -27,9 +31,11 @@ from tests.integration.web.test_web_ui import (
     go,
     log_in,
     scenarios,
+    set_password,
     text_in,
     wait,
 )
+from tests.modbus import Client, read_holding
 from tests.ops import wait_for, wait_for_log
 
 pytestmark = pytest.mark.integration
@@ -355,3 +361,30 @@ def test_a_factory_reset_puts_back_the_shipped_file(browser, console, tmp_path):
     wait(browser, EC.alert_is_present()).accept()
     wait(browser, text_in("#admin-factory-reset-result", "the shipped file is back"))
     assert console.path.read_text() == shipped.read_text()
+
+
+def test_the_table_servers_clients_are_listed_and_closed_in_master_mode(browser, tmp_path):
+    path = tmp_path / "mbgw.toml"
+    web_port, table_port = free_port(), free_port()
+    path.write_text(f'[serial]\nmode = "master"\n[web]\nlisten = "127.0.0.1:{web_port}"\n')
+    set_password(path, "admin")
+    pty = PtyPair(tmp_path)
+    gw = Gateway(tmp_path, pty.gateway, "--config", str(path), "--table", "--table-port",
+                 str(table_port), mode="master", listen=False)
+    modbus = Client(table_port)
+    try:
+        modbus.ask(1, read_holding(0, 1))
+        here = "127.0.0.1:%d" % modbus.sock.getsockname()[1]
+        log_in(browser, SimpleNamespace(url=f"http://127.0.0.1:{web_port}/"), "admin")
+        go(browser, "clients")
+        row = wait(browser, lambda d: [r for r in d.find_elements(
+            By.CSS_SELECTOR, "#clients-table tbody tr") if here in r.text])[0]
+        row.find_element(By.CSS_SELECTOR, "button.close-client").click()
+        wait(browser, EC.alert_is_present()).accept()
+        wait(browser, text_in("#clients-message", "closed"))
+        modbus.sock.settimeout(15)
+        assert modbus.sock.recv(1) == b""
+    finally:
+        modbus.close()
+        gw.stop()
+        pty.stop()
