@@ -22,7 +22,8 @@ function systemRows(s) {
 
 function passwordForm() {
   const role = adminControl(el("select", { id: "password-role" },
-    el("option", { value: "admin", text: "admin" }), el("option", { value: "user", text: "user" })));
+    el("option", { value: "admin", text: "admin" }),
+    el("option", { value: "user", text: "user" })));
   const input = (id, label, autocomplete) => {
     const node = adminControl(el("input", { id, type: "password", autocomplete }));
     return [node, el("label", {}, label, node)];

@@ -4,6 +4,7 @@ import { el, factsTable, table } from "./dom.js";
 import { figure, show, words } from "./format.js";
 
 const isObject = (v) => v !== null && typeof v === "object" && !Array.isArray(v);
+const isEmpty = (v) => v !== null && typeof v === "object" && !Object.keys(v).length;
 const isScalar = (v) => !isObject(v) && !(Array.isArray(v) && v.some((x) => x !== null &&
   typeof x === "object"));
 
@@ -12,13 +13,19 @@ const isScalar = (v) => !isObject(v) && !(Array.isArray(v) && v.some((x) => x !=
 export function block(path, value, depth = 3) {
   if (isScalar(value)) return factsTable(null, [[path, figure(path, value), words(leaf(path))]]);
   if (Array.isArray(value)) return records(path, value);
+  const entries = Object.entries(value);
+  if (entries.length > 1 && entries.every(([, v]) => isObject(v) &&
+      Object.values(v).every(isScalar))) {         // {"3": {"answered": 5, ...}, ...}: a table
+    return records(path, entries.map(([k, v]) => ({ "": k, ...v })));
+  }
   const out = el("div", { class: "block", "data-block": path });
   const facts = Object.entries(value).filter(([, v]) => isScalar(v))
     .map(([k, v]) => [`${path}.${k}`, figure(k, v), words(k)]);
   if (facts.length) out.append(factsTable(null, facts));
   for (const [k, v] of Object.entries(value)) {
-    if (isScalar(v)) continue;
-    out.append(el(`h${Math.min(depth, 6)}`, { text: words(k) }), block(`${path}.${k}`, v, depth + 1));
+    if (isScalar(v) || isEmpty(v)) continue;
+    out.append(el(`h${Math.min(depth, 6)}`, { text: words(k) }),
+      block(`${path}.${k}`, v, depth + 1));
   }
   return out;
 }
@@ -31,7 +38,8 @@ function records(path, items) {
   for (const item of items) {
     for (const k of Object.keys(isObject(item) ? item : {})) if (!keys.includes(k)) keys.push(k);
   }
-  return table(null, keys.map(words), items.map((item, i) => el("tr", { "data-name": `${path}.${i}` },
+  return table(null, keys.map(words), items.map((item, i) => el("tr",
+    { "data-name": `${path}.${i}` },
     ...keys.map((k) => {
       const v = isObject(item) ? item[k] : undefined;
       return el("td", { class: typeof v === "number" ? "num" : "",
@@ -42,5 +50,6 @@ function records(path, items) {
 // Every block of status not in shown, each under its heading.
 export function otherBlocks(status, shown) {
   return Object.entries(status).filter(([k, v]) => !shown.has(k) && v !== null &&
-    typeof v === "object").flatMap(([k, v]) => [el("h2", { text: words(k) }), block(k, v)]);
+    typeof v === "object" && !isEmpty(v))
+    .flatMap(([k, v]) => [el("h2", { text: words(k) }), block(k, v)]);
 }

@@ -48,7 +48,8 @@ function ruleOf(tr) {
 
 export function firewallPage(body) {
   const policy = adminControl(el("select", { id: "firewall-default" },
-    el("option", { value: "allow", text: "allow" }), el("option", { value: "deny", text: "deny" })));
+    el("option", { value: "allow", text: "allow" }),
+    el("option", { value: "deny", text: "deny" })));
   const tbody = el("tbody");
   const out = el("p", { id: "firewall-result", class: "result" });
   const row = (rule, refused) => {

@@ -67,7 +67,7 @@ export function listOf(data, key) {
 }
 
 // A status key's unit, by the suffix the status document gives it (docs/console.md).
-const UNITS = [["_ms", "ms"], ["_us", "µs"], ["_s", "s"], ["_pct", "%"], ["_bytes", "bytes"]];
+const UNITS = [["_ms", "ms"], ["_us", "µs"], ["_s", "s"], ["_pct", "%"]];
 const TIME_KEY = /(^|_)(since|started|time|at)$|^last_(success|activity|answer|save|change)/;
 
 // "crc_errors" -> "CRC errors", "latency_p99_ms" -> "latency p99": a key in words.
@@ -85,7 +85,9 @@ export function figure(key, value) {
   if (TIME_KEY.test(key) && value > 1e9) return when(value);
   if (key.endsWith("_ms")) return ms(value);
   for (const [suffix, unit] of UNITS) {
-    if (key.endsWith(suffix)) return `${Number.isInteger(value) ? value : value.toFixed(1)} ${unit}`;
+    if (key.endsWith(suffix)) {
+      return `${Number.isInteger(value) ? value : value.toFixed(1)} ${unit}`;
+    }
   }
   return Number.isInteger(value) ? String(value) : value.toFixed(2);
 }

@@ -33,7 +33,8 @@ function ratedTable(id, rows) {
 
 function devicesTable(devices) {
   return table("stats-devices", ["Line", "Address", "Health", "Requests", "Failures",
-    "p50", "p99", "Exceptions"], devices.map((d) => el("tr", { "data-name": `devices.${d.address}` },
+    "p50", "p99", "Exceptions"], devices.map((d) => el("tr",
+    { "data-name": `devices.${d.address}` },
     el("td", { text: show(d.line) }), el("td", { class: "num", text: d.address }),
     el("td", { class: `health-${d.health}`, text: show(d.health) }),
     el("td", { class: "num", text: show(d.transactions ?? d.requests) }),
@@ -100,7 +101,8 @@ export function statsPage(body) {
         if (data[key]) sections.push(el("h2", { text: words(key) }), block(key, data[key]));
       }
       for (const [key, value] of Object.entries(data)) {
-        if (!KNOWN.has(key) && value !== null && typeof value === "object") {
+        if (!KNOWN.has(key) && value !== null && typeof value === "object" &&
+            Object.keys(value).length) {
           sections.push(el("h2", { text: words(key) }), block(key, value));
         }
       }

@@ -30,7 +30,9 @@ export function tablePage(body) {
   const writeButton = adminControl(el("button", { type: "button", id: "table-write",
     text: "Write", onclick: () => writeTable() }));
   const again = () => page.refresh();
-  for (const control of [view, radix, swapWords, swapBytes]) control.addEventListener("change", again);
+  for (const control of [view, radix, swapWords, swapBytes]) {
+    control.addEventListener("change", again);
+  }
   body.append(
     el("form", { class: "inline", onsubmit: (e) => { e.preventDefault(); page.refresh(); } },
       el("label", {}, "Address ", address), el("label", {}, "Count ", count), view, radix,
