@@ -145,7 +145,7 @@ class DeviceStats:
 
     def probe_timeout_ms(self) -> float:
         """How long its probe waits for the reply: see the module's docstring."""
-        stout_ms = self.rule.stout_ms
+        stout_ms = self.stout_ms
         p99 = self.learnt_p99_ms()
         if p99 is None:
             return stout_ms
@@ -181,7 +181,7 @@ class DeviceStats:
         self.consecutive_failures += 1
         self.invalid_bytes += invalid_bytes
         if self.silent_since is None:  # since the failed request went, stout before
-            self.silent_since = time.monotonic() - self.rule.stout_ms / 1000
+            self.silent_since = time.monotonic() - self.stout_ms / 1000
         if self.health == DOWN:        # a probe failed: the next waits twice as long
             self.probe_wait_s = min(2 * self.probe_wait_s, self.rule.probe_max_s)
             self.probe_at = time.monotonic() + self.probe_wait_s
@@ -214,13 +214,19 @@ class DeviceStats:
         if health != self.health:
             self._change(health)
 
+    @property
+    def stout_ms(self) -> int:
+        """Its rule's stout; none for what is not a serial address (a TCP scenario's server,
+        which shares the line's rule but waits tcpto)."""
+        return self.rule.stout_ms if self.address is not None else 0
+
     def _silent_long(self) -> bool:
         """No valid reply for down_after x stout (or already down: it stays so)."""
         if self.health == DOWN:
             return True
         since = self.silent_since
         return since is not None and \
-            time.monotonic() - since >= self.rule.down_after * self.rule.stout_ms / 1000
+            time.monotonic() - since >= self.rule.down_after * self.stout_ms / 1000
 
     def reprobe(self, now: float) -> None:
         """The probe interval has changed: while down, the backoff starts again from it, and
@@ -287,10 +293,10 @@ class DeviceStats:
         if self.timing is not None:
             data["timing"] = self.timing
         p99 = self.learnt_p99_ms()
-        if self.rule.stout_ms:
+        if self.stout_ms:
             data.update(learnt_p99_ms=None if p99 is None else round(p99, 3),
                         probe_timeout_ms=round(self.probe_timeout_ms(), 3),
-                        stout_ms=self.rule.stout_ms)
+                        stout_ms=self.stout_ms)
         return data
 
 

@@ -260,10 +260,10 @@ class DaemonCollector:
             "for its reply while it is down: 3 x its learnt p99, at least 20 ms, at most its "
             "stout.", labels=["line", "address"])
         for line, d in table:
-            if not d.rule.stout_ms:
+            if not d.stout_ms:
                 continue
             address = str(d.address)
-            stout.add_metric([line, address], d.rule.stout_ms / 1000)
+            stout.add_metric([line, address], d.stout_ms / 1000)
             probe.add_metric([line, address], d.probe_timeout_ms() / 1000)
             learnt = d.learnt_p99_ms()
             if learnt is not None:
