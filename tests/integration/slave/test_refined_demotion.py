@@ -16,7 +16,7 @@ import pytest
 
 from tests.integration.slave.test_faults import received
 from tests.modbus import Client, holding_reply, read_holding
-from tests.ops import devices, health_log, status, wait_for
+from tests.ops import devices, health_log, mbgw, status, wait_for
 from tests.wait import until
 
 pytestmark = [pytest.mark.integration, pytest.mark.serial]
@@ -98,6 +98,10 @@ def test_a_probe_is_the_last_answered_read_waits_the_learnt_time_and_needs_no_cl
     assert 10 <= p99_ms < STOUT_MS / 6, d
     assert timeout_ms == pytest.approx(max(3 * p99_ms, 20), abs=0.01), d
     assert d["stout_ms"] == STOUT_MS
+    shown = mbgw("status", "--control", gw.control).stdout
+    learnt = devices(status(gw))[STOPS]
+    assert f"        learnt p99 {learnt['learnt_p99_ms']:.1f} ms, probe timeout " \
+           f"{learnt['probe_timeout_ms']:.1f} ms" in shown, shown
     assert health_log(gw, STOPS)[-2:] == ["down", "degraded"]
 
     frames = frames_to(record, STOPS)
