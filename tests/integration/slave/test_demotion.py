@@ -124,8 +124,12 @@ def test_a_silent_address_is_refused_at_once_probed_at_the_interval_and_back_on_
     refused, and the line thread probes it itself with the first request that timed out, at
     INTERVAL, twice and 4 times INTERVAL after the failures before them; the third probe is
     answered, and the address serves again.  (Before issue 29 a client's request was the
-    probe; it is now only when no request is kept to probe with.)"""
-    gw, record = gateway(*(["--exception"] if exception else []), mute_first=DOWN_AFTER + 2)
+    probe; it is now only when no request is kept to probe with.)  The interval is 1 s here,
+    so that the address is still down while an operator's `mbgw status` starts."""
+    probe_ms = 1000
+    probe_s = probe_ms / 1000
+    gw, record = gateway(*(["--exception"] if exception else []), "--probe-interval",
+                         str(probe_ms), mute_first=DOWN_AFTER + 2)
     asker = Asker(client(gw), exception)
     refusal = NO_ANSWER if exception else None
     for _ in range(DOWN_AFTER):
@@ -134,10 +138,10 @@ def test_a_silent_address_is_refused_at_once_probed_at_the_interval_and_back_on_
     s = status(gw)
     assert devices(s)[MUTED]["health"] == "down"
     # the operator sees the rule and when the next probe may go
-    assert s["demotion"] == {"down_after": DOWN_AFTER, "probe_interval_ms": INTERVAL_MS}
-    assert 0 <= devices(s)[MUTED]["next_probe_in_s"] <= INTERVAL_S
+    assert s["demotion"] == {"down_after": DOWN_AFTER, "probe_interval_ms": probe_ms}
+    assert 0 <= devices(s)[MUTED]["next_probe_in_s"] <= probe_s
     shown = mbgw("status", "--control", gw.control).stdout
-    assert f"down after {DOWN_AFTER} failures in a row, then a probe every {INTERVAL_MS} ms" \
+    assert f"down after {DOWN_AFTER} failures in a row, then a probe every {probe_ms} ms" \
         in shown and "        next probe in " in shown
 
     # down: refused at once, and nothing goes on the line (this request finds the line idle
@@ -160,7 +164,7 @@ def test_a_silent_address_is_refused_at_once_probed_at_the_interval_and_back_on_
     for n, probe in enumerate(frames[DOWN_AFTER:DOWN_AFTER + 3]):
         # at least the window after the failure before it (that failure came stout after
         # the frame before it: a margin for the peer's clock)
-        assert probe - failed_at >= INTERVAL_S * 2 ** n, (n, frames)
+        assert probe - failed_at >= probe_s * 2 ** n, (n, frames)
         failed_at = probe
     probes = 3
     refused = asker.sent - (len(frames) - probes)
@@ -175,7 +179,7 @@ def test_a_silent_address_is_refused_at_once_probed_at_the_interval_and_back_on_
     assert d["gateway_exceptions"] == ({"0x0b": DOWN_AFTER + refused} if exception else {})
     assert health_log(gw, MUTED) == ["degraded", "down", "degraded"]
     assert f"device {MUTED} is down: {DOWN_AFTER} requests in a row without a valid reply; " \
-           f"its requests are refused, but for a probe every 0.25 s, backing off to 60 s" \
+           f"its requests are refused, but for a probe every 1 s, backing off to 60 s" \
            in gw.log()
     assert devices(s)[1]["demoted_rejects"] == 0
     assert stop_counters(gw)["demoted_rejects"] == refused
