@@ -829,8 +829,9 @@ def main() -> None:
                     help="instead of the runs above: a dead unit beside closed-loop clients, "
                     "and the per-client spread of transactions (about 110 s; --quick: 30 s)")
     ap.add_argument("--dead-seconds", type=float, default=0,
-                    help="with --fairness: only the dead unit, each run this long (issue 29's "
-                    "figure: 60; with a unit that answered before it died too: about 6 x (4 + this) s)")
+                    help="with --fairness: only the dead unit, each run this long (issue "
+                    "29's figure: 60), a unit that answered before it died too (about "
+                    "6 x (4 + this) s)")
     ap.add_argument("--table", action="store_true",
                     help="instead of the runs above: the exchange table as a Modbus TCP server "
                     "beside libmodbus's and pymodbus's (bench/table.py; about 130 s; "

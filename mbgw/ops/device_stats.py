@@ -93,7 +93,7 @@ class DeviceStats:
                               "last_success", "consecutive_failures", "recent_failures",
                               "health", "health_since", "probe_at", "probe_wait_s",
                               "invalid_bytes", "timing", "silent_since", "latencies",
-                              "answers_kept", "probe_adu", "first_timeout_seen")
+                              "latency_at", "latencies_full", "probe_adu", "first_timeout_seen")
 
     def __init__(self, address: int | None, counts: tuple = COUNTS,
                  rule: HealthRule | None = None, name: str | None = None) -> None:
@@ -118,7 +118,8 @@ class DeviceStats:
         # since when no valid reply came (monotonic; None: no failure since the last one)
         self.silent_since: float | None = None
         self.latencies = array("d", bytes(8 * LEARNT))     # the last answers', a ring (ms)
-        self.answers_kept = 0          # answers so far; the next goes to latencies[n % LEARNT]
+        self.latency_at = 0            # where the next answer's goes (small ints: no allocation)
+        self.latencies_full = False    # LEARNT answers have come: the whole ring counts
         self.probe_adu: bytes | None = None    # the request its probes repeat (slave mode)
         self.first_timeout_seen = False
 
@@ -154,7 +155,7 @@ class DeviceStats:
     def learnt_p99_ms(self) -> float | None:
         """The p99 of the latencies of its last LEARNT answers (None: none yet); computed
         when asked (a probe, status), never per transaction."""
-        n = min(self.answers_kept, LEARNT)
+        n = LEARNT if self.latencies_full else self.latency_at
         if not n:
             return None
         return sorted(self.latencies[:n])[math.ceil(0.99 * n) - 1]
@@ -168,8 +169,13 @@ class DeviceStats:
         while bucket < len(LATENCY_BUCKETS_MS) and latency_ms > LATENCY_BUCKETS_MS[bucket]:
             bucket += 1
         self.latency_buckets[bucket] += 1
-        self.latencies[self.answers_kept % LEARNT] = latency_ms
-        self.answers_kept += 1
+        at = self.latency_at
+        self.latencies[at] = latency_ms
+        at += 1
+        if at == LEARNT:
+            at = 0
+            self.latencies_full = True
+        self.latency_at = at
         self.last_success = time.time()
         self.silent_since = None
         self.consecutive_failures = 0
