@@ -258,6 +258,11 @@ def _next_probe(d: dict) -> list[str]:
         lines.append(f"        own timing: stout {timing['stout_ms']} ms, retries "
                      f"{timing['retries']}, pause {timing['pause_ms']} ms, down after "
                      f"{timing['down_after']}, probe every {timing['probe_interval_ms']} ms")
+    if d.get("probe_timeout_ms") is not None:
+        p99 = d.get("learnt_p99_ms")
+        learnt = "no answer yet" if p99 is None else f"{p99:.1f} ms"
+        lines.append(f"        learnt p99 {learnt}, probe timeout "
+                     f"{d['probe_timeout_ms']:.1f} ms")
     wait = d.get("next_probe_in_s")
     return lines if wait is None else lines + [f"        next probe in {wait:.1f} s"]
 

@@ -244,6 +244,32 @@ class DaemonCollector:
             if d.last_success is not None:
                 success.add_metric([line, address], round(d.last_success, 3))
         yield from (health, since, failures, success)
+        yield from self._device_timing(table)
+
+    def _device_timing(self, table):
+        """Slave mode: each address's stout (its [[device]] one or the line's), the p99 of
+        its last answers' latency and how long its probe waits (demotion)."""
+        stout = GaugeMetricFamily(
+            "mbgw_device_stout_seconds", "The serial address's response timeout: its "
+            "[[device]] stout, else the line's.", labels=["line", "address"])
+        p99 = GaugeMetricFamily(
+            "mbgw_device_learnt_p99_seconds", "The p99 of the latency of the serial "
+            "address's last 100 answers; absent before its first.", labels=["line", "address"])
+        probe = GaugeMetricFamily(
+            "mbgw_device_probe_timeout_seconds", "How long a probe of the serial address waits "
+            "for its reply while it is down: 3 x its learnt p99, at least 20 ms, at most its "
+            "stout.", labels=["line", "address"])
+        for line, d in table:
+            if not d.stout_ms:
+                continue
+            address = str(d.address)
+            stout.add_metric([line, address], d.stout_ms / 1000)
+            probe.add_metric([line, address], d.probe_timeout_ms() / 1000)
+            learnt = d.learnt_p99_ms()
+            if learnt is not None:
+                p99.add_metric([line, address], learnt / 1000)
+        if self._mode != "master":
+            yield from (stout, p99, probe)
 
     def _latency(self, table):
         family = HistogramMetricFamily(

@@ -463,7 +463,12 @@ async function closeClient(id, message) {
 // ---- Devices -----------------------------------------------------------------------------
 
 const DEVICE_FIXED = ["line", "address", "health", "health_since", "last_success",
-  "consecutive_failures", "latency_sum_ms", "upstream", "diagnosis"];
+  "consecutive_failures", "latency_sum_ms", "upstream", "diagnosis", "learnt_p99_ms",
+  "probe_timeout_ms", "stout_ms"];
+
+function ms(value) {
+  return typeof value === "number" ? value.toFixed(1) : "—";
+}
 
 function devicesPage(body) {
   const holder = el("div");
@@ -477,7 +482,8 @@ function devicesPage(body) {
         ? Object.keys(devices[0]).filter((k) => !DEVICE_FIXED.includes(k) &&
             typeof devices[0][k] === "number") : [];
       const head = ["Line", "Address", "Health", "Since", "Last success", "Failures in a row",
-        ...counts.map((k) => k.replace(/_/g, " ")), "Exceptions", "Upstream"];
+        ...counts.map((k) => k.replace(/_/g, " ")), "Stout (ms)", "Learnt p99 (ms)",
+        "Probe timeout (ms)", "Exceptions", "Upstream"];
       clear(holder).append(devices.length ? el("table", { id: "devices-table" },
         el("thead", {}, el("tr", {}, ...head.map((h) => el("th", { text: h })))),
         el("tbody", {}, ...devices.map((d) => el("tr", { "data-address": d.address,
@@ -490,6 +496,9 @@ function devicesPage(body) {
           el("td", { text: localTime(d.last_success) }),
           el("td", { class: "num", text: show(d.consecutive_failures) }),
           ...counts.map((k) => el("td", { class: "num", text: show(d[k]) })),
+          el("td", { class: "num stout", text: ms(d.stout_ms) }),
+          el("td", { class: "num learnt-p99", text: ms(d.learnt_p99_ms) }),
+          el("td", { class: "num probe-timeout", text: ms(d.probe_timeout_ms) }),
           el("td", { text: show(d.exceptions) }),
           el("td", { text: d.upstream ? `${d.upstream.host} unit ${d.upstream.unit}` : "—" })))))
         : el("p", { id: "no-devices", text: "No device has been asked yet." }));
