@@ -45,9 +45,9 @@ class _RemoteFraming:
         return time.monotonic_ns()
 
     def send(self, adu: bytes) -> int:
-        """adu (address + PDU) out; what waited unread before it is no reply to it."""
-        if self.line.discard():
-            self._counters.stray_replies += 1
+        """adu (address + PDU) out; what came after the last reply, read with it or not yet,
+        is no reply to it."""
+        self._counters.stray_replies += bool(self._rx) + bool(self.line.discard())
         self._rx.clear()
         return self.line.send(self._encode(adu))
 

@@ -24,7 +24,7 @@ TWICE_REGISTER = 901
 
 class SingleClientDevice:
     def __init__(self, framing: str = "mbap", delays=(0.005, 0.2), late_s: float = 1.0,
-                 segments: str = "", seed: int = 26) -> None:
+                 segments: str = "", seed: int = 26, port: int = 0) -> None:
         self.framing = framing
         self.delays = delays
         self.late_s = late_s
@@ -36,7 +36,7 @@ class SingleClientDevice:
         self.seen = threading.Condition()
         self._open: socket.socket | None = None
         self._held = b""                # "join": the reply waiting for the next
-        self._listener = socket.create_server(("127.0.0.1", 0))
+        self._listener = socket.create_server(("127.0.0.1", port))
         self.port = self._listener.getsockname()[1]
         self._stopping = False
         self._thread = threading.Thread(target=self._accept, daemon=True)

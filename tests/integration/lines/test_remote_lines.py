@@ -15,6 +15,7 @@ import pytest
 from tests.integration.lines.test_lines import Line, lines  # noqa: F401 (a fixture)
 from tests.modbus import Client, read_holding
 from tests.ops import status, wait_for, wait_for_log
+from tests.wait import until
 from tests.peers.single_client_device import LATE_REGISTER, TWICE_REGISTER, SingleClientDevice
 
 pytestmark = pytest.mark.integration
@@ -73,4 +74,97 @@ def test_a_modbus_tcp_device_answers_through_its_line(gateway, client, device):
     s = status(gw)
     row = next(r for r in s["lines"] if r["name"] == "inverter")
     assert (row["state"], row["device"]) == ("up", d.url)
+    assert (d.connections, d.resets) == (1, 0)
+
+
+def counter(s: dict, name: str) -> int:
+    """Line inverter's counter name in status s."""
+    return next(r for r in s["lines"] if r["name"] == "inverter")["counters"][name]
+
+
+@pytest.mark.serial
+def test_late_and_duplicate_replies_are_dropped_and_counted(gateway, client, device):
+    d = device(delays=(0.005, 0.01), late_s=STOUT_MS / 1000 + 0.2)
+    gw = gateway(d.url)
+    c = client(gw)
+    assert c.ask(INVERTER, read_holding(LATE_REGISTER, 2)) == b"\x83\x0b"   # too late
+    # the same read again: the late reply to the first comes meanwhile, under its own tid
+    assert c.ask(INVERTER, read_holding(TWICE_REGISTER, 2)) == reply(TWICE_REGISTER, 2)
+    assert c.ask(INVERTER, read_holding(7, 2)) == reply(7, 2)   # not the duplicate
+    wait_for(gw, lambda s: counter(s, "stray_replies") == 2,
+             "the late reply and the duplicate counted stray")
+    assert (d.connections, d.resets) == (1, 0)
+
+
+def test_a_connection_the_device_closed_is_opened_again_at_once(gateway, client, device):
+    d = device(delays=(0.001, 0.002))
+    gw = gateway(d.url)
+    c = client(gw)
+    assert c.ask(INVERTER, read_holding(0, 1)) == reply(0, 1)
+    d.close_connection()
+    assert c.ask(INVERTER, read_holding(1, 1)) == reply(1, 1)
+    s = wait_for(gw, lambda s: counter(s, "reconnects") == 1, "one reconnect")
+    assert next(r for r in s["lines"] if r["name"] == "inverter")["state"] == "up"
+    assert (d.connections, d.resets) == (2, 0)
+    assert "lost" not in gw.log()
+
+
+def test_an_unreachable_device_is_0x0a_logged_once_and_once_back(gateway, client, device):
+    d = device(delays=(0.001, 0.002))
+    port = d.port
+    d.stop()                           # nothing listens there: refused
+    gw = gateway(f"modbus-tcp://127.0.0.1:{port}")
+    c = client(gw)
+    assert c.ask(INVERTER, read_holding(0, 1)) == b"\x83\x0a"
+    assert c.ask(INVERTER, read_holding(0, 1)) == b"\x83\x0a"     # in backoff: at once
+    wait_for(gw, lambda s: next(r for r in s["lines"] if r["name"] == "inverter")[
+        "state"] == "down", "line inverter down")
+    assert c.ask(5, read_holding(0, 1))[0] == 0x03          # line serial answers meanwhile
+    back = SingleClientDevice(delays=(0.001, 0.002), port=port)
+    try:
+        def answered() -> bool:
+            return c.ask(INVERTER, read_holding(0, 1)) == reply(0, 1)
+        until(answered, "the device answers after the backoff", timeout=10)
+        wait_for_log(gw, "answers again")
+        assert gw.log().count("lost: ") == 1
+        assert status(gw)["lines"][1]["state"] == "up"
+    finally:
+        back.stop()
+
+
+def pipelining(port: int, first: int, count: int, wrong: list, errors: list) -> None:
+    """count reads in flight, 4 at a time, each of its own registers: a reply of another's
+    registers is a wrong delivery."""
+    try:
+        c = Client(port)
+        try:
+            for at in range(0, count, 4):
+                frames = [struct.pack(">HHHB", tid, 0, 6, INVERTER) + read_holding(first + tid, 1)
+                          for tid in range(at, at + 4)]
+                c.send(*frames)
+                for tid in range(at, at + 4):
+                    got = c.recv()
+                    if got != (tid, INVERTER, reply(first + tid, 1)):
+                        wrong.append(got)
+        finally:
+            c.close()
+    except BaseException as err:
+        errors.append(err)
+
+
+@pytest.mark.serial
+def test_eight_pipelining_clients_each_get_their_own_replies(gateway, device):
+    d = device(delays=(0.001, 0.01))
+    gw = gateway(d.url, "--max-connections", "16", "--max-connections-per-ip", "16")
+    wrong: list = []
+    errors: list = []
+    threads = [threading.Thread(target=pipelining, args=(gw.port, 100 * n, 12, wrong, errors))
+               for n in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    assert not errors, (errors, gw.log())
+    assert wrong == []
+    assert len(d.requests) == 96
     assert (d.connections, d.resets) == (1, 0)
