@@ -7,13 +7,17 @@ twice, cut in 1-byte segments or joined), a pymodbus RTU slave behind socat's TC
 pymodbus's Modbus/UDP server, raw sockets and pymodbus/mbpoll clients in front.
 """
 import json
+import os
+import socket
 import struct
+import subprocess
 import threading
 
 import pytest
 
 from tests.integration.lines.test_lines import Line, lines  # noqa: F401 (a fixture)
-from tests.modbus import Client, read_holding
+from tests.harness import free_port, stop
+from tests.modbus import Client, mbap, read_holding
 from tests.ops import status, wait_for, wait_for_log
 from tests.wait import until
 from tests.peers.single_client_device import LATE_REGISTER, TWICE_REGISTER, SingleClientDevice
@@ -168,3 +172,92 @@ def test_eight_pipelining_clients_each_get_their_own_replies(gateway, device):
     assert wrong == []
     assert len(d.requests) == 96
     assert (d.connections, d.resets) == (1, 0)
+
+
+@pytest.mark.serial
+@pytest.mark.parametrize("segments", ["bytes", "join"])
+def test_rtu_over_tcp_frames_by_length_and_crc_never_by_silence(gateway, client, device,
+                                                                 segments):
+    d = device(framing="rtu", delays=(0.001, 0.005), segments=segments)
+    gw = gateway(d.url)
+    c = client(gw)
+    if segments == "join":       # the late reply comes in one segment with the next one's
+        assert c.ask(INVERTER, read_holding(LATE_REGISTER, 3)) == b"\x83\x0b"
+    for start in range(5):
+        assert c.ask(INVERTER, read_holding(start, 2)) == reply(start, 2)
+    s = status(gw)
+    assert counter(s, "stray_replies") == (1 if segments == "join" else 0)
+    assert (d.connections, d.resets) == (1, 0)
+
+
+class DeviceServer:
+    """A serial device server, socat's: a pty for a pymodbus RTU slave, its bytes to and from
+    one TCP (or UDP) peer."""
+
+    def __init__(self, directory, start_peer, address: int, transport: str = "tcp") -> None:
+        self.port = free_port()
+        self.tty = str(directory / "ttyDS")
+        self.proc = subprocess.Popen(
+            ["socat", "-d", "-d", f"pty,raw,echo=0,link={self.tty}",
+             f"{transport}-listen:{self.port},reuseaddr"], stderr=subprocess.PIPE, text=True)
+        until(lambda: os.path.exists(self.tty), "socat's pty", timeout=10)
+        self.slave = start_peer("pymodbus_slave.py", self.tty, str(address), "--silent-unknown")
+
+    def stop(self) -> None:
+        stop(self.proc)
+
+
+@pytest.fixture
+def device_server(tmp_path, start_peer):
+    servers: list[DeviceServer] = []
+
+    def start(address: int, transport: str = "tcp") -> DeviceServer:
+        servers.append(DeviceServer(tmp_path, start_peer, address, transport))
+        return servers[-1]
+    yield start
+    for s in servers:
+        s.stop()
+
+
+@pytest.mark.parametrize("transport", ["tcp", "udp"])
+def test_a_pymodbus_rtu_slave_behind_socat_answers(gateway, client, device_server, transport):
+    server = device_server(INVERTER, transport)
+    gw = gateway(f"rtu-over-{transport}://127.0.0.1:{server.port}")
+    c = client(gw)
+    for start in (0, 10, 50):
+        assert c.ask(INVERTER, read_holding(start, 3)) == reply(start, 3)
+    assert c.ask(INVERTER + 1, read_holding(0, 1)) == b"\x83\x0b"    # nobody at 41
+
+
+def test_a_modbus_udp_device_answers(gateway, client, start_peer):
+    port = free_port()
+    start_peer("pymodbus_udp_server.py", str(port), str(INVERTER))
+    gw = gateway(f"modbus-udp://127.0.0.1:{port}")
+    c = client(gw)
+    for start in (0, 10, 50):
+        assert c.ask(INVERTER, read_holding(start, 3)) == reply(start, 3)
+
+
+def test_a_datagram_from_another_port_is_never_a_reply(gateway, client):
+    """A UDP 'device' that answers from another socket (another port): its reply is no
+    reply; the request gets 0x0B."""
+    device = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    device.bind(("127.0.0.1", 0))
+    impostor = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    impostor.bind(("127.0.0.1", 0))
+    gw = gateway(f"modbus-udp://127.0.0.1:{device.getsockname()[1]}")
+    c = client(gw)
+    try:
+        c.send(mbap(1, INVERTER, read_holding(0, 1)))
+        device.settimeout(5)
+        request, source = device.recvfrom(300)
+        answer = request[:4] + struct.pack(">HB", 5, INVERTER) + reply(0, 1)
+        impostor.sendto(answer, source)
+        assert c.recv() == (1, INVERTER, b"\x83\x0b")
+        c.send(mbap(2, INVERTER, read_holding(0, 1)))
+        request, source = device.recvfrom(300)
+        device.sendto(request[:4] + struct.pack(">HB", 5, INVERTER) + reply(0, 1), source)
+        assert c.recv() == (2, INVERTER, reply(0, 1))
+    finally:
+        device.close()
+        impostor.close()
