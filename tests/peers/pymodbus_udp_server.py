@@ -9,7 +9,6 @@ import asyncio
 from pymodbus.datastore import ModbusServerContext
 from pymodbus.framer import FramerType
 from pymodbus.server import ModbusUdpServer
-
 from pymodbus_slave import device
 
 

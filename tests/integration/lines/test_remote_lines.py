@@ -14,13 +14,14 @@ import subprocess
 import threading
 
 import pytest
+from pymodbus.client import ModbusTcpClient
 
-from tests.integration.lines.test_lines import Line, lines  # noqa: F401 (a fixture)
 from tests.harness import free_port, stop
+from tests.integration.lines.test_lines import Line, lines  # noqa: F401 (a fixture)
 from tests.modbus import Client, mbap, read_holding
 from tests.ops import status, wait_for, wait_for_log
-from tests.wait import until
 from tests.peers.single_client_device import LATE_REGISTER, TWICE_REGISTER, SingleClientDevice
+from tests.wait import until
 
 pytestmark = pytest.mark.integration
 
@@ -57,12 +58,13 @@ def remote_toml(url: str, **line) -> str:
 
 @pytest.fixture
 def gateway(tmp_path, lines, start_gateway):  # noqa: F811 (this module's own)
-    """gateway(url, *options, **line) -> mbgw slave with line serial on a pty (a pymodbus
-    slave at 5) and line inverter at url, its [[line]] keys `line`."""
-    def start(url: str, *options: str, **line):
+    """gateway(url, *options, rules="", **line) -> mbgw slave with line serial on a pty (a
+    pymodbus slave at 5) and line inverter at url, its [[line]] keys `line`; rules: more of
+    the file (firewall rules)."""
+    def start(url: str, *options: str, rules: str = "", **line):
         serial = lines("serial", 5)
         path = tmp_path / "mbgw.toml"
-        path.write_text(remote_toml(url, **line))
+        path.write_text(remote_toml(url, **line) + rules)
         return start_gateway(serial.pair.gateway, "--config", str(path), "--baudrate", "19200",
                              "--stout", "300", "--exception", *options)
     return start
@@ -156,22 +158,59 @@ def pipelining(port: int, first: int, count: int, wrong: list, errors: list) -> 
         errors.append(err)
 
 
+def pymodbus_reads(port: int, first: int, count: int, wrong: list, errors: list) -> None:
+    try:
+        with ModbusTcpClient("127.0.0.1", port=port, timeout=5, retries=0) as tcp:
+            for n in range(count):
+                got = tcp.read_holding_registers(first + n, count=2, device_id=INVERTER)
+                if got.isError() or got.registers != [100 + first + n, 101 + first + n]:
+                    wrong.append(got)
+    except BaseException as err:
+        errors.append(err)
+
+
+def mbpoll_reads(port: int, first: int, count: int, wrong: list, errors: list) -> None:
+    try:
+        for n in range(count):
+            out = subprocess.run(["mbpoll", "-m", "tcp", "-a", str(INVERTER), "-p", str(port),
+                                  "-0", "-t", "4", "-r", str(first + n), "-c", "2", "-1",
+                                  "127.0.0.1"], capture_output=True, text=True, timeout=10)
+            if f"[{first + n}]: \t{100 + first + n}" not in out.stdout:
+                wrong.append(out.stdout + out.stderr)
+    except BaseException as err:
+        errors.append(err)
+
+
 @pytest.mark.serial
 def test_eight_pipelining_clients_each_get_their_own_replies(gateway, device):
+    """6 raw clients with 4 requests in flight each, a pymodbus client and mbpoll, at once,
+    on a device that answers in 1-10 ms and takes one connection."""
     d = device(delays=(0.001, 0.01))
     gw = gateway(d.url, "--max-connections", "16", "--max-connections-per-ip", "16")
     wrong: list = []
     errors: list = []
-    threads = [threading.Thread(target=pipelining, args=(gw.port, 100 * n, 12, wrong, errors))
-               for n in range(8)]
+    jobs = [(pipelining, 100 * n, 12) for n in range(6)] + \
+        [(pymodbus_reads, 600, 10), (mbpoll_reads, 700, 5)]
+    threads = [threading.Thread(target=job, args=(gw.port, first, count, wrong, errors))
+               for job, first, count in jobs]
     for t in threads:
         t.start()
     for t in threads:
         t.join(60)
     assert not errors, (errors, gw.log())
     assert wrong == []
-    assert len(d.requests) == 96
+    assert len(d.requests) == 6 * 12 + 10 + 5
     assert (d.connections, d.resets) == (1, 0)
+
+
+def test_a_read_only_clients_write_is_refused_and_never_reaches_the_device(
+        gateway, client, device):
+    d = device(delays=(0.001, 0.002))
+    gw = gateway(d.url, rules='[[rule]]\nclient = "127.0.0.1"\nread-only = true\n')
+    c = client(gw)
+    assert c.ask(INVERTER, bytes.fromhex("06 0001 1234")) == b"\x86\x01"
+    assert c.ask(INVERTER, read_holding(1, 1)) == reply(1, 1)
+    assert d.requests == [(INVERTER, read_holding(1, 1))]
 
 
 @pytest.mark.serial
