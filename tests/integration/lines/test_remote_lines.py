@@ -12,14 +12,16 @@ import socket
 import struct
 import subprocess
 import threading
+import urllib.request
 
 import pytest
+from prometheus_client import parser
 from pymodbus.client import ModbusTcpClient
 
 from tests.harness import free_port, stop
 from tests.integration.lines.test_lines import Line, lines  # noqa: F401 (a fixture)
 from tests.modbus import Client, mbap, read_holding
-from tests.ops import status, wait_for, wait_for_log
+from tests.ops import metric_families, metric_value, status, wait_for, wait_for_log
 from tests.peers.single_client_device import LATE_REGISTER, TWICE_REGISTER, SingleClientDevice
 from tests.wait import until
 
@@ -104,7 +106,8 @@ def test_late_and_duplicate_replies_are_dropped_and_counted(gateway, client, dev
 
 def test_a_connection_the_device_closed_is_opened_again_at_once(gateway, client, device):
     d = device(delays=(0.001, 0.002))
-    gw = gateway(d.url)
+    metrics_port = free_port()
+    gw = gateway(d.url, "--metrics", f"127.0.0.1:{metrics_port}")
     c = client(gw)
     assert c.ask(INVERTER, read_holding(0, 1)) == reply(0, 1)
     d.close_connection()
@@ -113,6 +116,13 @@ def test_a_connection_the_device_closed_is_opened_again_at_once(gateway, client,
     assert next(r for r in s["lines"] if r["name"] == "inverter")["state"] == "up"
     assert (d.connections, d.resets) == (2, 0)
     assert "lost" not in gw.log()
+    with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics", timeout=5) as r:
+        families = metric_families(parser, r.read().decode())
+    assert metric_value(families, "mbgw_line_reconnects", "mbgw_line_reconnects_total",
+                        line="inverter") == 1
+    assert metric_value(families, "mbgw_line_stray_replies",
+                        "mbgw_line_stray_replies_total", line="inverter") == 0
+    assert metric_value(families, "mbgw_line_up", line="inverter", mode="slave") == 1
 
 
 def test_an_unreachable_device_is_0x0a_logged_once_and_once_back(gateway, client, device):

@@ -45,7 +45,7 @@ def test_a_bad_connect_is_refused_saying_why(text, reason):
         parse_connect("line x.connect", text)
 
 
-def test_a_remote_line_takes_its_timing_from_serial_and_its_own_keys(schema, tmp_path):
+def test_a_remote_line_takes_its_timing_from_serial_and_its_own_keys(schema, tmp_path):  # noqa: F811
     text = SERIAL + "stout = 700\nretries = 2\ndown-after = 5\n" + \
         inverter(**{"connect-delay": 1500, "pause": 20, "retries": 1}) + ROUTE
     cfg = built(schema, tmp_path, text)
@@ -57,7 +57,7 @@ def test_a_remote_line_takes_its_timing_from_serial_and_its_own_keys(schema, tmp
     assert line.is_target
 
 
-def test_ascii_over_tcp_frames_as_ascii(schema, tmp_path):
+def test_ascii_over_tcp_frames_as_ascii(schema, tmp_path):  # noqa: F811
     cfg = built(schema, tmp_path, SERIAL + inverter(
         connect='"ascii-over-tcp://10.0.0.5:4001"') + ROUTE)
     assert cfg.lines[0].serial.protocol == "ascii"
