@@ -11,6 +11,8 @@ port: only the target's can be a reply.  The line thread is the only one to use 
 """
 import errno
 import logging
+import os
+import select
 import socket
 import time
 from typing import Protocol
@@ -56,6 +58,7 @@ class RemoteLine:
         self.port = self            # what the framing waits on (wait_quiet)
         self.lost = False           # an attempt failed since the device last answered
         self._sock: socket.socket | None = None
+        self._readable = select.poll()      # the connection's socket, once there is one
         self._connected = False     # ever: the next connection is a reconnect
         self._retry_at = 0.0        # monotonic: no attempt before then
         self._backoff_s = BACKOFF_FIRST_S
@@ -113,16 +116,12 @@ class RemoteLine:
         return self._view[:n]
 
     def discard(self) -> int:
-        """Take whatever waits to be read, unread (nothing waits: no system call but one
-        poll); returns its bytes."""
-        sock = self._sock
+        """Take whatever waits to be read, unread (nothing waits: one poll(), no read);
+        returns its bytes."""
         discarded = 0
-        while sock is not None:
-            sock.settimeout(0)
+        while self._sock is not None and self._readable.poll(0):
             try:
-                n = sock.recv_into(self._buf)
-            except (BlockingIOError, TimeoutError):
-                break
+                n = self._sock.recv_into(self._buf)
             except OSError as err:
                 self.drop(f"read: {err.strerror or err}")
                 break
@@ -130,7 +129,6 @@ class RemoteLine:
                 self.drop("closed by the device")
                 break
             discarded += n
-            sock = self._sock
         self.counters.bytes_received += discarded
         return discarded
 
@@ -170,6 +168,8 @@ class RemoteLine:
             raise TargetUnreachable(err.errno or errno.EHOSTUNREACH,
                                     f"{self.target}: {err.strerror or err}") from None
         self._sock = sock
+        self._readable = select.poll()
+        self._readable.register(sock, select.POLLIN)
         self._backoff_s = BACKOFF_FIRST_S
         if self._connected:
             self.counters.reconnects += 1
@@ -181,6 +181,10 @@ class RemoteLine:
     def _open(self, timeout_s: float) -> socket.socket:
         if self.stream:
             sock = socket.create_connection(self.address, timeout=timeout_s)
+            if sock.getsockname() == sock.getpeername():
+                # TCP's simultaneous open: a local port nobody listens on, connected to itself
+                sock.close()
+                raise ConnectionRefusedError(errno.ECONNREFUSED, os.strerror(errno.ECONNREFUSED))
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             return sock
         host, port = self.address

@@ -54,7 +54,7 @@ class SingleClientDevice:
 
     def close_connection(self) -> None:
         """The device ends the connection it has (as an idle timeout would)."""
-        conn = self._open
+        conn, self._open = self._open, None     # closed: the next client is welcome
         if conn is not None:
             try:
                 conn.shutdown(socket.SHUT_RDWR)
@@ -97,7 +97,8 @@ class SingleClientDevice:
             return
         finally:
             conn.close()
-            self._open = None
+            if self._open is conn:
+                self._open = None
 
     def _cut(self, buf: bytes):
         """(bytes taken, tid, unit, PDU) of the request at buf's start, or None."""
