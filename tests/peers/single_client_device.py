@@ -43,6 +43,11 @@ class SingleClientDevice:
         self._thread.start()
 
     @property
+    def open(self) -> socket.socket | None:
+        """The connection the device has (None: none)."""
+        return self._open
+
+    @property
     def url(self) -> str:
         kind = "modbus-tcp" if self.framing == "mbap" else "rtu-over-tcp"
         return f"{kind}://127.0.0.1:{self.port}"

@@ -8,6 +8,7 @@ pymodbus's Modbus/UDP server, raw sockets and pymodbus/mbpoll clients in front.
 """
 import json
 import os
+import signal
 import socket
 import struct
 import subprocess
@@ -310,3 +311,49 @@ def test_a_datagram_from_another_port_is_never_a_reply(gateway, client):
     finally:
         device.close()
         impostor.close()
+
+
+def test_a_reload_moves_the_line_to_another_device(tmp_path, gateway, client, device):
+    first, second = device(delays=(0.001, 0.002)), device(delays=(0.001, 0.002))
+    gw = gateway(first.url)
+    c = client(gw)
+    assert c.ask(INVERTER, read_holding(0, 1)) == reply(0, 1)
+    path = tmp_path / "mbgw.toml"
+    path.write_text(path.read_text().replace(first.url, second.url))
+    os.kill(gw.proc.pid, signal.SIGHUP)
+    wait_for_log(gw, "configuration reloaded: lines changed")
+    assert c.ask(INVERTER, read_holding(1, 1)) == reply(1, 1)
+    assert first.requests == [(INVERTER, read_holding(0, 1))]
+    assert second.requests == [(INVERTER, read_holding(1, 1))]
+    until(lambda: first.connections == 1 and first.open is None, "the first device let go",
+          timeout=10)
+    row = next(r for r in status(gw)["lines"] if r["name"] == "inverter")
+    assert row["device"] == second.url
+
+
+def test_ascii_over_tcp_with_noise_before_the_reply(gateway, client):
+    """A raw ASCII device server: each request answered after a burst of noise."""
+    listener = socket.create_server(("127.0.0.1", free_port()))
+    seen: list[bytes] = []
+
+    def serve() -> None:
+        conn, _ = listener.accept()
+        with conn:
+            while (request := conn.recv(512)):
+                seen.append(request)
+                adu = bytes.fromhex(request[1:-4].decode())
+                answer = bytes((adu[0],)) + reply(adu[3], adu[5])
+                lrc = (-sum(answer)) & 0xFF
+                frame = b":" + (answer + bytes((lrc,))).hex().upper().encode() + b"\r\n"
+                conn.sendall(b"\x00\xfe noise" + frame[:7])
+                conn.sendall(frame[7:])
+    threading.Thread(target=serve, daemon=True).start()
+    try:
+        gw = gateway(f"ascii-over-tcp://127.0.0.1:{listener.getsockname()[1]}")
+        c = client(gw)
+        assert c.ask(INVERTER, read_holding(3, 2)) == reply(3, 2)
+        assert c.ask(INVERTER, read_holding(9, 1)) == reply(9, 1)
+        assert seen[0] == b":2803000300" + b"02" + b"%02X" % ((-(0x28 + 3 + 3 + 2)) & 0xFF) + \
+            b"\r\n"
+    finally:
+        listener.close()
