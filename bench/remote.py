@@ -63,7 +63,8 @@ def device(port: int, late: bool, tally: Path) -> None:
                 else:
                     conn = new
                     accepted += 1
-                tally.write_text(f"{accepted} {resets}\n")
+                tally.with_suffix(".new").write_text(f"{accepted} {resets}\n")
+                os.replace(tally.with_suffix(".new"), tally)      # read whole, never half
                 if conn is not new:
                     continue
                 conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
