@@ -95,23 +95,26 @@ class RemoteLine:
         """What came next, read before deadline_ns (a datagram whole): a view of this line's
         buffer, valid until the next call.  None: nothing came in time.  Empty: the
         connection ended (closed by the device, reset, or no connection)."""
-        sock = self._sock
-        if sock is None:
-            return self._view[:0]
-        timeout_s = (deadline_ns - time.monotonic_ns()) / 1e9
-        if timeout_s <= 0:
-            return None
-        sock.settimeout(timeout_s)
-        try:
-            n = sock.recv_into(self._buf)
-        except TimeoutError:
-            return None
-        except OSError as err:
-            self.drop(f"read: {err.strerror or err}")
-            return self._view[:0]
-        if n == 0 and self.stream:
-            self.drop("closed by the device")
-            return self._view[:0]
+        n = 0
+        while not n:
+            sock = self._sock
+            if sock is None:
+                return self._view[:0]
+            timeout_s = (deadline_ns - time.monotonic_ns()) / 1e9
+            if timeout_s <= 0:
+                return None
+            sock.settimeout(timeout_s)
+            try:
+                n = sock.recv_into(self._buf)
+            except TimeoutError:
+                return None
+            except OSError as err:
+                self.drop(f"read: {err.strerror or err}")
+                return self._view[:0]
+            if n == 0 and self.stream:
+                self.drop("closed by the device")
+                return self._view[:0]
+            # n == 0 over UDP: an empty datagram, which is nothing; wait on
         self.counters.bytes_received += n
         return self._view[:n]
 
