@@ -18,7 +18,13 @@ gateway adds over direct), and the rate of 1, 8 and 32 closed-loop clients (the 
 limit is 1 / 2 ms = 500 requests/s, less its own overhead).  Then wrong deliveries under late
 replies: the device answers every 10th request 150 ms late; mbgw's stout and modbus-proxy's
 timeout are 100 ms; 8 clients each read registers of their own, so a reply carrying another
-client's registers is a wrong delivery.  See README.md, "Remote lines".
+client's registers is a wrong delivery (and the connections the device had to accept).
+
+Last, RTU over TCP: bench.py's simulated slave (simline slave, answering after the wire time
+of request and reply at 115200) on a pty that socat carries to a TCP listener, a serial
+device server; mbgw's line `rtu-over-tcp://` to it, 8 closed-loop clients: the rate against
+the serial line's own limit (wire time + t3.5 a transaction).  It needs a C compiler (cc)
+for bench/simline.c.  See README.md, "Remote lines".
 """
 import argparse
 import os
@@ -292,6 +298,58 @@ def run(quick: bool) -> None:
             finally:
                 stop(dev)
     report(rows, late, count, seconds)
+    rtu_over_tcp(quick)
+
+
+RTU_BAUD = 115200
+
+
+def rtu_over_tcp(quick: bool) -> None:
+    sys.path.insert(0, str(HERE))
+    sys.path.insert(0, str(CHECKOUT))
+    import bench  # bench/bench.py: the simulated slave and its closed-loop clients
+    seconds = 2.0 if quick else 8.0
+    limit = 1e6 / (bench.wire_us(RTU_BAUD) + bench.t35_us(RTU_BAUD))
+    with tempfile.TemporaryDirectory() as tmp:
+        exe = bench.build_simline(Path(tmp))
+        tty = Path(tmp) / "ttyDS"
+        server_port = free_port()
+        socat = subprocess.Popen(["socat", f"pty,raw,echo=0,link={tty}",
+                                  f"tcp-listen:{server_port},reuseaddr"],
+                                 stderr=subprocess.DEVNULL)
+        deadline = time.monotonic() + 10
+        while not tty.exists() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        slave = bench.Slave(exe, str(tty), RTU_BAUD)
+        master, pty = os.openpty()        # line serial: a pty nobody answers on
+        gw = None
+        try:
+            port = free_port()
+            config = Path(tmp) / "mbgw.toml"
+            config.write_text(f"[[line]]\nname = \"dtu\"\n"
+                              f"connect = \"rtu-over-tcp://127.0.0.1:{server_port}\"\n"
+                              "stout = 1000\n[[route]]\nunits = \"1\"\nline = \"dtu\"\n")
+            gw = subprocess.Popen(
+                [sys.executable, "-m", "mbgw", "slave", "--device", os.ttyname(pty), "--bind",
+                 "127.0.0.1", "--mdbport", str(port), "--config", str(config),
+                 "--max-connections", "40", "--max-connections-per-ip", "40"],
+                cwd=CHECKOUT, env=dict(os.environ, RUNTIME_DIRECTORY=tmp),
+                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            wait_port(port)
+            run = bench.run_clients(port, 8, slave, 0.5, seconds)
+        finally:
+            if gw is not None:
+                stop(gw)
+            slave.stop()
+            stop(socat)
+            os.close(master)
+            os.close(pty)
+    rate = run.count / run.seconds
+    wire_only = 1e6 / bench.wire_us(RTU_BAUD)
+    print(f"RTU over TCP (socat to a pty at {RTU_BAUD}, simline slave), 8 clients for "
+          f"{seconds:g} s: {rate:.0f} transactions/s, {run.errors} errors; the line's limit "
+          f"{limit:.0f}/s (wire time + t3.5): {rate / limit:.3f} of it; "
+          f"{rate / wire_only:.3f} of the wire time alone ({wire_only:.0f}/s)")
 
 
 def report(rows: dict, late: dict, count: int, seconds: float) -> None:
