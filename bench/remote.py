@@ -213,7 +213,7 @@ def start_device(late: bool, tally: Path) -> tuple[int, subprocess.Popen]:
     return port, proc
 
 
-def start_mbgw(device_port: int, tmp: Path) -> tuple[int, subprocess.Popen]:
+def start_mbgw(device_port: int, tmp: Path, timeout_ms: int) -> tuple[int, subprocess.Popen]:
     master, slave = os.openpty()      # line serial: a pty nobody answers on
     tty = os.ttyname(slave)
     os.close(slave)
@@ -221,7 +221,7 @@ def start_mbgw(device_port: int, tmp: Path) -> tuple[int, subprocess.Popen]:
     config = tmp / "mbgw.toml"
     config.write_text("[[line]]\nname = \"inverter\"\n"
                       f"connect = \"modbus-tcp://127.0.0.1:{device_port}\"\n"
-                      f"stout = {TIMEOUT_MS}\n"
+                      f"stout = {timeout_ms}\n"
                       "[[route]]\nunits = \"1\"\nline = \"inverter\"\n")
     proc = subprocess.Popen(
         [sys.executable, "-m", "mbgw", "slave", "--device", tty, "--bind", "127.0.0.1",
@@ -234,12 +234,12 @@ def start_mbgw(device_port: int, tmp: Path) -> tuple[int, subprocess.Popen]:
     return port, proc
 
 
-def start_proxy(device_port: int) -> tuple[int, subprocess.Popen]:
+def start_proxy(device_port: int, timeout_ms: int) -> tuple[int, subprocess.Popen]:
     port = free_port()
     exe = Path(sys.executable).parent / "modbus-proxy"
     proc = subprocess.Popen([str(exe), "-b", f"tcp://127.0.0.1:{port}", "--modbus",
                              f"tcp://127.0.0.1:{device_port}", "--timeout",
-                             str(TIMEOUT_MS / 1000)],
+                             str(timeout_ms / 1000)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     wait_port(port)
     return port, proc
@@ -270,9 +270,9 @@ def run(quick: bool) -> None:
                 if name == "direct":
                     port, gw = device_port, None
                 elif name == "mbgw":
-                    port, gw = start_mbgw(device_port, Path(tmp))
+                    port, gw = start_mbgw(device_port, Path(tmp), 1000)
                 else:
-                    port, gw = start_proxy(device_port)
+                    port, gw = start_proxy(device_port, 1000)
                 try:
                     latencies(port, 50)                  # warm-up, and the connection made
                     lat = latencies(port, count)
@@ -288,8 +288,8 @@ def run(quick: bool) -> None:
         for name in ("mbgw", "modbus-proxy"):
             device_port, dev = start_device(True, tally)
             try:
-                port, gw = start_mbgw(device_port, Path(tmp)) if name == "mbgw" \
-                    else start_proxy(device_port)
+                port, gw = start_mbgw(device_port, Path(tmp), TIMEOUT_MS) if name == "mbgw" \
+                    else start_proxy(device_port, TIMEOUT_MS)
                 try:
                     late[name] = (*closed_loop(port, 8, seconds * 2, timeout_s=1.0),
                                   *map(int, tally.read_text().split()))
