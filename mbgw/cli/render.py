@@ -61,8 +61,16 @@ def _lines_section(rows: list[dict]) -> list[str]:
     """The daemon's lines (more than one, or routes of the file's)."""
     out = ["lines      name          state    requests  replies  timeouts  device"]
     out += [f"           {r['name']:<13} {r['state']:<8} {r['requests']:>8} {r['replies']:>8} "
-            f"{r['timeouts']:>9}  {r['device']} ({r['mode']})" for r in rows]
+            f"{r['timeouts']:>9}  {r['device']} ({r['mode']}{_connection(r)})" for r in rows]
     return out
+
+
+def _connection(row: dict) -> str:
+    """A remote line's figures of its connection, after its mode."""
+    counters = row.get("counters") or {}
+    if "reconnects" not in counters:
+        return ""
+    return f", {counters['reconnects']} reconnects, {counters['stray_replies']} stray replies"
 
 
 def line_status(s: dict, name: str) -> dict:

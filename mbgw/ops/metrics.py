@@ -55,7 +55,13 @@ _COUNTER_HELP = {
                               "byte (health checks); not refused handshakes.",
     "connections_timed_out": "Modbus TCP connections closed because a request begun was not "
                              "whole within request-timeout, or none came within a minute.",
+    "reconnects": "Connections a remote line made to its device after the first.",
+    "stray_replies": "Replies a remote line dropped: late, duplicate, or answering no "
+                     "outstanding request.",
 }
+
+# counters whose metric is named for the line, not for the event
+_LINE_METRIC = {"reconnects": "mbgw_line_reconnects", "stray_replies": "mbgw_line_stray_replies"}
 
 _DEVICE_HELP = {
     "transactions": "Requests sent to this serial address (broadcasts included).",
@@ -188,7 +194,8 @@ class DaemonCollector:
                 continue
             help_text = (master and _MASTER_COUNTER_HELP.get(name)) or \
                 _COUNTER_HELP.get(name) or name.replace("_", " ") + "."
-            family = CounterMetricFamily(f"mbgw_{name}", help_text, labels=["line"])
+            family = CounterMetricFamily(_LINE_METRIC.get(name, f"mbgw_{name}"), help_text,
+                                         labels=["line"])
             for line, values in snapshots:
                 if name in values:       # a line of the other mode keeps counters of its own
                     family.add_metric([line], values[name])

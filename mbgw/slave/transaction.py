@@ -29,12 +29,14 @@ from mbgw.config.model import SerialConfig
 from mbgw.errors import ChecksumError, FrameError, LineTimeout
 from mbgw.line import native
 from mbgw.line.native import NO_FORWARD, Forward, Reception, reply_matches
+from mbgw.line.remote import RemoteLine
 from mbgw.line.serial_line import SerialLine
 from mbgw.line.supervisor import longest_frame_s
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceHealth, DeviceStats
 from mbgw.protocol import pdu
 from mbgw.slave.device_timing import DeviceTiming
+from mbgw.slave.remote_framing import remote_framing
 
 wire = logging.getLogger("mbgw.wire")
 
@@ -162,7 +164,9 @@ class AsciiFraming:
         return time.monotonic_ns()
 
 
-def framing_for(line: SerialLine):
+def framing_for(line: SerialLine | RemoteLine):
+    if isinstance(line, RemoteLine):
+        return remote_framing(line)
     return AsciiFraming(line) if line.cfg.protocol == "ascii" else RtuFraming(line)
 
 

@@ -670,6 +670,10 @@ function tablePage(body) {
 
 // ---- Lines -------------------------------------------------------------------------------
 
+// A remote line's connection figures, after its URL (as mbgw status shows them).
+const remoteFigures = (l) => (l.counters && "reconnects" in l.counters
+  ? ` (${l.counters.reconnects} reconnects, ${l.counters.stray_replies} stray replies)` : "");
+
 // The daemon's lines, where each face's units go and the remote servers they reach (mbgw
 // status's lines, routes and servers).
 function linesPage(body) {
@@ -690,7 +694,7 @@ function linesPage(body) {
         lines.length ? table("lines-table", ["Name", "Device", "Mode", "State", "Requests",
           "Replies", "Timeouts", "Devices"], lines.map((l) => el("tr", { "data-line": l.name },
           el("td", { class: "line", text: show(l.name) }),
-          el("td", { text: show(l.device) }),
+          el("td", { text: show(l.device) + remoteFigures(l) }),
           el("td", { text: show(l.mode) }),
           el("td", { class: `state-${l.state}`, text: show(l.state) }),
           el("td", { class: "num", text: show(l.requests) }),
