@@ -45,10 +45,15 @@ def scenarios() -> list[dict]:
 
 
 @pytest.fixture
-def gateway(tmp_path, pty_pair, start_gateway, start_peer, broker):
-    """gateway(**mqtt) -> the gateway publishing the scenarios to the broker, pymodbus's
-    slave on the line."""
-    start_peer("pymodbus_slave.py", pty_pair.device, str(SLAVE))
+def slave(pty_pair, start_peer):
+    """pymodbus's RTU slave at address SLAVE on the line; slave[0] is the one running."""
+    return [start_peer("pymodbus_slave.py", pty_pair.device, str(SLAVE))]
+
+
+@pytest.fixture
+def gateway(tmp_path, pty_pair, start_gateway, slave, broker):
+    """gateway(extra, **mqtt) -> the gateway publishing the scenarios to the broker, with
+    these [mqtt] keys and extra TOML after them."""
 
     def start(extra: str = "", **mqtt):
         path = tmp_path / "mbgw.toml"
@@ -114,3 +119,112 @@ def test_ddata_only_on_change(gateway, broker, subscribe):
 
 def _runs(gw) -> int:
     return sum(sc["runs"] for sc in status(gw)["scenarios"])
+
+
+def command(kind: str, **values) -> bytes:
+    """An NCMD or DCMD payload: metric name -> value (bool, int or float)."""
+    out = Payload()
+    for name, value in values.items():
+        m = out.metrics.add()
+        m.name = name
+        if isinstance(value, bool):
+            m.datatype, m.boolean_value = DataType.Boolean, value
+        elif isinstance(value, int):
+            m.datatype, m.int_value = DataType.UInt16, value
+        else:
+            m.datatype, m.float_value = DataType.Float, value
+    return out.SerializeToString()
+
+
+def test_ncmd_rebirth_births_everything_again_from_seq_0(gateway, broker, subscribe):
+    sub = subscribe(broker.port, "spBv1.0/#")
+    gateway()
+    until(lambda: births(sub, "DBIRTH"), "a DBIRTH", WAIT_S)
+    sub.publish(topic("NCMD"), command("NCMD", **{"Node Control/Rebirth": True}))
+    until(lambda: len(births(sub, "NBIRTH")) == 2 and len(births(sub, "DBIRTH")) == 2,
+          "a second NBIRTH and DBIRTH", WAIT_S)
+    second = births(sub, "NBIRTH")[1]
+    assert second.seq == 0 and metrics(second)["bdSeq"] == 0    # the same session
+    assert births(sub, "DBIRTH")[1].seq == 1
+    assert read_all(sub)["setpoint"] == 120
+
+
+def test_dcmd_write_reaches_the_slave_through_the_firewall(gateway, broker, subscribe):
+    rules = '[[rule]]\nrole = "scada"\nlistener = "mqtt"\n'
+    sub = subscribe(broker.port, f"spBv1.0/{GROUP}/+/{NODE}/{DEVICE}")
+    gw = gateway(rules, role="scada")
+    until(lambda: read_all(sub), "every metric read", WAIT_S)
+    sub.publish(topic("DCMD", DEVICE), command("DCMD", setpoint=4321))
+    # the value comes back from the slave itself, read by the setpoint scenario
+    until(lambda: any(metrics(p).get("setpoint") == 4321 for p in births(sub, "DDATA")),
+          "the written setpoint read back from the slave", WAIT_S)
+    assert status(gw)["mqtt"]["writes"] == 1
+
+
+@pytest.mark.parametrize("role", [None, "viewer"])
+def test_a_write_without_a_role_or_for_a_read_only_role_is_refused(gateway, broker,
+                                                                   subscribe, role):
+    rules = '[[rule]]\nrole = "viewer"\nread-only = true\n'
+    sub = subscribe(broker.port, f"spBv1.0/{GROUP}/+/{NODE}/{DEVICE}")
+    gw = gateway(rules, **({"role": role} if role else {}))
+    until(lambda: read_all(sub), "every metric read", WAIT_S)
+    sub.publish(topic("DCMD", DEVICE), command("DCMD", setpoint=4321))
+    until(lambda: status(gw)["mqtt"]["commands_refused"] == 1, "the write refused", WAIT_S)
+    assert "write refused" in gw.log()
+    # the slave still has its value: the next reads publish no change
+    runs = _runs(gw)
+    until(lambda: _runs(gw) >= runs + 10, "10 more runs", WAIT_S)
+    assert read_all(sub)["setpoint"] == 120
+    assert status(gw)["mqtt"]["writes"] == 0
+
+
+@pytest.mark.serial
+def test_ddeath_when_the_slave_is_demoted_and_dbirth_when_it_answers_again(
+        gateway, broker, subscribe, slave, pty_pair, start_peer):
+    sub = subscribe(broker.port, f"spBv1.0/{GROUP}/+/{NODE}/{DEVICE}")
+    gw = gateway()
+    until(lambda: read_all(sub), "every metric read", WAIT_S)
+    slave[0].stop()
+    death = until(lambda: births(sub, "DDEATH"), "a DDEATH", WAIT_S)[0]
+    demoted = until(lambda: _health(gw) == "down" and devices_of(gw)[SLAVE]["health_since"],
+                    "the slave down", WAIT_S)
+    # DDEATH's timestamp (the gateway's clock, ms) within a second of the demotion
+    assert 0 <= death.timestamp / 1000 - demoted < 1.0
+    slave[0] = start_peer("pymodbus_slave.py", pty_pair.device, str(SLAVE))
+    until(lambda: len(births(sub, "DBIRTH")) == 2, "a DBIRTH on its return", WAIT_S)
+    again = births(sub, "DBIRTH")[1]
+    assert metrics(again)["Health"] in ("up", "degraded")
+    kinds = [t.split("/")[2] for _, t, _, _ in sub.received()]
+    assert kinds.index("DDEATH") < len(kinds) - 1 - kinds[::-1].index("DBIRTH")
+    assert "DDATA" not in kinds[kinds.index("DDEATH"):len(kinds) - kinds[::-1].index("DBIRTH")]
+
+
+def devices_of(gw) -> dict:
+    return {d["address"]: d for d in status(gw)["devices"]}
+
+
+def _health(gw) -> str | None:
+    device = devices_of(gw).get(SLAVE)
+    return None if device is None else device["health"]
+
+
+def test_broker_restart_brings_births_back_and_no_flood(gateway, broker, subscribe):
+    sub = subscribe(broker.port, "spBv1.0/#")
+    gw = gateway()
+    until(lambda: read_all(sub), "every metric read", WAIT_S)
+    sub.close()
+    broker.stop()
+    # backoff 1 s, 2 s, 4 s: the broker comes back while the gateway waits 4 s
+    until(lambda: "again in 4 s" in gw.log(), "the third reconnect delay", WAIT_S * 2)
+    assert "again in 1 s" in gw.log() and "again in 2 s" in gw.log()
+    broker.start()
+    sub = subscribe(broker.port, "spBv1.0/#", client_id="test-subscriber-2")
+    nbirth = until(lambda: births(sub, "NBIRTH"), "an NBIRTH after the restart", WAIT_S)[0]
+    assert nbirth.seq == 0 and metrics(nbirth)["bdSeq"] > 0
+    until(lambda: births(sub, "DBIRTH"), "a DBIRTH after the restart", WAIT_S)
+    # the births carry the latest values; nothing from the outage follows them
+    assert {k: v for k, v in metrics(births(sub, "DBIRTH")[0]).items()
+            if k != "Health"} == {"temp": 100, "total": (102 << 16) | 103, "setpoint": 120}
+    runs = _runs(gw)
+    until(lambda: _runs(gw) >= runs + 20, "20 more runs", WAIT_S)
+    assert [t.split("/")[2] for _, t, _, _ in sub.received()] == ["NBIRTH", "DBIRTH"]
