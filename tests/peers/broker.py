@@ -1,5 +1,6 @@
 """Debian's Mosquitto as the tests' MQTT broker, on 127.0.0.1 at a port of its own with its
 configuration in a temporary directory; and a subscriber that keeps every message it gets."""
+import getpass
 import shutil
 import socket
 import subprocess
@@ -34,7 +35,10 @@ class Broker:
         self.tls = tls
         self.proc: subprocess.Popen | None = None
         self.log_path = directory / f"mosquitto-{self.port}.log"
-        lines = [f"listener {self.port} 127.0.0.1", "allow_anonymous true",
+        # started as root, mosquitto would become user mosquitto, who cannot read the
+        # test's directory: it stays the user the tests run as
+        lines = [f"user {getpass.getuser()}", f"listener {self.port} 127.0.0.1",
+                 "allow_anonymous true",
                  "persistence false", "log_dest stderr", "log_type all"]
         if tls is not None:
             cert, key, ca = tls
@@ -69,11 +73,16 @@ class Subscriber:
     """A paho client subscribed to `topics` on the broker, keeping (time, topic, payload,
     retained) of each message, in order."""
 
-    def __init__(self, port: int, *topics: str, client_id: str = "test-subscriber") -> None:
+    def __init__(self, port: int, *topics: str, client_id: str = "test-subscriber",
+                 tls: tuple[Path, Path, Path] | None = None) -> None:
+        """tls: (certificate, key, CA) to connect with TLS and a client certificate."""
         kwargs: dict = {"client_id": client_id}
         if hasattr(paho, "CallbackAPIVersion"):
             kwargs["callback_api_version"] = paho.CallbackAPIVersion.VERSION2
         self.client = paho.Client(**kwargs)
+        if tls is not None:
+            self.client.tls_set(ca_certs=str(tls[2]), certfile=str(tls[0]),
+                                keyfile=str(tls[1]))
         self.messages: list[tuple[float, str, bytes, bool]] = []
         self._lock = threading.Lock()
         self._subscribed = threading.Event()
