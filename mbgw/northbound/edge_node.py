@@ -52,9 +52,11 @@ class EdgeNode:
         return topics
 
     def connected(self, session: Session) -> None:
-        """A new session: nothing of the last one was born in this one."""
+        """A new session: nothing of the last one was born in this one, and the primary
+        host's STATE is to be heard again (the broker keeps it retained)."""
         self._born_node = False
         self._born.clear()
+        self.host_online = self.cfg.primary_host is None
 
     def farewell(self, session: Session) -> None:
         """Before a disconnect of our own: the death the Will would have been."""

@@ -7,7 +7,7 @@ import signal
 import pytest
 
 from tests.integration.northbound.test_sparkplug import SLAVE, scenarios
-from tests.integration.scenarios.test_scenarios_serial import write_config
+from tests.integration.scenarios.test_scenarios_serial import toml_value, write_config
 from tests.ops import status
 from tests.peers.broker import Broker
 from tests.pki import Authority
@@ -31,7 +31,7 @@ def config(tmp_path, pty_pair, start_peer):
         write_config(path, scenarios())
         keys = {"broker": url, "group": GROUP, "node": NODE, **mqtt}
         path.write_text(path.read_text() + "[mqtt]\n" +
-                        "".join(f'{k} = "{v}"\n' for k, v in keys.items()) + extra)
+                        "".join(f"{k} = {toml_value(v)}\n" for k, v in keys.items()) + extra)
         return str(path)
     return write
 
@@ -99,7 +99,7 @@ def test_tls_to_the_broker_with_a_client_certificate(tmp_path, config, start_gat
     try:
         sub = subscribe(broker.port, f"{BASE}/#", tls=(*reader, ca.cert))
         gw = start_gateway(pty_pair.gateway, "--config", config(
-            broker.url, profile="json", cert=client[0], key=client[1], ca=ca.cert))
+            broker.url, profile="json", cert=str(client[0]), key=str(client[1]), ca=str(ca.cert)))
         until(lambda: (v := latest(sub, f"{BASE}/{DEVICE}/temp")) and v["value"] == 100,
               "temp over TLS", WAIT_S)
         assert status(gw)["mqtt"]["connected"] is True
@@ -116,7 +116,8 @@ def test_tls_refused_without_the_brokers_ca(tmp_path, config, start_gateway, pty
     broker = Broker(tmp_path, tls=(*server, ca.cert))
     try:
         gw = start_gateway(pty_pair.gateway, "--config", config(
-            broker.url, profile="json", cert=client[0], key=client[1], ca=other.cert))
+            broker.url, profile="json", cert=str(client[0]), key=str(client[1]),
+            ca=str(other.cert)))
         until(lambda: "CERTIFICATE_VERIFY_FAILED" in gw.log() or "certificate verify"
               in gw.log(), "the broker's certificate refused", WAIT_S)
         assert status(gw)["mqtt"]["connected"] is False

@@ -7,7 +7,7 @@ import signal
 import pytest
 
 from mbgw.northbound.sparkplug_b_pb2 import DataType, Payload
-from tests.integration.scenarios.test_scenarios_serial import poll, write_config
+from tests.integration.scenarios.test_scenarios_serial import poll, toml_value, write_config
 from tests.ops import status
 from tests.wait import until
 
@@ -55,12 +55,13 @@ def gateway(tmp_path, pty_pair, start_gateway, slave, broker):
     """gateway(extra, **mqtt) -> the gateway publishing the scenarios to the broker, with
     these [mqtt] keys and extra TOML after them."""
 
-    def start(extra: str = "", **mqtt):
+    def start(extra: str = "", down_after: int = 2, **mqtt):
         path = tmp_path / "mbgw.toml"
-        write_config(path, scenarios(), serial={"down-after": 2, "probe-interval": 500})
+        write_config(path, scenarios(),
+                     serial={"down-after": down_after, "probe-interval": 500})
         keys = {"broker": broker.url, "group": GROUP, "node": NODE, **mqtt}
         path.write_text(path.read_text() + "[mqtt]\n" +
-                        "".join(f'{k} = "{v}"\n' for k, v in keys.items()) + extra)
+                        "".join(f"{k} = {toml_value(v)}\n" for k, v in keys.items()) + extra)
         return start_gateway(pty_pair.gateway, "--config", str(path))
     return start
 
@@ -228,3 +229,38 @@ def test_broker_restart_brings_births_back_and_no_flood(gateway, broker, subscri
     runs = _runs(gw)
     until(lambda: _runs(gw) >= runs + 20, "20 more runs", WAIT_S)
     assert [t.split("/")[2] for _, t, _, _ in sub.received()] == ["NBIRTH", "DBIRTH"]
+
+
+def test_births_wait_for_the_primary_hosts_state_online(gateway, broker, subscribe):
+    sub = subscribe(broker.port, "spBv1.0/#")
+    gw = gateway(**{"primary-host": "scada1"})
+    until(lambda: _runs(gw) >= 20, "20 runs", WAIT_S)
+    assert not births(sub, "NBIRTH")
+    state = "spBv1.0/STATE/scada1"
+    sub.publish(state, '{"online": true, "timestamp": 1}', retain=True)
+    until(lambda: births(sub, "NBIRTH") and births(sub, "DBIRTH"), "births", WAIT_S)
+    sub.publish(state, '{"online": false, "timestamp": 2}', retain=True)
+    until(lambda: status(gw)["mqtt"]["messages_sent"] and "STATE" in sub.received()[-1][1],
+          "the offline STATE", WAIT_S)
+    sub.publish(state, '{"online": true, "timestamp": 3}', retain=True)
+    until(lambda: len(births(sub, "NBIRTH")) == 2, "births again after online", WAIT_S)
+    assert births(sub, "NBIRTH")[1].seq == 0
+
+
+def test_stale_values_are_null_with_quality_500(gateway, broker, subscribe, slave):
+    sub = subscribe(broker.port, f"spBv1.0/{GROUP}/+/{NODE}/{DEVICE}")
+    gateway(down_after=0, **{"stale-after": 1000})   # never demoted: degraded, then stale
+    until(lambda: read_all(sub), "every metric read", WAIT_S)
+    slave[0].stop()
+
+    def stale():
+        for payload in births(sub, "DDATA"):
+            found = {m.name: m for m in payload.metrics if m.is_null}
+            if found.keys() >= {"temp", "total", "setpoint"}:
+                return found
+        return None
+    found = until(stale, "every metric stale", WAIT_S)
+    for metric in found.values():
+        assert list(metric.properties.keys) == ["Quality"]
+        assert metric.properties.values[0].int_value == 500
+    assert not births(sub, "DDEATH")
