@@ -3,12 +3,14 @@ births, data and deaths as a subscriber decodes them with the compiled sparkplug
 commands (rebirth, writes reaching pymodbus's RTU slave, a write the firewall refuses), a
 device demoted and answering again, the broker stopped and started again."""
 import signal
+import urllib.request
 
 import pytest
 
 from mbgw.northbound.sparkplug_b_pb2 import DataType, Payload
+from tests.harness import free_port
 from tests.integration.scenarios.test_scenarios_serial import poll, toml_value, write_config
-from tests.ops import status
+from tests.ops import mbgw, status
 from tests.wait import until
 
 pytestmark = pytest.mark.integration
@@ -55,9 +57,9 @@ def gateway(tmp_path, pty_pair, start_gateway, slave, broker):
     """gateway(extra, **mqtt) -> the gateway publishing the scenarios to the broker, with
     these [mqtt] keys and extra TOML after them."""
 
-    def start(extra: str = "", down_after: int = 2, **mqtt):
+    def start(extra: str = "", down_after: int = 2, metrics: str | None = None, **mqtt):
         path = tmp_path / "mbgw.toml"
-        write_config(path, scenarios(),
+        write_config(path, scenarios(), metrics=metrics,
                      serial={"down-after": down_after, "probe-interval": 500})
         keys = {"broker": broker.url, "group": GROUP, "node": NODE, **mqtt}
         path.write_text(path.read_text() + "[mqtt]\n" +
@@ -107,7 +109,8 @@ def read_all(sub) -> dict | None:
 
 def test_ddata_only_on_change(gateway, broker, subscribe):
     sub = subscribe(broker.port, f"spBv1.0/{GROUP}/+/{NODE}/{DEVICE}")
-    gw = gateway()
+    metrics_port = free_port()
+    gw = gateway(metrics=f"127.0.0.1:{metrics_port}")
     until(lambda: read_all(sub), "every metric read", WAIT_S)
     # the scenarios poll every 100 ms and the slave's registers stay as they are: nothing
     # more is published however long the scenarios run
@@ -116,6 +119,15 @@ def test_ddata_only_on_change(gateway, broker, subscribe):
     until(lambda: _runs(gw) >= runs + 20, "20 more runs", WAIT_S)
     assert len(sub.received()) == published
     assert status(gw)["mqtt"]["connected"] is True
+    # what the subscriber got is what the gateway counts, in its status and on /metrics
+    shown = mbgw("status", "--control", gw.control).stdout
+    assert f"mqtt       {broker.url} sparkplug node {NODE}: connected" in shown
+    with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics", timeout=5) as r:
+        text = r.read().decode()
+    assert "mbgw_mqtt_connected 1.0" in text
+    sent = status(gw)["mqtt"]["messages_sent"]
+    assert f"mbgw_mqtt_messages_sent_total {float(sent)}" in text
+    assert "mbgw_mqtt_commands_refused_total 0.0" in text
 
 
 def _runs(gw) -> int:
