@@ -65,6 +65,7 @@ class EdgeNode:
     # --- each tick, on the loop ---
 
     def tick(self, session: Session, lines: dict[str, str]) -> None:
+        self.sampler.begin()
         if not self.host_online:
             return
         if not self._born_node:

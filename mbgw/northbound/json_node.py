@@ -54,6 +54,7 @@ class JsonNode:
         self._send(session, self.status_topic, OFFLINE, qos=1)
 
     def tick(self, session: Session, lines: dict[str, str]) -> None:
+        self.sampler.begin()
         if self._discover:
             self._discover = not self._discovery(session)
         for name, state in lines.items():

@@ -24,6 +24,13 @@ class Sampler:
         self.table = table
         self.engines = engines
         self.stale_after_ms = stale_after_ms
+        self._ages: dict[str, dict[str, float | None]] = {}
+
+    def begin(self) -> None:
+        """A new tick: each engine's data ages read once (one hold of its lock, which the
+        runner's thread also takes), for every device the tick reads."""
+        self._ages = {kind: engine.data_ages() for kind, engine in self.engines.items()
+                      if engine is not None}
 
     def health(self, device: Device) -> str:
         engine = self.engines.get(device.first.kind)
@@ -38,8 +45,7 @@ class Sampler:
 
     def _scenario(self, sc: ScenarioConfig) -> dict[str, Reading]:
         names = codec.element_names(sc)
-        engine = self.engines.get(sc.kind)
-        age = None if engine is None else engine.data_age(sc.name)
+        age = self._ages.get(sc.kind, {}).get(sc.name)
         if age is None:
             return dict.fromkeys(names, Reading(None))
         stale_after = sc.stale_after_ms or self.stale_after_ms

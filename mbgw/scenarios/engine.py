@@ -269,12 +269,12 @@ class Scenarios:
             state = self._states.get(name)
             return None if state is None else state.scenario
 
-    def data_age(self, name: str) -> float | None:
-        """Seconds since scenario `name` last read its data; None: not yet (or no such
-        scenario)."""
+    def data_ages(self) -> dict[str, float | None]:
+        """Seconds since each scenario last read its data (None: not yet), taken under one
+        hold of the lock."""
+        now = self.clock()
         with self._lock:
-            state = self._states.get(name)
-            return None if state is None else state.data_age(self.clock())
+            return {name: state.data_age(now) for name, state in self._states.items()}
 
     def status(self) -> list[dict]:
         """Each scenario's state and counters, in the configuration's order."""
