@@ -51,6 +51,8 @@ def decode(sc: ScenarioConfig, words: list[int]) -> list[Value]:
         return [bool(b) for b in words]
     kind = value_type(sc)
     if sc.value_type is None:
+        if sc.swap == "none":
+            return list(words)
         return [int.from_bytes(_ordered([w], sc.swap), "big") for w in words]
     data = _ordered(words, sc.swap)
     if kind == "bool":

@@ -103,10 +103,15 @@ class Northbound:
             delay = min(delay * 2, BACKOFF_S[1])
 
     async def _serve(self, session: Session) -> None:
+        """A tick every TICK_S, at a fixed rate (a slow tick does not shift the next ones),
+        until the session is lost."""
+        loop = asyncio.get_running_loop()
+        due = loop.time()
         while not self._lost.is_set():
             self.profile.tick(session, self.lines())
+            due = max(due + TICK_S, loop.time())
             try:
-                await asyncio.wait_for(self._lost.wait(), TICK_S)
+                await asyncio.wait_for(self._lost.wait(), due - loop.time())
             except TimeoutError:
                 pass
 
