@@ -276,3 +276,17 @@ def test_stale_values_are_null_with_quality_500(gateway, broker, subscribe, slav
         assert list(metric.properties.keys) == ["Quality"]
         assert metric.properties.values[0].int_value == 500
     assert not births(sub, "DDEATH")
+
+
+def test_a_reload_with_a_new_node_id_ends_the_old_node_and_births_the_new(
+        gateway, broker, subscribe, tmp_path):
+    sub = subscribe(broker.port, "spBv1.0/#")
+    gw = gateway()
+    until(lambda: births(sub, "DBIRTH"), "a DBIRTH", WAIT_S)
+    path = tmp_path / "mbgw.toml"
+    path.write_text(path.read_text().replace(f'node = "{NODE}"', 'node = "gw2"'))
+    gw.proc.send_signal(signal.SIGHUP)
+    until(lambda: any(t == "spBv1.0/plant1/NBIRTH/gw2" for _, t, _, _ in sub.received()),
+          "gw2's NBIRTH", WAIT_S)
+    assert [t for _, t, _, _ in sub.received("NDEATH")] == [topic("NDEATH")]
+    assert status(gw)["mqtt"]["node"] == "gw2"
