@@ -31,6 +31,7 @@ class EdgeNode:
         self._session_bdseq = 0
         self.seq = 0
         self.host_online = cfg.primary_host is None
+        self.leave = False             # end this session (the primary host went offline)
         self._born_node = False
         self._born: set[str] = set()
         self._published: dict[str, dict[str, Reading]] = {}
@@ -57,6 +58,7 @@ class EdgeNode:
         self._born_node = False
         self._born.clear()
         self.host_online = self.cfg.primary_host is None
+        self.leave = False
 
     def farewell(self, session: Session) -> None:
         """Before a disconnect of our own: the death the Will would have been."""
@@ -139,9 +141,10 @@ class EdgeNode:
                 topic == sparkplug.state_topic(self.cfg.primary_host):
             online = sparkplug.host_online(payload)
             if online is not None:
+                # Sparkplug 3.0 §5.9: a primary host offline ends the session (NDEATH,
+                # DISCONNECT); the next one waits for it to be online again
+                self.leave = self._born_node and not online
                 self.host_online = online
-                if not online:
-                    self._born_node = False
             return []
         try:
             values = sparkplug.command_values(payload)

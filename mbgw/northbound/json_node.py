@@ -33,6 +33,7 @@ class JsonNode:
         self.counters = counters
         self._published: dict[str, Reading | str] = {}
         self._discover = True
+        self.leave = False             # the JSON profile never ends a session itself
 
     def will(self, session: Session) -> None:
         session.will(self.status_topic, OFFLINE, 1, True)

@@ -97,8 +97,12 @@ class Northbound:
             await self._serve(session)
             self.counters.connected = False
             self._session = None
+            if self.profile.leave:
+                self.profile.farewell(session)
+                log.info("mqtt: the primary host is offline: session ended")
+            else:
+                log.warning("mqtt: lost %s; again in %g s", self.cfg.broker, delay)
             await session.close()
-            log.warning("mqtt: lost %s; again in %g s", self.cfg.broker, delay)
             await asyncio.sleep(delay)
             delay = min(delay * 2, BACKOFF_S[1])
 
@@ -107,7 +111,7 @@ class Northbound:
         until the session is lost."""
         loop = asyncio.get_running_loop()
         due = loop.time()
-        while not self._lost.is_set():
+        while not self._lost.is_set() and not self.profile.leave:
             self.profile.tick(session, self.lines())
             due = max(due + TICK_S, loop.time())
             try:

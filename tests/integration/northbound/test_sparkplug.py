@@ -251,12 +251,16 @@ def test_births_wait_for_the_primary_hosts_state_online(gateway, broker, subscri
     state = "spBv1.0/STATE/scada1"
     sub.publish(state, '{"online": true, "timestamp": 1}', retain=True)
     until(lambda: births(sub, "NBIRTH") and births(sub, "DBIRTH"), "births", WAIT_S)
+    # offline: the node ends its session (NDEATH, bdSeq 0) and waits in the next one
     sub.publish(state, '{"online": false, "timestamp": 2}', retain=True)
-    until(lambda: status(gw)["mqtt"]["messages_sent"] and "STATE" in sub.received()[-1][1],
-          "the offline STATE", WAIT_S)
+    death = until(lambda: births(sub, "NDEATH"), "an NDEATH", WAIT_S)[0]
+    assert metrics(death) == {"bdSeq": 0}
+    until(lambda: status(gw)["mqtt"]["connects"] == 2, "a new session", WAIT_S)
+    assert len(births(sub, "NBIRTH")) == 1
     sub.publish(state, '{"online": true, "timestamp": 3}', retain=True)
     until(lambda: len(births(sub, "NBIRTH")) == 2, "births again after online", WAIT_S)
-    assert births(sub, "NBIRTH")[1].seq == 0
+    again = births(sub, "NBIRTH")[1]
+    assert again.seq == 0 and metrics(again)["bdSeq"] == 1
 
 
 def test_stale_values_are_null_with_quality_500(gateway, broker, subscribe, slave):
