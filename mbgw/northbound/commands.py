@@ -21,12 +21,11 @@ WRITE_WAIT_S = 10.0
 
 class Writes:
     def __init__(self, role: str | None, firewall: Firewall, devices: dict[str, Device],
-                 engines: dict, table, counters: NorthboundCounters) -> None:
+                 engines: dict, counters: NorthboundCounters) -> None:
         self.role = role
         self.firewall = firewall
         self.devices = devices
         self.engines = engines
-        self.table = table
         self.counters = counters
         self._refusals = RateLimitedLog()
 

@@ -42,7 +42,7 @@ class Northbound:
             EdgeNode(cfg, self.node, devices, sampler, self.counters) \
             if cfg.profile == "sparkplug" else \
             JsonNode(cfg, self.node, devices, sampler, self.counters)
-        self.writes = Writes(cfg.role, firewall, devices, engines, table, self.counters)
+        self.writes = Writes(cfg.role, firewall, devices, engines, self.counters)
         self._context = _context(cfg, client_tls) if cfg.tls else None
         self._task: asyncio.Task | None = None
         self._session: Session | None = None

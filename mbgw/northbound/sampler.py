@@ -1,6 +1,7 @@
 """The published state read on the loop: each metric's value from the exchange table (None
 before its scenario's first read), whether it is stale, and each device's health.  Read
-only: the line threads never wait for it."""
+only: a line thread waits for it at most while an engine's lock hands over its data ages,
+once a tick."""
 from dataclasses import dataclass
 
 from mbgw.config.scenario import ScenarioConfig
