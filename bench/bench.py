@@ -2,7 +2,7 @@
 """mbgw throughput, latency and line-gap benchmark.  Prints figures, never pass/fail.
 
     .venv/bin/python bench/bench.py [--quick] [--socat] [--fairness | --table | --tls |
-                                     --scenarios | --lines]
+                                     --scenarios | --lines | --mqtt]
 
 For each line -- 19200 baud, 115200 baud, and a full-speed pty -- a simulated RTU slave
 (bench/simline.c, compiled at run time) answers FC03 reads of 10 registers (8-byte request,
@@ -847,6 +847,10 @@ def main() -> None:
                     help="instead of the runs above: 8 lines at 115200 through one listener, "
                     "and the serial-to-serial bridge's added latency (bench/lines.py; about "
                     "45 s; --quick: 15 s)")
+    ap.add_argument("--mqtt", action="store_true",
+                    help="instead of the runs above: northbound MQTT's cost, 10,000 metric "
+                    "changes/s, MQTT off and on in turns (bench/mqtt.py; about 90 s; "
+                    "--quick: 20 s)")
     ap.add_argument("--web", action="store_true",
                     help="instead of the runs above: a client's latency with a browser on the "
                     "web console's Traffic page and without (bench/web.py; about 40 s)")
@@ -854,6 +858,10 @@ def main() -> None:
     if args.lines:
         import lines  # bench/lines.py, beside this script
         lines.run(args.quick)
+        return
+    if args.mqtt:
+        import mqtt  # bench/mqtt.py, beside this script
+        mqtt.run(args.quick)
         return
     if args.web:
         import web  # bench/web.py, beside this script

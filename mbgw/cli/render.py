@@ -53,8 +53,17 @@ def format_status(s: dict, now: float) -> str:
         lines += ["", *_firewall_section(s["firewall"])]
     if s.get("scenarios"):
         lines += ["", *format_scenarios(s["scenarios"], now)]
+    if s.get("mqtt"):
+        lines += ["", _mqtt_line(s["mqtt"])]
     lines += ["", *_counters_section(s)]
     return "\n".join(lines)
+
+
+def _mqtt_line(m: dict) -> str:
+    return (f"mqtt       {m['broker']} {m['profile']} node {m['node']}: "
+            f"{'connected' if m['connected'] else 'not connected'}, "
+            f"{m['messages_sent']} sent, {m['messages_dropped']} dropped, {m['writes']} "
+            f"writes, {m['commands_refused']} commands refused")
 
 
 def _lines_section(rows: list[dict]) -> list[str]:

@@ -317,6 +317,10 @@ class DeviceHealth:
         self._timing: dict[int, dict] = {}
         self._devices: dict[int, DeviceStats] = {}
 
+    def find(self, address: int) -> DeviceStats | None:
+        """The address's stats if it has any yet (any thread: nothing is created)."""
+        return self._devices.get(address)
+
     def get(self, address: int) -> DeviceStats:
         stats = self._devices.get(address)
         if stats is None:

@@ -143,6 +143,8 @@ class DaemonCollector:
         # () -> the remote servers the TCP face's routes reach: "server" and "counters"
         # (mbgw.slave.servers), or None
         self.servers: Callable[[], list[dict]] | None = None
+        # () -> northbound MQTT's status (mbgw.northbound.counters), or None: MQTT off
+        self.mqtt: Callable[[], dict | None] | None = None
         self.lines: Callable[[], list[dict]] = lambda: [
             {"name": PRIMARY_LINE, "mode": mode, "state": "up" if up() else "down"}]
 
@@ -167,6 +169,9 @@ class DaemonCollector:
             yield from scenario_families(self.scenarios())
         if self.servers is not None:
             yield from server_families(self.servers())
+        mqtt = self.mqtt() if self.mqtt is not None else None
+        if mqtt is not None:
+            yield from mqtt_families(mqtt)
 
     def _daemon(self):
         info = GaugeMetricFamily("mbgw_info", "mbgw's version and mode (always 1).",
@@ -514,3 +519,18 @@ class TransparentCollector:
 
 def transparent_collector(line, figures, started: float, table) -> TransparentCollector:
     return TransparentCollector(line, figures, started, table)
+
+
+def mqtt_families(status: dict):
+    """Northbound MQTT: the connection and its counts."""
+    yield GaugeMetricFamily("mbgw_mqtt_connected", "1 while the MQTT broker's session is up.",
+                            value=1 if status["connected"] else 0)
+    for name, key, help_text in (
+            ("mbgw_mqtt_messages_sent_total", "messages_sent", "MQTT messages published."),
+            ("mbgw_mqtt_messages_dropped_total", "messages_dropped",
+             "Values a slow MQTT broker could not take (a later message carried the latest)."),
+            ("mbgw_mqtt_commands_refused_total", "commands_refused",
+             "Writes from MQTT refused (no role, the firewall, a value the type cannot "
+             "carry)."),
+            ("mbgw_mqtt_connects_total", "connects", "MQTT sessions opened.")):
+        yield CounterMetricFamily(name, help_text, value=status[key])

@@ -339,10 +339,11 @@ function overviewPage(body) {
     devices: led("led-devices", "Devices down"),
   };
   const wrong = el("ul", { id: "overview-wrong" });
+  const mqtt = el("div", { id: "overview-mqtt" });
   body.append(el("div", { class: "panel", id: "front-panel" },
     ...Object.values(panelLeds).map((l) => l.node)),
     el("h2", { text: "What is wrong, since when" }), wrong,
-    el("h2", { text: "Gateway" }), facts);
+    el("h2", { text: "Gateway" }), facts, mqtt);
   let previous = null;
   return {
     async refresh() {
@@ -365,6 +366,15 @@ function overviewPage(body) {
         ["Scenarios", tally(s.scenarios || [], "state")],
         ["Counters since", localTime(s.counters_since)],
       ]));
+      clear(mqtt).append(...(s.mqtt ? [el("h2", { text: "MQTT" }),
+        factsTable("overview-mqtt-facts", [
+          ["Broker", `${s.mqtt.broker} (${s.mqtt.profile}, node ${s.mqtt.node})`],
+          ["Connected", s.mqtt.connected ? "yes" : "no"],
+          ["Messages sent", String(s.mqtt.messages_sent)],
+          ["Dropped (slow broker)", String(s.mqtt.messages_dropped)],
+          ["Writes", String(s.mqtt.writes)],
+          ["Refused commands", String(s.mqtt.commands_refused)],
+        ])] : []));
       const problems = troubles(s);
       clear(wrong).append(...(problems.length ? problems.map((p) => el("li", { text: p }))
         : [el("li", { class: "ok", text: "Nothing: the line is up, every device answers, " +
