@@ -1,8 +1,9 @@
 /* The benchmark's serial line: a simulated Modbus RTU slave and a direct RTU master, both on
  * a pty.  bench.py compiles this at run time (cc -O2) and drives it; it is not part of mbgw.
  *
- *   simline slave DEVICE|- BAUD
- *       Serve FC03/FC04 reads for unit 1 on DEVICE ("-": create a pty and print its name).
+ *   simline slave DEVICE|- BAUD [UNIT COUNT]
+ *       Serve FC03/FC04 reads for unit 1 on DEVICE ("-": create a pty and print its name),
+ *       and for UNIT its first COUNT reads only (a device that dies; never counted as bad).
  *       BAUD > 0: for each request, wait the time the request and the reply would take on
  *       the wire (10 bits a character, 8N1) from the request's arrival, then write the
  *       reply in one piece -- the write is the end of the reply on the line.  BAUD 0: answer
@@ -153,7 +154,7 @@ static int command(void)
     return 1;
 }
 
-static int run_slave(const char *device, long baud)
+static int run_slave(const char *device, long baud, int dying_unit, long dying_left)
 {
     int fd, keep = -1;
     const char *name = device;
@@ -219,7 +220,8 @@ static int run_slave(const char *device, long baud)
         if (have < 2)
             continue;
         size_t want = (req[1] == 3 || req[1] == 4) ? 8 : 0;
-        if (want == 0 || req[0] != 1) {
+        int dying = dying_unit > 0 && req[0] == dying_unit && dying_left > 0;
+        if (want == 0 || (req[0] != 1 && !dying)) {
             n_bad++;
             have = 0;
             continue;
@@ -232,6 +234,8 @@ static int run_slave(const char *device, long baud)
             continue;
         }
         have = 0;
+        if (dying)
+            dying_left--;
         n_tx++;
         if (reply_end && n_gaps < MAX_RECORDS) {
             gaps[n_gaps] = first_ns - reply_end;
@@ -426,8 +430,9 @@ closed:
 int main(int argc, char **argv)
 {
     prctl(PR_SET_TIMERSLACK, 1UL, 0, 0, 0);
-    if (argc == 4 && strcmp(argv[1], "slave") == 0)
-        return run_slave(argv[2], atol(argv[3]));
+    if ((argc == 4 || argc == 6) && strcmp(argv[1], "slave") == 0)
+        return run_slave(argv[2], atol(argv[3]), argc == 6 ? atoi(argv[4]) : 0,
+                         argc == 6 ? atol(argv[5]) : 0);
     if (argc == 2 && strcmp(argv[1], "tcp") == 0)
         return run_tcp();
     if (argc == 3 && strcmp(argv[1], "relay") == 0)

@@ -41,6 +41,11 @@ class SerialError(MbgwError, OSError):
     """The serial device cannot be opened or has gone away."""
 
 
+class TargetUnreachable(SerialError):
+    """A remote line's device cannot be reached: the connection was refused or timed out, or
+    the backoff after such a failure holds the next attempt back."""
+
+
 class LineTimeout(MbgwError):
     """No valid reply arrived on the serial line before the deadline.  mismatch: the last
     reply PDU that came and did not answer the request (another function, another size),

@@ -19,10 +19,12 @@ $SUDO apt-get build-dep -y -qq ./
 # systemd-container and mmdebstrap (scripts/container-test.sh boots the package under systemd
 # in a Debian 12 container; without recommends: libnss-mymachines would edit the host's
 # nsswitch.conf), and AFL++ with clang's sanitizer runtime (scripts/fuzz.sh: afl-clang-fast
-# with AddressSanitizer), and clang-format (.ci/run checks csrc/ and fuzz/ against .clang-format)
+# with AddressSanitizer), and clang-format (.ci/run checks csrc/ and fuzz/ against .clang-format),
+# and mosquitto with its clients (the northbound MQTT tests start Debian's broker on a free port
+# of 127.0.0.1, and the README's worked example subscribes with mosquitto_sub)
 $SUDO apt-get install -y -qq --no-install-recommends python3-venv socat mbpoll lintian systemd \
     tshark openssl sslscan chromium chromium-driver systemd-container mmdebstrap afl++ \
-    libclang-rt-14-dev clang-format
+    libclang-rt-14-dev clang-format mosquitto mosquitto-clients
 
 # Debian's own python3, the interpreter the .deb runs on (never a pyenv shim).
 /usr/bin/python3 -m venv .venv

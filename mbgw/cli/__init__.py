@@ -3,7 +3,8 @@ the operator's tools.  Nothing imports this package, and its modules never impor
 __init__.
 
 May import gateway, routing, slave, master, transparent, scenarios, upstream,
-line, monitor, net, table, ops, protocol, config, firewall, web, besides errors and audit.
+line, monitor, net, table, ops, protocol, config, firewall, web, northbound, besides errors
+and audit.
 See docs/architecture.md#the-packages.
 """
 import click

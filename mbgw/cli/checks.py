@@ -8,6 +8,7 @@ import re
 
 import click
 
+from mbgw.cli.mqtt_options import mqtt_config
 from mbgw.cli.options import ModeCommand
 from mbgw.cli.web_options import web_config
 from mbgw.config.file import Settings, resolve, with_file
@@ -24,16 +25,18 @@ _FLAG = re.compile(r"--[a-z][a-z-]*")
 
 
 def build(make_config, params: dict):
-    """make_config(**params) with the [web] settings and [net] request-timeout, which every
-    mode shares.  Raises
+    """make_config(**params) with the [web] and [mqtt] settings and [net] request-timeout,
+    which every mode shares.  Raises
     click.BadParameter (naming the option) when the values do not go together."""
     options = dict(params)
     options.pop("log_format", None)       # how the daemon logs, not a mode's setting
     web = web_config(options)
+    mqtt = mqtt_config(options)
     location = options.pop("location", DEFAULT_LOCATION)
     request_timeout = options.pop("request_timeout", DEFAULT_REQUEST_TIMEOUT_MS)
     web = dataclasses.replace(web, request_timeout_ms=request_timeout)
-    return dataclasses.replace(make_config(**options), web=web, location=location,
+    return dataclasses.replace(make_config(**options), web=web, mqtt=mqtt,
+                               location=location,
                                request_timeout_ms=request_timeout)
 
 

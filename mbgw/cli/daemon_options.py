@@ -3,6 +3,7 @@ location, control socket, metrics, logging, the firewall (from the file only) an
 console."""
 import click
 
+from mbgw.cli.mqtt_options import mqtt_options
 from mbgw.cli.options import parser, stack
 from mbgw.cli.web_options import web_options
 from mbgw.config import model
@@ -58,4 +59,5 @@ daemon_options = stack(
     click.option("--firewall", type=_FirewallRules(), default=None, hidden=True,
                  help="The configuration file's [[rule]] tables and [firewall] group."),
     web_options,
+    mqtt_options,
 )

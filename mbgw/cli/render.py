@@ -53,16 +53,33 @@ def format_status(s: dict, now: float) -> str:
         lines += ["", *_firewall_section(s["firewall"])]
     if s.get("scenarios"):
         lines += ["", *format_scenarios(s["scenarios"], now)]
+    if s.get("mqtt"):
+        lines += ["", _mqtt_line(s["mqtt"])]
     lines += ["", *_counters_section(s)]
     return "\n".join(lines)
+
+
+def _mqtt_line(m: dict) -> str:
+    return (f"mqtt       {m['broker']} {m['profile']} node {m['node']}: "
+            f"{'connected' if m['connected'] else 'not connected'}, "
+            f"{m['messages_sent']} sent, {m['messages_dropped']} dropped, {m['writes']} "
+            f"writes, {m['commands_refused']} commands refused")
 
 
 def _lines_section(rows: list[dict]) -> list[str]:
     """The daemon's lines (more than one, or routes of the file's)."""
     out = ["lines      name          state    requests  replies  timeouts  device"]
     out += [f"           {r['name']:<13} {r['state']:<8} {r['requests']:>8} {r['replies']:>8} "
-            f"{r['timeouts']:>9}  {r['device']} ({r['mode']})" for r in rows]
+            f"{r['timeouts']:>9}  {r['device']} ({r['mode']}{_connection(r)})" for r in rows]
     return out
+
+
+def _connection(row: dict) -> str:
+    """A remote line's figures of its connection, after its mode."""
+    counters = row.get("counters") or {}
+    if "reconnects" not in counters:
+        return ""
+    return f", {counters['reconnects']} reconnects, {counters['stray_replies']} stray replies"
 
 
 def line_status(s: dict, name: str) -> dict:
@@ -258,6 +275,11 @@ def _next_probe(d: dict) -> list[str]:
         lines.append(f"        own timing: stout {timing['stout_ms']} ms, retries "
                      f"{timing['retries']}, pause {timing['pause_ms']} ms, down after "
                      f"{timing['down_after']}, probe every {timing['probe_interval_ms']} ms")
+    if d.get("probe_timeout_ms") is not None:
+        p99 = d.get("learnt_p99_ms")
+        learnt = "no answer yet" if p99 is None else f"{p99:.1f} ms"
+        lines.append(f"        learnt p99 {learnt}, probe timeout "
+                     f"{d['probe_timeout_ms']:.1f} ms")
     wait = d.get("next_probe_in_s")
     return lines if wait is None else lines + [f"        next probe in {wait:.1f} s"]
 

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 from functools import partial
 
 from mbgw.config.lines import (
+    CONNECT_DELAY_RANGE,
     DEFAULT_SERVER_PORT,
     LINE_KINDS,
     LINE_MODES,
@@ -19,7 +20,9 @@ from mbgw.config.lines import (
     PRIMARY_LINE,
     TCP_FACE,
     DeviceConfig,
+    RemoteTarget,
     RouteConfig,
+    parse_connect,
 )
 from mbgw.config.model import (
     DOWN_AFTER_RANGE,
@@ -44,6 +47,13 @@ ROUTES_PARAM = "routes"
 MONITORS_PARAM = "monitors"
 DEVICES_PARAM = "devices"
 LINE_OWN_KEYS = ("name", "mode")
+# a remote line's own keys (`connect`: a device across the network instead of `device`)
+REMOTE_KEYS = ("connect", "connect-delay", "pause")
+# what a remote line takes from [serial] when its table leaves them out
+SERIAL_DEFAULTS = ("stout", "retries", "down-after", "probe-interval")
+# the serial port's own keys, which a remote line has no use for
+PORT_KEYS = ("device", "baudrate", "format", "interface", "rtsdelays", "dtr", "rts", "cts",
+             "xonxoff", "silence", "protocol", "ascii-timeout", "interframe-silence")
 MASTER_LINE_REFUSED = ("stout", "nocheck")      # as `mbgw master --stout` is refused
 # a line in monitor mode takes a master-mode line's keys: the port's settings, no timing
 LISTENING_KEYS_OF = {"monitor": "master"}
@@ -69,6 +79,9 @@ class LineTable:
     mode: str
     params: dict = field(default_factory=dict)
     keys: dict = field(default_factory=dict)     # as written: key name -> TOML value
+    remote: RemoteTarget | None = None           # connect
+    connect_delay_ms: int = 0
+    pause_ms: int = 0
 
 
 def parse_lines(schema: Schema, found: list[dict], daemon_mode: str
@@ -107,8 +120,13 @@ def _parse_line(schema: Schema, fields: dict, index: int, problems: list[str]
         return None
     keys_of = LISTENING_KEYS_OF.get(mode, mode)
     before = len(problems)
+    remote = _remote(label, mode, fields, problems)
     for key_name, value in fields.items():
-        if key_name in LINE_OWN_KEYS:
+        if key_name in LINE_OWN_KEYS or key_name in REMOTE_KEYS:
+            continue
+        if "connect" in fields and key_name in PORT_KEYS:
+            problems.append(f"{label}.{key_name}: a serial port's key; the line is "
+                            f"connect = {fields['connect']!r}")
             continue
         key = schema.find("serial", key_name)
         if key is None:
@@ -118,12 +136,36 @@ def _parse_line(schema: Schema, fields: dict, index: int, problems: list[str]
             problems.append(f"{label}.{key_name}: applies to slave-mode lines only")
         else:
             problems += check_value(schema, key, keys_of, value, f"{label}.{key_name}")
-    if "device" not in fields:
-        problems.append(f"{label}.device: missing; every line needs its device")
+    if "device" not in fields and "connect" not in fields:
+        problems.append(f"{label}.device: missing; every line needs its device (or connect)")
     if len(problems) > before:
         return None
     return LineTable(name, mode, _params(schema, fields, keys_of),
-                     {k: v for k, v in fields.items() if k not in LINE_OWN_KEYS})
+                     {k: v for k, v in fields.items() if k not in LINE_OWN_KEYS},
+                     remote, fields.get("connect-delay", 0), fields.get("pause", 0))
+
+
+def _remote(label: str, mode: str, fields: dict, problems: list[str]) -> RemoteTarget | None:
+    """connect, connect-delay and pause, checked (a remote line is a target: slave mode)."""
+    if "connect" not in fields:
+        problems += [f"{label}.{k}: only with connect = \"KIND://HOST:PORT\""
+                     for k in REMOTE_KEYS if k in fields]
+        return None
+    remote = None
+    try:
+        text = typed(label, fields, "connect", str, "\"KIND://HOST:PORT\"")
+        remote = parse_connect(f"{label}.connect", text)
+        for key, (low, high) in (("connect-delay", CONNECT_DELAY_RANGE),
+                                 ("pause", PAUSE_RANGE)):
+            value = typed(label, fields, key, int, "an integer (ms)", 0)
+            if not low <= value <= high:
+                raise ConfigError(f"{label}.{key}: {value} out of range {low}..{high}")
+    except ConfigError as err:
+        problems.append(str(err))
+    if mode != "slave":
+        problems.append(f"{label}.connect: a remote line is a target (mode = \"slave\"), "
+                        f"got mode {mode!r}")
+    return remote
 
 
 def line_keys(schema: Schema) -> list[str]:

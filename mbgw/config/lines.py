@@ -33,6 +33,54 @@ MAX_LINES = 32
 MAX_ROUTES = 256
 DEFAULT_SERVER_PORT = 502
 MAX_SERVER_UNIT = 255
+# `connect`'s schemes: a line that is a device across the network, and how its frames travel
+REMOTE_KINDS = ("modbus-tcp", "rtu-over-tcp", "ascii-over-tcp", "rtu-over-udp", "modbus-udp")
+CONNECT_DELAY_RANGE = (0, 65535)   # ms after each TCP connection before the first request
+
+
+@dataclass(frozen=True)
+class RemoteTarget:
+    """Where a remote line's device is (`connect = "KIND://HOST:PORT"`)."""
+    kind: str
+    host: str
+    port: int
+
+    @property
+    def url(self) -> str:
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"{self.kind}://{host}:{self.port}"
+
+    @property
+    def mbap(self) -> bool:
+        """Modbus TCP framing (MBAP header, transaction ids), not the serial line's."""
+        return self.kind in ("modbus-tcp", "modbus-udp")
+
+    @property
+    def datagrams(self) -> bool:
+        return self.kind.endswith("-udp")
+
+
+def parse_connect(label: str, text: str) -> RemoteTarget:
+    """`KIND://HOST:PORT` (PORT 502 by default for modbus-tcp and modbus-udp)."""
+    kind, sep, rest = text.partition("://")
+    if not sep or kind not in REMOTE_KINDS:
+        raise ConfigError(f"{label}: {text!r}: expected KIND://HOST:PORT, KIND one of "
+                          f"{', '.join(REMOTE_KINDS)}")
+    host, port_text = rest, ""
+    if rest.startswith("["):
+        host, _, tail = rest[1:].partition("]")
+        port_text = tail.removeprefix(":")
+    elif rest.count(":") == 1:
+        host, port_text = rest.split(":")
+    if not host:
+        raise ConfigError(f"{label}: {text!r}: no host")
+    if not port_text:
+        if kind not in ("modbus-tcp", "modbus-udp"):
+            raise ConfigError(f"{label}: {text!r}: give the port, e.g. {kind}://{host}:4001")
+        port_text = str(DEFAULT_SERVER_PORT)
+    if not port_text.isdigit() or not 1 <= int(port_text) <= 65535:
+        raise ConfigError(f"{label}: {text!r}: port {port_text!r} is not 1..65535")
+    return RemoteTarget(kind, host, int(port_text))
 
 
 @dataclass(frozen=True)
@@ -45,6 +93,8 @@ class LineConfig:
     demotion: Demotion = field(default_factory=Demotion)
     turnaround_ms: int = DEFAULT_TURNAROUND_MS   # slave mode: the pause after a broadcast
     late_window_ms: int | None = None            # slave mode: None: stout
+    remote: RemoteTarget | None = None           # `connect`: a device across the network
+    connect_delay_ms: int = 0                    # remote over TCP: wait after connecting
 
     def __post_init__(self) -> None:
         if self.name != PRIMARY_LINE and not NAME_PATTERN.fullmatch(self.name):

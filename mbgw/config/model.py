@@ -9,6 +9,7 @@ import stat
 from dataclasses import dataclass, field
 
 from mbgw.config.firewall import FirewallConfig
+from mbgw.config.mqtt import MqttConfig
 from mbgw.config.scenario import check_scenarios
 from mbgw.config.slaveid import SlaveIdTable
 from mbgw.errors import ConfigError
@@ -474,6 +475,7 @@ class SlaveConfig:
     tls: TlsConfig = field(default_factory=TlsConfig)
     upstream_tls: UpstreamTlsConfig = field(default_factory=UpstreamTlsConfig)
     web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
+    mqtt: MqttConfig = field(default_factory=MqttConfig)   # [mqtt]: northbound MQTT
     request_timeout_ms: int = DEFAULT_REQUEST_TIMEOUT_MS   # [net] request-timeout
     location: str = DEFAULT_LOCATION   # [general] location, the guide's set location
     gateway_unit: int = 0          # [general] gateway-unit: the TCP face's unit of the
@@ -548,6 +550,7 @@ class MasterConfig:
     config_file: str | None = None  # the file the settings came from (scenario ... --save)
     tls: TlsConfig = field(default_factory=TlsConfig)    # on the table's server
     web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
+    mqtt: MqttConfig = field(default_factory=MqttConfig)   # [mqtt]: northbound MQTT
     request_timeout_ms: int = DEFAULT_REQUEST_TIMEOUT_MS   # [net] request-timeout
     location: str = DEFAULT_LOCATION   # [general] location, the guide's set location
     authip: tuple = ()              # the table server's allowed clients; empty: anyone

@@ -38,7 +38,12 @@ CONFIG_ZONE_FIRST = 0x8000         # read-only: a read scenario cannot store the
 KEYS = ("name", "slave", "server", "unit", "function", "address", "quantity", "table",
         "read-address", "read-quantity", "read-table", "write-address", "write-quantity",
         "write-table", "cycle", "trigger", "retries", "stale-after", "enabled", "tls",
-        "fingerprint", "send-unwritten")
+        "fingerprint", "send-unwritten", "type", "swap", "deadband")
+# what a read scenario's data is, published northbound (MQTT): the registers each type takes
+# (None: any number; string: two characters a register)
+TYPE_REGISTERS = {"uint16": 1, "int16": 1, "uint32": 2, "int32": 2, "float32": 2, "bool": 1,
+                  "string": None}
+SWAPS = ("none", "bytes", "words")     # bytes: BADC, words: CDAB
 
 
 @dataclass(frozen=True)
@@ -62,6 +67,9 @@ class ScenarioConfig:
     tls: bool = False              # TCP scenario: over Modbus/TCP Security
     fingerprint: bytes | None = None   # tls: the server certificate's SHA-256, pinned
     send_unwritten: bool = False   # a write: send table registers nobody has written yet
+    value_type: str | None = None  # a read's data as one typed value (None: uint16 registers
+    swap: str = "none"             # or bits, one value each); swap: the byte/word order
+    deadband: float = 0.0          # a published number changes by more than this, or not
 
     @property
     def kind(self) -> str:
@@ -146,6 +154,12 @@ class ScenarioConfig:
             out["enabled"] = False
         if self.send_unwritten:
             out["send-unwritten"] = True
+        if self.value_type is not None:
+            out["type"] = self.value_type
+        if self.swap != "none":
+            out["swap"] = self.swap
+        if self.deadband:
+            out["deadband"] = self.deadband
         return out
 
 
@@ -283,6 +297,8 @@ def parse_scenario(fields: dict, where: str, label: str | None = None) -> Scenar
     stale_after = checked(lambda: _stale_after(f, function))
     send_unwritten = checked(lambda: _send_unwritten(f, function))
     fingerprint = checked(lambda: _fingerprint(f, target[3])) if target else None
+    untyped = (None, "none", 0.0)
+    typed = checked(lambda: _typed(f, function, read[1]), untyped) if read else untyped
     if problems:
         raise ScenarioError(problems)
     slave, server, unit, tls = target
@@ -293,7 +309,8 @@ def parse_scenario(fields: dict, where: str, label: str | None = None) -> Scenar
         slave=slave, server=server, unit=unit, cycle_ms=cycle_ms, on_change=on_change,
         write_address=write[0], write_quantity=write[1], write_table=write[2],
         retries=retries, stale_after_ms=stale_after, enabled=enabled, tls=tls,
-        fingerprint=fingerprint, send_unwritten=send_unwritten)
+        fingerprint=fingerprint, send_unwritten=send_unwritten, value_type=typed[0],
+        swap=typed[1], deadband=typed[2])
 
 
 def _close_key(key: str) -> str:
@@ -325,6 +342,41 @@ def _send_unwritten(f: "_Fields", function: int) -> bool:
         raise ConfigError(f"{f.label}: send-unwritten: only a write sends table data "
                           f"(function 5, 6, 15, 16 or 23)")
     return send_unwritten
+
+
+def _typed(f: "_Fields", function: int, quantity: int) -> tuple[str | None, str, float]:
+    """(type, swap, deadband): how a read's data is published northbound."""
+    value_type = f.fields.get("type")
+    swap = f.fields.get("swap", "none")
+    deadband = f.fields.get("deadband", 0.0)
+    for key in ("type", "swap", "deadband"):
+        if f.has(key) and function not in READS:
+            raise ConfigError(f"{f.label}: {key}: only a read scenario's data is published")
+    if value_type is not None and value_type not in TYPE_REGISTERS:
+        raise f.error("type", value_type, f"expected one of {', '.join(TYPE_REGISTERS)}")
+    if swap not in SWAPS:
+        raise f.error("swap", swap, f"expected one of {', '.join(SWAPS)}")
+    if isinstance(deadband, str):
+        try:
+            deadband = float(deadband)
+        except ValueError:
+            raise f.error("deadband", deadband, "expected a number") from None
+    if isinstance(deadband, bool) or not isinstance(deadband, (int, float)) \
+            or not 0 <= deadband < float("inf"):
+        raise f.error("deadband", deadband, "expected a number, 0 or more")
+    bits = function in BIT_FUNCTIONS
+    if bits and value_type not in (None, "bool"):
+        raise f.error("type", value_type, "a bit scenario's data is bool")
+    if bits and swap != "none":
+        raise f.error("swap", swap, "a bit scenario's data has no byte order")
+    size = TYPE_REGISTERS.get(value_type or "")
+    if size is not None and quantity != size:
+        unit = "bit" if bits else "register" if size == 1 else "registers"
+        key = "read-quantity" if function == 23 else "quantity"
+        raise f.error("type", value_type, f"takes {size} {unit}, not {key} {quantity}")
+    if value_type in ("bool", "string") and deadband:
+        raise f.error("deadband", deadband, f"only for a number, not {value_type}")
+    return value_type, swap, float(deadband)
 
 
 def _fingerprint(f: "_Fields", tls: bool) -> bytes | None:

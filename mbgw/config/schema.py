@@ -14,7 +14,7 @@ MODES = ("slave", "master", "transparent")  # "set serial mode slave|master|tran
 MODE_KEY = "mode"                          # in [serial]; selects the command `mbgw run` starts
 PROTOCOL_KEY = "protocol"                  # "set serial mode rtu|ascii" sets it
 PROTOCOL_WORDS = ("rtu", "ascii")
-GROUPS = ("serial", "net", "general", "table", "tls", "transparent", "web")
+GROUPS = ("serial", "net", "general", "table", "tls", "transparent", "web", "mqtt")
 # [serial]: the options of class SerialOption (both modes' line settings) and the slave mode's
 # line behaviour below; [net]: the guide's "set net ..." commands and
 # our network options; [general]: the rest (logging, control socket, metrics, ...); [table]:
@@ -217,6 +217,11 @@ class WebOption(TableOption):
     def __init__(self, *args, secret: bool = False, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.secret = secret
+
+
+class MqttOption(TableOption):
+    """An option of northbound MQTT (--mqtt-broker, ...): its key is `key` in [mqtt]."""
+    group = "mqtt"
 
 
 def is_secret(param: click.Parameter | None) -> bool:

@@ -18,6 +18,7 @@ from mbgw.config.model import (
     WebConfig,
     parse_ip,
 )
+from mbgw.config.mqtt import MqttConfig
 from mbgw.errors import ConfigError
 
 EOF_CHARS = {"nul": b"\x00", "space": b" ", "lf": b"\n", "cr": b"\r", "crlf": b"\r\n",
@@ -101,6 +102,7 @@ class TransparentModeConfig:
     tcpto_ms: int = DEFAULT_TCPTO_MS   # TCP scenarios: the time for a transaction with a server
     tls: TlsConfig = field(default_factory=TlsConfig)    # on the table's server
     web: WebConfig = field(default_factory=WebConfig)   # [web]: the web console
+    mqtt: MqttConfig = field(default_factory=MqttConfig)   # [mqtt]: northbound MQTT
     request_timeout_ms: int = DEFAULT_REQUEST_TIMEOUT_MS   # [net] request-timeout
     location: str = DEFAULT_LOCATION   # [general] location, the guide's set location
 

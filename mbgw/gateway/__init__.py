@@ -3,6 +3,6 @@ the table and the remote servers, wired by the routes, around one skeleton.  The
 package below cli that may import every mode's package.
 
 May import routing, slave, master, transparent, scenarios, upstream, line, monitor,
-net, table, ops, protocol, config, firewall, web, besides errors and audit.
+net, table, ops, protocol, config, firewall, web, northbound, besides errors and audit.
 See docs/architecture.md#threads.
 """

@@ -9,6 +9,7 @@ import signal
 import time
 
 from mbgw.errors import ListenError
+from mbgw.gateway.northbound import NorthboundService
 from mbgw.ops.events import EventRing
 from mbgw.ops.reload import ReloadReport, Reloads
 from mbgw.ops.restart import Restart
@@ -43,15 +44,16 @@ async def serve_mode(parts: ModeParts, reconfigure, restart: Restart | None = No
     started = time.time()
     engines = parts.engines            # the scenarios' engines by kind; "tcp" while they run
     parts.status.scenario_engines = engines
+    northbound = NorthboundService(parts, engines)
     try:
-        metrics = start_metrics(cfg.metrics, lambda m: _with_lines(with_scenarios(
-            parts.collector(m, started), engines), parts))
+        metrics = start_metrics(cfg.metrics, lambda m: northbound.with_metrics(_with_lines(
+            with_scenarios(parts.collector(m, started), engines), parts)))
     except ListenError:
         parts.abandon()
         raise
     parts.start(idle_ms(watchdog_interval()))
-    commands = {**parts.status.commands(), **parts.commands,
-                **scenario_commands(engines, cfg.config_file)}
+    commands = northbound.with_status({**parts.status.commands(), **parts.commands,
+                                       **scenario_commands(engines, cfg.config_file)})
     control = await start_control(cfg.control, commands)
     reloads = Reloads(parts.status, reconfigure)
     events = EventRing().attach()
@@ -70,12 +72,14 @@ async def serve_mode(parts: ModeParts, reconfigure, restart: Restart | None = No
 
     scenarios = TcpScenarios(parts.table, engines, parts.health, parts.trace)
     scenarios.start(cfg.scenarios, cfg.tcpto_ms, client_tls(cfg))
+    northbound.start(cfg)
 
     async def apply(new, report: ReloadReport) -> None:
         await console.reconfigure(new.web, report)
         await parts.apply(new, report)
         await asyncio.to_thread(scenarios.reconfigure, new.scenarios, new.tcpto_ms,
                                 client_tls(new))
+        await northbound.reconfigure(new)
     reloads.apply = apply
 
     tasks = [asyncio.ensure_future(task()) for task in parts.tasks()]
@@ -83,6 +87,7 @@ async def serve_mode(parts: ModeParts, reconfigure, restart: Restart | None = No
         await serve_until_stopped(stop, parts.status, EveryThread(parts.threads), reloads,
                                   control, metrics)
     finally:
+        await northbound.stop()
         await console.close()
         await asyncio.to_thread(scenarios.stop)
     for task in tasks:

@@ -169,6 +169,18 @@ def client_context(cfg: UpstreamTlsConfig) -> ssl.SSLContext:
                     ("tls.client-key", cfg.client_key), ("tls.server-ca", cfg.server_ca))
 
 
+def broker_context(cert: str | None, key: str | None, ca: str | None) -> ssl.SSLContext:
+    """The context of the connection to an MQTT broker: TLS 1.2/1.3, the broker's
+    certificate checked against ca (None: the system's CAs) and against the broker's host
+    name; the client certificate (cert, key) shown when given.  Raises ConfigError."""
+    context = ssl.create_default_context(ssl.Purpose.SERVER_AUTH, cafile=ca)
+    context.minimum_version = ssl.TLSVersion.TLSv1_2
+    if cert is not None and key is not None:
+        check_certificate(cert, "mqtt.cert")
+        load_pair(context, ("mqtt.cert", cert), ("mqtt.key", key))
+    return context
+
+
 def _context(protocol: int, cert: tuple[str, str], key: tuple[str, str],
              ca: tuple[str, str]) -> ssl.SSLContext:
     """TLS 1.2 or 1.3, the peer's certificate required and checked against ca, ours (cert,

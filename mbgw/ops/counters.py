@@ -58,6 +58,13 @@ class Counters(_Counting):
 
 
 @dataclass(slots=True)
+class RemoteCounters(Counters):
+    """A remote line's (`connect`): slave mode's, and its connection's."""
+    reconnects: int = 0        # connections made to the device after the first
+    stray_replies: int = 0     # replies dropped: late, duplicate, or answering no request
+
+
+@dataclass(slots=True)
 class MasterCounters(_Counting):
     """Master mode's; the counters line at stop lists these."""
     requests: int = 0

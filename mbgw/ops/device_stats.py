@@ -8,14 +8,25 @@ thread for status and metrics.  Health is judged from recent outcomes and logged
 change, never per failure.
 
 Health also drives the line (demotion, HealthRule): an address is down after `down_after`
-transactions in a row without a valid reply; while it is down its requests do not go on the
+transactions in a row without a valid reply and no valid reply for `down_after` x its stout
+(a rule without a stout: the count alone); while it is down its requests do not go on the
 line (admit() says so, the caller refuses them at once) but for one probe per interval, the
 interval doubling while the probes fail; the first answer, an exception reply included, ends
 it.  HealthRule.down flags the down addresses for whoever must tell at once: the routing, and
 slave mode's C shortcut, which hands their requests back rather than putting them on the line.
+
+The probe (slave mode).  The line thread keeps, per address, a request to probe it with
+(probe_adu): the last answered request that writes nothing (pdu.READ_ONLY), or, before any,
+the first request that timed out if it writes nothing.  With one kept, the line thread sends
+the probes itself (probe_due) and every other request is refused while the address is down;
+without, the next request admitted is the probe, as in master mode.  A probe waits for the
+device's learnt response time (probe_timeout_ms): 3 x the p99 of its last LEARNT answers, in
+[PROBE_TIMEOUT_MIN_MS, stout], its stout before any answer.
 """
 import logging
+import math
 import time
+from array import array
 
 from mbgw.audit import Kind, event
 from mbgw.config.model import PROBE_BACKOFF_MAX_MS, Demotion
@@ -31,23 +42,27 @@ MASTER_COUNTS = ("transactions", "replies", "timeouts", "unreachable", "wrong_un
 ALL_COUNTS = tuple(dict.fromkeys(COUNTS + MASTER_COUNTS))
 LATENCY_BUCKETS_MS = (2, 5, 10, 25, 50, 100, 250, 500, 1000, 2500, 5000)
 RECENT_WINDOW = 20             # outcomes considered for "degraded"
+LEARNT = 100                   # the answers whose latency makes the learnt p99
+PROBE_TIMEOUT_FACTOR = 3       # a probe waits this many times the learnt p99 ...
+PROBE_TIMEOUT_MIN_MS = 20      # ... at least this, at most the device's stout
 
 UP, DEGRADED, DOWN = "up", "degraded", "down"
 
 
 class HealthRule:
     """The settings of health that a table's devices share, and which addresses are down."""
-    __slots__ = ("down_after", "probe_interval_s", "probe_max_s", "down")
+    __slots__ = ("down_after", "probe_interval_s", "probe_max_s", "down", "stout_ms")
 
-    def __init__(self, settings: Demotion | None = None, down: bytearray | None = None
-                 ) -> None:
+    def __init__(self, settings: Demotion | None = None, down: bytearray | None = None,
+                 stout_ms: int = 0) -> None:
         """down: the flags of the rule of the line's other addresses (a device's own rule,
-        [[device]], shares them)."""
+        [[device]], shares them); stout_ms: the devices' stout (0: none, master mode)."""
         self.down = down if down is not None else bytearray(256)   # 1: down (read by C too)
-        self.set(settings or Demotion())
+        self.set(settings or Demotion(), stout_ms)
 
-    def set(self, settings: Demotion) -> None:
+    def set(self, settings: Demotion, stout_ms: int = 0) -> None:
         self.down_after = settings.down_after   # failures in a row that make it down; 0: never
+        self.stout_ms = stout_ms
         self.probe_interval_s = settings.probe_interval_ms / 1000
         self.probe_max_s = max(PROBE_BACKOFF_MAX_MS, settings.probe_interval_ms) / 1000
 
@@ -78,7 +93,8 @@ class DeviceStats:
                               "gateway_exceptions", "latency_buckets", "latency_sum_ms",
                               "last_success", "consecutive_failures", "recent_failures",
                               "health", "health_since", "probe_at", "probe_wait_s",
-                              "invalid_bytes", "timing")
+                              "invalid_bytes", "timing", "silent_since", "latencies",
+                              "latency_at", "latencies_full", "probe_adu", "first_timeout_seen")
 
     def __init__(self, address: int | None, counts: tuple = COUNTS,
                  rule: HealthRule | None = None, name: str | None = None) -> None:
@@ -100,6 +116,13 @@ class DeviceStats:
         self.probe_at = 0.0            # while down: when the next probe may go (monotonic)
         self.probe_wait_s = 0.0        # while down: the interval after a failed probe
         self.timing: dict | None = None    # its own timing ([[device]]), as status shows it
+        # since when no valid reply came (monotonic; None: no failure since the last one)
+        self.silent_since: float | None = None
+        self.latencies = array("d", bytes(8 * LEARNT))     # the last answers', a ring (ms)
+        self.latency_at = 0            # where the next answer's goes (small ints: no allocation)
+        self.latencies_full = False    # LEARNT answers have come: the whole ring counts
+        self.probe_adu: bytes | None = None    # the request its probes repeat (slave mode)
+        self.first_timeout_seen = False
 
     def admit(self, now: float) -> bool:
         """Whether a request for this address goes on the line at `now` (time.monotonic()):
@@ -108,11 +131,35 @@ class DeviceStats:
         counted refused (demoted_rejects)."""
         if self.health != DOWN:
             return True
-        if now < self.probe_at:
+        if now < self.probe_at or self.probe_adu is not None:   # the line thread probes
             self.demoted_rejects += 1
             return False
         self.probe_at = now + self.probe_wait_s
         return True
+
+    def probe_due(self, now: float) -> bytes | None:
+        """The probe to send at `now`, when it is down, one is due and a request is kept
+        for it; the next one is due an interval later whatever becomes of this one."""
+        if self.health != DOWN or self.probe_adu is None or now < self.probe_at:
+            return None
+        self.probe_at = now + self.probe_wait_s
+        return self.probe_adu
+
+    def probe_timeout_ms(self) -> float:
+        """How long its probe waits for the reply: see the module's docstring."""
+        stout_ms = self.stout_ms
+        p99 = self.learnt_p99_ms()
+        if p99 is None:
+            return stout_ms
+        return min(max(PROBE_TIMEOUT_FACTOR * p99, PROBE_TIMEOUT_MIN_MS), stout_ms)
+
+    def learnt_p99_ms(self) -> float | None:
+        """The p99 of the latencies of its last LEARNT answers (None: none yet); computed
+        when asked (a probe, status), never per transaction."""
+        n = LEARNT if self.latencies_full else self.latency_at
+        if not n:
+            return None
+        return sorted(self.latencies[:n])[math.ceil(0.99 * n) - 1]
 
     def answered(self, latency_ms: float, exception_code: int | None) -> None:
         self.replies += 1
@@ -123,7 +170,15 @@ class DeviceStats:
         while bucket < len(LATENCY_BUCKETS_MS) and latency_ms > LATENCY_BUCKETS_MS[bucket]:
             bucket += 1
         self.latency_buckets[bucket] += 1
+        at = self.latency_at
+        self.latencies[at] = latency_ms
+        at += 1
+        if at == LEARNT:
+            at = 0
+            self.latencies_full = True
+        self.latency_at = at
         self.last_success = time.time()
+        self.silent_since = None
         self.consecutive_failures = 0
         self.invalid_bytes = 0
         self._judge(False)
@@ -132,6 +187,8 @@ class DeviceStats:
         """A request without a valid reply; invalid_bytes: what came all the same."""
         self.consecutive_failures += 1
         self.invalid_bytes += invalid_bytes
+        if self.silent_since is None:  # since the failed request went, stout before
+            self.silent_since = time.monotonic() - self.stout_ms / 1000
         if self.health == DOWN:        # a probe failed: the next waits twice as long
             self.probe_wait_s = min(2 * self.probe_wait_s, self.rule.probe_max_s)
             self.probe_at = time.monotonic() + self.probe_wait_s
@@ -155,7 +212,7 @@ class DeviceStats:
     def rejudge(self) -> None:
         """Health by the rule, from the outcomes so far (also after the rule changed)."""
         down_after = self.rule.down_after
-        if down_after and self.consecutive_failures >= down_after:
+        if down_after and self.consecutive_failures >= down_after and self._silent_long():
             health = DOWN
         elif self.recent_failures:
             health = DEGRADED
@@ -163,6 +220,20 @@ class DeviceStats:
             health = UP
         if health != self.health:
             self._change(health)
+
+    @property
+    def stout_ms(self) -> int:
+        """Its rule's stout; none for what is not a serial address (a TCP scenario's server,
+        which shares the line's rule but waits tcpto)."""
+        return self.rule.stout_ms if self.address is not None else 0
+
+    def _silent_long(self) -> bool:
+        """No valid reply for down_after x stout (or already down: it stays so)."""
+        if self.health == DOWN:
+            return True
+        since = self.silent_since
+        return since is not None and \
+            time.monotonic() - since >= self.rule.down_after * self.stout_ms / 1000
 
     def reprobe(self, now: float) -> None:
         """The probe interval has changed: while down, the backoff starts again from it, and
@@ -228,6 +299,11 @@ class DeviceStats:
             if self.health == DOWN else None)
         if self.timing is not None:
             data["timing"] = self.timing
+        p99 = self.learnt_p99_ms()
+        if self.stout_ms:
+            data.update(learnt_p99_ms=None if p99 is None else round(p99, 3),
+                        probe_timeout_ms=round(self.probe_timeout_ms(), 3),
+                        stout_ms=self.stout_ms)
         return data
 
 
@@ -242,6 +318,10 @@ class DeviceHealth:
         self._timing: dict[int, dict] = {}
         self._devices: dict[int, DeviceStats] = {}
 
+    def find(self, address: int) -> DeviceStats | None:
+        """The address's stats if it has any yet (any thread: nothing is created)."""
+        return self._devices.get(address)
+
     def get(self, address: int) -> DeviceStats:
         stats = self._devices.get(address)
         if stats is None:
@@ -250,16 +330,18 @@ class DeviceHealth:
             stats.timing = self._timing.get(address)
         return stats
 
-    def set_rule(self, settings: Demotion, own: dict[int, tuple[Demotion, dict]] | None = None
-                 ) -> None:
+    def set_rule(self, settings: Demotion, own: dict[int, tuple[Demotion, dict]] | None = None,
+                 stout_ms: int = 0) -> None:
         """New settings (at start, or a reload, on the line thread): every device is judged
         again by them.  own: by address, a device's own demotion and its timing as status
-        shows it; such a device is listed from now on, even before its first request."""
+        shows it (its stout_ms); such a device is listed from now on, even before its first
+        request.  stout_ms: the others' stout (0: none, master mode)."""
         own = own or {}
         now = time.monotonic()
         before = {a: self._rule_of(a).probe_interval_s for a in self._devices}
-        self.rule.set(settings)
-        self._own = {a: HealthRule(demotion, self.rule.down) for a, (demotion, _) in own.items()}
+        self.rule.set(settings, stout_ms)
+        self._own = {a: HealthRule(demotion, self.rule.down, timing.get("stout_ms", stout_ms))
+                     for a, (demotion, timing) in own.items()}
         self._timing = {a: timing for a, (_, timing) in own.items()}
         for address in own:
             self.get(address)
@@ -273,6 +355,11 @@ class DeviceHealth:
 
     def _rule_of(self, address: int) -> HealthRule:
         return self._own.get(address, self.rule)
+
+    def probing(self) -> list[DeviceStats]:
+        """The devices that are down with a request kept to probe them."""
+        return [d for d in self._devices.values()
+                if d.health == DOWN and d.probe_adu is not None]
 
     def all(self) -> list[DeviceStats]:
         return [self._devices[a] for a in sorted(self._devices)]

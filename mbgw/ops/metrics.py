@@ -55,7 +55,13 @@ _COUNTER_HELP = {
                               "byte (health checks); not refused handshakes.",
     "connections_timed_out": "Modbus TCP connections closed because a request begun was not "
                              "whole within request-timeout, or none came within a minute.",
+    "reconnects": "Connections a remote line made to its device after the first.",
+    "stray_replies": "Replies a remote line dropped: late, duplicate, or answering no "
+                     "outstanding request.",
 }
+
+# counters whose metric is named for the line, not for the event
+_LINE_METRIC = {"reconnects": "mbgw_line_reconnects", "stray_replies": "mbgw_line_stray_replies"}
 
 _DEVICE_HELP = {
     "transactions": "Requests sent to this serial address (broadcasts included).",
@@ -137,6 +143,8 @@ class DaemonCollector:
         # () -> the remote servers the TCP face's routes reach: "server" and "counters"
         # (mbgw.slave.servers), or None
         self.servers: Callable[[], list[dict]] | None = None
+        # () -> northbound MQTT's status (mbgw.northbound.counters), or None: MQTT off
+        self.mqtt: Callable[[], dict | None] | None = None
         self.lines: Callable[[], list[dict]] = lambda: [
             {"name": PRIMARY_LINE, "mode": mode, "state": "up" if up() else "down"}]
 
@@ -161,6 +169,9 @@ class DaemonCollector:
             yield from scenario_families(self.scenarios())
         if self.servers is not None:
             yield from server_families(self.servers())
+        mqtt = self.mqtt() if self.mqtt is not None else None
+        if mqtt is not None:
+            yield from mqtt_families(mqtt)
 
     def _daemon(self):
         info = GaugeMetricFamily("mbgw_info", "mbgw's version and mode (always 1).",
@@ -188,7 +199,8 @@ class DaemonCollector:
                 continue
             help_text = (master and _MASTER_COUNTER_HELP.get(name)) or \
                 _COUNTER_HELP.get(name) or name.replace("_", " ") + "."
-            family = CounterMetricFamily(f"mbgw_{name}", help_text, labels=["line"])
+            family = CounterMetricFamily(_LINE_METRIC.get(name, f"mbgw_{name}"), help_text,
+                                         labels=["line"])
             for line, values in snapshots:
                 if name in values:       # a line of the other mode keeps counters of its own
                     family.add_metric([line], values[name])
@@ -244,6 +256,32 @@ class DaemonCollector:
             if d.last_success is not None:
                 success.add_metric([line, address], round(d.last_success, 3))
         yield from (health, since, failures, success)
+        yield from self._device_timing(table)
+
+    def _device_timing(self, table):
+        """Slave mode: each address's stout (its [[device]] one or the line's), the p99 of
+        its last answers' latency and how long its probe waits (demotion)."""
+        stout = GaugeMetricFamily(
+            "mbgw_device_stout_seconds", "The serial address's response timeout: its "
+            "[[device]] stout, else the line's.", labels=["line", "address"])
+        p99 = GaugeMetricFamily(
+            "mbgw_device_learnt_p99_seconds", "The p99 of the latency of the serial "
+            "address's last 100 answers; absent before its first.", labels=["line", "address"])
+        probe = GaugeMetricFamily(
+            "mbgw_device_probe_timeout_seconds", "How long a probe of the serial address waits "
+            "for its reply while it is down: 3 x its learnt p99, at least 20 ms, at most its "
+            "stout.", labels=["line", "address"])
+        for line, d in table:
+            if not d.stout_ms:
+                continue
+            address = str(d.address)
+            stout.add_metric([line, address], d.stout_ms / 1000)
+            probe.add_metric([line, address], d.probe_timeout_ms() / 1000)
+            learnt = d.learnt_p99_ms()
+            if learnt is not None:
+                p99.add_metric([line, address], learnt / 1000)
+        if self._mode != "master":
+            yield from (stout, p99, probe)
 
     def _latency(self, table):
         family = HistogramMetricFamily(
@@ -481,3 +519,18 @@ class TransparentCollector:
 
 def transparent_collector(line, figures, started: float, table) -> TransparentCollector:
     return TransparentCollector(line, figures, started, table)
+
+
+def mqtt_families(status: dict):
+    """Northbound MQTT: the connection and its counts."""
+    yield GaugeMetricFamily("mbgw_mqtt_connected", "1 while the MQTT broker's session is up.",
+                            value=1 if status["connected"] else 0)
+    for name, key, help_text in (
+            ("mbgw_mqtt_messages_sent_total", "messages_sent", "MQTT messages published."),
+            ("mbgw_mqtt_messages_dropped_total", "messages_dropped",
+             "Values a slow MQTT broker could not take (a later message carried the latest)."),
+            ("mbgw_mqtt_commands_refused_total", "commands_refused",
+             "Writes from MQTT refused (no role, the firewall, a value the type cannot "
+             "carry)."),
+            ("mbgw_mqtt_connects_total", "connects", "MQTT sessions opened.")):
+        yield CounterMetricFamily(name, help_text, value=status[key])

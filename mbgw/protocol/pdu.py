@@ -13,6 +13,13 @@ GATEWAY_TARGET_FAILED = 0x0B
 LIBMODBUS_FRAMED = frozenset({0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07,
                               0x0F, 0x10, 0x11, 0x16, 0x17})
 
+# Function codes that change nothing in the device, so a request may be repeated as a probe
+# (section 6): read coils, discrete inputs, holding and input registers, read exception
+# status, get comm event counter, report server id, read file record, read FIFO queue,
+# encapsulated interface (device identification).  By code: 1 when it writes nothing.
+READ_ONLY = bytes(code in (0x01, 0x02, 0x03, 0x04, 0x07, 0x0B, 0x11, 0x14, 0x18, 0x2B)
+                  for code in range(256))
+
 
 def exception_pdu(function: int, code: int) -> bytes:
     return bytes((function | EXCEPTION_FLAG, code))

@@ -50,6 +50,8 @@ class Health(Protocol):
 
     def down(self, sc: ScenarioConfig) -> bool: ...
 
+    def state(self, sc: ScenarioConfig) -> str: ...
+
     def admit(self, sc: ScenarioConfig, now: float) -> bool: ...
 
     def next_probe_in(self, sc: ScenarioConfig) -> float | None: ...
@@ -270,21 +272,30 @@ class Scenarios:
             state = self._states.get(name)
             return None if state is None else state.scenario
 
+    def data_ages(self) -> dict[str, float | None]:
+        """Seconds since each scenario last read its data (None: not yet), taken under one
+        hold of the lock."""
+        now = self.clock()
+        with self._lock:
+            return {name: state.data_age(now) for name, state in self._states.items()}
+
     def status(self) -> list[dict]:
         """Each scenario's state and counters, in the configuration's order."""
         now = self.clock()
         with self._lock:
             return [self._status(state, now) for state in self._states.values()]
 
-    def request_test(self, sc: ScenarioConfig, wait_s: float = DEFAULT_TEST_WAIT_S) -> dict:
+    def request_test(self, sc: ScenarioConfig, wait_s: float = DEFAULT_TEST_WAIT_S,
+                     pdu: bytes | None = None) -> dict:
         """From any thread but the runner's: have the runner run `sc` once (take_test,
-        test_done) and wait for its result (test_result's dict)."""
+        test_done) and wait for its result (test_result's dict).  pdu: the request to send to
+        sc's device instead of sc's own (a write from MQTT)."""
         with self._lock:
-            unwritten = self._unwritten(sc)
+            unwritten = None if pdu is not None else self._unwritten(sc)
             if unwritten is not None:
                 return {"error": f"{_waiting_message(unwritten)}: nothing sent "
                                  f"(send-unwritten=true sends it all the same)"}
-            test = TestRun(sc, exchange.request_pdu(sc, self.table), 0.0)
+            test = TestRun(sc, pdu or exchange.request_pdu(sc, self.table), 0.0)
             self._tests.append(test)
         os.eventfd_write(self.wake_fd, 1)
         if not test.finished.wait(wait_s):

@@ -7,7 +7,7 @@ the same HealthRule (down-after, probe-interval)."""
 import time
 
 from mbgw.config.scenario import ScenarioConfig, split_server
-from mbgw.ops.device_stats import DOWN, DeviceHealth, DeviceStats, HealthRule
+from mbgw.ops.device_stats import DOWN, UP, DeviceHealth, DeviceStats, HealthRule
 from mbgw.scenarios.exchange import DEVICE_DOWN, SERVER_DOWN
 
 
@@ -20,6 +20,11 @@ class SerialHealth:
 
     def down(self, sc: ScenarioConfig) -> bool:
         return sc.slave is not None and self.devices.rule.down[sc.slave] == 1
+
+    def state(self, sc: ScenarioConfig) -> str:
+        """up, degraded or down, for any thread: nothing is created here."""
+        stats = self.devices.find(sc.slave) if sc.slave is not None else None
+        return UP if stats is None else stats.health
 
     def admit(self, sc: ScenarioConfig, now: float) -> bool:
         """Whether a run of sc goes on the line at now: the probe of a device that is down
@@ -58,6 +63,11 @@ class ServerHealth:
 
     def down(self, sc: ScenarioConfig) -> bool:
         return self._of(sc).health == DOWN
+
+    def state(self, sc: ScenarioConfig) -> str:
+        """up, degraded or down, for any thread: nothing is created here."""
+        stats = self._servers.get(split_server(sc.server or ""))
+        return UP if stats is None else stats.health
 
     def admit(self, sc: ScenarioConfig, now: float) -> bool:
         return self._of(sc).admit(now)

@@ -15,12 +15,17 @@ its probe (the same DeviceStats.admit as the clients' requests), and the idle wa
 the next scenario is due or the engine's eventfd says a change made one pending (or an
 operator's `scenario test` waits: it runs in the scenario queue's turn too).
 
+An address that is down is probed by this thread itself, between two jobs, at its probe
+interval, with the request kept for it (DeviceStats.probe_adu) and the device's own learnt
+timeout, whether or not a client asks; the idle wait ends when the first probe is due.
+
 Requests from other faces come as Exchanges through an Inbox (use_inbox): a target line
 (mbgw.slave.targets) has no client of its own and takes only those; each is admitted by the
 same rules as a client's request and queued in its source's turn, and its outcome goes to
 Exchange.done on this thread."""
 import errno
 import logging
+import math
 import threading
 import time
 from typing import Hashable
@@ -75,6 +80,7 @@ class SlaveLineThread(LineThread[SlaveConfig]):
         self._inbox: Inbox | None = None   # exchanges from other faces (use_inbox)
         self._queues: dict[Hashable, Queue] = {}   # the exchanges' queues, by source
         self._taken: Job | None = None     # put on the line by the shortcut, books to keep
+        self._probed = False               # the last turn sent a probe
         self._shortcut = False
         self._gate = Gate()                  # see the module's docstring
         self._reader: TableReader | None = None     # while the table is on
@@ -104,7 +110,8 @@ class SlaveLineThread(LineThread[SlaveConfig]):
         devices."""
         cfg = self._cfg
         timing = DeviceTiming.of_line(cfg, self.line_name)
-        self.devices.set_rule(cfg.demotion, timing.demotions(cfg.demotion))
+        self.devices.set_rule(cfg.demotion, timing.demotions(cfg.demotion),
+                              cfg.serial.stout_ms)
         return timing
 
     def _master_on(self, line: SerialLine, previous: SerialMaster | None = None) -> SerialMaster:
@@ -194,6 +201,9 @@ class SlaveLineThread(LineThread[SlaveConfig]):
             self._scenarios_due()
         master = self._master
         assert master is not None
+        if 1 in self._down and self._probe(master):
+            self._connections.wait(0)      # what the clients sent meanwhile
+            return
         job = self._scheduler.take(master.held if master.late_open else None)
         if job is SCENARIO_TURN:
             self._run_scenario()
@@ -206,6 +216,48 @@ class SlaveLineThread(LineThread[SlaveConfig]):
         elif not self._refused_as_down(job):
             self._serve(job)
             self._connections.wait(0)      # what the clients sent meanwhile
+
+    # --- probes of the addresses that are down (mbgw.ops.device_stats) ---
+
+    def _probe(self, master: SerialMaster) -> bool:
+        """Send one probe that is due, unless the last turn sent one and jobs wait: a
+        probe goes between two jobs, so a waiting client is never behind more than one
+        probe's timeout.  Whether one went."""
+        if self._probed and self._scheduler.depth:
+            self._probed = False
+            return False
+        now = time.monotonic()
+        for device in self.devices.probing():
+            if master.late_open and master.held(device.address or 0):
+                continue
+            adu = device.probe_due(now)
+            if adu is not None:
+                self._probed = True
+                self._send_probe(master, adu, int(device.probe_timeout_ms() * 1_000_000))
+                return True
+        self._probed = False
+        return False
+
+    def _send_probe(self, master: SerialMaster, adu: bytes, timeout_ns: int) -> None:
+        """adu on the line, waiting timeout_ns for its reply, without retries; the reply
+        (booked: the device is back) goes nowhere."""
+        try:
+            self._on_line(master, adu, 0, timeout_ns)
+        except LineTimeout:
+            pass
+        except SerialError as err:
+            self._lost(err)
+        except Exception:   # a bug must cost one probe, never the line
+            log.exception("internal error probing with %s", adu.hex(" "))
+
+    def _next_probe_ms(self) -> int:
+        """Until the first probe due (rounded up; -1: none)."""
+        if 1 not in self._down:
+            return -1
+        due = [d.probe_at for d in self.devices.probing()]
+        if not due:
+            return -1
+        return max(0, math.ceil((min(due) - time.monotonic()) * 1000))
 
     def _while_down(self, timeout_s: float) -> None:
         self._reject_waiting()             # requests are refused at once meanwhile
@@ -386,6 +438,9 @@ class SlaveLineThread(LineThread[SlaveConfig]):
         counts whole ms: it stops short and the last fraction is slept (well under a ms of
         the clients' time)."""
         idle_ms = self.idle_ms
+        probe_ms = self._next_probe_ms()
+        if probe_ms >= 0:
+            idle_ms = probe_ms if idle_ms < 0 else min(probe_ms, idle_ms)
         if self._scheduler.depth and self._master is not None and self._master.late_open:
             left_ns = self._master.next_window_end_ns() - time.monotonic_ns()
             window_ms = max(0, -(-left_ns // 1_000_000))
@@ -599,14 +654,15 @@ class SlaveLineThread(LineThread[SlaveConfig]):
             master.on_retry = None
         return reply, None, device.retries - retried
 
-    def _on_line(self, master: SerialMaster, adu: bytes, retries: int) -> bytes | None:
-        """master.transact for a scenario, without the gate (the table reader serves the
-        clients meanwhile); the requests it kept for the line are routed after."""
+    def _on_line(self, master: SerialMaster, adu: bytes, retries: int, stout_ns: int = 0
+                 ) -> bytes | None:
+        """master.transact for a scenario or a probe, without the gate (the table reader
+        serves the clients meanwhile); the requests it kept for the line are routed after."""
         if self._reader is None:
-            return master.transact(adu, retries)
+            return master.transact(adu, retries, stout_ns)
         try:
             with self._gate.line_away:
-                return master.transact(adu, retries)
+                return master.transact(adu, retries, stout_ns)
         finally:
             self._server.take_kept()
 

@@ -13,7 +13,7 @@ from mbgw.config.model import MasterConfig, SlaveConfig
 from mbgw.errors import SerialError
 from mbgw.line.serial_line import SerialLine
 from mbgw.line.supervisor import open_at_start
-from mbgw.ops.counters import Counters
+from mbgw.ops.counters import Counters, RemoteCounters
 from mbgw.ops.device_stats import DeviceHealth, HealthRule
 from mbgw.ops.reload import ReloadReport
 from mbgw.ops.status import line_row
@@ -21,6 +21,7 @@ from mbgw.ops.trace import LineTrace, TraceHub
 from mbgw.routing.queue import Inbox, Scheduler
 from mbgw.slave.connections import Connections
 from mbgw.slave.line_thread import SlaveLineThread
+from mbgw.slave.remote_line import RemoteLineThread
 
 log = logging.getLogger("mbgw.line")
 
@@ -33,10 +34,14 @@ def line_settings(cfg: SlaveConfig | MasterConfig, line: LineConfig) -> SlaveCon
     base = cfg if isinstance(cfg, SlaveConfig) else SlaveConfig(
         serial=line.serial, exception=cfg.exception, turnaround_ms=line.turnaround_ms,
         late_window_ms=line.late_window_ms)
-    return dataclasses.replace(
+    settings = dataclasses.replace(
         base, serial=line.serial, retries=line.retries, demotion=line.demotion, slaveid=0,
         shortcut=False, scenarios=(), table=dataclasses.replace(cfg.table, enabled=False),
         lines=(), routes=(), monitors=(), devices=line_devices(cfg.devices, line.name))
+    if line.remote is not None and line.remote.mbap:
+        # our own transaction ids tell a late reply from the next one's: no late window
+        settings = dataclasses.replace(settings, late_window_ms=0)
+    return settings
 
 
 class NoClients:
@@ -71,16 +76,20 @@ class TargetLine:
         self.config = line
         self.own = line_devices(cfg.devices, line.name)     # its [[device]] tables
         hub = hub if hub is not None else TraceHub()
-        self.counters = Counters()
+        self.counters = RemoteCounters() if line.remote is not None else Counters()
         self.devices = DeviceHealth(rule=HealthRule(line.demotion))
         self.scheduler = Scheduler()
         self.inbox = Inbox()
         settings = line_settings(cfg, line)
-        port: SerialLine | None = open_at_start(line.serial, self.counters)
-        self.worker = SlaveLineThread(settings, port, self.scheduler,
-                                 NoClients(self.scheduler, self.counters,
-                                           hub.for_line(line.name)),
-                                 self.counters, self.devices)
+        clients = NoClients(self.scheduler, self.counters, hub.for_line(line.name))
+        self.worker: SlaveLineThread
+        if isinstance(self.counters, RemoteCounters):
+            self.worker = RemoteLineThread(settings, line, self.scheduler, clients,
+                                           self.counters, self.devices)
+        else:
+            port: SerialLine | None = open_at_start(line.serial, self.counters)
+            self.worker = SlaveLineThread(settings, port, self.scheduler, clients,
+                                          self.counters, self.devices)
         self.worker.name_line(line.name)
         self.worker.use_inbox(self.inbox)
 
@@ -99,6 +108,8 @@ class TargetLine:
     def reconfigure(self, cfg: SlaveConfig | MasterConfig, line: LineConfig) -> None:
         self.config = line
         self.own = line_devices(cfg.devices, line.name)
+        if isinstance(self.worker, RemoteLineThread):
+            self.worker.set_target(line)
         self.worker.reconfigure(line_settings(cfg, line))
 
     def status(self) -> dict:

@@ -29,12 +29,14 @@ from mbgw.config.model import SerialConfig
 from mbgw.errors import ChecksumError, FrameError, LineTimeout
 from mbgw.line import native
 from mbgw.line.native import NO_FORWARD, Forward, Reception, reply_matches
+from mbgw.line.remote import RemoteLine
 from mbgw.line.serial_line import SerialLine
 from mbgw.line.supervisor import longest_frame_s
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceHealth, DeviceStats
 from mbgw.protocol import pdu
 from mbgw.slave.device_timing import DeviceTiming
+from mbgw.slave.remote_framing import remote_framing
 
 wire = logging.getLogger("mbgw.wire")
 
@@ -162,7 +164,9 @@ class AsciiFraming:
         return time.monotonic_ns()
 
 
-def framing_for(line: SerialLine):
+def framing_for(line: SerialLine | RemoteLine):
+    if isinstance(line, RemoteLine):
+        return remote_framing(line)
     return AsciiFraming(line) if line.cfg.protocol == "ascii" else RtuFraming(line)
 
 
@@ -208,6 +212,7 @@ class SerialMaster:
         # last reply dropped for not answering it (another function, another size).
         self._device: DeviceStats | None = None
         self._address = 0
+        self._adu = b""
         self._started = 0
         self._attempt = 0
         self._bad_bytes = 0
@@ -228,9 +233,9 @@ class SerialMaster:
         """The line must stay silent until then."""
         return self._quiet_from_ns + self._quiet_us * 1000
 
-    def transact(self, adu: bytes, retries: int = -1) -> bytes | None:
+    def transact(self, adu: bytes, retries: int = -1, stout_ns: int = 0) -> bytes | None:
         """exchange(adu) and book() its reply: the reply PDU, None for a broadcast."""
-        got = self.exchange(adu, NO_FORWARD, retries)
+        got = self.exchange(adu, NO_FORWARD, retries, stout_ns)
         if got is None:
             return None
         self.book(got)
@@ -245,17 +250,19 @@ class SerialMaster:
         self._taken = got
 
     def exchange(self, adu: bytes, forward: Forward = NO_FORWARD,
-                 retries: int = -1) -> Reception | None:
+                 retries: int = -1, stout_ns: int = 0) -> Reception | None:
         """Send adu (address + PDU) and return what brought the reply (its frame: address
         + PDU; forwarded: the bytes of it forward's client has had already), for book()
         once the reply has gone on; None for a broadcast (booked already).  forward: where
         the reply may go straight from the C receive; retries: this transaction's own (a
-        scenario's), -1 for the line's.  Raises LineTimeout (booked; its mismatch: the last
+        scenario's), -1 for the line's; stout_ns: this one's stout (a probe's), 0 for the
+        address's.  Raises LineTimeout (booked; its mismatch: the last
         reply that did not answer adu) when no valid reply came, SerialError when the port
         failed."""
         taken, self._taken = self._taken, None
         self._address = adu[0]
-        self._stout_ns = self._stouts_ns[adu[0]]
+        self._adu = adu
+        self._stout_ns = stout_ns or self._stouts_ns[adu[0]]
         self._device = device = self.devices.get(adu[0])
         device.transactions += 1
         if adu[0] == pdu.BROADCAST:
@@ -290,6 +297,10 @@ class SerialMaster:
                 return got
         self._counters.line_busy_ns += self._deadline - self._started
         self._count(device, "timeouts")
+        if not device.first_timeout_seen:      # its probe, until a request is answered
+            device.first_timeout_seen = True
+            if device.probe_adu is None and pdu.READ_ONLY[adu[1]]:
+                device.probe_adu = adu
         device.failed(counters.noise_bytes - noise + self._bad_bytes)
         self._open_window(adu[0], attempt + 1)
         raise LineTimeout(self._mismatch)
@@ -307,6 +318,8 @@ class SerialMaster:
         if exception is not None:
             self._counters.device_exceptions += 1
         device.answered((ended - self._sent_ns) / 1e6, exception)
+        if pdu.READ_ONLY[self._adu[1]]:     # its probe from now on (DeviceStats.probe_adu)
+            device.probe_adu = self._adu
         if self._attempt:           # the tries before may still answer
             self._open_window(self._address, self._attempt)
 

@@ -2,6 +2,7 @@
 
 usage: fault_slave.py DEVICE [--record PATH] [--late-ms MS] [--garbage HEX]
                       [--garbage-pause-ms MS] [--foreign-pause-ms MS] [--mute-first N]
+                      [--reply-delay-ms MS] [--answer-first N] [--then-mute N]
 
 Prints READY once the pty is open, and nothing else on stdout.  Holding (and input) register i
 holds 1000 + i.  Behaviour by the request's address:
@@ -24,6 +25,9 @@ holds 1000 + i.  Behaviour by the request's address:
   16  FC03/04: one register fewer than asked (a wrong quantity)
   17  a slow device: its first request answered after --late-ms, a request that comes
       meanwhile answered 5 ms after that (it was busy), later ones at once
+  18  a device that stops for a while: its first --answer-first (5) requests answered after
+      --reply-delay-ms (10), the next --then-mute (3) not at all, the later ones answered
+      after --reply-delay-ms again
 
 The reply: FC03/04 the registers, FC06 the echo, FC 108 the vendor reply (any address),
 anything else exception 01.
@@ -75,9 +79,13 @@ def normal_reply(address: int, pdu: bytes) -> bytes:
 
 class Slave:
     def __init__(self, fd: int, record, late_s: float, garbage: bytes, garbage_pause_s: float,
-                 foreign_pause_s: float, mute_first: int = 3) -> None:
+                 foreign_pause_s: float, mute_first: int = 3, reply_delay_s: float = 0.010,
+                 answer_first: int = 5, then_mute: int = 3) -> None:
         self.fd = fd
         self.mute_first = mute_first
+        self.reply_delay_s = reply_delay_s
+        self.answer_first = answer_first
+        self.then_mute = then_mute
         self.garbage = garbage
         self.garbage_pause_s = garbage_pause_s
         self.foreign_pause_s = foreign_pause_s
@@ -134,6 +142,9 @@ class Slave:
         elif address == 14:
             if n > self.mute_first:
                 self.later(0, reply)
+        elif address == 18:
+            if not self.answer_first < n <= self.answer_first + self.then_mute:
+                self.later(self.reply_delay_s, reply)
         elif address == 15:
             self.later(0, self.garbage)
         elif address == 17 and n == 1:
@@ -199,11 +210,15 @@ def main() -> None:
     parser.add_argument("--garbage-pause-ms", type=float, default=20)
     parser.add_argument("--foreign-pause-ms", type=float, default=5)
     parser.add_argument("--mute-first", type=int, default=3)
+    parser.add_argument("--reply-delay-ms", type=float, default=10)
+    parser.add_argument("--answer-first", type=int, default=5)
+    parser.add_argument("--then-mute", type=int, default=3)
     args = parser.parse_args()
     fd = open_pty(args.device)
     record = open_record(args.record)
     slave = Slave(fd, record, args.late_ms / 1000, args.garbage, args.garbage_pause_ms / 1000,
-                  args.foreign_pause_ms / 1000, args.mute_first)
+                  args.foreign_pause_ms / 1000, args.mute_first, args.reply_delay_ms / 1000,
+                  args.answer_first, args.then_mute)
     serve(slave.run, record)
 
 

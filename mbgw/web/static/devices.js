@@ -23,7 +23,10 @@ function latency(bound) {
 }
 
 const HEAD = ["Line", "Address", "Health", "Since", "Last answer", "p50", "p99", "Failures",
-  "Next probe", ""];
+  "Next probe", "Stout (ms)", "Learnt p99 (ms)", "Probe timeout (ms)", ""];
+
+// The demotion's timing (ms, one decimal, as mbgw status prints it).
+const timing = (value) => (typeof value === "number" ? value.toFixed(1) : "—");
 
 export function devicesPage(body) {
   const holder = el("div");
@@ -59,6 +62,9 @@ export function devicesPage(body) {
           el("td", { class: "num", text: show(d.consecutive_failures) }),
           el("td", { text: typeof d.next_probe_in_s === "number"
             ? `in ${d.next_probe_in_s.toFixed(1)} s` : "—" }),
+          el("td", { class: "num stout", text: timing(d.stout_ms) }),
+          el("td", { class: "num learnt-p99", text: timing(d.learnt_p99_ms) }),
+          el("td", { class: "num probe-timeout", text: timing(d.probe_timeout_ms) }),
           el("td", { class: "actions" }, toggle)));
         if (open.has(key)) {
           rows.push(el("tr", { class: "device-details", "data-details": key },

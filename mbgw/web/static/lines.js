@@ -4,6 +4,10 @@ import { block } from "./blocks.js";
 import { clear, el, table } from "./dom.js";
 import { listOf, show } from "./format.js";
 
+// A remote line's connection figures, after its URL (as mbgw status shows them).
+const remoteFigures = (l) => (l.counters && "reconnects" in l.counters
+  ? ` (${l.counters.reconnects} reconnects, ${l.counters.stray_replies} stray replies)` : "");
+
 // "3: 2 up, 1 down"
 function health(devices) {
   if (!devices.length) return "0";
@@ -43,7 +47,8 @@ export function linesPage(body) {
       const s = await load("/api/status");
       if (!s) return;
       const lines = listOf(s, "lines");
-      const lineRows = lines.map((l) => [show(l.name), show(l.device), show(l.mode),
+      const lineRows = lines.map((l) => [show(l.name), show(l.device) + remoteFigures(l),
+        show(l.mode),
         show(l.state), show(l.requests), show(l.replies), show(l.timeouts),
         health(listOf(l, "devices"))]);
       const routeRows = listOf(s, "routes").map((r) => [show(r.face), show(r.units),

@@ -12,7 +12,7 @@ const ACTIVITY_COUNTERS = ["requests", "replies", "frames_stored", "frames_sent"
 const SHOWN = new Set(["location", "mode", "version", "serial", "uptime_s", "started",
   "line_utilisation_pct", "line_load_pct", "listening", "upstream", "table", "transparent",
   "web", "clients", "devices", "scenarios", "counters", "counters_since", "lines", "routes",
-  "servers", "firewall", "tls"]);
+  "servers", "firewall", "tls", "mqtt"]);
 
 function sum(counters, names) {
   return names.reduce((total, n) => total + (typeof counters[n] === "number" ? counters[n] : 0), 0);
@@ -103,10 +103,11 @@ export function overviewPage(body) {
     devices: led("led-devices", "Devices down"),
   };
   const wrong = el("ul", { id: "overview-wrong" });
+  const mqtt = el("div", { id: "overview-mqtt" });
   body.append(el("div", { class: "panel", id: "front-panel" },
     ...Object.values(panelLeds).map((l) => l.node)),
     el("h2", { text: "What is wrong, since when" }), wrong,
-    el("h2", { text: "Gateway" }), facts, more);
+    el("h2", { text: "Gateway" }), facts, mqtt, more);
   let previous = null;
   return {
     async refresh() {
@@ -129,6 +130,15 @@ export function overviewPage(body) {
         ["Scenarios", tally(s.scenarios || [], "state")],
         ["Counters since", when(s.counters_since)],
       ]));
+      clear(mqtt).append(...(s.mqtt ? [el("h2", { text: "MQTT" }),
+        factsTable("overview-mqtt-facts", [
+          ["Broker", `${s.mqtt.broker} (${s.mqtt.profile}, node ${s.mqtt.node})`],
+          ["Connected", s.mqtt.connected ? "yes" : "no"],
+          ["Messages sent", String(s.mqtt.messages_sent)],
+          ["Dropped (slow broker)", String(s.mqtt.messages_dropped)],
+          ["Writes", String(s.mqtt.writes)],
+          ["Refused commands", String(s.mqtt.commands_refused)],
+        ])] : []));
       clear(more).append(...otherBlocks(s, SHOWN));
       const problems = troubles(s);
       clear(wrong).append(...(problems.length ? problems.map((p) => el("li", { text: p }))

@@ -449,6 +449,14 @@ def test_metrics_are_the_status_figures_for_prometheus(rig, client):
             le = "+Inf" if bound == "+Inf" else repr(int(bound) / 1000)
             assert value(hist, f"{hist}_bucket", address=a, le=le) == cumulative, (a, le)
         assert len(device["latency_buckets_ms"]) == len(LATENCY_BUCKETS_MS) + 1
+        # the timing demotion uses (issue 29): stout, learnt p99, probe timeout
+        assert value("mbgw_device_stout_seconds", address=a) == device["stout_ms"] / 1000
+        assert value("mbgw_device_probe_timeout_seconds", address=a) == \
+            pytest.approx(device["probe_timeout_ms"] / 1000, abs=1e-6)
+        p99 = [x.value for x in families["mbgw_device_learnt_p99_seconds"].samples
+               if x.labels["address"] == str(a)]
+        assert p99 == ([] if device["learnt_p99_ms"] is None else
+                       [pytest.approx(device["learnt_p99_ms"] / 1000, abs=1e-6)]), a
     assert value("mbgw_device_timeouts", "mbgw_device_timeouts_total", address=2) == 2
     assert value("mbgw_device_health", address=2, state="degraded") == 1
     exceptions = {(x.labels["address"], x.labels["code"], x.labels["source"]): x.value

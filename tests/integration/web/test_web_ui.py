@@ -5,6 +5,7 @@ The escaping test serves the pages with a scripted API (a small aiohttp server o
 documents whose strings carry markup: a gateway cannot be made to send those); the others run
 against a real `mbgw slave` with its console on."""
 import asyncio
+import functools
 import json
 import os
 import signal
@@ -455,6 +456,14 @@ def test_devices_statistics_and_a_scenario_test_from_the_browser(browser, consol
     go(browser, "devices")
     wait(browser, found('#devices-table tr[data-address="1"] td.health-up'))
     wait(browser, found('#devices-table tr[data-address="9"] td.health-down'))
+    # the demotion's timing (issue 29): one that never answered is probed with its stout
+    cell = functools.partial(browser.find_element, By.CSS_SELECTOR)
+    row = '#devices-table tr[data-address="{}"] td.{}'
+    assert cell(row.format(9, "learnt-p99")).text == "—"
+    assert cell(row.format(9, "probe-timeout")).text == cell(row.format(9, "stout")).text == \
+        "100.0"
+    assert 0 < float(cell(row.format(1, "learnt-p99")).text)
+    assert 20 <= float(cell(row.format(1, "probe-timeout")).text) <= 100
     go(browser, "stats")
     wait(browser, found('#stats-table tr[data-name="counters.requests"]'))
     go(browser, "scenarios")

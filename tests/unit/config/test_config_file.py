@@ -71,7 +71,12 @@ def test_every_long_option_of_both_modes_is_a_key(schema):
     assert web == {"web", "web-cert", "web-key", "admin-password", "user-password",
                    "web-https-only"}
     assert all(schema.keys[k].group == "web" for k in web)
-    assert set(schema.keys) == (options - {"config"}) | table | transparent | tls | web
+    mqtt = {p.key for mode in ("slave", "master", "transparent")
+            for p in main.commands[mode].params if isinstance(p, config_keys.MqttOption)}
+    assert mqtt == {f"mqtt-{k}" for k in ("broker", "profile", "group", "node", "role",
+                                          "primary-host", "cert", "key", "ca", "stale-after")}
+    assert all(schema.keys[k].group == "mqtt" for k in mqtt)
+    assert set(schema.keys) == (options - {"config"}) | table | transparent | tls | web | mqtt
     # in the file, a key's name may be another group's too: [tls] port, [transparent] silence
     assert schema.label("tls-port") == "tls.port" and schema.find("tls", "port").name == \
         "tls-port"
@@ -186,7 +191,7 @@ def test_tables_belong_to_their_mode(schema, tmp_path):
     ("[net]\nmax_connections = 3\n", "did you mean net.max-connections?"),
     ("[serial]\nfoo = 1\n", "serial.foo: unknown key"),
     ("[seral]\nstout = 700\n", "[seral]: unknown group (groups: serial, net, general, table, "
-                               "tls, transparent, web); did you mean [serial]?"),
+                               "tls, transparent, web, mqtt); did you mean [serial]?"),
     ("[net]\nstout = 700\n", "net.stout: belongs in [serial] (serial.stout)"),
     ("stout = 700\n", "stout: outside any group; put it under [serial]"),
     ("mode = 'slave'\n", "mode: outside any group; put it under [serial]"),

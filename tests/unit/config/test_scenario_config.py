@@ -227,3 +227,38 @@ def test_the_manual_lists_every_key_in_order():
     section = page.split("\n.SH SCENARIOS\n", 1)[1].split("\n.SH ", 1)[0]
     listed = [k.replace("\\-", "-") for k in re.findall(r"^\.TP\n\.B (\S+)$", section, re.M)]
     assert listed == list(KEYS)
+
+
+@pytest.mark.parametrize("changes, expected", [
+    ({"type": "float32", "quantity": 1},
+     "scenario boiler: type 'float32': takes 2 registers, not quantity 1"),
+    ({"type": "int16", "quantity": 2},
+     "scenario boiler: type 'int16': takes 1 register, not quantity 2"),
+    ({"type": "bool", "function": 1, "quantity": 8},
+     "scenario boiler: type 'bool': takes 1 bit, not quantity 8"),
+    ({"type": "uint32", "function": 1, "quantity": 2},
+     "scenario boiler: type 'uint32': a bit scenario's data is bool"),
+    ({"type": "double", "quantity": 4},
+     "scenario boiler: type 'double': expected one of uint16, int16, uint32, int32, "
+     "float32, bool, string"),
+    ({"swap": "dcba", "quantity": 2}, "scenario boiler: swap 'dcba': expected one of none, "
+                                      "bytes, words"),
+    ({"deadband": -1, "quantity": 1}, "scenario boiler: deadband -1: expected a number, 0 or "
+                                      "more"),
+    ({"type": "string", "deadband": 1}, "scenario boiler: deadband 1: only for a number, not "
+                                        "string"),
+    ({"type": "uint16", "function": 6, "quantity": None},
+     "scenario boiler: type: only a read scenario's data is published"),
+])
+def test_a_type_the_quantity_does_not_fit_is_refused_naming_the_key(changes, expected):
+    with pytest.raises(ConfigError) as err:
+        parse_scenario(fields(**changes), "scenario 1")
+    assert expected in str(err.value).splitlines()
+
+
+def test_typed_scenarios_keep_their_keys():
+    sc = parse_scenario(fields(quantity=2, type="float32", swap="words", deadband=0.5), "s")
+    assert (sc.value_type, sc.swap, sc.deadband) == ("float32", "words", 0.5)
+    assert parse_scenario(sc.fields(), "s") == sc
+    text = parse_scenario(fields(quantity=6, type="string"), "s")
+    assert text.value_type == "string" and text.fields()["type"] == "string"

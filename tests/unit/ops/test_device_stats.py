@@ -355,3 +355,54 @@ def test_a_device_that_answered_once_is_degraded_by_its_window(clock, health_log
     d.failed()
     assert [m for _, m in health_log()] == [
         "device 4 is degraded: 1 of its last 20 requests failed"]
+
+
+# --- demotion, refined (issue 29) ---
+
+def test_down_also_needs_down_after_stouts_without_an_answer(clock):
+    """Failures quicker than stout (probes) make no device down before down-after x stout
+    has passed since the last answer."""
+    d = DeviceStats(4, rule=HealthRule(Demotion(2, 1000), stout_ms=1000))
+    d.answered(5.0, None)
+    d.failed()
+    clock.now += 0.03
+    d.failed()
+    assert (d.consecutive_failures, d.health) == (2, "degraded")
+    clock.now += 1.0                    # 1.03 s + the first failure's stout: 2 stouts
+    d.failed()
+    assert d.health == "down"
+
+
+def test_the_probe_timeout_is_3_p99_of_the_last_100_answers_within_20_ms_and_stout(clock):
+    d = DeviceStats(4, rule=HealthRule(Demotion(3, 1000), stout_ms=500))
+    assert (d.learnt_p99_ms(), d.probe_timeout_ms()) == (None, 500)   # no answer: stout
+    for _ in range(100):
+        d.answered(2.0, None)
+    assert (d.learnt_p99_ms(), d.probe_timeout_ms()) == (2.0, 20)      # at least 20 ms
+    for n in range(100):                # the ring keeps the last 100: 1..100 ms
+        d.answered(float(n + 1), None)
+    assert (d.learnt_p99_ms(), d.probe_timeout_ms()) == (99.0, 297.0)
+    for _ in range(100):
+        d.answered(400.0, None)
+    assert d.probe_timeout_ms() == 500                                 # at most stout
+
+
+def test_with_a_request_kept_the_line_probes_and_every_request_is_refused(clock):
+    d = DeviceStats(4, rule=HealthRule(Demotion(3, 1000), stout_ms=100))
+    d.probe_adu = b"\x04\x03\x00\x00\x00\x01"
+    for _ in range(3):
+        d.failed()
+        clock.now += 0.1                # each failure took stout
+    d.rejudge()
+    assert d.health == "down" and d.probe_due(clock.monotonic()) is None
+    clock.now += 1
+    assert not d.admit(clock.monotonic())           # the client's request is refused ...
+    assert d.probe_due(clock.monotonic()) == d.probe_adu    # ... the line thread probes
+    assert d.probe_due(clock.monotonic()) is None           # one per interval
+    d.failed()
+    clock.now += 1.5
+    assert d.probe_due(clock.monotonic()) is None           # doubled: 2 s
+    clock.now += 0.5
+    assert d.probe_due(clock.monotonic()) == d.probe_adu
+    d.answered(3.0, None)
+    assert d.health == "degraded" and d.probe_due(clock.monotonic()) is None

@@ -16,7 +16,7 @@ from prometheus_client.openmetrics import parser as openmetrics_parser
 from mbgw.errors import ConfigError
 from mbgw.net.address import parse_host_port
 from mbgw.ops.counters import MASTER_NAMES, NAMES, Counters, MasterCounters
-from mbgw.ops.device_stats import MASTER_COUNTS, DeviceHealth
+from mbgw.ops.device_stats import MASTER_COUNTS, DeviceHealth, HealthRule
 from mbgw.ops.metrics import master_collector, slave_collector
 from mbgw.ops.metrics_server import MetricsServer
 from tests.harness import free_port
@@ -434,3 +434,23 @@ def test_close_stops_listening_and_its_threads():
     with pytest.raises(ConnectionRefusedError):
         socket.create_connection(("127.0.0.1", port), timeout=5)
     assert not [t for t in threading.enumerate() if t.name == f"metrics {port}"]
+
+
+def test_each_serial_address_has_its_stout_learnt_p99_and_probe_timeout():
+    """Slave mode's timing by address (issue 29); none for a device not yet answered."""
+    o = live_objects()
+    timed = DeviceHealth(rule=HealthRule(stout_ms=200))
+    for _ in range(5):
+        timed.get(3).answered(10.0, None)
+    timed.get(4).failed()
+    collector = slave_collector(o.counters, o.devices, o.scheduler, o.server, o.worker, 0.0,
+                                lines=lambda: [("meters", o.counters, timed)])
+    found = families(exposition(collector))
+    assert samples(found["mbgw_device_stout_seconds"], line="meters") == {
+        ("mbgw_device_stout_seconds", (("address", "3"),)): 0.2,
+        ("mbgw_device_stout_seconds", (("address", "4"),)): 0.2}
+    assert samples(found["mbgw_device_learnt_p99_seconds"], line="meters") == {
+        ("mbgw_device_learnt_p99_seconds", (("address", "3"),)): 0.01}
+    assert samples(found["mbgw_device_probe_timeout_seconds"], line="meters") == {
+        ("mbgw_device_probe_timeout_seconds", (("address", "3"),)): 0.03,
+        ("mbgw_device_probe_timeout_seconds", (("address", "4"),)): 0.2}

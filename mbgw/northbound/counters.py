@@ -1,0 +1,21 @@
+"""Northbound MQTT's figures, for the status, /metrics and the console."""
+from dataclasses import dataclass
+
+
+@dataclass
+class NorthboundCounters:
+    connected: bool = False
+    broker: str = ""
+    node: str = ""
+    profile: str = ""
+    sent: int = 0                  # messages published
+    dropped: int = 0               # values a slow broker could not take (a newer one followed)
+    refused: int = 0               # writes refused: no role, the firewall, a bad value
+    writes: int = 0                # writes sent to a device
+    connects: int = 0              # sessions opened
+
+    def snapshot(self) -> dict:
+        return {"connected": self.connected, "broker": self.broker, "node": self.node,
+                "profile": self.profile, "messages_sent": self.sent,
+                "messages_dropped": self.dropped, "commands_refused": self.refused,
+                "writes": self.writes, "connects": self.connects}
