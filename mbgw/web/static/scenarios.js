@@ -91,10 +91,13 @@ export function scenariosPage(body) {
     fields, el("div", { class: "controls" }, testButton), out);
   const page = {
     async refresh() {
+      const data = await load("/api/scenarios");
+      if (!data) return;
+      const rows = listOf(data, "scenarios");
+      table.update(rows);                   // the states first, then the file's places
       const file = await api("GET", "/api/scenarios/config");   // 404: no file
       tables = new Map(listOf(file.ok ? file.data : null, "scenarios").map((t) => [t.name, t]));
-      const data = await load("/api/scenarios");
-      if (data) table.update(listOf(data, "scenarios"));
+      table.update(rows);
     },
   };
   return page;
