@@ -125,3 +125,17 @@ def stack(*decorators):
             function = decorator(function)
         return function
     return apply
+
+
+# The Modbus TCP face's other listeners, on bind's addresses with mdbport's routes, authip
+# and firewall (rule listener "udp", "rtu")
+face_port_options = stack(
+    click.option("--udp-port", type=click.IntRange(*model.MDBPORT_RANGE), default=0,
+                 show_default=True,
+                 help="Modbus/UDP port to listen on, for the Modbus TCP face's units "
+                      "(0: none)."),
+    click.option("--rtu-port", type=click.IntRange(*model.MDBPORT_RANGE), default=0,
+                 show_default=True,
+                 help="RTU-over-TCP port to listen on (\"TCP with CRC\": RTU frames in a TCP "
+                      "stream), for the Modbus TCP face's units (0: none)."),
+)

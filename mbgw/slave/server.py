@@ -12,7 +12,7 @@ the line thread (SlaveLineThread) and the status hold.
 """
 from mbgw.config.model import SlaveConfig
 from mbgw.firewall.guard import Firewall
-from mbgw.ops.counters import Counters
+from mbgw.ops.counters import Counters, FaceCounters
 from mbgw.ops.device_stats import DeviceHealth
 from mbgw.ops.reload import ReloadReport
 from mbgw.ops.trace import TraceHub
@@ -45,7 +45,8 @@ class TcpServer:
         self.connections = Connections(scheduler.wake_fd, self.router.request, self._closed,
                                        counters)
         self.connections.on_wake = self.router.deliver_completions
-        self.listener = Listener(cfg, counters, self.connections, firewall)
+        self.listener = Listener(cfg, counters, self.connections, firewall,
+                                 self.router.request)
         self.table = table
         self._table_functions = cfg.table.functions
         # the line thread's and the table reader's entry points
@@ -65,6 +66,11 @@ class TcpServer:
     @property
     def clients(self) -> list[Client]:
         return self.listener.clients
+
+    @property
+    def faces(self) -> dict[str, FaceCounters]:
+        """The figures of each listener (plain, tls, udp, rtu)."""
+        return self.listener.faces
 
     @property
     def inboxes(self) -> dict[str, Inbox]:
