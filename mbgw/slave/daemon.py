@@ -161,6 +161,8 @@ class SlaveMode(ModeParts):
             lambda: server.firewall.report() if server.firewall.configured else None,
             self.metered)
         collector.servers = self.server_rows
+        collector.faces = lambda: {listener: face.snapshot()
+                                   for listener, face in server.faces.items()}
         return collector
 
     def metered(self) -> list[tuple]:

@@ -338,6 +338,7 @@ class Router:
                outcome: str, latency_ms, line: str | None = PRIMARY_LINE) -> TraceEvent:
         return {"time": time.time(), "line": line, "direction": direction, "client": client.id,
                 "peer": client.peer, "local": client.local, "remote": client.peer,
+                "face": client.listener,
                 "tid": tid, "unit": unit,
                 "function": data[0], "length": len(data) if direction != "no reply" else 0,
                 "pdu": data.hex() if direction != "no reply" else "", "outcome": outcome,

@@ -144,6 +144,10 @@ class TcpFace:
                  "last_activity": now - (mono - c.last_active),
                  "listener": c.listener, "role": c.role} for c in self.server.clients]
 
+    def faces(self) -> dict[str, dict[str, int]]:
+        """Each listener's figures (plain, tls, udp, rtu), as slave mode's status has them."""
+        return {listener: face.snapshot() for listener, face in self.server.faces.items()}
+
     def close_client(self, client_id: int, user=None) -> bool:
         return self.server.close_client(client_id, user)
 

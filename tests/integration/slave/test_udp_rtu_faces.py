@@ -5,15 +5,18 @@ RTU slave on the pty (tests/peers/pymodbus_slave.py, address 17, holding registe
 pymodbus's UDP client and RTU-framed TCP client, raw sockets."""
 import socket
 import struct
+import urllib.request
 
 import pytest
+from prometheus_client import parser
 from pymodbus.client import ModbusTcpClient, ModbusUdpClient
 from pymodbus.framer import FramerType
 
 from mbgw.line.native import rtu_adu
 from tests.harness import free_port
+from tests.integration.lines.test_lines_observed import TraceStream
 from tests.modbus import mbap
-from tests.ops import status
+from tests.ops import metric_families, metric_value, status
 from tests.wait import until
 
 pytestmark = pytest.mark.integration
@@ -203,3 +206,31 @@ def test_a_bad_crc_is_dropped_and_counted_and_the_connection_stays_open(faces):
     assert on_the_wire(record) == ["11" + read(0, 1).hex()]
     face = status(gw)["faces"]["rtu"]
     assert face["bad_frames"] == 1 and face["requests"] == 1
+
+
+def test_the_trace_names_the_face_and_the_metrics_count_per_listener(faces):
+    metrics_port = free_port()
+    gw, udp_port, rtu_port, _ = faces("", "--metrics", f"127.0.0.1:{metrics_port}")
+    stream = TraceStream(gw)
+    try:
+        with udp_socket() as sock:
+            sock.sendto(mbap(3, UNIT, read(0, 1)), ("127.0.0.1", udp_port))
+            sock.recvfrom(512)
+            sock.sendto(mbap(3, UNIT, read(0, 1)), ("127.0.0.1", udp_port))  # again
+            sock.recvfrom(512)
+        with socket.create_connection(("127.0.0.1", rtu_port), timeout=REPLY_S) as rtu:
+            rtu.sendall(rtu_adu(UNIT, read(1, 1)))
+            receive(rtu, 7)
+        events = stream.events(4)
+    finally:
+        stream.close()
+    assert [(e["direction"], e["face"]) for e in events] == \
+        [("request", "udp"), ("reply", "udp"), ("request", "rtu"), ("reply", "rtu")]
+    with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics", timeout=5) as r:
+        families = metric_families(parser, r.read().decode())
+    assert metric_value(families, "mbgw_face_requests", "mbgw_face_requests_total",
+                        listener="udp") == 1
+    assert metric_value(families, "mbgw_face_retransmissions",
+                        "mbgw_face_retransmissions_total", listener="udp") == 1
+    assert metric_value(families, "mbgw_face_requests", "mbgw_face_requests_total",
+                        listener="rtu") == 1
