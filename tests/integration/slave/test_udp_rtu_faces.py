@@ -16,7 +16,7 @@ from mbgw.line.native import rtu_adu
 from tests.harness import free_port
 from tests.integration.lines.test_lines_observed import TraceStream
 from tests.modbus import mbap
-from tests.ops import metric_families, metric_value, status
+from tests.ops import mbgw, metric_families, metric_value, status
 from tests.wait import until
 
 pytestmark = pytest.mark.integration
@@ -234,3 +234,5 @@ def test_the_trace_names_the_face_and_the_metrics_count_per_listener(faces):
                         "mbgw_face_retransmissions_total", listener="udp") == 1
     assert metric_value(families, "mbgw_face_requests", "mbgw_face_requests_total",
                         listener="rtu") == 1
+    text = mbgw("status", "--control", gw.control).stdout
+    assert "udp 1 requests (1 again); rtu 1 requests" in text
