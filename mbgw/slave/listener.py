@@ -196,8 +196,7 @@ class Listener:
         cfg = self._cfg
         if (cfg.udp_port, cfg.bind) != (old.udp_port, old.bind) and \
                 (cfg.udp_port or old.udp_port):
-            report.refuse("udp-port", f"a new udp-port takes effect at a restart: still "
-                                      f"{old.udp_port or 'off'}")
+            report.at_restart("udp-port")
             self._cfg = cfg = dataclasses.replace(cfg, udp_port=old.udp_port)
         if (cfg.rtu_port, cfg.bind) == (old.rtu_port, old.bind):
             return

@@ -6,6 +6,7 @@ pymodbus's UDP client and RTU-framed TCP client, raw sockets."""
 import socket
 import struct
 import urllib.request
+from pathlib import Path
 
 import pytest
 from prometheus_client import parser
@@ -15,6 +16,7 @@ from pymodbus.framer import FramerType
 from mbgw.line.native import rtu_adu
 from tests.harness import free_port
 from tests.integration.lines.test_lines_observed import TraceStream
+from tests.integration.ops.test_reload import reload
 from tests.modbus import mbap
 from tests.ops import mbgw, metric_families, metric_value, status
 from tests.wait import until
@@ -236,3 +238,21 @@ def test_the_trace_names_the_face_and_the_metrics_count_per_listener(faces):
                         listener="rtu") == 1
     text = mbgw("status", "--control", gw.control).stdout
     assert "udp 1 requests (1 again); rtu 1 requests" in text
+
+
+def test_a_reload_judges_each_udp_source_again_and_a_new_udp_port_waits_for_a_restart(
+        faces):
+    gw, udp_port, _, record = faces()
+    path = Path(next(a for a in gw.args if a.endswith("mbgw.toml")))
+    with udp_socket() as sock:
+        sock.sendto(mbap(1, UNIT, read(0, 1)), ("127.0.0.1", udp_port))
+        assert sock.recvfrom(512)[0][7:] == bytes.fromhex("0302 0064")
+        path.write_text(path.read_text().replace(
+            f"udp-port = {udp_port}", f"udp-port = {free_port()}\nauthip = [\"10.1.2.3\"]"))
+        reload(gw, "udp-port: takes effect at restart")
+        sock.settimeout(SILENCE_S)
+        sock.sendto(mbap(2, UNIT, read(0, 1)), ("127.0.0.1", udp_port))   # still there
+        with pytest.raises(TimeoutError):
+            sock.recvfrom(512)
+    assert len(on_the_wire(record)) == 1
+    assert status(gw)["faces"]["udp"]["refused"] == 1
