@@ -68,6 +68,8 @@ class FaceCounters(_Counting):
     refused: int = 0            # by authip or the firewall: connections and requests
     retransmissions: int = 0    # udp: a request again within stout, answered from memory
     bad_frames: int = 0         # rtu: a bad CRC; udp: a datagram that is no MBAP frame
+    dropped: int = 0            # udp: from a source with as many requests in the gateway
+    #                             as a TCP client may have (it is not read meanwhile)
 
 
 def face_counters() -> dict[str, FaceCounters]:

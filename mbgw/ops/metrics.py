@@ -372,6 +372,8 @@ _FACE_HELP = {
                        "without reaching the target.",
     "bad_frames": "RTU-over-TCP requests dropped for a bad CRC, datagrams on udp-port that "
                   "are no MBAP frame.",
+    "dropped": "UDP requests dropped unanswered: their source had 16 requests in the gateway "
+               "already (a TCP client is not read meanwhile).",
 }
 
 

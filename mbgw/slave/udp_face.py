@@ -152,6 +152,9 @@ class UdpPort:
                 except OSError:
                     pass
             return
+        if peer.in_flight >= peer.max_in_flight:     # a TCP client would not be read now
+            self._face.dropped += 1
+            return
         if len(sent) >= MAX_REMEMBERED:
             for old in [t for t, entry in sent.items() if now - entry[1] >= self._stout_s]:
                 del sent[old]
