@@ -326,7 +326,8 @@ def _faces(faces: dict | None) -> list[str]:
             extra += [f"{f['retransmissions']} again"] if f["retransmissions"] else []
             extra += [f"{f['bad_frames']} bad frames"] if f["bad_frames"] else []
             extra += [f"{f['dropped']} dropped"] if f["dropped"] else []
-            said.append(f"{listener} {f['requests']} requests" +
+            clients = f"{f['clients']} client{'' if f['clients'] == 1 else 's'}"
+            said.append(f"{listener} {clients}, {f['requests']} requests" +
                         (f" ({', '.join(extra)})" if extra else ""))
     return [f"faces      {'; '.join(said)}"]
 

@@ -384,6 +384,12 @@ def face_families(faces: dict[str, dict[str, int]]):
         for listener, figures in faces.items():
             family.add_metric([listener], figures[name])
         yield family
+    clients = GaugeMetricFamily("mbgw_face_clients", "Clients of the Modbus TCP face now, by "
+                                "listener (udp: the sources it remembers).",
+                                labels=["listener"])
+    for listener, figures in faces.items():
+        clients.add_metric([listener], figures["clients"])
+    yield clients
 
 
 SCENARIO_STATES = ("starting", "running", "error", "disabled")

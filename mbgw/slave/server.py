@@ -10,6 +10,8 @@ An admitted connection is handed from the first to the second through Connection
 thread's poll over the clients).  TcpServer puts the three together and is what the daemon,
 the line thread (SlaveLineThread) and the status hold.
 """
+from collections import Counter
+
 from mbgw.config.model import SlaveConfig
 from mbgw.firewall.guard import Firewall
 from mbgw.ops.counters import Counters, FaceCounters
@@ -71,6 +73,13 @@ class TcpServer:
     def faces(self) -> dict[str, FaceCounters]:
         """The figures of each listener (plain, tls, udp, rtu)."""
         return self.listener.faces
+
+    def face_figures(self) -> dict[str, dict[str, int]]:
+        """Each listener's figures and its clients now (UDP: the sources it remembers)."""
+        clients = Counter(c.listener for c in self.clients)
+        clients["udp"] = sum(p.sources for p in self.listener.udp_ports)
+        return {listener: {**face.snapshot(), "clients": clients[listener]}
+                for listener, face in self.faces.items()}
 
     @property
     def inboxes(self) -> dict[str, Inbox]:

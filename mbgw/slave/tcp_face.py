@@ -146,7 +146,7 @@ class TcpFace:
 
     def faces(self) -> dict[str, dict[str, int]]:
         """Each listener's figures (plain, tls, udp, rtu), as slave mode's status has them."""
-        return {listener: face.snapshot() for listener, face in self.server.faces.items()}
+        return self.server.face_figures()
 
     def close_client(self, client_id: int, user=None) -> bool:
         return self.server.close_client(client_id, user)

@@ -81,6 +81,7 @@ class UdpPort:
         self._firewall = firewall
         self._renewed = False
         self.peers: dict[tuple, UdpPeer | None] = {}
+        self.sources = 0            # the peers that are clients (not refused), for status
 
     def renew(self, acl: AccessList, firewall: Firewall, stout_ms: int) -> None:
         """Asyncio thread, at a reload: each source is judged again at its next datagram."""
@@ -93,6 +94,7 @@ class UdpPort:
         if self._renewed:
             self._renewed = False
             self.peers.clear()
+            self.sources = 0
         sock = self.sock
         peers = self.peers
         for _ in range(DATAGRAMS_PER_TURN):
@@ -118,12 +120,14 @@ class UdpPort:
             for known, peer in list(peers.items()):
                 if peer is None or not peer.in_flight:
                     del peers[known]
+                    self.sources -= peer is not None
         if not self._acl.allows(address[0]):
             peers[address] = None
             return None
         peer = UdpPeer(self.sock, address, self.local, self._face)
         peer.guard = self._firewall.guard(address[0], None, UdpPeer.listener)
         peers[address] = peer
+        self.sources += 1
         return peer
 
     def _datagram(self, peer: UdpPeer, data: bytes) -> None:

@@ -3,6 +3,7 @@ over TCP on `[net] rtu-port`, with mdbport's routes, authip and firewall.  Peers
 RTU slave on the pty (tests/peers/pymodbus_slave.py, address 17, holding register i holds
 100 + i, its record the wire) or the scripted one (fault_slave.py, address 3 answers late),
 pymodbus's UDP client and RTU-framed TCP client, raw sockets."""
+import re
 import socket
 import struct
 import urllib.request
@@ -85,7 +86,7 @@ def test_a_pymodbus_udp_client_reads_the_serial_slave(faces):
         client.close()
     assert on_the_wire(record) == ["11" + read(4, 3).hex(), "11" + write(9, 77).hex()]
     face = status(gw)["faces"]["udp"]
-    assert face["requests"] == 2 and face["refused"] == 0
+    assert (face["requests"], face["refused"], face["clients"]) == (2, 0, 1)
 
 
 def test_a_retransmission_costs_one_line_transaction_and_gets_the_first_reply_again(faces):
@@ -137,7 +138,8 @@ def test_a_source_authip_refuses_gets_no_datagram_and_the_line_nothing(faces):
         with pytest.raises(TimeoutError):
             sock.recvfrom(512)
     assert on_the_wire(record) == []
-    assert status(gw)["faces"]["udp"]["refused"] == 1
+    face = status(gw)["faces"]["udp"]
+    assert (face["refused"], face["clients"], face["requests"]) == (1, 0, 0)
 
 
 def test_a_firewall_rule_for_udp_refuses_silently_and_is_its_listeners_only(faces):
@@ -237,7 +239,8 @@ def test_the_trace_names_the_face_and_the_metrics_count_per_listener(faces):
     assert metric_value(families, "mbgw_face_requests", "mbgw_face_requests_total",
                         listener="rtu") == 1
     text = mbgw("status", "--control", gw.control).stdout
-    assert "udp 1 requests (1 again); rtu 1 requests" in text
+    assert "udp 1 client, 1 requests (1 again); rtu " in text
+    assert re.search(r"rtu \d clients?, 1 requests", text), text
 
 
 def test_a_reload_judges_each_udp_source_again_and_a_new_udp_port_waits_for_a_restart(
