@@ -25,6 +25,7 @@ from mbgw.cli.serial_options import (
 from mbgw.cli.table_options import parse_serial_functions, table_config, table_options, table_switch
 from mbgw.cli.tls_options import tls_config, tls_options, upstream_tls_config, upstream_tls_options
 from mbgw.config import model
+from mbgw.config.lines import TCP_FACE
 from mbgw.config.schema import TableOption
 from mbgw.config.slaveid import MAX_RANGES, SlaveIdTable
 
@@ -127,6 +128,13 @@ def master_config(device, protocol, baudrate, line_format, interface, rtsdelays,
         demotion=demotion(down_after, probe_interval), table=table,
         firewall=firewall, scenarios=scenarios, tls=tls, authip=authip, bind=bind,
         udp_port=udp_port, rtu_port=rtu_port))
-    return with_lines(cfg, "master", lines, routes, monitors, devices)
+    cfg = with_lines(cfg, "master", lines, routes, monitors, devices)
+    if not any(r.face == TCP_FACE for r in cfg.routes):
+        for name, port in (("udp-port", udp_port), ("rtu-port", rtu_port)):
+            if port:
+                raise click.BadParameter("master mode listens there only with a Modbus TCP "
+                                         "face: a [[route]] without from",
+                                         param_hint=f"'--{name}'")
+    return cfg
 
 master.make_config = master_config

@@ -120,8 +120,11 @@ BAD_FILES = [
      "web.listen", "port 4001 is net.rtu-port's already"),
     ("master: the RTU-over-TCP port the table's",
      lambda p: DEVICE + 'mode = "master"\n[net]\nrtu-port = 1502\n'
-     "[table]\nenabled = true\nport = 1502\n",
+     '[table]\nenabled = true\nport = 1502\n[[route]]\nunits = "200"\ntable = true\n',
      "net.rtu-port", "port 1502 is table.port's already"),
+    ("master: a udp-port without the TCP face",
+     lambda p: DEVICE + 'mode = "master"\n[net]\nudp-port = 1502\n',
+     "net.udp-port", "only with a Modbus TCP face"),
     ("a udp-port out of range",
      lambda p: DEVICE + "[net]\nudp-port = 70000\n",
      "net.udp-port", "70000"),
