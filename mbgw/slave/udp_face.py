@@ -9,7 +9,6 @@ id and bytes within stout of the first) never reaches the target again: it gets 
 reply again, or nothing while that one is outstanding.  Replies leave from the socket the
 request came in on (the udp-port).
 """
-import logging
 import socket
 import time
 
@@ -19,8 +18,6 @@ from mbgw.net.acl import AccessList
 from mbgw.net.address import format_address
 from mbgw.ops.counters import FaceCounters
 from mbgw.slave.connections import Client
-
-log = logging.getLogger("mbgw.tcp")
 
 DATAGRAM_SIZE = 512          # an MBAP frame is 260 bytes at most: more is no request
 DATAGRAMS_PER_TURN = 64      # read in one wake-up at most, so TCP clients are read between
