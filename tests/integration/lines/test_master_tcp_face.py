@@ -11,6 +11,7 @@ pymodbus TCP client, and raw frames written by the test (the serial master, and 
 route takes), each answer checked byte for byte."""
 import os
 import signal
+import socket
 import urllib.request
 
 import pytest
@@ -142,7 +143,7 @@ def test_the_face_takes_modbus_udp_and_rtu_over_tcp_too(tmp_path, start_gateway,
                                                         meters):  # noqa: F811
     """udp-port and rtu-port in a master-mode daemon with the TCP face: its routes (unit 32
     is the meter's address 1) on both."""
-    udp_port, rtu_port = free_port(), free_port()
+    udp_port, rtu_port = free_port(socket.SOCK_DGRAM), free_port()
     config = lines_file(tmp_path / "lines.toml", [meters_line(meters)], TCP_ROUTES[:1])
     gw = start_gateway(pty_pair.gateway, "--config", str(config), "--baudrate", str(BAUD),
                        "--udp-port", str(udp_port), "--rtu-port", str(rtu_port),

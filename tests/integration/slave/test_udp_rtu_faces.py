@@ -56,7 +56,7 @@ def faces(tmp_path, pty_pair, start_peer, start_gateway):
                        str(record))
         else:
             start_peer(peer, pty_pair.device, "--record", str(record), "--late-ms", "300")
-        udp_port, rtu_port = free_port(), free_port()
+        udp_port, rtu_port = free_port(socket.SOCK_DGRAM), free_port()
         path = tmp_path / "mbgw.toml"
         path.write_text(f"[serial]\nbaudrate = 19200\n[net]\nudp-port = {udp_port}\n"
                         f"rtu-port = {rtu_port}\n" + text)
@@ -109,7 +109,7 @@ def test_a_retransmission_while_the_first_is_outstanding_gets_nothing(
     serial's thread, the face's home, reads the retransmission."""
     record = tmp_path / "meters.txt"
     start_peer("fault_slave.py", second_pty.device, "--record", str(record), "--late-ms", "300")
-    udp_port = free_port()
+    udp_port = free_port(socket.SOCK_DGRAM)
     path = tmp_path / "mbgw.toml"
     path.write_text(f'[serial]\nbaudrate = 19200\n[net]\nudp-port = {udp_port}\n'
                     f'[[line]]\nname = "meters"\ndevice = "{second_pty.gateway}"\n'
