@@ -63,7 +63,7 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
 @click.option("--bind", metavar="ADDR", default=None, callback=parser(parse_bind),
               help="The table's server listens on this IP address only [default: all, IPv4 "
                    "and IPv6].")
-@face_port_options
+@face_port_options(" (a route without from gives the daemon one)")
 @upstream_tls_options
 @demotion_options
 @table_switch

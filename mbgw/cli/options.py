@@ -127,15 +127,16 @@ def stack(*decorators):
     return apply
 
 
-# The Modbus TCP face's other listeners, on bind's addresses with mdbport's routes, authip
-# and firewall (rule listener "udp", "rtu")
-face_port_options = stack(
-    click.option("--udp-port", type=click.IntRange(*model.MDBPORT_RANGE), default=0,
-                 show_default=True,
-                 help="Modbus/UDP port to listen on, for the Modbus TCP face's units "
-                      "(0: none)."),
-    click.option("--rtu-port", type=click.IntRange(*model.MDBPORT_RANGE), default=0,
-                 show_default=True,
-                 help="RTU-over-TCP port to listen on (\"TCP with CRC\": RTU frames in a TCP "
-                      "stream), for the Modbus TCP face's units (0: none)."),
-)
+def face_port_options(when: str = ""):
+    """The Modbus TCP face's other listeners, on bind's addresses with its routes, authip and
+    firewall (rule listener "udp", "rtu"); when: the mode's condition, said in the help."""
+    return stack(
+        click.option("--udp-port", type=click.IntRange(*model.MDBPORT_RANGE), default=0,
+                     show_default=True,
+                     help=f"Modbus/UDP port the Modbus TCP face listens on{when}, one "
+                          f"request a datagram (0: none)."),
+        click.option("--rtu-port", type=click.IntRange(*model.MDBPORT_RANGE), default=0,
+                     show_default=True,
+                     help=f"RTU-over-TCP port (\"TCP with CRC\": RTU frames in a TCP "
+                          f"stream) the Modbus TCP face listens on{when} (0: none)."),
+    )

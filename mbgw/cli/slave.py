@@ -42,7 +42,7 @@ def _parse_units(value) -> tuple[int, ...]:
 @click.option("--mdbport", type=click.IntRange(*model.MDBPORT_RANGE),
               default=model.SlaveConfig.mdbport, show_default=True,
               help="Modbus TCP port to listen on (0: none, Modbus/TCP Security only).")
-@face_port_options
+@face_port_options()
 @click.option("--bind", metavar="ADDR", default=None, callback=parser(parse_bind),
               help="Listen on this IP address only [default: all, IPv4 and IPv6].")
 @click.option("--max-connections", type=click.IntRange(*model.MAX_CONNECTIONS_RANGE),
