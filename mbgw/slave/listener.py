@@ -135,6 +135,7 @@ class Listener:
         ListenError."""
         if not self._cfg.udp_port:
             return
+        assert self._on_request is not None, "udp-port needs the router's on_request"
         for sock in listen(self._cfg.bind, self._cfg.udp_port, option="udp-port",
                            kind=socket.SOCK_DGRAM):
             port = UdpPort(sock, self._on_request, self._acl, self.firewall,
