@@ -125,3 +125,18 @@ def stack(*decorators):
             function = decorator(function)
         return function
     return apply
+
+
+def face_port_options(when: str = ""):
+    """The Modbus TCP face's other listeners, on bind's addresses with its routes, authip and
+    firewall (rule listener "udp", "rtu"); when: the mode's condition, said in the help."""
+    return stack(
+        click.option("--udp-port", type=click.IntRange(*model.MDBPORT_RANGE), default=0,
+                     show_default=True,
+                     help=f"Modbus/UDP port the Modbus TCP face listens on{when}, one "
+                          f"request a datagram (0: none)."),
+        click.option("--rtu-port", type=click.IntRange(*model.MDBPORT_RANGE), default=0,
+                     show_default=True,
+                     help=f"RTU-over-TCP port (\"TCP with CRC\": RTU frames in a TCP "
+                          f"stream) the Modbus TCP face listens on{when} (0: none)."),
+    )

@@ -321,6 +321,7 @@ def _slave_sections(s: dict, now: float) -> list[str]:
         f"{_line(serial)}, stout {serial['stout_ms']} ms: line {_state(serial)}, "
         f"queue {s['queue_depth']}",
         f"           {_load(s)}",
+        *_faces(s.get("faces")),
         "",
         *_clients_section(s, now),
     ]
@@ -334,6 +335,23 @@ def _slave_sections(s: dict, now: float) -> list[str]:
                          f"{_exceptions(d)}")
             lines += _next_probe(d)
     return lines
+
+
+def _faces(faces: dict | None) -> list[str]:
+    """What came in by each listener, once a Modbus/UDP or RTU-over-TCP one has had any."""
+    if not faces or not any(any(faces[f].values()) for f in ("udp", "rtu") if f in faces):
+        return []
+    said = []
+    for listener, f in faces.items():
+        if any(f.values()):
+            extra = [f"{f['refused']} refused"] if f["refused"] else []
+            extra += [f"{f['retransmissions']} again"] if f["retransmissions"] else []
+            extra += [f"{f['bad_frames']} bad frames"] if f["bad_frames"] else []
+            extra += [f"{f['dropped']} dropped"] if f["dropped"] else []
+            clients = f"{f['clients']} client{'' if f['clients'] == 1 else 's'}"
+            said.append(f"{listener} {clients}, {f['requests']} requests" +
+                        (f" ({', '.join(extra)})" if extra else ""))
+    return [f"faces      {'; '.join(said)}"]
 
 
 def _master_sections(s: dict, now: float) -> list[str]:
@@ -350,7 +368,8 @@ def _master_sections(s: dict, now: float) -> list[str]:
         else "empty: every request is ignored"]
     lines += [f"{'slaveid' if i == 0 else '':<10} {route}" for i, route in enumerate(routes)]
     if s.get("listening") is not None:
-        lines += [f"listening  {', '.join(s['listening'])} (the Modbus TCP face)", "",
+        lines += [f"listening  {', '.join(s['listening'])} (the Modbus TCP face)",
+                  *_faces(s.get("faces")), "",
                   *_clients_section({"clients": s["tcp_clients"]}, now)]
     lines += ["", f"upstream connections ({len(up['connections'])})"]
     if up["connections"]:

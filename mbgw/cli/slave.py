@@ -3,7 +3,7 @@ import click
 
 from mbgw.cli.daemon_options import daemon_options
 from mbgw.cli.lines import with_lines
-from mbgw.cli.options import ModeCommand, convert, parse_bind, parser
+from mbgw.cli.options import ModeCommand, convert, face_port_options, parse_bind, parser
 from mbgw.cli.run import run_daemon
 from mbgw.cli.serial_options import (
     demotion,
@@ -42,6 +42,7 @@ def _parse_units(value) -> tuple[int, ...]:
 @click.option("--mdbport", type=click.IntRange(*model.MDBPORT_RANGE),
               default=model.SlaveConfig.mdbport, show_default=True,
               help="Modbus TCP port to listen on (0: none, Modbus/TCP Security only).")
+@face_port_options()
 @click.option("--bind", metavar="ADDR", default=None, callback=parser(parse_bind),
               help="Listen on this IP address only [default: all, IPv4 and IPv6].")
 @click.option("--max-connections", type=click.IntRange(*model.MAX_CONNECTIONS_RANGE),
@@ -111,7 +112,7 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
                  lines=(), routes=(), monitors=(), devices=(),
                  tls_port=model.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
                  tls_require_role=True, tls_crl=None, tcpto=model.DEFAULT_TCPTO_MS,
-                 late_window=None, gateway_unit=0,
+                 late_window=None, gateway_unit=0, udp_port=0, rtu_port=0,
                  **table_settings) -> model.SlaveConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck, dtr, rts, cts, xonxoff,
@@ -121,7 +122,7 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
     tls = tls_config(tls_port, tls_cert, tls_key, tls_ca, tls_require_role, tls_crl)
     cfg = convert(None, lambda: model.SlaveConfig(
         serial=serial, slaveid=slaveid, exception=exception, authip=authip, mdbport=mdbport,
-        upstream_tls=upstream_tls,
+        udp_port=udp_port, rtu_port=rtu_port, upstream_tls=upstream_tls,
         bind=bind, max_connections=max_connections,
         max_connections_per_ip=max_connections_per_ip, retries=retries,
         turnaround_ms=turnaround, late_window_ms=late_window, control=control,

@@ -457,6 +457,8 @@ class SlaveConfig:
     exception: bool = False
     authip: tuple = ()
     mdbport: int = DEFAULT_MDBPORT
+    udp_port: int = 0              # [net] udp-port: the Modbus/UDP face; 0: off
+    rtu_port: int = 0              # [net] rtu-port: the RTU-over-TCP face; 0: off
     bind: str | None = None
     max_connections: int = DEFAULT_MAX_CONNECTIONS
     max_connections_per_ip: int = 0    # 0: no limit per client address
@@ -555,6 +557,8 @@ class MasterConfig:
     location: str = DEFAULT_LOCATION   # [general] location, the guide's set location
     authip: tuple = ()              # the table server's allowed clients; empty: anyone
     bind: str | None = None         # the table server's one address; None: every one
+    udp_port: int = 0               # [net] udp-port: the TCP face's Modbus/UDP listener
+    rtu_port: int = 0               # [net] rtu-port: the TCP face's RTU-over-TCP listener
     lines: tuple = ()               # LineConfig (mbgw.config.lines): [[line]], beside [serial]
     routes: tuple = ()              # RouteConfig (mbgw.config.lines): [[route]]
     monitors: tuple = ()            # MonitorMap (mbgw.config.monitor): [[monitor]]

@@ -138,10 +138,12 @@ class MasterMode(ModeParts):
 
     def collector(self, metrics, started: float):
         slave, tables = self.faces.primary, self.tables
-        return metrics.master_collector(
+        collector = metrics.master_collector(
             self.counters, slave.devices, slave, started,
             lambda: tables.figures(slave.table_counters.snapshot()), tables.firewall_report,
             self.metered, self._tcp_clients)
+        collector.faces = lambda: self.tcp_face.faces() if self.tcp_face is not None else None
+        return collector
 
     def _tcp_clients(self) -> int | None:
         face = self.tcp_face

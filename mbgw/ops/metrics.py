@@ -145,6 +145,8 @@ class DaemonCollector:
         self.servers: Callable[[], list[dict]] | None = None
         # () -> northbound MQTT's status (mbgw.northbound.counters), or None: MQTT off
         self.mqtt: Callable[[], dict | None] | None = None
+        # () -> the Modbus TCP face's figures by listener (the status's "faces"), or None
+        self.faces: Callable[[], dict | None] | None = None
         self.lines: Callable[[], list[dict]] = lambda: [
             {"name": PRIMARY_LINE, "mode": mode, "state": "up" if up() else "down"}]
 
@@ -172,6 +174,9 @@ class DaemonCollector:
         mqtt = self.mqtt() if self.mqtt is not None else None
         if mqtt is not None:
             yield from mqtt_families(mqtt)
+        faces = self.faces() if self.faces is not None else None
+        if faces:
+            yield from face_families(faces)
 
     def _daemon(self):
         info = GaugeMetricFamily("mbgw_info", "mbgw's version and mode (always 1).",
@@ -394,6 +399,35 @@ def server_families(rows: list[dict]):
     for row in rows:
         connections.add_metric([row["server"]], len(row["connections"]))
     yield connections
+
+
+_FACE_HELP = {
+    "requests": "Requests received on the Modbus TCP face, by listener (plain, tls, udp, "
+                "rtu).",
+    "refused": "Connections and requests refused by authip or the firewall, by listener "
+               "(a refused UDP source gets no datagram).",
+    "retransmissions": "UDP requests received again within stout, answered from memory "
+                       "without reaching the target.",
+    "bad_frames": "RTU-over-TCP requests dropped for a bad CRC, datagrams on udp-port that "
+                  "are no MBAP frame.",
+    "dropped": "UDP requests dropped unanswered: their source had 16 requests in the gateway "
+               "already (a TCP client is not read meanwhile).",
+}
+
+
+def face_families(faces: dict[str, dict[str, int]]):
+    """The Modbus TCP face's families, labelled by listener, from the status's "faces"."""
+    for name, help_text in _FACE_HELP.items():
+        family = CounterMetricFamily(f"mbgw_face_{name}", help_text, labels=["listener"])
+        for listener, figures in faces.items():
+            family.add_metric([listener], figures[name])
+        yield family
+    clients = GaugeMetricFamily("mbgw_face_clients", "Clients of the Modbus TCP face now, by "
+                                "listener (udp: the sources it remembers).",
+                                labels=["listener"])
+    for listener, figures in faces.items():
+        clients.add_metric([listener], figures["clients"])
+    yield clients
 
 
 SCENARIO_STATES = ("starting", "running", "error", "disabled")

@@ -43,6 +43,7 @@ class TraceEvent(TypedDict, total=False):
     remote: str | None      # the far end as mbgw shows it: the client (slave mode), the
     #                         target (master mode: a server's address, "table", a line)
     client: int             # slave mode: the client's id (mbgw status)
+    face: str               # the listener the client came in by: plain, tls, udp, rtu
     mode: str               # "master" in master mode, "transparent" in transparent mode
     server: str | None      # master mode: the target shown (IP:port, "table", a line)
     scenario: str           # a scenario's run: its name (and neither peer nor local)

@@ -161,6 +161,7 @@ class SlaveMode(ModeParts):
             lambda: server.firewall.report() if server.firewall.configured else None,
             self.metered)
         collector.servers = self.server_rows
+        collector.faces = server.face_figures
         return collector
 
     def metered(self) -> list[tuple]:

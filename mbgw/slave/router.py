@@ -113,6 +113,7 @@ class Router:
         """The request counted for its client; False when the client's rule refused it (it
         is answered already)."""
         client.requests += 1
+        client.face.requests += 1
         guard = client.guard
         if guard is None or guard.allows(unit, request):
             return True
@@ -235,6 +236,7 @@ class Router:
         """A request the client's rule does not allow: 0x01 (a broadcast's too: it was not
         done); it reaches neither the line nor the table."""
         client.firewall_refused += 1
+        client.face.refused += 1
         tracing = self._requested(client, tid, unit, request)
         reply = self.firewall.refused(guard, client.peer, client.role, unit, request)
         self.off_line.requests += 1
@@ -336,6 +338,7 @@ class Router:
                outcome: str, latency_ms, line: str | None = PRIMARY_LINE) -> TraceEvent:
         return {"time": time.time(), "line": line, "direction": direction, "client": client.id,
                 "peer": client.peer, "local": client.local, "remote": client.peer,
+                "face": client.listener,
                 "tid": tid, "unit": unit,
                 "function": data[0], "length": len(data) if direction != "no reply" else 0,
                 "pdu": data.hex() if direction != "no reply" else "", "outcome": outcome,

@@ -63,6 +63,7 @@ class SlaveStatus(DaemonStatus):
             **({"firewall": firewall.report(
                 (c.peer, c.role, c.firewall_refused) for c in self._server.clients)}
                if firewall.configured else {}),
+            "faces": self._server.face_figures(),
             "queue_depth": self._scheduler.depth,
             "clients": [{"id": c.id, "peer": c.peer, "connected_since": c.connected_at,
                          "requests": c.requests, "in_flight": c.in_flight,
