@@ -13,6 +13,7 @@ import ipaddress
 import re
 from dataclasses import dataclass, field
 
+from mbgw.config.cache import CacheRule
 from mbgw.config.model import (
     DEFAULT_TURNAROUND_MS,
     Demotion,
@@ -45,6 +46,7 @@ class LineConfig:
     demotion: Demotion = field(default_factory=Demotion)
     turnaround_ms: int = DEFAULT_TURNAROUND_MS   # slave mode: the pause after a broadcast
     late_window_ms: int | None = None            # slave mode: None: stout
+    cache: CacheRule | None = None               # slave mode: reads shared and kept
 
     def __post_init__(self) -> None:
         if self.name != PRIMARY_LINE and not NAME_PATTERN.fullmatch(self.name):
@@ -84,6 +86,7 @@ class RouteConfig:
     gateway: bool = False          # general.gateway-unit: the table's identity functions only
     tls: bool = False              # server: reached over TLS (a slaveid range's `tls`)
     fingerprint: bytes | None = None   # server: its certificate's pinned SHA-256
+    cache: CacheRule | bool | None = None   # a line: its own (False: off; None: the line's)
 
     @property
     def label(self) -> str:
@@ -230,6 +233,9 @@ def _route_problems(route: RouteConfig, by_name: dict[str, LineConfig]) -> list[
                             f"from names a line in master mode (a master on it)")
     if route.line is not None:
         problems += _line_target_problems(route, by_name.get(route.line))
+    elif route.cache is not None:
+        problems.append(f"{label}.cache: only a route to a line in slave mode has a cache "
+                        f"(the table answers at once; a server's reads are not cached)")
     if not route.implicit and (route.line is not None or route.server is not None):
         problems += _rewrite_problems(route)
     return problems

@@ -35,6 +35,7 @@ def line_settings(cfg: SlaveConfig | MasterConfig, line: LineConfig) -> SlaveCon
         late_window_ms=line.late_window_ms)
     return dataclasses.replace(
         base, serial=line.serial, retries=line.retries, demotion=line.demotion, slaveid=0,
+        cache=line.cache,
         shortcut=False, scenarios=(), table=dataclasses.replace(cfg.table, enabled=False),
         lines=(), routes=(), monitors=(), devices=line_devices(cfg.devices, line.name))
 
