@@ -2,6 +2,7 @@
 `cache = { ttl = 500, serve-stale = 5000 }` in the file, `--cache ttl=500,serve-stale=5000`
 on the command line.  What it does is mbgw.routing.cache's."""
 from dataclasses import dataclass
+from typing import Literal
 
 from mbgw.errors import ConfigError
 
@@ -34,6 +35,10 @@ class CacheRule:
     def fields(self) -> dict:
         """As the file's inline table."""
         return {"ttl": self.ttl_ms, "serve-stale": self.serve_stale_ms}
+
+
+# A route's `cache`: its own rule, False (off), or None (not given: its line's).
+RouteCache = CacheRule | Literal[False] | None
 
 
 def parse_cache(value: object) -> CacheRule | None:

@@ -13,7 +13,7 @@ import ipaddress
 import re
 from dataclasses import dataclass, field
 
-from mbgw.config.cache import CacheRule
+from mbgw.config.cache import CacheRule, RouteCache
 from mbgw.config.model import (
     DEFAULT_TURNAROUND_MS,
     Demotion,
@@ -86,7 +86,7 @@ class RouteConfig:
     gateway: bool = False          # general.gateway-unit: the table's identity functions only
     tls: bool = False              # server: reached over TLS (a slaveid range's `tls`)
     fingerprint: bytes | None = None   # server: its certificate's pinned SHA-256
-    cache: CacheRule | bool | None = None   # a line: its own (False: off; None: the line's)
+    cache: RouteCache = None       # to a line: its own (False: off; None: the line's)
 
     @property
     def label(self) -> str:

@@ -22,7 +22,8 @@ Nothing here is touched by a line without a cache: its thread has no ReadCache.
 import bisect
 from dataclasses import dataclass
 
-from mbgw.config.cache import CacheRule
+from mbgw.config.cache import CacheRule, RouteCache
+from mbgw.ops.trace import Outcome
 from mbgw.protocol import pdu
 
 READS = frozenset({0x01, 0x02, 0x03, 0x04})
@@ -38,7 +39,7 @@ HITS, COALESCED, MISSES, STALE = range(4)
 NS_PER_MS = 1_000_000
 
 
-def resolve(override: CacheRule | bool | None, line_rule: CacheRule | None
+def resolve(override: RouteCache, line_rule: CacheRule | None
             ) -> CacheRule | None:
     """A route's `cache` (None: not given, False: off) over its line's."""
     if override is None:
@@ -113,7 +114,7 @@ class ReadCache:
         last = self._last.get(adu)
         if last is not None and received_ns and last.end_ns >= received_ns:
             self._count(adu[0], COALESCED)
-            return last.reply, "coalesced"
+            return last.reply, Outcome.COALESCED
         if rule.ttl_ms:
             found = self._within(adu, now_ns - rule.ttl_ms * NS_PER_MS)
             if found is not None:
