@@ -311,7 +311,7 @@ class SlaveLineThread(LineThread[SlaveConfig]):
             job.outcome = Outcome.ERROR
             reply = self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE)
         if rule is not None or self._caching:
-            reply = self._cache_outcome(job, rule, got is not None, reply)
+            reply = self._cache_outcome(job, rule, got, reply)
         try:
             self._deliver(job, reply, forwarded)
         except Exception:
@@ -341,19 +341,19 @@ class SlaveLineThread(LineThread[SlaveConfig]):
         self._deliver_safely(job, reply)
         return True
 
-    def _cache_outcome(self, job: Job, rule: CacheRule | None, answered: bool,
+    def _cache_outcome(self, job: Job, rule: CacheRule | None, got: Reception | None,
                        reply: bytes | None) -> bytes | None:
         """After a transaction, before its reply goes out: a read's answer shared and kept,
-        stale data for a read that timed out, a write's overlap dropped.  The reply to
-        send."""
+        dated by the end of the slave's reply (C may have forwarded it already); stale data
+        for a read that timed out; a write's overlap dropped.  The reply to send."""
         cache = self.cache
         adu = job.adu
         if rule is None:
             cache.written(adu)
             return reply
         now_ns = time.monotonic_ns()
-        if answered:
-            cache.answered(adu, reply, now_ns)
+        if got is not None:
+            cache.answered(adu, reply, got.last_byte_ns or now_ns)
             return reply
         if job.outcome == Outcome.TIMEOUT:
             found = cache.stale(rule, adu, now_ns)
