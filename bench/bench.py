@@ -825,6 +825,10 @@ def main() -> None:
                     help="instead of the runs above: 8 lines at 115200 through one listener, "
                     "and the serial-to-serial bridge's added latency (bench/lines.py; about "
                     "45 s; --quick: 15 s)")
+    ap.add_argument("--cache", action="store_true",
+                    help="instead of the runs above: the read cache's line transactions per "
+                    "request and its hits over loopback beside the table's server "
+                    "(bench/cache.py; about 60 s; --quick: 20 s)")
     ap.add_argument("--web", action="store_true",
                     help="instead of the runs above: a client's latency with a browser on the "
                     "web console's Traffic page and without (bench/web.py; about 40 s)")
@@ -832,6 +836,10 @@ def main() -> None:
     if args.lines:
         import lines  # bench/lines.py, beside this script
         lines.run(args.quick)
+        return
+    if args.cache:
+        import cache  # bench/cache.py, beside this script
+        cache.run(args.quick)
         return
     if args.web:
         import web  # bench/web.py, beside this script
