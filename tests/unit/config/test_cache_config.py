@@ -92,3 +92,18 @@ def test_the_command_line_spelling():
     assert parse_cache("off") is None
     with pytest.raises(ConfigError):
         parse_cache("ttl")
+
+
+def test_config_show_and_set_write_the_key_as_toml(tmp_path):
+    path = tmp_path / "mbgw.toml"
+    path.write_text(SERIAL + 'cache = { ttl = 500, serve-stale = 5000 }\n'
+                    + METERS + 'cache = { ttl = 100 }\n')
+    runner = CliRunner()
+    shown = runner.invoke(main, ["config", "show", "--config", str(path), "serial"])
+    assert "{ ttl = 500, serve-stale = 5000 }" in shown.output, shown.output
+    shown = runner.invoke(main, ["config", "show", "--config", str(path), "line"])
+    assert "cache = { ttl = 100 }" in shown.output, shown.output
+    result = runner.invoke(main, ["config", "set", "--config", str(path), "serial", "cache",
+                                  "ttl=20,serve-stale=40"])
+    assert result.exit_code == 0, result.output
+    assert built(tmp_path, path.read_text()).cache == CacheRule(20, 40)
