@@ -55,9 +55,10 @@ def is_read(adu: bytes) -> bool:
 class Answer:
     """What the line answered a read: the reply PDU, when it ended, whether it is data to
     keep (a valid reply, not an exception) and the range it covers."""
-    __slots__ = ("reply", "end_ns", "keep", "start", "count")
+    __slots__ = ("adu", "reply", "end_ns", "keep", "start", "count")
 
     def __init__(self, adu: bytes, reply: bytes, end_ns: int, keep: bool) -> None:
+        self.adu = adu
         self.reply = reply
         self.end_ns = end_ns
         self.keep = keep
@@ -69,8 +70,6 @@ class Answer:
 
     def cut(self, function: int, start: int, count: int) -> bytes:
         """The reply to the sub-range (start, count) of this read's."""
-        if start == self.start and count == self.count:
-            return self.reply
         offset = start - self.start
         if function in BIT_READS:
             bits = int.from_bytes(self.reply[2:], "little") >> offset
@@ -102,34 +101,46 @@ class ReadCache:
     the line's thread only; status reads the figures from another thread (whole lists)."""
 
     def __init__(self) -> None:
+        # what the last answer() or stale() that found something served: "coalesced",
+        # "cached" or "stale", and the data's age (ms); outcome() is the trace's word for it
+        self.served = ""
+        self.age_ms = 0.0
         self._last: dict[bytes, Answer] = {}           # by ADU
         self._kept: dict[int, dict[bytes, Answer]] = {}   # by address << 8 | function
         self.figures: dict[int, list[int]] = {}        # by unit: FIGURES
         self.ages = AgeHistogram.empty()
 
     def answer(self, rule: CacheRule, adu: bytes, received_ns: int, now_ns: int
-               ) -> tuple[bytes, str] | None:
-        """A read's reply without the line, and its trace outcome: coalesced with the answer
-        that ended after it arrived, or cached within ttl; None: it goes on the line."""
+               ) -> bytes | None:
+        """A read's reply without the line: coalesced with the answer that ended after it
+        arrived, or cached within ttl (outcome() says which); None: it goes on the line."""
         last = self._last.get(adu)
         if last is not None and received_ns and last.end_ns >= received_ns:
             self._count(adu[0], COALESCED)
-            return last.reply, Outcome.COALESCED
+            self.served = Outcome.COALESCED
+            return last.reply
         if rule.ttl_ms:
             found = self._within(adu, now_ns - rule.ttl_ms * NS_PER_MS)
             if found is not None:
                 return self._served(adu, found, now_ns, HITS, "cached")
         return None
 
-    def stale(self, rule: CacheRule, adu: bytes, now_ns: int) -> tuple[bytes, str] | None:
+    def stale(self, rule: CacheRule, adu: bytes, now_ns: int) -> bytes | None:
         """Data for a read whose transaction failed (or whose unit is down), no older than
-        serve-stale; None: there is none."""
+        serve-stale (outcome() says how old); None: there is none."""
         if not rule.serve_stale_ms:
             return None
         found = self._within(adu, now_ns - rule.serve_stale_ms * NS_PER_MS)
         if found is None:
             return None
         return self._served(adu, found, now_ns, STALE, "stale")
+
+    def outcome(self) -> str:
+        """The trace's outcome of what the last answer() or stale() served: "coalesced",
+        "cached <age> ms", "stale <age> ms"."""
+        if self.served == Outcome.COALESCED:
+            return Outcome.COALESCED
+        return f"{self.served} {self.age_ms:.0f} ms"
 
     def missed(self, adu: bytes) -> None:
         """A read with a cache rule goes on the line."""
@@ -196,13 +207,15 @@ class ReadCache:
         return best
 
     def _served(self, adu: bytes, found: Answer, now_ns: int, figure: int, word: str
-                ) -> tuple[bytes, str]:
-        age_ms = (now_ns - found.end_ns) / NS_PER_MS
+                ) -> bytes:
+        self.age_ms = age_ms = (now_ns - found.end_ns) / NS_PER_MS
+        self.served = word
         self._count(adu[0], figure)
         self.ages.observe(age_ms)
-        reply = found.cut(adu[1], int.from_bytes(adu[2:4], "big"),
-                          int.from_bytes(adu[4:6], "big"))
-        return reply, f"{word} {age_ms:.0f} ms"
+        if found.adu == adu:
+            return found.reply
+        return found.cut(adu[1], int.from_bytes(adu[2:4], "big"),
+                         int.from_bytes(adu[4:6], "big"))
 
     def _count(self, unit: int, figure: int) -> None:
         counts = self.figures.get(unit)

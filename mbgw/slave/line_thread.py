@@ -332,12 +332,13 @@ class SlaveLineThread(LineThread[SlaveConfig]):
     def _from_cache(self, job: Job, rule: CacheRule) -> bool:
         """A read whose turn has come, answered from the cache if an identical read under
         way since it arrived, or fresh data, answers it; else it goes on the line (a miss)."""
-        found = self.cache.answer(rule, job.adu, job.received_ns, time.monotonic_ns())
-        if found is None:
-            self.cache.missed(job.adu)
+        cache = self.cache
+        reply = cache.answer(rule, job.adu, job.received_ns, time.monotonic_ns())
+        if reply is None:
+            cache.missed(job.adu)
             self._caching = True
             return False
-        reply, job.outcome = found
+        job.outcome = cache.outcome()
         self._deliver_safely(job, reply)
         return True
 
@@ -356,19 +357,19 @@ class SlaveLineThread(LineThread[SlaveConfig]):
             cache.answered(adu, reply, got.last_byte_ns or now_ns)
             return reply
         if job.outcome == Outcome.TIMEOUT:
-            found = cache.stale(rule, adu, now_ns)
-            if found is not None:
-                reply, job.outcome = found
+            stale = cache.stale(rule, adu, now_ns)
+            if stale is not None:
+                reply, job.outcome = stale, cache.outcome()
         cache.failed(adu, reply, now_ns)
         return reply
 
     def _stale_for_down(self, job: Job) -> bool:
         """A read refused as its unit is down, answered with stale data if its rule allows."""
         rule = job.cache
-        found = None if rule is None else self.cache.stale(rule, job.adu, time.monotonic_ns())
-        if found is None:
+        reply = None if rule is None else self.cache.stale(rule, job.adu, time.monotonic_ns())
+        if reply is None:
             return False
-        reply, job.outcome = found
+        job.outcome = self.cache.outcome()
         self._deliver(job, reply)
         return True
 
@@ -535,9 +536,9 @@ class SlaveLineThread(LineThread[SlaveConfig]):
         rule = resolve(exchange.cache, self._cfg.cache)
         if rule is not None and is_read(job.adu):
             job.cache = rule
-            found = self.cache.answer(rule, job.adu, job.received_ns, time.monotonic_ns())
-            if found is not None:
-                reply, job.outcome = found
+            reply = self.cache.answer(rule, job.adu, job.received_ns, time.monotonic_ns())
+            if reply is not None:
+                job.outcome = self.cache.outcome()
                 self._deliver(job, reply)
                 return
         if self._line is None:

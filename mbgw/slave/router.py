@@ -295,15 +295,14 @@ class Router:
         return Job(client, tid, unit, adu, received_ns, probe=down, cache=rule)
 
     def _from_cache(self, client: Client, tid: int, unit: int, adu: bytes, received_ns: int,
-                    found: tuple[bytes, str] | None) -> bool:
-        """A read answered from the line's cache (found: its reply and outcome), at once
-        under the client's own tid; False when found is None."""
-        if found is None:
+                    reply: bytes | None) -> bool:
+        """A read answered from the line's cache (reply: what it found), at once under the
+        client's own tid; False when it found nothing."""
+        if reply is None:
             return False
-        reply, outcome = found
         self._answer(client, tid, unit, reply)
         if self.trace.active:
-            self.traced(client, tid, unit, adu[1], reply, outcome, received_ns)
+            self.traced(client, tid, unit, adu[1], reply, self.cache.outcome(), received_ns)
         return True
 
     def finished(self, job: Job, reply: bytes | None, forwarded: int = -1) -> None:

@@ -18,6 +18,11 @@ def registers(*values: int) -> bytes:
     return bytes((3, len(data))) + data
 
 
+def served(cache: ReadCache, reply: bytes | None) -> tuple[bytes, str] | None:
+    """What answer() or stale() found, with the trace's outcome of it."""
+    return None if reply is None else (reply, cache.outcome())
+
+
 def filled(adu: bytes, reply: bytes, end_ns: int) -> ReadCache:
     cache = ReadCache()
     cache.answered(adu, reply, end_ns)
@@ -27,14 +32,15 @@ def filled(adu: bytes, reply: bytes, end_ns: int) -> ReadCache:
 def test_a_read_that_arrived_before_the_answer_ended_shares_it_even_without_ttl():
     adu = read(3, 3, 0, 2)
     cache = filled(adu, registers(7, 8), end_ns=100 * MS)
-    assert cache.answer(COALESCE, adu, 99 * MS, 101 * MS) == (registers(7, 8), "coalesced")
+    assert served(cache, cache.answer(COALESCE, adu, 99 * MS, 101 * MS)) == \
+        (registers(7, 8), "coalesced")
     assert cache.answer(COALESCE, adu, 101 * MS, 102 * MS) is None     # arrived after
 
 
 def test_an_exception_reply_is_shared_but_never_kept():
     adu = read(3, 3, 0, 2)
     cache = filled(adu, b"\x83\x02", end_ns=100 * MS)
-    assert cache.answer(TTL, adu, 99 * MS, 101 * MS) == (b"\x83\x02", "coalesced")
+    assert served(cache, cache.answer(TTL, adu, 99 * MS, 101 * MS)) == (b"\x83\x02", "coalesced")
     assert cache.answer(TTL, adu, 100 * MS + 1, 101 * MS) is None
     assert cache.stale(TTL, adu, 101 * MS) is None
 
@@ -42,26 +48,27 @@ def test_an_exception_reply_is_shared_but_never_kept():
 def test_fresh_data_is_served_within_ttl_with_its_age():
     adu = read(3, 3, 10, 2)
     cache = filled(adu, registers(1, 2), end_ns=100 * MS)
-    assert cache.answer(TTL, adu, 200 * MS, 599 * MS) == (registers(1, 2), "cached 499 ms")
+    assert served(cache, cache.answer(TTL, adu, 200 * MS, 599 * MS)) == \
+        (registers(1, 2), "cached 499 ms")
     assert cache.answer(TTL, adu, 200 * MS, 601 * MS) is None
 
 
 def test_a_sub_range_of_registers_and_of_bits():
     cache = filled(read(3, 3, 10, 4), registers(1, 2, 3, 4), end_ns=100 * MS)
-    assert cache.answer(TTL, read(3, 3, 11, 2), 200 * MS, 200 * MS)[0] == registers(2, 3)
+    assert cache.answer(TTL, read(3, 3, 11, 2), 200 * MS, 200 * MS) == registers(2, 3)
     assert cache.answer(TTL, read(3, 3, 12, 3), 200 * MS, 200 * MS) is None   # not within
     assert cache.answer(TTL, read(3, 4, 11, 2), 200 * MS, 200 * MS) is None   # FC 4
     assert cache.answer(TTL, read(4, 3, 11, 2), 200 * MS, 200 * MS) is None   # unit 4
     coils = filled(read(3, 1, 0, 10), bytes((1, 2, 0b1011_0101, 0b11)), end_ns=100 * MS)
-    assert coils.answer(TTL, read(3, 1, 2, 8), 200 * MS, 200 * MS)[0] == \
+    assert coils.answer(TTL, read(3, 1, 2, 8), 200 * MS, 200 * MS) == \
         bytes((1, 1, 0b1110_1101))
-    assert coils.answer(TTL, read(3, 1, 7, 3), 200 * MS, 200 * MS)[0] == bytes((1, 1, 0b111))
+    assert coils.answer(TTL, read(3, 1, 7, 3), 200 * MS, 200 * MS) == bytes((1, 1, 0b111))
 
 
 def test_stale_data_up_to_serve_stale():
     adu = read(3, 3, 0, 2)
     cache = filled(adu, registers(5, 6), end_ns=100 * MS)
-    assert cache.stale(TTL, adu, 5099 * MS) == (registers(5, 6), "stale 4999 ms")
+    assert served(cache, cache.stale(TTL, adu, 5099 * MS)) == (registers(5, 6), "stale 4999 ms")
     assert cache.stale(TTL, adu, 5101 * MS) is None
     assert cache.stale(CacheRule(ttl_ms=500), adu, 200 * MS) is None    # off unless set
 
