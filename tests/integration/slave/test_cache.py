@@ -3,12 +3,14 @@ and on a route to another line.  Many clients polling one range cost the line at
 read per ttl and nobody gets data older than ttl; a write makes the next read go to the line;
 two identical reads close together are one frame on the line; a silent slave's data is served
 stale up to serve-stale, then 0x0B; a request the firewall refuses never gets cached data;
-the figures in status, /metrics and the trace.
+the figures in status, /metrics and the trace; a serial scenario's read fills the cache, a
+reload that changes `cache` empties it, and a serial master's write (through a serial face)
+drops what a line's cache kept.
 
 Peers that are not ours: pymodbus RTU slaves on socat ptys (tests/peers/pymodbus_slave.py,
 with --stamp each read on the line puts its own count in the registers; its record is the
-wire), pymodbus's TCP client, raw sockets; tests/peers/fault_slave.py for a slave that
-answers late."""
+wire), pymodbus's TCP client, raw sockets, raw RTU frames as the serial master;
+tests/peers/fault_slave.py for a slave that answers late."""
 import re
 import struct
 import threading
@@ -21,6 +23,9 @@ from prometheus_client import parser
 from pymodbus.client import ModbusTcpClient
 
 from tests.harness import PtyPair, free_port
+from tests.integration.master.test_serial_faces import ask as serial_ask
+from tests.integration.master.test_serial_faces import read, write_multiple
+from tests.integration.ops.test_reload import reload
 from tests.modbus import mbap, read_holding
 from tests.ops import metric_families, metric_value, status, tracing, wait_for
 from tests.wait import until
@@ -245,5 +250,53 @@ def test_a_route_s_cache_to_another_line(tmp_path, pty_pair, start_peer, start_g
         assert len(rx(record)) == 1
         row = status(gw)["lines"][1]
         assert row["name"] == "meters" and row["cache"]["units"][str(METER)]["hits"] == 2
+    finally:
+        meters.stop()
+
+
+def test_a_scenario_s_read_fills_the_cache_and_a_reload_that_changes_it_empties_it(
+        gateway, client, tmp_path):
+    scenario = ('[[scenario]]\nname = "poll"\nslave = 5\nfunction = 3\naddress = 0\n'
+                'quantity = 10\ntable = 0\ncycle = 65535\n')
+    gw, record = gateway("[serial]\ncache = { ttl = 600000 }\n" + scenario)
+    until(lambda: len(rx(record)) == 1, "the scenario's read on the line", 5)
+    c = client(gw)
+    assert ask(c, 1, UNIT, read_holding(2, 3)) == hr_reply(2, 3)     # the scenario's data
+    assert len(rx(record)) == 1
+    path = tmp_path / "mbgw.toml"
+    path.write_text(path.read_text().replace("ttl = 600000", "ttl = 500000"))
+    reload(gw, "configuration reloaded")
+    assert ask(c, 2, UNIT, read_holding(2, 3)) == hr_reply(2, 3)
+    assert [adu for _, adu in rx(record)][1:] == [bytes((UNIT,)) + read_holding(2, 3)]
+
+
+def test_a_serial_master_s_write_drops_what_the_line_s_cache_kept(
+        tmp_path, pty_pair, start_peer, start_gateway, open_line):
+    (tmp_path / "meters").mkdir()
+    meters = PtyPair(tmp_path / "meters")
+    try:
+        record = tmp_path / "meters.txt"
+        start_peer("pymodbus_slave.py", meters.device, str(METER), "--silent-unknown",
+                   "--record", str(record))
+        path = tmp_path / "mbgw.toml"
+        path.write_text(f'[[line]]\nname = "meters"\ndevice = "{meters.gateway}"\n'
+                        f'baudrate = 19200\nstout = {STOUT_MS}\ncache = {{ ttl = 600000 }}\n'
+                        '[[route]]\nfrom = "serial"\nunits = "32-63"\nline = "meters"\n'
+                        'offset = -31\n')
+        gw = start_gateway(pty_pair.gateway, "--config", str(path), "--baudrate", "19200",
+                           "--exception", mode="master", listen=False)
+        master = open_line(pty_pair.device)
+        serial_ask(master, read(32, 0, 4), bytes((32,)) + hr_reply(0, 4))
+        serial_ask(master, read(32, 1, 2), bytes((32,)) + hr_reply(1, 2))      # memory
+        serial_ask(master, write_multiple(32, 2, 7), bytes.fromhex("20 10 0002 0001"))
+        expected = bytearray(hr_reply(0, 4))
+        expected[2 + 4:2 + 6] = struct.pack(">H", 7)
+        serial_ask(master, read(32, 0, 4), bytes((32,)) + bytes(expected))
+        assert [adu for _, adu in rx(record)] == [
+            bytes((METER,)) + read_holding(0, 4), bytes((METER,)) + write_multiple(1, 2, 7)[1:],
+            bytes((METER,)) + read_holding(0, 4)]
+        row = next(r for r in status(gw)["lines"] if r["name"] == "meters")
+        assert row["cache"]["units"][str(METER)] == {
+            "hits": 1, "coalesced": 0, "misses": 2, "stale_served": 0}
     finally:
         meters.stop()
