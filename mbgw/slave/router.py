@@ -269,10 +269,6 @@ class Router:
             self.counters.unroutable += 1
             self._refuse(client, tid, unit, request, Outcome.UNROUTABLE, received_ns)
             return None
-        if not self._line_up():
-            self.counters.line_down_rejects += 1
-            self._refuse(client, tid, unit, request, Outcome.LINE_DOWN, received_ns)
-            return None
         adu = bytes((address,)) + request
         if rule is not None and is_read(adu):
             if self._from_cache(client, tid, unit, adu, received_ns,
@@ -280,6 +276,10 @@ class Router:
                 return None
         else:
             rule = None
+        if not self._line_up():
+            self.counters.line_down_rejects += 1
+            self._refuse(client, tid, unit, request, Outcome.LINE_DOWN, received_ns)
+            return None
         down = self._down[address] == 1
         if down:
             device = self._devices.get(address)
