@@ -120,7 +120,10 @@ class ReadCache:
             self.served = Outcome.COALESCED
             return last.reply
         if rule.ttl_ms:
-            found = self._within(adu, now_ns - rule.ttl_ms * NS_PER_MS)
+            since_ns = now_ns - rule.ttl_ms * NS_PER_MS
+            if last is not None and last.keep and last.end_ns >= since_ns:    # the same read
+                return self._served(adu, last, now_ns, HITS, "cached")
+            found = self._within(adu, since_ns)
             if found is not None:
                 return self._served(adu, found, now_ns, HITS, "cached")
         return None
@@ -212,7 +215,7 @@ class ReadCache:
         self.served = word
         self._count(adu[0], figure)
         self.ages.observe(age_ms)
-        if found.adu == adu:
+        if found.adu is adu or found.adu == adu:
             return found.reply
         return found.cut(adu[1], int.from_bytes(adu[2:4], "big"),
                          int.from_bytes(adu[4:6], "big"))
