@@ -274,7 +274,8 @@ class SlaveLineThread(LineThread[SlaveConfig]):
         if client is None and self._withdrawn(job):
             return
         rule = job.cache
-        if rule is not None and self._from_cache(job, rule):
+        # a probe of a unit that is down goes on the line: it is what brings the unit back
+        if rule is not None and not job.probe and self._from_cache(job, rule):
             return
         got = None
         forwarded = -1
