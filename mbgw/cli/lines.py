@@ -14,7 +14,7 @@ SERIAL_PARAMS = ("device", "protocol", "baudrate", "line_format", "interface", "
                  "stout", "silence", "ascii_timeout", "nocheck", "dtr", "rts", "cts",
                  "xonxoff", "interframe_silence")
 SLAVE_LINE_PARAMS = {"retries": "retries", "turnaround": "turnaround_ms",
-                     "late_window": "late_window_ms"}
+                     "late_window": "late_window_ms", "cache": "cache"}
 
 
 def line_config(table: line_file.LineTable,

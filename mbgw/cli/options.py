@@ -7,6 +7,7 @@ from collections.abc import Callable
 import click
 
 from mbgw.config import model
+from mbgw.config.cache import CacheRule, parse_cache
 from mbgw.errors import ConfigError
 
 
@@ -96,6 +97,20 @@ def convert(param_name: str | None, build):
         for said in (f"{err.key}: ", f"{err.key} "):
             message = message.removeprefix(said)
         raise click.BadParameter(message, param_hint=f"'--{err.key}'") from None
+
+
+class CacheType(click.ParamType):
+    """--cache: "ttl=MS,serve-stale=MS" or "off"; in the file an inline table (or false)."""
+    name = "cache"
+    takes_table = True      # the file's value is a TOML table (mbgw.config.values)
+
+    def convert(self, value, param, ctx):
+        if value is None or isinstance(value, CacheRule):
+            return value
+        try:
+            return parse_cache(value)
+        except ConfigError as err:
+            self.fail(str(err), param, ctx)
 
 
 def parser(parse):

@@ -42,6 +42,9 @@ def format_status(s: dict, now: float) -> str:
         lines += ["", *_lines_section(s["lines"]), "", *_routes_section(s["routes"])]
         for row in s["lines"][1:]:        # line serial's devices are above
             lines += ["", *(_line_maps(row) if "maps" in row else _line_devices(row, now))]
+    cached = [row for row in s.get("lines", ()) if row.get("cache")]
+    if cached:
+        lines += ["", *_cache_section(cached)]
     if s.get("servers"):
         lines += ["", *_servers_section(s["servers"])]
     if s.get("table") is not None:
@@ -80,6 +83,16 @@ def _connection(row: dict) -> str:
     if "reconnects" not in counters:
         return ""
     return f", {counters['reconnects']} reconnects, {counters['stray_replies']} stray replies"
+
+
+def _cache_section(rows: list[dict]) -> list[str]:
+    """The read cache's figures of each line that has served or missed, by unit."""
+    out = ["cache      line          unit      hits  coalesced   misses  stale"]
+    for row in rows:
+        for unit, f in row["cache"]["units"].items():
+            out.append(f"           {row['name']:<13} {unit:>4} {f['hits']:>9} "
+                       f"{f['coalesced']:>10} {f['misses']:>8} {f['stale_served']:>6}")
+    return out
 
 
 def line_status(s: dict, name: str) -> dict:

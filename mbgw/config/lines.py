@@ -13,6 +13,7 @@ import ipaddress
 import re
 from dataclasses import dataclass, field
 
+from mbgw.config.cache import CacheRule, RouteCache
 from mbgw.config.model import (
     DEFAULT_TURNAROUND_MS,
     Demotion,
@@ -95,6 +96,7 @@ class LineConfig:
     late_window_ms: int | None = None            # slave mode: None: stout
     remote: RemoteTarget | None = None           # `connect`: a device across the network
     connect_delay_ms: int = 0                    # remote over TCP: wait after connecting
+    cache: CacheRule | None = None               # slave mode: reads shared and kept
 
     def __post_init__(self) -> None:
         if self.name != PRIMARY_LINE and not NAME_PATTERN.fullmatch(self.name):
@@ -134,6 +136,7 @@ class RouteConfig:
     gateway: bool = False          # general.gateway-unit: the table's identity functions only
     tls: bool = False              # server: reached over TLS (a slaveid range's `tls`)
     fingerprint: bytes | None = None   # server: its certificate's pinned SHA-256
+    cache: RouteCache = None       # to a line: its own (False: off; None: the line's)
 
     @property
     def label(self) -> str:
@@ -280,6 +283,9 @@ def _route_problems(route: RouteConfig, by_name: dict[str, LineConfig]) -> list[
                             f"from names a line in master mode (a master on it)")
     if route.line is not None:
         problems += _line_target_problems(route, by_name.get(route.line))
+    elif route.cache is not None:
+        problems.append(f"{label}.cache: only a route to a line in slave mode has a cache "
+                        f"(the table answers at once; a server's reads are not cached)")
     if not route.implicit and (route.line is not None or route.server is not None):
         problems += _rewrite_problems(route)
     return problems

@@ -8,6 +8,7 @@ import re
 import stat
 from dataclasses import dataclass, field
 
+from mbgw.config.cache import CacheRule
 from mbgw.config.firewall import FirewallConfig
 from mbgw.config.mqtt import MqttConfig
 from mbgw.config.scenario import check_scenarios
@@ -465,6 +466,7 @@ class SlaveConfig:
     retries: int = 0
     turnaround_ms: int = DEFAULT_TURNAROUND_MS
     late_window_ms: int | None = None  # None: stout
+    cache: CacheRule | None = None     # line serial's reads shared and kept; None: off
     control: str | None = None     # control socket path; None: the default one
     metrics: str | None = None     # ADDR:PORT for Prometheus, None: off
     demotion: Demotion = field(default_factory=Demotion)

@@ -20,10 +20,11 @@ SERVER, TABLE, LINE = "server", "table", "line"
 class Hop:
     """Where one serial address goes: kind, and for a server its host, port and unit id, for
     a line its name, the address there and the longest its answer may take."""
-    __slots__ = ("kind", "host", "port", "unit", "line", "limit_ns", "pool", "upstream")
+    __slots__ = ("kind", "host", "port", "unit", "line", "limit_ns", "pool", "upstream",
+                 "cache")
 
     def __init__(self, kind: str, host: str = "", port: int = 0, unit: int = 0,
-                 line: str = "", limit_ns: int = 0, pool=None) -> None:
+                 line: str = "", limit_ns: int = 0, pool=None, cache=None) -> None:
         self.kind = kind
         self.host = host
         self.port = port
@@ -32,6 +33,7 @@ class Hop:
         self.limit_ns = limit_ns
         self.pool = pool              # the UpstreamPool for the server's port
         self.upstream = (host, unit)  # the device statistics' upstream (a server's)
+        self.cache = cache            # a line's: the route's cache (Exchange.cache)
 
     @property
     def label(self) -> str:
@@ -121,7 +123,8 @@ def build_hops(face: FaceSettings, pool_for: Callable[[int], object],
             unit = route.rewrite(address)
             if route.line is not None:
                 hops[address] = Hop(LINE, unit=unit, line=route.line,
-                                    limit_ns=limits[route.line] * 1_000_000)
+                                    limit_ns=limits[route.line] * 1_000_000,
+                                    cache=route.cache)
             elif route.table:
                 hops[address] = table
             elif route.server is not None:

@@ -486,7 +486,7 @@ class SerialFace(LineThread[FaceSettings]):
             reply, code, outcome = None, pdu.GATEWAY_PATH_UNAVAILABLE, Outcome.LINE_DOWN
         else:
             answered = self._lines.ask(inbox, hop.unit, adu[1:], self._received_ns,
-                                       self._received_ns + hop.limit_ns)
+                                       self._received_ns + hop.limit_ns, hop.cache)
             if answered is None:
                 self._counters.timeouts += 1
                 stats.timeouts += 1

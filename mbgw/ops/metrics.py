@@ -154,7 +154,9 @@ class DaemonCollector:
         yield from self._daemon()
         lines = list(self._lines())
         yield from self._line_counters(lines)
-        yield line_up_family(self.lines())
+        rows = self.lines()
+        yield line_up_family(rows)
+        yield from cache_families(rows)
         for name, help_text, value in self._gauges():
             yield GaugeMetricFamily(name, help_text, value=value)
         table = [(name, d) for name, _, devices in lines for d in devices.all()]
@@ -361,6 +363,33 @@ def line_up_family(rows: list[dict]) -> GaugeMetricFamily:
     for row in rows:
         up.add_metric([row["name"], row["mode"]], int(row["state"] == "up"))
     return up
+
+
+def cache_families(rows: list[dict]):
+    """mbgw_cache_requests_total and mbgw_cache_served_age_seconds of every line with a
+    cache, from the status's "lines" rows (mbgw.routing.cache)."""
+    requests = CounterMetricFamily(
+        "mbgw_cache_requests", "Reads under a cache rule, by line, serial address and "
+        "outcome: hits (fresh data), coalesced (an identical read's answer), misses (went on "
+        "the line), stale_served (old data after a failure).", labels=["line", "unit", "outcome"])
+    ages = HistogramMetricFamily(
+        "mbgw_cache_served_age_seconds", "Age of the data served from memory (fresh or "
+        "stale): time since the slave's reply ended.", labels=["line"])
+    for row in rows:
+        cache = row.get("cache")
+        if cache is None:
+            continue
+        for unit, figures in cache["units"].items():
+            for outcome, n in figures.items():
+                requests.add_metric([row["name"], unit, outcome], n)
+        served = cache["ages"]
+        bounds = [floatToGoString(ms / 1000) for ms in served["bounds_ms"]] + ["+Inf"]
+        cumulative, buckets = 0, []
+        for bound, n in zip(bounds, served["counts"], strict=True):
+            cumulative += n
+            buckets.append((bound, cumulative))
+        ages.add_metric([row["name"]], buckets, served["sum_ms"] / 1000)
+    yield from (requests, ages)
 
 
 _SERVER_HELP = {

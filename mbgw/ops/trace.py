@@ -78,6 +78,8 @@ class Outcome(StrEnum):
     FIREWALL = "firewall"                     # refused by the firewall (0x01)
     WITHDRAWN = "client gone"                 # its source closed before its turn
     CRC_ERROR = "crc error"                   # a monitor line: a frame heard that does not check
+    COALESCED = "coalesced"                   # the answer of an identical read under way
+    # and from memory (mbgw.routing.cache): "cached <age> ms", "stale <age> ms"
 
 
 log = logging.getLogger("mbgw.trace")

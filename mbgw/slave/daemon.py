@@ -139,6 +139,7 @@ class SlaveMode(ModeParts):
                                   self.load)
         self.status.targets = self.targets
         self.status.line_share = self.line_share
+        self.status.cache = self.server.cache
         self.status.faces = self.serial_faces
         self.status.monitors = self.monitors
         self.status.servers = self.server_rows

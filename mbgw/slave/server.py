@@ -18,6 +18,7 @@ from mbgw.ops.counters import Counters, FaceCounters
 from mbgw.ops.device_stats import DeviceHealth
 from mbgw.ops.reload import ReloadReport
 from mbgw.ops.trace import TraceHub
+from mbgw.routing.cache import ReadCache
 from mbgw.routing.queue import Inbox, Scheduler
 from mbgw.slave.connections import Client, Connections
 from mbgw.slave.listener import (  # noqa: F401 (the names tests and docs know here)
@@ -84,6 +85,10 @@ class TcpServer:
     @property
     def inboxes(self) -> dict[str, Inbox]:
         return self.router.inboxes
+
+    @property
+    def cache(self) -> ReadCache:
+        return self.router.cache
 
     @property
     def shortcut_allowed(self) -> bool:

@@ -684,6 +684,17 @@ function tablePage(body) {
 const remoteFigures = (l) => (l.counters && "reconnects" in l.counters
   ? ` (${l.counters.reconnects} reconnects, ${l.counters.stray_replies} stray replies)` : "");
 
+// A line's read cache over its units (mbgw status's "cache"): "hits / coalesced / misses /
+// stale", or a dash for a line whose cache has not served.
+function cacheFigures(cache) {
+  if (!cache) return "—";
+  const sum = { hits: 0, coalesced: 0, misses: 0, stale_served: 0 };
+  for (const figures of Object.values(cache.units || {})) {
+    for (const key of Object.keys(sum)) sum[key] += figures[key] || 0;
+  }
+  return `${sum.hits} / ${sum.coalesced} / ${sum.misses} / ${sum.stale_served}`;
+}
+
 // The daemon's lines, where each face's units go and the remote servers they reach (mbgw
 // status's lines, routes and servers).
 function linesPage(body) {
@@ -702,7 +713,8 @@ function linesPage(body) {
       clear(holder).append(
         el("h2", { text: "Lines" }),
         lines.length ? table("lines-table", ["Name", "Device", "Mode", "State", "Requests",
-          "Replies", "Timeouts", "Devices"], lines.map((l) => el("tr", { "data-line": l.name },
+          "Replies", "Timeouts", "Devices", "Cache hits / coalesced / misses / stale"],
+        lines.map((l) => el("tr", { "data-line": l.name },
           el("td", { class: "line", text: show(l.name) }),
           el("td", { text: show(l.device) + remoteFigures(l) }),
           el("td", { text: show(l.mode) }),
@@ -710,7 +722,8 @@ function linesPage(body) {
           el("td", { class: "num", text: show(l.requests) }),
           el("td", { class: "num", text: show(l.replies) }),
           el("td", { class: "num", text: show(l.timeouts) }),
-          el("td", { class: "num", text: show(listOf(l, "devices").length) }))))
+          el("td", { class: "num", text: show(listOf(l, "devices").length) }),
+          el("td", { class: "num cache", text: cacheFigures(l.cache) }))))
           : el("p", { id: "no-lines", text: "This mode has one line, serial." }),
         el("h2", { text: "Routes" }),
         routes.length ? table("routes-table", ["Face", "Units", "Target", "Rewrite", ""],

@@ -150,7 +150,7 @@ ROUTE_TO_SERIAL = '[[route]]\nunits = "1-10"\nline = "serial"\n'
     (SERIAL + '[[route]]\nline = "serial"\n', "route 1.units: missing"),
     (SERIAL + '[[route]]\nunits = "1"\nline = "serial"\nvia = "x"\n',
      "route 1.via: unknown key (keys: units, line, table, server, offset, address, from, "
-     "tls, fingerprint)"),
+     "tls, fingerprint, cache)"),
     (SERIAL + '[[route]]\nunits = "1"\nline = "nowhere"\n', "route 1.line 'nowhere': no such line"),
     (SERIAL + '[[route]]\nunits = "1"\n', "route 1: give one target"),
     (SERIAL + '[[route]]\nunits = "1"\nline = "serial"\ntable = true\n',
