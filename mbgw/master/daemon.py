@@ -17,6 +17,7 @@ from mbgw.master.table_service import TableService
 from mbgw.ops.counters import MasterCounters
 from mbgw.ops.reload import ReloadReport
 from mbgw.ops.service import ModeParts, origin
+from mbgw.routing.survey import SurveyLine, survey_commands
 
 log = logging.getLogger("mbgw")
 TICK_S = 1.0        # how often the table's file is looked at (it is saved per its interval)
@@ -62,6 +63,11 @@ def table_address(cfg: MasterConfig) -> int:
     return cfg.table.address if cfg.table.enabled else 0
 
 
+def _line_modes(cfg: MasterConfig) -> dict[str, str]:
+    """Each line's mode by name, line serial (a serial face) included."""
+    return {PRIMARY_LINE: "master", **{line.name: line.mode for line in cfg.lines}}
+
+
 async def _tick(tables: TableService) -> None:
     while True:
         await asyncio.sleep(TICK_S)
@@ -104,6 +110,16 @@ class MasterMode(ModeParts):
             monitors(cfg, tables.table, slave.hub) if monitors is not None else None
         self.status.monitors = self.monitors
         self._monitored = monitor_settings(cfg)
+        self._modes = _line_modes(cfg)
+        self.commands.update(survey_commands(self.survey_lines))
+
+    def survey_lines(self) -> dict[str, SurveyLine | str]:
+        """The lines in slave mode as `mbgw scan --line` finds them; the others' modes."""
+        lines: dict[str, SurveyLine | str] = dict(self._modes)
+        if self.targets is not None:
+            for name, target in list(self.targets.lines.items()):
+                lines[name] = SurveyLine(target.inbox, target.config.serial)
+        return lines
 
     def _add_targets(self, cfg: MasterConfig) -> Any:
         """The lines in slave mode of cfg, unstarted (None: the daemon runs none)."""
@@ -185,6 +201,7 @@ class MasterMode(ModeParts):
         if monitor_settings(new) != self._monitored:
             report.at_restart("monitor")
         _log_slaveid(new)
+        self._modes = _line_modes(new)
         self.tables.reconfigure(new, report)
         if self.targets is None and _has_targets(new):
             # the first line in slave mode: reconfigure opens it (or tells the report)

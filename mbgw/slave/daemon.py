@@ -18,6 +18,7 @@ from mbgw.ops.load import LineLoad
 from mbgw.ops.reload import ReloadReport
 from mbgw.ops.service import ModeParts, origin
 from mbgw.routing.queue import Inbox, Scheduler
+from mbgw.routing.survey import SurveyLine, survey_commands
 from mbgw.scenarios.engine import Scenarios
 from mbgw.slave.line_share import LineShare
 from mbgw.slave.line_thread import SlaveLineThread, serial_scenarios
@@ -109,6 +110,17 @@ class SlaveMode(ModeParts):
         self.monitors: Any = monitors(cfg, self.tables.table, self.targets.hub) \
             if monitors is not None else None
         self._monitored = monitor_settings(cfg)
+        self.commands.update(survey_commands(self.survey_lines))
+
+    def survey_lines(self) -> dict[str, SurveyLine | str]:
+        """Line serial and the target lines as `mbgw scan --line` finds them; the others'
+        modes."""
+        cfg = self.running
+        lines: dict[str, SurveyLine | str] = {line.name: line.mode for line in cfg.lines}
+        lines[PRIMARY_LINE] = SurveyLine(self.serial_inbox, cfg.serial)
+        for name, target in list(self.targets.lines.items()):
+            lines[name] = SurveyLine(target.inbox, target.config.serial)
+        return lines
 
     def _share_serial_inbox(self, cfg: SlaveConfig) -> None:
         """Line serial's inbox among the targets' once the daemon has lines: before, line

@@ -19,6 +19,7 @@ Requests from other faces come as Exchanges through an Inbox (use_inbox): a targ
 (mbgw.slave.targets) has no client of its own and takes only those; each is admitted by the
 same rules as a client's request and queued in its source's turn, and its outcome goes to
 Exchange.done on this thread."""
+import contextlib
 import errno
 import logging
 import threading
@@ -30,12 +31,21 @@ from mbgw.errors import LineTimeout, SerialError
 from mbgw.line.native import HEADER, HEADER_LEN, NO_FORWARD, Reception
 from mbgw.line.serial_line import SerialLine
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s
+from mbgw.line.survey import ask_once
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceHealth
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.ops.trace import Outcome
 from mbgw.protocol import pdu
-from mbgw.routing.queue import SCENARIO_TURN, Exchange, Inbox, Job, Queue, Scheduler
+from mbgw.routing.queue import (
+    SCENARIO_TURN,
+    Exchange,
+    Inbox,
+    Job,
+    Queue,
+    Scheduler,
+    SurveyRead,
+)
 from mbgw.scenarios.engine import Scenarios
 from mbgw.scenarios.exchange import EXCEPTION_KINDS, FRAME_WITHOUT_REQUEST, TIMEOUT
 from mbgw.scenarios.health import SerialHealth
@@ -257,8 +267,12 @@ class SlaveLineThread(LineThread[SlaveConfig]):
     def _serve(self, job: Job) -> None:
         """job on the line; its outcome to its client (or face) at once, the books after."""
         client = job.client
-        if client is None and self._withdrawn(job):
-            return
+        if client is None:
+            if self._withdrawn(job):
+                return
+            if type(job.exchange) is SurveyRead:
+                self._survey(job, job.exchange)
+                return
         got = None
         forwarded = -1
         try:
@@ -459,6 +473,9 @@ class SlaveLineThread(LineThread[SlaveConfig]):
     def _admit_exchange(self, exchange: Exchange) -> None:
         """As Router._admit: a line that is down refuses at once (0x0A), an address that is
         down too (0x0B) unless this is its probe; otherwise a job in the source's turn."""
+        if type(exchange) is SurveyRead:
+            self._admit_survey(exchange)
+            return
         counters = self._counters
         counters.requests += 1
         address = exchange.address
@@ -477,6 +494,59 @@ class SlaveLineThread(LineThread[SlaveConfig]):
                 return
             job.probe = True
         self._scheduler.submit(self._queue_of(exchange.source), job)
+
+    def _admit_survey(self, survey: SurveyRead) -> None:
+        """An operator's survey read: queued in its own turn whether or not its address is
+        down (a probe, never refused as down); the line down tells it at once."""
+        job = Job(None, 0, 0, bytes((survey.address,)) + survey.pdu, survey.received_ns,
+                  probe=True, exchange=survey)
+        if self._line is None:
+            survey.done(survey, None, Outcome.LINE_DOWN)
+            return
+        self._scheduler.submit(self._queue_of(survey.source), job)
+
+    def _survey(self, job: Job, survey: SurveyRead) -> None:
+        """One survey read on the line (mbgw.line.survey.ask_once, RTU), after the silence
+        the line owes, and t3.5 of quiet after it so that the next transaction keeps the
+        rule; nothing is booked, retried or demoted."""
+        line, master = self._line, self._master
+        assert line is not None and master is not None
+        t35_us = line.cfg.t35_us
+        reply = None
+        try:
+            owed_us = (master.quiet_until_ns - time.monotonic_ns()) // 1000
+            with self._gate_away():
+                answer = ask_once(line, survey.address, survey.pdu, survey.timeout_ms,
+                                  max(t35_us, owed_us))
+                line.port.wait_quiet(time.monotonic_ns(), t35_us)
+            if answer is None:
+                outcome = Outcome.TIMEOUT
+            else:
+                reply, survey.response_ns = answer
+                outcome = Outcome.DEVICE_EXCEPTION if reply[0] & pdu.EXCEPTION_FLAG \
+                    else Outcome.REPLY
+        except SerialError as err:
+            self._lost(err)
+            outcome = Outcome.LINE_DOWN
+        except Exception:   # a bug must cost one read, never the line
+            log.exception("internal error on a survey read %s", job.adu.hex(" "))
+            outcome = Outcome.ERROR
+        survey.done(survey, reply, outcome)
+
+    def _gate_away(self):
+        """The gate left to the table reader around a blocking call, while it runs; the
+        requests it kept for the line are routed after."""
+        if self._reader is None:
+            return contextlib.nullcontext()
+        return self._reader_away()
+
+    @contextlib.contextmanager
+    def _reader_away(self):
+        try:
+            with self._gate.line_away:
+                yield
+        finally:
+            self._server.take_kept()
 
     def _withdrawn(self, job: Job) -> bool:
         """An exchange whose source has closed (a TCP client gone: `closed`, read only) does
