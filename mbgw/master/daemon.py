@@ -141,8 +141,10 @@ class MasterMode(ModeParts):
         """The face, listening (None: cfg has none, or it runs already)."""
         if self._make_tcp_face is None or self.tcp_face is not None:
             return None
-        face = self._make_tcp_face(cfg, self._inboxes, self.tables.table if cfg.table_on
-                                   else None, self.faces.primary.hub)
+        # the gateway unit answers from the table even while it is off
+        answers = cfg.table_on or cfg.gateway_unit
+        face = self._make_tcp_face(cfg, self._inboxes, self.tables.table if answers else None,
+                                   self.faces.primary.hub)
         if face is not None:
             await face.listen()
             self.tcp_face = self.status.tcp_face = face
