@@ -16,7 +16,7 @@ from mbgw.master.status import MasterStatus
 from mbgw.master.table_service import TableService
 from mbgw.ops.counters import MasterCounters
 from mbgw.ops.reload import ReloadReport
-from mbgw.ops.service import ModeParts, origin
+from mbgw.ops.service import ModeParts, origin, remonitor
 from mbgw.routing.survey import SurveyLine, survey_commands
 
 log = logging.getLogger("mbgw")
@@ -105,7 +105,8 @@ class MasterMode(ModeParts):
         self.tcp_face: Any = None      # the Modbus TCP face (slave.tcp_face.TcpFace), once any
         self.status.faces = faces
         self.table, self.health, self.trace = tables.table, slave.devices.rule, slave.hub
-        # the lines in monitor mode (monitor.lines.MonitorLines), at start only
+        # the lines in monitor mode (monitor.lines.MonitorLines), once any
+        self._make_monitors = monitors
         self.monitors: Any = \
             monitors(cfg, tables.table, slave.hub) if monitors is not None else None
         self.status.monitors = self.monitors
@@ -200,8 +201,6 @@ class MasterMode(ModeParts):
         return self.status.lines()
 
     async def apply(self, new: MasterConfig, report: ReloadReport) -> None:
-        if monitor_settings(new) != self._monitored:
-            report.at_restart("monitor")
         _log_slaveid(new)
         self._modes = _line_modes(new)
         self.tables.reconfigure(new, report)
@@ -218,6 +217,11 @@ class MasterMode(ModeParts):
         for target in removed:
             target.stop()
             await asyncio.to_thread(target.join)
+        if monitor_settings(new) != self._monitored:
+            self.monitors = self.status.monitors = await asyncio.to_thread(
+                remonitor, self.monitors, self._make_monitors, new, self.tables.table,
+                self.faces.primary.hub, self._idle_ms, report)
+            self._monitored = monitor_settings(new)
 
     async def _reface(self, new: MasterConfig, report: ReloadReport) -> None:
         """The Modbus TCP face: added by the first route of its, reconfigured after (it keeps
