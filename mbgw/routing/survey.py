@@ -7,11 +7,14 @@ daemon's line in slave mode asked one survey read at a time, in the line's own t
 time), "response_ns"}.  A line that is not there, not in slave mode, not RTU or down is
 {"error": why}."""
 import asyncio
+import logging
 import time
 from collections.abc import Callable
 from typing import NamedTuple
 
+from mbgw.audit import operator
 from mbgw.config.model import SerialConfig
+from mbgw.ops.control import BadRequest
 from mbgw.ops.trace import Outcome
 from mbgw.protocol.pdu import MAX_SERIAL_ADDRESS
 from mbgw.routing.queue import Inbox, SurveyRead
@@ -34,8 +37,7 @@ class SurveyLine(NamedTuple):
 Lines = Callable[[], dict[str, "SurveyLine | str"]]
 
 
-class NotSurveyable(Exception):
-    pass
+log = logging.getLogger("mbgw.line")
 
 
 def survey_commands(lines: Lines) -> dict[str, Callable]:
@@ -44,9 +46,11 @@ def survey_commands(lines: Lines) -> dict[str, Callable]:
     def line_settings(request: dict) -> dict:
         try:
             name, line = _line(lines(), request)
-        except NotSurveyable as why:
+        except BadRequest as why:
             return {"error": str(why)}
         s = line.serial
+        log.info("line %s: surveyed (mbgw scan or probe --line) by %s", name,
+                 operator(request.get("uid")))
         return {"line": name, "device": s.device, "baudrate": s.baudrate,
                 "format": str(s.format)}
 
@@ -54,7 +58,7 @@ def survey_commands(lines: Lines) -> dict[str, Callable]:
         try:
             name, line = _line(lines(), request)
             unit, request_pdu, timeout_ms = _read_request(request)
-        except NotSurveyable as why:
+        except BadRequest as why:
             return {"error": str(why)}
         return await _ask(name, line.inbox, unit, request_pdu, timeout_ms)
 
@@ -64,15 +68,15 @@ def survey_commands(lines: Lines) -> dict[str, Callable]:
 def _line(lines: dict, request: dict) -> tuple[str, SurveyLine]:
     name = request.get("line")
     if not isinstance(name, str):
-        raise NotSurveyable('expected {"line": NAME}')
+        raise BadRequest('expected {"line": NAME}')
     line = lines.get(name)
     if line is None:
-        raise NotSurveyable(f"no line {name!r} (lines: {', '.join(sorted(lines))})")
+        raise BadRequest(f"no line {name!r} (lines: {', '.join(sorted(lines))})")
     if isinstance(line, str):
-        raise NotSurveyable(f"line {name} is in {line} mode: only a line in slave mode (mbgw "
+        raise BadRequest(f"line {name} is in {line} mode: only a line in slave mode (mbgw "
                             f"its master) can be scanned through the daemon")
     if line.serial.protocol != "rtu":
-        raise NotSurveyable(f"line {name} is an {line.serial.protocol.upper()} line: scan "
+        raise BadRequest(f"line {name} is an {line.serial.protocol.upper()} line: scan "
                             f"and probe ask RTU lines only")
     return name, line
 
@@ -80,15 +84,15 @@ def _line(lines: dict, request: dict) -> tuple[str, SurveyLine]:
 def _read_request(request: dict) -> tuple[int, bytes, int]:
     unit, hex_pdu, timeout_ms = (request.get(key) for key in ("unit", "pdu", "timeout_ms"))
     if not isinstance(unit, int) or not 1 <= unit <= MAX_SERIAL_ADDRESS:
-        raise NotSurveyable(f'"unit": expected 1 to {MAX_SERIAL_ADDRESS}')
+        raise BadRequest(f'"unit": expected 1 to {MAX_SERIAL_ADDRESS}')
     if not isinstance(timeout_ms, int) or not 1 <= timeout_ms <= MAX_TIMEOUT_MS:
-        raise NotSurveyable(f'"timeout_ms": expected 1 to {MAX_TIMEOUT_MS}')
+        raise BadRequest(f'"timeout_ms": expected 1 to {MAX_TIMEOUT_MS}')
     try:
         request_pdu = bytes.fromhex(hex_pdu) if isinstance(hex_pdu, str) else b""
     except ValueError:
         request_pdu = b""
     if not 1 <= len(request_pdu) <= MAX_PDU:
-        raise NotSurveyable(f'"pdu": expected 1 to {MAX_PDU} bytes in hex')
+        raise BadRequest(f'"pdu": expected 1 to {MAX_PDU} bytes in hex')
     return unit, request_pdu, timeout_ms
 
 
