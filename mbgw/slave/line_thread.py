@@ -518,6 +518,8 @@ class SlaveLineThread(LineThread[SlaveConfig]):
             with self._gate_away():
                 answer = ask_once(line, survey.address, survey.pdu, survey.timeout_ms,
                                   max(t35_us, owed_us))
+                if answer is None and self._answered_before(survey.address):
+                    self._sit_out_late_reply(line, survey.address)
                 line.port.wait_quiet(time.monotonic_ns(), t35_us)
             if answer is None:
                 outcome = Outcome.TIMEOUT
@@ -532,6 +534,21 @@ class SlaveLineThread(LineThread[SlaveConfig]):
             log.exception("internal error on a survey read %s", job.adu.hex(" "))
             outcome = Outcome.ERROR
         survey.done(survey, reply, outcome)
+
+    def _answered_before(self, address: int) -> bool:
+        """The line has had a valid answer from address (its devices, looked at without
+        adding one)."""
+        return any(d.address == address and d.last_success for d in self.devices.all())
+
+    def _sit_out_late_reply(self, line: SerialLine, address: int) -> None:
+        """A device the clients use missed a survey read's (short) timeout: RTU has no
+        transaction id, so its late reply would answer a client's next request to it.  The
+        line listens for it, up to the device's stout, before anything else goes out."""
+        until = time.monotonic_ns() + self._timing.stout_ns[address]
+        while time.monotonic_ns() < until:
+            got = line.port.read_reply(until, line.cfg.end_of_frame_us)
+            if got.frame is not None and got.frame[0] == address:
+                return
 
     def _gate_away(self):
         """The gate left to the table reader around a blocking call, while it runs; the

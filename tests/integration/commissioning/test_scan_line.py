@@ -21,6 +21,7 @@ from tests.integration.lines.test_lines_of_both_modes import (
 )
 from tests.integration.master.test_serial_faces import lines_file
 from tests.ops import mbgw, status
+from tests.wait import until
 
 pytestmark = pytest.mark.integration
 
@@ -218,3 +219,43 @@ def test_probe_line_asks_a_line_in_slave_mode_of_a_master_mode_daemon(
     done = mbgw("probe", "--line", "serial", "--units", "1", "--control", gw.control)
     assert done.returncode == 1
     assert "line serial is in master mode" in done.stderr
+
+
+class SlowPoller(Poller):
+    """Poller of the settings bus's slow unit: register 5, which holds 1005."""
+
+    def run(self) -> None:
+        while not self.stopping.is_set():
+            try:
+                got = self.client.read_holding_registers(5, count=1, device_id=4)
+            except ModbusException as err:
+                self.wrong.append(err)
+                continue
+            if got.isError() or got.registers != [1005]:
+                self.wrong.append(got)
+            else:
+                self.answers += 1
+
+
+@pytest.mark.serial          # the slave's 150 ms against the survey's 50 ms
+def test_a_late_reply_to_a_survey_read_never_answers_a_client(tmp_path, start_peer,
+                                                             start_gateway, poll):
+    """Unit 4 answers after 150 ms; probed with a 50 ms timeout, each read gives up before
+    the reply (register 0: 1000) comes.  Taken for the client's next request to unit 4, a
+    read of one register too, it would give the client 1000 for register 5; the line sits
+    the late reply out instead."""
+    link = str(tmp_path / "ttyBUS")
+    start_peer("settings_bus.py", link, "--unit", "4,19200,8n1,150,none")
+    gw = start_gateway(link, "--baudrate", BAUD, "--stout", "1000")
+    poller = SlowPoller(gw.port)
+    poller.start()
+    try:
+        until(lambda: poller.answers, "the client answered", 10)
+        done = mbgw("probe", "--line", "serial", "--units", "4", "--count", "4", "--timeout",
+                    "50", "--control", gw.control, timeout=60)
+        answered = poller.answers
+    finally:
+        poller.finish()
+    assert done.returncode == 1, done.stderr
+    assert done.stdout == "unit 4: 4 reads, 0 answered\n"
+    assert poller.wrong == [] and answered > 1
