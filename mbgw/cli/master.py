@@ -4,7 +4,7 @@ socket, metrics, log level) with slave mode."""
 import click
 from click.core import ParameterSource
 
-from mbgw.cli.daemon_options import daemon_options
+from mbgw.cli.daemon_options import daemon_options, gateway_unit_option
 from mbgw.cli.lines import with_lines
 from mbgw.cli.options import (
     ModeCommand,
@@ -91,6 +91,7 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
 @table_options
 @tls_options
 @daemon_options
+@gateway_unit_option
 @click.pass_context
 def master(ctx, **options) -> None:
     """Master mode: a Modbus master on the serial line reaches Modbus TCP servers."""
@@ -110,8 +111,8 @@ def master_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                   probe_interval=model.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
                   lines=(), routes=(), monitors=(), devices=(),
                   tls_port=model.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
-                  tls_require_role=True, tls_crl=None, authip=(), bind=None, udp_port=0,
-                  rtu_port=0, **table_settings) -> model.MasterConfig:
+                  tls_require_role=True, tls_crl=None, authip=(), bind=None, gateway_unit=0,
+                  udp_port=0, rtu_port=0, **table_settings) -> model.MasterConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck, dtr, rts, cts, xonxoff,
                             interframe_silence)
@@ -127,7 +128,7 @@ def master_config(device, protocol, baudrate, line_format, interface, rtsdelays,
         max_connections=max_connections, control=control, metrics=metrics,
         demotion=demotion(down_after, probe_interval), table=table,
         firewall=firewall, scenarios=scenarios, tls=tls, authip=authip, bind=bind,
-        udp_port=udp_port, rtu_port=rtu_port))
+        udp_port=udp_port, rtu_port=rtu_port, gateway_unit=gateway_unit))
     cfg = with_lines(cfg, "master", lines, routes, monitors, devices)
     if not any(r.face == TCP_FACE for r in cfg.routes):
         for name, port in (("udp-port", udp_port), ("rtu-port", rtu_port)):

@@ -1,7 +1,7 @@
 """The `mbgw slave` command: Modbus TCP clients reach the slaves on a serial line."""
 import click
 
-from mbgw.cli.daemon_options import daemon_options
+from mbgw.cli.daemon_options import daemon_options, gateway_unit_option
 from mbgw.cli.lines import with_lines
 from mbgw.cli.options import (
     CacheType,
@@ -102,12 +102,7 @@ def _parse_units(value) -> tuple[int, ...]:
 @tls_options
 @upstream_tls_options
 @daemon_options
-@click.option("--gateway-unit", type=click.IntRange(*model.GATEWAY_UNIT_RANGE), default=0,
-              show_default=True, metavar="UNIT",
-              help="A unit id of the Modbus TCP face that the gateway answers itself, with "
-                   "its identity functions only (FC 8 diagnostics, FC 17 report server id, "
-                   "FC 43/14 read device identification; any other function is exception "
-                   "0x01).  Outside every route and the table's units.  0: off.")
+@gateway_unit_option
 @click.option("--shortcut/--no-shortcut", default=model.SlaveConfig.shortcut, hidden=True,
               help="Put a request that finds the line idle on it from C (for diagnosis).")
 def slave(**options) -> None:

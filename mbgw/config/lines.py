@@ -368,13 +368,24 @@ def _explicit(cfg: SlaveConfig | MasterConfig, face: str) -> tuple[bool, bool]:
     return bool(own), any(r.table for r in own)
 
 
+def gateway_routes(cfg: SlaveConfig | MasterConfig, tcp_face: bool) -> list[RouteConfig]:
+    """general.gateway-unit on every face: the TCP face's (tcp_face: the daemon has one) and
+    each serial face's (line serial in master mode, each line in master mode)."""
+    unit = cfg.gateway_unit
+    if not unit:
+        return []
+    faces = [TCP_FACE] if tcp_face else []
+    if isinstance(cfg, MasterConfig):
+        faces.append(PRIMARY_LINE)
+    faces += [line.name for line in cfg.lines if line.is_face]
+    return [RouteConfig(0, (unit,), face=face, gateway=True, implicit=True) for face in faces]
+
+
 def _slave_routes(cfg: SlaveConfig) -> tuple[RouteConfig, ...]:
     explicit, explicit_table = _explicit(cfg, TCP_FACE)
-    routes = []
+    routes = gateway_routes(cfg, tcp_face=True)
     table_units: tuple[int, ...] = ()
     gateway: tuple[int, ...] = (cfg.gateway_unit,) if cfg.gateway_unit else ()
-    if gateway:
-        routes.append(RouteConfig(0, gateway, gateway=True, implicit=True))
     if cfg.table_on and not explicit_table:
         table_units = cfg.table.units if cfg.table.direct else ALL_UNITS
         routes.append(RouteConfig(0, table_units, table=True, implicit=True))
@@ -388,7 +399,7 @@ def _slave_routes(cfg: SlaveConfig) -> tuple[RouteConfig, ...]:
 
 def _master_routes(cfg: MasterConfig) -> tuple[RouteConfig, ...]:
     explicit, explicit_table = _explicit(cfg, PRIMARY_LINE)
-    routes = []
+    routes = gateway_routes(cfg, tcp_face=any(r.face == TCP_FACE for r in cfg.routes))
     if cfg.table.enabled and cfg.table.address and not explicit_table:
         routes.append(RouteConfig(0, (cfg.table.address,), face=PRIMARY_LINE, table=True,
                                   implicit=True))

@@ -482,8 +482,9 @@ class SlaveConfig:
     mqtt: MqttConfig = field(default_factory=MqttConfig)   # [mqtt]: northbound MQTT
     request_timeout_ms: int = DEFAULT_REQUEST_TIMEOUT_MS   # [net] request-timeout
     location: str = DEFAULT_LOCATION   # [general] location, the guide's set location
-    gateway_unit: int = 0          # [general] gateway-unit: the TCP face's unit of the
-                                   # identity functions only (FC 8, 17, 43/14); 0: none
+    gateway_unit: int = 0          # [general] gateway-unit: every face's unit (serial
+                                   # address) of the identity functions only (FC 8, 17,
+                                   # 43/14); 0: none
     lines: tuple = ()              # LineConfig (mbgw.config.lines): [[line]], beside [serial]
     routes: tuple = ()             # RouteConfig (mbgw.config.lines): [[route]]
     monitors: tuple = ()           # MonitorMap (mbgw.config.monitor): [[monitor]]
@@ -557,6 +558,7 @@ class MasterConfig:
     mqtt: MqttConfig = field(default_factory=MqttConfig)   # [mqtt]: northbound MQTT
     request_timeout_ms: int = DEFAULT_REQUEST_TIMEOUT_MS   # [net] request-timeout
     location: str = DEFAULT_LOCATION   # [general] location, the guide's set location
+    gateway_unit: int = 0           # [general] gateway-unit, as SlaveConfig's
     authip: tuple = ()              # the table server's allowed clients; empty: anyone
     bind: str | None = None         # the table server's one address; None: every one
     udp_port: int = 0               # [net] udp-port: the TCP face's Modbus/UDP listener

@@ -297,10 +297,13 @@ def _strerror(code: int) -> str:
 class Port:
     """One serial line, opened and configured by libmodbus, claimed for this process."""
 
-    def __init__(self, device: str, baudrate: int, parity: str, data_bits: int, stop_bits: int):
+    def __init__(self, device: str, baudrate: int, parity: str, data_bits: int, stop_bits: int,
+                 dtr_low: bool = False, rts_low: bool = False):
+        """dtr_low, rts_low: the control lines lowered right after the first open, before
+        libmodbus opens and configures the tty."""
         self.device = device
         self._ctx: Any = None          # libmodbus's modbus_t * while the line is open
-        self._lock_fd = lib.mbgw_tty_lock(device.encode())
+        self._lock_fd = lib.mbgw_tty_lock(device.encode(), dtr_low, rts_low)
         if self._lock_fd < 0:
             code = -self._lock_fd
             reason = "in use by another program" if code == errno.EBUSY else os.strerror(code)

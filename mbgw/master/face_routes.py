@@ -15,6 +15,7 @@ from mbgw.config.model import Demotion, SerialConfig, UpstreamTlsConfig
 from mbgw.config.slaveid import SlaveIdTable
 
 SERVER, TABLE, LINE = "server", "table", "line"
+GATEWAY = "gateway"      # general.gateway-unit: the table's identity functions only
 
 
 class Hop:
@@ -40,6 +41,8 @@ class Hop:
         """The target as the trace shows it."""
         if self.kind == LINE:
             return f"line {self.line}"
+        if self.kind == GATEWAY:
+            return "gateway"
         return "table" if self.kind == TABLE else self.pool.server(self.host)
 
 
@@ -59,6 +62,7 @@ class FaceSettings:
     table_address: int                 # the table's serial address (line serial's); 0: none
     table_functions: tuple[int, ...]   # what the table's serial slave answers
     line_limits_ms: tuple[tuple[str, int], ...]   # (target line, longest its answer takes)
+    gateway_unit: int = 0              # general.gateway-unit's serial address; 0: none
 
     @property
     def tcpto_ns(self) -> int:
@@ -97,7 +101,8 @@ def face_settings(cfg, line: LineConfig | None, routes: RouteMap) -> FaceSetting
         table_address=table_address,
         table_functions=table.serial_functions or table.functions,
         line_limits_ms=tuple((r.line, _line_limit_ms(cfg, r.line)) for r in own
-                             if r.line is not None))
+                             if r.line is not None),
+        gateway_unit=cfg.gateway_unit)
 
 
 def _line_limit_ms(cfg, name: str) -> int:
@@ -114,7 +119,8 @@ def _line_limit_ms(cfg, name: str) -> int:
 def build_hops(face: FaceSettings, pool_for: Callable[[int], object],
                table_on: bool) -> list[Hop | None]:
     """Each serial address's hop (index 0, the broadcast address, is None).  pool_for(port):
-    the upstream pool for servers on port; table_on: the face has the exchange table."""
+    the upstream pool for servers on port; table_on: the face has the exchange table (the
+    gateway unit answers from it too)."""
     hops: list[Hop | None] = [None] * 256
     table = Hop(TABLE) if table_on else None
     limits = dict(face.line_limits_ms)
@@ -138,6 +144,8 @@ def build_hops(face: FaceSettings, pool_for: Callable[[int], object],
                                     pool=pool_for(face.mdbport))
     if face.table_address and table is not None:
         hops[face.table_address] = table
+    if face.gateway_unit and table_on:
+        hops[face.gateway_unit] = Hop(GATEWAY)
     hops[0] = None
     return hops
 

@@ -41,6 +41,19 @@ class Exchange:
         self.cache = cache            # its route's cache (None: the line's, False: off)
 
 
+class SurveyRead(Exchange):
+    """An operator's commissioning read (`mbgw scan`/`probe --line`): one request on the
+    line in its source's turn, outside the line's rules (no retries, no demotion, no books),
+    with a timeout of its own; the target sets response_ns before done."""
+    __slots__ = ("timeout_ms", "response_ns")
+
+    def __init__(self, source: Hashable, address: int, pdu: bytes, received_ns: int,
+                 done: Done, timeout_ms: int) -> None:
+        super().__init__(source, address, pdu, received_ns, done)
+        self.timeout_ms = timeout_ms
+        self.response_ns = 0      # from the request's last byte to the reply's last byte
+
+
 class Inbox:
     """The way into a target's thread: exchanges submitted by other threads, in order;
     wake_fd becomes readable while some wait (the target's thread polls it)."""

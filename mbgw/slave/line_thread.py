@@ -23,6 +23,7 @@ Requests from other faces come as Exchanges through an Inbox (use_inbox): a targ
 (mbgw.slave.targets) has no client of its own and takes only those; each is admitted by the
 same rules as a client's request and queued in its source's turn, and its outcome goes to
 Exchange.done on this thread."""
+import contextlib
 import errno
 import logging
 import math
@@ -36,13 +37,22 @@ from mbgw.errors import LineTimeout, SerialError
 from mbgw.line.native import HEADER, HEADER_LEN, NO_FORWARD, Reception
 from mbgw.line.serial_line import SerialLine
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s
+from mbgw.line.survey import ask_once
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceHealth
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.ops.trace import Outcome
 from mbgw.protocol import pdu
 from mbgw.routing.cache import WRITTEN, ReadCache, is_read, resolve
-from mbgw.routing.queue import SCENARIO_TURN, Exchange, Inbox, Job, Queue, Scheduler
+from mbgw.routing.queue import (
+    SCENARIO_TURN,
+    Exchange,
+    Inbox,
+    Job,
+    Queue,
+    Scheduler,
+    SurveyRead,
+)
 from mbgw.scenarios.engine import Scenarios
 from mbgw.scenarios.exchange import EXCEPTION_KINDS, FRAME_WITHOUT_REQUEST, TIMEOUT
 from mbgw.scenarios.health import SerialHealth
@@ -323,8 +333,12 @@ class SlaveLineThread(LineThread[SlaveConfig]):
     def _serve(self, job: Job) -> None:
         """job on the line; its outcome to its client (or face) at once, the books after."""
         client = job.client
-        if client is None and self._withdrawn(job):
-            return
+        if client is None:
+            if self._withdrawn(job):
+                return
+            if type(job.exchange) is SurveyRead:
+                self._survey(job, job.exchange)
+                return
         rule = job.cache
         # a probe of a unit that is down goes on the line: it is what brings the unit back
         if rule is not None and not job.probe and self._from_cache(job, rule):
@@ -584,6 +598,9 @@ class SlaveLineThread(LineThread[SlaveConfig]):
     def _admit_exchange(self, exchange: Exchange) -> None:
         """As Router._admit: a line that is down refuses at once (0x0A), an address that is
         down too (0x0B) unless this is its probe; otherwise a job in the source's turn."""
+        if type(exchange) is SurveyRead:
+            self._admit_survey(exchange)
+            return
         counters = self._counters
         counters.requests += 1
         address = exchange.address
@@ -612,6 +629,76 @@ class SlaveLineThread(LineThread[SlaveConfig]):
                 return
             job.probe = True
         self._scheduler.submit(self._queue_of(exchange.source), job)
+
+    def _admit_survey(self, survey: SurveyRead) -> None:
+        """An operator's survey read: queued in its own turn whether or not its address is
+        down (a probe, never refused as down); the line down tells it at once."""
+        job = Job(None, 0, 0, bytes((survey.address,)) + survey.pdu, survey.received_ns,
+                  probe=True, exchange=survey)
+        if self._line is None:
+            survey.done(survey, None, Outcome.LINE_DOWN)
+            return
+        self._scheduler.submit(self._queue_of(survey.source), job)
+
+    def _survey(self, job: Job, survey: SurveyRead) -> None:
+        """One survey read on the line (mbgw.line.survey.ask_once, RTU), after the silence
+        the line owes, and t3.5 of quiet after it so that the next transaction keeps the
+        rule; nothing is booked, retried or demoted."""
+        line, master = self._line, self._master
+        assert line is not None and master is not None
+        t35_us = line.cfg.t35_us
+        reply = None
+        try:
+            owed_us = (master.quiet_until_ns - time.monotonic_ns()) // 1000
+            with self._gate_away():
+                answer = ask_once(line, survey.address, survey.pdu, survey.timeout_ms,
+                                  max(t35_us, owed_us))
+                if answer is None and self._answered_before(survey.address):
+                    self._sit_out_late_reply(line, survey.address)
+                line.port.wait_quiet(time.monotonic_ns(), t35_us)
+            if answer is None:
+                outcome = Outcome.TIMEOUT
+            else:
+                reply, survey.response_ns = answer
+                outcome = Outcome.DEVICE_EXCEPTION if reply[0] & pdu.EXCEPTION_FLAG \
+                    else Outcome.REPLY
+        except SerialError as err:
+            self._lost(err)
+            outcome = Outcome.LINE_DOWN
+        except Exception:   # a bug must cost one read, never the line
+            log.exception("internal error on a survey read %s", job.adu.hex(" "))
+            outcome = Outcome.ERROR
+        survey.done(survey, reply, outcome)
+
+    def _answered_before(self, address: int) -> bool:
+        """The line has had a valid answer from address (its devices, looked at without
+        adding one)."""
+        return any(d.address == address and d.last_success for d in self.devices.all())
+
+    def _sit_out_late_reply(self, line: SerialLine, address: int) -> None:
+        """A device the clients use missed a survey read's (short) timeout: RTU has no
+        transaction id, so its late reply would answer a client's next request to it.  The
+        line listens for it, up to the device's stout, before anything else goes out."""
+        until = time.monotonic_ns() + self._timing.stout_ns[address]
+        while time.monotonic_ns() < until:
+            got = line.port.read_reply(until, line.cfg.end_of_frame_us)
+            if got.frame is not None and got.frame[0] == address:
+                return
+
+    def _gate_away(self):
+        """The gate left to the table reader around a blocking call, while it runs; the
+        requests it kept for the line are routed after."""
+        if self._reader is None:
+            return contextlib.nullcontext()
+        return self._reader_away()
+
+    @contextlib.contextmanager
+    def _reader_away(self):
+        try:
+            with self._gate.line_away:
+                yield
+        finally:
+            self._server.take_kept()
 
     def _withdrawn(self, job: Job) -> bool:
         """An exchange whose source has closed (a TCP client gone: `closed`, read only) does

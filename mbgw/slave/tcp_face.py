@@ -50,7 +50,8 @@ def face_settings(cfg: MasterConfig) -> SlaveConfig:
         max_connections=cfg.max_connections, demotion=cfg.demotion,
         table=dataclasses.replace(cfg.table, enabled=False), firewall=cfg.firewall,
         tcpto_ms=cfg.tcpto_ms, tls=cfg.tls, request_timeout_ms=cfg.request_timeout_ms,
-        location=cfg.location, lines=cfg.lines, routes=cfg.routes)
+        location=cfg.location, lines=cfg.lines, routes=cfg.routes,
+        gateway_unit=cfg.gateway_unit)
 
 
 class FaceThread(threading.Thread):
