@@ -332,17 +332,10 @@ class SlaveLineThread(LineThread[SlaveConfig]):
 
     def _serve(self, job: Job) -> None:
         """job on the line; its outcome to its client (or face) at once, the books after."""
-        client = job.client
-        if client is None:
-            if self._withdrawn(job):
-                return
-            if type(job.exchange) is SurveyRead:
-                self._survey(job, job.exchange)
-                return
-        rule = job.cache
-        # a probe of a unit that is down goes on the line: it is what brings the unit back
-        if rule is not None and not job.probe and self._from_cache(job, rule):
+        if self._answered_off_the_line(job):
             return
+        client = job.client
+        rule = job.cache
         got = None
         forwarded = -1
         try:
@@ -393,6 +386,19 @@ class SlaveLineThread(LineThread[SlaveConfig]):
             self._server.take_kept()
         if master is not None and master.late_until[job.adu[0]]:
             self._timed_out[job.adu[0]] = job       # a try timed out: its reply may come
+
+    def _answered_off_the_line(self, job: Job) -> bool:
+        """A job that needs no transaction of its own: one its face withdrew, an operator's
+        survey read (it takes the line its own way), a read the cache answers."""
+        if job.client is None:
+            if self._withdrawn(job):
+                return True
+            if type(job.exchange) is SurveyRead:
+                self._survey(job, job.exchange)
+                return True
+        rule = job.cache
+        # a probe of a unit that is down goes on the line: it is what brings the unit back
+        return rule is not None and not job.probe and self._from_cache(job, rule)
 
     # --- the read cache (mbgw.routing.cache) ---
 
