@@ -851,6 +851,10 @@ def main() -> None:
                     help="instead of the runs above: northbound MQTT's cost, 10,000 metric "
                     "changes/s, MQTT off and on in turns (bench/mqtt.py; about 90 s; "
                     "--quick: 20 s)")
+    ap.add_argument("--cache", action="store_true",
+                    help="instead of the runs above: the read cache's line transactions per "
+                    "request and its hits over loopback beside the table's server "
+                    "(bench/cache.py; about 60 s; --quick: 20 s)")
     ap.add_argument("--web", action="store_true",
                     help="instead of the runs above: a client's latency with a browser on the "
                     "web console's Traffic page and without (bench/web.py; about 40 s)")
@@ -862,6 +866,10 @@ def main() -> None:
     if args.mqtt:
         import mqtt  # bench/mqtt.py, beside this script
         mqtt.run(args.quick)
+        return
+    if args.cache:
+        import cache  # bench/cache.py, beside this script
+        cache.run(args.quick)
         return
     if args.web:
         import web  # bench/web.py, beside this script

@@ -90,10 +90,12 @@ int mbgw_discard_echo(int fd, const uint8_t *sent, size_t len, int64_t deadline_
 /* --- tty.c: the tty itself: its claim, settings libmodbus cannot make, RTS --- */
 
 /* Open path and take an advisory flock on it, before anything touches the line's
- * settings: a second gateway is refused without disturbing the first.  Returns the fd
- * (kept open as long as the line is used) or -EBUSY when another program holds the
- * lock. */
-int mbgw_tty_lock(const char *path);
+ * settings: a second gateway is refused without disturbing the first.  Then, before
+ * anything else, DTR (dtr_low) and RTS (rts_low) are lowered: the open raised them, as it
+ * does for any tty at a non-zero speed, and a transmitter keyed by them must not stay on
+ * (a tty without modem lines, a pty, is left as it is).  Returns the fd (kept open as
+ * long as the line is used) or -EBUSY when another program holds the lock. */
+int mbgw_tty_lock(const char *path, int dtr_low, int rts_low);
 
 /* TIOCEXCL: no further opens of the tty (except by root, whom the flock stops). */
 int mbgw_tty_claim(int fd);

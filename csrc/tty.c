@@ -19,7 +19,7 @@
 #include "internal.h"
 #include "mbgw.h"
 
-int mbgw_tty_lock(const char *path)
+int mbgw_tty_lock(const char *path, int dtr_low, int rts_low)
 {
     int fd = open(path, O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
     if (fd < 0)
@@ -29,6 +29,11 @@ int mbgw_tty_lock(const char *path)
         close(fd);
         return -err;
     }
+    int lines = (dtr_low ? TIOCM_DTR : 0) | (rts_low ? TIOCM_RTS : 0);
+    /* best effort: a tty without modem lines (a pty) refuses, and has nothing to lower;
+     * the settings applied later say so (mbgw_tty_modem_lines) */
+    if (lines)
+        (void)ioctl(fd, TIOCMBIC, &lines);
     return fd;
 }
 

@@ -52,16 +52,18 @@ _BLOCK = _block()
 _turn = itertools.count(random.randrange(len(_BLOCK)))
 
 
-def free_port() -> int:
-    """The next port of this worker's block that nothing listens on."""
+def free_port(kind: socket.SocketKind = socket.SOCK_STREAM) -> int:
+    """The next port of this worker's block that nothing listens on (kind SOCK_DGRAM: that
+    no UDP socket is bound to either)."""
     for _ in _BLOCK:
         port = _BLOCK[next(_turn) % len(_BLOCK)]
-        with socket.socket() as s:
-            try:
-                s.bind(("127.0.0.1", port))
-            except OSError:
-                continue
-            return port
+        try:
+            for each in {socket.SOCK_STREAM, kind}:
+                with socket.socket(socket.AF_INET, each) as s:
+                    s.bind(("127.0.0.1", port))
+        except OSError:
+            continue
+        return port
     raise RuntimeError(f"no free port in {_BLOCK}")
 
 

@@ -31,6 +31,14 @@ class _FirewallRules(click.ParamType):
                   "(mbgw.toml(5))", param, ctx)
 
 
+gateway_unit_option = click.option(
+    "--gateway-unit", type=click.IntRange(*model.GATEWAY_UNIT_RANGE), default=0,
+    show_default=True, metavar="UNIT",
+    help="A unit id (TCP faces) and serial address (serial faces) that the gateway answers "
+         "itself, with its identity functions only (FC 8 diagnostics, FC 17 report server "
+         "id, FC 43/14 read device identification; any other function is exception 0x01).  "
+         "Outside every route and the table's units.  0: off.")
+
 daemon_options = stack(
     click.option("--request-timeout", type=click.IntRange(*model.REQUEST_TIMEOUT_RANGE),
                  default=model.DEFAULT_REQUEST_TIMEOUT_MS, show_default=True, metavar="MS",

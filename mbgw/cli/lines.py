@@ -14,7 +14,7 @@ SERIAL_PARAMS = ("device", "protocol", "baudrate", "line_format", "interface", "
                  "stout", "silence", "ascii_timeout", "nocheck", "dtr", "rts", "cts",
                  "xonxoff", "interframe_silence")
 SLAVE_LINE_PARAMS = {"retries": "retries", "turnaround": "turnaround_ms",
-                     "late_window": "late_window_ms"}
+                     "late_window": "late_window_ms", "cache": "cache"}
 
 
 def line_config(table: line_file.LineTable,
@@ -67,7 +67,7 @@ def with_lines(cfg: SlaveConfig | MasterConfig, mode: str, lines=(), routes=(), 
         cfg = dataclasses.replace(cfg, lines=tuple(line_config(t, cfg) for t in lines),
                                   routes=tuple(routes), monitors=tuple(monitors),
                                   devices=tuple(devices))
-    elif not (isinstance(cfg, SlaveConfig) and cfg.gateway_unit):
+    elif not cfg.gateway_unit:
         return cfg
     problems = config_problems(cfg, mode)
     problems += monitor_problems(cfg.monitors, {line.name: line.mode for line in

@@ -4,9 +4,16 @@ socket, metrics, log level) with slave mode."""
 import click
 from click.core import ParameterSource
 
-from mbgw.cli.daemon_options import daemon_options
+from mbgw.cli.daemon_options import daemon_options, gateway_unit_option
 from mbgw.cli.lines import with_lines
-from mbgw.cli.options import ModeCommand, convert, parse_authip, parse_bind, parser
+from mbgw.cli.options import (
+    ModeCommand,
+    convert,
+    face_port_options,
+    parse_authip,
+    parse_bind,
+    parser,
+)
 from mbgw.cli.run import run_daemon
 from mbgw.cli.serial_options import (
     demotion,
@@ -18,6 +25,7 @@ from mbgw.cli.serial_options import (
 from mbgw.cli.table_options import parse_serial_functions, table_config, table_options, table_switch
 from mbgw.cli.tls_options import tls_config, tls_options, upstream_tls_config, upstream_tls_options
 from mbgw.config import model
+from mbgw.config.lines import TCP_FACE
 from mbgw.config.schema import TableOption
 from mbgw.config.slaveid import MAX_RANGES, SlaveIdTable
 
@@ -55,6 +63,7 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
 @click.option("--bind", metavar="ADDR", default=None, callback=parser(parse_bind),
               help="The table's server listens on this IP address only [default: all, IPv4 "
                    "and IPv6].")
+@face_port_options(" (a route without from gives the daemon one)")
 @upstream_tls_options
 @demotion_options
 @table_switch
@@ -82,6 +91,7 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
 @table_options
 @tls_options
 @daemon_options
+@gateway_unit_option
 @click.pass_context
 def master(ctx, **options) -> None:
     """Master mode: a Modbus master on the serial line reaches Modbus TCP servers."""
@@ -101,8 +111,8 @@ def master_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                   probe_interval=model.DEFAULT_PROBE_INTERVAL_MS, firewall=None, scenarios=(),
                   lines=(), routes=(), monitors=(), devices=(),
                   tls_port=model.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
-                  tls_require_role=True, tls_crl=None, authip=(), bind=None,
-                  **table_settings) -> model.MasterConfig:
+                  tls_require_role=True, tls_crl=None, authip=(), bind=None, gateway_unit=0,
+                  udp_port=0, rtu_port=0, **table_settings) -> model.MasterConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck, dtr, rts, cts, xonxoff,
                             interframe_silence)
@@ -117,7 +127,15 @@ def master_config(device, protocol, baudrate, line_format, interface, rtsdelays,
         upstream_tls=upstream_tls,
         max_connections=max_connections, control=control, metrics=metrics,
         demotion=demotion(down_after, probe_interval), table=table,
-        firewall=firewall, scenarios=scenarios, tls=tls, authip=authip, bind=bind))
-    return with_lines(cfg, "master", lines, routes, monitors, devices)
+        firewall=firewall, scenarios=scenarios, tls=tls, authip=authip, bind=bind,
+        udp_port=udp_port, rtu_port=rtu_port, gateway_unit=gateway_unit))
+    cfg = with_lines(cfg, "master", lines, routes, monitors, devices)
+    if not any(r.face == TCP_FACE for r in cfg.routes):
+        for name, port in (("udp-port", udp_port), ("rtu-port", rtu_port)):
+            if port:
+                raise click.BadParameter("master mode listens there only with a Modbus TCP "
+                                         "face: a [[route]] without from",
+                                         param_hint=f"'--{name}'")
+    return cfg
 
 master.make_config = master_config

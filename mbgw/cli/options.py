@@ -7,6 +7,7 @@ from collections.abc import Callable
 import click
 
 from mbgw.config import model
+from mbgw.config.cache import CacheRule, parse_cache
 from mbgw.errors import ConfigError
 
 
@@ -98,6 +99,20 @@ def convert(param_name: str | None, build):
         raise click.BadParameter(message, param_hint=f"'--{err.key}'") from None
 
 
+class CacheType(click.ParamType):
+    """--cache: "ttl=MS,serve-stale=MS" or "off"; in the file an inline table (or false)."""
+    name = "cache"
+    takes_table = True      # the file's value is a TOML table (mbgw.config.values)
+
+    def convert(self, value, param, ctx):
+        if value is None or isinstance(value, CacheRule):
+            return value
+        try:
+            return parse_cache(value)
+        except ConfigError as err:
+            self.fail(str(err), param, ctx)
+
+
 def parser(parse):
     def callback(ctx, param, value):
         return convert(f"'{param.opts[0]}'", lambda: parse(value))
@@ -125,3 +140,18 @@ def stack(*decorators):
             function = decorator(function)
         return function
     return apply
+
+
+def face_port_options(when: str = ""):
+    """The Modbus TCP face's other listeners, on bind's addresses with its routes, authip and
+    firewall (rule listener "udp", "rtu"); when: the mode's condition, said in the help."""
+    return stack(
+        click.option("--udp-port", type=click.IntRange(*model.MDBPORT_RANGE), default=0,
+                     show_default=True,
+                     help=f"Modbus/UDP port the Modbus TCP face listens on{when}, one "
+                          f"request a datagram (0: none)."),
+        click.option("--rtu-port", type=click.IntRange(*model.MDBPORT_RANGE), default=0,
+                     show_default=True,
+                     help=f"RTU-over-TCP port (\"TCP with CRC\": RTU frames in a TCP "
+                          f"stream) the Modbus TCP face listens on{when} (0: none)."),
+    )

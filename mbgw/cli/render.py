@@ -42,6 +42,9 @@ def format_status(s: dict, now: float) -> str:
         lines += ["", *_lines_section(s["lines"]), "", *_routes_section(s["routes"])]
         for row in s["lines"][1:]:        # line serial's devices are above
             lines += ["", *(_line_maps(row) if "maps" in row else _line_devices(row, now))]
+    cached = [row for row in s.get("lines", ()) if row.get("cache")]
+    if cached:
+        lines += ["", *_cache_section(cached)]
     if s.get("servers"):
         lines += ["", *_servers_section(s["servers"])]
     if s.get("table") is not None:
@@ -80,6 +83,16 @@ def _connection(row: dict) -> str:
     if "reconnects" not in counters:
         return ""
     return f", {counters['reconnects']} reconnects, {counters['stray_replies']} stray replies"
+
+
+def _cache_section(rows: list[dict]) -> list[str]:
+    """The read cache's figures of each line that has served or missed, by unit."""
+    out = ["cache      line          unit      hits  coalesced   misses  stale"]
+    for row in rows:
+        for unit, f in row["cache"]["units"].items():
+            out.append(f"           {row['name']:<13} {unit:>4} {f['hits']:>9} "
+                       f"{f['coalesced']:>10} {f['misses']:>8} {f['stale_served']:>6}")
+    return out
 
 
 def line_status(s: dict, name: str) -> dict:
@@ -321,6 +334,7 @@ def _slave_sections(s: dict, now: float) -> list[str]:
         f"{_line(serial)}, stout {serial['stout_ms']} ms: line {_state(serial)}, "
         f"queue {s['queue_depth']}",
         f"           {_load(s)}",
+        *_faces(s.get("faces")),
         "",
         *_clients_section(s, now),
     ]
@@ -334,6 +348,23 @@ def _slave_sections(s: dict, now: float) -> list[str]:
                          f"{_exceptions(d)}")
             lines += _next_probe(d)
     return lines
+
+
+def _faces(faces: dict | None) -> list[str]:
+    """What came in by each listener, once a Modbus/UDP or RTU-over-TCP one has had any."""
+    if not faces or not any(any(faces[f].values()) for f in ("udp", "rtu") if f in faces):
+        return []
+    said = []
+    for listener, f in faces.items():
+        if any(f.values()):
+            extra = [f"{f['refused']} refused"] if f["refused"] else []
+            extra += [f"{f['retransmissions']} again"] if f["retransmissions"] else []
+            extra += [f"{f['bad_frames']} bad frames"] if f["bad_frames"] else []
+            extra += [f"{f['dropped']} dropped"] if f["dropped"] else []
+            clients = f"{f['clients']} client{'' if f['clients'] == 1 else 's'}"
+            said.append(f"{listener} {clients}, {f['requests']} requests" +
+                        (f" ({', '.join(extra)})" if extra else ""))
+    return [f"faces      {'; '.join(said)}"]
 
 
 def _master_sections(s: dict, now: float) -> list[str]:
@@ -350,7 +381,8 @@ def _master_sections(s: dict, now: float) -> list[str]:
         else "empty: every request is ignored"]
     lines += [f"{'slaveid' if i == 0 else '':<10} {route}" for i, route in enumerate(routes)]
     if s.get("listening") is not None:
-        lines += [f"listening  {', '.join(s['listening'])} (the Modbus TCP face)", "",
+        lines += [f"listening  {', '.join(s['listening'])} (the Modbus TCP face)",
+                  *_faces(s.get("faces")), "",
                   *_clients_section({"clients": s["tcp_clients"]}, now)]
     lines += ["", f"upstream connections ({len(up['connections'])})"]
     if up["connections"]:

@@ -49,6 +49,8 @@ def format_event(e: dict) -> str:
     elif e.get("scenario") is not None:
         tid, unit, where = "-", e["unit"], f"{'scenario ' + e['scenario']:<24}"
     else:
-        tid, unit, where = e["tid"], e["unit"], f"{e['peer']:<24}"
+        face = e.get("face")        # the listeners that are not Modbus TCP say so
+        peer = e["peer"] if face in (None, "plain", "tls") else f"{e['peer']} {face}"
+        tid, unit, where = e["tid"], e["unit"], f"{peer:<24}"
     return (f"{stamp:<15} {e['direction']:<9} {where} {tid:>5} {unit:>4} "
             f"0x{e['function']:02x} {e['length']:>4}  {outcome}").rstrip()

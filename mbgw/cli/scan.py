@@ -1,14 +1,18 @@
-"""mbgw scan and mbgw probe: commissioning a bus that no gateway uses -- which addresses
-answer at which settings, and how fast (the bus work is mbgw.line.survey's)."""
+"""mbgw scan and mbgw probe: commissioning a bus -- which addresses answer at which settings,
+and how fast.  DEVICE: a bus no gateway uses (the bus work is mbgw.line.survey's); --line
+NAME: the running daemon's line, at its settings (mbgw.cli.daemon_bus)."""
 import errno
 import json
 import math
 import sys
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from typing import Protocol
 
 import click
 
+from mbgw.cli.daemon_bus import DaemonBus
+from mbgw.cli.diag import control_option
 from mbgw.cli.options import Failure, convert
 from mbgw.config.model import LineFormat, SerialConfig
 from mbgw.config.number_list import parse_number_list
@@ -32,15 +36,33 @@ MIN_STOUT_MS = 20              # probe recommends at least this
 STOUT_PER_P99 = 1.5
 
 
+class Surveyed(Protocol):
+    """What scan and probe ask: a Bus of their own, or the daemon's line (DaemonBus)."""
+
+    def ask(self, unit: int, pdu: bytes, timeout_ms: int) -> Answer | None: ...
+
+    def tune(self, cfg: SerialConfig) -> None: ...
+
+
+def _baudrates(text: str) -> list[int]:
+    rates = [item for item in text.replace(" ", ",").split(",") if item]
+    if not rates or not all(item.isdigit() for item in rates):
+        raise ConfigError(f"{text!r}: expected baud rates, e.g. 9600,19200")
+    return [int(rate) for rate in rates]
+
+
+def _formats(text: str) -> list[LineFormat]:
+    shapes = [LineFormat.parse(item) for item in text.replace(" ", ",").split(",") if item]
+    if not shapes:
+        raise ConfigError(f"{text!r}: expected formats, e.g. 8e1,8n1")
+    return shapes
+
+
 def _settings(baudrates: str, formats: str, device: str) -> list[SerialConfig]:
     """Every baud rate × format, in the order given (baud rate first)."""
-    rates = [item for item in baudrates.replace(" ", ",").split(",") if item]
-    if not rates or not all(item.isdigit() for item in rates):
-        raise ConfigError(f"{baudrates!r}: expected baud rates, e.g. 9600,19200")
-    shapes = [LineFormat.parse(item) for item in formats.replace(" ", ",").split(",") if item]
-    if not shapes:
-        raise ConfigError(f"{formats!r}: expected formats, e.g. 8e1,8n1")
-    return [SerialConfig(device, int(rate), shape) for rate in rates for shape in shapes]
+    shapes = _formats(formats)
+    return [SerialConfig(device, rate, shape) for rate in _baudrates(baudrates)
+            for shape in shapes]
 
 
 def _units(text: str) -> tuple[int, ...]:
@@ -93,7 +115,7 @@ class _Progress:
             click.echo("\r\033[K", err=True, nl=False)
 
 
-def _identity(bus: Bus, unit: int) -> dict | None:
+def _identity(bus: Surveyed, unit: int) -> dict | None:
     """FC 43/14's basic objects, else FC 17's server id, else None."""
     answer = bus.ask(unit, READ_BASIC_IDENTITY, TIMING_TIMEOUT_MS)
     objects = identification_objects(answer.pdu) if answer is not None else None
@@ -103,7 +125,7 @@ def _identity(bus: Bus, unit: int) -> dict | None:
     return server_id(answer.pdu) if answer is not None else None
 
 
-def _found(bus: Bus, unit: int, cfg: SerialConfig, answer: Answer) -> dict:
+def _found(bus: Surveyed, unit: int, cfg: SerialConfig, answer: Answer) -> dict:
     """What scan reports of a unit that answered at cfg."""
     times = [got.response_ns for got in
              (bus.ask(unit, READ_REGISTER_0, TIMING_TIMEOUT_MS) for _ in range(TIMING_READS))
@@ -116,27 +138,26 @@ def _found(bus: Bus, unit: int, cfg: SerialConfig, answer: Answer) -> dict:
             "identity": _identity(bus, unit)}
 
 
-def scan_bus(settings: list[SerialConfig], units: Sequence[int], timeout_ms: int,
-             first: bool, progress: _Progress) -> list[dict]:
-    """Each setting in turn, each unit not found yet at each."""
+def scan_bus(bus: Surveyed, settings: list[SerialConfig], units: Sequence[int],
+             timeout_ms: int, first: bool, progress: _Progress) -> list[dict]:
+    """Each setting in turn (bus at the first already), each unit not found yet at each."""
     found: list[dict] = []
     answered: set[int] = set()
-    with _opened(settings[0]) as bus:
-        for index, cfg in enumerate(settings):
-            if index:
-                bus.tune(cfg)
-            for unit in units:
-                if unit in answered:
-                    continue
-                progress.show(f"{cfg.baudrate} {cfg.format}: unit {unit}, "
-                              f"{len(found)} found")
-                answer = bus.ask(unit, READ_REGISTER_0, timeout_ms)
-                if answer is None:
-                    continue
-                answered.add(unit)
-                found.append(_found(bus, unit, cfg, answer))
-                if first:
-                    return found
+    for index, cfg in enumerate(settings):
+        if index:
+            bus.tune(cfg)
+        for unit in units:
+            if unit in answered:
+                continue
+            progress.show(f"{cfg.baudrate} {cfg.format}: unit {unit}, "
+                          f"{len(found)} found")
+            answer = bus.ask(unit, READ_REGISTER_0, timeout_ms)
+            if answer is None:
+                continue
+            answered.add(unit)
+            found.append(_found(bus, unit, cfg, answer))
+            if first:
+                return found
     return found
 
 
@@ -156,7 +177,7 @@ def recommended_stout(p99_ms: float) -> int:
     return max(MIN_STOUT_MS, math.ceil(p99_ms * STOUT_PER_P99))
 
 
-def probe_unit(bus: Bus, unit: int, count: int, timeout_ms: int) -> dict:
+def probe_unit(bus: Surveyed, unit: int, count: int, timeout_ms: int) -> dict:
     times = []
     for _ in range(count):
         got = bus.ask(unit, READ_REGISTER_0, timeout_ms)
@@ -175,13 +196,52 @@ def probe_row(row: dict) -> str:
             f"recommended stout {row['stout_ms']} ms")
 
 
+def _only_the_lines(line_cfg: SerialConfig, baudrates: str | None, formats: str | None,
+                    hints: tuple[str, str]) -> None:
+    """--line: --baudrates/--formats (hints: those options' names) may name only the line's
+    own settings: the daemon does not change a running line's."""
+    rate_hint, format_hint = hints
+    if baudrates is not None and \
+            convert(rate_hint, lambda: _baudrates(baudrates)) != [line_cfg.baudrate]:
+        raise click.BadParameter(
+            f"line at {line_cfg.baudrate}: the daemon does not change a running line's baud "
+            f"rate (leave {rate_hint} out)", param_hint=rate_hint)
+    if formats is not None and \
+            convert(format_hint, lambda: _formats(formats)) != [line_cfg.format]:
+        raise click.BadParameter(
+            f"line at {line_cfg.format}: the daemon does not change a running line's format "
+            f"(leave {format_hint} out)", param_hint=format_hint)
+
+
+def _device_or_line(device: str | None, line: str | None) -> None:
+    if (device is None) == (line is None):
+        raise click.UsageError("give DEVICE or --line NAME (exactly one)")
+
+
+def _echo_rows(rows: list[dict], as_json: bool, row_text) -> None:
+    if as_json:
+        click.echo(json.dumps(rows))
+    else:
+        for row in rows:
+            click.echo(row_text(row))
+
+
+line_option = click.option(
+    "--line", metavar="NAME",
+    help="Instead of DEVICE: the running daemon's line NAME (in slave mode), asked between "
+         "its transactions at its own settings.")
+
+
 def register(main: click.Group) -> None:
     @main.command()
-    @click.argument("device")
-    @click.option("--baudrates", default=DEFAULT_BAUDRATES, show_default=True,
-                  metavar="LIST", help="The baud rates to try, in this order.")
-    @click.option("--formats", default=DEFAULT_FORMATS, show_default=True, metavar="LIST",
-                  help="The formats to try at each baud rate, in this order.")
+    @click.argument("device", required=False)
+    @line_option
+    @click.option("--baudrates", metavar="LIST",
+                  help=f"The baud rates to try, in this order [default: {DEFAULT_BAUDRATES}; "
+                       f"with --line: the line's].")
+    @click.option("--formats", metavar="LIST",
+                  help=f"The formats to try at each baud rate, in this order [default: "
+                       f"{DEFAULT_FORMATS}; with --line: the line's].")
     @click.option("--units", default="1-247", show_default=True, metavar="RANGES",
                   help="The addresses to ask, e.g. 1-10,17.")
     @click.option("--timeout", "timeout_ms", default=100, show_default=True,
@@ -189,56 +249,76 @@ def register(main: click.Group) -> None:
                   help="How long each address has to answer.")
     @click.option("--first", is_flag=True, help="End after the first address that answers.")
     @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
-    def scan(device: str, baudrates: str, formats: str, units: str, timeout_ms: int,
-             first: bool, as_json: bool) -> None:
-        """Find the addresses that answer on a serial bus no gateway uses, and their
-        settings: each baud rate, then each format, then each address, asked FC 3 register 0
-        (an exception reply is an answer too).  An address found is timed (5 reads) and
-        asked its identity (FC 43/14, else FC 17), and not asked again at other settings.
-        Exit status 0 when an address answered, 1 when none did or the device is in use."""
-        settings = convert("'--baudrates'/'--formats'",
-                           lambda: _settings(baudrates, formats, device))
+    @control_option
+    def scan(device: str | None, line: str | None, baudrates: str | None,
+             formats: str | None, units: str, timeout_ms: int, first: bool, as_json: bool,
+             control: str | None, instance: str | None) -> None:
+        """Find the addresses that answer on a serial bus, and their settings: each baud
+        rate, then each format, then each address, asked FC 3 register 0 (an exception reply
+        is an answer too).  An address found is timed (5 reads) and asked its identity (FC
+        43/14, else FC 17), and not asked again at other settings.  DEVICE: a bus no gateway
+        uses; --line NAME: the running daemon's line, one read in each of its turns, at the
+        line's settings only.  Exit status 0 when an address answered, 1 when none did or
+        the device is in use."""
+        _device_or_line(device, line)
         unit_list = convert("'--units'", lambda: _units(units))
         progress = _Progress()
         try:
-            found = scan_bus(settings, unit_list, timeout_ms, first, progress)
+            if line is not None:
+                bus = DaemonBus(control, instance, line)
+                settings = [bus.settings()]
+                _only_the_lines(settings[0], baudrates, formats,
+                                ("'--baudrates'", "'--formats'"))
+                found = scan_bus(bus, settings, unit_list, timeout_ms, first, progress)
+            else:
+                assert device is not None
+                settings = convert("'--baudrates'/'--formats'", lambda: _settings(
+                    baudrates or DEFAULT_BAUDRATES, formats or DEFAULT_FORMATS, device))
+                with _opened(settings[0]) as own:
+                    found = scan_bus(own, settings, unit_list, timeout_ms, first, progress)
         finally:
             progress.clear()
-        if as_json:
-            click.echo(json.dumps(found))
-        else:
-            for row in found:
-                click.echo(scan_row(row))
+        _echo_rows(found, as_json, scan_row)
         if not found:
-            raise Failure(f"no address answered on {device}")
+            raise Failure(f"no address answered on {device or 'line ' + str(line)}")
 
     @main.command()
-    @click.argument("device")
+    @click.argument("device", required=False)
+    @line_option
     @click.option("--units", required=True, metavar="LIST",
                   help="The addresses to measure, e.g. 1,5,17.")
     @click.option("--count", default=100, show_default=True, type=click.IntRange(1, 100000),
                   help="Reads (FC 3 register 0) per address.")
-    @click.option("--baudrate", default=9600, show_default=True, type=int,
-                  help="The line's baud rate.")
-    @click.option("--format", "line_format", default="8n1", show_default=True,
-                  metavar="FORMAT", help="The line's data bits, parity, stop bits.")
+    @click.option("--baudrate", type=int,
+                  help="The line's baud rate [default: 9600; with --line: the line's].")
+    @click.option("--format", "line_format", metavar="FORMAT",
+                  help="The line's data bits, parity, stop bits [default: 8n1; with --line: "
+                       "the line's].")
     @click.option("--timeout", "timeout_ms", default=1000, show_default=True,
                   type=click.IntRange(1, 60000), metavar="MS",
                   help="How long each read may take.")
     @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
-    def probe(device: str, units: str, count: int, baudrate: int, line_format: str,
-              timeout_ms: int, as_json: bool) -> None:
+    @control_option
+    def probe(device: str | None, line: str | None, units: str, count: int,
+              baudrate: int | None, line_format: str | None, timeout_ms: int, as_json: bool,
+              control: str | None, instance: str | None) -> None:
         """Measure each address's response time over --count reads and print the stout it
-        recommends: p99 x 1.5 rounded up, at least 20 ms.  Exit status 0 when an address answered, 1
-        when none did or the device is in use."""
-        cfg = convert(None, lambda: SerialConfig(device, baudrate, LineFormat.parse(line_format)))
+        recommends: p99 x 1.5 rounded up, at least 20 ms.  DEVICE: a bus no gateway uses;
+        --line NAME: the running daemon's line, one read in each of its turns.  Exit status
+        0 when an address answered, 1 when none did or the device is in use."""
+        _device_or_line(device, line)
         unit_list = convert("'--units'", lambda: _units(units))
-        with _opened(cfg) as bus:
+        if line is not None:
+            bus = DaemonBus(control, instance, line)
+            _only_the_lines(bus.settings(), None if baudrate is None else str(baudrate),
+                            line_format, ("'--baudrate'", "'--format'"))
             rows = [probe_unit(bus, unit, count, timeout_ms) for unit in unit_list]
-        if as_json:
-            click.echo(json.dumps(rows))
         else:
-            for row in rows:
-                click.echo(probe_row(row))
+            assert device is not None
+            cfg = convert(None, lambda: SerialConfig(
+                device, baudrate or 9600, LineFormat.parse(line_format or "8n1")))
+            with _opened(cfg) as own:
+                rows = [probe_unit(own, unit, count, timeout_ms) for unit in unit_list]
+        _echo_rows(rows, as_json, probe_row)
         if not any(row["answered"] for row in rows):
-            raise Failure(f"no address answered on {device}")
+            raise Failure(f"no address answered on {device or 'line ' + str(line)}")

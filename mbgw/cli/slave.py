@@ -1,9 +1,16 @@
 """The `mbgw slave` command: Modbus TCP clients reach the slaves on a serial line."""
 import click
 
-from mbgw.cli.daemon_options import daemon_options
+from mbgw.cli.daemon_options import daemon_options, gateway_unit_option
 from mbgw.cli.lines import with_lines
-from mbgw.cli.options import ModeCommand, convert, parse_bind, parser
+from mbgw.cli.options import (
+    CacheType,
+    ModeCommand,
+    convert,
+    face_port_options,
+    parse_bind,
+    parser,
+)
 from mbgw.cli.run import run_daemon
 from mbgw.cli.serial_options import (
     demotion,
@@ -42,6 +49,7 @@ def _parse_units(value) -> tuple[int, ...]:
 @click.option("--mdbport", type=click.IntRange(*model.MDBPORT_RANGE),
               default=model.SlaveConfig.mdbport, show_default=True,
               help="Modbus TCP port to listen on (0: none, Modbus/TCP Security only).")
+@face_port_options()
 @click.option("--bind", metavar="ADDR", default=None, callback=parser(parse_bind),
               help="Listen on this IP address only [default: all, IPv4 and IPv6].")
 @click.option("--max-connections", type=click.IntRange(*model.MAX_CONNECTIONS_RANGE),
@@ -62,6 +70,13 @@ def _parse_units(value) -> tuple[int, ...]:
                    "until the late reply has come (it is dropped) or the line has been quiet "
                    "this long past the timeout; other addresses are served meanwhile.  0: no "
                    "wait.  0..65535 ms [default: stout].")
+@click.option("--cache", type=CacheType(), default=None, metavar="ttl=MS,serve-stale=MS",
+              help="Reads (FC 1-4) that share one transaction: a read identical to one "
+                   "waiting or on the line gets its answer; one within data read less than "
+                   "ttl ms ago is answered from memory; after its own transaction failed, "
+                   "from data less than serve-stale ms old.  A write drops the data it "
+                   "overlaps before its reply is forwarded.  0..3600000 ms each "
+                   "[default: off].")
 @click.option("--turnaround", type=click.IntRange(*model.TURNAROUND_RANGE),
               default=model.SlaveConfig.turnaround_ms,
               show_default=True, metavar="MS",
@@ -87,12 +102,7 @@ def _parse_units(value) -> tuple[int, ...]:
 @tls_options
 @upstream_tls_options
 @daemon_options
-@click.option("--gateway-unit", type=click.IntRange(*model.GATEWAY_UNIT_RANGE), default=0,
-              show_default=True, metavar="UNIT",
-              help="A unit id of the Modbus TCP face that the gateway answers itself, with "
-                   "its identity functions only (FC 8 diagnostics, FC 17 report server id, "
-                   "FC 43/14 read device identification; any other function is exception "
-                   "0x01).  Outside every route and the table's units.  0: off.")
+@gateway_unit_option
 @click.option("--shortcut/--no-shortcut", default=model.SlaveConfig.shortcut, hidden=True,
               help="Put a request that finds the line idle on it from C (for diagnosis).")
 def slave(**options) -> None:
@@ -111,7 +121,7 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
                  lines=(), routes=(), monitors=(), devices=(),
                  tls_port=model.DEFAULT_TLS_PORT, tls_cert=None, tls_key=None, tls_ca=None,
                  tls_require_role=True, tls_crl=None, tcpto=model.DEFAULT_TCPTO_MS,
-                 late_window=None, gateway_unit=0,
+                 late_window=None, gateway_unit=0, udp_port=0, rtu_port=0, cache=None,
                  **table_settings) -> model.SlaveConfig:
     serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
                             stout, silence, ascii_timeout, nocheck, dtr, rts, cts, xonxoff,
@@ -121,10 +131,10 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
     tls = tls_config(tls_port, tls_cert, tls_key, tls_ca, tls_require_role, tls_crl)
     cfg = convert(None, lambda: model.SlaveConfig(
         serial=serial, slaveid=slaveid, exception=exception, authip=authip, mdbport=mdbport,
-        upstream_tls=upstream_tls,
+        udp_port=udp_port, rtu_port=rtu_port, upstream_tls=upstream_tls,
         bind=bind, max_connections=max_connections,
         max_connections_per_ip=max_connections_per_ip, retries=retries,
-        turnaround_ms=turnaround, late_window_ms=late_window, control=control,
+        turnaround_ms=turnaround, late_window_ms=late_window, cache=cache, control=control,
         metrics=metrics, shortcut=shortcut,
         demotion=demotion(down_after, probe_interval), table=table, tcpto_ms=tcpto,
         firewall=firewall, scenarios=scenarios, tls=tls, gateway_unit=gateway_unit))

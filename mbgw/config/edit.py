@@ -20,6 +20,7 @@ from mbgw.config.schema import (
     is_secret,
 )
 from mbgw.config.slaveid import SlaveIdTable
+from mbgw.config.toml_text import dump_value, dumpable
 from mbgw.config.values import Problem, element_kinds, process
 from mbgw.errors import ConfigError
 
@@ -183,4 +184,6 @@ def show_lines(schema: Schema, settings: Settings, name: str) -> list[str]:
         return ["on" if value else "off"]
     if isinstance(value, list):
         return [" ".join(map(str, value))]
+    if isinstance(value, dict) and dumpable(value):     # an inline table (`cache`)
+        return [dump_value(value)]
     return ["(not set)" if value is None else str(value)]

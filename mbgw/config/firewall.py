@@ -17,7 +17,8 @@ RULE_TABLE = "rule"                # [[rule]]
 DEFAULT_KEY = "default"
 POLICIES = ("allow", "deny")
 DEFAULT_POLICY = "allow"           # no rules: every request goes through, as before
-LISTENERS = ("tls", "plain", "mqtt")     # mqtt: writes from the broker ([mqtt] role)
+# [net] mdbport, tls port, udp-port, rtu-port; mqtt: writes from the broker ([mqtt] role)
+LISTENERS = ("tls", "plain", "udp", "rtu", "mqtt")
 GROUP_KEYS = (DEFAULT_KEY,)
 RULE_KEYS = ("role", "client", "listener", "units", "functions", "registers", "read-only")
 UNIT_RANGE = (0, 255)

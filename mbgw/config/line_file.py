@@ -9,6 +9,7 @@ import difflib
 from dataclasses import dataclass, field
 from functools import partial
 
+from mbgw.config.cache import parse_cache
 from mbgw.config.lines import (
     CONNECT_DELAY_RANGE,
     DEFAULT_SERVER_PORT,
@@ -58,7 +59,7 @@ MASTER_LINE_REFUSED = ("stout", "nocheck")      # as `mbgw master --stout` is re
 # a line in monitor mode takes a master-mode line's keys: the port's settings, no timing
 LISTENING_KEYS_OF = {"monitor": "master"}
 ROUTE_KEYS = ("units", "line", "table", "server", "offset", "address", "from", "tls",
-              "fingerprint")
+              "fingerprint", "cache")
 TCP_UNITS = (1, 255)             # as [table] units
 SERIAL_ADDRESSES = (1, 247)      # a serial face's addresses
 # a [[device]]'s timing keys: (field of DeviceConfig, bounds, as the [serial] key's)
@@ -235,7 +236,17 @@ def _parse_route(index: int, fields: dict) -> RouteConfig:
                        line=key("line", str, "a line name"),
                        table=key("table", bool, "true or false", False),
                        server=server_address, offset=offset, address=address, tls=tls,
-                       fingerprint=fingerprint)
+                       fingerprint=fingerprint, cache=_route_cache(label, fields))
+
+
+def _route_cache(label: str, fields: dict):
+    """A route's cache: its own rule, False (off), or None (not given: the line's)."""
+    if "cache" not in fields:
+        return None
+    try:
+        return parse_cache(fields["cache"]) or False
+    except ConfigError as err:
+        raise ConfigError(f"{label}.cache: {err}") from None
 
 
 def parse_devices(found: list[dict]) -> tuple[tuple[DeviceConfig, ...], list[str]]:
@@ -328,4 +339,6 @@ def route_fields(route: RouteConfig) -> dict:
         fields["offset"] = route.offset
     if route.address is not None:
         fields["address"] = route.address
+    if route.cache is not None:
+        fields["cache"] = route.cache.fields if route.cache else False
     return fields

@@ -13,6 +13,7 @@ import ipaddress
 import re
 from dataclasses import dataclass, field
 
+from mbgw.config.cache import CacheRule, RouteCache
 from mbgw.config.model import (
     DEFAULT_TURNAROUND_MS,
     Demotion,
@@ -95,6 +96,7 @@ class LineConfig:
     late_window_ms: int | None = None            # slave mode: None: stout
     remote: RemoteTarget | None = None           # `connect`: a device across the network
     connect_delay_ms: int = 0                    # remote over TCP: wait after connecting
+    cache: CacheRule | None = None               # slave mode: reads shared and kept
 
     def __post_init__(self) -> None:
         if self.name != PRIMARY_LINE and not NAME_PATTERN.fullmatch(self.name):
@@ -134,6 +136,7 @@ class RouteConfig:
     gateway: bool = False          # general.gateway-unit: the table's identity functions only
     tls: bool = False              # server: reached over TLS (a slaveid range's `tls`)
     fingerprint: bytes | None = None   # server: its certificate's pinned SHA-256
+    cache: RouteCache = None       # to a line: its own (False: off; None: the line's)
 
     @property
     def label(self) -> str:
@@ -280,6 +283,9 @@ def _route_problems(route: RouteConfig, by_name: dict[str, LineConfig]) -> list[
                             f"from names a line in master mode (a master on it)")
     if route.line is not None:
         problems += _line_target_problems(route, by_name.get(route.line))
+    elif route.cache is not None:
+        problems.append(f"{label}.cache: only a route to a line in slave mode has a cache "
+                        f"(the table answers at once; a server's reads are not cached)")
     if not route.implicit and (route.line is not None or route.server is not None):
         problems += _rewrite_problems(route)
     return problems
@@ -362,13 +368,24 @@ def _explicit(cfg: SlaveConfig | MasterConfig, face: str) -> tuple[bool, bool]:
     return bool(own), any(r.table for r in own)
 
 
+def gateway_routes(cfg: SlaveConfig | MasterConfig, tcp_face: bool) -> list[RouteConfig]:
+    """general.gateway-unit on every face: the TCP face's (tcp_face: the daemon has one) and
+    each serial face's (line serial in master mode, each line in master mode)."""
+    unit = cfg.gateway_unit
+    if not unit:
+        return []
+    faces = [TCP_FACE] if tcp_face else []
+    if isinstance(cfg, MasterConfig):
+        faces.append(PRIMARY_LINE)
+    faces += [line.name for line in cfg.lines if line.is_face]
+    return [RouteConfig(0, (unit,), face=face, gateway=True, implicit=True) for face in faces]
+
+
 def _slave_routes(cfg: SlaveConfig) -> tuple[RouteConfig, ...]:
     explicit, explicit_table = _explicit(cfg, TCP_FACE)
-    routes = []
+    routes = gateway_routes(cfg, tcp_face=True)
     table_units: tuple[int, ...] = ()
     gateway: tuple[int, ...] = (cfg.gateway_unit,) if cfg.gateway_unit else ()
-    if gateway:
-        routes.append(RouteConfig(0, gateway, gateway=True, implicit=True))
     if cfg.table_on and not explicit_table:
         table_units = cfg.table.units if cfg.table.direct else ALL_UNITS
         routes.append(RouteConfig(0, table_units, table=True, implicit=True))
@@ -382,7 +399,7 @@ def _slave_routes(cfg: SlaveConfig) -> tuple[RouteConfig, ...]:
 
 def _master_routes(cfg: MasterConfig) -> tuple[RouteConfig, ...]:
     explicit, explicit_table = _explicit(cfg, PRIMARY_LINE)
-    routes = []
+    routes = gateway_routes(cfg, tcp_face=any(r.face == TCP_FACE for r in cfg.routes))
     if cfg.table.enabled and cfg.table.address and not explicit_table:
         routes.append(RouteConfig(0, (cfg.table.address,), face=PRIMARY_LINE, table=True,
                                   implicit=True))

@@ -8,6 +8,7 @@ import re
 import stat
 from dataclasses import dataclass, field
 
+from mbgw.config.cache import CacheRule
 from mbgw.config.firewall import FirewallConfig
 from mbgw.config.mqtt import MqttConfig
 from mbgw.config.scenario import check_scenarios
@@ -457,12 +458,15 @@ class SlaveConfig:
     exception: bool = False
     authip: tuple = ()
     mdbport: int = DEFAULT_MDBPORT
+    udp_port: int = 0              # [net] udp-port: the Modbus/UDP face; 0: off
+    rtu_port: int = 0              # [net] rtu-port: the RTU-over-TCP face; 0: off
     bind: str | None = None
     max_connections: int = DEFAULT_MAX_CONNECTIONS
     max_connections_per_ip: int = 0    # 0: no limit per client address
     retries: int = 0
     turnaround_ms: int = DEFAULT_TURNAROUND_MS
     late_window_ms: int | None = None  # None: stout
+    cache: CacheRule | None = None     # line serial's reads shared and kept; None: off
     control: str | None = None     # control socket path; None: the default one
     metrics: str | None = None     # ADDR:PORT for Prometheus, None: off
     demotion: Demotion = field(default_factory=Demotion)
@@ -478,8 +482,9 @@ class SlaveConfig:
     mqtt: MqttConfig = field(default_factory=MqttConfig)   # [mqtt]: northbound MQTT
     request_timeout_ms: int = DEFAULT_REQUEST_TIMEOUT_MS   # [net] request-timeout
     location: str = DEFAULT_LOCATION   # [general] location, the guide's set location
-    gateway_unit: int = 0          # [general] gateway-unit: the TCP face's unit of the
-                                   # identity functions only (FC 8, 17, 43/14); 0: none
+    gateway_unit: int = 0          # [general] gateway-unit: every face's unit (serial
+                                   # address) of the identity functions only (FC 8, 17,
+                                   # 43/14); 0: none
     lines: tuple = ()              # LineConfig (mbgw.config.lines): [[line]], beside [serial]
     routes: tuple = ()             # RouteConfig (mbgw.config.lines): [[route]]
     monitors: tuple = ()           # MonitorMap (mbgw.config.monitor): [[monitor]]
@@ -553,8 +558,11 @@ class MasterConfig:
     mqtt: MqttConfig = field(default_factory=MqttConfig)   # [mqtt]: northbound MQTT
     request_timeout_ms: int = DEFAULT_REQUEST_TIMEOUT_MS   # [net] request-timeout
     location: str = DEFAULT_LOCATION   # [general] location, the guide's set location
+    gateway_unit: int = 0           # [general] gateway-unit, as SlaveConfig's
     authip: tuple = ()              # the table server's allowed clients; empty: anyone
     bind: str | None = None         # the table server's one address; None: every one
+    udp_port: int = 0               # [net] udp-port: the TCP face's Modbus/UDP listener
+    rtu_port: int = 0               # [net] rtu-port: the TCP face's RTU-over-TCP listener
     lines: tuple = ()               # LineConfig (mbgw.config.lines): [[line]], beside [serial]
     routes: tuple = ()              # RouteConfig (mbgw.config.lines): [[route]]
     monitors: tuple = ()            # MonitorMap (mbgw.config.monitor): [[monitor]]

@@ -88,8 +88,8 @@ def monitor_problems(maps: tuple[MonitorMap, ...], line_modes: dict[str, str]) -
 
 
 def monitor_settings(cfg) -> tuple:
-    """What the monitor lines run with: their lines and the maps (a daemon's cfg).  They
-    are composed at start; a reload that changes this takes effect at restart."""
+    """What the monitor lines run with: their lines and the maps (a daemon's cfg); a reload
+    that changes this reconfigures them (monitor.lines.MonitorLines.reconfigure)."""
     return tuple(line for line in cfg.lines if line.is_monitor), cfg.monitors
 
 

@@ -19,9 +19,10 @@ GROUPS = ("serial", "net", "general", "table", "tls", "transparent", "web", "mqt
 # line behaviour below; [net]: the guide's "set net ..." commands and
 # our network options; [general]: the rest (logging, control socket, metrics, ...); [table]:
 # the options of class TableOption, each under its own key (--table-units is table.units).
-LINE_KEYS = frozenset({"retries", "turnaround", "late-window"})
+LINE_KEYS = frozenset({"retries", "turnaround", "late-window", "cache"})
 NET_KEYS = frozenset({"slaveid", "authip", "mdbport", "tcpto", "exception", "bind",
-                      "max-connections", "max-connections-per-ip", "request-timeout"})
+                      "max-connections", "max-connections-per-ip", "request-timeout",
+                      "udp-port", "rtu-port"})
 # The guide's keys that mbgw refuses on purpose, and why (not "unknown key").
 NOT_SUPPORTED = {
     ("net", "metric"): "not supported: the guide's gateway hop count is a route metric of the "

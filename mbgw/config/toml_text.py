@@ -11,10 +11,14 @@ import tempfile
 import tomllib
 from pathlib import Path
 
+_BARE_KEY = re.compile(r"[A-Za-z0-9_-]+")
+
 
 def dumpable(value) -> bool:
     return isinstance(value, (bool, int, float, str)) or (
-        isinstance(value, (list, tuple)) and all(dumpable(v) for v in value))
+        isinstance(value, (list, tuple)) and all(dumpable(v) for v in value)) or (
+        isinstance(value, dict) and all(isinstance(k, str) and _BARE_KEY.fullmatch(k)
+                                        and dumpable(v) for k, v in value.items()))
 
 
 def dump_value(value) -> str:
@@ -26,6 +30,8 @@ def dump_value(value) -> str:
         return json.dumps(value, ensure_ascii=False).replace("\x7f", "\\u007f")
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(dump_value(v) for v in value) + "]"
+    if isinstance(value, dict) and dumpable(value):     # an inline table (`cache`)
+        return "{ " + ", ".join(f"{k} = {dump_value(v)}" for k, v in value.items()) + " }"
     raise TypeError(f"cannot write {value!r} in TOML")
 
 

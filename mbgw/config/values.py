@@ -49,6 +49,8 @@ def _kind_problem(kinds: list[str], values: list) -> str | None:
 
 def _shape_problem(param: click.Parameter, value) -> str | None:
     """Is the TOML value the shape the option takes (scalar, list of N, list)?"""
+    if getattr(param.type, "takes_table", False) and (isinstance(value, dict) or value is False):
+        return None                        # its type checks the table's keys
     if isinstance(value, dict):
         return "expected a value, not a table"
     if param.multiple:

@@ -46,6 +46,40 @@ def rtu_request_length(request: bytes) -> int:
     return lib.mbgw_rtu_request_length(request, len(request))
 
 
+def rtu_request_end(data: bytes) -> int:
+    """Where the RTU request data begins with ends, in a stream (RTU over TCP: a frame ends
+    by its length and CRC, never by silence): its length once whole with a good CRC, minus
+    the bytes to drop once they make no good request (a bad CRC: the frame's length), 0
+    while bytes are missing.  A function whose length no rule gives ends at the shortest
+    prefix whose CRC checks."""
+    have = len(data)
+    length = lib.mbgw_rtu_request_length(data, have)
+    if length == LEN_UNKNOWN:
+        for end in range(_SHORTEST_RTU, min(have, RTU_MAX_ADU) + 1):
+            if _crc_checks(data, end):
+                return end
+        return -have if have >= RTU_MAX_ADU else 0
+    if length < 0:                          # a byte count no request has
+        return -have
+    if length == 0 or have < length:
+        return 0
+    return length if _crc_checks(data, length) else -length
+
+
+_SHORTEST_RTU = 4                           # address, function, CRC
+
+
+def _crc_checks(data: bytes, end: int) -> bool:
+    return lib.mbgw_crc16(data, end - 2) == data[end - 2] | data[end - 1] << 8
+
+
+def rtu_adu(unit: int, pdu: bytes) -> bytes:
+    """An RTU frame: address, PDU, CRC."""
+    adu = bytes((unit,)) + pdu
+    crc = lib.mbgw_crc16(adu, len(adu))
+    return adu + bytes((crc & 0xFF, crc >> 8))
+
+
 class _AsciiBuffers(threading.local):
     """Each line thread's own buffers: the C calls release the GIL, so two ASCII lines (a
     serial face and a line in slave mode) would otherwise write into one."""
@@ -263,10 +297,13 @@ def _strerror(code: int) -> str:
 class Port:
     """One serial line, opened and configured by libmodbus, claimed for this process."""
 
-    def __init__(self, device: str, baudrate: int, parity: str, data_bits: int, stop_bits: int):
+    def __init__(self, device: str, baudrate: int, parity: str, data_bits: int, stop_bits: int,
+                 dtr_low: bool = False, rts_low: bool = False):
+        """dtr_low, rts_low: the control lines lowered right after the first open, before
+        libmodbus opens and configures the tty."""
         self.device = device
         self._ctx: Any = None          # libmodbus's modbus_t * while the line is open
-        self._lock_fd = lib.mbgw_tty_lock(device.encode())
+        self._lock_fd = lib.mbgw_tty_lock(device.encode(), dtr_low, rts_low)
         if self._lock_fd < 0:
             code = -self._lock_fd
             reason = "in use by another program" if code == errno.EBUSY else os.strerror(code)

@@ -64,8 +64,11 @@ class SerialLine:
         # libmodbus opens and configures the tty; what it cannot do is fixed after.
         libmodbus_parity = fmt.parity if fmt.parity in "neo" else "n"
         libmodbus_rate = cfg.baudrate if cfg.libmodbus_baudrate else 9600
+        # the open raises DTR and RTS: one the settings want low is lowered at once, and so
+        # is RTS where it keys an RS-485 transmitter (until a write)
         port = native.Port(cfg.device, libmodbus_rate, libmodbus_parity, fmt.data_bits,
-                           fmt.stop_bits)
+                           fmt.stop_bits, dtr_low=cfg.dtr == "low",
+                           rts_low=cfg.rts in ("low", "modem") or cfg.interface.drives_rts)
         try:
             if not cfg.libmodbus_baudrate:
                 port.set_baudrate(cfg.baudrate)

@@ -42,26 +42,15 @@ class Bus:
         self._quiet_us = cfg.t35_us
 
     def ask(self, unit: int, pdu: bytes, timeout_ms: int) -> Answer | None:
-        """Send pdu to unit; its reply, or None when none came within timeout_ms of the
-        request's start (its sending included, so that n requests to silent units take at
-        most n × timeout_ms).  A late reply from another unit, noise and broken frames are
-        skipped while the time lasts; after a unit missed its timeout, its next request waits
-        for its late reply (_sit_out_late_reply)."""
-        adu = bytes((unit,)) + pdu
+        """Send pdu to unit; its reply, or None when none came within timeout_ms
+        (ask_once).  After a unit missed its timeout, its next request waits for its late
+        reply (_sit_out_late_reply)."""
         self._sit_out_late_reply(unit)
-        start_ns = time.monotonic_ns()
-        deadline_ns = start_ns + timeout_ms * 1_000_000
-        # every request after t3.5 of quiet, as the line's rule wants; bytes still coming
-        # (noise, a reply to someone else) are skipped, never taken for this request's reply
-        self.port.wait_quiet(start_ns, self._quiet_us)
-        sent_ns = self.line.transmit_rtu(adu)
-        while True:
-            got = self.port.receive_reply(adu, deadline_ns)
-            if got.frame is not None:
-                return Answer(got.frame[1:], max(0, got.last_byte_ns - sent_ns))
-            if isinstance(got.fault, LineTimeout) or time.monotonic_ns() >= deadline_ns:
-                self._late_until[unit] = deadline_ns + timeout_ms * 1_000_000
-                return None
+        started_ns = time.monotonic_ns()
+        answer = ask_once(self.line, unit, pdu, timeout_ms, self._quiet_us)
+        if answer is None:
+            self._late_until[unit] = started_ns + 2 * timeout_ms * 1_000_000
+        return answer
 
     def _sit_out_late_reply(self, unit: int) -> None:
         """RTU has no transaction id: a unit asked again after it did not answer in time could
@@ -73,3 +62,26 @@ class Bus:
 
     def close(self) -> None:
         self.line.close()
+
+
+def ask_once(line: SerialLine, unit: int, pdu: bytes, timeout_ms: int,
+             quiet_us: int) -> Answer | None:
+    """Send pdu to unit on line (RTU, its port's end-of-frame silence set) after quiet_us of
+    quiet; its reply, or None when none came within timeout_ms of the request's start (its
+    sending included, so that n requests to silent units take at most n × timeout_ms).  A
+    late reply from another unit, noise and broken frames are skipped while the time lasts.
+    Also the running daemon's survey read, on the line's own thread."""
+    adu = bytes((unit,)) + pdu
+    port = line.port
+    start_ns = time.monotonic_ns()
+    deadline_ns = start_ns + timeout_ms * 1_000_000
+    # bytes still coming (noise, a reply to someone else) are skipped, never taken for this
+    # request's reply
+    port.wait_quiet(start_ns, quiet_us)
+    sent_ns = line.transmit_rtu(adu)
+    while True:
+        got = port.receive_reply(adu, deadline_ns)
+        if got.frame is not None:
+            return Answer(got.frame[1:], max(0, got.last_byte_ns - sent_ns))
+        if isinstance(got.fault, LineTimeout) or time.monotonic_ns() >= deadline_ns:
+            return None

@@ -16,7 +16,8 @@ from mbgw.master.status import MasterStatus
 from mbgw.master.table_service import TableService
 from mbgw.ops.counters import MasterCounters
 from mbgw.ops.reload import ReloadReport
-from mbgw.ops.service import ModeParts, origin
+from mbgw.ops.service import ModeParts, origin, remonitor
+from mbgw.routing.survey import SurveyLine, survey_commands
 
 log = logging.getLogger("mbgw")
 TICK_S = 1.0        # how often the table's file is looked at (it is saved per its interval)
@@ -62,6 +63,11 @@ def table_address(cfg: MasterConfig) -> int:
     return cfg.table.address if cfg.table.enabled else 0
 
 
+def _line_modes(cfg: MasterConfig) -> dict[str, str]:
+    """Each line's mode by name, line serial (a serial face) included."""
+    return {PRIMARY_LINE: "master", **{line.name: line.mode for line in cfg.lines}}
+
+
 async def _tick(tables: TableService) -> None:
     while True:
         await asyncio.sleep(TICK_S)
@@ -99,11 +105,22 @@ class MasterMode(ModeParts):
         self.tcp_face: Any = None      # the Modbus TCP face (slave.tcp_face.TcpFace), once any
         self.status.faces = faces
         self.table, self.health, self.trace = tables.table, slave.devices.rule, slave.hub
-        # the lines in monitor mode (monitor.lines.MonitorLines), at start only
+        # the lines in monitor mode (monitor.lines.MonitorLines), once any
+        self._make_monitors = monitors
         self.monitors: Any = \
             monitors(cfg, tables.table, slave.hub) if monitors is not None else None
         self.status.monitors = self.monitors
         self._monitored = monitor_settings(cfg)
+        self._modes = _line_modes(cfg)
+        self.commands.update(survey_commands(self.survey_lines))
+
+    def survey_lines(self) -> dict[str, SurveyLine | str]:
+        """The lines in slave mode as `mbgw scan --line` finds them; the others' modes."""
+        lines: dict[str, SurveyLine | str] = dict(self._modes)
+        if self.targets is not None:
+            for name, target in list(self.targets.lines.items()):
+                lines[name] = SurveyLine(target.inbox, target.config.serial)
+        return lines
 
     def _add_targets(self, cfg: MasterConfig) -> Any:
         """The lines in slave mode of cfg, unstarted (None: the daemon runs none)."""
@@ -125,8 +142,10 @@ class MasterMode(ModeParts):
         """The face, listening (None: cfg has none, or it runs already)."""
         if self._make_tcp_face is None or self.tcp_face is not None:
             return None
-        face = self._make_tcp_face(cfg, self._inboxes, self.tables.table if cfg.table_on
-                                   else None, self.faces.primary.hub)
+        # the gateway unit answers from the table even while it is off
+        answers = cfg.table_on or cfg.gateway_unit
+        face = self._make_tcp_face(cfg, self._inboxes, self.tables.table if answers else None,
+                                   self.faces.primary.hub)
         if face is not None:
             await face.listen()
             self.tcp_face = self.status.tcp_face = face
@@ -138,10 +157,12 @@ class MasterMode(ModeParts):
 
     def collector(self, metrics, started: float):
         slave, tables = self.faces.primary, self.tables
-        return metrics.master_collector(
+        collector = metrics.master_collector(
             self.counters, slave.devices, slave, started,
             lambda: tables.figures(slave.table_counters.snapshot()), tables.firewall_report,
             self.metered, self._tcp_clients)
+        collector.faces = lambda: self.tcp_face.faces() if self.tcp_face is not None else None
+        return collector
 
     def _tcp_clients(self) -> int | None:
         face = self.tcp_face
@@ -182,9 +203,8 @@ class MasterMode(ModeParts):
         return self.status.lines()
 
     async def apply(self, new: MasterConfig, report: ReloadReport) -> None:
-        if monitor_settings(new) != self._monitored:
-            report.at_restart("monitor")
         _log_slaveid(new)
+        self._modes = _line_modes(new)
         self.tables.reconfigure(new, report)
         if self.targets is None and _has_targets(new):
             # the first line in slave mode: reconfigure opens it (or tells the report)
@@ -199,6 +219,11 @@ class MasterMode(ModeParts):
         for target in removed:
             target.stop()
             await asyncio.to_thread(target.join)
+        if monitor_settings(new) != self._monitored:
+            self.monitors = self.status.monitors = await asyncio.to_thread(
+                remonitor, self.monitors, self._make_monitors, new, self.tables.table,
+                self.faces.primary.hub, self._idle_ms, report)
+            self._monitored = monitor_settings(new)
 
     async def _reface(self, new: MasterConfig, report: ReloadReport) -> None:
         """The Modbus TCP face: added by the first route of its, reconfigured after (it keeps

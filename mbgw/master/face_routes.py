@@ -15,15 +15,17 @@ from mbgw.config.model import Demotion, SerialConfig, UpstreamTlsConfig
 from mbgw.config.slaveid import SlaveIdTable
 
 SERVER, TABLE, LINE = "server", "table", "line"
+GATEWAY = "gateway"      # general.gateway-unit: the table's identity functions only
 
 
 class Hop:
     """Where one serial address goes: kind, and for a server its host, port and unit id, for
     a line its name, the address there and the longest its answer may take."""
-    __slots__ = ("kind", "host", "port", "unit", "line", "limit_ns", "pool", "upstream")
+    __slots__ = ("kind", "host", "port", "unit", "line", "limit_ns", "pool", "upstream",
+                 "cache")
 
     def __init__(self, kind: str, host: str = "", port: int = 0, unit: int = 0,
-                 line: str = "", limit_ns: int = 0, pool=None) -> None:
+                 line: str = "", limit_ns: int = 0, pool=None, cache=None) -> None:
         self.kind = kind
         self.host = host
         self.port = port
@@ -32,12 +34,15 @@ class Hop:
         self.limit_ns = limit_ns
         self.pool = pool              # the UpstreamPool for the server's port
         self.upstream = (host, unit)  # the device statistics' upstream (a server's)
+        self.cache = cache            # a line's: the route's cache (Exchange.cache)
 
     @property
     def label(self) -> str:
         """The target as the trace shows it."""
         if self.kind == LINE:
             return f"line {self.line}"
+        if self.kind == GATEWAY:
+            return "gateway"
         return "table" if self.kind == TABLE else self.pool.server(self.host)
 
 
@@ -57,6 +62,7 @@ class FaceSettings:
     table_address: int                 # the table's serial address (line serial's); 0: none
     table_functions: tuple[int, ...]   # what the table's serial slave answers
     line_limits_ms: tuple[tuple[str, int], ...]   # (target line, longest its answer takes)
+    gateway_unit: int = 0              # general.gateway-unit's serial address; 0: none
 
     @property
     def tcpto_ns(self) -> int:
@@ -95,7 +101,8 @@ def face_settings(cfg, line: LineConfig | None, routes: RouteMap) -> FaceSetting
         table_address=table_address,
         table_functions=table.serial_functions or table.functions,
         line_limits_ms=tuple((r.line, _line_limit_ms(cfg, r.line)) for r in own
-                             if r.line is not None))
+                             if r.line is not None),
+        gateway_unit=cfg.gateway_unit)
 
 
 def _line_limit_ms(cfg, name: str) -> int:
@@ -112,7 +119,8 @@ def _line_limit_ms(cfg, name: str) -> int:
 def build_hops(face: FaceSettings, pool_for: Callable[[int], object],
                table_on: bool) -> list[Hop | None]:
     """Each serial address's hop (index 0, the broadcast address, is None).  pool_for(port):
-    the upstream pool for servers on port; table_on: the face has the exchange table."""
+    the upstream pool for servers on port; table_on: the face has the exchange table (the
+    gateway unit answers from it too)."""
     hops: list[Hop | None] = [None] * 256
     table = Hop(TABLE) if table_on else None
     limits = dict(face.line_limits_ms)
@@ -121,7 +129,8 @@ def build_hops(face: FaceSettings, pool_for: Callable[[int], object],
             unit = route.rewrite(address)
             if route.line is not None:
                 hops[address] = Hop(LINE, unit=unit, line=route.line,
-                                    limit_ns=limits[route.line] * 1_000_000)
+                                    limit_ns=limits[route.line] * 1_000_000,
+                                    cache=route.cache)
             elif route.table:
                 hops[address] = table
             elif route.server is not None:
@@ -135,6 +144,8 @@ def build_hops(face: FaceSettings, pool_for: Callable[[int], object],
                                     pool=pool_for(face.mdbport))
     if face.table_address and table is not None:
         hops[face.table_address] = table
+    if face.gateway_unit and table_on:
+        hops[face.gateway_unit] = Hop(GATEWAY)
     hops[0] = None
     return hops
 

@@ -22,7 +22,8 @@ It waits for a frame (no deadline; the eventfd wakes it to stop) and:
   Exchange in its Inbox) and writes what it answers; a line that does not answer within its
   safety bound is 0x0B (or silence); a line that is not running, 0x0A (or silence);
 - answers a frame routed to the table from the exchange table once the line has been quiet
-  for t3.5 (mbgw.master.table_slave).
+  for t3.5 (mbgw.master.table_slave), and one for `[general] gateway-unit` the same way,
+  with the table's identity functions only (FC 8, 17, 43/14; any other is 0x01).
 A device that fails is closed, reopened when it is back (mbgw.line.supervisor), and reported
 once per change.
 Each serial address answered for has its statistics and health (mbgw.ops.device_stats), and the
@@ -51,6 +52,7 @@ from mbgw.line import native
 from mbgw.line.serial_line import SerialLine
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s, open_at_start
 from mbgw.master.face_routes import (
+    GATEWAY,
     LINE,
     SERVER,
     TABLE,
@@ -347,7 +349,8 @@ class SerialFace(LineThread[FaceSettings]):
         else:
             assert self._table is not None
             self._table.serve(adu, self._answer_quietly,
-                              self._tracer if self.trace.active else None)
+                              self._tracer if self.trace.active else None,
+                              identity=hop.kind == GATEWAY)
 
     def _receive_rtu(self) -> bytes | None:
         try:
@@ -486,7 +489,7 @@ class SerialFace(LineThread[FaceSettings]):
             reply, code, outcome = None, pdu.GATEWAY_PATH_UNAVAILABLE, Outcome.LINE_DOWN
         else:
             answered = self._lines.ask(inbox, hop.unit, adu[1:], self._received_ns,
-                                       self._received_ns + hop.limit_ns)
+                                       self._received_ns + hop.limit_ns, hop.cache)
             if answered is None:
                 self._counters.timeouts += 1
                 stats.timeouts += 1

@@ -54,7 +54,7 @@ class MasterStatus(DaemonStatus):
         if face is None:
             return {}
         return {"listening": face.addresses, "tcp_clients": face.clients(),
-                "tcp_counters": face.counters.snapshot()}
+                "tcp_counters": face.counters.snapshot(), "faces": face.faces()}
 
     def lines(self) -> list[dict]:
         """Every line: line serial and the others in master mode (faces), then those in

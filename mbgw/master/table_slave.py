@@ -34,15 +34,19 @@ class TableSlave:
             self.counters.length_errors += 1
         self.table.count_bad_frame()
 
-    def serve(self, adu: bytes, send: Send, tracer: MasterTracer | None) -> None:
+    def serve(self, adu: bytes, send: Send, tracer: MasterTracer | None,
+              identity: bool = False) -> None:
         """Answer a request (ADU without check) from the table; tracer: while someone
-        traces."""
+        traces; identity: the gateway unit's request, which only the identity functions
+        answer."""
         counts = self.counters
         counts.requests += 1
         if length_error(adu):
             counts.length_errors += 1       # the table answers it 0x03
         received_ns = time.monotonic_ns()
-        reply = self._responder.answer(memoryview(adu)[1:])
+        request = memoryview(adu)[1:]
+        reply = self._responder.answer_identity(request) if identity \
+            else self._responder.answer(request)
         outcome: str = Outcome.TABLE
         if reply is not None:
             try:

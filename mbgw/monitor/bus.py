@@ -1,12 +1,14 @@
-"""The request/reply pairs of a bus mbgw only listens to (RTU), with no I/O: bytes in,
-frames out.  A frame ends where its length says (native.rtu_request_length and
+"""The request/reply pairs of a bus mbgw only listens to, with no I/O: bytes in, frames out.
+RTU (BusDecoder): a frame ends where its length says (native.rtu_request_length and
 rtu_reply_length, the C core's rules) or, for a function whose length no rule gives, when the
-line falls quiet (`quiet`).  A frame after a request, from its address, that answers it
-(native.reply_matches) is its reply; a request followed by anything else was not answered
-(a broadcast is never answered and never counted so)."""
+line falls quiet (`quiet`).  ASCII (AsciiBusDecoder): a frame is ':' to CR LF, its LRC
+checked (a wrong one counts as a CRC error).  A frame after a request, from its address,
+that answers it (native.reply_matches) is its reply; a request followed by anything else
+was not answered (a broadcast is never answered and never counted so)."""
 import dataclasses
 from collections.abc import Callable
 
+from mbgw.errors import ChecksumError, FrameError
 from mbgw.line import native
 
 CRC_LEN = 2
@@ -125,6 +127,63 @@ class BusDecoder:
     def _tell(self, adu: bytes, what: str) -> None:
         if self._heard is not None:
             self._heard(adu, what)
+
+
+class AsciiBusDecoder(BusDecoder):
+    """The same pairs on an ASCII bus: each frame ':' to CR LF.  What comes outside a frame
+    is noise; a frame that a new ':' or the line's quiet (the inter-character timeout) cuts
+    short, or whose LRC is wrong, counts as a CRC error."""
+
+    def feed(self, data: bytes) -> None:
+        buf = self._buf
+        buf += data
+        while buf:
+            start = buf.find(b":")
+            if start < 0:
+                self.counters.noise_bytes += len(buf)
+                buf.clear()
+                return
+            if start:
+                self.counters.noise_bytes += start
+                del buf[:start]
+            end = buf.find(b"\r\n")
+            cut = buf.find(b":", 1, end if end >= 0 else len(buf))
+            if cut > 0:                 # a frame begun again before this one ended
+                self._bad(bytes(buf[:cut]))
+                del buf[:cut]
+                continue
+            if end < 0:
+                if len(buf) > native.ASCII_MAX_FRAME:
+                    self._bad(bytes(buf))
+                    buf.clear()
+                return
+            wire = bytes(buf[:end + 2])
+            del buf[:end + 2]
+            self._ascii_frame(wire)
+
+    def quiet(self) -> None:
+        """The inter-character timeout has passed: a frame begun is cut short."""
+        if self._buf:
+            self._bad(bytes(self._buf))
+            self._buf.clear()
+
+    def _ascii_frame(self, wire: bytes) -> None:
+        try:
+            adu = native.ascii_decode(wire)
+        except (ChecksumError, FrameError):
+            self._bad(wire)
+            return
+        if len(adu) < 2:
+            self._bad(wire)
+            return
+        self._frame(adu, self._could_be_reply(adu))
+
+
+def decoder_for(protocol: str, counters: MonitorCounters, answered: Answered,
+                heard: Callable[[bytes, str], None] | None = None) -> BusDecoder:
+    """The decoder of a line of this protocol ("rtu" or "ascii")."""
+    kind = AsciiBusDecoder if protocol == "ascii" else BusDecoder
+    return kind(counters, answered, heard)
 
 
 def _checks(wire: bytes) -> bool:

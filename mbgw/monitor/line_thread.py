@@ -13,7 +13,7 @@ import time
 from mbgw.config.lines import LineConfig
 from mbgw.line.serial_line import SerialLine, read_tty
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread
-from mbgw.monitor.bus import BusDecoder, MonitorCounters
+from mbgw.monitor.bus import MonitorCounters, decoder_for
 from mbgw.monitor.store import MapStore
 from mbgw.ops.eventfd import drain
 from mbgw.ops.trace import Outcome
@@ -22,12 +22,13 @@ _IN = select.POLLIN
 
 
 def listening(line: LineConfig) -> LineConfig:
-    """The line's settings as a listener opens its port: its transmitter never keyed."""
+    """The line's settings as a listener opens its port: its transmitter never keyed, DTR
+    and RTS lowered as soon as it is open (csrc/tty.c mbgw_tty_lock)."""
     serial = line.serial
     if not serial.interface.drives_rts:    # nor RTS/CTS flow control, which would raise it
         serial = dataclasses.replace(serial, rts="low",
                                      cts="ignore" if serial.rts == "flow" else serial.cts)
-    return dataclasses.replace(line, serial=serial)
+    return dataclasses.replace(line, serial=dataclasses.replace(serial, dtr="low"))
 
 
 def transmitter_off(line: SerialLine) -> SerialLine:
@@ -47,7 +48,12 @@ class MonitorLineThread(LineThread[LineConfig]):
         self.name_line(cfg.name)
         self.store = store
         self.trace = trace
-        self.decoder = BusDecoder(self.counters, store.answered, self._heard)
+        serial = cfg.serial
+        self.decoder = decoder_for(serial.protocol, self.counters, self._answered, self._heard)
+        # a frame begun ends when the line has been quiet this long: t3.5 (RTU), the
+        # inter-character timeout (ASCII)
+        self._quiet_s = serial.ascii_timeout_ms / 1000 if serial.protocol == "ascii" \
+            else serial.t35_us / 1e6
         self._poll = select.poll()
         self._wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         self._poll.register(self._wake_fd, _IN)
@@ -61,8 +67,19 @@ class MonitorLineThread(LineThread[LineConfig]):
         return self._cfg.serial.device
 
     @property
+    def settings(self) -> LineConfig:
+        return self._cfg
+
+    def use_maps(self, store: MapStore) -> None:
+        """New maps (a reload; any thread): the next pair heard is stored under them."""
+        self.store = store
+
+    def _answered(self, request: bytes, reply: bytes) -> None:
+        self.store.answered(request, reply)
+
+    @property
     def turn_limit_s(self) -> float:
-        return self._cfg.serial.t35_us / 1e6 + TURN_MARGIN_S
+        return self._quiet_s + TURN_MARGIN_S
 
     def _open_line(self) -> SerialLine:
         return transmitter_off(SerialLine(self._cfg.serial, self.counters))
@@ -103,8 +120,7 @@ class MonitorLineThread(LineThread[LineConfig]):
             return
         self.counters.bytes_received += len(data)
         self.decoder.feed(data)
-        self._quiet_at = time.monotonic() + self._cfg.serial.t35_us / 1e6 \
-            if self.decoder.pending else None
+        self._quiet_at = time.monotonic() + self._quiet_s if self.decoder.pending else None
 
     def _heard(self, adu: bytes, what: str) -> None:
         if self.trace.active:

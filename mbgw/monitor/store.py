@@ -12,6 +12,7 @@ class MapStore:
     def __init__(self, maps: tuple[MonitorMap, ...], table) -> None:
         """maps: this line's maps; table: the exchange table (mbgw.table.memory.Table)."""
         self._table = table
+        self.maps = maps
         self._maps: dict[tuple[int, int], list[MonitorMap]] = defaultdict(list)
         for m in maps:
             self._maps[m.unit, m.function].append(m)

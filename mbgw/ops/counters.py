@@ -57,6 +57,25 @@ class Counters(_Counting):
     connections_timed_out: int = 0
 
 
+# The Modbus TCP face's listeners, as a firewall rule's listener names them
+FACE_LISTENERS = ("plain", "tls", "udp", "rtu")
+
+
+@dataclass(slots=True)
+class FaceCounters(_Counting):
+    """One listener of the Modbus TCP face: what came in on it."""
+    requests: int = 0
+    refused: int = 0            # by authip or the firewall: connections and requests
+    retransmissions: int = 0    # udp: a request again within stout, answered from memory
+    bad_frames: int = 0         # rtu: a bad CRC; udp: a datagram that is no MBAP frame
+    dropped: int = 0            # udp: from a source with as many requests in the gateway
+    #                             as a TCP client may have (it is not read meanwhile)
+
+
+def face_counters() -> dict[str, FaceCounters]:
+    return {listener: FaceCounters() for listener in FACE_LISTENERS}
+
+
 @dataclass(slots=True)
 class RemoteCounters(Counters):
     """A remote line's (`connect`): slave mode's, and its connection's."""

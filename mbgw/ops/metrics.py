@@ -145,6 +145,8 @@ class DaemonCollector:
         self.servers: Callable[[], list[dict]] | None = None
         # () -> northbound MQTT's status (mbgw.northbound.counters), or None: MQTT off
         self.mqtt: Callable[[], dict | None] | None = None
+        # () -> the Modbus TCP face's figures by listener (the status's "faces"), or None
+        self.faces: Callable[[], dict | None] | None = None
         self.lines: Callable[[], list[dict]] = lambda: [
             {"name": PRIMARY_LINE, "mode": mode, "state": "up" if up() else "down"}]
 
@@ -152,7 +154,9 @@ class DaemonCollector:
         yield from self._daemon()
         lines = list(self._lines())
         yield from self._line_counters(lines)
-        yield line_up_family(self.lines())
+        rows = self.lines()
+        yield line_up_family(rows)
+        yield from cache_families(rows)
         for name, help_text, value in self._gauges():
             yield GaugeMetricFamily(name, help_text, value=value)
         table = [(name, d) for name, _, devices in lines for d in devices.all()]
@@ -172,6 +176,9 @@ class DaemonCollector:
         mqtt = self.mqtt() if self.mqtt is not None else None
         if mqtt is not None:
             yield from mqtt_families(mqtt)
+        faces = self.faces() if self.faces is not None else None
+        if faces:
+            yield from face_families(faces)
 
     def _daemon(self):
         info = GaugeMetricFamily("mbgw_info", "mbgw's version and mode (always 1).",
@@ -358,6 +365,33 @@ def line_up_family(rows: list[dict]) -> GaugeMetricFamily:
     return up
 
 
+def cache_families(rows: list[dict]):
+    """mbgw_cache_requests_total and mbgw_cache_served_age_seconds of every line with a
+    cache, from the status's "lines" rows (mbgw.routing.cache)."""
+    requests = CounterMetricFamily(
+        "mbgw_cache_requests", "Reads under a cache rule, by line, serial address and "
+        "outcome: hits (fresh data), coalesced (an identical read's answer), misses (went on "
+        "the line), stale_served (old data after a failure).", labels=["line", "unit", "outcome"])
+    ages = HistogramMetricFamily(
+        "mbgw_cache_served_age_seconds", "Age of the data served from memory (fresh or "
+        "stale): time since the slave's reply ended.", labels=["line"])
+    for row in rows:
+        cache = row.get("cache")
+        if cache is None:
+            continue
+        for unit, figures in cache["units"].items():
+            for outcome, n in figures.items():
+                requests.add_metric([row["name"], unit, outcome], n)
+        served = cache["ages"]
+        bounds = [floatToGoString(ms / 1000) for ms in served["bounds_ms"]] + ["+Inf"]
+        cumulative, buckets = 0, []
+        for bound, n in zip(bounds, served["counts"], strict=True):
+            cumulative += n
+            buckets.append((bound, cumulative))
+        ages.add_metric([row["name"]], buckets, served["sum_ms"] / 1000)
+    yield from (requests, ages)
+
+
 _SERVER_HELP = {
     "requests": "Requests routed to the remote Modbus TCP server (broadcasts included).",
     "replies": "Replies from the server (exception replies included).",
@@ -394,6 +428,35 @@ def server_families(rows: list[dict]):
     for row in rows:
         connections.add_metric([row["server"]], len(row["connections"]))
     yield connections
+
+
+_FACE_HELP = {
+    "requests": "Requests received on the Modbus TCP face, by listener (plain, tls, udp, "
+                "rtu).",
+    "refused": "Connections and requests refused by authip or the firewall, by listener "
+               "(a refused UDP source gets no datagram).",
+    "retransmissions": "UDP requests received again within stout, answered from memory "
+                       "without reaching the target.",
+    "bad_frames": "RTU-over-TCP requests dropped for a bad CRC, datagrams on udp-port that "
+                  "are no MBAP frame.",
+    "dropped": "UDP requests dropped unanswered: their source had 16 requests in the gateway "
+               "already (a TCP client is not read meanwhile).",
+}
+
+
+def face_families(faces: dict[str, dict[str, int]]):
+    """The Modbus TCP face's families, labelled by listener, from the status's "faces"."""
+    for name, help_text in _FACE_HELP.items():
+        family = CounterMetricFamily(f"mbgw_face_{name}", help_text, labels=["listener"])
+        for listener, figures in faces.items():
+            family.add_metric([listener], figures[name])
+        yield family
+    clients = GaugeMetricFamily("mbgw_face_clients", "Clients of the Modbus TCP face now, by "
+                                "listener (udp: the sources it remembers).",
+                                labels=["listener"])
+    for listener, figures in faces.items():
+        clients.add_metric([listener], figures["clients"])
+    yield clients
 
 
 SCENARIO_STATES = ("starting", "running", "error", "disabled")

@@ -129,6 +129,11 @@ def _listeners(cfg) -> list[tuple[str, str | None, int]]:
         found.append(("net.mdbport", bind, cfg.mdbport))
     if cfg.tls.enabled and _tls_served(cfg):
         found.append(("tls.port", bind, cfg.tls.port))
+    rtu_port = getattr(cfg, "rtu_port", 0)
+    if rtu_port:
+        if master:      # the TCP face's own plain port, beside the table's
+            found.append(("net.mdbport", bind, cfg.mdbport))
+        found.append(("net.rtu-port", bind, rtu_port))
     transparent = getattr(cfg, "transparent", None)
     if transparent is not None and transparent.raw_port is not None:
         found.append(("transparent.raw-port", bind, transparent.raw_port))

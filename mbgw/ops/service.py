@@ -221,3 +221,24 @@ def warn_of_overlaps(cfg) -> None:
 def log_stopped(counters) -> None:
     log.info("stopped; counters: %s",
              " ".join(f"{k}={v}" for k, v in counters.snapshot().items()))
+
+
+def remonitor(monitors, make, cfg, table, hub, idle_ms: int, report):
+    """The monitor lines after a reload to cfg (blocking: a worker thread's call): monitors
+    (monitor.lines.MonitorLines; None: none ran) reconfigured, or, for the first ones, made by
+    make(cfg, table, hub) (the daemon's factory, mbgw.gateway's; None: none run here) and
+    started.  Returns them (None: none)."""
+    if monitors is not None:
+        monitors.reconfigure(cfg, report)
+        return monitors
+    if make is None:
+        return None
+    try:
+        made = make(cfg, table, hub)
+    except errors.SerialError as err:     # a device there that does not open
+        log.error("monitor lines not opened: %s", err.strerror or err)
+        report.refuse("lines", f"monitor lines: {err.strerror or err}")
+        return None
+    if made is not None:
+        made.start(idle_ms)
+    return made

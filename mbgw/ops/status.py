@@ -137,11 +137,16 @@ async def until_closed(reader: asyncio.StreamReader) -> None:
 
 
 def line_row(name: str, device: str, mode: str, state: str, counters: dict,
-             devices: list[dict]) -> dict:
+             devices: list[dict], cache: dict | None = None) -> dict:
     """One line as `mbgw status` shows it: its name, device, mode and state, the three
-    counters the table shows, all its counters and its devices (each naming the line)."""
+    counters the table shows, all its counters and its devices (each naming the line); a
+    line whose cache has served or missed: its figures by unit and the ages it served
+    (mbgw.routing.cache.ReadCache.status)."""
     for row in devices:
         row["line"] = name
-    return {"name": name, "device": device, "mode": mode, "state": state,
-            "requests": counters["requests"], "replies": counters["replies"],
-            "timeouts": counters["timeouts"], "counters": counters, "devices": devices}
+    row = {"name": name, "device": device, "mode": mode, "state": state,
+           "requests": counters["requests"], "replies": counters["replies"],
+           "timeouts": counters["timeouts"], "counters": counters, "devices": devices}
+    if cache is not None and cache["units"]:
+        row["cache"] = cache
+    return row

@@ -43,6 +43,7 @@ class TraceEvent(TypedDict, total=False):
     remote: str | None      # the far end as mbgw shows it: the client (slave mode), the
     #                         target (master mode: a server's address, "table", a line)
     client: int             # slave mode: the client's id (mbgw status)
+    face: str               # the listener the client came in by: plain, tls, udp, rtu
     mode: str               # "master" in master mode, "transparent" in transparent mode
     server: str | None      # master mode: the target shown (IP:port, "table", a line)
     scenario: str           # a scenario's run: its name (and neither peer nor local)
@@ -77,6 +78,8 @@ class Outcome(StrEnum):
     FIREWALL = "firewall"                     # refused by the firewall (0x01)
     WITHDRAWN = "client gone"                 # its source closed before its turn
     CRC_ERROR = "crc error"                   # a monitor line: a frame heard that does not check
+    COALESCED = "coalesced"                   # the answer of an identical read under way
+    # and from memory (mbgw.routing.cache): "cached <age> ms", "stale <age> ms"
 
 
 log = logging.getLogger("mbgw.trace")

@@ -12,6 +12,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Hashable
 
+from mbgw.config.cache import CacheRule, RouteCache
 from mbgw.errors import Interrupted
 from mbgw.ops.eventfd import drain
 
@@ -26,16 +27,31 @@ Done = Callable[["Exchange", "bytes | None", str], None]
 class Exchange:
     """What a face hands a target: the address on the target (the unit after the route's
     rewrite), the PDU, when it arrived, who is owed the answer."""
-    __slots__ = ("source", "address", "pdu", "received_ns", "done", "context")
+    __slots__ = ("source", "address", "pdu", "received_ns", "done", "context", "cache")
 
     def __init__(self, source: Hashable, address: int, pdu: bytes, received_ns: int,
-                 done: Done, context: object = None) -> None:
+                 done: Done, context: object = None,
+                 cache: RouteCache = None) -> None:
         self.source = source          # fairness: one turn in the target's ring per source
         self.address = address        # serial address (line) or unit id (server)
         self.pdu = pdu
         self.received_ns = received_ns
         self.done = done
         self.context = context        # the face's own (its client, tid, unit): never read here
+        self.cache = cache            # its route's cache (None: the line's, False: off)
+
+
+class SurveyRead(Exchange):
+    """An operator's commissioning read (`mbgw scan`/`probe --line`): one request on the
+    line in its source's turn, outside the line's rules (no retries, no demotion, no books),
+    with a timeout of its own; the target sets response_ns before done."""
+    __slots__ = ("timeout_ms", "response_ns")
+
+    def __init__(self, source: Hashable, address: int, pdu: bytes, received_ns: int,
+                 done: Done, timeout_ms: int) -> None:
+        super().__init__(source, address, pdu, received_ns, done)
+        self.timeout_ms = timeout_ms
+        self.response_ns = 0      # from the request's last byte to the reply's last byte
 
 
 class Inbox:
@@ -67,10 +83,12 @@ class Inbox:
 # --- a line's turns: the queue in front of the serial line ---
 
 class Job:
-    __slots__ = ("client", "tid", "unit", "adu", "outcome", "received_ns", "probe", "exchange")
+    __slots__ = ("client", "tid", "unit", "adu", "outcome", "received_ns", "probe", "exchange",
+                 "cache")
 
     def __init__(self, client, tid: int, unit: int, adu: bytes, received_ns: int = 0,
-                 probe: bool = False, exchange: Exchange | None = None) -> None:
+                 probe: bool = False, exchange: Exchange | None = None,
+                 cache: CacheRule | None = None) -> None:
         self.client = client       # None for an exchange (another face's) or a scenario
         self.exchange = exchange   # its done() is told the outcome
         self.tid = tid
@@ -79,6 +97,7 @@ class Job:
         self.outcome: str = ""     # set by the line thread: an ops.trace.Outcome
         self.received_ns = received_ns
         self.probe = probe         # admitted while its address is down: it goes on the line
+        self.cache = cache         # a read under a cache rule (mbgw.routing.cache)
 
 
 # What take() returns for the scenario queue's turn: the line thread runs the scenario due.
@@ -226,10 +245,13 @@ class AnswerWait:
         self._answered: deque[tuple[Exchange, bytes | None, str]] = deque()
 
     def ask(self, inbox: Inbox, address: int, request: bytes, received_ns: int,
-            deadline_ns: int) -> tuple[bytes | None, str] | None:
+            deadline_ns: int, cache: RouteCache = None
+            ) -> tuple[bytes | None, str] | None:
         """The target's (reply PDU or None for silence, outcome) to the request PDU for the
-        address there; None when it has not answered by deadline_ns.  Raises Interrupted."""
-        exchange = Exchange(self._source, address, request, received_ns, self._done)
+        address there; None when it has not answered by deadline_ns.  cache: the route's
+        (Exchange.cache).  Raises Interrupted."""
+        exchange = Exchange(self._source, address, request, received_ns, self._done,
+                            cache=cache)
         inbox.submit(exchange)
         while True:
             while self._answered:

@@ -28,9 +28,12 @@ from mbgw.line.native import (
     ClientReader,
     Forward,
     counter,
+    rtu_adu,
+    rtu_request_end,
     split_frames,
     whole_frame,
 )
+from mbgw.ops.counters import FaceCounters
 from mbgw.ops.eventfd import drain
 from mbgw.ops.limits import WarnLimit
 from mbgw.routing.queue import Queue
@@ -60,6 +63,8 @@ class Client:
     listener = "plain"
     guard: Guard | None = None
     firewall_refused = 0
+    face = FaceCounters()           # its listener's figures (Listener.admit gives them)
+    max_in_flight = MAX_IN_FLIGHT
     # Its poller (Connections): on_change(client) when what the client can take may have
     # changed (readable, output_waiting, held); polled_in: whether it is polled for input.
     on_change: Callable[["Client"], None] | None = None
@@ -102,7 +107,7 @@ class Client:
         with another target, or on the line)."""
         flight = self.flight
         flight[0] += 1
-        if flight[0] >= MAX_IN_FLIGHT and self.polled_in:
+        if flight[0] >= self.max_in_flight and self.polled_in:
             self._changed()
 
     def answered(self, forwarded: int = -1) -> None:
@@ -121,7 +126,7 @@ class Client:
 
     @property
     def readable(self) -> bool:
-        return self.in_flight < MAX_IN_FLIGHT and len(self._out) < OUTPUT_LIMIT
+        return self.in_flight < self.max_in_flight and len(self._out) < OUTPUT_LIMIT
 
     @property
     def output_waiting(self) -> bool:
@@ -170,15 +175,19 @@ class Client:
         now = time.monotonic()
         self.last_active = now
         frames = list(itertools.islice(split_frames(buf),
-                                       max(0, MAX_IN_FLIGHT - self.in_flight)))
+                                       max(0, self.max_in_flight - self.in_flight)))
         self.held = whole_frame(buf)
+        self._framed(buf, frames, now)
+        return frames
+
+    def _framed(self, buf: bytearray, frames: list, now: float) -> None:
+        """After received() framed what it could: held told, the partial request dated."""
         if self.held:
             self._changed()
         if not buf or self.held:
             self.partial_since = 0.0
         elif frames or not self.partial_since:
             self.partial_since = now
-        return frames
 
     def send(self, frame: bytes) -> None:
         """Onto the socket now, or behind the replies it could not take yet."""
@@ -301,6 +310,55 @@ class TlsClient(Client):
                     pass
 
 
+class RtuClient(Client):
+    """An RTU-over-TCP connection ("TCP with CRC"): RTU frames in the stream, each ending by
+    its length and CRC (line/native.rtu_request_end), never by a pause, so a request may come
+    in pieces or with others in one segment.  A request with a bad CRC is dropped and
+    counted; the connection stays open.  RTU has no transaction id: one request of it is in
+    the gateway at a time, so its replies go back in order.  Never read or written by C,
+    whose replies are MBAP."""
+    listener = "rtu"
+    max_in_flight = 1
+
+    def __init__(self, sock: socket.socket, host: str, peer: str, local: str) -> None:
+        super().__init__(sock, host, peer, local)
+        self._tid = 0               # the gateway's own, for the trace: RTU has none
+
+    def received(self, data, arrived_ns: int) -> list:
+        buf = self._buf
+        buf += data
+        self.arrived_ns = max(arrived_ns, self.resumed_ns)
+        now = time.monotonic()
+        self.last_active = now
+        frames: list[tuple[int, int, bytes]] = []
+        end = rtu_request_end(bytes(buf)) if buf else 0
+        while end:
+            if end < 0:
+                del buf[:-end]
+                self.face.bad_frames += 1
+            elif self.in_flight + len(frames) >= self.max_in_flight:
+                break
+            else:
+                self._tid = (self._tid + 1) & 0xFFFF
+                frames.append((self._tid, buf[0], bytes(buf[1:end - 2])))
+                del buf[:end]
+            end = rtu_request_end(bytes(buf)) if buf else 0
+        self.held = end > 0
+        self._framed(buf, frames, now)
+        return frames
+
+    def send(self, frame: bytes) -> None:
+        """frame: the reply as MBAP (Router's), sent as RTU."""
+        super().send(rtu_adu(frame[6], frame[7:]))
+
+    def forward_target(self, tid: int, unit: int, yield_cpu: bool) -> Forward:
+        return NO_FORWARD
+
+    @property
+    def at_rest(self) -> bool:
+        return False                    # never the C shortcut's to read
+
+
 class Connections:
     def __init__(self, wake_fd: int, on_request, on_closed, counters) -> None:
         self._wake_fd = wake_fd
@@ -314,6 +372,8 @@ class Connections:
         self._adopted: deque[Client] = deque()     # from the asyncio thread, not yet polled
         self._reader = ClientReader(RECEIVE_SIZE)
         self._also: dict = {}                      # fd -> on_ready (poll_also)
+        self._ports: deque = deque()     # the UDP face's sockets (watch), not yet polled
+        self._watched: list = []         # those polled
         self._again: list[Client] = []   # whole requests held, room again: served unpolled
         # the clients whose readability or output may have changed since update() (told by
         # Client.on_change), so that no wait scans them all
@@ -326,6 +386,12 @@ class Connections:
     def adopt(self, client: Client) -> None:
         """Asyncio thread: from now on the line thread serves client."""
         self._adopted.append(client)
+        os.eventfd_write(self._wake_fd, 1)
+
+    def watch(self, port) -> None:
+        """Asyncio thread: from now on wait() calls port.ready() when port.fd has input (the
+        UDP face's sockets, mbgw.slave.udp_face.UdpPort), until close_all() closes it."""
+        self._ports.append(port)
         os.eventfd_write(self._wake_fd, 1)
 
     def poll_also(self, fd: int, on_ready) -> None:
@@ -412,6 +478,12 @@ class Connections:
     def close_all(self) -> None:
         while self._adopted:
             self._adopted.popleft().close()
+        self._take_ports()
+        for port in self._watched:
+            self._poll.unregister(port.fd)
+            del self._also[port.fd]
+            port.close()
+        self._watched.clear()
         for client in list(self._clients.values()):
             self._close(client)
 
@@ -419,6 +491,7 @@ class Connections:
         drain(self._wake_fd)
         if self.on_wake is not None:
             self.on_wake()
+        self._take_ports()
         while self._adopted:
             # read at once: what a newcomer sent must not wait for the next transaction
             client = self._adopted.popleft()
@@ -431,6 +504,12 @@ class Connections:
             client.on_change = self._changes.append
             self._changes.append(client)    # looked at in the next update(), once
             self._serve(client, _IN, on_request=on_request)
+
+    def _take_ports(self) -> None:
+        while self._ports:
+            port = self._ports.popleft()
+            self.poll_also(port.fd, port.ready)
+            self._watched.append(port)
 
     def update(self) -> None:
         """Under the gate: poll each client that changed for what it can take now: no

@@ -16,8 +16,9 @@ from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceHealth, HealthRule
 from mbgw.ops.load import LineLoad
 from mbgw.ops.reload import ReloadReport
-from mbgw.ops.service import ModeParts, origin
+from mbgw.ops.service import ModeParts, origin, remonitor
 from mbgw.routing.queue import Inbox, Scheduler
+from mbgw.routing.survey import SurveyLine, survey_commands
 from mbgw.scenarios.engine import Scenarios
 from mbgw.slave.line_share import LineShare
 from mbgw.slave.line_thread import SlaveLineThread, serial_scenarios
@@ -105,10 +106,22 @@ class SlaveMode(ModeParts):
         self._idle_ms = -1                 # the watchdog's idle limit, for lines added later
         self.engines["serial"] = self.serial_engine
         self.table, self.health, self.trace = self.tables.table, devices.rule, self.server.trace
-        # the lines in monitor mode (monitor.lines.MonitorLines), at start only
+        # the lines in monitor mode (monitor.lines.MonitorLines), once any
+        self._make_monitors = monitors
         self.monitors: Any = monitors(cfg, self.tables.table, self.targets.hub) \
             if monitors is not None else None
         self._monitored = monitor_settings(cfg)
+        self.commands.update(survey_commands(self.survey_lines))
+
+    def survey_lines(self) -> dict[str, SurveyLine | str]:
+        """Line serial and the target lines as `mbgw scan --line` finds them; the others'
+        modes."""
+        cfg = self.running
+        lines: dict[str, SurveyLine | str] = {line.name: line.mode for line in cfg.lines}
+        lines[PRIMARY_LINE] = SurveyLine(self.serial_inbox, cfg.serial)
+        for name, target in list(self.targets.lines.items()):
+            lines[name] = SurveyLine(target.inbox, target.config.serial)
+        return lines
 
     def _share_serial_inbox(self, cfg: SlaveConfig) -> None:
         """Line serial's inbox among the targets' once the daemon has lines: before, line
@@ -139,6 +152,7 @@ class SlaveMode(ModeParts):
                                   self.load)
         self.status.targets = self.targets
         self.status.line_share = self.line_share
+        self.status.cache = self.server.cache
         self.status.faces = self.serial_faces
         self.status.monitors = self.monitors
         self.status.servers = self.server_rows
@@ -161,6 +175,7 @@ class SlaveMode(ModeParts):
             lambda: server.firewall.report() if server.firewall.configured else None,
             self.metered)
         collector.servers = self.server_rows
+        collector.faces = server.face_figures
         return collector
 
     def metered(self) -> list[tuple]:
@@ -199,8 +214,6 @@ class SlaveMode(ModeParts):
         return self.status.lines()
 
     async def apply(self, new: SlaveConfig, report: ReloadReport) -> None:
-        if monitor_settings(new) != self._monitored:
-            report.at_restart("monitor")
         self._share_serial_inbox(new)
         self.tables.reconfigure(new, report)
         removed = await asyncio.to_thread(self.targets.reconfigure, new, report)
@@ -219,6 +232,12 @@ class SlaveMode(ModeParts):
         if old_servers is not None:
             old_servers.stop()
             await asyncio.to_thread(old_servers.join_and_close)
+        if monitor_settings(new) != self._monitored:
+            self.monitors = await asyncio.to_thread(
+                remonitor, self.monitors, self._make_monitors, new, self.tables.table,
+                self.targets.hub, self._idle_ms, report)
+            self.status.monitors = self.monitors
+            self._monitored = monitor_settings(new)
         self.running = new
 
     def _reface(self, new: SlaveConfig, report: ReloadReport) -> list:

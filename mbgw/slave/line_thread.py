@@ -23,6 +23,7 @@ Requests from other faces come as Exchanges through an Inbox (use_inbox): a targ
 (mbgw.slave.targets) has no client of its own and takes only those; each is admitted by the
 same rules as a client's request and queued in its source's turn, and its outcome goes to
 Exchange.done on this thread."""
+import contextlib
 import errno
 import logging
 import math
@@ -30,17 +31,28 @@ import threading
 import time
 from typing import Hashable
 
+from mbgw.config.cache import CacheRule
 from mbgw.config.model import SlaveConfig
 from mbgw.errors import LineTimeout, SerialError
 from mbgw.line.native import HEADER, HEADER_LEN, NO_FORWARD, Reception
 from mbgw.line.serial_line import SerialLine
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s
+from mbgw.line.survey import ask_once
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceHealth
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.ops.trace import Outcome
 from mbgw.protocol import pdu
-from mbgw.routing.queue import SCENARIO_TURN, Exchange, Inbox, Job, Queue, Scheduler
+from mbgw.routing.cache import WRITTEN, ReadCache, is_read, resolve
+from mbgw.routing.queue import (
+    SCENARIO_TURN,
+    Exchange,
+    Inbox,
+    Job,
+    Queue,
+    Scheduler,
+    SurveyRead,
+)
 from mbgw.scenarios.engine import Scenarios
 from mbgw.scenarios.exchange import EXCEPTION_KINDS, FRAME_WITHOUT_REQUEST, TIMEOUT
 from mbgw.scenarios.health import SerialHealth
@@ -93,6 +105,12 @@ class SlaveLineThread(LineThread[SlaveConfig]):
         self._timed_out: dict[int, Job] = {}   # by address: the job whose late reply may come
         self._run_started = 0              # the scenario run traced last began (ns)
         self._trace = server.trace
+        # reads that share one transaction (mbgw.routing.cache); _caching: some rule has
+        # applied on this line, so its writes drop what they overlap
+        self.cache: ReadCache = server.cache
+        self._caching = cfg.cache is not None
+        # set before reconfigure(): the routes' rules to this line changed (slave.targets)
+        self.empty_cache = False
         self.configured = threading.Event()    # set when new settings are in force
         self.watch_raw(server.trace)
         if line is None:
@@ -126,7 +144,8 @@ class SlaveLineThread(LineThread[SlaveConfig]):
         # answering at the same time.
         # Nor when the TCP face routes units elsewhere: C would put them on this line.
         self._shortcut = cfg.shortcut and cfg.serial.protocol == "rtu" and \
-            line.libmodbus_sends and not cfg.serial.nocheck and self._server.shortcut_allowed
+            line.libmodbus_sends and not cfg.serial.nocheck and self._server.shortcut_allowed \
+            and cfg.cache is None      # C would put a read the cache answers on the line
         if self._shortcut:
             line.port.shortcut_rules(pdu.LIBMODBUS_FRAMED, line.char_ns,
                                      cfg.serial.stout_ms * 1_000_000, cfg.slaveid, self._down,
@@ -194,6 +213,11 @@ class SlaveLineThread(LineThread[SlaveConfig]):
             self._due_s = None
         if not reopen and self._master is not None and self._line is not None:
             self._master = self._master_on(self._line, self._master)
+        if self.empty_cache or self._cfg.cache != old.cache or \
+                route_caches(self._cfg) != route_caches(old):
+            self.empty_cache = False
+            self.cache.clear()
+        self._caching = self._caching or self._cfg.cache is not None
         self.configured.set()
 
     def _turn(self) -> None:
@@ -308,17 +332,20 @@ class SlaveLineThread(LineThread[SlaveConfig]):
 
     def _serve(self, job: Job) -> None:
         """job on the line; its outcome to its client (or face) at once, the books after."""
-        client = job.client
-        if client is None and self._withdrawn(job):
+        if self._answered_off_the_line(job):
             return
+        client = job.client
+        rule = job.cache
         got = None
         forwarded = -1
         try:
             # The reply may go straight to a client whose earlier replies have all gone out.
             # With no other request waiting for the line, that client (often woken onto this
-            # CPU) then runs before our bookkeeping.
+            # CPU) then runs before our bookkeeping.  Not a write's on a line with a cache:
+            # what it overlaps is dropped first (_cache_outcome).
             forward = client.forward_target(job.tid, job.unit, not self._scheduler.depth) \
-                if self._reader is None and client is not None else NO_FORWARD
+                if self._reader is None and client is not None and \
+                not (self._caching and job.adu[1] in WRITTEN) else NO_FORWARD
             master = self._master
             assert master is not None          # jobs are served only while the line is up
             got = self._exchange_job(master, job, forward)
@@ -343,6 +370,8 @@ class SlaveLineThread(LineThread[SlaveConfig]):
             log.exception("internal error serving %s", job.adu.hex(" "))
             job.outcome = Outcome.ERROR
             reply = self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE)
+        if rule is not None or self._caching:
+            reply = self._cache_outcome(job, rule, got, reply)
         try:
             self._deliver(job, reply, forwarded)
         except Exception:
@@ -357,6 +386,65 @@ class SlaveLineThread(LineThread[SlaveConfig]):
             self._server.take_kept()
         if master is not None and master.late_until[job.adu[0]]:
             self._timed_out[job.adu[0]] = job       # a try timed out: its reply may come
+
+    def _answered_off_the_line(self, job: Job) -> bool:
+        """A job that needs no transaction of its own: one its face withdrew, an operator's
+        survey read (it takes the line its own way), a read the cache answers."""
+        if job.client is None:
+            if self._withdrawn(job):
+                return True
+            if type(job.exchange) is SurveyRead:
+                self._survey(job, job.exchange)
+                return True
+        rule = job.cache
+        # a probe of a unit that is down goes on the line: it is what brings the unit back
+        return rule is not None and not job.probe and self._from_cache(job, rule)
+
+    # --- the read cache (mbgw.routing.cache) ---
+
+    def _from_cache(self, job: Job, rule: CacheRule) -> bool:
+        """A read whose turn has come, answered from the cache if an identical read under
+        way since it arrived, or fresh data, answers it; else it goes on the line (a miss)."""
+        cache = self.cache
+        reply = cache.answer(rule, job.adu, job.received_ns, time.monotonic_ns())
+        if reply is None:
+            cache.missed(job.adu)
+            self._caching = True
+            return False
+        job.outcome = cache.outcome()
+        self._deliver_safely(job, reply)
+        return True
+
+    def _cache_outcome(self, job: Job, rule: CacheRule | None, got: Reception | None,
+                       reply: bytes | None) -> bytes | None:
+        """After a transaction, before its reply goes out: a read's answer shared and kept,
+        dated by the end of the slave's reply (C may have forwarded it already); stale data
+        for a read that timed out; a write's overlap dropped.  The reply to send."""
+        cache = self.cache
+        adu = job.adu
+        if rule is None:
+            cache.written(adu)
+            return reply
+        now_ns = time.monotonic_ns()
+        if got is not None:
+            cache.answered(adu, reply, got.last_byte_ns or now_ns)
+            return reply
+        if job.outcome == Outcome.TIMEOUT:
+            stale = cache.stale(rule, adu, now_ns)
+            if stale is not None:
+                reply, job.outcome = stale, cache.outcome()
+        cache.failed(adu, reply, now_ns)
+        return reply
+
+    def _stale_for_down(self, job: Job) -> bool:
+        """A read refused as its unit is down, answered with stale data if its rule allows."""
+        rule = job.cache
+        reply = None if rule is None else self.cache.stale(rule, job.adu, time.monotonic_ns())
+        if reply is None:
+            return False
+        job.outcome = self.cache.outcome()
+        self._deliver(job, reply)
+        return True
 
     def _serve_taken(self, job: Job) -> None:
         """job, which the shortcut has put on the line already (_take): what C received is
@@ -393,6 +481,8 @@ class SlaveLineThread(LineThread[SlaveConfig]):
         device = self.devices.get(address)
         if device.admit(time.monotonic()):
             return False
+        if self._stale_for_down(job):
+            return True
         self._counters.demoted_rejects += 1
         job.outcome = Outcome.DEVICE_DOWN
         self._deliver(job, self._failure(job, pdu.GATEWAY_TARGET_FAILED))
@@ -514,11 +604,22 @@ class SlaveLineThread(LineThread[SlaveConfig]):
     def _admit_exchange(self, exchange: Exchange) -> None:
         """As Router._admit: a line that is down refuses at once (0x0A), an address that is
         down too (0x0B) unless this is its probe; otherwise a job in the source's turn."""
+        if type(exchange) is SurveyRead:
+            self._admit_survey(exchange)
+            return
         counters = self._counters
         counters.requests += 1
         address = exchange.address
         job = Job(None, 0, 0, bytes((address,)) + exchange.pdu, exchange.received_ns,
                   exchange=exchange)
+        rule = resolve(exchange.cache, self._cfg.cache)
+        if rule is not None and is_read(job.adu):
+            job.cache = rule
+            reply = self.cache.answer(rule, job.adu, job.received_ns, time.monotonic_ns())
+            if reply is not None:
+                job.outcome = self.cache.outcome()
+                self._deliver(job, reply)
+                return
         if self._line is None:
             counters.line_down_rejects += 1
             job.outcome = Outcome.LINE_DOWN
@@ -526,12 +627,84 @@ class SlaveLineThread(LineThread[SlaveConfig]):
             return
         if self._down[address]:
             if not self.devices.get(address).admit(time.monotonic()):
+                if self._stale_for_down(job):
+                    return
                 counters.demoted_rejects += 1
                 job.outcome = Outcome.DEVICE_DOWN
                 self._deliver(job, self._failure(job, pdu.GATEWAY_TARGET_FAILED))
                 return
             job.probe = True
         self._scheduler.submit(self._queue_of(exchange.source), job)
+
+    def _admit_survey(self, survey: SurveyRead) -> None:
+        """An operator's survey read: queued in its own turn whether or not its address is
+        down (a probe, never refused as down); the line down tells it at once."""
+        job = Job(None, 0, 0, bytes((survey.address,)) + survey.pdu, survey.received_ns,
+                  probe=True, exchange=survey)
+        if self._line is None:
+            survey.done(survey, None, Outcome.LINE_DOWN)
+            return
+        self._scheduler.submit(self._queue_of(survey.source), job)
+
+    def _survey(self, job: Job, survey: SurveyRead) -> None:
+        """One survey read on the line (mbgw.line.survey.ask_once, RTU), after the silence
+        the line owes, and t3.5 of quiet after it so that the next transaction keeps the
+        rule; nothing is booked, retried or demoted."""
+        line, master = self._line, self._master
+        assert line is not None and master is not None
+        t35_us = line.cfg.t35_us
+        reply = None
+        try:
+            owed_us = (master.quiet_until_ns - time.monotonic_ns()) // 1000
+            with self._gate_away():
+                answer = ask_once(line, survey.address, survey.pdu, survey.timeout_ms,
+                                  max(t35_us, owed_us))
+                if answer is None and self._answered_before(survey.address):
+                    self._sit_out_late_reply(line, survey.address)
+                line.port.wait_quiet(time.monotonic_ns(), t35_us)
+            if answer is None:
+                outcome = Outcome.TIMEOUT
+            else:
+                reply, survey.response_ns = answer
+                outcome = Outcome.DEVICE_EXCEPTION if reply[0] & pdu.EXCEPTION_FLAG \
+                    else Outcome.REPLY
+        except SerialError as err:
+            self._lost(err)
+            outcome = Outcome.LINE_DOWN
+        except Exception:   # a bug must cost one read, never the line
+            log.exception("internal error on a survey read %s", job.adu.hex(" "))
+            outcome = Outcome.ERROR
+        survey.done(survey, reply, outcome)
+
+    def _answered_before(self, address: int) -> bool:
+        """The line has had a valid answer from address (its devices, looked at without
+        adding one)."""
+        return any(d.address == address and d.last_success for d in self.devices.all())
+
+    def _sit_out_late_reply(self, line: SerialLine, address: int) -> None:
+        """A device the clients use missed a survey read's (short) timeout: RTU has no
+        transaction id, so its late reply would answer a client's next request to it.  The
+        line listens for it, up to the device's stout, before anything else goes out."""
+        until = time.monotonic_ns() + self._timing.stout_ns[address]
+        while time.monotonic_ns() < until:
+            got = line.port.read_reply(until, line.cfg.end_of_frame_us)
+            if got.frame is not None and got.frame[0] == address:
+                return
+
+    def _gate_away(self):
+        """The gate left to the table reader around a blocking call, while it runs; the
+        requests it kept for the line are routed after."""
+        if self._reader is None:
+            return contextlib.nullcontext()
+        return self._reader_away()
+
+    @contextlib.contextmanager
+    def _reader_away(self):
+        try:
+            with self._gate.line_away:
+                yield
+        finally:
+            self._server.take_kept()
 
     def _withdrawn(self, job: Job) -> bool:
         """An exchange whose source has closed (a TCP client gone: `closed`, read only) does
@@ -652,7 +825,18 @@ class SlaveLineThread(LineThread[SlaveConfig]):
             return None, TIMEOUT, device.retries - retried
         finally:
             master.on_retry = None
+        if self._caching:
+            self._scenario_cached(bytes((scenario.slave,)) + request, reply)
         return reply, None, device.retries - retried
+
+    def _scenario_cached(self, adu: bytes, reply: bytes | None) -> None:
+        """A scenario's read that was answered fills the cache; its write drops what it
+        overlaps."""
+        if is_read(adu):
+            if reply is not None and not reply[0] & pdu.EXCEPTION_FLAG:
+                self.cache.answered(adu, reply, time.monotonic_ns())
+        else:
+            self.cache.written(adu)
 
     def _on_line(self, master: SerialMaster, adu: bytes, retries: int, stout_ns: int = 0
                  ) -> bytes | None:
@@ -671,6 +855,11 @@ def _foreign_frames(device) -> int:
     """Whole frames heard while waiting for device's reply that were not replies: another
     address's, or a request's shape (another master's request read as a reply)."""
     return device.wrong_unit + device.invalid_frames
+
+
+def route_caches(cfg: SlaveConfig) -> list:
+    """The routes' cache rules: a reload that changes one empties the cache."""
+    return [route.cache for route in cfg.routes]
 
 
 def serial_scenarios(cfg: SlaveConfig) -> tuple:

@@ -1,6 +1,7 @@
-"""Slave mode's Modbus TCP listeners, on the asyncio thread: mdbport and tls-port, accept and
-admission, eviction, the request deadlines, the reload of the listeners, and the operator's
-close.
+"""Slave mode's Modbus TCP listeners, on the asyncio thread: mdbport, tls-port and rtu-port
+(RTU over TCP), accept and admission, eviction, the request deadlines, the reload of the
+listeners, and the operator's close; and the sockets of udp-port, handed to the line thread
+(mbgw.slave.udp_face), which reads them.
 
 authip is checked as soon as a connection is accepted, before any byte is read.  The limits
 count live connections: one whose peer has closed or reset it is forgotten first, even before
@@ -28,7 +29,7 @@ from mbgw.net.acl import AccessList
 from mbgw.net.address import format_address
 from mbgw.net.listen import listen
 from mbgw.net.tls import role_of, server_context
-from mbgw.ops.counters import Counters
+from mbgw.ops.counters import Counters, face_counters
 from mbgw.ops.limits import (
     FIRST_REQUEST_S,
     SLOW_REQUEST_S,
@@ -37,8 +38,9 @@ from mbgw.ops.limits import (
     is_resource_error,
 )
 from mbgw.ops.reload import ReloadReport
-from mbgw.slave.connections import PEER_GONE, Client, Connections, TlsClient
+from mbgw.slave.connections import PEER_GONE, Client, Connections, RtuClient, TlsClient
 from mbgw.slave.handshakes import HANDSHAKES_PER_ADDRESS, MAX_HANDSHAKES, Handshakes
+from mbgw.slave.udp_face import UdpPort
 
 log = logging.getLogger("mbgw.tcp")
 
@@ -48,11 +50,16 @@ SWEEP_S = 0.25                   # how often the clients' deadlines are looked a
 
 class Listener:
     def __init__(self, cfg: SlaveConfig, counters: Counters, connections: Connections,
-                 firewall: Firewall) -> None:
+                 firewall: Firewall, on_request=None) -> None:
         """connections: the line thread's, which adopts each client admitted; firewall: the
-        rules each client is guarded by at admission (renewed by reconfigure)."""
+        rules each client is guarded by at admission (renewed by reconfigure); on_request:
+        the router's, for the datagrams of udp-port."""
         self._cfg = cfg
         self.counters = counters
+        self.faces = face_counters()     # by listener: plain, tls, udp, rtu
+        self._on_request = on_request
+        self._rtu_listeners: list[socket.socket] = []
+        self.udp_ports: list[UdpPort] = []
         self._connections = connections
         self.firewall = firewall
         self._acl = AccessList(cfg.authip)
@@ -76,8 +83,12 @@ class Listener:
         self._listen_plain()
         try:
             self._listen_tls()
+            self._listen_rtu()
+            self._listen_udp()
         except ListenError:
             self._stop_listening()
+            self._stop_listening(tls=True)
+            self._stop_listening_rtu()
             raise
         self._sweeper = self._loop.call_later(SWEEP_S, self._sweep)
         return self.addresses()
@@ -102,9 +113,41 @@ class Listener:
         for sock in self._tls_listeners:
             self._loop.add_reader(sock.fileno(), self._accept_tls, sock)
 
+    def _listen_rtu(self) -> None:
+        """Listen on rtu-port (0: not at all).  Raises ListenError."""
+        assert self._loop is not None
+        if self._cfg.rtu_port:
+            self._rtu_listeners = listen(self._cfg.bind, self._cfg.rtu_port, option="rtu-port",
+                                         stamp_arrivals=stamp_arrivals,
+                                         backlog=LISTEN_BACKLOG)
+        for sock in self._rtu_listeners:
+            self._loop.add_reader(sock.fileno(), self._accept_rtu, sock)
+
+    def _stop_listening_rtu(self) -> None:
+        for sock in self._rtu_listeners:
+            if self._loop is not None:
+                self._loop.remove_reader(sock.fileno())
+            sock.close()
+        self._rtu_listeners.clear()
+
+    def _listen_udp(self) -> None:
+        """Bind udp-port (0: not at all); the line thread reads it from now on.  Raises
+        ListenError."""
+        if not self._cfg.udp_port:
+            return
+        assert self._on_request is not None, "udp-port needs the router's on_request"
+        for sock in listen(self._cfg.bind, self._cfg.udp_port, option="udp-port",
+                           kind=socket.SOCK_DGRAM):
+            port = UdpPort(sock, self._on_request, self._acl, self.firewall,
+                           self.faces["udp"], self._cfg.serial.stout_ms)
+            self.udp_ports.append(port)
+            self._connections.watch(port)
+
     def addresses(self) -> list[str]:
         return [format_address(s.getsockname()) for s in self._listeners] + \
-            [f"{format_address(s.getsockname())} (TLS)" for s in self._tls_listeners]
+            [f"{format_address(s.getsockname())} (TLS)" for s in self._tls_listeners] + \
+            [f"{format_address(s.getsockname())} (RTU)" for s in self._rtu_listeners] + \
+            [f"{p.local} (UDP)" for p in self.udp_ports]
 
     def _stop_listening(self, tls: bool = False) -> None:
         """Stop listening on mdbport, or (tls) on tls-port."""
@@ -131,6 +174,9 @@ class Listener:
                 self._drop(client)
         if cfg.tls != old.tls or cfg.bind != old.bind:
             self._retls(old, report)
+        for port in self.udp_ports:
+            port.renew(self._acl, self.firewall, cfg.serial.stout_ms)
+        self._relisten_faces(old, report)
         if (cfg.mdbport, cfg.bind) != (old.mdbport, old.bind):
             self._stop_listening()
             try:
@@ -144,6 +190,26 @@ class Listener:
                 self._cfg = dataclasses.replace(self._cfg, mdbport=old.mdbport, bind=old.bind)
                 self._listen_plain()
             log.info("now listening on %s", ", ".join(self.addresses()))
+
+    def _relisten_faces(self, old: SlaveConfig, report: ReloadReport) -> None:
+        """A new rtu-port listens at once (the connections open stay); a new udp-port waits
+        for a restart (the line thread reads its sockets)."""
+        cfg = self._cfg
+        if (cfg.udp_port, cfg.bind) != (old.udp_port, old.bind) and \
+                (cfg.udp_port or old.udp_port):
+            report.at_restart("udp-port")
+            self._cfg = cfg = dataclasses.replace(cfg, udp_port=old.udp_port)
+        if (cfg.rtu_port, cfg.bind) == (old.rtu_port, old.bind):
+            return
+        self._stop_listening_rtu()
+        try:
+            self._listen_rtu()
+        except ListenError as err:
+            report.refuse("rtu-port", f"cannot listen on {cfg.bind or '*'} port "
+                                      f"{cfg.rtu_port} ({err.reason}): still on "
+                                      f"{old.rtu_port or 'none'}")
+            self._cfg = dataclasses.replace(cfg, rtu_port=old.rtu_port)
+            self._listen_rtu()
 
     def _retls(self, old: SlaveConfig, report: ReloadReport) -> None:
         """New TLS settings or renewed files: the new context is for new connections; those
@@ -195,6 +261,7 @@ class Listener:
             self._sweeper.cancel()
         self._stop_listening()
         self._stop_listening(tls=True)
+        self._stop_listening_rtu()
         if self._handshakes is not None:
             self._handshakes.close()
         for client in list(self.clients):
@@ -208,6 +275,14 @@ class Listener:
         client = Client(sock, address[0], format_address(address),
                         format_address(sock.getsockname()))
         self._welcome(client)
+
+    def _accept_rtu(self, listener: socket.socket) -> None:
+        sock, address = self._accepted(listener, self._accept_rtu)
+        if sock is None:
+            return
+        sock.setblocking(False)
+        self._welcome(RtuClient(sock, address[0], format_address(address),
+                                format_address(sock.getsockname())))
 
     def _accepted(self, listener: socket.socket, handler) -> tuple:
         """(socket, address) of a newcomer on listener, or (None, None): none waits, or the
@@ -234,7 +309,8 @@ class Listener:
 
     def _resume(self, listener: socket.socket, handler) -> None:
         if self._loop is not None and (listener in self._listeners
-                                       or listener in self._tls_listeners):
+                                       or listener in self._tls_listeners
+                                       or listener in self._rtu_listeners):
             self._loop.add_reader(listener.fileno(), handler, listener)
 
     def _sweep(self) -> None:
@@ -277,6 +353,7 @@ class Listener:
         host = address[0]
         if not self._acl.allows(host):          # before any byte is read
             self.counters.connections_refused_authip += 1
+            self.faces["tls"].refused += 1
             self._log_refusal(host, "not in authip")
             sock.close()
             return
@@ -317,8 +394,10 @@ class Listener:
         self._welcome(client)
 
     def admit(self, client: Client, host: str) -> bool:
+        face = self.faces[client.listener]
         if not self._acl.allows(host):
             self.counters.connections_refused_authip += 1
+            face.refused += 1
             self._log_refusal(host, "not in authip")
             return False
         if not self._room_for(client):
@@ -326,6 +405,7 @@ class Listener:
             return False
         self.counters.connections_accepted += 1
         client.guard = self.firewall.guard(host, client.role, client.listener)
+        client.face = face
         self.clients.append(client)
         log.debug("client %s connected", client.peer)
         return True

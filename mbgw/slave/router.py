@@ -19,6 +19,7 @@ outcome back through a deque and the wake-up eventfd, and whoever holds the gate
 import time
 from collections import deque
 
+from mbgw.config.cache import CacheRule
 from mbgw.config.lines import PRIMARY_LINE
 from mbgw.config.model import SlaveConfig
 from mbgw.firewall.guard import Firewall, Guard
@@ -28,6 +29,7 @@ from mbgw.ops.device_stats import DeviceHealth
 from mbgw.ops.exception_reply import gateway_exception
 from mbgw.ops.trace import Outcome, TraceEvent, TraceHub
 from mbgw.protocol import pdu
+from mbgw.routing.cache import ReadCache, is_read, resolve
 from mbgw.routing.queue import Exchange, Inbox, Job, Scheduler
 from mbgw.slave.connections import Client
 from mbgw.slave.routes import (
@@ -75,6 +77,8 @@ class Router:
         # firewall), also in counters, the daemon's totals: line serial's own figures are
         # the difference (mbgw.slave.line_share)
         self.off_line = Counters()
+        # line serial's reads (mbgw.routing.cache): the line thread's too
+        self.cache = ReadCache()
 
     def route_face(self, cfg: SlaveConfig) -> None:
         """The face's hops for cfg, swapped whole.  At a reload the line thread calls it
@@ -101,7 +105,7 @@ class Router:
             return
         hop = self._face[unit]
         if hop is DIRECT:
-            job = self._admit(client, tid, unit, request, received_ns)
+            job = self._admit(client, tid, unit, request, received_ns, 0, self._cfg.cache)
             if job is not None:
                 client.admitted()
                 self._scheduler.submit(client.queue, job)
@@ -113,6 +117,7 @@ class Router:
         """The request counted for its client; False when the client's rule refused it (it
         is answered already)."""
         client.requests += 1
+        client.face.requests += 1
         guard = client.guard
         if guard is None or guard.allows(unit, request):
             return True
@@ -151,7 +156,8 @@ class Router:
         elif kind is GATEWAY:
             self._from_table(client, tid, unit, request, responder, False, identity=True)
         elif kind is SERIAL:
-            job = self._admit(client, tid, unit, request, received_ns, hop.rewrite(unit))
+            job = self._admit(client, tid, unit, request, received_ns, hop.rewrite(unit),
+                              resolve(hop.cache, self._cfg.cache))
             if job is not None:
                 client.admitted()
                 self._scheduler.submit(client.queue, job)
@@ -162,7 +168,7 @@ class Router:
             assert inbox is not None
             client.admitted()
             inbox.submit(Exchange(client, hop.rewrite(unit), request, received_ns,
-                                  self._completed, (client, tid, unit, hop.line)))
+                                  self._completed, (client, tid, unit, hop.line), hop.cache))
 
     def _completed(self, exchange: Exchange, reply: bytes | None, outcome: str) -> None:
         """The target's thread: the outcome waits for the thread that holds the gate (the
@@ -235,6 +241,7 @@ class Router:
         """A request the client's rule does not allow: 0x01 (a broadcast's too: it was not
         done); it reaches neither the line nor the table."""
         client.firewall_refused += 1
+        client.face.refused += 1
         tracing = self._requested(client, tid, unit, request)
         reply = self.firewall.refused(guard, client.peer, client.role, unit, request)
         self.off_line.requests += 1
@@ -253,16 +260,24 @@ class Router:
         return self._admit(client, tid, unit, request, received_ns)
 
     def _admit(self, client: Client, tid: int, unit: int, request: bytes,
-               received_ns: int, address: int = 0) -> Job | None:
+               received_ns: int, address: int = 0, rule: CacheRule | None = None
+               ) -> Job | None:
         """The job for a request that arrived at received_ns, or None when it was answered
-        at once (it cannot reach the line, or its address is down and this is no probe: it
-        must not wait in the queue for a refusal)."""
+        at once (it cannot reach the line, its address is down and this is no probe: it
+        must not wait in the queue for a refusal, or a read its cache rule answers)."""
         self._requested(client, tid, unit, request)
         address = address or self._cfg.slaveid or unit
         if address > pdu.MAX_SERIAL_ADDRESS:
             self.counters.unroutable += 1
             self._refuse(client, tid, unit, request, Outcome.UNROUTABLE, received_ns)
             return None
+        adu = bytes((address,)) + request
+        if rule is not None and is_read(adu):
+            if self._from_cache(client, tid, unit, adu, received_ns,
+                                self.cache.answer(rule, adu, received_ns, time.monotonic_ns())):
+                return None
+        else:
+            rule = None
         if not self._line_up():
             self.counters.line_down_rejects += 1
             self._refuse(client, tid, unit, request, Outcome.LINE_DOWN, received_ns)
@@ -271,11 +286,26 @@ class Router:
         if down:
             device = self._devices.get(address)
             if not device.admit(time.monotonic()):
+                if rule is not None and self._from_cache(
+                        client, tid, unit, adu, received_ns,
+                        self.cache.stale(rule, adu, time.monotonic_ns())):
+                    return None
                 self.counters.demoted_rejects += 1
                 self._refuse(client, tid, unit, request, Outcome.DEVICE_DOWN, received_ns,
                              pdu.GATEWAY_TARGET_FAILED, device)
                 return None
-        return Job(client, tid, unit, bytes((address,)) + request, received_ns, probe=down)
+        return Job(client, tid, unit, adu, received_ns, probe=down, cache=rule)
+
+    def _from_cache(self, client: Client, tid: int, unit: int, adu: bytes, received_ns: int,
+                    reply: bytes | None) -> bool:
+        """A read answered from the line's cache (reply: what it found), at once under the
+        client's own tid; False when it found nothing."""
+        if reply is None:
+            return False
+        self._answer(client, tid, unit, reply)
+        if self.trace.active:
+            self.traced(client, tid, unit, adu[1], reply, self.cache.outcome(), received_ns)
+        return True
 
     def finished(self, job: Job, reply: bytes | None, forwarded: int = -1) -> None:
         """job's outcome: its reply (if any) goes out at once, or its rest when the serial
@@ -336,6 +366,7 @@ class Router:
                outcome: str, latency_ms, line: str | None = PRIMARY_LINE) -> TraceEvent:
         return {"time": time.time(), "line": line, "direction": direction, "client": client.id,
                 "peer": client.peer, "local": client.local, "remote": client.peer,
+                "face": client.listener,
                 "tid": tid, "unit": unit,
                 "function": data[0], "length": len(data) if direction != "no reply" else 0,
                 "pdu": data.hex() if direction != "no reply" else "", "outcome": outcome,

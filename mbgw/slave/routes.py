@@ -18,7 +18,7 @@ GATEWAY = "gateway"      # general.gateway-unit: the table's identity functions 
 
 class Hop:
     """Where one unit's request goes from the TCP face, and the unit it becomes there."""
-    __slots__ = ("kind", "offset", "address", "inbox", "line")
+    __slots__ = ("kind", "offset", "address", "inbox", "line", "cache")
 
     def __init__(self, kind: str, route: RouteConfig | None = None,
                  inbox: Inbox | None = None) -> None:
@@ -26,6 +26,7 @@ class Hop:
         self.offset = route.offset if route is not None else 0
         self.address = route.address if route is not None else None
         self.inbox = inbox
+        self.cache = route.cache if route is not None else None   # None: the line's
         # the line it reaches (None: the table or a server), as the trace names it
         self.line = PRIMARY_LINE if kind == SERIAL else route.line if route is not None \
             else None

@@ -10,12 +10,15 @@ An admitted connection is handed from the first to the second through Connection
 thread's poll over the clients).  TcpServer puts the three together and is what the daemon,
 the line thread (SlaveLineThread) and the status hold.
 """
+from collections import Counter
+
 from mbgw.config.model import SlaveConfig
 from mbgw.firewall.guard import Firewall
-from mbgw.ops.counters import Counters
+from mbgw.ops.counters import Counters, FaceCounters
 from mbgw.ops.device_stats import DeviceHealth
 from mbgw.ops.reload import ReloadReport
 from mbgw.ops.trace import TraceHub
+from mbgw.routing.cache import ReadCache
 from mbgw.routing.queue import Inbox, Scheduler
 from mbgw.slave.connections import Client, Connections
 from mbgw.slave.listener import (  # noqa: F401 (the names tests and docs know here)
@@ -45,7 +48,8 @@ class TcpServer:
         self.connections = Connections(scheduler.wake_fd, self.router.request, self._closed,
                                        counters)
         self.connections.on_wake = self.router.deliver_completions
-        self.listener = Listener(cfg, counters, self.connections, firewall)
+        self.listener = Listener(cfg, counters, self.connections, firewall,
+                                 self.router.request)
         self.table = table
         self._table_functions = cfg.table.functions
         # the line thread's and the table reader's entry points
@@ -67,8 +71,24 @@ class TcpServer:
         return self.listener.clients
 
     @property
+    def faces(self) -> dict[str, FaceCounters]:
+        """The figures of each listener (plain, tls, udp, rtu)."""
+        return self.listener.faces
+
+    def face_figures(self) -> dict[str, dict[str, int]]:
+        """Each listener's figures and its clients now (UDP: the sources it remembers)."""
+        clients = Counter(c.listener for c in self.clients)
+        clients["udp"] = sum(p.sources for p in self.listener.udp_ports)
+        return {listener: {**face.snapshot(), "clients": clients[listener]}
+                for listener, face in self.faces.items()}
+
+    @property
     def inboxes(self) -> dict[str, Inbox]:
         return self.router.inboxes
+
+    @property
+    def cache(self) -> ReadCache:
+        return self.router.cache
 
     @property
     def shortcut_allowed(self) -> bool:

@@ -6,6 +6,7 @@ from collections.abc import Callable
 from mbgw.config.lines import PRIMARY_LINE, routes_status
 from mbgw.ops.load import LineLoad, average_percent
 from mbgw.ops.status import DaemonStatus, line_row
+from mbgw.routing.cache import ReadCache
 from mbgw.scenarios.report import scenarios_status
 from mbgw.slave.line_share import LineShare
 from mbgw.slave.routes import effective_routes
@@ -28,6 +29,7 @@ class SlaveStatus(DaemonStatus):
         self.line_share: LineShare | None = None    # line serial's own figures (the daemon's)
         self.scenario_engines: dict = {}    # the scenarios' engines by kind (the daemon's)
         self.targets: TargetLines | None = None     # the lines beside serial (the daemon's)
+        self.cache: ReadCache | None = None     # line serial's read cache (the daemon's)
         self.faces = None       # the lines in master mode (master.faces.LineFaces), if any
         self.monitors = None    # the lines in monitor mode (monitor.lines.MonitorLines), if any
         # () -> the remote servers the routes reach (slave.servers.ServerThread.status)
@@ -63,6 +65,7 @@ class SlaveStatus(DaemonStatus):
             **({"firewall": firewall.report(
                 (c.peer, c.role, c.firewall_refused) for c in self._server.clients)}
                if firewall.configured else {}),
+            "faces": self._server.face_figures(),
             "queue_depth": self._scheduler.depth,
             "clients": [{"id": c.id, "peer": c.peer, "connected_since": c.connected_at,
                          "requests": c.requests, "in_flight": c.in_flight,
@@ -90,7 +93,8 @@ class SlaveStatus(DaemonStatus):
         counters = (self.line_share or self._counters).snapshot()
         counters.pop("line_busy_ns", None)
         serial = line_row(PRIMARY_LINE, self.cfg.serial.device, "slave", self._worker.state,
-                          counters, devices)
+                          counters, devices,
+                          self.cache.status() if self.cache is not None else None)
         return [serial, *(self.targets.status() if self.targets is not None else ()),
                 *(self.faces.status() if self.faces is not None else ()),
                 *(self.monitors.status() if self.monitors is not None else ())]

@@ -18,6 +18,7 @@ from mbgw.ops.device_stats import DeviceHealth, HealthRule
 from mbgw.ops.reload import ReloadReport
 from mbgw.ops.status import line_row
 from mbgw.ops.trace import LineTrace, TraceHub
+from mbgw.routing.cache import ReadCache
 from mbgw.routing.queue import Inbox, Scheduler
 from mbgw.slave.connections import Connections
 from mbgw.slave.line_thread import SlaveLineThread
@@ -36,12 +37,18 @@ def line_settings(cfg: SlaveConfig | MasterConfig, line: LineConfig) -> SlaveCon
         late_window_ms=line.late_window_ms)
     settings = dataclasses.replace(
         base, serial=line.serial, retries=line.retries, demotion=line.demotion, slaveid=0,
+        cache=line.cache,
         shortcut=False, scenarios=(), table=dataclasses.replace(cfg.table, enabled=False),
         lines=(), routes=(), monitors=(), devices=line_devices(cfg.devices, line.name))
     if line.remote is not None and line.remote.mbap:
         # our own transaction ids tell a late reply from the next one's: no late window
         settings = dataclasses.replace(settings, late_window_ms=0)
     return settings
+
+
+def route_caches_to(cfg: SlaveConfig | MasterConfig, line: LineConfig) -> list:
+    """The cache rules of the routes to line: a reload that changes one empties its cache."""
+    return [r.cache for r in cfg.routes if r.line == line.name]
 
 
 class NoClients:
@@ -53,6 +60,7 @@ class NoClients:
 
     def __init__(self, scheduler: Scheduler, counters: Counters, trace: LineTrace) -> None:
         self.trace = trace
+        self.cache = ReadCache()
         self.connections = Connections(scheduler.wake_fd, self._no_client, self._no_client,
                                        counters)
 
@@ -92,6 +100,7 @@ class TargetLine:
                                           self.counters, self.devices)
         self.worker.name_line(line.name)
         self.worker.use_inbox(self.inbox)
+        self._route_caches = route_caches_to(cfg, line)
 
     def start(self) -> None:
         self.worker.start()
@@ -110,6 +119,10 @@ class TargetLine:
         self.own = line_devices(cfg.devices, line.name)
         if isinstance(self.worker, RemoteLineThread):
             self.worker.set_target(line)
+        caches = route_caches_to(cfg, line)
+        if caches != self._route_caches:
+            self._route_caches = caches
+            self.worker.empty_cache = True
         self.worker.reconfigure(line_settings(cfg, line))
 
     def status(self) -> dict:
@@ -124,7 +137,8 @@ class TargetLine:
         counters = self.counters.snapshot()
         counters.pop("line_busy_ns", None)
         return line_row(self.config.name, self.config.serial.device, self.config.mode,
-                        self.worker.state, counters, [d.snapshot() for d in self.devices.all()])
+                        self.worker.state, counters, [d.snapshot() for d in self.devices.all()],
+                        self.worker.cache.status())
 
 
 class TargetLines:

@@ -46,10 +46,12 @@ def face_settings(cfg: MasterConfig) -> SlaveConfig:
     file's (the table itself is handed to TcpServer)."""
     return SlaveConfig(
         serial=cfg.serial, exception=cfg.exception, authip=cfg.authip, mdbport=cfg.mdbport,
-        bind=cfg.bind, max_connections=cfg.max_connections, demotion=cfg.demotion,
+        udp_port=cfg.udp_port, rtu_port=cfg.rtu_port, bind=cfg.bind,
+        max_connections=cfg.max_connections, demotion=cfg.demotion,
         table=dataclasses.replace(cfg.table, enabled=False), firewall=cfg.firewall,
         tcpto_ms=cfg.tcpto_ms, tls=cfg.tls, request_timeout_ms=cfg.request_timeout_ms,
-        location=cfg.location, lines=cfg.lines, routes=cfg.routes)
+        location=cfg.location, lines=cfg.lines, routes=cfg.routes,
+        gateway_unit=cfg.gateway_unit)
 
 
 class FaceThread(threading.Thread):
@@ -142,6 +144,10 @@ class TcpFace:
                  "firewall_refused": c.firewall_refused,
                  "last_activity": now - (mono - c.last_active),
                  "listener": c.listener, "role": c.role} for c in self.server.clients]
+
+    def faces(self) -> dict[str, dict[str, int]]:
+        """Each listener's figures (plain, tls, udp, rtu), as slave mode's status has them."""
+        return self.server.face_figures()
 
     def close_client(self, client_id: int, user=None) -> bool:
         return self.server.close_client(client_id, user)

@@ -1,7 +1,7 @@
 """A real serial slave that is not our code: pymodbus's RTU server on a pty.
 
 usage: pymodbus_slave.py DEVICE [ADDRESS...] [--identity] [--silent-unknown] [--record PATH]
-                           [--record-replies]                    (default address 17)
+                           [--record-replies] [--stamp]          (default address 17)
 Holding registers 0..99 hold 100..199, input registers 0..99 hold 1000..1099,
 coils and discrete inputs alternate 1, 0 from address 0.  Broadcasts (address 0) are
 executed on every address.  Prints READY when listening.
@@ -13,6 +13,9 @@ executed on every address.  Prints READY when listening.
 --record PATH     every request pymodbus decoded, for any address, as a line
                   "<time.monotonic()> rx <address, PDU in hex>" (as fault_slave.py records, but
                   without the CRC), flushed at once: what the line carried, for the tests.
+--stamp           every register of an FC 03 reply holds how many FC 03 requests its address
+                  has had (1, 2, ...): a client can tell which transaction on the line its
+                  value came from.
 --record-replies  also every reply, as "<time.monotonic()> tx <address, PDU in hex>", taken
                   just before pymodbus writes it (so a reply's row is never later than its
                   end on the line).
@@ -57,6 +60,7 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--silent-unknown", action="store_true")
     parser.add_argument("--record")
     parser.add_argument("--record-replies", action="store_true")
+    parser.add_argument("--stamp", action="store_true")
     return parser.parse_args()
 
 
@@ -66,10 +70,13 @@ async def main() -> None:
     context = ModbusServerContext(devices={a: device() for a in addresses}, single=False)
 
     record = open(args.record, "w", buffering=1) if args.record else None
+    reads = dict.fromkeys(addresses, 0)
 
     def watch(sending: bool, pdu):
         # pymodbus's trace_pdu hook: a request dropped here is never executed nor answered.
         if sending:
+            if args.stamp and pdu.function_code == 3 and pdu.dev_id in reads:
+                pdu.registers = [reads[pdu.dev_id]] * len(pdu.registers)
             if record is not None and args.record_replies:
                 frame = bytes((pdu.dev_id, pdu.function_code)) + pdu.encode()
                 record.write(f"{time.monotonic()} tx {frame.hex()}\n")
@@ -77,6 +84,8 @@ async def main() -> None:
         if record is not None:
             frame = bytes((pdu.dev_id, pdu.function_code)) + pdu.encode()
             record.write(f"{time.monotonic()} rx {frame.hex()}\n")
+        if args.stamp and pdu.function_code == 3 and pdu.dev_id in reads:
+            reads[pdu.dev_id] += 1
         if not args.silent_unknown or pdu.dev_id == 0 or pdu.dev_id in addresses:
             return pdu
         return None
@@ -85,7 +94,7 @@ async def main() -> None:
         context, framer=FramerType.RTU, port=args.device, baudrate=19200,
         broadcast_enable=True,
         identity=ModbusDeviceIdentification(info=IDENTITY) if args.identity else None,
-        trace_pdu=watch if args.silent_unknown or record is not None else None)
+        trace_pdu=watch if args.silent_unknown or record is not None or args.stamp else None)
     await server.serve_forever(background=True)
     print("READY", flush=True)
     await asyncio.Event().wait()

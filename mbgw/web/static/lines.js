@@ -8,6 +8,17 @@ import { listOf, show } from "./format.js";
 const remoteFigures = (l) => (l.counters && "reconnects" in l.counters
   ? ` (${l.counters.reconnects} reconnects, ${l.counters.stray_replies} stray replies)` : "");
 
+// A line's read cache over its units (mbgw status's "cache"): "hits / coalesced / misses /
+// stale", or a dash for a line whose cache has not served.
+function cacheFigures(cache) {
+  if (!cache) return "—";
+  const sum = { hits: 0, coalesced: 0, misses: 0, stale_served: 0 };
+  for (const figures of Object.values(cache.units || {})) {
+    for (const key of Object.keys(sum)) sum[key] += figures[key] || 0;
+  }
+  return `${sum.hits} / ${sum.coalesced} / ${sum.misses} / ${sum.stale_served}`;
+}
+
 // "3: 2 up, 1 down"
 function health(devices) {
   if (!devices.length) return "0";
@@ -50,7 +61,7 @@ export function linesPage(body) {
       const lineRows = lines.map((l) => [show(l.name), show(l.device) + remoteFigures(l),
         show(l.mode),
         show(l.state), show(l.requests), show(l.replies), show(l.timeouts),
-        health(listOf(l, "devices"))]);
+        health(listOf(l, "devices")), cacheFigures(l.cache)]);
       const routeRows = listOf(s, "routes").map((r) => [show(r.face), show(r.units),
         show(r.target), r.rewrite ? show(r.rewrite) : "—", r.implicit ? "implicit" : ""]);
       const serverRows = listOf(s, "servers").map((r) => {
@@ -66,9 +77,10 @@ export function linesPage(body) {
       clear(tables).append(
         el("h2", { text: "Lines" }),
         lineRows.length ? table("lines-table", ["Name", "Device", "Mode", "State", "Requests",
-          "Replies", "Timeouts", "Devices"], lineRows.map((values, i) => row(
-          { "data-line": lines[i].name }, values,
-          ["line", "", "", `state-${lines[i].state}`, "num", "num", "num", "num"])))
+          "Replies", "Timeouts", "Devices", "Cache hits / coalesced / misses / stale"],
+        lineRows.map((values, i) => row({ "data-line": lines[i].name }, values,
+          ["line", "", "", `state-${lines[i].state}`, "num", "num", "num", "num",
+            "num cache"])))
           : el("p", { id: "no-lines", text: "This mode has one line, serial." }),
         el("h2", { text: "Routes" }),
         routeRows.length ? table("routes-table", ["Face", "Units", "Target", "Rewrite", ""],

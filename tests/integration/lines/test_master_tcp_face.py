@@ -3,19 +3,21 @@
 reads a meter on a [[line]] in slave mode through it (unit 32 is the meter's address 1) while
 line serial's serial master reads the same meter; unit 200 reaches the exchange table; a unit
 no route takes gets 0x0A at once and reaches no line; status and `mbgw clients` show the
-face's clients, the trace its transactions, /metrics its clients; it listens on the TLS port
-too; a reload that brings the first TCP route starts the face.
+face's clients, the trace its transactions, /metrics its clients; it listens on the TLS port,
+udp-port and rtu-port too; a reload that brings the first TCP route starts the face.
 
 Peers that are not ours: a recording pymodbus RTU slave on a socat pty pair (the meter), a
 pymodbus TCP client, and raw frames written by the test (the serial master, and a unit no
 route takes), each answer checked byte for byte."""
 import os
 import signal
+import socket
 import urllib.request
 
 import pytest
 from prometheus_client import parser
-from pymodbus.client import ModbusTcpClient
+from pymodbus.client import ModbusTcpClient, ModbusUdpClient
+from pymodbus.framer import FramerType
 
 from tests.harness import free_port
 from tests.integration.lines.test_lines import METER, METER_UNIT, hr_reply, received
@@ -135,3 +137,28 @@ def test_the_face_listens_on_the_tls_port_too(tmp_path, start_gateway, pty_pair,
         assert (row["listener"], row["role"]) == ("tls", "operator")
     finally:
         tls.close()
+
+
+def test_the_face_takes_modbus_udp_and_rtu_over_tcp_too(tmp_path, start_gateway, pty_pair,
+                                                        meters):  # noqa: F811
+    """udp-port and rtu-port in a master-mode daemon with the TCP face: its routes (unit 32
+    is the meter's address 1) on both."""
+    udp_port, rtu_port = free_port(socket.SOCK_DGRAM), free_port()
+    config = lines_file(tmp_path / "lines.toml", [meters_line(meters)], TCP_ROUTES[:1])
+    gw = start_gateway(pty_pair.gateway, "--config", str(config), "--baudrate", str(BAUD),
+                       "--udp-port", str(udp_port), "--rtu-port", str(rtu_port),
+                       mode="master")
+    udp = ModbusUdpClient("127.0.0.1", port=udp_port, timeout=REPLY_S, retries=0)
+    rtu = ModbusTcpClient("127.0.0.1", port=rtu_port, framer=FramerType.RTU,
+                          timeout=REPLY_S, retries=0)
+    try:
+        assert udp.connect() and rtu.connect()
+        assert udp.read_holding_registers(4, count=1, device_id=METER_UNIT).registers == [104]
+        assert rtu.read_holding_registers(6, count=1, device_id=METER_UNIT).registers == [106]
+    finally:
+        udp.close()
+        rtu.close()
+    assert received(meters.record) == [bytes((METER,)) + read_holding(4, 1),
+                                       bytes((METER,)) + read_holding(6, 1)]
+    faces = status(gw)["faces"]
+    assert faces["udp"]["requests"] == faces["rtu"]["requests"] == 1

@@ -567,3 +567,26 @@ def test_the_lines_page_shows_every_line_and_each_remote_servers_figures(browser
         servers.stop()
         for pair in pairs.values():
             pair.stop()
+
+
+def test_the_lines_page_shows_a_line_s_cache_figures(browser, tmp_path):
+    path = tmp_path / "mbgw.toml"
+    web_port = free_port()
+    pair = PtyPair(tmp_path)
+    peer = Peer("pymodbus_slave.py", pair.device, "1", "--silent-unknown")
+    path.write_text("\n".join(["[serial]", "baudrate = 19200", "cache = { ttl = 600000 }",
+                               "[web]", f'listen = "127.0.0.1:{web_port}"']) + "\n")
+    set_password(path, "admin")
+    gw = Gateway(tmp_path, pair.gateway, "--config", str(path))
+    try:
+        c = Client(gw.port)
+        for _ in range(3):          # one miss, then two hits
+            assert c.ask(1, read_holding(0, 2)) == bytes.fromhex("03 04 0064 0065")
+        log_in(browser, SimpleNamespace(url=f"http://127.0.0.1:{web_port}/"), "admin")
+        go(browser, "lines")
+        # hits / coalesced / misses / stale
+        wait(browser, text_in('#lines-table tr[data-line="serial"] td.cache', "2 / 0 / 1 / 0"))
+    finally:
+        gw.stop()
+        peer.stop()
+        pair.stop()

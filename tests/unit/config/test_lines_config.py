@@ -150,7 +150,7 @@ ROUTE_TO_SERIAL = '[[route]]\nunits = "1-10"\nline = "serial"\n'
     (SERIAL + '[[route]]\nline = "serial"\n', "route 1.units: missing"),
     (SERIAL + '[[route]]\nunits = "1"\nline = "serial"\nvia = "x"\n',
      "route 1.via: unknown key (keys: units, line, table, server, offset, address, from, "
-     "tls, fingerprint)"),
+     "tls, fingerprint, cache)"),
     (SERIAL + '[[route]]\nunits = "1"\nline = "nowhere"\n', "route 1.line 'nowhere': no such line"),
     (SERIAL + '[[route]]\nunits = "1"\n', "route 1: give one target"),
     (SERIAL + '[[route]]\nunits = "1"\nline = "serial"\ntable = true\n',
@@ -348,3 +348,40 @@ def test_the_gateway_unit_is_refused_inside_a_route_or_the_tables_units(tmp_path
                                                                          other):
     message = refusal(tmp_path, SERIAL + text)
     assert "general.gateway-unit" in message and other in message
+
+
+MASTER_SERIAL = '[serial]\nmode = "master"\ndevice = "/dev/ttyUSB0"\n'
+
+
+@pytest.mark.parametrize("text, other", [
+    # a serial face's own route (slave mode's [[line]] in master mode)
+    (SERIAL + METERS + PANEL + '[general]\ngateway-unit = 5\n[[route]]\nfrom = "panel"\n'
+     'units = "1-10"\nline = "meters"\n', "route 1"),
+    # master mode's line serial: a slaveid range, the table's address, a route of its own
+    (MASTER_SERIAL + '[general]\ngateway-unit = 12\n[net]\nslaveid = ["10 20 1 0 '
+     '192.168.1.5"]\n', "net.slaveid"),
+    (MASTER_SERIAL + '[general]\ngateway-unit = 100\n[table]\nenabled = true\naddress = 100\n',
+     "table.address"),
+    (MASTER_SERIAL + METERS + '[general]\ngateway-unit = 3\n[[route]]\nfrom = "serial"\n'
+     'units = "1-10"\nline = "meters"\n', "route 1"),
+    # master mode's TCP face
+    (MASTER_SERIAL + METERS + '[general]\ngateway-unit = 40\n[[route]]\nunits = "32-63"\n'
+     'line = "meters"\n', "route 1"),
+])
+def test_the_gateway_unit_is_refused_inside_any_faces_routes(tmp_path, text, other):
+    message = refusal(tmp_path, text)
+    assert "general.gateway-unit" in message and other in message
+
+
+def test_the_gateway_unit_is_a_route_of_every_face(schema, tmp_path):
+    slave = built(schema, tmp_path, SERIAL + PANEL + '[general]\ngateway-unit = 200\n')
+    assert sorted(r.face or "tcp" for r in implicit_routes(slave) if r.gateway) == \
+        ["panel", "tcp"]
+    master = built(schema, tmp_path, MASTER_SERIAL + PANEL + METERS +
+                   '[general]\ngateway-unit = 200\n[[route]]\nunits = "1-10"\n'
+                   'line = "meters"\n')
+    assert sorted(r.face or "tcp" for r in implicit_routes(master) if r.gateway) == \
+        ["panel", "serial", "tcp"]
+    without_tcp_face = built(schema, tmp_path, MASTER_SERIAL + '[general]\ngateway-unit = 9\n')
+    assert [(r.face, r.units) for r in implicit_routes(without_tcp_face) if r.gateway] == \
+        [("serial", (9,))]

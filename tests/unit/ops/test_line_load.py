@@ -57,7 +57,7 @@ def test_the_average_is_measured_on_the_monotonic_clock(monkeypatch):
     from mbgw.slave.status import SlaveStatus
 
     counters = Counters()
-    server = SimpleNamespace(trace=None, clients=[],
+    server = SimpleNamespace(trace=None, clients=[], face_figures=dict,
                              firewall=SimpleNamespace(configured=False))
     wall, mono = time.time(), time.monotonic()
     monkeypatch.setattr(time, "monotonic", lambda: mono)          # the reset, dated exactly

@@ -111,6 +111,26 @@ BAD_FILES = [
      lambda p: DEVICE + 'mode = "master"\n[general]\nmetrics = ":1502"\n'
      "[table]\nenabled = true\nport = 1502\n",
      "general.metrics", "port 1502 is table.port's already"),
+    ("the RTU-over-TCP port the Modbus port",
+     lambda p: DEVICE + "[net]\nmdbport = 1502\nrtu-port = 1502\n",
+     "net.rtu-port", "port 1502 is net.mdbport's already"),
+    ("the RTU-over-TCP port the web console's",
+     lambda p: DEVICE + f'[net]\nrtu-port = 4001\n[web]\nlisten = ":4001"\n'
+     f'admin-password = "{HASH}"\n',
+     "web.listen", "port 4001 is net.rtu-port's already"),
+    ("master: the RTU-over-TCP port the table's",
+     lambda p: DEVICE + 'mode = "master"\n[net]\nrtu-port = 1502\n'
+     '[table]\nenabled = true\nport = 1502\n[[route]]\nunits = "200"\ntable = true\n',
+     "net.rtu-port", "port 1502 is table.port's already"),
+    ("master: a udp-port without the TCP face",
+     lambda p: DEVICE + 'mode = "master"\n[net]\nudp-port = 1502\n',
+     "net.udp-port", "only with a Modbus TCP face"),
+    ("a udp-port out of range",
+     lambda p: DEVICE + "[net]\nudp-port = 70000\n",
+     "net.udp-port", "70000"),
+    ("a firewall rule for a listener there is not",
+     lambda p: DEVICE + '[[rule]]\nlistener = "serial"\n',
+     "rule 1.listener", "'udp' or 'rtu'"),
     ("transparent: the raw port the Modbus port",
      lambda p: DEVICE + 'mode = "transparent"\n[net]\nmdbport = 1502\n'
      "[transparent]\nraw-port = 1502\n",
@@ -170,6 +190,13 @@ def test_one_port_on_two_addresses_is_two_listeners(tmp_path):
                     '[general]\nmetrics = "127.0.0.2:1502"\n')
     assert mbgw("check-config", path).exit_code == 0
 
+
+
+def test_the_udp_port_may_be_the_modbus_tcp_port(tmp_path):
+    """UDP and TCP ports do not clash: udp-port = mdbport is the usual choice (502)."""
+    path = tmp_path / "mbgw.toml"
+    path.write_text(DEVICE + "[net]\nmdbport = 1502\nudp-port = 1502\nrtu-port = 1503\n")
+    assert mbgw("check-config", path).exit_code == 0
 
 
 def test_master_modes_table_port_on_its_bind_and_the_metrics_elsewhere_are_two(tmp_path):
