@@ -24,6 +24,9 @@ class Kind(enum.Enum):
     CONFIG_CHANGED = ("1ce6a4d2f3db44198e8f659af73c0a8f", logging.INFO)
     CLIENT_CLOSED = ("304a30d815dd42b5b8adf9b5c140d26e", logging.INFO)
     COUNTERS_RESET = ("9c9c8f6adcef4a4fa7d11c98bd3fe3ca", logging.INFO)
+    DEVICE_DOWN = ("085abf9b65b541d0bffe3f41c4c462ef", logging.WARNING)
+    DEVICE_UP = ("abef1020fad34c77ad036c6430c59b30", logging.INFO)
+    SCENARIO_ERROR = ("35b4156e3d3740b888146e2ad5673b10", logging.WARNING)
 
     def __init__(self, message_id: str, level: int) -> None:
         self.message_id = message_id

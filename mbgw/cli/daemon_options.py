@@ -57,7 +57,8 @@ daemon_options = stack(
                  callback=parser(_parse_metrics),
                  help="Serve Prometheus metrics on http://ADDR:PORT/metrics ([IPV6]:PORT; "
                       ":PORT for every address) [default: off]."),
-    click.option("--log-level", type=LOG_LEVELS, default="info", show_default=True),
+    click.option("--log-level", type=LOG_LEVELS, default="info", show_default=True,
+                 help="The least severe messages logged: debug adds every transaction."),
     click.option("--log-format", type=click.Choice(["text", "json"]), default="text",
                  show_default=True,
                  help="text: lines for people (under systemd: journal records with the "

@@ -35,6 +35,16 @@ NO_ADDRESS = "0.0.0.0"                     # "IP address 0.0.0.0 clears the entr
 FACTORY_MODE = "slave"
 FACTORY_DEVICE = "/dev/ttyUSB0"
 OWN_OPTIONS = frozenset({"config"})        # the option naming the file is not a key
+# The values of the keys that take one of a set click does not list (a click.Choice's own are
+# read from it): the web console offers them as choices.
+FORMAT_WORDS = tuple(f"{d}{p}{s}" for d in "87" for p in "neoms" for s in "12")
+INTERFACE_WORDS = ("rs232", "rs485", "rs485 echo", "rs422", "rs422 slave")
+FLAG_WORDS = ("on", "off")
+CHOICES = {MODE_KEY: MODES, "format": FORMAT_WORDS, "interface": INTERFACE_WORDS}
+UNITS = {"baudrate": "bit/s"}
+METAVAR_UNITS = {"MS": "ms", "S": "s", "BYTES": "bytes"}
+MODE_HELP = ("slave: Modbus slaves on the serial line; master: a Modbus master on it; "
+             "transparent: frames passed as they are. Changing it needs a restart.")
 
 
 @dataclasses.dataclass
@@ -120,6 +130,34 @@ class Schema:
     def key_of_param(self, param: click.Parameter) -> Key | None:
         name = option_key(param)
         return self.keys.get(name) if name else None
+
+
+@dataclasses.dataclass(frozen=True)
+class KeyHelp:
+    """What an operator needs to set a key: its help, its unit ("" when none), its choices
+    (() when it takes any value) and the modes it applies to."""
+    help: str
+    unit: str
+    choices: tuple[str, ...]
+    modes: tuple[str, ...]
+
+
+def key_help(schema: Schema, name: str) -> KeyHelp:
+    if name == MODE_KEY:
+        return KeyHelp(MODE_HELP, "", MODES, schema.modes)
+    key = schema.keys[name]
+    param = next(iter(key.params.values()))
+    metavar = param.metavar or ""
+    if name in CHOICES:
+        choices: tuple[str, ...] = CHOICES[name]
+    elif isinstance(param.type, click.Choice):
+        choices = tuple(map(str, param.type.choices))
+    elif isinstance(param, click.Option) and param.is_flag:
+        choices = FLAG_WORDS
+    else:
+        choices = ()
+    return KeyHelp(param.help or "", UNITS.get(name, METAVAR_UNITS.get(metavar, "")), choices,
+                   tuple(m for m in schema.modes if m in key.params))
 
 
 def key_group(name: str, param: click.Parameter) -> str:

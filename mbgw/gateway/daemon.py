@@ -6,27 +6,37 @@ runs its lines in slave mode as targets (mbgw.slave's SlaveLineThread without TC
 when routes take TCP units, the Modbus TCP face (mbgw.slave's listener and router on a thread
 of the face's own)."""
 import importlib
+from functools import partial
 
 from mbgw.config.model import MasterConfig, SlaveConfig
 from mbgw.gateway.skeleton import serve_mode
+from mbgw.ops.restart import Restart
 
 
 def run_slave_mode(cfg: SlaveConfig, reconfigure=None) -> None:
     """mbgw slave's daemon; its lines in master mode as serial faces too."""
     from mbgw.slave.daemon import run_slave
-    run_slave(cfg, reconfigure, serve_mode, serial_faces, monitor_lines)
+    restart = Restart()
+    run_slave(cfg, reconfigure, partial(serve_mode, restart=restart), serial_faces,
+              monitor_lines)
+    restart.reexec_if_wanted()
 
 
 def run_master_mode(cfg: MasterConfig, reconfigure=None) -> None:
     """mbgw master's daemon; its lines in slave mode as targets too."""
     from mbgw.master.daemon import run_master
-    run_master(cfg, reconfigure, serve_mode, target_lines, tcp_face, monitor_lines)
+    restart = Restart()
+    run_master(cfg, reconfigure, partial(serve_mode, restart=restart), target_lines, tcp_face,
+               monitor_lines)
+    restart.reexec_if_wanted()
 
 
 def run_transparent_mode(cfg, reconfigure=None) -> None:
     """mbgw transparent's daemon."""
     from mbgw.transparent.daemon import run_transparent
-    run_transparent(cfg, reconfigure, serve_mode)
+    restart = Restart()
+    run_transparent(cfg, reconfigure, partial(serve_mode, restart=restart))
+    restart.reexec_if_wanted()
 
 
 def serial_faces(cfg: SlaveConfig, inboxes: dict, table, hub=None):

@@ -10,7 +10,9 @@ import time
 
 from mbgw.errors import ListenError
 from mbgw.gateway.northbound import NorthboundService
+from mbgw.ops.events import EventRing
 from mbgw.ops.reload import ReloadReport, Reloads
+from mbgw.ops.restart import Restart
 from mbgw.ops.service import (
     EveryThread,
     ModeParts,
@@ -30,7 +32,7 @@ from mbgw.web.hooks import WebHooks
 log = logging.getLogger("mbgw")
 
 
-async def serve_mode(parts: ModeParts, reconfigure) -> None:
+async def serve_mode(parts: ModeParts, reconfigure, restart: Restart | None = None) -> None:
     """Runs the mode's parts until SIGTERM or SIGINT, then stops them.  reconfigure() gives the
     settings a reload applies (None: there is no file).  Raises ListenError when the metrics
     address cannot be listened on (the parts abandoned)."""
@@ -54,8 +56,12 @@ async def serve_mode(parts: ModeParts, reconfigure) -> None:
                                        **scenario_commands(engines, cfg.config_file)})
     control = await start_control(cfg.control, commands)
     reloads = Reloads(parts.status, reconfigure)
+    events = EventRing().attach()
+    restart = restart or Restart()
+    restart.stop = stop
     console = await start_console(cfg.web, WebHooks(commands, parts.status.trace_hub,
-                                                    cfg.config_file, reloads.run))
+                                                    cfg.config_file, reloads.run,
+                                                    events, restart))
     parts.log_start()
     warn_of_overlaps(cfg)
     if metrics is not None:
@@ -88,6 +94,7 @@ async def serve_mode(parts: ModeParts, reconfigure) -> None:
         task.cancel()
     await parts.stop()
     log_stopped(parts.counters)
+    events.detach()
 
 
 def _with_lines(collector, parts: ModeParts):

@@ -28,6 +28,7 @@ import math
 import time
 from array import array
 
+from mbgw.audit import Kind, event
 from mbgw.config.model import PROBE_BACKOFF_MAX_MS, Demotion
 
 log = logging.getLogger("mbgw.devices")
@@ -254,11 +255,11 @@ class DeviceStats:
         via = f" (server {self.upstream[0]} unit {self.upstream[1]})" if self.upstream else ""
         if health == DOWN:
             self._probe_from(time.monotonic())
-            log.warning("%s is down: %d requests in a row without a valid reply%s%s; "
-                        "its requests are refused, but for %s", self.name,
-                        self.consecutive_failures, via,
-                        f"; {self.diagnosis}" if self.diagnosis else "",
-                        self.rule.describe())
+            event(log, Kind.DEVICE_DOWN, "%s is down: %d requests in a row without a valid "
+                  "reply%s%s; its requests are refused, but for %s", self.name,
+                  self.consecutive_failures, via,
+                  f"; {self.diagnosis}" if self.diagnosis else "", self.rule.describe(),
+                  device=self.name, reason=self.diagnosis)
         elif health == DEGRADED and self.last_success is None:
             failures = self.consecutive_failures
             log.warning("%s is degraded: it has not answered yet (%d request%s without a valid "
@@ -268,8 +269,8 @@ class DeviceStats:
                         self.name, bin(self.recent_failures).count("1"), RECENT_WINDOW,
                         via)
         else:
-            log.info("%s is up: its last %d requests were answered%s", self.name,
-                     RECENT_WINDOW, via)
+            event(log, Kind.DEVICE_UP, "%s is up: its last %d requests were answered%s",
+                  self.name, RECENT_WINDOW, via, device=self.name)
 
     @property
     def diagnosis(self) -> str | None:

@@ -14,6 +14,7 @@ import struct
 import sys
 
 from mbgw import audit
+from mbgw.ops.events import EventRing
 
 FORMATS = ("text", "json")
 IDENTIFIER = "mbgw"
@@ -120,8 +121,8 @@ def setup(level: str, log_format: str = "text") -> None:
             "%(asctime)s %(levelname)s %(name)s: %(message)s"))
     root = logging.getLogger("mbgw")
     # The old handler is not closed: a thread may be in its emit(); its journal socket
-    # closes once nothing holds it any more.
-    root.handlers[:] = [handler]
+    # closes once nothing holds it any more.  The console's events stay.
+    root.handlers[:] = [handler, *(h for h in root.handlers if isinstance(h, EventRing))]
     root.setLevel(level.upper())
     root.propagate = False
 

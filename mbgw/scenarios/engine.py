@@ -22,6 +22,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, replace
 from typing import Protocol
 
+from mbgw.audit import Kind, event
 from mbgw.config.scenario import ScenarioConfig
 from mbgw.scenarios import exchange
 from mbgw.scenarios.plan import Planner
@@ -88,6 +89,7 @@ class _State:
         self.errors: dict[str, int] = {}
         self.retries = 0
         self.last_success_wall: float | None = None   # time.time()
+        self.error_since: float | None = None          # time.time() it went into error
         self.last_latency_s: float | None = None
         self.data_time: float | None = None            # the clock's time of the last good read
         self.since = now                               # when it started (the age before data)
@@ -229,6 +231,7 @@ class Scenarios:
                 os.eventfd_write(self.wake_fd, 1)     # a runner at rest looks again
             else:
                 state.state, state.message = DISABLED, ""   # out of error, not "running again"
+                state.error_since = None
                 state.retrying = False
                 self._update_flag()
                 self._planner.remove(name)
@@ -386,9 +389,12 @@ class Scenarios:
         message = result.message(tcp)
         if still_down and self.health is not None:
             message = exchange.error_message(self.health.down_kind, tcp)
+        if state.state != ERROR:
+            state.error_since = time.time()
         if state.state != ERROR or state.message != message:
-            log.warning("scenario %s (%s): %s", state.scenario.name, state.scenario.target,
-                        message)
+            event(log, Kind.SCENARIO_ERROR, "scenario %s (%s): %s", state.scenario.name,
+                  state.scenario.target, message, scenario=state.scenario.name,
+                  reason=message)
         state.state, state.message = ERROR, message
         self._update_flag()
 
@@ -396,7 +402,7 @@ class Scenarios:
         if state.state == ERROR:
             log.info("scenario %s (%s): running again", state.scenario.name,
                      state.scenario.target)
-            state.state = RUNNING
+            state.state, state.error_since = RUNNING, None
             self._update_flag()
 
     def _update_flag(self) -> None:
@@ -500,6 +506,7 @@ class Scenarios:
             "successes": state.successes, "errors": dict(state.errors),
             "retries": state.retries, "overruns": state.overruns,
             "last_success": state.last_success_wall,
+            "error_since": state.error_since,
             "last_latency_ms": None if state.last_latency_s is None
             else round(state.last_latency_s * 1000, 3),
             "data_age_s": None if age is None else round(age, 3),

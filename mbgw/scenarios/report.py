@@ -8,7 +8,8 @@ scenarios_status(engines) -> [
      "state": "starting" | "running" | "error" | "disabled",
      "message": VPGate's error message while in error, why a write waits, else "",
      "runs": n, "successes": n, "errors": {kind: n}, "retries": n, "overruns": n,
-     "last_success": Unix time | null, "last_latency_ms": ms | null,
+     "last_success": Unix time | null, "error_since": Unix time | null (while in error),
+     "last_latency_ms": ms | null,
      "data_age_s": s since the last good read | null, "stale": bool,
      "next_probe_in_s": s until its probe while its device (server) is down | null}, ...]
 in the configuration's order, serial ones first."""

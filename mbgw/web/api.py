@@ -35,6 +35,8 @@ def routes() -> list:
         web.get("/api/devices", devices),
         web.get("/api/scenarios", scenarios),
         web.post("/api/scenarios/test", test_scenario),
+        web.get("/api/scenarios/config", scenario_tables),
+        web.post("/api/scenarios/config", edit_scenarios),
         web.post("/api/scenarios/{name}/{action:enable|disable}", enable_scenario),
         web.get("/api/table", table_read), web.post("/api/table", table_write),
         web.get("/api/stats", stats), web.post("/api/stats/reset", stats_reset),
@@ -165,8 +167,11 @@ async def status(request: web.Request) -> web.Response:
 
 
 async def clients(request: web.Request) -> web.Response:
+    """Every Modbus TCP client: the listeners' (slave mode; a master-mode daemon's TCP face,
+    its "tcp_clients") and the table server's (master and transparent modes)."""
     reply = await command(request, "status")
-    return web.json_response({"clients": reply.get("clients", [])})
+    return web.json_response({"clients": [*reply.get("tcp_clients", []),
+                                          *reply.get("clients", [])]})
 
 
 async def close_client(request: web.Request) -> web.Response:
@@ -225,6 +230,34 @@ async def enable_scenario(request: web.Request) -> web.Response:
 async def test_scenario(request: web.Request) -> web.Response:
     return answer(await command(request, "scenario-test", {"fields": await body(request)}),
                   "no scenarios in this mode")
+
+
+async def scenario_tables(request: web.Request) -> web.Response:
+    try:
+        return web.json_response({"scenarios": config_api.scenario_tables(
+            config_path(request))})
+    except config_api.ConfigRefused as err:
+        return _refused(err)
+
+
+async def edit_scenarios(request: web.Request) -> web.Response:
+    """{"remove": [NAME...], "add": [{KEY: VALUE...}...]}: the scenarios toolbox's changes,
+    written at once and applied by one reload."""
+    data = await body(request)
+    remove, add = data.get("remove", []), data.get("add", [])
+    if not isinstance(remove, list) or not all(isinstance(n, str) for n in remove) \
+            or not isinstance(add, list) or not all(isinstance(f, dict) for f in add):
+        return error(400, 'expected {"remove": [NAME...], "add": [{KEY: VALUE...}...]}')
+    try:
+        done = config_api.edit_scenarios(config_path(request), remove, add)
+    except config_api.ConfigRefused as err:
+        return _refused(err)
+    if not done:
+        return web.json_response({"ok": True, "changed": []})
+    event(log, Kind.CONFIG_CHANGED, "scenarios changed from the web console (%s): %s",
+          who(request), ", ".join(done), source="web", user=who(request),
+          keys=", ".join(done))
+    return await reloaded(request, {"changed": done})
 
 
 # --- the exchange table ----------------------------------------------------------------------
@@ -300,7 +333,7 @@ def _connected(request: web.Request) -> bool:
 
 # --- the configuration file ------------------------------------------------------------------
 
-def _config_path(request: web.Request) -> Path:
+def config_path(request: web.Request) -> Path:
     path = request.app["hooks"].config_file
     if path is None:
         raise web.HTTPNotFound(text=json.dumps(
@@ -315,28 +348,37 @@ def _refused(err: config_api.ConfigRefused) -> web.Response:
 
 async def config_show(request: web.Request) -> web.Response:
     try:
-        return web.json_response(config_api.show(_config_path(request)))
+        return web.json_response(config_api.show(config_path(request)))
     except config_api.ConfigRefused as err:
         return _refused(err)
 
 
 async def config_set(request: web.Request) -> web.Response:
+    """One key ({"group", "key", "value"}) or several ({"changes": [{"group", "key",
+    "value"}, ...]}), checked together, written once and applied by one reload."""
     data = await body(request)
-    group, key, value = data.get("group"), data.get("key"), data.get("value")
-    if not isinstance(group, str) or not isinstance(key, str) or value is None:
-        return error(400, 'expected {"group", "key", "value"}')
+    wanted = data.get("changes", [data])
+    if not isinstance(wanted, list) or not wanted or not all(map(_change, wanted)):
+        return error(400, 'expected {"group", "key", "value"} or {"changes": [{"group", '
+                          '"key", "value"}, ...]}')
     try:
-        changed = config_api.set_value(_config_path(request), group, key, value)
+        changed = config_api.set_values(config_path(request),
+                                        [(w["group"], w["key"], w["value"]) for w in wanted])
     except config_api.ConfigRefused as err:
         return _refused(err)
     event(log, Kind.CONFIG_CHANGED, "configuration changed from the web console (%s): %s",
           who(request), ", ".join(changed), source="web", user=who(request),
           keys=", ".join(changed))
-    return await _reloaded(request, {"changed": changed})
+    return await reloaded(request, {"changed": changed})
+
+
+def _change(wanted) -> bool:
+    return isinstance(wanted, dict) and isinstance(wanted.get("group"), str) \
+        and isinstance(wanted.get("key"), str) and wanted.get("value") is not None
 
 
 async def config_download(request: web.Request) -> web.Response:
-    path = _config_path(request)
+    path = config_path(request)
     try:
         text = config_api.read_file(path)
     except config_api.ConfigRefused as err:
@@ -346,7 +388,7 @@ async def config_download(request: web.Request) -> web.Response:
 
 
 async def config_upload(request: web.Request) -> web.Response:
-    path = _config_path(request)
+    path = config_path(request)
     try:
         text = (await read(request)).decode()
         mode = config_api.upload(path, text)
@@ -356,10 +398,10 @@ async def config_upload(request: web.Request) -> web.Response:
         return _refused(err)
     event(log, Kind.CONFIG_CHANGED, "configuration file replaced from the web console (%s)",
           who(request), source="web", user=who(request), keys="the whole file")
-    return await _reloaded(request, {"mode": mode})
+    return await reloaded(request, {"mode": mode})
 
 
-async def _reloaded(request: web.Request, done: dict) -> web.Response:
+async def reloaded(request: web.Request, done: dict) -> web.Response:
     """The file is written: the daemon reloads it (as SIGHUP does), and the answer is the
     reload's outcome, as the log says it.  200 only when every change is in force; 409 when
     the file is written but the daemon refused it or put part of it in force (the running

@@ -2,7 +2,6 @@
 // makes `mbgw trace --pcap`: each request and reply one TCP segment between the client's
 // address and the gateway's, in synthetic Ethernet and IPv4/IPv6 headers, with per-direction
 // sequence numbers so that Wireshark reassembles the Modbus/TCP stream.
-"use strict";
 
 const PCAP_ETHER_MACS = [2, 0, 0, 0, 0, 1, 2, 0, 0, 0, 0, 2];
 const PCAP_TCP_PSH_ACK = 0x18;
@@ -48,7 +47,7 @@ function hexBytes(hex) {
 }
 
 // A Blob of the pcap file; events that carried nothing over TCP are left out.
-function pcapOf(events) {
+export function pcapOf(events) {
   const parts = [new Uint8Array([...le(0xa1b2c3d4, 4), ...le(2, 2), ...le(4, 2), ...le(0, 4),
     ...le(0, 4), ...le(65535, 4), ...le(1, 4)])];
   const seq = new Map();

@@ -8,7 +8,6 @@ import asyncio
 import functools
 import json
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -19,14 +18,13 @@ from types import SimpleNamespace
 import pytest
 from aiohttp import web
 from pymodbus.client import ModbusTcpClient
-from selenium import webdriver
 from selenium.common.exceptions import StaleElementReferenceException
-from selenium.webdriver.chrome.service import Service
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support import expected_conditions as EC
 from selenium.webdriver.support.ui import Select, WebDriverWait
 
 from tests.harness import Gateway, Peer, PtyPair, free_port
+from tests.integration.web.chrome import start_chromium
 from tests.modbus import Client, crc16, read_holding
 from tests.ops import status, tracing, tshark_warnings, wait_for, wait_for_log
 
@@ -35,22 +33,11 @@ pytestmark = pytest.mark.integration
 STATIC = Path(__file__).resolve().parents[3] / "mbgw" / "web" / "static"
 WAIT_S = 15
 HOSTILE = "<img src=x onerror=window.__injected=1>"
-CHROMIUM = shutil.which("chromium")
-DRIVER = shutil.which("chromedriver")
 
 
 @pytest.fixture(scope="module")
 def browser():
-    assert CHROMIUM and DRIVER, "chromium and chromium-driver: scripts/setup.sh installs them"
-    options = webdriver.ChromeOptions()
-    options.binary_location = CHROMIUM
-    for flag in ("--headless=new", "--disable-gpu", "--disable-dev-shm-usage",
-                 "--window-size=1280,900"):
-        options.add_argument(flag)
-    options.set_capability("goog:loggingPrefs", {"browser": "ALL"})    # script errors
-    if os.geteuid() == 0:
-        options.add_argument("--no-sandbox")       # chromium refuses to run as root without
-    driver = webdriver.Chrome(service=Service(DRIVER), options=options)
+    driver = start_chromium(1280, 900)
     yield driver
     driver.quit()
 
@@ -305,6 +292,7 @@ def test_a_client_appears_and_the_admin_closes_it(browser, console):
         row = wait(browser, lambda d: [r for r in d.find_elements(
             By.CSS_SELECTOR, "#clients-table tbody tr") if here in r.text])[0]
         row.find_element(By.CSS_SELECTOR, "button.close-client").click()
+        wait(browser, EC.alert_is_present()).accept()      # Close asks first
         wait(browser, EC.staleness_of(row))
         modbus.sock.settimeout(WAIT_S)
         assert modbus.sock.recv(1) == b""            # the gateway closed the connection

@@ -3,6 +3,7 @@ clock: runs, results stored, states and counters, the change trigger through the
 watch and eventfd, FC 7's flag, stale data answered 0x0B, enable/disable and reload."""
 import logging
 import select
+import time
 
 import pytest
 
@@ -106,6 +107,21 @@ def test_stale_bits(table):
     assert table.answer(H("02 00 30 00 08")) == H("02 01 00")     # bit 48..
     table.set_stale(2, 1, False)
     assert table.answer(H("01 00 1f 00 02")) == H("01 01 00")
+
+
+def test_in_error_since_the_first_failure_until_it_runs_again(table, clock):
+    e = engine(table, clock, sc("r"))
+    assert status(e, "r")["error_since"] is None
+    before = time.time()
+    e.done(e.next(clock.now), None, "timeout", retries=0)
+    since = status(e, "r")["error_since"]
+    assert before <= since <= time.time()
+    clock.now += 1
+    e.done(e.next(clock.now), None, "crc", retries=0)          # still in error: same since
+    assert status(e, "r")["error_since"] == since
+    clock.now += 1
+    e.done(e.next(clock.now), H("03 04 00 01 00 02"), None)
+    assert status(e, "r")["error_since"] is None
 
 
 def test_enable_disable(table, clock):

@@ -1,0 +1,390 @@
+"""The console's changes done through its pages, each seen from outside: several settings
+applied by one reload; a password changed (the new one in, the old one not); the user role
+refused every change (403, its buttons off); the Events page showing what the log got;
+reload, restart and the factory reset (the shipped file back); a scenario created in the
+browser polling the slave; a firewall rule refusing a write; the table in typed views; a
+master-mode table client closed."""
+import hashlib
+import json
+import os
+import subprocess
+import sys
+import urllib.error
+import urllib.request
+from http.cookiejar import CookieJar
+from types import SimpleNamespace
+
+import pytest
+from pymodbus.client import ModbusTcpClient
+from selenium.webdriver.common.by import By
+from selenium.webdriver.support import expected_conditions as EC
+from selenium.webdriver.support.ui import Select
+
+from tests.harness import Gateway, PtyPair, free_port
+from tests.integration.web.chrome import DESKTOP, start_chromium
+from tests.integration.web.test_web_ui import (
+    LOST,
+    PASSWORDS,
+    TABLE_UNIT,
+    Console,
+    found,
+    go,
+    log_in,
+    scenarios,
+    set_password,
+    text_in,
+    wait,
+)
+from tests.modbus import Client, read_holding
+from tests.ops import wait_for, wait_for_log
+
+pytestmark = pytest.mark.integration
+
+RELOADED = "configuration reloaded: "
+NEW_PASSWORD = "a new user secret 3"
+ADMIN_ACTIONS = ["#password-change", "#admin-reload", "#admin-restart",
+                 "#admin-factory-reset", "#config-apply"]
+
+
+class Api:
+    """The JSON API as a script sees it: a session's cookie and CSRF token."""
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self.opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(
+            CookieJar()))
+        self.csrf = ""
+
+    def call(self, method: str, path: str, body: dict | None = None) -> tuple[int, dict]:
+        request = urllib.request.Request(
+            self.url + path.lstrip("/"), method=method,
+            data=None if body is None else json.dumps(body).encode(),
+            headers={"Content-Type": "application/json", "X-CSRF-Token": self.csrf})
+        try:
+            with self.opener.open(request, timeout=15) as response:
+                return response.status, json.loads(response.read() or b"{}")
+        except urllib.error.HTTPError as err:
+            return err.code, json.loads(err.read() or b"{}")
+
+    def log_in(self, role: str, password: str) -> int:
+        code, data = self.call("POST", "/api/login", {"user": role, "password": password})
+        self.csrf = data.get("csrf", "")
+        return code
+
+
+@pytest.fixture(scope="module")
+def console(tmp_path_factory):
+    running = Console(tmp_path_factory.mktemp("admin"))
+    yield running
+    running.stop()
+
+
+@pytest.fixture(scope="module")
+def browser():
+    driver = start_chromium(*DESKTOP)
+    yield driver
+    driver.quit()
+
+
+def field(browser, name: str):
+    return wait(browser, found(f'[data-field="{name}"]'))
+
+
+def test_several_settings_are_applied_by_one_reload(browser, console):
+    log_in(browser, console, "admin")
+    go(browser, "config")
+    reloads = console.gw.log().count(RELOADED)
+    stout = field(browser, "serial.stout")
+    stout.clear()
+    stout.send_keys("250")
+    retries = field(browser, "serial.retries")
+    retries.clear()
+    retries.send_keys("2")
+    exception = Select(field(browser, "net.exception"))
+    flipped = {"on": "off", "off": "on"}[exception.first_selected_option.text]
+    exception.select_by_value(flipped)
+    browser.find_element(By.ID, "config-apply").click()
+    wait(browser, text_in("#config-apply-result", "applied by one reload"))
+    text = console.path.read_text()
+    assert "stout = 250" in text and "retries = 2" in text
+    assert f"exception = {'true' if flipped == 'on' else 'false'}" in text
+    s = wait_for(console.gw, lambda s: s["serial"]["stout_ms"] == 250, "the new stout")
+    assert console.gw.log().count(RELOADED) == reloads + 1, console.gw.log()
+    assert s["serial"]["stout_ms"] == 250
+
+
+def test_one_bad_setting_refuses_them_all_next_to_its_field(browser, console):
+    log_in(browser, console, "admin")
+    go(browser, "config")
+    before = console.path.read_bytes()
+    reloads = console.gw.log().count(RELOADED)
+    stout = field(browser, "serial.stout")
+    stout.clear()
+    stout.send_keys("300")
+    retries = field(browser, "serial.retries")
+    retries.clear()
+    retries.send_keys("many")
+    browser.find_element(By.ID, "config-apply").click()
+    wait(browser, text_in('[data-error-for="serial.retries"]', "retries"))
+    assert "error" in browser.find_element(By.ID, "config-apply-result").get_attribute("class")
+    assert console.path.read_bytes() == before
+    assert console.gw.log().count(RELOADED) == reloads
+
+
+def test_groups_of_other_modes_are_hidden_and_keys_have_help_units_and_choices(browser,
+                                                                              console):
+    log_in(browser, console, "admin")
+    go(browser, "config")
+    wait(browser, found('fieldset[data-group="serial"]'))
+    groups = [f.get_attribute("data-group")
+              for f in browser.find_elements(By.CSS_SELECTOR, "#config-groups fieldset")]
+    assert "transparent" not in groups and "serial" in groups, groups
+    assert browser.find_elements(By.CSS_SELECTOR, '[data-field="table.address"]') == []
+    row = browser.find_element(By.CSS_SELECTOR, '.config-row[data-key="serial.stout"]')
+    assert row.find_element(By.CSS_SELECTOR, ".unit").text == "ms"
+    assert "end of its answer" in row.find_element(By.CSS_SELECTOR, ".help").text
+    choices = [o.get_attribute("value") for o in
+               Select(field(browser, "serial.format")).options]
+    assert "8n1" in choices and "7e1" in choices
+    assert Select(field(browser, "serial.protocol")).first_selected_option.text == "rtu"
+    wait_for_log(console.gw, "web login")
+
+
+def test_the_user_role_can_change_nothing(browser, console):
+    log_in(browser, console, "user")
+    for page, control in (("admin", "#password-change"), ("admin", "#admin-restart"),
+                          ("admin", "#admin-factory-reset"), ("admin", "#admin-reload"),
+                          ("config", "#config-apply")):
+        go(browser, page)
+        assert not wait(browser, found(control)).is_enabled(), control
+    api = Api(console.url)
+    assert api.log_in("user", PASSWORDS["user"]) == 200
+    before = console.path.read_bytes()
+    for path, body in (("/api/password", {"role": "user", "current": PASSWORDS["user"],
+                                           "new": NEW_PASSWORD, "again": NEW_PASSWORD}),
+                       ("/api/reload", {}), ("/api/restart", {}),
+                       ("/api/factory-reset", {"confirm": True}),
+                       ("/api/scenarios/config", {"remove": ["boiler"], "add": []}),
+                       ("/api/config", {"changes": [{"group": "serial", "key": "stout",
+                                                     "value": "400"}]})):
+        code, data = api.call("POST", path, body)
+        assert code == 403, (path, data)
+    assert api.call("GET", "/api/events")[0] == 200 and api.call("GET", "/api/system")[0] == 200
+    assert console.path.read_bytes() == before
+
+
+def test_a_password_changed_lets_the_new_one_in_and_the_old_one_not(browser, console):
+    log_in(browser, console, "admin")
+    go(browser, "admin")
+    Select(wait(browser, found("#password-role"))).select_by_value("user")
+    browser.find_element(By.ID, "password-current").send_keys(PASSWORDS["admin"])
+    browser.find_element(By.ID, "password-new").send_keys(NEW_PASSWORD)
+    browser.find_element(By.ID, "password-again").send_keys(NEW_PASSWORD[:-1])
+    browser.find_element(By.ID, "password-change").click()
+    wait(browser, text_in("#password-result", "differ"))
+    browser.find_element(By.ID, "password-again").send_keys(NEW_PASSWORD[-1])
+    browser.find_element(By.ID, "password-change").click()
+    wait(browser, text_in("#password-result", "log in again"))
+    api = Api(console.url)
+    assert api.log_in("user", PASSWORDS["user"]) == 401
+    assert api.log_in("user", NEW_PASSWORD) == 200
+    assert "user-password" in console.path.read_text()
+    wait(browser, EC.visibility_of_element_located((By.ID, "login-form")))  # sessions ended
+
+
+def test_the_events_page_shows_what_the_log_got_newest_first(browser, console):
+    wait_for_log(console.gw, f"scenario {LOST} (slave 9): ")
+    log_in(browser, console, "admin")
+    go(browser, "events")
+    wait(browser, text_in("#events-table", f"scenario {LOST} (slave 9): "))
+    wait(browser, text_in("#events-table", "web login: admin"))
+    events = Api(console.url)
+    events.log_in("admin", PASSWORDS["admin"])
+    shown = events.call("GET", "/api/events")[1]["events"]
+    times = [e["time"] for e in shown]
+    assert times == sorted(times, reverse=True)
+    kinds = {e["event"] for e in shown}
+    assert {"scenario-error", "login-ok", "login-failed", "config-changed"} <= kinds, kinds
+    assert any(e["event"] == "device-down" and e.get("device") for e in shown), shown
+    Select(browser.find_element(By.ID, "events-kind")).select_by_value("device-down")
+    wait(browser, lambda d: {td.text for td in d.find_elements(
+        By.CSS_SELECTOR, "#events-table td.event")} == {"device-down"})
+
+
+def test_system_information_and_a_reload_from_the_page(browser, console):
+    log_in(browser, console, "admin")
+    go(browser, "admin")
+    wait(browser, text_in('#system-table tr[data-name="file"] td', str(console.path)))
+    digest = hashlib.sha256(console.path.read_bytes()).hexdigest()
+    wait(browser, text_in('#system-table tr[data-name="sha256"] td', digest))
+    assert browser.find_element(By.CSS_SELECTOR, '#system-table tr[data-name="host"] td').text \
+        == os.uname().nodename
+    reloads = console.gw.log().count(RELOADED)
+    browser.find_element(By.ID, "admin-reload").click()
+    wait(browser, text_in("#admin-reload-result", "configuration reloaded"))
+    assert console.gw.log().count(RELOADED) == reloads + 1
+
+
+def test_a_restart_runs_the_daemon_again_in_the_same_process(browser, console):
+    log_in(browser, console, "admin")
+    go(browser, "admin")
+    started = console.gw.log().count("web console on ")
+    pid = wait_for(console.gw, lambda s: True, "status")["pid"]
+    wait(browser, found("#admin-restart")).click()
+    wait(browser, EC.alert_is_present()).accept()
+    wait(browser, text_in("#admin-restart-result", "restarting"))
+    wait_for_log(console.gw, "web console on ", started + 1)
+    assert wait_for(console.gw, lambda s: True, "status after the restart")["pid"] == pid
+    log_in(browser, console, "admin")                        # the console is back
+
+
+def test_a_scenario_created_in_the_browser_polls_the_slave_and_is_deleted(browser, console):
+    log_in(browser, console, "admin")
+    go(browser, "scenarios")
+    wait(browser, found("#scenario-form"))
+    for key, value in (("name", "pump"), ("slave", "1"), ("address", "4"), ("quantity", "2"),
+                       ("table", "300"), ("cycle", "200")):
+        element = browser.find_element(By.ID, f"sc-{key}")
+        element.clear()
+        element.send_keys(value)
+    Select(browser.find_element(By.ID, "sc-function")).select_by_value("3")
+    browser.find_element(By.ID, "scenario-try").click()          # a one-off poll: values
+    wait(browser, text_in("#scenario-form-result", "answered in "))
+    assert "{" not in browser.find_element(By.ID, "scenario-form-result").text
+    browser.find_element(By.ID, "scenario-save-form").click()
+    wait(browser, text_in("#scenario-form-result", "saved and applied"))
+    assert 'name = "pump"' in console.path.read_text()
+    wait_for(console.gw, lambda s: scenarios(s).get("pump", {}).get("successes", 0) > 0,
+             "the new scenario polling the slave")
+    row = 'tr[data-key="serial/pump"]'
+    wait(browser, text_in(f"{row} td.place", "4 ×2 → table 300"))
+    browser.find_element(By.CSS_SELECTOR, f"{row} button.duplicate").click()
+    assert browser.find_element(By.ID, "sc-name").get_attribute("value") == "pump-copy"
+    browser.find_element(By.ID, "scenario-save-form").click()
+    wait(browser, text_in("#scenario-form-result", "pump-copy added"))
+    wait(browser, found('tr[data-key="serial/pump-copy"]'))
+    for name in ("pump", "pump-copy"):
+        browser.find_element(By.CSS_SELECTOR, f'tr[data-key="serial/{name}"] input.tick').click()
+    browser.find_element(By.ID, "scenarios-delete").click()
+    wait(browser, EC.alert_is_present()).accept()
+    wait(browser, text_in("#scenarios-message", "deleted"))
+    assert "pump" not in console.path.read_text()
+    wait_for(console.gw, lambda s: not {"pump", "pump-copy"} & set(scenarios(s)),
+             "both scenarios gone")
+
+
+def test_the_exchange_table_in_typed_views_with_zones_and_owners(browser, console):
+    with ModbusTcpClient("127.0.0.1", port=console.gw.port) as modbus:
+        assert not modbus.write_registers(0x1000, [0x4049, 0x0FDB, 0xFFFF, 0xFFFE, 0x4142],
+                                          device_id=TABLE_UNIT).isError()
+    log_in(browser, console, "admin")
+    go(browser, "table")
+    address = wait(browser, found("#table-address"))
+    address.clear()
+    address.send_keys("0x1000")
+    view = Select(browser.find_element(By.ID, "table-view"))
+    view.select_by_value("float32")
+    cell = '#table-grid td.value[data-address="{}"]'
+    wait(browser, text_in(cell.format(0x1000), "3.141593"))
+    assert browser.find_element(By.CSS_SELECTOR, "#table-grid tr.zone").text.startswith(
+        "free zone 0x1000-0x7FFF")
+    view.select_by_value("int32")
+    wait(browser, text_in(cell.format(0x1002), "-2"))
+    browser.find_element(By.ID, "table-swap-words").click()
+    wait(browser, text_in(cell.format(0x1002), "-65537"))        # 0xFFFEFFFF
+    view.select_by_value("ascii")
+    browser.find_element(By.ID, "table-swap-bytes").click()
+    wait(browser, text_in(cell.format(0x1004), "BA"))
+    address.clear()
+    address.send_keys("0")
+    address.submit()
+    wait(browser, text_in("#table-owners", "scenario boiler: 0-1"))
+    assert "scenario boiler" in browser.find_element(
+        By.CSS_SELECTOR, cell.format(0)).get_attribute("title")
+
+
+def test_a_firewall_rule_added_in_the_browser_refuses_a_write(browser, console):
+    def write() -> bool:
+        with ModbusTcpClient("127.0.0.1", port=console.gw.port) as modbus:
+            return not modbus.write_register(0x300, 5, device_id=TABLE_UNIT).isError()
+
+    assert write()
+    log_in(browser, console, "admin")
+    go(browser, "firewall")
+    wait(browser, found("#firewall-rules"))
+    browser.find_element(By.ID, "firewall-add").click()
+    rule = browser.find_element(By.CSS_SELECTOR, "#firewall-rules tr.rule")
+    rule.find_element(By.CSS_SELECTOR, '[data-key="client"]').send_keys("127.0.0.1")
+    rule.find_element(By.CSS_SELECTOR, '[data-key="read-only"]').click()
+    browser.find_element(By.ID, "firewall-apply").click()
+    wait(browser, text_in("#firewall-result", "configuration reloaded"))
+    assert "[[rule]]" in console.path.read_text()
+    assert not write()                                          # 0x01, by rule 1
+    wait(browser, found("#firewall-rules tr.rule"))
+    browser.refresh()
+    wait(browser, text_in("#firewall-rules tr.rule td.refused", "1"))
+    browser.find_element(By.CSS_SELECTOR, "#firewall-rules tr.rule button.delete").click()
+    browser.find_element(By.ID, "firewall-apply").click()
+    wait(browser, text_in("#firewall-result", "configuration reloaded"))
+    assert "[[rule]]" not in console.path.read_text()
+    assert write()
+
+
+def test_device_details_on_demand_and_a_reset_of_the_counters_asked_first(browser, console):
+    log_in(browser, console, "admin")
+    go(browser, "devices")
+    wait(browser, found('#devices-table tr[data-address="9"] button.details')).click()
+    wait(browser, text_in("#devices-table tr.device-details", "Latency buckets"))
+    go(browser, "stats")
+    wait(browser, text_in('#stats-table tr[data-name="counters.requests"] td.rate', "/s"))
+    wait(browser, text_in('#stats-table tr[data-name="counters_since"] td', " ago)"))
+    browser.find_element(By.ID, "stats-reset").click()
+    wait(browser, EC.alert_is_present()).dismiss()
+    assert browser.find_element(By.ID, "stats-message").text == ""
+    browser.find_element(By.ID, "stats-reset").click()
+    wait(browser, EC.alert_is_present()).accept()
+    wait(browser, text_in("#stats-message", "counters reset"))
+    wait_for_log(console.gw, "counters reset by the operator (web admin@")
+
+
+def test_a_factory_reset_puts_back_the_shipped_file(browser, console, tmp_path):
+    shipped = tmp_path / "shipped.toml"
+    done = subprocess.run([sys.executable, "-m", "mbgw", "config", "default", "--config",
+                           str(shipped)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    log_in(browser, console, "admin")
+    go(browser, "admin")
+    wait(browser, found("#admin-factory-reset")).click()
+    wait(browser, EC.alert_is_present()).dismiss()             # asked first: no
+    assert console.path.read_text() != shipped.read_text()
+    browser.find_element(By.ID, "admin-factory-reset").click()
+    wait(browser, EC.alert_is_present()).accept()
+    wait(browser, text_in("#admin-factory-reset-result", "the shipped file is back"))
+    assert console.path.read_text() == shipped.read_text()
+
+
+def test_the_table_servers_clients_are_listed_and_closed_in_master_mode(browser, tmp_path):
+    path = tmp_path / "mbgw.toml"
+    web_port, table_port = free_port(), free_port()
+    path.write_text(f'[serial]\nmode = "master"\n[web]\nlisten = "127.0.0.1:{web_port}"\n')
+    set_password(path, "admin")
+    pty = PtyPair(tmp_path)
+    gw = Gateway(tmp_path, pty.gateway, "--config", str(path), "--table", "--table-port",
+                 str(table_port), mode="master", listen=False)
+    modbus = Client(table_port)
+    try:
+        modbus.ask(1, read_holding(0, 1))
+        here = "127.0.0.1:%d" % modbus.sock.getsockname()[1]
+        log_in(browser, SimpleNamespace(url=f"http://127.0.0.1:{web_port}/"), "admin")
+        go(browser, "clients")
+        row = wait(browser, lambda d: [r for r in d.find_elements(
+            By.CSS_SELECTOR, "#clients-table tbody tr") if here in r.text])[0]
+        row.find_element(By.CSS_SELECTOR, "button.close-client").click()
+        wait(browser, EC.alert_is_present()).accept()
+        wait(browser, text_in("#clients-message", "closed"))
+        modbus.sock.settimeout(15)
+        assert modbus.sock.recv(1) == b""
+    finally:
+        modbus.close()
+        gw.stop()
+        pty.stop()
