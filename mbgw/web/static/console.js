@@ -348,14 +348,16 @@ function overviewPage(body) {
     async refresh() {
       const s = await load("/api/status");
       if (!s) return;
-      const serial = s.serial || {};
+      const serial = s.serial || { state: linesState(s) };
       const counters = s.counters || {};
+      // a slave-mode file may leave [serial] out: its [[line]]s are the lines
+      const line = s.serial ? [["Serial device", `${show(serial.device)} ` +
+          `${serial.protocol === undefined ? "" : serial.protocol + " "}` +
+          `${show(serial.baudrate)} ${show(serial.format)} ${show(serial.interface)}`]]
+        : [["Lines", listOf(s, "lines").map((l) => l.name).join(", ")]];
       clear(facts).append(factsTable("overview-facts", [
         ["Location", s.location], ["Mode", s.mode], ["Version", s.version],
-        ["Serial device", `${show(serial.device)} ` +
-          `${serial.protocol === undefined ? "" : serial.protocol + " "}` +
-          `${show(serial.baudrate)} ${show(serial.format)} ${show(serial.interface)}`],
-        ["Line state", serial.state], ["Uptime", duration(s.uptime_s)],
+        ...line, ["Line state", serial.state], ["Uptime", duration(s.uptime_s)],
         ["Started", localTime(s.started)],
         ["Line load", typeof s.line_utilisation_pct === "number"
           ? lineLoad(s) : "—"],
@@ -393,6 +395,12 @@ function tally(items, field) {
   const counts = new Map();
   for (const item of items) counts.set(item[field], (counts.get(item[field]) || 0) + 1);
   return [...counts].map(([value, n]) => `${n} ${value}`).join(", ");
+}
+
+// Without line serial: "up" while every line is, else the first other state.
+function linesState(s) {
+  const other = listOf(s, "lines").find((l) => l.state !== "up");
+  return other ? other.state : "up";
 }
 
 // What an operator must look at, each with since when.
