@@ -8,8 +8,10 @@ line, pymodbus's TCP client in front.
 """
 import os
 import signal
+import urllib.request
 
 import pytest
+from prometheus_client import parser
 from pymodbus.client import ModbusTcpClient
 
 from tests.harness import free_port
@@ -22,7 +24,7 @@ from tests.integration.web.test_web_api import (
     listen_on,
     set_passwords,
 )
-from tests.ops import mbgw, status, wait_for_log
+from tests.ops import mbgw, metric_families, metric_value, status, wait_for_log
 
 pytestmark = pytest.mark.integration
 
@@ -73,7 +75,9 @@ def test_a_tcp_client_reads_both_lines_through_the_gateway(setup, start_gateway)
     path, _ = setup
     set_passwords(path, ("admin", ADMIN_PASSWORD), ("user", USER_PASSWORD))
     web_port = listen_on(path)
-    gw = start_gateway(None, "--config", str(path), "--exception")
+    metrics_port = free_port()
+    gw = start_gateway(None, "--config", str(path), "--exception",
+                       "--metrics", f"127.0.0.1:{metrics_port}")
     client = ModbusTcpClient("127.0.0.1", port=gw.port, timeout=5)
     assert client.connect()
     try:
@@ -94,6 +98,13 @@ def test_a_tcp_client_reads_both_lines_through_the_gateway(setup, start_gateway)
     assert (rows["inverter"]["replies"], rows["meters"]["replies"]) == (1, 1)
     text = mbgw("status", "--control", gw.control).stdout
     assert "inverter" in text and "meters" in text and "serial  " not in text
+    with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics") as response:
+        families = metric_families(parser, response.read().decode())
+    assert {x.labels["line"] for x in families["mbgw_line_up"].samples} == \
+        {"inverter", "meters"}
+    assert metric_value(families, "mbgw_line_up", line="meters") == 1
+    assert metric_value(families, "mbgw_replies", "mbgw_replies_total",
+                        line="inverter") == 1
     web = admin(Web(f"http://127.0.0.1:{web_port}"))   # the console's Lines page reads this
     assert [r["name"] for r in web.ok("GET", "/api/status")["lines"]] == ["inverter", "meters"]
     assert "internal error" not in gw.log()
