@@ -58,13 +58,12 @@ class Settings:
     routes: tuple = ()         # the [[route]] tables (RouteConfig)
     monitors: tuple = ()       # the [[monitor]] maps (MonitorMap)
     devices: tuple = ()        # the [[device]] tables (DeviceConfig)
-    serial: bool = True        # the file has [serial]
 
     @property
     def without_serial(self) -> bool:
-        """A slave-mode file whose [[line]] tables define the lines, [serial] left out: it
-        needs no serial.device (line serial does not run)."""
-        return self.mode == "slave" and not self.serial and bool(self.lines)
+        """A slave-mode file whose [[line]] tables define the lines, [serial] (or its device)
+        left out: line serial does not run, [serial]'s other keys are the lines' defaults."""
+        return self.mode == "slave" and DEVICE_PARAM not in self.values and bool(self.lines)
 
     def default_map(self, schema: Schema, command_name: str) -> dict:
         """click's default_map for a mode command: its options the file sets.  The authip and
@@ -206,7 +205,7 @@ def check(schema: Schema, path: Path, data: dict) -> Settings:
     if problems:
         raise ConfigFileError(path, problems)
     return Settings(Path(path), mode, values, rules, scenarios, lines, routes, monitors,
-                    devices, "serial" in groups)
+                    devices)
 
 
 def _check_mode(schema: Schema, serial: dict, problems: list) -> str:

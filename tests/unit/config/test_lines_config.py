@@ -348,6 +348,14 @@ def test_without_serial_there_is_no_line_serial_and_only_the_files_routes(schema
     assert built(schema, tmp_path, EXAMPLE).serial_line
 
 
+def test_a_serial_group_without_a_device_only_gives_the_lines_defaults(schema, tmp_path):
+    cfg = built(schema, tmp_path, '[serial]\nstout = 900\n[[line]]\nname = "inverter"\n'
+                'connect = "modbus-tcp://127.0.0.1:5020"\n'
+                '[[route]]\nunits = "1"\nline = "inverter"\n')
+    assert not cfg.serial_line
+    assert [(line.name, line.serial.stout_ms) for line in cfg.lines] == [("inverter", 900)]
+
+
 @pytest.mark.parametrize("text, problem", [
     (METERS, "serial.device: missing, so line serial does not run and no unit reaches a line"),
     (METERS + '[net]\nslaveid = 5\n[[route]]\nunits = "1"\nline = "meters"\n',
