@@ -145,14 +145,15 @@ class PtyPair:
 class Gateway:
     """`python -m mbgw slave ...` on 127.0.0.1:port, ready when it sends READY=1."""
 
-    def __init__(self, directory: Path, device: str, *args: str, port: int | None = None,
+    def __init__(self, directory: Path, device: str | None, *args: str, port: int | None = None,
                  mode: str = "slave", listen: bool = True, env: dict | None = None,
                  keep_notify: bool = False, program: tuple[str, ...] = ("-m", "mbgw")) -> None:
         """listen=False: no --bind/--mdbport (master mode, where --mdbport is the remote
         servers' port and is among args); port then only names the log and notify files.
         env: more environment variables.  keep_notify: the notify socket stays open after
         READY=1, for notification(); a test that keeps it must read it (see notification).
-        program: what python runs (a test's own wrapper of mbgw's command line)."""
+        program: what python runs (a test's own wrapper of mbgw's command line).  device
+        None: no --device (a file whose [[line]]s define the lines, [serial] left out)."""
         self.port = port or free_port()
         self.log_path = directory / f"mbgw-{self.port}.log"
         notify_path = str(directory / f"notify-{self.port}")
@@ -164,7 +165,8 @@ class Gateway:
         env = dict(os.environ, NOTIFY_SOCKET=notify_path, RUNTIME_DIRECTORY=str(runtime),
                    **(env or {}))
         network = ["--bind", "127.0.0.1", "--mdbport", str(self.port)] if listen else []
-        self.args = [sys.executable, *program, mode, "--device", device, *network, *args]
+        serial = ["--device", device] if device is not None else []
+        self.args = [sys.executable, *program, mode, *serial, *network, *args]
         self._log = open(self.log_path, "w")
         self.proc = subprocess.Popen(self.args, env=env, stdout=self._log, stderr=self._log)
         self._notify = notify

@@ -6,7 +6,7 @@ import click
 
 from mbgw.cli.serial_options import demotion, serial_config
 from mbgw.config import line_file
-from mbgw.config.lines import PRIMARY_LINE, LineConfig, config_problems
+from mbgw.config.lines import LineConfig, config_problems, daemon_lines
 from mbgw.config.model import MasterConfig, SlaveConfig
 from mbgw.config.monitor import monitor_problems
 
@@ -70,9 +70,8 @@ def with_lines(cfg: SlaveConfig | MasterConfig, mode: str, lines=(), routes=(), 
     elif not cfg.gateway_unit:
         return cfg
     problems = config_problems(cfg, mode)
-    problems += monitor_problems(cfg.monitors, {line.name: line.mode for line in
-                                                (LineConfig(PRIMARY_LINE, cfg.serial, mode=mode),
-                                                 *cfg.lines)})
+    problems += monitor_problems(cfg.monitors, {line.name: line.mode
+                                                for line in daemon_lines(cfg, mode)})
     if problems:
         raise click.BadParameter(problems[0])
     return cfg

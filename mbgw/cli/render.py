@@ -40,7 +40,8 @@ def format_status(s: dict, now: float) -> str:
         lines += _slave_sections(s, now)
     if len(s.get("lines", ())) > 1 or any(not r["implicit"] for r in s.get("routes", ())):
         lines += ["", *_lines_section(s["lines"]), "", *_routes_section(s["routes"])]
-        for row in s["lines"][1:]:        # line serial's devices are above
+        # line serial's devices are above (a slave-mode file may leave [serial] out)
+        for row in s["lines"][1 if "serial" in s else 0:]:
             lines += ["", *(_line_maps(row) if "maps" in row else _line_devices(row, now))]
     cached = [row for row in s.get("lines", ()) if row.get("cache")]
     if cached:
@@ -328,7 +329,9 @@ def _firewall_section(f: dict) -> list[str]:
 
 
 def _slave_sections(s: dict, now: float) -> list[str]:
-    serial = s["serial"]
+    serial = s.get("serial")
+    if serial is None:      # [serial] left out: the [[line]]s follow
+        return [f"listening  {', '.join(s['listening'])}", "", *_clients_section(s, now)]
     lines = [
         f"listening  {', '.join(s['listening'])}",
         f"{_line(serial)}, stout {serial['stout_ms']} ms: line {_state(serial)}, "

@@ -16,9 +16,18 @@ def _check_device(path):
     return path
 
 
+def _device(ctx: click.Context, param: click.Parameter, value):
+    """--device, checked; NO_DEVICE only from a slave-mode file that leaves [serial] out to
+    its [[line]]s (mbgw.config.file.Settings.default_map): line serial does not run."""
+    if value == model.NO_DEVICE and param.name is not None and \
+            ctx.get_parameter_source(param.name) == click.core.ParameterSource.DEFAULT_MAP:
+        return value
+    return parser(_check_device)(ctx, param, value)
+
+
 serial_options = stack(
     click.option("--device", cls=SerialOption, required=True, metavar="PATH",
-                 callback=parser(_check_device),
+                 callback=_device,
                  help="Serial device, e.g. /dev/ttyUSB0; one that is not there yet is "
                       "waited for."),
     click.option("--protocol", cls=SerialOption, type=click.Choice(model.PROTOCOLS),

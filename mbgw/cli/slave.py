@@ -123,9 +123,9 @@ def slave_config(device, protocol, baudrate, line_format, interface, rtsdelays, 
                  tls_require_role=True, tls_crl=None, tcpto=model.DEFAULT_TCPTO_MS,
                  late_window=None, gateway_unit=0, udp_port=0, rtu_port=0, cache=None,
                  **table_settings) -> model.SlaveConfig:
-    serial = serial_config(device, protocol, baudrate, line_format, interface, rtsdelays,
-                            stout, silence, ascii_timeout, nocheck, dtr, rts, cts, xonxoff,
-                            interframe_silence)
+    serial = serial_config(device, protocol, baudrate, line_format,
+                           interface, rtsdelays, stout, silence, ascii_timeout, nocheck, dtr,
+                           rts, cts, xonxoff, interframe_silence)
     upstream_tls = upstream_tls_config(table_settings)
     table = table_config(**table_settings)
     tls = tls_config(tls_port, tls_cert, tls_key, tls_ca, tls_require_role, tls_crl)

@@ -21,6 +21,7 @@ import click
 from mbgw.config import firewall as fw
 from mbgw.config import line_file
 from mbgw.config.lines import LINE_MODES
+from mbgw.config.model import NO_DEVICE
 from mbgw.config.monitor import MONITOR_TABLE, parse_monitors
 from mbgw.config.scenario import parse_scenarios
 from mbgw.config.schema import (
@@ -42,6 +43,7 @@ from mbgw.errors import ConfigFileError
 
 SCENARIO_KEY = "scenario"       # [[scenario]]: an array of tables, beside the groups
 SCENARIOS_PARAM = "scenarios"   # the mode commands' hidden parameter the file fills
+DEVICE_PARAM = "device"         # serial.device's parameter
 
 
 @dataclasses.dataclass(frozen=True)
@@ -56,6 +58,12 @@ class Settings:
     routes: tuple = ()         # the [[route]] tables (RouteConfig)
     monitors: tuple = ()       # the [[monitor]] maps (MonitorMap)
     devices: tuple = ()        # the [[device]] tables (DeviceConfig)
+
+    @property
+    def without_serial(self) -> bool:
+        """A slave-mode file whose [[line]] tables define the lines, [serial] (or its device)
+        left out: line serial does not run, [serial]'s other keys are the lines' defaults."""
+        return self.mode == "slave" and DEVICE_PARAM not in self.values and bool(self.lines)
 
     def default_map(self, schema: Schema, command_name: str) -> dict:
         """click's default_map for a mode command: its options the file sets.  The authip and
@@ -79,6 +87,8 @@ class Settings:
             mapping[line_file.MONITORS_PARAM] = self.monitors
         if self.devices:
             mapping[line_file.DEVICES_PARAM] = self.devices
+        if self.without_serial and command_name == self.mode:
+            mapping[DEVICE_PARAM] = NO_DEVICE       # line serial does not run
         return mapping
 
     def get(self, schema: Schema, name: str):

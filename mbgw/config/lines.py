@@ -354,9 +354,10 @@ ALL_UNITS = tuple(range(256))
 def implicit_routes(cfg: SlaveConfig | MasterConfig) -> tuple[RouteConfig, ...]:
     """Today's routing, as routes, for each face without an explicit route (implicit=True).
     Slave mode's TCP face: the table's units to the table, every other unit to line serial
-    (at the fixed `slaveid` address when it is set).  Master mode's serial face: the slaveid
-    ranges to their servers, the table's serial address to the table.  A face with explicit
-    routes keeps only its table route, unless one of its routes is `table = true`."""
+    (at the fixed `slaveid` address when it is set; none when [serial] is left out).  Master
+    mode's serial face: the slaveid ranges to their servers, the table's serial address to
+    the table.  A face with explicit routes keeps only its table route, unless one of its
+    routes is `table = true`."""
     if isinstance(cfg, SlaveConfig):
         return _slave_routes(cfg)
     return _master_routes(cfg)
@@ -389,7 +390,7 @@ def _slave_routes(cfg: SlaveConfig) -> tuple[RouteConfig, ...]:
     if cfg.table_on and not explicit_table:
         table_units = cfg.table.units if cfg.table.direct else ALL_UNITS
         routes.append(RouteConfig(0, table_units, table=True, implicit=True))
-    if not explicit and len(table_units) + len(gateway) < len(ALL_UNITS):
+    if not explicit and cfg.serial_line and len(table_units) + len(gateway) < len(ALL_UNITS):
         taken = {*table_units, *gateway}
         routes.append(RouteConfig(0, tuple(u for u in ALL_UNITS if u not in taken),
                                   line=PRIMARY_LINE, address=cfg.slaveid or None,
@@ -443,12 +444,27 @@ def routes_status(routes: RouteMap) -> list[dict]:
              "implicit": r.implicit} for r in routes.routes]
 
 
+def has_serial_line(cfg: SlaveConfig | MasterConfig) -> bool:
+    """Line serial runs: the file has [serial] (only a slave-mode file may leave it out)."""
+    return not isinstance(cfg, SlaveConfig) or cfg.serial_line
+
+
+def daemon_lines(cfg: SlaveConfig | MasterConfig, mode: str) -> tuple[LineConfig, ...]:
+    """Every line the daemon runs: line serial (in the daemon's mode), unless [serial] is
+    left out, then cfg.lines."""
+    if not has_serial_line(cfg):
+        return cfg.lines
+    return (LineConfig(PRIMARY_LINE, cfg.serial, mode=mode), *cfg.lines)
+
+
 def config_problems(cfg: SlaveConfig | MasterConfig, mode: str) -> list[str]:
     """What check-config refuses in a daemon's lines and routes: line serial (with the
     daemon's mode) and cfg.lines, the implicit routes beside the explicit ones."""
-    primary = LineConfig(PRIMARY_LINE, cfg.serial, mode=mode)
-    problems = route_problems((primary, *cfg.lines), effective_routes(cfg))
-    problems += device_problems((primary, *cfg.lines), effective_routes(cfg), cfg.devices)
+    lines = daemon_lines(cfg, mode)
+    problems = _without_serial_problems(cfg) if isinstance(cfg, SlaveConfig) \
+        and not cfg.serial_line else []
+    problems += route_problems(lines, effective_routes(cfg))
+    problems += device_problems(lines, effective_routes(cfg), cfg.devices)
     problems += [f"{r.label}.table: the table is off (table.enabled = false)"
                  for r in cfg.routes if r.table and not cfg.table_on]
     if not cfg.upstream_tls.enabled:
@@ -456,6 +472,22 @@ def config_problems(cfg: SlaveConfig | MasterConfig, mode: str) -> list[str]:
                      f"tls.server-ca" for r in cfg.routes if r.tls]
     if mode == "master" and any(r.face == TCP_FACE for r in cfg.routes):
         problems += _tcp_face_problems(cfg)
+    return problems
+
+
+def _without_serial_problems(cfg: SlaveConfig) -> list[str]:
+    """[serial] left out: nothing may address line serial, and without it no implicit route
+    reaches a line, so the file's [[route]]s must."""
+    problems = []
+    if not cfg.routes:
+        problems.append("serial.device: missing, so line serial does not run and no unit "
+                        "reaches a line: give [serial] or [[route]] tables to the [[line]]s "
+                        "(e.g. units = \"1-247\", line = \"NAME\")")
+    if cfg.slaveid:
+        problems.append(f"net.slaveid {cfg.slaveid}: the address on line serial, and "
+                        f"[serial] is left out: give a [[route]] address instead")
+    problems += [f"scenario {sc.name}: a serial scenario runs on line serial, and [serial] "
+                 f"is left out" for sc in cfg.scenarios if sc.kind == "serial"]
     return problems
 
 

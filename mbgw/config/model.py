@@ -145,6 +145,9 @@ class Demotion:
                 raise ConfigError(f"{name} {value}: out of range {low}..{high}")
 
 
+NO_DEVICE = ""    # the device of a [serial] left out (SlaveConfig.serial_line False)
+
+
 @dataclass(frozen=True)
 class SerialConfig:
     device: str
@@ -489,6 +492,11 @@ class SlaveConfig:
     routes: tuple = ()             # RouteConfig (mbgw.config.lines): [[route]]
     monitors: tuple = ()           # MonitorMap (mbgw.config.monitor): [[monitor]]
     devices: tuple = ()            # DeviceConfig (mbgw.config.lines): [[device]]
+    @property
+    def serial_line(self) -> bool:
+        """Line serial runs.  Not when the file leaves [serial] out, its [[line]]s defining
+        the lines: `serial` then holds only the defaults the [[line]]s take."""
+        return self.serial.device != NO_DEVICE
 
     def __post_init__(self) -> None:
         _check_scenarios(self.scenarios, "slave")

@@ -40,7 +40,8 @@ class DaemonStatus:
 
     def line_names(self) -> tuple[str, ...]:
         """The daemon's lines now (a reload may add or remove some)."""
-        return (PRIMARY_LINE, *(line.name for line in getattr(self.cfg, "lines", ())))
+        primary = (PRIMARY_LINE,) if getattr(self.cfg, "serial_line", True) else ()
+        return (*primary, *(line.name for line in getattr(self.cfg, "lines", ())))
 
     def commands(self) -> dict:
         return {"status": self.status, "close": self.close, "reset": self.reset,

@@ -27,6 +27,7 @@ from mbgw.slave.servers import ServerTargets, how_reached, server_targets
 from mbgw.slave.status import SlaveStatus
 from mbgw.slave.table_service import TableService
 from mbgw.slave.targets import TargetLines
+from mbgw.slave.tcp_face import FaceThread
 
 log = logging.getLogger("mbgw")
 
@@ -40,7 +41,7 @@ def run_slave(cfg: SlaveConfig, reconfigure, serve, faces=None, monitors=None) -
     threads, unstarted (mbgw.gateway's, when some line is in master mode).
     monitors(cfg, table, hub): the lines in monitor mode, unstarted, or None."""
     counters = Counters()
-    line = open_at_start(cfg.serial, counters)
+    line = open_at_start(cfg.serial, counters) if cfg.serial_line else None
     try:
         asyncio.run(_serve(cfg, line, counters, reconfigure, serve, faces, monitors))
     finally:
@@ -83,22 +84,25 @@ class SlaveMode(ModeParts):
         self.inboxes: dict[str, Inbox] = {}     # every target's but the table's, by name
         self.targets = TargetLines(cfg, self.inboxes)
         self.servers = _servers(cfg, self.inboxes)
-        worker: SlaveLineThread
+        worker: SlaveLineThread | FaceThread
         # one hub: every line's events, each naming its line
         self.server = TcpServer(cfg, self.scheduler, counters, lambda: worker.up, devices,
                                 self.tables.table, self.inboxes, self.targets.hub)
-        self.worker = worker = SlaveLineThread(cfg, line, self.scheduler, self.server, counters,
-                                          devices)
         # a serial face may reach line serial, one a reload adds too
         self.serial_inbox = Inbox()
-        worker.use_inbox(self.serial_inbox)
+        self.serial_engine = Scenarios(serial_scenarios(cfg), self.tables.table, "serial")
+        if cfg.serial_line:
+            worker = SlaveLineThread(cfg, line, self.scheduler, self.server, counters, devices)
+            worker.use_inbox(self.serial_inbox)
+            worker.use_scenarios(self.serial_engine)  # run, and reconfigured, by the line thread
+        else:   # no line serial to be the face's home
+            worker = FaceThread(self.server, self.scheduler)
+        self.worker = worker
         self._share_serial_inbox(cfg)
         self._make_faces = faces
         self.serial_faces: Any = None      # the serial faces (master.faces.LineFaces), once any
         if _has_faces(cfg):
             self._add_faces(cfg)
-        self.serial_engine = Scenarios(serial_scenarios(cfg), self.tables.table, "serial")
-        worker.use_scenarios(self.serial_engine)    # run, and reconfigured, by the line thread
         self.load = LineLoad(lambda: counters.line_busy_ns)
         self.line_share = LineShare(counters, self.server.router.off_line, self.inboxes)
         self.addresses: list[str] = []
@@ -126,7 +130,7 @@ class SlaveMode(ModeParts):
     def _share_serial_inbox(self, cfg: SlaveConfig) -> None:
         """Line serial's inbox among the targets' once the daemon has lines: before, line
         serial's figures are the daemon's (LineShare)."""
-        if cfg.lines:
+        if cfg.lines and cfg.serial_line:
             self.inboxes.setdefault(PRIMARY_LINE, self.serial_inbox)
 
     def _add_faces(self, cfg: SlaveConfig):
@@ -165,7 +169,9 @@ class SlaveMode(ModeParts):
     def threads(self) -> list:
         faces = self.serial_faces.all() if self.serial_faces is not None else ()
         monitors = self.monitors.threads if self.monitors is not None else ()
-        return [self.worker, *self.targets.threads(), *faces, *monitors]
+        # the line threads, for the watchdog (the face's own thread has no line to watch)
+        serial = [self.worker] if isinstance(self.worker, SlaveLineThread) else []
+        return [*serial, *self.targets.threads(), *faces, *monitors]
 
     def collector(self, metrics, started: float):
         server = self.server
@@ -182,11 +188,12 @@ class SlaveMode(ModeParts):
         """Each line's (name, counters, devices) for /metrics, line serial's first."""
         faces = self.serial_faces.metered() if self.serial_faces is not None else ()
         monitors = self.monitors.metered() if self.monitors is not None else ()
-        return [(PRIMARY_LINE, self.line_share, self.devices), *self.targets.metered(), *faces,
-                *monitors]
+        serial = [(PRIMARY_LINE, self.line_share, self.devices)] if self.cfg.serial_line else []
+        return [*serial, *self.targets.metered(), *faces, *monitors]
 
     def start(self, idle_ms: int) -> None:
-        self.worker.idle_ms = idle_ms
+        if isinstance(self.worker, SlaveLineThread):
+            self.worker.idle_ms = idle_ms
         self.worker.start()
         self.targets.start(idle_ms)
         if self.servers is not None:
@@ -200,6 +207,11 @@ class SlaveMode(ModeParts):
     def log_start(self) -> None:
         cfg = self.cfg
         s = cfg.serial
+        if not cfg.serial_line:
+            log.info("slave mode: listening on %s; no [serial]: lines %s%s",
+                     ", ".join(self.addresses), ", ".join(line.name for line in cfg.lines),
+                     origin(cfg))
+            return
         log.info("slave mode: listening on %s; serial %s %d %s %s %s, stout %d ms%s%s",
                  ", ".join(self.addresses), s.device, s.baudrate, s.format, s.protocol,
                  s.wiring, s.stout_ms, ", nocheck" if s.nocheck else "", origin(cfg))
@@ -214,16 +226,17 @@ class SlaveMode(ModeParts):
         return self.status.lines()
 
     async def apply(self, new: SlaveConfig, report: ReloadReport) -> None:
+        if new.serial_line != self.running.serial_line:
+            report.refuse("serial", "[serial] added or left out takes effect at restart "
+                                    "(systemctl restart mbgw)")
+            new = dataclasses.replace(new, serial=self.running.serial)
         self._share_serial_inbox(new)
         self.tables.reconfigure(new, report)
         removed = await asyncio.to_thread(self.targets.reconfigure, new, report)
         retired = self._reface(new, report)
         old_servers = self._reserve(new)
         await self.server.reconfigure(new, report)
-        worker = self.worker
-        worker.configured.clear()
-        worker.reconfigure(new)        # the face routes to the targets in force from then on
-        await asyncio.to_thread(worker.configured.wait, worker.turn_limit_s + 1)
+        await self._reroute(new)
         if retired:
             await asyncio.to_thread(self.serial_faces.retire, retired)
         for target in removed:
@@ -239,6 +252,18 @@ class SlaveMode(ModeParts):
             self.status.monitors = self.monitors
             self._monitored = monitor_settings(new)
         self.running = new
+
+    async def _reroute(self, new: SlaveConfig) -> None:
+        """The face routes to the targets in force from then on: line serial's thread swaps
+        its routes between turns; the face's own thread reads them once a request, so they
+        are swapped whole here."""
+        worker = self.worker
+        if isinstance(worker, FaceThread):
+            self.server.route_face(new)
+            return
+        worker.configured.clear()
+        worker.reconfigure(new)
+        await asyncio.to_thread(worker.configured.wait, worker.turn_limit_s + 1)
 
     def _reface(self, new: SlaveConfig, report: ReloadReport) -> list:
         """The serial faces of new's lines in master mode: added, changed, removed.  Returns

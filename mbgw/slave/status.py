@@ -55,8 +55,10 @@ class SlaveStatus(DaemonStatus):
         counters = self._counters.snapshot()
         busy_ns = counters.pop("line_busy_ns")
         data = self._common()
-        data["serial"].update(stout_ms=self.cfg.serial.stout_ms,
-                              state=self._worker.state)
+        if self.cfg.serial_line:
+            data["serial"].update(stout_ms=self.cfg.serial.stout_ms, state=self._worker.state)
+        else:       # [serial] left out: its settings are only the [[line]]s' defaults
+            del data["serial"]
         table = self._tables.figures() if self._tables is not None else None
         firewall = self._server.firewall
         return {
@@ -92,16 +94,19 @@ class SlaveStatus(DaemonStatus):
     def _lines(self, devices: list[dict]) -> list[dict]:
         counters = (self.line_share or self._counters).snapshot()
         counters.pop("line_busy_ns", None)
-        serial = line_row(PRIMARY_LINE, self.cfg.serial.device, "slave", self._worker.state,
-                          counters, devices,
-                          self.cache.status() if self.cache is not None else None)
-        return [serial, *(self.targets.status() if self.targets is not None else ()),
+        serial = [line_row(PRIMARY_LINE, self.cfg.serial.device, "slave", self._worker.state,
+                           counters, devices,
+                           self.cache.status() if self.cache is not None else None)
+                  ] if self.cfg.serial_line else []
+        return [*serial, *(self.targets.status() if self.targets is not None else ()),
                 *(self.faces.status() if self.faces is not None else ()),
                 *(self.monitors.status() if self.monitors is not None else ())]
 
     def summary(self) -> str:
         c = self._counters
-        return (f"slave mode: line {'up' if self._worker.up else 'down'}, "
+        line = f"line {'up' if self._worker.up else 'down'}" if self.cfg.serial_line else \
+            f"{len(self.cfg.lines)} lines"
+        return (f"slave mode: {line}, "
                 f"{len(self._server.clients)} clients, {c.requests} requests, "
                 f"{c.timeouts} timeouts")
 

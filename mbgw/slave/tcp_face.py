@@ -1,6 +1,7 @@
 """The Modbus TCP face of a daemon with no line serial in slave mode (a master-mode daemon
-whose `[[route]]`s take TCP units): the slave daemon's listener and router (TcpServer), at
-home on a thread of the face's own, `mbgw-tcp-face`.
+whose `[[route]]`s take TCP units, a slave-mode one whose file leaves `[serial]` out): the
+slave daemon's listener and router (TcpServer), at home on a thread of the face's own,
+`mbgw-tcp-face`.
 
 In a slave daemon line serial's thread polls the face's connections; here no thread owns a
 line for the face, and its routes reach only other threads' targets (lines in slave mode,
@@ -57,6 +58,8 @@ def face_settings(cfg: MasterConfig) -> SlaveConfig:
 class FaceThread(threading.Thread):
     """The face's home: it serves the connections until stopped, then closes them."""
 
+    up = False          # no line of its own: none of the face's units goes to line serial
+
     def __init__(self, server: TcpServer, scheduler: Scheduler) -> None:
         super().__init__(name=THREAD_NAME, daemon=True)
         self._connections = server.connections
@@ -92,7 +95,7 @@ class TcpFace:
         self._scheduler = Scheduler()      # nothing queues in it: its eventfd wakes the face
         settings = face_settings(cfg)
         devices = DeviceHealth(rule=HealthRule(cfg.demotion))   # no line of its own
-        self.server = TcpServer(settings, self._scheduler, self.counters, lambda: False,
+        self.server = TcpServer(settings, self._scheduler, self.counters, lambda: FaceThread.up,
                                 devices, table, inboxes, hub)
         self._thread = FaceThread(self.server, self._scheduler)
         self.addresses: list[str] = []

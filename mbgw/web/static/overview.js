@@ -54,6 +54,14 @@ function lineLoad(s) {
 }
 
 // "2 up, 1 down": how many items have each value of a field.
+const lineList = (s) => (Array.isArray(s.lines) ? s.lines : []);
+
+// Without line serial: "up" while every line is, else the first other state.
+function linesState(s) {
+  const other = lineList(s).find((l) => l.state !== "up");
+  return other ? other.state : "up";
+}
+
 function tally(items, field) {
   if (!items.length) return "none";
   const counts = new Map();
@@ -113,14 +121,16 @@ export function overviewPage(body) {
     async refresh() {
       const s = await load("/api/status");
       if (!s) return;
-      const serial = s.serial || {};
+      const serial = s.serial || { state: linesState(s) };
       const counters = s.counters || {};
+      // a slave-mode file may leave [serial] out: its [[line]]s are the lines
+      const line = s.serial ? [["Serial device", `${show(serial.device)} ` +
+          `${serial.protocol === undefined ? "" : serial.protocol + " "}` +
+          `${show(serial.baudrate)} ${show(serial.format)} ${show(serial.interface)}`]]
+        : [["Lines", lineList(s).map((l) => l.name).join(", ")]];
       clear(facts).append(factsTable("overview-facts", [
         ["Location", s.location], ["Mode", s.mode], ["Version", s.version],
-        ["Serial device", `${show(serial.device)} ` +
-          `${serial.protocol === undefined ? "" : serial.protocol + " "}` +
-          `${show(serial.baudrate)} ${show(serial.format)} ${show(serial.interface)}`],
-        ["Line state", serial.state], ["Uptime", duration(s.uptime_s)],
+        ...line, ["Line state", serial.state], ["Uptime", duration(s.uptime_s)],
         ["Started", isoTime(s.started)],
         ["Line load", typeof s.line_utilisation_pct === "number"
           ? lineLoad(s) : "—"],

@@ -590,3 +590,42 @@ def test_the_lines_page_shows_a_line_s_cache_figures(browser, tmp_path):
         gw.stop()
         peer.stop()
         pair.stop()
+
+
+def test_without_serial_the_pages_show_the_files_lines(browser, tmp_path):
+    path = tmp_path / "mbgw.toml"
+    web_port = free_port()
+    server_port = free_port()
+    servers = Peer("pymodbus_tcp_servers.py", str(server_port), "127.0.0.1")
+    (tmp_path / "meters").mkdir()
+    meters = PtyPair(tmp_path / "meters")
+    inverter = f"modbus-tcp://127.0.0.1:{server_port}"
+    path.write_text("\n".join([
+        "[web]", f'listen = "127.0.0.1:{web_port}"',
+        "[[line]]", 'name = "inverter"', f'connect = "{inverter}"',
+        "[[line]]", 'name = "meters"', f'device = "{meters.gateway}"', "baudrate = 19200",
+        "[[route]]", 'units = "1-10"', 'line = "inverter"',
+        "[[route]]", 'units = "11-20"', 'line = "meters"', "offset = -10"]) + "\n")
+    set_password(path, "admin")
+    gw = Gateway(tmp_path, None, "--config", str(path))
+    try:
+        assert Client(gw.port).ask(3, read_holding(0, 3)) == bytes((3, 6, 0, 0, 0, 1, 0, 3))
+        log_in(browser, SimpleNamespace(url=f"http://127.0.0.1:{web_port}/"), "admin")
+        browser.get_log("browser")
+        wait(browser, text_in('#overview-facts tr[data-name="Lines"] td', "inverter, meters"))
+        wait(browser, text_in('#overview-facts tr[data-name="Line state"] td', "up"))
+        go(browser, "lines")
+        for line, device in (("inverter", inverter), ("meters", meters.gateway)):
+            row = f'#lines-table tr[data-line="{line}"]'
+            wait(browser, found(row))
+            cells = [td.text for td in browser.find_elements(By.CSS_SELECTOR, f"{row} td")]
+            assert cells[0] == line and cells[1].startswith(device) and cells[2:4] == \
+                ["slave", "up"], cells
+        assert browser.find_elements(By.CSS_SELECTOR, '#lines-table tr[data-line="serial"]') \
+            == []
+        errors = [e for e in browser.get_log("browser") if e.get("source") == "javascript"]
+        assert errors == []
+    finally:
+        gw.stop()
+        servers.stop()
+        meters.stop()

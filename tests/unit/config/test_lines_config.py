@@ -326,6 +326,60 @@ def test_the_readme_and_man_page_examples_pass_check_config(tmp_path):
     assert result.exit_code == 0, result.output
 
 
+def test_the_readme_inverter_example_needs_no_serial(tmp_path):
+    from tests.harness import CHECKOUT
+    readme = (CHECKOUT / "README.md").read_text()
+    example = _toml_after(readme, "# /tmp/inverter.toml", "```")
+    assert "[serial]" not in example.splitlines()
+    path, result = check_config(tmp_path, example)
+    assert result.exit_code == 0, result.output
+
+
+# --- [serial] left out -----------------------------------------------------------------------
+
+def test_without_serial_there_is_no_line_serial_and_only_the_files_routes(schema, tmp_path):
+    cfg = built(schema, tmp_path, METERS + '[[route]]\nunits = "1-31"\nline = "meters"\n')
+    assert not cfg.serial_line
+    assert [r.target for r in route_map(cfg).routes] == ["line meters"]
+    with_table = built(schema, tmp_path, METERS + '[table]\nenabled = true\nunits = "250"\n'
+                       '[[route]]\nunits = "1-31"\nline = "meters"\n')
+    assert [(r.target, r.implicit) for r in route_map(with_table).routes] == \
+        [("table", True), ("line meters", False)]
+    assert built(schema, tmp_path, EXAMPLE).serial_line
+
+
+def test_a_serial_group_without_a_device_only_gives_the_lines_defaults(schema, tmp_path):
+    cfg = built(schema, tmp_path, '[serial]\nstout = 900\n[[line]]\nname = "inverter"\n'
+                'connect = "modbus-tcp://127.0.0.1:5020"\n'
+                '[[route]]\nunits = "1"\nline = "inverter"\n')
+    assert not cfg.serial_line
+    assert [(line.name, line.serial.stout_ms) for line in cfg.lines] == [("inverter", 900)]
+
+
+@pytest.mark.parametrize("text, problem", [
+    (METERS, "serial.device: missing, so line serial does not run and no unit reaches a line"),
+    (METERS + '[net]\nslaveid = 5\n[[route]]\nunits = "1"\nline = "meters"\n',
+     "net.slaveid 5: the address on line serial, and [serial] is left out"),
+    (METERS + '[[route]]\nunits = "1"\nline = "serial"\n',
+     "route 1.line 'serial': no such line"),
+])
+def test_without_serial_check_config_refuses(tmp_path, text, problem):
+    assert problem in refusal(tmp_path, text)
+
+
+def test_without_lines_serial_device_is_still_missing(tmp_path):
+    assert refusal(tmp_path, "[net]\nmdbport = 1502\n").startswith("serial.device: missing")
+
+
+def test_an_empty_device_on_the_command_line_is_refused(tmp_path):
+    path = tmp_path / "mbgw.toml"
+    path.write_text(METERS + '[[route]]\nunits = "1"\nline = "meters"\n')
+    result = CliRunner().invoke(main, ["slave", "--config", str(path), "--device", ""],
+                                prog_name="mbgw")
+    assert result.exit_code != 0
+    assert "device: empty" in result.output
+
+
 def test_the_gateway_unit_is_an_implicit_route_of_its_own(schema, tmp_path):
     cfg = built(schema, tmp_path, SERIAL + '[general]\ngateway-unit = 200\n[table]\n'
                 'enabled = true\nunits = "250-254"\n')
