@@ -839,8 +839,8 @@ def report_probes(case: DeadUnitCase, seconds: float) -> None:
     print(f"  {case.title}: {probes} probes of unit {DEAD_UNIT} in the {seconds:g} s (down "
           f"throughout), each holding the line {hold:.1f} ms (request, probe timeout "
           f"{case.probe_timeout_ms:.1f} ms, t3.5): {100 * probes * hold / 1000 / seconds:.2f} "
-          f"% of the line; a unit-1 request behind at most one probe: its slowest "
-          f"{case.over_round_ms:.0f} ms over the round (one probe: {hold:.0f} ms)")
+          f"% of the line; the slowest unit-1 request {case.over_round_ms:.0f} ms over the "
+          f"round (behind one probe: up to {hold:.0f} ms more)")
 
 
 def report_spread(lines: list[Line]) -> None:
