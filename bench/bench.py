@@ -42,11 +42,13 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))
 
+from mbgw.ops import control  # noqa: E402
 from tests.harness import PtyPair, free_port  # noqa: E402
 
 CHAR_BITS = 10                       # 8N1, what the gateway is started with
@@ -61,6 +63,7 @@ IDLE_EXTRA_S = 0.001                 # the idle-line client's pause beyond t3.5
 # How the gateway is started (an experiment may put a wrapper in front).
 GATEWAY_COMMAND = [sys.executable, "-m", "mbgw", "slave"]
 READY_TIMEOUT_S = 15.0
+READY_POLL_S, READY_LIMIT_S = 0.2, 30.0   # run_clients' ready()
 # A reply's write() to the pty takes a few microseconds, often 100-200 us on an idle VM (the
 # wake-up of the pty's kworker on a halted vCPU); the gap is measured from the write's end,
 # which can only make it read short.  When the slave was held up longer (a vCPU stolen by the
@@ -106,6 +109,7 @@ class Run:
     timed: list = field(default_factory=list)  # (gap, write) ns of every gap
     cycles: list = field(default_factory=list)    # ns from request to request, at the slave
     per_client: list = field(default_factory=list)  # transactions of each client, sorted
+    ready: bool = True    # the window began once run_clients' ready() held (not on a limit)
 
     @property
     def rate(self) -> float:
@@ -230,13 +234,14 @@ class Gateway:
     def __init__(self, tmp: Path, device: str, *options: str) -> None:
         self.port = free_port()
         self.log_path = tmp / f"mbgw-{self.port}.log"
+        self.control = str(tmp / f"control-{self.port}")
         notify_path = str(tmp / f"notify-{self.port}")
         self._notify = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         self._notify.bind(notify_path)
         self._log = open(self.log_path, "w")
         self.proc = subprocess.Popen(
             [*GATEWAY_COMMAND, "--device", device, "--bind", "127.0.0.1",
-             "--mdbport", str(self.port), *options],
+             "--mdbport", str(self.port), "--control", self.control, *options],
             env=dict(os.environ, NOTIFY_SOCKET=notify_path), stdout=self._log, stderr=self._log)
         self._notify.settimeout(READY_TIMEOUT_S)
         try:
@@ -245,6 +250,11 @@ class Gateway:
         except socket.timeout:
             self.stop()
             raise RuntimeError(f"gateway not ready: {self.log_path.read_text()}") from None
+
+    def device(self, unit: int) -> dict | None:
+        """What `mbgw status --json` says of a serial address (None: nothing yet)."""
+        found = control.call(self.control, {"command": "status"}).get("devices", [])
+        return next((d for d in found if d["address"] == unit), None)
 
     def stop(self) -> int:
         if self.proc.poll() is None:
@@ -300,10 +310,12 @@ class Client:
 
 
 def run_clients(port: int, n: int, slave: Slave, warmup: float, seconds: float,
-                others: int = 0, other_unit: int = 0) -> Run:
+                others: int = 0, other_unit: int = 0,
+                ready: Callable[[], bool] | None = None) -> Run:
     """n closed-loop clients: each sends its next request as soon as its reply is in; and
     `others` more on other_unit, also in a closed loop, whose replies are neither counted
-    nor timed (nor errors: a dead unit's 0x0B)."""
+    nor timed (nor errors: a dead unit's 0x0B).  ready: the window begins after the warm-up
+    once it holds (asked every READY_POLL_S), READY_LIMIT_S later at the latest."""
     run = Run(f"gateway, {n} client{'s' if n > 1 else ''}")
     measured = [Client(port) for _ in range(n)]
     clients = measured + [Client(port, other_unit) for _ in range(others)]
@@ -314,6 +326,7 @@ def run_clients(port: int, n: int, slave: Slave, warmup: float, seconds: float,
     for c in clients:
         c.send()
     start = time.perf_counter_ns() + int(warmup * 1e9)
+    ready_by = start + int(READY_LIMIT_S * 1e9)
     end = None
     latencies = []
     first_done = last_done = 0
@@ -321,9 +334,12 @@ def run_clients(port: int, n: int, slave: Slave, warmup: float, seconds: float,
     while True:
         now = time.perf_counter_ns()
         if end is None and now >= start:
-            slave.reset()
-            start = time.perf_counter_ns()
-            end = start + int(seconds * 1e9)
+            if _not_ready(run, ready, now, ready_by):
+                start = now + int(READY_POLL_S * 1e9)
+            else:
+                slave.reset()
+                start = time.perf_counter_ns()
+                end = start + int(seconds * 1e9)
         if end is not None and now >= end and drain_until is None:
             drain_until = now + 5_000_000_000
         if drain_until is not None and (now >= drain_until or not any(c.waiting for c in clients)):
@@ -355,6 +371,15 @@ def run_clients(port: int, n: int, slave: Slave, warmup: float, seconds: float,
     run.per_client = sorted(c.count for c in measured)
     slave.collect(run)
     return run
+
+
+def _not_ready(run: Run, ready: Callable[[], bool] | None, now: int, ready_by: int) -> bool:
+    """Whether the window waits for ready(); past ready_by it waits no more (run.ready
+    says so)."""
+    if ready is None or ready():
+        return False
+    run.ready = now < ready_by
+    return run.ready
 
 
 def run_idle_client(port: int, slave: Slave | None, t35: int, warmup: float,
@@ -640,6 +665,7 @@ WITH_DEMOTION = ("--down-after", "3", "--probe-interval", "5000")   # the defaul
 # (a unit that never answered is probed with its stout): its first reads answered, then none.
 DIED_AFTER = 10
 DIED_WARMUP_S = 6.0            # its answers, then down-after timeouts, before the window
+DOWN_SETTLE_S = 1.0            # with demotion the window begins once it is down this long
 
 
 def gateway_accepts(*options: str) -> bool:
@@ -655,6 +681,16 @@ class DeadUnitCase:
     options: tuple             # the gateway's demotion options
     alone: Run                 # the unit-1 clients without the dead unit's client
     beside: Run                # the same with it
+    # with demotion: the dead unit's probe timeout at the end (status), ms; the window began
+    # once it was down (beside.ready), so its frames in the window are its probes
+    probe_timeout_ms: float | None = None
+
+    @property
+    def probe_hold_ms(self) -> float:
+        """What one probe holds the line: its request, its timeout, t3.5 after."""
+        assert self.probe_timeout_ms is not None
+        return (REQUEST_LEN * CHAR_BITS * 1e3 / DEAD_BAUD + self.probe_timeout_ms
+                + t35_us(DEAD_BAUD) / 1e3)
 
     @property
     def share(self) -> float:
@@ -693,16 +729,32 @@ def measure_dead_unit(exe: str, tmp: Path, use_socat: bool, warmup: float,
             gateway = Gateway(tmp, side.device, "--baudrate", str(DEAD_BAUD), "--stout",
                               str(DEAD_STOUT_MS), "--exception", "--max-connections", "40",
                               "--log-level", "warning", *options)
+            demoted = options not in ((), WITHOUT_DEMOTION)
             alone = run_clients(gateway.port, DEAD_CLIENTS, side.slave, warmup, seconds)
             beside = run_clients(gateway.port, DEAD_CLIENTS, side.slave,
                                  DIED_WARMUP_S if dying else warmup, seconds,
-                                 others=1, other_unit=DEAD_UNIT)
-            cases.append(DeadUnitCase(title, options, alone, beside))
+                                 others=1, other_unit=DEAD_UNIT,
+                                 ready=_down(gateway) if demoted else None)
+            case = DeadUnitCase(title, options, alone, beside)
+            dead = gateway.device(DEAD_UNIT) if demoted else None
+            if dead is not None:
+                case.probe_timeout_ms = dead.get("probe_timeout_ms")
+            cases.append(case)
         finally:
             if gateway is not None:
                 _stop_and_show(gateway)
             side.stop()
     return cases
+
+
+def _down(gateway: Gateway) -> Callable[[], bool]:
+    """Whether the gateway has had the dead unit down for DOWN_SETTLE_S (the unit-1 requests
+    queued behind its last timeout served: none of them is timed in the window)."""
+    def down() -> bool:
+        dead = gateway.device(DEAD_UNIT)
+        return dead is not None and dead["health"] == "down" and \
+            time.time() - dead["health_since"] >= DOWN_SETTLE_S
+    return down
 
 
 def measure_spread(line: Line, exe: str, tmp: Path, use_socat: bool, warmup: float) -> None:
@@ -772,8 +824,23 @@ def report_dead_unit(cases: list[DeadUnitCase], seconds: float) -> None:
               f"(their p50 alone) {case.round_ms:.1f} ms; the slowest unit-1 request beside "
               f"unit {DEAD_UNIT} took {case.over_round_ms:.0f} ms more (target: <= one "
               f"stout, {DEAD_STOUT_MS} ms)")
+        if case.probe_timeout_ms is not None:
+            report_probes(case, seconds)
     print("  (unit-9 frames: the requests for unit 9 the slave saw on the line; of alone: "
           f"target >= {TARGET_DEAD_SHARE:g} % with demotion)")
+
+
+def report_probes(case: DeadUnitCase, seconds: float) -> None:
+    """The dead unit's probes in the window, and what they cost the line."""
+    if not case.beside.ready:
+        print(f"  !! {case.title}: unit {DEAD_UNIT} was not down within {READY_LIMIT_S:g} s "
+              f"of the warm-up: its frames in the window are not all probes")
+    probes, hold = case.beside.bad_frames, case.probe_hold_ms
+    print(f"  {case.title}: {probes} probes of unit {DEAD_UNIT} in the {seconds:g} s (down "
+          f"throughout), each holding the line {hold:.1f} ms (request, probe timeout "
+          f"{case.probe_timeout_ms:.1f} ms, t3.5): {100 * probes * hold / 1000 / seconds:.2f} "
+          f"% of the line; the slowest unit-1 request {case.over_round_ms:.0f} ms over the "
+          f"round (behind one probe: up to {hold:.0f} ms more)")
 
 
 def report_spread(lines: list[Line]) -> None:

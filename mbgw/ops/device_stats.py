@@ -21,7 +21,10 @@ the first request that timed out if it writes nothing.  With one kept, the line 
 the probes itself (probe_due) and every other request is refused while the address is down;
 without, the next request admitted is the probe, as in master mode.  A probe waits for the
 device's learnt response time (probe_timeout_ms): 3 x the p99 of its last LEARNT answers, in
-[PROBE_TIMEOUT_MIN_MS, stout], its stout before any answer.
+[PROBE_TIMEOUT_MIN_MS, stout]; before it has answered, the line's (the last LEARNT answers of
+any of its devices, DeviceHealth.line_latencies), and its stout before any answer on the line.
+A failure counts as silence only the time its request waited (failed's waited_ms), so a
+probe's short wait never brings down-after x stout nearer: it only shortens the probe.
 """
 import logging
 import math
@@ -74,6 +77,33 @@ class HealthRule:
                 f"{self.probe_max_s:g} s")
 
 
+class LatencyRing:
+    """The latencies of the last LEARNT answers, in a ring allocated once (answers write it on
+    the hot path: a store and small ints, nothing allocated), and their p99 when asked."""
+    __slots__ = ("values", "at", "full")
+
+    def __init__(self) -> None:
+        self.values = array("d", bytes(8 * LEARNT))    # ms
+        self.at = 0                    # where the next one goes
+        self.full = False              # LEARNT answers have come: the whole ring counts
+
+    def add(self, latency_ms: float) -> None:
+        at = self.at
+        self.values[at] = latency_ms
+        at += 1
+        if at == LEARNT:
+            at = 0
+            self.full = True
+        self.at = at
+
+    def p99(self) -> float | None:
+        """None: no answer yet; computed when asked (a probe, status), never per answer."""
+        n = LEARNT if self.full else self.at
+        if not n:
+            return None
+        return sorted(self.values[:n])[math.ceil(0.99 * n) - 1]
+
+
 class DeviceStats:
     # the counts (ALL_COUNTS; a mode keeps those of `counts`)
     transactions: int
@@ -94,10 +124,12 @@ class DeviceStats:
                               "last_success", "consecutive_failures", "recent_failures",
                               "health", "health_since", "probe_at", "probe_wait_s",
                               "invalid_bytes", "timing", "silent_since", "latencies",
-                              "latency_at", "latencies_full", "probe_adu", "first_timeout_seen")
+                              "line_latencies", "probe_adu", "first_timeout_seen")
 
     def __init__(self, address: int | None, counts: tuple = COUNTS,
-                 rule: HealthRule | None = None, name: str | None = None) -> None:
+                 rule: HealthRule | None = None, name: str | None = None,
+                 line_latencies: LatencyRing | None = None) -> None:
+        """line_latencies: the answers of every device on its line (its own: none shared)."""
         self.address = address         # None: not a serial address (a TCP scenario's server)
         self.name = name or f"device {address}"     # in the log
         self.counts = counts           # the counters this mode keeps (COUNTS, MASTER_COUNTS)
@@ -118,9 +150,8 @@ class DeviceStats:
         self.timing: dict | None = None    # its own timing ([[device]]), as status shows it
         # since when no valid reply came (monotonic; None: no failure since the last one)
         self.silent_since: float | None = None
-        self.latencies = array("d", bytes(8 * LEARNT))     # the last answers', a ring (ms)
-        self.latency_at = 0            # where the next answer's goes (small ints: no allocation)
-        self.latencies_full = False    # LEARNT answers have come: the whole ring counts
+        self.latencies = LatencyRing()     # its own last answers'
+        self.line_latencies = line_latencies if line_latencies is not None else LatencyRing()
         self.probe_adu: bytes | None = None    # the request its probes repeat (slave mode)
         self.first_timeout_seen = False
 
@@ -150,16 +181,14 @@ class DeviceStats:
         stout_ms = self.stout_ms
         p99 = self.learnt_p99_ms()
         if p99 is None:
+            p99 = self.line_latencies.p99()
+        if p99 is None:
             return stout_ms
         return min(max(PROBE_TIMEOUT_FACTOR * p99, PROBE_TIMEOUT_MIN_MS), stout_ms)
 
     def learnt_p99_ms(self) -> float | None:
-        """The p99 of the latencies of its last LEARNT answers (None: none yet); computed
-        when asked (a probe, status), never per transaction."""
-        n = LEARNT if self.latencies_full else self.latency_at
-        if not n:
-            return None
-        return sorted(self.latencies[:n])[math.ceil(0.99 * n) - 1]
+        """The p99 of the latencies of its last LEARNT answers (None: none yet)."""
+        return self.latencies.p99()
 
     def answered(self, latency_ms: float, exception_code: int | None) -> None:
         self.replies += 1
@@ -170,25 +199,22 @@ class DeviceStats:
         while bucket < len(LATENCY_BUCKETS_MS) and latency_ms > LATENCY_BUCKETS_MS[bucket]:
             bucket += 1
         self.latency_buckets[bucket] += 1
-        at = self.latency_at
-        self.latencies[at] = latency_ms
-        at += 1
-        if at == LEARNT:
-            at = 0
-            self.latencies_full = True
-        self.latency_at = at
+        self.latencies.add(latency_ms)
+        self.line_latencies.add(latency_ms)
         self.last_success = time.time()
         self.silent_since = None
         self.consecutive_failures = 0
         self.invalid_bytes = 0
         self._judge(False)
 
-    def failed(self, invalid_bytes: int = 0) -> None:
-        """A request without a valid reply; invalid_bytes: what came all the same."""
+    def failed(self, invalid_bytes: int = 0, waited_ms: float | None = None) -> None:
+        """A request without a valid reply; invalid_bytes: what came all the same; waited_ms:
+        how long it waited for the reply (None: its stout)."""
         self.consecutive_failures += 1
         self.invalid_bytes += invalid_bytes
-        if self.silent_since is None:  # since the failed request went, stout before
-            self.silent_since = time.monotonic() - self.stout_ms / 1000
+        if self.silent_since is None:  # since the failed request went
+            waited = self.stout_ms if waited_ms is None else waited_ms
+            self.silent_since = time.monotonic() - waited / 1000
         if self.health == DOWN:        # a probe failed: the next waits twice as long
             self.probe_wait_s = min(2 * self.probe_wait_s, self.rule.probe_max_s)
             self.probe_at = time.monotonic() + self.probe_wait_s
@@ -317,6 +343,8 @@ class DeviceHealth:
         self._own: dict[int, HealthRule] = {}
         self._timing: dict[int, dict] = {}
         self._devices: dict[int, DeviceStats] = {}
+        # the answers of all its devices: a probe's wait before its device has answered
+        self.line_latencies = LatencyRing()
 
     def find(self, address: int) -> DeviceStats | None:
         """The address's stats if it has any yet (any thread: nothing is created)."""
@@ -326,7 +354,8 @@ class DeviceHealth:
         stats = self._devices.get(address)
         if stats is None:
             stats = self._devices[address] = DeviceStats(
-                address, self.counts, self._rule_of(address))
+                address, self.counts, self._rule_of(address),
+                line_latencies=self.line_latencies)
             stats.timing = self._timing.get(address)
         return stats
 

@@ -301,7 +301,7 @@ class SerialMaster:
             device.first_timeout_seen = True
             if device.probe_adu is None and pdu.READ_ONLY[adu[1]]:
                 device.probe_adu = adu
-        device.failed(counters.noise_bytes - noise + self._bad_bytes)
+        device.failed(counters.noise_bytes - noise + self._bad_bytes, self._stout_ns / 1e6)
         self._open_window(adu[0], attempt + 1)
         raise LineTimeout(self._mismatch)
 

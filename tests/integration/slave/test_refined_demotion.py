@@ -7,8 +7,9 @@ down-after failures in a row (and down-after x stout without an answer).
 The fault slave (tests/peers/fault_slave.py) records each frame it receives with its arrival
 time (time.monotonic(), the test's clock too): its address 18 answers its first 5 requests
 after 10 ms, is silent to the next 3, then answers again; address 12 answers every second
-request.  Timings are checked on that record: lower bounds the gateway must respect, and one
-upper bound half a stout away from what the rule gives (a probe waits ~35 ms, stout is 1 s).
+request; address 2 never answers.  Timings are checked on that record: lower bounds the
+gateway must respect, and one upper bound half a stout away from what the rule gives (a probe
+waits ~35 ms, or ~20 ms on the line's learnt time; stout is 1 s).
 """
 import threading
 
@@ -28,6 +29,7 @@ INTERVAL_S = INTERVAL_MS / 1000
 DOWN_AFTER = 2
 STOPS = 18                    # fault_slave: 5 answers, 3 silences, then answers again
 EVERY_OTHER = 12              # fault_slave: answers every second request
+SILENT = 2                    # fault_slave: never answers
 READ = read_holding(0, 1)
 NO_ANSWER = b"\x83\x0b"
 WRITE = bytes.fromhex("06 00 05 00 07")     # FC 6, echoed: answered, never a probe
@@ -128,3 +130,37 @@ def test_a_device_answering_every_other_request_is_never_demoted(gateway, client
     d = devices(status(gw))[EVERY_OTHER]
     assert (d["health"], d["demoted_rejects"], d["timeouts"]) == ("degraded", 0, 2 * DOWN_AFTER)
     assert "is down" not in gw.log()
+
+
+def test_a_unit_that_never_answered_is_probed_with_the_learnt_time_of_its_line(
+        gateway, client):
+    """Address 2 has never answered; address 1, beside it, answers the poller in a few ms.
+    Once 2 is down, its probe (the first read that timed out) waits 3 x the p99 of the
+    line's answers (at least 20 ms), not its stout: the poller's next request follows the
+    probe by less than half a stout (and by a stout before issue 29's line-wide time)."""
+    gw, record = gateway
+    c = client(gw)
+    poller = Poller(gw)
+    try:
+        first_failed = read_holding(7, 1)
+        assert c.ask(SILENT, first_failed) == NO_ANSWER
+        assert c.ask(SILENT, read_holding(8, 1)) == NO_ANSWER
+        until(lambda: len(frames_to(record, SILENT)) >= DOWN_AFTER + 1, "a probe of unit 2",
+              10 * STOUT_S)
+        d = devices(status(gw))[SILENT]
+        until(lambda: [w for w, _ in frames_to(record, 1)
+                       if w > frames_to(record, SILENT)[DOWN_AFTER][0]],
+              "a request of the poller after the probe", 5)
+    finally:
+        poller.stop()
+    assert (d["health"], d["learnt_p99_ms"], d["replies"]) == ("down", None, 0), d
+    timeout_ms = d["probe_timeout_ms"]
+    assert 20 <= timeout_ms < STOUT_MS / 6, d
+
+    frames = frames_to(record, SILENT)
+    probe = bytes((SILENT,)) + first_failed
+    assert [f for _, f in frames[DOWN_AFTER:]] == [probe] * (len(frames) - DOWN_AFTER), frames
+    probed = frames[DOWN_AFTER][0]
+    after = [when for when, f in received(record) if f[0] == 1 and when > probed]
+    gap = after[0] - probed     # the line's p99 moves with the poller's: 20 ms, the least
+    assert 0.02 <= gap < STOUT_S / 2, (gap, timeout_ms)

@@ -387,6 +387,43 @@ def test_the_probe_timeout_is_3_p99_of_the_last_100_answers_within_20_ms_and_sto
     assert d.probe_timeout_ms() == 500                                 # at most stout
 
 
+def test_a_device_that_never_answered_waits_the_learnt_time_of_its_line(clock):
+    """Before its own first answer a probe waits 3 x the p99 of the line's last 100 answers
+    (any device's), within 20 ms and its stout; before any answer on the line, its stout."""
+    table = DeviceHealth(rule=HealthRule(Demotion(3, 1000), stout_ms=500))
+    silent, slow, quick = table.get(2), table.get(3), table.get(1)
+    assert (silent.learnt_p99_ms(), silent.probe_timeout_ms()) == (None, 500)
+    for n in range(100):
+        quick.answered(float(n % 10 + 1), None)         # 1..10 ms
+    assert (silent.learnt_p99_ms(), silent.probe_timeout_ms()) == (None, 30.0)
+    for _ in range(50):
+        slow.answered(40.0, None)                        # the line's last 100: 50 of them
+    assert silent.probe_timeout_ms() == 120.0
+    for _ in range(100):
+        slow.answered(400.0, None)
+    assert silent.probe_timeout_ms() == 500                             # at most stout
+    quick.answered(1.0, None)
+    assert quick.probe_timeout_ms() == 30.0                             # its own first
+    assert DeviceStats(4, rule=HealthRule(Demotion(3, 1000), stout_ms=500)) \
+        .probe_timeout_ms() == 500                       # a line of its own: no answer
+
+
+def test_failures_that_waited_less_than_stout_bring_down_no_sooner(clock):
+    """A failure counts as silence what its request waited: the short waits of probes never
+    make down-after x stout come sooner."""
+    d = DeviceStats(4, rule=HealthRule(Demotion(2, 1000), stout_ms=1000))
+    d.failed(waited_ms=30)
+    clock.now += 0.03
+    d.failed(waited_ms=30)
+    assert (d.consecutive_failures, d.health) == (2, "degraded")
+    clock.now += 1.9                    # 1.96 s since the first request went
+    d.failed(waited_ms=30)
+    assert d.health == "degraded"
+    clock.now += 0.04
+    d.failed(waited_ms=30)
+    assert d.health == "down"
+
+
 def test_with_a_request_kept_the_line_probes_and_every_request_is_refused(clock):
     d = DeviceStats(4, rule=HealthRule(Demotion(3, 1000), stout_ms=100))
     d.probe_adu = b"\x04\x03\x00\x00\x00\x01"
