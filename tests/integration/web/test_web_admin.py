@@ -194,6 +194,12 @@ def test_a_password_changed_lets_the_new_one_in_and_the_old_one_not(browser, con
 
 def test_the_events_page_shows_what_the_log_got_newest_first(browser, console):
     wait_for_log(console.gw, f"scenario {LOST} (slave 9): ")
+    # its own refused login and change: the test must not lean on others having run first
+    assert Api(console.url).log_in("admin", "not the password") != 200
+    admin = Api(console.url)
+    assert admin.log_in("admin", PASSWORDS["admin"]) == 200
+    assert admin.call("POST", "/api/config", {"changes": [
+        {"group": "general", "key": "location", "value": "events page"}]})[0] == 200
     log_in(browser, console, "admin")
     go(browser, "events")
     wait(browser, text_in("#events-table", f"scenario {LOST} (slave 9): "))
