@@ -80,7 +80,7 @@ class Answer:
         return bytes((function, len(data))) + data
 
 
-@dataclass
+@dataclass(slots=True)
 class AgeHistogram:
     """The ages of what was served from memory (cached, stale), by AGE_BUCKETS_MS."""
     counts: list[int]
@@ -121,8 +121,10 @@ class ReadCache:
             return last.reply
         if rule.ttl_ms:
             since_ns = now_ns - rule.ttl_ms * NS_PER_MS
-            if last is not None and last.keep and last.end_ns >= since_ns:    # the same read
-                return self._served(adu, last, now_ns, HITS, "cached")
+            if last is not None and last.keep and last.end_ns >= since_ns:
+                # the same read, the common hit: its reply as it is, nothing cut or compared
+                self._aged(adu[0], last, now_ns, HITS, "cached")
+                return last.reply
             found = self._within(adu, since_ns)
             if found is not None:
                 return self._served(adu, found, now_ns, HITS, "cached")
@@ -211,14 +213,18 @@ class ReadCache:
 
     def _served(self, adu: bytes, found: Answer, now_ns: int, figure: int, word: str
                 ) -> bytes:
-        self.age_ms = age_ms = (now_ns - found.end_ns) / NS_PER_MS
-        self.served = word
-        self._count(adu[0], figure)
-        self.ages.observe(age_ms)
+        self._aged(adu[0], found, now_ns, figure, word)
         if found.adu is adu or found.adu == adu:
             return found.reply
         return found.cut(adu[1], int.from_bytes(adu[2:4], "big"),
                          int.from_bytes(adu[4:6], "big"))
+
+    def _aged(self, unit: int, found: Answer, now_ns: int, figure: int, word: str) -> None:
+        """found is served: counted, its age kept for outcome() and the histogram."""
+        self.age_ms = age_ms = (now_ns - found.end_ns) / NS_PER_MS
+        self.served = word
+        self._count(unit, figure)
+        self.ages.observe(age_ms)
 
     def _count(self, unit: int, figure: int) -> None:
         counts = self.figures.get(unit)

@@ -111,6 +111,18 @@ def test_the_figures_by_unit_and_the_ages():
     assert sum(status["ages"]["counts"]) == 2 and status["ages"]["sum_ms"] == 803
 
 
+def test_an_exact_hit_and_a_sub_range_hit_keep_the_same_books():
+    whole, part = read(3, 3, 0, 4), read(3, 3, 1, 2)
+    cache = filled(whole, registers(1, 2, 3, 4), end_ns=100 * MS)
+    assert served(cache, cache.answer(TTL, part, 200 * MS, 104 * MS)) == \
+        (registers(2, 3), "cached 4 ms")
+    assert served(cache, cache.answer(TTL, whole, 200 * MS, 107 * MS)) == \
+        (registers(1, 2, 3, 4), "cached 7 ms")
+    status = cache.status()
+    assert status["units"]["3"]["hits"] == 2
+    assert sum(status["ages"]["counts"]) == 2 and status["ages"]["sum_ms"] == 11
+
+
 def test_clear_forgets_everything():
     adu = read(3, 3, 0, 2)
     cache = filled(adu, registers(1, 2), end_ns=100 * MS)
