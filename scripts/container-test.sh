@@ -4,7 +4,7 @@
 # packages), then mbgw.service and mbgw@NAME started, reloaded, restarted and configured through
 # the web console as an operator would, each check on what really happened (the file on disk,
 # the registers read back over Modbus TCP by mbpoll, systemd's own view of the units, the
-# journal's records and their audit fields).
+# journal's records and their audit fields, what a Mosquitto broker receives from [mqtt]).
 #
 # Usage: scripts/container-test.sh [mbgw.deb]          (root; systemd-container, mmdebstrap)
 # The rootfs is cached in $MBGW_CI_CACHE (/var/cache/mbgw-ci), keyed by the package's Depends,
@@ -13,8 +13,8 @@
 # A machine that cannot boot the container: the test says why and fails when $CI is true (CI
 # must show it ran), else it says SKIPPED and exits 0.
 set -euo pipefail
-RECIPE=1                   # bump when the rootfs below changes
-INCLUDE=systemd,dbus,socat,mbpoll
+RECIPE=2                   # bump when the rootfs below changes
+INCLUDE=systemd,dbus,socat,mbpoll,mosquitto,mosquitto-clients
 repo=$(cd "$(dirname "$0")/.." && pwd)
 deb=$(realpath "${1:-$repo/mbgw.deb}")
 cache=${MBGW_CI_CACHE:-/var/cache/mbgw-ci}
@@ -26,6 +26,7 @@ skipped=""
 PASSWORD=ci-admin-secret
 WATCHDOG_S=30              # WatchdogSec= of the units
 DEADLINE_S=60
+BROKER_PORT=18830          # the test's own Mosquitto, in the container's own loopback
 
 say() { echo "container: $*"; }
 fail() { echo "container: FAIL: $*" >&2; exit 1; }
@@ -46,7 +47,7 @@ cleanup() {
     local rc=$?
     if [ $rc -ne 0 ] && [ -n "$pid1" ]; then
         echo "--- journal of the units (last 60 lines)" >&2
-        inside journalctl --no-pager -n 60 -u mbgw -u 'mbgw@*' >&2 || true
+        inside journalctl --no-pager -n 60 -u mbgw -u 'mbgw@*' -u broker >&2 || true
     fi
     if [ -n "$nspawn" ] && kill -0 "$nspawn" 2>/dev/null; then
         kill -TERM "$nspawn" 2>/dev/null || true      # powers the container off
@@ -329,8 +330,58 @@ panel_reads() {
         | tr '\n' ' ')" = "4096=4660 4097=22136 " ]
 }
 wait_for "the table read by a serial master on line panel" panel_reads
-inside sh -c "cat /proc/$pid/task/*/comm" | grep -qx mbgw-panel \
+inside sh -c "cat /proc/$pid/task/*/comm" | grep -x mbgw-panel >/dev/null \
     || fail "no thread mbgw-panel for line panel"
+
+# --- northbound MQTT as installed: a Mosquitto broker receives the edge node's births ----------
+say "[mqtt] set and reloaded: a Mosquitto broker receives the Sparkplug NBIRTH, the JSON status"
+# the broker with its own file and port, beside the packaged mosquitto.service on 1883
+inside sh -c "printf 'listener $BROKER_PORT 127.0.0.1\nallow_anonymous true\npersistence false\n' \
+    > /root/broker.conf"
+inside systemd-run --quiet --unit=broker mosquitto -c /root/broker.conf
+wait_for "broker on port $BROKER_PORT" inside mosquitto_sub -h 127.0.0.1 -p $BROKER_PORT -t ready -E
+for words in "mqtt broker mqtt://127.0.0.1:$BROKER_PORT" "mqtt profile sparkplug" \
+             "mqtt group plant1" "mqtt node gw-ci"; do
+    # shellcheck disable=SC2086
+    inside mbgw config set $words >/dev/null
+done
+# one scenario; its address answers nothing here, which the node's NBIRTH does not wait for
+inside sh -c 'printf "\n[[scenario]]\nname = \"level\"\nslave = 3\nfunction = 3\naddress = 0\n\
+quantity = 1\ntable = 0\ncycle = 1000\ntype = \"int16\"\n" >> /etc/mbgw/mbgw.toml'
+inside mbgw check-config /etc/mbgw/mbgw.toml >/dev/null || fail "check-config with [mqtt]"
+# NBIRTH is not retained: subscribed (SUBACK, seen at once through stdbuf) before the reload
+# that starts the edge node
+inside stdbuf -oL mosquitto_sub -d -h 127.0.0.1 -p $BROKER_PORT -C 1 -W 20 \
+    -t 'spBv1.0/plant1/NBIRTH/#' -F '%t %x' >"$work/nbirth" 2>&1 &
+subscriber=$!
+wait_for "the NBIRTH subscription" grep -q SUBACK "$work/nbirth"
+inside systemctl reload mbgw || fail "systemctl reload mbgw ([mqtt] added)"
+[ "$(show mbgw MainPID)" = "$pid" ] || fail "adding [mqtt] restarted the daemon"
+wait "$subscriber" || fail "no NBIRTH within 20 s: $(cat "$work/nbirth")"
+nbirth=$(grep '^spBv1.0/' "$work/nbirth") || fail "no NBIRTH line: $(cat "$work/nbirth")"
+[ "${nbirth%% *}" = spBv1.0/plant1/NBIRTH/gw-ci ] || fail "NBIRTH topic: ${nbirth%% *}"
+# decoded by the installed package's own compiled proto, with Debian's python3-protobuf
+out=$(inside python3 -c '
+import sys
+from mbgw.northbound.sparkplug_b_pb2 import Payload
+p = Payload()
+p.ParseFromString(bytes.fromhex(sys.argv[1]))
+print(p.seq, sorted(m.name for m in p.metrics))' "${nbirth#* }") || fail "decode NBIRTH: $out"
+[ "$out" = "0 ['Lines/panel/State', 'Lines/serial/State', 'Node Control/Rebirth', 'bdSeq']" ] \
+    || fail "NBIRTH: $out"
+[ "$(status_value 's["mqtt"]["connected"]')" = True ] \
+    || fail "mbgw status: $(status_value 's.get("mqtt")')"
+
+inside mbgw config set mqtt profile json >/dev/null
+inside systemctl reload mbgw || fail "systemctl reload mbgw (profile json)"
+# json_status: GROUP/NODE/status as a new subscriber gets it: "RETAIN-FLAG PAYLOAD"
+json_status() {
+    inside mosquitto_sub -h 127.0.0.1 -p $BROKER_PORT -C 1 -W 2 --retained-only \
+        -t plant1/gw-ci/status -F '%r %p'
+}
+json_online() { [ "$(json_status)" = "1 online" ]; }
+wait_for "plant1/gw-ci/status retained online" json_online
+[ "$(show mbgw MainPID)" = "$pid" ] || fail "the profile's change restarted the daemon"
 
 # --- mbgw@NAME, its own file beside mbgw.service --------------------------------------------
 say "mbgw@gw2 with /etc/mbgw/gw2.toml"
@@ -376,6 +427,7 @@ inside systemctl stop mbgw mbgw@gw2 || fail "systemctl stop"
 for unit in mbgw mbgw@gw2; do
     [ "$(show $unit Result)" = success ] || fail "$unit stopped with $(show $unit Result)"
 done
+[ "$(json_status)" = "1 offline" ] || fail "plant1/gw-ci/status after the stop: $(json_status)"
 
 say "purge"
 inside apt-get purge -y -q mbgw >"$work/apt.log" 2>&1 || { cat "$work/apt.log" >&2; fail "purge"; }
