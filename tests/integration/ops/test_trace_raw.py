@@ -130,7 +130,9 @@ def test_a_device_that_answers_garbage_is_told_from_a_silent_one(fault_line, gw,
     assert shown[row + 1].strip() == "answers received but not valid (9 bytes): check baud " \
         "rate, parity, address", shown
     row = next(i for i, line in enumerate(shown) if line.split()[:2] == ["2", "down"])
-    assert shown[row + 1].strip().startswith("next probe in"), shown
+    # after the device's row: its learnt timing (issue 29's refined demotion), its next probe
+    assert shown[row + 1].strip().startswith("learnt p99 no answer yet, probe timeout"), shown
+    assert shown[row + 2].strip().startswith("next probe in"), shown
 
 
 @pytest.mark.serial
