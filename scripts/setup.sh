@@ -21,10 +21,11 @@ $SUDO apt-get build-dep -y -qq ./
 # nsswitch.conf), and AFL++ with clang's sanitizer runtime (scripts/fuzz.sh: afl-clang-fast
 # with AddressSanitizer), and clang-format (.ci/run checks csrc/ and fuzz/ against .clang-format),
 # and mosquitto with its clients (the northbound MQTT tests start Debian's broker on a free port
-# of 127.0.0.1, and the README's worked example subscribes with mosquitto_sub)
+# of 127.0.0.1, and the README's worked example subscribes with mosquitto_sub), and strace (a
+# monitor line's test reads the order of its tty's system calls: DTR and RTS lowered first)
 $SUDO apt-get install -y -qq --no-install-recommends python3-venv socat mbpoll lintian systemd \
     tshark openssl sslscan chromium chromium-driver systemd-container mmdebstrap afl++ \
-    libclang-rt-14-dev clang-format mosquitto mosquitto-clients
+    libclang-rt-14-dev clang-format mosquitto mosquitto-clients strace
 
 # Debian's own python3, the interpreter the .deb runs on (never a pyenv shim).
 /usr/bin/python3 -m venv .venv

@@ -43,8 +43,9 @@ def test_dtr_and_rts_are_lowered_first_and_never_raised(tmp_path):
     finally:
         pair.stop()
     assert done.returncode == 0, done.stderr
-    calls = [row.split(None, 1)[1] for row in trace.read_text().splitlines()
-             if re.match(r"\d+ (openat|flock|ioctl)\(", row)]
+    # strace -f prefixes each row with its thread id once the process has more than one
+    rows = (re.sub(r"^\d+ +", "", row) for row in trace.read_text().splitlines())
+    calls = [row for row in rows if re.match(r"(openat|flock|ioctl)\(", row)]
     opened = [i for i, call in enumerate(calls)
               if call.startswith("openat(") and pair.gateway.split("/")[-1] in call
               and "= -1" not in call]
