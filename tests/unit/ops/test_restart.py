@@ -1,19 +1,17 @@
 """The console's restart (mbgw.ops.restart): as the main process of a unit that restarts on
 EX_RESTART, the daemon exits with it for systemd to start the unit again; anywhere else it
 executes itself again.  systemd here is its environment, the cgroup file and a `systemctl`
-that answers `show` as systemd 252's does (scripts/container-test.sh runs the real one)."""
+that answers `show` as systemd 252's does (scripts/container-test.sh runs the real one; the
+units' keys: tests/integration/ops/test_systemd.py)."""
 import asyncio
 import logging
 import os
-import re
 import sys
 
 import pytest
 
-from mbgw.cli.options import EX_CONFIG
 from mbgw.ops import restart
 from mbgw.ops.restart import EX_RESTART, Restart
-from tests.harness import CHECKOUT
 
 WHO = "web admin@127.0.0.1"
 
@@ -104,14 +102,3 @@ def test_a_daemon_that_does_not_serve_yet_refuses():
     with pytest.raises(OSError, match="not serving yet"):
         asyncio.run(Restart()(WHO))
 
-
-@pytest.mark.parametrize("unit", ["mbgw.service", "mbgw@.service"])
-def test_the_units_restart_on_the_console_s_status_and_not_on_a_wrong_file(unit):
-    """EX_RESTART: a clean stop (no failure recorded) that systemd restarts whatever
-    Restart= says; 2 and 78 are never restarted."""
-    text = (CHECKOUT / "debian" / unit).read_text()
-    keys = dict(re.findall(r"^(Restart\w*|SuccessExitStatus)=(.*)$", text, re.M))
-    assert keys["Restart"] == "on-failure"
-    assert keys["RestartForceExitStatus"].split() == [str(EX_RESTART)]
-    assert keys["SuccessExitStatus"].split() == [str(EX_RESTART)]
-    assert keys["RestartPreventExitStatus"].split() == ["2", str(EX_CONFIG)]
