@@ -1,10 +1,11 @@
 #!/bin/bash
 # The built package under its own units, as on a real machine: mbgw.deb installed in a Debian 12
 # container booted with systemd (systemd-nspawn --boot, a rootfs made by mmdebstrap from Debian's
-# packages), then mbgw.service and mbgw@NAME started, reloaded, restarted and configured through
-# the web console as an operator would, each check on what really happened (the file on disk,
-# the registers read back over Modbus TCP by mbpoll, systemd's own view of the units, the
-# journal's records and their audit fields, what a Mosquitto broker receives from [mqtt]).
+# packages), then mbgw.service and mbgw@NAME started, reloaded, restarted (by systemctl and by
+# the console) and configured through the web console as an operator would, each check on
+# what really happened (the file on disk, the registers read back over Modbus TCP by mbpoll,
+# systemd's own view of the units, the journal's records and their audit fields, what a
+# Mosquitto broker receives from [mqtt]).
 #
 # Usage: scripts/container-test.sh [mbgw.deb]          (root; systemd-container, mmdebstrap)
 # The rootfs is cached in $MBGW_CI_CACHE (/var/cache/mbgw-ci), keyed by the package's Depends,
@@ -213,10 +214,10 @@ inside systemctl reload mbgw || fail "systemctl reload mbgw"
 
 # --- the console's JSON API: Set and Upload write /etc/mbgw/mbgw.toml and apply it ----------
 say "the web console: POST /api/config and /api/config/file"
-api() {     # api SCRIPT: python3 in the container with a logged-in admin session
-    inside python3 - "$PASSWORD" <<EOF
+api() {     # api SCRIPT [PORT]: python3 in the container with a logged-in admin session
+    inside python3 - "$PASSWORD" "${2:-8080}" <<EOF
 import json, sys, urllib.request, urllib.error, http.cookiejar
-base = "http://127.0.0.1:8080"
+base = "http://127.0.0.1:" + sys.argv[2]
 opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(http.cookiejar.CookieJar()))
 def call(path, body=None, csrf=None, raw=False):
     data = None if body is None else (body.encode() if raw else json.dumps(body).encode())
@@ -294,6 +295,32 @@ stout_is 800 || fail "the running stout changed"
 inside cp -p /root/good.toml /etc/mbgw/mbgw.toml
 inside systemctl reload mbgw || fail "reload of the good file again"
 
+# --- the console's restart: the daemon exits 75 (RestartForceExitStatus=), systemd starts it ---
+# console_restart UNIT PORT: POST /api/restart as the Administration page does; a new process
+# and invocation of UNIT, counted by systemd, active again; the journal names who asked
+console_restart() {
+    local unit=$1 port=$2 old_pid old_id restarts asked out
+    old_pid=$(show "$unit" MainPID) old_id=$(show "$unit" InvocationID)
+    restarts=$(show "$unit" NRestarts)
+    asked=$(date +%s%N)
+    out=$(api 'print(call("/api/restart", {}, csrf)["how"])' "$port") \
+        || fail "POST /api/restart ($unit): $out"
+    [ "$out" = "systemd restarts $unit.service" ] || fail "POST /api/restart ($unit): $out"
+    again() {
+        local now
+        now=$(show "$unit" MainPID)
+        [ "$(show "$unit" ActiveState)" = active ] && [ "$now" -gt 0 ] && [ "$now" != "$old_pid" ]
+    }
+    wait_for "$unit active again after the console's restart" again
+    say "$unit: active again $((($(date +%s%N) - asked) / 1000000)) ms after the console's restart"
+    [ "$(show "$unit" InvocationID)" != "$old_id" ] || fail "$unit: the same InvocationID"
+    [ "$(show "$unit" NRestarts)" = $((restarts + 1)) ] \
+        || fail "$unit: NRestarts $(show "$unit" NRestarts), was $restarts"
+    wait_for "$unit's journal record of the restart and who asked" journal_has \
+        _SYSTEMD_UNIT="$unit.service" _PID="$old_pid" "r[\"PRIORITY\"] == \"6\" and
+        \"restart asked (web admin@127.0.0.1): systemd restarts $unit.service\" in r[\"MESSAGE\"]"
+}
+
 # --- [table] persist across systemctl restart ------------------------------------------------
 say "the exchange table survives systemctl restart"
 # poll PORT REGISTER COUNT: the values of holding registers (0-based) of unit 247
@@ -305,6 +332,9 @@ inside timeout 10 mbpoll -m tcp -a 247 -p 502 -0 -t 4 -r 4096 -1 127.0.0.1 4660 
     || fail "mbpoll write to the table"
 [ "$(poll 502 4096 2)" = "4096=4660 4097=22136 " ] \
     || fail "read back before restart: $(poll 502 4096 2)"
+console_restart mbgw 8080
+[ "$(poll 502 4096 2)" = "4096=4660 4097=22136 " ] \
+    || fail "after the console's restart: $(poll 502 4096 2)"
 inside systemctl restart mbgw || fail "systemctl restart mbgw"
 pid=$(show mbgw MainPID)
 started=$(show mbgw ExecMainStartTimestampMonotonic)
@@ -386,7 +416,9 @@ wait_for "plant1/gw-ci/status retained online" json_online
 # --- mbgw@NAME, its own file beside mbgw.service --------------------------------------------
 say "mbgw@gw2 with /etc/mbgw/gw2.toml"
 inside mbgw config default -i gw2 >/dev/null
-for words in "serial device /dev/ttyMB2" "net mdbport 1502" "table enabled on"; do
+echo "$PASSWORD" | inside mbgw config password -i gw2 admin --stdin >/dev/null
+for words in "serial device /dev/ttyMB2" "net mdbport 1502" "table enabled on" \
+             "web listen 127.0.0.1:8081"; do
     # shellcheck disable=SC2086
     inside mbgw config set -i gw2 $words >/dev/null
 done
@@ -405,6 +437,9 @@ inside timeout 10 mbpoll -m tcp -a 247 -p 1502 -0 -t 4 -r 4096 -1 127.0.0.1 7 >/
 inside systemctl reload mbgw@gw2 || fail "systemctl reload mbgw@gw2"
 inside systemctl restart mbgw@gw2 || fail "systemctl restart mbgw@gw2"
 [ "$(poll 1502 4096 1)" = "4096=7 " ] || fail "mbgw@gw2 after restart: $(poll 1502 4096 1)"
+console_restart mbgw@gw2 8081
+[ "$(poll 1502 4096 1)" = "4096=7 " ] \
+    || fail "mbgw@gw2 after the console's restart: $(poll 1502 4096 1)"
 [ "$(poll 502 4096 1)" = "4096=4660 " ] || fail "mbgw.service's table changed: $(poll 502 4096 1)"
 
 # --- the watchdog: pinged, so no restart past WatchdogSec -------------------------------------

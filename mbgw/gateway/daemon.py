@@ -19,7 +19,7 @@ def run_slave_mode(cfg: SlaveConfig, reconfigure=None) -> None:
     restart = Restart()
     run_slave(cfg, reconfigure, partial(serve_mode, restart=restart), serial_faces,
               monitor_lines)
-    restart.reexec_if_wanted()
+    restart.finish()
 
 
 def run_master_mode(cfg: MasterConfig, reconfigure=None) -> None:
@@ -28,7 +28,7 @@ def run_master_mode(cfg: MasterConfig, reconfigure=None) -> None:
     restart = Restart()
     run_master(cfg, reconfigure, partial(serve_mode, restart=restart), target_lines, tcp_face,
                monitor_lines)
-    restart.reexec_if_wanted()
+    restart.finish()
 
 
 def run_transparent_mode(cfg, reconfigure=None) -> None:
@@ -36,7 +36,7 @@ def run_transparent_mode(cfg, reconfigure=None) -> None:
     from mbgw.transparent.daemon import run_transparent
     restart = Restart()
     run_transparent(cfg, reconfigure, partial(serve_mode, restart=restart))
-    restart.reexec_if_wanted()
+    restart.finish()
 
 
 def serial_faces(cfg: SlaveConfig, inboxes: dict, table, hub=None):

@@ -16,8 +16,10 @@ import pytest
 from click.testing import CliRunner
 
 from mbgw.cli import main
+from mbgw.cli.options import EX_CONFIG
 from mbgw.cli.table_options import persist_path
 from mbgw.ops import control
+from mbgw.ops.restart import EX_RESTART
 from tests.harness import CHECKOUT
 from tests.integration.master.rig import ask, holding_reply, identity, read_holding
 from tests.modbus import Client
@@ -214,6 +216,18 @@ def test_the_units_let_the_service_write_its_files_and_nothing_else(monkeypatch,
     assert persist_path(None) == table_file
     assert re.search(r"^ExecStart=/usr/bin/mbgw run --config /etc/mbgw/(mbgw|%i)\.toml$", text,
                      re.M)
+
+
+@pytest.mark.parametrize("unit", ["mbgw.service", "mbgw@.service"])
+def test_the_units_restart_on_the_console_s_status_and_not_on_a_wrong_file(unit):
+    """EX_RESTART: a clean stop (no failure recorded) that systemd restarts whatever
+    Restart= says; 2 and 78 are never restarted."""
+    text = (CHECKOUT / "debian" / unit).read_text()
+    keys = dict(re.findall(r"^(Restart\w*|SuccessExitStatus)=(.*)$", text, re.M))
+    assert keys["Restart"] == "on-failure"
+    assert keys["RestartForceExitStatus"].split() == [str(EX_RESTART)]
+    assert keys["SuccessExitStatus"].split() == [str(EX_RESTART)]
+    assert keys["RestartPreventExitStatus"].split() == ["2", str(EX_CONFIG)]
 
 
 def test_instance_option_talks_to_that_daemon(pty_pair, start_gateway, tmp_path, monkeypatch):
