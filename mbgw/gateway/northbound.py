@@ -1,10 +1,15 @@
 """[mqtt] in a daemon of any mode: northbound MQTT started with the scenarios, started again
 by a reload that changes [mqtt], the scenarios or the firewall, stopped with the daemon; its
 figures in the status and on /metrics."""
+from __future__ import annotations
+
 import logging
+from typing import TYPE_CHECKING
 
 from mbgw.firewall.guard import Firewall
-from mbgw.northbound.runner import Northbound
+
+if TYPE_CHECKING:
+    from mbgw.northbound.runner import Northbound
 
 log = logging.getLogger("mbgw")
 
@@ -20,6 +25,9 @@ class NorthboundService:
         self._settings = _settings(cfg)
         if not cfg.mqtt.enabled:
             return
+        # paho-mqtt and protobuf are loaded by the first [mqtt] only: a daemon without MQTT
+        # starts without them
+        from mbgw.northbound.runner import Northbound
         self.running = Northbound(cfg.mqtt, cfg.scenarios, self.parts.table, self.engines,
                                   self._lines, Firewall(cfg.firewall),
                                   getattr(cfg, "upstream_tls", None))

@@ -7,6 +7,8 @@ and the check of a server's certificate against the address dialled or a pinned 
 check-config`), and a client's role, read from its certificate's extension ROLE_OID (a
 UTF8String) with python3-cryptography, and the server handshake stepped in a poll loop
 (ServerHandshake, handshake_step) within the limits every TLS listener keeps."""
+from __future__ import annotations
+
 import ctypes
 import datetime
 import hashlib
@@ -16,12 +18,15 @@ import os
 import socket
 import ssl
 from collections.abc import Callable
-
-from cryptography import x509
-from cryptography.hazmat.primitives.serialization import load_pem_private_key
+from typing import TYPE_CHECKING
 
 from mbgw.config.model import ROLE_OID, TlsConfig, UpstreamTlsConfig
 from mbgw.errors import ConfigError
+
+# python3-cryptography is imported by the functions that read a certificate: loading it is
+# a good part of a daemon's start, which one without TLS need not pay.
+if TYPE_CHECKING:
+    from cryptography import x509
 
 log = logging.getLogger("mbgw.tls")
 
@@ -31,7 +36,6 @@ log = logging.getLogger("mbgw.tls")
 MAX_HANDSHAKES = 64
 HANDSHAKE_TIMEOUT_S = 10.0
 
-_ROLE = x509.ObjectIdentifier(ROLE_OID)
 _UTF8STRING = 0x0C
 # TLS 1.2: ECDHE key exchange and AEAD only (no RSA key exchange, no CBC); AES-128-CCM(8) for
 # the Secure SunSpec Modbus profile's devices (ECDSA, P-256 certificates)
@@ -57,6 +61,8 @@ def check_certificate(path: str, option: str = "tls-cert",
                       now: datetime.datetime | None = None) -> x509.Certificate:
     """The PEM certificate in path, refused when it cannot be read or is not valid now (the
     message names the file and the date).  Raises ConfigError."""
+    from cryptography import x509
+
     try:
         cert = x509.load_pem_x509_certificate(_read(option, path))
     except ValueError as err:
@@ -70,6 +76,8 @@ def check_certificate(path: str, option: str = "tls-cert",
 
 
 def check_key(path: str, option: str = "tls-key") -> None:
+    from cryptography.hazmat.primitives.serialization import load_pem_private_key
+
     try:
         load_pem_private_key(_read(option, path), password=None)
     except (ValueError, TypeError) as err:
@@ -78,6 +86,8 @@ def check_key(path: str, option: str = "tls-key") -> None:
 
 
 def check_ca(path: str, option: str = "tls-ca") -> None:
+    from cryptography import x509
+
     try:
         x509.load_pem_x509_certificate(_read(option, path))
     except ValueError as err:
@@ -86,6 +96,8 @@ def check_ca(path: str, option: str = "tls-ca") -> None:
 
 def check_crl(path: str, option: str = "tls-crl") -> x509.CertificateRevocationList:
     """The PEM CRL in path.  Raises ConfigError."""
+    from cryptography import x509
+
     try:
         return x509.load_pem_x509_crl(_read(option, path))
     except ValueError as err:
@@ -96,6 +108,8 @@ def check_crl(path: str, option: str = "tls-crl") -> x509.CertificateRevocationL
 def check_crl_issuer(crl_path: str, ca_path: str) -> None:
     """The CRL must be signed by one of the CAs in ca_path (else every client would be
     refused).  Raises ConfigError."""
+    from cryptography import x509
+
     crl = check_crl(crl_path)
     marker = b"-----BEGIN CERTIFICATE-----"
     for pem in _read("tls-ca", ca_path).split(marker)[1:]:
@@ -253,6 +267,8 @@ def server_mismatch(der: bytes | None, host: str, fingerprint: bytes | None) -> 
     """Why a server's certificate (DER, its chain to server-ca checked already) is not the
     one of the server dialled at host, or None when it is: its SHA-256 is fingerprint when
     one is pinned, else host (an IP address or a DNS name) is in its subjectAltName."""
+    from cryptography import x509
+
     if not der:
         return "the server showed no certificate"
     if fingerprint is not None:
@@ -371,10 +387,13 @@ def _why(err: OSError) -> str:
 def role_of(der: bytes | None) -> str | None:
     """The role in a client certificate (DER), or None when it has none (or not as a
     UTF8String)."""
+    from cryptography import x509
+
     if not der:
         return None
     try:
-        extension = x509.load_der_x509_certificate(der).extensions.get_extension_for_oid(_ROLE)
+        extension = x509.load_der_x509_certificate(der).extensions.get_extension_for_oid(
+            x509.ObjectIdentifier(ROLE_OID))
     except (x509.ExtensionNotFound, ValueError):
         return None
     value = getattr(extension.value, "value", b"")
