@@ -39,11 +39,12 @@ from mbgw.routing.queue import SCENARIO_TURN, Inbox, Job, Scheduler, SurveyRead
 from mbgw.scenarios.engine import Scenarios
 from mbgw.slave.connections import Client, Connections
 from mbgw.slave.device_timing import DeviceTiming
+from mbgw.slave.framing import framing_for
 from mbgw.slave.line_cache import LineCache
 from mbgw.slave.line_exchanges import LineExchanges
 from mbgw.slave.line_scenarios import LineScenarios, serial_scenarios
 from mbgw.slave.table_reader import Gate, TableReader
-from mbgw.slave.transaction import SerialMaster, framing_for
+from mbgw.slave.transaction import SerialMaster
 
 log = logging.getLogger("mbgw.line")
 wire = logging.getLogger("mbgw.wire")
@@ -361,7 +362,7 @@ class SlaveLineThread(LineThread[SlaveConfig]):
             if LineExchanges.withdrawn(job):
                 return True
             if type(job.exchange) is SurveyRead:
-                self._survey(job.exchange)
+                self._survey(job, job.exchange)
                 return True
         rule = job.cache
         # a probe of a unit that is down goes on the line: it is what brings the unit back
@@ -517,7 +518,7 @@ class SlaveLineThread(LineThread[SlaveConfig]):
         self._deliver = exchanges.deliver    # outcomes go to clients and faces from now on
         exchanges.admit_all(self._line is not None)
 
-    def _survey(self, survey: SurveyRead) -> None:
+    def _survey(self, job: Job, survey: SurveyRead) -> None:
         """An operator's survey read on the line (LineExchanges.survey), outside the gate."""
         line, master, exchanges = self._line, self._master, self._exchanges
         assert line is not None and master is not None and exchanges is not None
@@ -529,7 +530,7 @@ class SlaveLineThread(LineThread[SlaveConfig]):
             self._lost(err)
             outcome = Outcome.LINE_DOWN
         except Exception:   # a bug must cost one read, never the line
-            log.exception("internal error on a survey read %s", survey.pdu.hex(" "))
+            log.exception("internal error on a survey read %s", job.adu.hex(" "))
             outcome = Outcome.ERROR
         survey.done(survey, reply, outcome)
 

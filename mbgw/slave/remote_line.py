@@ -36,7 +36,7 @@ class RemoteLineThread(SlaveLineThread):
         self._remote_counters = counters
         self._remote = remote_line(line, counters)
         # the socket stands where a SerialLine would: it has what the thread uses of one
-        # (cfg, port, close; the framing comes from mbgw.slave.transaction.framing_for)
+        # (cfg, port, close; the framing comes from mbgw.slave.framing.framing_for)
         super().__init__(cfg, cast(SerialLine, self._remote), scheduler, server, counters,
                          devices)
 
