@@ -20,8 +20,9 @@ from mbgw.ops.service import ModeParts, origin, remonitor
 from mbgw.routing.queue import Inbox, Scheduler
 from mbgw.routing.survey import SurveyLine, survey_commands
 from mbgw.scenarios.engine import Scenarios
+from mbgw.slave.line_scenarios import serial_scenarios
 from mbgw.slave.line_share import LineShare
-from mbgw.slave.line_thread import SlaveLineThread, serial_scenarios
+from mbgw.slave.line_thread import SlaveLineThread
 from mbgw.slave.server import TcpServer
 from mbgw.slave.servers import ServerTargets, how_reached, server_targets
 from mbgw.slave.status import SlaveStatus

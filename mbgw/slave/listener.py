@@ -38,8 +38,9 @@ from mbgw.ops.limits import (
     is_resource_error,
 )
 from mbgw.ops.reload import ReloadReport
-from mbgw.slave.connections import PEER_GONE, Client, Connections, RtuClient, TlsClient
+from mbgw.slave.connections import PEER_GONE, Client, Connections, TlsClient
 from mbgw.slave.handshakes import HANDSHAKES_PER_ADDRESS, MAX_HANDSHAKES, Handshakes
+from mbgw.slave.rtu_client import RtuClient
 from mbgw.slave.udp_face import UdpPort
 
 log = logging.getLogger("mbgw.tcp")

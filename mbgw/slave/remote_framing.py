@@ -1,6 +1,6 @@
 """The framing of a remote line (mbgw.line.remote): how SerialMaster's requests and replies
 travel to a device across the network, in the same shape as the serial line's framings
-(mbgw.slave.transaction: send, receive, resync, the port to wait on).
+(mbgw.slave.framing: send, receive, resync, the port to wait on).
 
 A TCP stream is cut anywhere: one reply may come in many segments, or two in one.  So a
 reply's end is found from its length (the MBAP header's, or the RTU length rules of the C

@@ -17,9 +17,7 @@ from mbgw.line.remote import RemoteLine
 from mbgw.line.serial_line import SerialLine
 from mbgw.ops.counters import RemoteCounters
 from mbgw.ops.device_stats import DeviceHealth
-from mbgw.ops.trace import Outcome
-from mbgw.protocol import pdu
-from mbgw.routing.queue import Exchange, Job, Scheduler
+from mbgw.routing.queue import Inbox, Scheduler
 from mbgw.slave.line_thread import SlaveLineThread
 
 
@@ -38,7 +36,7 @@ class RemoteLineThread(SlaveLineThread):
         self._remote_counters = counters
         self._remote = remote_line(line, counters)
         # the socket stands where a SerialLine would: it has what the thread uses of one
-        # (cfg, port, close; the framing comes from mbgw.slave.transaction.framing_for)
+        # (cfg, port, close; the framing comes from mbgw.slave.framing.framing_for)
         super().__init__(cfg, cast(SerialLine, self._remote), scheduler, server, counters,
                          devices)
 
@@ -78,14 +76,10 @@ class RemoteLineThread(SlaveLineThread):
         self._line = line = self._open_line()
         self._attach(line)
 
-    def _admit_exchange(self, exchange: Exchange) -> None:
-        if self._remote.holding:
-            counters = self._counters
-            counters.requests += 1
-            counters.line_down_rejects += 1
-            job = Job(None, 0, 0, bytes((exchange.address,)) + exchange.pdu,
-                      exchange.received_ns, exchange=exchange)
-            job.outcome = Outcome.LINE_DOWN
-            self._deliver(job, self._failure(job, pdu.GATEWAY_PATH_UNAVAILABLE))
-            return
-        super()._admit_exchange(exchange)
+    def use_inbox(self, inbox: Inbox) -> None:
+        super().use_inbox(inbox)
+        assert self._exchanges is not None
+        self._exchanges.holding = self._holding   # a device in backoff: 0x0A at once
+
+    def _holding(self) -> bool:
+        return self._remote.holding

@@ -138,7 +138,7 @@ class TargetLine:
         counters.pop("line_busy_ns", None)
         return line_row(self.config.name, self.config.serial.device, self.config.mode,
                         self.worker.state, counters, [d.snapshot() for d in self.devices.all()],
-                        self.worker.cache.status())
+                        self.worker.cache.reads.status())
 
 
 class TargetLines:

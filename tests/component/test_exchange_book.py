@@ -12,7 +12,8 @@ from mbgw.errors import LineTimeout
 from mbgw.line.serial_line import SerialLine
 from mbgw.ops.counters import Counters
 from mbgw.ops.device_stats import DeviceHealth
-from mbgw.slave.transaction import SerialMaster, framing_for
+from mbgw.slave.framing import framing_for
+from mbgw.slave.transaction import SerialMaster
 from tests.modbus import holding_reply, read_holding, rtu
 
 pytestmark = pytest.mark.integration

@@ -1,6 +1,6 @@
 """Properties of the Python framers, on inputs hypothesis makes: the MBAP splitter
 (mbgw/line/native.py), the PDU helpers (pdu.py), RTU and ASCII on the line
-(mbgw/slave/transaction.py's framings over the C core's rules in mbgw/line/native.py), and
+(mbgw/slave/framing.py's framings over the C core's rules in mbgw/line/native.py), and
 transparent mode's frames (mbgw/transparent/frames.py).  Round trips give back what went
 in; random bytes never raise anything but the documented errors (BadHeader; ChecksumError
 and FrameError)."""
@@ -15,7 +15,7 @@ from mbgw.errors import BadHeader, ChecksumError, FrameError
 from mbgw.line import native
 from mbgw.line.native import Reception
 from mbgw.protocol import pdu
-from mbgw.slave.transaction import AsciiFraming
+from mbgw.slave.framing import AsciiFraming
 from mbgw.transparent.frames import MAX_FRAME, Receiver, Rules, from_registers, to_registers
 
 PDUS = st.binary(min_size=1, max_size=253)

@@ -1,4 +1,4 @@
-"""RTU over TCP (mbgw.slave.connections.RtuClient, mbgw.line.native.rtu_request_end): frames
+"""RTU over TCP (mbgw.slave.rtu_client.RtuClient, mbgw.line.native.rtu_request_end): frames
 cut from a stream by their length and CRC, never by a pause."""
 import socket
 
@@ -6,7 +6,7 @@ import pytest
 
 from mbgw.line import native
 from mbgw.ops.counters import FaceCounters
-from mbgw.slave.connections import RtuClient
+from mbgw.slave.rtu_client import RtuClient
 
 READ = native.rtu_adu(17, bytes.fromhex("03 0000 0002"))
 WRITE = native.rtu_adu(17, bytes.fromhex("10 0001 0002 04 000a 000b"))
