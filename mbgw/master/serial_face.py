@@ -36,7 +36,7 @@ import os
 import select
 import time
 
-from mbgw.config.lines import RouteMap
+from mbgw.config.route_plan import RouteMap
 from mbgw.config.model import SerialConfig
 from mbgw.errors import (
     BadReply,

@@ -10,12 +10,8 @@ from click.testing import CliRunner
 from mbgw.cli import checks, main
 from mbgw.config import file as cf
 from mbgw.config import schema as config_keys
-from mbgw.config.lines import (
-    PRIMARY_LINE,
-    TCP_FACE,
-    implicit_routes,
-    route_map,
-)
+from mbgw.config.lines import PRIMARY_LINE, TCP_FACE
+from mbgw.config.route_plan import implicit_routes, route_map
 
 SERIAL = '[serial]\ndevice = "/dev/ttyUSB0"\n'
 METERS = '[[line]]\nname = "meters"\ndevice = "/dev/ttyUSB1"\nbaudrate = 9600\n'

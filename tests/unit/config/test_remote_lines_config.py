@@ -2,7 +2,8 @@
 taken from [serial], and what a remote line refuses (a serial port's keys, another mode)."""
 import pytest
 
-from mbgw.config.lines import RemoteTarget, parse_connect
+from mbgw.config.line_file import parse_connect
+from mbgw.config.lines import RemoteTarget
 from mbgw.errors import ConfigError
 from tests.unit.config.test_lines_config import (  # noqa: F401 (fixtures)
     SERIAL,
