@@ -47,7 +47,7 @@ from mbgw.net.listen import ServerPorts
 from mbgw.net.ratelimit import RateLimitedLog
 from mbgw.net.tls import HANDSHAKE_TIMEOUT_S, role_of
 from mbgw.ops.eventfd import drain
-from mbgw.ops.limits import AcceptRest, WarnLimit, is_resource_error, share
+from mbgw.ops.limits import AcceptRest, WarnLimit, share
 from mbgw.table.connection import Connection, eviction_victim, late
 from mbgw.table.handshakes import Handshakes
 
@@ -271,16 +271,11 @@ class TableServer(threading.Thread):
     # --- connections ---
 
     def _accept(self, listener: socket.socket, tls: bool) -> None:
-        try:
-            sock, address = listener.accept()
-        except (BlockingIOError, InterruptedError, ConnectionAbortedError):
+        accepted = self._rest.accept(listener, lambda rest_s: self._rest_listener(listener,
+                                                                                  rest_s))
+        if accepted is None:
             return
-        except OSError as err:
-            if is_resource_error(err):      # it would be ready again at once: it rests
-                self._poll.unregister(listener.fileno())
-                self._resting[listener.fileno()] = time.monotonic() + self._rest.failed(err)
-            return
-        self._rest.accepted()
+        sock, address = accepted
         if self._allows is not None and not self._allows(address[0]):
             sock.close()
             self.refused_authip += 1
@@ -296,6 +291,10 @@ class TableServer(threading.Thread):
             self._handshakes.start(self._tls, sock, address, self.request_timeout_s)
         else:
             self._adopt(Connection(sock, format_address(address), address[0]))
+
+    def _rest_listener(self, listener: socket.socket, rest_s: float) -> None:
+        self._poll.unregister(listener.fileno())
+        self._resting[listener.fileno()] = time.monotonic() + rest_s
 
     def _room_for(self, sock: socket.socket, address) -> bool:
         """Whether a newcomer fits (a silent or slow client closed for it if need be); else
