@@ -309,6 +309,82 @@ class Client:
         return size == TCP_REPLY_LEN and tid == self.tid and frame[7] == 3 and frame[8] == 20
 
 
+@dataclass
+class Tally:
+    """What one group of closed-loop clients got in the measured window."""
+    latencies: list = field(default_factory=list)     # ns, as they came
+    errors: int = 0
+    first: int = 0      # the first completion (perf_counter ns)
+    last: int = 0
+
+    def take(self, c: "Client", ok: bool, done: int) -> None:
+        """c's reply, good or not, completed at done within the window."""
+        self.first = self.first or done
+        self.last = done
+        if ok:
+            self.latencies.append(done - c.sent)
+            c.count += 1
+        else:
+            self.errors += 1
+
+
+def closed_loop(clients: list, warmup: float, seconds: float,
+                opens: Callable[[int, int], bool],
+                closes: Callable[[], None] | None = None) -> float:
+    """Clients, each (Client, the Tally it counts into or None: not measured), in a closed
+    loop: each sends its next request as soon as its reply is in, one selector for all.
+    The window opens after the warm-up, once opens(now, when it was due) says so (asked
+    again every READY_POLL_S), and lasts seconds; closes() is called as it ends.  Then the
+    replies still due are waited for up to 5 s; a reply that never came is an error.
+    Returns the window's length (s)."""
+    sel = selectors.DefaultSelector()
+    for c, tally in clients:
+        c.sock.setblocking(False)
+        sel.register(c.sock, selectors.EVENT_READ, (c, tally))
+    for c, _ in clients:
+        c.send()
+    due = start = time.perf_counter_ns() + int(warmup * 1e9)
+    end = None
+    drain_until = None
+    while True:
+        now = time.perf_counter_ns()
+        if end is None and now >= start:
+            if not opens(now, due):
+                start = now + int(READY_POLL_S * 1e9)
+            else:
+                start = time.perf_counter_ns()
+                end = start + int(seconds * 1e9)
+        if end is not None and now >= end and drain_until is None:
+            if closes is not None:
+                closes()
+            drain_until = now + 5_000_000_000
+        if drain_until is not None and (now >= drain_until
+                                        or not any(c.waiting for c, _ in clients)):
+            break
+        for key, _ in sel.select(0.1):
+            c, tally = key.data
+            ok = c.reply()
+            if ok is None:
+                continue
+            done = time.perf_counter_ns()
+            if tally is not None and end is not None and start <= done <= end:
+                tally.take(c, ok, done)
+            if drain_until is None:
+                c.send()
+    _close(sel, clients)
+    assert end is not None
+    return (end - start) / 1e9
+
+
+def _close(sel: selectors.BaseSelector, clients: list) -> None:
+    for c, tally in clients:
+        if tally is not None:
+            tally.errors += c.waiting    # no reply even after the drain
+        sel.unregister(c.sock)
+        c.sock.close()
+    sel.close()
+
+
 def run_clients(port: int, n: int, slave: Slave, warmup: float, seconds: float,
                 others: int = 0, other_unit: int = 0,
                 ready: Callable[[], bool] | None = None) -> Run:
@@ -318,56 +394,19 @@ def run_clients(port: int, n: int, slave: Slave, warmup: float, seconds: float,
     once it holds (asked every READY_POLL_S), READY_LIMIT_S later at the latest."""
     run = Run(f"gateway, {n} client{'s' if n > 1 else ''}")
     measured = [Client(port) for _ in range(n)]
-    clients = measured + [Client(port, other_unit) for _ in range(others)]
-    sel = selectors.DefaultSelector()
-    for c in clients:
-        c.sock.setblocking(False)
-        sel.register(c.sock, selectors.EVENT_READ, c)
-    for c in clients:
-        c.send()
-    start = time.perf_counter_ns() + int(warmup * 1e9)
-    ready_by = start + int(READY_LIMIT_S * 1e9)
-    end = None
-    latencies = []
-    first_done = last_done = 0
-    drain_until = None
-    while True:
-        now = time.perf_counter_ns()
-        if end is None and now >= start:
-            if _not_ready(run, ready, now, ready_by):
-                start = now + int(READY_POLL_S * 1e9)
-            else:
-                slave.reset()
-                start = time.perf_counter_ns()
-                end = start + int(seconds * 1e9)
-        if end is not None and now >= end and drain_until is None:
-            drain_until = now + 5_000_000_000
-        if drain_until is not None and (now >= drain_until or not any(c.waiting for c in clients)):
-            break
-        for key, _ in sel.select(0.1):
-            c = key.data
-            ok = c.reply()
-            if ok is None:
-                continue
-            done = time.perf_counter_ns()
-            if end is not None and start <= done <= end and c.unit == UNIT:
-                first_done = first_done or done
-                last_done = done
-                if ok:
-                    latencies.append(done - c.sent)
-                    c.count += 1
-                else:
-                    run.errors += 1
-            if drain_until is None:
-                c.send()
-    run.errors += sum(c.waiting for c in measured)    # no reply even after the drain
-    for c in clients:
-        sel.unregister(c.sock)
-        c.sock.close()
-    sel.close()
-    run.count, run.seconds = len(latencies), (end - start) / 1e9
-    run.span_ns = last_done - first_done
-    run.latencies = sorted(latencies)
+    tally = Tally()
+
+    def opens(now: int, due: int) -> bool:
+        if _not_ready(run, ready, now, due + int(READY_LIMIT_S * 1e9)):
+            return False
+        slave.reset()
+        return True
+    run.seconds = closed_loop([(c, tally) for c in measured]
+                              + [(Client(port, other_unit), None) for _ in range(others)],
+                              warmup, seconds, opens)
+    run.errors += tally.errors
+    run.count, run.span_ns = len(tally.latencies), tally.last - tally.first
+    run.latencies = sorted(tally.latencies)
     run.per_client = sorted(c.count for c in measured)
     slave.collect(run)
     return run
@@ -878,6 +917,13 @@ def fairness(args, tmp: Path, exe: str) -> None:
     for line in lines:
         measure_spread(line, exe, tmp, args.socat, 0.3)
     report_spread(lines)
+
+
+def quick_main(doc: str, run: Callable[[bool], None], quick_help: str) -> None:
+    """A bench script's command line: its --quick, then run(quick)."""
+    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help=quick_help)
+    run(ap.parse_args().quick)
 
 
 def _loadavg() -> str:

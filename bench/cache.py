@@ -18,7 +18,6 @@ Two measures, each beside its reference from the same run:
 
 See README.md, "Reads that share one transaction".
 """
-import argparse
 import os
 import sys
 import tempfile
@@ -35,6 +34,7 @@ sys.path.insert(0, str(HERE))
 import table  # noqa: E402  (bench/table.py, beside this script)
 from pymodbus.client import ModbusTcpClient  # noqa: E402
 
+import bench  # noqa: E402  (bench/bench.py, beside this script)
 from tests.harness import Gateway, Peer, PtyPair  # noqa: E402
 
 UNIT = table.UNIT              # tableload's unit
@@ -175,9 +175,7 @@ def run(quick: bool) -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="short runs (about 20 s)")
-    run(ap.parse_args().quick)
+    bench.quick_main(__doc__, run, "short runs (about 20 s)")
 
 
 if __name__ == "__main__":

@@ -24,8 +24,6 @@ answered after the wire time of request and reply at 115200, every gap recorded 
 
 See README.md, "Many lines".
 """
-import argparse
-import selectors
 import subprocess
 import sys
 import tempfile
@@ -103,68 +101,30 @@ def direct_all(exe: str, sides: list, seconds: float) -> list:
 def clients_all(port: int, sides: list, warmup: float, seconds: float, pid: int) -> tuple:
     """CLIENTS closed-loop clients a line (unit k+1 for line k), one selector for all.
     Returns the runs, and the CPU each thread of pid used in the measured window (ns)."""
-    clients, sel = _connect(port, len(sides))
-    runs = [bench.Run(f"mbgw, {CLIENTS} clients") for _ in sides]
-    latencies = [[] for _ in sides]
-    first = [0] * len(sides)
-    last = [0] * len(sides)
-    start = time.perf_counter_ns() + int(warmup * 1e9)
-    end = drain_until = None
-    while True:
-        now = time.perf_counter_ns()
-        if end is None and now >= start:
-            for side in sides:
-                side.slave.reset()
-            cpu_before = threads_cpu(pid)
-            start = time.perf_counter_ns()
-            end = start + int(seconds * 1e9)
-        if end is not None and now >= end and drain_until is None:
-            cpu = _window_cpu(pid, cpu_before)
-            drain_until = now + 5_000_000_000
-        if drain_until is not None and (now >= drain_until
-                                        or not any(c.waiting for _, c in clients)):
-            break
-        for key, _ in sel.select(0.1):
-            k, c = key.data
-            ok = c.reply()
-            if ok is None:
-                continue
-            done = time.perf_counter_ns()
-            if end is not None and start <= done <= end:
-                first[k] = first[k] or done
-                last[k] = done
-                if ok:
-                    latencies[k].append(done - c.sent)
-                else:
-                    runs[k].errors += 1
-            if drain_until is None:
-                c.send()
-    for k, c in clients:
-        runs[k].errors += c.waiting
-        sel.unregister(c.sock)
-        c.sock.close()
-    sel.close()
-    for k, (run, side) in enumerate(zip(runs, sides, strict=True)):
-        _fill(run, side, latencies[k], last[k] - first[k], (end - start) / 1e9)
+    tallies = [bench.Tally() for _ in sides]
+    clients = [(bench.Client(port, k + 1), tallies[k])
+               for k in range(len(sides)) for _ in range(CLIENTS)]
+    cpu_before: dict = {}
+    cpu: dict = {}
+
+    def opens(now: int, due: int) -> bool:
+        for side in sides:
+            side.slave.reset()
+        cpu_before.update(threads_cpu(pid))
+        return True
+
+    def closes() -> None:
+        cpu.update(_window_cpu(pid, cpu_before))
+    window_s = bench.closed_loop(clients, warmup, seconds, opens, closes)
+    runs = []
+    for side, tally in zip(sides, tallies, strict=True):
+        run = bench.Run(f"mbgw, {CLIENTS} clients")
+        run.errors, run.count, run.seconds = tally.errors, len(tally.latencies), window_s
+        run.span_ns = tally.last - tally.first
+        run.latencies = sorted(tally.latencies)
+        side.slave.collect(run)
+        runs.append(run)
     return runs, cpu
-
-
-def _fill(run: bench.Run, side: bench.Side, latencies: list, span_ns: int,
-          seconds: float) -> None:
-    run.count, run.seconds, run.span_ns = len(latencies), seconds, span_ns
-    run.latencies = sorted(latencies)
-    side.slave.collect(run)
-
-
-def _connect(port: int, lines: int) -> tuple:
-    """The clients, each as (its line, the client), registered and with a request sent."""
-    clients = [(k, bench.Client(port, k + 1)) for k in range(lines) for _ in range(CLIENTS)]
-    sel = selectors.DefaultSelector()
-    for k, c in clients:
-        c.sock.setblocking(False)
-        sel.register(c.sock, selectors.EVENT_READ, (k, c))
-        c.send()
-    return clients, sel
 
 
 def _window_cpu(pid: int, before: dict) -> dict:
@@ -309,9 +269,7 @@ def run(quick: bool) -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="short runs (about 15 s in all)")
-    run(ap.parse_args().quick)
+    bench.quick_main(__doc__, run, "short runs (about 15 s in all)")
 
 
 if __name__ == "__main__":

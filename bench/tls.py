@@ -20,7 +20,6 @@ openssl as in tests/pki.py: EC P-256, TLS 1.3), pymodbus's RTU slave 17 on a soc
     is TLS alone) and unit 17 (through the line).  p50/p99 from request sent to whole reply
     read at the client, whose own TLS work (Python's ssl) is in the figure too.
 """
-import argparse
 import os
 import socket
 import ssl
@@ -33,7 +32,9 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(HERE))
 
+import bench  # noqa: E402  (bench/bench.py, beside this script)
 from tests.harness import Gateway, Peer, PtyPair, free_port  # noqa: E402
 from tests.pki import Authority  # noqa: E402
 
@@ -166,9 +167,7 @@ def run(quick: bool) -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="short runs")
-    run(ap.parse_args().quick)
+    bench.quick_main(__doc__, run, "short runs")
 
 
 if __name__ == "__main__":

@@ -10,9 +10,10 @@ from mbgw.cli.file_options import file_options, file_path, file_words
 from mbgw.config import line_file, scenario_text
 from mbgw.config.edit import show_lines
 from mbgw.config.file import SCENARIO_KEY, Settings
-from mbgw.config.lines import LINE_MODES, TCP_FACE, implicit_routes
+from mbgw.config.lines import LINE_MODES, TCP_FACE
 from mbgw.config.monitor import MONITOR_TABLE, map_fields
 from mbgw.config.number_list import number_list_text
+from mbgw.config.route_plan import implicit_routes
 from mbgw.config.schema import GROUPS, MODE_KEY, Schema
 from mbgw.config.toml_text import dump_value
 from mbgw.errors import ConfigError

@@ -8,14 +8,8 @@ import click
 
 from mbgw.cli.file_options import check_instance
 from mbgw.cli.options import Failure
-from mbgw.cli.render import (
-    STATS_KEYS,
-    format_clients,
-    format_counters,
-    format_line_status,
-    format_status,
-    line_status,
-)
+from mbgw.cli.render import STATS_KEYS, format_clients, format_counters, format_status
+from mbgw.cli.render_lines import format_line_status, line_status
 from mbgw.cli.render_trace import format_event, format_raw, raw_columns, trace_columns
 from mbgw.ops import control as ctl
 

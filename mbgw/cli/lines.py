@@ -6,9 +6,11 @@ import click
 
 from mbgw.cli.serial_options import demotion, serial_config
 from mbgw.config import line_file
-from mbgw.config.lines import LineConfig, config_problems, daemon_lines
+from mbgw.config.lines import LineConfig
 from mbgw.config.model import MasterConfig, SlaveConfig
 from mbgw.config.monitor import monitor_problems
+from mbgw.config.route_checks import config_problems
+from mbgw.config.route_plan import daemon_lines
 
 SERIAL_PARAMS = ("device", "protocol", "baudrate", "line_format", "interface", "rtsdelays",
                  "stout", "silence", "ascii_timeout", "nocheck", "dtr", "rts", "cts",

@@ -8,7 +8,7 @@ import click
 
 from mbgw.cli.diag import ask, control_option
 from mbgw.cli.options import Failure
-from mbgw.cli.render import format_scenarios
+from mbgw.cli.render_scenarios import format_scenarios
 from mbgw.config.scenario_text import parse_words
 from mbgw.errors import ConfigError
 

@@ -4,14 +4,14 @@ A `[[line]]` takes every `[serial]` key, checked by the same option as under `[s
 the line's own mode's command), plus `name` and `mode`.  Its values are handed on converted
 as the command line would give them (`LineTable.params`, by parameter name), for the mode
 command to build its LineConfig.  A `[[route]]` becomes a RouteConfig at once.  What only the
-whole configuration can check (unknown lines, overlaps, rewrites) is `lines.route_problems`'."""
+whole configuration can check (unknown lines, overlaps, rewrites) is
+`route_checks.route_problems`'.  `connect` is parsed here too (`parse_connect`)."""
 import difflib
 from dataclasses import dataclass, field
 from functools import partial
 
 from mbgw.config.cache import parse_cache
 from mbgw.config.lines import (
-    CONNECT_DELAY_RANGE,
     DEFAULT_SERVER_PORT,
     LINE_KINDS,
     LINE_MODES,
@@ -23,7 +23,6 @@ from mbgw.config.lines import (
     DeviceConfig,
     RemoteTarget,
     RouteConfig,
-    parse_connect,
 )
 from mbgw.config.model import (
     DOWN_AFTER_RANGE,
@@ -50,6 +49,9 @@ DEVICES_PARAM = "devices"
 LINE_OWN_KEYS = ("name", "mode")
 # a remote line's own keys (`connect`: a device across the network instead of `device`)
 REMOTE_KEYS = ("connect", "connect-delay", "pause")
+# `connect`'s schemes: a line that is a device across the network, and how its frames travel
+REMOTE_KINDS = ("modbus-tcp", "rtu-over-tcp", "ascii-over-tcp", "rtu-over-udp", "modbus-udp")
+CONNECT_DELAY_RANGE = (0, 65535)   # ms after each TCP connection before the first request
 # what a remote line takes from [serial] when its table leaves them out
 SERIAL_DEFAULTS = ("stout", "retries", "down-after", "probe-interval")
 # the serial port's own keys, which a remote line has no use for
@@ -167,6 +169,29 @@ def _remote(label: str, mode: str, fields: dict, problems: list[str]) -> RemoteT
         problems.append(f"{label}.connect: a remote line is a target (mode = \"slave\"), "
                         f"got mode {mode!r}")
     return remote
+
+
+def parse_connect(label: str, text: str) -> RemoteTarget:
+    """`KIND://HOST:PORT` (PORT 502 by default for modbus-tcp and modbus-udp)."""
+    kind, sep, rest = text.partition("://")
+    if not sep or kind not in REMOTE_KINDS:
+        raise ConfigError(f"{label}: {text!r}: expected KIND://HOST:PORT, KIND one of "
+                          f"{', '.join(REMOTE_KINDS)}")
+    host, port_text = rest, ""
+    if rest.startswith("["):
+        host, _, tail = rest[1:].partition("]")
+        port_text = tail.removeprefix(":")
+    elif rest.count(":") == 1:
+        host, port_text = rest.split(":")
+    if not host:
+        raise ConfigError(f"{label}: {text!r}: no host")
+    if not port_text:
+        if kind not in ("modbus-tcp", "modbus-udp"):
+            raise ConfigError(f"{label}: {text!r}: give the port, e.g. {kind}://{host}:4001")
+        port_text = str(DEFAULT_SERVER_PORT)
+    if not port_text.isdigit() or not 1 <= int(port_text) <= 65535:
+        raise ConfigError(f"{label}: {text!r}: port {port_text!r} is not 1..65535")
+    return RemoteTarget(kind, host, int(port_text))
 
 
 def line_keys(schema: Schema) -> list[str]:

@@ -10,8 +10,9 @@ no hop takes is never answered: another slave on the bus may own it."""
 from dataclasses import dataclass
 from typing import Callable
 
-from mbgw.config.lines import PRIMARY_LINE, LineConfig, RouteConfig, RouteMap
+from mbgw.config.lines import PRIMARY_LINE, LineConfig, RouteConfig
 from mbgw.config.model import Demotion, SerialConfig, UpstreamTlsConfig
+from mbgw.config.route_plan import RouteMap
 from mbgw.config.slaveid import SlaveIdTable
 
 SERVER, TABLE, LINE = "server", "table", "line"
@@ -89,7 +90,7 @@ def face_settings(cfg, line: LineConfig | None, routes: RouteMap) -> FaceSetting
         slaveid = None
     table = cfg.table
     # the table's address stays line serial's route to the table beside routes of its own,
-    # unless one of them goes to the table (config.lines.implicit_routes)
+    # unless one of them goes to the table (config.route_plan.implicit_routes)
     table_address = table.address if (name == PRIMARY_LINE and table.enabled
                                       and not any(r.table for r in own)) else 0
     return FaceSettings(

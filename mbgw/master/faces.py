@@ -4,8 +4,8 @@ opened, started, stopped and closed together; a reload adds, changes and removes
 others."""
 import logging
 
-from mbgw.config.lines import RouteMap
 from mbgw.config.model import MasterConfig, SlaveConfig
+from mbgw.config.route_plan import RouteMap
 from mbgw.errors import SerialError
 from mbgw.line.supervisor import open_at_start
 from mbgw.master.face_routes import face_settings

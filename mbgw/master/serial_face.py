@@ -10,12 +10,13 @@ It waits for a frame (no deadline; the eventfd wakes it to stop) and:
   writes it into the table when the face reaches the table; it answers nothing (Serial Line
   V1.02, 2.1).  A broadcast never goes to another line: its devices were not given to this
   master;
-- forwards a frame routed to a server to its unit id with tcpto as the deadline, then writes
-  the reply with the master's serial address.  No reply in time, or a reply that does not
-  answer the request (another unit id, function or size, a bad MBAP header: logged at most
-  once a minute per address and kind): 0x0B with `exception`, else silence; server
-  unreachable: 0x0A, or silence.  If the master has sent something new in the meantime it
-  has given up on the request, and the late answer is dropped;
+- forwards a frame routed to a server to its unit id with tcpto as the deadline
+  (mbgw.master.server_forward), then writes the reply with the master's serial address.
+  No reply in time, or a reply that does not answer the request (another unit id, function
+  or size, a bad MBAP header: logged at most once a minute per address and kind): 0x0B
+  with `exception`, else silence; server unreachable: 0x0A, or silence.  If the master has
+  sent something new in the meantime it has given up on the request, and the late answer
+  is dropped;
 - answers at once (0x0B with `exception`, else silence) a frame for an address that is down
   (demotion, mbgw.ops.device_stats), without a word to its server, unless a probe is due;
 - hands a frame routed to a line in slave mode to that line's thread (mbgw.routing: an
@@ -36,18 +37,9 @@ import os
 import select
 import time
 
-from mbgw.config.lines import RouteMap
 from mbgw.config.model import SerialConfig
-from mbgw.errors import (
-    BadReply,
-    ChecksumError,
-    ConfigError,
-    FrameError,
-    GatewayTimeout,
-    Interrupted,
-    LineTimeout,
-    NoRoute,
-)
+from mbgw.config.route_plan import RouteMap
+from mbgw.errors import ChecksumError, FrameError, Interrupted, LineTimeout
 from mbgw.line import native
 from mbgw.line.serial_line import SerialLine
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s, open_at_start
@@ -60,11 +52,10 @@ from mbgw.master.face_routes import (
     Hop,
     build_hops,
     face_settings,
-    ports,
 )
+from mbgw.master.server_forward import ServerForward
 from mbgw.master.table_slave import TableSlave
 from mbgw.master.trace import MasterTracer
-from mbgw.net.ratelimit import RateLimitedLog
 from mbgw.ops.counters import MasterCounters, TableSlaveCounters
 from mbgw.ops.device_stats import MASTER_COUNTS, DeviceHealth, DeviceStats, HealthRule
 from mbgw.ops.eventfd import drain
@@ -73,8 +64,6 @@ from mbgw.ops.status import line_row
 from mbgw.ops.trace import Outcome, TraceHub
 from mbgw.protocol import pdu
 from mbgw.routing.queue import AnswerWait
-from mbgw.upstream.pool import UpstreamPool
-from mbgw.upstream.tls_choice import ClientTls, routes_tls
 
 log = logging.getLogger("mbgw.line")
 wire = logging.getLogger("mbgw.wire")
@@ -125,11 +114,10 @@ class SerialFace(LineThread[FaceSettings]):
         self._tracer = MasterTracer(self.hub.for_line(self.face))    # events name the line
         self.wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         self._lines = AnswerWait(self.face, self.wake_fd, lambda: self._stopping)
-        self._pools: dict[int, UpstreamPool] = {}
-        self._tls = ClientTls()
+        self._servers = ServerForward(counters, self.devices, self.hub, self._tracer,
+                                      self.wake_fd, self._reply)
         self._reply_to = b""       # the last frame for another slave: its reply may come next
         self._received_ns = 0       # when the request being answered was taken off the line
-        self._bad_reply_log = RateLimitedLog()      # by (address, kind of bad reply)
         self._empty_table_counters = TableSlaveCounters()
         self._table: TableSlave | None = None
         if table is not None:
@@ -195,11 +183,10 @@ class SerialFace(LineThread[FaceSettings]):
 
     def connections(self) -> list[dict]:
         """The open upstream connections (from any thread)."""
-        return [c for pool in list(self._pools.values()) for c in pool.connections()]
+        return self._servers.connections()
 
     def stop(self) -> None:
-        for pool in list(self._pools.values()):
-            pool.stopping = True
+        self._servers.stop()
         self._stopping = True
         super().stop()
 
@@ -229,41 +216,9 @@ class SerialFace(LineThread[FaceSettings]):
             self._reply_to = b""
 
     def _use_routes(self, old: FaceSettings | None, cfg: FaceSettings) -> None:
-        """One upstream pool per servers' port (the old ones for ports no longer reached
-        closed), and each address's hop."""
-        pools = {}
-        for port in ports(cfg):
-            pool = self._pools.get(port)
-            if pool is None:
-                pool = UpstreamPool(port, cfg.max_connections, self._counters, self.wake_fd)
-                pool.on_late = self._late
-                pool.stopping = self._stopping
-            else:
-                pool.reconfigure(port, cfg.max_connections)
-            pools[port] = pool
-        for port, pool in self._pools.items():
-            if port not in pools:
-                pool.close()
-        self._pools = pools
-        try:
-            self._use_tls(cfg)
-        except ConfigError as err:
-            if old is None:
-                raise
-            log.error("TLS to servers: %s: the previous certificates stay in use", err)
-        self._routes = build_hops(cfg, pools.__getitem__, self._table is not None)
-
-    def _use_tls(self, cfg: FaceSettings) -> None:
-        """The servers of the slaveid table's `tls` ranges (on tls server-port) and of the
-        `tls = true` routes (on their own port) reached over TLS (upstream.tls_choice).
-        Raises ConfigError."""
-        upstream, slaveid = cfg.upstream_tls, cfg.slaveid
-        for port, pool in self._pools.items():
-            if slaveid is not None and port == cfg.mdbport:
-                self._tls.reach(pool, upstream, upstream.server_port, slaveid.tls_hosts,
-                                slaveid.pins)
-            else:
-                self._tls.reach(pool, upstream, port, *routes_tls(cfg.routes, port))
+        """The servers' pools, and each address's hop."""
+        self._servers.use(old, cfg)
+        self._routes = build_hops(cfg, self._servers.pool, self._table is not None)
 
     def _turn(self) -> None:
         try:
@@ -278,13 +233,11 @@ class SerialFace(LineThread[FaceSettings]):
     def _finish(self) -> None:
         """The thread ends: the device and the connections are released at once."""
         super()._finish()
-        for pool in self._pools.values():
-            pool.close()
+        self._servers.close()
 
     def close(self) -> None:
         """After the thread has ended (or if it never started): its eventfds too."""
-        for pool in self._pools.values():
-            pool.close()
+        self._servers.close()
         if self._line is not None:
             self._line.close()
             self._line = None
@@ -343,7 +296,8 @@ class SerialFace(LineThread[FaceSettings]):
             return
         self._reply_to = b""
         if hop.kind == SERVER:
-            self._forward(adu, hop)
+            self._servers.forward(adu, hop, self._received_ns, self._cfg.tcpto_ns,
+                                  self._quiet_ms)
         elif hop.kind == LINE:
             self._to_line(adu, hop)
         else:
@@ -374,62 +328,6 @@ class SerialFace(LineThread[FaceSettings]):
             self._rejected = _ascii_address(got.frame)
             raise
 
-    # --- to a server ---
-
-    def _forward(self, adu: bytes, hop: Hop) -> None:
-        self._counters.requests += 1
-        stats = self.devices.get(adu[0])
-        if stats.upstream != hop.upstream:
-            stats.upstream = hop.upstream
-        if self._down[adu[0]] and not stats.admit(time.monotonic()):
-            self._refuse_as_down(adu, stats, hop)
-            return
-        stats.transactions += 1
-        if wire.isEnabledFor(logging.DEBUG):
-            wire.debug("line rx %s -> %s unit %d", adu.hex(" "), hop.host, hop.unit)
-        server = hop.label if self.trace.active else ""
-        on_sent = sent = None
-        if server:
-            sent = []
-
-            def on_sent(conn, tid: int) -> None:
-                sent.append((conn, tid))
-                self._tracer.request(adu, server, conn, tid, hop.unit)
-        reply, reply_unit, code, outcome = self._transact(adu, hop, stats, on_sent)
-        latency_ms = (time.monotonic_ns() - self._received_ns) / 1e6
-        outcome = self._reply(adu, reply if code is None else None, code, stats, outcome)
-        if server:
-            self._tracer.outcome(adu, server, sent[0] if sent else None, reply_unit, reply,
-                                 outcome, None if reply is None else latency_ms)
-
-    def _transact(self, adu: bytes, hop: Hop, stats: DeviceStats, on_sent):
-        """(the server's reply or None, its unit, the exception code to answer or None,
-        the outcome)."""
-        try:
-            reply = hop.pool.transact(hop.host, hop.unit, adu[1:],
-                                      self._received_ns + self._cfg.tcpto_ns, on_sent)
-        except GatewayTimeout:
-            self._counters.timeouts += 1
-            stats.timeouts += 1
-            stats.failed()
-            return None, hop.unit, pdu.GATEWAY_TARGET_FAILED, Outcome.TIMEOUT
-        except NoRoute:
-            self._counters.unreachable += 1
-            stats.unreachable += 1
-            stats.failed()
-            return None, hop.unit, pdu.GATEWAY_PATH_UNAVAILABLE, Outcome.UNREACHABLE
-        except BadReply as err:
-            self._bad_reply(stats, hop, err)
-            # the server's frame, if any, for the trace
-            return (err.pdu, err.unit if err.pdu is not None else hop.unit,
-                    pdu.GATEWAY_TARGET_FAILED, f"{Outcome.BAD_REPLY}: {err}")
-        exception = reply[0] & pdu.EXCEPTION_FLAG
-        if exception:
-            self._counters.device_exceptions += 1
-        stats.answered((time.monotonic_ns() - self._received_ns) / 1e6,
-                       reply[1] if exception and len(reply) > 1 else None)
-        return reply, hop.unit, None, Outcome.SERVER_EXCEPTION if exception else Outcome.REPLY
-
     def _reply(self, adu: bytes, reply: bytes | None, code: int | None, stats: DeviceStats,
                outcome: str, quiet_ms: int = 0) -> str:
         """Answer the master: reply, else exception `code` (with `exception`), else
@@ -442,34 +340,6 @@ class SerialFace(LineThread[FaceSettings]):
             stats.abandoned += 1
             return outcome + ", abandoned: the master moved on"
         return outcome + (f", answered 0x{code:02x}" if code is not None else "")
-
-    def _late(self, conn, tid: int, unit: int, reply: bytes) -> None:
-        """A pool dropped a late reply (an earlier request's tid)."""
-        if self.trace.active:
-            pool = self._pools.get(conn.port)
-            server = pool.server(conn.host) if pool is not None else f"{conn.host}:{conn.port}"
-            self._tracer.late(server, conn, tid, unit, reply)
-
-    def _refuse_as_down(self, adu: bytes, stats: DeviceStats, hop: Hop) -> None:
-        """The address is down and this is no probe: nothing goes to its server, the master
-        gets 0x0B once the line has been quiet for t3.5 (with `exception`), else nothing."""
-        self._counters.demoted_rejects += 1
-        outcome = self._reply(adu, None, pdu.GATEWAY_TARGET_FAILED, stats, Outcome.DEVICE_DOWN,
-                              self._quiet_ms)
-        if self.trace.active:
-            self._tracer.outcome(adu, hop.label, None, hop.unit, None, outcome, None)
-
-    def _bad_reply(self, stats, hop: Hop, err: BadReply) -> None:
-        """Counted as the device's failure; a warning per address and kind of bad reply, at
-        most once a minute (before the health change it may bring)."""
-        setattr(stats, err.counter, getattr(stats, err.counter) + 1)
-        left_out = self._bad_reply_log.due((stats.address, err.counter))
-        if left_out is not None:
-            log.warning("device %d: the reply of server %s unit %d does not answer the "
-                        "request (%s): dropped (replies of this kind for this address are "
-                        "logged at most once a minute%s)", stats.address, hop.label, hop.unit,
-                        err, f"; {left_out} left out since the last" if left_out else "")
-        stats.failed()
 
     # --- to a line in slave mode ---
 
@@ -540,27 +410,10 @@ class SerialFace(LineThread[FaceSettings]):
     def _broadcast(self, adu: bytes) -> None:
         """To the table and every server the face reaches (never to another line)."""
         tracer = self._tracer if self.trace.active else None
-        servers: dict[int, dict[str, None]] = {}
-        to_table = False
-        for hop in self._routes:
-            if hop is None:
-                continue
-            if hop.kind == SERVER:
-                servers.setdefault(hop.port, {})[hop.host] = None
-            elif hop.kind == TABLE:
-                to_table = True
-        if to_table and self._table is not None:
+        if self._table is not None and any(hop is not None and hop.kind == TABLE
+                                           for hop in self._routes):
             self._table.broadcast(adu, tracer)
-        on_sent = None
-        if tracer is not None:
-            def on_sent(conn, tid: int) -> None:
-                tracer.request(adu, f"{conn.host}:{conn.port}", conn, tid, pdu.BROADCAST)
-        deadline_ns = time.monotonic_ns() + self._cfg.tcpto_ns
-        reached = total = 0
-        for port, hosts in servers.items():
-            total += len(hosts)
-            reached += self._pools[port].send_all(hosts, pdu.BROADCAST, adu[1:], deadline_ns,
-                                                  on_sent)
+        reached, total = self._servers.broadcast(adu, self._routes, self._cfg.tcpto_ns, tracer)
         self._counters.broadcasts += 1        # counted once sent: its transaction is over
         stats = self.devices.get(pdu.BROADCAST)
         stats.transactions += 1

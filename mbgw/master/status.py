@@ -2,7 +2,7 @@
 both modes share are in mbgw.ops.status)."""
 from typing import Any
 
-from mbgw.config.lines import route_map, routes_status
+from mbgw.config.route_plan import route_map, routes_status
 from mbgw.master.faces import Faces
 from mbgw.ops.status import DaemonStatus
 from mbgw.scenarios.report import scenarios_status

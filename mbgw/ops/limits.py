@@ -5,6 +5,8 @@ fails for want of descriptors or memory rests the listener and is logged once wi
 address and reason, with how many were left out."""
 import errno
 import logging
+import socket
+from collections.abc import Callable
 
 from mbgw.audit import Kind, event
 from mbgw.net.ratelimit import RateLimitedLog
@@ -45,6 +47,24 @@ class AcceptRest:
         self.failures += 1
         rest, self._rest_s = self._rest_s, min(self._rest_s * 2, REST_MAX_S)
         return rest
+
+    def accept(self, listener: socket.socket, rest: Callable[[float], None]) -> tuple | None:
+        """(socket, address) of a newcomer on listener, or None: none waits, or the process
+        is out of descriptors or memory, and then rest(seconds) takes the listener out of its
+        loop that long (it would be readable at once again: the loop would spin)."""
+        try:
+            accepted = listener.accept()
+        except (BlockingIOError, InterruptedError, ConnectionAbortedError):
+            return None
+        except OSError as err:
+            if is_resource_error(err):
+                rest(self.failed(err))
+            else:
+                self._log.debug("%s: cannot accept a connection: %s", self._what,
+                                err.strerror or err)
+            return None
+        self.accepted()
+        return accepted
 
     def accepted(self) -> None:
         if self.failures:

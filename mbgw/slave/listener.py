@@ -35,7 +35,6 @@ from mbgw.ops.limits import (
     SLOW_REQUEST_S,
     AcceptRest,
     WarnLimit,
-    is_resource_error,
 )
 from mbgw.ops.reload import ReloadReport
 from mbgw.slave.connections import PEER_GONE, Client, Connections, TlsClient
@@ -287,26 +286,16 @@ class Listener:
 
     def _accepted(self, listener: socket.socket, handler) -> tuple:
         """(socket, address) of a newcomer on listener, or (None, None): none waits, or the
-        process is out of descriptors or memory, and then the listener rests (it would be
-        readable at once again: the loop would spin)."""
-        try:
-            accepted = listener.accept()
-        except (BlockingIOError, InterruptedError, ConnectionAbortedError):
-            return None, None
-        except OSError as err:
-            if is_resource_error(err):
-                self._rest(listener, handler, err)
-            else:
-                log.debug("cannot accept a connection: %s", err.strerror or err)
-            return None, None
-        self._accept_rest.accepted()
-        return accepted
+        listener rests (AcceptRest.accept)."""
+        accepted = self._accept_rest.accept(listener,
+                                            lambda rest_s: self._rest(listener, handler, rest_s))
+        return (None, None) if accepted is None else accepted
 
-    def _rest(self, listener: socket.socket, handler, err: OSError) -> None:
+    def _rest(self, listener: socket.socket, handler, rest_s: float) -> None:
         loop = self._loop
         assert loop is not None
         loop.remove_reader(listener.fileno())
-        loop.call_later(self._accept_rest.failed(err), self._resume, listener, handler)
+        loop.call_later(rest_s, self._resume, listener, handler)
 
     def _resume(self, listener: socket.socket, handler) -> None:
         if self._loop is not None and (listener in self._listeners

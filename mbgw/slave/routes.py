@@ -6,8 +6,9 @@ messaging off).  A route to line `serial` with a rewrite is a hop of kind SERIAL
 other line or to a remote server is ELSEWHERE: an Exchange submitted to that target's Inbox.
 A unit no route takes has no hop (None).
 """
-from mbgw.config.lines import PRIMARY_LINE, TCP_FACE, RouteConfig, RouteMap, route_map
+from mbgw.config.lines import PRIMARY_LINE, TCP_FACE, RouteConfig
 from mbgw.config.model import SlaveConfig
+from mbgw.config.route_plan import RouteMap, route_map
 from mbgw.routing.queue import Inbox
 
 SERIAL = "serial"        # line serial, owned by the TCP face's own line thread
@@ -42,7 +43,7 @@ TO_GATEWAY = Hop(GATEWAY)
 
 def effective_routes(cfg: SlaveConfig) -> RouteMap:
     """The routes in force: the file's, and today's routing as implicit routes where the
-    file has none for it (config.lines.route_map)."""
+    file has none for it (config.route_plan.route_map)."""
     return route_map(cfg)
 
 

@@ -3,7 +3,8 @@ close (the commands both modes share are in mbgw.ops.status)."""
 import time
 from collections.abc import Callable
 
-from mbgw.config.lines import PRIMARY_LINE, routes_status
+from mbgw.config.lines import PRIMARY_LINE
+from mbgw.config.route_plan import routes_status
 from mbgw.ops.load import LineLoad, average_percent
 from mbgw.ops.status import DaemonStatus, line_row
 from mbgw.routing.cache import ReadCache

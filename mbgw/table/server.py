@@ -43,11 +43,11 @@ from mbgw.errors import BadHeader, ListenError
 from mbgw.firewall.guard import Firewall, Guard
 from mbgw.line import native
 from mbgw.net.address import format_address
-from mbgw.net.listen import listen
+from mbgw.net.listen import ServerPorts
 from mbgw.net.ratelimit import RateLimitedLog
 from mbgw.net.tls import HANDSHAKE_TIMEOUT_S, role_of
 from mbgw.ops.eventfd import drain
-from mbgw.ops.limits import AcceptRest, WarnLimit, is_resource_error, share
+from mbgw.ops.limits import AcceptRest, WarnLimit, share
 from mbgw.table.connection import Connection, eviction_victim, late
 from mbgw.table.handshakes import Handshakes
 
@@ -82,25 +82,15 @@ class TableServer(threading.Thread):
         tls: the TLS listener's context (mbgw.net.tls.server_context) on tls_port."""
         super().__init__(name="mbgw-table-server", daemon=True)
         self._table = table
-        self.port = port
         self.max_connections = max_connections     # another thread may set it (a reload)
-        self.bind = bind
         self._allows = allows
         self._new_allows: tuple | None = None      # (allows,) from set_access()
         self._new_bind: tuple | None = None        # (bind, queue of the outcome) from rebind()
         self._to_close: list[tuple[int, str]] = []  # (client id, who) from close_client()
         self._last_id = 0
-        self._port_option = port_option
-        self._listeners = listen(bind, port, option=port_option) if port is not None else []
+        self._ports = ServerPorts(bind, port, tls_port if tls is not None else None,
+                                  option=port_option)
         self._tls = tls
-        self.tls_port = tls_port if tls is not None else None
-        try:
-            self._tls_listeners = listen(bind, self.tls_port, option="tls-port") \
-                if self.tls_port is not None else []
-        except ListenError:
-            for sock in self._listeners:
-                sock.close()
-            raise
         self._new_tls: tuple | None = None
         self._tls_refusals = RateLimitedLog()       # logged by (address, reason)
         self._answer = None
@@ -132,9 +122,20 @@ class TableServer(threading.Thread):
         self.tls_probes = 0                # closed or reset before a byte: health checks
 
     @property
+    def port(self) -> int | None:
+        return self._ports.port
+
+    @property
+    def tls_port(self) -> int | None:
+        return self._ports.tls_port
+
+    @property
+    def bind(self) -> str | None:
+        return self._ports.bind
+
+    @property
     def addresses(self) -> list[str]:
-        return [format_address(s.getsockname()) for s in self._listeners] + \
-            [f"{format_address(s.getsockname())} (TLS)" for s in self._tls_listeners]
+        return self._ports.addresses()
 
     def figures(self) -> dict:
         """The TCP server's counters, as the status reports them."""
@@ -214,10 +215,10 @@ class TableServer(threading.Thread):
     def move(self, port: int) -> None:
         """Listen on port instead (called from another thread; the clients stay).  Raises
         ListenError, and then the old port stays."""
-        listeners = listen(self.bind, port, option=self._port_option)
+        listeners = self._ports.listen_plain(port)
         with self._lock:
             self._new_listeners = listeners
-        self.port = port
+        self._ports.port = port
         os.eventfd_write(self._wake_fd, 1)
 
     def set_tls(self, context: ssl.SSLContext | None, port: int) -> None:
@@ -227,11 +228,10 @@ class TableServer(threading.Thread):
         new_port = port if context is not None else None
         listeners = None                    # the same ones
         if new_port != self.tls_port:
-            listeners = listen(self.bind, port, option="tls-port") \
-                if new_port is not None else []
+            listeners = self._ports.listen_tls(port) if new_port is not None else []
         with self._lock:
             self._new_tls = (context, listeners)
-        self.tls_port = new_port
+        self._ports.tls_port = new_port
         os.eventfd_write(self._wake_fd, 1)
 
     def stop(self) -> None:
@@ -241,9 +241,9 @@ class TableServer(threading.Thread):
     def run(self) -> None:
         poll = self._poll
         poll.register(self._wake_fd, _IN)
-        for sock in self._listeners + self._tls_listeners:
+        for sock in self._ports.sockets():
             poll.register(sock.fileno(), _IN)
-        listeners = self._listening()
+        listeners = self._ports.by_fd()
         clients = self._clients
         handshakes = self._handshakes
         self._answer = answer = self._table.responder().answer_mbap
@@ -270,22 +270,12 @@ class TableServer(threading.Thread):
 
     # --- connections ---
 
-    def _listening(self) -> dict:
-        """(listener, whether TLS) by fd."""
-        return {**{s.fileno(): (s, False) for s in self._listeners},
-                **{s.fileno(): (s, True) for s in self._tls_listeners}}
-
     def _accept(self, listener: socket.socket, tls: bool) -> None:
-        try:
-            sock, address = listener.accept()
-        except (BlockingIOError, InterruptedError, ConnectionAbortedError):
+        accepted = self._rest.accept(listener, lambda rest_s: self._rest_listener(listener,
+                                                                                  rest_s))
+        if accepted is None:
             return
-        except OSError as err:
-            if is_resource_error(err):      # it would be ready again at once: it rests
-                self._poll.unregister(listener.fileno())
-                self._resting[listener.fileno()] = time.monotonic() + self._rest.failed(err)
-            return
-        self._rest.accepted()
+        sock, address = accepted
         if self._allows is not None and not self._allows(address[0]):
             sock.close()
             self.refused_authip += 1
@@ -301,6 +291,10 @@ class TableServer(threading.Thread):
             self._handshakes.start(self._tls, sock, address, self.request_timeout_s)
         else:
             self._adopt(Connection(sock, format_address(address), address[0]))
+
+    def _rest_listener(self, listener: socket.socket, rest_s: float) -> None:
+        self._poll.unregister(listener.fileno())
+        self._resting[listener.fileno()] = time.monotonic() + rest_s
 
     def _room_for(self, sock: socket.socket, address) -> bool:
         """Whether a newcomer fits (a silent or slow client closed for it if need be); else
@@ -412,7 +406,7 @@ class TableServer(threading.Thread):
         for client in list(self._clients.values()):
             self._close(client)
         self._handshakes.close()
-        for sock in self._listeners + self._tls_listeners:
+        for sock in self._ports.sockets():
             sock.close()
         self._resting.clear()
         os.close(self._wake_fd)
@@ -439,14 +433,14 @@ class TableServer(threading.Thread):
         if new_tls is not None:
             self._tls, tls_listeners = new_tls
             if tls_listeners is not None:
-                old, self._tls_listeners = self._tls_listeners, tls_listeners
+                old, self._ports.tls = self._ports.tls, tls_listeners
                 self._relisten(old, tls_listeners)
             else:
                 log.info("table server: TLS certificate loaded for new connections")
         if new is not None:
-            old, self._listeners = self._listeners, new
+            old, self._ports.plain = self._ports.plain, new
             self._relisten(old, new)
-        return self._listening()
+        return self._ports.by_fd()
 
     def _close_by_operator(self, client_id: int, who: str) -> None:
         for client in list(self._clients.values()):
@@ -467,34 +461,14 @@ class TableServer(threading.Thread):
         self._handshakes.close(allows)
 
     def _rebind(self, bind: str | None, outcome: queue.Queue) -> None:
-        """Off the old address (the same port may not be listened on twice), on the new one;
-        back on the old one when the new one cannot be listened on."""
-        self._relisten(self._listeners + self._tls_listeners, [], quiet=True)
-        self._listeners = self._tls_listeners = []
-        error: ListenError | None = None
-        try:
-            self._listeners, self._tls_listeners = self._listen_on(bind)
-            self.bind = bind
-        except ListenError as err:
-            error = err
-            try:
-                self._listeners, self._tls_listeners = self._listen_on(self.bind)
-            except ListenError as again:
-                log.error("table server: %s; no TCP client reaches the table", again.strerror)
-        self._relisten([], self._listeners + self._tls_listeners)
+        """Off the old address, on the new one; back on the old one when the new one cannot
+        be listened on."""
+        self._relisten(self._ports.sockets(), [], quiet=True)
+        error, again = self._ports.rebind(bind)
+        if again is not None:
+            log.error("table server: %s; no TCP client reaches the table", again.strerror)
+        self._relisten([], self._ports.sockets())
         outcome.put(error)      # once the listeners are whatever they stay: rebind() reports them
-
-    def _listen_on(self, bind: str | None) -> tuple[list, list]:
-        plain = listen(bind, self.port, option=self._port_option) \
-            if self.port is not None else []
-        try:
-            tls = listen(bind, self.tls_port, option="tls-port") \
-                if self.tls_port is not None else []
-        except ListenError:
-            for sock in plain:
-                sock.close()
-            raise
-        return plain, tls
 
     def _relisten(self, old: list[socket.socket], new: list[socket.socket],
                   quiet: bool = False) -> None:

@@ -18,7 +18,7 @@ import time
 
 from aiohttp import web
 
-from mbgw.ops.limits import AcceptRest, WarnLimit, is_resource_error, share
+from mbgw.ops.limits import AcceptRest, WarnLimit, share
 
 log = logging.getLogger("mbgw.web")
 
@@ -129,16 +129,11 @@ class Gate:
     # --- admission ---
 
     def _accept(self, listener: socket.socket) -> None:
-        try:
-            sock, address = listener.accept()
-        except (BlockingIOError, InterruptedError, ConnectionAbortedError):
+        accepted = self._rest.accept(listener, lambda rest_s: self._rest_listener(listener,
+                                                                                  rest_s))
+        if accepted is None:
             return
-        except OSError as err:
-            if is_resource_error(err):
-                self._loop.remove_reader(listener.fileno())
-                self._loop.call_later(self._rest.failed(err), self._resume, listener)
-            return
-        self._rest.accepted()
+        sock, address = accepted
         host = address[0]
         if not self._room_for(host):
             sock.close()
@@ -151,6 +146,10 @@ class Gate:
             self._hand_over(connection, None)
         else:
             self._loop.add_reader(sock.fileno(), self._sniff, connection)
+
+    def _rest_listener(self, listener: socket.socket, rest_s: float) -> None:
+        self._loop.remove_reader(listener.fileno())
+        self._loop.call_later(rest_s, self._resume, listener)
 
     def _resume(self, listener: socket.socket) -> None:
         if listener in self._listeners:

@@ -9,8 +9,9 @@ import threading
 
 import pytest
 
-from mbgw.config.lines import LineConfig, RouteConfig, RouteMap
+from mbgw.config.lines import LineConfig, RouteConfig
 from mbgw.config.model import SerialConfig, SlaveConfig
+from mbgw.config.route_plan import RouteMap
 from mbgw.master.serial_face import build_face
 from mbgw.routing.queue import Exchange, Inbox
 from tests.integration.master.test_master import recv

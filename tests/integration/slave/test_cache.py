@@ -68,6 +68,25 @@ def gateway(tmp_path, pty_pair, start_peer, start_gateway):
     return start
 
 
+@pytest.fixture
+def meters(tmp_path, start_peer):
+    """(line meters' pty pair, its slave's record): a recording pymodbus slave at METER on a
+    pty pair of its own."""
+    (tmp_path / "meters").mkdir()
+    pair = PtyPair(tmp_path / "meters")
+    record = tmp_path / "meters.txt"
+    start_peer("pymodbus_slave.py", pair.device, str(METER), "--silent-unknown",
+               "--record", str(record))
+    yield pair, record
+    pair.stop()
+
+
+def meters_line(pair: PtyPair, keys: str = "") -> str:
+    """The [[line]] of line meters, with keys of its own."""
+    return (f'[[line]]\nname = "meters"\ndevice = "{pair.gateway}"\nbaudrate = 19200\n'
+            f'stout = {STOUT_MS}\n{keys}')
+
+
 def ask(sock_client, tid: int, unit: int, pdu: bytes) -> bytes:
     sock_client.send(mbap(tid, unit, pdu))
     reply = sock_client.recv()
@@ -230,28 +249,19 @@ def test_the_figures_in_status_metrics_and_the_trace(gateway, client, tmp_path):
                         "mbgw_cache_served_age_seconds_count", line="serial") == 1
 
 
-def test_a_route_s_cache_to_another_line(tmp_path, pty_pair, start_peer, start_gateway, client):
-    (tmp_path / "meters").mkdir()
-    meters = PtyPair(tmp_path / "meters")
-    try:
-        record = tmp_path / "meters.txt"
-        start_peer("pymodbus_slave.py", meters.device, str(METER), "--silent-unknown",
-                   "--record", str(record))
-        path = tmp_path / "mbgw.toml"
-        path.write_text(f'[[line]]\nname = "meters"\ndevice = "{meters.gateway}"\n'
-                        f'baudrate = 19200\nstout = {STOUT_MS}\n'
-                        '[[route]]\nunits = "1-31"\nline = "serial"\n'
-                        '[[route]]\nunits = "32-63"\nline = "meters"\noffset = -31\n'
-                        'cache = { ttl = 60000 }\n')
-        gw = start_gateway(pty_pair.gateway, "--config", str(path), "--stout", "300")
-        c = client(gw)
-        for tid in (1, 2, 3):
-            assert ask(c, tid, 32, read_holding(0, 4)) == hr_reply(0, 4)
-        assert len(rx(record)) == 1
-        row = status(gw)["lines"][1]
-        assert row["name"] == "meters" and row["cache"]["units"][str(METER)]["hits"] == 2
-    finally:
-        meters.stop()
+def test_a_route_s_cache_to_another_line(tmp_path, pty_pair, meters, start_gateway, client):
+    pair, record = meters
+    path = tmp_path / "mbgw.toml"
+    path.write_text(meters_line(pair) + '[[route]]\nunits = "1-31"\nline = "serial"\n'
+                    '[[route]]\nunits = "32-63"\nline = "meters"\noffset = -31\n'
+                    'cache = { ttl = 60000 }\n')
+    gw = start_gateway(pty_pair.gateway, "--config", str(path), "--stout", "300")
+    c = client(gw)
+    for tid in (1, 2, 3):
+        assert ask(c, tid, 32, read_holding(0, 4)) == hr_reply(0, 4)
+    assert len(rx(record)) == 1
+    row = status(gw)["lines"][1]
+    assert row["name"] == "meters" and row["cache"]["units"][str(METER)]["hits"] == 2
 
 
 def test_a_scenario_s_read_fills_the_cache_and_a_reload_that_changes_it_empties_it(
@@ -271,32 +281,24 @@ def test_a_scenario_s_read_fills_the_cache_and_a_reload_that_changes_it_empties_
 
 
 def test_a_serial_master_s_write_drops_what_the_line_s_cache_kept(
-        tmp_path, pty_pair, start_peer, start_gateway, open_line):
-    (tmp_path / "meters").mkdir()
-    meters = PtyPair(tmp_path / "meters")
-    try:
-        record = tmp_path / "meters.txt"
-        start_peer("pymodbus_slave.py", meters.device, str(METER), "--silent-unknown",
-                   "--record", str(record))
-        path = tmp_path / "mbgw.toml"
-        path.write_text(f'[[line]]\nname = "meters"\ndevice = "{meters.gateway}"\n'
-                        f'baudrate = 19200\nstout = {STOUT_MS}\ncache = {{ ttl = 600000 }}\n'
-                        '[[route]]\nfrom = "serial"\nunits = "32-63"\nline = "meters"\n'
-                        'offset = -31\n')
-        gw = start_gateway(pty_pair.gateway, "--config", str(path), "--baudrate", "19200",
-                           "--exception", mode="master", listen=False)
-        master = open_line(pty_pair.device)
-        serial_ask(master, read(32, 0, 4), bytes((32,)) + hr_reply(0, 4))
-        serial_ask(master, read(32, 1, 2), bytes((32,)) + hr_reply(1, 2))      # memory
-        serial_ask(master, write_multiple(32, 2, 7), bytes.fromhex("20 10 0002 0001"))
-        expected = bytearray(hr_reply(0, 4))
-        expected[2 + 4:2 + 6] = struct.pack(">H", 7)
-        serial_ask(master, read(32, 0, 4), bytes((32,)) + bytes(expected))
-        assert [adu for _, adu in rx(record)] == [
-            bytes((METER,)) + read_holding(0, 4), bytes((METER,)) + write_multiple(1, 2, 7)[1:],
-            bytes((METER,)) + read_holding(0, 4)]
-        row = next(r for r in status(gw)["lines"] if r["name"] == "meters")
-        assert row["cache"]["units"][str(METER)] == {
-            "hits": 1, "coalesced": 0, "misses": 2, "stale_served": 0}
-    finally:
-        meters.stop()
+        tmp_path, pty_pair, meters, start_gateway, open_line):
+    pair, record = meters
+    path = tmp_path / "mbgw.toml"
+    path.write_text(meters_line(pair, 'cache = { ttl = 600000 }\n')
+                    + '[[route]]\nfrom = "serial"\nunits = "32-63"\nline = "meters"\n'
+                    'offset = -31\n')
+    gw = start_gateway(pty_pair.gateway, "--config", str(path), "--baudrate", "19200",
+                       "--exception", mode="master", listen=False)
+    master = open_line(pty_pair.device)
+    serial_ask(master, read(32, 0, 4), bytes((32,)) + hr_reply(0, 4))
+    serial_ask(master, read(32, 1, 2), bytes((32,)) + hr_reply(1, 2))      # memory
+    serial_ask(master, write_multiple(32, 2, 7), bytes.fromhex("20 10 0002 0001"))
+    expected = bytearray(hr_reply(0, 4))
+    expected[2 + 4:2 + 6] = struct.pack(">H", 7)
+    serial_ask(master, read(32, 0, 4), bytes((32,)) + bytes(expected))
+    assert [adu for _, adu in rx(record)] == [
+        bytes((METER,)) + read_holding(0, 4), bytes((METER,)) + write_multiple(1, 2, 7)[1:],
+        bytes((METER,)) + read_holding(0, 4)]
+    row = next(r for r in status(gw)["lines"] if r["name"] == "meters")
+    assert row["cache"]["units"][str(METER)] == {
+        "hits": 1, "coalesced": 0, "misses": 2, "stale_served": 0}

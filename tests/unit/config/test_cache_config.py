@@ -1,60 +1,33 @@
 """The `cache` key (issue 27): per line ([serial], [[line]]) and per route, where a route's
 wins and `cache = false` turns it off; refused on a route to the table or a server, and out
 of range, each naming its key (check-config exit 78)."""
-import logging
-import tomllib
 
 import pytest
 from click.testing import CliRunner
 
-from mbgw.cli import checks, main
-from mbgw.config import file as cf
-from mbgw.config import schema as config_keys
+from mbgw.cli import main
 from mbgw.config.cache import CacheRule, parse_cache
 from mbgw.errors import ConfigError
 from mbgw.routing.cache import resolve
+from tests.unit.config.config_files import SERIAL, built, refusal
 
-SERIAL = '[serial]\ndevice = "/dev/ttyUSB0"\n'
 METERS = '[[line]]\nname = "meters"\ndevice = "/dev/ttyUSB1"\n'
 
 
-@pytest.fixture(autouse=True)
-def _keep_logging():
-    logger = logging.getLogger("mbgw")
-    saved = (logger.handlers[:], logger.level, logger.propagate)
-    yield
-    logger.handlers[:], logger.level, logger.propagate = saved
-
-
-def built(tmp_path, text: str):
-    schema = config_keys.Schema(main)
-    path = tmp_path / "mbgw.toml"
-    path.write_text(text)
-    return checks.check_file(schema, cf.check(schema, path, tomllib.loads(text)))
-
-
-def refusal(tmp_path, text: str) -> str:
-    path = tmp_path / "mbgw.toml"
-    path.write_text(text)
-    result = CliRunner().invoke(main, ["check-config", str(path)], prog_name="mbgw")
-    assert result.exit_code == 78, result.output
-    return result.output
-
-
-def test_line_serial_and_a_line_take_their_cache(tmp_path):
-    cfg = built(tmp_path, SERIAL + 'cache = { ttl = 500, serve-stale = 5000 }\n'
+def test_line_serial_and_a_line_take_their_cache(schema, tmp_path):
+    cfg = built(schema, tmp_path, SERIAL + 'cache = { ttl = 500, serve-stale = 5000 }\n'
                 + METERS + 'cache = { ttl = 100 }\n')
     assert cfg.cache == CacheRule(500, 5000)
     assert cfg.lines[0].cache == CacheRule(100, 0)
 
 
-def test_without_the_key_there_is_no_cache(tmp_path):
-    cfg = built(tmp_path, SERIAL + METERS)
+def test_without_the_key_there_is_no_cache(schema, tmp_path):
+    cfg = built(schema, tmp_path, SERIAL + METERS)
     assert cfg.cache is None and cfg.lines[0].cache is None
 
 
-def test_a_route_s_cache_replaces_the_line_s_and_false_turns_it_off(tmp_path):
-    cfg = built(tmp_path, SERIAL + METERS + 'cache = { ttl = 100, serve-stale = 900 }\n'
+def test_a_route_s_cache_replaces_the_line_s_and_false_turns_it_off(schema, tmp_path):
+    cfg = built(schema, tmp_path, SERIAL + METERS + 'cache = { ttl = 100, serve-stale = 900 }\n'
                 '[[route]]\nunits = "1-9"\nline = "meters"\ncache = { ttl = 40 }\n'
                 '[[route]]\nunits = "10-19"\nline = "meters"\ncache = false\n'
                 '[[route]]\nunits = "20-29"\nline = "meters"\n')
@@ -94,7 +67,7 @@ def test_the_command_line_spelling():
         parse_cache("ttl")
 
 
-def test_config_show_and_set_write_the_key_as_toml(tmp_path):
+def test_config_show_and_set_write_the_key_as_toml(schema, tmp_path):
     path = tmp_path / "mbgw.toml"
     path.write_text(SERIAL + 'cache = { ttl = 500, serve-stale = 5000 }\n'
                     + METERS + 'cache = { ttl = 100 }\n')
@@ -106,4 +79,4 @@ def test_config_show_and_set_write_the_key_as_toml(tmp_path):
     result = runner.invoke(main, ["config", "set", "--config", str(path), "serial", "cache",
                                   "ttl=20,serve-stale=40"])
     assert result.exit_code == 0, result.output
-    assert built(tmp_path, path.read_text()).cache == CacheRule(20, 40)
+    assert built(schema, tmp_path, path.read_text()).cache == CacheRule(20, 40)

@@ -1,16 +1,13 @@
 """[[device]] in the configuration file: each unit's own timing on a line in slave mode
 (issue 29), reaching the daemon's settings, and every refusal naming its table and key
 (check-config exit 78)."""
-import logging
-import tomllib
 
 import pytest
 from click.testing import CliRunner
 
-from mbgw.cli import checks, main
-from mbgw.config import file as cf
-from mbgw.config import schema as config_keys
+from mbgw.cli import main
 from mbgw.config.lines import DeviceConfig
+from tests.unit.config.config_files import built, refusal
 
 SERIAL = '[serial]\ndevice = "/dev/ttyUSB0"\nstout = 1000\n'
 METERS = '[[line]]\nname = "meters"\ndevice = "/dev/ttyUSB1"\n'
@@ -18,33 +15,6 @@ PANEL = '[[line]]\nname = "panel"\ndevice = "/dev/ttyUSB2"\nmode = "master"\n'
 ROUTES = ('[[route]]\nunits = "1-31"\nline = "serial"\n'
           '[[route]]\nunits = "32-63"\nline = "meters"\noffset = -31\n')
 FAST = '[[device]]\nunit = 5\nstout = 50\n'
-
-
-@pytest.fixture(autouse=True)
-def _keep_logging():
-    logger = logging.getLogger("mbgw")
-    saved = (logger.handlers[:], logger.level, logger.propagate)
-    yield
-    logger.handlers[:], logger.level, logger.propagate = saved
-
-
-@pytest.fixture
-def schema() -> config_keys.Schema:
-    return config_keys.Schema(main)
-
-
-def built(schema, tmp_path, text: str):
-    path = tmp_path / "mbgw.toml"
-    path.write_text(text)
-    return checks.check_file(schema, cf.check(schema, path, tomllib.loads(text)))
-
-
-def refusal(tmp_path, text: str) -> str:
-    path = tmp_path / "mbgw.toml"
-    path.write_text(text)
-    result = CliRunner().invoke(main, ["check-config", str(path)], prog_name="mbgw")
-    assert result.exit_code == 78, result.output
-    return result.output
 
 
 def test_devices_reach_the_slave_config(schema, tmp_path):

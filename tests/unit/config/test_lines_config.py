@@ -1,64 +1,21 @@
 """[[line]] and [[route]] in the configuration file: parsing into LineConfig/RouteConfig, every
 refusal naming its line or route and key (check-config exit 78, `mbgw run` the same), the
 implicit routes of both modes, and files without them unchanged."""
-import logging
-import tomllib
 
 import pytest
 from click.testing import CliRunner
 
-from mbgw.cli import checks, main
-from mbgw.config import file as cf
-from mbgw.config import schema as config_keys
-from mbgw.config.lines import (
-    PRIMARY_LINE,
-    TCP_FACE,
-    implicit_routes,
-    route_map,
-)
+from mbgw.cli import main
+from mbgw.config.lines import PRIMARY_LINE, TCP_FACE
+from mbgw.config.route_plan import implicit_routes, route_map
+from tests.unit.config.config_files import SERIAL, built, check_config, refusal, settings_of
 
-SERIAL = '[serial]\ndevice = "/dev/ttyUSB0"\n'
 METERS = '[[line]]\nname = "meters"\ndevice = "/dev/ttyUSB1"\nbaudrate = 9600\n'
 PANEL = '[[line]]\nname = "panel"\ndevice = "/dev/ttyUSB2"\nmode = "master"\n'
 EXAMPLE = (SERIAL + '[table]\nenabled = true\nunits = "247-254"\n' + METERS + PANEL
            + '[[route]]\nunits = "1-31"\nline = "serial"\n'
            + '[[route]]\nunits = "32-63"\nline = "meters"\noffset = -31\n'
            + '[[route]]\nfrom = "panel"\nunits = "1-10"\nline = "meters"\n')
-
-
-@pytest.fixture(autouse=True)
-def _keep_logging():
-    logger = logging.getLogger("mbgw")
-    saved = (logger.handlers[:], logger.level, logger.propagate)
-    yield
-    logger.handlers[:], logger.level, logger.propagate = saved
-
-
-@pytest.fixture
-def schema() -> config_keys.Schema:
-    return config_keys.Schema(main)
-
-
-def settings_of(schema, tmp_path, text: str) -> cf.Settings:
-    path = tmp_path / "mbgw.toml"
-    path.write_text(text)
-    return cf.check(schema, path, tomllib.loads(text))
-
-
-def built(schema, tmp_path, text: str):
-    return checks.check_file(schema, settings_of(schema, tmp_path, text))
-
-
-def check_config(tmp_path, text: str):
-    path = tmp_path / "mbgw.toml"
-    path.write_text(text)
-    return path, CliRunner().invoke(main, ["check-config", str(path)], prog_name="mbgw")
-
-
-def refusal(tmp_path, text: str) -> str:
-    path, result = check_config(tmp_path, text)
-    assert result.exit_code == 78, result.output
-    return result.output.removeprefix(f"mbgw: {path}: ")
 
 
 # --- parsing ---------------------------------------------------------------------------------

@@ -2,15 +2,10 @@
 taken from [serial], and what a remote line refuses (a serial port's keys, another mode)."""
 import pytest
 
-from mbgw.config.lines import RemoteTarget, parse_connect
+from mbgw.config.line_file import parse_connect
+from mbgw.config.lines import RemoteTarget
 from mbgw.errors import ConfigError
-from tests.unit.config.test_lines_config import (  # noqa: F401 (fixtures)
-    SERIAL,
-    _keep_logging,
-    built,
-    refusal,
-    schema,
-)
+from tests.unit.config.config_files import SERIAL, built, refusal
 
 ROUTE = '[[route]]\nunits = "40-49"\nline = "inverter"\n'
 
@@ -45,7 +40,7 @@ def test_a_bad_connect_is_refused_saying_why(text, reason):
         parse_connect("line x.connect", text)
 
 
-def test_a_remote_line_takes_its_timing_from_serial_and_its_own_keys(schema, tmp_path):  # noqa: F811
+def test_a_remote_line_takes_its_timing_from_serial_and_its_own_keys(schema, tmp_path):
     text = SERIAL + "stout = 700\nretries = 2\ndown-after = 5\n" + \
         inverter(**{"connect-delay": 1500, "pause": 20, "retries": 1}) + ROUTE
     cfg = built(schema, tmp_path, text)
@@ -57,7 +52,7 @@ def test_a_remote_line_takes_its_timing_from_serial_and_its_own_keys(schema, tmp
     assert line.is_target
 
 
-def test_ascii_over_tcp_frames_as_ascii(schema, tmp_path):  # noqa: F811
+def test_ascii_over_tcp_frames_as_ascii(schema, tmp_path):
     cfg = built(schema, tmp_path, SERIAL + inverter(
         connect='"ascii-over-tcp://10.0.0.5:4001"') + ROUTE)
     assert cfg.lines[0].serial.protocol == "ascii"

@@ -4,6 +4,7 @@ needs; and the helpers every listener shares (mbgw.ops.limits)."""
 import errno
 import logging
 import os
+import socket
 import threading
 
 import pytest
@@ -12,7 +13,7 @@ from click.testing import CliRunner
 from mbgw.cli import main
 from mbgw.cli.options import EX_CONFIG
 from mbgw.errors import ConfigError
-from mbgw.ops.limits import REST_MAX_S, AcceptRest, WarnLimit
+from mbgw.ops.limits import REST_FIRST_S, REST_MAX_S, AcceptRest, WarnLimit
 from mbgw.table.memory import Table
 from mbgw.table.persist import Persistence
 
@@ -151,6 +152,30 @@ def test_accept_failures_rest_the_listener_and_are_logged_once(caplog):
     messages = [r.getMessage() for r in caplog.records]
     assert len(messages) == 2
     assert "Too many open files" in messages[0] and "1000 accept() failed" in messages[1]
+
+
+class OutOfDescriptors:
+    """A listener whose accept() fails as a process at its RLIMIT_NOFILE does."""
+
+    def accept(self):
+        raise OSError(errno.EMFILE, os.strerror(errno.EMFILE))
+
+
+def test_accept_rests_a_listener_out_of_descriptors_then_takes_a_newcomer():
+    rest = AcceptRest(logging.getLogger("mbgw.test"), "Modbus TCP")
+    rested: list[float] = []
+    assert rest.accept(OutOfDescriptors(), rested.append) is None
+    assert rested == [REST_FIRST_S] and rest.failures == 1
+    with socket.create_server(("127.0.0.1", 0)) as listener:
+        listener.setblocking(False)
+        assert rest.accept(listener, rested.append) is None     # nobody waits: no rest
+        with socket.create_connection(listener.getsockname()) as client:
+            accepted = rest.accept(listener, rested.append)
+            assert accepted is not None
+            sock, address = accepted
+            with sock:
+                assert address == client.getsockname()
+    assert rested == [REST_FIRST_S] and rest.failures == 0
 
 
 def test_check_config_refuses_https_only_without_a_certificate(tmp_path):

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from mbgw.cli.render import line_status
+from mbgw.cli.render_lines import line_status
 from mbgw.ops.trace import Outcome, TraceHub, filters
 
 LINES = ("serial", "meters", "panel")

@@ -13,7 +13,7 @@ from click.testing import CliRunner
 from prometheus_client import CollectorRegistry, generate_latest
 
 from mbgw.cli import main
-from mbgw.cli.render import format_scenarios
+from mbgw.cli.render_scenarios import format_scenarios
 from mbgw.config.scenario import parse_scenario
 from mbgw.ops.control import ControlServer
 from mbgw.ops.metrics import scenario_families

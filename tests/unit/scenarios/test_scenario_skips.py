@@ -8,7 +8,7 @@ import re
 
 import pytest
 
-from mbgw.cli.render import format_scenarios
+from mbgw.cli.render_scenarios import format_scenarios
 from mbgw.config.model import Demotion
 from mbgw.config.scenario import parse_scenario
 from mbgw.ops.device_stats import DOWN, DeviceHealth, HealthRule

@@ -2,9 +2,10 @@
 routes, the file's routes with the table's units kept, each unit's hop and rewrite."""
 import dataclasses
 
-from mbgw.config.lines import LineConfig, RouteConfig, routes_status
+from mbgw.config.lines import LineConfig, RouteConfig
 from mbgw.config.model import SerialConfig, SlaveConfig, TableConfig
 from mbgw.config.number_list import number_list_text as units_text
+from mbgw.config.route_plan import routes_status
 from mbgw.routing.queue import Inbox
 from mbgw.slave.routes import (
     DIRECT,

@@ -7,7 +7,8 @@ from types import SimpleNamespace
 import prometheus_client
 from prometheus_client import parser
 
-from mbgw.cli.render import _table_section, format_status
+from mbgw.cli.render import format_status
+from mbgw.cli.render_table import table_section
 from mbgw.config.model import TableConfig
 from mbgw.ops.counters import Counters, MasterCounters
 from mbgw.ops.device_stats import DeviceHealth
@@ -113,7 +114,7 @@ def test_status_master_table_section_with_serial_slave_and_persist():
              "tcp": {"port": 1502, "connections": 2, "max_connections": 32,
                      "connections_accepted": 5, "connections_refused_limit": 1,
                      "connections_bad_header": 0}}
-    lines = _table_section(table, "master", NOW)
+    lines = table_section(table, "master", NOW)
     assert "  TCP server: 2 of 32 clients, 5 accepted, 1 refused (limit), 0 closed (bad " \
         "header)" in lines
     assert lines[0] == "table      serial address 17, TCP port 1502, functions 3"
@@ -129,7 +130,7 @@ def test_status_says_when_the_table_file_cannot_be_written():
                          "last_save": NOW - 90.0, "saves": 3,
                          "failing": "cannot write /var/lib/mbgw/table: Read-only file system",
                          "failing_since": NOW - 80.0}}
-    lines = _table_section(table, "slave", NOW)
+    lines = table_section(table, "slave", NOW)
     assert "  persist /var/lib/mbgw/table: every 10s, last save 1m30s ago, saves 3" in lines
     assert "  persist FAILING since 1m20s ago: cannot write /var/lib/mbgw/table: Read-only " \
         "file system (changes since the last save are not kept)" in lines
