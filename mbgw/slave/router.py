@@ -13,8 +13,9 @@ for the line for the line thread (take_kept).  Both hold the line thread's gate 
 Each unit's hop (mbgw.slave.routes) says where its request goes: today's way to line serial,
 the table, line serial with the unit rewritten, nowhere (0x0A or silence), or another target
 (a line, a remote server) as an Exchange in its Inbox.  That target's thread hands the
-outcome back through a deque and the wake-up eventfd, and whoever holds the gate delivers it
-(deliver_completions): a client is only ever touched under the gate.
+outcome back through a deque; it delivers it itself while the face's thread is idle (it then
+holds the connections' home), else the wake-up eventfd tells whoever holds the gate to
+(deliver_completions): a client is only ever touched by one thread at a time.
 """
 import time
 from collections import deque
