@@ -28,12 +28,14 @@ for bench/simline.c.  See README.md, "Remote lines".
 """
 import argparse
 import os
+import select
 import selectors
 import socket
 import struct
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -122,6 +124,46 @@ def read_reply(sock: socket.socket) -> bytes:
             raise ConnectionError("closed")
         data += chunk
     return data
+
+
+def cpu_s(pid: int) -> float:
+    """The CPU time (user + system, all threads) process pid has used so far."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def handover_floor(count: int) -> list[int]:
+    """The reference floor of a thread crossing on this host, now: two Python threads
+    waking each other through eventfds and poll() (the hand-over mbgw's face and a remote
+    line's thread make), one round trip (two crossings) after each idle SERVICE_S, sorted
+    ns."""
+    there = os.eventfd(0, os.EFD_NONBLOCK)
+    back = os.eventfd(0, os.EFD_NONBLOCK)
+
+    def peer() -> None:
+        waiting = select.poll()
+        waiting.register(there, select.POLLIN)
+        for _ in range(count):
+            waiting.poll()
+            os.eventfd_read(there)
+            os.eventfd_write(back, 1)
+
+    thread = threading.Thread(target=peer)
+    thread.start()
+    waiting = select.poll()
+    waiting.register(back, select.POLLIN)
+    out = []
+    for _ in range(count):
+        time.sleep(SERVICE_S)
+        t0 = time.perf_counter_ns()
+        os.eventfd_write(there, 1)
+        waiting.poll()
+        os.eventfd_read(back)
+        out.append(time.perf_counter_ns() - t0)
+    thread.join()
+    os.close(there)
+    os.close(back)
+    return sorted(out)
 
 
 def latencies(port: int, count: int) -> list[int]:
@@ -262,6 +304,7 @@ def run(quick: bool) -> None:
     count = 300 if quick else 2000
     seconds = 1.5 if quick else 5.0
     rows = {}
+    cpus: dict[str, float] = {}
     with tempfile.TemporaryDirectory() as tmp:
         tally = Path(tmp) / "tally"
         for name in ("direct", "mbgw", "modbus-proxy"):
@@ -275,7 +318,10 @@ def run(quick: bool) -> None:
                     port, gw = start_proxy(device_port, 1000)
                 try:
                     latencies(port, 50)                  # warm-up, and the connection made
+                    busy = gw if gw is not None else dev
+                    cpu = cpu_s(busy.pid)
                     lat = latencies(port, count)
+                    cpus[name] = (cpu_s(busy.pid) - cpu) / count * 1e6
                     rates = [closed_loop(port, n, seconds)[0] if name != "direct" or n == 1
                              else float("nan") for n in (1, 8, 32)]
                     rows[name] = (lat, rates)
@@ -298,6 +344,12 @@ def run(quick: bool) -> None:
             finally:
                 stop(dev)
     report(rows, late, count, seconds)
+    print("CPU a request, one client (the process's threads, user + system; direct: the "
+          "device's): " + ", ".join(f"{name} {us:.0f} us" for name, us in cpus.items()))
+    floor = handover_floor(count)
+    print(f"reference floor, two Python threads waking each other by eventfd after "
+          f"{SERVICE_S * 1000:g} ms idle: one round trip (two crossings) p50 "
+          f"{pct(floor, 50):.0f} us, p99 {pct(floor, 99):.0f} us")
     rtu_over_tcp(quick)
 
 

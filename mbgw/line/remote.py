@@ -82,7 +82,8 @@ class RemoteLine:
         for _ in range(2):
             sock = self._sock if self._sock is not None else self._connect()
             try:
-                sock.sendall(wire)
+                if sock.send(wire) < len(wire):     # a full send buffer, never in practice
+                    raise BlockingIOError(errno.EAGAIN, "the device does not read")
             except OSError as err:
                 self.drop(f"write: {err.strerror or err}")
                 continue
@@ -100,14 +101,13 @@ class RemoteLine:
             sock = self._sock
             if sock is None:
                 return self._view[:0]
-            timeout_s = (deadline_ns - time.monotonic_ns()) / 1e9
-            if timeout_s <= 0:
+            left_ns = deadline_ns - time.monotonic_ns()
+            if left_ns <= 0 or not self._readable.poll(left_ns / 1e6):     # ms, rounded up
                 return None
-            sock.settimeout(timeout_s)
             try:
                 n = sock.recv_into(self._buf)
-            except TimeoutError:
-                return None
+            except BlockingIOError:
+                continue
             except OSError as err:
                 self.drop(f"read: {err.strerror or err}")
                 return self._view[:0]
@@ -170,6 +170,7 @@ class RemoteLine:
             self._failed(err)
             raise TargetUnreachable(err.errno or errno.EHOSTUNREACH,
                                     f"{self.target}: {err.strerror or err}") from None
+        sock.setblocking(False)     # its waits are the line's poll(), not a timeout's each
         self._sock = sock
         self._readable = select.poll()
         self._readable.register(sock, select.POLLIN)

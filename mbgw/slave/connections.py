@@ -316,6 +316,11 @@ class Connections:
         self._counters = counters
         self._poll = select.poll()
         self._poll.register(wake_fd, _IN)
+        # The home: held by the thread that calls wait() (its owner), except while it waits
+        # in poll() with nothing to do.  Another thread that has it then may touch the
+        # clients in its place (Router._completed): a reply goes out a wake-up sooner.
+        self.home = threading.Lock()
+        self.home.acquire()
         self._clients: dict[int, Client] = {}      # by fd
         self._events: dict[int, int] = {}          # what each client's fd is polled for
         self._adopted: deque[Client] = deque()     # from the asyncio thread, not yet polled
@@ -360,9 +365,14 @@ class Connections:
         if serial_fd >= 0:
             self._poll.register(serial_fd, _IN)
         again = self._again
+        timeout_ms = 0 if again else timeout_ms
+        if timeout_ms:
+            self.home.release()
         try:
-            ready = self._poll.poll(0 if again else timeout_ms)
+            ready = self._poll.poll(timeout_ms)
         finally:
+            if timeout_ms:
+                self.home.acquire()
             if serial_fd >= 0:
                 self._poll.unregister(serial_fd)
         if again:
@@ -387,6 +397,12 @@ class Connections:
                 else:
                     self._serve(client, events)
         return serial
+
+    @property
+    def settled(self) -> bool:
+        """Under the home: no client has changed since the owner's last poll() began (what
+        it polls each for is still right)."""
+        return not self._changes
 
     def _with_held(self, ready: list, again: list[Client]) -> list:
         """ready, and the clients whose held requests may go on now (as if they had input)."""

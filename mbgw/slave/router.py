@@ -13,8 +13,9 @@ for the line for the line thread (take_kept).  Both hold the line thread's gate 
 Each unit's hop (mbgw.slave.routes) says where its request goes: today's way to line serial,
 the table, line serial with the unit rewritten, nowhere (0x0A or silence), or another target
 (a line, a remote server) as an Exchange in its Inbox.  That target's thread hands the
-outcome back through a deque and the wake-up eventfd, and whoever holds the gate delivers it
-(deliver_completions): a client is only ever touched under the gate.
+outcome back through a deque; it delivers it itself while the face's thread is idle (it then
+holds the connections' home), else the wake-up eventfd tells whoever holds the gate to
+(deliver_completions): a client is only ever touched by one thread at a time.
 """
 import time
 from collections import deque
@@ -31,7 +32,7 @@ from mbgw.ops.trace import Outcome, TraceEvent, TraceHub
 from mbgw.protocol import pdu
 from mbgw.routing.cache import ReadCache, is_read, resolve
 from mbgw.routing.queue import Exchange, Inbox, Job, Scheduler
-from mbgw.slave.connections import Client
+from mbgw.slave.connections import Client, Connections
 from mbgw.slave.routes import (
     DIRECT,
     GATEWAY,
@@ -73,6 +74,9 @@ class Router:
         self._kept: list[tuple] = []     # requests for the line read by the table reader
         # Exchanges other lines answered, for the thread that holds the gate to deliver
         self._completions: deque[tuple] = deque()
+        # The face's connections (TcpServer sets them): their home lets a target's thread
+        # deliver while the face's own thread is idle
+        self.connections: Connections | None = None
         # What the face answered off line serial (the table, another line, unroutable, the
         # firewall), also in counters, the daemon's totals: line serial's own figures are
         # the difference (mbgw.slave.line_share)
@@ -172,8 +176,20 @@ class Router:
 
     def _completed(self, exchange: Exchange, reply: bytes | None, outcome: str) -> None:
         """The target's thread: the outcome waits for the thread that holds the gate (the
-        client is touched by no other)."""
+        client is touched by no other), unless that thread is idle: then this one takes the
+        connections' home and delivers it (with any outcome waiting before it, in order).
+        The face's thread is woken when it is busy, or when a client changed meanwhile
+        (its output backed up, room for requests again) so that it polls it anew."""
         self._completions.append((exchange, reply, outcome))
+        connections = self.connections
+        if connections is not None and connections.home.acquire(False):
+            try:
+                self.deliver_completions()
+                settled = connections.settled
+            finally:
+                connections.home.release()
+            if settled:
+                return
         self._scheduler.wake()
 
     def deliver_completions(self) -> None:

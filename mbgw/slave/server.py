@@ -48,6 +48,7 @@ class TcpServer:
         self.connections = Connections(scheduler.wake_fd, self.router.request, self._closed,
                                        counters)
         self.connections.on_wake = self.router.deliver_completions
+        self.router.connections = self.connections
         self.listener = Listener(cfg, counters, self.connections, firewall,
                                  self.router.request)
         self.table = table

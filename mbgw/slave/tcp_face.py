@@ -7,7 +7,8 @@ In a slave daemon line serial's thread polls the face's connections; here no thr
 line for the face, and its routes reach only other threads' targets (lines in slave mode,
 remote servers) or the table.  So the face's thread is the gate's only holder: one poll() over
 the clients and the wake-up eventfd, which both adopts new connections and delivers the
-targets' outcomes (Router.deliver_completions), as line serial's thread does while idle.
+targets' outcomes (Router.deliver_completions) that came while it was busy, as line serial's
+thread does; while it waits in that poll(), a target's thread delivers its own.
 """
 import asyncio
 import dataclasses
