@@ -189,7 +189,8 @@ class SerialFace(LineThread[FaceSettings]):
         return line_row(self.face, self._cfg.serial.device, "master", self.state,
                         self._counters.snapshot(), [d.snapshot() for d in self.devices.all()],
                         settings=settings_row(LineConfig(self.face, self._cfg.serial,
-                                                          mode="master")))
+                                                          mode="master")),
+                        state_since=self.state_since)
 
     def reconfigure_line(self, line, cfg, routes: RouteMap) -> None:
         """New settings, as build_face takes them (from another thread)."""

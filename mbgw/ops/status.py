@@ -158,7 +158,7 @@ def settings_row(line: LineConfig) -> dict:
 
 def line_row(name: str, device: str, mode: str, state: str, counters: dict,
              devices: list[dict], cache: dict | None = None,
-             settings: dict | None = None) -> dict:
+             settings: dict | None = None, state_since: float | None = None) -> dict:
     """One line as `mbgw status` shows it: its name, device, mode and state, the three
     counters the table shows, all its counters and its devices (each naming the line), the
     time the line was busy (busy_ms) and its settings where the caller gives them; a
@@ -174,6 +174,8 @@ def line_row(name: str, device: str, mode: str, state: str, counters: dict,
         row["cache"] = cache
     if settings is not None:
         row["settings"] = settings
+    if state_since is not None:
+        row["state_since"] = state_since
     if busy_ns is not None:     # the console's share of the line busy, between two looks
         row["busy_ms"] = busy_ns // 1_000_000
     return row

@@ -96,7 +96,7 @@ class SlaveStatus(DaemonStatus):
         serial = [line_row(PRIMARY_LINE, self.cfg.serial.device, "slave", self._worker.state,
                            counters, devices,
                            self.cache.status() if self.cache is not None else None,
-                           settings_row(self._serial_line()))
+                           settings_row(self._serial_line()), self._worker.state_since)
                   ] if self.cfg.serial_line else []
         return [*serial, *(self.targets.status() if self.targets is not None else ()),
                 *(self.faces.status() if self.faces is not None else ()),

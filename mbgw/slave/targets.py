@@ -137,7 +137,8 @@ class TargetLine:
         counters = self.counters.snapshot()
         return line_row(self.config.name, self.config.serial.device, self.config.mode,
                         self.worker.state, counters, [d.snapshot() for d in self.devices.all()],
-                        self.worker.cache.status(), settings_row(self.config))
+                        self.worker.cache.status(), settings_row(self.config),
+                        self.worker.state_since)
 
 
 class TargetLines:

@@ -1,6 +1,6 @@
 // ---- One line's page (#lines/NAME): its settings in words, state, load, devices, cache -----
 import { el, factsTable, table } from "./dom.js";
-import { ago, isoTime, listOf, ms, show } from "./format.js";
+import { ago, isoTime, listOf, ms, show, when } from "./format.js";
 import { percentile } from "./devices.js";
 
 const PARITY = { n: "no parity", e: "even parity", o: "odd parity", m: "mark parity",
@@ -59,6 +59,7 @@ export function lineLoad(line, before, now) {
 function stateRows(line, load) {
   const c = line.counters || {};
   const rows = [["state", STATE_WORDS[line.state] || show(line.state), "State"],
+    ["state_since", when(line.state_since), "Since"],
     ["mode", line.mode === "slave" ? "slave mode: mbgw is the master on it"
       : line.mode === "master" ? "master mode: a master on it sends the requests"
         : show(line.mode), "Mode"],

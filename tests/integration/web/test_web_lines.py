@@ -219,6 +219,7 @@ def test_a_line_s_page_shows_its_settings_load_and_a_device_s_next_probe(browser
     wait(browser, text_in(f"{row} td.next-probe", "in "))
     wait(browser, text_in(f"{row} td.health-down", "down"))
     wait(browser, text_in('#line-state tr[data-name="requests_per_s"] td', "/s"))
+    wait(browser, text_in('#line-state tr[data-name="state_since"] td', " ago)"))
     browser.get(daemon.url + "#lines/beta")     # the other line's page, its settings in words
     settings = '#line-page[data-line="beta"] #line-settings'
     wait(browser, text_in(f'{settings} tr[data-name="baudrate"] td', "38400 bit/s"))
