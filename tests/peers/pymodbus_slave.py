@@ -43,7 +43,7 @@ IDENTITY = {
 }
 
 
-def device(holding: int) -> ModbusDeviceContext:
+def device(holding: int = 100) -> ModbusDeviceContext:
     # pymodbus 3.16: block address 1 is PDU address 0
     return ModbusDeviceContext(
         hr=ModbusSequentialDataBlock(1, list(range(holding, holding + 100))),
