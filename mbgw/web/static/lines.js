@@ -94,7 +94,7 @@ export function linesPage(body, wanted) {
   const editor = routeEditor(roles);
   let editing = false;               // the editor is loaded once the lines are known
   body.append(el("h2", { text: "Lines" }), tables, chooser, page,
-    el("h2", { text: "Routes" }), map, editor.element, servers);
+    el("h2", { text: "Route map: which unit goes where" }), map, editor.element, servers);
   return {
     async refresh() {
       const s = await load("/api/status");

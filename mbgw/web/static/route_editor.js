@@ -112,6 +112,7 @@ export function routeEditor(lines) {
       adminControl(el("button", { type: "button", id: "routes-apply",
         text: "Apply the routes", onclick: apply }))),
     out);
+  editor.hidden = true;              // until reload(): a mode without lines has no routes
 
   async function apply() {
     for (const bad of tbody.querySelectorAll(".invalid")) bad.classList.remove("invalid");

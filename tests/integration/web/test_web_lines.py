@@ -243,6 +243,8 @@ def test_the_lines_page_is_no_wider_than_the_window(browser, daemon, size):
         shown, window, unreachable = browser.execute_script(MEASURE)
         ARTIFACTS.mkdir(parents=True, exist_ok=True)
         browser.save_screenshot(str(ARTIFACTS / f"line-serial-{width}x{height}.png"))
+        browser.execute_script("document.getElementById('routes-table').scrollIntoView()")
+        browser.save_screenshot(str(ARTIFACTS / f"routes-{width}x{height}.png"))
         assert shown <= window, f"{shown} px wide in {window}"
         assert unreachable == [], unreachable
     finally:
