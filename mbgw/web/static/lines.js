@@ -37,13 +37,16 @@ function row(attrs, values, classes) {
 
 const lineLink = (name) => el("a", { href: `#lines/${encodeURIComponent(name)}`, text: name });
 
+// A line's cells in the lines table, as text.
+const lineCells = (l) => ["", show(l.device) + remoteFigures(l), show(l.mode), show(l.state),
+  show(l.requests), show(l.replies), show(l.timeouts), health(listOf(l, "devices")),
+  cacheFigures(l.cache)];
+
 function linesTable(lines) {
   return table("lines-table", ["Name", "Device", "Mode", "State", "Requests", "Replies",
     "Timeouts", "Devices", "Cache hits / coalesced / misses / stale"], lines.map((l) => {
-    const tr = row({ "data-line": l.name }, ["", show(l.device) + remoteFigures(l),
-      show(l.mode), show(l.state), show(l.requests), show(l.replies), show(l.timeouts),
-      health(listOf(l, "devices")), cacheFigures(l.cache)],
-    ["line", "", "", `state-${l.state}`, "num", "num", "num", "num", "num cache"]);
+    const tr = row({ "data-line": l.name }, lineCells(l),
+      ["line", "", "", `state-${l.state}`, "num", "num", "num", "num", "num cache"]);
     tr.firstChild.append(lineLink(l.name));
     return tr;
   }));
@@ -69,15 +72,18 @@ export function routeMap(id, routes) {
     ["face", "units", "target", "rewrite", "origin"])));
 }
 
+// A server's cells in the servers table, as text.
+function serverCells(r) {
+  const c = r.counters || {};
+  return [show(r.server), ...[c.requests, c.replies, c.device_exceptions, c.timeouts,
+    c.unreachable, listOf(r, "connections").length, c.connections_opened,
+    c.connections_lost].map(show)];
+}
+
 function serversTable(servers) {
   return table("servers-table", ["Server", "Requests", "Replies", "Exceptions", "Timeouts",
-    "Unreachable", "Open", "Opened", "Lost"], servers.map((r) => {
-    const c = r.counters || {};
-    const values = [show(r.server), ...[c.requests, c.replies, c.device_exceptions,
-      c.timeouts, c.unreachable, listOf(r, "connections").length, c.connections_opened,
-      c.connections_lost].map(show)];
-    return row({ "data-server": values[0] }, values, ["", ...Array(8).fill("num")]);
-  }));
+    "Unreachable", "Open", "Opened", "Lost"], servers.map((r) => row(
+    { "data-server": show(r.server) }, serverCells(r), ["", ...Array(8).fill("num")])));
 }
 
 export function linesPage(body, wanted) {
@@ -105,9 +111,8 @@ export function linesPage(body, wanted) {
       const loads = lines.map((l) => lineLoad(l, before.get(l.name), now));
       before = new Map(lines.map((l) => [l.name, { time: now, requests: l.requests,
         busy_ms: l.busy_ms }]));
-      rebuilt(tables, JSON.stringify(lines.map((l) => [l.name, l.device, l.mode, l.state,
-        l.requests, l.replies, l.timeouts, l.counters, health(listOf(l, "devices")),
-        cacheFigures(l.cache)])), () => [lines.length ? linesTable(lines)
+      rebuilt(tables, JSON.stringify(lines.map((l) => [l.name, ...lineCells(l)])),
+        () => [lines.length ? linesTable(lines)
         : el("p", { id: "no-lines", text: "This mode has one line, serial." })]);
       const shown = lines.find((l) => l.name === wanted) || lines[0];
       if (lines.map((l) => l.name).join() !== names) {
@@ -122,7 +127,7 @@ export function linesPage(body, wanted) {
         (rows) => routeMap(null, rows))] : []));
       rebuilt(map, JSON.stringify(routes), () => [routeMap("routes-table", routes)]);
       const remote = listOf(s, "servers");
-      rebuilt(servers, JSON.stringify(remote), () => (remote.length
+      rebuilt(servers, JSON.stringify(remote.map(serverCells)), () => (remote.length
         ? [el("h2", { text: "Servers" }), serversTable(remote)] : []));
       if (!editing && lines.length) {
         editing = true;
