@@ -125,7 +125,7 @@ export function linePage(line, load, routes, routeTable) {
         stateRows(line, load))),
       el("div", {}, el("h3", { text: "Settings" }), rows.length
         ? factsTable("line-settings", rows)
-        : el("p", { class: "hint", text: "No settings are reported for this line." }))),
+        : el("p", { class: "hint", text: "This line reports no settings." }))),
     el("h3", { text: `Devices (${devices.length})` }),
     devices.length ? devicesTable(devices)
       : el("p", { id: "no-line-devices", text: "No device on this line has been asked yet." }),
