@@ -57,6 +57,7 @@ class RemoteLine:
         self.counters = counters
         self.port = self            # what the framing waits on (wait_quiet)
         self.lost = False           # an attempt failed since the device last answered
+        self.lost_or_back = time.time()     # when lost last changed (the line's state since)
         self._sock: socket.socket | None = None
         self._readable = select.poll()      # the connection's socket, once there is one
         self._connected = False     # ever: the next connection is a reconnect
@@ -147,6 +148,7 @@ class RemoteLine:
         """A valid reply came: a lost device is back."""
         if self.lost:
             self.lost = False
+            self.lost_or_back = time.time()
             log.info("line %s: %s answers again", self.name, self.target)
 
     def drop(self, why: str) -> None:
@@ -206,6 +208,7 @@ class RemoteLine:
         self._retry_at = time.monotonic() + self._backoff_s
         if not self.lost:
             self.lost = True
+            self.lost_or_back = time.time()
             log.warning("line %s: %s lost: %s; trying again with backoff up to %g s",
                         self.name, self.target, err.strerror or err, BACKOFF_MAX_S)
         self._backoff_s = min(self._backoff_s * 2, BACKOFF_MAX_S)

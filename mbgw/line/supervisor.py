@@ -156,6 +156,7 @@ class LineThread(threading.Thread, Generic[Settings]):
         self._reopening: Reopening | None = None     # while the device is down
         self._line: SerialLine | None = line
         self._opened = line is not None     # the device has been open (its return is "back")
+        self._state_since = time.time()     # when the line last opened or was lost
         if line is None:
             self._reopening = Reopening(cfg.serial.device, pause=False)
             self._reopening.absent = True
@@ -187,6 +188,11 @@ class LineThread(threading.Thread, Generic[Settings]):
             return "up"
         reopening = self._reopening
         return "waiting" if reopening is not None and reopening.absent else "down"
+
+    @property
+    def state_since(self) -> float:
+        """When the state last changed between up and down (a Unix time, for the status)."""
+        return self._state_since
 
     def stop(self) -> None:
         self._stopping = True
@@ -262,6 +268,7 @@ class LineThread(threading.Thread, Generic[Settings]):
         if self._line is not None:
             self._line.close()
             self._line = None
+            self._state_since = time.time()
             self._detach()
 
     def _take_new_cfg(self) -> None:
@@ -292,6 +299,7 @@ class LineThread(threading.Thread, Generic[Settings]):
                 continue
             self._reopening = None
             self._line = line
+            self._state_since = time.time()
             self._attach(line)
             log.info("serial device %s is %s", self._cfg.serial.device,
                      "back" if self._opened else "there: opened")

@@ -37,6 +37,7 @@ import os
 import select
 import time
 
+from mbgw.config.lines import LineConfig
 from mbgw.config.model import SerialConfig
 from mbgw.config.route_plan import RouteMap
 from mbgw.errors import ChecksumError, FrameError, Interrupted, LineTimeout
@@ -60,7 +61,7 @@ from mbgw.ops.counters import MasterCounters, TableSlaveCounters
 from mbgw.ops.device_stats import MASTER_COUNTS, DeviceHealth, DeviceStats, HealthRule
 from mbgw.ops.eventfd import drain
 from mbgw.ops.exception_reply import gateway_exception
-from mbgw.ops.status import line_row
+from mbgw.ops.status import line_row, settings_row
 from mbgw.ops.trace import Outcome, TraceHub
 from mbgw.protocol import pdu
 from mbgw.routing.queue import AnswerWait
@@ -175,7 +176,10 @@ class SerialFace(LineThread[FaceSettings]):
     def status(self) -> dict:
         """Its row of the status's "lines", counters and devices included (any thread)."""
         return line_row(self.face, self._cfg.serial.device, "master", self.state,
-                        self._counters.snapshot(), [d.snapshot() for d in self.devices.all()])
+                        self._counters.snapshot(), [d.snapshot() for d in self.devices.all()],
+                        settings=settings_row(LineConfig(self.face, self._cfg.serial,
+                                                          mode="master")),
+                        state_since=self.state_since)
 
     def reconfigure_line(self, line, cfg, routes: RouteMap) -> None:
         """New settings, as build_face takes them (from another thread)."""

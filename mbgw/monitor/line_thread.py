@@ -16,6 +16,7 @@ from mbgw.line.supervisor import TURN_MARGIN_S, LineThread
 from mbgw.monitor.bus import MonitorCounters, decoder_for
 from mbgw.monitor.store import MapStore
 from mbgw.ops.eventfd import drain
+from mbgw.ops.status import settings_row
 from mbgw.ops.trace import Outcome
 
 _IN = select.POLLIN
@@ -131,7 +132,8 @@ class MonitorLineThread(LineThread[LineConfig]):
         c = self.counters.snapshot()
         ages = self.store.ages(time.monotonic())
         return {"name": self.line_name, "device": self._cfg.serial.device, "mode": "monitor",
-                "state": self.state,
+                "state": self.state, "state_since": self.state_since,
+                "settings": settings_row(self._cfg),
                 "requests": c["monitor_answered"] + c["monitor_unanswered"],
                 "replies": c["monitor_answered"], "timeouts": c["monitor_unanswered"],
                 "counters": c, "devices": [],

@@ -9,7 +9,7 @@ import time
 
 from mbgw import __version__
 from mbgw.audit import Kind, event, operator
-from mbgw.config.lines import PRIMARY_LINE
+from mbgw.config.lines import PRIMARY_LINE, LineConfig
 from mbgw.ops.trace import NO_RAW_VIEW
 from mbgw.ops.trace import filters as trace_filters
 
@@ -137,17 +137,45 @@ async def until_closed(reader: asyncio.StreamReader) -> None:
         pass
 
 
+def settings_row(line: LineConfig) -> dict:
+    """A line's settings as status shows them (the console's page of a line): where its
+    device is, how the bytes go, and the timing of a line where mbgw is the master."""
+    s = line.serial
+    if line.remote is not None:
+        where = {"connect": line.remote.url, "connect_delay_ms": line.connect_delay_ms,
+                 "pause_ms": s.interframe_ms}
+    else:
+        where = {"device": s.device, "protocol": s.protocol, "baudrate": s.baudrate,
+                 "format": str(s.format), "interface": s.wiring, "silence_ms": s.silence_ms,
+                 "interframe_silence_ms": s.interframe_ms}
+    if not line.is_target:
+        return where
+    return {**where, "stout_ms": s.stout_ms, "retries": line.retries,
+            "down_after": line.demotion.down_after,
+            "probe_interval_ms": line.demotion.probe_interval_ms,
+            "cache": line.cache.text if line.cache is not None else "off"}
+
+
 def line_row(name: str, device: str, mode: str, state: str, counters: dict,
-             devices: list[dict], cache: dict | None = None) -> dict:
+             devices: list[dict], cache: dict | None = None,
+             settings: dict | None = None, state_since: float | None = None) -> dict:
     """One line as `mbgw status` shows it: its name, device, mode and state, the three
-    counters the table shows, all its counters and its devices (each naming the line); a
+    counters the table shows, all its counters and its devices (each naming the line), the
+    time the line was busy (busy_ms) and its settings where the caller gives them; a
     line whose cache has served or missed: its figures by unit and the ages it served
     (mbgw.routing.cache.ReadCache.status)."""
     for row in devices:
         row["line"] = name
+    busy_ns = counters.pop("line_busy_ns", None)
     row = {"name": name, "device": device, "mode": mode, "state": state,
            "requests": counters["requests"], "replies": counters["replies"],
            "timeouts": counters["timeouts"], "counters": counters, "devices": devices}
     if cache is not None and cache["units"]:
         row["cache"] = cache
+    if settings is not None:
+        row["settings"] = settings
+    if state_since is not None:
+        row["state_since"] = state_since
+    if busy_ns is not None:     # the console's share of the line busy, between two looks
+        row["busy_ms"] = busy_ns // 1_000_000
     return row

@@ -51,6 +51,11 @@ class RemoteLineThread(SlaveLineThread):
         return "down" if self._remote.lost else "up"
 
     @property
+    def state_since(self) -> float:
+        """A remote line's state is its connection's."""
+        return self._remote.lost_or_back
+
+    @property
     def turn_limit_s(self) -> float:
         """A serial line's, and a connection (bounded by stout) with its delay."""
         cfg = self.remote_config

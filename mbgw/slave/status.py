@@ -3,10 +3,10 @@ close (the commands both modes share are in mbgw.ops.status)."""
 import time
 from collections.abc import Callable
 
-from mbgw.config.lines import PRIMARY_LINE
+from mbgw.config.lines import PRIMARY_LINE, LineConfig
 from mbgw.config.route_plan import routes_status
 from mbgw.ops.load import LineLoad, average_percent
-from mbgw.ops.status import DaemonStatus, line_row
+from mbgw.ops.status import DaemonStatus, line_row, settings_row
 from mbgw.routing.cache import ReadCache
 from mbgw.scenarios.report import scenarios_status
 from mbgw.slave.line_share import LineShare
@@ -94,14 +94,20 @@ class SlaveStatus(DaemonStatus):
 
     def _lines(self, devices: list[dict]) -> list[dict]:
         counters = (self.line_share or self._counters).snapshot()
-        counters.pop("line_busy_ns", None)
         serial = [line_row(PRIMARY_LINE, self.cfg.serial.device, "slave", self._worker.state,
                            counters, devices,
-                           self.cache.status() if self.cache is not None else None)
+                           self.cache.status() if self.cache is not None else None,
+                           settings_row(self._serial_line()), self._worker.state_since)
                   ] if self.cfg.serial_line else []
         return [*serial, *(self.targets.status() if self.targets is not None else ()),
                 *(self.faces.status() if self.faces is not None else ()),
                 *(self.monitors.status() if self.monitors is not None else ())]
+
+    def _serial_line(self) -> LineConfig:
+        """Line serial as the [[line]]s are: [serial] and the timing of the daemon's."""
+        cfg = self.cfg
+        return LineConfig(PRIMARY_LINE, cfg.serial, retries=cfg.retries,
+                          demotion=cfg.demotion, cache=cfg.cache)
 
     def summary(self) -> str:
         c = self._counters

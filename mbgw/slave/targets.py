@@ -16,7 +16,7 @@ from mbgw.line.supervisor import open_at_start
 from mbgw.ops.counters import Counters, RemoteCounters
 from mbgw.ops.device_stats import DeviceHealth, HealthRule
 from mbgw.ops.reload import ReloadReport
-from mbgw.ops.status import line_row
+from mbgw.ops.status import line_row, settings_row
 from mbgw.ops.trace import LineTrace, TraceHub
 from mbgw.routing.cache import ReadCache
 from mbgw.routing.queue import Inbox, Scheduler
@@ -135,10 +135,10 @@ class TargetLine:
     def row(self) -> dict:
         """status() with all its counters and its devices (mbgw status's row)."""
         counters = self.counters.snapshot()
-        counters.pop("line_busy_ns", None)
         return line_row(self.config.name, self.config.serial.device, self.config.mode,
                         self.worker.state, counters, [d.snapshot() for d in self.devices.all()],
-                        self.worker.cache.reads.status())
+                        self.worker.cache.reads.status(), settings_row(self.config),
+                        self.worker.state_since)
 
 
 class TargetLines:

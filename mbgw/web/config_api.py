@@ -5,6 +5,7 @@ atomically, or not at all.
 
 The keys come from the mode commands (mbgw.config.schema), which the CLI hands over with
 use_commands() when it starts a daemon: web never imports cli."""
+import re
 import shlex
 import tomllib
 from collections.abc import Callable
@@ -17,6 +18,7 @@ from mbgw.config import scenario_text
 from mbgw.config.array_text import replace_tables
 from mbgw.config.edit import REMOVE, apply_changes, changes_for_set, show_lines
 from mbgw.config.file import SCENARIO_KEY, Settings, check, load, parse, read_text, resolve
+from mbgw.config.line_file import ROUTE_TABLE
 from mbgw.config.scenario import parse_scenario
 from mbgw.config.schema import GROUPS, MODE_KEY, MODES, Schema, is_secret, key_help
 from mbgw.config.text import edit, factory_text
@@ -226,6 +228,42 @@ def set_firewall(path: Path, default: str, rules: list[dict]) -> None:
     except ConfigFileError as err:
         raise ConfigRefused("; ".join(err.problems), None, err.problems) from None
     _write(path, text)
+
+
+def route_tables(path: Path) -> list[dict]:
+    """The file's [[route]] tables as it writes them (the Lines page edits these)."""
+    data = _parsed(path, _read(path))
+    return [r for r in data.get(ROUTE_TABLE, []) if isinstance(r, dict)]
+
+
+def set_routes(path: Path, routes: list[dict]) -> None:
+    """Every [[route]] replaced, in the order given; checked as check-config does and written
+    once (or not at all); raises ConfigRefused naming the first route key refused."""
+    keys = schema()
+    text = _read(path)
+    _parsed(path, text)
+    try:
+        text = replace_tables(text, ROUTE_TABLE, routes)
+    except TypeError as err:            # a value TOML cannot hold (null, a nested list...)
+        raise ConfigRefused(f"route: {err}", ROUTE_TABLE) from None
+    try:
+        _start_check(keys, check(keys, path, parse(path, text)))
+    except ConfigFileError as err:
+        raise ConfigRefused("; ".join(err.problems), _route_field(err.problems),
+                            err.problems) from None
+    _write(path, text)
+
+
+def _route_field(problems: list[str]) -> str | None:
+    """The first route key a problem names ("route 2.units"), for the page to mark."""
+    for problem in problems:
+        found = _ROUTE_KEY.search(problem)
+        if found:
+            return found.group(1)
+    return None
+
+
+_ROUTE_KEY = re.compile(r"(route \d+\.[a-z-]+)")
 
 
 def factory_reset(path: Path) -> None:

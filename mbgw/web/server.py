@@ -15,7 +15,7 @@ from mbgw.errors import ListenError
 from mbgw.net.address import parse_host_port
 from mbgw.ops.limits import WarnLimit
 from mbgw.ops.reload import ReloadReport
-from mbgw.web import admin_api, api
+from mbgw.web import admin_api, api, routes_api
 from mbgw.web.auth import COOKIE, CSRF_HEADER, LoginLimit, Sessions
 from mbgw.web.gate import Gate
 from mbgw.web.hooks import WebHooks
@@ -144,6 +144,7 @@ class WebServer:
         app["hooks"] = self.hooks
         app.add_routes(api.routes())
         app.add_routes(admin_api.routes())
+        app.add_routes(routes_api.routes())
         app.add_routes([web.get("/", _index), web.static("/static", STATIC)])
         app.on_response_prepare.append(_headers)   # type: ignore[arg-type]  # aiohttp 3.8's stub
         return app

@@ -1,10 +1,10 @@
 """A real serial slave that is not our code: pymodbus's RTU server on a pty.
 
 usage: pymodbus_slave.py DEVICE [ADDRESS...] [--identity] [--silent-unknown] [--record PATH]
-                           [--record-replies] [--stamp]          (default address 17)
-Holding registers 0..99 hold 100..199, input registers 0..99 hold 1000..1099,
-coils and discrete inputs alternate 1, 0 from address 0.  Broadcasts (address 0) are
-executed on every address.  Prints READY when listening.
+                           [--record-replies] [--stamp] [--holding N]  (default address 17)
+Holding registers 0..99 hold 100..199 (N..N+99 with --holding N), input registers 0..99
+hold 1000..1099, coils and discrete inputs alternate 1, 0 from address 0.  Broadcasts
+(address 0) are executed on every address.  Prints READY when listening.
 
 --identity        serve IDENTITY below for FC 0x2B/0x0E (read device identification) and FC 0x11
                   (report server id); without it pymodbus has no objects.
@@ -43,10 +43,10 @@ IDENTITY = {
 }
 
 
-def device() -> ModbusDeviceContext:
+def device(holding: int = 100) -> ModbusDeviceContext:
     # pymodbus 3.16: block address 1 is PDU address 0
     return ModbusDeviceContext(
-        hr=ModbusSequentialDataBlock(1, list(range(100, 200))),
+        hr=ModbusSequentialDataBlock(1, list(range(holding, holding + 100))),
         ir=ModbusSequentialDataBlock(1, list(range(1000, 1100))),
         co=ModbusSequentialDataBlock(1, [1, 0] * 50),
         di=ModbusSequentialDataBlock(1, [1, 0] * 50))
@@ -61,13 +61,15 @@ def parse_args() -> argparse.Namespace:
     parser.add_argument("--record")
     parser.add_argument("--record-replies", action="store_true")
     parser.add_argument("--stamp", action="store_true")
+    parser.add_argument("--holding", type=int, default=100)
     return parser.parse_args()
 
 
 async def main() -> None:
     args = parse_args()
     addresses = args.addresses or [17]
-    context = ModbusServerContext(devices={a: device() for a in addresses}, single=False)
+    context = ModbusServerContext(devices={a: device(args.holding) for a in addresses},
+                                  single=False)
 
     record = open(args.record, "w", buffering=1) if args.record else None
     reads = dict.fromkeys(addresses, 0)

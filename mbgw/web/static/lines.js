@@ -1,8 +1,10 @@
-// ---- Lines: the daemon's lines, where each face's units go, the remote servers ------------
+// ---- Lines: every line, a page per line (#lines/NAME), the route map and its editing, ------
+// ---- the remote servers --------------------------------------------------------------------
 import { load } from "./api.js";
-import { block } from "./blocks.js";
 import { clear, el, table } from "./dom.js";
 import { listOf, show } from "./format.js";
+import { lineLoad, linePage } from "./line_page.js";
+import { routeEditor } from "./route_editor.js";
 
 // A remote line's connection figures, after its URL (as mbgw status shows them).
 const remoteFigures = (l) => (l.counters && "reconnects" in l.counters
@@ -28,68 +30,109 @@ function health(devices) {
     (degraded ? `, ${degraded} degraded` : "") + (down ? `, ${down} down` : "");
 }
 
-// Each line's whole status (settings, state, load, devices, timing) on demand; the ones
-// opened stay open across the refreshes.
-function lineDetails(lines, open) {
-  return lines.map((l) => {
-    const details = el("details", { "data-line": l.name, open: open.has(l.name) },
-      el("summary", { text: `Line ${show(l.name)}: ${show(l.device)}, ${show(l.mode)} mode, ` +
-        `${show(l.state)}` }), block(`lines.${l.name}`, l));
-    details.addEventListener("toggle", () => {
-      if (details.open) open.add(l.name); else open.delete(l.name);
-    });
-    return details;
-  });
-}
-
 // A row of cells: the first classed cls[0], ...; numbers to the right.
 function row(attrs, values, classes) {
   return el("tr", attrs, ...values.map((v, i) => el("td", { class: classes[i] || "", text: v })));
 }
 
-export function linesPage(body) {
+const lineLink = (name) => el("a", { href: `#lines/${encodeURIComponent(name)}`, text: name });
+
+// A line's cells in the lines table, as text.
+const lineCells = (l) => ["", show(l.device) + remoteFigures(l), show(l.mode), show(l.state),
+  show(l.requests), show(l.replies), show(l.timeouts), health(listOf(l, "devices")),
+  cacheFigures(l.cache)];
+
+function linesTable(lines) {
+  return table("lines-table", ["Name", "Device", "Mode", "State", "Requests", "Replies",
+    "Timeouts", "Devices", "Cache hits / coalesced / misses / stale"], lines.map((l) => {
+    const tr = row({ "data-line": l.name }, lineCells(l),
+      ["line", "", "", `state-${l.state}`, "num", "num", "num", "num", "num cache"]);
+    tr.firstChild.append(lineLink(l.name));
+    return tr;
+  }));
+}
+
+// node's content replaced by make() only when key changed: a table a test or an operator
+// is reading stays the same element while its figures do not move.
+function rebuilt(node, key, make) {
+  if (node.dataset.shown === key) return;
+  node.dataset.shown = key;
+  clear(node).append(...make());
+}
+
+// The route map: which unit of which face goes where, in words.
+const faceWords = (face) => (face === "tcp" ? "Modbus TCP" : `line ${face}`);
+
+export function routeMap(id, routes) {
+  if (!routes.length) return el("p", { id: id && `no-${id}`, text: "No routes." });
+  return table(id, ["From", "Units", "Go to", "Rewrite", ""], routes.map((r) => row(
+    { class: r.implicit ? "implicit" : "" },
+    [faceWords(r.face), show(r.units), show(r.target), r.rewrite ? show(r.rewrite) : "as is",
+      r.implicit ? "implicit" : "the file's"],
+    ["face", "units", "target", "rewrite", "origin"])));
+}
+
+// A server's cells in the servers table, as text.
+function serverCells(r) {
+  const c = r.counters || {};
+  return [show(r.server), ...[c.requests, c.replies, c.device_exceptions, c.timeouts,
+    c.unreachable, listOf(r, "connections").length, c.connections_opened,
+    c.connections_lost].map(show)];
+}
+
+function serversTable(servers) {
+  return table("servers-table", ["Server", "Requests", "Replies", "Exceptions", "Timeouts",
+    "Unreachable", "Open", "Opened", "Lost"], servers.map((r) => row(
+    { "data-server": show(r.server) }, serverCells(r), ["", ...Array(8).fill("num")])));
+}
+
+export function linesPage(body, wanted) {
   const tables = el("div");
-  const details = el("div", { id: "line-details" });
-  const open = new Set();
-  let shown = "";                   // what the tables show: rebuilt only when it changes
-  body.append(tables, details);
+  const chooser = el("div", { class: "controls" });
+  const page = el("div", { id: "line-page-box" });
+  const map = el("div");
+  const servers = el("div");
+  let lines = [];
+  let before = new Map();            // line -> {time, requests, busy_ms} of the last refresh
+  let names = "";
+  const roles = () => ({ faces: lines.filter((l) => l.mode === "master").map((l) => l.name),
+    targets: lines.filter((l) => l.mode === "slave").map((l) => l.name) });
+  const editor = routeEditor(roles);
+  let editing = false;               // the editor is loaded once the lines are known
+  body.append(el("h2", { text: "Lines" }), tables, chooser, page,
+    el("h2", { text: "Route map: which unit goes where" }), map, editor.element, servers);
   return {
     async refresh() {
       const s = await load("/api/status");
       if (!s) return;
-      const lines = listOf(s, "lines");
-      const lineRows = lines.map((l) => [show(l.name), show(l.device) + remoteFigures(l),
-        show(l.mode),
-        show(l.state), show(l.requests), show(l.replies), show(l.timeouts),
-        health(listOf(l, "devices")), cacheFigures(l.cache)]);
-      const routeRows = listOf(s, "routes").map((r) => [show(r.face), show(r.units),
-        show(r.target), r.rewrite ? show(r.rewrite) : "—", r.implicit ? "implicit" : ""]);
-      const serverRows = listOf(s, "servers").map((r) => {
-        const c = r.counters || {};
-        return [show(r.server), ...[c.requests, c.replies, c.device_exceptions, c.timeouts,
-          c.unreachable, listOf(r, "connections").length, c.connections_opened,
-          c.connections_lost].map(show)];
-      });
-      clear(details).append(...lineDetails(lines, open));
-      const now = JSON.stringify([lineRows, routeRows, serverRows]);
-      if (now === shown) return;
-      shown = now;
-      clear(tables).append(
-        el("h2", { text: "Lines" }),
-        lineRows.length ? table("lines-table", ["Name", "Device", "Mode", "State", "Requests",
-          "Replies", "Timeouts", "Devices", "Cache hits / coalesced / misses / stale"],
-        lineRows.map((values, i) => row({ "data-line": lines[i].name }, values,
-          ["line", "", "", `state-${lines[i].state}`, "num", "num", "num", "num",
-            "num cache"])))
-          : el("p", { id: "no-lines", text: "This mode has one line, serial." }),
-        el("h2", { text: "Routes" }),
-        routeRows.length ? table("routes-table", ["Face", "Units", "Target", "Rewrite", ""],
-          routeRows.map((values) => row({}, values, [])))
-          : el("p", { id: "no-routes", text: "No routes." }),
-        ...(serverRows.length ? [el("h2", { text: "Servers" }),
-          table("servers-table", ["Server", "Requests", "Replies", "Exceptions", "Timeouts",
-            "Unreachable", "Open", "Opened", "Lost"], serverRows.map((values) => row(
-            { "data-server": values[0] }, values, ["", ...Array(8).fill("num")])))] : []));
+      const now = Date.now() / 1000;
+      lines = listOf(s, "lines");
+      const routes = listOf(s, "routes");
+      const loads = lines.map((l) => lineLoad(l, before.get(l.name), now));
+      before = new Map(lines.map((l) => [l.name, { time: now, requests: l.requests,
+        busy_ms: l.busy_ms }]));
+      rebuilt(tables, JSON.stringify(lines.map((l) => [l.name, ...lineCells(l)])),
+        () => [lines.length ? linesTable(lines)
+        : el("p", { id: "no-lines", text: "This mode has one line, serial." })]);
+      const shown = lines.find((l) => l.name === wanted) || lines[0];
+      if (lines.map((l) => l.name).join() !== names) {
+        names = lines.map((l) => l.name).join();
+        const select = el("select", { id: "line-select", onchange: () => {
+          location.hash = `#lines/${encodeURIComponent(select.value)}`;
+        } }, ...lines.map((l) => el("option", { value: l.name, text: l.name,
+          selected: l === shown })));
+        clear(chooser).append(...(lines.length ? [el("label", {}, "Show line ", select)] : []));
+      }
+      clear(page).append(...(shown ? [linePage(shown, loads[lines.indexOf(shown)], routes,
+        (rows) => routeMap(null, rows))] : []));
+      rebuilt(map, JSON.stringify(routes), () => [routeMap("routes-table", routes)]);
+      const remote = listOf(s, "servers");
+      rebuilt(servers, JSON.stringify(remote.map(serverCells)), () => (remote.length
+        ? [el("h2", { text: "Servers" }), serversTable(remote)] : []));
+      if (!editing && lines.length) {
+        editing = true;
+        editor.reload();
+      }
     },
   };
 }

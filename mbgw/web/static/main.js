@@ -87,7 +87,8 @@ function leavePage() {
 
 function route() {
   if (!session.role) return;
-  const wanted = location.hash.slice(1);
+  // "#lines/meters": the page, then what it shows (a page of its own: one line's)
+  const [wanted, ...rest] = location.hash.slice(1).split("/");
   const name = Object.hasOwn(pages, wanted) ? wanted : "overview";
   leavePage();
   for (const link of document.querySelectorAll("nav a")) {
@@ -97,7 +98,7 @@ function route() {
   $("page-error").textContent = "";
   const body = clear($("page-body"));
   body.dataset.page = name;
-  current = pages[name].build(body);
+  current = pages[name].build(body, decodeURIComponent(rest.join("/")));
   if (current.refresh) {
     let busy = false;
     const tick = async () => {

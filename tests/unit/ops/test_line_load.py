@@ -62,7 +62,7 @@ def test_the_average_is_measured_on_the_monotonic_clock(monkeypatch):
     wall, mono = time.time(), time.monotonic()
     monkeypatch.setattr(time, "monotonic", lambda: mono)          # the reset, dated exactly
     status = SlaveStatus(SlaveConfig(SerialConfig("/dev/null")), server,
-                         SimpleNamespace(up=True, state="up"),
+                         SimpleNamespace(up=True, state="up", state_since=wall),
                          SimpleNamespace(depth=0), counters, DeviceHealth(), [])
     counters.line_busy_ns = 5 * 10**9
     monkeypatch.setattr(time, "time", lambda: wall - 3600)        # stepped back an hour
