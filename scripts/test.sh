@@ -1,10 +1,10 @@
 #!/bin/sh
 # The whole suite, as README and .ci/run run it: two passes of .venv/bin/python -m pytest.
-# Most tests wait on the gateway's timers and its peers' I/O rather than the CPU, so two
-# pytest-xdist workers share them (tests/harness.py gives each worker its own ports; with
-# three on two CPUs, a peer once missed its 200 ms stout under the load); the
-# tests marked serial hold the gateway or a peer to a few milliseconds, which another
-# worker's load could stretch, so they run alone afterwards.  Extra arguments go to both
+# Most tests wait on the gateway's timers and its peers' I/O rather than the CPU (two workers
+# kept two CPUs half busy), so three pytest-xdist workers share them (tests/harness.py gives
+# each worker its own ports); the tests marked serial hold the gateway or a peer to a few
+# milliseconds, or count what it did in a given time, which another worker's load could
+# stretch, so they run alone afterwards.  Extra arguments go to both
 # passes (a pass that selects no test is no failure).
 set -u
 cd "$(dirname "$0")/.."
@@ -15,6 +15,6 @@ status=0
 run() {
     .venv/bin/python -m pytest "$@" || { rc=$?; [ "$rc" -eq 5 ] || status=$rc; }
 }
-run -n 2 -m "not serial" "$@"
+run -n 3 -m "not serial" "$@"
 run -m serial "$@"
 exit "$status"

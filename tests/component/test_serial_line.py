@@ -389,6 +389,7 @@ def test_echo_not_configured_is_never_taken_for_a_reply(paced, gateway, client):
     assert (counters["crc_errors"], counters["noise_bytes"]) == (0, len(echo))
 
 
+@pytest.mark.serial
 def test_echo_not_configured_fc06_echo_is_taken_as_the_reply(paced, gateway, client):
     """The echo of an FC 06 request is byte for byte a valid FC 06 reply: the gateway cannot
     tell them apart and answers with it (the right bytes by construction); the real reply

@@ -97,6 +97,7 @@ def tcp_master(port: int, which: int, done: list, errors: list) -> None:
         c.close()
 
 
+@pytest.mark.serial
 def test_a_serial_master_and_tcp_clients_share_a_meter_on_another_line(
         tmp_path, meter, panel, start_gateway):
     line, record = meter

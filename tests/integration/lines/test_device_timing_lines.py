@@ -47,6 +47,7 @@ def ask(c: Client, tid: int, unit: int) -> bytes:
     return got[2]
 
 
+@pytest.mark.serial
 def test_a_unit_of_another_line_has_its_own_stout_and_a_reload_changes_it(
         tmp_path, lines, gateway):
     serial, meters = lines("serial", 5), lines("meters", METER)

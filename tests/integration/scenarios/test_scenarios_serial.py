@@ -249,6 +249,7 @@ def test_a_scenario_recovers_when_its_device_answers_again(fault_line, gateway, 
 
 # --- direct messaging beside 100 scenarios ---
 
+@pytest.mark.serial
 def test_a_client_is_served_while_100_scenarios_saturate_the_line(fault_line, gateway, client):
     """100 scenarios due every 100 ms want more than the line can carry; a client asking
     one request at a time gets every reply, and the line alternates: a scenario run
