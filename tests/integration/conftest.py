@@ -35,14 +35,6 @@ def start_master(pty_pair, start_gateway):
 
 
 @pytest.fixture
-def line(pty_pair):
-    """The master's end of the line as a raw fd."""
-    fd = os.open(pty_pair.device, os.O_RDWR | os.O_NOCTTY)
-    yield fd
-    os.close(fd)
-
-
-@pytest.fixture
 def second_pty(tmp_path):
     """A second pty pair (tmp_path/panel), for a second line."""
     directory = tmp_path / "panel"
