@@ -17,6 +17,7 @@ import pytest
 from prometheus_client import parser
 
 from tests.harness import PtyPair, free_port
+from tests.modbus import rtu_frame as rtu
 from tests.ops import (
     mbgw,
     metric_families,
@@ -68,19 +69,6 @@ address = 0
 quantity = 2
 table = 20
 """
-
-
-def crc(adu: bytes) -> bytes:
-    value = 0xFFFF
-    for byte in adu:
-        value ^= byte
-        for _ in range(8):
-            value = (value >> 1) ^ 0xA001 if value & 1 else value >> 1
-    return struct.pack("<H", value)
-
-
-def rtu(adu: bytes) -> bytes:
-    return adu + crc(adu)
 
 
 def read(unit: int, function: int, start: int, count: int) -> bytes:
