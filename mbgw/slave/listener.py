@@ -252,21 +252,19 @@ class Listener:
             self._drop(client)
 
     def _accept(self, listener: socket.socket) -> None:
-        sock, address = self._accepted(listener, self._accept)
-        if sock is None:
-            return
-        sock.setblocking(False)
-        client = Client(sock, address[0], format_address(address),
-                        format_address(sock.getsockname()))
-        self._welcome(client)
+        self._accept_as(Client, listener, self._accept)
 
     def _accept_rtu(self, listener: socket.socket) -> None:
-        sock, address = self._accepted(listener, self._accept_rtu)
+        self._accept_as(RtuClient, listener, self._accept_rtu)
+
+    def _accept_as(self, kind: type[Client], listener: socket.socket, handler) -> None:
+        """A newcomer on listener (mdbport's, rtu-port's; handler reads it) as a kind client."""
+        sock, address = self._accepted(listener, handler)
         if sock is None:
             return
         sock.setblocking(False)
-        self._welcome(RtuClient(sock, address[0], format_address(address),
-                                format_address(sock.getsockname())))
+        self._welcome(kind(sock, address[0], format_address(address),
+                           format_address(sock.getsockname())))
 
     def _accepted(self, listener: socket.socket, handler) -> tuple:
         """(socket, address) of a newcomer on listener, or (None, None): none waits, or the
