@@ -47,16 +47,7 @@ def second_pty(tmp_path):
 @pytest.fixture
 def open_line():
     """open_line(device) -> an fd on a pty's far end (a serial master's); closed after."""
-    fds = []
-
-    def opened(device: str) -> int:
-        fd = os.open(device, os.O_RDWR | os.O_NOCTTY)
-        fds.append(fd)
-        return fd
-
-    yield opened
-    for fd in fds:
-        os.close(fd)
+    yield from factory(lambda device: os.open(device, os.O_RDWR | os.O_NOCTTY), os.close)
 
 
 @pytest.fixture
