@@ -27,6 +27,7 @@ instead the exchange table as a Modbus TCP server (bench/table.py); --scenarios 
 scenarios (bench/scenarios.py).  See README.md.
 """
 import argparse
+import importlib
 import math
 import os
 import platform
@@ -40,16 +41,17 @@ import subprocess
 import sys
 import tempfile
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))
 
 from mbgw.ops import control  # noqa: E402
-from tests.harness import PtyPair, free_port  # noqa: E402
+from tests.harness import Peer, PtyPair, free_port  # noqa: E402
 
 CHAR_BITS = 10                       # 8N1, what the gateway is started with
 REQUEST_LEN, REPLY_LEN = 8, 25       # FC03 of 10 registers on the wire, CRC included
@@ -919,6 +921,20 @@ def fairness(args, tmp: Path, exe: str) -> None:
     report_spread(lines)
 
 
+@contextmanager
+def pymodbus_line(tmp: Path, unit: int) -> Iterator[PtyPair]:
+    """A socat pty pair with pymodbus's RTU slave `unit` on its far end; yields the pair."""
+    pair = PtyPair(tmp)
+    try:
+        peer = Peer("pymodbus_slave.py", pair.device, str(unit))
+        try:
+            yield pair
+        finally:
+            peer.stop()
+    finally:
+        pair.stop()
+
+
 def quick_main(doc: str, run: Callable[[bool], None], quick_help: str) -> None:
     """A bench script's command line: its --quick, then run(quick)."""
     ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
@@ -933,6 +949,26 @@ def _loadavg() -> str:
         return "?"
 
 
+# The benchmarks main() runs instead of its own: bench/NAME.py, beside this script, each
+# with a run(quick).
+OTHER_BENCHES = {
+    "table": "the exchange table as a Modbus TCP server beside libmodbus's and pymodbus's "
+             "(bench/table.py; about 130 s; --quick: 40 s)",
+    "tls": "Modbus/TCP Security's handshakes/s and latency added per request over plain TCP "
+           "(bench/tls.py; about 25 s)",
+    "scenarios": "100 serial scenarios saturating the line, a client beside them, one "
+                 "scenario's period (bench/scenarios.py; about 70 s; --quick: 25 s)",
+    "lines": "8 lines at 115200 through one listener, and the serial-to-serial bridge's added "
+             "latency (bench/lines.py; about 45 s; --quick: 15 s)",
+    "mqtt": "northbound MQTT's cost, 10,000 metric changes/s, MQTT off and on in turns "
+            "(bench/mqtt.py; about 90 s; --quick: 20 s)",
+    "cache": "the read cache's line transactions per request and its hits over loopback "
+             "beside the table's server (bench/cache.py; about 60 s; --quick: 20 s)",
+    "web": "a client's latency with a browser on the web console's Traffic page and without "
+           "(bench/web.py; about 40 s)",
+}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="short runs (under 30 s in all)")
@@ -945,61 +981,14 @@ def main() -> None:
                     help="with --fairness: only the dead unit, each run this long (issue "
                     "29's figure: 60), a unit that answered before it died too (about "
                     "6 x (4 + this) s)")
-    ap.add_argument("--table", action="store_true",
-                    help="instead of the runs above: the exchange table as a Modbus TCP server "
-                    "beside libmodbus's and pymodbus's (bench/table.py; about 130 s; "
-                    "--quick: 40 s)")
-    ap.add_argument("--tls", action="store_true",
-                    help="instead of the runs above: Modbus/TCP Security's handshakes/s and "
-                    "latency added per request over plain TCP (bench/tls.py; about 25 s)")
-    ap.add_argument("--scenarios", action="store_true",
-                    help="instead of the runs above: 100 serial scenarios saturating the line, "
-                    "a client beside them, one scenario's period (bench/scenarios.py; about "
-                    "70 s; --quick: 25 s)")
-    ap.add_argument("--lines", action="store_true",
-                    help="instead of the runs above: 8 lines at 115200 through one listener, "
-                    "and the serial-to-serial bridge's added latency (bench/lines.py; about "
-                    "45 s; --quick: 15 s)")
-    ap.add_argument("--mqtt", action="store_true",
-                    help="instead of the runs above: northbound MQTT's cost, 10,000 metric "
-                    "changes/s, MQTT off and on in turns (bench/mqtt.py; about 90 s; "
-                    "--quick: 20 s)")
-    ap.add_argument("--cache", action="store_true",
-                    help="instead of the runs above: the read cache's line transactions per "
-                    "request and its hits over loopback beside the table's server "
-                    "(bench/cache.py; about 60 s; --quick: 20 s)")
-    ap.add_argument("--web", action="store_true",
-                    help="instead of the runs above: a client's latency with a browser on the "
-                    "web console's Traffic page and without (bench/web.py; about 40 s)")
+    for name, what in OTHER_BENCHES.items():
+        ap.add_argument(f"--{name}", action="store_true",
+                        help=f"instead of the runs above: {what}")
     args = ap.parse_args()
-    if args.lines:
-        import lines  # bench/lines.py, beside this script
-        lines.run(args.quick)
-        return
-    if args.mqtt:
-        import mqtt  # bench/mqtt.py, beside this script
-        mqtt.run(args.quick)
-        return
-    if args.cache:
-        import cache  # bench/cache.py, beside this script
-        cache.run(args.quick)
-        return
-    if args.web:
-        import web  # bench/web.py, beside this script
-        web.run(args.quick)
-        return
-    if args.tls:
-        import tls  # bench/tls.py, beside this script
-        tls.run(args.quick)
-        return
-    if args.scenarios:
-        import scenarios  # bench/scenarios.py, beside this script
-        scenarios.run(args.quick)
-        return
-    if args.table:
-        import table  # bench/table.py, beside this script
-        table.run(args.quick)
-        return
+    for name in OTHER_BENCHES:
+        if getattr(args, name):
+            importlib.import_module(name).run(args.quick)
+            return
     if args.quick:
         secs, warmup, rounds, slice_s = {19200: 1.5, 115200: 1.0, 0: 1.0}, 0.2, 3, 0.4
     else:

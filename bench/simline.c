@@ -332,7 +332,8 @@ static int run_master(const char *device, int64_t t35_ns, int64_t pause_ns, doub
 
 /* ---------------------------------------------------------------- TCP floor */
 
-static int run_tcp(void)
+/* A listener on a free loopback port, announced as "READY PORT" on stdout. */
+static int listen_loopback(void)
 {
     int ls = socket(AF_INET, SOCK_STREAM, 0), one = 1;
     struct sockaddr_in a = { .sin_family = AF_INET, .sin_addr.s_addr = htonl(INADDR_LOOPBACK) };
@@ -343,11 +344,24 @@ static int run_tcp(void)
         die("listen");
     printf("READY %d\n", ntohs(a.sin_port));
     fflush(stdout);
+    return ls;
+}
+
+/* The next client of ls, with Nagle off: one request, one reply, no waiting. */
+static int accept_nodelay(int ls)
+{
+    int s = accept(ls, NULL, NULL), one = 1;
+    if (s < 0)
+        die("accept");
+    setsockopt(s, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+    return s;
+}
+
+static int run_tcp(void)
+{
+    int ls = listen_loopback();
     for (;;) {
-        int s = accept(ls, NULL, NULL);
-        if (s < 0)
-            die("accept");
-        setsockopt(s, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+        int s = accept_nodelay(ls);
         uint8_t req[12], rsp[29];
         size_t have = 0;
         for (;;) {
@@ -384,20 +398,9 @@ static int run_relay(const char *device)
     if (fd < 0)
         die(device);
     make_raw(fd);
-    int ls = socket(AF_INET, SOCK_STREAM, 0), one = 1;
-    struct sockaddr_in a = { .sin_family = AF_INET, .sin_addr.s_addr = htonl(INADDR_LOOPBACK) };
-    socklen_t alen = sizeof a;
-    setsockopt(ls, SOL_SOCKET, SO_REUSEADDR, &one, sizeof one);
-    if (bind(ls, (struct sockaddr *)&a, sizeof a) < 0 || listen(ls, 8) < 0 ||
-        getsockname(ls, (struct sockaddr *)&a, &alen) < 0)
-        die("listen");
-    printf("READY %d\n", ntohs(a.sin_port));
-    fflush(stdout);
+    int ls = listen_loopback();
     for (;;) {
-        int s = accept(ls, NULL, NULL);
-        if (s < 0)
-            die("accept");
-        setsockopt(s, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+        int s = accept_nodelay(ls);
         uint8_t req[12], rtu[8], rsp[25], out[29];
         for (;;) {
             size_t have = 0;

@@ -35,7 +35,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(HERE))
 
 import bench  # noqa: E402  (bench/bench.py, beside this script)
-from tests.harness import Gateway, Peer, PtyPair, free_port  # noqa: E402
+from tests.harness import Gateway, free_port  # noqa: E402
 from tests.pki import Authority  # noqa: E402
 
 os.environ.setdefault("MBGW_CONFIG", os.devnull)   # not an installed /etc/mbgw/mbgw.toml
@@ -122,48 +122,45 @@ def run(quick: bool) -> None:
         context.check_hostname = False
         context.load_verify_locations(str(ca.cert))
         context.load_cert_chain(str(client_cert[0]), str(client_cert[1]))
-        pair = PtyPair(tmp)
-        peer = Peer("pymodbus_slave.py", pair.device, str(LINE_UNIT))
-        tls_port = free_port()
-        gw = Gateway(tmp, pair.gateway, "--baudrate", BAUD, "--table", "--table-units",
-                     str(TABLE_UNIT), "--max-connections", "10", "--tls-port", str(tls_port),
-                     "--tls-cert", str(cert), "--tls-key", str(key), "--tls-ca", str(ca.cert))
-        try:
-            print(f"load average {os.getloadavg()[0]:.2f}; TLS 1.3, EC P-256; "
-                  f"{rounds} rounds of {window} s per row")
-            rate, median = handshakes(tls_port, context, window * rounds / 2)
-            print(f"handshakes: {rate:.0f}/s, one at a time; median {median:.0f} us")
-            print(f"{'a poll per connection':<24}{'full/s':>8}{'p50 us':>8}"
-                  f"{'resumed/s':>11}{'p50 us':>8}")
-            for version in (ssl.TLSVersion.TLSv1_2, ssl.TLSVersion.TLSv1_3):
-                context.maximum_version = version
-                full = polls(tls_port, context, window * rounds / 4, resume=False)
-                again = polls(tls_port, context, window * rounds / 4, resume=True)
-                assert again[2] >= again[0] * window * rounds / 4 - 2, "sessions not resumed"
-                print(f"{version.name:<24}{full[0]:>8.0f}{full[1]:>8.0f}{again[0]:>11.0f}"
-                      f"{again[1]:>8.0f}")
-            context.maximum_version = ssl.TLSVersion.TLSv1_3
-            plain = socket.create_connection(("127.0.0.1", gw.port))
-            plain.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            secure = context.wrap_socket(socket.create_connection(("127.0.0.1", tls_port)))
-            secure.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            print(f"{'unit':<14}{'plain p50':>10}{'p99':>8}{'TLS p50':>10}{'p99':>8}"
-                  f"{'added p50':>11}   (us)")
-            for unit, what in ((TABLE_UNIT, "table"), (LINE_UNIT, "line")):
-                runs: dict[str, list[int]] = {"plain": [], "tls": []}
-                for _ in range(rounds):
-                    runs["plain"] += closed_loop(plain, unit, window)
-                    runs["tls"] += closed_loop(secure, unit, window)
-                p, t = runs["plain"], runs["tls"]
-                print(f"{unit:>3} ({what}) {pct(p, 50):>10.0f}{pct(p, 99):>8.0f}"
-                      f"{pct(t, 50):>10.0f}{pct(t, 99):>8.0f}{pct(t, 50) - pct(p, 50):>11.0f}")
-            plain.close()
-            secure.close()
-            print(f"load average after {os.getloadavg()[0]:.2f}")
-        finally:
-            gw.stop()
-            peer.stop()
-            pair.stop()
+        with bench.pymodbus_line(tmp, LINE_UNIT) as pair:
+            tls_port = free_port()
+            gw = Gateway(tmp, pair.gateway, "--baudrate", BAUD, "--table", "--table-units",
+                         str(TABLE_UNIT), "--max-connections", "10", "--tls-port", str(tls_port),
+                         "--tls-cert", str(cert), "--tls-key", str(key), "--tls-ca", str(ca.cert))
+            try:
+                print(f"load average {os.getloadavg()[0]:.2f}; TLS 1.3, EC P-256; "
+                      f"{rounds} rounds of {window} s per row")
+                rate, median = handshakes(tls_port, context, window * rounds / 2)
+                print(f"handshakes: {rate:.0f}/s, one at a time; median {median:.0f} us")
+                print(f"{'a poll per connection':<24}{'full/s':>8}{'p50 us':>8}"
+                      f"{'resumed/s':>11}{'p50 us':>8}")
+                for version in (ssl.TLSVersion.TLSv1_2, ssl.TLSVersion.TLSv1_3):
+                    context.maximum_version = version
+                    full = polls(tls_port, context, window * rounds / 4, resume=False)
+                    again = polls(tls_port, context, window * rounds / 4, resume=True)
+                    assert again[2] >= again[0] * window * rounds / 4 - 2, "sessions not resumed"
+                    print(f"{version.name:<24}{full[0]:>8.0f}{full[1]:>8.0f}{again[0]:>11.0f}"
+                          f"{again[1]:>8.0f}")
+                context.maximum_version = ssl.TLSVersion.TLSv1_3
+                plain = socket.create_connection(("127.0.0.1", gw.port))
+                plain.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                secure = context.wrap_socket(socket.create_connection(("127.0.0.1", tls_port)))
+                secure.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                print(f"{'unit':<14}{'plain p50':>10}{'p99':>8}{'TLS p50':>10}{'p99':>8}"
+                      f"{'added p50':>11}   (us)")
+                for unit, what in ((TABLE_UNIT, "table"), (LINE_UNIT, "line")):
+                    runs: dict[str, list[int]] = {"plain": [], "tls": []}
+                    for _ in range(rounds):
+                        runs["plain"] += closed_loop(plain, unit, window)
+                        runs["tls"] += closed_loop(secure, unit, window)
+                    p, t = runs["plain"], runs["tls"]
+                    print(f"{unit:>3} ({what}) {pct(p, 50):>10.0f}{pct(p, 99):>8.0f}"
+                          f"{pct(t, 50):>10.0f}{pct(t, 99):>8.0f}{pct(t, 50) - pct(p, 50):>11.0f}")
+                plain.close()
+                secure.close()
+                print(f"load average after {os.getloadavg()[0]:.2f}")
+            finally:
+                gw.stop()
 
 
 def main() -> None:

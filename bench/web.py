@@ -32,7 +32,8 @@ sys.path.insert(0, str(HERE))
 
 from tls import closed_loop, pct  # noqa: E402
 
-from tests.harness import Gateway, Peer, PtyPair, free_port  # noqa: E402
+import bench  # noqa: E402  (bench/bench.py, beside this script)
+from tests.harness import Gateway, free_port  # noqa: E402
 
 os.environ.setdefault("MBGW_CONFIG", os.devnull)   # not an installed /etc/mbgw/mbgw.toml
 LINE_UNIT = 17
@@ -101,37 +102,34 @@ def run(quick: bool) -> None:
     rounds, window = (3, 0.5) if quick else (6, 1.5)
     with tempfile.TemporaryDirectory(prefix="mbgw-bench-web-") as name:
         tmp = Path(name)
-        pair = PtyPair(tmp)
-        peer = Peer("pymodbus_slave.py", pair.device, str(LINE_UNIT))
-        web_port = free_port()
-        gw = gateway(tmp, pair.gateway, web_port)
-        try:
-            browser = Browser(f"http://127.0.0.1:{web_port}")
-            print(f"load average {os.getloadavg()[0]:.2f}; {rounds} rounds of {window} s per "
-                  f"row and case, alternating")
-            client = socket.create_connection(("127.0.0.1", gw.port))
-            client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            print(f"{'unit':<14}{'no browser p50':>15}{'p99':>8}{'req/s':>8}"
-                  f"{'Traffic page p50':>18}{'p99':>8}{'req/s':>8}   (us)")
-            for unit, what in ((LINE_UNIT, "line"), (TABLE_UNIT, "table")):
-                runs: dict[str, list[int]] = {"off": [], "on": []}
-                for _ in range(rounds):
-                    runs["off"] += closed_loop(client, unit, window)
-                    reader = browser.watch(window)
-                    runs["on"] += closed_loop(client, unit, window)
-                    browser.done(reader)
-                off, on = runs["off"], runs["on"]
-                rate = rounds * window
-                print(f"{unit:>3} ({what:<5}) {pct(off, 50):>14.0f}{pct(off, 99):>8.0f}"
-                      f"{len(off) / rate:>8.0f}{pct(on, 50):>18.0f}{pct(on, 99):>8.0f}"
-                      f"{len(on) / rate:>8.0f}")
-            client.close()
-            print(f"trace events the browser read: {browser.events}; "
-                  f"load average after {os.getloadavg()[0]:.2f}")
-        finally:
-            gw.stop()
-            peer.stop()
-            pair.stop()
+        with bench.pymodbus_line(tmp, LINE_UNIT) as pair:
+            web_port = free_port()
+            gw = gateway(tmp, pair.gateway, web_port)
+            try:
+                browser = Browser(f"http://127.0.0.1:{web_port}")
+                print(f"load average {os.getloadavg()[0]:.2f}; {rounds} rounds of {window} s per "
+                      f"row and case, alternating")
+                client = socket.create_connection(("127.0.0.1", gw.port))
+                client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                print(f"{'unit':<14}{'no browser p50':>15}{'p99':>8}{'req/s':>8}"
+                      f"{'Traffic page p50':>18}{'p99':>8}{'req/s':>8}   (us)")
+                for unit, what in ((LINE_UNIT, "line"), (TABLE_UNIT, "table")):
+                    runs: dict[str, list[int]] = {"off": [], "on": []}
+                    for _ in range(rounds):
+                        runs["off"] += closed_loop(client, unit, window)
+                        reader = browser.watch(window)
+                        runs["on"] += closed_loop(client, unit, window)
+                        browser.done(reader)
+                    off, on = runs["off"], runs["on"]
+                    rate = rounds * window
+                    print(f"{unit:>3} ({what:<5}) {pct(off, 50):>14.0f}{pct(off, 99):>8.0f}"
+                          f"{len(off) / rate:>8.0f}{pct(on, 50):>18.0f}{pct(on, 99):>8.0f}"
+                          f"{len(on) / rate:>8.0f}")
+                client.close()
+                print(f"trace events the browser read: {browser.events}; "
+                      f"load average after {os.getloadavg()[0]:.2f}")
+            finally:
+                gw.stop()
 
 
 def main() -> None:

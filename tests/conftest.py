@@ -32,6 +32,14 @@ def pty_pair(tmp_path):
 
 
 @pytest.fixture
+def line(pty_pair):
+    """The serial master's end of pty_pair (its device end) as a raw fd."""
+    fd = os.open(pty_pair.device, os.O_RDWR | os.O_NOCTTY)
+    yield fd
+    os.close(fd)
+
+
+@pytest.fixture
 def start_gateway(tmp_path):
     """start_gateway(device, *options) -> a ready Gateway; stopped after the test."""
     yield from factory(lambda device, *args, **kwargs: Gateway(tmp_path, device, *args,

@@ -7,6 +7,9 @@ import pathlib
 import re
 import subprocess
 import sys
+import urllib.request
+
+from prometheus_client import parser
 
 from mbgw.ops import control
 from tests.harness import CHECKOUT, _read_lines_until, reachable_by_others
@@ -79,6 +82,13 @@ def metric_families(parser, text: str) -> dict:
     for f in families.values():
         assert f.documentation and f.type in ("counter", "gauge", "histogram"), f.name
     return families
+
+
+def scraped(port: int) -> dict:
+    """The metric families http://127.0.0.1:PORT/metrics serves now, checked as
+    metric_families checks them."""
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5) as page:
+        return metric_families(parser, page.read().decode())
 
 
 def metric_value(families: dict, metric: str, sample: str | None = None, **labels) -> float:

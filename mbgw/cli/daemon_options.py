@@ -39,6 +39,11 @@ gateway_unit_option = click.option(
          "id, FC 43/14 read device identification; any other function is exception 0x01).  "
          "Outside every route and the table's units.  0: off.")
 
+scenario_tcpto_option = click.option(
+    "--tcpto", type=click.IntRange(*model.TCPTO_RANGE), default=model.DEFAULT_TCPTO_MS,
+    show_default=True, metavar="MS",
+    help="TCP scenarios: the time for a transaction with a server, connecting included.")
+
 daemon_options = stack(
     click.option("--request-timeout", type=click.IntRange(*model.REQUEST_TIMEOUT_RANGE),
                  default=model.DEFAULT_REQUEST_TIMEOUT_MS, show_default=True, metavar="MS",

@@ -8,10 +8,10 @@ from mbgw.cli.daemon_options import daemon_options, gateway_unit_option
 from mbgw.cli.lines import with_lines
 from mbgw.cli.options import (
     ModeCommand,
+    authip_option,
+    bind_option,
     convert,
     face_port_options,
-    parse_authip,
-    parse_bind,
     parser,
 )
 from mbgw.cli.run import run_daemon
@@ -22,7 +22,13 @@ from mbgw.cli.serial_options import (
     serial_config,
     serial_options,
 )
-from mbgw.cli.table_options import parse_serial_functions, table_config, table_options, table_switch
+from mbgw.cli.table_options import (
+    parse_serial_functions,
+    table_config,
+    table_max_connections_option,
+    table_options,
+    table_switch,
+)
 from mbgw.cli.tls_options import tls_config, tls_options, upstream_tls_config, upstream_tls_options
 from mbgw.config import model
 from mbgw.config.lines import TCP_FACE
@@ -57,12 +63,10 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
               default=model.MasterConfig.max_connections, show_default=True,
               help="Connections kept open to servers; one more closes the least recently "
                    "used.")
-@click.option("--authip", multiple=True, metavar="IP", callback=parser(parse_authip),
-              help="Client address allowed to connect to the table's server (--table-port "
-                   "and the TLS port; repeat, at most 8; none: anyone).")
-@click.option("--bind", metavar="ADDR", default=None, callback=parser(parse_bind),
-              help="The table's server listens on this IP address only [default: all, IPv4 "
-                   "and IPv6].")
+@authip_option("Client address allowed to connect to the table's server (--table-port and "
+               "the TLS port; repeat, at most 8; none: anyone).")
+@bind_option("The table's server listens on this IP address only [default: all, IPv4 and "
+             "IPv6].")
 @face_port_options(" (a route without from gives the daemon one)")
 @upstream_tls_options
 @demotion_options
@@ -82,12 +86,9 @@ SLAVE_MODE_ONLY = ("stout", "nocheck")
               type=click.IntRange(*model.PORT_RANGE),
               default=model.TableConfig.port, show_default=True,
               help="With --table: the TCP port where Modbus TCP clients reach the table.")
-@click.option("--table-max-connections", cls=TableOption, key="table-max-connections",
-              file_key="max-connections", type=click.IntRange(*model.MAX_CONNECTIONS_RANGE),
-              default=model.DEFAULT_TABLE_MAX_CONNECTIONS, show_default=True, metavar="N",
-              help="With --table: TCP clients of the table at once (its TLS port's included); "
-                   "a newcomer beyond it takes the place of one that sent no request yet, or "
-                   "is refused.")
+@table_max_connections_option(
+    "With --table: TCP clients of the table at once (its TLS port's included); a newcomer "
+    "beyond it takes the place of one that sent no request yet, or is refused.")
 @table_options
 @tls_options
 @daemon_options

@@ -134,6 +134,18 @@ def parse_bind(value):
     return value
 
 
+def authip_option(help: str):
+    """--authip, the client addresses a mode's listeners accept; help: which listeners."""
+    return click.option("--authip", multiple=True, metavar="IP", callback=parser(parse_authip),
+                        help=help)
+
+
+def bind_option(help: str = "Listen on this IP address only [default: all, IPv4 and IPv6]."):
+    """--bind, the one address a mode's listeners bind."""
+    return click.option("--bind", metavar="ADDR", default=None, callback=parser(parse_bind),
+                        help=help)
+
+
 def stack(*decorators):
     def apply(function):
         for decorator in reversed(decorators):

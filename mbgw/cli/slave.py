@@ -1,14 +1,15 @@
 """The `mbgw slave` command: Modbus TCP clients reach the slaves on a serial line."""
 import click
 
-from mbgw.cli.daemon_options import daemon_options, gateway_unit_option
+from mbgw.cli.daemon_options import daemon_options, gateway_unit_option, scenario_tcpto_option
 from mbgw.cli.lines import with_lines
 from mbgw.cli.options import (
     CacheType,
     ModeCommand,
+    authip_option,
+    bind_option,
     convert,
     face_port_options,
-    parse_bind,
     parser,
 )
 from mbgw.cli.run import run_daemon
@@ -26,10 +27,6 @@ from mbgw.config.number_list import number_list_text, parse_number_list
 from mbgw.config.schema import TableOption
 
 
-def _parse_authip(values) -> tuple:
-    return tuple(str(model.parse_ip("authip", v)) for v in values)
-
-
 def _parse_units(value) -> tuple[int, ...]:
     return parse_number_list("table-units", value, 1, 255)
 
@@ -44,14 +41,12 @@ def _parse_units(value) -> tuple[int, ...]:
               show_default=True,
               help="Answer exception 0x0B when a slave does not reply, 0x0A when the line "
                    "cannot be reached, instead of staying silent.")
-@click.option("--authip", multiple=True, metavar="IP", callback=parser(_parse_authip),
-              help="Client address allowed to connect (repeat, at most 8; none: anyone).")
+@authip_option("Client address allowed to connect (repeat, at most 8; none: anyone).")
 @click.option("--mdbport", type=click.IntRange(*model.MDBPORT_RANGE),
               default=model.SlaveConfig.mdbport, show_default=True,
               help="Modbus TCP port to listen on (0: none, Modbus/TCP Security only).")
 @face_port_options()
-@click.option("--bind", metavar="ADDR", default=None, callback=parser(parse_bind),
-              help="Listen on this IP address only [default: all, IPv4 and IPv6].")
+@bind_option()
 @click.option("--max-connections", type=click.IntRange(*model.MAX_CONNECTIONS_RANGE),
               default=model.SlaveConfig.max_connections, show_default=True,
               help="Simultaneous TCP clients (closed ones do not count); a newcomer closes an "
@@ -81,10 +76,7 @@ def _parse_units(value) -> tuple[int, ...]:
               default=model.SlaveConfig.turnaround_ms,
               show_default=True, metavar="MS",
               help="Pause on the line after a broadcast (unit 0), before the next request.")
-@click.option("--tcpto", type=click.IntRange(*model.TCPTO_RANGE),
-              default=model.SlaveConfig.tcpto_ms, show_default=True, metavar="MS",
-              help="TCP scenarios: the time for a transaction with a server, connecting "
-                   "included.")
+@scenario_tcpto_option
 @demotion_options
 @table_switch
 @click.option("--direct/--no-direct", "table_direct", cls=TableOption, key="direct",

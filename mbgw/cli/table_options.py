@@ -86,3 +86,11 @@ def table_config(**settings) -> model.TableConfig:
     return convert("'--table'", lambda: model.TableConfig(
         persist=persist_path(settings.get("table_persist")),
         **{f: settings[o] for f, o in fields.items() if settings.get(o) is not None}))
+
+
+def table_max_connections_option(help: str):
+    """--table-max-connections ([table] max-connections); help: whose clients it counts."""
+    return click.option(
+        "--table-max-connections", cls=TableOption, key="table-max-connections",
+        file_key="max-connections", type=click.IntRange(*model.MAX_CONNECTIONS_RANGE),
+        default=model.DEFAULT_TABLE_MAX_CONNECTIONS, show_default=True, metavar="N", help=help)

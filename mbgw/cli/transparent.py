@@ -2,13 +2,14 @@
 that speaks no Modbus, through the exchange table served on mdbport (VPGate 3.8)."""
 import click
 
-from mbgw.cli.daemon_options import daemon_options
-from mbgw.cli.options import ModeCommand, convert, parse_bind, parser
+from mbgw.cli.daemon_options import daemon_options, scenario_tcpto_option
+from mbgw.cli.options import ModeCommand, authip_option, bind_option, convert
 from mbgw.cli.run import run_daemon
 from mbgw.cli.serial_options import serial_config, serial_options
+from mbgw.cli.table_options import table_max_connections_option
 from mbgw.cli.tls_options import tls_config, tls_options
 from mbgw.config import model
-from mbgw.config.schema import TableOption, TransparentOption
+from mbgw.config.schema import TransparentOption
 from mbgw.config.transparent import (
     EOF_CHAR_RANGE,
     EOF_KINDS,
@@ -23,29 +24,20 @@ from mbgw.config.transparent import (
 _DEFAULTS = TransparentConfig()
 
 
-def _parse_authip(values) -> tuple:
-    return tuple(str(model.parse_ip("authip", v)) for v in values)
-
-
 def _option(flag: str, key: str, **kwargs):
     return click.option(flag, cls=TransparentOption, key=key, show_default=True, **kwargs)
 
 
 @click.command(cls=ModeCommand)
 @serial_options
-@click.option("--authip", multiple=True, metavar="IP", callback=parser(_parse_authip),
-              help="Client address allowed to connect to mdbport and raw-port (repeat, at "
-                   "most 8; none: anyone).")
+@authip_option("Client address allowed to connect to mdbport and raw-port (repeat, at most "
+               "8; none: anyone).")
 @click.option("--mdbport", type=click.IntRange(*model.MDBPORT_RANGE),
               default=model.DEFAULT_MDBPORT, show_default=True,
               help="Modbus TCP port where clients reach the exchange table (every unit id; "
                    "unit 0 is a broadcast write); 0: TLS only (--tls-cert).")
-@click.option("--bind", metavar="ADDR", default=None, callback=parser(parse_bind),
-              help="Listen on this IP address only [default: all, IPv4 and IPv6].")
-@click.option("--tcpto", type=click.IntRange(*model.TCPTO_RANGE),
-              default=model.DEFAULT_TCPTO_MS, show_default=True, metavar="MS",
-              help="TCP scenarios: the time for a transaction with a server, connecting "
-                   "included.")
+@bind_option()
+@scenario_tcpto_option
 @_option("--eof", "eof", type=click.Choice(EOF_KINDS), default=_DEFAULTS.eof,
          help="How a frame ends: an end character (nul, space, lf, cr, crlf, lfcr; char: "
               "--eof-char), length (the first byte counts the bytes after it) or timeout "
@@ -82,12 +74,9 @@ def _option(flag: str, key: str, **kwargs):
 @_option("--raw-port", "raw-port", type=click.IntRange(*model.PORT_RANGE), default=None,
          help="TCP port giving one client the line as a byte stream (a second is refused) "
               "[default: off].")
-@click.option("--table-max-connections", cls=TableOption, key="table-max-connections",
-              file_key="max-connections", type=click.IntRange(*model.MAX_CONNECTIONS_RANGE),
-              default=model.DEFAULT_TABLE_MAX_CONNECTIONS, show_default=True, metavar="N",
-              help="TCP clients of the table at once (mdbport's and the TLS port's); a "
-                   "newcomer beyond it takes the place of one that sent no request yet, or is "
-                   "refused.")
+@table_max_connections_option(
+    "TCP clients of the table at once (mdbport's and the TLS port's); a newcomer beyond it "
+    "takes the place of one that sent no request yet, or is refused.")
 @tls_options
 @daemon_options
 def transparent(**options) -> None:

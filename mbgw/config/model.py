@@ -72,6 +72,15 @@ REQUEST_TIMEOUT_RANGE = (100, 60000)
 DEFAULT_REQUEST_TIMEOUT_MS = 2000
 
 
+def check_range(name: str, value: int, bounds: tuple[int, int],
+                key: str | None = None) -> None:
+    """Raises ConfigError "NAME VALUE: out of range LOW..HIGH" when value is outside bounds;
+    key: the setting the error blames, when the caller knows it."""
+    low, high = bounds
+    if not low <= value <= high:
+        raise ConfigError(f"{name} {value}: out of range {low}..{high}", key=key)
+
+
 @dataclass(frozen=True)
 class LineFormat:
     data_bits: int = 8
@@ -138,11 +147,8 @@ class Demotion:
     probe_interval_ms: int = DEFAULT_PROBE_INTERVAL_MS
 
     def __post_init__(self) -> None:
-        for name, value, (low, high) in (
-                ("down-after", self.down_after, DOWN_AFTER_RANGE),
-                ("probe-interval", self.probe_interval_ms, PROBE_INTERVAL_RANGE)):
-            if not low <= value <= high:
-                raise ConfigError(f"{name} {value}: out of range {low}..{high}")
+        check_range("down-after", self.down_after, DOWN_AFTER_RANGE)
+        check_range("probe-interval", self.probe_interval_ms, PROBE_INTERVAL_RANGE)
 
 
 NO_DEVICE = ""    # the device of a [serial] left out (SlaveConfig.serial_line False)
@@ -167,13 +173,8 @@ class SerialConfig:
     interframe_ms: int = 0         # VPGate: the line quiet this much beyond t3.5 before we send
 
     def __post_init__(self) -> None:
-        low, high = INTERFRAME_SILENCE_RANGE
-        if not low <= self.interframe_ms <= high:
-            raise ConfigError(f"interframe-silence {self.interframe_ms}: out of range "
-                              f"{low}..{high}")
-        low, high = BAUDRATE_RANGE
-        if not low <= self.baudrate <= high:
-            raise ConfigError(f"baudrate {self.baudrate}: out of range {low}..{high}")
+        check_range("interframe-silence", self.interframe_ms, INTERFRAME_SILENCE_RANGE)
+        check_range("baudrate", self.baudrate, BAUDRATE_RANGE)
         if self.protocol not in PROTOCOLS:
             raise ConfigError(f"protocol {self.protocol!r}: expected rtu or ascii")
         for name, value, modes in (("dtr", self.dtr, DTR_MODES), ("rts", self.rts, RTS_MODES),
@@ -323,13 +324,10 @@ class TableConfig:
                 if function not in TABLE_FUNCTIONS:
                     raise ConfigError(f"{name} {function}: the table answers only "
                                       f"{', '.join(map(str, TABLE_FUNCTIONS))}")
-        for name, value, (low, high) in (
-                ("table-address", self.address, TABLE_ADDRESS_RANGE),
-                ("table-port", self.port, PORT_RANGE),
-                ("table-max-connections", self.max_connections, MAX_CONNECTIONS_RANGE),
-                ("table-persist-interval", self.persist_interval_s, PERSIST_INTERVAL_RANGE)):
-            if not low <= value <= high:
-                raise ConfigError(f"{name} {value}: out of range {low}..{high}")
+        check_range("table-address", self.address, TABLE_ADDRESS_RANGE)
+        check_range("table-port", self.port, PORT_RANGE)
+        check_range("table-max-connections", self.max_connections, MAX_CONNECTIONS_RANGE)
+        check_range("table-persist-interval", self.persist_interval_s, PERSIST_INTERVAL_RANGE)
 
 
 TCPTO_RANGE = (1, 65535)
@@ -356,9 +354,7 @@ class TlsConfig:
     files: tuple = ()
 
     def __post_init__(self) -> None:
-        low, high = PORT_RANGE
-        if not low <= self.port <= high:
-            raise ConfigError(f"tls.port {self.port}: out of range {low}..{high}")
+        check_range("tls.port", self.port, PORT_RANGE)
         if self.cert is not None:
             missing = [name for name in ("key", "ca") if getattr(self, name) is None]
             if missing:
@@ -422,9 +418,7 @@ class UpstreamTlsConfig:
     files: tuple = ()              # (path, mtime_ns, size): a renewed file is a change
 
     def __post_init__(self) -> None:
-        low, high = PORT_RANGE
-        if not low <= self.server_port <= high:
-            raise ConfigError(f"tls.server-port {self.server_port}: out of range {low}..{high}")
+        check_range("tls.server-port", self.server_port, PORT_RANGE)
         given = [n for n in ("client-cert", "client-key", "server-ca")
                  if getattr(self, n.replace("-", "_")) is not None]
         if given and len(given) < 3:
@@ -504,17 +498,13 @@ class SlaveConfig:
         if self.mdbport == 0 and not self.tls.enabled:
             raise ConfigError("mdbport 0 turns plain Modbus TCP off: it needs TLS (--tls-cert)",
                               key="mdbport")
-        low, high = TCPTO_RANGE
-        if not low <= self.tcpto_ms <= high:
-            raise ConfigError(f"tcpto {self.tcpto_ms}: out of range {low}..{high}", key="tcpto")
+        check_range("tcpto", self.tcpto_ms, TCPTO_RANGE, key="tcpto")
         if len(self.authip) > MAX_AUTHIP:
             raise ConfigError(f"authip: at most {MAX_AUTHIP} addresses, got {len(self.authip)}",
                               key="authip")
         object.__setattr__(self, "authip", tuple(parse_ip("authip", a) for a in self.authip))
-        low, high = LATE_WINDOW_RANGE
-        if self.late_window_ms is not None and not low <= self.late_window_ms <= high:
-            raise ConfigError(f"late-window {self.late_window_ms}: out of range {low}..{high}",
-                              key="late-window")
+        if self.late_window_ms is not None:
+            check_range("late-window", self.late_window_ms, LATE_WINDOW_RANGE, key="late-window")
 
     @property
     def late_window(self) -> int:
@@ -583,9 +573,7 @@ class MasterConfig:
                               key="authip")
         object.__setattr__(self, "authip", tuple(parse_ip("authip", a) for a in self.authip))
         check_upstream_tls(self.upstream_tls, self.scenarios, self.slaveid)
-        low, high = TCPTO_RANGE
-        if not low <= self.tcpto_ms <= high:
-            raise ConfigError(f"tcpto {self.tcpto_ms}: out of range {low}..{high}", key="tcpto")
+        check_range("tcpto", self.tcpto_ms, TCPTO_RANGE, key="tcpto")
         if self.max_connections < 1:
             raise ConfigError(f"max-connections {self.max_connections}: at least 1",
                               key="max-connections")

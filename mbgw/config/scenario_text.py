@@ -63,39 +63,44 @@ def _blocks(lines: list[str]) -> list[tuple[int, int]]:
     return found
 
 
-def remove(text: str, name: str) -> str | None:
-    """The text without the [[scenario]] named `name`, None when it has none."""
-    lines = text.splitlines()
+def _named(lines: list[str], name: str) -> tuple[int, int] | None:
+    """(first line, end line) of the first [[scenario]] table named `name` (one that is not
+    valid TOML is passed over), None when there is none."""
     for first, end in _blocks(lines):
         try:
             content = tomllib.loads("\n".join(lines[first + 1:end]))
         except tomllib.TOMLDecodeError:
             continue
         if content.get("name") == name:
-            while end < len(lines) and not lines[end].strip():
-                end += 1
-            del lines[first:end]
-            while lines and not lines[-1].strip():
-                lines.pop()
-            return "\n".join(lines) + "\n" if lines else ""
+            return first, end
     return None
+
+
+def remove(text: str, name: str) -> str | None:
+    """The text without the [[scenario]] named `name`, None when it has none."""
+    lines = text.splitlines()
+    found = _named(lines, name)
+    if found is None:
+        return None
+    first, end = found
+    while end < len(lines) and not lines[end].strip():
+        end += 1
+    del lines[first:end]
+    while lines and not lines[-1].strip():
+        lines.pop()
+    return "\n".join(lines) + "\n" if lines else ""
 
 
 def set_enabled(text: str, name: str, on: bool) -> str | None:
     """The text with scenario `name` enabled (its `enabled` key taken out: true is the
     default) or disabled (`enabled = false`), None when it has no such scenario."""
     lines = text.splitlines()
-    for first, end in _blocks(lines):
-        try:
-            content = tomllib.loads("\n".join(lines[first + 1:end]))
-        except tomllib.TOMLDecodeError:
-            continue
-        if content.get("name") != name:
-            continue
-        keep = [line for line in lines[first + 1:end]
-                if not re.match(r"^\s*enabled\s*=", line)]
-        if not on:
-            keep.append("enabled = false")
-        lines[first + 1:end] = keep
-        return "\n".join(lines) + "\n"
-    return None
+    found = _named(lines, name)
+    if found is None:
+        return None
+    first, end = found
+    keep = [line for line in lines[first + 1:end] if not re.match(r"^\s*enabled\s*=", line)]
+    if not on:
+        keep.append("enabled = false")
+    lines[first + 1:end] = keep
+    return "\n".join(lines) + "\n"

@@ -16,6 +16,7 @@ from mbgw.config.model import (
     TableConfig,
     TlsConfig,
     WebConfig,
+    check_range,
     parse_ip,
 )
 from mbgw.config.mqtt import MqttConfig
@@ -49,14 +50,11 @@ class TransparentConfig:
     def __post_init__(self) -> None:
         if self.eof not in EOF_KINDS:
             raise ConfigError(f"eof {self.eof!r}: expected one of {', '.join(EOF_KINDS)}")
-        for name, value, (low, high) in (
-                ("eof-char", self.eof_char, EOF_CHAR_RANGE),
-                ("eof-timeout", self.eof_timeout_ms, EOF_TIMEOUT_RANGE),
-                ("rx-size", self.rx_size, FRAME_SIZE_RANGE),
-                ("tx-size", self.tx_size, FRAME_SIZE_RANGE),
-                ("transparent.silence", self.silence_ms, INTERFRAME_SILENCE_RANGE)):
-            if not low <= value <= high:
-                raise ConfigError(f"{name} {value}: out of range {low}..{high}")
+        check_range("eof-char", self.eof_char, EOF_CHAR_RANGE)
+        check_range("eof-timeout", self.eof_timeout_ms, EOF_TIMEOUT_RANGE)
+        check_range("rx-size", self.rx_size, FRAME_SIZE_RANGE)
+        check_range("tx-size", self.tx_size, FRAME_SIZE_RANGE)
+        check_range("transparent.silence", self.silence_ms, INTERFRAME_SILENCE_RANGE)
         for name, address, size, (low, high) in (
                 ("rx-address", self.rx_address, self.rx_size, RX_ADDRESS_RANGE),
                 ("tx-address", self.tx_address, self.tx_size, TX_ADDRESS_RANGE)):

@@ -48,7 +48,9 @@ class LineCounters(Protocol):
 
 
 @dataclasses.dataclass(slots=True)
-class _Uncounted:
+class LineCounts:
+    """LineCounters kept in fields of their own: for an owner that counts nothing more, or
+    a base for one that does."""
     bytes_sent: int = 0
     bytes_received: int = 0
     noise_bytes: int = 0
@@ -59,7 +61,7 @@ class SerialLine:
     def __init__(self, cfg: "SerialConfig", counters: LineCounters | None = None) -> None:
         self.cfg = cfg
         # Line counters outlive a reopened port: the owner passes its own.
-        self.counters: LineCounters = counters if counters is not None else _Uncounted()
+        self.counters: LineCounters = counters if counters is not None else LineCounts()
         fmt = cfg.format
         # libmodbus opens and configures the tty; what it cannot do is fixed after.
         libmodbus_parity = fmt.parity if fmt.parity in "neo" else "n"

@@ -14,7 +14,7 @@ from mbgw.net.acl import AccessList
 from mbgw.net.tls import server_context
 from mbgw.ops.reload import ReloadReport
 from mbgw.table import identity
-from mbgw.table.control import table_commands
+from mbgw.table.control import table_commands, while_on
 from mbgw.table.memory import Table
 from mbgw.table.persist import Persistence
 from mbgw.table.report import table_status
@@ -69,13 +69,7 @@ class TableService:
 
     def commands(self) -> dict:
         """The operator's table-read and table-write, while the table is on."""
-        def when_on(command):
-            def serve(request: dict) -> dict:
-                if not self.cfg.enabled:
-                    return {"error": "the exchange table is off (--table, [table] enabled)"}
-                return command(request)
-            return serve
-        return {name: when_on(command) for name, command in self._commands.items()}
+        return while_on(self._commands, lambda: self.cfg.enabled)
 
     def reconfigure(self, settings: MasterConfig, report: ReloadReport) -> None:
         """New settings (SIGHUP): functions and the configuration zone at once, the server

@@ -10,18 +10,15 @@ from collections.abc import Callable
 
 from mbgw.errors import ChecksumError, FrameError
 from mbgw.line import native
+from mbgw.line.serial_line import LineCounts
 
 CRC_LEN = 2
 BROADCAST = 0
 
 
 @dataclasses.dataclass(slots=True)
-class MonitorCounters:
-    """What a monitor line counts; bytes_received etc. are what SerialLine counts itself."""
-    bytes_sent: int = 0
-    bytes_received: int = 0
-    noise_bytes: int = 0
-    echo_errors: int = 0
+class MonitorCounters(LineCounts):
+    """What a monitor line counts: what SerialLine counts itself (LineCounts), and these."""
     monitor_frames: int = 0
     monitor_crc_errors: int = 0
     monitor_unanswered: int = 0

@@ -86,49 +86,34 @@ class Listener:
             self._listen_rtu()
             self._listen_udp()
         except ListenError:
-            self._stop_listening()
-            self._stop_listening(tls=True)
-            self._stop_listening_rtu()
+            for listeners in (self._listeners, self._tls_listeners, self._rtu_listeners):
+                self._stop_listening(listeners)
             raise
         self._sweeper = self._loop.call_later(SWEEP_S, self._sweep)
         return self.addresses()
 
     def _listen_plain(self) -> None:
         """Listen on mdbport (0: not at all).  Raises ListenError."""
-        assert self._loop is not None
-        if self._cfg.mdbport:
-            self._listeners = listen(self._cfg.bind, self._cfg.mdbport, option="mdbport",
-                                     stamp_arrivals=stamp_arrivals,
-                                     backlog=LISTEN_BACKLOG)
-        for sock in self._listeners:
-            self._loop.add_reader(sock.fileno(), self._accept, sock)
+        self._listeners = self._listen(self._cfg.mdbport, "mdbport", self._accept)
 
     def _listen_tls(self) -> None:
         """Listen on tls-port while TLS is on.  Raises ListenError."""
-        assert self._loop is not None
-        if self._tls is not None:
-            self._tls_listeners = listen(self._cfg.bind, self._cfg.tls.port, option="tls-port",
-                                         stamp_arrivals=stamp_arrivals,
-                                         backlog=LISTEN_BACKLOG)
-        for sock in self._tls_listeners:
-            self._loop.add_reader(sock.fileno(), self._accept_tls, sock)
+        self._tls_listeners = self._listen(self._cfg.tls.port if self._tls is not None else 0,
+                                           "tls-port", self._accept_tls)
 
     def _listen_rtu(self) -> None:
         """Listen on rtu-port (0: not at all).  Raises ListenError."""
-        assert self._loop is not None
-        if self._cfg.rtu_port:
-            self._rtu_listeners = listen(self._cfg.bind, self._cfg.rtu_port, option="rtu-port",
-                                         stamp_arrivals=stamp_arrivals,
-                                         backlog=LISTEN_BACKLOG)
-        for sock in self._rtu_listeners:
-            self._loop.add_reader(sock.fileno(), self._accept_rtu, sock)
+        self._rtu_listeners = self._listen(self._cfg.rtu_port, "rtu-port", self._accept_rtu)
 
-    def _stop_listening_rtu(self) -> None:
-        for sock in self._rtu_listeners:
-            if self._loop is not None:
-                self._loop.remove_reader(sock.fileno())
-            sock.close()
-        self._rtu_listeners.clear()
+    def _listen(self, port: int, option: str, accept) -> list[socket.socket]:
+        """Sockets listening on port on bind's addresses (0: none), each read by accept.
+        Raises ListenError."""
+        assert self._loop is not None
+        listeners = listen(self._cfg.bind, port, option=option, stamp_arrivals=stamp_arrivals,
+                           backlog=LISTEN_BACKLOG) if port else []
+        for sock in listeners:
+            self._loop.add_reader(sock.fileno(), accept, sock)
+        return listeners
 
     def _listen_udp(self) -> None:
         """Bind udp-port (0: not at all); the line thread reads it from now on.  Raises
@@ -149,9 +134,9 @@ class Listener:
             [f"{format_address(s.getsockname())} (RTU)" for s in self._rtu_listeners] + \
             [f"{p.local} (UDP)" for p in self.udp_ports]
 
-    def _stop_listening(self, tls: bool = False) -> None:
-        """Stop listening on mdbport, or (tls) on tls-port."""
-        listeners = self._tls_listeners if tls else self._listeners
+    def _stop_listening(self, listeners: list[socket.socket]) -> None:
+        """Stop listening on these: self._listeners (mdbport), _tls_listeners or
+        _rtu_listeners."""
         for sock in listeners:
             if self._loop is not None:
                 self._loop.remove_reader(sock.fileno())
@@ -178,7 +163,7 @@ class Listener:
             port.renew(self._acl, self.firewall, cfg.serial.stout_ms)
         self._relisten_faces(old, report)
         if (cfg.mdbport, cfg.bind) != (old.mdbport, old.bind):
-            self._stop_listening()
+            self._stop_listening(self._listeners)
             try:
                 self._listen_plain()
             except ListenError as err:
@@ -201,7 +186,7 @@ class Listener:
             self._cfg = cfg = dataclasses.replace(cfg, udp_port=old.udp_port)
         if (cfg.rtu_port, cfg.bind) == (old.rtu_port, old.bind):
             return
-        self._stop_listening_rtu()
+        self._stop_listening(self._rtu_listeners)
         try:
             self._listen_rtu()
         except ListenError as err:
@@ -226,7 +211,7 @@ class Listener:
             self._tls = context
             log.info("TLS: certificate %s loaded for new connections", new.cert)
             return
-        self._stop_listening(tls=True)
+        self._stop_listening(self._tls_listeners)
         running, self._tls = self._tls, context
         try:
             self._listen_tls()
@@ -259,30 +244,27 @@ class Listener:
     def close(self) -> None:
         if self._sweeper is not None:
             self._sweeper.cancel()
-        self._stop_listening()
-        self._stop_listening(tls=True)
-        self._stop_listening_rtu()
+        for listeners in (self._listeners, self._tls_listeners, self._rtu_listeners):
+            self._stop_listening(listeners)
         if self._handshakes is not None:
             self._handshakes.close()
         for client in list(self.clients):
             self._drop(client)
 
     def _accept(self, listener: socket.socket) -> None:
-        sock, address = self._accepted(listener, self._accept)
-        if sock is None:
-            return
-        sock.setblocking(False)
-        client = Client(sock, address[0], format_address(address),
-                        format_address(sock.getsockname()))
-        self._welcome(client)
+        self._accept_as(Client, listener, self._accept)
 
     def _accept_rtu(self, listener: socket.socket) -> None:
-        sock, address = self._accepted(listener, self._accept_rtu)
+        self._accept_as(RtuClient, listener, self._accept_rtu)
+
+    def _accept_as(self, kind: type[Client], listener: socket.socket, handler) -> None:
+        """A newcomer on listener (mdbport's, rtu-port's; handler reads it) as a kind client."""
+        sock, address = self._accepted(listener, handler)
         if sock is None:
             return
         sock.setblocking(False)
-        self._welcome(RtuClient(sock, address[0], format_address(address),
-                                format_address(sock.getsockname())))
+        self._welcome(kind(sock, address[0], format_address(address),
+                           format_address(sock.getsockname())))
 
     def _accepted(self, listener: socket.socket, handler) -> tuple:
         """(socket, address) of a newcomer on listener, or (None, None): none waits, or the

@@ -10,7 +10,7 @@ from mbgw.config.model import SlaveConfig
 from mbgw.ops.device_stats import DeviceHealth
 from mbgw.ops.reload import ReloadReport
 from mbgw.table import identity
-from mbgw.table.control import table_commands
+from mbgw.table.control import table_commands, while_on
 from mbgw.table.memory import Table
 from mbgw.table.persist import Persistence
 from mbgw.table.report import table_status
@@ -76,13 +76,7 @@ class TableService:
 
     def commands(self) -> dict:
         """The operator's table-read and table-write, while the table is on."""
-        def when_on(command):
-            def serve(request: dict) -> dict:
-                if not self.settings.table_on:
-                    return {"error": "the exchange table is off (--table, [table] enabled)"}
-                return command(request)
-            return serve
-        return {name: when_on(command) for name, command in self._commands.items()}
+        return while_on(self._commands, lambda: self.settings.table_on)
 
     def figures(self) -> dict | None:
         """The status's "table" section (mbgw.table.report), None while the table is off."""

@@ -30,6 +30,18 @@ def table_commands(table) -> dict[str, Callable[[dict], dict]]:
     return {"table-read": read, "table-write": write}
 
 
+def while_on(commands: dict[str, Callable[[dict], dict]],
+             on: Callable[[], bool]) -> dict[str, Callable[[dict], dict]]:
+    """commands, each refusing while on() is false (the daemon's table turned off)."""
+    def when_on(command):
+        def serve(request: dict) -> dict:
+            if not on():
+                return {"error": "the exchange table is off (--table, [table] enabled)"}
+            return command(request)
+        return serve
+    return {name: when_on(command) for name, command in commands.items()}
+
+
 def _answer(serve: Callable[[], dict]) -> dict:
     try:
         return serve()

@@ -91,13 +91,6 @@ def face_with(pty_pair):
 
 
 @pytest.fixture
-def master(pty_pair):
-    fd = os.open(pty_pair.device, os.O_RDWR | os.O_NOCTTY)
-    yield fd
-    os.close(fd)
-
-
-@pytest.fixture
 def target(inbox):
     targets = []
 
@@ -128,80 +121,80 @@ def ask(fd: int, frame: bytes, expected: bytes) -> None:
 
 
 def test_an_offset_route_reaches_the_line_and_the_master_gets_its_own_address(
-        face_with, master, inbox, target):
+        face_with, line, inbox, target):
     t = target(register_reply)
     face_with(to_meters(range(32, 64), offset=-31), inboxes={METERS: inbox})
-    ask(master, rtu(32, read_holding(0, 1)), rtu(32, bytes((0x03, 2, 0, 101))))
-    ask(master, rtu(63, read_holding(0, 1)), rtu(63, bytes((0x03, 2, 0, 132))))
+    ask(line, rtu(32, read_holding(0, 1)), rtu(32, bytes((0x03, 2, 0, 101))))
+    ask(line, rtu(63, read_holding(0, 1)), rtu(63, bytes((0x03, 2, 0, 132))))
     first, last = t.wait_for(2)
     assert (first.source, first.address, first.pdu) == (PANEL, 1, read_holding(0, 1))
     assert (last.source, last.address) == (PANEL, 32)
 
 
-def test_a_fixed_address_route(face_with, master, inbox, target):
+def test_a_fixed_address_route(face_with, line, inbox, target):
     t = target(register_reply)
     face_with(to_meters((7, 8), address=20), inboxes={METERS: inbox})
-    ask(master, rtu(8, read_holding(0, 1)), rtu(8, bytes((0x03, 2, 0, 120))))
+    ask(line, rtu(8, read_holding(0, 1)), rtu(8, bytes((0x03, 2, 0, 120))))
     assert [e.address for e in t.wait_for(1)] == [20]
 
 
-def test_an_unrouted_address_gets_no_answer_and_reaches_no_line(face_with, master, inbox,
+def test_an_unrouted_address_gets_no_answer_and_reaches_no_line(face_with, line, inbox,
                                                                   target):
     t = target(register_reply)
     face_with(to_meters((1,), offset=4), inboxes={METERS: inbox})
     # the unrouted request gets nothing: the routed one right behind it is answered first
-    os.write(master, rtu(2, read_holding(0, 1)) + rtu(1, read_holding(0, 1)))
+    os.write(line, rtu(2, read_holding(0, 1)) + rtu(1, read_holding(0, 1)))
     expected = rtu(1, bytes((0x03, 2, 0, 105)))
-    assert recv(master, len(expected) + 1) == expected
+    assert recv(line, len(expected) + 1) == expected
     assert [e.address for e in t.wait_for(1)] == [5]
 
 
-def test_the_lines_silence_is_silence_on_the_face(face_with, master, inbox, target):
+def test_the_lines_silence_is_silence_on_the_face(face_with, line, inbox, target):
     t = target(lambda e: (None, "timeout") if e.address == 3 else register_reply(e))
     face_with(to_meters((3, 4)), inboxes={METERS: inbox})
-    os.write(master, rtu(3, read_holding(0, 1)))
+    os.write(line, rtu(3, read_holding(0, 1)))
     t.wait_for(1)
-    ask(master, rtu(4, read_holding(0, 1)), rtu(4, bytes((0x03, 2, 0, 104))))
+    ask(line, rtu(4, read_holding(0, 1)), rtu(4, bytes((0x03, 2, 0, 104))))
 
 
 def test_a_line_that_does_not_answer_in_time_is_0x0b_and_its_late_answer_is_dropped(
-        face_with, master, inbox, target):
+        face_with, line, inbox, target):
     t = target(lambda e: None if e.address == 3 else register_reply(e))
     face_with(to_meters((3, 4)), inboxes={METERS: inbox})
-    ask(master, rtu(3, read_holding(0, 1)), exception(3, 0x03, 0x0B))
+    ask(line, rtu(3, read_holding(0, 1)), exception(3, 0x03, 0x0B))
     held = t.wait_for(1)[0]
     held.done(held, bytes((0x03, 2, 0, 103)), "reply")     # late: the face has moved on
-    ask(master, rtu(4, read_holding(0, 1)), rtu(4, bytes((0x03, 2, 0, 104))))
+    ask(line, rtu(4, read_holding(0, 1)), rtu(4, bytes((0x03, 2, 0, 104))))
 
 
 def test_without_exception_a_line_that_does_not_answer_in_time_is_silence(
-        face_with, master, inbox, target):
+        face_with, line, inbox, target):
     target(lambda e: None if e.address == 3 else register_reply(e))
     face_with(to_meters((3, 4)), inboxes={METERS: inbox}, exception=False)
     # nothing for 3: after its wait, the answer to 4 (written right behind) comes first
     expected = rtu(4, bytes((0x03, 2, 0, 104)))
-    os.write(master, rtu(3, read_holding(0, 1)) + rtu(4, read_holding(0, 1)))
-    assert recv(master, len(expected) + 1) == expected
+    os.write(line, rtu(3, read_holding(0, 1)) + rtu(4, read_holding(0, 1)))
+    assert recv(line, len(expected) + 1) == expected
 
 
-def test_a_route_to_a_line_that_is_not_running_is_0x0a(face_with, master):
+def test_a_route_to_a_line_that_is_not_running_is_0x0a(face_with, line):
     face_with(to_meters((3,)), inboxes={})
-    ask(master, rtu(3, read_holding(0, 1)), exception(3, 0x03, 0x0A))
+    ask(line, rtu(3, read_holding(0, 1)), exception(3, 0x03, 0x0A))
 
 
-def test_a_broadcast_never_goes_to_another_line(face_with, master, inbox, target):
+def test_a_broadcast_never_goes_to_another_line(face_with, line, inbox, target):
     t = target(register_reply)
     face_with(to_meters((3,)), inboxes={METERS: inbox})
-    os.write(master, rtu(0, bytes.fromhex("06 00 01 00 07")))
-    ask(master, rtu(3, read_holding(0, 1)), rtu(3, bytes((0x03, 2, 0, 103))))
+    os.write(line, rtu(0, bytes.fromhex("06 00 01 00 07")))
+    ask(line, rtu(3, read_holding(0, 1)), rtu(3, bytes((0x03, 2, 0, 103))))
     assert [e.address for e in t.wait_for(1)] == [3]
 
 
-def test_a_line_whose_inbox_comes_later_is_reached_from_then_on(face_with, master, inbox,
+def test_a_line_whose_inbox_comes_later_is_reached_from_then_on(face_with, line, inbox,
                                                                  target):
     inboxes: dict = {}
     face_with(to_meters((3,)), inboxes=inboxes)
-    ask(master, rtu(3, read_holding(0, 1)), exception(3, 0x03, 0x0A))
+    ask(line, rtu(3, read_holding(0, 1)), exception(3, 0x03, 0x0A))
     target(register_reply)
     inboxes[METERS] = inbox            # the target line has started
-    ask(master, rtu(3, read_holding(0, 1)), rtu(3, bytes((0x03, 2, 0, 103))))
+    ask(line, rtu(3, read_holding(0, 1)), rtu(3, bytes((0x03, 2, 0, 103))))

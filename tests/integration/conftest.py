@@ -35,14 +35,6 @@ def start_master(pty_pair, start_gateway):
 
 
 @pytest.fixture
-def line(pty_pair):
-    """The master's end of the line as a raw fd."""
-    fd = os.open(pty_pair.device, os.O_RDWR | os.O_NOCTTY)
-    yield fd
-    os.close(fd)
-
-
-@pytest.fixture
 def second_pty(tmp_path):
     """A second pty pair (tmp_path/panel), for a second line."""
     directory = tmp_path / "panel"
@@ -55,16 +47,7 @@ def second_pty(tmp_path):
 @pytest.fixture
 def open_line():
     """open_line(device) -> an fd on a pty's far end (a serial master's); closed after."""
-    fds = []
-
-    def opened(device: str) -> int:
-        fd = os.open(device, os.O_RDWR | os.O_NOCTTY)
-        fds.append(fd)
-        return fd
-
-    yield opened
-    for fd in fds:
-        os.close(fd)
+    yield from factory(lambda device: os.open(device, os.O_RDWR | os.O_NOCTTY), os.close)
 
 
 @pytest.fixture

@@ -54,16 +54,6 @@ def meter(tmp_path, start_peer):
     pair.stop()
 
 
-@pytest.fixture
-def panel(tmp_path):
-    """Line panel's pty pair: mbgw on one end, the serial master on the other."""
-    directory = tmp_path / "panel"
-    directory.mkdir()
-    pair = PtyPair(directory)
-    yield pair
-    pair.stop()
-
-
 def serial_master(device: str, done: list, errors: list) -> None:
     """ROUNDS reads through line panel, each of other registers among 0..49."""
     master = ModbusSerialClient(device, baudrate=BAUD, timeout=3, retries=0)
@@ -99,7 +89,8 @@ def tcp_master(port: int, which: int, done: list, errors: list) -> None:
 
 @pytest.mark.serial
 def test_a_serial_master_and_tcp_clients_share_a_meter_on_another_line(
-        tmp_path, meter, panel, start_gateway):
+        tmp_path, meter, second_pty, start_gateway):
+    panel = second_pty      # line panel: mbgw on one end, the serial master on the other
     line, record = meter
     config = tmp_path / "mbgw.toml"
     config.write_text("\n".join([

@@ -15,16 +15,14 @@ import signal
 import struct
 import threading
 import time
-import urllib.request
 from pathlib import Path
 
 import pytest
-from prometheus_client import parser
 
 from tests.harness import PtyPair, factory, free_port
 from tests.integration.ops.test_reload import config_set
 from tests.modbus import Client, mbap, read_holding
-from tests.ops import mbgw, metric_families, metric_value, status, wait_for, wait_for_log
+from tests.ops import mbgw, metric_value, scraped, status, wait_for, wait_for_log
 
 pytestmark = pytest.mark.integration
 
@@ -393,8 +391,7 @@ def test_each_servers_figures_in_status_and_metrics(lines, gateway, client, serv
     assert shown[answering] == ["4", "4", "1", "0", "0", "1", "1", "0"]
     assert shown[absent] == ["1", "0", "0", "0", "1", "0", "0", "0"]
 
-    with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics", timeout=5) as r:
-        families = metric_families(parser, r.read().decode())
+    families = scraped(metrics_port)
     for server, values in expected.items():
         for name, value in zip(figures, values, strict=True):
             assert metric_value(families, f"mbgw_server_{name}", f"mbgw_server_{name}_total",

@@ -8,17 +8,15 @@ over HTTP with prometheus_client's parser.  The rig is test_lines.py's.
 """
 import json
 import os
-import urllib.request
 
 import pytest
-from prometheus_client import parser
 
 from mbgw.ops import control
 from tests.harness import PtyPair, free_port
 from tests.integration.lines import test_lines as rig
 from tests.integration.master.test_master import recv
 from tests.modbus import read_holding, rtu_frame
-from tests.ops import mbgw, metric_families, metric_value, status
+from tests.ops import mbgw, metric_value, scraped, status
 from tests.wait import until
 
 pytestmark = pytest.mark.integration
@@ -127,8 +125,7 @@ def test_metrics_carry_each_line(two_lines, client):
 
     def scrape_once_booked():
         """The books are kept after a reply has gone (C forwards it first)."""
-        with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5) as r:
-            found = metric_families(parser, r.read().decode())
+        found = scraped(port)
         booked = (metric_value(found, "mbgw_transaction_latency_seconds",
                                "mbgw_transaction_latency_seconds_count", line="meters",
                                address=rig.METER) >= 2
@@ -186,8 +183,7 @@ def test_each_line_counts_its_own_transactions_and_the_daemon_all(two_lines, cli
     assert (s["counters"]["requests"], s["counters"]["replies"]) == (6, 6)
     assert (s["counters"]["unroutable"], s["counters"]["gateway_exceptions"]) == (1, 1)
     assert len(rig.received(serial.record)) == 2 and len(rig.received(meters.record)) == 3
-    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5) as r:
-        found = metric_families(parser, r.read().decode())
+    found = scraped(port)
     assert metric_value(found, "mbgw_requests", "mbgw_requests_total", line="serial") == 2
     assert metric_value(found, "mbgw_requests", "mbgw_requests_total", line="meters") == 3
 
@@ -224,8 +220,7 @@ def test_a_line_in_master_mode_is_shown_and_measured_by_its_name(lines, gateway,
         rows = {row["name"]: row for row in status(gw)["lines"]}
         assert (rows["panel"]["mode"], rows["panel"]["requests"]) == ("master", 1)
         assert [(d["line"], d["address"]) for d in rows["panel"]["devices"]] == [("panel", 1)]
-        with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5) as r:
-            found = metric_families(parser, r.read().decode())
+        found = scraped(port)
         assert metric_value(found, "mbgw_requests", "mbgw_requests_total", line="panel") == 1
         assert metric_value(found, "mbgw_device_transactions",
                             "mbgw_device_transactions_total", line="panel", address=1) == 1

@@ -12,10 +12,8 @@ raw RTU frames written by the test as the serial masters, each answer checked by
 import json
 import os
 import signal
-import urllib.request
 
 import pytest
-from prometheus_client import parser
 
 from tests.harness import free_port
 from tests.integration.lines.test_lines import (
@@ -32,8 +30,8 @@ from tests.modbus import read_holding
 from tests.ops import (
     line_threads,
     mbgw,
-    metric_families,
     metric_value,
+    scraped,
     status,
     wait_for_log,
 )
@@ -102,8 +100,7 @@ def test_a_serial_master_reaches_a_meter_on_a_line_in_slave_mode(
         assert narrowed["line"]["requests"] == 2
         assert [(r["face"], r["target"]) for r in narrowed["routes"]] == \
             [("serial", "line meters")]
-    with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics", timeout=5) as r:
-        families = metric_families(parser, r.read().decode())
+    families = scraped(metrics_port)
     for line, mode in (("serial", "master"), ("meters", "slave")):
         for name in ("requests", "replies", "timeouts"):
             assert metric_value(families, f"mbgw_{name}", f"mbgw_{name}_total",

@@ -12,10 +12,8 @@ route takes), each answer checked byte for byte."""
 import os
 import signal
 import socket
-import urllib.request
 
 import pytest
-from prometheus_client import parser
 from pymodbus.client import ModbusTcpClient, ModbusUdpClient
 from pymodbus.framer import FramerType
 
@@ -31,7 +29,7 @@ from tests.integration.lines.test_lines_of_both_modes import (
 from tests.integration.master.test_serial_faces import ask, lines_file, read
 from tests.integration.tls.test_tls import client_context, tls_client, tls_options
 from tests.modbus import REPLY_S, read_holding
-from tests.ops import mbgw, metric_families, metric_value, status, wait_for_log
+from tests.ops import mbgw, metric_value, scraped, status, wait_for_log
 from tests.pki import Authority
 
 pytestmark = pytest.mark.integration
@@ -100,8 +98,7 @@ def test_the_face_is_traced_and_metered(tmp_path, start_gateway, pty_pair, meter
     assert (reply["direction"], reply["line"], reply["pdu"]) == \
         ("reply", "meters", hr_reply(1, 1).hex())
     assert request["peer"] == reply["peer"] == status(gw)["tcp_clients"][0]["peer"]
-    with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics", timeout=5) as r:
-        families = metric_families(parser, r.read().decode())
+    families = scraped(metrics_port)
     assert metric_value(families, "mbgw_clients_connected") == 1
 
 

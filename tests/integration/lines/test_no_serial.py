@@ -8,10 +8,8 @@ line, pymodbus's TCP client in front.
 """
 import os
 import signal
-import urllib.request
 
 import pytest
-from prometheus_client import parser
 from pymodbus.client import ModbusTcpClient
 
 from tests.harness import free_port
@@ -24,7 +22,7 @@ from tests.integration.web.test_web_api import (
     listen_on,
     set_passwords,
 )
-from tests.ops import mbgw, metric_families, metric_value, status, wait_for_log
+from tests.ops import mbgw, metric_value, scraped, status, wait_for_log
 
 pytestmark = pytest.mark.integration
 
@@ -98,8 +96,7 @@ def test_a_tcp_client_reads_both_lines_through_the_gateway(setup, start_gateway)
     assert (rows["inverter"]["replies"], rows["meters"]["replies"]) == (1, 1)
     text = mbgw("status", "--control", gw.control).stdout
     assert "inverter" in text and "meters" in text and "serial  " not in text
-    with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics") as response:
-        families = metric_families(parser, response.read().decode())
+    families = scraped(metrics_port)
     assert {x.labels["line"] for x in families["mbgw_line_up"].samples} == \
         {"inverter", "meters"}
     assert metric_value(families, "mbgw_line_up", line="meters") == 1

@@ -13,16 +13,14 @@ import socket
 import struct
 import subprocess
 import threading
-import urllib.request
 
 import pytest
-from prometheus_client import parser
 from pymodbus.client import ModbusTcpClient
 
 from tests.harness import free_port, stop
 from tests.integration.lines.test_lines import Line, lines  # noqa: F401 (a fixture)
 from tests.modbus import Client, mbap, read_holding
-from tests.ops import mbgw, metric_families, metric_value, status, wait_for, wait_for_log
+from tests.ops import mbgw, metric_value, scraped, status, wait_for, wait_for_log
 from tests.peers.single_client_device import LATE_REGISTER, TWICE_REGISTER, SingleClientDevice
 from tests.wait import until
 
@@ -119,8 +117,7 @@ def test_a_connection_the_device_closed_is_opened_again_at_once(gateway, client,
     assert "lost" not in gw.log()
     text = mbgw("status", "--control", gw.control).stdout
     assert f"{d.url} (slave, 1 reconnects, 0 stray replies)" in text, text
-    with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics", timeout=5) as r:
-        families = metric_families(parser, r.read().decode())
+    families = scraped(metrics_port)
     assert metric_value(families, "mbgw_line_reconnects", "mbgw_line_reconnects_total",
                         line="inverter") == 1
     assert metric_value(families, "mbgw_line_stray_replies",

@@ -7,16 +7,14 @@ ptys (checked byte for byte); the trace is read from the control socket as `mbgw
 it, the metrics over HTTP with prometheus_client's parser.  The rig is test_serial_faces.py's.
 """
 import json
-import urllib.request
 
 import pytest
-from prometheus_client import parser
 
 from tests.harness import free_port
 from tests.integration.lines.test_lines_observed import TraceStream
 from tests.integration.master import test_serial_faces as rig
 from tests.integration.master.test_master import BAUD, holding_reply, identity
-from tests.ops import mbgw, metric_families, metric_value, status
+from tests.ops import mbgw, metric_value, scraped, status
 
 pytestmark = pytest.mark.integration
 
@@ -59,8 +57,7 @@ def test_each_face_is_shown_traced_and_measured_by_line(lines_master, meters, pt
     assert narrowed["line"]["name"] == "panel"
     assert [(r["face"], r["units"]) for r in narrowed["routes"]] == [("panel", "1-2")]
 
-    with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics", timeout=5) as r:
-        found = metric_families(parser, r.read().decode())
+    found = scraped(metrics_port)
     for line in ("serial", "panel"):
         assert metric_value(found, "mbgw_requests", "mbgw_requests_total", line=line) == 1
         assert metric_value(found, "mbgw_device_transactions",

@@ -10,17 +10,16 @@ import struct
 import subprocess
 import time
 import tty
-import urllib.request
 from pathlib import Path
 
 import pytest
-from prometheus_client import parser
 
 from tests.harness import PtyPair, free_port
+from tests.modbus import rtu_frame as rtu
 from tests.ops import (
     mbgw,
-    metric_families,
     metric_value,
+    scraped,
     status,
     tracing,
     tshark_warnings,
@@ -68,19 +67,6 @@ address = 0
 quantity = 2
 table = 20
 """
-
-
-def crc(adu: bytes) -> bytes:
-    value = 0xFFFF
-    for byte in adu:
-        value ^= byte
-        for _ in range(8):
-            value = (value >> 1) ^ 0xA001 if value & 1 else value >> 1
-    return struct.pack("<H", value)
-
-
-def rtu(adu: bytes) -> bytes:
-    return adu + crc(adu)
 
 
 def read(unit: int, function: int, start: int, count: int) -> bytes:
@@ -191,9 +177,7 @@ def test_the_monitor_line_stores_what_the_bus_answers_and_never_writes(
         assert table(gw, 0, 4) == [11, 22, 55, 66]
         assert table(gw, 10, 8) == [1, 0, 1, 0, 0, 0, 0, 0]
         assert table(gw, 20, 2) == [0, 0]
-        with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics",
-                                    timeout=5) as page:
-            families = metric_families(parser, page.read().decode())
+        families = scraped(metrics_port)
         assert [metric_value(families, f"mbgw_monitor_{name}", f"mbgw_monitor_{name}_total",
                              line="tap")
                 for name in ("frames", "crc_errors", "unanswered")] == [10, 1, 2]

@@ -2,6 +2,7 @@ import shutil
 
 import pytest
 
+from tests.harness import factory
 from tests.peers.broker import MOSQUITTO, Broker, Subscriber
 
 
@@ -18,11 +19,4 @@ def broker(tmp_path):
 @pytest.fixture
 def subscribe():
     """subscribe(port, *topics) -> a Subscriber; closed after the test."""
-    made = []
-
-    def make(port, *topics, **kwargs):
-        made.append(Subscriber(port, *topics, **kwargs))
-        return made[-1]
-    yield make
-    for subscriber in made:
-        subscriber.close()
+    yield from factory(Subscriber, Subscriber.close)

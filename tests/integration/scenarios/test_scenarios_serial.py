@@ -397,6 +397,16 @@ def test_the_table_the_scenarios_serve_is_shown_on_and_the_start_names_file_and_
 
 # --- VPGate's "Slave not responding, retrying..." while a run retries -------------------------
 
+@pytest.fixture
+def raw_line(line):
+    """The device end of the line (the fd of the line fixture) in raw mode: bytes as written,
+    none echoed."""
+    attrs = termios.tcgetattr(line)
+    attrs[0] = attrs[1] = attrs[3] = 0
+    termios.tcsetattr(line, termios.TCSANOW, attrs)
+    return line
+
+
 def _request_on(fd: int, length: int = 8) -> bytes:
     data = b""
     while len(data) < length:
@@ -406,49 +416,37 @@ def _request_on(fd: int, length: int = 8) -> bytes:
     return data
 
 
-def test_a_run_that_retries_says_slave_not_responding_retrying(pty_pair, gateway):
+def test_a_run_that_retries_says_slave_not_responding_retrying(raw_line, gateway):
     """The device (this test, on the line) lets the first request go unanswered: the retry is
     on the wire, the scenario says VPGate's "retrying"; answered, the message goes."""
-    fd = os.open(pty_pair.device, os.O_RDWR | os.O_NOCTTY)
+    fd = raw_line
+    gw, _ = gateway([poll("pump", 5, 3, 0, 1, 100, cycle=65535, retries=2)],
+                    stout=300, serial=NEVER_DOWN)
+    request = rtu(5, read_holding(0, 1))
+    assert _request_on(fd) == request               # unanswered
+    assert _request_on(fd) == request               # its retry
+    s = wait_for_scenario(gw, "pump", lambda sc: sc["message"] != "", "a message")
+    assert s["message"] == "slave not responding, retrying...", s
+    os.write(fd, rtu(5, bytes((0x03, 2, 0x00, 0x2A))))
+    s = wait_for_scenario(gw, "pump", lambda sc: sc["runs"] == 1, "the run done")
+    assert (s["state"], s["message"], s["retries"]) == ("running", "", 1), s
+    c = Client(gw.port)
     try:
-        attrs = termios.tcgetattr(fd)
-        attrs[0] = attrs[1] = attrs[3] = 0
-        termios.tcsetattr(fd, termios.TCSANOW, attrs)
-        gw, _ = gateway([poll("pump", 5, 3, 0, 1, 100, cycle=65535, retries=2)],
-                        stout=300, serial=NEVER_DOWN)
-        request = rtu(5, read_holding(0, 1))
-        assert _request_on(fd) == request               # unanswered
-        assert _request_on(fd) == request               # its retry
-        s = wait_for_scenario(gw, "pump", lambda sc: sc["message"] != "", "a message")
-        assert s["message"] == "slave not responding, retrying...", s
-        os.write(fd, rtu(5, bytes((0x03, 2, 0x00, 0x2A))))
-        s = wait_for_scenario(gw, "pump", lambda sc: sc["runs"] == 1, "the run done")
-        assert (s["state"], s["message"], s["retries"]) == ("running", "", 1), s
-        c = Client(gw.port)
-        try:
-            assert c.ask(TABLE_UNIT, read_holding(100, 1)) == bytes((0x03, 2, 0x00, 0x2A))
-        finally:
-            c.close()
+        assert c.ask(TABLE_UNIT, read_holding(100, 1)) == bytes((0x03, 2, 0x00, 0x2A))
     finally:
-        os.close(fd)
+        c.close()
 
 
 def test_another_masters_frame_instead_of_the_reply_is_frame_received_without_request(
-        pty_pair, gateway):
+        raw_line, gateway):
     """VPGate 8.2: when another master talks on the line (here a request to address 9 where
     the reply of slave 5 should be), the run fails "frame received without request", not with
     a plain timeout."""
-    fd = os.open(pty_pair.device, os.O_RDWR | os.O_NOCTTY)
-    try:
-        attrs = termios.tcgetattr(fd)
-        attrs[0] = attrs[1] = attrs[3] = 0
-        termios.tcsetattr(fd, termios.TCSANOW, attrs)
-        gw, _ = gateway([poll("pump", 5, 3, 0, 1, 100, cycle=65535, retries=0)],
-                        stout=300, serial=NEVER_DOWN)
-        assert _request_on(fd) == rtu(5, read_holding(0, 1))
-        os.write(fd, rtu(9, read_holding(0, 1)))        # the other master's request
-        s = wait_for_scenario(gw, "pump", lambda sc: sc["runs"] == 1, "the run done")
-        assert (s["state"], s["message"]) == ("error", "frame received without request"), s
-        assert s["errors"] == {"frame-without-request": 1}, s
-    finally:
-        os.close(fd)
+    fd = raw_line
+    gw, _ = gateway([poll("pump", 5, 3, 0, 1, 100, cycle=65535, retries=0)],
+                    stout=300, serial=NEVER_DOWN)
+    assert _request_on(fd) == rtu(5, read_holding(0, 1))
+    os.write(fd, rtu(9, read_holding(0, 1)))        # the other master's request
+    s = wait_for_scenario(gw, "pump", lambda sc: sc["runs"] == 1, "the run done")
+    assert (s["state"], s["message"]) == ("error", "frame received without request"), s
+    assert s["errors"] == {"frame-without-request": 1}, s

@@ -10,11 +10,9 @@ import queue
 import signal
 import struct
 import threading
-import urllib.request
 from dataclasses import dataclass
 
 import pytest
-from prometheus_client import parser
 
 from mbgw.ops.eventfd import drain
 from mbgw.scenarios.tcp_runner import (
@@ -26,7 +24,7 @@ from mbgw.scenarios.tcp_runner import (
 from tests.harness import Peer, free_port
 from tests.integration.ops.test_trace_raw import Trace
 from tests.modbus import Client
-from tests.ops import mbgw, metric_families, metric_value, status, wait_for_log
+from tests.ops import mbgw, metric_value, scraped, status, wait_for_log
 from tests.peers.scripted_tcp_server import ScriptedServer
 from tests.wait import until
 
@@ -307,8 +305,7 @@ def test_master_mode_polls_pymodbus_into_the_table(servers_at, master_with):
     s = until(lambda: (s := scenario_status(gw, "boiler"))["successes"] and s,
               "a success", CONDITION_S)
     assert s["state"] == "running" and s["kind"] == "tcp"
-    with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics", timeout=5) as r:
-        families = metric_families(parser, r.read().decode())
+    families = scraped(metrics_port)
     assert metric_value(families, "mbgw_scenario_runs", "mbgw_scenario_runs_total",
                         scenario="boiler") >= 1
     assert metric_value(families, "mbgw_scenario_state", state="running",

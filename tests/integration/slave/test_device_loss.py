@@ -17,6 +17,7 @@ import time
 import pytest
 
 from tests.modbus import mbap as adu
+from tests.modbus import recv_adu
 from tests.ops import wait_for_log
 
 pytestmark = [pytest.mark.integration, pytest.mark.serial]
@@ -30,21 +31,6 @@ WATCH_S = 4.0             # how long the attempts to open a device that fails ar
 # Backing off from 0.5 s, the attempts after the first are 0.5, 1.5 and 3.5 s after it: at most
 # 3 in WATCH_S.  Retrying every 0.5 s would make 8, spinning thousands.
 ATTEMPTS_MAX = 5
-
-
-def recv_adu(sock: socket.socket, timeout: float) -> bytes:
-    deadline = time.monotonic() + timeout
-    data = b""
-    need = 6
-    while len(data) < need:
-        sock.settimeout(max(deadline - time.monotonic(), 0.001))
-        chunk = sock.recv(need - len(data))
-        if not chunk:
-            raise ConnectionError(f"EOF after {data.hex(' ')!r}")
-        data += chunk
-        if len(data) == 6:
-            need = 6 + struct.unpack(">H", data[4:6])[0]
-    return data
 
 
 READ_3 = bytes.fromhex("03 0000 0003")

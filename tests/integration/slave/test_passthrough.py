@@ -18,6 +18,7 @@ import time
 import pytest
 from pymodbus.client import ModbusTcpClient
 
+from tests.harness import factory
 from tests.modbus import crc16, recv_adu
 from tests.modbus import mbap as adu
 from tests.peers.pymodbus_slave import IDENTITY
@@ -65,16 +66,8 @@ def gateway(pty_pair, start_peer, start_gateway):
 @pytest.fixture
 def connect(gateway):
     """connect() -> a TCP socket to the gateway; closed after the test."""
-    sockets = []
-
-    def open_one() -> socket.socket:
-        sock = socket.create_connection(("127.0.0.1", gateway.port), timeout=REPLY_TIMEOUT_S)
-        sockets.append(sock)
-        return sock
-
-    yield open_one
-    for sock in sockets:
-        sock.close()
+    yield from factory(lambda: socket.create_connection(("127.0.0.1", gateway.port),
+                                                     timeout=REPLY_TIMEOUT_S), socket.socket.close)
 
 
 @pytest.fixture

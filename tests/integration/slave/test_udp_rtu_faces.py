@@ -6,11 +6,9 @@ pymodbus's UDP client and RTU-framed TCP client, raw sockets."""
 import re
 import socket
 import struct
-import urllib.request
 from pathlib import Path
 
 import pytest
-from prometheus_client import parser
 from pymodbus.client import ModbusTcpClient, ModbusUdpClient
 from pymodbus.framer import FramerType
 
@@ -19,7 +17,7 @@ from tests.harness import free_port
 from tests.integration.lines.test_lines_observed import TraceStream
 from tests.integration.ops.test_reload import reload
 from tests.modbus import mbap
-from tests.ops import mbgw, metric_families, metric_value, status
+from tests.ops import mbgw, metric_value, scraped, status
 from tests.wait import until
 
 pytestmark = pytest.mark.integration
@@ -230,8 +228,7 @@ def test_the_trace_names_the_face_and_the_metrics_count_per_listener(faces):
         stream.close()
     assert [(e["direction"], e["face"]) for e in events] == \
         [("request", "udp"), ("reply", "udp"), ("request", "rtu"), ("reply", "rtu")]
-    with urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics", timeout=5) as r:
-        families = metric_families(parser, r.read().decode())
+    families = scraped(metrics_port)
     assert metric_value(families, "mbgw_face_requests", "mbgw_face_requests_total",
                         listener="udp") == 1
     assert metric_value(families, "mbgw_face_retransmissions",

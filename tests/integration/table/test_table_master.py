@@ -22,7 +22,7 @@ import pytest
 from pymodbus.client import ModbusTcpClient
 from pymodbus.framer import FramerType
 
-from tests.harness import free_port, idle_connections
+from tests.harness import factory, free_port, idle_connections
 from tests.integration.master.test_master import (
     BAUD,
     REPLY_S,
@@ -68,17 +68,11 @@ def table_master(start_master, servers):
 def tcp():
     """tcp(port, source=None) -> a connected raw socket to 127.0.0.1:port (from the loopback
     address source); closed after the test."""
-    socks = []
-
     def connect(port: int, source: str | None = None) -> socket.socket:
-        sock = socket.create_connection(("127.0.0.1", port), timeout=REPLY_S,
+        return socket.create_connection(("127.0.0.1", port), timeout=REPLY_S,
                                         source_address=(source, 0) if source else None)
-        socks.append(sock)
-        return sock
 
-    yield connect
-    for sock in socks:
-        sock.close()
+    yield from factory(connect, socket.socket.close)
 
 
 def pymodbus_tcp(port: int) -> ModbusTcpClient:

@@ -35,13 +35,6 @@ def reload_an_expired_certificate(gw, ca: Authority, cert, key) -> None:
     wait_for_log(gw, f"{cert}: expired on 2021-01-01 00:00:00 UTC")
 
 
-@pytest.fixture
-def pki(tmp_path):
-    """(our CA, another CA, the server's (cert, key))."""
-    ca = Authority(tmp_path)
-    return ca, Authority(tmp_path, "other"), ca.issue("server", server=True)
-
-
 def tls_options(ca: Authority, server, port: int) -> list[str]:
     cert, key = server
     return ["--tls-port", str(port), "--tls-cert", str(cert), "--tls-key", str(key),
@@ -84,6 +77,17 @@ def refused_tls(gw, at_least: int) -> None:
     deadline = time.monotonic() + REPLY_S
     while status(gw)["counters"]["connections_refused_tls"] < at_least:
         assert time.monotonic() < deadline, status(gw)["counters"]
+
+
+def closed_by_the_gateway(sockets: list[socket.socket]) -> None:
+    """Wait until the gateway has closed each of sockets (refused in its handshake)."""
+    for sock in sockets:
+        sock.settimeout(REPLY_S)
+        try:
+            while sock.recv(4096):
+                pass
+        except ConnectionResetError:
+            pass
 
 
 @pytest.fixture
@@ -162,13 +166,7 @@ def test_a_handshake_flood_and_garbage_do_not_disturb_plain_clients(gateway, pki
         for n, sock in enumerate(garbage):      # plain Modbus TCP on the TLS port
             sock.sendall(b"\x00\x01\x00\x00\x00\x06\x11\x03\x00\x00\x00\x02" * (n + 1))
             assert ask(plain, n, UNIT)[7:9] == b"\x03\x04"
-        for sock in garbage:            # each refused in its handshake: closed by the gateway
-            sock.settimeout(REPLY_S)
-            try:
-                while sock.recv(4096):
-                    pass
-            except ConnectionResetError:
-                pass
+        closed_by_the_gateway(garbage)
         wait_for_log(gw, "TLS handshake refused")
         # connections that never shake hands: more than the gateway takes at once
         idle = [socket.create_connection(("127.0.0.1", port)) for _ in range(80)]

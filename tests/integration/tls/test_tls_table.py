@@ -18,6 +18,7 @@ from tests.integration.ops.test_reload import recv_frame
 from tests.integration.tls.test_tls import (
     REPLY_S,
     client_context,
+    closed_by_the_gateway,
     reload_an_expired_certificate,
     server_serial,
     status,
@@ -25,18 +26,10 @@ from tests.integration.tls.test_tls import (
     tls_options,
 )
 from tests.ops import wait_for_log
-from tests.pki import Authority
 
 pytestmark = pytest.mark.integration
 
 FREE = 0x1000                       # registers of the table no mode gives a meaning
-
-
-@pytest.fixture
-def pki(tmp_path):
-    """(our CA, another CA, the server's (cert, key))."""
-    ca = Authority(tmp_path)
-    return ca, Authority(tmp_path, "other"), ca.issue("server", server=True)
 
 
 @pytest.fixture
@@ -120,13 +113,7 @@ def test_a_handshake_flood_and_garbage_do_not_stall_plain_table_clients(master, 
         for n, sock in enumerate(garbage):      # plain Modbus TCP on the TLS port
             sock.sendall(struct.pack(">HHHBBHH", 1, 0, 6, 1, 3, FREE, 2) * (n + 1))
             assert read_free(plain, n)[:2] == b"\x03\x04"
-        for sock in garbage:            # each refused in its handshake: closed by the gateway
-            sock.settimeout(REPLY_S)
-            try:
-                while sock.recv(4096):
-                    pass
-            except ConnectionResetError:
-                pass
+        closed_by_the_gateway(garbage)
         refused_tls(gw, at_least=20)
         # connections that never shake hands: more than the server takes from one address
         idle = [socket.create_connection(("127.0.0.1", tls_port)) for _ in range(80)]

@@ -21,7 +21,6 @@ from selenium.webdriver.support import expected_conditions as EC
 from selenium.webdriver.support.ui import Select
 
 from tests.harness import Gateway, PtyPair, free_port
-from tests.integration.web.chrome import DESKTOP, start_chromium
 from tests.integration.web.test_web_ui import (
     LOST,
     PASSWORDS,
@@ -77,13 +76,6 @@ def console(tmp_path_factory):
     running = Console(tmp_path_factory.mktemp("admin"))
     yield running
     running.stop()
-
-
-@pytest.fixture(scope="module")
-def browser():
-    driver = start_chromium(*DESKTOP)
-    yield driver
-    driver.quit()
 
 
 def field(browser, name: str):

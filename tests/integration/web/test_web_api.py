@@ -230,6 +230,16 @@ def test_statistics_and_their_reset(console):
     assert status(gw)["counters"]["requests"] == 0
 
 
+def trace_events(stream, count: int) -> list[dict]:
+    """The next `count` events of an /api/trace stream."""
+    events: list[dict] = []
+    while len(events) < count:
+        line = stream.readline().decode()
+        if line.startswith("data: "):
+            events.append(json.loads(line[6:]))
+    return events
+
+
 def test_the_trace_streams_each_transaction_as_a_server_sent_event(console):
     gw, _, web, _ = console()
     admin(web)
@@ -242,11 +252,7 @@ def test_the_trace_streams_each_transaction_as_a_server_sent_event(console):
             assert c.ask(1, read_holding(3, 2)) == holding_reply(3, 2)
         finally:
             c.close()
-        events = []
-        while len(events) < 2:
-            line = stream.readline().decode()
-            if line.startswith("data: "):
-                events.append(json.loads(line[6:]))
+        events = trace_events(stream, 2)
     assert [e["direction"] for e in events] == ["request", "reply"]
     assert events[0]["unit"] == 1 and events[0]["pdu"] == read_holding(3, 2).hex()
     assert events[1]["pdu"] == holding_reply(3, 2).hex()
@@ -267,11 +273,7 @@ def test_the_trace_filters_by_unit_and_refuses_a_bad_filter(console):
             assert c.ask(1, read_holding(3, 2)) == holding_reply(3, 2)
         finally:
             c.close()
-        events = []
-        while len(events) < 2:
-            line = stream.readline().decode()
-            if line.startswith("data: "):
-                events.append(json.loads(line[6:]))
+        events = trace_events(stream, 2)
     assert [(e["direction"], e["unit"]) for e in events] == [("request", 1), ("reply", 1)]
 
 

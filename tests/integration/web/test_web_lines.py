@@ -7,7 +7,7 @@ import pytest
 from selenium.webdriver.common.by import By
 
 from tests.harness import Gateway, Peer, PtyPair, free_port
-from tests.integration.web.chrome import DESKTOP, PHONE, start_chromium
+from tests.integration.web.chrome import DESKTOP, PHONE
 from tests.integration.web.test_web_admin import RELOADED, Api
 from tests.integration.web.test_web_pages import ARTIFACTS, MEASURE
 from tests.integration.web.test_web_ui import (
@@ -83,13 +83,6 @@ def daemon(tmp_path_factory):
     running = TwoLines(tmp_path_factory.mktemp("lines"))
     yield running
     running.stop()
-
-
-@pytest.fixture(scope="module")
-def browser():
-    driver = start_chromium(*DESKTOP)
-    yield driver
-    driver.quit()
 
 
 @pytest.fixture

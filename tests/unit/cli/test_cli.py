@@ -1,6 +1,5 @@
 """The command line (mbgw.cli.main) through click's CliRunner.  Only result.output and
 result.exit_code are used: the rest of the runner's API differs between click 8.1 and 8.2+."""
-import logging
 import re
 
 import click
@@ -11,16 +10,6 @@ from mbgw import __version__
 from mbgw.cli import main
 
 DEVICE = ["--device", "/nonexistent/tty"]
-
-
-@pytest.fixture(autouse=True)
-def _keep_logging():
-    """The slave command installs a handler on the "mbgw" logger writing to the runner's
-    (then closed) stderr; put the logger back as it was."""
-    logger = logging.getLogger("mbgw")
-    saved = (logger.handlers[:], logger.level, logger.propagate)
-    yield
-    logger.handlers[:], logger.level, logger.propagate = saved
 
 
 def _slave(*args: str):

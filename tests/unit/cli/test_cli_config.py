@@ -1,7 +1,6 @@
 """The configuration commands through click's CliRunner: `mbgw config show|set|unset|default`,
 `mbgw check-config`, `mbgw run`, and the --config option of the mode commands.  Only
 result.output and result.exit_code are used (click 8.1 and 8.2+ differ in the rest)."""
-import logging
 import os
 import tomllib
 
@@ -16,15 +15,6 @@ from mbgw.config import schema as config_keys
 from mbgw.config import toml_text as toml_edit
 from mbgw.config.schema import SerialOption
 from mbgw.errors import ConfigError
-
-
-@pytest.fixture(autouse=True)
-def _keep_logging():
-    """`mbgw slave` installs a handler writing to the runner's (then closed) stderr."""
-    logger = logging.getLogger("mbgw")
-    saved = (logger.handlers[:], logger.level, logger.propagate)
-    yield
-    logger.handlers[:], logger.level, logger.propagate = saved
 
 
 def mbgw(*args: str, root: click.Group = main, **env):

@@ -24,7 +24,7 @@ from mbgw.config.model import Interface, LineFormat, SerialConfig
 from mbgw.errors import ChecksumError, ConfigError, FrameError, SerialError
 from mbgw.line import native
 from mbgw.line.serial_line import SerialLine
-from tests.harness import CHECKOUT, reachable_by_others
+from tests.harness import CHECKOUT, factory, reachable_by_others
 
 # ---------------------------------------------------------------------------------------------
 # ASCII codec
@@ -222,16 +222,8 @@ def kernel_termios2(line: SerialLine) -> tuple[int, int, int]:
 
 @pytest.fixture
 def open_line():
-    lines = []
-
-    def open_(path: str, **settings) -> SerialLine:
-        line = SerialLine(SerialConfig(path, **settings))
-        lines.append(line)
-        return line
-
-    yield open_
-    for line in lines:
-        line.close()
+    yield from factory(lambda path, **settings: SerialLine(SerialConfig(path, **settings)),
+                       SerialLine.close)
 
 
 # Python's termios names for the rates libmodbus sets itself

@@ -12,6 +12,7 @@ from mbgw.line import native
 from mbgw.net.acl import AccessList
 from mbgw.ops.counters import FaceCounters
 from mbgw.slave.udp_face import UdpPort
+from tests.harness import factory
 from tests.modbus import mbap, read_holding
 
 STOUT_MS = 1000
@@ -53,14 +54,7 @@ class Rig:
 
 @pytest.fixture
 def rig():
-    made: list[Rig] = []
-
-    def make(**options) -> Rig:
-        made.append(Rig(**options))
-        return made[-1]
-    yield make
-    for one in made:
-        one.close()
+    yield from factory(Rig, Rig.close)
 
 
 def test_a_request_reaches_the_router_and_its_reply_leaves_from_the_port(rig):

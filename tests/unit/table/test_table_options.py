@@ -1,7 +1,6 @@
 """The exchange table's settings (issue 14): the --table... options of `mbgw slave` and `mbgw
 master` to cfg.table, their refusals naming the option, and [table] through `mbgw config
 set/show` and `mbgw check-config` (click's CliRunner; only output and exit code used)."""
-import logging
 import tomllib
 
 import click
@@ -15,14 +14,6 @@ from mbgw.config.model import TableConfig
 
 DEVICE = ["--device", "/nonexistent/tty"]
 SLAVEID = ["--slaveid", "1 8 1 0 192.168.0.30"]
-
-
-@pytest.fixture(autouse=True)
-def _keep_logging():
-    logger = logging.getLogger("mbgw")
-    saved = (logger.handlers[:], logger.level, logger.propagate)
-    yield
-    logger.handlers[:], logger.level, logger.propagate = saved
 
 
 def mbgw(*args):
