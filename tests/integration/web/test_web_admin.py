@@ -150,13 +150,35 @@ def test_groups_of_other_modes_are_hidden_and_keys_have_help_units_and_choices(b
     wait_for_log(console.gw, "web login")
 
 
+# Every control of a page that changes something (the Lines page's: test_web_lines.py).
+USER_OFF = {
+    "clients": ["#clients-table button.close-client"],
+    "scenarios": ["button.disable", "input.tick", "#scenario-save", "#scenario-test",
+                  "#scenarios-delete", "#sc-name", "#sc-function", "#scenario-save-form",
+                  "#scenario-try"],
+    "table": ["#table-write-address", "#table-write-values", "#table-write"],
+    "stats": ["#stats-reset"],
+    "config": ["button.config-save", "#config-apply", "#config-upload-file", "#config-upload"],
+    "firewall": ["#firewall-default", "#firewall-add", "#firewall-apply"],
+    "admin": ["#password-role", "#password-current", "#password-change", "#admin-reload",
+              "#admin-restart", "#admin-factory-reset"],
+}
+
+
 def test_the_user_role_can_change_nothing(browser, console):
-    log_in(browser, console, "user")
-    for page, control in (("admin", "#password-change"), ("admin", "#admin-restart"),
-                          ("admin", "#admin-factory-reset"), ("admin", "#admin-reload"),
-                          ("config", "#config-apply")):
-        go(browser, page)
-        assert not wait(browser, found(control)).is_enabled(), control
+    modbus = Client(console.gw.port)                # a row on Clients, with its Close
+    try:
+        modbus.ask(TABLE_UNIT, read_holding(0, 1))
+        log_in(browser, console, "user")
+        for page, controls in USER_OFF.items():
+            go(browser, page)
+            for control in controls:
+                assert not wait(browser, found(control)).is_enabled(), (page, control)
+            enabled = [e.get_attribute("outerHTML")[:80] for e in browser.find_elements(
+                By.CSS_SELECTOR, "#page .admin-only") if e.is_enabled()]
+            assert enabled == [], (page, enabled)
+    finally:
+        modbus.close()
     api = Api(console.url)
     assert api.log_in("user", PASSWORDS["user"]) == 200
     before = console.path.read_bytes()
@@ -165,6 +187,8 @@ def test_the_user_role_can_change_nothing(browser, console):
                        ("/api/reload", {}), ("/api/restart", {}),
                        ("/api/factory-reset", {"confirm": True}),
                        ("/api/scenarios/config", {"remove": ["boiler"], "add": []}),
+                       ("/api/scenarios/boiler/enable", {"save": True}),
+                       ("/api/firewall", {"default": "deny", "rules": []}),
                        ("/api/config", {"changes": [{"group": "serial", "key": "stout",
                                                      "value": "400"}]})):
         code, data = api.call("POST", path, body)
