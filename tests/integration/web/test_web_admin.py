@@ -3,7 +3,8 @@ applied by one reload; a password changed (the new one in, the old one not); the
 refused every change (403, its buttons off); the Events page showing what the log got;
 reload, restart and the factory reset (the shipped file back); a scenario created in the
 browser polling the slave; a firewall rule refusing a write; the table in typed views; a
-master-mode table client closed."""
+master-mode table client closed; firewall rules changed, moved and the default set; a
+scenario changed in its form."""
 import hashlib
 import json
 import os
@@ -16,6 +17,7 @@ from types import SimpleNamespace
 
 import pytest
 from pymodbus.client import ModbusTcpClient
+from pymodbus.exceptions import ModbusException
 from selenium.webdriver.common.by import By
 from selenium.webdriver.support import expected_conditions as EC
 from selenium.webdriver.support.ui import Select
@@ -37,6 +39,7 @@ from tests.integration.web.test_web_ui import (
 )
 from tests.modbus import Client, read_holding
 from tests.ops import wait_for, wait_for_log
+from tests.wait import until
 
 pytestmark = pytest.mark.integration
 
@@ -427,3 +430,95 @@ def test_the_table_servers_clients_are_listed_and_closed_in_master_mode(browser,
         modbus.close()
         gw.stop()
         pty.stop()
+
+
+def table_write_ok(console) -> bool:
+    """A Modbus TCP client's write to the table: True if the gateway took it."""
+    with ModbusTcpClient("127.0.0.1", port=console.gw.port) as modbus:
+        try:
+            return not modbus.write_register(0x310, 5, device_id=TABLE_UNIT).isError()
+        except ModbusException:
+            return False
+
+
+def apply_rules(browser, confirm: bool = False) -> None:
+    """Apply the page's rules; wait for the reload and the rules read again."""
+    old = browser.find_elements(By.CSS_SELECTOR, "#firewall-rules tr.rule")
+    browser.find_element(By.ID, "firewall-apply").click()
+    if confirm:
+        wait(browser, EC.alert_is_present()).accept()       # deny: asked first
+    wait(browser, text_in("#firewall-result", "configuration reloaded"))
+    for row in old:
+        wait(browser, EC.staleness_of(row))
+
+
+def rule_row(browser, index: int):
+    return wait(browser, found(f"#firewall-rules tr.rule:nth-child({index})"))
+
+
+def test_firewall_rules_changed_moved_and_the_default_set_in_the_browser(browser, console):
+    assert table_write_ok(console)
+    log_in(browser, console, "admin")
+    go(browser, "firewall")
+    wait(browser, found("#firewall-rules"))
+    for read_only in (True, False):           # rule 1 read only, rule 2 anything: 1 decides
+        browser.find_element(By.ID, "firewall-add").click()
+        rule = browser.find_elements(By.CSS_SELECTOR, "#firewall-rules tr.rule")[-1]
+        rule.find_element(By.CSS_SELECTOR, '[data-key="client"]').send_keys("127.0.0.1")
+        if read_only:
+            rule.find_element(By.CSS_SELECTOR, '[data-key="read-only"]').click()
+    apply_rules(browser)
+    assert not table_write_ok(console)
+    rule_row(browser, 2).find_element(By.CSS_SELECTOR, "button.up").click()   # moved up
+    apply_rules(browser)
+    assert table_write_ok(console)                     # the unrestricted rule decides now
+    assert console.path.read_text().index("read-only = true") > \
+        console.path.read_text().rindex('client = ["127.0.0.1"]')
+    client = rule_row(browser, 1).find_element(By.CSS_SELECTOR, '[data-key="client"]')
+    client.clear()
+    client.send_keys("127.0.0.2")                     # changed: it no longer selects us
+    apply_rules(browser)
+    assert not table_write_ok(console)
+    assert 'client = ["127.0.0.2"]' in console.path.read_text()
+    for _ in range(2):
+        rule_row(browser, 1).find_element(By.CSS_SELECTOR, "button.delete").click()
+    Select(browser.find_element(By.ID, "firewall-default")).select_by_value("deny")
+    apply_rules(browser, confirm=True)
+    assert not table_write_ok(console)                 # no rule: the default denies
+    Select(browser.find_element(By.ID, "firewall-default")).select_by_value("allow")
+    apply_rules(browser)
+    assert table_write_ok(console)
+    assert "[[rule]]" not in console.path.read_text()
+
+
+def test_a_scenario_changed_in_the_browser_polls_its_new_place(browser, console):
+    with ModbusTcpClient("127.0.0.1", port=console.gw.port) as modbus:
+        assert modbus.read_holding_registers(0, count=2, device_id=TABLE_UNIT).registers == \
+            [100, 101]                                # boiler: the slave's 0-1 at table 0
+    admin = Api(console.url)
+    assert admin.log_in("admin", PASSWORDS["admin"]) == 200
+    original = next(t for t in admin.call("GET", "/api/scenarios/config")[1]["scenarios"]
+                    if t["name"] == "boiler")
+    log_in(browser, console, "admin")
+    go(browser, "scenarios")
+    lost = f'#scenarios-table tr[data-key="serial/{LOST}"] td.error-since'
+    wait(browser, text_in(lost, " ago)"))                     # in error since when
+    wait(browser, found('tr[data-key="serial/boiler"] button.edit')).click()
+    assert browser.find_element(By.ID, "sc-name").get_attribute("value") == "boiler"
+    address = browser.find_element(By.ID, "sc-address")
+    address.clear()
+    address.send_keys("6")
+    browser.find_element(By.ID, "scenario-save-form").click()
+    wait(browser, text_in("#scenario-form-result", "saved and applied"))
+    try:
+        assert "address = 6" in console.path.read_text()
+        assert console.path.read_text().count('name = "boiler"') == 1    # changed, not added
+        with ModbusTcpClient("127.0.0.1", port=console.gw.port) as modbus:
+            until(lambda: modbus.read_holding_registers(
+                0, count=2, device_id=TABLE_UNIT).registers == [106, 107],
+                "the slave's 6-7 in the table", 10)
+        wait(browser, text_in('tr[data-key="serial/boiler"] td.place', "6 ×2 → table 0"))
+    finally:
+        code, data = admin.call("POST", "/api/scenarios/config",
+                                {"remove": ["boiler"], "add": [original]})
+        assert code == 200, data
