@@ -8,6 +8,7 @@ import asyncio
 import functools
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -20,6 +21,7 @@ from aiohttp import web
 from pymodbus.client import ModbusTcpClient
 from selenium.common.exceptions import StaleElementReferenceException
 from selenium.webdriver.common.by import By
+from selenium.webdriver.common.keys import Keys
 from selenium.webdriver.support import expected_conditions as EC
 from selenium.webdriver.support.ui import Select, WebDriverWait
 
@@ -448,6 +450,46 @@ def test_the_traffic_page_shows_scenario_runs_and_the_raw_line(browser, console)
     assert request + crc16(request) in requests, requests
     reply = browser.find_element(By.CSS_SELECTOR, "#trace-table tbody tr.raw-reply td.bytes")
     assert bytes.fromhex(reply.text)[:3] == bytes.fromhex("01 03 04")
+
+
+def shown_rows(driver) -> list[list[str]]:
+    """The Traffic page's visible rows, as their cells' text (read at once: rows come and
+    go several times a second)."""
+    return driver.execute_script(
+        "return [...document.querySelectorAll('#trace-table tbody tr')]"
+        ".filter((tr) => !tr.hidden).map((tr) => [...tr.cells].map((td) => td.textContent));")
+
+
+def trace_rows(driver) -> int:
+    return driver.execute_script("return document.querySelectorAll('#trace-table tbody tr')"
+                                 ".length;")
+
+
+def test_the_traffic_page_filters_finds_and_pauses(browser, console):
+    """Latencies in ms (not 6 decimals); the scenario filter of `mbgw trace`; the text
+    filter of the rows shown; pause, which counts what it did not show."""
+    log_in(browser, console, "admin")
+    go(browser, "traffic")
+    wait(browser, text_in("#trace-table tbody", f"scenario {LOST}"))
+    browser.find_element(By.ID, "trace-scenario").send_keys(SCENARIO)
+    browser.find_element(By.ID, "trace-apply").click()
+    rows = wait(browser, lambda d: [r for r in shown_rows(d) if r and r[1] == "reply"])
+    assert {r[3] for r in shown_rows(browser)} == {f"scenario {SCENARIO}"}
+    assert re.fullmatch(r"\d+(\.\d{1,2})? ms", rows[0][-1]), rows[0]
+    find = browser.find_element(By.ID, "trace-find")
+    find.send_keys("request")                    # the rows shown with "request" only
+    wait(browser, lambda d: shown_rows(d) and all(r[1] == "request" for r in shown_rows(d)))
+    find.send_keys(Keys.CONTROL, "a")
+    find.send_keys(Keys.BACKSPACE)               # typed away: every row again
+    wait(browser, lambda d: {r[1] for r in shown_rows(d)} == {"request", "reply"})
+    browser.find_element(By.ID, "trace-pause").click()
+    count = trace_rows(browser)
+    info = wait(browser, lambda d: re.search(r"paused \(([1-9]\d*) not shown\)",
+                                             d.find_element(By.ID, "trace-info").text))
+    assert int(info.group(1)) > 0
+    assert trace_rows(browser) == count
+    browser.find_element(By.ID, "trace-pause").click()          # Resume
+    wait(browser, lambda d: trace_rows(d) > count)
 
 
 def test_devices_statistics_and_a_scenario_test_from_the_browser(browser, console):
