@@ -8,10 +8,12 @@ scenario changed in its form."""
 import hashlib
 import json
 import os
+import re
 import subprocess
 import sys
 import urllib.error
 import urllib.request
+from functools import partial
 from http.cookiejar import CookieJar
 from types import SimpleNamespace
 
@@ -22,6 +24,7 @@ from selenium.webdriver.common.by import By
 from selenium.webdriver.support import expected_conditions as EC
 from selenium.webdriver.support.ui import Select
 
+import mbgw
 from tests.harness import Gateway, PtyPair, free_port
 from tests.integration.web.chrome import DESKTOP, start_chromium
 from tests.integration.web.test_web_ui import (
@@ -200,6 +203,29 @@ def test_the_user_role_can_change_nothing(browser, console):
     assert console.path.read_bytes() == before
 
 
+def test_a_short_password_or_a_wrong_current_one_changes_nothing(browser, console):
+    before = console.path.read_bytes()
+    log_in(browser, console, "admin")
+    go(browser, "admin")
+    Select(wait(browser, found("#password-role"))).select_by_value("user")
+    browser.find_element(By.ID, "password-current").send_keys(PASSWORDS["admin"])
+    for field_id in ("password-new", "password-again"):
+        browser.find_element(By.ID, field_id).send_keys("9 letters")
+    browser.find_element(By.ID, "password-change").click()
+    wait(browser, text_in("#password-result", "at least 10 characters"))
+    api = Api(console.url)
+    assert api.log_in("admin", PASSWORDS["admin"]) == 200
+    short = {"role": "user", "current": PASSWORDS["admin"], "new": "9 letters",
+             "again": "9 letters"}
+    code, data = api.call("POST", "/api/password", short)        # the gateway checks too
+    assert code == 400 and "10" in data["error"], data
+    code, data = api.call("POST", "/api/password", {**short, "current": "not the password",
+                                                    "new": NEW_PASSWORD, "again": NEW_PASSWORD})
+    assert code == 403, data
+    assert console.path.read_bytes() == before
+    assert Api(console.url).log_in("user", PASSWORDS["user"]) == 200
+
+
 def test_a_password_changed_lets_the_new_one_in_and_the_old_one_not(browser, console):
     log_in(browser, console, "admin")
     go(browser, "admin")
@@ -255,6 +281,17 @@ def test_system_information_and_a_reload_from_the_page(browser, console):
     wait(browser, text_in('#system-table tr[data-name="sha256"] td', digest))
     assert browser.find_element(By.CSS_SELECTOR, '#system-table tr[data-name="host"] td').text \
         == os.uname().nodename
+    system = Api(console.url)
+    assert system.log_in("admin", PASSWORDS["admin"]) == 200
+    ports = system.call("GET", "/api/system")[1]["serial_ports"]
+    cell = partial(browser.find_element, By.CSS_SELECTOR)
+    assert cell('#system-table tr[data-name="version"] td').text == mbgw.__version__
+    assert " ago)" not in cell('#system-table tr[data-name="uptime"] td').text
+    assert re.fullmatch(r"\d\d:\d\d:\d\d \(since \d{4}-\d\d-\d\d \d\d:\d\d:\d\d\)",
+                        cell('#system-table tr[data-name="uptime"] td').text)
+    shown = cell('#system-table tr[data-name="ports"] td').text
+    assert shown == "none found" if not ports else all(
+        p["device"] in shown and all(name in shown for name in p["by_id"]) for p in ports)
     reloads = console.gw.log().count(RELOADED)
     browser.find_element(By.ID, "admin-reload").click()
     wait(browser, text_in("#admin-reload-result", "configuration reloaded"))
@@ -374,6 +411,8 @@ def test_device_details_on_demand_and_a_reset_of_the_counters_asked_first(browse
     wait(browser, text_in("#devices-table tr.device-details", "Latency buckets"))
     go(browser, "stats")
     wait(browser, text_in('#stats-table tr[data-name="counters.requests"] td.rate', "/s"))
+    headings = [h.text for h in browser.find_elements(By.CSS_SELECTOR, "#page-body h2")]
+    assert {"Line", "Clients", "Devices", "Scenarios", "Table"} <= set(headings), headings
     wait(browser, text_in('#stats-table tr[data-name="counters_since"] td', " ago)"))
     browser.find_element(By.ID, "stats-reset").click()
     wait(browser, EC.alert_is_present()).dismiss()
