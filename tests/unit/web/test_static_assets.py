@@ -1,0 +1,35 @@
+"""The console's front end (issue 30): ES modules loaded as they are, no build step, no
+outside asset (a plant has no internet), and docs/console.md naming every module."""
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[3]
+STATIC = ROOT / "mbgw" / "web" / "static"
+IMPORT = re.compile(r'^import [^;]*? from "([^"]+)";', re.M | re.S)
+URL = re.compile(r"""(?:src|href)\s*=\s*["']([^"']+)["']|url\(\s*["']?([^"')]+)""")
+
+
+def modules() -> list[Path]:
+    return sorted(STATIC.glob("*.js"))
+
+
+def test_every_import_is_a_module_of_the_package():
+    for module in modules():
+        for name in IMPORT.findall(module.read_text()):
+            assert re.fullmatch(r"\./[a-z_]+\.js", name), (module.name, name)
+            assert (STATIC / name[2:]).is_file(), (module.name, name)
+
+
+def test_no_page_or_style_loads_anything_from_outside():
+    for path in [STATIC / "index.html", STATIC / "console.css", *modules()]:
+        text = path.read_text()
+        assert "http://" not in text and "https://" not in text, path.name
+        for found in URL.findall(text):
+            url = found[0] or found[1]
+            assert url.startswith(("/", "#", "./", "data:")) or "${" in url, (path.name, url)
+
+
+def test_docs_console_md_names_every_module():
+    doc = (ROOT / "docs" / "console.md").read_text()
+    missing = [m.name for m in modules() if f"`{m.name}`" not in doc]
+    assert missing == []
