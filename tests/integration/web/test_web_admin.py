@@ -368,6 +368,20 @@ def test_the_exchange_table_in_typed_views_with_zones_and_owners(browser, consol
     view.select_by_value("ascii")
     browser.find_element(By.ID, "table-swap-bytes").click()
     wait(browser, text_in(cell.format(0x1004), "BA"))
+    for swap in ("table-swap-words", "table-swap-bytes"):      # as the registers are again
+        browser.find_element(By.ID, swap).click()
+    view.select_by_value("uint32")
+    wait(browser, text_in(cell.format(0x1002), "4294967294"))     # 0xFFFFFFFE
+    view.select_by_value("int16")
+    wait(browser, text_in(cell.format(0x1003), "-2"))
+    view.select_by_value("hex")
+    Select(browser.find_element(By.ID, "table-radix")).select_by_value("hex")
+    wait(browser, text_in('#table-grid tr[data-address="4096"] th', "0x1000"))
+    wait(browser, text_in(cell.format(0x1004), "0x4142"))
+    # a dense grid: 16 registers a row
+    assert len(browser.find_elements(
+        By.CSS_SELECTOR, '#table-grid tr[data-address="4112"] td.value')) == 16
+    Select(browser.find_element(By.ID, "table-radix")).select_by_value("dec")
     address.clear()
     address.send_keys("0")
     address.submit()

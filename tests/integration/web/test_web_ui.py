@@ -537,11 +537,15 @@ def test_every_page_works_in_master_and_transparent_mode(browser, mode, tmp_path
                     f'[web]\nlisten = "127.0.0.1:{web_port}"\n')
     set_password(path, "admin")
     pty = PtyPair(tmp_path)
-    options = ["--table", "--table-port", str(free_port())] if mode == "master" else \
-        ["--bind", "127.0.0.1", "--mdbport", str(free_port())]
+    tcp_port = free_port()                      # the table's server, or transparent's
+    options = ["--table", "--table-port", str(tcp_port)] if mode == "master" else \
+        ["--bind", "127.0.0.1", "--mdbport", str(tcp_port)]
     gw = Gateway(tmp_path, pty.gateway, "--baudrate", "19200", "--config", str(path),
                  *options, mode=mode, listen=False)
+    modbus = None
     try:
+        modbus = Client(tcp_port)               # a client on Clients in every mode
+        here = "127.0.0.1:%d" % modbus.sock.getsockname()[1]
         log_in(browser, SimpleNamespace(url=f"http://127.0.0.1:{web_port}/"), "admin")
         browser.get_log("browser")
         wait(browser, text_in('#overview-facts tr[data-name="Mode"] td', mode))
@@ -553,9 +557,13 @@ def test_every_page_works_in_master_and_transparent_mode(browser, mode, tmp_path
             go(browser, page)
             wait(browser, found(loaded))
             assert browser.find_element(By.ID, "page-error").text == "", page
+            if page == "clients":
+                wait(browser, text_in("#clients-table tbody", here))
         errors = [e for e in browser.get_log("browser") if e.get("source") == "javascript"]
         assert errors == []
     finally:
+        if modbus is not None:
+            modbus.close()
         gw.stop()
         pty.stop()
 
@@ -631,6 +639,11 @@ def test_the_lines_page_shows_a_line_s_cache_figures(browser, tmp_path):
         go(browser, "lines")
         # hits / coalesced / misses / stale
         wait(browser, text_in('#lines-table tr[data-line="serial"] td.cache', "2 / 0 / 1 / 0"))
+        browser.get(f"http://127.0.0.1:{web_port}/#lines/serial")   # the line's page, by unit
+        row = '#line-page[data-line="serial"] #line-cache tr[data-unit="1"]'
+        wait(browser, found(row))
+        assert [td.text for td in browser.find_elements(By.CSS_SELECTOR, f"{row} td")] == \
+            ["1", "2", "0", "1", "0"]
     finally:
         gw.stop()
         peer.stop()
