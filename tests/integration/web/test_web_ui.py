@@ -470,10 +470,19 @@ def test_the_traffic_page_filters_finds_and_pauses(browser, console):
     filter of the rows shown; pause, which counts what it did not show."""
     log_in(browser, console, "admin")
     go(browser, "traffic")
-    wait(browser, text_in("#trace-table tbody", f"scenario {LOST}"))
-    browser.find_element(By.ID, "trace-scenario").send_keys(SCENARIO)
-    browser.find_element(By.ID, "trace-apply").click()
-    rows = wait(browser, lambda d: [r for r in shown_rows(d) if r and r[1] == "reply"])
+    modbus = Client(console.gw.port)
+    try:
+        here = "127.0.0.1:%d" % modbus.sock.getsockname()[1]
+        modbus.ask(TABLE_UNIT, read_holding(0, 1))
+        wait(browser, text_in("#trace-table tbody", here))         # every source at first
+        browser.find_element(By.ID, "trace-scenario").send_keys(SCENARIO)
+        browser.find_element(By.ID, "trace-apply").click()
+        wait(browser, found('#trace-info[data-stream="open"]'))
+        modbus.ask(TABLE_UNIT, read_holding(0, 1))
+        rows = wait(browser, lambda d: len(shown_rows(d)) >= 10 and
+                    [r for r in shown_rows(d) if r[1] == "reply"])
+    finally:
+        modbus.close()
     assert {r[3] for r in shown_rows(browser)} == {f"scenario {SCENARIO}"}
     assert re.fullmatch(r"\d+(\.\d{1,2})? ms", rows[0][-1]), rows[0]
     find = browser.find_element(By.ID, "trace-find")
