@@ -331,6 +331,11 @@ def test_a_scenario_created_in_the_browser_polls_the_slave_and_is_deleted(browse
              "the new scenario polling the slave")
     row = 'tr[data-key="serial/pump"]'
     wait(browser, text_in(f"{row} td.place", "4 ×2 → table 300"))
+    # the list: the device, the function and the trigger, as the status has them
+    pump = scenarios(wait_for(console.gw, lambda s: True, "status"))["pump"]
+    cells = [td.text for td in browser.find_elements(By.CSS_SELECTOR, f"{row} td")]
+    assert [pump["target"], "3", pump["trigger"]] == [cells[3], cells[4], cells[6]], cells
+    assert pump["target"] == "slave 1" and "200" in pump["trigger"], pump
     browser.find_element(By.CSS_SELECTOR, f"{row} button.duplicate").click()
     assert browser.find_element(By.ID, "sc-name").get_attribute("value") == "pump-copy"
     browser.find_element(By.ID, "scenario-save-form").click()
