@@ -28,6 +28,7 @@ import mbgw
 from tests.harness import Gateway, PtyPair, free_port
 from tests.integration.web.chrome import DESKTOP, start_chromium
 from tests.integration.web.test_web_ui import (
+    GREEN,
     LOST,
     PASSWORDS,
     TABLE_UNIT,
@@ -579,4 +580,37 @@ def test_a_scenario_changed_in_the_browser_polls_its_new_place(browser, console)
     finally:
         code, data = admin.call("POST", "/api/scenarios/config",
                                 {"remove": ["boiler"], "add": [original]})
+        assert code == 200, data
+
+
+BLUE = "rgba(30, 100, 200, 1)"        # VPGate's starting
+
+
+def test_a_change_scenario_is_blue_until_the_table_changes_then_green(browser, console):
+    """VPGate's starting blue: a scenario sent on a change has not run until the table's
+    register changes; then it writes the pymodbus slave and is running, green."""
+    admin = Api(console.url)
+    assert admin.log_in("admin", PASSWORDS["admin"]) == 200
+    valve = {"name": "valve", "slave": 1, "function": 6, "address": 30, "table": 0x320,
+             "trigger": "change"}
+    code, data = admin.call("POST", "/api/scenarios/config", {"remove": [], "add": [valve]})
+    assert code == 200, data
+    try:
+        log_in(browser, console, "admin")
+        go(browser, "scenarios")
+        badge = '#scenarios-table tr[data-key="serial/valve"] span.state'
+        wait(browser, text_in(badge, "starting"))
+        assert browser.find_element(By.CSS_SELECTOR, badge).value_of_css_property(
+            "background-color") == BLUE
+        with ModbusTcpClient("127.0.0.1", port=console.gw.port) as modbus:
+            assert not modbus.write_register(0x320, 77, device_id=TABLE_UNIT).isError()
+            wait_for(console.gw, lambda s: scenarios(s)["valve"]["successes"] > 0,
+                     "valve's write sent")
+            assert modbus.read_holding_registers(30, count=1, device_id=1).registers == [77]
+        wait(browser, text_in(badge, "running"))
+        assert browser.find_element(By.CSS_SELECTOR, badge).value_of_css_property(
+            "background-color") == GREEN
+    finally:
+        code, data = admin.call("POST", "/api/scenarios/config",
+                                {"remove": ["valve"], "add": []})
         assert code == 200, data
