@@ -548,6 +548,10 @@ def test_firewall_rules_changed_moved_and_the_default_set_in_the_browser(browser
     apply_rules(browser)
     assert table_write_ok(console)
     assert "[[rule]]" not in console.path.read_text()
+    go(browser, "events")                     # the refusals are events, as the journal's
+    Select(wait(browser, found("#events-kind"))).select_by_value("firewall-refused")
+    wait(browser, lambda d: {td.text for td in d.find_elements(
+        By.CSS_SELECTOR, "#events-table td.event")} == {"firewall-refused"})
 
 
 def test_a_scenario_changed_in_the_browser_polls_its_new_place(browser, console):
