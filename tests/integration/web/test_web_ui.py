@@ -696,3 +696,16 @@ def test_without_serial_the_pages_show_the_files_lines(browser, tmp_path):
         gw.stop()
         servers.stop()
         meters.stop()
+
+
+def test_the_route_map_marks_the_implicit_routes(browser, console):
+    """A file without [[route]]: today's routes, implicit, the table's units among them."""
+    log_in(browser, console, "admin")
+    go(browser, "lines")
+    rows = wait(browser, lambda d: [[td.text for td in tr.find_elements(By.CSS_SELECTOR, "td")]
+                                    for tr in d.find_elements(
+                                        By.CSS_SELECTOR, "#routes-table tbody tr.implicit")])
+    assert any(r[0] == "Modbus TCP" and str(TABLE_UNIT) in r[1] and "table" in r[2]
+               and r[4] == "implicit" for r in rows), rows
+    assert browser.find_elements(By.CSS_SELECTOR, "#routes-table tbody tr:not(.implicit)") \
+        == []
