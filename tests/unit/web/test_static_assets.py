@@ -1,5 +1,6 @@
 """The console's front end (issue 30): ES modules loaded as they are, no build step, no
-outside asset (a plant has no internet), and docs/console.md naming every module."""
+outside asset (a plant has no internet), one module per page of the navigation bar, every
+module named by docs/console.md and every page by the README."""
 import re
 from pathlib import Path
 
@@ -33,3 +34,12 @@ def test_docs_console_md_names_every_module():
     doc = (ROOT / "docs" / "console.md").read_text()
     missing = [m.name for m in modules() if f"`{m.name}`" not in doc]
     assert missing == []
+
+
+def test_the_readme_lists_every_page_of_the_navigation_bar():
+    nav = re.findall(r'<a href="#(\w+)">([^<]+)</a>', (STATIC / "index.html").read_text())
+    readme = (ROOT / "README.md").read_text()
+    pages = readme[readme.index("### The pages"):readme.index("### The JSON API")]
+    listed = re.findall(r"^- \*\*([^*]+)\*\*", pages, re.M)
+    assert listed == [label for _, label in nav]
+    assert [name for name, _ in nav if not (STATIC / f"{name}.js").is_file()] == []  # one each
