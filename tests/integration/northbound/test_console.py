@@ -10,6 +10,8 @@ import pytest
 from tests.harness import Gateway, Peer, PtyPair, free_port
 from tests.integration.northbound.test_sparkplug import SLAVE, decode, metrics, scenarios
 from tests.integration.scenarios.test_scenarios_serial import write_config
+from tests.integration.web.chrome import DESKTOP, PHONE
+from tests.integration.web.test_web_pages import ARTIFACTS, MEASURE
 from tests.integration.web.test_web_ui import browser, go, log_in, set_password, text_in, wait
 from tests.ops import status
 from tests.peers.broker import MOSQUITTO, Broker, Subscriber
@@ -91,3 +93,22 @@ def test_the_lines_page_has_the_session_and_each_line_as_the_broker_got_it(daemo
         cells = [td.text for td in browser.find_elements("css selector", f"{row} td")]
         assert cells == [line, f"Lines/{line}/State", "up", "up"], cells
     assert status(daemon.gw)["mqtt"]["lines"] == {"serial": "up", "meters": "up"}
+
+
+@pytest.mark.parametrize("size", [DESKTOP, PHONE], ids=["desktop", "phone"])
+def test_the_lines_page_with_mqtt_is_no_wider_than_the_window(daemon, browser, size):
+    width, height = size
+    browser.execute_cdp_cmd("Emulation.setDeviceMetricsOverride", {
+        "width": width, "height": height, "deviceScaleFactor": 1, "mobile": width < 600})
+    try:
+        log_in(browser, SimpleNamespace(url=daemon.url), "admin")
+        go(browser, "lines")
+        wait(browser, text_in('#lines-mqtt-table tr[data-line="meters"] td.published', "up"))
+        browser.execute_script("document.getElementById('lines-mqtt').scrollIntoView()")
+        shown, window, unreachable = browser.execute_script(MEASURE)
+        ARTIFACTS.mkdir(parents=True, exist_ok=True)
+        browser.save_screenshot(str(ARTIFACTS / f"lines-mqtt-{width}x{height}.png"))
+        assert shown <= window, f"{shown} px wide in {window}"
+        assert unreachable == [], unreachable
+    finally:
+        browser.execute_cdp_cmd("Emulation.clearDeviceMetricsOverride", {})
