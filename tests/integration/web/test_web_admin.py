@@ -618,3 +618,26 @@ def test_a_change_scenario_is_blue_until_the_table_changes_then_green(browser, c
         code, data = admin.call("POST", "/api/scenarios/config",
                                 {"remove": ["valve"], "add": []})
         assert code == 200, data
+
+
+def test_a_scenario_the_checks_refuse_is_named_and_nothing_is_written(browser, console):
+    """The toolbox checks as `mbgw config scenario add` does: a quantity over the function's
+    limit (125 registers, Modbus application protocol 6.3) is refused, nothing written."""
+    before = console.path.read_bytes()
+    reloads = console.gw.log().count(RELOADED)
+    log_in(browser, console, "admin")
+    go(browser, "scenarios")
+    wait(browser, found("#scenario-form"))
+    for key, value in (("name", "too-many"), ("slave", "1"), ("address", "0"),
+                       ("quantity", "126"), ("table", "500"), ("cycle", "1000")):
+        element = browser.find_element(By.ID, f"sc-{key}")
+        element.clear()
+        element.send_keys(value)
+    Select(browser.find_element(By.ID, "sc-function")).select_by_value("3")
+    browser.find_element(By.ID, "scenario-save-form").click()
+    wait(browser, lambda d: "error" in d.find_element(
+        By.ID, "scenario-form-result").get_attribute("class").split())
+    said = browser.find_element(By.ID, "scenario-form-result").text
+    assert "too-many" in said and "quantity" in said, said
+    assert console.path.read_bytes() == before
+    assert console.gw.log().count(RELOADED) == reloads
