@@ -1,5 +1,5 @@
 """Northbound MQTT's figures, for the status, /metrics and the console."""
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 
 @dataclass
@@ -13,9 +13,12 @@ class NorthboundCounters:
     refused: int = 0               # writes refused: no role, the firewall, a bad value
     writes: int = 0                # writes sent to a device
     connects: int = 0              # sessions opened
+    # each line's state as the broker last got it (Lines/NAME/State)
+    lines: dict[str, str] = field(default_factory=dict)
 
     def snapshot(self) -> dict:
         return {"connected": self.connected, "broker": self.broker, "node": self.node,
                 "profile": self.profile, "messages_sent": self.sent,
                 "messages_dropped": self.dropped, "commands_refused": self.refused,
-                "writes": self.writes, "connects": self.connects}
+                "writes": self.writes, "connects": self.connects,
+                "lines": dict(self.lines)}

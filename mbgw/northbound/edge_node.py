@@ -77,6 +77,7 @@ class EdgeNode:
             if self._send(session, self._topic("NDATA"), sparkplug.node_data(self.seq, changed),
                           len(changed)):
                 self._lines = dict(lines)
+                self.counters.lines = self._lines
         for device in self.devices.values():
             self._device(session, device)
 
@@ -92,6 +93,7 @@ class EdgeNode:
         self.counters.sent += 1
         self.seq = 1
         self._lines = dict(lines)
+        self.counters.lines = self._lines
         self._born_node = True
 
     def _device(self, session: Session, device: Device) -> None:

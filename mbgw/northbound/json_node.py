@@ -58,8 +58,12 @@ class JsonNode:
         self.sampler.begin()
         if self._discover:
             self._discover = not self._discovery(session)
+        published = self.counters.lines
         for name, state in lines.items():
-            self._text(session, f"Lines/{name}/State", state)
+            if self._text(session, f"Lines/{name}/State", state):
+                published[name] = state
+        if len(published) > len(lines):            # a line a reload took away
+            self.counters.lines = {n: s for n, s in published.items() if n in lines}
         for device in self.devices.values():
             health = self.sampler.health(device)
             self._text(session, f"{device.id}/{HEALTH}", health)
@@ -67,11 +71,15 @@ class JsonNode:
             for metric in device.metrics:
                 self._value(session, device.id, metric, readings[metric.name], health)
 
-    def _text(self, session: Session, path: str, text: str) -> None:
-        if self._published.get(path) != text:
-            body = json.dumps({"value": text, "timestamp": now_ms(), "quality": "good"})
-            if self._send(session, f"{self.base}/{path}", body):
-                self._published[path] = text
+    def _text(self, session: Session, path: str, text: str) -> bool:
+        """text published at path unless it is there already: whether it was, now."""
+        if self._published.get(path) == text:
+            return False
+        body = json.dumps({"value": text, "timestamp": now_ms(), "quality": "good"})
+        if not self._send(session, f"{self.base}/{path}", body):
+            return False
+        self._published[path] = text
+        return True
 
     def _value(self, session: Session, device: str, metric: Metric, reading: Reading,
                health: str) -> None:

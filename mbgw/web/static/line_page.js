@@ -56,6 +56,14 @@ export function lineLoad(line, before, now) {
     busy !== null && busy >= 0 ? `${Math.min(100, busy / seconds / 10).toFixed(1)} %` : "—"];
 }
 
+// A remote line's connections after its first: "2: the connection to the device was opened
+// again twice"
+function reconnectWords(n) {
+  if (!n) return "0: the first connection is the one in use";
+  const times = n === 1 ? "once" : n === 2 ? "twice" : `${n} times`;
+  return `${n}: the connection to the device was opened again ${times}`;
+}
+
 function stateRows(line, load) {
   const c = line.counters || {};
   const rows = [["state", STATE_WORDS[line.state] || show(line.state), "State"],
@@ -68,8 +76,9 @@ function stateRows(line, load) {
     ["requests", show(line.requests), "Requests in all"],
     ["timeouts", show(line.timeouts), "Timeouts"]];
   if ("reconnects" in c) {
-    rows.push(["reconnects", show(c.reconnects), "Reconnects"],
-      ["stray_replies", show(c.stray_replies), "Stray replies"]);
+    rows.push(["reconnects", reconnectWords(c.reconnects), "Reconnects"],
+      ["stray_replies", `${show(c.stray_replies)} dropped: late, twice, or answering no request`,
+        "Stray replies"]);
   }
   return rows;
 }

@@ -4,6 +4,7 @@ import { load } from "./api.js";
 import { clear, el, table } from "./dom.js";
 import { listOf, show } from "./format.js";
 import { lineLoad, linePage } from "./line_page.js";
+import { mqttFacts, mqttLines } from "./mqtt.js";
 import { routeEditor } from "./route_editor.js";
 
 // A remote line's connection figures, after its URL (as mbgw status shows them).
@@ -92,6 +93,7 @@ export function linesPage(body, wanted) {
   const page = el("div", { id: "line-page-box" });
   const map = el("div");
   const servers = el("div");
+  const mqtt = el("div", { id: "lines-mqtt" });
   let lines = [];
   let before = new Map();            // line -> {time, requests, busy_ms} of the last refresh
   let names = "";
@@ -100,7 +102,8 @@ export function linesPage(body, wanted) {
   const editor = routeEditor(roles);
   let editing = false;               // the editor is loaded once the lines are known
   body.append(el("h2", { text: "Lines" }), tables, chooser, page,
-    el("h2", { text: "Route map: which unit goes where" }), map, editor.element, servers);
+    el("h2", { text: "Route map: which unit goes where" }), map, editor.element, servers,
+    mqtt);
   return {
     async refresh() {
       const s = await load("/api/status");
@@ -129,6 +132,9 @@ export function linesPage(body, wanted) {
       const remote = listOf(s, "servers");
       rebuilt(servers, JSON.stringify(remote.map(serverCells)), () => (remote.length
         ? [el("h2", { text: "Servers" }), serversTable(remote)] : []));
+      clear(mqtt).append(...(s.mqtt ? [el("h2", { text: "MQTT" }),
+        mqttFacts("lines-mqtt-facts", s.mqtt), mqttLines("lines-mqtt-table", s.mqtt, lines)]
+        : []));
       if (!editing && lines.length) {
         editing = true;
         editor.reload();

@@ -3,6 +3,7 @@ import { load } from "./api.js";
 import { clear, el, factsTable } from "./dom.js";
 import { duration, isoTime, show, when } from "./format.js";
 import { otherBlocks } from "./blocks.js";
+import { mqttFacts } from "./mqtt.js";
 
 const ERROR_COUNTERS = ["timeouts", "crc_errors", "invalid_frames", "gateway_exceptions",
   "echo_errors", "unreachable", "wrong_unit", "wrong_function", "frame_errors", "overruns"];
@@ -141,14 +142,7 @@ export function overviewPage(body) {
         ["Counters since", when(s.counters_since)],
       ]));
       clear(mqtt).append(...(s.mqtt ? [el("h2", { text: "MQTT" }),
-        factsTable("overview-mqtt-facts", [
-          ["Broker", `${s.mqtt.broker} (${s.mqtt.profile}, node ${s.mqtt.node})`],
-          ["Connected", s.mqtt.connected ? "yes" : "no"],
-          ["Messages sent", String(s.mqtt.messages_sent)],
-          ["Dropped (slow broker)", String(s.mqtt.messages_dropped)],
-          ["Writes", String(s.mqtt.writes)],
-          ["Refused commands", String(s.mqtt.commands_refused)],
-        ])] : []));
+        mqttFacts("overview-mqtt-facts", s.mqtt)] : []));
       clear(more).append(...otherBlocks(s, SHOWN));
       const problems = troubles(s);
       clear(wrong).append(...(problems.length ? problems.map((p) => el("li", { text: p }))

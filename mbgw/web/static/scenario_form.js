@@ -105,9 +105,7 @@ export function scenarioForm(onSaved) {
   }
 
   async function test() {
-    await act(out, "POST", "/api/scenarios/test", fields(), (data) => data.ok
-      ? `answered in ${show(data.latency_ms)} ms: ${show(data.data)}`
-      : `no good answer: ${show(data.message || data.error)}`);
+    await testOnce(out, fields());
   }
 
   const element = el("section", { id: "scenario-form" }, title,
@@ -139,4 +137,12 @@ export function deleteScenarios(names, out, onDone) {
   if (!confirmed(`Delete ${names.join(", ")} from the configuration?`)) return;
   act(out, "POST", "/api/scenarios/config", { remove: names, add: [] },
     (data) => `deleted: ${show(data.changed)}`).then(onDone);
+}
+
+// A one-off poll (`mbgw scenario test`): the values it read, or why none, in words.
+export async function testOnce(out, fields) {
+  const result = await act(out, "POST", "/api/scenarios/test", fields, (data) => (data.ok
+    ? `answered in ${show(data.latency_ms)} ms: ${show(data.data)}`
+    : `no good answer: ${show(data.message || data.error)}`));
+  if (result.ok && !result.data.ok) out.className = "result error";
 }

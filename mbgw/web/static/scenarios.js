@@ -2,7 +2,7 @@
 import { act } from "./actions.js";
 import { api, load } from "./api.js";
 import { adminControl, el, liveTable } from "./dom.js";
-import { deleteScenarios, scenarioForm } from "./scenario_form.js";
+import { deleteScenarios, scenarioForm, testOnce } from "./scenario_form.js";
 import { ago, isoTime, listOf, ms, show, words } from "./format.js";
 
 // {"timeout": 45, "crc": 2}: "45 timeouts, 2 CRC"; "none".
@@ -128,7 +128,5 @@ function fieldsOf(text) {
 async function testScenario(text, out) {
   let fields;
   try { fields = fieldsOf(text); } catch (err) { out.textContent = err.message; return; }
-  const result = await act(out, "POST", "/api/scenarios/test", fields,
-    (data) => JSON.stringify(data, null, 2));
-  if (result.ok && result.data.error) out.className = "result error";
+  await testOnce(out, fields);
 }

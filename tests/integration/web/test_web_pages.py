@@ -1,6 +1,6 @@
 """Every page of the console at a desktop's 1280×800 and a phone's 390×844: no page wider
 than the window (a wide table scrolls in its own box), every action within reach, and a
-screenshot of each kept in artifacts/console/ (docs/console-*.png are two of them)."""
+screenshot of each kept in artifacts/console/ (docs/console-*.png are copies of some)."""
 from pathlib import Path
 
 import pytest

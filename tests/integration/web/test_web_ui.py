@@ -8,6 +8,7 @@ import asyncio
 import functools
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -20,6 +21,7 @@ from aiohttp import web
 from pymodbus.client import ModbusTcpClient
 from selenium.common.exceptions import StaleElementReferenceException
 from selenium.webdriver.common.by import By
+from selenium.webdriver.common.keys import Keys
 from selenium.webdriver.support import expected_conditions as EC
 from selenium.webdriver.support.ui import Select, WebDriverWait
 
@@ -450,6 +452,55 @@ def test_the_traffic_page_shows_scenario_runs_and_the_raw_line(browser, console)
     assert bytes.fromhex(reply.text)[:3] == bytes.fromhex("01 03 04")
 
 
+def shown_rows(driver) -> list[list[str]]:
+    """The Traffic page's visible rows, as their cells' text (read at once: rows come and
+    go several times a second)."""
+    return driver.execute_script(
+        "return [...document.querySelectorAll('#trace-table tbody tr')]"
+        ".filter((tr) => !tr.hidden).map((tr) => [...tr.cells].map((td) => td.textContent));")
+
+
+def trace_rows(driver) -> int:
+    return driver.execute_script("return document.querySelectorAll('#trace-table tbody tr')"
+                                 ".length;")
+
+
+def test_the_traffic_page_filters_finds_and_pauses(browser, console):
+    """Latencies in ms (not 6 decimals); the scenario filter of `mbgw trace`; the text
+    filter of the rows shown; pause, which counts what it did not show."""
+    log_in(browser, console, "admin")
+    go(browser, "traffic")
+    modbus = Client(console.gw.port)
+    try:
+        here = "127.0.0.1:%d" % modbus.sock.getsockname()[1]
+        modbus.ask(TABLE_UNIT, read_holding(0, 1))
+        wait(browser, text_in("#trace-table tbody", here))         # every source at first
+        browser.find_element(By.ID, "trace-scenario").send_keys(SCENARIO)
+        browser.find_element(By.ID, "trace-apply").click()
+        wait(browser, found('#trace-info[data-stream="open"]'))
+        modbus.ask(TABLE_UNIT, read_holding(0, 1))
+        rows = wait(browser, lambda d: len(shown_rows(d)) >= 10 and
+                    [r for r in shown_rows(d) if r[1] == "reply"])
+    finally:
+        modbus.close()
+    assert {r[3] for r in shown_rows(browser)} == {f"scenario {SCENARIO}"}
+    assert re.fullmatch(r"\d+(\.\d{1,2})? ms", rows[0][-1]), rows[0]
+    find = browser.find_element(By.ID, "trace-find")
+    find.send_keys("request")                    # the rows shown with "request" only
+    wait(browser, lambda d: shown_rows(d) and all(r[1] == "request" for r in shown_rows(d)))
+    find.send_keys(Keys.CONTROL, "a")
+    find.send_keys(Keys.BACKSPACE)               # typed away: every row again
+    wait(browser, lambda d: {r[1] for r in shown_rows(d)} == {"request", "reply"})
+    browser.find_element(By.ID, "trace-pause").click()
+    count = trace_rows(browser)
+    info = wait(browser, lambda d: re.search(r"paused \(([1-9]\d*) not shown\)",
+                                             d.find_element(By.ID, "trace-info").text))
+    assert int(info.group(1)) > 0
+    assert trace_rows(browser) == count
+    browser.find_element(By.ID, "trace-pause").click()          # Resume
+    wait(browser, lambda d: trace_rows(d) > count)
+
+
 def test_devices_statistics_and_a_scenario_test_from_the_browser(browser, console):
     log_in(browser, console, "admin")
     browser.get_log("browser")                           # only this test's entries below
@@ -473,10 +524,10 @@ def test_devices_statistics_and_a_scenario_test_from_the_browser(browser, consol
     browser.find_element(By.ID, "scenario-test-fields").send_keys(
         "slave = 1\nfunction = 3\naddress = 0\nquantity = 2\ntable = 100")
     browser.find_element(By.ID, "scenario-test").click()
-    shown = wait(browser, text_in("#scenario-test-result", '"ok"')) and \
-        browser.find_element(By.ID, "scenario-test-result").text
-    result = json.loads(shown)
-    assert result["ok"] is True and result["data"] == [100, 101], result
+    wait(browser, text_in("#scenario-test-result", "answered in "))
+    shown = browser.find_element(By.ID, "scenario-test-result")     # the values, not JSON
+    assert "ok" in shown.get_attribute("class").split(), shown.text
+    assert shown.text.endswith(" ms: 100, 101") and "{" not in shown.text, shown.text
     errors = [e for e in browser.get_log("browser") if e.get("source") == "javascript"]
     assert errors == []
 
@@ -495,11 +546,15 @@ def test_every_page_works_in_master_and_transparent_mode(browser, mode, tmp_path
                     f'[web]\nlisten = "127.0.0.1:{web_port}"\n')
     set_password(path, "admin")
     pty = PtyPair(tmp_path)
-    options = ["--table", "--table-port", str(free_port())] if mode == "master" else \
-        ["--bind", "127.0.0.1", "--mdbport", str(free_port())]
+    tcp_port = free_port()                      # the table's server, or transparent's
+    options = ["--table", "--table-port", str(tcp_port)] if mode == "master" else \
+        ["--bind", "127.0.0.1", "--mdbport", str(tcp_port)]
     gw = Gateway(tmp_path, pty.gateway, "--baudrate", "19200", "--config", str(path),
                  *options, mode=mode, listen=False)
+    modbus = None
     try:
+        modbus = Client(tcp_port)               # a client on Clients in every mode
+        here = "127.0.0.1:%d" % modbus.sock.getsockname()[1]
         log_in(browser, SimpleNamespace(url=f"http://127.0.0.1:{web_port}/"), "admin")
         browser.get_log("browser")
         wait(browser, text_in('#overview-facts tr[data-name="Mode"] td', mode))
@@ -511,9 +566,13 @@ def test_every_page_works_in_master_and_transparent_mode(browser, mode, tmp_path
             go(browser, page)
             wait(browser, found(loaded))
             assert browser.find_element(By.ID, "page-error").text == "", page
+            if page == "clients":
+                wait(browser, text_in("#clients-table tbody", here))
         errors = [e for e in browser.get_log("browser") if e.get("source") == "javascript"]
         assert errors == []
     finally:
+        if modbus is not None:
+            modbus.close()
         gw.stop()
         pty.stop()
 
@@ -589,6 +648,11 @@ def test_the_lines_page_shows_a_line_s_cache_figures(browser, tmp_path):
         go(browser, "lines")
         # hits / coalesced / misses / stale
         wait(browser, text_in('#lines-table tr[data-line="serial"] td.cache', "2 / 0 / 1 / 0"))
+        browser.get(f"http://127.0.0.1:{web_port}/#lines/serial")   # the line's page, by unit
+        row = '#line-page[data-line="serial"] #line-cache tr[data-unit="1"]'
+        wait(browser, found(row))
+        assert [td.text for td in browser.find_elements(By.CSS_SELECTOR, f"{row} td")] == \
+            ["1", "2", "0", "1", "0"]
     finally:
         gw.stop()
         peer.stop()
@@ -632,3 +696,16 @@ def test_without_serial_the_pages_show_the_files_lines(browser, tmp_path):
         gw.stop()
         servers.stop()
         meters.stop()
+
+
+def test_the_route_map_marks_the_implicit_routes(browser, console):
+    """A file without [[route]]: today's routes, implicit, the table's units among them."""
+    log_in(browser, console, "admin")
+    go(browser, "lines")
+    rows = wait(browser, lambda d: [[td.text for td in tr.find_elements(By.CSS_SELECTOR, "td")]
+                                    for tr in d.find_elements(
+                                        By.CSS_SELECTOR, "#routes-table tbody tr.implicit")])
+    assert any(r[0] == "Modbus TCP" and str(TABLE_UNIT) in r[1] and "table" in r[2]
+               and r[4] == "implicit" for r in rows), rows
+    assert browser.find_elements(By.CSS_SELECTOR, "#routes-table tbody tr:not(.implicit)") \
+        == []

@@ -77,3 +77,15 @@ def test_a_line_state_change_is_ndata():
     kind, ndata = session.sent[-1]
     assert kind == "NDATA"
     assert [(m.name, m.string_value) for m in ndata.metrics] == [("Lines/serial/State", "down")]
+
+
+def test_the_status_has_each_line_s_state_as_the_broker_last_got_it():
+    edge, _, session, counters = node()
+    edge.tick(session, {"serial": "up", "meters": "up"})
+    assert counters.snapshot()["lines"] == {"serial": "up", "meters": "up"}
+    session.open = False                             # the NDATA refused: the broker has "up"
+    edge.tick(session, {"serial": "up", "meters": "down"})
+    assert counters.snapshot()["lines"] == {"serial": "up", "meters": "up"}
+    session.open = True
+    edge.tick(session, {"serial": "up", "meters": "down"})
+    assert counters.snapshot()["lines"] == {"serial": "up", "meters": "down"}
