@@ -122,6 +122,7 @@ def _recommended(p99_ms: float) -> int:
     return max(20, math.ceil(p99_ms * 1.5))
 
 
+@pytest.mark.serial          # it measures the devices' reply times
 @pytest.mark.parametrize("unit", [FAST, MIDDLE, SLOW], ids=["20ms", "150ms", "700ms"])
 def test_probe_recommends_a_stout_from_the_p99(bus, unit):
     device, _ = bus(unit)

@@ -117,6 +117,7 @@ def probed(c: Client, unit: int, request: bytes, reply: bytes) -> int:
         assert time.monotonic() < deadline, f"no probe after {refused} refusals"
 
 
+@pytest.mark.serial          # the down rule counts time as well as failures
 @pytest.mark.parametrize("exception", [True, False], ids=["exception", "silence"])
 def test_a_silent_address_is_refused_at_once_probed_at_the_interval_and_back_on_its_answer(
         gateway, client, exception):
@@ -186,6 +187,7 @@ def test_a_silent_address_is_refused_at_once_probed_at_the_interval_and_back_on_
     assert stop_counters(gw)["demoted_rejects"] == refused
 
 
+@pytest.mark.serial          # the down rule counts time as well as failures
 def test_requests_queued_before_the_address_went_down_never_reach_the_line(gateway, client):
     """4 requests pipelined at once: the first 2 fail and make the address down; the other 2,
     queued meanwhile, are refused when their turn comes instead of costing stout each."""

@@ -5,7 +5,6 @@ The escaping test serves the pages with a scripted API (a small aiohttp server o
 documents whose strings carry markup: a gateway cannot be made to send those); the others run
 against a real `mbgw slave` with its console on."""
 import asyncio
-import functools
 import json
 import os
 import re
@@ -460,6 +459,15 @@ def shown_rows(driver) -> list[list[str]]:
         ".filter((tr) => !tr.hidden).map((tr) => [...tr.cells].map((td) => td.textContent));")
 
 
+def device_cells(driver, address: int) -> dict[str, str]:
+    """The Devices page's row of address, each cell's text by each of its classes (read at
+    once: the page rebuilds its rows at each refresh)."""
+    return driver.execute_script(
+        "return Object.fromEntries([...document.querySelectorAll("
+        "`#devices-table tr[data-address=\"${arguments[0]}\"] td`)]"
+        ".flatMap((td) => [...td.classList].map((c) => [c, td.textContent])));", address)
+
+
 def trace_rows(driver) -> int:
     return driver.execute_script("return document.querySelectorAll('#trace-table tbody tr')"
                                  ".length;")
@@ -509,15 +517,13 @@ def test_devices_statistics_and_a_scenario_test_from_the_browser(browser, consol
     wait(browser, found('#devices-table tr[data-address="9"] td.health-down'))
     # the demotion's timing (issue 29): one that never answered is probed with its line's
     # learnt time, between 20 ms and its stout (another test of this module may change stout)
-    cell = functools.partial(browser.find_element, By.CSS_SELECTOR)
-    row = '#devices-table tr[data-address="{}"] td.{}'
-    assert cell(row.format(9, "learnt-p99")).text == "—"
-    stout = float(cell(row.format(9, "stout")).text)
+    silent, answering = device_cells(browser, 9), device_cells(browser, 1)
+    assert silent["learnt-p99"] == "—"
+    stout = float(silent["stout"])
     assert stout == wait_for(console.gw, lambda s: True, "status")["serial"]["stout_ms"]
-    assert 20 <= float(cell(row.format(9, "probe-timeout")).text) <= stout
-    assert 0 < float(cell(row.format(1, "learnt-p99")).text)
-    assert 20 <= float(cell(row.format(1, "probe-timeout")).text) <= \
-        float(cell(row.format(1, "stout")).text)
+    assert 20 <= float(silent["probe-timeout"]) <= stout
+    assert 0 < float(answering["learnt-p99"])
+    assert 20 <= float(answering["probe-timeout"]) <= float(answering["stout"])
     go(browser, "stats")
     wait(browser, found('#stats-table tr[data-name="counters.requests"]'))
     go(browser, "scenarios")
