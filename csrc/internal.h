@@ -63,6 +63,16 @@ size_t burst_frame(const uint8_t *req, size_t req_len, const uint8_t *buf, size_
 long burst_error(const uint8_t *req, const uint8_t *buf, size_t have, int head,
                  size_t cap);
 
+/* --- remote.c --- */
+
+/* The first frame from buf[*pos] to buf[have) that answers req (address + PDU) with
+ * transaction id tid, see mbgw_remote_exchange: returns its length, at buf[*pos].  Whole
+ * frames before it that do not answer are skipped (*pos past them, *strays counted).  0:
+ * none is whole yet (*pos at the frame begun, if any); -EPROTO the header at *pos frames
+ * nothing. */
+long mbap_cut(const uint8_t *req, size_t req_len, unsigned tid, const uint8_t *buf,
+              size_t have, size_t *pos, int *strays);
+
 /* --- tty.c --- */
 
 /* Raise (on) or drop RTS. */
