@@ -1,8 +1,7 @@
 /* A remote line's exchange on Modbus TCP in one call (slave mode, `connect =
- * "modbus-tcp://..."`): the request out in one send with our own transaction id, the
- * reply cut from the stream by its MBAP length and matched (match.c), anything else whole
- * dropped and counted.  The socket is the caller's: connected, opened and closed by it.
- */
+ * "modbus-tcp://..."`): the request out in one send with our own transaction id, then
+ * the socket read until match.c's mbap_cut finds the reply in the stream.  The socket is
+ * the caller's: connected, opened and closed by it. */
 #include <errno.h>
 #include <stdint.h>
 #include <string.h>
@@ -10,32 +9,6 @@
 
 #include "internal.h"
 #include "mbgw.h"
-
-static unsigned be16_at(const uint8_t *p)
-{
-    return (unsigned)p[0] << 8 | p[1];
-}
-
-long mbap_cut(const uint8_t *req, size_t req_len, unsigned tid, const uint8_t *buf,
-              size_t have, size_t *pos, int *strays)
-{
-    while (have - *pos >= MBAP_LEN) {
-        const uint8_t *f = buf + *pos;
-        int end = mbgw_mbap_frame_len(be16_at(f + 2), be16_at(f + 4));
-        if (end < 0)
-            return -EPROTO;
-        if (have - *pos < (size_t)end)
-            return 0;
-        if (be16_at(f) == tid && req_len >= 2 &&
-            mbgw_tcp_reply_verdict(req + 1, req_len - 1, req[0], f[MBAP_HEAD_LEN],
-                                   f + MBAP_LEN,
-                                   (size_t)end - MBAP_LEN) == MBGW_REPLY_ANSWERS)
-            return end;
-        *pos += (size_t)end;
-        ++*strays;
-    }
-    return 0;
-}
 
 /* recv() of what waits on fd, into buf, not waiting.  Returns the bytes, 0 none waits,
  * -ENOTCONN the device closed the connection, another -errno. */
