@@ -1,7 +1,11 @@
 """A remote line's Modbus TCP exchange in C (csrc/remote.c through native.MbapExchange),
 against a device played on the other end of a socketpair: the request on the wire, the reply
-however the stream cuts it, whatever else came dropped and counted."""
+however the stream cuts it, whatever else came dropped and counted.  Then the same through
+the line's socket and framing (RemoteLine.exchange, MbapFraming.exchange) against a loopback
+listener: the counters, a connection out of step dropped, one closed by the device made
+again."""
 import errno
+import select
 import socket
 import struct
 import threading
@@ -10,7 +14,12 @@ from collections.abc import Callable
 
 import pytest
 
+from mbgw.errors import LineTimeout
 from mbgw.line.native import MbapExchange
+from mbgw.line.remote import RemoteLine
+from mbgw.ops.counters import RemoteCounters
+from mbgw.slave.remote_framing import remote_framing
+from tests.wait import until
 
 READ = bytes.fromhex("01 03 00 00 00 02")        # unit 1, FC 03, 2 registers from 0
 REPLY_PDU = bytes.fromhex("03 04 00 0a 00 0b")
@@ -143,3 +152,86 @@ def test_a_connection_closed_before_the_request_is_not_sent_on():
         n = ex.exchange(ours.fileno(), READ, 1, STOUT_NS)
     assert n in (-errno.ENOTCONN, -errno.EPIPE, -errno.ECONNRESET)
     assert ex.result.sent_ns == 0
+
+
+# --- through the remote line's socket and framing (RemoteLine.exchange, MbapFraming) ---
+
+class Settings:
+    stout_ms = 500
+
+
+def framed_line(port: int):
+    line = RemoteLine("inverter", Settings(), "modbus-tcp", "127.0.0.1", port, 0,
+                      RemoteCounters())
+    return line, remote_framing(line)
+
+
+def test_the_framing_counts_what_c_dropped_and_takes_the_reply():
+    with socket.create_server(("127.0.0.1", 0)) as listener:
+        line, framing = framed_line(listener.getsockname()[1])
+        assert framing.exchanges(READ)
+        done = threading.Event()
+
+        def device() -> None:
+            conn, _ = listener.accept()
+            with conn:
+                tid = struct.unpack(">H", conn.recv(300)[:2])[0]
+                conn.sendall(reply_to(tid - 1) + reply_to(tid) + reply_to(tid)[:3])
+                done.wait(5)
+
+        peer = threading.Thread(target=device)
+        peer.start()
+        got = framing.exchange(READ, STOUT_NS)
+        done.set()
+        peer.join()
+        line.close()
+    assert got.frame == b"\x01" + REPLY_PDU and got.fault is None
+    assert got.last_byte_ns >= got.request_end_ns > 0
+    counters = line.counters
+    assert counters.stray_replies == 2      # the tid before, what followed the reply
+    assert counters.bytes_sent == len(mbap(1, 1, READ[1:]))
+    assert counters.bytes_received == 3 * len(reply_to(1)) - (len(reply_to(1)) - 3)
+
+
+def test_a_header_out_of_step_drops_the_connection_and_is_no_reply():
+    with socket.create_server(("127.0.0.1", 0)) as listener:
+        line, framing = framed_line(listener.getsockname()[1])
+
+        def device() -> None:
+            conn, _ = listener.accept()
+            with conn:
+                conn.recv(300)
+                conn.sendall(mbap(1, 1, REPLY_PDU, protocol=1))
+                conn.recv(1)            # until the gateway closes it
+
+        peer = threading.Thread(target=device)
+        peer.start()
+        got = framing.exchange(READ, STOUT_NS)
+        peer.join()
+    assert isinstance(got.fault, LineTimeout) and got.frame is None
+    assert line.fd == -1
+    assert (line.counters.stray_replies, line.counters.noise_bytes) == \
+        (1, len(mbap(1, 1, REPLY_PDU)))
+
+
+def test_a_request_the_closed_connection_did_not_take_goes_on_a_new_one():
+    with socket.create_server(("127.0.0.1", 0)) as listener:
+        line, framing = framed_line(listener.getsockname()[1])
+        line.send(b"")                          # the first connection, made
+        first, _ = listener.accept()
+        first.close()                           # the device closes it, unseen
+        until(lambda: select.select([line.fd], [], [], 0)[0], "the close arrived", 5)
+
+        def device() -> None:
+            conn, _ = listener.accept()
+            with conn:
+                tid = struct.unpack(">H", conn.recv(300)[:2])[0]
+                conn.sendall(reply_to(tid))
+
+        peer = threading.Thread(target=device)
+        peer.start()
+        got = framing.exchange(READ, STOUT_NS)
+        peer.join()
+        line.close()
+    assert got.frame == b"\x01" + REPLY_PDU
+    assert line.counters.reconnects == 1
