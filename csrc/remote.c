@@ -27,16 +27,15 @@ static long recv_some(int fd, uint8_t *buf, size_t cap)
     }
 }
 
-/* Read and drop what waits on fd (no request is outstanding: none of it is a reply).
- * Returns its bytes, or recv_some's negative errno. */
-static long drain(int fd, uint8_t *buf, size_t cap)
+/* Read and drop what waits on fd (no request is outstanding: none of it is a reply),
+ * counting its bytes in *dropped.  Returns 0, or recv_some's negative errno. */
+static int drain(int fd, uint8_t *buf, size_t cap, int *dropped)
 {
-    long dropped = 0;
     for (;;) {
         long n = recv_some(fd, buf, cap);
         if (n <= 0)
-            return n < 0 ? n : dropped;
-        dropped += n;
+            return (int)n;
+        *dropped += (int)n;
     }
 }
 
@@ -70,11 +69,9 @@ int mbgw_remote_exchange(int fd, uint8_t *buf, size_t cap, const uint8_t *req,
     memset(r, 0, sizeof *r);
     if (req_len < MBAP_MIN_LENGTH || req_len > MBAP_MAX_LENGTH || cap < MBGW_MBAP_MAX)
         return -EINVAL;
-    long stale = drain(fd, buf, cap);
-    if (stale < 0)
-        return (int)stale;
-    r->stale = (int)stale;
-    int err = send_request(fd, req, req_len, tid & 0xFFFF);
+    int err = drain(fd, buf, cap, &r->stale);
+    if (err == 0)
+        err = send_request(fd, req, req_len, tid & 0xFFFF);
     if (err < 0)
         return err;
     r->sent_ns = now_ns();
@@ -102,8 +99,10 @@ int mbgw_remote_exchange(int fd, uint8_t *buf, size_t cap, const uint8_t *req,
             r->end_ns = now_ns();
             return -ETIMEDOUT;
         }
-        if (ready < 0 && ready != -EIO) /* -EIO: hang-up or error, which recv tells */
+        if (ready < 0 && ready != -EIO) { /* -EIO: hang-up or error, which recv tells */
+            r->end_ns = now_ns();
             return ready;
+        }
         long n = recv_some(fd, buf + have, cap - have);
         if (n < 0 || (n == 0 && ready < 0)) {
             r->end_ns = now_ns();

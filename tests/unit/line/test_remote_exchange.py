@@ -143,6 +143,20 @@ def test_a_device_that_closes_instead_of_answering_ends_the_exchange():
     assert ex.result.sent_ns > 0
 
 
+def test_what_waited_before_a_close_is_counted_and_the_request_not_sent():
+    ours, theirs = socket.socketpair()
+    with ours, theirs:
+        ours.setblocking(False)
+        theirs.sendall(reply_to(3))
+        theirs.shutdown(socket.SHUT_WR)
+        ex = MbapExchange()
+        n = ex.exchange(ours.fileno(), READ, 4, STOUT_NS)
+        ours.close()
+        assert theirs.recv(300) == b""          # nothing was sent before the end
+    assert n == -errno.ENOTCONN
+    assert (ex.result.sent_ns, ex.result.stale) == (0, len(reply_to(3)))
+
+
 def test_a_connection_closed_before_the_request_is_not_sent_on():
     ours, theirs = socket.socketpair()
     with ours:
