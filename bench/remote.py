@@ -3,6 +3,7 @@
 figures, never pass/fail.
 
     .venv/bin/python bench/remote.py [--quick]
+    .venv/bin/python bench/remote.py --versus OTHER-CHECKOUT [--quick]
 
 The device is an emulator in a process of its own (this script, `--device`): one connection
 at a time (a second one is reset), FC 03 answered after a fixed service time of 2 ms, the
@@ -255,7 +256,8 @@ def start_device(late: bool, tally: Path) -> tuple[int, subprocess.Popen]:
     return port, proc
 
 
-def start_mbgw(device_port: int, tmp: Path, timeout_ms: int) -> tuple[int, subprocess.Popen]:
+def start_mbgw(device_port: int, tmp: Path, timeout_ms: int,
+               checkout: Path = CHECKOUT) -> tuple[int, subprocess.Popen]:
     master, slave = os.openpty()      # line serial: a pty nobody answers on
     tty = os.ttyname(slave)
     os.close(slave)
@@ -269,7 +271,7 @@ def start_mbgw(device_port: int, tmp: Path, timeout_ms: int) -> tuple[int, subpr
         [sys.executable, "-m", "mbgw", "slave", "--device", tty, "--bind", "127.0.0.1",
          "--mdbport", str(port), "--config", str(config), "--exception",
          "--max-connections", "40", "--max-connections-per-ip", "40"],
-        cwd=CHECKOUT, env=dict(os.environ, RUNTIME_DIRECTORY=str(tmp)),
+        cwd=checkout, env=dict(os.environ, RUNTIME_DIRECTORY=str(tmp)),
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     proc.pty_master = master      # type: ignore[attr-defined]  (kept open while it runs)
     wait_port(port)
@@ -353,6 +355,49 @@ def run(quick: bool) -> None:
     rtu_over_tcp(quick)
 
 
+def versus(other: Path, quick: bool) -> None:
+    """Direct, this checkout's mbgw and other's (another checkout, its C core built), each
+    with a device of its own, answering one client in turn, a round of 100 requests each,
+    so that all three see the same load: p50/p99, what each gateway adds, its CPU."""
+    count = 300 if quick else 2000
+    names = ("direct", "mbgw", f"mbgw {other.name}")
+    lat: dict[str, list[int]] = {name: [] for name in names}
+    cpu = dict.fromkeys(names, 0.0)
+    procs: list[subprocess.Popen] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        try:
+            served = {}         # name: (its port, the process whose CPU it is)
+            for name, checkout in zip(names, (None, CHECKOUT, other), strict=True):
+                run_dir = Path(tmp) / name.replace(" ", "-")
+                run_dir.mkdir()
+                device_port, dev = start_device(False, run_dir / "tally")
+                procs.append(dev)
+                port, busy = device_port, dev
+                if checkout is not None:
+                    port, busy = start_mbgw(device_port, run_dir, 1000, checkout)
+                    procs.append(busy)
+                latencies(port, 50)             # warm-up, and the connection made
+                served[name] = (port, busy.pid)
+            for _ in range(count // 100):
+                for name, (port, pid) in served.items():
+                    before = cpu_s(pid)
+                    lat[name] += latencies(port, 100)
+                    cpu[name] += cpu_s(pid) - before
+        finally:
+            for proc in procs:
+                stop(proc)
+    direct = lat["direct"]
+    direct.sort()
+    print(f"in turn, rounds of 100, {count} requests each:")
+    for name in names:
+        values = sorted(lat[name])
+        added = "" if name == "direct" else \
+            f"  +p50 {pct(values, 50) - pct(direct, 50):4.0f}" \
+            f"  +p99 {pct(values, 99) - pct(direct, 99):5.0f}"
+        print(f"  {name:22} p50 {pct(values, 50):5.0f}  p99 {pct(values, 99):5.0f}{added}"
+              f"  CPU {cpu[name] / count * 1e6:4.0f} us a request")
+
+
 RTU_BAUD = 115200
 
 
@@ -426,12 +471,17 @@ def report(rows: dict, late: dict, count: int, seconds: float) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--versus", type=Path, metavar="CHECKOUT",
+                        help="only: this mbgw and CHECKOUT's in turn, with direct")
     parser.add_argument("--device", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--late", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--tally", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.device:
         device(args.device, args.late, args.tally)
+        return
+    if args.versus:
+        versus(args.versus.resolve(), args.quick)
         return
     run(args.quick)
 

@@ -20,6 +20,12 @@
 #define MBAP_MIN_LENGTH 2   /* the length: unit id + function code */
 #define MBAP_MAX_LENGTH 254 /* the length: unit id + the largest PDU */
 
+/* A big-endian 16-bit field (Modbus's byte order). */
+static inline unsigned be16(const uint8_t *p)
+{
+    return (unsigned)p[0] << 8 | p[1];
+}
+
 static inline int64_t now_ns(void)
 {
     struct timespec ts;
@@ -62,6 +68,16 @@ size_t burst_frame(const uint8_t *req, size_t req_len, const uint8_t *buf, size_
  * its start and its length (or silence) but a bad CRC, -EBADMSG anything else. */
 long burst_error(const uint8_t *req, const uint8_t *buf, size_t have, int head,
                  size_t cap);
+
+/* --- match.c: a remote line's stream of Modbus TCP frames (remote.c reads it) --- */
+
+/* The first frame from buf[*pos] to buf[have) that answers req (address + PDU) with
+ * transaction id tid, see mbgw_remote_exchange: returns its length, at buf[*pos].  Whole
+ * frames before it that do not answer are skipped (*pos past them, *strays counted).  0:
+ * none is whole yet (*pos at the frame begun, if any); -EPROTO the header at *pos frames
+ * nothing. */
+long mbap_cut(const uint8_t *req, size_t req_len, unsigned tid, const uint8_t *buf,
+              size_t have, size_t *pos, int *strays);
 
 /* --- tty.c --- */
 

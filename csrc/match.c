@@ -1,5 +1,6 @@
 /* Does a reply answer its request (either mode), and where is the reply among the bytes a
- * burst on the line brought (slave mode).  No I/O: line.c reads, this file judges. */
+ * burst on the line brought, or a remote line's stream of Modbus TCP frames (slave mode).
+ * No I/O: line.c and remote.c read, this file judges. */
 #include <errno.h>
 #include <stddef.h>
 #include <stdint.h>
@@ -130,4 +131,27 @@ long burst_error(const uint8_t *req, const uint8_t *buf, size_t have, int head,
         (head == MBGW_LEN_UNKNOWN || (head > 0 && (size_t)head <= have)))
         return -EILSEQ;
     return -EBADMSG;
+}
+
+/* --- slave mode: the reply among a remote line's Modbus TCP frames --- */
+
+long mbap_cut(const uint8_t *req, size_t req_len, unsigned tid, const uint8_t *buf,
+              size_t have, size_t *pos, int *strays)
+{
+    while (have - *pos >= MBAP_LEN) {
+        const uint8_t *f = buf + *pos;
+        int end = mbgw_mbap_frame_len(be16(f + 2), be16(f + 4));
+        if (end < 0)
+            return -EPROTO;
+        if (have - *pos < (size_t)end)
+            return 0;
+        if (be16(f) == tid && req_len >= 2 &&
+            mbgw_tcp_reply_verdict(req + 1, req_len - 1, req[0], f[MBAP_HEAD_LEN],
+                                   f + MBAP_LEN,
+                                   (size_t)end - MBAP_LEN) == MBGW_REPLY_ANSWERS)
+            return end;
+        *pos += (size_t)end;
+        ++*strays;
+    }
+    return 0;
 }

@@ -257,6 +257,36 @@ struct mbgw_shortcut {
 int mbgw_take_request(struct _modbus *ctx, int client_fd, int *in_flight, uint8_t *in,
                       size_t in_cap, uint8_t *buf, struct mbgw_shortcut *sc);
 
+/* --- remote.c: a remote line's exchange on Modbus TCP --- */
+
+/* What mbgw_remote_exchange did besides the reply. */
+struct mbgw_remote {
+    int64_t sent_ns; /* when the request was sent (0: it was not) */
+    int64_t end_ns;  /* when the last byte read came (timed out: when the wait ended) */
+    int at;          /* where the reply's MBAP header begins in buf */
+    int received;    /* the bytes read after the send */
+    int stale;       /* the bytes waiting before the send, read and dropped */
+    int strays;      /* whole frames that did not answer the request, dropped */
+    int noise;       /* the bytes from a header that frames nothing to the end */
+    int left;        /* the bytes read behind the reply, dropped */
+};
+/* Slave mode, a device across the network: drop what waits on the connected socket fd
+ * (no request is outstanding), send the request req (address + PDU) in one Modbus TCP
+ * frame with transaction id tid, and read into buf (cap bytes, at least MBGW_MBAP_MAX)
+ * until a frame answers it or stout_ns has passed since the send.  Frames are cut by
+ * their MBAP length (mbgw_mbap_frame_len); one answers when it has tid, protocol id 0,
+ * req's address as its unit id and a PDU that answers req's (mbgw_tcp_reply_verdict); any
+ * other whole frame is dropped (r->strays).  Returns the reply's length, MBAP header
+ * included, at buf + r->at.  Errors: the request not sent (r->sent_ns 0): -ENOTCONN the
+ * device had closed the connection, -EAGAIN the socket took only part of it, -EINVAL
+ * req_len outside 2..254 or cap too small, another send's -errno.  After the send:
+ * -ETIMEDOUT no reply in time (a frame begun is dropped), -ENOTCONN the device closed the
+ * connection, -EPROTO a header that frames nothing (the stream is out of step), -EIO or
+ * another -errno the connection failed. */
+int mbgw_remote_exchange(int fd, uint8_t *buf, size_t cap, const uint8_t *req,
+                         size_t req_len, unsigned tid, int64_t stout_ns,
+                         struct mbgw_remote *r);
+
 /* --- request.c: master mode, the serial master's requests for any address --- */
 
 /* Wait (no deadline) for a frame on fd, then read it into buf: framed by the request

@@ -39,11 +39,6 @@ void mbgw_table_set_functions(mbgw_table *t, uint32_t mask)
     pthread_mutex_unlock(&t->lock);
 }
 
-unsigned be16(const uint8_t *p)
-{
-    return (unsigned)p[0] << 8 | p[1];
-}
-
 void put16(uint8_t *p, unsigned v)
 {
     p[0] = (uint8_t)(v >> 8);

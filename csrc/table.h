@@ -81,7 +81,6 @@ struct mbgw_table {
 };
 
 /* The registers, the table's lock held. */
-unsigned be16(const uint8_t *p);
 void put16(uint8_t *p, unsigned v);
 void store_registers(mbgw_table *t, unsigned address, unsigned count, const uint8_t *be);
 void load_registers(const mbgw_table *t, unsigned address, unsigned count, uint8_t *be);

@@ -24,6 +24,10 @@ def rtu(pdu: bytes) -> bytes:
     return adu + crc16(adu)
 
 
+def mbap(tid: int, pdu: bytes, protocol: int = 0) -> bytes:
+    return struct.pack(">HHHB", tid, protocol, len(pdu) + 1, ADDRESS) + pdu
+
+
 def pairs():
     for line in VECTORS.read_text().splitlines():
         if line.strip() and not line.startswith("#"):
@@ -50,6 +54,12 @@ def seeds():
         yield "table", f"{label}-pdu", b"\x00" + req
         yield "table", f"{label}-mbap", b"\x02" + struct.pack(">HHHB", 1, 0, len(req) + 1, 1) + req
         yield "table", f"{label}-stale", b"\x04" + req
+        if 2 <= len(adu) <= 65:
+            head = bytes([len(adu) - 2]) + adu + struct.pack(">HB", 7, 3)
+            yield "stream", f"{label}-reply", head + mbap(7, rsp)
+            yield "stream", f"{label}-stray-first", head + mbap(6, rsp) + mbap(7, rsp)
+            yield "stream", f"{label}-exception", head + mbap(7, bytes([req[0] | 0x80, 2]))
+            yield "stream", f"{label}-protocol-1", head + mbap(7, rsp, protocol=1)
 
 
 def main() -> None:

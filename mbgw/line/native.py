@@ -234,6 +234,35 @@ class ClientReader:
         return self._arrived[0]
 
 
+# --- a remote line's socket on Modbus TCP (csrc/remote.c) ---
+
+REMOTE_SIZE = 4096      # what one exchange reads from the device's socket at most
+BEFORE_UNIT = HEADER_LEN - 1     # the MBAP header's bytes before the unit id
+
+
+class MbapExchange:
+    """mbgw_remote_exchange on a connected socket: the request out, its reply cut, matched
+    and found, in one call; what else it did is in `result` (struct mbgw_remote: sent_ns,
+    end_ns, received, stale, strays, noise, left).  Its buffers are made once: one thread
+    (the remote line's) uses it."""
+
+    def __init__(self) -> None:
+        self._buf = ffi.new("uint8_t[]", REMOTE_SIZE)
+        self.result = ffi.new("struct mbgw_remote *")
+
+    def exchange(self, fd: int, adu: bytes, tid: int, stout_ns: int) -> int:
+        """Send adu (address + PDU) with transaction id tid and wait stout_ns for its reply.
+        Returns the reply's length (reply() gives it) or -errno (mbgw_remote_exchange's:
+        result.sent_ns is 0 when the request was not sent)."""
+        return lib.mbgw_remote_exchange(fd, self._buf, REMOTE_SIZE, adu, len(adu), tid,
+                                        stout_ns, self.result)
+
+    def reply(self, length: int) -> bytes:
+        """The reply exchange() found (its length): unit id + PDU."""
+        return ffi.buffer(self._buf + self.result.at + BEFORE_UNIT,
+                          length - BEFORE_UNIT)[:]
+
+
 # --- the serial port (csrc/line.c, tty.c, request.c, forward.c, capture.c) ---
 
 REPLY_AT = lib.MBGW_REPLY_AT

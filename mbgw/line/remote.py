@@ -18,6 +18,7 @@ import time
 from typing import Protocol
 
 from mbgw.errors import TargetUnreachable
+from mbgw.line.native import BEFORE_UNIT, MbapExchange
 
 log = logging.getLogger("mbgw.line")
 
@@ -65,6 +66,7 @@ class RemoteLine:
         self._backoff_s = BACKOFF_FIRST_S
         self._buf = bytearray(RECEIVE_SIZE)
         self._view = memoryview(self._buf)
+        self.mbap = MbapExchange()      # Modbus TCP's exchange in C, and what it found
 
     @property
     def fd(self) -> int:
@@ -90,6 +92,29 @@ class RemoteLine:
                 continue
             self.counters.bytes_sent += len(wire)
             return time.monotonic_ns()
+        raise TargetUnreachable(errno.ECONNRESET, f"{self.target}: the connection closes "
+                                                  f"on every write")
+
+    def exchange(self, adu: bytes, tid: int, stout_ns: int) -> int:
+        """Modbus TCP: adu (address + PDU) out with transaction id tid and its reply in, in
+        one C call (self.mbap: its result tells what else came), connecting first when
+        there is no connection; a request that finds the device closed it goes on a new
+        connection, once.  Returns the reply's length (self.mbap.reply()), or -errno when
+        none came (a connection that ended, or fell out of step, is dropped).  Raises
+        TargetUnreachable when the device cannot be reached."""
+        mbap = self.mbap
+        got = mbap.result
+        counters = self.counters
+        for _ in range(2):
+            sock = self._sock if self._sock is not None else self._connect()
+            n = mbap.exchange(sock.fileno(), adu, tid, stout_ns)
+            counters.bytes_received += got.stale + got.received
+            if got.sent_ns:
+                counters.bytes_sent += len(adu) + BEFORE_UNIT
+                if n < 0 and n != -errno.ETIMEDOUT:
+                    self.drop(_ended(n, "read"))
+                return n
+            self.drop(_ended(n, "write"))
         raise TargetUnreachable(errno.ECONNRESET, f"{self.target}: the connection closes "
                                                   f"on every write")
 
@@ -212,3 +237,12 @@ class RemoteLine:
             log.warning("line %s: %s lost: %s; trying again with backoff up to %g s",
                         self.name, self.target, err.strerror or err, BACKOFF_MAX_S)
         self._backoff_s = min(self._backoff_s * 2, BACKOFF_MAX_S)
+
+
+def _ended(code: int, doing: str) -> str:
+    """Why MbapExchange's -errno code ended the connection (for the debug log)."""
+    if code == -errno.ENOTCONN:
+        return "closed by the device"
+    if code == -errno.EPROTO:
+        return "bad MBAP header"
+    return f"{doing}: {os.strerror(-code)}"

@@ -15,6 +15,7 @@ function and the length, csrc/match.c).  Anything else whole -- late, duplicate,
 is dropped and counted stray_replies.  Whatever waits unread when a request goes out is
 dropped, and a new connection starts empty, so half a frame is never taken for a reply.
 """
+import errno
 import struct
 import time
 
@@ -25,6 +26,7 @@ from mbgw.line.remote import RemoteCounters, RemoteLine
 
 MBAP = struct.Struct(">HHHB")       # transaction id, protocol id, length, unit id
 TIMED_OUT = LineTimeout()
+BAD_HEADER = -errno.EPROTO     # RemoteLine.exchange: the stream is out of step
 
 
 class _RemoteFraming:
@@ -110,6 +112,30 @@ class MbapFraming(_RemoteFraming):
     def __init__(self, line: RemoteLine, counters: RemoteCounters) -> None:
         super().__init__(line, counters)
         self._tid = 0
+
+    def exchanges(self, adu: bytes) -> bool:
+        """exchange() serves Modbus TCP; Modbus/UDP's datagrams go by send() and receive()."""
+        return self.line.stream
+
+    def exchange(self, adu: bytes, stout_ns: int, forward: Forward = NO_FORWARD) -> Reception:
+        """send() and receive() in one C call (RemoteLine.exchange), the deadline stout_ns
+        after the send: the reply to adu, or a LineTimeout fault when none came in time or
+        the connection ended first.  Raises TargetUnreachable as send() does."""
+        counters = self._counters
+        strays = bool(self._rx)         # what a receive of a frame nobody asked for left
+        self._rx.clear()
+        self._tid = tid = (self._tid + 1) & 0xFFFF
+        line = self.line
+        n = line.exchange(adu, tid, stout_ns)
+        got = line.mbap.result
+        counters.stray_replies += strays + bool(got.stale) + got.strays + bool(got.left) \
+            + (n == BAD_HEADER)
+        counters.noise_bytes += got.noise
+        if n < 0:
+            return Reception(None, TIMED_OUT, -1, 0, got.noise, -1, got.sent_ns, got.end_ns)
+        line.answered()
+        frame = line.mbap.reply(n)
+        return Reception(frame, None, -1, len(frame), 0, -1, got.sent_ns, got.end_ns)
 
     def _encode(self, adu: bytes) -> bytes:
         self._tid = (self._tid + 1) & 0xFFFF

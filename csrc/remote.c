@@ -1,0 +1,115 @@
+/* A remote line's exchange on Modbus TCP in one call (slave mode, `connect =
+ * "modbus-tcp://..."`): the request out in one send with our own transaction id, then
+ * the socket read until match.c's mbap_cut finds the reply in the stream.  The socket is
+ * the caller's: connected, opened and closed by it. */
+#include <errno.h>
+#include <stdint.h>
+#include <string.h>
+#include <sys/socket.h>
+
+#include "internal.h"
+#include "mbgw.h"
+
+/* recv() of what waits on fd, into buf, not waiting.  Returns the bytes, 0 none waits,
+ * -ENOTCONN the device closed the connection, another -errno. */
+static long recv_some(int fd, uint8_t *buf, size_t cap)
+{
+    for (;;) {
+        ssize_t n = recv(fd, buf, cap, MSG_DONTWAIT);
+        if (n > 0)
+            return n;
+        if (n == 0)
+            return -ENOTCONN;
+        if (errno == EAGAIN || errno == EWOULDBLOCK)
+            return 0;
+        if (errno != EINTR)
+            return -errno;
+    }
+}
+
+/* Read and drop what waits on fd (no request is outstanding: none of it is a reply),
+ * counting its bytes in *dropped.  Returns 0, or recv_some's negative errno. */
+static int drain(int fd, uint8_t *buf, size_t cap, int *dropped)
+{
+    for (;;) {
+        long n = recv_some(fd, buf, cap);
+        if (n <= 0)
+            return (int)n;
+        *dropped += (int)n;
+    }
+}
+
+/* The request as a Modbus TCP frame in one send; -EAGAIN when the socket took only part
+ * of it (the device reads nothing: the connection is of no more use). */
+static int send_request(int fd, const uint8_t *req, size_t req_len, unsigned tid)
+{
+    uint8_t out[MBAP_HEAD_LEN + MBAP_MAX_LENGTH];
+    out[0] = (uint8_t)(tid >> 8);
+    out[1] = (uint8_t)tid;
+    out[2] = out[3] = 0;
+    out[4] = (uint8_t)(req_len >> 8);
+    out[5] = (uint8_t)req_len;
+    memcpy(out + MBAP_HEAD_LEN, req, req_len);
+    size_t len = MBAP_HEAD_LEN + req_len;
+    for (;;) {
+        ssize_t n = send(fd, out, len, MSG_DONTWAIT | MSG_NOSIGNAL);
+        if (n == (ssize_t)len)
+            return 0;
+        if (n >= 0)
+            return -EAGAIN;
+        if (errno != EINTR)
+            return -errno;
+    }
+}
+
+int mbgw_remote_exchange(int fd, uint8_t *buf, size_t cap, const uint8_t *req,
+                         size_t req_len, unsigned tid, int64_t stout_ns,
+                         struct mbgw_remote *r)
+{
+    memset(r, 0, sizeof *r);
+    if (req_len < MBAP_MIN_LENGTH || req_len > MBAP_MAX_LENGTH || cap < MBGW_MBAP_MAX)
+        return -EINVAL;
+    int err = drain(fd, buf, cap, &r->stale);
+    if (err == 0)
+        err = send_request(fd, req, req_len, tid & 0xFFFF);
+    if (err < 0)
+        return err;
+    r->sent_ns = now_ns();
+    int64_t deadline = r->sent_ns + stout_ns;
+    size_t have = 0, pos = 0;
+    for (;;) {
+        long len = mbap_cut(req, req_len, tid & 0xFFFF, buf, have, &pos, &r->strays);
+        if (len > 0) {
+            r->at = (int)pos;
+            r->left = (int)(have - pos - (size_t)len);
+            return (int)len;
+        }
+        if (len < 0) {
+            r->noise = (int)(have - pos);
+            r->end_ns = now_ns();
+            return (int)len;
+        }
+        if (pos) { /* room for the rest of the frame that has begun */
+            memmove(buf, buf + pos, have - pos);
+            have -= pos;
+            pos = 0;
+        }
+        int ready = wait_input(fd, deadline);
+        if (ready == 0) {
+            r->end_ns = now_ns();
+            return -ETIMEDOUT;
+        }
+        if (ready < 0 && ready != -EIO) { /* -EIO: hang-up or error, which recv tells */
+            r->end_ns = now_ns();
+            return ready;
+        }
+        long n = recv_some(fd, buf + have, cap - have);
+        if (n < 0 || (n == 0 && ready < 0)) {
+            r->end_ns = now_ns();
+            return n < 0 ? (int)n : -EIO;
+        }
+        have += (size_t)n;
+        r->received += (int)n;
+        r->end_ns = now_ns();
+    }
+}
