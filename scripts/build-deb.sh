@@ -19,7 +19,7 @@ done
 # Debian's own python3 and nothing else: pyenv's shims or an active venv would be found first
 # by pybuild ("No module named build", debian-packaging.md pitfall P1).
 (cd "$work/src" && env -i HOME="$work" PATH=/usr/sbin:/usr/bin:/sbin:/bin LANG=C.UTF-8 \
-    DEB_BUILD_OPTIONS="noddebs ${DEB_BUILD_OPTIONS:-}" dpkg-buildpackage -us -uc -b)
+    DEB_BUILD_OPTIONS="noddebs ${DEB_BUILD_OPTIONS:-}" dpkg-buildpackage -us -uc -b -J"$(nproc)")
 
 debs=("$work"/mbgw_*.deb)
 [ ${#debs[@]} -eq 1 ] && [ -f "${debs[0]}" ] || { echo "build-deb: no single mbgw_*.deb" >&2; exit 1; }
