@@ -125,9 +125,9 @@ def test_a_silent_address_is_refused_at_once_probed_at_the_interval_and_back_on_
     refused, and the line thread probes it itself with the first request that timed out, at
     INTERVAL, twice and 4 times INTERVAL after the failures before them; the third probe is
     answered, and the address serves again.  (Before issue 29 a client's request was the
-    probe; it is now only when no request is kept to probe with.)  The interval is 1 s here,
-    so that the address is still down while an operator's `mbgw status` starts."""
-    probe_ms = 1000
+    probe; it is now only when no request is kept to probe with.)  The interval is 500 ms
+    here: the address stays down 3.5 s, while an operator's `mbgw status` starts."""
+    probe_ms = 500
     probe_s = probe_ms / 1000
     gw, record = gateway(*(["--exception"] if exception else []), "--probe-interval",
                          str(probe_ms), mute_first=DOWN_AFTER + 2)
@@ -139,7 +139,7 @@ def test_a_silent_address_is_refused_at_once_probed_at_the_interval_and_back_on_
     s = wait_for(gw, lambda s: True, "status")     # in process: no CLI to start first
     assert devices(s)[MUTED]["health"] == "down"
     # the operator sees the rule and when the next probe may go (the line thread may have
-    # probed already on a loaded host: then within the doubled interval, 4 s at most here)
+    # probed already on a loaded host: then within the doubled interval, 2 s at most here)
     assert s["demotion"] == {"down_after": DOWN_AFTER, "probe_interval_ms": probe_ms}
     assert 0 <= devices(s)[MUTED]["next_probe_in_s"] <= 4 * probe_s
     shown = mbgw("status", "--control", gw.control).stdout
@@ -181,7 +181,7 @@ def test_a_silent_address_is_refused_at_once_probed_at_the_interval_and_back_on_
     assert d["gateway_exceptions"] == ({"0x0b": DOWN_AFTER + refused} if exception else {})
     assert health_log(gw, MUTED) == ["degraded", "down", "degraded"]
     assert f"device {MUTED} is down: {DOWN_AFTER} requests in a row without a valid reply; " \
-           f"its requests are refused, but for a probe every 1 s, backing off to 60 s" \
+           f"its requests are refused, but for a probe every {probe_s:g} s, backing off to 60 s" \
            in gw.log()
     assert devices(s)[1]["demoted_rejects"] == 0
     assert stop_counters(gw)["demoted_rejects"] == refused
