@@ -16,5 +16,8 @@ run() {
     .venv/bin/python -m pytest "$@" || { rc=$?; [ "$rc" -eq 5 ] || status=$rc; }
 }
 run -n 3 -m "not serial" "$@"
+# A serial test holds a gateway or a peer, so it lives in tests/integration or tests/component:
+# without arguments the second pass collects only those (the unit tests again cost it 7 s).
+[ "$#" -gt 0 ] || set -- tests/integration tests/component
 run -m serial "$@"
 exit "$status"
