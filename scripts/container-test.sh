@@ -122,8 +122,10 @@ cp "$deb" "$work/root/root/mbgw.deb"
 systemd-nspawn --quiet --register=no --keep-unit --private-network --console=read-only \
     --boot -D "$work/root" >"$work/console.log" 2>&1 &
 nspawn=$!
+# the container's init once it runs systemd: a child nspawn forks on its way there is gone
+# by the time it is asked for its namespaces
 for _ in $(seq 100); do
-    pid1=$(pgrep -P "$nspawn" | head -1) && [ -n "$pid1" ] && break
+    pid1=$(pgrep -x -P "$nspawn" systemd | head -1) && [ -n "$pid1" ] && break
     kill -0 "$nspawn" 2>/dev/null || break
     sleep 0.1
 done
