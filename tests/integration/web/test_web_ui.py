@@ -483,6 +483,7 @@ def test_the_traffic_page_filters_finds_and_pauses(browser, console):
     filter of the rows shown; pause, which counts what it did not show."""
     log_in(browser, console, "admin")
     go(browser, "traffic")
+    wait(browser, found('#trace-info[data-stream="open"]'))     # else the request may be missed
     modbus = Client(console.gw.port)
     try:
         here = "127.0.0.1:%d" % modbus.sock.getsockname()[1]
