@@ -10,7 +10,7 @@ import pytest
 from pymodbus.client import ModbusTcpClient
 
 import mbgw
-from tests.integration.master.test_master import recv
+from tests.harness import read_pty
 from tests.integration.ops.test_reload import config_set, reload
 from tests.integration.table import test_table_master, test_table_slave
 from tests.modbus import read_holding
@@ -135,4 +135,4 @@ def test_fc8_counts_a_bad_crc_to_the_tables_serial_address(table_master, line):
         request = bytes((TABLE_ADDRESS, 0x08, 0x00, sub, 0x00, 0x00))
         os.write(line, rtu(request))
         expected = rtu(bytes((TABLE_ADDRESS, 0x08, 0x00, sub, 0x00, count)))
-        assert recv(line, len(expected)).hex(" ") == expected.hex(" ")
+        assert read_pty(line, len(expected)).hex(" ") == expected.hex(" ")
