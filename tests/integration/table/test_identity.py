@@ -103,15 +103,8 @@ def test_master_mode_answers_the_identity_on_the_tables_serial_address_and_port(
         tcp.close()
 
 
-def test_a_reload_gives_and_takes_the_gateway_unit(tmp_path, pty_pair, start_peer,
-                                                   start_gateway, client):
-    start_peer("pymodbus_slave.py", pty_pair.device, "1", "--silent-unknown")
-    path = tmp_path / "mbgw.toml"
-    for words in (("serial", "baudrate", "19200"), ("serial", "stout", "100"),
-                  ("net", "exception", "on")):
-        config_set(path, *words)
-    gw = start_gateway(pty_pair.gateway, "--config", str(path))
-    c = client(gw)
+def test_a_reload_gives_and_takes_the_gateway_unit(reloadable):
+    path, gw, c = reloadable(1)
     report_server_id = bytes.fromhex("11")
     assert c.ask(GATEWAY_UNIT, report_server_id) == bytes.fromhex("91 0b")   # the line's
     config_set(path, "general", "gateway-unit", str(GATEWAY_UNIT))

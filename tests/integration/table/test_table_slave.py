@@ -273,14 +273,8 @@ def test_the_trace_shows_table_transactions(table_gateway, client, tmp_path):
 # --- reload ---------------------------------------------------------------------------------
 
 def test_a_reload_turns_the_table_on_moves_its_units_and_turns_it_off_on_the_same_connection(
-        tmp_path, pty_pair, start_peer, start_gateway, client):
-    start_peer("pymodbus_slave.py", pty_pair.device, str(LINE_UNIT), "--silent-unknown")
-    path = tmp_path / "mbgw.toml"
-    for words in (("serial", "baudrate", "19200"), ("serial", "stout", "100"),
-                  ("net", "exception", "on")):
-        config_set(path, *words)
-    gw = start_gateway(pty_pair.gateway, "--config", str(path))
-    c = client(gw)
+        reloadable):
+    path, gw, c = reloadable(LINE_UNIT)
     assert c.ask(247, read_holding(0, 1)) == bytes.fromhex("83 0b")     # the line's: silent
     config_set(path, "table", "enabled", "on")
     reload(gw, "configuration reloaded: table changed")
