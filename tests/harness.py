@@ -4,6 +4,7 @@ import contextlib
 import itertools
 import os
 import random
+import select
 import selectors
 import signal
 import socket
@@ -12,6 +13,8 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+
+from tests.modbus import REPLY_S
 
 PEERS = Path(__file__).parent / "peers"
 CHECKOUT = Path(__file__).resolve().parent.parent
@@ -113,6 +116,18 @@ def stop(proc: subprocess.Popen, sig=signal.SIGTERM) -> None:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+
+
+def read_pty(fd: int, n: int, timeout: float = REPLY_S) -> bytes:
+    """Up to n bytes from fd (a pty's end), whatever came within timeout."""
+    deadline = time.monotonic() + timeout
+    data = b""
+    while len(data) < n:
+        left = deadline - time.monotonic()
+        if left <= 0 or not select.select([fd], [], [], left)[0]:
+            break
+        data += os.read(fd, n - len(data))
+    return data
 
 
 class PtyPair:

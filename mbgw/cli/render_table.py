@@ -2,6 +2,14 @@
 from mbgw.cli.render_text import ago
 
 _TABLE_OUTCOMES = ("answered", "exception", "broadcast")
+# (the status key, what its count is said to be)
+_SERIAL_SLAVE = (("requests", "requests"), ("crc_errors", "invalid CRC"),
+                 ("length_errors", "invalid length"), ("send_failures", "failed sends"))
+_TCP_SERVER = (("connections_accepted", "accepted"),
+               ("connections_refused_limit", "refused (limit)"),
+               ("connections_bad_header", "closed (bad header)"))
+_TLS = (("tls_handshakes", "handshakes under way"), ("connections_refused_tls", "refused"),
+        ("connections_tls_probes", "closed before a byte"))
 
 
 def table_section(t: dict, mode: str, now: float, scenarios: bool = False) -> list[str]:
@@ -24,22 +32,13 @@ def table_section(t: dict, mode: str, now: float, scenarios: bool = False) -> li
                                                     for code, n in t["exceptions"].items()))
     serial = t.get("serial")
     if serial is not None:
-        lines.append(f"  serial slave: {serial.get('requests', 0)} requests, "
-                     f"{serial.get('crc_errors', 0)} invalid CRC, "
-                     f"{serial.get('length_errors', 0)} invalid length, "
-                     f"{serial.get('send_failures', 0)} failed sends")
+        lines.append("  serial slave: " + _counts(serial, _SERIAL_SLAVE))
     tcp = t.get("tcp")
     if tcp is not None:
         lines.append(f"  TCP server: {tcp.get('connections', 0)} of "
-                     f"{tcp.get('max_connections', '-')} clients, "
-                     f"{tcp.get('connections_accepted', 0)} accepted, "
-                     f"{tcp.get('connections_refused_limit', 0)} refused (limit), "
-                     f"{tcp.get('connections_bad_header', 0)} closed (bad header)")
+                     f"{tcp.get('max_connections', '-')} clients, " + _counts(tcp, _TCP_SERVER))
         if tcp.get("tls_port") is not None:
-            lines.append(f"  TLS on port {tcp['tls_port']}: "
-                         f"{tcp.get('tls_handshakes', 0)} handshakes under way, "
-                         f"{tcp.get('connections_refused_tls', 0)} refused, "
-                         f"{tcp.get('connections_tls_probes', 0)} closed before a byte")
+            lines.append(f"  TLS on port {tcp['tls_port']}: " + _counts(tcp, _TLS))
     persist = t.get("persist")
     if persist is not None:
         lines.append(f"  persist {_table_persist(persist, now)}")
@@ -47,6 +46,12 @@ def table_section(t: dict, mode: str, now: float, scenarios: bool = False) -> li
             lines.append(f"  persist FAILING since {ago(persist.get('failing_since'), now)}: "
                          f"{persist['failing']} (changes since the last save are not kept)")
     return lines
+
+
+def _counts(block: dict, words: tuple[tuple[str, str], ...]) -> str:
+    """'9 requests, 1 invalid CRC, ...': each count of block (0 when it has none) and what it
+    is."""
+    return ", ".join(f"{block.get(key, 0)} {word}" for key, word in words)
 
 
 def _table_reach(t: dict, mode: str) -> str:

@@ -14,7 +14,7 @@ from mbgw.config.model import SerialConfig, SlaveConfig
 from mbgw.config.route_plan import RouteMap
 from mbgw.master.serial_face import build_face
 from mbgw.routing.queue import Exchange, Inbox
-from tests.integration.master.test_master import recv
+from tests.harness import read_pty
 from tests.modbus import read_holding, rtu
 
 BAUD = 19200
@@ -116,7 +116,7 @@ def register_reply(exchange: Exchange):
 
 def ask(fd: int, frame: bytes, expected: bytes) -> None:
     os.write(fd, frame)
-    got = recv(fd, len(expected))
+    got = read_pty(fd, len(expected))
     assert got == expected, f"got {got.hex(' ')}, expected {expected.hex(' ')}"
 
 
@@ -145,7 +145,7 @@ def test_an_unrouted_address_gets_no_answer_and_reaches_no_line(face_with, line,
     # the unrouted request gets nothing: the routed one right behind it is answered first
     os.write(line, rtu(2, read_holding(0, 1)) + rtu(1, read_holding(0, 1)))
     expected = rtu(1, bytes((0x03, 2, 0, 105)))
-    assert recv(line, len(expected) + 1) == expected
+    assert read_pty(line, len(expected) + 1) == expected
     assert [e.address for e in t.wait_for(1)] == [5]
 
 
@@ -174,7 +174,7 @@ def test_without_exception_a_line_that_does_not_answer_in_time_is_silence(
     # nothing for 3: after its wait, the answer to 4 (written right behind) comes first
     expected = rtu(4, bytes((0x03, 2, 0, 104)))
     os.write(line, rtu(3, read_holding(0, 1)) + rtu(4, read_holding(0, 1)))
-    assert recv(line, len(expected) + 1) == expected
+    assert read_pty(line, len(expected) + 1) == expected
 
 
 def test_a_route_to_a_line_that_is_not_running_is_0x0a(face_with, line):

@@ -12,9 +12,8 @@ import os
 import pytest
 
 from mbgw.ops import control
-from tests.harness import PtyPair, free_port
+from tests.harness import PtyPair, free_port, read_pty
 from tests.integration.lines import test_lines as rig
-from tests.integration.master.test_master import recv
 from tests.modbus import read_holding, rtu_frame
 from tests.ops import mbgw, metric_value, scraped, status
 from tests.wait import until
@@ -209,7 +208,7 @@ def test_a_line_in_master_mode_is_shown_and_measured_by_its_name(lines, gateway,
             request = bytes((1,)) + read_holding(0, 1)
             os.write(master, rtu_frame(request))
             expected = rtu_frame(bytes((1,)) + rig.hr_reply(0, 1))
-            assert recv(master, len(expected)) == expected
+            assert read_pty(master, len(expected)) == expected
             asked, answered = only_panel.events(2)
         finally:
             os.close(master)

@@ -8,19 +8,18 @@ where the daemon does something on its own after the last event a test can see).
 import os
 import time
 
-from tests.harness import stop_counters
+from tests.harness import read_pty, stop_counters
 from tests.integration.master.test_master import (
     BAUD,
     REPLY_S,
     holding_reply,
     identity,
     read_holding,
-    recv,
     rtu,
 )
 from tests.ops import mbgw, status, wait_for, wait_for_log
 
-__all__ = ["BAUD", "REPLY_S", "holding_reply", "identity", "read_holding", "recv", "rtu",
+__all__ = ["BAUD", "REPLY_S", "holding_reply", "identity", "read_holding", "read_pty", "rtu",
            "ask", "unanswered", "probed", "mbgw", "status", "wait_for", "wait_for_log",
            "stop_counters"]
 
@@ -30,7 +29,7 @@ def ask(fd: int, *frames: bytes, expected: bytes) -> None:
     `expected` (an ADU without CRC)."""
     os.write(fd, b"".join(map(rtu, frames)))
     want = rtu(expected)
-    got = recv(fd, len(want))
+    got = read_pty(fd, len(want))
     assert got == want, f"wrote {[f.hex(' ') for f in frames]}: got {got.hex(' ')!r}, " \
                         f"expected {want.hex(' ')!r}"
 
@@ -49,13 +48,13 @@ def probed(fd: int, request: bytes, expected: bytes, refused: bytes) -> int:
     count = 0
     while True:
         os.write(fd, rtu(request))
-        got = recv(fd, 2)
+        got = read_pty(fd, 2)
         if got == rtu(refused)[:2]:
-            got += recv(fd, len(rtu(refused)) - 2)
+            got += read_pty(fd, len(rtu(refused)) - 2)
             assert got == rtu(refused), got.hex(" ")
             count += 1
             assert time.monotonic() < deadline, f"no probe after {count} refusals"
             continue
-        got += recv(fd, len(rtu(expected)) - 2)
+        got += read_pty(fd, len(rtu(expected)) - 2)
         assert got == rtu(expected), got.hex(" ")
         return count

@@ -20,7 +20,7 @@ from pymodbus.framer import FramerType
 
 from mbgw.line import native
 from tests import harness
-from tests.harness import Gateway, Peer, factory, free_port, logged_counters
+from tests.harness import Gateway, Peer, factory, free_port, logged_counters, read_pty
 from tests.modbus import rtu_frame as rtu
 
 pytestmark = pytest.mark.integration
@@ -141,18 +141,6 @@ def identity(host: str, unit: int) -> list[int]:
     return [c, d, unit]
 
 
-def recv(fd: int, n: int, timeout: float = REPLY_S) -> bytes:
-    """Up to n bytes, whatever came within timeout."""
-    deadline = time.monotonic() + timeout
-    data = b""
-    while len(data) < n:
-        left = deadline - time.monotonic()
-        if left <= 0 or not select.select([fd], [], [], left)[0]:
-            break
-        data += os.read(fd, n - len(data))
-    return data
-
-
 def mbpoll(device: str, address: int, *options: str, values=()) -> str:
     """mbpoll on holding registers, PDU (0-based) addresses, once."""
     out = subprocess.run(["mbpoll", "-m", "rtu", "-b", BAUD, "-P", "none", "-a", str(address),
@@ -202,7 +190,7 @@ def test_addresses_outside_the_table_get_no_answer(gateway, line):
     for address in (OTHER, 25, 247, 255):
         os.write(line, rtu(read_holding(address)) + rtu(read_holding(1)))
         expected = rtu(holding_reply(1, *identity("127.0.0.30", 1)))
-        assert recv(line, len(expected)).hex(" ") == expected.hex(" "), address
+        assert read_pty(line, len(expected)).hex(" ") == expected.hex(" "), address
     c = counters(gw)
     assert (c["other_addresses"], c["requests"], c["replies"]) == (4, 4, 4)
     assert c["gateway_exceptions"] == 0
@@ -221,7 +209,7 @@ def test_another_slaves_reply_is_not_taken_for_a_request(gateway, line, other_re
     gw = gateway(*GUIDE_LINES)
     os.write(line, rtu(other_request) + rtu(other_reply) + rtu(read_holding(1)))
     expected = rtu(holding_reply(1, *identity("127.0.0.30", 1)))
-    assert recv(line, len(expected)).hex(" ") == expected.hex(" ")
+    assert read_pty(line, len(expected)).hex(" ") == expected.hex(" ")
     c = counters(gw)
     assert (c["other_addresses"], c["requests"], c["crc_errors"], c["invalid_frames"]) == (
         2, 1, 0, 0)
@@ -233,7 +221,7 @@ def test_noise_right_before_a_request_does_not_cost_it(gateway, line, noise):
     gw = gateway(*GUIDE_LINES)
     os.write(line, bytes.fromhex(noise) + rtu(read_holding(1)))
     expected = rtu(holding_reply(1, *identity("127.0.0.30", 1)))
-    assert recv(line, len(expected)).hex(" ") == expected.hex(" ")
+    assert read_pty(line, len(expected)).hex(" ") == expected.hex(" ")
     c = counters(gw)
     assert (c["requests"], c["replies"], c["crc_errors"], c["invalid_frames"]) == (1, 1, 0, 0)
 
@@ -246,7 +234,7 @@ def test_a_remote_exception_passes_through(gateway, serial_client, line):
     client.close()
     os.write(line, rtu(read_holding(9, start=20, count=2)))
     expected = rtu(bytes.fromhex("09 83 02"))
-    assert recv(line, len(expected)).hex(" ") == expected.hex(" ")
+    assert read_pty(line, len(expected)).hex(" ") == expected.hex(" ")
     c = counters(gw)
     assert (c["device_exceptions"], c["gateway_exceptions"]) == (2, 0)
 
@@ -261,7 +249,7 @@ def test_tcpto_with_exception_answers_0x0b(gateway, line):
     started = time.monotonic()
     os.write(line, rtu(read_holding(2)))
     expected = rtu(bytes.fromhex("02 83 0b"))
-    assert recv(line, len(expected)).hex(" ") == expected.hex(" ")
+    assert read_pty(line, len(expected)).hex(" ") == expected.hex(" ")
     assert time.monotonic() - started >= TCPTO_S
     c = counters(gw)
     assert (c["timeouts"], c["gateway_exceptions"], c["replies"]) == (1, 1, 1)
@@ -270,10 +258,10 @@ def test_tcpto_with_exception_answers_0x0b(gateway, line):
 def test_tcpto_without_exception_is_silence(gateway, line):
     gw = gateway(*FAILING_LINES, options=["--tcpto", str(TCPTO_MS)])
     os.write(line, rtu(read_holding(2)))
-    assert recv(line, 1, NO_REPLY_S) == b""
+    assert read_pty(line, 1, NO_REPLY_S) == b""
     os.write(line, rtu(read_holding(1)))       # the gateway listens again
     expected = rtu(holding_reply(1, *identity("127.0.0.30", 1)))
-    assert recv(line, len(expected)).hex(" ") == expected.hex(" ")
+    assert read_pty(line, len(expected)).hex(" ") == expected.hex(" ")
     c = counters(gw)
     assert (c["timeouts"], c["gateway_exceptions"], c["replies"]) == (1, 0, 1)
 
@@ -286,7 +274,7 @@ def test_an_answer_the_master_no_longer_waits_for_is_dropped(gateway, line):
     os.write(line, rtu(read_holding(2)))
     os.write(line, rtu(read_holding(1)))
     expected = rtu(holding_reply(1, *identity("127.0.0.30", 1)))
-    assert recv(line, len(expected)).hex(" ") == expected.hex(" ")
+    assert read_pty(line, len(expected)).hex(" ") == expected.hex(" ")
     c = counters(gw)
     assert (c["timeouts"], c["abandoned"], c["replies"]) == (1, 1, 1)
 
@@ -296,7 +284,7 @@ def test_an_unreachable_server_gets_0x0a_at_once_with_exception(gateway, line):
     started = time.monotonic()
     os.write(line, rtu(read_holding(3)))
     expected = rtu(bytes.fromhex("03 83 0a"))
-    assert recv(line, len(expected)).hex(" ") == expected.hex(" ")
+    assert read_pty(line, len(expected)).hex(" ") == expected.hex(" ")
     assert time.monotonic() - started < 2.0        # refused: no waiting for tcpto
     assert "server 127.0.9.9:" in gw.log() and "unreachable: Connection refused" in gw.log()
     c = counters(gw)
@@ -307,7 +295,7 @@ def test_an_unreachable_server_without_exception_is_silence(gateway, line):
     gw = gateway(*FAILING_LINES, options=["--tcpto", "5000"])
     os.write(line, rtu(read_holding(3)) + rtu(read_holding(1)))
     expected = rtu(holding_reply(1, *identity("127.0.0.30", 1)))
-    assert recv(line, len(expected)).hex(" ") == expected.hex(" ")
+    assert read_pty(line, len(expected)).hex(" ") == expected.hex(" ")
     c = counters(gw)
     assert (c["unreachable"], c["gateway_exceptions"], c["replies"]) == (1, 0, 1)
 
@@ -318,10 +306,10 @@ def test_a_late_reply_is_dropped_by_its_transaction_id(gateway, line):
     gw = gateway(*FAILING_LINES, options=["--tcpto", str(LATE_TCPTO_MS), "--exception"])
     os.write(line, rtu(read_holding(1, start=9, count=1)))
     expected = rtu(bytes.fromhex("01 83 0b"))
-    assert recv(line, len(expected)).hex(" ") == expected.hex(" ")
+    assert read_pty(line, len(expected)).hex(" ") == expected.hex(" ")
     os.write(line, rtu(read_holding(1)))
     expected = rtu(holding_reply(1, *identity("127.0.0.30", 1)))
-    assert recv(line, len(expected)).hex(" ") == expected.hex(" ")
+    assert read_pty(line, len(expected)).hex(" ") == expected.hex(" ")
     c = counters(gw)
     assert (c["timeouts"], c["late_replies"], c["replies"]) == (1, 1, 2)
 
@@ -389,7 +377,7 @@ def test_a_broadcast_reaches_every_server_with_unit_0_and_gets_no_answer(gateway
             direct.close()
     os.write(line, rtu(read_holding(1)))
     expected = rtu(holding_reply(1, *identity(BROADCAST_HOSTS[0], 5)))
-    assert recv(line, len(expected)).hex(" ") == expected.hex(" ")
+    assert read_pty(line, len(expected)).hex(" ") == expected.hex(" ")
     c = counters(gw)
     assert (c["broadcasts"], c["requests"], c["replies"], c["gateway_exceptions"]) == (1, 1, 1, 0)
 
@@ -415,6 +403,6 @@ def test_an_ascii_master(gateway, serial_client, line):
     os.write(line, ascii_frame(read_holding(OTHER)) + ascii_frame(holding_reply(OTHER, 1, 2))
              + ascii_frame(read_holding(1)))
     expected = ascii_frame(holding_reply(1, *identity("127.0.0.30", 1)))
-    assert recv(line, len(expected)) == expected
+    assert read_pty(line, len(expected)) == expected
     c = counters(gw)
     assert (c["requests"], c["other_addresses"], c["device_exceptions"]) == (7, 2, 1)

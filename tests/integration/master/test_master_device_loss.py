@@ -18,7 +18,7 @@ from tests.integration.master.rig import (
     holding_reply,
     identity,
     read_holding,
-    recv,
+    read_pty,
     rtu,
     wait_for_log,
 )
@@ -54,7 +54,7 @@ def served_again(fd: int, address: int, poll_s: float = POLL_S) -> list[bytes]:
     misses = []
     while True:
         os.write(fd, rtu(read_holding(address)))
-        got = recv(fd, len(want), poll_s)
+        got = read_pty(fd, len(want), poll_s)
         if got == want:
             return misses
         misses.append(got)

@@ -24,7 +24,7 @@ from tests.integration.master.rig import (
     mbgw,
     probed,
     read_holding,
-    recv,
+    read_pty,
     rtu,
     status,
     stop_counters,
@@ -357,7 +357,7 @@ def test_trace_raw_shows_the_masters_requests_our_replies_and_noise(rig, line):
         # garbage (a master at the wrong baud rate), the request right behind it: one burst,
         # no valid frame as a whole, though mbgw finds the request at its end and answers
         os.write(line, GARBAGE + rtu(request))
-        assert recv(line, len(rtu(reply(1, SERVER, 1)))) == rtu(reply(1, SERVER, 1))
+        assert read_pty(line, len(rtu(reply(1, SERVER, 1)))) == rtu(reply(1, SERVER, 1))
         shown = [(kind, data) for _, kind, data in bursts(trace.lines(5))]
     finally:
         trace.stop()

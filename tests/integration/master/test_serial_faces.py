@@ -17,8 +17,8 @@ from pathlib import Path
 import pytest
 from pymodbus.client import ModbusSerialClient
 
-from tests.harness import free_port
-from tests.integration.master.test_master import BAUD, REPLY_S, holding_reply, identity, recv
+from tests.harness import free_port, read_pty
+from tests.integration.master.test_master import BAUD, REPLY_S, holding_reply, identity
 from tests.modbus import rtu_frame as rtu
 
 pytestmark = pytest.mark.integration
@@ -43,7 +43,7 @@ def ask(fd: int, request: bytes, expected: bytes) -> None:
     """Write the request (ADU without CRC); the first frame back must be `expected`."""
     os.write(fd, rtu(request))
     want = rtu(expected)
-    got = recv(fd, len(want) + 1)
+    got = read_pty(fd, len(want) + 1)
     assert got == want, f"{request.hex(' ')}: got {got.hex(' ')!r}, expected {want.hex(' ')!r}"
 
 
@@ -51,7 +51,7 @@ def unanswered(fd: int, request: bytes, then: bytes, expected: bytes) -> None:
     """request gets no answer: `then`, written right behind it, is answered first."""
     os.write(fd, rtu(request) + rtu(then))
     want = rtu(expected)
-    got = recv(fd, len(want) + 1)
+    got = read_pty(fd, len(want) + 1)
     assert got == want, f"{request.hex(' ')} then {then.hex(' ')}: got {got.hex(' ')!r}"
 
 
@@ -170,8 +170,8 @@ def test_two_lines_in_master_mode_each_reach_their_own_server(
     # both masters at once, each gets its own answer
     os.write(serial, rtu(read(1)))
     os.write(panel, rtu(read(2)))
-    assert recv(serial, 11) == rtu(holding_reply(1, *identity(METER, 1)))
-    assert recv(panel, 11) == rtu(holding_reply(2, *identity(PANEL_METER, 6)))
+    assert read_pty(serial, 11) == rtu(holding_reply(1, *identity(METER, 1)))
+    assert read_pty(panel, 11) == rtu(holding_reply(2, *identity(PANEL_METER, 6)))
     # mbpoll on panel, pymodbus's serial client on serial
     out = subprocess.run(["mbpoll", "-m", "rtu", "-b", BAUD, "-P", "none", "-a", "2", "-0",
                           "-1", "-o", str(REPLY_S), "-t", "4", "-r", "0", "-c", "3",

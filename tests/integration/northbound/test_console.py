@@ -3,23 +3,21 @@ Overview, and on the Lines page each line's state as the broker got it, beside i
 here.  One daemon for the module: Debian's Mosquitto, pymodbus's RTU slave on line serial,
 an idle second line, and a subscriber that saw the node's birth."""
 import shutil
-from types import SimpleNamespace
 
 import pytest
 
-from tests.harness import Gateway, Peer, PtyPair, free_port
+from tests.harness import Gateway, Peer, PtyPair
 from tests.integration.northbound.test_sparkplug import SLAVE, decode, metrics, scenarios
 from tests.integration.scenarios.test_scenarios_serial import write_config
-from tests.integration.web.chrome import DESKTOP, PHONE
-from tests.integration.web.test_web_pages import ARTIFACTS, MEASURE
-from tests.integration.web.test_web_ui import browser, go, log_in, set_password, text_in, wait
+from tests.integration.web.chrome import DESKTOP, PHONE, assert_fits, browser, page_of_size
+from tests.integration.web.test_web_ui import console_file, go, log_in, text_in, wait
 from tests.ops import status
 from tests.peers.broker import MOSQUITTO, Broker, Subscriber
 from tests.wait import until
 
 pytestmark = pytest.mark.integration
 
-__all__ = ["browser"]                    # the web tests' Chromium, a fixture
+__all__ = ["browser"]                    # the console tests' Chromium, a fixture
 NODE = "gw1"
 NBIRTH = f"spBv1.0/mbgw/NBIRTH/{NODE}"
 
@@ -37,15 +35,13 @@ class Northbound:
             self.pairs[name] = PtyPair(directory / name)
         self.peer = Peer("pymodbus_slave.py", self.pairs["serial"].device, str(SLAVE))
         path = directory / "mbgw.toml"
-        web_port = free_port()
         write_config(path, scenarios())
-        path.write_text(path.read_text() + f'[web]\nlisten = "127.0.0.1:{web_port}"\n'
-                        f'[mqtt]\nbroker = "{self.broker.url}"\nnode = "{NODE}"\n'
-                        f'[[line]]\nname = "meters"\ndevice = "{self.pairs["meters"].gateway}"\n'
-                        "baudrate = 19200\n")
-        set_password(path, "admin")
+        self.url = console_file(path, [
+            *path.read_text().splitlines(),
+            "[mqtt]", f'broker = "{self.broker.url}"', f'node = "{NODE}"',
+            "[[line]]", 'name = "meters"', f'device = "{self.pairs["meters"].gateway}"',
+            "baudrate = 19200"])
         self.gw = Gateway(directory, self.pairs["serial"].gateway, "--config", str(path))
-        self.url = f"http://127.0.0.1:{web_port}/"
 
     def stop(self) -> None:
         self.gw.stop()
@@ -66,7 +62,7 @@ def daemon(tmp_path_factory):
 
 
 def test_the_overview_has_an_mqtt_block(daemon, browser):
-    log_in(browser, SimpleNamespace(url=daemon.url), "admin")
+    log_in(browser, daemon, "admin")
     wait(browser, text_in('#overview-mqtt-facts tr[data-name="Connected"] td', "yes"))
     shown = browser.find_element("css selector", '#overview-mqtt-facts tr[data-name="Broker"] td')
     assert shown.text == f"{daemon.broker.url} (sparkplug, node {NODE})"
@@ -78,7 +74,7 @@ def test_the_lines_page_has_the_session_and_each_line_as_the_broker_got_it(daemo
     sent = metrics(decode(birth[0][2]))
     assert birth[0][1] == NBIRTH
     assert (sent["Lines/serial/State"], sent["Lines/meters/State"]) == ("up", "up")
-    log_in(browser, SimpleNamespace(url=daemon.url), "admin")
+    log_in(browser, daemon, "admin")
     go(browser, "lines")
     wait(browser, text_in('#lines-mqtt-facts tr[data-name="Connected"] td', "yes"))
     sent_count = status(daemon.gw)["mqtt"]["messages_sent"]
@@ -97,18 +93,9 @@ def test_the_lines_page_has_the_session_and_each_line_as_the_broker_got_it(daemo
 
 @pytest.mark.parametrize("size", [DESKTOP, PHONE], ids=["desktop", "phone"])
 def test_the_lines_page_with_mqtt_is_no_wider_than_the_window(daemon, browser, size):
-    width, height = size
-    browser.execute_cdp_cmd("Emulation.setDeviceMetricsOverride", {
-        "width": width, "height": height, "deviceScaleFactor": 1, "mobile": width < 600})
-    try:
-        log_in(browser, SimpleNamespace(url=daemon.url), "admin")
+    with page_of_size(browser, size):
+        log_in(browser, daemon, "admin")
         go(browser, "lines")
         wait(browser, text_in('#lines-mqtt-table tr[data-line="meters"] td.published', "up"))
         browser.execute_script("document.getElementById('lines-mqtt').scrollIntoView()")
-        shown, window, unreachable = browser.execute_script(MEASURE)
-        ARTIFACTS.mkdir(parents=True, exist_ok=True)
-        browser.save_screenshot(str(ARTIFACTS / f"lines-mqtt-{width}x{height}.png"))
-        assert shown <= window, f"{shown} px wide in {window}"
-        assert unreachable == [], unreachable
-    finally:
-        browser.execute_cdp_cmd("Emulation.clearDeviceMetricsOverride", {})
+        assert_fits(browser, "lines-mqtt-%dx%d" % size)

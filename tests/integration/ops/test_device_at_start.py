@@ -15,7 +15,7 @@ import time
 import pytest
 
 from tests.harness import PtyPair, free_port
-from tests.integration.master.rig import ask, holding_reply, identity, read_holding, recv, rtu
+from tests.integration.master.rig import ask, holding_reply, identity, read_holding, read_pty, rtu
 from tests.integration.slave.test_device_loss import (
     PATH_UNAVAILABLE,
     READ_3,
@@ -139,7 +139,7 @@ def test_master_mode_starts_without_its_device_and_serves_the_master_once_it_is_
         deadline = time.monotonic() + RECOVERY_S
         while True:                           # nobody reads the line until it is opened
             os.write(fd, rtu(read_holding(1)))
-            if recv(fd, len(expected), 0.5) == expected:
+            if read_pty(fd, len(expected), 0.5) == expected:
                 break
             assert time.monotonic() < deadline, f"not served {RECOVERY_S} s after"
         ask(fd, read_holding(10, start=0x1000, count=1), expected=holding_reply(10, 42))

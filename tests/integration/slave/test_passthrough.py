@@ -8,7 +8,6 @@ contents (tests/peers/pymodbus_slave.py: holding register n holds 100 + n, input
 holds 1000 + n, coils and discrete inputs alternate 1, 0; IDENTITY), never from mbgw's code.
 """
 import os
-import select
 import selectors
 import socket
 import struct
@@ -18,7 +17,7 @@ import time
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from tests.harness import factory
+from tests.harness import factory, read_pty
 from tests.modbus import crc16, recv_adu
 from tests.modbus import mbap as adu
 from tests.peers.pymodbus_slave import IDENTITY
@@ -277,16 +276,6 @@ def test_broadcast_writes_every_slave_and_gets_no_reply(pty_pair, start_peer, st
 
 # ---- a raw serial slave for what pymodbus cannot frame ----
 
-def read_line(fd: int, n: int, timeout: float = REPLY_TIMEOUT_S) -> bytes:
-    deadline = time.monotonic() + timeout
-    data = b""
-    while len(data) < n:
-        left = deadline - time.monotonic()
-        if left <= 0 or not select.select([fd], [], [], left)[0]:
-            break
-        data += os.read(fd, 512)
-    return data
-
 
 RAW_SLAVE = {
     # FC 08 sub-function 00 with 6 data bytes: the slave echoes them all.
@@ -310,7 +299,7 @@ def test_request_and_reply_cross_the_line_byte_exact(pty_pair, start_gateway, re
         with socket.create_connection(("127.0.0.1", gw.port), timeout=REPLY_TIMEOUT_S) as sock:
             sock.sendall(adu(0x4242, 9, request_pdu))
             frame = bytes((9,)) + request_pdu
-            assert read_line(fd, len(frame) + 2).hex(" ") == (frame + crc16(frame)).hex(" ")
+            assert read_pty(fd, len(frame) + 2).hex(" ") == (frame + crc16(frame)).hex(" ")
             frame = bytes((9,)) + reply_pdu
             os.write(fd, frame + crc16(frame))
             assert recv_adu(sock).hex(" ") == adu(0x4242, 9, reply_pdu).hex(" ")

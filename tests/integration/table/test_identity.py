@@ -10,7 +10,7 @@ import pytest
 from pymodbus.client import ModbusTcpClient
 
 import mbgw
-from tests.integration.master.test_master import recv
+from tests.harness import read_pty
 from tests.integration.ops.test_reload import config_set, reload
 from tests.integration.table import test_table_master, test_table_slave
 from tests.modbus import read_holding
@@ -103,15 +103,8 @@ def test_master_mode_answers_the_identity_on_the_tables_serial_address_and_port(
         tcp.close()
 
 
-def test_a_reload_gives_and_takes_the_gateway_unit(tmp_path, pty_pair, start_peer,
-                                                   start_gateway, client):
-    start_peer("pymodbus_slave.py", pty_pair.device, "1", "--silent-unknown")
-    path = tmp_path / "mbgw.toml"
-    for words in (("serial", "baudrate", "19200"), ("serial", "stout", "100"),
-                  ("net", "exception", "on")):
-        config_set(path, *words)
-    gw = start_gateway(pty_pair.gateway, "--config", str(path))
-    c = client(gw)
+def test_a_reload_gives_and_takes_the_gateway_unit(reloadable):
+    path, gw, c = reloadable(1)
     report_server_id = bytes.fromhex("11")
     assert c.ask(GATEWAY_UNIT, report_server_id) == bytes.fromhex("91 0b")   # the line's
     config_set(path, "general", "gateway-unit", str(GATEWAY_UNIT))
@@ -135,4 +128,4 @@ def test_fc8_counts_a_bad_crc_to_the_tables_serial_address(table_master, line):
         request = bytes((TABLE_ADDRESS, 0x08, 0x00, sub, 0x00, 0x00))
         os.write(line, rtu(request))
         expected = rtu(bytes((TABLE_ADDRESS, 0x08, 0x00, sub, 0x00, count)))
-        assert recv(line, len(expected)).hex(" ") == expected.hex(" ")
+        assert read_pty(line, len(expected)).hex(" ") == expected.hex(" ")

@@ -22,14 +22,13 @@ import pytest
 from pymodbus.client import ModbusTcpClient
 from pymodbus.framer import FramerType
 
-from tests.harness import factory, free_port, idle_connections
+from tests.harness import factory, free_port, idle_connections, read_pty
 from tests.integration.master.test_master import (
     BAUD,
     REPLY_S,
     holding_reply,
     identity,
     read_holding,
-    recv,
 )
 from tests.modbus import mbap, recv_adu
 from tests.modbus import rtu_frame as rtu
@@ -159,19 +158,19 @@ def test_the_table_address_answers_beside_the_routed_addresses(table_master, lin
     # the wire, byte-exact: routed address 2, then the table, then address 3
     os.write(line, rtu(read_holding(2)))
     expected = rtu(holding_reply(2, *identity(SERVER, 2)))
-    assert recv(line, len(expected)) == expected
+    assert read_pty(line, len(expected)) == expected
     os.write(line, rtu(read_holding(TABLE, FREE, 2)))
     expected = rtu(bytes.fromhex("0a 03 04 1234 abcd"))
-    assert recv(line, len(expected)) == expected
+    assert read_pty(line, len(expected)) == expected
     os.write(line, rtu(bytes.fromhex("0a 06 1001 beef")))        # FC 6 echoes
     expected = rtu(bytes.fromhex("0a 06 1001 beef"))
-    assert recv(line, len(expected)) == expected
+    assert read_pty(line, len(expected)) == expected
     os.write(line, rtu(write_multiple(TABLE, OUTPUTS, 1, 2, 3)))
     expected = rtu(write_multiple_reply(TABLE, OUTPUTS, 3))
-    assert recv(line, len(expected)) == expected
+    assert read_pty(line, len(expected)) == expected
     os.write(line, rtu(read_holding(3)))
     expected = rtu(holding_reply(3, *identity(SERVER, 3)))
-    assert recv(line, len(expected)) == expected
+    assert read_pty(line, len(expected)) == expected
     assert ask_tcp(sock, 2, 1, bytes.fromhex("03 1000 0002")) == bytes.fromhex("03 04 1234 beef")
     assert ask_tcp(sock, 3, 1, bytes.fromhex("03 0800 0003")) == \
         bytes.fromhex("03 06 0001 0002 0003")
@@ -186,7 +185,7 @@ def test_a_broadcast_writes_the_table_and_gets_no_answer(table_master, line, tcp
     # silence: the next request's answer is the first thing on the line
     os.write(line, rtu(read_holding(TABLE, FREE + 100, 2)))
     expected = rtu(bytes.fromhex("0a 03 04 0102 0304"))
-    assert recv(line, len(expected)) == expected
+    assert read_pty(line, len(expected)) == expected
     assert ask_tcp(tcp(port), 9, 1, bytes.fromhex("03 1064 0002")) == \
         bytes.fromhex("03 04 0102 0304")
     table = table_status(gw)
@@ -205,7 +204,7 @@ def test_a_bad_crc_to_the_table_address_is_counted_and_not_answered(table_master
     wait_for(gw, lambda s: s["table"]["serial"]["length_errors"] == 1, "counted the short frame")
     os.write(line, rtu(read_holding(TABLE, FREE, 1)))
     expected = rtu(bytes.fromhex("0a 03 02 0000"))
-    assert recv(line, len(expected)) == expected
+    assert read_pty(line, len(expected)) == expected
     serial = table_status(gw)["serial"]
     assert (serial["requests"], serial["crc_errors"], serial["length_errors"]) == (1, 1, 1)
 
@@ -215,7 +214,7 @@ def test_a_byte_count_that_does_not_match_is_a_length_error_answered_0x03(table_
     # FC 16 for 2 registers with a byte count of 2 (and 2 bytes): ended by silence, valid CRC
     os.write(line, rtu(bytes.fromhex("0a 10 1000 0002 02 0001")))
     expected = rtu(bytes.fromhex("0a 90 03"))
-    assert recv(line, len(expected)) == expected
+    assert read_pty(line, len(expected)) == expected
     assert table_status(gw)["serial"]["length_errors"] == 1
 
 
@@ -238,12 +237,12 @@ def test_an_ascii_master_reads_and_writes_the_table(table_master, serial_client,
     master.close()
     os.write(line, lrc_frame(read_holding(TABLE, OUTPUTS + 1, 1)))
     expected = lrc_frame(bytes.fromhex("0a 03 02 55aa"))
-    assert recv(line, len(expected)) == expected
+    assert read_pty(line, len(expected)) == expected
     bad = lrc_frame(read_holding(TABLE, OUTPUTS, 1))
     bad = bad[:-4] + (b"00" if bad[-4:-2] != b"00" else b"01") + b"\r\n"    # a wrong LRC
     os.write(line, bad + lrc_frame(bytes.fromhex("0a 06 0800 0001")))
     expected = lrc_frame(bytes.fromhex("0a 06 0800 0001"))
-    assert recv(line, len(expected)) == expected
+    assert read_pty(line, len(expected)) == expected
     serial = table_status(gw)["serial"]
     assert (serial["requests"], serial["crc_errors"]) == (4, 1)
 
@@ -262,7 +261,7 @@ def test_with_an_empty_slaveid_table_mbgw_is_a_modbus_rtu_server_of_local_data(
     # any other address is another slave's
     os.write(line, rtu(read_holding(2)) + rtu(read_holding(TABLE, 1, 1)))
     expected = rtu(bytes.fromhex("0a 03 02 0022"))
-    assert recv(line, len(expected)) == expected
+    assert read_pty(line, len(expected)) == expected
 
 
 # ---- exceptions reach the serial master ----
@@ -280,7 +279,7 @@ def test_exceptions_reach_the_serial_master(table_master, serial_client, line):
     for request, answer in cases:
         os.write(line, rtu(request))
         expected = rtu(answer)
-        assert recv(line, len(expected)).hex(" ") == expected.hex(" "), request.hex(" ")
+        assert read_pty(line, len(expected)).hex(" ") == expected.hex(" "), request.hex(" ")
     master = serial_client()
     rr = master.write_register(FREE, 1, device_id=TABLE)
     assert rr.isError() and rr.exception_code == 0x01
@@ -301,7 +300,7 @@ def test_table_port_answers_while_a_serial_request_waits_for_a_silent_server(tab
         assert ask_tcp(sock, tid, 1, bytes.fromhex("03 1000 0001")) == bytes.fromhex("03 02 0000")
     assert line_is_silent(line)          # the serial request is still waiting for its server
     expected = rtu(bytes.fromhex("14 83 0b"))
-    assert recv(line, len(expected)) == expected
+    assert read_pty(line, len(expected)) == expected
 
 
 def test_the_tcp_server_frames_pipelined_requests_broadcasts_and_bad_headers(table_master, tcp):
@@ -331,7 +330,7 @@ def test_fc7_tells_a_device_that_is_down(table_master, line, tcp):
     assert ask_tcp(tcp(port), 1, 1, bytes.fromhex("07")) == bytes.fromhex("07 04")
     os.write(line, rtu(bytes.fromhex("0a 07")))
     expected = rtu(bytes.fromhex("0a 07 04"))
-    assert recv(line, len(expected)) == expected
+    assert read_pty(line, len(expected)) == expected
 
 
 def test_more_than_32_polling_tcp_clients_are_refused(table_master, tcp):
@@ -412,7 +411,7 @@ def test_the_operator_reads_and_writes_the_table_the_serial_master_sees(table_ma
     assert done.returncode == 0, done.stderr
     os.write(line, rtu(read_holding(TABLE, FREE + 1, 2)))
     expected = rtu(bytes.fromhex("0a 03 04 1234 0005"))
-    assert recv(line, len(expected)) == expected
+    assert read_pty(line, len(expected)) == expected
     ask_tcp(tcp(port), 1, 1, bytes.fromhex("06 0800 002a"))
     read = mbgw("table", "read", "--control", gw.control, "--json", hex(OUTPUTS))
     assert read.returncode == 0, read.stderr
@@ -443,7 +442,7 @@ def test_outputs_and_free_zone_survive_a_restart(start_master, servers, tmp_path
     start_master(*options)
     os.write(line, rtu(read_holding(TABLE, OUTPUTS, 2)))
     expected = rtu(bytes.fromhex("0a 03 04 0102 0304"))
-    assert recv(line, len(expected)) == expected
+    assert read_pty(line, len(expected)) == expected
     assert ask_tcp(tcp(port), 4, 1, bytes.fromhex("03 7fff 0001")) == bytes.fromhex("03 02 beef")
     assert ask_tcp(tcp(port), 5, 1, bytes.fromhex("03 0010 0001")) == bytes.fromhex("03 02 0000")
 
@@ -467,7 +466,7 @@ def test_a_reload_moves_the_table_port_and_changes_the_functions(start_master, s
     assert ask_tcp(tcp(new_port), 2, 1, bytes.fromhex("06 1000 0002")) == bytes.fromhex("86 01")
     os.write(line, rtu(read_holding(TABLE, FREE, 1)))
     expected = rtu(bytes.fromhex("0a 03 02 0001"))
-    assert recv(line, len(expected)) == expected
+    assert read_pty(line, len(expected)) == expected
 
 
 def test_table_transactions_are_traced_with_outcome_table(table_master, line, tmp_path):
@@ -475,7 +474,7 @@ def test_table_transactions_are_traced_with_outcome_table(table_master, line, tm
     with tracing(gw, tmp_path / "trace.pcap", count=3) as (trace, _):
         os.write(line, rtu(bytes.fromhex("0a 06 1000 0009")))
         expected = rtu(bytes.fromhex("0a 06 1000 0009"))
-        assert recv(line, len(expected)) == expected
+        assert read_pty(line, len(expected)) == expected
         os.write(line, rtu(bytes.fromhex("00 06 1000 000a")))     # a broadcast: its event
         out, err = trace.communicate(timeout=10)
     assert trace.returncode == 0, err
@@ -496,7 +495,7 @@ def test_the_interframe_silence_delays_the_answer_to_the_serial_master(table_mas
                            (read_holding(2), holding_reply(2, *identity(SERVER, 2)))):
         os.write(line, rtu(request))
         written = time.monotonic()
-        assert recv(line, len(rtu(reply))) == rtu(reply)
+        assert read_pty(line, len(rtu(reply))) == rtu(reply)
         assert time.monotonic() - written >= INTERFRAME_MS / 1000
 
 
@@ -507,7 +506,7 @@ def test_the_master_moving_on_during_the_interframe_silence_abandons_the_answer(
     wait_for(gw, lambda s: s["table"]["serial"]["requests"] == 1, "the first request taken")
     os.write(line, rtu(read_holding(TABLE, CONFIG, 1)))     # the master moved on
     expected = rtu(bytes.fromhex("0a 03 02 6d62"))
-    assert recv(line, len(expected), timeout=REPLY_S + 2) == expected   # the second's only
+    assert read_pty(line, len(expected), timeout=REPLY_S + 2) == expected   # the second's only
     assert status(gw)["counters"]["abandoned"] == 1
 
 
@@ -519,15 +518,15 @@ def test_the_serial_slave_and_the_tcp_clients_have_function_lists_of_their_own(t
     sock = tcp(port)
     os.write(line, rtu(bytes.fromhex("0a 06 1000 beef")))
     expected = rtu(bytes.fromhex("0a 06 1000 beef"))
-    assert recv(line, len(expected)) == expected
+    assert read_pty(line, len(expected)) == expected
     assert ask_tcp(sock, 1, 1, bytes.fromhex("06 1000 0001")) == bytes.fromhex("86 01")
     assert ask_tcp(sock, 2, 1, bytes.fromhex("03 1000 0001")) == bytes.fromhex("03 02 beef")
     os.write(line, rtu(bytes.fromhex("0a 04 1000 0001")))
     expected = rtu(bytes.fromhex("0a 84 01"))
-    assert recv(line, len(expected)) == expected
+    assert read_pty(line, len(expected)) == expected
     os.write(line, rtu(read_holding(TABLE, FREE, 1)))
     expected = rtu(bytes.fromhex("0a 03 02 beef"))
-    assert recv(line, len(expected)) == expected
+    assert read_pty(line, len(expected)) == expected
     assert table_status(gw)["serial"]["requests"] == 3
 
 

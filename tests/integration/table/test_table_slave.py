@@ -20,9 +20,8 @@ import threading
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from tests.harness import factory
+from tests.harness import factory, read_pty
 from tests.integration.ops.test_reload import config_set, reload
-from tests.integration.slave.test_passthrough import read_line
 from tests.modbus import crc16, mbap, read_holding
 from tests.ops import mbgw, status, tracing, wait_for
 
@@ -175,7 +174,7 @@ def test_a_table_request_is_answered_while_the_line_waits_out_a_long_stout(
         slow, fast = client(gw), client(gw)
         slow.send(mbap(0x5101, 5, read_holding(0, 1)))
         frame = bytes((5,)) + read_holding(0, 1)
-        assert read_line(line, len(frame) + 2) == frame + crc16(frame)
+        assert read_pty(line, len(frame) + 2) == frame + crc16(frame)
         # the line now waits for the silent slave 5: the table answers meanwhile, twice, and
         # a request for the line read meanwhile waits its turn
         fast.send(mbap(0x7701, 247, bytes.fromhex("06 1000 0042")))
@@ -188,7 +187,7 @@ def test_a_table_request_is_answered_while_the_line_waits_out_a_long_stout(
         # then the slow request times out, and the one for slave 9 goes on the line
         assert slow.recv() == (0x5101, 5, bytes.fromhex("83 0b"))
         frame = bytes((9,)) + read_holding(3, 1)
-        assert read_line(line, len(frame) + 2) == frame + crc16(frame)
+        assert read_pty(line, len(frame) + 2) == frame + crc16(frame)
         answer = bytes((9,)) + bytes.fromhex("03 02 1234")
         os.write(line, answer + crc16(answer))
         assert fast.recv() == (0x7703, 9, bytes.fromhex("03 02 1234"))
@@ -274,14 +273,8 @@ def test_the_trace_shows_table_transactions(table_gateway, client, tmp_path):
 # --- reload ---------------------------------------------------------------------------------
 
 def test_a_reload_turns_the_table_on_moves_its_units_and_turns_it_off_on_the_same_connection(
-        tmp_path, pty_pair, start_peer, start_gateway, client):
-    start_peer("pymodbus_slave.py", pty_pair.device, str(LINE_UNIT), "--silent-unknown")
-    path = tmp_path / "mbgw.toml"
-    for words in (("serial", "baudrate", "19200"), ("serial", "stout", "100"),
-                  ("net", "exception", "on")):
-        config_set(path, *words)
-    gw = start_gateway(pty_pair.gateway, "--config", str(path))
-    c = client(gw)
+        reloadable):
+    path, gw, c = reloadable(LINE_UNIT)
     assert c.ask(247, read_holding(0, 1)) == bytes.fromhex("83 0b")     # the line's: silent
     config_set(path, "table", "enabled", "on")
     reload(gw, "configuration reloaded: table changed")

@@ -1,13 +1,5 @@
-"""What the console's browser tests share."""
-import pytest
+"""What the console's browser tests share: the desktop browser fixture (its home is
+chrome.py, where a test of another folder imports it from)."""
+from tests.integration.web.chrome import browser
 
-from tests.integration.web.chrome import DESKTOP, start_chromium
-
-
-@pytest.fixture(scope="module")
-def browser():
-    """Chromium at desktop size, shared by the tests of a module (one that wants another
-    size defines its own)."""
-    driver = start_chromium(*DESKTOP)
-    yield driver
-    driver.quit()
+__all__ = ["browser"]

@@ -152,19 +152,25 @@ def test_status_is_the_control_sockets_document_and_the_page_is_served(console):
     assert "default-src 'self'" in headers["Content-Security-Policy"]
 
 
+def close_the_only_client(web: Web, c: Client) -> None:
+    """c, the one client listed, having sent one request, closed through the API: the
+    gateway ends its connection, and a second close finds no such client."""
+    clients = web.ok("GET", "/api/clients")["clients"]
+    assert len(clients) == 1 and clients[0]["requests"] == 1
+    client_id = clients[0]["id"]
+    assert web.ok("POST", f"/api/clients/{client_id}/close", {}) == {"ok": True}
+    c.sock.settimeout(5)
+    assert c.sock.recv(1) == b""                   # the gateway closed it
+    assert web.post(f"/api/clients/{client_id}/close")[0] == 404
+
+
 def test_a_client_is_listed_and_closed_from_the_console(console):
     gw, _, web, _ = console()
     admin(web)
     c = Client(gw.port)
     try:
         assert c.ask(1, read_holding(0, 1)) == holding_reply(0, 1)    # a marker: it is served
-        clients = web.ok("GET", "/api/clients")["clients"]
-        assert len(clients) == 1 and clients[0]["requests"] == 1
-        client_id = clients[0]["id"]
-        assert web.ok("POST", f"/api/clients/{client_id}/close", {}) == {"ok": True}
-        c.sock.settimeout(5)
-        assert c.sock.recv(1) == b""                   # the gateway closed it
-        assert web.post(f"/api/clients/{client_id}/close")[0] == 404
+        close_the_only_client(web, c)
     finally:
         c.close()
     devices = web.ok("GET", "/api/devices")["devices"]
@@ -476,12 +482,7 @@ def test_master_and_transparent_mode_serve_the_console(mode, tmp_path, pty_pair,
     c = Client(table_port)          # the table server's clients are the Clients page's
     try:
         assert c.ask(1, read_holding(4100, 1)) == bytes.fromhex("03 02 002a")   # the 42
-        clients = web.ok("GET", "/api/clients")["clients"]
-        assert len(clients) == 1 and clients[0]["requests"] == 1
-        assert web.ok("POST", f"/api/clients/{clients[0]['id']}/close", {}) == {"ok": True}
-        c.sock.settimeout(5)
-        assert c.sock.recv(1) == b""                   # the gateway closed it
-        assert web.post(f"/api/clients/{clients[0]['id']}/close")[0] == 404
+        close_the_only_client(web, c)
     finally:
         c.close()
     assert web.ok("GET", "/api/scenarios") == {"scenarios": []} or mode == "master"

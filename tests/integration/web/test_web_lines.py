@@ -6,16 +6,15 @@ desktop's and a phone's width; screenshots kept in artifacts/console/."""
 import pytest
 from selenium.webdriver.common.by import By
 
-from tests.harness import Gateway, Peer, PtyPair, free_port
-from tests.integration.web.chrome import DESKTOP, PHONE
+from tests.harness import Gateway, Peer, PtyPair
+from tests.integration.web.chrome import ARTIFACTS, DESKTOP, PHONE, assert_fits, page_of_size
 from tests.integration.web.test_web_admin import RELOADED, Api
-from tests.integration.web.test_web_pages import ARTIFACTS, MEASURE
 from tests.integration.web.test_web_ui import (
     PASSWORDS,
+    console_file,
     found,
     go,
     log_in,
-    set_password,
     text_in,
     wait,
 )
@@ -46,19 +45,14 @@ class TwoLines:
             Peer("pymodbus_slave.py", self.pairs["beta"].device, str(UNIT), "--silent-unknown",
                  "--holding", str(VALUE_B))]
         self.path = directory / "mbgw.toml"
-        web_port = free_port()
-        self.path.write_text("\n".join([
+        self.url = console_file(self.path, [
             "[net]", "exception = true",
             "[serial]", f'device = "{self.pairs["serial"].gateway}"', "baudrate = 19200",
             "stout = 300",      # pymodbus on a busy machine: no timeout but the silent one
-            "[web]", f'listen = "127.0.0.1:{web_port}"',
             "[[line]]", 'name = "beta"', f'device = "{self.pairs["beta"].gateway}"',
             "baudrate = 38400", "stout = 400", 'format = "8e1"',
-            "[[route]]", 'units = "1-4"', 'line = "serial"']) + "\n")
-        for role in PASSWORDS:
-            set_password(self.path, role)
+            "[[route]]", 'units = "1-4"', 'line = "serial"'], PASSWORDS)
         self.gw = Gateway(directory, None, "--config", str(self.path))
-        self.url = f"http://127.0.0.1:{web_port}/"
         self.modbus = Client(self.gw.port)
 
     def read(self, unit: int) -> bytes:
@@ -223,24 +217,13 @@ def test_a_line_s_page_shows_its_settings_load_and_a_device_s_next_probe(browser
 
 @pytest.mark.parametrize("size", [DESKTOP, PHONE], ids=["desktop", "phone"])
 def test_the_lines_page_is_no_wider_than_the_window(browser, daemon, size):
-    width, height = size
-    browser.execute_cdp_cmd("Emulation.setDeviceMetricsOverride", {
-        "width": width, "height": height, "deviceScaleFactor": 1, "mobile": width < 600})
-    try:
+    with page_of_size(browser, size):
         assert value(daemon.read(UNIT - 4)) == VALUE_A         # a device with figures
         lines_page(browser, daemon)
         browser.get(daemon.url + "#lines/serial")
         wait(browser, found('#line-page[data-line="serial"] #line-devices'))
         wait(browser, text_in('#line-state tr[data-name="busy"] td', "%"))
         wait(browser, found("#routes-edit tbody tr"))
-        shown, window, unreachable = browser.execute_script(MEASURE)
-        ARTIFACTS.mkdir(parents=True, exist_ok=True)
-        browser.save_screenshot(str(ARTIFACTS / f"line-serial-{width}x{height}.png"))
+        assert_fits(browser, "line-serial-%dx%d" % size)
         browser.execute_script("document.getElementById('routes-table').scrollIntoView()")
-        browser.save_screenshot(str(ARTIFACTS / f"routes-{width}x{height}.png"))
-        assert shown <= window, f"{shown} px wide in {window}"
-        assert unreachable == [], unreachable
-    finally:
-        browser.execute_cdp_cmd("Emulation.setDeviceMetricsOverride", {
-            "width": DESKTOP[0], "height": DESKTOP[1], "deviceScaleFactor": 1,
-            "mobile": False})
+        browser.save_screenshot(str(ARTIFACTS / ("routes-%dx%d.png" % size)))

@@ -1,11 +1,9 @@
 """Every page of the console at a desktop's 1280×800 and a phone's 390×844: no page wider
 than the window (a wide table scrolls in its own box), every action within reach, and a
 screenshot of each kept in artifacts/console/ (docs/console-*.png are copies of some)."""
-from pathlib import Path
-
 import pytest
 
-from tests.integration.web.chrome import DESKTOP, PHONE, start_chromium
+from tests.integration.web.chrome import DESKTOP, PHONE, assert_fits, start_chromium
 from tests.integration.web.test_web_ui import (
     PAGE_LOADED,
     TABLE_UNIT,
@@ -19,21 +17,9 @@ from tests.modbus import Client, read_holding
 
 pytestmark = pytest.mark.integration
 
-ARTIFACTS = Path(__file__).resolve().parents[3] / "artifacts" / "console"
 PAGES = {"overview": "#overview-facts", **PAGE_LOADED, "firewall": "#firewall-rules",
          "events": "#events-table",
          "admin": "#system-table"}
-
-# The widest the page is, and the buttons out of reach: right of the window, or hidden
-# sideways in a box (a row's actions stick to the box's right edge, so they are in view).
-MEASURE = """
-const out = [];
-for (const b of document.querySelectorAll("#page button, header button")) {
-  const r = b.getBoundingClientRect();
-  if (r.width && (r.right > window.innerWidth + 1 || r.left < -1)) out.push(b.textContent);
-}
-return [document.documentElement.scrollWidth, window.innerWidth, out];
-"""
 
 
 @pytest.fixture(scope="module")
@@ -52,7 +38,6 @@ def sized(request):
 
 def test_no_page_is_wider_than_the_window_and_every_action_is_in_reach(sized, console):
     browser, size = sized
-    ARTIFACTS.mkdir(parents=True, exist_ok=True)
     modbus = Client(console.gw.port)            # a row on Clients, with its Close
     try:
         modbus.ask(TABLE_UNIT, read_holding(0, 1))
@@ -62,9 +47,6 @@ def test_no_page_is_wider_than_the_window_and_every_action_is_in_reach(sized, co
             wait(browser, found(loaded))
             if page == "clients":
                 wait(browser, found("#clients-table button.close-client"))
-            width, window, unreachable = browser.execute_script(MEASURE)
-            browser.save_screenshot(str(ARTIFACTS / f"{page}-{size}.png"))
-            assert width <= window, f"{page} at {size}: {width} px wide in {window}"
-            assert unreachable == [], f"{page} at {size}: {unreachable} out of reach"
+            assert_fits(browser, f"{page}-{size}")
     finally:
         modbus.close()

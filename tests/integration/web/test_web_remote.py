@@ -10,17 +10,16 @@ from pymodbus.client import ModbusSerialClient
 from pymodbus.exceptions import ModbusIOException
 from selenium.webdriver.common.by import By
 
-from tests.harness import Gateway, PtyPair, free_port
-from tests.integration.web.chrome import DESKTOP, PHONE, start_chromium
+from tests.harness import Gateway, PtyPair
+from tests.integration.web.chrome import DESKTOP, PHONE, assert_fits, page_of_size
 from tests.integration.web.test_web_admin import Api
 from tests.integration.web.test_web_lines import apply, choose, editor_row, fill
-from tests.integration.web.test_web_pages import ARTIFACTS, MEASURE
 from tests.integration.web.test_web_ui import (
     PASSWORDS,
+    console_file,
     found,
     go,
     log_in,
-    set_password,
     text_in,
     wait,
 )
@@ -50,19 +49,14 @@ class RemoteAndPanel:
         self.device = SingleClientDevice(delays=(0.001, 0.005), late_s=STOUT_MS / 1000 + 0.5)
         self.panel = PtyPair(directory)
         self.path = directory / "mbgw.toml"
-        web_port = free_port()
-        self.path.write_text("\n".join([
+        self.url = console_file(self.path, [
             "[net]", "exception = true",
-            "[web]", f'listen = "127.0.0.1:{web_port}"',
             "[[line]]", 'name = "inverter"', f'connect = "{self.device.url}"',
             f"stout = {STOUT_MS}",
             "[[line]]", 'name = "panel"', f'device = "{self.panel.gateway}"',
             "baudrate = 19200", 'mode = "master"',
-            "[[route]]", 'units = "40-49"', 'line = "inverter"']) + "\n")
-        for role in PASSWORDS:
-            set_password(self.path, role)
+            "[[route]]", 'units = "40-49"', 'line = "inverter"'], PASSWORDS)
         self.gw = Gateway(directory, None, "--config", str(self.path))
-        self.url = f"http://127.0.0.1:{web_port}/"
         self.modbus = Client(self.gw.port)
 
     def stop(self) -> None:
@@ -77,13 +71,6 @@ def daemon(tmp_path_factory):
     running = RemoteAndPanel(tmp_path_factory.mktemp("remote"))
     yield running
     running.stop()
-
-
-@pytest.fixture(scope="module")
-def browser():
-    driver = start_chromium(*DESKTOP)
-    yield driver
-    driver.quit()
 
 
 def inverter(s: dict) -> dict:
@@ -163,21 +150,10 @@ def test_a_route_from_a_serial_face_added_in_the_browser(browser, daemon):
 
 @pytest.mark.parametrize("size", [DESKTOP, PHONE], ids=["desktop", "phone"])
 def test_a_remote_line_s_page_is_no_wider_than_the_window(browser, daemon, size):
-    width, height = size
-    browser.execute_cdp_cmd("Emulation.setDeviceMetricsOverride", {
-        "width": width, "height": height, "deviceScaleFactor": 1, "mobile": width < 600})
-    try:
+    with page_of_size(browser, size):
         assert daemon.modbus.ask(INVERTER, read_holding(0, 1)) == reply(0, 1)
         log_in(browser, daemon, "admin")
         browser.get(daemon.url + "#lines/inverter")
         wait(browser, found('#line-page[data-line="inverter"] #line-devices'))
         wait(browser, found("#routes-edit tbody tr"))
-        shown, window, unreachable = browser.execute_script(MEASURE)
-        ARTIFACTS.mkdir(parents=True, exist_ok=True)
-        browser.save_screenshot(str(ARTIFACTS / f"line-remote-{width}x{height}.png"))
-        assert shown <= window, f"{shown} px wide in {window}"
-        assert unreachable == [], unreachable
-    finally:
-        browser.execute_cdp_cmd("Emulation.setDeviceMetricsOverride", {
-            "width": DESKTOP[0], "height": DESKTOP[1], "deviceScaleFactor": 1,
-            "mobile": False})
+        assert_fits(browser, "line-remote-%dx%d" % size)

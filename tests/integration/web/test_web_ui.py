@@ -181,6 +181,16 @@ def set_password(path: Path, role: str) -> None:
     assert done.returncode == 0, done.stderr
 
 
+def console_file(path: Path, lines: list[str], roles=("admin",)) -> str:
+    """Write the file: the console on a free port, then lines; a password for each of roles.
+    The console's URL."""
+    web_port = free_port()
+    path.write_text("\n".join(["[web]", f'listen = "127.0.0.1:{web_port}"', *lines]) + "\n")
+    for role in roles:
+        set_password(path, role)
+    return f"http://127.0.0.1:{web_port}/"
+
+
 class Console:
     """`mbgw slave` with its console on, a pymodbus RTU slave on its line polled by one
     scenario (another polls an address nothing answers), and the configuration file it
@@ -190,18 +200,13 @@ class Console:
         self.pty = PtyPair(directory)
         self.peer = Peer("pymodbus_slave.py", self.pty.device, "1", "--silent-unknown")
         self.path = directory / "mbgw.toml"
-        web_port = free_port()
-        self.path.write_text("\n".join([
+        self.url = console_file(self.path, [
             "[serial]", 'mode = "slave"', "baudrate = 115200", "stout = 100",
-            "[web]", f'listen = "127.0.0.1:{web_port}"',
             "[[scenario]]", f'name = "{SCENARIO}"', "slave = 1", "function = 3",
             "address = 0", "quantity = 2", "table = 0", "cycle = 200",
             "[[scenario]]", f'name = "{LOST}"', "slave = 9", "function = 3",
-            "address = 0", "quantity = 2", "table = 10", "cycle = 1000"]) + "\n")
-        for role in PASSWORDS:
-            set_password(self.path, role)
+            "address = 0", "quantity = 2", "table = 10", "cycle = 1000"], PASSWORDS)
         self.gw = Gateway(directory, self.pty.gateway, "--config", str(self.path))
-        self.url = f"http://127.0.0.1:{web_port}/"
 
     def stop(self) -> None:
         self.gw.stop()
@@ -478,6 +483,7 @@ def test_the_traffic_page_filters_finds_and_pauses(browser, console):
     filter of the rows shown; pause, which counts what it did not show."""
     log_in(browser, console, "admin")
     go(browser, "traffic")
+    wait(browser, found('#trace-info[data-stream="open"]'))     # else the request may be missed
     modbus = Client(console.gw.port)
     try:
         here = "127.0.0.1:%d" % modbus.sock.getsockname()[1]
@@ -547,10 +553,8 @@ PAGE_LOADED = {"clients": "#clients-table", "devices": "#devices-table, #no-devi
 @pytest.mark.parametrize("mode", ["master", "transparent"])
 def test_every_page_works_in_master_and_transparent_mode(browser, mode, tmp_path):
     path = tmp_path / "mbgw.toml"
-    web_port = free_port()
-    path.write_text(f'[serial]\nmode = "{mode}"\n[general]\nlocation = "Pump house 3"\n'
-                    f'[web]\nlisten = "127.0.0.1:{web_port}"\n')
-    set_password(path, "admin")
+    url = console_file(path, ["[serial]", f'mode = "{mode}"',
+                              "[general]", 'location = "Pump house 3"'])
     pty = PtyPair(tmp_path)
     tcp_port = free_port()                      # the table's server, or transparent's
     options = ["--table", "--table-port", str(tcp_port)] if mode == "master" else \
@@ -561,7 +565,7 @@ def test_every_page_works_in_master_and_transparent_mode(browser, mode, tmp_path
     try:
         modbus = Client(tcp_port)               # a client on Clients in every mode
         here = "127.0.0.1:%d" % modbus.sock.getsockname()[1]
-        log_in(browser, SimpleNamespace(url=f"http://127.0.0.1:{web_port}/"), "admin")
+        log_in(browser, SimpleNamespace(url=url), "admin")
         browser.get_log("browser")
         wait(browser, text_in('#overview-facts tr[data-name="Mode"] td', mode))
         wait(browser, text_in('#overview-facts tr[data-name="Location"] td', "Pump house 3"))
@@ -589,7 +593,6 @@ def scenarios(s: dict) -> dict:
 
 def test_the_lines_page_shows_every_line_and_each_remote_servers_figures(browser, tmp_path):
     path = tmp_path / "mbgw.toml"
-    web_port = free_port()
     server_port = free_port()
     servers = Peer("pymodbus_tcp_servers.py", str(server_port), "127.0.0.1")
     pairs = {}
@@ -597,8 +600,7 @@ def test_the_lines_page_shows_every_line_and_each_remote_servers_figures(browser
         (tmp_path / name).mkdir()
         pairs[name] = PtyPair(tmp_path / name)
     meters, panel = pairs["meters"], pairs["panel"]
-    path.write_text("\n".join([
-        "[web]", f'listen = "127.0.0.1:{web_port}"',
+    url = console_file(path, [
         "[[line]]", 'name = "meters"', f'device = "{meters.gateway}"', "baudrate = 19200",
         "[[line]]", 'name = "panel"', f'device = "{panel.gateway}"', "baudrate = 19200",
         'mode = "master"',
@@ -606,15 +608,14 @@ def test_the_lines_page_shows_every_line_and_each_remote_servers_figures(browser
         "[[route]]", 'units = "32-63"', 'line = "meters"', "offset = -31",
         "[[route]]", 'from = "panel"', 'units = "7"', 'line = "meters"', "address = 1",
         "[[route]]", 'units = "100-109"', f'server = "127.0.0.1:{server_port}"',
-        "offset = -99"]) + "\n")
-    set_password(path, "admin")
+        "offset = -99"])
     gw = Gateway(tmp_path, pairs["serial"].gateway, "--baudrate", "19200", "--config", str(path))
     try:
         c = Client(gw.port)
         for start in range(3):
             assert c.ask(101, read_holding(start, 1)) == bytes((3, 2, 0, start))
         assert c.ask(101, read_holding(10, 1)) == b"\x83\x02"      # the server's exception
-        log_in(browser, SimpleNamespace(url=f"http://127.0.0.1:{web_port}/"), "admin")
+        log_in(browser, SimpleNamespace(url=url), "admin")
         browser.get_log("browser")
         go(browser, "lines")
         for line, mode in (("serial", "slave"), ("meters", "slave"), ("panel", "master")):
@@ -639,22 +640,19 @@ def test_the_lines_page_shows_every_line_and_each_remote_servers_figures(browser
 
 def test_the_lines_page_shows_a_line_s_cache_figures(browser, tmp_path):
     path = tmp_path / "mbgw.toml"
-    web_port = free_port()
     pair = PtyPair(tmp_path)
     peer = Peer("pymodbus_slave.py", pair.device, "1", "--silent-unknown")
-    path.write_text("\n".join(["[serial]", "baudrate = 19200", "cache = { ttl = 600000 }",
-                               "[web]", f'listen = "127.0.0.1:{web_port}"']) + "\n")
-    set_password(path, "admin")
+    url = console_file(path, ["[serial]", "baudrate = 19200", "cache = { ttl = 600000 }"])
     gw = Gateway(tmp_path, pair.gateway, "--config", str(path))
     try:
         c = Client(gw.port)
         for _ in range(3):          # one miss, then two hits
             assert c.ask(1, read_holding(0, 2)) == bytes.fromhex("03 04 0064 0065")
-        log_in(browser, SimpleNamespace(url=f"http://127.0.0.1:{web_port}/"), "admin")
+        log_in(browser, SimpleNamespace(url=url), "admin")
         go(browser, "lines")
         # hits / coalesced / misses / stale
         wait(browser, text_in('#lines-table tr[data-line="serial"] td.cache', "2 / 0 / 1 / 0"))
-        browser.get(f"http://127.0.0.1:{web_port}/#lines/serial")   # the line's page, by unit
+        browser.get(url + "#lines/serial")   # the line's page, by unit
         row = '#line-page[data-line="serial"] #line-cache tr[data-unit="1"]'
         wait(browser, found(row))
         assert [td.text for td in browser.find_elements(By.CSS_SELECTOR, f"{row} td")] == \
@@ -667,23 +665,20 @@ def test_the_lines_page_shows_a_line_s_cache_figures(browser, tmp_path):
 
 def test_without_serial_the_pages_show_the_files_lines(browser, tmp_path):
     path = tmp_path / "mbgw.toml"
-    web_port = free_port()
     server_port = free_port()
     servers = Peer("pymodbus_tcp_servers.py", str(server_port), "127.0.0.1")
     (tmp_path / "meters").mkdir()
     meters = PtyPair(tmp_path / "meters")
     inverter = f"modbus-tcp://127.0.0.1:{server_port}"
-    path.write_text("\n".join([
-        "[web]", f'listen = "127.0.0.1:{web_port}"',
+    url = console_file(path, [
         "[[line]]", 'name = "inverter"', f'connect = "{inverter}"',
         "[[line]]", 'name = "meters"', f'device = "{meters.gateway}"', "baudrate = 19200",
         "[[route]]", 'units = "1-10"', 'line = "inverter"',
-        "[[route]]", 'units = "11-20"', 'line = "meters"', "offset = -10"]) + "\n")
-    set_password(path, "admin")
+        "[[route]]", 'units = "11-20"', 'line = "meters"', "offset = -10"])
     gw = Gateway(tmp_path, None, "--config", str(path))
     try:
         assert Client(gw.port).ask(3, read_holding(0, 3)) == bytes((3, 6, 0, 0, 0, 1, 0, 3))
-        log_in(browser, SimpleNamespace(url=f"http://127.0.0.1:{web_port}/"), "admin")
+        log_in(browser, SimpleNamespace(url=url), "admin")
         browser.get_log("browser")
         wait(browser, text_in('#overview-facts tr[data-name="Lines"] td', "inverter, meters"))
         wait(browser, text_in('#overview-facts tr[data-name="Line state"] td', "up"))

@@ -10,19 +10,17 @@ import pytest
 
 from mbgw.cli.render_scenarios import format_scenarios
 from mbgw.config.model import Demotion
-from mbgw.config.scenario import parse_scenario
 from mbgw.ops.device_stats import DOWN, DeviceHealth, HealthRule
 from mbgw.scenarios.engine import Scenarios
 from mbgw.scenarios.health import SerialHealth, ServerHealth
+from tests.unit.scenarios.test_scenario_engine import sc as scenario
 
 H = bytes.fromhex
 
 
 def sc(name, **keys):
-    base = {"name": name, "slave": 1, "function": 16, "address": 20, "quantity": 2,
-            "table": 20, "cycle": 1000}
-    base.update(keys)
-    return parse_scenario({k: v for k, v in base.items() if v is not None}, "s")
+    """A write of holding registers 20-21 from the table's 20-21 (keys: others)."""
+    return scenario(name, **{"function": 16, "address": 20, "table": 20, **keys})
 
 
 def status(e, name):

@@ -124,6 +124,15 @@ def test_status_master_table_section_with_serial_slave_and_persist():
     assert not any("FAILING" in line for line in lines)
 
 
+def test_status_master_table_section_with_its_tls_port():
+    table = {"requests": requests(), "exceptions": {},
+             "tcp": {"port": 1502, "connections": 0, "max_connections": 32,
+                     "tls_port": 1802, "tls_handshakes": 1, "connections_refused_tls": 2}}
+    lines = table_section(table, "master", NOW)
+    assert "  TLS on port 1802: 1 handshakes under way, 2 refused, 0 closed before a byte" \
+        in lines
+
+
 def test_status_says_when_the_table_file_cannot_be_written():
     table = {"requests": requests(), "exceptions": {},
              "persist": {"path": "/var/lib/mbgw/table", "interval_s": 10,
