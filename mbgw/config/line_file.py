@@ -12,7 +12,6 @@ from functools import partial
 
 from mbgw.config.cache import parse_cache
 from mbgw.config.lines import (
-    DEFAULT_SERVER_PORT,
     LINE_KINDS,
     LINE_MODES,
     MAX_LINES,
@@ -32,8 +31,8 @@ from mbgw.config.model import (
     STOUT_RANGE,
 )
 from mbgw.config.number_list import number_list_text, parse_number_list
-from mbgw.config.scenario import DEFAULT_TLS_SERVER_PORT, split_server
 from mbgw.config.schema import Schema, default_value
+from mbgw.config.server_address import DEFAULT_SERVER_PORT, DEFAULT_TLS_SERVER_PORT, split_server
 from mbgw.config.slaveid import parse_fingerprint
 from mbgw.config.tables import check_keys, parse_each, typed
 from mbgw.config.values import Problem, check_value, process, to_click

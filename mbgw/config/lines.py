@@ -26,7 +26,6 @@ LINE_KINDS = (*LINE_MODES, "monitor")   # a [[line]]'s; monitor: mbgw only liste
 NAME_PATTERN = re.compile(r"[a-z0-9][a-z0-9-]{0,31}")
 MAX_LINES = 32
 MAX_ROUTES = 256
-DEFAULT_SERVER_PORT = 502
 MAX_SERVER_UNIT = 255
 
 

@@ -3,7 +3,8 @@ each scenario's target."""
 import os
 import socket
 
-from mbgw.config.scenario import ScenarioConfig, split_server
+from mbgw.config.scenario import ScenarioConfig
+from mbgw.config.server_address import split_server
 
 PRIMARY_LINE = "serial"          # the line serial scenarios run on
 

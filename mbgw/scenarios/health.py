@@ -6,7 +6,8 @@ scenario's run are one device's probes; a TCP server's health is the TCP runner'
 the same HealthRule (down-after, probe-interval)."""
 import time
 
-from mbgw.config.scenario import ScenarioConfig, split_server
+from mbgw.config.scenario import ScenarioConfig
+from mbgw.config.server_address import split_server
 from mbgw.ops.device_stats import DOWN, UP, DeviceHealth, DeviceStats, HealthRule
 from mbgw.scenarios.exchange import DEVICE_DOWN, SERVER_DOWN
 

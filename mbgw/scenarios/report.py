@@ -1,6 +1,6 @@
 """The scenarios' figures as plain data: the status JSON's "scenarios" section (`mbgw status`,
-`mbgw scenarios`), which mbgw.ops.metrics turns into the /metrics families (ops does not
-import the scenarios).
+`mbgw scenarios`), which mbgw.ops.metrics_scenarios turns into the /metrics families (ops does
+not import the scenarios).
 
 scenarios_status(engines) -> [
     {"name": "boiler", "kind": "serial" | "tcp", "target": "slave 45" | "host:502 unit 1",

@@ -33,7 +33,7 @@ from collections.abc import Callable
 from typing import Any
 
 from mbgw.config.model import UpstreamTlsConfig
-from mbgw.config.scenario import split_server
+from mbgw.config.server_address import split_server
 from mbgw.errors import (
     BadReply,
     ConfigError,

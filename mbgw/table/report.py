@@ -1,5 +1,6 @@
 """The exchange table's figures as plain data, for `mbgw status` (its "table" section, also in
---json) and for /metrics (mbgw.ops.metrics reads this dict: ops does not import the table).
+--json) and for /metrics (mbgw.ops.metrics_table reads this dict: ops does not import the
+table).
 
 table_status(table, settings, serial, persist) ->
     {"functions": [3, 4, ...],                 the settings in force (TableConfig), when given:

@@ -2,15 +2,9 @@
 write the registers the serial master reads and writes (VPGate 3.4).
 
 One thread of its own with one poll() over the listening sockets, the connections and a
-wake-up eventfd, so a table request never waits for the serial line.  A read takes whatever
-the kernel holds (many pipelined requests at once); each whole MBAP frame is answered by one
-C call (Table.responder: the frame in, the reply frame out, under the table's lock), and the
-replies of one read leave in one send.  Unit id 0 is a broadcast (IDEC): its writes are
-done, nothing is sent back.  A protocol id other than 0 or a length outside 2..254 closes
-that connection only (counted).  The firewall (mbgw.firewall) compiles each client's rule
-when it connects (again at a reload); a request its rule refuses gets 0x01 and never
-reaches the table.  A client that does not read its replies is not read either
-until the socket has taken them (TCP back-pressure).  At most MAX_CONNECTIONS clients, a
+wake-up eventfd, so a table request never waits for the serial line.  What a client sends is
+read and answered by mbgw.table.client_requests.  The firewall (mbgw.firewall) compiles each
+client's rule when it connects (again at a reload).  At most MAX_CONNECTIONS clients, a
 share of them (mbgw.ops.limits.share) from one address: a newcomer over either takes the
 place of a client that never sent a whole request or is slow with one, else it is refused
 (closed at once, counted, logged at most once a minute per address).  A request begun must be
@@ -27,7 +21,6 @@ certificate, for the firewall), and the bytes SSL has decrypted but poll() canno
 (pending()) are read before the loop waits again.  set_tls() gives new connections a renewed
 context; those open keep theirs.
 """
-import errno
 import logging
 import os
 import queue
@@ -36,35 +29,28 @@ import socket
 import ssl
 import threading
 import time
-from typing import cast
 
 from mbgw.audit import Kind, event
-from mbgw.errors import BadHeader, ListenError
-from mbgw.firewall.guard import Firewall, Guard
-from mbgw.line import native
+from mbgw.errors import ListenError
+from mbgw.firewall.guard import Firewall
 from mbgw.net.address import format_address
 from mbgw.net.listen import ServerPorts
 from mbgw.net.ratelimit import RateLimitedLog
 from mbgw.net.tls import HANDSHAKE_TIMEOUT_S, role_of
 from mbgw.ops.eventfd import drain
 from mbgw.ops.limits import AcceptRest, WarnLimit, share
+from mbgw.table.client_requests import ClientRequests
 from mbgw.table.connection import Connection, eviction_victim, late
 from mbgw.table.handshakes import Handshakes
 
 log = logging.getLogger("mbgw.table")
 
 MAX_CONNECTIONS = 32          # table clients at once, by default ([table] max-connections)
-RECEIVE_SIZE = 4096           # one read: 15 requests of 260 bytes, 341 reads of 12
 REBIND_WAIT_S = 5.0           # a reload waits this long for the server's thread to rebind
-BROADCAST_UNIT = 0
 PER_ADDRESS = share(MAX_CONNECTIONS)
 SWEEP_S = 0.25                      # how often the deadlines are looked at, with clients
 
 _IN = select.POLLIN
-_OUT = select.POLLOUT
-_HEADER = native.HEADER
-_HEADER_LEN = native.HEADER_LEN
-_frame_length = native.frame_length
 
 
 class TableServer(threading.Thread):
@@ -97,25 +83,22 @@ class TableServer(threading.Thread):
         self._wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
         self._stopping = False
         self._new_listeners: list[socket.socket] | None = None
-        self.firewall = firewall or Firewall(None)
         self._new_firewall: Firewall | None = None
         self._lock = threading.Lock()      # _new_listeners
         self._clients: dict[int, Connection] = {}
         self._poll = select.poll()
         self._handshakes = Handshakes(self._poll, self._tls_client, self._tls_refused,
                                       self._tls_probe)
-        self._input = bytearray(RECEIVE_SIZE)
-        self._input_view = memoryview(self._input)
-        self._replies = bytearray()        # the replies of one read, sent together
         self.accepted = 0
         self.refused_limit = 0
-        self.bad_header = 0
         self.refused_authip = 0
         self.refused_tls = 0
         self.timed_out = 0
         self.evicted = 0
         self.request_timeout_s = HANDSHAKE_TIMEOUT_S     # set by the daemon (request-timeout)
         self._warn = WarnLimit(log)
+        self._requests = ClientRequests(self._poll, self._clients, self._close,
+                                        firewall or Firewall(None), self._warn)
         self._rest = AcceptRest(log, "table server")
         self._resting: dict[int, float] = {}       # a listener's fd -> when it listens again
         self._swept = 0.0
@@ -137,13 +120,18 @@ class TableServer(threading.Thread):
     def addresses(self) -> list[str]:
         return self._ports.addresses()
 
+    @property
+    def firewall(self) -> Firewall:
+        """The rules the clients are guarded by (set_firewall gives new ones)."""
+        return self._requests.firewall
+
     def figures(self) -> dict:
         """The TCP server's counters, as the status reports them."""
         return {"port": self.port, "connections": len(self._clients),
                 "max_connections": self.max_connections,
                 "connections_accepted": self.accepted,
                 "connections_refused_limit": self.refused_limit,
-                "connections_bad_header": self.bad_header,
+                "connections_bad_header": self._requests.bad_header,
                 "connections_refused_authip": self.refused_authip,
                 "tls_port": self.tls_port, "tls_handshakes": len(self._handshakes),
                 "connections_refused_tls": self.refused_tls,
@@ -178,7 +166,7 @@ class TableServer(threading.Thread):
         return True
 
     def reset_counts(self) -> None:
-        self.accepted = self.refused_limit = self.bad_header = self.refused_authip = 0
+        self.accepted = self.refused_limit = self._requests.bad_header = self.refused_authip = 0
         self.refused_tls = self.timed_out = self.evicted = self.tls_probes = 0
 
     def set_firewall(self, firewall: Firewall) -> None:
@@ -246,13 +234,14 @@ class TableServer(threading.Thread):
         listeners = self._ports.by_fd()
         clients = self._clients
         handshakes = self._handshakes
+        requests = self._requests
         self._answer = answer = self._table.responder().answer_mbap
         try:
             while not self._stopping:
                 for fd, events in poll.poll(self._wait_ms()):
                     client = clients.get(fd)
                     if client is not None:
-                        self._serve(client, events, answer)
+                        requests.serve(client, events, answer)
                     elif fd in handshakes:
                         handshakes.step(fd)
                     elif fd in listeners:
@@ -372,7 +361,7 @@ class TableServer(threading.Thread):
         client = Connection(sock, format_address(address), address[0], role, tls=True)
         self._adopt(client)
         if sock.pending():                  # a request came with the handshake's end
-            self._receive(client, self._answer)
+            self._requests.receive(client, self._answer)
 
     def _tls_probe(self) -> None:
         self.tls_probes += 1
@@ -427,7 +416,7 @@ class TableServer(threading.Thread):
         if new_bind is not None:
             self._rebind(*new_bind)
         if firewall is not None:
-            self.firewall = firewall
+            self._requests.firewall = firewall
             for client in self._clients.values():
                 client.guard = firewall.guard(client.host, client.role, client.listener)
         if new_tls is not None:
@@ -480,125 +469,3 @@ class TableServer(threading.Thread):
             self._poll.register(sock.fileno(), _IN)
         if not quiet:
             log.info("table server: listening on %s", ", ".join(self.addresses) or "no port")
-
-    # --- requests ---
-
-    def _serve(self, client: Connection, events: int, answer) -> None:
-        if events & _OUT:
-            if not self._flush(client):
-                return
-        if events & (_IN | select.POLLHUP | select.POLLERR) or client.tls:
-            self._receive(client, answer)
-        # what SSL has decrypted already, poll() does not see: read before waiting again
-        while client.tls and not client.held and client.fd in self._clients \
-                and cast(ssl.SSLSocket, client.sock).pending():
-            self._receive(client, answer)
-
-    def _receive(self, client: Connection, answer) -> None:
-        """One read of the client's requests, answered."""
-        try:
-            n = client.sock.recv_into(self._input)
-        except (BlockingIOError, InterruptedError, ssl.SSLWantReadError,
-                ssl.SSLWantWriteError):
-            return
-        except OSError:
-            self._close(client)
-            return
-        if n == 0:
-            self._close(client)
-            return
-        client.last_active = time.monotonic()
-        if client.partial:
-            client.partial += self._input_view[:n]
-            data = bytes(client.partial)
-            client.partial.clear()
-            view = memoryview(data)
-        else:
-            view = self._input_view[:n]
-        try:
-            self._answer_all(client, view, len(view), answer)
-        except BadHeader as err:
-            self.bad_header += 1
-            self._warn.warn(client.host, "bad header", "table client %s: bad MBAP header (%s); "
-                            "closing the connection", client.peer, err)
-            self._close(client)
-
-    def _answer_all(self, client: Connection, view: memoryview, n: int, answer) -> None:
-        """Answer every whole frame in view (n bytes); keep the start of an incomplete one.
-        Raises BadHeader once the replies before the bad header are sent."""
-        at = 0
-        replies = self._replies
-        try:
-            while n - at >= _HEADER_LEN:
-                _, protocol, length, unit = _HEADER.unpack_from(view, at)
-                end = _frame_length(protocol, length)
-                if end < 0:
-                    raise native.bad_header(end, protocol, length)
-                end += at
-                if end > n:
-                    break
-                client.requests += 1
-                guard = client.guard
-                if guard is not None and not guard.allows(unit, view[at + _HEADER_LEN:end]):
-                    reply = self._refused(client, guard, view[at:end], unit)
-                else:
-                    reply = answer(view[at:end], unit == BROADCAST_UNIT)
-                at = end
-                if not reply:
-                    continue
-                if not replies and n - at < _HEADER_LEN:
-                    self._send(client, reply)    # alone (the common case): sent as it is
-                else:
-                    replies += reply             # the buffer is the responder's: copied
-        finally:
-            if replies:
-                self._send(client, replies)
-                replies.clear()
-        if at < n:
-            if not client.partial_since or at:
-                client.partial_since = time.monotonic()
-            client.partial += view[at:n]
-        else:
-            client.partial_since = 0.0
-
-    def _refused(self, client: Connection, guard: Guard, frame, unit: int) -> bytes:
-        """The reply to a request the firewall refused: 0x01, a broadcast's too (it was not
-        done)."""
-        client.firewall_refused += 1
-        refusal = self.firewall.refused(guard, client.peer, client.role, unit,
-                                        frame[_HEADER_LEN:])
-        return native.frame(_HEADER.unpack_from(frame)[0], unit, refusal)
-
-    def _send(self, client: Connection, data) -> None:
-        """Onto the socket now, or held (and the client no longer read) until it takes it."""
-        if client.held:
-            client.held += data
-            return
-        try:
-            sent = client.sock.send(data)
-        except (BlockingIOError, InterruptedError, ssl.SSLWantWriteError,
-                ssl.SSLWantReadError):
-            sent = 0
-        except OSError as err:
-            if err.errno not in (errno.EPIPE, errno.ECONNRESET):
-                log.debug("table client %s: send: %s", client.peer, err.strerror)
-            return                          # the next poll finds the connection broken
-        if sent < len(data):
-            client.held += memoryview(data)[sent:]
-            self._poll.modify(client.fd, _OUT)
-
-    def _flush(self, client: Connection) -> bool:
-        """Send held replies; True once none are left (the client is read again)."""
-        try:
-            sent = client.sock.send(client.held)
-        except (BlockingIOError, InterruptedError, ssl.SSLWantWriteError,
-                ssl.SSLWantReadError):
-            return False
-        except OSError:
-            self._close(client)
-            return False
-        del client.held[:sent]
-        if client.held:
-            return False
-        self._poll.modify(client.fd, _IN)
-        return True

@@ -11,7 +11,7 @@ from mbgw import __version__
 from mbgw.audit import Kind, event
 from mbgw.errors import ConfigError
 from mbgw.web import config_api, system_info
-from mbgw.web.api import body, command, config_path, error, reloaded, who
+from mbgw.web.api_io import body, command, config_path, error, reloaded, who
 from mbgw.web.auth import ROLES
 from mbgw.web.passwords import MIN_LENGTH, hash_password, verify
 

@@ -5,15 +5,14 @@ role checks are the server's middleware (mbgw.web.server)."""
 import asyncio
 import json
 import logging
-from pathlib import Path
 
 from aiohttp import web
 
 from mbgw.audit import Kind, event
-from mbgw.config.file import nesting
 from mbgw.ops.trace import FILTER_KEYS, NO_RAW_VIEW
 from mbgw.ops.trace import filters as trace_filters
 from mbgw.web import config_api
+from mbgw.web.api_io import answer, body, command, config_path, error, read, reloaded, who
 from mbgw.web.auth import COOKIE, ROLES
 from mbgw.web.passwords import verify
 
@@ -21,9 +20,6 @@ log = logging.getLogger("mbgw.web")
 
 KEEPALIVE_S = 15.0                 # an SSE comment this often while nothing happens
 GONE_CHECK_S = 1.0                 # aiohttp 3.8 does not end a handler whose client has gone
-MAX_NESTING = 32                  # arrays and objects in one another in a JSON body, at most
-MAX_BODY = 1_000_000              # a request's body; more is refused (413)
-LOGIN_BODY = 4096                 # a login's: who needs more is not logging in
 
 
 def routes() -> list:
@@ -45,75 +41,6 @@ def routes() -> list:
         web.get("/api/config/file", config_download),
         web.post("/api/config/file", config_upload),
     ]
-
-
-def who(request: web.Request) -> str:
-    """The operator as the logs name them (the control commands' "uid")."""
-    session = request.get("session")
-    return f"web {session.role if session else '-'}@{request.remote}"
-
-
-def error(status: int, message: str, **more) -> web.Response:
-    return web.json_response({"error": message, **more}, status=status)
-
-
-def body_limit(request: web.Request) -> int:
-    return LOGIN_BODY if request.path == "/api/login" else MAX_BODY
-
-
-async def read(request: web.Request) -> bytes:
-    """The request's body, whole within request-timeout (408 raised else) and within its
-    bound (413 raised as soon as it is over, a chunked body included)."""
-    timeout_s = request.app["server"].cfg.request_timeout_ms / 1000
-    try:
-        return await asyncio.wait_for(_bounded(request, body_limit(request)), timeout_s)
-    except asyncio.TimeoutError:
-        raise web.HTTPRequestTimeout(text=json.dumps(
-            {"error": f"the body did not come whole within {timeout_s:g} s"}),
-            content_type="application/json") from None
-
-
-async def _bounded(request: web.Request, limit: int) -> bytes:
-    data = bytearray()
-    while chunk := await request.content.read(65536):
-        data += chunk
-        if len(data) > limit:
-            raise web.HTTPRequestEntityTooLarge(max_size=limit, actual_size=len(data))
-    return bytes(data)
-
-
-async def body(request: web.Request) -> dict:
-    """The request's JSON object; a 400 response is raised when it is not one."""
-    try:
-        data = json.loads((await read(request)).decode() or "{}")
-        if nesting(data) > MAX_NESTING:
-            raise ValueError
-    except (ValueError, RecursionError):
-        raise web.HTTPBadRequest(text=json.dumps(
-            {"error": f"the body is not valid JSON (nested {MAX_NESTING} deep at most)"}),
-            content_type="application/json") from None
-    if not isinstance(data, dict):
-        raise web.HTTPBadRequest(text=json.dumps({"error": "the body must be a JSON object"}),
-                                 content_type="application/json")
-    return data
-
-
-async def command(request: web.Request, name: str, args: dict | None = None):
-    """A control command's reply dict; None when this mode has no such command."""
-    handler = request.app["hooks"].commands.get(name)
-    if handler is None:
-        return None
-    reply = handler({**(args or {}), "uid": who(request)})
-    return await reply if asyncio.iscoroutine(reply) else reply
-
-
-def answer(reply: dict | None, missing: str) -> web.Response:
-    """A command's reply: 200, or 400 with its error; 404 when the mode lacks it."""
-    if reply is None:
-        return error(404, missing)
-    if "error" in reply:
-        return error(400, reply["error"])
-    return web.json_response(reply)
 
 
 # --- login -----------------------------------------------------------------------------------
@@ -333,15 +260,6 @@ def _connected(request: web.Request) -> bool:
 
 # --- the configuration file ------------------------------------------------------------------
 
-def config_path(request: web.Request) -> Path:
-    path = request.app["hooks"].config_file
-    if path is None:
-        raise web.HTTPNotFound(text=json.dumps(
-            {"error": "this daemon's settings came from the command line: no configuration "
-                      "file to show or change"}), content_type="application/json")
-    return Path(path)
-
-
 def _refused(err: config_api.ConfigRefused) -> web.Response:
     return error(400, str(err), field=err.field, problems=err.problems)
 
@@ -399,16 +317,3 @@ async def config_upload(request: web.Request) -> web.Response:
     event(log, Kind.CONFIG_CHANGED, "configuration file replaced from the web console (%s)",
           who(request), source="web", user=who(request), keys="the whole file")
     return await reloaded(request, {"mode": mode})
-
-
-async def reloaded(request: web.Request, done: dict) -> web.Response:
-    """The file is written: the daemon reloads it (as SIGHUP does), and the answer is the
-    reload's outcome, as the log says it.  200 only when every change is in force; 409 when
-    the file is written but the daemon refused it or put part of it in force (the running
-    configuration then differs from the file)."""
-    # shielded: a client that goes away (aiohttp cancels its handler) stops no reload
-    outcome = await asyncio.shield(asyncio.ensure_future(request.app["hooks"].reload()))
-    reply = {**done, "written": True, "reload": outcome.as_dict()}
-    if outcome.applied:
-        return web.json_response({"ok": True, **reply})
-    return error(409, f"written, but {outcome.message()}", **reply)

@@ -7,7 +7,7 @@ from aiohttp import web
 
 from mbgw.audit import Kind, event
 from mbgw.web import config_api
-from mbgw.web.api import body, config_path, error, reloaded, who
+from mbgw.web.api_io import body, config_path, error, reloaded, who
 
 log = logging.getLogger("mbgw.web")
 

@@ -15,7 +15,7 @@ from mbgw.errors import ListenError
 from mbgw.net.address import parse_host_port
 from mbgw.ops.limits import WarnLimit
 from mbgw.ops.reload import ReloadReport
-from mbgw.web import admin_api, api, routes_api
+from mbgw.web import admin_api, api, api_io, routes_api
 from mbgw.web.auth import COOKIE, CSRF_HEADER, LoginLimit, Sessions
 from mbgw.web.gate import Gate
 from mbgw.web.hooks import WebHooks
@@ -139,7 +139,7 @@ class WebServer:
             await asyncio.gather(*self._retiring, return_exceptions=True)
 
     def _app(self) -> web.Application:
-        app = web.Application(middlewares=[_track, _guard], client_max_size=api.MAX_BODY)
+        app = web.Application(middlewares=[_track, _guard], client_max_size=api_io.MAX_BODY)
         app["server"] = self
         app["hooks"] = self.hooks
         app.add_routes(api.routes())
@@ -173,9 +173,9 @@ async def _track(request: web.Request, handler):
     if gate is not None:
         gate.began(request.protocol)
     try:
-        limit = api.body_limit(request)
+        limit = api_io.body_limit(request)
         if request.content_length is not None and request.content_length > limit:
-            return api.error(413, f"the body is over {limit} bytes")
+            return api_io.error(413, f"the body is over {limit} bytes")
         return await handler(request)
     finally:
         if gate is not None:
@@ -192,16 +192,16 @@ async def _guard(request: web.Request, handler):
     server: WebServer = request.app["server"]
     session = server.sessions.get(request.cookies.get(COOKIE))
     if session is None:
-        return api.error(401, "not logged in, or the session has expired")
+        return api_io.error(401, "not logged in, or the session has expired")
     request["session"] = session
     changing = request.method not in ("GET", "HEAD", "OPTIONS")
     if changing and request.headers.get(CSRF_HEADER) != session.csrf:
         log.warning("web: %s %s refused: missing or wrong CSRF token (%s)", request.method,
-                    path, api.who(request))
-        return api.error(403, f"missing or wrong {CSRF_HEADER}")
+                    path, api_io.who(request))
+        return api_io.error(403, f"missing or wrong {CSRF_HEADER}")
     if session.role != "admin" and ((changing and path not in ANY_ROLE_POSTS)
                                     or path in ADMIN_READS):
-        return api.error(403, "the user role may only read; log in as admin")
+        return api_io.error(403, "the user role may only read; log in as admin")
     return await handler(request)
 
 

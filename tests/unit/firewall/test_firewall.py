@@ -7,7 +7,7 @@ import pytest
 
 from mbgw.config.firewall import FirewallConfig, from_file
 from mbgw.firewall.guard import Firewall
-from mbgw.ops.metrics import firewall_family
+from mbgw.ops.metrics_faces import firewall_family
 
 
 def firewall(text_rules: list[dict], default: str = "allow") -> Firewall:

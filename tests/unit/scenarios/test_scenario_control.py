@@ -16,7 +16,7 @@ from mbgw.cli import main
 from mbgw.cli.render_scenarios import format_scenarios
 from mbgw.config.scenario import parse_scenario
 from mbgw.ops.control import ControlServer
-from mbgw.ops.metrics import scenario_families
+from mbgw.ops.metrics_scenarios import scenario_families
 from mbgw.scenarios.control import scenario_commands
 from mbgw.scenarios.engine import Scenarios
 from mbgw.scenarios.report import scenarios_status
