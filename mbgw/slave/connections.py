@@ -339,6 +339,7 @@ class Connections:
         # called when the wake-up eventfd is read (by whoever holds the gate)
         self.on_wake: Callable[[], None] | None = None
         self._returned: deque[Client] = deque()    # lent clients given back (give_back)
+        self.closed = False     # close_all() has closed every client, lent ones included
 
     def adopt(self, client: Client) -> None:
         """Asyncio thread: from now on the line thread serves client."""
@@ -380,9 +381,11 @@ class Connections:
         loans.lend(client, self, done)
 
     def give_back(self, client: Client) -> None:
-        """A lent client's line: the client is this face's again (any thread)."""
-        self._returned.append(client)
-        os.eventfd_write(self._wake_fd, 1)
+        """A lent client's line: the client is this face's again (any thread).  Once the
+        face has closed them all (its wake-up eventfd may be closed too), nothing to do."""
+        if not self.closed:
+            self._returned.append(client)
+            os.eventfd_write(self._wake_fd, 1)
 
     def _take_returned(self) -> None:
         while self._returned:
@@ -483,6 +486,7 @@ class Connections:
                 self._serve(client, events & ~_OUT, on_request=on_request)
 
     def close_all(self) -> None:
+        self.closed = True
         while self._adopted:
             self._adopted.popleft().close()
         self._take_ports()
