@@ -26,7 +26,7 @@ from tests.integration.lines.test_remote_lines import (  # noqa: F401 (fixtures)
     reply,
 )
 from tests.modbus import mbap, read_holding
-from tests.ops import status, wait_for, wait_for_log
+from tests.ops import wait_for, wait_for_log
 from tests.peers.single_client_device import LATE_REGISTER
 
 pytestmark = pytest.mark.integration
