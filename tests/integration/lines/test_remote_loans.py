@@ -16,15 +16,8 @@ import struct
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from tests.integration.lines.test_lines import lines  # noqa: F401 (a fixture)
-from tests.integration.lines.test_remote_lines import (  # noqa: F401 (fixtures)
-    INVERTER,
-    STOUT_MS,
-    counter,
-    device,
-    gateway,
-    reply,
-)
+from tests.integration.lines.conftest import INVERTER, STOUT_MS
+from tests.integration.lines.test_remote_lines import counter, reply
 from tests.modbus import mbap, read_holding
 from tests.ops import wait_for, wait_for_log
 from tests.peers.single_client_device import LATE_REGISTER
@@ -45,9 +38,9 @@ def reload(gw, path, old: str, new: str) -> None:
     wait_for_log(gw, "configuration reloaded")
 
 
-def test_a_lent_clients_requests_are_answered_and_booked(gateway, client, device):
+def test_a_lent_clients_requests_are_answered_and_booked(remote_gateway, client, device):
     d = device(delays=(0.001, 0.003))
-    gw = gateway(d.url)
+    gw = remote_gateway(d.url)
     c = client(gw)
     for n in range(30):
         assert c.ask(INVERTER + n % 3, read_holding(n, 2)) == reply(n, 2)
@@ -62,9 +55,9 @@ def test_a_lent_clients_requests_are_answered_and_booked(gateway, client, device
     assert (d.connections, d.resets) == (1, 0)
 
 
-def test_a_lent_client_asking_elsewhere_is_the_faces_again(gateway, client, device):
+def test_a_lent_client_asking_elsewhere_is_the_faces_again(remote_gateway, client, device):
     d = device(delays=(0.001, 0.002))
-    gw = gateway(d.url)
+    gw = remote_gateway(d.url)
     c = client(gw)
     assert c.ask(INVERTER, read_holding(0, 1)) == reply(0, 1)
     assert c.ask(SERIAL_SLAVE, read_holding(0, 1))[0] == 0x03     # line serial's slave
@@ -74,9 +67,9 @@ def test_a_lent_client_asking_elsewhere_is_the_faces_again(gateway, client, devi
     assert [unit for unit, _ in d.requests] == [INVERTER] * 3
 
 
-def test_pipelined_requests_of_a_lent_client_each_get_their_reply(gateway, client, device):
+def test_pipelined_requests_of_a_lent_client_each_get_their_reply(remote_gateway, client, device):
     d = device(delays=(0.001, 0.005))
-    gw = gateway(d.url)
+    gw = remote_gateway(d.url)
     c = client(gw)
     assert c.ask(INVERTER, read_holding(0, 1)) == reply(0, 1)
     c.send(*(mbap(tid, INVERTER, read_holding(tid, 2)) for tid in (11, 12, 13)))
@@ -86,9 +79,9 @@ def test_pipelined_requests_of_a_lent_client_each_get_their_reply(gateway, clien
     assert len(d.requests) == 5
 
 
-def test_a_rule_a_reload_adds_holds_for_a_lent_client(tmp_path, gateway, client, device):
+def test_a_rule_a_reload_adds_holds_for_a_lent_client(tmp_path, remote_gateway, client, device):
     d = device(delays=(0.001, 0.002))
-    gw = gateway(d.url, rules="\n")
+    gw = remote_gateway(d.url, rules="\n")
     c = client(gw)
     assert c.ask(INVERTER, read_holding(0, 1)) == reply(0, 1)
     reload(gw, tmp_path / "mbgw.toml", "\n\n",
@@ -99,9 +92,9 @@ def test_a_rule_a_reload_adds_holds_for_a_lent_client(tmp_path, gateway, client,
 
 
 def test_a_reload_that_routes_the_unit_elsewhere_takes_the_next_request(
-        tmp_path, gateway, client, device):
+        tmp_path, remote_gateway, client, device):
     d = device(delays=(0.001, 0.002))
-    gw = gateway(d.url)
+    gw = remote_gateway(d.url)
     c = client(gw)
     assert c.ask(INVERTER, read_holding(0, 1)) == reply(0, 1)
     from_slave = c.ask(SERIAL_SLAVE, read_holding(0, 1))
@@ -114,9 +107,9 @@ def test_a_reload_that_routes_the_unit_elsewhere_takes_the_next_request(
 
 @pytest.mark.serial
 def test_a_lent_request_that_times_out_gets_0x0b_and_the_next_its_own_reply(
-        gateway, client, device):
+        remote_gateway, client, device):
     d = device(delays=(0.001, 0.002), late_s=STOUT_MS / 1000 + 0.2)
-    gw = gateway(d.url)
+    gw = remote_gateway(d.url)
     c = client(gw)
     assert c.ask(INVERTER, read_holding(0, 1)) == reply(0, 1)
     assert c.ask(INVERTER, read_holding(LATE_REGISTER, 2)) == b"\x83\x0b"
@@ -128,9 +121,9 @@ def test_a_lent_request_that_times_out_gets_0x0b_and_the_next_its_own_reply(
     assert (d.connections, d.resets) == (1, 0)
 
 
-def test_a_lent_client_that_closes_is_forgotten(gateway, client, device):
+def test_a_lent_client_that_closes_is_forgotten(remote_gateway, client, device):
     d = device(delays=(0.001, 0.002))
-    gw = gateway(d.url)
+    gw = remote_gateway(d.url)
     first = client(gw)
     assert first.ask(INVERTER, read_holding(0, 1)) == reply(0, 1)
     assert first.ask(INVERTER, read_holding(1, 1)) == reply(1, 1)
@@ -143,11 +136,11 @@ def test_a_lent_client_that_closes_is_forgotten(gateway, client, device):
     assert (d.connections, d.resets) == (1, 0)
 
 
-def test_the_units_offset_is_the_lines(tmp_path, gateway, client, device):
+def test_the_units_offset_is_the_lines(tmp_path, remote_gateway, client, device):
     """A route with an offset: the lent request reaches the device at its address there,
     the reply carries the client's own unit."""
     d = device(delays=(0.001, 0.002))
-    gw = gateway(d.url)
+    gw = remote_gateway(d.url)
     path = tmp_path / "mbgw.toml"
     reload(gw, path, 'units = "40-49"\nline = "inverter"',
            'units = "40-49"\nline = "inverter"\noffset = 10')
