@@ -259,7 +259,7 @@ int mbgw_take_request(struct _modbus *ctx, int client_fd, int *in_flight, uint8_
 
 /* --- remote.c: a remote line's exchange on Modbus TCP --- */
 
-/* What mbgw_remote_exchange did besides the reply. */
+/* What mbgw_remote_send and mbgw_remote_reply did besides the reply. */
 struct mbgw_remote {
     int64_t sent_ns; /* when the request was sent (0: it was not) */
     int64_t end_ns;  /* when the last byte read came (timed out: when the wait ended) */
@@ -269,23 +269,55 @@ struct mbgw_remote {
     int strays;      /* whole frames that did not answer the request, dropped */
     int noise;       /* the bytes from a header that frames nothing to the end */
     int left;        /* the bytes read behind the reply, dropped */
+    int forwarded;   /* the bytes of the reply the client's socket took (-1: not sent) */
 };
 /* Slave mode, a device across the network: drop what waits on the connected socket fd
- * (no request is outstanding), send the request req (address + PDU) in one Modbus TCP
- * frame with transaction id tid, and read into buf (cap bytes, at least MBGW_MBAP_MAX)
- * until a frame answers it or stout_ns has passed since the send.  Frames are cut by
- * their MBAP length (mbgw_mbap_frame_len); one answers when it has tid, protocol id 0,
- * req's address as its unit id and a PDU that answers req's (mbgw_tcp_reply_verdict); any
- * other whole frame is dropped (r->strays).  Returns the reply's length, MBAP header
- * included, at buf + r->at.  Errors: the request not sent (r->sent_ns 0): -ENOTCONN the
+ * (no request is outstanding) and send the request req (address + PDU) in one Modbus TCP
+ * frame with transaction id tid (buf: cap bytes, at least MBGW_MBAP_MAX, for what is
+ * dropped).  Returns 0 (r->sent_ns: when), or the request was not sent: -ENOTCONN the
  * device had closed the connection, -EAGAIN the socket took only part of it, -EINVAL
- * req_len outside 2..254 or cap too small, another send's -errno.  After the send:
+ * req_len outside 2..254 or cap too small, another send's -errno. */
+int mbgw_remote_send(int fd, uint8_t *buf, size_t cap, const uint8_t *req, size_t req_len,
+                     unsigned tid, struct mbgw_remote *r);
+/* After mbgw_remote_send of req with tid: read fd into buf until a frame answers req or
+ * deadline_ns passes.  Frames are cut by their MBAP length (mbgw_mbap_frame_len); one
+ * answers when it has tid, protocol id 0, req's address as its unit id and a PDU that
+ * answers req's (mbgw_tcp_reply_verdict); any other whole frame is dropped (r->strays).
+ * The reply found goes at once to to->fd when to is not NULL and to->fd >= 0, under
+ * to's transaction id and unit id (struct mbgw_forward; r->forwarded: the bytes the
+ * socket took).  Returns the reply's length, MBAP header included, at buf + r->at;
  * -ETIMEDOUT no reply in time (a frame begun is dropped), -ENOTCONN the device closed the
  * connection, -EPROTO a header that frames nothing (the stream is out of step), -EIO or
  * another -errno the connection failed. */
+int mbgw_remote_reply(int fd, uint8_t *buf, size_t cap, const uint8_t *req,
+                      size_t req_len, unsigned tid, int64_t deadline_ns,
+                      const struct mbgw_forward *to, struct mbgw_remote *r);
+/* mbgw_remote_send, then mbgw_remote_reply until stout_ns after the send, in one call;
+ * mbgw_remote_send's error when the request was not sent (r->sent_ns 0). */
 int mbgw_remote_exchange(int fd, uint8_t *buf, size_t cap, const uint8_t *req,
                          size_t req_len, unsigned tid, int64_t stout_ns,
-                         struct mbgw_remote *r);
+                         const struct mbgw_forward *to, struct mbgw_remote *r);
+
+/* A client lent to a remote line's thread (Modbus TCP): what its next request must meet
+ * to go to the line at once, and the request taken. */
+struct mbgw_loan {
+    const uint8_t *units; /* 256: the address each unit id has on this line; 0: not its */
+    const uint8_t *down;  /* 256 flags: the addresses that are down (demoted) */
+    int64_t arrived_ns;   /* out: when the request arrived (mbgw_client_recv) */
+    uint16_t tid;         /* out: the client's transaction id */
+    uint8_t unit;         /* out: the client's unit id */
+    int send_error;       /* out: mbgw_remote_send's result (0: the request went) */
+    int adu_len;          /* out: the request as it went on the line: address + PDU */
+    uint8_t adu[254];
+};
+/* A lent client readable: when what waits on client_fd is exactly one Modbus TCP request
+ * with a valid header whose unit id loan->units maps to an address that is not down, read
+ * it (mbgw_client_recv), count it in *in_flight (or NULL) and send it on the line
+ * (mbgw_remote_send with tid; r tells whether it went), and return 1: the caller then
+ * waits for its reply with mbgw_remote_reply.  Otherwise nothing is read: 0 (anything
+ * else waits, or the connection has ended), -EAGAIN nothing waits, another -errno. */
+int mbgw_remote_take(int client_fd, int *in_flight, int line_fd, uint8_t *buf, size_t cap,
+                     unsigned tid, struct mbgw_loan *loan, struct mbgw_remote *r);
 
 /* --- request.c: master mode, the serial master's requests for any address --- */
 

@@ -3,6 +3,7 @@
  * the socket read until match.c's mbap_cut finds the reply in the stream.  The socket is
  * the caller's: connected, opened and closed by it. */
 #include <errno.h>
+#include <sched.h>
 #include <stdint.h>
 #include <string.h>
 #include <sys/socket.h>
@@ -62,11 +63,35 @@ static int send_request(int fd, const uint8_t *req, size_t req_len, unsigned tid
     }
 }
 
-int mbgw_remote_exchange(int fd, uint8_t *buf, size_t cap, const uint8_t *req,
-                         size_t req_len, unsigned tid, int64_t stout_ns,
-                         struct mbgw_remote *r)
+/* The reply just found (len bytes at frame, MBAP header first) to the client's socket,
+ * under the client's transaction id and unit id; the frame is left as it came. */
+static int forward_reply(uint8_t *frame, long len, const struct mbgw_forward *to)
+{
+    uint8_t tid_hi = frame[0], tid_lo = frame[1], unit = frame[MBAP_HEAD_LEN];
+    frame[0] = (uint8_t)(to->tid >> 8);
+    frame[1] = (uint8_t)to->tid;
+    frame[MBAP_HEAD_LEN] = to->unit;
+    if (to->in_flight)
+        --*to->in_flight;
+    ssize_t w;
+    do
+        w = send(to->fd, frame, (size_t)len, MSG_DONTWAIT | MSG_NOSIGNAL);
+    while (w < 0 && errno == EINTR);
+    frame[0] = tid_hi;
+    frame[1] = tid_lo;
+    frame[MBAP_HEAD_LEN] = unit;
+    /* all of it when the connection is broken: its next read tells */
+    int forwarded = w >= 0 ? (int)w : errno == EAGAIN ? 0 : (int)len;
+    if (w > 0 && to->yield_cpu)
+        sched_yield();
+    return forwarded;
+}
+
+int mbgw_remote_send(int fd, uint8_t *buf, size_t cap, const uint8_t *req, size_t req_len,
+                     unsigned tid, struct mbgw_remote *r)
 {
     memset(r, 0, sizeof *r);
+    r->forwarded = -1;
     if (req_len < MBAP_MIN_LENGTH || req_len > MBAP_MAX_LENGTH || cap < MBGW_MBAP_MAX)
         return -EINVAL;
     int err = drain(fd, buf, cap, &r->stale);
@@ -75,13 +100,21 @@ int mbgw_remote_exchange(int fd, uint8_t *buf, size_t cap, const uint8_t *req,
     if (err < 0)
         return err;
     r->sent_ns = now_ns();
-    int64_t deadline = r->sent_ns + stout_ns;
+    return 0;
+}
+
+int mbgw_remote_reply(int fd, uint8_t *buf, size_t cap, const uint8_t *req,
+                      size_t req_len, unsigned tid, int64_t deadline_ns,
+                      const struct mbgw_forward *to, struct mbgw_remote *r)
+{
     size_t have = 0, pos = 0;
     for (;;) {
         long len = mbap_cut(req, req_len, tid & 0xFFFF, buf, have, &pos, &r->strays);
         if (len > 0) {
             r->at = (int)pos;
             r->left = (int)(have - pos - (size_t)len);
+            if (to && to->fd >= 0)
+                r->forwarded = forward_reply(buf + pos, len, to);
             return (int)len;
         }
         if (len < 0) {
@@ -94,7 +127,7 @@ int mbgw_remote_exchange(int fd, uint8_t *buf, size_t cap, const uint8_t *req,
             have -= pos;
             pos = 0;
         }
-        int ready = wait_input(fd, deadline);
+        int ready = wait_input(fd, deadline_ns);
         if (ready == 0) {
             r->end_ns = now_ns();
             return -ETIMEDOUT;
@@ -112,4 +145,48 @@ int mbgw_remote_exchange(int fd, uint8_t *buf, size_t cap, const uint8_t *req,
         r->received += (int)n;
         r->end_ns = now_ns();
     }
+}
+
+int mbgw_remote_exchange(int fd, uint8_t *buf, size_t cap, const uint8_t *req,
+                         size_t req_len, unsigned tid, int64_t stout_ns,
+                         const struct mbgw_forward *to, struct mbgw_remote *r)
+{
+    int err = mbgw_remote_send(fd, buf, cap, req, req_len, tid, r);
+    if (err < 0)
+        return err;
+    return mbgw_remote_reply(fd, buf, cap, req, req_len, tid, r->sent_ns + stout_ns, to,
+                             r);
+}
+
+int mbgw_remote_take(int client_fd, int *in_flight, int line_fd, uint8_t *buf, size_t cap,
+                     unsigned tid, struct mbgw_loan *loan, struct mbgw_remote *r)
+{
+    if (!loan->units || !loan->down)
+        return 0;
+    uint8_t in[MBAP_HEAD_LEN + MBAP_MAX_LENGTH + 1];
+    ssize_t n;
+    do
+        n = recv(client_fd, in, sizeof in, MSG_PEEK | MSG_DONTWAIT);
+    while (n < 0 && errno == EINTR);
+    if (n < 0)
+        return errno == EWOULDBLOCK ? -EAGAIN : -errno;
+    /* exactly one whole request (a header the length of what came), to this line, whose
+     * address is up: anything else stays in the socket for the face */
+    if (n < MBAP_LEN || mbgw_mbap_frame_len(be16(in + 2), be16(in + 4)) != n)
+        return 0;
+    uint8_t address = loan->units[in[MBAP_HEAD_LEN]];
+    if (!address || loan->down[address])
+        return 0;
+    if (mbgw_client_recv(client_fd, in, (size_t)n, &loan->arrived_ns) != n)
+        return -EIO; /* what the peek saw is gone: the face reads what is left */
+    size_t adu_len = be16(in + 4);
+    loan->tid = (uint16_t)be16(in);
+    loan->unit = in[MBAP_HEAD_LEN];
+    loan->adu[0] = address;
+    memcpy(loan->adu + 1, in + MBAP_LEN, adu_len - 1);
+    loan->adu_len = (int)adu_len;
+    if (in_flight)
+        ++*in_flight;
+    loan->send_error = mbgw_remote_send(line_fd, buf, cap, loan->adu, adu_len, tid, r);
+    return 1;
 }

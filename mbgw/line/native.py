@@ -243,24 +243,61 @@ BEFORE_UNIT = HEADER_LEN - 1     # the MBAP header's bytes before the unit id
 class MbapExchange:
     """mbgw_remote_exchange on a connected socket: the request out, its reply cut, matched
     and found, in one call; what else it did is in `result` (struct mbgw_remote: sent_ns,
-    end_ns, received, stale, strays, noise, left).  Its buffers are made once: one thread
+    end_ns, received, stale, strays, noise, left, forwarded).  And a lent client's request
+    taken to the line (take, then reply_to_loan).  Its buffers are made once: one thread
     (the remote line's) uses it."""
 
     def __init__(self) -> None:
         self._buf = ffi.new("uint8_t[]", REMOTE_SIZE)
         self.result = ffi.new("struct mbgw_remote *")
+        self.loan = ffi.new("struct mbgw_loan *")
+        self._to = ffi.new("struct mbgw_forward *")
 
-    def exchange(self, fd: int, adu: bytes, tid: int, stout_ns: int) -> int:
-        """Send adu (address + PDU) with transaction id tid and wait stout_ns for its reply.
-        Returns the reply's length (reply() gives it) or -errno (mbgw_remote_exchange's:
-        result.sent_ns is 0 when the request was not sent)."""
+    def exchange(self, fd: int, adu: bytes, tid: int, stout_ns: int,
+                 forward: Forward = NO_FORWARD) -> int:
+        """Send adu (address + PDU) with transaction id tid and wait stout_ns for its reply,
+        which goes to forward's client at once.  Returns the reply's length (reply() gives
+        it) or -errno (mbgw_remote_exchange's: result.sent_ns is 0 when the request was not
+        sent)."""
         return lib.mbgw_remote_exchange(fd, self._buf, REMOTE_SIZE, adu, len(adu), tid,
-                                        stout_ns, self.result)
+                                        stout_ns, self._forward_to(forward), self.result)
+
+    def lend_rules(self, units, down) -> None:
+        """What a lent client's request must meet (struct mbgw_loan): units, 256 bytes, the
+        address each unit id has on the line (0: not the line's); down, the addresses that
+        are down.  Both are read by every take: kept up to date in place."""
+        loan = self.loan
+        self._units = ffi.from_buffer(units)
+        self._down = ffi.from_buffer(down)
+        loan.units, loan.down = self._units, self._down
+
+    def take(self, client_fd: int, in_flight, line_fd: int, tid: int) -> int:
+        """mbgw_remote_take: 1 the client's request went on the line with tid (result.sent_ns
+        0: it could not be sent), 0 the client's input is not for a take, -errno."""
+        return lib.mbgw_remote_take(client_fd, in_flight, line_fd, self._buf, REMOTE_SIZE,
+                                    tid, self.loan, self.result)
+
+    def reply_to_loan(self, line_fd: int, tid: int, deadline_ns: int,
+                      forward: Forward) -> int:
+        """After take: its reply, found by deadline_ns and sent to forward's client; as
+        exchange() returns."""
+        loan = self.loan
+        return lib.mbgw_remote_reply(line_fd, self._buf, REMOTE_SIZE, loan.adu, loan.adu_len,
+                                     tid, deadline_ns, self._forward_to(forward), self.result)
+
+    def taken_adu(self) -> bytes:
+        """The request take sent: address + PDU."""
+        return ffi.buffer(self.loan.adu, self.loan.adu_len)[:]
 
     def reply(self, length: int) -> bytes:
         """The reply exchange() found (its length): unit id + PDU."""
         return ffi.buffer(self._buf + self.result.at + BEFORE_UNIT,
                           length - BEFORE_UNIT)[:]
+
+    def _forward_to(self, forward: Forward):
+        to = self._to
+        to.fd, to.tid, to.unit, to.yield_cpu, to.in_flight = forward
+        return to
 
 
 # --- the serial port (csrc/line.c, tty.c, request.c, forward.c, capture.c) ---

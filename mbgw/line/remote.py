@@ -18,7 +18,7 @@ import time
 from typing import Protocol
 
 from mbgw.errors import TargetUnreachable
-from mbgw.line.native import BEFORE_UNIT, MbapExchange
+from mbgw.line.native import BEFORE_UNIT, NO_FORWARD, Forward, MbapExchange
 
 log = logging.getLogger("mbgw.line")
 
@@ -95,28 +95,39 @@ class RemoteLine:
         raise TargetUnreachable(errno.ECONNRESET, f"{self.target}: the connection closes "
                                                   f"on every write")
 
-    def exchange(self, adu: bytes, tid: int, stout_ns: int) -> int:
+    def exchange(self, adu: bytes, tid: int, stout_ns: int,
+                 forward: Forward = NO_FORWARD) -> int:
         """Modbus TCP: adu (address + PDU) out with transaction id tid and its reply in, in
         one C call (self.mbap: its result tells what else came), connecting first when
         there is no connection; a request that finds the device closed it goes on a new
         connection, once.  Returns the reply's length (self.mbap.reply()), or -errno when
-        none came (a connection that ended, or fell out of step, is dropped).  Raises
+        none came (a connection that ended, or fell out of step, is dropped); a reply goes
+        to forward's client at once (mbap.result.forwarded).  Raises
         TargetUnreachable when the device cannot be reached."""
         mbap = self.mbap
         got = mbap.result
         counters = self.counters
         for _ in range(2):
             sock = self._sock if self._sock is not None else self._connect()
-            n = mbap.exchange(sock.fileno(), adu, tid, stout_ns)
+            n = mbap.exchange(sock.fileno(), adu, tid, stout_ns, forward)
             counters.bytes_received += got.stale + got.received
             if got.sent_ns:
                 counters.bytes_sent += len(adu) + BEFORE_UNIT
-                if n < 0 and n != -errno.ETIMEDOUT:
-                    self.drop(_ended(n, "read"))
+                self.ended(n)
                 return n
             self.drop(_ended(n, "write"))
         raise TargetUnreachable(errno.ECONNRESET, f"{self.target}: the connection closes "
                                                   f"on every write")
+
+    def ended(self, n: int) -> None:
+        """After a request went out: a connection that n (the C call's result) says ended,
+        or fell out of step, is dropped."""
+        if n < 0 and n != -errno.ETIMEDOUT:
+            self.drop(_ended(n, "read"))
+
+    def not_sent(self, n: int) -> None:
+        """A request could not be written (n: the C call's -errno): the connection is over."""
+        self.drop(_ended(n, "write"))
 
     def receive(self, deadline_ns: int) -> memoryview | None:
         """What came next, read before deadline_ns (a datagram whole): a view of this line's

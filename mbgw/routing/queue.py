@@ -11,6 +11,7 @@ import select
 import time
 from collections import deque
 from collections.abc import Callable, Hashable
+from typing import Any
 
 from mbgw.config.cache import CacheRule, RouteCache
 from mbgw.errors import Interrupted
@@ -27,7 +28,8 @@ Done = Callable[["Exchange", "bytes | None", str], None]
 class Exchange:
     """What a face hands a target: the address on the target (the unit after the route's
     rewrite), the PDU, when it arrived, who is owed the answer."""
-    __slots__ = ("source", "address", "pdu", "received_ns", "done", "context", "cache")
+    __slots__ = ("source", "address", "pdu", "received_ns", "done", "context", "cache",
+                 "loan_to", "taken", "forwarded")
 
     def __init__(self, source: Hashable, address: int, pdu: bytes, received_ns: int,
                  done: Done, context: object = None,
@@ -39,6 +41,10 @@ class Exchange:
         self.done = done
         self.context = context        # the face's own (its client, tid, unit): never read here
         self.cache = cache            # its route's cache (None: the line's, False: off)
+        # a target that may take the client's next requests itself (mbgw.slave.loans.Loans)
+        self.loan_to: Any = None
+        self.taken = False            # read by that target from a lent client, not the face
+        self.forwarded = -1           # the bytes of its reply the target sent the client
 
 
 class SurveyRead(Exchange):
@@ -60,6 +66,7 @@ class Inbox:
 
     def __init__(self) -> None:
         self._waiting: deque[Exchange] = deque()     # deque's append/popleft: thread-safe
+        self.loans: Any = None     # its target's, if it takes lent clients (mbgw.slave.loans)
         self.wake_fd = os.eventfd(0, os.EFD_NONBLOCK | os.EFD_CLOEXEC)
 
     def submit(self, exchange: Exchange) -> None:

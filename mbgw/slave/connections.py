@@ -67,6 +67,8 @@ class Client:
     # changed (readable, output_waiting, held); polled_in: whether it is polled for input.
     on_change: Callable[["Client"], None] | None = None
     polled_in = False
+    # lent to a remote line's thread (mbgw.slave.loans): read and written there, not here
+    lent = False
 
     def __init__(self, sock: socket.socket, host: str, peer: str, local: str) -> None:
         self.id = next(_client_ids)
@@ -336,6 +338,8 @@ class Connections:
         self._warn = WarnLimit(log)
         # called when the wake-up eventfd is read (by whoever holds the gate)
         self.on_wake: Callable[[], None] | None = None
+        self._returned: deque[Client] = deque()    # lent clients given back (give_back)
+        self.closed = False     # close_all() has closed every client, lent ones included
 
     def adopt(self, client: Client) -> None:
         """Asyncio thread: from now on the line thread serves client."""
@@ -350,9 +354,48 @@ class Connections:
 
     def poll_also(self, fd: int, on_ready) -> None:
         """Line thread: fd wakes wait() too, which then calls on_ready() (the scenario
-        engine's eventfd; its owner reads it)."""
+        engine's eventfd, whose owner reads it; a client lent to this line)."""
         self._poll.register(fd, _IN)
         self._also[fd] = on_ready
+
+    def poll_no_more(self, fd: int) -> None:
+        """Line thread: poll_also's fd no longer."""
+        if self._also.pop(fd, None) is not None:
+            self._poll.unregister(fd)
+
+    # --- clients lent to a remote line's thread (mbgw.slave.loans) ---
+
+    def lend(self, client: Client, loans, done) -> None:
+        """Under the home: client (at rest, plain) is read and written by loans' line from
+        now on, until it gives it back; done: the exchanges' outcomes, as for the face's."""
+        fd = client.fd
+        events = self._events.get(fd, 0)
+        if events:
+            self._poll.unregister(fd)
+            if events & _IN and self._mirror is not None:
+                self._mirror.unregister(fd)
+        self._events[fd] = 0
+        client.polled_in = False
+        client.on_change = None
+        client.lent = True
+        loans.lend(client, self, done)
+
+    def give_back(self, client: Client) -> None:
+        """A lent client's line: the client is this face's again (any thread).  Once the
+        face has closed them all (its wake-up eventfd may be closed too), nothing to do."""
+        if not self.closed:
+            self._returned.append(client)
+            os.eventfd_write(self._wake_fd, 1)
+
+    def _take_returned(self) -> None:
+        while self._returned:
+            client = self._returned.popleft()
+            client.lent = False
+            if self._clients.get(client.fd) is not client:
+                continue                # closed meanwhile (close_all)
+            client.on_change = self._changes.append
+            client.changed = True
+            self._changes.append(client)    # polled again in the next update()
 
     def wait(self, timeout_ms: int, serial_fd: int = -1, take=None) -> bool:
         """Line thread: wait up to timeout_ms (-1: no limit, 0: not at all) for a client, the
@@ -390,6 +433,8 @@ class Connections:
                 if client is None:
                     if fd in self._also:
                         self._also[fd]()
+                    continue
+                if client.lent:         # polled before it was lent: not ours to read
                     continue
                 if take is not None and client.at_rest and client.guard is None:
                     self._serve(client, events, take)
@@ -437,10 +482,11 @@ class Connections:
                 self._woken(on_request)
                 continue
             client = self._clients.get(fd)
-            if client is not None and client.readable:
+            if client is not None and client.readable and not client.lent:
                 self._serve(client, events & ~_OUT, on_request=on_request)
 
     def close_all(self) -> None:
+        self.closed = True
         while self._adopted:
             self._adopted.popleft().close()
         self._take_ports()
@@ -456,6 +502,7 @@ class Connections:
         drain(self._wake_fd)
         if self.on_wake is not None:
             self.on_wake()
+        self._take_returned()
         self._take_ports()
         while self._adopted:
             # read at once: what a newcomer sent must not wait for the next transaction
@@ -488,7 +535,7 @@ class Connections:
         for client in changes:
             client.changed = False
             fd = client.fd
-            if clients.get(fd) is not client:
+            if clients.get(fd) is not client or client.lent:
                 continue
             readable = client.readable
             if readable and client.held:

@@ -111,6 +111,7 @@ class LineExchanges:
         else:
             if reply is not None:
                 self._counters.replies += 1     # as the Router counts what it sends
+            exchange.forwarded = forwarded
             exchange.done(exchange, reply, job.outcome)
 
     @staticmethod

@@ -26,7 +26,7 @@ import time
 
 from mbgw.config.model import SlaveConfig
 from mbgw.errors import LineTimeout, SerialError
-from mbgw.line.native import HEADER, HEADER_LEN, NO_FORWARD, Reception
+from mbgw.line.native import HEADER, HEADER_LEN, NO_FORWARD, Forward, Reception
 from mbgw.line.serial_line import SerialLine
 from mbgw.line.supervisor import TURN_MARGIN_S, LineThread, longest_frame_s
 from mbgw.ops.counters import Counters
@@ -299,21 +299,28 @@ class SlaveLineThread(LineThread[SlaveConfig]):
 
     def _serve(self, job: Job) -> None:
         """job on the line; its outcome to its client (or face) at once, the books after."""
-        if self._answered_off_the_line(job):
-            return
+        if not self._answered_off_the_line(job):
+            self._transact(job)
+
+    def _forward(self, job: Job) -> Forward:
+        """Where the reply may go straight from the C receive: to a client whose earlier
+        replies have all gone out.  With no other request waiting for the line, that client
+        (often woken onto this CPU) then runs before our bookkeeping.  Not a write's on a
+        line with a cache: what it overlaps is dropped first (LineCache.after)."""
         client = job.client
+        if self._reader is None and client is not None and \
+                not (self.cache.caching and job.adu[1] in WRITTEN):
+            return client.forward_target(job.tid, job.unit, not self._scheduler.depth)
+        return NO_FORWARD
+
+    def _transact(self, job: Job) -> None:
+        """_serve's transaction: job on the line, its outcome delivered, then its books."""
         rule = job.cache
         cache = self.cache
         got = None
         forwarded = -1
         try:
-            # The reply may go straight to a client whose earlier replies have all gone out.
-            # With no other request waiting for the line, that client (often woken onto this
-            # CPU) then runs before our bookkeeping.  Not a write's on a line with a cache:
-            # what it overlaps is dropped first (LineCache.after).
-            forward = client.forward_target(job.tid, job.unit, not self._scheduler.depth) \
-                if self._reader is None and client is not None and \
-                not (cache.caching and job.adu[1] in WRITTEN) else NO_FORWARD
+            forward = self._forward(job)
             master = self._master
             assert master is not None          # jobs are served only while the line is up
             got = self._exchange_job(master, job, forward)

@@ -121,21 +121,36 @@ class MbapFraming(_RemoteFraming):
         """send() and receive() in one C call (RemoteLine.exchange), the deadline stout_ns
         after the send: the reply to adu, or a LineTimeout fault when none came in time or
         the connection ended first.  Raises TargetUnreachable as send() does."""
-        counters = self._counters
-        strays = bool(self._rx)         # what a receive of a frame nobody asked for left
+        return self.reception(self.line.exchange(adu, self.next_tid(), stout_ns, forward))
+
+    def next_tid(self) -> int:
+        """The transaction id of the request about to go (what a receive of a frame nobody
+        asked for left unread is dropped with it)."""
+        self._counters.stray_replies += bool(self._rx)
         self._rx.clear()
         self._tid = tid = (self._tid + 1) & 0xFFFF
+        return tid
+
+    def reception(self, n: int) -> Reception:
+        """What the C exchange (or a lent client's take, mbgw.slave.loans) found: n, the
+        reply's length or -errno; the rest in the line's mbap.result."""
         line = self.line
-        n = line.exchange(adu, tid, stout_ns)
         got = line.mbap.result
-        counters.stray_replies += strays + bool(got.stale) + got.strays + bool(got.left) \
-            + (n == BAD_HEADER)
+        counters = self._counters
+        counters.stray_replies += bool(got.stale) + got.strays + bool(got.left) + \
+            (n == BAD_HEADER)
         counters.noise_bytes += got.noise
         if n < 0:
             return Reception(None, TIMED_OUT, -1, 0, got.noise, -1, got.sent_ns, got.end_ns)
         line.answered()
         frame = line.mbap.reply(n)
-        return Reception(frame, None, -1, len(frame), 0, -1, got.sent_ns, got.end_ns)
+        return Reception(frame, None, -1, len(frame), 0, got.forwarded, got.sent_ns,
+                         got.end_ns)
+
+    def exchanged(self, adu: bytes, got: Reception) -> Reception:
+        """A lent client's request the line's thread took (SerialMaster.book_taken): what
+        its reply_to_loan found, as reception() made it."""
+        return got
 
     def _encode(self, adu: bytes) -> bytes:
         self._tid = (self._tid + 1) & 0xFFFF

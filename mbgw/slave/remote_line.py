@@ -6,19 +6,32 @@ What differs from a serial line: the line is never "lost" as a tty is, to be fou
 its path; the RemoteLine connects when a request needs it, and an unreachable device (refused,
 or the backoff after a failure) costs the request a 0x0A, not the line.  While the backoff
 holds, a request is refused when it comes, without waiting its turn.
-"""
 
+A Modbus TCP line also takes the Modbus TCP face's clients lent to it (mbgw.slave.loans): a
+lent client's request that finds the line idle goes to the device and its reply to the
+client in C on this thread (_take_lent); its books are kept while the device works on the
+next one, or after LULL_MS of idleness (_idle), before anything else uses the line.
+"""
+import errno
 from typing import cast
 
 from mbgw.config.lines import LineConfig
 from mbgw.config.model import SlaveConfig
 from mbgw.errors import SerialError, TargetUnreachable
+from mbgw.line.native import BEFORE_UNIT, Forward
 from mbgw.line.remote import RemoteLine
 from mbgw.line.serial_line import SerialLine
 from mbgw.ops.counters import RemoteCounters
 from mbgw.ops.device_stats import DeviceHealth
-from mbgw.routing.queue import Inbox, Scheduler
+from mbgw.routing.queue import Exchange, Inbox, Job, Scheduler
+from mbgw.slave.connections import Client
 from mbgw.slave.line_thread import SlaveLineThread
+from mbgw.slave.loans import Loans
+from mbgw.slave.remote_framing import MbapFraming
+
+# A taken request's books wait this long (ms) for the next lent request, whose device time
+# they then use, before the idle line keeps them.
+LULL_MS = 1
 
 
 def remote_line(line: LineConfig, counters: RemoteCounters) -> RemoteLine:
@@ -37,8 +50,15 @@ class RemoteLineThread(SlaveLineThread):
         self._remote = remote_line(line, counters)
         # the socket stands where a SerialLine would: it has what the thread uses of one
         # (cfg, port, close; the framing comes from mbgw.slave.framing.framing_for)
+        self._pending: Job | None = None    # a taken request's books, not kept yet
+        self.loans: Loans | None = None     # the face's clients lent to it (Modbus TCP)
         super().__init__(cfg, cast(SerialLine, self._remote), scheduler, server, counters,
                          devices)
+        if line.remote is not None and line.remote.kind == "modbus-tcp":
+            self.loans = Loans(self._connections, scheduler.wake, self._take_lent)
+            self._connections.on_wake = self.loans.adopt
+            self.loans.open = self._takes_loans()
+            self._remote.mbap.lend_rules(self.loans.units, self._down)
 
     def set_target(self, line: LineConfig) -> None:
         """A reload's new [[line]] (before reconfigure(), from another thread): connect-delay
@@ -65,6 +85,11 @@ class RemoteLineThread(SlaveLineThread):
         self._remote = remote_line(self.remote_config, self._remote_counters)
         return cast(SerialLine, self._remote)
 
+    def _attach(self, line) -> None:
+        super()._attach(line)
+        if self.loans is not None:      # a new socket: its C exchange's rules
+            self._remote.mbap.lend_rules(self.loans.units, self._down)
+
     def _reopens(self, old, new) -> bool:
         return old.device != new.device     # the URL: another device
 
@@ -77,6 +102,7 @@ class RemoteLineThread(SlaveLineThread):
     def _reopen(self) -> None:
         """A new connect: the line is a new socket at once (it connects when a request
         needs it)."""
+        self._book_pending()
         self._reopening = None
         self._line = line = self._open_line()
         self._attach(line)
@@ -85,6 +111,126 @@ class RemoteLineThread(SlaveLineThread):
         super().use_inbox(inbox)
         assert self._exchanges is not None
         self._exchanges.holding = self._holding   # a device in backoff: 0x0A at once
+        if self.loans is not None:
+            self.loans.inbox = inbox
+            inbox.loans = self.loans
 
     def _holding(self) -> bool:
         return self._remote.holding
+
+    # --- the face's clients lent to this line (mbgw.slave.loans) ---
+
+    def _takes_loans(self) -> bool:
+        """No cache to ask first and no pause to keep: a lent request may go at once."""
+        cfg = self._cfg
+        return cfg.cache is None and cfg.serial.interframe_ms == 0 and \
+            self._timing.longest_pause_ms == 0
+
+    def _configure(self, old, reopen: bool) -> None:
+        self._book_pending()            # the SerialMaster they belong to may be replaced
+        super()._configure(old, reopen)
+        if self.loans is not None:
+            self.loans.open = self._takes_loans()
+
+    def _finish(self) -> None:
+        self._book_pending()
+        if self.loans is not None:
+            self.loans.open = False
+            self.loans.give_all_back()
+        super()._finish()
+
+    def _turn(self) -> None:
+        if self._pending is not None and (self._scheduler.depth or 1 in self._down):
+            self._book_pending()        # before a job or a probe uses the line
+        super()._turn()
+
+    def _idle(self) -> None:
+        loans = self.loans
+        if loans is None:
+            super()._idle()
+            return
+        loans.idling = True
+        try:
+            pending = self._pending
+            if pending is None:
+                super()._idle()
+                return
+            self._connections.wait(LULL_MS)    # a take there keeps the books meanwhile
+            if self._pending is pending:
+                self._book_pending()
+        finally:
+            loans.idling = False
+
+    def _serve_taken(self, job: Job) -> None:
+        """A taken request whose reply did not all go out (SerialMaster.book_taken has its
+        reception, or none when it was not sent): served as any exchange from there."""
+        self._book_pending()
+        self._transact(job)
+
+    def _book_pending(self) -> None:
+        job, self._pending = self._pending, None
+        if job is not None:
+            self._transact(job)
+
+    def _forward(self, job: Job) -> Forward:
+        """A lent client's reply goes to it from C while the line holds the client."""
+        exchange = job.exchange
+        loans = self.loans
+        if exchange is not None and exchange.taken and loans is not None:
+            client, tid, unit, _ = cast(tuple[Client, int, int, str], exchange.context)
+            if loans.holds(client):
+                return client.forward_target(tid, unit, not self._scheduler.depth)
+        return super()._forward(job)
+
+    def _take_lent(self, client: Client) -> bool:
+        """Loans, a lent client readable while the line is idle: C takes its request if it
+        is one for this line, sends it and forwards the reply.  False: the client goes back
+        to the face (which then answers what was taken, if the reply did not all go)."""
+        master = self._master
+        remote = self._remote
+        line_fd = remote.fd
+        if master is None or line_fd < 0 or self._scheduler.depth or self._taken is not None:
+            return False
+        framing = master.framing
+        assert isinstance(framing, MbapFraming)
+        mbap = remote.mbap
+        tid = framing.next_tid()
+        status = mbap.take(client.fd, client.flight, line_fd, tid)
+        if status != 1:
+            return status == -errno.EAGAIN      # nothing came after all: still lent
+        got = mbap.result
+        loan = mbap.loan
+        counters = self._remote_counters
+        counters.bytes_received += got.stale
+        job = self._taken_job(client, loan.tid, loan.unit, mbap.taken_adu(), loan.arrived_ns)
+        if loan.send_error:
+            remote.not_sent(loan.send_error)
+            self._taken = job           # _turn sends it on a new connection
+            return False
+        counters.bytes_sent += loan.adu_len + BEFORE_UNIT
+        self._book_pending()            # the last take's, while the device works on this
+        n = mbap.reply_to_loan(line_fd, tid, got.sent_ns + self._timing.stout_ns[loan.adu[0]],
+                               Forward(client.fd, loan.tid, loan.unit,
+                                       not self._scheduler.depth, client.flight))
+        counters.bytes_received += got.received
+        remote.ended(n)
+        reception = framing.reception(n)
+        master.book_taken(reception)
+        if n > 0 and reception.forwarded == n:
+            self._pending = job
+            return True
+        self._taken = job               # the face writes the rest, or the failure's reply
+        return False
+
+    def _taken_job(self, client: Client, tid: int, unit: int, adu: bytes,
+                   arrived_ns: int) -> Job:
+        """A taken request as an exchange of the face's: its outcome and the face's books
+        go there as for any other."""
+        loans = self.loans
+        assert loans is not None
+        exchange = Exchange(client, adu[0], adu[1:], arrived_ns, loans.done_of(client),
+                            (client, tid, unit, self.line_name))
+        exchange.taken = True
+        exchange.loan_to = loans
+        self._counters.requests += 1
+        return Job(None, 0, 0, adu, arrived_ns, exchange=exchange)

@@ -92,6 +92,9 @@ class Router:
         self.shortcut_allowed = is_today(face) and not cfg.table_on
         self.reads_meanwhile = answered_off_the_line(face)
         self._face = face
+        for inbox in list(self.inboxes.values()):
+            if inbox.loans is not None:     # the units its lent clients' requests may take
+                inbox.loans.route(face)
 
     def reconfigure(self, cfg: SlaveConfig, firewall: Firewall) -> None:
         """Asyncio thread, at a reload: the settings and the firewall requests are checked
@@ -171,8 +174,11 @@ class Router:
             inbox = hop.inbox
             assert inbox is not None
             client.admitted()
-            inbox.submit(Exchange(client, hop.rewrite(unit), request, received_ns,
-                                  self._completed, (client, tid, unit, hop.line), hop.cache))
+            exchange = Exchange(client, hop.rewrite(unit), request, received_ns,
+                                self._completed, (client, tid, unit, hop.line), hop.cache)
+            if inbox.loans is not None and type(client) is Client and not hop.cache:
+                exchange.loan_to = inbox.loans      # its next requests, if it stays at rest
+            inbox.submit(exchange)
 
     def _completed(self, exchange: Exchange, reply: bytes | None, outcome: str) -> None:
         """The target's thread: the outcome waits for the thread that holds the gate (the
@@ -199,12 +205,29 @@ class Router:
         while completions:
             exchange, reply, outcome = completions.popleft()
             client, tid, unit, line = exchange.context
-            client.answered()
-            if self._answer(client, tid, unit, reply):
+            if exchange.taken:
+                self._taken_by_target(client, tid, unit, exchange.pdu, line)
+            forwarded = exchange.forwarded
+            client.answered(forwarded)
+            if self._answer(client, tid, unit, reply, forwarded):
                 self.off_line.replies += 1
             if self.trace.active:
                 self.traced(client, tid, unit, exchange.pdu[0], reply, outcome,
                             exchange.received_ns, line)
+            loans = exchange.loan_to
+            if loans is not None and loans.open and client.at_rest and not client.lent \
+                    and client.guard is None and self.connections is not None:
+                self.connections.lend(client, loans, self._completed)
+
+    def _taken_by_target(self, client: Client, tid: int, unit: int, request: bytes,
+                         line: str | None) -> None:
+        """A request a remote line's thread read from a lent client and took (see
+        mbgw.slave.loans), counted as request() counts one."""
+        client.requests += 1
+        client.face.requests += 1
+        client.last_active = time.monotonic()
+        self._requested(client, tid, unit, request, line)
+        self.off_line.requests += 1
 
     # --- the table reader, under the gate while the line thread is in a serial transaction
 

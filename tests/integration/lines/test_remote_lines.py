@@ -6,7 +6,6 @@ other (tests/peers/single_client_device.py, Modbus TCP or RTU frames, its replie
 twice, cut in 1-byte segments or joined), a pymodbus RTU slave behind socat's TCP listener,
 pymodbus's Modbus/UDP server, raw sockets and pymodbus/mbpoll clients in front.
 """
-import json
 import os
 import signal
 import socket
@@ -18,7 +17,7 @@ import pytest
 from pymodbus.client import ModbusTcpClient
 
 from tests.harness import free_port, stop
-from tests.integration.lines.test_lines import Line, lines  # noqa: F401 (a fixture)
+from tests.integration.lines.conftest import INVERTER, STOUT_MS
 from tests.modbus import Client, mbap, read_holding
 from tests.ops import mbgw, metric_value, scraped, status, wait_for, wait_for_log
 from tests.peers.single_client_device import LATE_REGISTER, TWICE_REGISTER, SingleClientDevice
@@ -26,8 +25,6 @@ from tests.wait import until
 
 pytestmark = pytest.mark.integration
 
-INVERTER = 40             # the TCP face's units 40-49 go to line inverter, unchanged
-STOUT_MS = 300
 
 
 def reply(start: int, count: int) -> bytes:
@@ -36,44 +33,9 @@ def reply(start: int, count: int) -> bytes:
                                                 for i in range(count))
 
 
-@pytest.fixture
-def device():
-    """device(**options) -> a SingleClientDevice; stopped after the test."""
-    started: list[SingleClientDevice] = []
-
-    def start(**options) -> SingleClientDevice:
-        started.append(SingleClientDevice(**options))
-        return started[-1]
-    yield start
-    for d in started:
-        d.stop()
-
-
-def remote_toml(url: str, **line) -> str:
-    """Line inverter at url (units 40-49, unchanged), line serial units 1-31."""
-    fields = {"name": "inverter", "connect": url, "stout": STOUT_MS, **line}
-    return "\n".join(["[[line]]", *(f"{k} = {json.dumps(v)}" for k, v in fields.items()),
-                      "[[route]]", 'units = "1-31"', 'line = "serial"',
-                      "[[route]]", 'units = "40-49"', 'line = "inverter"', ""])
-
-
-@pytest.fixture
-def gateway(tmp_path, lines, start_gateway):  # noqa: F811 (this module's own)
-    """gateway(url, *options, rules="", **line) -> mbgw slave with line serial on a pty (a
-    pymodbus slave at 5) and line inverter at url, its [[line]] keys `line`; rules: more of
-    the file (firewall rules)."""
-    def start(url: str, *options: str, rules: str = "", **line):
-        serial = lines("serial", 5)
-        path = tmp_path / "mbgw.toml"
-        path.write_text(remote_toml(url, **line) + rules)
-        return start_gateway(serial.pair.gateway, "--config", str(path), "--baudrate", "19200",
-                             "--stout", "300", "--exception", *options)
-    return start
-
-
-def test_a_modbus_tcp_device_answers_through_its_line(gateway, client, device):
+def test_a_modbus_tcp_device_answers_through_its_line(remote_gateway, client, device):
     d = device(delays=(0.005, 0.02))
-    gw = gateway(d.url)
+    gw = remote_gateway(d.url)
     c = client(gw)
     assert c.ask(INVERTER, read_holding(3, 4)) == reply(3, 4)
     assert c.ask(INVERTER + 1, read_holding(0, 1)) == reply(0, 1)
@@ -90,9 +52,9 @@ def counter(s: dict, name: str) -> int:
 
 
 @pytest.mark.serial
-def test_late_and_duplicate_replies_are_dropped_and_counted(gateway, client, device):
+def test_late_and_duplicate_replies_are_dropped_and_counted(remote_gateway, client, device):
     d = device(delays=(0.005, 0.01), late_s=STOUT_MS / 1000 + 0.2)
-    gw = gateway(d.url)
+    gw = remote_gateway(d.url)
     c = client(gw)
     assert c.ask(INVERTER, read_holding(LATE_REGISTER, 2)) == b"\x83\x0b"   # too late
     # the same read again: the late reply to the first comes meanwhile, under its own tid
@@ -103,10 +65,10 @@ def test_late_and_duplicate_replies_are_dropped_and_counted(gateway, client, dev
     assert (d.connections, d.resets) == (1, 0)
 
 
-def test_a_connection_the_device_closed_is_opened_again_at_once(gateway, client, device):
+def test_a_connection_the_device_closed_is_opened_again_at_once(remote_gateway, client, device):
     d = device(delays=(0.001, 0.002))
     metrics_port = free_port()
-    gw = gateway(d.url, "--metrics", f"127.0.0.1:{metrics_port}")
+    gw = remote_gateway(d.url, "--metrics", f"127.0.0.1:{metrics_port}")
     c = client(gw)
     assert c.ask(INVERTER, read_holding(0, 1)) == reply(0, 1)
     d.close_connection()
@@ -125,9 +87,9 @@ def test_a_connection_the_device_closed_is_opened_again_at_once(gateway, client,
     assert metric_value(families, "mbgw_line_up", line="inverter", mode="slave") == 1
 
 
-def test_an_unreachable_device_is_0x0a_logged_once_and_once_back(gateway, client):
+def test_an_unreachable_device_is_0x0a_logged_once_and_once_back(remote_gateway, client):
     port = free_port()                 # nothing listens there: refused
-    gw = gateway(f"modbus-tcp://127.0.0.1:{port}")
+    gw = remote_gateway(f"modbus-tcp://127.0.0.1:{port}")
     c = client(gw)
     assert c.ask(INVERTER, read_holding(0, 1)) == b"\x83\x0a"
     assert c.ask(INVERTER, read_holding(0, 1)) == b"\x83\x0a"     # in backoff: at once
@@ -190,11 +152,11 @@ def mbpoll_reads(port: int, first: int, count: int, wrong: list, errors: list) -
 
 
 @pytest.mark.serial
-def test_eight_pipelining_clients_each_get_their_own_replies(gateway, device):
+def test_eight_pipelining_clients_each_get_their_own_replies(remote_gateway, device):
     """6 raw clients with 4 requests in flight each, a pymodbus client and mbpoll, at once,
     on a device that answers in 1-10 ms and takes one connection."""
     d = device(delays=(0.001, 0.01))
-    gw = gateway(d.url, "--max-connections", "16", "--max-connections-per-ip", "16")
+    gw = remote_gateway(d.url, "--max-connections", "16", "--max-connections-per-ip", "16")
     wrong: list = []
     errors: list = []
     jobs = [(pipelining, 100 * n, 12) for n in range(6)] + \
@@ -212,9 +174,9 @@ def test_eight_pipelining_clients_each_get_their_own_replies(gateway, device):
 
 
 def test_a_read_only_clients_write_is_refused_and_never_reaches_the_device(
-        gateway, client, device):
+        remote_gateway, client, device):
     d = device(delays=(0.001, 0.002))
-    gw = gateway(d.url, rules='[[rule]]\nclient = "127.0.0.1"\nread-only = true\n')
+    gw = remote_gateway(d.url, rules='[[rule]]\nclient = "127.0.0.1"\nread-only = true\n')
     c = client(gw)
     assert c.ask(INVERTER, bytes.fromhex("06 0001 1234")) == b"\x86\x01"
     assert c.ask(INVERTER, read_holding(1, 1)) == reply(1, 1)
@@ -223,10 +185,10 @@ def test_a_read_only_clients_write_is_refused_and_never_reaches_the_device(
 
 @pytest.mark.serial
 @pytest.mark.parametrize("segments", ["bytes", "join"])
-def test_rtu_over_tcp_frames_by_length_and_crc_never_by_silence(gateway, client, device,
+def test_rtu_over_tcp_frames_by_length_and_crc_never_by_silence(remote_gateway, client, device,
                                                                  segments):
     d = device(framing="rtu", delays=(0.001, 0.005), segments=segments)
-    gw = gateway(d.url)
+    gw = remote_gateway(d.url)
     c = client(gw)
     if segments == "join":       # the late reply comes in one segment with the next one's
         assert c.ask(INVERTER, read_holding(LATE_REGISTER, 3)) == b"\x83\x0b"
@@ -267,32 +229,33 @@ def device_server(tmp_path, start_peer):
 
 
 @pytest.mark.parametrize("transport", ["tcp", "udp"])
-def test_a_pymodbus_rtu_slave_behind_socat_answers(gateway, client, device_server, transport):
+def test_a_pymodbus_rtu_slave_behind_socat_answers(remote_gateway, client, device_server,
+                                                   transport):
     server = device_server(INVERTER, transport)
-    gw = gateway(f"rtu-over-{transport}://127.0.0.1:{server.port}")
+    gw = remote_gateway(f"rtu-over-{transport}://127.0.0.1:{server.port}")
     c = client(gw)
     for start in (0, 10, 50):
         assert c.ask(INVERTER, read_holding(start, 3)) == reply(start, 3)
     assert c.ask(INVERTER + 1, read_holding(0, 1)) == b"\x83\x0b"    # nobody at 41
 
 
-def test_a_modbus_udp_device_answers(gateway, client, start_peer):
+def test_a_modbus_udp_device_answers(remote_gateway, client, start_peer):
     port = free_port()
     start_peer("pymodbus_udp_server.py", str(port), str(INVERTER))
-    gw = gateway(f"modbus-udp://127.0.0.1:{port}")
+    gw = remote_gateway(f"modbus-udp://127.0.0.1:{port}")
     c = client(gw)
     for start in (0, 10, 50):
         assert c.ask(INVERTER, read_holding(start, 3)) == reply(start, 3)
 
 
-def test_a_datagram_from_another_port_is_never_a_reply(gateway, client):
+def test_a_datagram_from_another_port_is_never_a_reply(remote_gateway, client):
     """A UDP 'device' that answers from another socket (another port): its reply is no
     reply; the request gets 0x0B."""
     device = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     device.bind(("127.0.0.1", 0))
     impostor = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     impostor.bind(("127.0.0.1", 0))
-    gw = gateway(f"modbus-udp://127.0.0.1:{device.getsockname()[1]}")
+    gw = remote_gateway(f"modbus-udp://127.0.0.1:{device.getsockname()[1]}")
     c = client(gw)
     try:
         c.send(mbap(1, INVERTER, read_holding(0, 1)))
@@ -310,9 +273,9 @@ def test_a_datagram_from_another_port_is_never_a_reply(gateway, client):
         impostor.close()
 
 
-def test_a_reload_moves_the_line_to_another_device(tmp_path, gateway, client, device):
+def test_a_reload_moves_the_line_to_another_device(tmp_path, remote_gateway, client, device):
     first, second = device(delays=(0.001, 0.002)), device(delays=(0.001, 0.002))
-    gw = gateway(first.url)
+    gw = remote_gateway(first.url)
     c = client(gw)
     assert c.ask(INVERTER, read_holding(0, 1)) == reply(0, 1)
     path = tmp_path / "mbgw.toml"
@@ -328,7 +291,7 @@ def test_a_reload_moves_the_line_to_another_device(tmp_path, gateway, client, de
     assert row["device"] == second.url
 
 
-def test_ascii_over_tcp_with_noise_before_the_reply(gateway, client):
+def test_ascii_over_tcp_with_noise_before_the_reply(remote_gateway, client):
     """A raw ASCII device server: each request answered after a burst of noise."""
     listener = socket.create_server(("127.0.0.1", free_port()))
     seen: list[bytes] = []
@@ -346,7 +309,7 @@ def test_ascii_over_tcp_with_noise_before_the_reply(gateway, client):
                 conn.sendall(frame[7:])
     threading.Thread(target=serve, daemon=True).start()
     try:
-        gw = gateway(f"ascii-over-tcp://127.0.0.1:{listener.getsockname()[1]}")
+        gw = remote_gateway(f"ascii-over-tcp://127.0.0.1:{listener.getsockname()[1]}")
         c = client(gw)
         assert c.ask(INVERTER, read_holding(3, 2)) == reply(3, 2)
         assert c.ask(INVERTER, read_holding(9, 1)) == reply(9, 1)
