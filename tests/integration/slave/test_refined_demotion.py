@@ -26,6 +26,7 @@ pytestmark = [pytest.mark.integration, pytest.mark.serial]
 STOUT_MS = 600
 STOUT_S = STOUT_MS / 1000
 COUNTING_STOUT_MS = 200
+PEER_CLOCK_S = 0.005          # how late the slave may date a frame
 INTERVAL_MS = 300
 INTERVAL_S = INTERVAL_MS / 1000
 DOWN_AFTER = 2
@@ -121,7 +122,8 @@ def test_a_probe_is_the_last_answered_read_waits_the_learnt_time_and_needs_no_cl
     after = [when for when, f in received(record) if f[0] == 1 and first < when < second]
     assert after, "the poller had no request on the line between the probes"
     gap = after[0] - first
-    assert timeout_ms / 1000 <= gap < STOUT_S / 2, (gap, timeout_ms)
+    # the slave dates a frame as it wakes up for it: the probe's date may be a few ms late
+    assert timeout_ms / 1000 - PEER_CLOCK_S <= gap < STOUT_S / 2, (gap, timeout_ms)
 
 
 def test_a_device_answering_every_other_request_is_never_demoted(gateway, client):
