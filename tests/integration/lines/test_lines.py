@@ -14,7 +14,6 @@ import select
 import signal
 import struct
 import threading
-import time
 from pathlib import Path
 
 import pytest
@@ -23,6 +22,7 @@ from tests.harness import PtyPair, factory, free_port
 from tests.integration.ops.test_reload import config_set
 from tests.modbus import Client, mbap, read_holding
 from tests.ops import mbgw, metric_value, scraped, status, wait_for, wait_for_log
+from tests.wait import until
 
 pytestmark = pytest.mark.integration
 
@@ -215,10 +215,7 @@ def test_another_lines_request_does_not_wait_for_line_serials_transaction(
     silent = SERIAL_SLAVE + 1
     waiting.send(bytes.fromhex("0007 0000 0006") + bytes((silent,)) + read_holding(0, 1))
     on_line = bytes((silent,)) + read_holding(0, 1)
-    deadline = time.monotonic() + 5
-    while on_line not in received(serial.record):
-        assert time.monotonic() < deadline, "the request never reached line serial"
-        time.sleep(0.01)
+    until(lambda: on_line in received(serial.record), "the request on line serial", 5)
     assert other.ask(METER_UNIT, read_holding(0, 1)) == hr_reply(0, 1)
     assert select.select([waiting.sock], [], [], 0)[0] == []   # serial is still waiting
     assert waiting.recv(5) == (7, silent, b"\x83\x0b")
@@ -236,10 +233,7 @@ def test_a_gone_clients_requests_for_another_line_never_reach_it(lines, gateway,
     leaving.send(*(struct.pack(">HHHB", tid, 0, 6, silent_unit) + read_holding(tid, 1)
                    for tid in range(1, 7)))
     first = bytes((5,)) + read_holding(1, 1)
-    deadline = time.monotonic() + 5
-    while first not in received(meters.record):
-        assert time.monotonic() < deadline, "the first request never reached meters"
-        time.sleep(0.01)
+    until(lambda: first in received(meters.record), "the first request on meters", 5)
     leaving.close()
     staying = client(gw)
     # The first comes before the gone client's next turn (it began when that turn ended);

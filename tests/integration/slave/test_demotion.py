@@ -125,9 +125,10 @@ def test_a_silent_address_is_refused_at_once_probed_at_the_interval_and_back_on_
     refused, and the line thread probes it itself with the first request that timed out, at
     INTERVAL, twice and 4 times INTERVAL after the failures before them; the third probe is
     answered, and the address serves again.  (Before issue 29 a client's request was the
-    probe; it is now only when no request is kept to probe with.)  The interval is 500 ms
-    here: the address stays down 3.5 s, while an operator's `mbgw status` starts."""
-    probe_ms = 500
+    probe; it is now only when no request is kept to probe with.)  The interval is 300 ms
+    here: the address stays down 2.1 s, five times what an operator's `mbgw status` takes to
+    start."""
+    probe_ms = 300
     probe_s = probe_ms / 1000
     gw, record = gateway(*(["--exception"] if exception else []), "--probe-interval",
                          str(probe_ms), mute_first=DOWN_AFTER + 2)
@@ -139,7 +140,7 @@ def test_a_silent_address_is_refused_at_once_probed_at_the_interval_and_back_on_
     s = wait_for(gw, lambda s: True, "status")     # in process: no CLI to start first
     assert devices(s)[MUTED]["health"] == "down"
     # the operator sees the rule and when the next probe may go (the line thread may have
-    # probed already on a loaded host: then within the doubled interval, 2 s at most here)
+    # probed already on a loaded host: then within the doubled interval, 1.2 s at most here)
     assert s["demotion"] == {"down_after": DOWN_AFTER, "probe_interval_ms": probe_ms}
     assert 0 <= devices(s)[MUTED]["next_probe_in_s"] <= 4 * probe_s
     shown = mbgw("status", "--control", gw.control).stdout

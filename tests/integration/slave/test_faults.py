@@ -22,6 +22,7 @@ from tests.harness import READY_TIMEOUT_S, free_port, stop, stop_counters
 from tests.modbus import holding_reply, mbap, read_holding, rtu
 from tests.ops import tracing, wait_for
 from tests.peers import fault_slave
+from tests.wait import until
 
 pytestmark = pytest.mark.integration
 
@@ -535,11 +536,11 @@ def test_sigterm_as_ready_goes_out_stops_cleanly(pty_pair, tmp_path):
     log_path = tmp_path / "mbgw.log"
     proc = start_notifying(pty_pair, path, log_path)
     try:
-        deadline = time.monotonic() + READY_TIMEOUT_S
         # no event exists for "blocked in sendto": poll the kernel's wait channel
-        while Path(f"/proc/{proc.pid}/wchan").read_text() != "unix_wait_for_peer":
-            assert proc.poll() is None and time.monotonic() < deadline, log_path.read_text()
-            time.sleep(0.002)
+        until(lambda: proc.poll() is not None
+              or Path(f"/proc/{proc.pid}/wchan").read_text() == "unix_wait_for_peer",
+              lambda: f"blocked in sendto: {log_path.read_text()}", READY_TIMEOUT_S)
+        assert proc.poll() is None, log_path.read_text()
         proc.send_signal(signal.SIGTERM)
         notify.setblocking(False)
         said = []
@@ -597,10 +598,8 @@ def peer_of(c) -> str:
 
 def wait_received(record, count: int) -> None:
     """Until the slave has received count frames (its record is written as they come)."""
-    deadline = time.monotonic() + READY_TIMEOUT_S
-    while len(received(record)) < count:
-        assert time.monotonic() < deadline, record.read_text()
-        time.sleep(0.005)
+    until(lambda: len(received(record)) >= count,
+          lambda: f"{count} frames received: {record.read_text()}", READY_TIMEOUT_S)
 
 
 @pytest.mark.serial
