@@ -167,18 +167,37 @@ def handover_floor(count: int) -> list[int]:
     return sorted(out)
 
 
-def latencies(port: int, count: int) -> list[int]:
-    sock = connect(port)
+def latencies(sock: socket.socket, count: int) -> list[int]:
+    """count requests one at a time on sock: their round trips, ns."""
     out = []
+    for tid in range(count):
+        t0 = time.perf_counter_ns()
+        sock.sendall(request(tid, tid % 100))
+        read_reply(sock)
+        out.append(time.perf_counter_ns() - t0)
+    return out
+
+
+def in_turn(served: dict[str, tuple[int, int]], count: int) -> tuple[dict, dict]:
+    """Each contender (name: its port, the process whose CPU it is) answering one client in
+    turn, a round of 100 requests each, so that all see the same load: each one's round
+    trips (sorted ns) and CPU a request (us).  Each client keeps its one connection."""
+    socks = {name: connect(port) for name, (port, _) in served.items()}
+    lat: dict[str, list[int]] = {name: [] for name in served}
+    cpu = dict.fromkeys(served, 0.0)
     try:
-        for tid in range(count):
-            t0 = time.perf_counter_ns()
-            sock.sendall(request(tid, tid % 100))
-            read_reply(sock)
-            out.append(time.perf_counter_ns() - t0)
+        for sock in socks.values():
+            latencies(sock, 50)                     # warm-up, and the connection made
+        for _ in range(count // 100):
+            for name, (_, pid) in served.items():
+                before = cpu_s(pid)
+                lat[name] += latencies(socks[name], 100)
+                cpu[name] += cpu_s(pid) - before
     finally:
-        sock.close()
-    return sorted(out)
+        for sock in socks.values():
+            sock.close()
+    return ({name: sorted(values) for name, values in lat.items()},
+            {name: used / count * 1e6 for name, used in cpu.items()})
 
 
 def closed_loop(port: int, clients: int, seconds: float, timeout_s: float = 5.0) -> tuple:
@@ -236,6 +255,16 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def wait_listening(port: int) -> None:
+    """Until something listens on port (without connecting: socat takes one connection)."""
+    deadline = time.monotonic() + 15
+    while time.monotonic() < deadline:
+        if f":{port:04X} 00000000:0000 0A" in Path("/proc/net/tcp").read_text():
+            return
+        time.sleep(0.02)
+    raise TimeoutError(f"nothing listens on port {port}")
+
+
 def wait_port(port: int) -> None:
     deadline = time.monotonic() + 15
     while time.monotonic() < deadline:
@@ -289,6 +318,17 @@ def start_proxy(device_port: int, timeout_ms: int) -> tuple[int, subprocess.Pope
     return port, proc
 
 
+def start_relay(device_port: int) -> tuple[int, subprocess.Popen]:
+    """socat copying bytes between one client and the device, both ways (TCP_NODELAY): the
+    least any gateway in between costs on this host (one connection, then it exits)."""
+    port = free_port()
+    proc = subprocess.Popen(["socat", f"TCP-LISTEN:{port},bind=127.0.0.1,reuseaddr,nodelay",
+                             f"TCP:127.0.0.1:{device_port},nodelay"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    wait_listening(port)
+    return port, proc
+
+
 def stop(proc: subprocess.Popen) -> None:
     proc.terminate()
     try:
@@ -302,37 +342,47 @@ def pct(values: list[int], q: float) -> float:
     return values[min(len(values) - 1, max(0, round(q / 100 * len(values)) - 1))] / 1000
 
 
+CONTENDERS = ("direct", "socat relay", "mbgw", "modbus-proxy")
+RATED = ("mbgw", "modbus-proxy")      # also rated with 8 and 32 clients
+
+
+def start_contender(name: str, device_port: int, run_dir: Path, timeout_ms: int):
+    if name == "mbgw":
+        return start_mbgw(device_port, run_dir, timeout_ms)
+    if name == "socat relay":
+        return start_relay(device_port)
+    return start_proxy(device_port, timeout_ms)
+
+
 def run(quick: bool) -> None:
     count = 300 if quick else 2000
     seconds = 1.5 if quick else 5.0
     rows = {}
-    cpus: dict[str, float] = {}
     with tempfile.TemporaryDirectory() as tmp:
-        tally = Path(tmp) / "tally"
-        for name in ("direct", "mbgw", "modbus-proxy"):
-            device_port, dev = start_device(False, tally)
-            try:
-                if name == "direct":
-                    port, gw = device_port, None
-                elif name == "mbgw":
-                    port, gw = start_mbgw(device_port, Path(tmp), 1000)
-                else:
-                    port, gw = start_proxy(device_port, 1000)
-                try:
-                    latencies(port, 50)                  # warm-up, and the connection made
-                    busy = gw if gw is not None else dev
-                    cpu = cpu_s(busy.pid)
-                    lat = latencies(port, count)
-                    cpus[name] = (cpu_s(busy.pid) - cpu) / count * 1e6
-                    rates = [closed_loop(port, n, seconds)[0] if name != "direct" or n == 1
-                             else float("nan") for n in (1, 8, 32)]
-                    rows[name] = (lat, rates)
-                finally:
-                    if gw is not None:
-                        stop(gw)
-            finally:
-                stop(dev)
+        procs: list[subprocess.Popen] = []
+        try:
+            served = {}
+            for name in CONTENDERS:
+                run_dir = Path(tmp) / name.replace(" ", "-")
+                run_dir.mkdir()
+                device_port, dev = start_device(False, run_dir / "tally")
+                procs.append(dev)
+                port, busy = (device_port, dev) if name == "direct" else \
+                    start_contender(name, device_port, run_dir, 1000)
+                if busy is not dev:
+                    procs.append(busy)
+                served[name] = (port, busy.pid)
+            lat, cpus = in_turn(served, count)
+            for name, (port, _) in served.items():
+                rates = [closed_loop(port, n, seconds)[0] if name in RATED or n == 1
+                         else float("nan") for n in (1, 8, 32)] if name != "socat relay" \
+                    else [float("nan")] * 3
+                rows[name] = (lat[name], rates)
+        finally:
+            for proc in procs:
+                stop(proc)
         late = {}
+        tally = Path(tmp) / "tally"
         for name in ("mbgw", "modbus-proxy"):
             device_port, dev = start_device(True, tally)
             try:
@@ -361,8 +411,6 @@ def versus(other: Path, quick: bool) -> None:
     so that all three see the same load: p50/p99, what each gateway adds, its CPU."""
     count = 300 if quick else 2000
     names = ("direct", "mbgw", f"mbgw {other.name}")
-    lat: dict[str, list[int]] = {name: [] for name in names}
-    cpu = dict.fromkeys(names, 0.0)
     procs: list[subprocess.Popen] = []
     with tempfile.TemporaryDirectory() as tmp:
         try:
@@ -376,26 +424,20 @@ def versus(other: Path, quick: bool) -> None:
                 if checkout is not None:
                     port, busy = start_mbgw(device_port, run_dir, 1000, checkout)
                     procs.append(busy)
-                latencies(port, 50)             # warm-up, and the connection made
                 served[name] = (port, busy.pid)
-            for _ in range(count // 100):
-                for name, (port, pid) in served.items():
-                    before = cpu_s(pid)
-                    lat[name] += latencies(port, 100)
-                    cpu[name] += cpu_s(pid) - before
+            lat, cpu = in_turn(served, count)
         finally:
             for proc in procs:
                 stop(proc)
     direct = lat["direct"]
-    direct.sort()
     print(f"in turn, rounds of 100, {count} requests each:")
     for name in names:
-        values = sorted(lat[name])
+        values = lat[name]
         added = "" if name == "direct" else \
             f"  +p50 {pct(values, 50) - pct(direct, 50):4.0f}" \
             f"  +p99 {pct(values, 99) - pct(direct, 99):5.0f}"
         print(f"  {name:22} p50 {pct(values, 50):5.0f}  p99 {pct(values, 99):5.0f}{added}"
-              f"  CPU {cpu[name] / count * 1e6:4.0f} us a request")
+              f"  CPU {cpu[name]:4.0f} us a request")
 
 
 RTU_BAUD = 115200
@@ -459,8 +501,9 @@ def report(rows: dict, late: dict, count: int, seconds: float) -> None:
     for name, (lat, rates) in rows.items():
         p50, p99 = pct(lat, 50), pct(lat, 99)
         added = "" if name == "direct" else f"{p50 - direct_p50:>9.0f}{p99 - direct_p99:>9.0f}"
+        blank = "(1 client)" if name == "direct" else "-"
         print(f"{name:14}{p50:>9.0f}{p99:>9.0f}{added or '':>18}"
-              + "".join(f"{r:>12.0f}" if r == r else f"{'(1 client)':>12}" for r in rates))
+              + "".join(f"{r:>12.0f}" if r == r else f"{blank:>12}" for r in rates))
     print(f"late replies: every {LATE_EVERY}th answered {LATE_S * 1000:g} ms late, timeout "
           f"{TIMEOUT_MS} ms, 8 clients for {seconds * 2:g} s")
     for name, (rate, wrong, lost, accepted, resets) in late.items():

@@ -74,6 +74,11 @@ class Inbox:
         self._waiting.append(exchange)
         os.eventfd_write(self.wake_fd, 1)
 
+    @property
+    def waiting(self) -> bool:
+        """Something was submitted since the last drain."""
+        return bool(self._waiting)
+
     def drain(self) -> list[Exchange]:
         """The target's thread: what was submitted since the last drain."""
         drain(self.wake_fd)

@@ -6,17 +6,19 @@ A plain client (no TLS, no firewall rule) whose request went to such a line and 
 nothing else in the gateway once its reply is out is lent to the line (the face's
 Router.deliver_completions, Connections.lend): the face stops polling it and the line's
 thread polls it instead.  When its next request is one whole request for this line, to an
-address that is not down, and finds the line idle, C takes it (csrc/remote.c
+address that is not down, C takes it once the line is idle (csrc/remote.c
 mbgw_remote_take, then mbgw_remote_reply: the reply goes to the client under its own
-transaction id and unit before any Python runs).  The line's books of a request so taken
-are kept while the device works on the next one, or once the line has been idle a moment
-(RemoteLineThread); the face's, as for any exchange, through the exchange's done.
+transaction id and unit before any Python runs); until then it waits in the client's socket.
+The line's books of a request so taken are kept while the device works on the next one, or
+once the line has been idle a moment (RemoteLineThread); the face's, as for any exchange,
+through the exchange's done.
 
 Anything else gives the client back to the face before a byte of it is read: input that is
 not one request for this line (another unit, two requests, part of one, the connection's
-end), a request that finds the line busy or not connected, a take whose reply did not all
-go out (the face answers it), the line stopping.  So only one thread at a time ever reads
-or writes a client, and a reply goes only to the client whose request it answers.
+end), a line with no connection (the face's way makes one), a take whose reply did not all
+go out (the face answers it), a firewall rule a reload gave the client, the line stopping.
+So only one thread at a time ever reads or writes a client, and a reply goes only to the
+client whose request it answers.
 """
 from collections import deque
 from collections.abc import Callable
@@ -34,7 +36,8 @@ class Loans:
     def __init__(self, polls: Connections, wake: Callable[[], None],
                  take: Callable[[Client], bool]) -> None:
         """polls: the line thread's poll; wake: wakes that thread; take(client): the line's
-        take of a lent client's input (False: give the client back)."""
+        take of a lent client's input (False: give the client back; True: keep it, its
+        input taken, or left to wait for the idle line)."""
         self.inbox: Inbox | None = None     # the line's (set by the line's use_inbox)
         self.units = bytearray(256)     # each unit id's address on the line (0: not its)
         self.open = False           # the line takes loans (no cache, no pause)
@@ -85,10 +88,16 @@ class Loans:
     def holds(self, client: Client) -> bool:
         return client in self._held
 
+    def in_turn_after(self, client: Client) -> list[Client]:
+        """The clients held, each once, in turn from the one after client (client last)."""
+        held = list(self._held)
+        at = held.index(client) + 1 if client in self._held else 0
+        return held[at:] + held[:at]
+
     def _ready(self, client: Client) -> None:
         if client.closed:           # by the face, closing all: nothing of it to read
             self._drop(client)
-        elif not (self.idling and self.open and client.guard is None and self._take(client)):
+        elif not (self.open and client.guard is None and self._take(client)):
             self.give_back(client)
 
     def give_back(self, client: Client) -> None:

@@ -8,9 +8,10 @@ or the backoff after a failure) costs the request a 0x0A, not the line.  While t
 holds, a request is refused when it comes, without waiting its turn.
 
 A Modbus TCP line also takes the Modbus TCP face's clients lent to it (mbgw.slave.loans): a
-lent client's request that finds the line idle goes to the device and its reply to the
-client in C on this thread (_take_lent); its books are kept while the device works on the
-next one, or after LULL_MS of idleness (_idle), before anything else uses the line.
+lent client's request goes to the device and its reply to the client in C on this thread
+once the line is idle (_take_lent), then the requests the lent clients sent meanwhile, in
+turn; each one's books are kept while the device works on the next, or after LULL_MS of
+idleness (_idle), before anything else uses the line.
 """
 import errno
 from typing import cast
@@ -18,7 +19,7 @@ from typing import cast
 from mbgw.config.lines import LineConfig
 from mbgw.config.model import SlaveConfig
 from mbgw.errors import SerialError, TargetUnreachable
-from mbgw.line.native import BEFORE_UNIT, Forward
+from mbgw.line.native import BEFORE_UNIT, Forward, Reception
 from mbgw.line.remote import RemoteLine
 from mbgw.line.serial_line import SerialLine
 from mbgw.ops.counters import RemoteCounters
@@ -28,10 +29,15 @@ from mbgw.slave.connections import Client
 from mbgw.slave.line_thread import SlaveLineThread
 from mbgw.slave.loans import Loans
 from mbgw.slave.remote_framing import MbapFraming
+from mbgw.slave.transaction import SerialMaster
 
 # A taken request's books wait this long (ms) for the next lent request, whose device time
 # they then use, before the idle line keeps them.
 LULL_MS = 1
+# The lent clients' requests taken one after the other without a poll() between them, at
+# most: then the line thread's loop turns (its heartbeat, new settings).
+CHAIN_MAX = 64
+FAILED = -2         # _take_one: a request taken and not answered in full
 
 
 def remote_line(line: LineConfig, counters: RemoteCounters) -> RemoteLine:
@@ -50,7 +56,9 @@ class RemoteLineThread(SlaveLineThread):
         self._remote = remote_line(line, counters)
         # the socket stands where a SerialLine would: it has what the thread uses of one
         # (cfg, port, close; the framing comes from mbgw.slave.framing.framing_for)
-        self._pending: Job | None = None    # a taken request's books, not kept yet
+        # a taken request's books, not kept yet: the job and what its take received
+        self._pending: tuple[Job, Reception] | None = None
+        self._taken_got: Reception | None = None     # what the take of self._taken got
         self.loans: Loans | None = None     # the face's clients lent to it (Modbus TCP)
         super().__init__(cfg, cast(SerialLine, self._remote), scheduler, server, counters,
                          devices)
@@ -162,14 +170,21 @@ class RemoteLineThread(SlaveLineThread):
             loans.idling = False
 
     def _serve_taken(self, job: Job) -> None:
-        """A taken request whose reply did not all go out (SerialMaster.book_taken has its
-        reception, or none when it was not sent): served as any exchange from there."""
+        """A taken request whose reply did not all go out (its reception, or none when it
+        was not sent): served as any exchange from there."""
         self._book_pending()
+        got, self._taken_got = self._taken_got, None
+        if got is not None and self._master is not None:
+            self._master.book_taken(got)
         self._transact(job)
 
     def _book_pending(self) -> None:
-        job, self._pending = self._pending, None
-        if job is not None:
+        """The books of the last request taken and answered (none once the line is gone:
+        its reply went out, its books with the line)."""
+        pending, self._pending = self._pending, None
+        if pending is not None and self._master is not None:
+            job, got = pending
+            self._master.book_taken(got)
             self._transact(job)
 
     def _forward(self, job: Job) -> Forward:
@@ -184,20 +199,54 @@ class RemoteLineThread(SlaveLineThread):
 
     def _take_lent(self, client: Client) -> bool:
         """Loans, a lent client readable while the line is idle: C takes its request if it
-        is one for this line, sends it and forwards the reply.  False: the client goes back
-        to the face (which then answers what was taken, if the reply did not all go)."""
-        master = self._master
-        remote = self._remote
-        line_fd = remote.fd
-        if master is None or line_fd < 0 or self._scheduler.depth or self._taken is not None:
-            return False
+        is one for this line, sends it and forwards the reply.  Then, while nothing else
+        waits for the line, the requests the lent clients sent meanwhile, each client in
+        turn, with no Python between a reply and the next request but the reply's
+        reception.  False: the client goes back to the face (which then answers what was
+        taken, if the reply did not all go out)."""
+        master, remote = self._master, self._remote
+        if master is None or remote.fd < 0:
+            return False                # the face's way connects
+        loans = self.loans
+        assert loans is not None
+        if not loans.idling or self._scheduler.depth or self._taken is not None:
+            return True                 # it waits in its socket for the idle line
+        taken = self._take_one(client, master, remote)
+        if taken <= 0:
+            return taken == 0           # nothing came after all: still lent
+        for _ in range(CHAIN_MAX):
+            if not self._may_chain():
+                break
+            for other in loans.in_turn_after(client):
+                taken = self._take_one(other, master, remote)
+                if taken < 0:
+                    loans.give_back(other)
+                    if taken == FAILED:     # self._taken: _turn serves it first
+                        return True
+                elif taken:
+                    client = other
+                    break
+            else:
+                break                   # none has sent a request meanwhile
+        return True
+
+    def _may_chain(self) -> bool:
+        assert self._exchanges is not None
+        return not self._exchanges.inbox.waiting and self._new_cfg is None and \
+            not self._stopping and 1 not in self._down
+
+    def _take_one(self, client: Client, master: SerialMaster, remote: RemoteLine) -> int:
+        """One take: 1 taken and answered, 0 nothing came; the client goes back: -1 what came
+        is not a request for a take, FAILED taken and not answered in full (self._taken,
+        served next)."""
         framing = master.framing
         assert isinstance(framing, MbapFraming)
         mbap = remote.mbap
+        line_fd = remote.fd
         tid = framing.next_tid()
         status = mbap.take(client.fd, client.flight, line_fd, tid)
         if status != 1:
-            return status == -errno.EAGAIN      # nothing came after all: still lent
+            return 0 if status == -errno.EAGAIN else -1
         got = mbap.result
         loan = mbap.loan
         counters = self._remote_counters
@@ -206,21 +255,19 @@ class RemoteLineThread(SlaveLineThread):
         if loan.send_error:
             remote.not_sent(loan.send_error)
             self._taken = job           # _turn sends it on a new connection
-            return False
+            return FAILED
         counters.bytes_sent += loan.adu_len + BEFORE_UNIT
         self._book_pending()            # the last take's, while the device works on this
         n = mbap.reply_to_loan(line_fd, tid, got.sent_ns + self._timing.stout_ns[loan.adu[0]],
-                               Forward(client.fd, loan.tid, loan.unit,
-                                       not self._scheduler.depth, client.flight))
+                               Forward(client.fd, loan.tid, loan.unit, False, client.flight))
         counters.bytes_received += got.received
         remote.ended(n)
         reception = framing.reception(n)
-        master.book_taken(reception)
         if n > 0 and reception.forwarded == n:
-            self._pending = job
-            return True
-        self._taken = job               # the face writes the rest, or the failure's reply
-        return False
+            self._pending = (job, reception)
+            return 1
+        self._taken, self._taken_got = job, reception   # the face writes the rest, or 0x0B
+        return FAILED
 
     def _taken_job(self, client: Client, tid: int, unit: int, adu: bytes,
                    arrived_ns: int) -> Job:

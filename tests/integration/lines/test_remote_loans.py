@@ -12,6 +12,7 @@ clients and pymodbus's TCP client in front.
 import os
 import signal
 import struct
+import threading
 
 import pytest
 from pymodbus.client import ModbusTcpClient
@@ -150,3 +151,37 @@ def test_the_units_offset_is_the_lines(tmp_path, remote_gateway, client, device)
     assert [unit for unit, _ in d.requests] == [INVERTER + 10] * 3
     c.send(struct.pack(">HHHB", 99, 0, 6, INVERTER) + read_holding(5, 1))
     assert c.recv() == (99, INVERTER, reply(5, 1))
+
+
+def closed_loop(port: int, first: int, count: int, wrong: list, errors: list) -> None:
+    """count reads one at a time, each of registers of its own (from first)."""
+    try:
+        with ModbusTcpClient("127.0.0.1", port=port, timeout=5, retries=0) as tcp:
+            for n in range(count):
+                got = tcp.read_holding_registers(first + n, count=2, device_id=INVERTER)
+                if got.isError() or got.registers != [100 + first + n, 101 + first + n]:
+                    wrong.append((first, n, got))
+    except BaseException as err:
+        errors.append(err)
+
+
+@pytest.mark.serial
+def test_eight_lent_clients_at_once_each_get_their_own_replies(remote_gateway, device):
+    """Eight pymodbus clients, each one request at a time: all lent, their requests taken
+    in turn from their sockets, each reply its own."""
+    d = device(delays=(0.001, 0.004))
+    gw = remote_gateway(d.url, "--max-connections", "16", "--max-connections-per-ip", "16")
+    wrong: list = []
+    errors: list = []
+    threads = [threading.Thread(target=closed_loop, args=(gw.port, 100 * k, 25, wrong, errors))
+               for k in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(60)
+    assert not errors, (errors, gw.log())
+    assert wrong == []
+    assert len(d.requests) == 8 * 25
+    assert (d.connections, d.resets) == (1, 0)
+    s = wait_for(gw, lambda s: counter(s, "replies") == 8 * 25, "the books of every reply")
+    assert s["counters"]["requests"] == s["counters"]["replies"] == 8 * 25
