@@ -362,16 +362,19 @@ class Router:
 
     def _answer(self, client: Client, tid: int, unit: int, reply: bytes | None,
                 forwarded: int = -1) -> bool:
-        """Whether a reply was counted (sent, or forwarded by C already)."""
-        if reply is not None and not client.closed:
-            if forwarded < 0:
-                client.send(native.frame(tid, unit, reply))
-            elif forwarded < native.HEADER_LEN + len(reply):
-                client.send(native.frame(tid, unit, reply)[forwarded:])
-            self.counters.replies += 1
+        """Whether a reply was counted (sent, or forwarded by C already: counted even if
+        the client has closed since, before these books)."""
+        if reply is None:
+            return False
+        whole = forwarded >= native.HEADER_LEN + len(reply)
+        if client.closed and not whole:
+            return False
+        if not whole:
+            client.send(native.frame(tid, unit, reply)[max(forwarded, 0):])
+        if not client.closed:
             client.last_active = time.monotonic()
-            return True
-        return False
+        self.counters.replies += 1
+        return True
 
     def _refuse(self, client: Client, tid: int, unit: int, request: bytes, outcome: str,
                 received_ns: int, code: int = pdu.GATEWAY_PATH_UNAVAILABLE,
