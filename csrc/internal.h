@@ -48,6 +48,15 @@ int wait_input(int fd, int64_t until_ns);
  * waiting, -EIO the tty hung up, else -errno. */
 long read_some(int fd, uint8_t *buf, size_t cap);
 
+/* --- mbap.c --- */
+
+/* A lent client's input in[0..n): when it is exactly one Modbus TCP request with a valid
+ * header whose unit id units maps to an address (0: not this line's) that down does not
+ * mark, the request as it goes on the line (that address + the PDU) in adu, and its
+ * length; else 0. */
+size_t loan_request(const uint8_t *in, size_t n, const uint8_t *units,
+                    const uint8_t *down, uint8_t *adu);
+
 /* --- match.c: slave mode's reply among the bytes a burst on the line brought, req being
  * the request (address + PDU, no CRC) and buf[0..have) the burst so far --- */
 

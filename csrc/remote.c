@@ -170,20 +170,13 @@ int mbgw_remote_take(int client_fd, int *in_flight, int line_fd, uint8_t *buf, s
     while (n < 0 && errno == EINTR);
     if (n < 0)
         return errno == EWOULDBLOCK ? -EAGAIN : -errno;
-    /* exactly one whole request (a header the length of what came), to this line, whose
-     * address is up: anything else stays in the socket for the face */
-    if (n < MBAP_LEN || mbgw_mbap_frame_len(be16(in + 2), be16(in + 4)) != n)
-        return 0;
-    uint8_t address = loan->units[in[MBAP_HEAD_LEN]];
-    if (!address || loan->down[address])
-        return 0;
+    size_t adu_len = loan_request(in, (size_t)n, loan->units, loan->down, loan->adu);
+    if (!adu_len)
+        return 0; /* it stays in the socket for the face */
     if (mbgw_client_recv(client_fd, in, (size_t)n, &loan->arrived_ns) != n)
         return -EIO; /* what the peek saw is gone: the face reads what is left */
-    size_t adu_len = be16(in + 4);
     loan->tid = (uint16_t)be16(in);
     loan->unit = in[MBAP_HEAD_LEN];
-    loan->adu[0] = address;
-    memcpy(loan->adu + 1, in + MBAP_LEN, adu_len - 1);
     loan->adu_len = (int)adu_len;
     if (in_flight)
         ++*in_flight;

@@ -60,6 +60,11 @@ def seeds():
             yield "stream", f"{label}-stray-first", head + mbap(6, rsp) + mbap(7, rsp)
             yield "stream", f"{label}-exception", head + mbap(7, bytes([req[0] | 0x80, 2]))
             yield "stream", f"{label}-protocol-1", head + mbap(7, rsp, protocol=1)
+        if len(req) <= 253:
+            frame = struct.pack(">HHHB", 9, 0, len(req) + 1, 40) + req
+            yield "take", f"{label}-taken", b"\x28\x01\x00" + frame
+            yield "take", f"{label}-down", b"\x28\x01\x01" + frame
+            yield "take", f"{label}-two", b"\x28\x01\x00" + frame + frame
 
 
 def main() -> None:

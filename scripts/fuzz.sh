@@ -1,6 +1,6 @@
 #!/bin/sh
 # Fuzz the C core's frame logic (fuzz/TARGET.c, see their comments) with AFL++ for a bounded
-# time: FUZZ_SECONDS (default 30, 6 under CI=true) a target, FUZZ_TARGETS (default all five)
+# time: FUZZ_SECONDS (default 30, 6 under CI=true) a target, FUZZ_TARGETS (default all six)
 # in turn, from the kept corpus fuzz/corpus/TARGET/ (seeded with valid frames by
 # fuzz/seeds.py).  A crash (a rule the harness checks, or AddressSanitizer/UBSan) or a hang
 # fails the run, and its input is printed in hex; replay one with
@@ -20,7 +20,7 @@ cd "$(dirname "$0")/.."
 # CI replays the whole kept corpus first anyway: a short run there only looks for new paths.
 if [ "${CI:-}" = true ]; then default_seconds=6; else default_seconds=30; fi
 seconds=${FUZZ_SECONDS:-$default_seconds}
-targets=${FUZZ_TARGETS:-"rtu match request table stream"}
+targets=${FUZZ_TARGETS:-"rtu match request table stream take"}
 out=${FUZZ_OUT:-build/fuzz}
 
 sources() {
@@ -30,7 +30,8 @@ sources() {
         request) echo csrc/request.c csrc/rtu.c csrc/crc.c ;;
         table) echo csrc/table.c csrc/table_answer.c csrc/table_ident.c csrc/mbap.c ;;
         stream) echo csrc/match.c csrc/mbap.c csrc/rtu.c csrc/crc.c ;;
-        *) echo "fuzz: unknown target $1 (rtu, match, request, table, stream)" >&2; exit 2 ;;
+        take) echo csrc/mbap.c ;;
+        *) echo "fuzz: unknown target $1 (rtu, match, request, table, stream, take)" >&2; exit 2 ;;
     esac
 }
 
