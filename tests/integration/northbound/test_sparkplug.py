@@ -270,11 +270,11 @@ def test_stale_values_are_null_with_quality_500(gateway, broker, subscribe, slav
     slave[0].stop()
 
     def stale():
-        for payload in births(sub, "DDATA"):
-            found = {m.name: m for m in payload.metrics if m.is_null}
-            if found.keys() >= {"temp", "total", "setpoint"}:
-                return found
-        return None
+        """Every metric null, in one DDATA or over several (each goes stale on its own read's
+        clock, so a tick may carry one before the others)."""
+        found = {m.name: m for payload in births(sub, "DDATA") for m in payload.metrics
+                 if m.is_null}
+        return found if found.keys() >= {"temp", "total", "setpoint"} else None
     found = until(stale, "every metric stale", WAIT_S)
     for metric in found.values():
         assert list(metric.properties.keys) == ["Quality"]
