@@ -18,7 +18,7 @@ import pytest
 from pymodbus.client import ModbusTcpClient
 
 from tests.integration.lines.conftest import INVERTER, STOUT_MS
-from tests.integration.lines.test_remote_lines import counter, reply
+from tests.integration.lines.test_remote_lines import counter, pymodbus_reads, reply
 from tests.modbus import mbap, read_holding
 from tests.ops import wait_for, wait_for_log
 from tests.peers.single_client_device import LATE_REGISTER
@@ -154,18 +154,6 @@ def test_the_units_offset_is_the_lines(tmp_path, remote_gateway, client, device)
     assert c.recv() == (99, INVERTER, reply(5, 1))
 
 
-def closed_loop(port: int, first: int, count: int, wrong: list, errors: list) -> None:
-    """count reads one at a time, each of registers of its own (from first)."""
-    try:
-        with ModbusTcpClient("127.0.0.1", port=port, timeout=5, retries=0) as tcp:
-            for n in range(count):
-                got = tcp.read_holding_registers(first + n, count=2, device_id=INVERTER)
-                if got.isError() or got.registers != [100 + first + n, 101 + first + n]:
-                    wrong.append((first, n, got))
-    except BaseException as err:
-        errors.append(err)
-
-
 @pytest.mark.serial
 def test_eight_lent_clients_at_once_each_get_their_own_replies(remote_gateway, device):
     """Eight pymodbus clients, each one request at a time: all lent, their requests taken
@@ -174,7 +162,7 @@ def test_eight_lent_clients_at_once_each_get_their_own_replies(remote_gateway, d
     gw = remote_gateway(d.url, "--max-connections", "16", "--max-connections-per-ip", "16")
     wrong: list = []
     errors: list = []
-    threads = [threading.Thread(target=closed_loop, args=(gw.port, 100 * k, 25, wrong, errors))
+    threads = [threading.Thread(target=pymodbus_reads, args=(gw.port, 100 * k, 25, wrong, errors))
                for k in range(8)]
     for t in threads:
         t.start()
